@@ -1,0 +1,236 @@
+r"""LMI blocks of the analysis conditions, assembled in one place.
+
+The same functions build each block from cvxpy variables (solver path) and from the
+numbers a solver returned (certificate path): they only use ``+``, ``@``, ``.T``,
+scalar products and a ``bmat`` passed in (``cvxpy.bmat`` or :func:`numpy.block`).
+
+For joint mode :math:`s = (i, j)` with generator row :math:`q_s` (evaluated at one end
+of the only rate, :math:`\beta_{ji}`, that the row contains), let
+
+.. math::
+
+    \Pi_s = A_s^T P_s + P_s A_s + \sum_{s'} q_{s s'} P_{s'} .
+
+* Theorem 3.1 (mean-exponential stability): :math:`\Pi_s < 0` (paper eq. (4); the
+  coupling sum reproduces both indicator cases, see :meth:`JointChain.generator`).
+* Theorem 3.2 (nominal :math:`H_\infty`, :math:`g = \gamma^2`): the Schur form of
+  eq. (12) with the output term moved into its own block,
+
+  .. math::
+
+      \begin{bmatrix} \Pi_s & P_s B_{w,s} & C_{z,s}^T \\ \cdot & -g I & 0 \\
+      \cdot & \cdot & -I \end{bmatrix} < 0 .
+
+* Lemma 4.1 (robust, gains fixed): eq. (16) with :math:`\lambda_{s,k} = \varepsilon^{-1}`
+  (resp. :math:`\delta^{-1}`), since
+  :math:`P E \Delta F + F^T \Delta^T E^T P \le \lambda F^T F + \lambda^{-1} P E E^T P`;
+  by Schur complements
+
+  .. math::
+
+      \begin{bmatrix} \Pi_s + \sum_k \lambda_k F_k^T F_k & P_s E_1 & \cdots & P_s B_{w,s} & C_{z,s}^T \\
+      \cdot & -\lambda_1 I & & & \\ & & \ddots & & \\ \cdot & & & -g I & \\
+      \cdot & & & & -I \end{bmatrix} < 0,
+
+  which is linear in :math:`(P, \lambda, g)` once the gains are fixed.
+
+Each block depends on one rate :math:`\beta_{ji}` affinely, so imposing it at both
+interval ends covers the whole ``beta`` box (paper, Remark 3) with ``m + 2 m (m - 1)``
+blocks instead of ``m**2 * 2**(m (m - 1))``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .closedloop import ClosedLoop
+from .model import Matrix
+
+__all__ = [
+    "CERT_RTOL",
+    "MAX_CONDITION",
+    "BlockSpec",
+    "block_specs",
+    "lyapunov_block",
+    "BlockCheck",
+    "Certificate",
+    "check_certificate",
+]
+
+#: A block passes when ``max eig <= -CERT_RTOL * max(1, ||block||_2)``.
+CERT_RTOL = 1e-8
+#: Largest accepted condition number of each Lyapunov matrix ``P_s``.
+MAX_CONDITION = 1e8
+
+Bmat = Callable[[list[list[Any]]], Any]
+
+
+@dataclass(frozen=True, eq=False)
+class BlockSpec:
+    """One LMI instance: joint mode ``s = (true, fdi)`` at one end ``beta`` of its rate."""
+
+    s: int
+    true: int
+    fdi: int
+    beta: float  # value of beta[fdi, true]; nan on diagonal modes (row independent of beta)
+    q_row: Matrix
+
+    @property
+    def label(self) -> str:
+        """Human-readable name, 1-based modes as in the paper."""
+        base = f"(true {self.true + 1}, fdi {self.fdi + 1})"
+        return base if math.isnan(self.beta) else f"{base} beta[{self.fdi + 1}][{self.true + 1}]={self.beta:g}"
+
+
+def block_specs(loop: ClosedLoop) -> tuple[BlockSpec, ...]:
+    """All LMI instances that cover the ``beta`` box (both ends of each row's rate)."""
+    chain = loop.chain
+    specs = []
+    for s, (i, j) in enumerate(chain.joint_modes):
+        for b in chain.row_beta_ends(i, j):
+            specs.append(BlockSpec(s, i, j, b, chain.row_generator(i, j, 0.0 if math.isnan(b) else b)))
+    return tuple(specs)
+
+
+def _coupling(q_row: Matrix, P: Sequence[Any], s: int) -> Any:
+    total = 0 * P[s]
+    for t, q in enumerate(q_row):
+        if q != 0.0:
+            total = total + float(q) * P[t]
+    return total
+
+
+def lyapunov_block(
+    loop: ClosedLoop,
+    spec: BlockSpec,
+    P: Sequence[Any],
+    lam: Sequence[Any] | None,
+    g: Any | None,
+    bmat: Bmat,
+) -> Any:
+    """The analysis block of ``spec`` (module docstring).
+
+    ``g is None`` gives Theorem 3.1's block; ``lam is None`` drops the uncertainty
+    channels (Theorem 3.2); both given give Lemma 4.1's block. ``lam`` holds one
+    multiplier per channel of joint mode ``spec.s``.
+    """
+    s = spec.s
+    A, Ps = loop.A[s], P[s]
+    pi = A.T @ Ps + Ps @ A + _coupling(spec.q_row, P, s)
+    if g is None:
+        return pi
+    chans = loop.channels[s] if lam is not None else ()
+    Bw, Cz = loop.Bw[s], loop.Cz[s]
+    for k, ch in enumerate(chans):
+        pi = pi + lam[k] * (ch.F.T @ ch.F)  # type: ignore[index]
+    cols = [ch.E.shape[1] for ch in chans] + [Bw.shape[1], Cz.shape[0]]
+    first = [pi] + [Ps @ ch.E for ch in chans] + [Ps @ Bw, Cz.T]
+    diag = [-lam[k] * np.eye(c) for k, c in enumerate(cols[:-2])]  # type: ignore[index]
+    diag += [-g * np.eye(cols[-2]), -np.eye(cols[-1])]
+    rows: list[list[Any]] = [first]
+    for r, (c, d) in enumerate(zip(cols, diag)):
+        row: list[Any] = [first[r + 1].T]
+        for q, c2 in enumerate(cols):
+            row.append(d if q == r else np.zeros((c, c2)))
+        rows.append(row)
+    return bmat(rows)
+
+
+@dataclass(frozen=True)
+class BlockCheck:
+    """Largest eigenvalue of one rebuilt block and the margin it had to beat."""
+
+    label: str
+    max_eig: float
+    scale: float
+    ok: bool
+
+
+@dataclass(frozen=True)
+class Certificate:
+    """Independent numpy check of an LMI answer.
+
+    ``ok`` is true only if every block's largest eigenvalue is below
+    ``-CERT_RTOL * max(1, ||block||_2)`` and every ``P_s`` is positive definite with
+    ``cond(P_s) <= MAX_CONDITION``.
+    """
+
+    ok: bool
+    condition: str
+    blocks: tuple[BlockCheck, ...]
+    p_min_eig: float
+    p_max_condition: float
+    gamma: float | None
+    rtol: float = CERT_RTOL
+    max_condition: float = MAX_CONDITION
+
+    @property
+    def worst_margin(self) -> float:
+        """Smallest ``-max_eig / scale`` over the blocks (positive = strictly feasible)."""
+        return min(-b.max_eig / b.scale for b in self.blocks)
+
+    @property
+    def reason(self) -> str:
+        """Why the check failed (empty when it passed)."""
+        bad = [b.label for b in self.blocks if not b.ok]
+        parts = []
+        if bad:
+            parts.append(f"blocks not negative definite with margin: {', '.join(bad[:4])}")
+        if self.p_min_eig <= 0 or self.p_max_condition > self.max_condition:
+            parts.append(f"P not well-conditioned positive definite (min eig {self.p_min_eig:.3g}, cond {self.p_max_condition:.3g})")
+        return "; ".join(parts)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready summary."""
+        worst = min(self.blocks, key=lambda b: -b.max_eig / b.scale)
+        return {
+            "ok": self.ok,
+            "condition": self.condition,
+            "blocks": len(self.blocks),
+            "worst_block": worst.label,
+            "worst_max_eig": worst.max_eig,
+            "worst_margin": self.worst_margin,
+            "p_min_eig": self.p_min_eig,
+            "p_max_condition": self.p_max_condition,
+            "rtol": self.rtol,
+            "gamma": self.gamma,
+            "reason": self.reason,
+        }
+
+
+def check_certificate(
+    loop: ClosedLoop,
+    condition: str,
+    P: Sequence[Matrix],
+    lam: Sequence[Sequence[float]] | None,
+    g: float | None,
+) -> Certificate:
+    """Rebuild every block of ``condition`` from numbers and check it with numpy.
+
+    ``condition`` is a label (``"theorem-3.1"``, ``"theorem-3.2"``, ``"lemma-4.1"``);
+    the arguments select the block as in :func:`lyapunov_block`.
+    """
+    Pn = [0.5 * (np.asarray(p, dtype=float) + np.asarray(p, dtype=float).T) for p in P]
+    checks = []
+    for spec in block_specs(loop):
+        lam_s = None if lam is None else [float(v) for v in lam[spec.s]]
+        M = np.asarray(lyapunov_block(loop, spec, Pn, lam_s, g, np.block), dtype=float)
+        M = 0.5 * (M + M.T)
+        eig = np.linalg.eigvalsh(M)
+        scale = max(1.0, float(np.max(np.abs(eig))))
+        checks.append(BlockCheck(spec.label, float(eig[-1]), scale, bool(eig[-1] <= -CERT_RTOL * scale)))
+    p_min, p_cond, p_ok = math.inf, 0.0, True
+    for p in Pn:
+        ev = np.linalg.eigvalsh(p)
+        p_min = min(p_min, float(ev[0]))
+        cond = float(ev[-1] / ev[0]) if ev[0] > 0 else math.inf
+        p_cond = max(p_cond, cond)
+        p_ok &= bool(ev[0] > 0 and cond <= MAX_CONDITION)
+    ok = p_ok and all(c.ok for c in checks)
+    gamma = None if g is None else math.sqrt(max(g, 0.0))
+    return Certificate(ok, condition, tuple(checks), p_min, p_cond, gamma)

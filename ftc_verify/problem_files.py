@@ -1,0 +1,211 @@
+"""Problem files: FTC systems and state-feedback gains in TOML.
+
+System file (all keys shown; ``A1, A2, B1, B2`` optional, in pairs)::
+
+    name = "paper-section-vi"
+    [chain]
+    alpha    = [[-0.5, 0.5], [1.0, -1.0]]
+    beta_min = [[0.0, 2.0], [2.5, 0.0]]   # beta[fdi][true]
+    beta_max = [[0.0, 3.0], [3.5, 0.0]]
+    [[mode]]            # one table per fault mode, in order 1..m
+    A = [[...]]; B = [[...]]; C = [[...]]; D = [[...]]
+    A1 = [[...]]; A2 = [[...]]; B1 = [[...]]; B2 = [[...]]
+
+Gains file: one ``[[gain]]`` table per FDI mode, each with ``K = [[...]]`` (``u = K x``),
+and an optional top-level ``name``.
+
+Reading uses the standard library's :mod:`tomllib`; writing uses ``tomli_w`` (the
+companion writer of the same TOML family), and floats are written with ``repr`` so that
+load -> save -> load is exact. Files are written atomically (temporary file in the
+same folder, then :func:`os.replace`). Every error names the file, the table index
+(1-based, as in the file) and the key.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import tomllib
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import tomli_w
+
+from .errors import ProblemFileError, ValidationError
+from .model import FTCSystem, JointChain, Matrix, Mode, as_matrix
+
+__all__ = [
+    "load_system",
+    "dump_system",
+    "save_system",
+    "load_gains",
+    "dump_gains",
+    "save_gains",
+    "check_gains",
+    "write_atomic",
+]
+
+_TOP_KEYS = {"name", "chain", "mode"}
+_CHAIN_KEYS = {"alpha", "beta_min", "beta_max"}
+_MODE_KEYS = ("A", "B", "C", "D", "A1", "A2", "B1", "B2")
+_GAIN_TOP_KEYS = {"name", "gain"}
+
+
+def _read_toml(path: Path) -> dict[str, Any]:
+    try:
+        with open(path, "rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        raise ProblemFileError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise ProblemFileError(f"{path}: is a directory, not a TOML file") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ProblemFileError(f"{path}: not valid TOML: {exc}") from None
+    except OSError as exc:
+        raise ProblemFileError(f"{path}: cannot be read: {exc.strerror}") from None
+
+
+def _unknown(path: Path, where: str, keys: Sequence[str], allowed: set[str] | Sequence[str]) -> None:
+    extra = sorted(set(keys) - set(allowed))
+    if extra:
+        raise ProblemFileError(
+            f"{path}: {where}: unknown key(s) {extra}; allowed: {sorted(allowed)}"
+        )
+
+
+def _table(path: Path, doc: dict[str, Any], key: str) -> dict[str, Any]:
+    val = doc.get(key)
+    if not isinstance(val, dict):
+        raise ProblemFileError(f"{path}: [{key}]: missing table (got {val!r})")
+    return val
+
+
+def _tables(path: Path, doc: dict[str, Any], key: str) -> list[dict[str, Any]]:
+    val = doc.get(key)
+    if not isinstance(val, list) or not val or not all(isinstance(t, dict) for t in val):
+        raise ProblemFileError(f"{path}: [[{key}]]: expected one or more [[{key}]] tables, got {val!r}")
+    return val
+
+
+def load_system(path: str | os.PathLike[str]) -> FTCSystem:
+    """Read and validate an FTC system file (format in the module docstring)."""
+    p = Path(path)
+    doc = _read_toml(p)
+    _unknown(p, "top level", list(doc), _TOP_KEYS)
+    name = doc.get("name", p.stem)
+    if not isinstance(name, str):
+        raise ProblemFileError(f"{p}: name: expected a string, got {name!r}")
+    chain_doc = _table(p, doc, "chain")
+    _unknown(p, "[chain]", list(chain_doc), _CHAIN_KEYS)
+    for key in sorted(_CHAIN_KEYS):
+        if key not in chain_doc:
+            raise ProblemFileError(f"{p}: [chain]: missing key '{key}'")
+    try:
+        chain = JointChain(chain_doc["alpha"], chain_doc["beta_min"], chain_doc["beta_max"])
+    except ValidationError as exc:
+        raise ProblemFileError(f"{p}: {exc}") from None
+    modes = []
+    for k, md in enumerate(_tables(p, doc, "mode"), start=1):
+        _unknown(p, f"mode[{k}]", list(md), _MODE_KEYS)
+        for key in ("A", "B", "C", "D"):
+            if key not in md:
+                raise ProblemFileError(f"{p}: mode[{k}]: missing key '{key}'")
+        try:
+            modes.append(Mode(**{key: md[key] for key in md}, label=f"mode[{k}]"))
+        except ValidationError as exc:
+            raise ProblemFileError(f"{p}: {exc}") from None
+    try:
+        return FTCSystem(name, tuple(modes), chain)
+    except ValidationError as exc:
+        raise ProblemFileError(f"{p}: {exc}") from None
+
+
+def _tolist(a: Matrix) -> list[list[float]]:
+    return [[float(v) for v in row] for row in np.asarray(a)]
+
+
+def dump_system(system: FTCSystem) -> str:
+    """The TOML text of ``system`` (inverse of :func:`load_system`)."""
+    ch = system.chain
+    doc: dict[str, Any] = {
+        "name": system.name,
+        "chain": {
+            "alpha": _tolist(ch.alpha),
+            "beta_min": _tolist(ch.beta_min),
+            "beta_max": _tolist(ch.beta_max),
+        },
+        "mode": [
+            {key: _tolist(getattr(md, key)) for key in _MODE_KEYS if getattr(md, key) is not None}
+            for md in system.modes
+        ],
+    }
+    return tomli_w.dumps(doc)
+
+
+def write_atomic(path: str | os.PathLike[str], text: str) -> None:
+    """Write ``text`` to ``path`` via a temporary file in the same folder and a rename,
+    so that a failure never leaves a half-written file."""
+    p = Path(path)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent or ".")
+    except OSError as exc:
+        raise ProblemFileError(f"{p}: cannot write: {exc.strerror}") from None
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+        os.replace(tmp, p)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def save_system(system: FTCSystem, path: str | os.PathLike[str]) -> None:
+    """Write ``system`` to ``path`` atomically."""
+    write_atomic(path, dump_system(system))
+
+
+def load_gains(path: str | os.PathLike[str]) -> tuple[Matrix, ...]:
+    """Read a gains file: one ``K`` per ``[[gain]]`` table, in FDI-mode order."""
+    p = Path(path)
+    doc = _read_toml(p)
+    _unknown(p, "top level", list(doc), _GAIN_TOP_KEYS)
+    gains = []
+    for k, tbl in enumerate(_tables(p, doc, "gain"), start=1):
+        _unknown(p, f"gain[{k}]", list(tbl), {"K"})
+        if "K" not in tbl:
+            raise ProblemFileError(f"{p}: gain[{k}]: missing key 'K'")
+        try:
+            gains.append(as_matrix(tbl["K"], f"gain[{k}].K"))
+        except ValidationError as exc:
+            raise ProblemFileError(f"{p}: {exc}") from None
+    return tuple(gains)
+
+
+def dump_gains(gains: Sequence[Matrix], name: str | None = None) -> str:
+    """The TOML text of a gains file (inverse of :func:`load_gains`)."""
+    doc: dict[str, Any] = {}
+    if name is not None:
+        doc["name"] = name
+    doc["gain"] = [{"K": _tolist(K)} for K in gains]
+    return tomli_w.dumps(doc)
+
+
+def save_gains(gains: Sequence[Matrix], path: str | os.PathLike[str], name: str | None = None) -> None:
+    """Write a gains file atomically."""
+    write_atomic(path, dump_gains(gains, name))
+
+
+def check_gains(system: FTCSystem, gains: Sequence[Matrix], source: str = "gains") -> tuple[Matrix, ...]:
+    """Validate state-feedback gains against ``system``: one ``nu x n`` matrix per FDI mode."""
+    n, nu, _, _ = system.dims
+    if len(gains) != system.m:
+        raise ValidationError(f"{source}: {len(gains)} gains given, the system has {system.m} modes")
+    out = []
+    for k, K in enumerate(gains, start=1):
+        Km = as_matrix(K, f"{source}: gain[{k}].K")
+        if Km.shape != (nu, n):
+            raise ValidationError(f"{source}: gain[{k}].K: expected shape {(nu, n)} (nu x n), got {Km.shape}")
+        out.append(Km)
+    return tuple(out)
