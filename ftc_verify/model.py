@@ -190,7 +190,7 @@ class JointChain:
             i = int(np.argmax(np.abs(sums)))
             raise ValidationError(
                 f"chain.alpha row {i}: rows of a generator must sum to zero "
-                f"(tolerance {tol:.1e}), got sum {sums[i]!r} for row {alpha[i].tolist()}"
+                f"(tolerance {tol:.1e}), got sum {float(sums[i]):.6g} for row {alpha[i].tolist()}"
             )
         object.__setattr__(self, "alpha", alpha)
         for key in ("beta_min", "beta_max"):

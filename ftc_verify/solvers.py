@@ -16,7 +16,11 @@ took, and turns any exception a solver raises into a status naming the solver.
 
 from __future__ import annotations
 
+import contextlib
+import os
+import sys
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -94,13 +98,33 @@ def second_solver(first: str) -> str | None:
     return None
 
 
+@contextlib.contextmanager
+def _quiet_stdout() -> Iterator[None]:
+    """Send file descriptor 1 to /dev/null: SDPA's C code prints there even when not
+    verbose, which would corrupt ``--json`` output."""
+    sys.stdout.flush()
+    try:
+        saved = os.dup(1)
+    except OSError:  # no usable fd 1 (e.g. closed): nothing to protect
+        yield
+        return
+    try:
+        with open(os.devnull, "w") as devnull:
+            os.dup2(devnull.fileno(), 1)
+            yield
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
 def solve(problem: Any, solver: str) -> SolveOutcome:
     """Solve a cvxpy problem; any exception becomes status ``"error"`` naming the solver."""
     import cvxpy as cp
 
     start = time.perf_counter()
     try:
-        problem.solve(solver=SOLVERS[solver], **SETTINGS[solver])
+        with _quiet_stdout():
+            problem.solve(solver=SOLVERS[solver], **SETTINGS[solver])
         status = str(problem.status)
         message = ""
     except cp.error.SolverError as exc:
