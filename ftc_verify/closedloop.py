@@ -23,13 +23,14 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from .errors import ValidationError
 from .model import FTCSystem, JointChain, Matrix, as_matrix
 
-__all__ = ["Channel", "ClosedLoop", "state_feedback_loop"]
+__all__ = ["Channel", "ClosedLoop", "state_feedback_loop", "gain_loop"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -126,10 +127,19 @@ def state_feedback_loop(system: FTCSystem, gains: Sequence[Matrix], *, controlle
         if K.shape != (nu, n):
             raise ValidationError(f"gain[{k}].K: expected shape {(nu, n)} (nu x n), got {K.shape}")
     full_info = len(Ks) == m * m
+    label = controller or ("full-information state feedback" if full_info else "FDI-mode state feedback")
+    return gain_loop(system, Ks, label)
+
+
+def gain_loop(system: FTCSystem, gains: Sequence[Any], controller: str) -> ClosedLoop:
+    """Assemble the state-feedback loop from ``m`` (FDI-mode) or ``m * m`` gains, without
+    validation, so that the gains may also be cvxpy expressions (synthesis LMIs)."""
+    m = system.m
+    full_info = len(gains) == m * m
     A, Bw, Cz, chans = [], [], [], []
     for i, j in system.chain.joint_modes:
         md = system.modes[i]
-        K = Ks[i * m + j] if full_info else Ks[j]
+        K = gains[i * m + j] if full_info else gains[j]
         A.append(md.A + md.B @ K)
         Bw.append(md.D)
         Cz.append(md.C)
@@ -139,5 +149,4 @@ def state_feedback_loop(system: FTCSystem, gains: Sequence[Matrix], *, controlle
         if md.B1 is not None and md.B2 is not None:
             c.append(Channel(md.B1, md.B2 @ K, "Delta2 (B)"))
         chans.append(tuple(c))
-    label = controller or ("full-information state feedback" if full_info else "FDI-mode state feedback")
-    return ClosedLoop(system.chain, tuple(A), tuple(Bw), tuple(Cz), tuple(chans), label)
+    return ClosedLoop(system.chain, tuple(A), tuple(Bw), tuple(Cz), tuple(chans), controller)

@@ -48,8 +48,10 @@ from typing import Any
 
 import numpy as np
 
+import scipy.linalg
+
 from .closedloop import ClosedLoop
-from .model import Matrix
+from .model import Matrix, Mode
 
 __all__ = [
     "CERT_RTOL",
@@ -57,6 +59,9 @@ __all__ = [
     "BlockSpec",
     "block_specs",
     "lyapunov_block",
+    "xy_block",
+    "null_basis",
+    "projection",
     "BlockCheck",
     "Certificate",
     "check_certificate",
@@ -112,12 +117,19 @@ def lyapunov_block(
     lam: Sequence[Any] | None,
     g: Any | None,
     bmat: Bmat,
+    *,
+    schur_F: bool = False,
 ) -> Any:
-    """The analysis block of ``spec`` (module docstring).
+    r"""The analysis block of ``spec`` (module docstring).
 
     ``g is None`` gives Theorem 3.1's block; ``lam is None`` drops the uncertainty
     channels (Theorem 3.2); both given give Lemma 4.1's block. ``lam`` holds one
     multiplier per channel of joint mode ``spec.s``.
+
+    ``schur_F=True`` writes each :math:`\lambda_k F_k^T F_k` term in Schur form, as an
+    extra row :math:`[F_k \;\; 0 \cdots -\lambda_k^{-1} I]`; this is the same
+    inequality, and it is linear in :math:`F_k` when :math:`F_k` depends on the gains
+    (the gain step of eq. (18)); ``lam`` must then be numbers.
     """
     s = spec.s
     A, Ps = loop.A[s], P[s]
@@ -126,12 +138,18 @@ def lyapunov_block(
         return pi
     chans = loop.channels[s] if lam is not None else ()
     Bw, Cz = loop.Bw[s], loop.Cz[s]
-    for k, ch in enumerate(chans):
-        pi = pi + lam[k] * (ch.F.T @ ch.F)  # type: ignore[index]
+    if not schur_F:
+        for k, ch in enumerate(chans):
+            pi = pi + lam[k] * (ch.F.T @ ch.F)  # type: ignore[index]
     cols = [ch.E.shape[1] for ch in chans] + [Bw.shape[1], Cz.shape[0]]
     first = [pi] + [Ps @ ch.E for ch in chans] + [Ps @ Bw, Cz.T]
     diag = [-lam[k] * np.eye(c) for k, c in enumerate(cols[:-2])]  # type: ignore[index]
     diag += [-g * np.eye(cols[-2]), -np.eye(cols[-1])]
+    if schur_F:
+        for k, ch in enumerate(chans):
+            cols.append(ch.F.shape[0])
+            first.append(ch.F.T)
+            diag.append(-(1.0 / float(lam[k])) * np.eye(ch.F.shape[0]))  # type: ignore[index]
     rows: list[list[Any]] = [first]
     for r, (c, d) in enumerate(zip(cols, diag)):
         row: list[Any] = [first[r + 1].T]
@@ -139,6 +157,117 @@ def lyapunov_block(
             row.append(d if q == r else np.zeros((c, c2)))
         rows.append(row)
     return bmat(rows)
+
+
+def xy_block(
+    mode: Mode,
+    X: Sequence[Any],
+    s: int,
+    Y: Any | None,
+    eps: Any | None,
+    delta: Any | None,
+    g: Any,
+    q_row: Matrix | None,
+    bmat: Bmat,
+) -> Any:
+    r"""Lemma 4.1's inequality for joint mode ``s`` in :math:`X_s = P_s^{-1}`, :math:`Y_s = K X_s`.
+
+    Derived here from eq. (16) by the congruence :math:`X_s (\cdot) X_s`, with
+    :math:`\varepsilon = \lambda_1^{-1}`, :math:`\delta = \lambda_2^{-1}` and Schur
+    complements; rows ``x | A2 | C | B2 | D | s'``:
+
+    .. math::
+
+        \begin{bmatrix}
+        \Phi & X A_2^T & X C^T & Y^T B_2^T & D & \sqrt{q_{ss'}} X \\
+        \cdot & -\varepsilon I &&&& \\ \cdot && -I &&& \\ \cdot &&& -\delta I && \\
+        \cdot &&&& -g I & \\ \cdot &&&&& -X_{s'}
+        \end{bmatrix} < 0, \quad
+        \Phi = A_0 X + X A_0^T + B_0 Y + Y^T B_0^T + q_{ss} X + \varepsilon A_1 A_1^T
+                + \delta B_1 B_1^T,
+
+    where :math:`q_{ss} X + \sum_{s' \ne s} q_{ss'} X X_{s'}^{-1} X` is
+    :math:`X (\sum_{s'} q_{ss'} P_{s'}) X` (the last column, one per :math:`q_{ss'} > 0`).
+    ``Y = None`` drops the gain terms (for :func:`projection`); ``q_row = None`` drops
+    all coupling (a common ``X`` for every mode, where it cancels since rows of ``Q``
+    sum to zero). The paper's eq. (17) is this block projected (Theorem 4.1).
+    """
+    Xs = X[s]
+    n = mode.n
+    phi = mode.A @ Xs + Xs @ mode.A.T
+    if Y is not None:
+        phi = phi + mode.B @ Y + Y.T @ mode.B.T
+    couple: list[tuple[float, Any]] = []
+    if q_row is not None:
+        phi = phi + float(q_row[s]) * Xs
+        couple = [(float(q), X[t]) for t, q in enumerate(q_row) if t != s and q > 0]
+    if mode.A1 is not None:
+        phi = phi + eps * (mode.A1 @ mode.A1.T)
+    if mode.B1 is not None:
+        phi = phi + delta * (mode.B1 @ mode.B1.T)
+    first: list[Any] = [phi]
+    diag: list[Any] = []
+    if mode.A1 is not None and mode.A2 is not None:
+        first.append(Xs @ mode.A2.T)
+        diag.append(-eps * np.eye(mode.A2.shape[0]))
+    first.append(Xs @ mode.C.T)
+    diag.append(-np.eye(mode.C.shape[0]))
+    if mode.B2 is not None:
+        q2 = mode.B2.shape[0]
+        first.append(Y.T @ mode.B2.T if Y is not None else np.zeros((n, q2)))
+        diag.append(-delta * np.eye(q2))
+    first.append(mode.D)
+    diag.append(-g * np.eye(mode.D.shape[1]))
+    for q, Xt in couple:
+        first.append(np.sqrt(q) * Xs)
+        diag.append(-Xt)
+    cols = [d.shape[0] for d in diag]
+    rows: list[list[Any]] = [first]
+    for r, (c, d) in enumerate(zip(cols, diag)):
+        row: list[Any] = [first[r + 1].T]
+        for k, c2 in enumerate(cols):
+            row.append(d if k == r else np.zeros((c, c2)))
+        rows.append(row)
+    return bmat(rows)
+
+
+def null_basis(mode: Mode) -> tuple[Matrix, Matrix | None]:
+    """Orthonormal basis ``[W1; W2]`` of ``ker([B0' B2'])`` (``ker(B0')`` without a B
+    channel), split into the ``x`` part ``W1`` and the ``B2`` part ``W2``."""
+    n = mode.n
+    M = mode.B.T if mode.B2 is None else np.hstack([mode.B.T, mode.B2.T])
+    W = scipy.linalg.null_space(M)
+    return W[:n], (None if mode.B2 is None else W[n:])
+
+
+def projection(mode: Mode, coupled: int) -> Matrix:
+    """The congruence ``N`` of Theorem 4.1: rows ``x | A2 | C | B2 | D | s'`` of
+    :func:`xy_block`, columns ``z | A2 | C | D | s'``; the ``x`` and ``B2`` rows are
+    ``W1 z`` and ``W2 z``. ``N' Psi N`` eliminates the gain by the projection lemma
+    (the other projection, onto ``ker([I 0 ...])``, is negative by construction)."""
+    W1, W2 = null_basis(mode)
+    n, k = W1.shape
+    sizes = []  # (rows, cols) of identity blocks after z
+    if mode.A2 is not None:
+        sizes.append(mode.A2.shape[0])
+    sizes.append(mode.C.shape[0])
+    q2 = 0 if mode.B2 is None else mode.B2.shape[0]
+    tail = [mode.D.shape[1]] + [n] * coupled
+    rows_total = n + sum(sizes) + q2 + sum(tail)
+    cols_total = k + sum(sizes) + sum(tail)
+    N = np.zeros((rows_total, cols_total))
+    N[:n, :k] = W1
+    r, c = n, k
+    for size in sizes:
+        N[r:r + size, c:c + size] = np.eye(size)
+        r, c = r + size, c + size
+    if W2 is not None:
+        N[r:r + q2, :k] = W2
+        r += q2
+    for size in tail:
+        N[r:r + size, c:c + size] = np.eye(size)
+        r, c = r + size, c + size
+    return N
 
 
 @dataclass(frozen=True)

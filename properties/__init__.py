@@ -1,0 +1,1 @@
+"""Hypothesis property tests of the ftc_verify core (run: ``pytest properties``)."""

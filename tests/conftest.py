@@ -1,0 +1,133 @@
+"""Shared fixtures: example paths, the paper's system/gains/closed loop, and small
+reference implementations written from READING-NOTES (independent of ftc_verify)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from ftc_verify.closedloop import state_feedback_loop
+from ftc_verify.model import FTCSystem
+from ftc_verify.problem_files import load_gains, load_system
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+
+
+# --------------------------------------------------------------------------- reference code
+def ref_joint_generator(alpha, beta, fault_during_delay: bool = False) -> np.ndarray:
+    """Joint (true, FDI) generator written directly from READING-NOTES.
+
+    (i, i) -> (k, i) at alpha[i][k]; (i, j) -> (i, i) at beta[j][i]; in the named
+    variant also (i, j) -> (k, j) at alpha[i][k] for i != j. Joint index s = i*m + j.
+    """
+    alpha = np.asarray(alpha, dtype=float)
+    beta = np.asarray(beta, dtype=float)
+    m = alpha.shape[0]
+    idx = {(i, j): i * m + j for i in range(m) for j in range(m)}
+    Q = np.zeros((m * m, m * m))
+    for (i, j), s in idx.items():
+        if i == j:
+            for k in range(m):
+                if k != i:
+                    Q[s, idx[(k, i)]] += alpha[i][k]
+        else:
+            Q[s, idx[(i, i)]] += beta[j][i]
+            if fault_during_delay:
+                for k in range(m):
+                    if k != i:
+                        Q[s, idx[(k, j)]] += alpha[i][k]
+    for s in range(m * m):
+        Q[s, s] = -(Q[s].sum() - Q[s, s])
+    return Q
+
+
+def ref_second_moment_full(A_list, Q) -> np.ndarray:
+    """Full (vec, not vech) second-moment generator: dX_s = A_s X_s + X_s A_s' + sum_t Q[t, s] X_t."""
+    n = np.asarray(A_list[0]).shape[0]
+    N = len(A_list)
+    eye = np.eye(n)
+    big = np.zeros((N * n * n, N * n * n))
+    for s, A in enumerate(A_list):
+        A = np.asarray(A, dtype=float)
+        big[s * n * n:(s + 1) * n * n, s * n * n:(s + 1) * n * n] += np.kron(eye, A) + np.kron(A, eye)
+        for t in range(N):
+            big[s * n * n:(s + 1) * n * n, t * n * n:(t + 1) * n * n] += Q[t, s] * np.eye(n * n)
+    return big
+
+
+def ref_abscissa(M) -> float:
+    return float(np.max(np.linalg.eigvals(M).real))
+
+
+def ref_box_vertices(beta_min, beta_max):
+    """Every vertex of the beta box (off-diagonal entries at min or max), possibly repeated."""
+    beta_min = np.asarray(beta_min, dtype=float)
+    beta_max = np.asarray(beta_max, dtype=float)
+    m = beta_min.shape[0]
+    pairs = [(j, i) for j in range(m) for i in range(m) if i != j]
+    out = []
+    for bits in range(2 ** len(pairs)):
+        b = np.zeros((m, m))
+        for k, (j, i) in enumerate(pairs):
+            b[j, i] = beta_max[j, i] if (bits >> k) & 1 else beta_min[j, i]
+        out.append(b)
+    return out
+
+
+@pytest.fixture(scope="session")
+def ref():
+    """Reference implementations (independent of the package)."""
+    return SimpleNamespace(
+        joint_generator=ref_joint_generator,
+        second_moment_full=ref_second_moment_full,
+        abscissa=ref_abscissa,
+        box_vertices=ref_box_vertices,
+    )
+
+
+# --------------------------------------------------------------------------- examples
+@pytest.fixture(scope="session")
+def paper_path() -> Path:
+    return EXAMPLES / "paper.toml"
+
+
+@pytest.fixture(scope="session")
+def paper_gains_path() -> Path:
+    return EXAMPLES / "paper_gains.toml"
+
+
+@pytest.fixture(scope="session")
+def paper_system(paper_path) -> FTCSystem:
+    return load_system(paper_path)
+
+
+@pytest.fixture(scope="session")
+def paper_gains(paper_gains_path):
+    return load_gains(paper_gains_path)
+
+
+@pytest.fixture(scope="session")
+def paper_loop(paper_system, paper_gains):
+    return state_feedback_loop(paper_system, paper_gains)
+
+
+# --------------------------------------------------------------------------- small builders
+def scalar_system(a, b, c=(1.0, 1.0), d=(1.0, 1.0), *, alpha, beta_min, beta_max, unc=None,
+                  fault_during_delay=False) -> FTCSystem:
+    """Two-or-more-mode scalar plant x' = a_i x + b_i u + d_i w, y = c_i x."""
+    modes = []
+    for k in range(len(a)):
+        md = {"A": [[a[k]]], "B": [[b[k]]], "C": [[c[k]]], "D": [[d[k]]]}
+        if unc is not None:
+            md["A1"], md["A2"] = [[unc[0]]], [[unc[1]]]
+        modes.append(md)
+    return FTCSystem.from_arrays(name="scalar", modes=modes, alpha=alpha, beta_min=beta_min,
+                                 beta_max=beta_max, fault_during_delay=fault_during_delay)
+
+
+@pytest.fixture(scope="session")
+def make_scalar_system():
+    return scalar_system
