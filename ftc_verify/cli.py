@@ -69,6 +69,52 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
     return EXIT_OK if rep.certified_stable else EXIT_NEGATIVE
 
 
+def _positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not (value > 0 and value < float("inf")):
+        raise argparse.ArgumentTypeError(f"must be positive and finite, got {text!r}")
+    return value
+
+
+def _print_synthesis(res: Any) -> None:
+    d = res.to_dict()
+    print(f"ftc-verify synthesize: method {res.method} ({res.solver}, {res.solver_calls} solver calls, "
+          f"{res.solve_seconds:.2f} s solving, {res.wall_seconds:.2f} s wall)")
+    print(f"  {res.message}")
+    if not res.feasible:
+        print("  no gains")
+        return
+    print(f"  synthesis-side gamma     {_fmt(d['synthesis_gamma'])}")
+    print(f"  certified robust gamma   {_fmt(d['gamma_certified'])}")
+    print(f"  certified nominal gamma  {_fmt(d['gamma_nominal_certified'])}")
+    print(f"  spectral abscissa        {_fmt(d['spectral_abscissa'])}")
+    print(f"  max gain norm            {_fmt(d['max_gain_norm'])}" + (f" (bound {res.k_max:g})" if res.k_max else ""))
+    if res.history:
+        print("  iterate history          " + " -> ".join(f"{g:.6g}" for g in res.history))
+    if d["lower_bound"] is not None:
+        print(f"  full-information optimum {d['lower_bound']:.6g} (lower bound for FDI-only gains)")
+    print(f"  verdict: {'certified' if res.certified else 'NOT certified'}")
+
+
+def _cmd_synthesize(args: argparse.Namespace) -> int:
+    from .problem_files import dump_gains, load_system, write_atomic
+    from .synthesis import synthesize
+
+    system = load_system(args.system)
+    res = synthesize(system, method=args.method, gamma=args.gamma, k_max=args.k_max, solver=args.solver)
+    if res.certified:
+        write_atomic(args.output, dump_gains(res.gains, name=f"{system.name} {res.method}"))
+    if args.json:
+        print(json.dumps(res.to_dict(), indent=2))
+    else:
+        _print_synthesis(res)
+        print(f"  gains {'written to ' + str(args.output) if res.certified else 'not written (not certified)'}")
+    return EXIT_OK if res.certified else EXIT_NEGATIVE
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``ftc-verify``."""
     p = _Parser(prog="ftc-verify", description=__doc__.splitlines()[0])
@@ -81,6 +127,18 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--solver", default="auto", choices=["auto", "clarabel", "sdpa", "scs"],
                    help="LMI solver (default: auto = clarabel for small problems, sdpa above the size threshold)")
     a.set_defaults(func=_cmd_analyze)
+
+    y = sub.add_parser("synthesize", help="synthesize state-feedback gains and certify them")
+    y.add_argument("system", help="system TOML file")
+    level = y.add_mutually_exclusive_group()
+    level.add_argument("--gamma", type=_positive, help="attenuation level to achieve (feasibility)")
+    level.add_argument("--minimize", action="store_true", help="make gamma as small as possible (default)")
+    y.add_argument("--method", required=True, choices=["two-step", "iterative", "full-info", "common"])
+    y.add_argument("--k-max", type=_positive, default=None, help="bound on the spectral norm of every gain")
+    y.add_argument("-o", "--output", required=True, help="gains TOML file to write (only when certified)")
+    y.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    y.add_argument("--solver", default="auto", choices=["auto", "clarabel", "sdpa", "scs"])
+    y.set_defaults(func=_cmd_synthesize)
     return p
 
 

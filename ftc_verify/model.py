@@ -53,20 +53,25 @@ Matrix = NDArray[np.float64]
 def as_matrix(value: ArrayLike, name: str, *, allow_empty: bool = False) -> Matrix:
     """Return ``value`` as a read-only 2-D float array, or raise naming ``name``.
 
-    Rejects ragged or non-numeric input, other than 2-D shapes, empty matrices (unless
-    ``allow_empty``) and NaN/inf entries.
+    Rejects ragged input, entries that are not numbers (strings and booleans included),
+    other than 2-D shapes, empty matrices (unless ``allow_empty``) and NaN/inf entries.
+    Entry indices in messages are 1-based, as in the paper.
     """
     try:
+        raw = np.array(value, dtype=object)
         arr = np.array(value, dtype=float)
     except (TypeError, ValueError) as exc:
         raise ValidationError(f"{name}: not a numeric matrix ({value!r}): {exc}") from None
+    for entry in raw.flat:
+        if isinstance(entry, (bool, np.bool_)) or not isinstance(entry, (int, float, np.integer, np.floating)):
+            raise ValidationError(f"{name}: entries must be numbers, got {entry!r} in {value!r}")
     if arr.ndim != 2:
         raise ValidationError(f"{name}: expected a 2-D matrix, got shape {arr.shape} ({value!r})")
     if arr.size == 0 and not allow_empty:
         raise ValidationError(f"{name}: empty matrix (shape {arr.shape})")
     if not np.all(np.isfinite(arr)):
         bad = tuple(int(k) for k in np.argwhere(~np.isfinite(arr))[0])
-        raise ValidationError(f"{name}: non-finite entry {arr[bad]} at index {bad}")
+        raise ValidationError(f"{name}: non-finite entry {arr[bad]} at [{bad[0] + 1}][{bad[1] + 1}]")
     arr.setflags(write=False)
     return arr
 
@@ -182,14 +187,14 @@ class JointChain:
         if np.any(alpha[off] < 0):
             i, k = (int(v) for v in np.argwhere((alpha < 0) & off)[0])
             raise ValidationError(
-                f"chain.alpha[{i}][{k}]: off-diagonal rates must be >= 0, got {alpha[i, k]}"
+                f"chain.alpha[{i + 1}][{k + 1}]: off-diagonal rates must be >= 0, got {alpha[i, k]}"
             )
         tol = GENERATOR_RTOL * max(1.0, float(np.max(np.abs(alpha))))
         sums = alpha.sum(axis=1)
         if np.any(np.abs(sums) > tol):
             i = int(np.argmax(np.abs(sums)))
             raise ValidationError(
-                f"chain.alpha row {i}: rows of a generator must sum to zero "
+                f"chain.alpha row {i + 1}: rows of a generator must sum to zero "
                 f"(tolerance {tol:.1e}), got sum {float(sums[i]):.6g} for row {alpha[i].tolist()}"
             )
         object.__setattr__(self, "alpha", alpha)
@@ -199,14 +204,14 @@ class JointChain:
                 raise ValidationError(f"chain.{key}: expected shape {(m, m)} (as alpha), got {b.shape}")
             if np.any(b[off] < 0):
                 j, i = (int(v) for v in np.argwhere((b < 0) & off)[0])
-                raise ValidationError(f"chain.{key}[{j}][{i}]: rates must be >= 0, got {b[j, i]}")
+                raise ValidationError(f"chain.{key}[{j + 1}][{i + 1}]: rates must be >= 0, got {b[j, i]}")
             object.__setattr__(self, key, b)
         bad = (self.beta_min > self.beta_max) & off
         if np.any(bad):
             j, i = (int(v) for v in np.argwhere(bad)[0])
             raise ValidationError(
-                f"chain.beta_min[{j}][{i}] = {self.beta_min[j, i]} exceeds "
-                f"chain.beta_max[{j}][{i}] = {self.beta_max[j, i]}"
+                f"chain.beta_min[{j + 1}][{i + 1}] = {self.beta_min[j, i]} exceeds "
+                f"chain.beta_max[{j + 1}][{i + 1}] = {self.beta_max[j, i]}"
             )
 
     @property
@@ -234,7 +239,7 @@ class JointChain:
         for j, i in self.beta_pairs:
             if not self.beta_min[j, i] - slack <= b[j, i] <= self.beta_max[j, i] + slack:
                 raise ValidationError(
-                    f"{name}[{j}][{i}] = {b[j, i]} outside "
+                    f"{name}[{j + 1}][{i + 1}] = {b[j, i]} outside "
                     f"[{self.beta_min[j, i]}, {self.beta_max[j, i]}]"
                 )
         return b

@@ -7,12 +7,14 @@ System file (all keys shown; ``A1, A2, B1, B2`` optional, in pairs)::
     alpha    = [[-0.5, 0.5], [1.0, -1.0]]
     beta_min = [[0.0, 2.0], [2.5, 0.0]]   # beta[fdi][true]
     beta_max = [[0.0, 3.0], [3.5, 0.0]]
+    fault_during_delay = true             # optional: the named variant (not the paper's model)
     [[mode]]            # one table per fault mode, in order 1..m
     A = [[...]]; B = [[...]]; C = [[...]]; D = [[...]]
     A1 = [[...]]; A2 = [[...]]; B1 = [[...]]; B2 = [[...]]
 
 Gains file: one ``[[gain]]`` table per FDI mode, each with ``K = [[...]]`` (``u = K x``),
-and an optional top-level ``name``.
+and an optional top-level ``name``. Full-information gains (baseline ``full-info``) are
+``m * m`` tables in the order ``s = (true - 1) * m + fdi``.
 
 Reading uses the standard library's :mod:`tomllib`; writing uses ``tomli_w`` (the
 companion writer of the same TOML family), and floats are written with ``repr`` so that
@@ -49,6 +51,7 @@ __all__ = [
 
 _TOP_KEYS = {"name", "chain", "mode"}
 _CHAIN_KEYS = {"alpha", "beta_min", "beta_max"}
+_CHAIN_OPTIONAL = {"fault_during_delay"}
 _MODE_KEYS = ("A", "B", "C", "D", "A1", "A2", "B1", "B2")
 _GAIN_TOP_KEYS = {"name", "gain"}
 
@@ -98,12 +101,15 @@ def load_system(path: str | os.PathLike[str]) -> FTCSystem:
     if not isinstance(name, str):
         raise ProblemFileError(f"{p}: name: expected a string, got {name!r}")
     chain_doc = _table(p, doc, "chain")
-    _unknown(p, "[chain]", list(chain_doc), _CHAIN_KEYS)
+    _unknown(p, "[chain]", list(chain_doc), _CHAIN_KEYS | _CHAIN_OPTIONAL)
     for key in sorted(_CHAIN_KEYS):
         if key not in chain_doc:
             raise ProblemFileError(f"{p}: [chain]: missing key '{key}'")
+    variant = chain_doc.get("fault_during_delay", False)
+    if not isinstance(variant, bool):
+        raise ProblemFileError(f"{p}: [chain].fault_during_delay: expected true or false, got {variant!r}")
     try:
-        chain = JointChain(chain_doc["alpha"], chain_doc["beta_min"], chain_doc["beta_max"])
+        chain = JointChain(chain_doc["alpha"], chain_doc["beta_min"], chain_doc["beta_max"], variant)
     except ValidationError as exc:
         raise ProblemFileError(f"{p}: {exc}") from None
     modes = []
@@ -135,6 +141,7 @@ def dump_system(system: FTCSystem) -> str:
             "alpha": _tolist(ch.alpha),
             "beta_min": _tolist(ch.beta_min),
             "beta_max": _tolist(ch.beta_max),
+            **({"fault_during_delay": True} if ch.fault_during_delay else {}),
         },
         "mode": [
             {key: _tolist(getattr(md, key)) for key in _MODE_KEYS if getattr(md, key) is not None}
@@ -153,6 +160,9 @@ def write_atomic(path: str | os.PathLike[str], text: str) -> None:
     except OSError as exc:
         raise ProblemFileError(f"{p}: cannot write: {exc.strerror}") from None
     try:
+        umask = os.umask(0)
+        os.umask(umask)
+        os.fchmod(fd, 0o666 & ~umask)  # mkstemp creates 0600; give the usual permissions
         with os.fdopen(fd, "w", encoding="utf-8") as fh:
             fh.write(text)
         os.replace(tmp, p)
@@ -198,10 +208,15 @@ def save_gains(gains: Sequence[Matrix], path: str | os.PathLike[str], name: str 
 
 
 def check_gains(system: FTCSystem, gains: Sequence[Matrix], source: str = "gains") -> tuple[Matrix, ...]:
-    """Validate state-feedback gains against ``system``: one ``nu x n`` matrix per FDI mode."""
+    """Validate state-feedback gains against ``system``: one ``nu x n`` matrix per FDI
+    mode, or ``m * m`` of them (full-information gains, order ``s = (true-1) m + fdi``)."""
     n, nu, _, _ = system.dims
-    if len(gains) != system.m:
-        raise ValidationError(f"{source}: {len(gains)} gains given, the system has {system.m} modes")
+    m = system.m
+    if len(gains) not in (m, m * m):
+        raise ValidationError(
+            f"{source}: {len(gains)} gains given, the system has {m} modes "
+            f"(expected {m}, or {m * m} for full-information gains)"
+        )
     out = []
     for k, K in enumerate(gains, start=1):
         Km = as_matrix(K, f"{source}: gain[{k}].K")

@@ -131,12 +131,15 @@ def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256) -> MSSRe
         return cache[bits]
 
     for start in ((False,) * len(pairs), (True,) * len(pairs)):
+        if start not in cache and len(cache) >= max_vertices:
+            break
+        value(start)
         bits, improved = start, True
-        while improved and len(cache) < max_vertices:
+        while improved:
             improved = False
             for k in range(len(pairs)):
                 cand = bits[:k] + (not bits[k],) + bits[k + 1:]
-                if len(cache) >= max_vertices:
+                if cand not in cache and len(cache) >= max_vertices:
                     break
                 if value(cand) > value(bits):
                     bits, improved = cand, True

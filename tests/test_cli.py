@@ -82,7 +82,7 @@ def test_bad_system_exit_2_names_file_and_value(tmp_path: Path) -> None:
     bad.write_text(text)
     proc = run_cli("analyze", str(bad), "--gains", str(PAPER_GAINS))
     assert proc.returncode == 2
-    assert "sys.toml" in proc.stderr and "chain.alpha row 0" in proc.stderr and "-0.1" in proc.stderr
+    assert "sys.toml" in proc.stderr and "chain.alpha row 1" in proc.stderr and "-0.1" in proc.stderr
     assert "Traceback" not in proc.stderr
 
 

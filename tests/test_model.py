@@ -54,11 +54,11 @@ def test_valid_system_builds():
 
 
 def test_negative_off_diagonal_alpha():
-    raises_naming(lambda: JointChain([[0.5, -0.5], [1.0, -1.0]], BMIN2, BMAX2), "chain.alpha[0][1]", "-0.5")
+    raises_naming(lambda: JointChain([[0.5, -0.5], [1.0, -1.0]], BMIN2, BMAX2), "chain.alpha[1][2]", "-0.5")
 
 
 def test_alpha_row_not_summing_to_zero():
-    msg = raises_naming(lambda: JointChain([[-0.5, 0.5], [1.0, -0.75]], BMIN2, BMAX2), "chain.alpha", "row 1")
+    msg = raises_naming(lambda: JointChain([[-0.5, 0.5], [1.0, -0.75]], BMIN2, BMAX2), "chain.alpha", "row 2")
     assert "0.25" in msg  # the offending sum (or the row) is shown
 
 
@@ -77,19 +77,19 @@ def test_alpha_row_sum_tolerance_boundary(factor, ok):
     if ok:
         assert JointChain(alpha, BMIN2, BMAX2).m == 2
     else:
-        raises_naming(lambda: JointChain(alpha, BMIN2, BMAX2), "chain.alpha", "row 0")
+        raises_naming(lambda: JointChain(alpha, BMIN2, BMAX2), "chain.alpha", "row 1")
 
 
 def test_beta_min_exceeds_beta_max():
     bmin = [[0.0, 3.25], [2.5, 0.0]]
-    raises_naming(lambda: JointChain(ALPHA2, bmin, BMAX2), "beta_min[0][1]", "3.25", "3.0")
+    raises_naming(lambda: JointChain(ALPHA2, bmin, BMAX2), "beta_min[1][2]", "3.25", "3.0")
 
 
 @pytest.mark.parametrize(
     "bmin, bmax, field, value",
     [
-        ([[0.0, 2.0], [-1.5, 0.0]], BMAX2, "chain.beta_min[1][0]", "-1.5"),
-        ([[0.0, 2.0], [0.0, 0.0]], [[0.0, 3.0], [-0.25, 0.0]], "chain.beta_max[1][0]", "-0.25"),
+        ([[0.0, 2.0], [-1.5, 0.0]], BMAX2, "chain.beta_min[2][1]", "-1.5"),
+        ([[0.0, 2.0], [0.0, 0.0]], [[0.0, 3.0], [-0.25, 0.0]], "chain.beta_max[2][1]", "-0.25"),
     ],
 )
 def test_negative_rate(bmin, bmax, field, value):
@@ -379,10 +379,10 @@ def test_vertices_collapse_degenerate_intervals():
 
 
 def test_check_beta_rejects_out_of_bounds_naming_entry():
-    ch = chain2()  # beta[0][1] in [2, 3], beta[1][0] in [4, 5]
-    raises_naming(lambda: ch.check_beta([[0.0, 2.5], [5.75, 0.0]]), "beta[1][0]", "5.75", "[4.0, 5.0]")
-    raises_naming(lambda: ch.check_beta([[0.0, 1.5], [4.5, 0.0]]), "beta[0][1]", "1.5")
-    raises_naming(lambda: ch.generator([[0.0, 3.5], [4.5, 0.0]]), "beta[0][1]", "3.5")
+    ch = chain2()  # beta[1][2] in [2, 3], beta[2][1] in [4, 5] (1-based, as in messages)
+    raises_naming(lambda: ch.check_beta([[0.0, 2.5], [5.75, 0.0]]), "beta[2][1]", "5.75", "[4.0, 5.0]")
+    raises_naming(lambda: ch.check_beta([[0.0, 1.5], [4.5, 0.0]]), "beta[1][2]", "1.5")
+    raises_naming(lambda: ch.generator([[0.0, 3.5], [4.5, 0.0]]), "beta[1][2]", "3.5")
     np.testing.assert_array_equal(ch.check_beta([[0.0, 3.0], [4.0, 0.0]]), [[0.0, 3.0], [4.0, 0.0]])
 
 
