@@ -26,8 +26,10 @@ Methods (all return a :class:`SynthesisResult` verified by the core analysis,
     with :math:`P, \lambda` fixed, minimising gamma per ``j``). Each iterate is certified;
     the best certified gains are kept, so the result is never worse than the start.
 
-``lower_bound`` (``full-info`` without a gain bound): the optimum of the full-information
-LMI. Any FDI-mode gains with a Lemma 4.1 certificate :math:`(P, \lambda, \gamma)` give a
+``lower_bound`` (``full-info`` without a gain bound, and only when the solver reports
+``optimal``: the primal value of an inaccurate solve lies *above* the optimum, as on
+fully actuated plants where the infimum is 0 and not attained): the optimum of the
+full-information LMI. Any FDI-mode gains with a Lemma 4.1 certificate :math:`(P, \lambda, \gamma)` give a
 feasible point of that LMI (:math:`X_{ij} = P_{ij}^{-1}`, :math:`Y_{ij} = K_j X_{ij}`), so no
 FDI-only controller can be certified below it (up to solver tolerance).
 
@@ -213,8 +215,10 @@ def _xy_solve(system: FTCSystem, kind: str, gamma: float | None, calls: _Calls, 
         out = calls.run(cp.Problem(cp.Minimize(g), constraints(g, 0.0)))
         if not out.solved or g.value is None:
             return None
-        g_star: float | None = math.sqrt(max(float(g.value), 0.0))
-        ladder = [g_star * (1.0 + rho) + 1e-7 for rho in GAMMA_LADDER]  # type: ignore[operator]
+        value = math.sqrt(max(float(g.value), 0.0))
+        ladder = [value * (1.0 + rho) + 1e-7 for rho in GAMMA_LADDER]
+        # Only an accurate optimum is a bound (an inaccurate primal value lies above it).
+        g_star: float | None = value if out.status == "optimal" else None
     else:
         g_star, ladder = None, [gamma]
     centred = cp.Problem(cp.Maximize(t), constraints(g_par, t) + [t <= 1.0])

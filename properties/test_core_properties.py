@@ -52,9 +52,8 @@ GAMMA_RTOL = 5e-3
 GAMMA_ATOL = 1e-6
 #: Ladder rungs already covered by GAMMA_RTOL.
 COVERED_RUNG = 1e-3
-#: Spectral abscissae of similar (or permuted) generators: relative tolerance, and an
-#: absolute floor relative to ``||L||_2`` (backward-stable eigenvalues: error ~ eps ||L||
-#: times the eigenvalue's condition number).
+#: Spectral abscissae of similar (or permuted) generators: relative tolerance for a
+#: simple dominant eigenvalue, with an absolute floor relative to ``||L||_2``.
 ABSCISSA_RTOL = 1e-8
 ABSCISSA_ATOL_REL = 1e-10
 #: Stability margin away from the boundary for the "iff" and the gamma properties.
@@ -104,11 +103,30 @@ def assert_gamma_at_least(big: LMIResult, small: LMIResult) -> None:
     )
 
 
-def assert_abscissa_close(a: float, b: float, scale: float, what: str) -> None:
-    """Two spectral abscissae of similar operators agree (ABSCISSA_* tolerances)."""
-    assert math.isclose(a, b, rel_tol=ABSCISSA_RTOL, abs_tol=ABSCISSA_ATOL_REL * max(1.0, scale)), (
-        f"{what}: spectral abscissa {a!r} vs {b!r} (difference {abs(a - b):.3e}, ||L|| {scale:.3g})"
-    )
+def abscissa_tolerance(L: Matrix) -> float:
+    r"""How far two computed spectral abscissae of operators similar to ``L`` may differ.
+
+    A simple dominant eigenvalue is computed to about eps ``||L||`` times its condition
+    number: :data:`ABSCISSA_RTOL` (1e-8) relative. A cluster of ``k`` eigenvalues at the
+    abscissa may be a Jordan block (easily drawn: repeated eigenvalues of some
+    :math:`A_s` give defective eigenvalues of :math:`I \otimes A_s + A_s \otimes I`), and
+    a defective eigenvalue is only determined to :math:`(\varepsilon \|L\|)^{1/k}`
+    (Wilkinson), so that, times 10, is allowed when ``k > 1``.
+    """
+    ev = np.linalg.eigvals(L)
+    scale = max(1.0, float(np.linalg.norm(L, 2)))
+    top = ev[np.argmax(ev.real)]
+    k = int(np.sum(np.abs(ev - top) <= 1e-3 * scale))
+    tol = max(ABSCISSA_RTOL * abs(top.real), ABSCISSA_ATOL_REL * scale)
+    if k > 1:
+        tol = max(tol, 10.0 * (np.finfo(float).eps * scale) ** (1.0 / k))
+    return tol
+
+
+def assert_abscissa_close(a: float, b: float, L: Matrix, what: str) -> None:
+    """Two spectral abscissae of operators similar to ``L`` agree (:func:`abscissa_tolerance`)."""
+    tol = abscissa_tolerance(L)
+    assert abs(a - b) <= tol, f"{what}: spectral abscissa {a!r} vs {b!r} (difference {abs(a - b):.3e} > {tol:.3e})"
 
 
 def certified_gamma(drawn: DrawnLoop, *, robust: bool) -> LMIResult:
@@ -244,9 +262,8 @@ def test_similarity_invariance(drawn: DrawnLoop, data: st.DataObject) -> None:
     T = data.draw(similarity_transforms(drawn.system.dims[0]), label="T")
     moved = similarity(drawn, T)
     for b in drawn.system.chain.vertices():
-        scale = float(np.linalg.norm(second_moment_generator(drawn.loop, b), 2))
-        assert_abscissa_close(spectral_abscissa(drawn.loop, b), spectral_abscissa(moved.loop, b), scale,
-                              f"similarity at beta={b.tolist()}")
+        assert_abscissa_close(spectral_abscissa(drawn.loop, b), spectral_abscissa(moved.loop, b),
+                              second_moment_generator(drawn.loop, b), f"similarity at beta={b.tolist()}")
     a = certified_gamma(drawn, robust=False)
     b_ = certified_gamma(moved, robust=False)
     assert_same_gamma(a, b_)
@@ -273,10 +290,11 @@ def test_mode_relabelling_invariance(drawn: DrawnLoop, data: st.DataObject) -> N
     moved = relabel(drawn, perm)
     p = np.asarray(perm)
     for b in drawn.system.chain.vertices():
-        scale = float(np.linalg.norm(second_moment_generator(drawn.loop, b), 2))
+        L = second_moment_generator(drawn.loop, b)
         assert_abscissa_close(spectral_abscissa(drawn.loop, b), spectral_abscissa(moved.loop, b[np.ix_(p, p)]),
-                              scale, f"relabelling {list(perm)} at beta={b.tolist()}")
-    assert_abscissa_close(drawn.mss.spectral_abscissa, moved.mss.spectral_abscissa, 1.0, "worst over the box")
+                              L, f"relabelling {list(perm)} at beta={b.tolist()}")
+    L = second_moment_generator(drawn.loop, drawn.mss.worst_beta)
+    assert_abscissa_close(drawn.mss.spectral_abscissa, moved.mss.spectral_abscissa, L, "worst over the box")
     assert_same_gamma(certified_gamma(drawn, robust=False), certified_gamma(moved, robust=False))
 
 
