@@ -530,7 +530,7 @@ def write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
 def print_table(rows: list[dict[str, Any]]) -> None:
     hdr = (f"{'case':<10}{'n':>3}{'m':>3}{'vars':>6} {'unc':>3} {'solver':<9}{'used':<14}{'spectral':>9}{'build':>7}"
            f"{'solve':>8}{'canon':>7}{'core':>8}{'xval':>6}{'total':>8} {'cert':>4}{'g_nom':>8}{'g_rob':>8}"
-           f"{'goal':>6} {'meets':<6}{'status':<8}")
+           f"{'goal':>6} {'meets':<7}{'status':<8}")
     print(hdr)
     print("-" * len(hdr))
     for r in rows:
@@ -546,7 +546,7 @@ def print_table(rows: list[dict[str, Any]]) -> None:
               f"{_f(r.get('canon_s'), 7)}{_f(r.get('solver_core_s'), 8)}{_f(r.get('crossval_s'), 6)}"
               f"{_f(r.get('total_s'), 8)} {_f(r.get('certified'), 4)}{_f(r.get('nominal_gamma'), 8, 3)}"
               f"{_f(r.get('robust_gamma'), 8, 3)}{_f(r.get('goal_s'), 6, 1)} "
-              f"{('MET' if r.get('meets_goal') else 'MISSED') if r.get('meets_goal', '') != '' else '':<6}"
+              f"{('MET' if r.get('meets_goal') else 'MISSED') if r.get('meets_goal', '') != '' else '':<7}"
               f"{r.get('status', ''):<8}")
 
 

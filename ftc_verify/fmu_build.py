@@ -27,6 +27,7 @@ Functions
 from __future__ import annotations
 
 import hashlib
+import importlib.util
 import os
 import re
 import shutil
@@ -87,14 +88,26 @@ class FMUError(FTCError, RuntimeError):
 
 
 def source_dir() -> Path:
-    """Folder with the C sources of the FMU (``<repository>/fmus/LinearJumpPlant``)."""
-    path = Path(__file__).resolve().parents[1] / "fmus" / MODEL_IDENTIFIER
-    if not path.is_dir():
-        raise FMUError(
-            f"{path}: C sources of the {MODEL_IDENTIFIER} FMU not found (they ship with the "
-            "source checkout of ftc-verify, in fmus/)"
-        )
-    return path
+    """Folder with the C sources of the FMU.
+
+    ``<repository>/fmus/LinearJumpPlant`` in a source checkout (or an editable install);
+    otherwise the package data ``ftc_verify._fmus/LinearJumpPlant`` if the installed
+    package ships ``fmus/`` under that name (see ``fmus/README.md``).
+    """
+    candidates = [Path(__file__).resolve().parents[1] / "fmus" / MODEL_IDENTIFIER]
+    try:
+        spec = importlib.util.find_spec(f"{__package__}._fmus")
+    except (ImportError, ValueError):
+        spec = None
+    if spec is not None and spec.submodule_search_locations:
+        candidates += [Path(p) / MODEL_IDENTIFIER for p in spec.submodule_search_locations]
+    for path in candidates:
+        if all((path / name).is_file() for name in SOURCE_FILES):
+            return path
+    raise FMUError(
+        f"{candidates[0]}: C sources of the {MODEL_IDENTIFIER} FMU ({', '.join(SOURCE_FILES)}) "
+        "not found; they ship with the source checkout of ftc-verify, in fmus/"
+    )
 
 
 def fmi2_include_dir() -> Path:
@@ -177,8 +190,9 @@ def build_binary(force: bool = False, *, sources: Path | None = None) -> Path:
     The file is named ``LinearJumpPlant-<hash>.so`` where the hash covers the C sources,
     the FMI headers, the compiler flags and the compiler's version; an existing file with
     that name is reused unless ``force``. Compilation writes a temporary file and renames
-    it, so concurrent builds are safe. ``sources`` overrides the sources folder
-    (default :func:`source_dir`). Raises :class:`FMUError` when gcc is missing or fails (with gcc's stderr).
+    it, so concurrent builds are safe. ``sources`` overrides the sources folder (default
+    :func:`source_dir`). Raises :class:`FMUError` when gcc is missing or fails (the
+    message carries gcc's command line and stderr).
     """
     src = Path(sources) if sources is not None else source_dir()
     for name in SOURCE_FILES:

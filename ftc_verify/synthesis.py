@@ -29,7 +29,10 @@ Methods (all return a :class:`SynthesisResult` verified by the core analysis,
 ``lower_bound`` (``full-info`` without a gain bound, and only when the solver reports
 ``optimal``: the primal value of an inaccurate solve lies *above* the optimum, as on
 fully actuated plants where the infimum is 0 and not attained): the optimum of the
-full-information LMI. Any FDI-mode gains with a Lemma 4.1 certificate :math:`(P, \lambda, \gamma)` give a
+full-information LMI as the solver reports it (a bound only up to the solver's
+accuracy: measured on the paper's example without a gain bound, Clarabel reports
+``optimal`` at a value above controllers that are certified, so the bound fails on
+such degenerate problems). Any FDI-mode gains with a Lemma 4.1 certificate :math:`(P, \lambda, \gamma)` give a
 feasible point of that LMI (:math:`X_{ij} = P_{ij}^{-1}`, :math:`Y_{ij} = K_j X_{ij}`), so no
 FDI-only controller can be certified below it (up to solver tolerance).
 

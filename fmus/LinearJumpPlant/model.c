@@ -258,8 +258,14 @@ int ljp_system_read(const LJP_Allocator *al, const char *path, LJP_System *sys, 
     }
     {
         double N = (double)sys->n + sys->nu + sys->nw;
+        double nvars = 2.0 * sys->n + sys->nu + sys->nw + sys->ny +
+                       (double)sys->q1 * sys->p1 + (double)sys->q2 * sys->p2 + 2.0;
         if (N * N * 9.0 * sizeof(double) > 4e9) {
             lex_fail(&lx, "system too large: n + nu + nw = %.0f", N);
+            goto done;
+        }
+        if (nvars > 1e8) {
+            lex_fail(&lx, "system too large: %.0f variables", nvars);
             goto done;
         }
     }

@@ -23,7 +23,7 @@
 
 #define LJP_FORMAT_VERSION 1      /* version of the system file format   */
 #define LJP_STATE_VERSION 1       /* version of the serialized FMU state */
-#define LJP_CACHE_SLOTS 2         /* cached discretisations per mode     */
+#define LJP_CACHE_SLOTS 4         /* cached discretisations per mode (LRU) */
 #define LJP_MAX_DIM 100000        /* sanity bound on every dimension     */
 #define LJP_GUID_MAX 128
 
