@@ -102,6 +102,18 @@ def block_specs(loop: ClosedLoop) -> tuple[BlockSpec, ...]:
     return tuple(specs)
 
 
+def _bordered(first: list[Any], diag: list[Any], cols: list[int], bmat: Bmat) -> Any:
+    """The symmetric block matrix ``[[X, b_1, ..., b_k], [b_1', d_1, 0], ..., [b_k', 0, d_k]]``
+    from ``first = [X, b_1, ..., b_k]``, ``diag = [d_1, ..., d_k]`` of sizes ``cols``."""
+    rows: list[list[Any]] = [first]
+    for r, (c, d) in enumerate(zip(cols, diag)):
+        row: list[Any] = [first[r + 1].T]
+        for q, c2 in enumerate(cols):
+            row.append(d if q == r else np.zeros((c, c2)))
+        rows.append(row)
+    return bmat(rows)
+
+
 def _coupling(q_row: Matrix, P: Sequence[Any], s: int) -> Any:
     total = 0 * P[s]
     for t, q in enumerate(q_row):
@@ -150,13 +162,7 @@ def lyapunov_block(
             cols.append(ch.F.shape[0])
             first.append(ch.F.T)
             diag.append(-(1.0 / float(lam[k])) * np.eye(ch.F.shape[0]))  # type: ignore[index]
-    rows: list[list[Any]] = [first]
-    for r, (c, d) in enumerate(zip(cols, diag)):
-        row: list[Any] = [first[r + 1].T]
-        for q, c2 in enumerate(cols):
-            row.append(d if q == r else np.zeros((c, c2)))
-        rows.append(row)
-    return bmat(rows)
+    return _bordered(first, diag, cols, bmat)
 
 
 def xy_block(
@@ -221,14 +227,7 @@ def xy_block(
     for q, Xt in couple:
         first.append(np.sqrt(q) * Xs)
         diag.append(-Xt)
-    cols = [d.shape[0] for d in diag]
-    rows: list[list[Any]] = [first]
-    for r, (c, d) in enumerate(zip(cols, diag)):
-        row: list[Any] = [first[r + 1].T]
-        for k, c2 in enumerate(cols):
-            row.append(d if k == r else np.zeros((c, c2)))
-        rows.append(row)
-    return bmat(rows)
+    return _bordered(first, diag, [d.shape[0] for d in diag], bmat)
 
 
 def null_basis(mode: Mode) -> tuple[Matrix, Matrix | None]:
