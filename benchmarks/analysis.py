@@ -45,7 +45,7 @@ REPO = Path(__file__).resolve().parent.parent
 DEFAULT_OUT = REPO / "benchmarks" / "results" / "analysis.csv"
 
 GRID = [(n, m) for n in (2, 4, 8, 16) for m in (2, 3, 4)] + [(12, 4)]
-QUICK_GRID = [(2, 2), (4, 3)]
+QUICK_GRID = [(2, 2), (2, 3)]
 #: Goals (seconds). The paper goal is wall time of the CLI subprocess incl. start-up;
 #: the others are the in-process ``analyze`` total with the automatic solver.
 PAPER_GOAL_S = 1.5
@@ -59,7 +59,7 @@ COLUMNS = [
     # extras
     "case", "status", "uncertain", "solvers_used", "canon_s", "solver_core_s",
     "th31_s", "th32_s", "lem41_s", "lmi_other_s", "spectral_evals", "solver_calls",
-    "repeats", "peak_rss_mb", "note",
+    "repeats", "peak_rss_mb", "blas_threads", "note",
 ]
 
 PRELOAD = ["numpy", "scipy.linalg", "cvxpy", "control", "clarabel", "sdpap",
@@ -234,11 +234,11 @@ def _child(conn: Any, n: int, m: int, seed: int, uncertain: bool, solver: str | 
         from ftc_verify.closedloop import state_feedback_loop
         from ftc_verify.lmi_analysis import decision_size
 
-        # warm-up: lazy imports and first-call costs of both solvers, not timed
+        # warm-up (not timed): lazy imports and first-call costs. Clarabel only: an SDPA
+        # solve of another problem changes later SDPA answers in the same process
+        # (sdpa-python 0.2.3; see README), so SDPA is only imported (preloaded).
         wsys, wgains, _ = make_case(2, 2, 0, True)
-        wloop = state_feedback_loop(wsys, wgains)
-        analyze(wloop, solver="clarabel")
-        analyze(wloop, solver="sdpa")
+        analyze(state_feedback_loop(wsys, wgains), solver="clarabel")
 
         system, gains, draws = make_case(n, m, seed, uncertain)
         loop = state_feedback_loop(system, gains)
@@ -251,7 +251,9 @@ def _child(conn: Any, n: int, m: int, seed: int, uncertain: bool, solver: str | 
             events["spectral"].clear()
             rep = analyze(loop, solver=solver, name=system.name)
             runs.append(_row_from_report(rep, events))
-            if runs[-1]["total_s"] >= repeat_below:
+            # repeat only fast all-Clarabel runs: repeated SDPA solves in one process are
+            # not reproducible (sdpa-python 0.2.3, see README)
+            if runs[-1]["total_s"] >= repeat_below or "sdpa" in runs[-1]["solvers_used"]:
                 break
         rows = sorted(runs, key=lambda r: r["total_s"])
         row = rows[len(rows) // 2]
@@ -274,6 +276,8 @@ def _child(conn: Any, n: int, m: int, seed: int, uncertain: bool, solver: str | 
 
 def _child_paper(conn: Any) -> None:
     """The paper's example analysed in-process (warm), auto solver."""
+    import resource
+
     warnings.simplefilter("ignore")
     try:
         from ftc_verify.analysis import analyze
@@ -295,6 +299,7 @@ def _child_paper(conn: Any) -> None:
         rows.sort(key=lambda r: r["total_s"])
         row = rows[1]
         row.update(repeats=3, variables=decision_size(loop, robust=True),
+                   peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
                    note=(row["note"] + "; " if row["note"] else "") + "warm, in-process; median of "
                    + ", ".join(f"{r['total_s']:.3f}" for r in rows) + " s")
         conn.send(("result", row))
@@ -432,17 +437,18 @@ def _partial_row(res: dict[str, Any], n: int, m: int) -> dict[str, Any]:
                  f"the stage needs >= {at_least} -> >= {at_least * per:.0f} s for the spectral test alone")
     elif "spectral" in prog["stages"]:
         row["spectral_s"] = sum(prog["stages"]["spectral"])
+    row["_spectral_done"] = "spectral" in prog["stages"]
     row["note"] = note
     return row
 
 
 def run_grid(args: argparse.Namespace, grid: list[tuple[int, int]], runner: Runner, out_rows: list[dict[str, Any]],
-             flush: Any) -> None:
+             flush: Any, blas: str) -> None:
     cases = sorted(grid, key=lambda nm: (variables_of(nm[0], nm[1], uncertain_default(*nm)), nm))
     clarabel_pts: list[tuple[int, float]] = []
     for n, m in cases:
         unc = {"all": True, "none": False}.get(args.uncertain, uncertain_default(n, m))
-        base = {"case": "random", "n": n, "m": m, "seed": args.seed, "uncertain": unc,
+        base = {"case": "random", "n": n, "m": m, "seed": args.seed, "uncertain": unc, "blas_threads": blas,
                 "variables": variables_of(n, m, unc)}
         goal = GOALS.get((n, m))
         auto_row: dict[str, Any] | None = None
@@ -455,20 +461,29 @@ def run_grid(args: argparse.Namespace, grid: list[tuple[int, int]], runner: Runn
             if solver == "clarabel":
                 assert auto_row is not None
                 why = ""
-                if auto_row.get("status") != "ok":
-                    why = (f"skipped: the auto run ended '{auto_row.get('status')}' after {auto_row.get('total_s', 0):.0f} s "
-                           "(see its note); the stages it did not finish do not depend on the solver")
-                elif auto_row["solvers_used"] != "clarabel":
-                    fit = fit_clarabel(clarabel_pts)
-                    if fit is not None:
-                        t0, p, v0 = fit
-                        lmi_pred = t0 * (row["variables"] / v0) ** p
+                fit = fit_clarabel(clarabel_pts)
+                fixed = None  # seconds of the solver-independent stages, from the auto run
+                status = auto_row.get("status")
+                if status == "ok":
+                    if auto_row["solvers_used"] != "clarabel":
                         fixed = auto_row["total_s"] - auto_row["build_s"] - auto_row["solve_s"]
-                        pred = fixed + lmi_pred
-                        pred_note = (f"extrapolated {pred:.0f} s = LMIs {lmi_pred:.0f} s (t = {t0:.2f} s * (v/{v0})^{p:.2f}, "
-                                     f"fit to measured Clarabel cases) + other stages {fixed:.0f} s (auto run)")
-                        if pred > args.clarabel_limit:
-                            why = f"skipped: {pred_note} > {args.clarabel_limit:.0f} s limit"
+                elif status == "timeout" and auto_row.get("_spectral_done"):
+                    fixed = auto_row["spectral_s"]
+                elif status == "timeout":
+                    why = (f"skipped: the auto run was stopped after {auto_row.get('total_s', 0):.0f} s before finishing "
+                           "the spectral test, which does not depend on the solver")
+                else:
+                    why = f"skipped: the auto run ended '{status}'"
+                if fixed is not None and fit is not None:
+                    t0, p, v0 = fit
+                    lmi_pred = t0 * (row["variables"] / v0) ** p
+                    pred = fixed + lmi_pred
+                    pred_note = (f"extrapolated {pred:.0f} s = LMIs {lmi_pred:.0f} s (t = {t0:.2f} s * (v/{v0})^{p:.2f}, "
+                                 f"fit to the measured Clarabel cases) + other stages {fixed:.0f} s (auto run)")
+                    if pred > args.clarabel_limit:
+                        why = f"skipped: {pred_note} > {args.clarabel_limit:.0f} s limit"
+                elif fixed is not None and auto_row.get("status") != "ok":
+                    why = f"skipped: the auto run ended '{auto_row.get('status')}' and no Clarabel case was measured to extrapolate from"
                 if why:
                     row.update(status="skipped", note=why)
                     out_rows.append(row)
@@ -610,16 +625,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--case-timeout", type=float, default=150.0, help="hard limit per case in seconds (default 150)")
     p.add_argument("--clarabel-limit", type=float, default=120.0,
                    help="skip the clarabel-alone run when its predicted time exceeds this (default 120 s)")
-    p.add_argument("--repeat-below", type=float, default=1.0,
-                   help="cases faster than this are run 3 times and the median reported (default 1 s)")
+    p.add_argument("--repeat-below", type=float, default=None,
+                   help="cases faster than this are run 3 times and the median reported (default 1 s; 0 with --quick)")
     p.add_argument("--uncertain", choices=["default", "all", "none"], default="default",
                    help="uncertainty weights 0.05 I: default = on for m >= 3")
     p.add_argument("--only", default="", help="comma list of NxM cases to run instead of the grid, e.g. 8x3,12x4")
     p.add_argument("--no-startup", action="store_true", help="skip the subprocess start-up measurements")
+    p.add_argument("--blas-threads", default="1",
+                   help="OPENBLAS/OMP/MKL_NUM_THREADS for the in-process cases: a number, or 'default' to leave "
+                        "the environment alone (default 1: multi-threaded OpenBLAS is 5-10x slower on a loaded "
+                        "2-core machine; the start-up/CLI runs always use the environment as it is)")
     args = p.parse_args(argv)
 
     t_start = time.perf_counter()
     grid = QUICK_GRID if args.quick else GRID
+    if args.repeat_below is None:
+        args.repeat_below = 0.0 if args.quick else 1.0
     if args.only:
         grid = [tuple(int(v) for v in item.lower().split("x")) for item in args.only.split(",")]  # type: ignore[misc]
     rows: list[dict[str, Any]] = []
@@ -633,16 +654,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("Start-up (subprocess wall time):", flush=True)
         rows += startup_rows(1 if args.quick else 5)
         flush()
+    if args.blas_threads != "default":
+        for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+            os.environ[var] = str(int(args.blas_threads))  # inherited by the forkserver only
+    blas = args.blas_threads if args.blas_threads != "default" else os.environ.get("OPENBLAS_NUM_THREADS", "default")
     runner = Runner()
     print("In-process analyze (one child process per case):", flush=True)
     res = runner.run(_child_paper, (), args.case_timeout)
     prow = {"case": "paper (in-process)", "n": 2, "m": 2, "seed": "", "solver": "auto", "uncertain": True,
-            "status": res["status"]}
+            "status": res["status"], "blas_threads": blas}
     prow.update(res["row"] or {"total_s": res["elapsed"]})
     rows.append(prow)
     flush()
     print(f"  paper    auto     {prow['status']:<7} total {prow.get('total_s', float('nan')):8.3f} s", flush=True)
-    run_grid(args, grid, runner, rows, flush)
+    run_grid(args, grid, runner, rows, flush, blas)
     wall = time.perf_counter() - t_start
     flush()
     print()

@@ -1,11 +1,13 @@
 """Convex solvers behind the LMIs: choice, settings and a call that never crashes.
 
-* ``clarabel`` (default for problems up to :data:`AUTO_THRESHOLD` scalar decision
-  variables): interior point, settings :data:`SETTINGS`.
-* ``sdpa`` (``sdpa-python``; chosen automatically above the threshold): a primal-dual
-  interior-point SDP solver, several times faster than Clarabel on these LMIs at a few
-  hundred variables, but it reports ``optimal_inaccurate`` on good answers, so its
-  answers stand only through the certificate.
+* ``clarabel`` (``auto`` picks it at every size): interior point, settings :data:`SETTINGS`.
+* ``sdpa`` (``sdpa-python``; selectable, and the second opinion that confirms an
+  infeasibility claim): a primal-dual interior-point SDP solver. It was meant to be
+  chosen automatically above a size threshold, but ``benchmarks/analysis.py`` measured
+  it 2.5x faster than Clarabel at n=16, m=2, 1.24x at n=12, m=4, yet 1.5x *slower* at
+  n=16, m=3, and its answers changed with what it had solved earlier in the same
+  process (sdpa-python 0.2.3 via cvxpy 1.9.3: certified but inflated gammas such as
+  24.7 instead of 3.27). A tool whose point is trust does not pick that automatically.
 * ``scs`` (selectable only): a first-order method; it returns ``optimal`` for violated
   LMIs at its default accuracy, so its answers too stand only through the certificate.
 
@@ -28,7 +30,6 @@ from .errors import ValidationError
 
 __all__ = [
     "SOLVERS",
-    "AUTO_THRESHOLD",
     "SETTINGS",
     "SolveOutcome",
     "choose_solver",
@@ -38,8 +39,6 @@ __all__ = [
 
 #: Solver names accepted by the API and ``--solver`` (lower case) -> cvxpy names.
 SOLVERS = {"clarabel": "CLARABEL", "sdpa": "SDPA", "scs": "SCS"}
-#: Above this many scalar decision variables ``auto`` picks SDPA (if installed).
-AUTO_THRESHOLD = 300
 #: Settings passed to each solver (cvxpy keyword arguments); quoted in results.
 SETTINGS: dict[str, dict[str, Any]] = {
     "clarabel": {"tol_gap_abs": 1e-9, "tol_gap_rel": 1e-9, "tol_feas": 1e-9, "max_iter": 200},
@@ -75,7 +74,9 @@ def _installed() -> set[str]:
 
 
 def choose_solver(requested: str | None, n_scalar: int) -> str:
-    """The solver to use: ``requested`` if given (validated), else by problem size."""
+    """The solver to use: ``requested`` if given (validated), else Clarabel (module
+    docstring: why ``auto`` does not switch to SDPA above a size). ``n_scalar`` is kept
+    for the record of the problem size."""
     installed = _installed()
     if requested is not None and requested != "auto":
         name = requested.lower()
@@ -84,8 +85,7 @@ def choose_solver(requested: str | None, n_scalar: int) -> str:
         if name not in installed:
             raise ValidationError(f"solver: {requested!r} is not installed (installed: {sorted(installed)})")
         return name
-    if n_scalar > AUTO_THRESHOLD and "sdpa" in installed:
-        return "sdpa"
+    del n_scalar
     return "clarabel"
 
 
