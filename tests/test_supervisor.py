@@ -1,0 +1,457 @@
+"""The co-simulation supervisor against the numpy reference simulator.
+
+On the same paths, the same ``Delta`` draws (same seed) and the same grid, the FMU
+co-simulation (``backend="fmu"``) and the reference must agree to 1e-8 relative in ``x``
+and ``y`` (both integrate exact zero-order-hold steps; the differences are rounding in
+two matrix exponentials). The reference is ``ftc_verify.reference_sim.simulate_reference``;
+every case is also checked against ``local_reference`` below, a loop written from the
+module docstring of :mod:`ftc_verify.supervisor` with scipy's ``expm`` (independent of both
+backends), so the supervisor stays tested while ``reference_sim`` is absent.
+
+Also: the paper's example and a 3-mode system with non-square ``Delta`` channels (one mode
+without a ``B1, B2`` channel), all four ``Delta`` kinds; the named ``fault_during_delay``
+variant; full-information gains; a hypothesis property over random small systems; the
+instance is loaded and instantiated once and reused across paths and runs; switch counts
+and norms are recorded; a renamed FMU works with a user-written map.
+"""
+
+from __future__ import annotations
+
+import re
+import shutil
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.linalg
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+fmpy = pytest.importorskip("fmpy")
+if shutil.which("gcc") is None:  # pragma: no cover
+    pytest.skip("gcc is needed to compile the FMU", allow_module_level=True)
+
+from ftc_verify.errors import ValidationError  # noqa: E402
+from ftc_verify.fmu_build import build_fmu  # noqa: E402
+from ftc_verify.model import FTCSystem  # noqa: E402
+from ftc_verify.paths import communication_grid, disturbance, sample_paths  # noqa: E402
+from ftc_verify.simulation import l2_norm  # noqa: E402
+from ftc_verify.supervisor import FaultInjectionMap, Supervisor, simulate_fmu  # noqa: E402
+from ftc_verify.uncertainty import DeltaSchedule, delta_segments  # noqa: E402
+
+try:
+    from ftc_verify.reference_sim import simulate_reference
+except ImportError:  # written in parallel; the local reference below covers the meantime
+    simulate_reference = None
+try:
+    from ftc_verify.reference_sim import energies_reference
+except ImportError:
+    energies_reference = None
+
+RTOL = 1e-8
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _isolated_cache(tmp_path_factory: pytest.TempPathFactory):
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("FTC_VERIFY_CACHE", str(tmp_path_factory.mktemp("ftc-verify-cache")))
+        yield
+
+
+# ------------------------------------------------------------------------------------------
+# An independent reference loop
+# ------------------------------------------------------------------------------------------
+
+
+def local_reference(system, gains, paths, *, step, disturbance_kind="paper", delta=None, x0=None, seed=None):
+    """Per path: grid, ``Delta`` per chain segment (drawn in path order from
+    ``default_rng(seed)``), ``u_k = K[l_k] x_k`` (``K[r m + l]`` for ``m^2`` gains), ``w_k``,
+    ``y_k = C[r_k] x_k``, one exact ZOH step per interval by scipy's ``expm``; at ``t_N`` the
+    last interval's modes. Returns ``[(t, true, fdi, x, u, w, y)]``."""
+    n, nu, ny, nw = system.dims
+    m = system.m
+    sched = DeltaSchedule("zero") if delta is None else (DeltaSchedule(delta) if isinstance(delta, str) else delta)
+    rng = np.random.default_rng(seed)
+    full = len(gains) == m * m
+    out = []
+    for p in paths:
+        segs = delta_segments(system, p, sched, rng)
+        t, true, fdi = communication_grid(p, step)
+        N = len(t) - 1
+        W = disturbance(disturbance_kind, nw)(t)
+        seg = np.searchsorted(p.times, t[:-1], side="right") - 1
+        cache: dict = {}  # exact per (mode, segment, step size)
+        x = np.zeros(n) if x0 is None else np.asarray(x0, dtype=float)
+        X, U, Y = np.zeros((N + 1, n)), np.zeros((N + 1, nu)), np.zeros((N + 1, ny))
+        for k in range(N + 1):
+            r, l = true[min(k, N - 1)], fdi[min(k, N - 1)]
+            md = system.modes[r]
+            X[k], Y[k] = x, md.C @ x
+            U[k] = (gains[r * m + l] if full else gains[l]) @ x
+            if k == N:
+                break
+            key = (r, seg[k], t[k + 1] - t[k])
+            E = cache.get(key)
+            if E is None:
+                d1, d2 = segs[seg[k]]
+                A = md.A + (md.A1 @ d1 @ md.A2 if md.A1 is not None else 0.0)
+                B = md.B + (md.B1 @ d2 @ md.B2 if md.B1 is not None else 0.0)
+                M = np.zeros((n + nu + nw, n + nu + nw))
+                M[:n, :n], M[:n, n:n + nu], M[:n, n + nu:] = A, B, md.D
+                E = cache[key] = scipy.linalg.expm(M * key[2])
+            x = E[:n, :n] @ x + E[:n, n:] @ np.concatenate([U[k], W[k]])
+        out.append((t, true, fdi, X, U, W, Y))
+    return out
+
+
+def rel_err(a: np.ndarray, b: np.ndarray) -> float:
+    """``max |a - b| / max(max |b|, 1e-300)`` (relative to the signal's size on the path)."""
+    scale = max(float(np.max(np.abs(b))) if b.size else 0.0, 1e-300)
+    return float(np.max(np.abs(a - b))) / scale if b.size else 0.0
+
+
+def assert_matches_local(result, expected) -> None:
+    assert len(result.records) == len(expected)
+    for rec, (t, true, fdi, X, U, W, Y) in zip(result.records, expected):
+        assert np.array_equal(rec.t, t) and np.array_equal(rec.true, true) and np.array_equal(rec.fdi, fdi)
+        assert np.array_equal(rec.w, W)
+        assert rel_err(rec.x, X) <= RTOL, rel_err(rec.x, X)
+        assert rel_err(rec.y, Y) <= RTOL, rel_err(rec.y, Y)
+        assert rel_err(rec.u, U) <= RTOL, rel_err(rec.u, U)
+
+
+def assert_backends_agree(fmu_res, ref_res) -> None:
+    assert fmu_res.backend == "fmu"
+    assert len(fmu_res.records) == len(ref_res.records)
+    assert (fmu_res.step, fmu_res.horizon, fmu_res.disturbance) == (ref_res.step, ref_res.horizon, ref_res.disturbance)
+    for a, b in zip(fmu_res.records, ref_res.records):
+        assert np.array_equal(a.t, b.t)
+        assert np.array_equal(a.true, b.true) and np.array_equal(a.fdi, b.fdi)
+        assert np.allclose(a.w, b.w, rtol=1e-15, atol=0)
+        for name in ("x", "y", "u"):
+            err = rel_err(getattr(a, name), getattr(b, name))
+            assert err <= RTOL, (name, err)
+        assert a.y_norm == pytest.approx(b.y_norm, rel=RTOL)
+
+
+needs_reference = pytest.mark.skipif(simulate_reference is None,
+                                     reason="ftc_verify.reference_sim is not there yet")
+
+
+# ------------------------------------------------------------------------------------------
+# Systems
+# ------------------------------------------------------------------------------------------
+
+
+def random_system(seed: int, *, n=3, nu=2, ny=2, nw=1, m=3, q1=2, p1=3, q2=1, p2=2,
+                  partial=True, fault_during_delay=False) -> FTCSystem:
+    """A random stable-ish plant; ``Delta1`` is ``q1 x p1``, ``Delta2`` ``q2 x p2`` (0: none);
+    with ``partial`` the last mode lacks the ``B1, B2`` channel."""
+    g = np.random.default_rng(seed)
+    modes = []
+    for i in range(m):
+        md = dict(A=g.uniform(-1, 1, (n, n)) - 1.0 * np.eye(n), B=g.uniform(-1, 1, (n, nu)),
+                  C=g.uniform(-1, 1, (ny, n)), D=g.uniform(-1, 1, (n, nw)))
+        if q1:
+            md.update(A1=0.3 * g.uniform(-1, 1, (n, q1)), A2=0.3 * g.uniform(-1, 1, (p1, n)))
+        if q2 and not (partial and i == m - 1):
+            md.update(B1=0.3 * g.uniform(-1, 1, (n, q2)), B2=0.3 * g.uniform(-1, 1, (p2, nu)))
+        modes.append(md)
+    alpha = g.uniform(0.3, 1.5, (m, m))
+    np.fill_diagonal(alpha, 0.0)
+    np.fill_diagonal(alpha, -alpha.sum(axis=1))
+    bmin = g.uniform(1.0, 3.0, (m, m))
+    np.fill_diagonal(bmin, 0.0)
+    return FTCSystem.from_arrays(name=f"random-{seed}", modes=modes, alpha=alpha, beta_min=bmin,
+                                 beta_max=bmin * 1.5, fault_during_delay=fault_during_delay)
+
+
+def random_gains(system: FTCSystem, seed: int, count: int | None = None) -> list[np.ndarray]:
+    n, nu, _, _ = system.dims
+    g = np.random.default_rng(seed)
+    return [0.5 * g.uniform(-1, 1, (nu, n)) for _ in range(count or system.m)]
+
+
+def delta_cases(system: FTCSystem):
+    from ftc_verify.uncertainty import delta_shapes
+
+    g = np.random.default_rng(99)
+    s1, s2 = delta_shapes(system)
+
+    def unit(shape):
+        if shape is None:
+            return None
+        G = g.standard_normal(shape)
+        return 0.9 * G / np.linalg.norm(G, 2)
+
+    d1, d2 = unit(s1), unit(s2)
+    return {
+        "zero": None,
+        "constant": DeltaSchedule("constant", d1, d2),
+        "sign": DeltaSchedule("sign", d1, d2),
+        "random": DeltaSchedule("random"),
+    }
+
+
+@pytest.fixture(scope="module")
+def paper_case(paper_system, paper_gains):
+    paths = sample_paths(paper_system.chain, 10.0, 6, np.random.default_rng(2024))
+    return paper_system, list(paper_gains), paths
+
+
+@pytest.fixture(scope="module")
+def random_case():
+    system = random_system(7)
+    paths = sample_paths(system.chain, 4.0, 6, np.random.default_rng(11))
+    return system, random_gains(system, 8), paths
+
+
+CASES = [(case, kind) for case in ("paper_case", "random_case") for kind in ("zero", "constant", "sign", "random")]
+_FMU_RUNS: dict = {}
+
+
+def fmu_run(request, case: str, kind: str):
+    """The FMU result of a case (computed once per module; both comparisons reuse it)."""
+    system, gains, paths = request.getfixturevalue(case)
+    if (case, kind) not in _FMU_RUNS:
+        x0 = np.linspace(0.5, -0.5, system.dims[0])
+        _FMU_RUNS[case, kind] = simulate_fmu(system, gains, paths, step=0.01, disturbance="paper",
+                                             delta=delta_cases(system)[kind], x0=x0, seed=31)
+    return system, gains, paths, _FMU_RUNS[case, kind]
+
+
+# ------------------------------------------------------------------------------------------
+# Agreement with the reference
+# ------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("case, kind", CASES)
+def test_fmu_matches_the_local_reference(request, case: str, kind: str) -> None:
+    system, gains, paths, res = fmu_run(request, case, kind)
+    x0 = np.linspace(0.5, -0.5, system.dims[0])
+    expected = local_reference(system, gains, paths, step=0.01, delta=delta_cases(system)[kind], x0=x0, seed=31)
+    assert_matches_local(res, expected)
+    assert res.options["delta"] == kind and res.seed == 31
+    if kind != "zero":  # Delta really acts: the nominal run differs
+        nominal = fmu_run(request, case, "zero")[3]
+        assert any(not np.allclose(a.x, b.x, rtol=1e-6) for a, b in zip(res.records, nominal.records))
+
+
+@needs_reference
+@pytest.mark.parametrize("case, kind", CASES)
+def test_fmu_matches_simulate_reference(request, case: str, kind: str) -> None:
+    system, gains, paths, res = fmu_run(request, case, kind)
+    x0 = np.linspace(0.5, -0.5, system.dims[0])
+    ref = simulate_reference(system, gains, paths, step=0.01, disturbance="paper",
+                             delta=delta_cases(system)[kind], x0=x0, seed=31)
+    assert_backends_agree(res, ref)
+    if energies_reference is not None:  # the Monte-Carlo fast path: same energies
+        Ey, Ew = energies_reference(system, gains, paths, step=0.01, disturbance="paper",
+                                    delta=delta_cases(system)[kind], x0=x0, rng=np.random.default_rng(31))
+        assert np.allclose(Ey, [r.y_norm ** 2 for r in res.records], rtol=RTOL, atol=0)
+        assert np.allclose(Ew, [r.w_norm ** 2 for r in res.records], rtol=RTOL, atol=0)
+
+
+def test_rng_and_seed_give_the_same_delta_draws(random_case) -> None:
+    system, gains, paths = random_case
+    a = simulate_fmu(system, gains, paths[:2], step=0.05, delta="random", seed=5)
+    b = simulate_fmu(system, gains, paths[:2], step=0.05, delta="random", rng=np.random.default_rng(5))
+    c = simulate_fmu(system, gains, paths[:2], step=0.05, delta="random", seed=6)
+    for ra, rb, rc in zip(a.records, b.records, c.records):
+        assert np.array_equal(ra.x, rb.x)
+        assert not np.array_equal(ra.x, rc.x)
+
+
+def test_fault_during_delay_variant_and_full_information_gains() -> None:
+    """The named variant needs nothing special: its paths (fault jumps while the FDI lags)
+    are followed like any other; ``m^2`` gains pick ``K[r m + l]``."""
+    system = random_system(3, n=2, nu=1, ny=1, nw=2, m=2, q1=0, q2=1, p2=1, partial=False,
+                           fault_during_delay=True)
+    paths = sample_paths(system.chain, 6.0, 8, np.random.default_rng(4))
+    lagging_jumps = sum(
+        int(np.count_nonzero((np.diff(p.true) != 0) & (p.true[:-1] != p.fdi[:-1]))) for p in paths
+    )
+    assert lagging_jumps > 0  # the variant actually happens on these paths
+    for gains in (random_gains(system, 1), random_gains(system, 2, count=4)):
+        res = simulate_fmu(system, gains, paths, step=0.02, delta="random", seed=9, disturbance="sine")
+        assert_matches_local(res, local_reference(system, gains, paths, step=0.02, delta="random", seed=9,
+                                                  disturbance_kind="sine"))
+        assert res.options["fault_during_delay"] is True
+        assert res.options["gains"] == ("fdi" if len(gains) == 2 else "full-information")
+        if simulate_reference is not None:
+            assert_backends_agree(res, simulate_reference(system, gains, paths, step=0.02, disturbance="sine",
+                                                          delta="random", seed=9))
+
+
+# ------------------------------------------------------------------------------------------
+# Property: random small systems and seeds
+# ------------------------------------------------------------------------------------------
+
+
+@st.composite
+def small_problems(draw):
+    m = draw(st.integers(2, 3))
+    n = draw(st.integers(1, 3))
+    nu = draw(st.integers(1, 2))
+    ny = draw(st.integers(1, 2))
+    nw = draw(st.integers(1, 2))
+    q1 = draw(st.integers(0, 2))
+    q2 = draw(st.integers(0, 1))
+    system = random_system(draw(st.integers(0, 2**31 - 1)), n=n, nu=nu, ny=ny, nw=nw, m=m,
+                           q1=q1, p1=draw(st.integers(1, 2)) if q1 else 0, q2=q2, p2=1 if q2 else 0,
+                           partial=draw(st.booleans()), fault_during_delay=draw(st.booleans()))
+    gains = random_gains(system, draw(st.integers(0, 1000)))
+    seed = draw(st.integers(0, 2**31 - 1))
+    paths = sample_paths(system.chain, draw(st.sampled_from([0.5, 1.7, 3.0])), 2, np.random.default_rng(seed))
+    step = draw(st.sampled_from([0.013, 0.05, 0.1]))
+    kind = draw(st.sampled_from(["zero", "sign", "random"]))
+    delta = delta_cases(system)["sign"] if kind == "sign" else kind
+    dist = draw(st.sampled_from(["paper", "step", "pulse"]))
+    x0 = draw(st.lists(st.floats(-1, 1), min_size=n, max_size=n))
+    return system, gains, paths, step, delta, dist, x0, seed
+
+
+@settings(max_examples=8)
+@given(small_problems())
+def test_property_backends_agree_on_random_systems(problem) -> None:
+    system, gains, paths, step, delta, dist, x0, seed = problem
+    res = simulate_fmu(system, gains, paths, step=step, disturbance=dist, delta=delta, x0=x0, seed=seed)
+    if simulate_reference is not None:
+        ref = simulate_reference(system, gains, paths, step=step, disturbance=dist, delta=delta, x0=x0, seed=seed)
+        assert_backends_agree(res, ref)
+    else:
+        assert_matches_local(res, local_reference(system, gains, paths, step=step, disturbance_kind=dist,
+                                                  delta=delta, x0=x0, seed=seed))
+
+
+# ------------------------------------------------------------------------------------------
+# Instance reuse, records
+# ------------------------------------------------------------------------------------------
+
+
+def test_library_loaded_and_instantiated_once(paper_case, monkeypatch: pytest.MonkeyPatch) -> None:
+    from fmpy.fmi2 import FMU2Slave
+
+    system, gains, paths = paper_case
+    calls = {"init": 0, "instantiate": 0}
+    orig_init, orig_inst = FMU2Slave.__init__, FMU2Slave.instantiate
+
+    def counting_init(self, *a, **kw):
+        calls["init"] += 1
+        orig_init(self, *a, **kw)
+
+    def counting_inst(self, *a, **kw):
+        calls["instantiate"] += 1
+        return orig_inst(self, *a, **kw)
+
+    monkeypatch.setattr(FMU2Slave, "__init__", counting_init)
+    monkeypatch.setattr(FMU2Slave, "instantiate", counting_inst)
+    fmu = build_fmu(system)
+    with Supervisor(fmu, system=system) as sup:
+        slave = sup.slave
+        first = sup.run(paths, gains, step=0.05, x0=[1.0, -1.0])
+        second = sup.run(paths[::-1], gains, step=0.05, x0=[1.0, -1.0])
+        assert sup.slave is slave
+        assert sup.stats["library_loads"] == sup.stats["instantiations"] == 1
+        assert sup.stats["resets"] == 2 * len(paths) - 1 and sup.stats["paths"] == 2 * len(paths)
+        assert sup.stats["steps"] == sum(len(r.t) - 1 for r in first.records + second.records)
+    assert calls == {"init": 1, "instantiate": 1}
+    # a reset instance gives bit-identical results, in any order of paths
+    for a, b in zip(first.records, second.records[::-1]):
+        assert a.path is b.path and np.array_equal(a.x, b.x) and np.array_equal(a.y, b.y)
+    with Supervisor(fmu, system=system) as fresh:
+        again = fresh.run([paths[-1]], gains, step=0.05, x0=[1.0, -1.0])
+    assert np.array_equal(again.records[0].x, first.records[-1].x)
+    assert sup.closed and sup.slave is None and sup.extraction_dir is None
+
+
+def test_switches_norms_and_grid_are_recorded(request) -> None:
+    system, gains, paths, res = fmu_run(request, "paper_case", "random")
+    summary = res.to_dict()
+    assert summary["backend"] == "fmu" and summary["paths"] == len(paths) and summary["step"] == 0.01
+    assert summary["horizon"] == 10.0 and summary["disturbance"] == "paper"
+    assert any(s["fault"] > 0 for s in summary["switches"])
+    for rec, path, sw, yn, wn in zip(res.records, paths, summary["switches"], summary["y_norm"], summary["w_norm"]):
+        assert rec.path is path
+        assert sw == {"fault": path.fault_switches, "fdi": path.fdi_switches}
+        # the grid holds every jump time, and the recorded modes switch exactly there
+        assert set(path.times[1:]) <= set(rec.t)
+        assert int(np.count_nonzero(np.diff(rec.true))) == path.fault_switches
+        assert int(np.count_nonzero(np.diff(rec.fdi))) == path.fdi_switches
+        assert rec.x.shape == (len(rec.t), 2) and rec.u.shape == (len(rec.t), 2)
+        assert rec.w.shape == rec.y.shape == (len(rec.t), 1)
+        assert yn == l2_norm(rec.t, rec.y) and wn == l2_norm(rec.t, rec.w)
+        assert np.all(np.isfinite(rec.x)) and rec.x[0] == pytest.approx([0.5, -0.5])
+        # u is the held control: K[fdi] x at each grid point (last point: last FDI mode)
+        l_at = np.append(rec.fdi, rec.fdi[-1])
+        assert np.allclose(rec.u, np.einsum("kij,kj->ki", np.stack(gains)[l_at], rec.x), rtol=1e-13, atol=1e-15)
+    # the paper's ||w||_2 on [0, 10] for w = exp(-0.1 t) sin t (READING-NOTES: 1.5733 on [0, inf))
+    assert 1.40 < summary["w_norm"][0] < 1.5733
+
+
+def test_single_path_and_argument_checks(paper_case) -> None:
+    system, gains, paths = paper_case
+    res = simulate_fmu(system, gains, paths[0], step=0.1, disturbance="zero")
+    assert len(res.records) == 1 and np.all(res.records[0].x == 0.0)  # x0 = 0, w = 0: stays at rest
+    with pytest.raises(ValidationError, match="unknown kind"):
+        simulate_fmu(system, gains, paths[:1], step=0.1, disturbance="wind")
+    with pytest.raises(ValidationError, match="delta: unknown kind"):
+        simulate_fmu(system, gains, paths[:1], step=0.1, delta="wild")
+    with pytest.raises(ValidationError, match="paths"):
+        simulate_fmu(system, gains, [], step=0.1)
+
+
+# ------------------------------------------------------------------------------------------
+# A user's FMU: same plant, other names, a hand-written map
+# ------------------------------------------------------------------------------------------
+
+RENAMES = {
+    r"x0\[(\d+)\]": r"init.x\1", r"u\[(\d+)\]": r"actuators.u\1", r"w\[(\d+)\]": r"environment.gust\1",
+    r"Delta1\[(\d+),(\d+)\]": r"uncertainty.dA_\1_\2", r"Delta2\[(\d+),(\d+)\]": r"uncertainty.dB_\1_\2",
+    r"x\[(\d+)\]": r"plant.state\1", r"y\[(\d+)\]": r"sensors.y\1", r"mode": r"health.faultIndex",
+}
+
+
+def test_user_map_on_a_renamed_fmu(paper_case, tmp_path: Path) -> None:
+    system, gains, paths = paper_case
+    original = build_fmu(system, tmp_path / "original.fmu")
+
+    def rename(xml: str) -> str:
+        for pattern, repl in RENAMES.items():
+            xml = re.sub(f'name="{pattern}"', f'name="{repl}"', xml)
+        return xml.replace('variableNamingConvention="structured"', 'variableNamingConvention="flat"')
+
+    renamed = tmp_path / "Renamed.fmu"
+    with zipfile.ZipFile(original) as zin, zipfile.ZipFile(renamed, "w") as zout:
+        for item in zin.infolist():
+            data = zin.read(item)
+            if item.filename == "modelDescription.xml":
+                data = rename(data.decode()).encode()
+                assert b'name="u[1]"' not in data and b'name="health.faultIndex"' in data
+            zout.writestr(item, data)
+    user_map = FaultInjectionMap(
+        fault="health.faultIndex", fault_values=(1, 2),
+        inputs=["actuators.u1", "actuators.u2"], disturbances=["environment.gust1"],
+        states=["plant.state1", "plant.state2"], outputs=["sensors.y1"],
+        initial_states=["init.x1", "init.x2"],
+        delta1=[f"uncertainty.dA_{i}_{j}" for i in (1, 2) for j in (1, 2)],
+        delta2=[f"uncertainty.dB_{i}_{j}" for i in (1, 2) for j in (1, 2)],
+    )
+    kw = dict(step=0.02, delta="random", x0=[0.3, 0.1], seed=4)
+    with Supervisor(renamed, user_map, system=system) as sup:
+        mine = sup.run(paths[:3], gains, **kw)
+    theirs = simulate_fmu(system, gains, paths[:3], **kw)
+    for a, b in zip(mine.records, theirs.records):
+        for name in ("t", "x", "u", "w", "y"):
+            assert np.array_equal(getattr(a, name), getattr(b, name)), name
+    # without the system (no Delta), a user FMU still runs with a nominal plant
+    with Supervisor(renamed, FaultInjectionMap(fault="health.faultIndex", inputs=user_map.inputs,
+                                               states=user_map.states, disturbances=user_map.disturbances,
+                                               outputs=user_map.outputs)) as sup:
+        nominal = sup.run(paths[:1], gains, step=0.02)
+        with pytest.raises(ValidationError, match="needs the system"):
+            sup.run(paths[:1], gains, step=0.02, delta="random")
+        with pytest.raises(ValidationError, match="no initial_states"):
+            sup.run(paths[:1], gains, step=0.02, x0=[1.0, 0.0])
+    assert np.array_equal(nominal.records[0].x, simulate_fmu(system, gains, paths[:1], step=0.02).records[0].x)
