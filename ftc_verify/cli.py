@@ -115,6 +115,111 @@ def _cmd_synthesize(args: argparse.Namespace) -> int:
     return EXIT_OK if res.certified else EXIT_NEGATIVE
 
 
+def _nonneg_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {text!r}")
+    return value
+
+
+def _seed(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer seed: {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"seeds are non-negative, got {text!r}")
+    return value
+
+
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from .model import FTCSystem, JointChain
+    from .paths import sample_paths
+    from .problem_files import check_gains, load_gains, load_system
+    from .uncertainty import DeltaSchedule
+
+    system = load_system(args.system)
+    if args.fault_during_delay:
+        ch = system.chain
+        system = FTCSystem(system.name, system.modes, JointChain(ch.alpha, ch.beta_min, ch.beta_max, True))
+    gains = check_gains(system, load_gains(args.gains), source=str(args.gains))
+    seed = args.seed if args.seed is not None else int(np.random.SeedSequence().entropy % 2**63)
+    rng = np.random.default_rng(seed)
+    beta = {"random": None, "min": system.chain.beta_min, "max": system.chain.beta_max,
+            "mid": system.chain.midpoint()}[args.beta]
+    paths = sample_paths(system.chain, args.horizon, args.paths, rng, beta=beta)
+    delta = DeltaSchedule(args.delta if system.uncertain else "zero")
+    if args.backend == "fmu":
+        from .supervisor import simulate_fmu
+
+        res = simulate_fmu(system, gains, paths, step=args.step, disturbance=args.disturbance, delta=delta, rng=rng, seed=seed)
+    else:
+        from .reference_sim import simulate_reference
+
+        res = simulate_reference(system, gains, paths, step=args.step, disturbance=args.disturbance, delta=delta, rng=rng, seed=seed)
+    if args.plot:
+        from .plots import plot_path
+
+        plot_path(res.records[0], args.plot, title=f"{system.name}: path 1 ({args.backend}, seed {seed})")
+    d = res.to_dict()
+    if args.json:
+        print(json.dumps(d, indent=2))
+    else:
+        y, w = np.array(d["y_norm"]), np.array(d["w_norm"])
+        print(f"ftc-verify simulate: {system.name}, backend {res.backend}, {len(y)} paths, horizon {args.horizon:g}, "
+              f"step {args.step:g}, seed {seed}, disturbance {args.disturbance}, Delta {delta.kind}")
+        print(f"  ||w||_2 = {np.mean(w):.6g} (mean over paths)")
+        print(f"  ||y||_2: mean {np.mean(y):.6g}, min {np.min(y):.6g}, max {np.max(y):.6g}")
+        print(f"  ||y||_2/||w||_2: mean {np.mean(y / w):.6g}, max {np.max(y / w):.6g}")
+        sw = d["switches"]
+        print(f"  switches per path: fault {np.mean([s['fault'] for s in sw]):.3g}, FDI {np.mean([s['fdi'] for s in sw]):.3g} (mean)")
+        if args.plot:
+            print(f"  plot written to {args.plot}")
+    return EXIT_OK
+
+
+def _cmd_verify(args: argparse.Namespace) -> int:
+    from .problem_files import check_gains, load_gains, load_system
+    from .report import write_report
+    from .verify import run_verify
+
+    system = load_system(args.system)
+    gains = None if args.gains is None else check_gains(system, load_gains(args.gains), source=str(args.gains))
+    k_max = None if args.no_gain_bound else args.k_max
+    rep = run_verify(system, gamma=args.gamma, method=args.method, k_max=k_max, gains=gains, paths=args.paths,
+                     step=args.step, horizon=args.horizon, seed=args.seed, solver=args.solver,
+                     progress=sys.stderr.isatty())
+    written = write_report(rep, args.out)
+    d = rep.to_dict()
+    print(f"ftc-verify verify: {system.name}")
+    for c in d["checks"]:
+        print(f"  [{'pass' if c['ok'] else 'FAIL'}] {c['name']}: {c['detail']}")
+    print(f"  report: {', '.join(str(p) for p in written)}")
+    print(f"  verdict: {d['verdict']}")
+    return EXIT_OK if rep.verdict == "pass" else EXIT_NEGATIVE
+
+
+def _cmd_build_fmus(args: argparse.Namespace) -> int:
+    from .fmu_build import FMUError, build_binary, build_fmu, validate
+    from .problem_files import load_system
+
+    lib = build_binary(force=args.force)
+    print(f"binary: {lib}")
+    systems = args.systems or []
+    for path in systems:
+        fmu = build_fmu(load_system(path))
+        problems = validate(fmu)
+        if problems:
+            raise FMUError(f"{fmu}: validation found problems: {'; '.join(problems)}")
+        print(f"{path}: {fmu} (validated, no problems)")
+    return EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``ftc-verify``."""
     p = _Parser(prog="ftc-verify", description=__doc__.splitlines()[0])
@@ -139,6 +244,45 @@ def build_parser() -> argparse.ArgumentParser:
     y.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     y.add_argument("--solver", default="auto", choices=["auto", "clarabel", "sdpa", "scs"])
     y.set_defaults(func=_cmd_synthesize)
+
+    m = sub.add_parser("simulate", help="simulate the sampled-data loop under Markov faults and delayed FDI")
+    m.add_argument("system", help="system TOML file")
+    m.add_argument("--gains", required=True, help="gains TOML file")
+    m.add_argument("--backend", default="fmu", choices=["fmu", "reference"])
+    m.add_argument("--paths", type=_nonneg_int, default=10)
+    m.add_argument("--horizon", type=_positive, default=30.0)
+    m.add_argument("--step", type=_positive, default=0.01, help="control period h (sample-and-hold)")
+    m.add_argument("--seed", type=_seed, default=None, help="seed of the numpy Generator (recorded in the output)")
+    m.add_argument("--disturbance", default="paper", choices=["paper", "zero", "step", "pulse", "sine"])
+    m.add_argument("--beta", default="random", choices=["random", "min", "max", "mid"],
+                   help="detection rates: drawn per path in their box (default) or fixed")
+    m.add_argument("--delta", default="zero", choices=["zero", "random", "sign", "constant"],
+                   help="time-varying uncertainty (random: a new Delta per chain segment)")
+    m.add_argument("--fault-during-delay", action="store_true",
+                   help="named variant: faults keep occurring during a detection delay (not the paper's model)")
+    m.add_argument("--json", action="store_true")
+    m.add_argument("--plot", default=None, help="PNG file for the paper's Fig. 1 of the first path")
+    m.set_defaults(func=_cmd_simulate)
+
+    v = sub.add_parser("verify", help="the main job: synthesize, certify, cross-validate, co-simulate, report")
+    v.add_argument("system", help="system TOML file")
+    v.add_argument("--gamma", type=_positive, default=None, help="attenuation level (default: minimise)")
+    v.add_argument("--method", default="iterative", choices=["two-step", "iterative", "full-info", "common"])
+    v.add_argument("--gains", default=None, help="verify these gains instead of synthesizing")
+    v.add_argument("--k-max", type=_positive, default=30.0, help="gain norm bound for synthesis (default 30)")
+    v.add_argument("--no-gain-bound", action="store_true", help="synthesize without a gain bound")
+    v.add_argument("--paths", type=_nonneg_int, default=200, help="Monte Carlo paths on the FMU (default 200)")
+    v.add_argument("--step", type=_positive, default=0.01)
+    v.add_argument("--horizon", type=_positive, default=30.0)
+    v.add_argument("--seed", type=_seed, default=None)
+    v.add_argument("--out", default="ftc-verify-report", help="output folder (default ./ftc-verify-report)")
+    v.add_argument("--solver", default="auto", choices=["auto", "clarabel", "sdpa", "scs"])
+    v.set_defaults(func=_cmd_verify)
+
+    b = sub.add_parser("build-fmus", help="compile the plant FMU binary (and FMUs for given systems), validate")
+    b.add_argument("systems", nargs="*", help="system TOML files to build FMUs for")
+    b.add_argument("--force", action="store_true", help="recompile even when the cached binary is up to date")
+    b.set_defaults(func=_cmd_build_fmus)
     return p
 
 
