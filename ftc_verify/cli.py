@@ -287,7 +287,16 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point; returns the exit code."""
+    """Entry point; returns the exit code.
+
+    Unless set by the caller, BLAS runs single-threaded (``OPENBLAS_NUM_THREADS=1``; set
+    before numpy is first imported): these problems are small, and on a busy 2-core
+    machine threaded OpenBLAS made small matrix exponentials 1000x slower (measured).
+    """
+    import os
+
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
     args = build_parser().parse_args(argv)
     try:
         with warnings.catch_warnings():
