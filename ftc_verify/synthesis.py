@@ -64,6 +64,8 @@ METHODS = ("two-step", "iterative", "full-info", "common")
 #: An (X, Y) problem counts as strictly feasible when its maximised margin exceeds this
 #: (a heuristic only: every result is certified by the core analysis afterwards).
 MARGIN_TOL = 1e-10
+#: Weight of the size penalty that keeps the capped-margin (X, Y) problems bounded.
+CENTRE_WEIGHT = 1e-6
 #: Relative width at which the gamma bisection of ``two-step --minimize`` stops.
 BISECTION_RTOL = 2e-3
 
@@ -224,7 +226,13 @@ def _xy_solve(system: FTCSystem, kind: str, gamma: float | None, calls: _Calls, 
         g_star: float | None = value if out.status == "optimal" else None
     else:
         g_star, ladder = None, [gamma]
-    centred = cp.Problem(cp.Maximize(t), constraints(g_par, t) + [t <= 1.0])
+    # The margin is capped (t <= 1) to keep the problem bounded; once the cap binds, the
+    # maximiser is not unique and an interior-point method drifts to huge X, eps, delta
+    # (measured: 1e5-4e6 at gamma = 10, after which step 2 failed). A small penalty on
+    # trace(X) and the multipliers selects a bounded point without changing which t is reachable.
+    unique_x = list({id(x): x for x in Xv}.values())
+    size = sum(cp.trace(x) for x in unique_x) / (len(unique_x) * n) + (sum(eps) + sum(dlt)) / (2 * S)
+    centred = cp.Problem(cp.Maximize(t - CENTRE_WEIGHT * size), constraints(g_par, t) + [t <= 1.0])
     for level in ladder:
         g_par.value = level ** 2
         out = calls.run(centred)

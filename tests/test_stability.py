@@ -232,30 +232,3 @@ def test_greedy_vertex_search_respects_budget(make_scalar_system, budget):
     assert res.vertices_evaluated <= budget  # "the same budget"
     assert res.spectral_abscissa <= full.spectral_abscissa + 1e-12  # a lower bound of the maximum
     assert spectral_abscissa(loop, res.worst_beta) == pytest.approx(res.spectral_abscissa, abs=1e-12)
-
-
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_shift_invert_abscissa_matches_dense(seed):
-    """Above DENSE_LIMIT the abscissa comes from shift-invert Arnoldi; it must equal the
-    dense answer (n = 6, m = 4: generator of size 16 * 21 = 336)."""
-    import scipy.linalg
-
-    from ftc_verify import stability as st
-    from ftc_verify.closedloop import state_feedback_loop
-    from ftc_verify.model import FTCSystem
-
-    rng = np.random.default_rng(seed)
-    n, m = 6, 4
-    modes = [{"A": rng.normal(size=(n, n)) / np.sqrt(n) - (0.5 if k % 2 else 0.0) * np.eye(n),
-              "B": rng.normal(size=(n, 2)), "C": np.ones((1, n)), "D": np.ones((n, 1))} for k in range(m)]
-    alpha = rng.uniform(0.2, 1.0, (m, m))
-    np.fill_diagonal(alpha, 0.0)
-    np.fill_diagonal(alpha, -alpha.sum(axis=1))
-    system = FTCSystem.from_arrays(name="big", modes=modes, alpha=alpha,
-                                   beta_min=np.full((m, m), 2.0), beta_max=np.full((m, m), 3.0))
-    loop = state_feedback_loop(system, [np.zeros((2, n))] * m)
-    beta = system.chain.midpoint()
-    L = st.second_moment_generator(loop, beta)
-    assert L.shape[0] > st.DENSE_LIMIT
-    dense = float(np.max(scipy.linalg.eigvals(L).real))
-    assert st.spectral_abscissa(loop, beta) == pytest.approx(dense, abs=1e-9 * max(1.0, abs(dense)))
