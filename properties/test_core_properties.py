@@ -341,6 +341,43 @@ def test_robust_gamma_equals_nominal_for_zero_weights(drawn: DrawnLoop) -> None:
     assert_same_gamma(robust, nominal)
 
 
+def perturbed_nominal(drawn: DrawnLoop, deltas: list[tuple[Matrix, Matrix]]) -> DrawnLoop:
+    r"""The nominal plant with fixed :math:`A_i + A1_i \Delta_{1,i} A2_i` and
+    :math:`B_i + B1_i \Delta_{2,i} B2_i`, same gains, no uncertainty weights."""
+    spec = drawn.spec()
+    for md, (d1, d2) in zip(spec["modes"], deltas):
+        md["A"] = md["A"] + md.pop("A1") @ d1 @ md.pop("A2")
+        md["B"] = md["B"] + md.pop("B1") @ d2 @ md.pop("B2")
+    return DrawnLoop.from_spec(**spec)
+
+
+def unit_norm(M: Matrix) -> Matrix:
+    """``M / ||M||_2`` (spectral norm 1, on the boundary of the uncertainty set); 0 stays 0."""
+    norm = float(np.linalg.norm(M, 2))
+    return M / norm if norm > 0.0 else M
+
+
+@given(drawn=stable_loops(margin=MARGIN, uncertain=True), data=st.data())
+def test_robust_certificate_covers_every_fixed_delta(drawn: DrawnLoop, data: st.DataObject) -> None:
+    r"""Lemma 4.1 bounds every admissible :math:`\Delta` (time-varying, so in particular
+    any fixed :math:`\|\Delta_{1,i}\|, \|\Delta_{2,i}\| \le 1` per mode): if it is certified
+    at :math:`\gamma`, the plant with those :math:`\Delta` built in is mean-square stable at
+    every vertex of the box and its nominal :math:`\gamma_{\inf}` is at most :math:`\gamma`."""
+    robust = certified_gamma(drawn, robust=True)
+    n, nu, _, _ = drawn.system.dims
+    deltas = [
+        (unit_norm(data.draw(matrices(n, n, bound=1.0), label=f"Delta1[{i}]")),
+         unit_norm(data.draw(matrices(nu, nu, bound=1.0), label=f"Delta2[{i}]")))
+        for i in range(drawn.system.m)
+    ]
+    fixed = perturbed_nominal(drawn, deltas)
+    assert fixed.mss.spectral_abscissa < 0.0, (
+        f"Lemma 4.1 certified ({robust.message}) but a fixed Delta gives spectral abscissa "
+        f"{fixed.mss.spectral_abscissa!r} at beta={fixed.mss.worst_beta.tolist()}"
+    )
+    assert_gamma_at_least(robust, certified_gamma(fixed, robust=False))
+
+
 # --------------------------------------------------------------------------- (f) beta box
 
 

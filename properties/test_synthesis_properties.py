@@ -1,0 +1,135 @@
+"""Synthesis properties (hypothesis, ``ci`` profile): every reported design passes the
+core's independent verification; iterative never ends above its start; the
+full-information optimum bounds FDI-only designs; relabelling modes changes nothing.
+
+Solver: Clarabel (settings in ftc_verify.solvers). Tolerances: certified gammas carry the
+re-centring ladder (``GAMMA_LADDER``, first step 1e-4 relative) and Clarabel's 1e-9
+tolerances, so comparisons of two certified gammas allow 1e-3 relative.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import assume, event, given, note, settings
+from hypothesis import strategies as st
+
+from ftc_verify.closedloop import state_feedback_loop
+from ftc_verify.lmi import block_specs, check_certificate, xy_block
+from ftc_verify.model import FTCSystem, JointChain
+from ftc_verify.synthesis import synthesize
+
+from .replay import replay_on_failure
+from .strategies import ftc_systems
+
+RTOL = 1e-3
+
+
+def relabel(system: FTCSystem, perm: list[int]) -> FTCSystem:
+    """The same plant with the modes listed in the order ``perm``."""
+    P = np.eye(system.m)[perm]
+    ch = system.chain
+    chain = JointChain(P @ ch.alpha @ P.T, P @ ch.beta_min @ P.T, P @ ch.beta_max @ P.T, ch.fault_during_delay)
+    return FTCSystem(system.name, tuple(system.modes[k] for k in perm), chain)
+
+
+@settings(max_examples=5)
+@given(system=ftc_systems(n=st.just(2), m=st.just(2)),
+       method=st.sampled_from(["common", "full-info", "two-step"]), k_max=st.just(20.0))
+def test_reported_designs_pass_independent_verification(system: FTCSystem, method: str, k_max: float | None) -> None:
+    """Feasible => certified by the core: spectral test stable, the robust certificate
+    rebuilt with numpy from the returned matrices passes, the certified gamma is at most
+    the synthesis-side gamma, and the gain bound holds. Gains are bounded (k_max = 20):
+    unbounded designs reach norms of 1e4 and more, whose verification LMIs are badly
+    conditioned and took minutes per example (measured); the README reports them."""
+    res = synthesize(system, method=method, gamma=20.0 if method == "two-step" else None, k_max=k_max, solver="clarabel")
+    note(res.message)
+    assume(res.feasible)
+    with replay_on_failure(system, res.gains):
+        assert res.certified, res.message
+        rep = res.report
+        assert rep is not None and rep.mss.stable
+        robust = rep.robust
+        assert robust.P is not None and robust.gamma is not None
+        loop = state_feedback_loop(system, res.gains)
+        cert = check_certificate(loop, robust.condition, robust.P, robust.multipliers, robust.gamma ** 2)
+        assert cert.ok, cert.reason
+        assert res.gamma_certified is not None and res.synthesis_gamma is not None
+        assert res.gamma_certified <= res.synthesis_gamma * (1 + RTOL)
+        if k_max is not None:
+            assert max(np.linalg.norm(K, 2) for K in res.gains) <= k_max * (1 + 1e-6)
+
+
+@settings(max_examples=4)
+@given(system=ftc_systems(n=st.integers(2, 3), m=st.just(2), uncertain=st.just(False)))
+def test_iterative_from_common_never_ends_above(system: FTCSystem) -> None:
+    """Started from ``common``, ``iterative`` ends at or below it, with a non-increasing
+    history of certified gammas."""
+    start = synthesize(system, method="common", k_max=20.0, solver="clarabel")
+    assume(start.certified and start.gamma_certified is not None)
+    res = synthesize(system, method="iterative", k_max=20.0, solver="clarabel", start=list(start.gains), max_iter=2)
+    with replay_on_failure(system, res.gains or start.gains):
+        assert res.certified and res.gamma_certified is not None
+        assert res.gamma_certified <= start.gamma_certified * (1 + RTOL)
+        assert all(b <= a for a, b in zip(res.history, res.history[1:]))
+
+
+@settings(max_examples=5)
+@given(system=ftc_systems(n=st.integers(1, 3), m=st.just(2)), method=st.sampled_from(["common", "two-step"]))
+def test_full_info_relaxes_every_fdi_only_design(system: FTCSystem, method: str) -> None:
+    """The full-information LMI is a relaxation of FDI-only designs, so its optimum is at
+    most their certified gamma: the Lemma 4.1 certificate (P, lambda, gamma) of FDI-mode
+    gains K_j maps to a point of the full-information LMI (``lmi.xy_block``) at the same
+    gamma -- X = P^-1, Y = K_j X, eps = 1/lambda_1, delta = 1/lambda_2 -- which must be
+    negative definite (checked with numpy, relative to each block's scale; no solver).
+    (Comparing with the solver's full-information *optimum* instead fails: Clarabel
+    reports 'optimal' 1.5x to 4x too high when the feasible X are badly conditioned.)"""
+    res = synthesize(system, method=method, gamma=20.0 if method == "two-step" else None, k_max=20.0, solver="clarabel")
+    assume(res.certified and res.report is not None)
+    assert res.report is not None
+    robust = res.report.robust
+    assert robust.P is not None and robust.gamma is not None
+    loop = state_feedback_loop(system, res.gains)
+    with replay_on_failure(system, res.gains):
+        for spec in block_specs(loop):
+            mode = system.modes[spec.true]
+            X = [np.linalg.inv(P) for P in robust.P]
+            lam = list(robust.multipliers[spec.s]) if robust.multipliers is not None else []
+            k = 0
+            eps = delta = None
+            if mode.A1 is not None and lam:
+                eps, k = 1.0 / lam[k], k + 1
+            if mode.B1 is not None and lam:
+                delta = 1.0 / lam[k]
+            if robust.multipliers is None:  # nominal certificate (no channels): drop them
+                mode = type(mode)(mode.A, mode.B, mode.C, mode.D)
+            M = xy_block(mode, X, spec.s, res.gains[spec.fdi] @ X[spec.s], eps, delta, robust.gamma ** 2, spec.q_row, np.block)
+            ev = np.linalg.eigvalsh(0.5 * (M + M.T))
+            assert ev[-1] < 1e-9 * max(1.0, float(np.max(np.abs(ev)))), (spec.label, ev[-1])
+
+
+@settings(max_examples=4)
+@given(system=ftc_systems(n=st.integers(1, 2), m=st.just(3), uncertain=st.just(False)),
+       perm=st.permutations([0, 1, 2]))
+def test_relabelling_modes_keeps_two_step_feasibility(system: FTCSystem, perm: list[int]) -> None:
+    """Relabelling the modes leaves step 1 of two-step (a convex problem) with the same
+    optimal margin, and when both labellings succeed the certified gammas agree (1e-3).
+
+    Whether step 2 then succeeds is decided by a solver at the boundary of its feasible
+    set; the suite found draws where it differed between labellings inside one pytest
+    process but not in another (order-dependent solver numerics), so a difference there is
+    recorded as an event, not asserted."""
+    from ftc_verify.synthesis import _Calls, _xy_solve
+
+    relabelled = relabel(system, perm)
+    a1 = _xy_solve(system, "projected", 5.0, _Calls("clarabel"), None)
+    b1 = _xy_solve(relabelled, "projected", 5.0, _Calls("clarabel"), None)
+    assert (a1 is None) == (b1 is None)
+    if a1 is not None and b1 is not None:
+        assert abs(a1["margin"] - b1["margin"]) <= 1e-3 * max(1.0, a1["margin"])
+    a = synthesize(system, method="two-step", gamma=5.0, solver="clarabel")
+    b = synthesize(relabelled, method="two-step", gamma=5.0, solver="clarabel")
+    if a.feasible != b.feasible:
+        event("two-step step 2 outcome differed between labellings")
+    if a.certified and b.certified:
+        assert a.gamma_certified is not None and b.gamma_certified is not None
+        assert abs(a.gamma_certified - b.gamma_certified) <= RTOL * max(a.gamma_certified, b.gamma_certified) + 1e-6
