@@ -824,7 +824,6 @@ def _energies_same_horizon(system: FTCSystem, tab: _Tables, pa: _PathArrays, seg
     sub_t0[in_pos] = jt[interior]
     sub_d = np.empty(nsub, dtype=np.int64)  # start pieces filled per chunk
     sub_d[in_pos] = jd_new[interior]
-    sub_item = np.repeat(np.arange(nitem), ccount)
     sub_t1 = np.empty(nsub)
     sub_t1[:-1] = sub_t0[1:]
     sub_t1[last_sub] = it_t1

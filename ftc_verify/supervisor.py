@@ -684,7 +684,7 @@ class Supervisor:
             stage, names = "fmi2ExitInitializationMode", ()
             s.exitInitializationMode()
         except FMICallException as exc:
-            raise self._call_error(exc, "while initialising a path at t = 0", names) from None
+            raise self._call_error(exc, f"in {stage} while initialising a path at t = 0", names) from None
 
     # -------------------------------------------------------------------- the loop
     def _check_gains(self, gains: Any) -> tuple[list[np.ndarray], bool, int | None]:

@@ -23,7 +23,6 @@ draw comes from one :class:`numpy.random.Generator` whose seed is in the report.
 
 from __future__ import annotations
 
-import math
 import sys
 import time
 from collections.abc import Sequence
