@@ -33,7 +33,7 @@ import scipy.stats
 
 from .errors import ValidationError
 
-__all__ = ["MCEstimate", "estimate", "clopper_pearson", "sequential_estimate"]
+__all__ = ["MCEstimate", "estimate", "clopper_pearson", "sequential_estimate", "monte_carlo"]
 
 
 def clopper_pearson(successes: int, trials: int, alpha: float) -> tuple[float, float]:
@@ -149,3 +149,52 @@ def sequential_estimate(
 def _decided(est: MCEstimate, verdict: str, alpha: float) -> MCEstimate:
     return MCEstimate(est.paths, est.seed, alpha, est.mean_energy, est.std_energy, est.w_energy, est.mean_ratio,
                       est.lower_bound, est.upper_bound, est.gamma, est.event_fraction, est.event_interval, verdict)
+
+
+def monte_carlo(
+    system: Any,
+    gains: Any,
+    *,
+    backend: str = "reference",
+    paths: int = 1000,
+    horizon: float = 30.0,
+    step: float = 0.01,
+    seed: int | None = None,
+    gamma: float | None = None,
+    alpha: float = 1e-6,
+    sequential: bool = False,
+    batch: int = 200,
+    beta: Any = None,
+    delta: Any = None,
+) -> MCEstimate:
+    """Estimate ``E||y||^2/||w||^2`` on ``backend`` (``"reference"`` or ``"fmu"``) with the
+    paper's disturbance: ``paths`` exact chain paths from ``numpy.random.default_rng(seed)``
+    (``beta`` drawn per path unless given), sample-and-hold at ``step``. ``sequential=True``
+    (needs ``gamma``) draws batches until the comparison with ``gamma**2`` is decided or
+    ``paths`` are used. The seed (drawn and recorded when ``None``) is in the result."""
+    from .paths import sample_paths
+
+    if backend not in ("reference", "fmu"):
+        raise ValidationError(f"backend: must be 'reference' or 'fmu', got {backend!r}")
+    if sequential and gamma is None:
+        raise ValidationError("gamma: the sequential mode compares with gamma, which is missing")
+    if seed is None:
+        seed = int(np.random.SeedSequence().entropy % 2**63)
+    rng = np.random.default_rng(seed)
+
+    def draw(count: int) -> tuple[np.ndarray, np.ndarray]:
+        chunk = sample_paths(system.chain, horizon, count, rng, beta=beta)
+        if backend == "reference":
+            from .reference_sim import energies_reference
+
+            return energies_reference(system, gains, chunk, step=step, delta=delta, rng=rng)
+        from .supervisor import simulate_fmu
+
+        res = simulate_fmu(system, gains, chunk, step=step, delta=delta, rng=rng)
+        return (np.array([r.y_norm ** 2 for r in res.records]), np.array([r.w_norm ** 2 for r in res.records]))
+
+    if sequential:
+        assert gamma is not None
+        return sequential_estimate(draw, gamma=gamma, batch=batch, max_paths=paths, alpha=alpha, seed=seed)
+    y, w = draw(paths)
+    return estimate(y, w, alpha=alpha, gamma=gamma, seed=seed)

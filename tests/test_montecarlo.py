@@ -68,3 +68,26 @@ def test_bad_inputs() -> None:
         estimate(np.ones(3), np.ones(3), alpha=0.7)
     with pytest.raises(ValidationError, match="zero energy"):
         estimate(np.ones(3), np.zeros(3))
+
+
+def test_monte_carlo_on_both_backends_agrees_and_records_seed() -> None:
+    """Same seed, same paths and draws on both backends: identical estimates to 1e-8; the
+    paper's gains keep the ratio below their certified gamma^2 = 0.4983^2 with room."""
+    from pathlib import Path
+
+    from ftc_verify.montecarlo import monte_carlo
+    from ftc_verify.problem_files import load_gains, load_system
+
+    root = Path(__file__).resolve().parents[1]
+    system = load_system(root / "examples" / "paper.toml")
+    gains = load_gains(root / "examples" / "paper_gains.toml")
+    ref = monte_carlo(system, gains, backend="reference", paths=20, horizon=10.0, seed=4, gamma=0.4983)
+    fmu = monte_carlo(system, gains, backend="fmu", paths=20, horizon=10.0, seed=4, gamma=0.4983)
+    assert ref.seed == fmu.seed == 4 and ref.paths == fmu.paths == 20
+    assert fmu.mean_ratio == pytest.approx(ref.mean_ratio, rel=1e-8)
+    assert ref.upper_bound < 0.4983 ** 2
+    seq = monte_carlo(system, gains, backend="reference", paths=2000, horizon=10.0, seed=4, gamma=0.4983,
+                      sequential=True, batch=100)
+    assert seq.decided == "pass" and seq.paths <= 2000
+    with pytest.raises(ValidationError, match="backend"):
+        monte_carlo(system, gains, backend="gpu")
