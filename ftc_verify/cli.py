@@ -113,7 +113,7 @@ def _cmd_synthesize(args: argparse.Namespace) -> int:
     return EXIT_OK if res.certified else EXIT_NEGATIVE
 
 
-def _nonneg_int(text: str) -> int:
+def _positive_int(text: str) -> int:
     try:
         value = int(text)
     except ValueError:
@@ -247,7 +247,7 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("system", help="system TOML file")
     m.add_argument("--gains", required=True, help="gains TOML file")
     m.add_argument("--backend", default="fmu", choices=["fmu", "reference"])
-    m.add_argument("--paths", type=_nonneg_int, default=10)
+    m.add_argument("--paths", type=_positive_int, default=10)
     m.add_argument("--horizon", type=_positive, default=30.0)
     m.add_argument("--step", type=_positive, default=0.01, help="control period h (sample-and-hold)")
     m.add_argument("--seed", type=_seed, default=None, help="seed of the numpy Generator (recorded in the output)")
@@ -269,7 +269,7 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--gains", default=None, help="verify these gains instead of synthesizing")
     v.add_argument("--k-max", type=_positive, default=30.0, help="gain norm bound for synthesis (default 30)")
     v.add_argument("--no-gain-bound", action="store_true", help="synthesize without a gain bound")
-    v.add_argument("--paths", type=_nonneg_int, default=200, help="Monte Carlo paths on the FMU (default 200)")
+    v.add_argument("--paths", type=_positive_int, default=200, help="Monte Carlo paths on the FMU (default 200)")
     v.add_argument("--step", type=_positive, default=0.01)
     v.add_argument("--horizon", type=_positive, default=30.0)
     v.add_argument("--seed", type=_seed, default=None)

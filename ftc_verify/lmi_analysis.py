@@ -23,6 +23,7 @@ solver and a second, independent solver both claimed infeasibility) and ``error`
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Sequence
@@ -222,6 +223,5 @@ def hinf_gamma(loop: ClosedLoop, *, robust: bool, solver: str | None = None) -> 
                 best = LMIResult(condition, "candidate", gamma_star, name, status, t_build, spent, cert, Pv, lv,
                                  f"no certificate up to gamma {gamma1:.6g}: {cert.reason}", tuple(attempts))
     if best is not None:
-        best = LMIResult(best.condition, best.outcome, best.gamma, best.solver, best.solver_status, t_build,
-                         sum(a.seconds for a in attempts), best.certificate, best.P, best.multipliers, best.message, tuple(attempts))
+        best = dataclasses.replace(best, solve_seconds=sum(a.seconds for a in attempts), attempts=tuple(attempts))
     return _conclude(condition, attempts, best, t_build)

@@ -23,11 +23,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .closedloop import ClosedLoop
 from .errors import ValidationError
 from .model import FTCSystem, Matrix, as_matrix
 from .paths import ChainPath
 
-__all__ = ["DELTA_KINDS", "DeltaSchedule", "delta_shapes", "delta_segments"]
+__all__ = ["DELTA_KINDS", "DeltaSchedule", "delta_shapes", "delta_segments", "constant_delta_loops"]
 
 DELTA_KINDS = ("zero", "constant", "sign", "random")
 
@@ -117,4 +118,23 @@ def delta_segments(
     for k in range(segments):
         sign = 1.0 if k % 2 == 0 else -1.0
         out.append((None if d1 is None else sign * d1, None if d2 is None else sign * d2))
+    return out
+
+
+def constant_delta_loops(system: FTCSystem, loop: ClosedLoop) -> list[tuple[str, ClosedLoop]]:
+    """The nominal loop and, when ``loop`` is uncertain, the loops with the constant
+    ``Delta = +E`` and ``Delta = -E`` (``E`` the rectangular identity, norm 1) built in,
+    labelled ``"Delta=0"``, ``"Delta=+E"``, ``"Delta=-E"``."""
+    out = [("Delta=0", loop.nominal())]
+    if not loop.uncertain:
+        return out
+    s1, s2 = delta_shapes(system)
+    for sign, label in ((1.0, "Delta=+E"), (-1.0, "Delta=-E")):
+        deltas = {}
+        if s1 is not None:
+            deltas["Delta1 (A)"] = sign * np.eye(*s1)
+        if s2 is not None:
+            deltas["Delta2 (B)"] = sign * np.eye(*s2)
+        A = loop.perturbed(deltas)
+        out.append((label, ClosedLoop(loop.chain, A, loop.Bw, loop.Cz, tuple(() for _ in A), loop.controller)))
     return out

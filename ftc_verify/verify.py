@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from .analysis import AnalysisReport, analyze, json_ready
-from .closedloop import ClosedLoop, state_feedback_loop
+from .closedloop import state_feedback_loop
 from .crossval import ModeCheck, cross_validate
 from .model import FTCSystem, Matrix
 from .montecarlo import MCEstimate, estimate
@@ -40,7 +40,7 @@ from .moments import WorstCase, exact_energy, worst_case_disturbance
 from .paths import sample_paths
 from .simulation import PathRecord
 from .synthesis import SynthesisResult, synthesize
-from .uncertainty import DeltaSchedule, delta_shapes
+from .uncertainty import DeltaSchedule, constant_delta_loops
 
 __all__ = ["Check", "VerifyReport", "run_verify", "AGREE_RTOL", "MAX_EXACT_VERTICES"]
 
@@ -115,23 +115,6 @@ class VerifyReport:
         })
 
 
-def _delta_loops(system: FTCSystem, loop: ClosedLoop) -> list[tuple[str, ClosedLoop]]:
-    """The nominal loop and, when uncertain, the loops with constant ``Delta = +-E``."""
-    out = [("Delta=0", loop.nominal())]
-    if not loop.uncertain:
-        return out
-    s1, s2 = delta_shapes(system)
-    for sign in (1.0, -1.0):
-        deltas = {}
-        if s1 is not None:
-            deltas["Delta1 (A)"] = sign * np.eye(*s1)
-        if s2 is not None:
-            deltas["Delta2 (B)"] = sign * np.eye(*s2)
-        A = loop.perturbed(deltas)
-        out.append((f"Delta={'+' if sign > 0 else '-'}E", ClosedLoop(loop.chain, A, loop.Bw, loop.Cz, tuple(() for _ in A), loop.controller)))
-    return out
-
-
 def _progress(total: int, enabled: bool) -> Any:
     if not enabled:
         return None
@@ -197,7 +180,7 @@ def run_verify(
     t = time.perf_counter()
     exact = []
     vertices = list(system.chain.vertices())[:MAX_EXACT_VERTICES]
-    for label, dl in _delta_loops(system, loop):
+    for label, dl in constant_delta_loops(system, loop):
         for b in vertices:
             e = exact_energy(dl, beta=b)
             exact.append({"delta": label, "beta": b.tolist(), "y_energy": e.y_energy, "w_energy": e.w_energy, "ratio": e.ratio})

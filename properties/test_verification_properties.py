@@ -13,14 +13,13 @@ import numpy as np
 from hypothesis import assume, event, given, note, settings
 from hypothesis import strategies as st
 
-from ftc_verify.closedloop import ClosedLoop
 from ftc_verify.crossval import cross_validate
 from ftc_verify.lmi_analysis import hinf_gamma
 from ftc_verify.montecarlo import estimate
 from ftc_verify.moments import exact_energy, worst_case_disturbance
 from ftc_verify.paths import sample_paths
 from ftc_verify.reference_sim import energies_reference
-from ftc_verify.uncertainty import delta_shapes
+from ftc_verify.uncertainty import constant_delta_loops
 
 from .replay import replay_on_failure
 from .strategies import DrawnLoop, stable_loops
@@ -41,15 +40,7 @@ def test_exact_energy_below_certified_gamma(drawn: DrawnLoop) -> None:
     if loop.uncertain:
         robust = hinf_gamma(loop, robust=True)
         assume(robust.certified and robust.gamma is not None)
-        s1, s2 = delta_shapes(drawn.system)
-        for sign in (1.0, -1.0):
-            deltas = {}
-            if s1 is not None:
-                deltas["Delta1 (A)"] = sign * np.eye(*s1)
-            if s2 is not None:
-                deltas["Delta2 (B)"] = sign * np.eye(*s2)
-            A = loop.perturbed(deltas)
-            cases.append((ClosedLoop(loop.chain, A, loop.Bw, loop.Cz, tuple(() for _ in A)), robust.gamma))
+        cases += [(dl, robust.gamma) for _, dl in constant_delta_loops(drawn.system, loop)[1:]]
     with replay_on_failure(drawn.system, drawn.gains):
         for case, gamma in cases:
             for beta in drawn.system.chain.vertices():
