@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Benchmark of ``ftc_verify.analysis.analyze``: model build vs. solver time.
+"""Benchmark of ``ftc_verify.analysis.analyze.analyze``: model build vs. solver time.
 
 Random FTC systems with ``n`` states and ``m`` fault modes (grid ``n`` in {2, 4, 8, 16}
 x ``m`` in {2, 3, 4}, plus ``n = 12, m = 4``) are analysed with the automatic solver
@@ -63,8 +63,8 @@ COLUMNS = [
 ]
 
 PRELOAD = ["numpy", "scipy.linalg", "cvxpy", "control", "clarabel", "sdpap",
-           "ftc_verify.analysis", "ftc_verify.lmi_analysis", "ftc_verify.stability",
-           "ftc_verify.crossval", "ftc_verify.closedloop", "ftc_verify.model"]
+           "ftc_verify.analysis.analyze", "ftc_verify.analysis.lmi_analysis", "ftc_verify.analysis.stability",
+           "ftc_verify.analysis.crossval", "ftc_verify.analysis.closedloop", "ftc_verify.model.system"]
 
 
 # --------------------------------------------------------------------------- systems
@@ -89,7 +89,7 @@ def make_case(n: int, m: int, seed: int, uncertain: bool, max_draws: int = 50) -
     """
     import scipy.linalg
 
-    from ftc_verify.model import FTCSystem
+    from ftc_verify.model.system import FTCSystem
 
     rng = np.random.default_rng(seed)
     nu, ny = max(1, n // 2), (1 if n <= 4 else 2)
@@ -141,9 +141,9 @@ def _instrument(conn: Any, events: dict[str, Any]) -> None:
     """Wrap (in this child process only) the names ``analyze`` looks up, to record
     per-call times and stream stage progress to the parent. Nothing is changed in
     behaviour: each wrapper calls the original and returns its result."""
-    import ftc_verify.analysis as fa
-    import ftc_verify.lmi_analysis as la
-    import ftc_verify.stability as st
+    import ftc_verify.analysis.analyze as fa
+    import ftc_verify.analysis.lmi_analysis as la
+    import ftc_verify.analysis.stability as st
 
     orig_solve = la.solve
 
@@ -230,9 +230,9 @@ def _child(conn: Any, n: int, m: int, seed: int, uncertain: bool, solver: str | 
 
     warnings.simplefilter("ignore")
     try:
-        from ftc_verify.analysis import analyze
-        from ftc_verify.closedloop import state_feedback_loop
-        from ftc_verify.lmi_analysis import decision_size
+        from ftc_verify.analysis.analyze import analyze
+        from ftc_verify.analysis.closedloop import state_feedback_loop
+        from ftc_verify.analysis.lmi_analysis import decision_size
 
         # warm-up (not timed): lazy imports and first-call costs. Clarabel only: an SDPA
         # solve of another problem changes later SDPA answers in the same process
@@ -280,10 +280,11 @@ def _child_paper(conn: Any) -> None:
 
     warnings.simplefilter("ignore")
     try:
-        from ftc_verify.analysis import analyze
-        from ftc_verify.closedloop import state_feedback_loop
-        from ftc_verify.lmi_analysis import decision_size
-        from ftc_verify.problem_files import check_gains, load_gains, load_system
+        from ftc_verify.analysis.analyze import analyze
+        from ftc_verify.analysis.closedloop import state_feedback_loop
+        from ftc_verify.analysis.lmi_analysis import decision_size
+        from ftc_verify.model.files import load_system
+        from ftc_verify.controllers.files import check_gains, load_gains
 
         system = load_system(str(REPO / "examples" / "paper.toml"))
         gains = check_gains(system, load_gains(str(REPO / "examples" / "paper_gains.toml")))

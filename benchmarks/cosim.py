@@ -2,11 +2,13 @@
 """Benchmark of the co-simulation supervisor and of the numpy reference simulator.
 
 Part 1 -- supervisor overhead. The paper's plant as the ``LinearJumpPlant`` FMU, the
-paper's gains, sampled paths of its chain, ``step = 0.01``. Measured in the same process,
-interleaved (``--repeats`` rounds, median of each):
+paper's gains (``load_controller``: static state feedback), sampled paths of its chain,
+``step = 0.01``. Measured in the same process, interleaved (``--repeats`` rounds, median
+of each):
 
-* ``supervisor``: :meth:`ftc_verify.supervisor.Supervisor.run` on all paths (grid, modes,
-  gain switches, ``u = K[l] x``, ``w(t_k)``, records and the result object included);
+* ``supervisor``: :meth:`ftc_verify.simulation.supervisor.Supervisor.run` with a
+  :class:`~ftc_verify.controllers.Controller` on all paths (grid, modes, gain switches,
+  ``u = K[l] x``, ``w(t_k)``, records and the result object included);
 * ``bare``: a bare fmpy loop on the same FMU and the same grids, per path
   ``reset/setupExperiment/enter/exitInitializationMode`` then per step
   ``setReal([u, w] refs, values) / doStep / getReal([x, y] refs)`` with fmpy's list API;
@@ -15,7 +17,7 @@ interleaved (``--repeats`` rounds, median of each):
 
 Cost per communication step = time / total steps; goal: supervisor <= 1.5 x bare.
 
-Part 2 -- reference throughput: ``ftc_verify.reference_sim.energies_reference`` on
+Part 2 -- reference throughput: ``ftc_verify.simulation.reference.energies_reference`` on
 10,000 paths x 1,000 steps for n = 2 (the paper's plant) and n = 10 (a random 2-mode
 plant, nu = 2, ny = 2, nw = 1), in path-steps per second; goals 2e7 and 5e6. Skipped with
 a message when ``reference_sim`` is not available.
@@ -48,11 +50,12 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from ftc_verify.fmu_build import build_fmu  # noqa: E402
-from ftc_verify.model import FTCSystem  # noqa: E402
-from ftc_verify.paths import communication_grid, sample_paths  # noqa: E402
-from ftc_verify.problem_files import load_gains, load_system  # noqa: E402
-from ftc_verify.supervisor import FaultInjectionMap, Supervisor  # noqa: E402
+from ftc_verify.plants.linear_jump import build_fmu  # noqa: E402
+from ftc_verify.model.system import FTCSystem  # noqa: E402
+from ftc_verify.simulation.paths import communication_grid, sample_paths  # noqa: E402
+from ftc_verify.model.files import load_system  # noqa: E402
+from ftc_verify.controllers import Controller, load_controller  # noqa: E402
+from ftc_verify.simulation.supervisor import FaultInjectionMap, Supervisor  # noqa: E402
 
 DEFAULT_OUT = REPO / "benchmarks" / "results" / "cosim.csv"
 RATIO_GOAL = 1.5
@@ -115,7 +118,7 @@ def part1(quick: bool, seed: int, repeats: int) -> list[dict[str, Any]]:
     from fmpy.fmi2 import FMU2Slave
 
     system = load_system(REPO / "examples" / "paper.toml")
-    gains = load_gains(REPO / "examples" / "paper_gains.toml")
+    controller = load_controller(REPO / "examples" / "paper_gains.toml")
     count, horizon, step = (4, 2.0, 0.01) if quick else (20, 10.0, 0.01)
     paths = sample_paths(system.chain, horizon, count, np.random.default_rng(seed))
     grids = [communication_grid(p, step)[0] for p in paths]
@@ -141,11 +144,11 @@ def part1(quick: bool, seed: int, repeats: int) -> list[dict[str, Any]]:
         slave.exitInitializationMode()
         try:
             # warm-up (discretisation caches, first-call overheads)
-            sup.run(paths[:1], gains, step=step)
+            sup.run(paths[:1], controller, step=step)
             bare_loop(slave, grids[:1], uw_vr, xy_vr)
             for _ in range(repeats):
                 t0 = time.perf_counter()
-                sup.run(paths, gains, step=step, disturbance="paper", delta=None, x0=[0.5, -0.5])
+                sup.run(paths, controller, step=step, disturbance="paper", delta=None, x0=[0.5, -0.5])
                 times["supervisor"].append(time.perf_counter() - t0)
                 t0 = time.perf_counter()
                 assert bare_loop(slave, grids, uw_vr, xy_vr) == total
@@ -187,9 +190,9 @@ def part2(quick: bool, seed: int) -> list[dict[str, Any]]:
     count, steps = (1000, 100) if quick else (10_000, 1_000)
     step = 0.01
     try:
-        from ftc_verify.reference_sim import energies_reference
+        from ftc_verify.simulation.reference import energies_reference
     except ImportError as exc:
-        msg = f"skipped: ftc_verify.reference_sim.energies_reference is not available ({exc})"
+        msg = f"skipped: ftc_verify.simulation.reference.energies_reference is not available ({exc})"
         print(msg)
         return [dict(part="reference", case=f"energies_reference n={n}", n=n, m=2, paths=count, steps="",
                      seconds="", us_per_step="", path_steps_per_s="", ratio_to_bare="", goal=goal,
@@ -198,11 +201,11 @@ def part2(quick: bool, seed: int) -> list[dict[str, Any]]:
     for n, goal in THROUGHPUT_GOALS.items():
         if n == 2:
             system = load_system(REPO / "examples" / "paper.toml")
-            gains = list(load_gains(REPO / "examples" / "paper_gains.toml"))
+            controller = load_controller(REPO / "examples" / "paper_gains.toml")
         else:
             system = random_plant(n, seed)
             g = np.random.default_rng(seed + 1)
-            gains = [0.2 * g.uniform(-1, 1, (2, n)) for _ in range(2)]
+            controller = Controller.state_feedback([0.2 * g.uniform(-1, 1, (2, n)) for _ in range(2)])
         paths = sample_paths(system.chain, steps * step, count, np.random.default_rng(seed))
         total = sum(len(communication_grid(p, step)[0]) - 1 for p in paths)
         try:
@@ -210,9 +213,9 @@ def part2(quick: bool, seed: int) -> list[dict[str, Any]]:
             params = inspect.signature(energies_reference).parameters
             kwargs = {k: v for k, v in kwargs.items() if k in params or any(
                 p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values())}
-            energies_reference(system, gains, paths[: max(1, count // 100)], **kwargs)  # warm-up
+            energies_reference(system, controller, paths[: max(1, count // 100)], **kwargs)  # warm-up
             t0 = time.perf_counter()
-            energies_reference(system, gains, paths, **kwargs)
+            energies_reference(system, controller, paths, **kwargs)
             elapsed = time.perf_counter() - t0
         except Exception as exc:  # report, do not hide
             rows.append(dict(part="reference", case=f"energies_reference n={n}", n=n, m=2, paths=count, steps=total,

@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """Synthesis benchmark: time per method, model build apart from solver time, goals.
 
-Times :func:`ftc_verify.synthesis.synthesize` on the paper's example and on random systems.
+Times :func:`ftc_verify.synthesis.state_feedback.synthesize` on the paper's example and on random systems.
 
 Run from the repository root::
 
@@ -52,8 +52,8 @@ Time split of one ``synthesize`` call (all from the same call)
                 bookkeeping. The model-build time in the wider sense is
                 ``build_s + compile_s``; the pure solver time is ``solve_s - compile_s``.
 
-The wrappers (around ``ftc_verify.synthesis.solve`` / ``.analyze`` and
-``ftc_verify.lmi_analysis.solve``) only time and pass through; if those names disappear
+The wrappers (around ``ftc_verify.synthesis.state_feedback.solve`` / ``.analyze`` and
+``ftc_verify.analysis.lmi_analysis.solve``) only time and pass through; if those names disappear
 the script falls back to ``report.seconds`` and leaves ``compile_s`` empty.
 
 Random systems
@@ -188,8 +188,8 @@ class Probe:
 
     def install(self) -> None:
         try:
-            import ftc_verify.lmi_analysis as la
-            import ftc_verify.synthesis as syn
+            import ftc_verify.analysis.lmi_analysis as la
+            import ftc_verify.synthesis.state_feedback as syn
 
             syn_solve, la_solve, analyze = syn.solve, la.solve, syn.analyze
         except (ImportError, AttributeError) as exc:
@@ -242,7 +242,7 @@ def random_system(n: int, m: int, seed: int, uncertain: bool, family: str) -> tu
     """``(system, nu, draws)``: the random plant described in the module docstring."""
     import numpy as np
 
-    from ftc_verify.model import FTCSystem
+    from ftc_verify.model.system import FTCSystem
 
     rng = np.random.default_rng(seed)
     nu = max(1, n // 2)
@@ -292,7 +292,7 @@ def random_system(n: int, m: int, seed: int, uncertain: bool, family: str) -> tu
 
 def auto_solver(system: Any) -> str:
     """What ``solver=None`` picks for this system (same count as ``synthesize``)."""
-    from ftc_verify.solvers import choose_solver
+    from ftc_verify.analysis.solvers import choose_solver
 
     n, nu = system.dims[0], system.dims[1]
     return choose_solver(None, system.m ** 2 * (n * (n + 1) // 2 + n * nu) + 1)
@@ -315,7 +315,7 @@ class Bench:
     def synth(self, system: Any, *, section: str, case: str, method: str, gamma: float | None,
               solver: str | None, n: int | None = None, m: int | None = None, nu: int | None = None,
               uncertain: bool | None = None, seed: int | None = None, rep: int = 1, note: str = "") -> Row:
-        from ftc_verify.synthesis import synthesize
+        from ftc_verify.synthesis.state_feedback import synthesize
 
         self.probe.reset()
         res = synthesize(system, method=method, gamma=gamma, solver=solver)
@@ -455,7 +455,7 @@ class Bench:
                 break
 
     def run(self) -> None:
-        from ftc_verify.problem_files import load_system
+        from ftc_verify.model.files import load_system
 
         self.t0 = time.perf_counter()
         paper = load_system(PAPER)
@@ -657,7 +657,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"\nGuard: {bench.clarabel_tripped}")
     print("\nTimes in s. build = wall - solve - verify (Python LMI construction); comp = cvxpy "
           "canonicalisation, part of solve; verify = core analysis (for iterative incl. its seeds').")
-    import ftc_verify.solvers as solvers
+    import ftc_verify.analysis.solvers as solvers
 
     threshold = getattr(solvers, "AUTO_THRESHOLD", None)
     auto_rule = (f"Clarabel up to {threshold} scalar variables, else SDPA" if threshold is not None

@@ -23,9 +23,9 @@ Part 1 -- ``verify`` wall time by stage (``part = verify``)
   analysis, cross_validation, exact_energy, worst_case, monte_carlo, reference);
   ``run_verify total`` is the median wall time of the call, ``(not in .seconds)`` the
   median of wall minus the stage sum; ``write_report`` times
-  :func:`ftc_verify.report.write_report` of each run's report into a temporary folder
-  (plots included); ``import`` is the first import of ``ftc_verify.verify`` and
-  ``ftc_verify.report`` in this process. ``first_s`` shows the first (cold) run, which
+  :func:`ftc_verify.verification.report.write_report` of each run's report into a temporary folder
+  (plots included); ``import`` is the first import of ``ftc_verify.verification.verify`` and
+  ``ftc_verify.verification.report`` in this process. ``first_s`` shows the first (cold) run, which
   pays lazy imports (cvxpy, solvers, fmpy, matplotlib) and the FMU build.
   ``cli - in-process`` is the CLI median minus the in-process medians of run_verify and
   write_report: Python start-up plus imports, roughly.
@@ -182,9 +182,9 @@ def part_cli(seed: int, runs: int, log: Any) -> tuple[list[dict[str, Any]], str]
 
 def part_inprocess(seed: int, runs: int, log: Any) -> list[dict[str, Any]]:
     t0 = time.perf_counter()
-    from ftc_verify.problem_files import load_system
-    from ftc_verify.report import write_report
-    from ftc_verify.verify import run_verify
+    from ftc_verify.model.files import load_system
+    from ftc_verify.verification.report import write_report
+    from ftc_verify.verification.verify import run_verify
 
     import_s = time.perf_counter() - t0
     stage_times: dict[str, list[float]] = {k: [] for k in STAGES}
@@ -226,7 +226,7 @@ def part_inprocess(seed: int, runs: int, log: Any) -> list[dict[str, Any]]:
                     min_s=min(finite), max_s=max(finite), status="ok", note=note, **extra)
 
     rows = [dict(part="verify", case="import", runs=1, seconds=import_s, first_s=import_s, status="ok",
-                 note="first import of ftc_verify.verify, .report, .problem_files in this process")]
+                 note="first import of ftc_verify.verification.verify, .report, .problem_files in this process")]
     for k in STAGES:
         rows.append(row(f"stage {k}", stage_times[k]))
     for k, v in other_stages.items():
@@ -281,15 +281,16 @@ def extrapolate(rel_sd: float, per_path_s: float) -> dict[str, Any]:
 
 
 def part_moments(seed: int, quick: bool, log: Any) -> list[dict[str, Any]]:
-    from ftc_verify.closedloop import state_feedback_loop
-    from ftc_verify.moments import exact_energy
-    from ftc_verify.paths import sample_paths
-    from ftc_verify.problem_files import load_gains, load_system
-    from ftc_verify.reference_sim import energies_reference
-    from ftc_verify.supervisor import simulate_fmu
+    from ftc_verify.analysis.closedloop import state_feedback_loop
+    from ftc_verify.verification.moments import exact_energy
+    from ftc_verify.simulation.paths import sample_paths
+    from ftc_verify.model.files import load_system
+    from ftc_verify.controllers.files import load_controller
+    from ftc_verify.simulation.reference import energies_reference
+    from ftc_verify.simulation.supervisor import simulate_fmu
 
     system = load_system(PAPER)
-    gains = load_gains(PAPER_GAINS)
+    gains = load_controller(PAPER_GAINS)
     beta = system.chain.midpoint()
     rows: list[dict[str, Any]] = []
 

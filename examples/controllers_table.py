@@ -4,7 +4,7 @@ Usage: python examples/controllers_table.py [--k-max V] [--solver NAME]
 
 One row per controller: the paper's K1, K2; two-step at gamma = 0.8; two-step minimised;
 iterative; full-info; common. Every gain set is verified by the same core analysis
-(``ftc_verify.analysis.analyze``); wall time covers synthesis plus verification.
+(``ftc_verify.analysis.analyze.analyze``); wall time covers synthesis plus verification.
 """
 
 from __future__ import annotations
@@ -15,10 +15,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ftc_verify.analysis import analyze
-from ftc_verify.closedloop import state_feedback_loop
-from ftc_verify.problem_files import load_gains, load_system
-from ftc_verify.synthesis import synthesize
+from ftc_verify.analysis.analyze import analyze
+from ftc_verify.analysis.closedloop import state_feedback_loop
+from ftc_verify.model.files import load_system
+from ftc_verify.controllers.files import load_gains
+from ftc_verify.synthesis.state_feedback import synthesize
 
 HERE = Path(__file__).resolve().parent
 

@@ -13,6 +13,8 @@ __all__ = [
     "ValidationError",
     "ProblemFileError",
     "SolverError",
+    "FMUError",
+    "MemoryLimitError",
 ]
 
 
@@ -33,3 +35,11 @@ class ProblemFileError(ValidationError):
 
 class SolverError(FTCError, RuntimeError):
     """A convex solver failed or raised; the message names the solver."""
+
+
+class FMUError(FTCError, RuntimeError):
+    """Building, locating, validating or running an FMU failed (names the file and the problem)."""
+
+
+class MemoryLimitError(FTCError, MemoryError):
+    """A problem would need more memory than allowed (names the estimate and the limit)."""

@@ -1,4 +1,5 @@
-r"""Property tests of the analysis core: exact stability test, Theorem 3.1, Theorem 3.2, Lemma 4.1.
+r"""Property tests of the analysis core: exact stability test, Theorem 3.1, Theorem 3.2, Lemma 4.1,
+and the closed loop of dynamic controllers.
 
 Notation: joint mode :math:`s = (i, j)` (true, FDI), closed loop
 :math:`A_s = A_i + B_i K_j`, generator :math:`Q(\beta)` of the joint chain, second-moment
@@ -32,19 +33,19 @@ import pytest
 from hypothesis import assume, event, given, note
 from hypothesis import strategies as st
 
-from ftc_verify.lmi_analysis import GAMMA_LADDER, LMIResult, hinf_gamma, mes_lmi
-from ftc_verify.stability import second_moment_generator, spectral_abscissa
-
-from .strategies import (
+from ftc_verify.analysis.lmi_analysis import GAMMA_LADDER, LMIResult, hinf_gamma, mes_lmi
+from ftc_verify.analysis.stability import second_moment_generator, spectral_abscissa
+from ftc_verify.model.system import Matrix
+from ftc_verify.testing import (
     DrawnLoop,
-    Matrix,
     closed_loops,
     matrices,
+    similarity_transforms,
     stable_loops,
     unstable_loops,
-    similarity_transforms,
 )
-from .transforms import relabel, scale_disturbance, similarity, with_beta_box
+
+from .transforms import controller_similarity, relabel, scale_disturbance, similarity, with_beta_box
 
 #: Relative tolerance between certified gammas (module docstring).
 GAMMA_RTOL = 5e-3
@@ -58,6 +59,15 @@ ABSCISSA_RTOL = 1e-8
 ABSCISSA_ATOL_REL = 1e-10
 #: Stability margin away from the boundary for the "iff" and the gamma properties.
 MARGIN = 0.05
+#: Exact detection rates (``beta_min == beta_max``), or widths drawn in [0, 2] half the time.
+EXACT_BETA = {"beta_width": 0.0}
+ANY_BETA = {"beta_width": st.sampled_from([0.0, 2.0])}
+
+def small(**options: object) -> dict[str, object]:
+    """Options of ``ftc_verify.testing.systems`` for this suite: 1 to 3 states (the public
+    default is 2 to 4) and uncertainty weights drawn or not, unless ``options`` say otherwise."""
+    return {"n": (1, 3), "uncertain": None, **options}
+
 
 _RUNG = re.compile(r"\(\+([0-9.eE+-]+) relative\)")
 
@@ -142,7 +152,7 @@ def certified_gamma(drawn: DrawnLoop, *, robust: bool) -> LMIResult:
 
 def theorem_3_1_blocks(drawn: DrawnLoop, P: tuple[Matrix, ...], beta: Matrix) -> list[Matrix]:
     r""":math:`\Pi_s = A_s^T P_s + P_s A_s + \sum_{s'} Q(\beta)_{s s'} P_{s'}` for every
-    joint mode, rebuilt from the chain's generator (independently of ``ftc_verify.lmi``)."""
+    joint mode, rebuilt from the chain's generator (independently of ``ftc_verify.analysis.lmi``)."""
     Q = drawn.system.chain.generator(beta)
     loop = drawn.loop
     return [A.T @ P[s] + P[s] @ A + sum(Q[s, t] * P[t] for t in range(len(P))) for s, A in enumerate(loop.A)]
@@ -201,8 +211,8 @@ def box_points(drawn: DrawnLoop, fractions: Matrix) -> list[Matrix]:
 
 @given(
     drawn=st.one_of(
-        stable_loops(margin=MARGIN, degenerate_beta=True, uncertain=False, fault_during_delay=st.booleans()),
-        unstable_loops(margin=MARGIN, degenerate_beta=True, uncertain=False, fault_during_delay=st.booleans()),
+        stable_loops(margin=MARGIN, **small(uncertain=False), chains={**EXACT_BETA, "fault_during_delay": None}),
+        unstable_loops(margin=MARGIN, **small(uncertain=False), chains={**EXACT_BETA, "fault_during_delay": None}),
     )
 )
 def test_theorem_3_1_iff_spectral_for_fixed_beta(drawn: DrawnLoop) -> None:
@@ -223,7 +233,7 @@ def test_theorem_3_1_iff_spectral_for_fixed_beta(drawn: DrawnLoop) -> None:
 
 
 @given(
-    drawn=closed_loops(degenerate_beta=False, uncertain=False, gain_scale=st.sampled_from([1.0, 1.0, 0.6, 0.3])),
+    drawn=closed_loops(**small(uncertain=False), gain_scale=st.sampled_from([1.0, 1.0, 0.6, 0.3])),
     fractions=matrices(3, 3, bound=1.0).map(np.abs),
 )
 def test_theorem_3_1_on_a_box_is_sufficient(drawn: DrawnLoop, fractions: Matrix) -> None:
@@ -252,7 +262,7 @@ def test_theorem_3_1_on_a_box_is_sufficient(drawn: DrawnLoop, fractions: Matrix)
 # --------------------------------------------------------------------------- (b) similarity
 
 
-@given(drawn=stable_loops(margin=MARGIN, uncertain=st.booleans()), data=st.data())
+@given(drawn=stable_loops(margin=MARGIN, **small()), data=st.data())
 def test_similarity_invariance(drawn: DrawnLoop, data: st.DataObject) -> None:
     r"""A state change :math:`\tilde x = T x` (cond :math:`T \le 10`) maps
     :math:`\mathcal L` to a similar operator (:math:`\tilde X = T X T^T`) and the LMI
@@ -276,7 +286,7 @@ def test_similarity_invariance(drawn: DrawnLoop, data: st.DataObject) -> None:
 # --------------------------------------------------------------------------- (c) relabelling
 
 
-@given(drawn=stable_loops(margin=MARGIN, fault_during_delay=st.booleans()), data=st.data())
+@given(drawn=stable_loops(margin=MARGIN, **small(), chains={"fault_during_delay": None}), data=st.data())
 def test_mode_relabelling_invariance(drawn: DrawnLoop, data: st.DataObject) -> None:
     r"""Renaming the modes by a permutation :math:`\pi` (plant tables, rows and columns of
     :math:`\alpha, \beta`, FDI gains) permutes the joint modes
@@ -301,7 +311,7 @@ def test_mode_relabelling_invariance(drawn: DrawnLoop, data: st.DataObject) -> N
 # --------------------------------------------------------------------------- (d) scaling D
 
 
-@given(drawn=stable_loops(margin=MARGIN, uncertain=False), c=st.floats(0.2, 5.0))
+@given(drawn=stable_loops(margin=MARGIN, **small(uncertain=False)), c=st.floats(0.2, 5.0))
 def test_disturbance_scaling_scales_gamma(drawn: DrawnLoop, c: float) -> None:
     r""":math:`D_i \to c D_i` (:math:`c > 0`) scales the disturbance-to-output map by
     :math:`c`; in the LMI the congruence :math:`\operatorname{diag}(I, c^{-1} I, I)` maps
@@ -315,7 +325,7 @@ def test_disturbance_scaling_scales_gamma(drawn: DrawnLoop, c: float) -> None:
 # --------------------------------------------------------------------------- (e) robust vs nominal
 
 
-@given(drawn=stable_loops(margin=MARGIN, uncertain=True), fractions=matrices(3, 3, bound=1.0).map(np.abs))
+@given(drawn=stable_loops(margin=MARGIN, **small(uncertain=True)), fractions=matrices(3, 3, bound=1.0).map(np.abs))
 def test_robust_gamma_at_least_nominal(drawn: DrawnLoop, fractions: Matrix) -> None:
     r"""Lemma 4.1's block contains Theorem 3.2's block plus :math:`\lambda F^TF \succeq 0`
     in its corner and the extra :math:`P E` rows: deleting those rows and columns of a
@@ -330,7 +340,7 @@ def test_robust_gamma_at_least_nominal(drawn: DrawnLoop, fractions: Matrix) -> N
         assert_negative_definite(hinf_blocks(drawn, robust, b, robust=True), f"Lemma 4.1 at beta={b.tolist()}")
 
 
-@given(drawn=stable_loops(margin=MARGIN, uncertain=True, zero_weights=True))
+@given(drawn=stable_loops(margin=MARGIN, **small(uncertain=True), zero_weights=True))
 def test_robust_gamma_equals_nominal_for_zero_weights(drawn: DrawnLoop) -> None:
     r"""With :math:`A_1 = A_2 = B_1 = B_2 = 0` the uncertainty channels vanish
     (:math:`E = F = 0`): Lemma 4.1's block is Theorem 3.2's block plus a decoupled
@@ -357,7 +367,7 @@ def unit_norm(M: Matrix) -> Matrix:
     return M / norm if norm > 0.0 else M
 
 
-@given(drawn=stable_loops(margin=MARGIN, uncertain=True), data=st.data())
+@given(drawn=stable_loops(margin=MARGIN, **small(uncertain=True)), data=st.data())
 def test_robust_certificate_covers_every_fixed_delta(drawn: DrawnLoop, data: st.DataObject) -> None:
     r"""Lemma 4.1 bounds every admissible :math:`\Delta` (time-varying, so in particular
     any fixed :math:`\|\Delta_{1,i}\|, \|\Delta_{2,i}\| \le 1` per mode): if it is certified
@@ -382,7 +392,7 @@ def test_robust_certificate_covers_every_fixed_delta(drawn: DrawnLoop, data: st.
 
 
 @given(
-    drawn=stable_loops(margin=MARGIN, uncertain=False, degenerate_beta=st.booleans()),
+    drawn=stable_loops(margin=MARGIN, **small(uncertain=False), chains=ANY_BETA),
     shrink=matrices(3, 3, bound=0.9).map(np.abs),
     grow=matrices(3, 3, bound=2.0).map(np.abs),
 )
@@ -403,9 +413,43 @@ def test_wider_beta_box_never_lowers_gamma(drawn: DrawnLoop, shrink: Matrix, gro
     assert_gamma_at_least(wide_res, narrow_res)
 
 
+# --------------------------------------------------------------------------- (g) dynamic controllers
+
+
+@given(
+    drawn=closed_loops(**small(), m=(2, 3), measured_outputs=st.one_of(st.none(), st.integers(1, 2)),
+                       dynamic=True, extra_states=(0, 2), chains=ANY_BETA),
+    fractions=matrices(3, 3, bound=1.0).map(np.abs),
+    data=st.data(),
+)
+def test_controller_state_change_keeps_the_loop(drawn: DrawnLoop, fractions: Matrix, data: st.DataObject) -> None:
+    r"""A dynamic output-feedback controller of order :math:`n_c` gives a loop on the
+    augmented state :math:`(x, x_c)` of dimension :math:`n + n_c`, plant states first.
+    A change of controller coordinates :math:`\tilde x_c = T x_c` (cond :math:`T \le 10`:
+    :math:`A_c \to T A_c T^{-1}`, :math:`B_c \to T B_c`, :math:`C_c \to C_c T^{-1}`)
+    maps every joint-mode matrix by :math:`\operatorname{diag}(I, T)` and the
+    second-moment generator to a similar one, so the spectral abscissa is unchanged (rel.
+    1e-8, :func:`abscissa_tolerance`) at the two extreme vertices and an interior point
+    of the box (all :math:`2^{m(m-1)}` vertices cost seconds for :math:`m = 3`)."""
+    n, n_c = drawn.system.dims[0], drawn.controller.n_c
+    assert n_c >= n and not drawn.controller.static
+    assert drawn.loop.n == n + n_c and drawn.loop.n_plant == n
+    T = data.draw(similarity_transforms(n_c), label="T")
+    moved = controller_similarity(drawn, T)
+    assert moved.loop.n == n + n_c
+    m, chain = drawn.system.m, drawn.system.chain
+    interior = chain.beta_min + fractions[:m, :m] * (chain.beta_max - chain.beta_min)
+    for b in (chain.beta_min, chain.beta_max, interior):
+        L = second_moment_generator(drawn.loop, b)
+        before = spectral_abscissa(drawn.loop, b)
+        assert_abscissa_close(before, spectral_abscissa(moved.loop, b), L,
+                              f"controller state change at beta={b.tolist()}")
+    event(f"n_c - n = {n_c - n}; {'stable' if before < 0 else 'unstable'} at an interior beta")
+
+
 def test_gamma_tolerance_helpers_can_fail() -> None:
     """The comparison helpers reject gammas that differ by more than the tolerance."""
-    from ftc_verify.lmi import Certificate
+    from ftc_verify.analysis.lmi import Certificate
 
     def fake(gamma: float, rung: float) -> LMIResult:
         cert = Certificate(True, "theorem-3.2", (), 1.0, 1.0, gamma)

@@ -2,7 +2,7 @@
 core's independent verification; iterative never ends above its start; the
 full-information optimum bounds FDI-only designs; relabelling modes changes nothing.
 
-Solver: Clarabel (settings in ftc_verify.solvers). Tolerances: certified gammas carry the
+Solver: Clarabel (settings in ftc_verify.analysis.solvers). Tolerances: certified gammas carry the
 re-centring ladder (``GAMMA_LADDER``, first step 1e-4 relative) and Clarabel's 1e-9
 tolerances, so comparisons of two certified gammas allow 1e-3 relative.
 """
@@ -13,13 +13,13 @@ import numpy as np
 from hypothesis import assume, event, given, note, settings
 from hypothesis import strategies as st
 
-from ftc_verify.closedloop import state_feedback_loop
-from ftc_verify.lmi import block_specs, check_certificate, xy_block
-from ftc_verify.model import FTCSystem, JointChain
-from ftc_verify.synthesis import synthesize
+from ftc_verify.analysis.closedloop import closed_loop
+from ftc_verify.analysis.lmi import block_specs, check_certificate, xy_block
+from ftc_verify.model.system import FTCSystem, JointChain
+from ftc_verify.synthesis.state_feedback import synthesize
+from ftc_verify.testing import systems
 
 from .replay import replay_on_failure
-from .strategies import ftc_systems
 
 RTOL = 1e-3
 
@@ -33,7 +33,7 @@ def relabel(system: FTCSystem, perm: list[int]) -> FTCSystem:
 
 
 @settings(max_examples=5)
-@given(system=ftc_systems(n=st.just(2), m=st.just(2)),
+@given(system=systems(n=2, m=2, uncertain=None),
        method=st.sampled_from(["common", "full-info", "two-step"]), k_max=st.just(20.0))
 def test_reported_designs_pass_independent_verification(system: FTCSystem, method: str, k_max: float | None) -> None:
     """Feasible => certified by the core: spectral test stable, the robust certificate
@@ -44,13 +44,14 @@ def test_reported_designs_pass_independent_verification(system: FTCSystem, metho
     res = synthesize(system, method=method, gamma=20.0 if method == "two-step" else None, k_max=k_max, solver="clarabel")
     note(res.message)
     assume(res.feasible)
-    with replay_on_failure(system, res.gains):
+    assert res.controller is not None
+    with replay_on_failure(system, res.controller):
         assert res.certified, res.message
         rep = res.report
         assert rep is not None and rep.mss.stable
         robust = rep.robust
         assert robust.P is not None and robust.gamma is not None
-        loop = state_feedback_loop(system, res.gains)
+        loop = closed_loop(system, res.controller)
         cert = check_certificate(loop, robust.condition, robust.P, robust.multipliers, robust.gamma ** 2)
         assert cert.ok, cert.reason
         assert res.gamma_certified is not None and res.synthesis_gamma is not None
@@ -60,21 +61,23 @@ def test_reported_designs_pass_independent_verification(system: FTCSystem, metho
 
 
 @settings(max_examples=4)
-@given(system=ftc_systems(n=st.integers(2, 3), m=st.just(2), uncertain=st.just(False)))
+@given(system=systems(n=(2, 3), m=2, uncertain=False))
 def test_iterative_from_common_never_ends_above(system: FTCSystem) -> None:
     """Started from ``common``, ``iterative`` ends at or below it, with a non-increasing
     history of certified gammas."""
     start = synthesize(system, method="common", k_max=20.0, solver="clarabel")
     assume(start.certified and start.gamma_certified is not None)
     res = synthesize(system, method="iterative", k_max=20.0, solver="clarabel", start=list(start.gains), max_iter=2)
-    with replay_on_failure(system, res.gains or start.gains):
+    controller = res.controller or start.controller
+    assert controller is not None
+    with replay_on_failure(system, controller):
         assert res.certified and res.gamma_certified is not None
         assert res.gamma_certified <= start.gamma_certified * (1 + RTOL)
         assert all(b <= a for a, b in zip(res.history, res.history[1:]))
 
 
 @settings(max_examples=5)
-@given(system=ftc_systems(n=st.integers(1, 3), m=st.just(2)), method=st.sampled_from(["common", "two-step"]))
+@given(system=systems(n=(1, 3), m=2, uncertain=None), method=st.sampled_from(["common", "two-step"]))
 def test_full_info_relaxes_every_fdi_only_design(system: FTCSystem, method: str) -> None:
     """The full-information LMI is a relaxation of FDI-only designs, so its optimum is at
     most their certified gamma: the Lemma 4.1 certificate (P, lambda, gamma) of FDI-mode
@@ -85,11 +88,11 @@ def test_full_info_relaxes_every_fdi_only_design(system: FTCSystem, method: str)
     reports 'optimal' 1.5x to 4x too high when the feasible X are badly conditioned.)"""
     res = synthesize(system, method=method, gamma=20.0 if method == "two-step" else None, k_max=20.0, solver="clarabel")
     assume(res.certified and res.report is not None)
-    assert res.report is not None
+    assert res.report is not None and res.controller is not None
     robust = res.report.robust
     assert robust.P is not None and robust.gamma is not None
-    loop = state_feedback_loop(system, res.gains)
-    with replay_on_failure(system, res.gains):
+    loop = closed_loop(system, res.controller)
+    with replay_on_failure(system, res.controller):
         for spec in block_specs(loop):
             mode = system.modes[spec.true]
             X = [np.linalg.inv(P) for P in robust.P]
@@ -108,7 +111,7 @@ def test_full_info_relaxes_every_fdi_only_design(system: FTCSystem, method: str)
 
 
 @settings(max_examples=4)
-@given(system=ftc_systems(n=st.integers(1, 2), m=st.just(3), uncertain=st.just(False)),
+@given(system=systems(n=(1, 2), m=3, uncertain=False),
        perm=st.permutations([0, 1, 2]))
 def test_relabelling_modes_keeps_two_step_feasibility(system: FTCSystem, perm: list[int]) -> None:
     """Relabelling the modes leaves step 1 of two-step (a convex problem) with the same
@@ -118,7 +121,7 @@ def test_relabelling_modes_keeps_two_step_feasibility(system: FTCSystem, perm: l
     set; the suite found draws where it differed between labellings inside one pytest
     process but not in another (order-dependent solver numerics), so a difference there is
     recorded as an event, not asserted."""
-    from ftc_verify.synthesis import _Calls, _xy_solve
+    from ftc_verify.synthesis.state_feedback import _Calls, _xy_solve
 
     relabelled = relabel(system, perm)
     a1 = _xy_solve(system, "projected", 5.0, _Calls("clarabel"), None)

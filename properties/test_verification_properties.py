@@ -13,22 +13,23 @@ import numpy as np
 from hypothesis import assume, event, given, note, settings
 from hypothesis import strategies as st
 
-from ftc_verify.crossval import cross_validate
-from ftc_verify.lmi_analysis import hinf_gamma
-from ftc_verify.montecarlo import estimate
-from ftc_verify.moments import exact_energy, worst_case_disturbance
-from ftc_verify.paths import sample_paths
-from ftc_verify.reference_sim import energies_reference
-from ftc_verify.uncertainty import constant_delta_loops
+from ftc_verify.analysis.crossval import cross_validate
+from ftc_verify.analysis.lmi_analysis import hinf_gamma
+from ftc_verify.verification.montecarlo import estimate
+from ftc_verify.verification.moments import exact_energy, worst_case_disturbance
+from ftc_verify.simulation.paths import sample_paths
+from ftc_verify.simulation.reference import energies_reference
+from ftc_verify.simulation.delta import constant_delta_loops
+
+from ftc_verify.testing import DrawnLoop, stable_loops
 
 from .replay import replay_on_failure
-from .strategies import DrawnLoop, stable_loops
 
 SLACK = 1e-6  # relative: the certified gamma is strictly feasible, the energies exact to rounding
 
 
 @settings(max_examples=8)
-@given(drawn=stable_loops(n=st.integers(1, 2), m=st.just(2), nw=st.just(1)))
+@given(drawn=stable_loops(n=(1, 2), m=2, nw=1, uncertain=None))
 def test_exact_energy_below_certified_gamma(drawn: DrawnLoop) -> None:
     """E||z||^2 <= gamma^2 ||w||^2 from zero initial state, at every beta vertex, for the
     paper's disturbance on [0, inf): nominal gamma for Delta = 0, robust gamma for a
@@ -41,7 +42,7 @@ def test_exact_energy_below_certified_gamma(drawn: DrawnLoop) -> None:
         robust = hinf_gamma(loop, robust=True)
         assume(robust.certified and robust.gamma is not None)
         cases += [(dl, robust.gamma) for _, dl in constant_delta_loops(drawn.system, loop)[1:]]
-    with replay_on_failure(drawn.system, drawn.gains):
+    with replay_on_failure(drawn.system, drawn.controller):
         for case, gamma in cases:
             for beta in drawn.system.chain.vertices():
                 e = exact_energy(case, beta=beta)
@@ -50,42 +51,42 @@ def test_exact_energy_below_certified_gamma(drawn: DrawnLoop) -> None:
 
 
 @settings(max_examples=6)
-@given(drawn=stable_loops(n=st.integers(1, 2), m=st.just(2), nw=st.just(1), uncertain=st.just(False)))
+@given(drawn=stable_loops(n=(1, 2), m=2, nw=1, uncertain=False))
 def test_worst_case_never_exceeds_certified_gamma(drawn: DrawnLoop) -> None:
     """The worst disturbance found (a lower bound of the stochastic gain) stays below the
     certified nominal gamma at every beta vertex."""
     nominal = hinf_gamma(drawn.loop, robust=False)
     assume(nominal.certified and nominal.gamma is not None)
-    with replay_on_failure(drawn.system, drawn.gains):
+    with replay_on_failure(drawn.system, drawn.controller):
         for beta in drawn.system.chain.vertices():
             wc = worst_case_disturbance(drawn.loop, beta=beta, horizon=10.0, pieces=20)
             assert wc.gain <= nominal.gamma * (1 + SLACK)
 
 
 @settings(max_examples=4)
-@given(drawn=stable_loops(n=st.integers(1, 2), m=st.just(2), nw=st.just(1), uncertain=st.just(False)),
+@given(drawn=stable_loops(n=(1, 2), m=2, nw=1, uncertain=False),
        seed=st.integers(0, 2**32 - 1))
 def test_monte_carlo_agrees_with_exact_moments(drawn: DrawnLoop, seed: int) -> None:
     """3000 reference-simulator paths (beta at the box centre, horizon 6, Richardson on
     h = 0.01 / 0.005 to cancel the sample-and-hold bias): the exact expected energy lies
     in the Monte Carlo interval (alpha = 1e-6 per side)."""
-    system, gains = drawn.system, list(drawn.gains)
+    system, controller = drawn.system, drawn.controller
     beta, T = system.chain.midpoint(), 6.0
     exact = exact_energy(drawn.loop.nominal(), beta=beta, horizon=T)
     assume(exact.y_energy > 1e-8)
     paths = sample_paths(system.chain, T, 3000, np.random.default_rng(seed), beta=beta)
-    y1, w = energies_reference(system, gains, paths, step=0.01)
-    y2, _ = energies_reference(system, gains, paths, step=0.005)
+    y1, w = energies_reference(system, controller, paths, step=0.01)
+    y2, _ = energies_reference(system, controller, paths, step=0.005)
     est = estimate(2.0 * y2 - y1, w, alpha=1e-6, seed=seed)
     lo, hi = est.lower_bound * est.w_energy, est.upper_bound * est.w_energy
     note(f"exact {exact.y_energy:.6g}, interval [{lo:.6g}, {hi:.6g}]")
-    with replay_on_failure(system, gains):
+    with replay_on_failure(system, controller):
         # O(h^2) left after Richardson: allow 0.5 % of the value on top of the interval
         assert lo - 5e-3 * exact.y_energy <= exact.y_energy <= hi + 5e-3 * exact.y_energy
 
 
 @settings(max_examples=8)
-@given(drawn=stable_loops(n=st.integers(1, 3), m=st.integers(2, 3)))
+@given(drawn=stable_loops(n=(1, 3), m=(2, 3), uncertain=None))
 def test_python_control_agrees_per_mode(drawn: DrawnLoop) -> None:
     """python-control's poles match ours on every frozen joint mode, and so do its
     L-infinity norms whenever it returns one. (This property found python-control 0.10.2's
@@ -93,7 +94,7 @@ def test_python_control_agrees_per_mode(drawn: DrawnLoop) -> None:
     stable first-order mode; ``cross_validate`` reports such a case as a disagreement,
     and here it is recorded as an event.)"""
     checks = cross_validate(drawn.loop)
-    with replay_on_failure(drawn.system, drawn.gains):
+    with replay_on_failure(drawn.system, drawn.controller):
         assert len(checks) == drawn.system.m ** 2
         for c in checks:
             assert c.poles.shape == c.control_poles.shape

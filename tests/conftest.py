@@ -9,9 +9,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from ftc_verify.closedloop import state_feedback_loop
-from ftc_verify.model import FTCSystem
-from ftc_verify.problem_files import load_gains, load_system
+from ftc_verify.analysis.closedloop import state_feedback_loop
+from ftc_verify.model.system import FTCSystem
+from ftc_verify.model.files import load_system
+from ftc_verify.controllers.files import load_gains
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 

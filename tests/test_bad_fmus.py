@@ -16,6 +16,7 @@ own right: a scalar plant ``x' = a x + e u + w``, ``y = x + u / 2`` with a Real
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import re
@@ -33,11 +34,12 @@ if shutil.which("gcc") is None:  # pragma: no cover
     pytest.skip("gcc is needed to compile the FMUs", allow_module_level=True)
 
 from ftc_verify.errors import ValidationError  # noqa: E402
-from ftc_verify.fmu_build import FMUError, build_fmu, fmi2_include_dir  # noqa: E402
-from ftc_verify.model import FTCSystem  # noqa: E402
-from ftc_verify.paths import ChainPath, sample_paths  # noqa: E402
-from ftc_verify.problem_files import load_gains, load_system  # noqa: E402
-from ftc_verify.supervisor import FaultInjectionMap, Supervisor  # noqa: E402
+from ftc_verify.plants.linear_jump import FMUError, build_fmu, fmi2_include_dir  # noqa: E402
+from ftc_verify.model.system import FTCSystem  # noqa: E402
+from ftc_verify.simulation.paths import ChainPath, sample_paths  # noqa: E402
+from ftc_verify.model.files import load_system  # noqa: E402
+from ftc_verify.controllers import Controller, load_gains  # noqa: E402
+from ftc_verify.simulation.supervisor import FaultInjectionMap, Supervisor  # noqa: E402
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 LIB = f"binaries/{fmpy.platform}/LinearJumpPlant{fmpy.sharedLibraryExtension}"
@@ -75,6 +77,11 @@ def paper() -> FTCSystem:
 @pytest.fixture(scope="module")
 def gains():
     return load_gains(EXAMPLES / "paper_gains.toml")
+
+
+@pytest.fixture(scope="module")
+def controller(gains) -> Controller:
+    return Controller.state_feedback(gains)
 
 
 @pytest.fixture(scope="module")
@@ -198,24 +205,48 @@ def test_map_variable_of_the_wrong_kind(paper: FTCSystem, paper_fmu: Path, chang
         Supervisor(paper_fmu, FaultInjectionMap(**fields), system=paper)
 
 
-def test_map_and_argument_errors(paper: FTCSystem, paper_fmu: Path, gains) -> None:
+def test_map_and_argument_errors(paper: FTCSystem, paper_fmu: Path, gains, controller) -> None:
     with pytest.raises(ValidationError, match="more than one role"):
         FaultInjectionMap(fault="mode", inputs=("u[1]",), states=("x[1]",), disturbances=("u[1]",))
     with pytest.raises(ValidationError, match=r"fault_values\[1\]: expected 1 value"):
         FaultInjectionMap(fault="mode", inputs=("u[1]",), states=("x[1]",), fault_values=(1, (2, 3)))
     path = one_jump_path()
     with Supervisor(paper_fmu, system=paper) as sup:
-        with pytest.raises(ValidationError, match=r"gain\[2\]\.K: expected shape \(2, 2\)"):
-            sup.run([path], [gains[0], np.eye(3)], step=0.1)
-        with pytest.raises(ValidationError, match="3 gains given"):
-            sup.run([path], list(gains) + [gains[0]], step=0.1)
+        with pytest.raises(ValidationError, match=r"gain\[2\]\.K: expected shape 2 x 2"):
+            sup.run([path], Controller.state_feedback([gains[0], np.eye(3)]), step=0.1)
+        with pytest.raises(ValidationError, match=r"gain\[1\]\.K: 3 rows, but the system has 2 inputs"):
+            sup.run([path], Controller.state_feedback([np.eye(3), np.eye(3)]), step=0.1)
+        with pytest.raises(ValidationError, match="3 entries given"):
+            sup.run([path], Controller.state_feedback(list(gains) + [gains[0]]), step=0.1)
+        with pytest.raises(ValidationError, match="controller: expected a Controller"):
+            sup.run([path], list(gains), step=0.1)  # no bare gain lists
         with pytest.raises(ValidationError, match="x0: expected 2 finite numbers"):
-            sup.run([path], gains, step=0.1, x0=[1.0, math.nan])
+            sup.run([path], controller, step=0.1, x0=[1.0, math.nan])
         with pytest.raises(ValidationError, match="step: must be a positive"):
-            sup.run([path], gains, step=0.0)
+            sup.run([path], controller, step=0.0)
         assert sup.stats["paths"] == 0  # nothing ran
     with pytest.raises(FMUError, match="closed"):
-        sup.run([path], gains, step=0.1)
+        sup.run([path], controller, step=0.1)
+
+
+def test_map_measured_role_is_checked(paper: FTCSystem, paper_fmu: Path, controller) -> None:
+    """The ``measured`` role is resolved like the others: a missing name gives one FMUError
+    naming it (with the close matches); a non-Real one is refused; an output-feedback
+    controller needs the role."""
+    base = FaultInjectionMap.for_linear_jump_plant(paper)
+    assert base.measured == ("ym[1]",)
+    bad = dataclasses.replace(base, measured=("ym[1]", "ym[2]"))
+    with raises_fmu_error(paper_fmu, "'ym[2]'", "measured output y_m", "not declared", "ym[1]") as info:
+        Supervisor(paper_fmu, bad, system=paper)
+    assert str(info.value).count("ym[2]") == 1 and "\n" not in str(info.value)
+    with raises_fmu_error(paper_fmu, "'mode'", "measured output y_m", "type Integer", "Real"):
+        Supervisor(paper_fmu, dataclasses.replace(base, measured=("mode",)), system=paper)
+    observer = Controller.dynamic([-np.eye(1)] * 2, [np.zeros((1, 1))] * 2, [np.zeros((2, 1))] * 2,
+                                  [np.ones((2, 1))] * 2)
+    with Supervisor(paper_fmu, dataclasses.replace(base, measured=()), system=paper) as sup:
+        with pytest.raises(ValidationError, match="FaultInjectionMap.measured names no FMU variable"):
+            sup.run([one_jump_path()], observer, step=0.1)
+        assert sup.run([one_jump_path()], controller, step=0.1).records[0].ym.shape[1] == 2  # x itself
 
 
 # ------------------------------------------------------------------------------------------
@@ -223,7 +254,7 @@ def test_map_and_argument_errors(paper: FTCSystem, paper_fmu: Path, gains) -> No
 # ------------------------------------------------------------------------------------------
 
 
-def test_plant_rejects_an_out_of_range_mode(tmp_path: Path, paper: FTCSystem, paper_fmu: Path, gains) -> None:
+def test_plant_rejects_an_out_of_range_mode(tmp_path: Path, paper: FTCSystem, paper_fmu: Path, controller) -> None:
     """The model description claims ``mode`` may be 5, the plant has 2 modes: the plant's
     fmi2SetInteger returns fmi2Error at the fault time; the error names the file, the
     call, the variable, the value and the time, and the instance is usable afterwards."""
@@ -236,15 +267,15 @@ def test_plant_rejects_an_out_of_range_mode(tmp_path: Path, paper: FTCSystem, pa
     with Supervisor(lying, fmap, system=paper) as sup:
         with raises_fmu_error(lying, "fmi2SetInteger", "mode = 5", "returned Error", "t = 0.35",
                               "out of range 1..2"):
-            sup.run([one_jump_path()], gains, step=0.1)
+            sup.run([one_jump_path()], controller, step=0.1)
         # a path that stays in mode 0 still runs on the same instance (fmi2Reset after the error)
         res = sup.run([ChainPath(np.array([0.0]), np.array([0]), np.array([0]), np.zeros((2, 2)), 1.0)],
-                      gains, step=0.1, x0=[1.0, 0.0])
+                      controller, step=0.1, x0=[1.0, 0.0])
         assert np.all(np.isfinite(res.records[0].x)) and sup.stats["instantiations"] == 1
     # the declared range is checked before the FMU is called
     with Supervisor(paper_fmu, fmap, system=paper) as sup:
         with raises_fmu_error(paper_fmu, "fault variable 'mode'", "maps to 5", "[1, 2]"):
-            sup.run([one_jump_path()], gains, step=0.1)
+            sup.run([one_jump_path()], controller, step=0.1)
 
 
 STUB_C = r"""
@@ -395,7 +426,7 @@ def stub_fmu(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def stub_exact(path: ChainPath, step: float, gains, eff, x0: float, a: float = -1.0):
     """The stub's loop by hand: grid, sample-and-hold u = K[l] x, w = paper disturbance."""
-    from ftc_verify.paths import communication_grid
+    from ftc_verify.simulation.paths import communication_grid
 
     t, true, fdi = communication_grid(path, step)
     w = np.exp(-0.1 * t) * np.sin(t)
@@ -421,8 +452,8 @@ def test_stub_user_fmu_with_a_real_fault_variable(stub_fmu: Path) -> None:
     gains = [np.array([[-1.5]]), np.array([[-4.0]])]
     fmap = FaultInjectionMap(**STUB_MAP, fault_values=(1.0, 0.2))
     with Supervisor(stub_fmu, fmap) as sup:
-        res = sup.run(paths, gains, step=0.05, x0=[0.7])
-        assert sup._feedthrough  # undeclared dependencies: y is read after u is set
+        res = sup.run(paths, Controller.state_feedback(gains), step=0.05, x0=[0.7])
+        assert sup.feedthrough  # undeclared dependencies: y is read after u is set
     assert res.backend == "fmu"
     for rec, path in zip(res.records, paths):
         t, x, u, y = stub_exact(path, 0.05, [-1.5, -4.0], (1.0, 0.2), 0.7)
@@ -440,7 +471,7 @@ def test_stub_do_step_error(stub_fmu: Path) -> None:
     with Supervisor(stub_fmu, fmap) as sup:
         with raises_fmu_error(stub_fmu, "fmi2DoStep", "returned Error", "at t = 0.35", "true mode 1",
                               "actuatorEffectiveness = -1 is negative"):
-            sup.run([one_jump_path()], gains, step=0.1, x0=[1.0])
+            sup.run([one_jump_path()], Controller.state_feedback(gains), step=0.1, x0=[1.0])
         extraction = sup.extraction_dir
         assert extraction is not None and extraction.is_dir()
     assert not extraction.exists()  # removed on close

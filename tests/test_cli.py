@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from ftc_verify.cli import main
+from ftc_verify.cli.main import main
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "examples" / "paper.toml"
@@ -58,11 +58,17 @@ def test_analyze_unstable_exit_1(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("gains_text", "needle"),
     [
-        ("[[gain]]\nK = [[1.0, 2.0]]\n[[gain]]\nK = [[1.0, 2.0]]\n", "gain[1].K: expected shape (2, 2)"),
-        ("[[gain]]\nK = [[0.0, 0.0], [0.0, 0.0]]\n", "1 gains given"),
+        ("[[gain]]\nK = [[1.0, 2.0]]\n[[gain]]\nK = [[1.0, 2.0]]\n", "gain[1].K: 1 rows, but the system has 2 inputs"),
+        ("[[gain]]\nK = [[0.0, 0.0], [0.0, 0.0]]\n", "1 entries given, the system has 2 modes"),
         ("[[gain]]\nK = [[nan, 0.0], [0.0, 0.0]]\n[[gain]]\nK = [[0.0, 0.0], [0.0, 0.0]]\n", "non-finite"),
         ("[[gain]]\nK = [[0.0, 0.0], [0.0, 0.0]]\nL = 1\n", "unknown key"),
         ("this is not toml [[[", "not valid TOML"),
+        ("[[controller]]\nAc = [[1.0]]\nBc = [[1.0, 1.0]]\nCc = [[1.0], [1.0]]\nDc = [[0.0, 0.0], [0.0, 0.0]]\n" * 2,
+         "controller[1].Dc: 2 columns, but the system has 1 measured outputs"),
+        ("[[gain]]\nK = [[0.0, 0.0], [0.0, 0.0]]\n[[controller]]\nDc = [[0.0], [0.0]]\n", "both [[gain]] and [[controller]]"),
+        ("[[controller]]\nAc = [[1.0]]\nBc = [[1.0]]\nCc = [[1.0], [1.0]]\nDc = [[0.0], [0.0]]\n"
+         "[[controller]]\nAc = [[1.0, 0.0], [0.0, 1.0]]\nBc = [[1.0], [1.0]]\nCc = [[1.0, 0.0], [1.0, 0.0]]\n"
+         "Dc = [[0.0], [0.0]]\n", "controller[2].Ac: expected shape 1 x 1"),
     ],
 )
 def test_bad_gains_exit_2_one_line(tmp_path: Path, gains_text: str, needle: str) -> None:
@@ -91,3 +97,15 @@ def test_usage_errors_exit_2() -> None:
     assert run_cli("frobnicate").returncode == 2
     proc = run_cli("analyze", str(PAPER), "--gains", str(PAPER_GAINS), "--solver", "mosek")
     assert proc.returncode == 2 and "mosek" in proc.stderr
+
+
+def test_dynamic_controller_analyze_says_why_not() -> None:
+    """The observer-based example is mean-square unstable: exit 1, the spectral test says
+    so, and the JSON names the augmented loop's kind."""
+    observer = ROOT / "examples" / "paper_observer.toml"
+    proc = run_cli("analyze", str(PAPER), "--controller", str(observer), "--json")
+    assert proc.returncode == 1, proc.stderr
+    d = json.loads(proc.stdout)
+    assert d["controller"] == "FDI-mode dynamic output feedback (n_c = 2)"
+    assert d["mss"]["stable"] is False and d["mss"]["spectral_abscissa"] > 0
+    assert len(d["per_mode"]) == 4 and all(len(m["poles"]) == 4 for m in d["per_mode"])

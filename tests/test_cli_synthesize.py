@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ftc_verify.problem_files import load_gains
+from ftc_verify.controllers.files import load_gains
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "examples" / "paper.toml"

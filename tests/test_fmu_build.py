@@ -27,7 +27,7 @@ from fmpy.fmi2 import (  # noqa: E402
 )
 
 from ftc_verify.errors import FTCError, ValidationError  # noqa: E402
-from ftc_verify.fmu_build import (  # noqa: E402
+from ftc_verify.plants.linear_jump import (  # noqa: E402
     FMUError,
     build_binary,
     build_fmu,
@@ -39,8 +39,8 @@ from ftc_verify.fmu_build import (  # noqa: E402
     validate,
     variable_names,
 )
-from ftc_verify.model import FTCSystem  # noqa: E402
-from ftc_verify.problem_files import load_system  # noqa: E402
+from ftc_verify.model.system import FTCSystem  # noqa: E402
+from ftc_verify.model.files import load_system  # noqa: E402
 
 PAPER = Path(__file__).resolve().parents[1] / "examples" / "paper.toml"
 CHAIN2 = dict(alpha=[[-1.0, 1.0], [2.0, -2.0]], beta_min=[[0, 1.0], [1.0, 0]], beta_max=[[0, 2.0], [2.0, 0]])
@@ -198,13 +198,66 @@ def test_paper_fmu_validates_and_declares_its_contract(paper: FTCSystem, paper_f
     assert parsed["guid"] == md.guid and parsed["dims"] == fmu_dims(paper)
     for mode, tables in zip(paper.modes, parsed["modes"]):  # exact round trip of every number
         for key, value in tables.items():
-            assert np.array_equal(value, getattr(mode, key)), key
+            assert np.array_equal(value, mode.measured if key == "Cy" else getattr(mode, key)), key
+
+
+def measured_system() -> FTCSystem:
+    """Two modes, n = 3, with Cy (2 x 3): row 1 equal in both modes, row 2 different."""
+    g = np.random.default_rng(17)
+    modes = []
+    for k in range(2):
+        Cy = [[1.0, -2.0, 0.5], [0.3 + k, 0.0, -1.0 - 2 * k]]
+        modes.append(dict(A=g.uniform(-1, 1, (3, 3)) - np.eye(3), B=g.uniform(-1, 1, (3, 2)),
+                          C=g.uniform(-1, 1, (1, 3)), D=g.uniform(-1, 1, (3, 1)), Cy=Cy))
+    return FTCSystem.from_arrays(name="measured", modes=modes, **CHAIN2)
+
+
+def test_measured_outputs_are_cy_of_the_current_mode(open_plant, tmp_path: Path) -> None:
+    """``ym[k]`` is ``Cy_r x`` of the current mode in every mode (after switches and steps);
+    declared as depending on ``mode`` only where the row of ``Cy`` differs between modes."""
+    system = measured_system()
+    fmu = build_fmu(system, tmp_path / "measured.fmu")
+    assert validate(fmu) == []
+    md = read_model_description(str(fmu))
+    names = [v.name for v in md.modelVariables]
+    assert names == variable_names(fmu_dims(system)) and fmu_dims(system).nym == 2
+    assert names.index("ym[1]") == names.index("y[1]") + 1 and names[-2:] == ["mode", "systemFile"]
+    deps = {u.variable.name: [d.name for d in (u.dependencies or [])] for u in md.outputs}
+    assert deps["ym[1]"] == [] and deps["ym[2]"] == ["mode"] and deps["y[1]"] == ["mode"]
+    assert {u.variable.name for u in md.initialUnknowns} >= {"ym[1]", "ym[2]"}
+    parsed = parse_system_text(zipfile.ZipFile(fmu).read("resources/system.txt").decode())
+    for mode, tables in zip(system.modes, parsed["modes"]):
+        assert np.array_equal(tables["Cy"], mode.Cy)
+    plant = open_plant(fmu, x0=[0.4, -1.2, 0.7])
+    for r, u in [(1, [0.5, -1.0]), (2, [1.0, 0.2]), (1, [0.0, 0.3]), (2, [-0.4, 0.0])]:
+        plant.set_mode(r)
+        plant.set("u", u)
+        for _ in range(3):
+            x = plant.get("x", 3)
+            ym = plant.get("ym", 2)
+            assert np.allclose(ym, system.modes[r - 1].Cy @ x, rtol=1e-14, atol=1e-15), r
+            assert np.allclose(plant.get("y", 1), system.modes[r - 1].C @ x, rtol=1e-14, atol=1e-15)
+            assert not np.allclose(ym, system.modes[2 - r].Cy @ x)  # the other mode's Cy differs
+            plant.step(0.1)
+
+
+def test_measured_outputs_default_to_c(scalar_fmu: Path, open_plant) -> None:
+    """Without ``Cy`` the FMU still has ``ym`` (one per row of ``C``), equal to ``y = C_r x``."""
+    md = read_model_description(str(scalar_fmu))
+    assert [v.name for v in md.modelVariables if v.name.startswith("ym[")] == ["ym[1]"]
+    plant = open_plant(scalar_fmu, x0=[0.9])
+    for r in (1, 2, 3, 1):
+        plant.set_mode(r)
+        plant.set("u", [0.5 * r])
+        plant.step(0.2)
+        x = plant.get("x", 1)[0]
+        assert plant.get("ym", 1)[0] == plant.get("y", 1)[0] == pytest.approx(SCALAR_MODES[r - 1][3] * x, rel=1e-14)
 
 
 def test_scalar_fmu_has_no_uncertainty_inputs(scalar_fmu: Path) -> None:
     assert validate(scalar_fmu) == []
     names = [v.name for v in read_model_description(str(scalar_fmu)).modelVariables]
-    assert names == ["x0[1]", "u[1]", "w[1]", "x[1]", "y[1]", "mode", "systemFile"]
+    assert names == ["x0[1]", "u[1]", "w[1]", "x[1]", "y[1]", "ym[1]", "mode", "systemFile"]
 
 
 def test_same_system_gives_identical_fmu(paper: FTCSystem, paper_fmu: Path, tmp_path: Path) -> None:

@@ -1,4 +1,4 @@
-"""Unit tests of ftc_verify.lmi_analysis (and the certificate check of ftc_verify.lmi)."""
+"""Unit tests of ftc_verify.analysis.lmi_analysis (and the certificate check of ftc_verify.analysis.lmi)."""
 
 from __future__ import annotations
 
@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 import scipy.optimize
 
-from ftc_verify.closedloop import state_feedback_loop
+from ftc_verify.analysis.closedloop import state_feedback_loop
 from ftc_verify.errors import ValidationError
-from ftc_verify.lmi import check_certificate
-from ftc_verify.lmi_analysis import hinf_gamma, mes_lmi
-from ftc_verify.model import FTCSystem
-from ftc_verify.solvers import SOLVERS, choose_solver
-from ftc_verify.stability import mean_square_stability
+from ftc_verify.analysis.lmi import check_certificate
+from ftc_verify.analysis.lmi_analysis import hinf_gamma, mes_lmi
+from ftc_verify.model.system import FTCSystem
+from ftc_verify.analysis.solvers import SOLVERS, choose_solver
+from ftc_verify.analysis.stability import mean_square_stability
 
 
 # ============================================================================ paper example

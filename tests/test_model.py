@@ -1,4 +1,4 @@
-"""Unit tests of ftc_verify.model: validation, the joint generator, the beta box."""
+"""Unit tests of ftc_verify.model.system: validation, the joint generator, the beta box."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from ftc_verify.errors import ValidationError
-from ftc_verify.model import GENERATOR_RTOL, FTCSystem, JointChain, Mode, as_matrix
+from ftc_verify.model.system import GENERATOR_RTOL, FTCSystem, JointChain, Mode, as_matrix
 
 ALPHA2 = [[-0.5, 0.5], [1.0, -1.0]]
 BMIN2 = [[0.0, 2.0], [2.5, 0.0]]

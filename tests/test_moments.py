@@ -11,12 +11,13 @@ import numpy as np
 import pytest
 import scipy.integrate
 
-from ftc_verify.closedloop import state_feedback_loop
+from ftc_verify.analysis.closedloop import state_feedback_loop
 from ftc_verify.errors import ValidationError
-from ftc_verify.lmi_analysis import hinf_gamma
-from ftc_verify.model import FTCSystem
-from ftc_verify.moments import exact_energy, worst_case_disturbance
-from ftc_verify.problem_files import load_gains, load_system
+from ftc_verify.analysis.lmi_analysis import hinf_gamma
+from ftc_verify.model.system import FTCSystem
+from ftc_verify.verification.moments import exact_energy, worst_case_disturbance
+from ftc_verify.model.files import load_system
+from ftc_verify.controllers.files import load_controller, load_gains
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = load_system(ROOT / "examples" / "paper.toml")
@@ -125,11 +126,11 @@ def test_exact_energy_against_100k_path_monte_carlo() -> None:
     Richardson extrapolation 2 E(h/2) - E(h) on common paths cancels it, leaving O(h^2).
     The exact value must lie in the two-sided Student-t interval at alpha = 1e-6 per side
     (false-failure probability about 2e-6 under the CLT; fixed seed)."""
-    from ftc_verify.montecarlo import estimate
-    from ftc_verify.paths import sample_paths
-    from ftc_verify.reference_sim import energies_reference
+    from ftc_verify.verification.montecarlo import estimate
+    from ftc_verify.simulation.paths import sample_paths
+    from ftc_verify.simulation.reference import energies_reference
 
-    gains = load_gains(ROOT / "examples" / "paper_gains.toml")
+    gains = load_controller(ROOT / "examples" / "paper_gains.toml")
     beta, T = PAPER.chain.midpoint(), 15.0
     exact = exact_energy(PAPER_LOOP, beta=beta, horizon=T)
     paths = sample_paths(PAPER.chain, T, 100_000, np.random.default_rng(20261122), beta=beta)

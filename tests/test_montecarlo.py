@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from ftc_verify.errors import ValidationError
-from ftc_verify.montecarlo import clopper_pearson, estimate, sequential_estimate
+from ftc_verify.verification.montecarlo import clopper_pearson, estimate, sequential_estimate
 
 
 @pytest.mark.parametrize("n", [5, 40, 1000])
@@ -75,12 +75,13 @@ def test_monte_carlo_on_both_backends_agrees_and_records_seed() -> None:
     paper's gains keep the ratio below their certified gamma^2 = 0.4983^2 with room."""
     from pathlib import Path
 
-    from ftc_verify.montecarlo import monte_carlo
-    from ftc_verify.problem_files import load_gains, load_system
+    from ftc_verify.verification.montecarlo import monte_carlo
+    from ftc_verify.model.files import load_system
+    from ftc_verify.controllers.files import load_controller
 
     root = Path(__file__).resolve().parents[1]
     system = load_system(root / "examples" / "paper.toml")
-    gains = load_gains(root / "examples" / "paper_gains.toml")
+    gains = load_controller(root / "examples" / "paper_gains.toml")
     ref = monte_carlo(system, gains, backend="reference", paths=20, horizon=10.0, seed=4, gamma=0.4983)
     fmu = monte_carlo(system, gains, backend="fmu", paths=20, horizon=10.0, seed=4, gamma=0.4983)
     assert ref.seed == fmu.seed == 4 and ref.paths == fmu.paths == 20

@@ -1,4 +1,4 @@
-"""The joint-chain sampler and the communication grid (``ftc_verify.paths``).
+"""The joint-chain sampler and the communication grid (``ftc_verify.simulation.paths``).
 
 Goodness-of-fit tests run at level alpha = 1e-3 each (false-failure probability 1e-3
 per test if the sampler is right; the seeds are fixed, so the outcome is deterministic):
@@ -13,8 +13,8 @@ import pytest
 import scipy.stats
 
 from ftc_verify.errors import ValidationError
-from ftc_verify.model import JointChain
-from ftc_verify.paths import ChainPath, communication_grid, sample_path, sample_paths
+from ftc_verify.model.system import JointChain
+from ftc_verify.simulation.paths import ChainPath, communication_grid, sample_path, sample_paths
 
 ALPHA = 1e-3
 SAMPLES = 2500

@@ -1,11 +1,13 @@
 """The exact reference simulator of the sampled-data loop, its fast energies and the
-continuous loop (``ftc_verify.reference_sim``), and the Fig. 1 plot.
+continuous loop (``ftc_verify.simulation.reference``, ``.energies``, ``.continuous``,
+``.discretise``) under static state feedback ``Controller.state_feedback(gains)``, and the
+Fig. 1 plot.
 
 Independent checks: a closed-form scalar recursion, a hand-rolled per-interval
 ``scipy.linalg.expm`` loop, the trapezoidal norms of the records, first-order
 convergence of the sampled loop to the continuous one, a Monte Carlo second moment
-against the exact second-moment equation of ``ftc_verify.stability``, and the perturbed
-closed loop of ``ftc_verify.closedloop`` for a constant ``Delta``.
+against the exact second-moment equation of ``ftc_verify.analysis.stability``, and the perturbed
+closed loop of ``ftc_verify.analysis.closedloop`` for a constant ``Delta``.
 """
 
 from __future__ import annotations
@@ -16,22 +18,27 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-import ftc_verify.reference_sim as rs
-from ftc_verify.closedloop import state_feedback_loop
+import ftc_verify.simulation.continuous as continuous_mod
+import ftc_verify.simulation.discretise as discretise_mod
+import ftc_verify.simulation.energies as energies_mod
+from ftc_verify.analysis.closedloop import state_feedback_loop
+from ftc_verify.controllers import Controller
 from ftc_verify.errors import ValidationError
-from ftc_verify.model import FTCSystem
-from ftc_verify.paths import DISTURBANCES, ChainPath, communication_grid, disturbance, sample_paths
-from ftc_verify.plots import plot_path
-from ftc_verify.reference_sim import (
+from ftc_verify.model.system import FTCSystem
+from ftc_verify.simulation.paths import DISTURBANCES, ChainPath, communication_grid, disturbance, sample_paths
+from ftc_verify.verification.plots import plot_path
+from ftc_verify.simulation.reference import (
     energies_reference,
     phi_gamma,
     simulate_continuous,
     simulate_reference,
     zoh_matrices,
 )
-from ftc_verify.simulation import l2_norm
-from ftc_verify.stability import duplication_matrix, second_moment_generator
-from ftc_verify.uncertainty import DeltaSchedule, delta_segments
+from ftc_verify.simulation.records import l2_norm
+from ftc_verify.analysis.stability import duplication_matrix, second_moment_generator
+from ftc_verify.simulation.delta import DeltaSchedule, delta_segments, delta_shapes
+
+sf = Controller.state_feedback  # static state feedback u = K x from a list of gains
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -96,7 +103,7 @@ def scalar_two_mode():
 
 
 def constant_delta(system, scale=0.8):
-    s1, s2 = rs.delta_shapes(system)
+    s1, s2 = delta_shapes(system)
     g = np.random.default_rng(3)
 
     def unit(shape):
@@ -116,7 +123,7 @@ def test_scalar_no_jump_matches_the_closed_form_recursion() -> None:
                                    alpha=[[-1, 1], [1, -1]], beta_min=[[0, 1], [1, 0]], beta_max=[[0, 1], [1, 0]])
     path = ChainPath(np.array([0.0]), np.array([0]), np.array([0]), np.zeros((2, 2)), 1.3)
     h = 0.05
-    res = simulate_reference(system, [np.array([[k]]), np.array([[9.0]])], [path], step=h, x0=[0.8], seed=4)
+    res = simulate_reference(system, sf([np.array([[k]]), np.array([[9.0]])]), [path], step=h, x0=[0.8], seed=4)
     rec = res.records[0]
     t = np.arange(27) * h
     t[-1] = 1.3
@@ -132,6 +139,7 @@ def test_scalar_no_jump_matches_the_closed_form_recursion() -> None:
     assert rel(rec.u[:, 0], k * x) < 1e-13
     assert rel(rec.y[:, 0], c * x) < 1e-13
     assert np.array_equal(rec.w[:, 0], w)
+    assert rec.xc.shape == (27, 0) and np.array_equal(rec.ym, rec.x)  # static: no x_c, v = x
     assert (res.backend, res.seed, res.step, res.horizon, res.disturbance) == ("reference", 4, h, 1.3, "paper")
     assert res.options["delta"] == "zero" and res.options["gains"] == "fdi"
 
@@ -143,7 +151,7 @@ def test_paths_with_jumps_match_a_hand_rolled_expm_loop(paper_system, paper_gain
     paths = sample_paths(paper_system.chain, 1.0, 2, np.random.default_rng(8)) + edge_paths(1.0, 0.04)[:2]
     assert sum(p.times.size - 1 for p in paths) >= 10
     x0 = np.array([0.6, -0.4])
-    res = simulate_reference(paper_system, paper_gains, paths, step=0.04, delta=sched, x0=x0, seed=21)
+    res = simulate_reference(paper_system, sf(paper_gains), paths, step=0.04, delta=sched, x0=x0, seed=21)
     rng = np.random.default_rng(21)
     for rec, p in zip(res.records, paths):
         t, X, U, W, Y = hand_rolled(paper_system, paper_gains, p, step=0.04, delta=sched, x0=x0, rng=rng)
@@ -156,7 +164,7 @@ def test_paths_with_jumps_match_a_hand_rolled_expm_loop(paper_system, paper_gain
 def test_full_information_gains(paper_system, paper_gains) -> None:
     gains = [paper_gains[0], paper_gains[1], 0.5 * paper_gains[0], 0.5 * paper_gains[1]]
     paths = sample_paths(paper_system.chain, 1.5, 2, np.random.default_rng(1))
-    res = simulate_reference(paper_system, gains, paths, step=0.03, x0=[1.0, 0.0])
+    res = simulate_reference(paper_system, sf(gains), paths, step=0.03, x0=[1.0, 0.0])
     for rec, p in zip(res.records, paths):
         t, X, U, W, Y = hand_rolled(paper_system, gains, p, step=0.03, x0=[1.0, 0.0])
         assert rel(rec.x, X) < 1e-12 and rel(rec.u, U) < 1e-12
@@ -165,8 +173,8 @@ def test_full_information_gains(paper_system, paper_gains) -> None:
 
 # ----------------------------------------------------------------------------- fast energies
 def _energy_case(system, gains, paths, step, sched, x0, dist="paper"):
-    res = simulate_reference(system, gains, paths, step=step, delta=sched, x0=x0, seed=17, disturbance=dist)
-    ey, ew = energies_reference(system, gains, paths, step=step, delta=sched, x0=x0,
+    res = simulate_reference(system, sf(gains), paths, step=step, delta=sched, x0=x0, seed=17, disturbance=dist)
+    ey, ew = energies_reference(system, sf(gains), paths, step=step, delta=sched, x0=x0,
                                 rng=np.random.default_rng(17), disturbance=dist)
     ry = np.array([r.y_norm ** 2 for r in res.records])
     rw = np.array([r.w_norm ** 2 for r in res.records])
@@ -184,8 +192,8 @@ def test_energies_equal_the_records_norms(paper_system, paper_gains, kind, monke
     x0 = [1.0, -1.0]
     _energy_case(paper_system, paper_gains, paths, 0.01, sched, x0)
     # one regular step per chunk, and the gathered kernel instead of "all ids, then select"
-    monkeypatch.setattr(rs, "_CHUNK_DOUBLES", 1)
-    monkeypatch.setattr(rs, "_SELECT_LIMIT", 0)
+    monkeypatch.setattr(energies_mod, "_CHUNK_DOUBLES", 1)
+    monkeypatch.setattr(energies_mod, "_SELECT_LIMIT", 0)
     _energy_case(paper_system, paper_gains, paths, 0.01, sched, x0)
 
 
@@ -205,10 +213,10 @@ def test_energies_other_cases(paper_system, paper_gains, scalar_two_mode, monkey
         alpha=[[-1.0, 1.0], [1.0, -1.0]], beta_min=[[0, 2.0], [2.0, 0]], beta_max=[[0, 3.0], [3.0, 0]])
     paths = sample_paths(system.chain, 2.0, 4, np.random.default_rng(6)) + edge_paths(2.0, 0.04)
     _energy_case(stiff, K, paths, 0.04, DeltaSchedule("sign", np.array([[0.9]])), [1.0], dist="sine")
-    monkeypatch.setattr(rs, "_GROUP_LIMIT", 0)
+    monkeypatch.setattr(discretise_mod, "_GROUP_LIMIT", 0)
     _energy_case(stiff, K, paths, 0.04, DeltaSchedule("random"), [1.0], dist="step")
     # a single path, given bare
-    ey, ew = energies_reference(system, K, paths[0], step=0.04, disturbance="zero", x0=[1.0])
+    ey, ew = energies_reference(system, sf(K), paths[0], step=0.04, disturbance="zero", x0=[1.0])
     assert ew.tolist() == [0.0] and ey[0] > 0
 
 
@@ -246,7 +254,7 @@ def test_energies_on_a_random_three_mode_system(kind) -> None:
 @pytest.mark.parametrize("per_item", [False, True])
 def test_phi_gamma_matches_scipy_expm(per_item, monkeypatch) -> None:
     if per_item:
-        monkeypatch.setattr(rs, "_GROUP_LIMIT", 0)
+        monkeypatch.setattr(discretise_mod, "_GROUP_LIMIT", 0)
     g = np.random.default_rng(0)
     mats = [g.standard_normal((3, 3)), np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, 0.0]]),
             np.zeros((3, 3)), 25.0 * g.standard_normal((3, 3)) - 40 * np.eye(3), np.diag([-300.0, 0.5, 2.0])]
@@ -283,11 +291,11 @@ def test_sampled_loop_converges_to_the_continuous_loop_at_first_order(scalar_two
     system, K = scalar_two_mode
     path = ChainPath(np.array([0.0, 0.37, 0.81, 1.53]), np.array([0, 1, 1, 0]), np.array([0, 0, 1, 1]),
                      np.zeros((2, 2)), 2.0)
-    cont = simulate_continuous(system, K, path, x0=[1.0], points_per_unit=200)
+    cont = simulate_continuous(system, sf(K), path, x0=[1.0], points_per_unit=200)
     steps = np.array([0.04, 0.02, 0.01, 0.005])
     errs = []
     for h in steps:
-        rec = simulate_reference(system, K, [path], step=float(h), x0=[1.0]).records[0]
+        rec = simulate_reference(system, sf(K), [path], step=float(h), x0=[1.0]).records[0]
         i_fine, i_coarse = common_points(cont.t, rec.t)
         assert i_coarse.size >= 2.0 / h  # every multiple of the step is compared
         errs.append(np.max(np.abs(cont.x[i_fine] - rec.x[i_coarse])))
@@ -299,7 +307,7 @@ def test_continuous_loop_conventions_and_the_solve_ivp_fallback(paper_system, pa
     d1, d2 = constant_delta(paper_system)
     path = sample_paths(paper_system.chain, 2.5, 1, np.random.default_rng(12))[0]
     sched = DeltaSchedule("sign", d1, d2)
-    rec = simulate_continuous(paper_system, paper_gains, path, delta=sched, x0=[0.5, 0.5], points_per_unit=40)
+    rec = simulate_continuous(paper_system, sf(paper_gains), path, delta=sched, x0=[0.5, 0.5], points_per_unit=40)
     t, true, fdi = communication_grid(path, 1 / 40)
     assert np.array_equal(rec.t, t) and np.array_equal(rec.true, true) and np.array_equal(rec.fdi, fdi)
     assert np.array_equal(rec.w, disturbance("paper", 1)(t))
@@ -310,14 +318,14 @@ def test_continuous_loop_conventions_and_the_solve_ivp_fallback(paper_system, pa
         assert np.allclose(rec.y[k], paper_system.modes[true[k]].C @ rec.x[k])
     # a shape without an exosystem goes through solve_ivp (rtol 1e-10)
     monkeypatch.setitem(DISTURBANCES, "paper-copy", DISTURBANCES["paper"])
-    ivp = simulate_continuous(paper_system, paper_gains, path, delta=sched, x0=[0.5, 0.5], points_per_unit=40,
+    ivp = simulate_continuous(paper_system, sf(paper_gains), path, delta=sched, x0=[0.5, 0.5], points_per_unit=40,
                               disturbance="paper-copy")
     assert rel(ivp.x, rec.x) < 1e-7
 
 
 @pytest.mark.parametrize("kind", sorted(DISTURBANCES))
 def test_exosystems_reproduce_the_disturbances(kind) -> None:
-    exo = rs._exosystem(kind, 2)
+    exo = continuous_mod._exosystem(kind, 2)
     assert exo is not None  # every named shape has one (else simulate_continuous falls back)
     ts = np.linspace(0.0, 6.0, 61)
     want = disturbance(kind, 2)(ts)
@@ -350,7 +358,7 @@ def test_monte_carlo_second_moment_matches_the_second_moment_equation(paper_syst
     exact = sum(np.trace((D @ v[s * q:(s + 1) * q]).reshape(n, n, order="F")) for s in range(system.m ** 2))
     N = 2000
     paths = sample_paths(system.chain, T, N, np.random.default_rng(2024), beta=beta)
-    vals = np.array([np.sum(simulate_continuous(system, paper_gains, p, disturbance="zero", x0=x0,
+    vals = np.array([np.sum(simulate_continuous(system, sf(paper_gains), p, disturbance="zero", x0=x0,
                                                 points_per_unit=2).x[-1] ** 2) for p in paths])
     z = (vals.mean() - exact) / (vals.std(ddof=1) / math.sqrt(N))
     assert abs(z) < 5, (vals.mean(), exact, z)
@@ -381,14 +389,14 @@ def test_constant_delta_reproduces_the_perturbed_closed_loop(paper_system, paper
     path = ChainPath(np.array([0.0, 0.4, 0.93, 1.7]), np.array([0, 1, 1, 0]), np.array([0, 0, 1, 1]),
                      np.zeros((2, 2)), 3.0)
     x0 = np.array([0.7, -0.2])
-    rec = simulate_continuous(paper_system, paper_gains, path, delta=DeltaSchedule("constant", d1, d2),
+    rec = simulate_continuous(paper_system, sf(paper_gains), path, delta=DeltaSchedule("constant", d1, d2),
                               disturbance="zero", x0=x0, points_per_unit=20)
     x = x0.copy()
     for k in range(len(rec.t) - 1):
         assert rel(rec.x[k], x) < 1e-11
         x = scipy.linalg.expm(Ap[rec.true[k] * 2 + rec.fdi[k]] * (rec.t[k + 1] - rec.t[k])) @ x
     assert rel(rec.x[-1], x) < 1e-11
-    nominal = simulate_continuous(paper_system, paper_gains, path, disturbance="zero", x0=x0, points_per_unit=20)
+    nominal = simulate_continuous(paper_system, sf(paper_gains), path, disturbance="zero", x0=x0, points_per_unit=20)
     assert not np.allclose(nominal.x, rec.x, rtol=1e-6)
 
 
@@ -407,19 +415,21 @@ def test_errors_name_the_field(paper_system, paper_gains) -> None:
     for fn in (simulate_reference, energies_reference):
         for kw, field in cases:
             with pytest.raises(ValidationError, match=field):
-                fn(paper_system, paper_gains, [path], **kw)
-        with pytest.raises(ValidationError, match="gains"):
-            fn(paper_system, paper_gains[:1], [path], step=0.1)
+                fn(paper_system, sf(paper_gains), [path], **kw)
+        with pytest.raises(ValidationError, match="controller: 1 entries given"):
+            fn(paper_system, sf(paper_gains[:1]), [path], step=0.1)
+        with pytest.raises(ValidationError, match="controller: expected a ftc_verify.controllers.Controller"):
+            fn(paper_system, list(paper_gains), [path], step=0.1)  # a bare gain list is refused
         with pytest.raises(ValidationError, match=r"paths\[1\]"):
-            fn(paper_system, paper_gains, [path, "not a path"], step=0.1)
+            fn(paper_system, sf(paper_gains), [path, "not a path"], step=0.1)
         with pytest.raises(ValidationError, match=r"paths\[1\]\.true"):
-            fn(paper_system, paper_gains, [path, bad_mode], step=0.1)
+            fn(paper_system, sf(paper_gains), [path, bad_mode], step=0.1)
         with pytest.raises(ValidationError, match=r"paths\[0\]\.times"):
-            fn(paper_system, paper_gains, [bad_times], step=0.1)
+            fn(paper_system, sf(paper_gains), [bad_times], step=0.1)
         with pytest.raises(ValidationError, match="paths"):
-            fn(paper_system, paper_gains, [], step=0.1)
+            fn(paper_system, sf(paper_gains), [], step=0.1)
     with pytest.raises(ValidationError, match="points_per_unit"):
-        simulate_continuous(paper_system, paper_gains, path, points_per_unit=0)
+        simulate_continuous(paper_system, sf(paper_gains), path, points_per_unit=0)
     with pytest.raises(ValidationError, match="phi_gamma"):
         phi_gamma(np.eye(2)[None], [-1.0])
 
@@ -427,7 +437,7 @@ def test_errors_name_the_field(paper_system, paper_gains) -> None:
 # ----------------------------------------------------------------------------- plots
 def test_plot_path_writes_a_png_atomically(paper_system, paper_gains, tmp_path) -> None:
     path = sample_paths(paper_system.chain, 10.0, 1, np.random.default_rng(7))[0]
-    rec = simulate_reference(paper_system, paper_gains, [path], step=0.01).records[0]
+    rec = simulate_reference(paper_system, sf(paper_gains), [path], step=0.01).records[0]
     out = tmp_path / "fig1.png"
     plot_path(rec, out, title="paper example, one path")
     assert out.read_bytes()[:8] == PNG_SIGNATURE

@@ -1,4 +1,4 @@
-"""Unit tests of ftc_verify.stability: second-moment generator and mean-square stability."""
+"""Unit tests of ftc_verify.analysis.stability: second-moment generator and mean-square stability."""
 
 from __future__ import annotations
 
@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from ftc_verify.closedloop import state_feedback_loop
-from ftc_verify.model import FTCSystem, JointChain
-from ftc_verify.stability import (
+from ftc_verify.analysis.closedloop import state_feedback_loop
+from ftc_verify.model.system import FTCSystem, JointChain
+from ftc_verify.analysis.stability import (
     duplication_matrix,
     mean_square_stability,
     second_moment_generator,

@@ -3,9 +3,9 @@
 On the same paths, the same ``Delta`` draws (same seed) and the same grid, the FMU
 co-simulation (``backend="fmu"``) and the reference must agree to 1e-8 relative in ``x``
 and ``y`` (both integrate exact zero-order-hold steps; the differences are rounding in
-two matrix exponentials). The reference is ``ftc_verify.reference_sim.simulate_reference``;
+two matrix exponentials). The reference is ``ftc_verify.simulation.reference.simulate_reference``;
 every case is also checked against ``local_reference`` below, a loop written from the
-module docstring of :mod:`ftc_verify.supervisor` with scipy's ``expm`` (independent of both
+module docstring of :mod:`ftc_verify.simulation.supervisor` with scipy's ``expm`` (independent of both
 backends), so the supervisor stays tested while ``reference_sim`` is absent.
 
 Also: the paper's example and a 3-mode system with non-square ``Delta`` channels (one mode
@@ -13,6 +13,12 @@ without a ``B1, B2`` channel), all four ``Delta`` kinds; the named ``fault_durin
 variant; full-information gains; a hypothesis property over random small systems; the
 instance is loaded and instantiated once and reused across paths and runs; switch counts
 and norms are recorded; a renamed FMU works with a user-written map.
+
+Controllers (``ftc_verify.controllers.Controller``): static gains run as
+``Controller.state_feedback``; a dynamic controller with a trivial state on ``y_m = x``
+reproduces static gains (1e-9); an observer-based controller on ``y_m = [1 2] x`` records
+``ym = Cy x`` from the FMU and an ``x_c`` that a hand-written ``expm`` recursion on that
+``ym`` reproduces (1e-9), and agrees with the numpy reference.
 """
 
 from __future__ import annotations
@@ -32,20 +38,21 @@ fmpy = pytest.importorskip("fmpy")
 if shutil.which("gcc") is None:  # pragma: no cover
     pytest.skip("gcc is needed to compile the FMU", allow_module_level=True)
 
+from ftc_verify.controllers import Controller, load_controller  # noqa: E402
 from ftc_verify.errors import ValidationError  # noqa: E402
-from ftc_verify.fmu_build import build_fmu  # noqa: E402
-from ftc_verify.model import FTCSystem  # noqa: E402
-from ftc_verify.paths import communication_grid, disturbance, sample_paths  # noqa: E402
-from ftc_verify.simulation import l2_norm  # noqa: E402
-from ftc_verify.supervisor import FaultInjectionMap, Supervisor, simulate_fmu  # noqa: E402
-from ftc_verify.uncertainty import DeltaSchedule, delta_segments  # noqa: E402
+from ftc_verify.plants.linear_jump import build_fmu  # noqa: E402
+from ftc_verify.model.system import FTCSystem  # noqa: E402
+from ftc_verify.simulation.paths import communication_grid, disturbance, sample_paths  # noqa: E402
+from ftc_verify.simulation.records import l2_norm  # noqa: E402
+from ftc_verify.simulation.supervisor import FaultInjectionMap, Supervisor, simulate_fmu  # noqa: E402
+from ftc_verify.simulation.delta import DeltaSchedule, delta_segments  # noqa: E402
 
 try:
-    from ftc_verify.reference_sim import simulate_reference
+    from ftc_verify.simulation.reference import simulate_reference
 except ImportError:  # written in parallel; the local reference below covers the meantime
     simulate_reference = None
 try:
-    from ftc_verify.reference_sim import energies_reference
+    from ftc_verify.simulation.reference import energies_reference
 except ImportError:
     energies_reference = None
 
@@ -64,8 +71,8 @@ def _isolated_cache(tmp_path_factory: pytest.TempPathFactory):
 # ------------------------------------------------------------------------------------------
 
 
-def local_reference(system, gains, paths, *, step, disturbance_kind="paper", delta=None, x0=None, seed=None):
-    """Per path: grid, ``Delta`` per chain segment (drawn in path order from
+def local_reference(system, controller, paths, *, step, disturbance_kind="paper", delta=None, x0=None, seed=None):
+    """Static state feedback ``controller`` (its gains); per path: grid, ``Delta`` per chain segment (drawn in path order from
     ``default_rng(seed)``), ``u_k = K[l_k] x_k`` (``K[r m + l]`` for ``m^2`` gains), ``w_k``,
     ``y_k = C[r_k] x_k``, one exact ZOH step per interval by scipy's ``expm``; at ``t_N`` the
     last interval's modes. Returns ``[(t, true, fdi, x, u, w, y)]``."""
@@ -73,6 +80,7 @@ def local_reference(system, gains, paths, *, step, disturbance_kind="paper", del
     m = system.m
     sched = DeltaSchedule("zero") if delta is None else (DeltaSchedule(delta) if isinstance(delta, str) else delta)
     rng = np.random.default_rng(seed)
+    gains = list(controller.gains)
     full = len(gains) == m * m
     out = []
     for p in paths:
@@ -136,7 +144,7 @@ def assert_backends_agree(fmu_res, ref_res) -> None:
 
 
 needs_reference = pytest.mark.skipif(simulate_reference is None,
-                                     reason="ftc_verify.reference_sim is not there yet")
+                                     reason="ftc_verify.simulation.reference is not there yet")
 
 
 # ------------------------------------------------------------------------------------------
@@ -174,7 +182,7 @@ def random_gains(system: FTCSystem, seed: int, count: int | None = None) -> list
 
 
 def delta_cases(system: FTCSystem):
-    from ftc_verify.uncertainty import delta_shapes
+    from ftc_verify.simulation.delta import delta_shapes
 
     g = np.random.default_rng(99)
     s1, s2 = delta_shapes(system)
@@ -197,14 +205,14 @@ def delta_cases(system: FTCSystem):
 @pytest.fixture(scope="module")
 def paper_case(paper_system, paper_gains):
     paths = sample_paths(paper_system.chain, 10.0, 6, np.random.default_rng(2024))
-    return paper_system, list(paper_gains), paths
+    return paper_system, Controller.state_feedback(list(paper_gains)), paths
 
 
 @pytest.fixture(scope="module")
 def random_case():
     system = random_system(7)
     paths = sample_paths(system.chain, 4.0, 6, np.random.default_rng(11))
-    return system, random_gains(system, 8), paths
+    return system, Controller.state_feedback(random_gains(system, 8)), paths
 
 
 CASES = [(case, kind) for case in ("paper_case", "random_case") for kind in ("zero", "constant", "sign", "random")]
@@ -213,12 +221,12 @@ _FMU_RUNS: dict = {}
 
 def fmu_run(request, case: str, kind: str):
     """The FMU result of a case (computed once per module; both comparisons reuse it)."""
-    system, gains, paths = request.getfixturevalue(case)
+    system, controller, paths = request.getfixturevalue(case)
     if (case, kind) not in _FMU_RUNS:
         x0 = np.linspace(0.5, -0.5, system.dims[0])
-        _FMU_RUNS[case, kind] = simulate_fmu(system, gains, paths, step=0.01, disturbance="paper",
+        _FMU_RUNS[case, kind] = simulate_fmu(system, controller, paths, step=0.01, disturbance="paper",
                                              delta=delta_cases(system)[kind], x0=x0, seed=31)
-    return system, gains, paths, _FMU_RUNS[case, kind]
+    return system, controller, paths, _FMU_RUNS[case, kind]
 
 
 # ------------------------------------------------------------------------------------------
@@ -228,9 +236,9 @@ def fmu_run(request, case: str, kind: str):
 
 @pytest.mark.parametrize("case, kind", CASES)
 def test_fmu_matches_the_local_reference(request, case: str, kind: str) -> None:
-    system, gains, paths, res = fmu_run(request, case, kind)
+    system, controller, paths, res = fmu_run(request, case, kind)
     x0 = np.linspace(0.5, -0.5, system.dims[0])
-    expected = local_reference(system, gains, paths, step=0.01, delta=delta_cases(system)[kind], x0=x0, seed=31)
+    expected = local_reference(system, controller, paths, step=0.01, delta=delta_cases(system)[kind], x0=x0, seed=31)
     assert_matches_local(res, expected)
     assert res.options["delta"] == kind and res.seed == 31
     if kind != "zero":  # Delta really acts: the nominal run differs
@@ -241,23 +249,23 @@ def test_fmu_matches_the_local_reference(request, case: str, kind: str) -> None:
 @needs_reference
 @pytest.mark.parametrize("case, kind", CASES)
 def test_fmu_matches_simulate_reference(request, case: str, kind: str) -> None:
-    system, gains, paths, res = fmu_run(request, case, kind)
+    system, controller, paths, res = fmu_run(request, case, kind)
     x0 = np.linspace(0.5, -0.5, system.dims[0])
-    ref = simulate_reference(system, gains, paths, step=0.01, disturbance="paper",
+    ref = simulate_reference(system, controller, paths, step=0.01, disturbance="paper",
                              delta=delta_cases(system)[kind], x0=x0, seed=31)
     assert_backends_agree(res, ref)
     if energies_reference is not None:  # the Monte-Carlo fast path: same energies
-        Ey, Ew = energies_reference(system, gains, paths, step=0.01, disturbance="paper",
+        Ey, Ew = energies_reference(system, controller, paths, step=0.01, disturbance="paper",
                                     delta=delta_cases(system)[kind], x0=x0, rng=np.random.default_rng(31))
         assert np.allclose(Ey, [r.y_norm ** 2 for r in res.records], rtol=RTOL, atol=0)
         assert np.allclose(Ew, [r.w_norm ** 2 for r in res.records], rtol=RTOL, atol=0)
 
 
 def test_rng_and_seed_give_the_same_delta_draws(random_case) -> None:
-    system, gains, paths = random_case
-    a = simulate_fmu(system, gains, paths[:2], step=0.05, delta="random", seed=5)
-    b = simulate_fmu(system, gains, paths[:2], step=0.05, delta="random", rng=np.random.default_rng(5))
-    c = simulate_fmu(system, gains, paths[:2], step=0.05, delta="random", seed=6)
+    system, controller, paths = random_case
+    a = simulate_fmu(system, controller, paths[:2], step=0.05, delta="random", seed=5)
+    b = simulate_fmu(system, controller, paths[:2], step=0.05, delta="random", rng=np.random.default_rng(5))
+    c = simulate_fmu(system, controller, paths[:2], step=0.05, delta="random", seed=6)
     for ra, rb, rc in zip(a.records, b.records, c.records):
         assert np.array_equal(ra.x, rb.x)
         assert not np.array_equal(ra.x, rc.x)
@@ -273,14 +281,15 @@ def test_fault_during_delay_variant_and_full_information_gains() -> None:
         int(np.count_nonzero((np.diff(p.true) != 0) & (p.true[:-1] != p.fdi[:-1]))) for p in paths
     )
     assert lagging_jumps > 0  # the variant actually happens on these paths
-    for gains in (random_gains(system, 1), random_gains(system, 2, count=4)):
-        res = simulate_fmu(system, gains, paths, step=0.02, delta="random", seed=9, disturbance="sine")
-        assert_matches_local(res, local_reference(system, gains, paths, step=0.02, delta="random", seed=9,
+    for controller in (Controller.state_feedback(random_gains(system, 1)),
+                       Controller.state_feedback(random_gains(system, 2, count=4))):
+        res = simulate_fmu(system, controller, paths, step=0.02, delta="random", seed=9, disturbance="sine")
+        assert_matches_local(res, local_reference(system, controller, paths, step=0.02, delta="random", seed=9,
                                                   disturbance_kind="sine"))
         assert res.options["fault_during_delay"] is True
-        assert res.options["gains"] == ("fdi" if len(gains) == 2 else "full-information")
+        assert res.options["gains"] == ("fdi" if controller.entries == 2 else "full-information")
         if simulate_reference is not None:
-            assert_backends_agree(res, simulate_reference(system, gains, paths, step=0.02, disturbance="sine",
+            assert_backends_agree(res, simulate_reference(system, controller, paths, step=0.02, disturbance="sine",
                                                           delta="random", seed=9))
 
 
@@ -301,7 +310,7 @@ def small_problems(draw):
     system = random_system(draw(st.integers(0, 2**31 - 1)), n=n, nu=nu, ny=ny, nw=nw, m=m,
                            q1=q1, p1=draw(st.integers(1, 2)) if q1 else 0, q2=q2, p2=1 if q2 else 0,
                            partial=draw(st.booleans()), fault_during_delay=draw(st.booleans()))
-    gains = random_gains(system, draw(st.integers(0, 1000)))
+    controller = Controller.state_feedback(random_gains(system, draw(st.integers(0, 1000))))
     seed = draw(st.integers(0, 2**31 - 1))
     paths = sample_paths(system.chain, draw(st.sampled_from([0.5, 1.7, 3.0])), 2, np.random.default_rng(seed))
     step = draw(st.sampled_from([0.013, 0.05, 0.1]))
@@ -309,19 +318,19 @@ def small_problems(draw):
     delta = delta_cases(system)["sign"] if kind == "sign" else kind
     dist = draw(st.sampled_from(["paper", "step", "pulse"]))
     x0 = draw(st.lists(st.floats(-1, 1), min_size=n, max_size=n))
-    return system, gains, paths, step, delta, dist, x0, seed
+    return system, controller, paths, step, delta, dist, x0, seed
 
 
 @settings(max_examples=8)
 @given(small_problems())
 def test_property_backends_agree_on_random_systems(problem) -> None:
-    system, gains, paths, step, delta, dist, x0, seed = problem
-    res = simulate_fmu(system, gains, paths, step=step, disturbance=dist, delta=delta, x0=x0, seed=seed)
+    system, controller, paths, step, delta, dist, x0, seed = problem
+    res = simulate_fmu(system, controller, paths, step=step, disturbance=dist, delta=delta, x0=x0, seed=seed)
     if simulate_reference is not None:
-        ref = simulate_reference(system, gains, paths, step=step, disturbance=dist, delta=delta, x0=x0, seed=seed)
+        ref = simulate_reference(system, controller, paths, step=step, disturbance=dist, delta=delta, x0=x0, seed=seed)
         assert_backends_agree(res, ref)
     else:
-        assert_matches_local(res, local_reference(system, gains, paths, step=step, disturbance_kind=dist,
+        assert_matches_local(res, local_reference(system, controller, paths, step=step, disturbance_kind=dist,
                                                   delta=delta, x0=x0, seed=seed))
 
 
@@ -333,7 +342,7 @@ def test_property_backends_agree_on_random_systems(problem) -> None:
 def test_library_loaded_and_instantiated_once(paper_case, monkeypatch: pytest.MonkeyPatch) -> None:
     from fmpy.fmi2 import FMU2Slave
 
-    system, gains, paths = paper_case
+    system, controller, paths = paper_case
     calls = {"init": 0, "instantiate": 0}
     orig_init, orig_inst = FMU2Slave.__init__, FMU2Slave.instantiate
 
@@ -350,8 +359,8 @@ def test_library_loaded_and_instantiated_once(paper_case, monkeypatch: pytest.Mo
     fmu = build_fmu(system)
     with Supervisor(fmu, system=system) as sup:
         slave = sup.slave
-        first = sup.run(paths, gains, step=0.05, x0=[1.0, -1.0])
-        second = sup.run(paths[::-1], gains, step=0.05, x0=[1.0, -1.0])
+        first = sup.run(paths, controller, step=0.05, x0=[1.0, -1.0])
+        second = sup.run(paths[::-1], controller, step=0.05, x0=[1.0, -1.0])
         assert sup.slave is slave
         assert sup.stats["library_loads"] == sup.stats["instantiations"] == 1
         assert sup.stats["resets"] == 2 * len(paths) - 1 and sup.stats["paths"] == 2 * len(paths)
@@ -361,13 +370,13 @@ def test_library_loaded_and_instantiated_once(paper_case, monkeypatch: pytest.Mo
     for a, b in zip(first.records, second.records[::-1]):
         assert a.path is b.path and np.array_equal(a.x, b.x) and np.array_equal(a.y, b.y)
     with Supervisor(fmu, system=system) as fresh:
-        again = fresh.run([paths[-1]], gains, step=0.05, x0=[1.0, -1.0])
+        again = fresh.run([paths[-1]], controller, step=0.05, x0=[1.0, -1.0])
     assert np.array_equal(again.records[0].x, first.records[-1].x)
     assert sup.closed and sup.slave is None and sup.extraction_dir is None
 
 
 def test_switches_norms_and_grid_are_recorded(request) -> None:
-    system, gains, paths, res = fmu_run(request, "paper_case", "random")
+    system, controller, paths, res = fmu_run(request, "paper_case", "random")
     summary = res.to_dict()
     assert summary["backend"] == "fmu" and summary["paths"] == len(paths) and summary["step"] == 0.01
     assert summary["horizon"] == 10.0 and summary["disturbance"] == "paper"
@@ -385,21 +394,21 @@ def test_switches_norms_and_grid_are_recorded(request) -> None:
         assert np.all(np.isfinite(rec.x)) and rec.x[0] == pytest.approx([0.5, -0.5])
         # u is the held control: K[fdi] x at each grid point (last point: last FDI mode)
         l_at = np.append(rec.fdi, rec.fdi[-1])
-        assert np.allclose(rec.u, np.einsum("kij,kj->ki", np.stack(gains)[l_at], rec.x), rtol=1e-13, atol=1e-15)
+        assert np.allclose(rec.u, np.einsum("kij,kj->ki", np.stack(controller.gains)[l_at], rec.x), rtol=1e-13, atol=1e-15)
     # the paper's ||w||_2 on [0, 10] for w = exp(-0.1 t) sin t (READING-NOTES: 1.5733 on [0, inf))
     assert 1.40 < summary["w_norm"][0] < 1.5733
 
 
 def test_single_path_and_argument_checks(paper_case) -> None:
-    system, gains, paths = paper_case
-    res = simulate_fmu(system, gains, paths[0], step=0.1, disturbance="zero")
+    system, controller, paths = paper_case
+    res = simulate_fmu(system, controller, paths[0], step=0.1, disturbance="zero")
     assert len(res.records) == 1 and np.all(res.records[0].x == 0.0)  # x0 = 0, w = 0: stays at rest
     with pytest.raises(ValidationError, match="unknown kind"):
-        simulate_fmu(system, gains, paths[:1], step=0.1, disturbance="wind")
+        simulate_fmu(system, controller, paths[:1], step=0.1, disturbance="wind")
     with pytest.raises(ValidationError, match="delta: unknown kind"):
-        simulate_fmu(system, gains, paths[:1], step=0.1, delta="wild")
+        simulate_fmu(system, controller, paths[:1], step=0.1, delta="wild")
     with pytest.raises(ValidationError, match="paths"):
-        simulate_fmu(system, gains, [], step=0.1)
+        simulate_fmu(system, controller, [], step=0.1)
 
 
 # ------------------------------------------------------------------------------------------
@@ -414,7 +423,7 @@ RENAMES = {
 
 
 def test_user_map_on_a_renamed_fmu(paper_case, tmp_path: Path) -> None:
-    system, gains, paths = paper_case
+    system, controller, paths = paper_case
     original = build_fmu(system, tmp_path / "original.fmu")
 
     def rename(xml: str) -> str:
@@ -440,8 +449,8 @@ def test_user_map_on_a_renamed_fmu(paper_case, tmp_path: Path) -> None:
     )
     kw = dict(step=0.02, delta="random", x0=[0.3, 0.1], seed=4)
     with Supervisor(renamed, user_map, system=system) as sup:
-        mine = sup.run(paths[:3], gains, **kw)
-    theirs = simulate_fmu(system, gains, paths[:3], **kw)
+        mine = sup.run(paths[:3], controller, **kw)
+    theirs = simulate_fmu(system, controller, paths[:3], **kw)
     for a, b in zip(mine.records, theirs.records):
         for name in ("t", "x", "u", "w", "y"):
             assert np.array_equal(getattr(a, name), getattr(b, name)), name
@@ -449,9 +458,123 @@ def test_user_map_on_a_renamed_fmu(paper_case, tmp_path: Path) -> None:
     with Supervisor(renamed, FaultInjectionMap(fault="health.faultIndex", inputs=user_map.inputs,
                                                states=user_map.states, disturbances=user_map.disturbances,
                                                outputs=user_map.outputs)) as sup:
-        nominal = sup.run(paths[:1], gains, step=0.02)
+        nominal = sup.run(paths[:1], controller, step=0.02)
         with pytest.raises(ValidationError, match="needs the system"):
-            sup.run(paths[:1], gains, step=0.02, delta="random")
+            sup.run(paths[:1], controller, step=0.02, delta="random")
         with pytest.raises(ValidationError, match="no initial_states"):
-            sup.run(paths[:1], gains, step=0.02, x0=[1.0, 0.0])
-    assert np.array_equal(nominal.records[0].x, simulate_fmu(system, gains, paths[:1], step=0.02).records[0].x)
+            sup.run(paths[:1], controller, step=0.02, x0=[1.0, 0.0])
+    assert np.array_equal(nominal.records[0].x, simulate_fmu(system, controller, paths[:1], step=0.02).records[0].x)
+
+
+# ------------------------------------------------------------------------------------------
+# Controllers: dynamic, output feedback
+# ------------------------------------------------------------------------------------------
+
+
+def with_cy(system: FTCSystem, Cy) -> FTCSystem:
+    """``system`` with the measured output ``y_m = Cy x`` in every mode."""
+    import dataclasses
+
+    modes = tuple(dataclasses.replace(md, Cy=np.asarray(Cy, dtype=float)) for md in system.modes)
+    return FTCSystem(system.name + "-cy", modes, system.chain)
+
+
+@pytest.fixture(scope="module")
+def paper_from_files():
+    from ftc_verify.model.files import load_system
+
+    examples = Path(__file__).resolve().parents[1] / "examples"
+    return load_system(examples / "paper.toml"), load_controller(examples / "paper_gains.toml")
+
+
+def test_dynamic_controller_with_trivial_state_equals_static_gains(paper_from_files) -> None:
+    """``Ac = -I, Bc = 0, Cc = 0, Dc = K`` on ``y_m = I x`` is ``u = K x``: the same paths (1e-9)."""
+    paper, static = paper_from_files
+    assert static.is_state_feedback
+    system = with_cy(paper, np.eye(2))
+    K = static.gains
+    dynamic = Controller.dynamic([-np.eye(2)] * 2, [np.zeros((2, 2))] * 2, [np.zeros((2, 2))] * 2, list(K))
+    paths = sample_paths(system.chain, 6.0, 4, np.random.default_rng(8))
+    kw = dict(step=0.01, delta="random", x0=[0.8, -0.4], seed=12)
+    dyn = simulate_fmu(system, dynamic, paths, **kw)
+    ref = simulate_fmu(paper, static, paths, **kw)
+    static_output = Controller.dynamic([np.zeros((0, 0))] * 2, [np.zeros((0, 2))] * 2, [np.zeros((2, 0))] * 2,
+                                       list(K))  # u = K y_m, n_c = 0
+    sof = simulate_fmu(system, static_output, paths, **kw)
+    assert dyn.options["controller"] != ref.options["controller"]
+    for a, b, c in zip(dyn.records, ref.records, sof.records):
+        assert c.xc.shape == (len(c.t), 0) and np.allclose(c.x, b.x, rtol=1e-9, atol=1e-12)
+        assert np.array_equal(a.t, b.t) and np.array_equal(a.fdi, b.fdi)
+        for name in ("x", "u", "y"):
+            assert np.allclose(getattr(a, name), getattr(b, name), rtol=1e-9, atol=1e-12), name
+        assert a.xc.shape == (len(a.t), 2) and np.all(a.xc == 0.0)  # Bc = 0: x_c stays at 0
+        assert b.xc.shape == (len(b.t), 0) and np.array_equal(b.ym, b.x)  # static: v = x
+        assert np.allclose(a.ym, a.x, rtol=1e-14, atol=1e-15)  # Cy = I: the FMU's ym is x
+        assert np.any(np.abs(a.u) > 0.1)  # the control acts
+
+
+#: Observer gains for the paper example with ``Cy = [1 2]``: ``A_l - L_l Cy`` and the controller
+#: matrix ``A_l + B_l K_l - L_l Cy`` are both Hurwitz (so replaying ``ym`` through ``x_c`` is stable).
+PAPER_L = (np.array([[7.9], [-2.8]]), np.array([[57.5], [-25.5]]))
+
+
+def observer_controller(system: FTCSystem, K, Cy: np.ndarray, Ls=PAPER_L) -> Controller:
+    """Per FDI mode l: ``Ac = A_l + B_l K_l - L_l Cy, Bc = L_l, Cc = K_l, Dc = 0``."""
+    Ac, Bc, Cc, Dc = [], [], [], []
+    for md, Kl, L in zip(system.modes, K, Ls):
+        assert np.all(np.linalg.eigvals(md.A - L @ Cy).real < -0.2)  # the observer converges
+        Ac.append(md.A + md.B @ Kl - L @ Cy)
+        assert np.all(np.linalg.eigvals(Ac[-1]).real < -0.2)
+        Bc.append(L)
+        Cc.append(np.asarray(Kl))
+        Dc.append(np.zeros((Kl.shape[0], Cy.shape[0])))
+    return Controller.dynamic(Ac, Bc, Cc, Dc, name="observer")
+
+
+def test_observer_based_controller_xc_recursion(paper_from_files) -> None:
+    """An observer-based controller on ``y_m = [1 2] x``: the FMU's recorded ``ym`` is
+    ``Cy x``; ``x_c`` follows the exact recursion of a hand-written ``scipy.linalg.expm``
+    loop on that ``ym`` (1e-9), ``u = Cc x_c``; and the numpy reference agrees."""
+    paper, static = paper_from_files
+    Cy = np.array([[1.0, 2.0]])
+    system = with_cy(paper, Cy)
+    ctrl = observer_controller(system, static.gains, Cy)
+    paths = sample_paths(system.chain, 5.0, 4, np.random.default_rng(21))
+    assert any(p.fdi_switches for p in paths)
+    res = simulate_fmu(system, ctrl, paths, step=0.01, delta="sign", x0=[0.5, -0.3], seed=3)
+    nc = ctrl.n_c
+    for rec in res.records:
+        N = len(rec.t) - 1
+        assert rec.ym.shape == (N + 1, 1) and rec.xc.shape == (N + 1, nc)
+        assert np.allclose(rec.ym, rec.x @ Cy.T, rtol=1e-13, atol=1e-14)
+        xc = np.zeros(nc)
+        for k in range(N + 1):
+            e = int(rec.fdi[min(k, N - 1)])
+            assert rel_err(rec.xc[k], xc) <= 1e-9 or np.max(np.abs(rec.xc[k] - xc)) <= 1e-12, k
+            u = ctrl.Cc[e] @ xc + ctrl.Dc[e] @ rec.ym[k]
+            assert np.allclose(rec.u[k], u, rtol=1e-9, atol=1e-12), k
+            if k == N:
+                break
+            M = np.zeros((nc + 1, nc + 1))
+            M[:nc, :nc], M[:nc, nc:] = ctrl.Ac[e], ctrl.Bc[e]
+            E = scipy.linalg.expm(M * (rec.t[k + 1] - rec.t[k]))
+            xc = E[:nc, :nc] @ xc + E[:nc, nc:] @ rec.ym[k]
+        assert np.max(np.abs(rec.xc)) > 1e-3  # the observer state moves
+    if simulate_reference is not None:
+        ref = simulate_reference(system, ctrl, paths, step=0.01, delta="sign", x0=[0.5, -0.3], seed=3)
+        for a, b in zip(res.records, ref.records):
+            for name in ("x", "y", "u", "xc", "ym"):
+                assert rel_err(getattr(a, name), getattr(b, name)) <= 1e-9, name
+
+
+def test_output_feedback_needs_matching_measured_outputs(paper_case) -> None:
+    system, controller, paths = paper_case
+    Cy = np.array([[1.0, 2.0]])
+    ctrl = observer_controller(with_cy(system, Cy), controller.gains, Cy)
+    wide = Controller.dynamic(ctrl.Ac, [np.hstack([b, b]) for b in ctrl.Bc], ctrl.Cc,
+                              [np.zeros((2, 2))] * 2)  # reads 2 measured outputs, the system has 1
+    with Supervisor(build_fmu(system), system=system) as sup:
+        with pytest.raises(ValidationError, match="measured outputs"):
+            sup.run(paths[:1], wide, step=0.05)
+        assert sup.run(paths[:1], ctrl, step=0.05).records[0].xc.shape[1] == 2
+        assert sup.stats["paths"] == 1

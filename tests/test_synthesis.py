@@ -9,12 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ftc_verify.closedloop import gain_loop
+from ftc_verify.analysis.closedloop import gain_loop
 from ftc_verify.errors import ValidationError
-from ftc_verify.lmi import block_specs, null_basis, projection, xy_block
-from ftc_verify.model import FTCSystem
-from ftc_verify.problem_files import load_system
-from ftc_verify.synthesis import _Calls, gain_step, synthesize
+from ftc_verify.analysis.lmi import block_specs, null_basis, projection, xy_block
+from ftc_verify.model.system import FTCSystem
+from ftc_verify.model.files import load_system
+from ftc_verify.synthesis.state_feedback import _Calls, gain_step, synthesize
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = load_system(ROOT / "examples" / "paper.toml")

@@ -405,6 +405,7 @@ fmi2Status fmi2GetReal(fmi2Component comp, const fmi2ValueReference vr[], size_t
         case LJP_VAR_DELTA2: value[i] = m->delta2[k]; break;
         case LJP_VAR_X: value[i] = m->x[k]; break;
         case LJP_VAR_Y: value[i] = ljp_model_y(m, k); break;
+        case LJP_VAR_YM: value[i] = ljp_model_ym(m, k); break;
         default: FAIL(c, "fmi2GetReal: %u is not the value reference of a Real variable", vr[i]);
         }
     }
@@ -461,9 +462,9 @@ fmi2Status fmi2SetReal(fmi2Component comp, const fmi2ValueReference vr[], size_t
         LJP_VarKind kind = ljp_var_kind(&m->lay, vr[i], &k);
         if (kind == LJP_VAR_INVALID || kind == LJP_VAR_MODE || kind == LJP_VAR_SYSTEM_FILE)
             FAIL(c, "fmi2SetReal: %u is not the value reference of a Real variable", vr[i]);
-        if (kind == LJP_VAR_X || kind == LJP_VAR_Y)
+        if (kind == LJP_VAR_X || kind == LJP_VAR_Y || kind == LJP_VAR_YM)
             FAIL(c, "fmi2SetReal: value reference %u is an output (%s[%u]) and cannot be set",
-                 vr[i], kind == LJP_VAR_X ? "x" : "y", k + 1);
+                 vr[i], kind == LJP_VAR_X ? "x" : (kind == LJP_VAR_Y ? "y" : "ym"), k + 1);
         if (!isfinite(value[i]))
             FAIL(c, "fmi2SetReal: value reference %u: non-finite value %g", vr[i], value[i]);
         if (kind == LJP_VAR_X0) {

@@ -183,7 +183,8 @@ static char *read_text_file(const LJP_Allocator *al, const char *path, char *err
 }
 
 void ljp_system_free(const LJP_Allocator *al, LJP_System *sys) {
-    double **mats[] = {&sys->A, &sys->B, &sys->C, &sys->D, &sys->A1, &sys->A2, &sys->B1, &sys->B2};
+    double **mats[] = {&sys->A, &sys->B, &sys->C, &sys->D, &sys->A1, &sys->A2, &sys->B1, &sys->B2,
+                       &sys->Cy};
     for (size_t i = 0; i < sizeof mats / sizeof mats[0]; i++) {
         if (*mats[i]) al->release(*mats[i]);
         *mats[i] = NULL;
@@ -239,11 +240,12 @@ int ljp_system_read(const LJP_Allocator *al, const char *path, LJP_System *sys, 
         lx.line = save_line;
     }
 
-    static const char *dim_names[9] = {"n", "nu", "ny", "nw", "m", "q1", "p1", "q2", "p2"};
-    int *dims[9] = {&sys->n, &sys->nu, &sys->ny, &sys->nw, &sys->m,
-                    &sys->q1, &sys->p1, &sys->q2, &sys->p2};
-    for (int i = 0; i < 9; i++) {
-        if (lex_word(&lx, dim_names[i], " (dimensions come in the order n nu ny nw m q1 p1 q2 p2)"))
+    static const char *dim_names[10] = {"n", "nu", "ny", "nw", "m", "q1", "p1", "q2", "p2", "nym"};
+    int *dims[10] = {&sys->n, &sys->nu, &sys->ny, &sys->nw, &sys->m,
+                     &sys->q1, &sys->p1, &sys->q2, &sys->p2, &sys->nym};
+    for (int i = 0; i < 10; i++) {
+        if (lex_word(&lx, dim_names[i],
+                     " (dimensions come in the order n nu ny nw m q1 p1 q2 p2 nym)"))
             goto done;
         long lo = (i == 0 || i == 4) ? 1 : 0;
         if (lex_int(&lx, dim_names[i], lo, LJP_MAX_DIM, dims[i])) goto done;
@@ -259,7 +261,8 @@ int ljp_system_read(const LJP_Allocator *al, const char *path, LJP_System *sys, 
     {
         double N = (double)sys->n + sys->nu + sys->nw;
         double nvars = 2.0 * sys->n + sys->nu + sys->nw + sys->ny +
-                       (double)sys->q1 * sys->p1 + (double)sys->q2 * sys->p2 + 2.0;
+                       (double)sys->nym + (double)sys->q1 * sys->p1 +
+                       (double)sys->q2 * sys->p2 + 2.0;
         if (N * N * 9.0 * sizeof(double) > 4e9) {
             lex_fail(&lx, "system too large: n + nu + nw = %.0f", N);
             goto done;
@@ -279,8 +282,9 @@ int ljp_system_read(const LJP_Allocator *al, const char *path, LJP_System *sys, 
     sys->A2 = alloc_block(al, m, sys->p1, n);
     sys->B1 = alloc_block(al, m, n, sys->q2);
     sys->B2 = alloc_block(al, m, sys->p2, nu);
+    sys->Cy = alloc_block(al, m, sys->nym, n);
     if (!sys->A || !sys->B || !sys->C || !sys->D || !sys->A1 || !sys->A2 || !sys->B1 ||
-        !sys->B2) {
+        !sys->B2 || !sys->Cy) {
         snprintf(err, errlen, "%s: out of memory for the system matrices", path);
         goto done;
     }
@@ -299,6 +303,8 @@ int ljp_system_read(const LJP_Allocator *al, const char *path, LJP_System *sys, 
         if (lex_matrix(&lx, "B", k + 1, n, nu, sys->B + (size_t)k * n * nu)) goto done;
         if (lex_matrix(&lx, "C", k + 1, ny, n, sys->C + (size_t)k * ny * n)) goto done;
         if (lex_matrix(&lx, "D", k + 1, n, nw, sys->D + (size_t)k * n * nw)) goto done;
+        if (lex_matrix(&lx, "Cy", k + 1, sys->nym, n, sys->Cy + (size_t)k * sys->nym * n))
+            goto done;
         if (sys->q1) {
             if (lex_matrix(&lx, "A1", k + 1, n, sys->q1, sys->A1 + (size_t)k * n * sys->q1))
                 goto done;
@@ -323,19 +329,20 @@ int ljp_system_read(const LJP_Allocator *al, const char *path, LJP_System *sys, 
     /* fingerprint */
     {
         uint64_t h = 1469598103934665603ULL;
-        int32_t d[9];
-        for (int i = 0; i < 9; i++) d[i] = (int32_t)*dims[i];
+        int32_t d[10];
+        for (int i = 0; i < 10; i++) d[i] = (int32_t)*dims[i];
         h = fnv1a(h, d, sizeof d);
         struct {
             const double *p;
             size_t count;
-        } blocks[8] = {
+        } blocks[9] = {
             {sys->A, (size_t)m * n * n},         {sys->B, (size_t)m * n * nu},
             {sys->C, (size_t)m * ny * n},        {sys->D, (size_t)m * n * nw},
             {sys->A1, (size_t)m * n * sys->q1},  {sys->A2, (size_t)m * sys->p1 * n},
             {sys->B1, (size_t)m * n * sys->q2},  {sys->B2, (size_t)m * sys->p2 * nu},
+            {sys->Cy, (size_t)m * sys->nym * n},
         };
-        for (int i = 0; i < 8; i++) h = fnv1a(h, blocks[i].p, blocks[i].count * sizeof(double));
+        for (int i = 0; i < 9; i++) h = fnv1a(h, blocks[i].p, blocks[i].count * sizeof(double));
         sys->fingerprint = h;
     }
     rc = 0;
@@ -349,12 +356,12 @@ done:
 int ljp_system_same_dims(const LJP_System *a, const LJP_System *b) {
     return a->n == b->n && a->nu == b->nu && a->ny == b->ny && a->nw == b->nw &&
            a->m == b->m && a->q1 == b->q1 && a->p1 == b->p1 && a->q2 == b->q2 &&
-           a->p2 == b->p2;
+           a->p2 == b->p2 && a->nym == b->nym;
 }
 
 void ljp_system_dims_str(const LJP_System *s, char *buf, size_t len) {
-    snprintf(buf, len, "n=%d nu=%d ny=%d nw=%d m=%d q1=%d p1=%d q2=%d p2=%d", s->n, s->nu,
-             s->ny, s->nw, s->m, s->q1, s->p1, s->q2, s->p2);
+    snprintf(buf, len, "n=%d nu=%d ny=%d nw=%d m=%d q1=%d p1=%d q2=%d p2=%d nym=%d", s->n,
+             s->nu, s->ny, s->nw, s->m, s->q1, s->p1, s->q2, s->p2, s->nym);
 }
 
 /* ======================================================================================
@@ -369,18 +376,21 @@ void ljp_layout(const LJP_System *s, LJP_Layout *lay) {
     lay->delta2 = lay->delta1 + (unsigned)(s->q1 * s->p1);
     lay->x = lay->delta2 + (unsigned)(s->q2 * s->p2);
     lay->y = lay->x + (unsigned)s->n;
-    lay->nreal = lay->y + (unsigned)s->ny - 1;
-    lay->mode = lay->y + (unsigned)s->ny;
+    lay->ym = lay->y + (unsigned)s->ny;
+    lay->nreal = lay->ym + (unsigned)s->nym - 1;
+    lay->mode = lay->ym + (unsigned)s->nym;
     lay->system_file = lay->mode + 1;
 }
 
 LJP_VarKind ljp_var_kind(const LJP_Layout *lay, unsigned vr, unsigned *index) {
-    const unsigned starts[7] = {lay->x0, lay->u, lay->w, lay->delta1, lay->delta2, lay->x, lay->y};
-    const unsigned ends[7] = {lay->u, lay->w, lay->delta1, lay->delta2, lay->x, lay->y, lay->mode};
-    const LJP_VarKind kinds[7] = {LJP_VAR_X0, LJP_VAR_U, LJP_VAR_W, LJP_VAR_DELTA1,
-                                  LJP_VAR_DELTA2, LJP_VAR_X, LJP_VAR_Y};
+    const unsigned starts[8] = {lay->x0,     lay->u, lay->w, lay->delta1,
+                                lay->delta2, lay->x, lay->y, lay->ym};
+    const unsigned ends[8] = {lay->u, lay->w, lay->delta1, lay->delta2,
+                              lay->x, lay->y, lay->ym,     lay->mode};
+    const LJP_VarKind kinds[8] = {LJP_VAR_X0,     LJP_VAR_U, LJP_VAR_W, LJP_VAR_DELTA1,
+                                  LJP_VAR_DELTA2, LJP_VAR_X, LJP_VAR_Y, LJP_VAR_YM};
     *index = 0;
-    for (int i = 0; i < 7; i++)
+    for (int i = 0; i < 8; i++)
         if (vr >= starts[i] && vr < ends[i]) {
             *index = vr - starts[i];
             return kinds[i];
@@ -700,6 +710,14 @@ double ljp_model_y(const LJP_Model *mdl, unsigned k) {
     const double *C = s->C + (size_t)(mdl->mode - 1) * s->ny * s->n + (size_t)k * s->n;
     double acc = 0.0;
     for (int j = 0; j < s->n; j++) acc += C[j] * mdl->x[j];
+    return acc;
+}
+
+double ljp_model_ym(const LJP_Model *mdl, unsigned k) {
+    const LJP_System *s = mdl->sys;
+    const double *Cy = s->Cy + (size_t)(mdl->mode - 1) * s->nym * s->n + (size_t)k * s->n;
+    double acc = 0.0;
+    for (int j = 0; j < s->n; j++) acc += Cy[j] * mdl->x[j];
     return acc;
 }
 

@@ -4,7 +4,7 @@
  * A linear plant whose true fault mode r in 1..m selects the matrices:
  *
  *     x' = (A_r + A1_r Delta1 A2_r) x + (B_r + B1_r Delta2 B2_r) u + D_r w,
- *     y  = C_r x.
+ *     y  = C_r x,      ym = Cy_r x   (measured output; Cy_r = C_r when not given).
  *
  * This file declares
  *   - LJP_System:  the matrices of all modes, read from a plain-text system file
@@ -21,7 +21,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#define LJP_FORMAT_VERSION 1      /* version of the system file format   */
+#define LJP_FORMAT_VERSION 2      /* version of the system file format   */
 #define LJP_STATE_VERSION 1       /* version of the serialized FMU state */
 #define LJP_CACHE_SLOTS 4         /* cached discretisations per mode (LRU) */
 #define LJP_MAX_DIM 100000        /* sanity bound on every dimension     */
@@ -39,7 +39,8 @@ typedef struct {
     int n, nu, ny, nw, m; /* states, controls, outputs, disturbances, modes   */
     int q1, p1;           /* Delta1 is q1 x p1 (A1: n x q1, A2: p1 x n); 0: none */
     int q2, p2;           /* Delta2 is q2 x p2 (B1: n x q2, B2: p2 x nu); 0: none */
-    double *A, *B, *C, *D, *A1, *A2, *B1, *B2;
+    int nym;              /* measured outputs ym = Cy x (Cy: nym x n)            */
+    double *A, *B, *C, *D, *A1, *A2, *B1, *B2, *Cy;
     char guid[LJP_GUID_MAX]; /* empty when the file has no guid line */
     uint64_t fingerprint;    /* FNV-1a hash of the dimensions and all numbers */
 } LJP_System;
@@ -54,12 +55,13 @@ typedef enum {
     LJP_VAR_DELTA2, /* Real input Delta2[i,j], row-major   */
     LJP_VAR_X,      /* Real output x[k]                    */
     LJP_VAR_Y,      /* Real output y[k]                    */
+    LJP_VAR_YM,     /* Real output ym[k] (measured)        */
     LJP_VAR_MODE,   /* Integer input mode (1..m)           */
     LJP_VAR_SYSTEM_FILE /* String parameter systemFile     */
 } LJP_VarKind;
 
 typedef struct {
-    unsigned x0, u, w, delta1, delta2, x, y; /* first value reference of each block   */
+    unsigned x0, u, w, delta1, delta2, x, y, ym; /* first value reference of each block */
     unsigned nreal;                 /* Real variables have references 1 .. nreal       */
     unsigned mode, system_file;     /* nreal + 1 (Integer), nreal + 2 (String)         */
 } LJP_Layout;
@@ -97,7 +99,7 @@ typedef struct {
 int ljp_system_read(const LJP_Allocator *al, const char *path, LJP_System *sys,
                     char *err, size_t errlen);
 void ljp_system_free(const LJP_Allocator *al, LJP_System *sys);
-/* 1 when both systems have the same nine dimensions. */
+/* 1 when both systems have the same ten dimensions. */
 int ljp_system_same_dims(const LJP_System *a, const LJP_System *b);
 /* Describe the dimensions ("n=2 nu=2 ...") into buf. */
 void ljp_system_dims_str(const LJP_System *sys, char *buf, size_t len);
@@ -121,6 +123,8 @@ void ljp_model_invalidate_cache(LJP_Model *mdl);
 
 /* Output k (0-based) of y = C_mode x. */
 double ljp_model_y(const LJP_Model *mdl, unsigned k);
+/* Measured output k (0-based) of ym = Cy_mode x. */
+double ljp_model_ym(const LJP_Model *mdl, unsigned k);
 
 /* Advance from mdl->time by h with u, w, mode and Delta held constant (exact solution
  * of the linear ODE for piecewise-constant inputs). Returns 0, or -1 with a message. */

@@ -51,6 +51,10 @@ it: it builds the equivalent FMI 2.0 Co-Simulation FMU <code>LinearJumpPlant</co
 sources (<code>ftc_verify.fmu_build.build_fmu</code>), whose variables have the same names
 (<code>u[k]</code>, <code>w[k]</code>, <code>mode</code>, <code>Delta1[i,j]</code>,
 <code>Delta2[i,j]</code>, <code>x0[k]</code>, <code>x[k]</code>, <code>y[k]</code>).
+The FMU also has the measured outputs <code>ym[k]</code> = <code>Cy[r] x</code> (row
+<code>k</code>; <code>Cy = C</code> when the system gives no <code>Cy</code>) that
+output-feedback controllers read; this model leaves them out (with <code>Cy = C</code>
+they equal <code>y</code>).
 The FMU integrates exactly for inputs held constant over each communication step; a
 Modelica tool integrates this model numerically, so with inputs that are piecewise
 constant on the same grid both agree up to the tool's solver tolerance.</p>

@@ -1,0 +1,284 @@
+r"""The closed-loop representation every analysis runs on.
+
+A :class:`ClosedLoop` is a linear jump system on the joint (true, FDI) chain: for each
+joint mode :math:`s = (i, j)`
+
+.. math::
+
+    \dot\xi = \Bigl(A_s + \sum_k E_{s,k} \Delta_k F_{s,k}\Bigr)\xi + B_{w,s} w,
+    \qquad z = C_{z,s} \xi, \qquad \|\Delta_k\| \le 1,
+
+where the :math:`(E, F)` pairs are the norm-bounded uncertainty channels.
+
+:func:`closed_loop` builds it from ``(system, controller)`` for every controller of
+:mod:`ftc_verify.controllers`, with the augmented state :math:`\xi = (x, x_c)`.
+Re-derived from the plant (paper eqs. (1), (13)) and the controller
+:math:`\dot x_c = A_{c,j} x_c + B_{c,j} v`, :math:`u = C_{c,j} x_c + D_{c,j} v`,
+:math:`v = M_i x` (:math:`M_i = I` for state feedback, :math:`C_{y,i}` for output
+feedback), in the paper's Section V notation with the controller
+:math:`\mathcal K_j = [[A_{c,j}, B_{c,j}], [C_{c,j}, D_{c,j}]]`:
+
+.. math::
+
+    \bar A_{0i} = \begin{bmatrix} A_i & 0 \\ 0 & 0_{n_c} \end{bmatrix},\;
+    \bar B_{0i} = \begin{bmatrix} 0 & B_i \\ I_{n_c} & 0 \end{bmatrix},\;
+    \bar C_i = \begin{bmatrix} 0 & I_{n_c} \\ M_i & 0 \end{bmatrix},\;
+    \bar D_i = \begin{bmatrix} D_i \\ 0 \end{bmatrix},\;
+    \bar C_{1i} = [\,C_i \;\; 0\,],
+
+    \bar A_{1i} = \begin{bmatrix} A1_i & B1_i \\ 0 & 0 \end{bmatrix},\;
+    \bar A_{2i} = \begin{bmatrix} A2_i & 0 \\ 0 & 0 \end{bmatrix},\;
+    \bar B_{2i} = \begin{bmatrix} 0 & 0 \\ 0 & B2_i \end{bmatrix},\;
+    \Delta = \operatorname{diag}(\Delta_1, \Delta_2),
+
+so that, for true mode :math:`i` and FDI mode :math:`j` (equation (21)'s loop),
+
+.. math::
+
+    A_s = \bar A_{0i} + \bar B_{0i} \mathcal K_j \bar C_i
+        = \begin{bmatrix} A_i + B_i D_{c,j} M_i & B_i C_{c,j} \\ B_{c,j} M_i & A_{c,j} \end{bmatrix},
+    \qquad \bar A_{1i} \Delta (\bar A_{2i} + \bar B_{2i} \mathcal K_j \bar C_i),
+
+since :math:`(\bar A_{2i} + \bar B_{2i} \mathcal K_j \bar C_i) =
+[[A2_i, 0], [B2_i D_{c,j} M_i, B2_i C_{c,j}]]`. The uncertainty term splits into two
+channels with independent multipliers (no more conservative than the paper's single
+block :math:`\Delta`): :math:`([A1_i; 0], [A2_i, 0])` and
+:math:`([B1_i; 0], B2_i [D_{c,j} M_i, C_{c,j}])`. With :math:`n_c = 0` and :math:`M_i = I`
+this is state feedback: :math:`A_s = A_i + B_i K_j`, channels :math:`(A1_i, A2_i)`,
+:math:`(B1_i, B2_i K_j)`, :math:`B_{w,s} = D_i`, :math:`C_{z,s} = C_i` (eqs. (2), (13)).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from ..controllers.controller import Controller
+from ..errors import ValidationError
+from ..model.system import FTCSystem, JointChain, Matrix, Mode
+
+__all__ = ["Channel", "ClosedLoop", "Barred", "barred", "closed_loop", "state_feedback_loop", "gain_loop"]
+
+
+@dataclass(frozen=True, eq=False)
+class Channel:
+    """One norm-bounded uncertainty channel ``E Delta F`` with ``||Delta|| <= 1``."""
+
+    E: Matrix
+    F: Matrix
+    name: str
+
+
+@dataclass(frozen=True, eq=False)
+class ClosedLoop:
+    """Closed loop on the joint chain; per joint mode ``s = true * m + fdi``.
+
+    Attributes
+    ----------
+    chain : JointChain
+        The joint (true, FDI) chain and its rate bounds.
+    A, Bw, Cz : tuple of arrays, one per joint mode
+        Closed-loop state matrix, disturbance input and performance output.
+    channels : tuple of tuples of :class:`Channel`, one per joint mode
+        Uncertainty channels (empty for a nominal loop).
+    controller : str
+        What produced the loop (for reports).
+    n_plant : int or None
+        Plant states ``x`` at the top of the state (the rest is the controller's ``x_c``);
+        ``None`` means all states are plant states.
+    """
+
+    chain: JointChain
+    A: tuple[Matrix, ...]
+    Bw: tuple[Matrix, ...]
+    Cz: tuple[Matrix, ...]
+    channels: tuple[tuple[Channel, ...], ...]
+    controller: str = "state feedback"
+    n_plant: int | None = None
+
+    def __post_init__(self) -> None:
+        count = self.chain.m ** 2
+        for name in ("A", "Bw", "Cz", "channels"):
+            if len(getattr(self, name)) != count:
+                raise ValidationError(
+                    f"ClosedLoop.{name}: expected {count} joint modes, got {len(getattr(self, name))}"
+                )
+
+    @property
+    def n(self) -> int:
+        """Closed-loop state dimension."""
+        return int(self.A[0].shape[0])
+
+    @property
+    def modes(self) -> tuple[tuple[int, int], ...]:
+        """Joint modes ``(true, fdi)``, 0-based, in index order."""
+        return self.chain.joint_modes
+
+    @property
+    def uncertain(self) -> bool:
+        """True when some joint mode has an uncertainty channel."""
+        return any(self.channels)
+
+    def nominal(self) -> "ClosedLoop":
+        """The loop with every uncertainty channel removed (``Delta = 0``)."""
+        return replace(self, channels=tuple(() for _ in self.A))
+
+    def with_chain(self, chain: JointChain) -> "ClosedLoop":
+        """The same loop on another chain with the same number of modes."""
+        if chain.m != self.chain.m:
+            raise ValidationError(f"with_chain: chain has {chain.m} modes, the loop {self.chain.m}")
+        return replace(self, chain=chain)
+
+    def scaled(self, d: Matrix) -> "ClosedLoop":
+        """The similar loop in the coordinates ``x = diag(d) x~``: ``A~ = D^-1 A D``,
+        ``Bw~ = D^-1 Bw``, ``Cz~ = Cz D``, ``E~ = D^-1 E``, ``F~ = F D``. With ``d`` powers
+        of two (:func:`ftc_verify.analysis.lmi_analysis.balancing_scale`) every product is
+        exact in floating point, so a certificate of the scaled loop is one of this loop."""
+        d = np.asarray(d, dtype=float)
+        inv = 1.0 / d
+        return replace(
+            self,
+            A=tuple(inv[:, None] * A * d[None, :] for A in self.A),
+            Bw=tuple(inv[:, None] * B for B in self.Bw),
+            Cz=tuple(C * d[None, :] for C in self.Cz),
+            channels=tuple(tuple(Channel(inv[:, None] * ch.E, ch.F * d[None, :], ch.name) for ch in chans)
+                           for chans in self.channels),
+        )
+
+    def perturbed(self, deltas: Mapping[str, Matrix]) -> tuple[Matrix, ...]:
+        """State matrices ``A_s + sum_k E_k Delta_k F_k`` for given ``Delta`` per channel
+        name (a channel missing from ``deltas`` stays at ``Delta = 0``)."""
+        out = []
+        for A, chans in zip(self.A, self.channels):
+            M = A.copy()
+            for ch in chans:
+                if ch.name in deltas:
+                    M = M + ch.E @ np.asarray(deltas[ch.name]) @ ch.F
+            out.append(M)
+        return tuple(out)
+
+
+@dataclass(frozen=True, eq=False)
+class Barred:
+    """The barred matrices of one true mode (module docstring; paper Section V, with the
+    measurement ``M`` in place of ``C`` and ``n_c`` controller states). ``A1bar``,
+    ``A2bar``, ``B2bar`` are ``None`` without uncertainty; ``split`` is the number of
+    ``Delta1`` columns of ``A1bar`` (rows of ``A2bar``)."""
+
+    A0bar: Matrix
+    B0bar: Matrix
+    Cbar: Matrix
+    Dbar: Matrix
+    C1bar: Matrix
+    A1bar: Matrix | None
+    A2bar: Matrix | None
+    B2bar: Matrix | None
+    split: int
+
+
+def barred(mode: Mode, measurement: Matrix, n_c: int) -> Barred:
+    """The barred matrices of ``mode`` for a controller reading ``v = measurement x``."""
+    n, nu, _, nw = mode.dims
+    nv = measurement.shape[0]
+    A0 = np.zeros((n + n_c, n + n_c))
+    A0[:n, :n] = mode.A
+    B0 = np.zeros((n + n_c, n_c + nu))
+    B0[:n, n_c:] = mode.B
+    B0[n:, :n_c] = np.eye(n_c)
+    Cb = np.zeros((n_c + nv, n + n_c))
+    Cb[:n_c, n:] = np.eye(n_c)
+    Cb[n_c:, :n] = measurement
+    Db = np.vstack([mode.D, np.zeros((n_c, nw))])
+    C1 = np.hstack([mode.C, np.zeros((mode.C.shape[0], n_c))])
+    if not mode.uncertain:
+        return Barred(A0, B0, Cb, Db, C1, None, None, None, 0)
+    pa = 0 if mode.A1 is None else mode.A1.shape[1]
+    qa = 0 if mode.A2 is None else mode.A2.shape[0]
+    pb = 0 if mode.B1 is None else mode.B1.shape[1]
+    qb = 0 if mode.B2 is None else mode.B2.shape[0]
+    A1 = np.zeros((n + n_c, pa + pb))
+    A2 = np.zeros((qa + qb, n + n_c))
+    B2 = np.zeros((qa + qb, n_c + nu))
+    if mode.A1 is not None and mode.A2 is not None:
+        A1[:n, :pa] = mode.A1
+        A2[:qa, :n] = mode.A2
+    if mode.B1 is not None and mode.B2 is not None:
+        A1[:n, pa:] = mode.B1
+        B2[qa:, n_c:] = mode.B2
+    return Barred(A0, B0, Cb, Db, C1, A1, A2, B2, pa)
+
+
+def _assemble(system: FTCSystem, entry: Callable[[int, int], tuple[Any, Any, Any, Any]],
+              measurement: Callable[[Mode], Matrix], n_c: int, label: str) -> ClosedLoop:
+    """The loop of the module docstring from ``entry(i, j) = (Ac, Bc, Cc, Dc)``.
+
+    With ``n_c = 0`` only ``Dc`` is used, so it may be a cvxpy expression (the synthesis
+    LMIs); otherwise the entries are numbers and the barred form is used as written."""
+    A, Bw, Cz, chans = [], [], [], []
+    for i, j in system.chain.joint_modes:
+        md = system.modes[i]
+        M = measurement(md)
+        Ac, Bc, Cc, Dc = entry(i, j)
+        if n_c == 0:
+            A.append(md.A + md.B @ Dc @ M)
+            Bw.append(md.D)
+            Cz.append(md.C)
+            fb = None if md.B2 is None else md.B2 @ Dc @ M
+            c = []
+            if md.A1 is not None and md.A2 is not None:
+                c.append(Channel(md.A1, md.A2, "Delta1 (A)"))
+            if md.B1 is not None and fb is not None:
+                c.append(Channel(md.B1, fb, "Delta2 (B)"))
+            chans.append(tuple(c))
+            continue
+        bar = barred(md, M, n_c)
+        K = np.block([[Ac, Bc], [Cc, Dc]])
+        A.append(bar.A0bar + bar.B0bar @ K @ bar.Cbar)
+        Bw.append(bar.Dbar)
+        Cz.append(bar.C1bar)
+        c = []
+        if bar.A1bar is not None:
+            F = bar.A2bar + bar.B2bar @ K @ bar.Cbar
+            k = bar.split
+            if md.A1 is not None:
+                c.append(Channel(bar.A1bar[:, :k], F[:md.A2.shape[0]], "Delta1 (A)"))
+            if md.B1 is not None:
+                c.append(Channel(bar.A1bar[:, k:], F[F.shape[0] - md.B2.shape[0]:], "Delta2 (B)"))
+        chans.append(tuple(c))
+    n_plant = None if n_c == 0 else system.dims[0]
+    return ClosedLoop(system.chain, tuple(A), tuple(Bw), tuple(Cz), tuple(chans), label, n_plant)
+
+
+def closed_loop(system: FTCSystem, controller: Controller) -> ClosedLoop:
+    """The closed loop of ``system`` under ``controller`` (module docstring), after
+    :meth:`Controller.check` against the system."""
+    controller.check(system)
+    m = system.m
+
+    def entry(i: int, j: int) -> tuple[Matrix, Matrix, Matrix, Matrix]:
+        k = controller.index(i, j, m)
+        return controller.Ac[k], controller.Bc[k], controller.Cc[k], controller.Dc[k]
+
+    return _assemble(system, entry, controller.measurement, controller.n_c, controller.describe(m))
+
+
+def state_feedback_loop(system: FTCSystem, gains: Sequence[Matrix], *, controller: str | None = None) -> ClosedLoop:
+    """:func:`closed_loop` of static state feedback: ``m`` FDI-mode gains or ``m * m``
+    full-information gains (``controller`` overrides the label)."""
+    loop = closed_loop(system, Controller.state_feedback(gains).check(system, source="gains"))
+    return loop if controller is None else replace(loop, controller=controller)
+
+
+def gain_loop(system: FTCSystem, gains: Sequence[Any], controller: str) -> ClosedLoop:
+    """State-feedback loop from ``m`` or ``m * m`` gains without validation, so that the
+    gains may be cvxpy expressions (the synthesis LMIs)."""
+    m = system.m
+    full_info = len(gains) == m * m
+
+    def entry(i: int, j: int) -> tuple[Any, Any, Any, Any]:
+        return None, None, None, gains[i * m + j] if full_info else gains[j]
+
+    return _assemble(system, entry, lambda md: np.eye(md.n), 0, controller)

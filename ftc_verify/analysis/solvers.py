@@ -1,0 +1,186 @@
+"""Convex solvers behind the LMIs: choice, settings and a call that never crashes.
+
+* ``clarabel`` (``auto`` picks it at every size): interior point, settings :data:`SETTINGS`.
+* ``sdpa`` (``sdpa-python``; selectable, and the second opinion that confirms an
+  infeasibility claim): a primal-dual interior-point SDP solver. It was meant to be
+  chosen automatically above a size threshold, but ``benchmarks/analysis.py`` measured
+  it 2.5x faster than Clarabel at n=16, m=2, 1.24x at n=12, m=4, yet 1.5x *slower* at
+  n=16, m=3, and its answers changed with what it had solved earlier in the same
+  process (sdpa-python 0.2.3 via cvxpy 1.9.3: certified but inflated gammas such as
+  24.7 instead of 3.27). A tool whose point is trust does not pick that automatically.
+* ``scs`` (selectable only): a first-order method; it returns ``optimal`` for violated
+  LMIs at its default accuracy, so its answers too stand only through the certificate.
+
+A solver's status is never a proof: callers always check the certificate
+(:mod:`ftc_verify.analysis.lmi`); :func:`solve` only reports what the solver said, how
+long it took, and turns any exception a solver raises into a status naming the solver.
+
+Native code never decides the process's fate: SDPA's C++ code calls ``exit(0)`` on some
+badly scaled problems (entries of 1e200 took a whole ``ftc-verify analyze`` down with exit
+status 0 and no output), so the solvers in :data:`ISOLATED` run in a forked child
+process that sends back the status and the variables' values through a pipe; a child
+that dies or exits without an answer becomes status ``"error"`` naming the solver and how
+the child ended.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import pickle
+import sys
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any
+
+from ..errors import ValidationError
+
+__all__ = [
+    "SOLVERS",
+    "SETTINGS",
+    "SolveOutcome",
+    "choose_solver",
+    "second_solver",
+    "solve",
+    "ISOLATED",
+]
+
+#: Solver names accepted by the API and ``--solver`` (lower case) -> cvxpy names.
+SOLVERS = {"clarabel": "CLARABEL", "sdpa": "SDPA", "scs": "SCS"}
+#: Settings passed to each solver (cvxpy keyword arguments); quoted in results.
+SETTINGS: dict[str, dict[str, Any]] = {
+    "clarabel": {"tol_gap_abs": 1e-9, "tol_gap_rel": 1e-9, "tol_feas": 1e-9, "max_iter": 200},
+    "sdpa": {},
+    "scs": {"eps_abs": 1e-8, "eps_rel": 1e-8, "max_iters": 200_000},
+}
+#: Solvers run in a child process (their native code has ended the process itself).
+ISOLATED = frozenset({"sdpa"})
+
+
+@dataclass(frozen=True)
+class SolveOutcome:
+    """What one solver call said: cvxpy status (or ``"error"``), time, message."""
+
+    solver: str
+    status: str
+    seconds: float
+    message: str = ""
+
+    @property
+    def solved(self) -> bool:
+        """The solver returned a point (``optimal`` or ``optimal_inaccurate``)."""
+        return self.status in ("optimal", "optimal_inaccurate")
+
+    @property
+    def infeasible(self) -> bool:
+        """The solver claimed infeasibility (possibly inaccurately)."""
+        return self.status in ("infeasible", "infeasible_inaccurate")
+
+
+def _installed() -> set[str]:
+    import cvxpy as cp
+
+    return {name for name, cvx in SOLVERS.items() if cvx in cp.installed_solvers()}
+
+
+def choose_solver(requested: str | None, n_scalar: int) -> str:
+    """The solver to use: ``requested`` if given (validated), else Clarabel (module
+    docstring: why ``auto`` does not switch to SDPA above a size). ``n_scalar`` is kept
+    for the record of the problem size."""
+    installed = _installed()
+    if requested is not None and requested != "auto":
+        name = requested.lower()
+        if name not in SOLVERS:
+            raise ValidationError(f"solver: unknown solver {requested!r}; choose from {sorted(SOLVERS)} or 'auto'")
+        if name not in installed:
+            raise ValidationError(f"solver: {requested!r} is not installed (installed: {sorted(installed)})")
+        return name
+    del n_scalar
+    return "clarabel"
+
+
+def second_solver(first: str) -> str | None:
+    """An independent solver to confirm an infeasibility claim of ``first``."""
+    installed = _installed()
+    for name in ("clarabel", "sdpa", "scs"):
+        if name != first and name in installed:
+            return name
+    return None
+
+
+@contextlib.contextmanager
+def _quiet_stdout() -> Iterator[None]:
+    """Send file descriptor 1 to /dev/null: SDPA's C code prints there even when not
+    verbose, which would corrupt ``--json`` output."""
+    sys.stdout.flush()
+    try:
+        saved = os.dup(1)
+    except OSError:  # no usable fd 1 (e.g. closed): nothing to protect
+        yield
+        return
+    try:
+        with open(os.devnull, "w") as devnull:
+            os.dup2(devnull.fileno(), 1)
+            yield
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
+def _solve_here(problem: Any, solver: str) -> tuple[str, str]:
+    """Solve in this process; ``(status, message)``, exceptions turned into ``"error"``."""
+    import cvxpy as cp
+
+    try:
+        with _quiet_stdout():
+            problem.solve(solver=SOLVERS[solver], **SETTINGS[solver])
+        return str(problem.status), ""
+    except cp.error.SolverError as exc:
+        return "error", f"{solver} failed: {exc}"
+    except Exception as exc:  # any solver crash must be reported, not raised
+        return "error", f"{solver} raised {type(exc).__name__}: {exc}"
+
+
+def _child_ended(solver: str, wait_status: int) -> str:
+    if os.WIFSIGNALED(wait_status):
+        return f"{solver} process killed by signal {os.WTERMSIG(wait_status)} without an answer"
+    return f"{solver} process ended (exit status {os.waitstatus_to_exitcode(wait_status)}) without an answer"
+
+
+def _solve_isolated(problem: Any, solver: str) -> tuple[str, str]:
+    """:func:`_solve_here` in a forked child; the variables' values come back by pipe."""
+    variables = problem.variables()
+    read_fd, write_fd = os.pipe()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    pid = os.fork()
+    if pid == 0:  # child: answer through the pipe, never return into the caller's code
+        try:
+            os.close(read_fd)
+            status, message = _solve_here(problem, solver)
+            values = [None if v.value is None else v.value for v in variables]
+            with os.fdopen(write_fd, "wb") as out:
+                pickle.dump((status, message, values), out)
+        finally:
+            os._exit(0)
+    os.close(write_fd)
+    with os.fdopen(read_fd, "rb") as src:
+        data = src.read()
+    _, wait_status = os.waitpid(pid, 0)
+    try:
+        status, message, values = pickle.loads(data)
+    except Exception:  # no (or a torn) answer: the child died in native code
+        return "error", _child_ended(solver, wait_status)
+    for var, val in zip(variables, values):
+        var.save_value(val)
+    return status, message
+
+
+def solve(problem: Any, solver: str) -> SolveOutcome:
+    """Solve a cvxpy problem; any exception becomes status ``"error"`` naming the solver,
+    and the solvers in :data:`ISOLATED` run in a child process (module docstring)."""
+    start = time.perf_counter()
+    run = _solve_isolated if solver in ISOLATED else _solve_here
+    status, message = run(problem, solver)
+    return SolveOutcome(solver, status, time.perf_counter() - start, message)

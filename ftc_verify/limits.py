@@ -1,0 +1,64 @@
+"""Resource limits: refuse a problem, with the estimate and the limit, before allocating it.
+
+The limit is ``FTC_VERIFY_MEMORY_LIMIT`` (bytes; suffixes ``K``, ``M``, ``G`` allowed)
+when set, else 80 % of the memory the kernel reports available (``MemAvailable`` in
+``/proc/meminfo``; 80 % of physical memory where that file is missing). Estimates come
+from measurements quoted where they are made (LMI stage: ``ftc_verify.analysis.lmi_analysis``;
+simulation records: ``ftc_verify.cli``).
+"""
+
+from __future__ import annotations
+
+import os
+
+from .errors import MemoryLimitError, ValidationError
+
+__all__ = ["memory_limit", "check_memory", "format_bytes"]
+
+_SUFFIX = {"K": 1024, "M": 1024 ** 2, "G": 1024 ** 3, "T": 1024 ** 4}
+
+
+def format_bytes(value: float) -> str:
+    """``1.5 GB`` style (powers of 1024)."""
+    for unit, size in (("TB", 1024 ** 4), ("GB", 1024 ** 3), ("MB", 1024 ** 2), ("kB", 1024)):
+        if value >= size:
+            return f"{value / size:.3g} {unit}"
+    return f"{value:.0f} B"
+
+
+def _available() -> int:
+    try:
+        with open("/proc/meminfo", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+
+
+def memory_limit() -> int:
+    """The memory a single problem may take (module docstring)."""
+    text = os.environ.get("FTC_VERIFY_MEMORY_LIMIT", "").strip()
+    if not text:
+        return int(0.8 * _available())
+    factor = _SUFFIX.get(text[-1].upper(), 1)
+    digits = text[:-1] if factor != 1 else text
+    try:
+        value = float(digits) * factor
+    except ValueError:
+        raise ValidationError(f"FTC_VERIFY_MEMORY_LIMIT: not a size: {text!r} (e.g. 8G)") from None
+    if not value > 0:
+        raise ValidationError(f"FTC_VERIFY_MEMORY_LIMIT: must be positive, got {text!r}")
+    return int(value)
+
+
+def check_memory(estimate: float, what: str) -> None:
+    """Raise :class:`MemoryLimitError` naming ``what``, the estimate and the limit when
+    ``estimate`` bytes exceed :func:`memory_limit`."""
+    limit = memory_limit()
+    if estimate > limit:
+        raise MemoryLimitError(
+            f"{what} needs about {format_bytes(estimate)}, above the limit of {format_bytes(limit)} "
+            "(80 % of available memory, or FTC_VERIFY_MEMORY_LIMIT); reduce the problem"
+        )

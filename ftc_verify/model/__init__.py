@@ -1,0 +1,18 @@
+"""Stage 1 of the pipeline: the FTC plant (modes, uncertainty weights, the joint (true, FDI) chain) and its TOML files."""
+
+from __future__ import annotations
+
+from .files import dump_system, load_system, save_system, write_atomic
+from .system import GENERATOR_RTOL, Mode, JointChain, FTCSystem, as_matrix
+
+__all__ = [
+    "load_system",
+    "dump_system",
+    "save_system",
+    "write_atomic",
+    "GENERATOR_RTOL",
+    "Mode",
+    "JointChain",
+    "FTCSystem",
+    "as_matrix",
+]

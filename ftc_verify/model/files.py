@@ -1,0 +1,168 @@
+"""System files: FTC systems in TOML (controller files: :mod:`ftc_verify.controllers.files`).
+
+System file (all keys shown; ``A1, A2, B1, B2`` optional, in pairs)::
+
+    name = "paper-section-vi"
+    [chain]
+    alpha    = [[-0.5, 0.5], [1.0, -1.0]]
+    beta_min = [[0.0, 2.0], [2.5, 0.0]]   # beta[fdi][true]
+    beta_max = [[0.0, 3.0], [3.5, 0.0]]
+    fault_during_delay = true             # optional: the named variant (not the paper's model)
+    [[mode]]            # one table per fault mode, in order 1..m
+    A = [[...]]; B = [[...]]; C = [[...]]; D = [[...]]
+    Cy = [[...]]        # optional: measured outputs y_m = Cy x (default C)
+    A1 = [[...]]; A2 = [[...]]; B1 = [[...]]; B2 = [[...]]
+
+Reading uses the standard library's :mod:`tomllib`; writing uses ``tomli_w`` (the
+companion writer of the same TOML family), and floats are written with ``repr`` so that
+load -> save -> load is exact. Files are written atomically (temporary file in the
+same folder, then :func:`os.replace`). Every error names the file, the table index
+(1-based, as in the file) and the key.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import tomllib
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import tomli_w
+
+from ..errors import ProblemFileError, ValidationError
+from .system import FTCSystem, JointChain, Matrix, Mode, as_matrix
+
+__all__ = [
+    "load_system",
+    "dump_system",
+    "save_system",
+    "write_atomic",
+]
+
+_TOP_KEYS = {"name", "chain", "mode"}
+_CHAIN_KEYS = {"alpha", "beta_min", "beta_max"}
+_CHAIN_OPTIONAL = {"fault_during_delay"}
+_MODE_KEYS = ("A", "B", "C", "D", "Cy", "A1", "A2", "B1", "B2")
+
+
+def read_toml(path: Path) -> dict[str, Any]:
+    try:
+        with open(path, "rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        raise ProblemFileError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise ProblemFileError(f"{path}: is a directory, not a TOML file") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ProblemFileError(f"{path}: not valid TOML: {exc}") from None
+    except OSError as exc:
+        raise ProblemFileError(f"{path}: cannot be read: {exc.strerror}") from None
+
+
+def unknown_keys(path: Path, where: str, keys: Sequence[str], allowed: set[str] | Sequence[str]) -> None:
+    extra = sorted(set(keys) - set(allowed))
+    if extra:
+        raise ProblemFileError(
+            f"{path}: {where}: unknown key(s) {extra}; allowed: {sorted(allowed)}"
+        )
+
+
+def _table(path: Path, doc: dict[str, Any], key: str) -> dict[str, Any]:
+    val = doc.get(key)
+    if not isinstance(val, dict):
+        raise ProblemFileError(f"{path}: [{key}]: missing table (got {val!r})")
+    return val
+
+
+def tables(path: Path, doc: dict[str, Any], key: str) -> list[dict[str, Any]]:
+    val = doc.get(key)
+    if not isinstance(val, list) or not val or not all(isinstance(t, dict) for t in val):
+        raise ProblemFileError(f"{path}: [[{key}]]: expected one or more [[{key}]] tables, got {val!r}")
+    return val
+
+
+def load_system(path: str | os.PathLike[str]) -> FTCSystem:
+    """Read and validate an FTC system file (format in the module docstring)."""
+    p = Path(path)
+    doc = read_toml(p)
+    unknown_keys(p, "top level", list(doc), _TOP_KEYS)
+    name = doc.get("name", p.stem)
+    if not isinstance(name, str):
+        raise ProblemFileError(f"{p}: name: expected a string, got {name!r}")
+    chain_doc = _table(p, doc, "chain")
+    unknown_keys(p, "[chain]", list(chain_doc), _CHAIN_KEYS | _CHAIN_OPTIONAL)
+    for key in sorted(_CHAIN_KEYS):
+        if key not in chain_doc:
+            raise ProblemFileError(f"{p}: [chain]: missing key '{key}'")
+    variant = chain_doc.get("fault_during_delay", False)
+    if not isinstance(variant, bool):
+        raise ProblemFileError(f"{p}: [chain].fault_during_delay: expected true or false, got {variant!r}")
+    try:
+        chain = JointChain(chain_doc["alpha"], chain_doc["beta_min"], chain_doc["beta_max"], variant)
+    except ValidationError as exc:
+        raise ProblemFileError(f"{p}: {exc}") from None
+    modes = []
+    for k, md in enumerate(tables(p, doc, "mode"), start=1):
+        unknown_keys(p, f"mode[{k}]", list(md), _MODE_KEYS)
+        for key in ("A", "B", "C", "D"):
+            if key not in md:
+                raise ProblemFileError(f"{p}: mode[{k}]: missing key '{key}'")
+        try:
+            modes.append(Mode(**{key: md[key] for key in md}, label=f"mode[{k}]"))
+        except ValidationError as exc:
+            raise ProblemFileError(f"{p}: {exc}") from None
+    try:
+        return FTCSystem(name, tuple(modes), chain)
+    except ValidationError as exc:
+        raise ProblemFileError(f"{p}: {exc}") from None
+
+
+def tolist(a: Matrix) -> list[list[float]]:
+    return [[float(v) for v in row] for row in np.asarray(a)]
+
+
+def dump_system(system: FTCSystem) -> str:
+    """The TOML text of ``system`` (inverse of :func:`load_system`)."""
+    ch = system.chain
+    doc: dict[str, Any] = {
+        "name": system.name,
+        "chain": {
+            "alpha": tolist(ch.alpha),
+            "beta_min": tolist(ch.beta_min),
+            "beta_max": tolist(ch.beta_max),
+            **({"fault_during_delay": True} if ch.fault_during_delay else {}),
+        },
+        "mode": [
+            {key: tolist(getattr(md, key)) for key in _MODE_KEYS if getattr(md, key) is not None}
+            for md in system.modes
+        ],
+    }
+    return tomli_w.dumps(doc)
+
+
+def write_atomic(path: str | os.PathLike[str], text: str) -> None:
+    """Write ``text`` to ``path`` via a temporary file in the same folder and a rename,
+    so that a failure never leaves a half-written file."""
+    p = Path(path)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent or ".")
+    except OSError as exc:
+        raise ProblemFileError(f"{p}: cannot write: {exc.strerror}") from None
+    try:
+        umask = os.umask(0)
+        os.umask(umask)
+        os.fchmod(fd, 0o666 & ~umask)  # mkstemp creates 0600; give the usual permissions
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+        os.replace(tmp, p)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def save_system(system: FTCSystem, path: str | os.PathLike[str]) -> None:
+    """Write ``system`` to ``path`` atomically."""
+    write_atomic(path, dump_system(system))

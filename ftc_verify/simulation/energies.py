@@ -1,0 +1,366 @@
+r"""Vectorised energies of the sampled-data loop: all paths advanced together.
+
+Per path :math:`E_y = \int_0^T |y|^2 dt` and :math:`E_w = \int_0^T |w|^2 dt` by the
+trapezoidal rule of :func:`ftc_verify.simulation.records.l2_norm` on the communication grid,
+for the loop of :mod:`ftc_verify.simulation.reference` (the fast path for Monte Carlo, no
+trajectories kept). On the augmented state :math:`z = (x, x_c)`, :math:`z_0 = (x_0, 0)`,
+every grid interval of length :math:`h` in dynamics id :math:`d` (joint mode
+:math:`(i, j)`, controller entry :math:`e`, one :math:`\Delta` value) is
+
+.. math::
+
+    z_{k+1} = F_d(h)\, z_k + G_d(h)\, w_k, \qquad
+    F_d = \begin{bmatrix} \Phi + \Gamma B D_{c,e} M_i & \Gamma B C_{c,e} \\
+                          \Gamma_c M_i & \Phi_c \end{bmatrix}, \qquad
+    G_d = \begin{bmatrix} \Gamma D_i \\ 0 \end{bmatrix}, \qquad
+    y_k = [C_i\ \ 0]\, z_k,
+
+(:mod:`ftc_verify.simulation._energy_maps`), which for static state feedback
+(:math:`n_c = 0`) is :math:`x_{k+1} = (\Phi + \Gamma B K_j) x_k + \Gamma D_i w_k`, and
+
+.. math::
+
+    E_y = \sum_g \omega_g |y(t_g)|^2, \qquad \omega_g = (t_{g+1} - t_{g-1}) / 2
+    \ \text{(halved ends)}.
+
+All paths advance together over the regular points ``k step``
+(:mod:`ftc_verify.simulation._energy_grid` for the bookkeeping):
+
+* an interval ``[k step, (k+1) step]`` without a jump is one map :math:`F_d, G_d` at
+  ``h = step``, one table entry per dynamics id. With few ids, all paths take one matrix
+  product ``[[G_d, F_d], [0, C_d]] @ [w_k; z]`` over all ids and gather their own id's
+  rows (next state and present output at once); with many ids (``Delta`` kind
+  ``random``) a gathered batched product;
+* an interval cut by jumps (or a shorter last interval) is the composition of the maps of
+  its pieces, whose exponentials are made in batches per chunk of steps (the Taylor series
+  of :func:`~ftc_verify.simulation.discretise.phi_gamma`; the full-step tables come from
+  it too, so this path never calls :func:`scipy.linalg.expm`, agreeing with it to
+  rounding); the states at the jump points, needed for their trapezoid terms, are
+  recomputed from the stored state at the interval's start;
+* the trapezoid terms of the grid points whose weight or mode differs from the regular
+  ones (next to a cut interval) are taken from stored states, the others are summed as
+  the steps go.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from ..controllers.controller import Controller
+from ..model.system import FTCSystem
+from . import _energy_grid as eg
+from ._common import (
+    PathArrays,
+    check_controller,
+    check_step,
+    delta_key,
+    generator,
+    initial_state,
+    path_arrays,
+    path_list,
+    schedule_of,
+)
+from ._energy_maps import Tables, full_maps, loop_matrices, tables
+from .delta import DeltaSchedule, delta_segments, delta_shapes
+from .paths import ChainPath, disturbance as disturbance_fn
+
+__all__ = ["energies_reference"]
+
+#: Joint tables up to this size use the "all modes, then select" kernel.
+_SELECT_LIMIT = 16
+#: Target number of doubles of one chunk of the state history.
+_CHUNK_DOUBLES = 4_000_000
+
+
+def energies_reference(
+    system: FTCSystem,
+    controller: Controller,
+    paths: ChainPath | Sequence[ChainPath],
+    *,
+    step: float,
+    disturbance: str = "paper",
+    delta: DeltaSchedule | str | None = None,
+    x0: ArrayLike | None = None,
+    rng: np.random.Generator | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    r"""Per path :math:`\int_0^T |y|^2 dt` and :math:`\int_0^T |w|^2 dt` of the sampled loop.
+
+    Same loop, grid, ``Delta`` draws (from ``rng``, default ``default_rng()``, per path in
+    path order) and trapezoidal rule as
+    :func:`~ftc_verify.simulation.reference.simulate_reference` followed by
+    ``record.y_norm ** 2, record.w_norm ** 2``, without keeping trajectories (module
+    docstring). The parameters are those of ``simulate_reference`` (without ``seed``);
+    ``controller`` is validated by :meth:`Controller.check`; paths may have different
+    horizons. A regular point within ``1e-12 step`` of a jump is replaced by the jump, as
+    in :func:`~ftc_verify.simulation.paths.communication_grid`.
+
+    Returns
+    -------
+    (Ey, Ew) : two (P,) arrays
+    """
+    step = check_step(step)
+    controller = check_controller(system, controller)
+    plist = path_list(paths)
+    pa = path_arrays(system, plist)
+    schedule = schedule_of(delta)
+    x0v = initial_state(system, x0)
+    wfun = disturbance_fn(disturbance, system.dims[3])
+    gen = generator(rng, None)
+    tab, seg_d = _dynamics_ids(system, controller, plist, pa, schedule, gen)
+    z0 = np.concatenate((x0v, np.zeros(controller.n_c)))
+    P = len(plist)
+    Ey = np.zeros(P)
+    Ew = np.zeros(P)
+    for hz in np.unique(pa.horizon):
+        sel = np.flatnonzero(pa.horizon == hz)
+        if sel.size == P:
+            sub_pa, sub_seg_d = pa, seg_d
+        else:
+            sub_pa, sub_seg_d = pa.select(sel), seg_d[pa.segments(sel)]
+        Ey[sel], Ew[sel] = _same_horizon(system, tab, sub_pa, sub_seg_d, float(hz), step, wfun, z0)
+    return Ey, Ew
+
+
+def _dynamics_ids(system: FTCSystem, controller: Controller, plist: list[ChainPath], pa: PathArrays,
+                  schedule: DeltaSchedule, gen: np.random.Generator) -> tuple[Tables, np.ndarray]:
+    """The tables and the dynamics id of every segment. Kind ``random``: one id per
+    segment; the deterministic kinds depend on the segment index only, so one
+    :func:`delta_segments` call on the longest path gives the distinct values, and the
+    ids are ``(value, joint mode)``."""
+    m = system.m
+    s1, s2 = delta_shapes(system)
+    if schedule.kind == "random":
+        flat = [d for p in plist for d in delta_segments(system, p, schedule, gen)]
+        d1 = None if s1 is None else np.stack([d[0] for d in flat])
+        d2 = None if s2 is None else np.stack([d[1] for d in flat])
+        seg_d = np.arange(pa.times.size)
+        return tables(system, controller, pa.true, d1, pa.true, pa.fdi, d2, seg_d), seg_d
+    segs0 = delta_segments(system, plist[int(np.argmax(pa.count))], schedule, gen)
+    keymap: dict[tuple[bytes, bytes], int] = {}
+    key_of = np.array([keymap.setdefault(delta_key(*d), len(keymap)) for d in segs0], dtype=np.int64)
+    first = {v: k for k, v in reversed(list(enumerate(key_of.tolist())))}
+    values = [segs0[first[v]] for v in range(len(keymap))]
+    nk = len(values)
+    a_key, a_true = np.divmod(np.arange(nk * m), m)
+    d_key, d_joint = np.divmod(np.arange(nk * m * m), m * m)
+    d_true, d_fdi = np.divmod(d_joint, m)
+    d1 = None if s1 is None else np.stack([values[k][0] for k in a_key])
+    d2 = None if s2 is None else np.stack([values[k][1] for k in d_key])
+    tab = tables(system, controller, a_true, d1, d_true, d_fdi, d2, d_key * m + d_true)
+    seg_index = np.arange(pa.times.size) - np.repeat(pa.off, pa.count)  # local segment index
+    return tab, key_of[seg_index] * m * m + pa.true * m + pa.fdi
+
+
+def _same_horizon(system: FTCSystem, tab: Tables, pa: PathArrays, seg_d: np.ndarray, horizon: float,
+                  step: float, wfun: Callable[[np.ndarray], np.ndarray],
+                  z0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The engine for paths sharing one horizon (vocabulary of
+    :mod:`~ftc_verify.simulation._energy_grid`); returns ``(Ey, Ew)``."""
+    grid = eg.regular_grid(system.m, horizon, step, wfun)
+    Ew = np.full(pa.count.size, float(np.sum(grid.wt_std * grid.w2reg)))
+    jmp = eg.jumps(pa, seg_d, grid, step)
+    it = eg.items(jmp, grid)
+    pc = eg.pieces(jmp, it, wfun, Ew)
+    pt = eg.points(jmp, it, pc, grid, wfun, Ew)
+    stepper = _Stepper(tab, pa, seg_d, grid, jmp, it, pc, pt, step, z0)
+    return stepper.run(), Ew
+
+
+@dataclass(frozen=True)
+class _ChunkMaps:
+    """Maps of the pieces of a chunk's special intervals (pieces ``s0..``) and their
+    compositions over each interval (``z(start) -> Ftot z + gtot``)."""
+
+    Fs: np.ndarray
+    gs: np.ndarray
+    Ftot: np.ndarray
+    gtot: np.ndarray
+    cnt: np.ndarray  # pieces per interval
+    s0: int
+
+
+class _Stepper:
+    """Time stepping of one horizon, one chunk of regular steps at a time.
+
+    Mutable by design: it owns the reused buffers -- the state ``B`` with rows
+    ``[w; z; y]`` per path (two buffers swapped every step), the dynamics id of every path
+    at the chunk's points ``dtab``, the states stored at special points and special
+    interval starts -- and accumulates ``Ey``.
+    """
+
+    def __init__(self, tab: Tables, pa: PathArrays, seg_d: np.ndarray, grid: eg.RegularGrid, jmp: eg.Jumps,
+                 it: eg.Items, pc: eg.Pieces, pt: eg.Points, step: float, z0: np.ndarray) -> None:
+        self.tab, self.grid, self.it, self.pc, self.pt = tab, grid, it, pc, pt
+        P, K, nz = jmp.P, grid.K, tab.nz
+        self.P, self.K, self.nz = P, K, nz
+        self.nw = grid.Wreg.shape[1]
+        self.ny = tab.Cz.shape[1]
+        self.rows = nz + self.ny
+        self.Ffull, self.Gfull = full_maps(tab, step)
+        self.select = tab.d_true.size <= _SELECT_LIMIT
+        if self.select:
+            self._select_kernel()
+        j0 = np.searchsorted(grid.reg, jmp.jt, side="left")  # first regular point at or after the jump
+        jorder = np.argsort(j0, kind="stable")
+        self.j0s, self.jps, self.jdelta = j0[jorder], jmp.jp[jorder], (jmp.jd_new - jmp.jd_old)[jorder]
+        self.d_cur = seg_d[pa.off].astype(np.int64)  # d at the chunk's first point
+        self.L = max(1, min(K, _CHUNK_DOUBLES // max(1, P * self.rows)))
+        self.Ba = np.empty((self.nw + nz + self.ny, P))
+        self.Ba[self.nw:self.nw + nz] = z0[:, None]
+        self.Bb = np.empty_like(self.Ba)
+        self.Ey = np.zeros(P)
+        self.dtab = np.empty((self.L + 1, P), dtype=np.int64)
+        self.idx = np.empty((self.L, self.rows, P), dtype=np.int64) if self.select else None
+        self.it_x = np.empty((it.key.size, nz))  # z at the start point of each special interval
+        self.spt_x = np.empty((pt.k.size, nz))  # z at the special points
+        self.spt_d = np.empty(pt.k.size, dtype=np.int64)
+        self.sp_bounds = np.searchsorted(pt.k, np.arange(K + 2))
+        self.it_bounds = np.searchsorted(it.I, np.arange(K + 1))
+
+    def _select_kernel(self) -> None:
+        """Rows of ``Faug`` per id ``d``: ``[G_d | F_d]`` (the next state) and
+        ``[0 | C_true(d)]`` (the output now)."""
+        tab, nz, nw, rows, P = self.tab, self.nz, self.nw, self.rows, self.P
+        Dn = tab.d_true.size
+        Faug = np.zeros((Dn, rows, nw + nz))
+        Faug[:, :nz, :nw] = self.Gfull
+        Faug[:, :nz, nw:] = self.Ffull
+        Faug[:, nz:, nw:] = tab.Cz[tab.d_true]
+        self.Faug = Faug.reshape(Dn * rows, nw + nz)
+        self.Y = np.empty((Dn * rows, P))
+        self.idx_off = (np.arange(rows) * P)[:, None] + np.arange(P)[None, :]  # (rows, P)
+
+    def run(self) -> np.ndarray:
+        """Step every chunk, then add the last point and the special points; ``Ey``."""
+        K, L = self.K, self.L
+        npts = 1
+        for c0 in range(0, K, L):
+            c1 = min(K, c0 + L)
+            p1 = c1 + 1 if c1 == K else c1  # points c0 .. p1-1, intervals c0 .. c1-1
+            npts = p1 - c0
+            self._chunk_modes(c0, c1, p1)
+            i0, i1 = int(self.it_bounds[c0]), int(self.it_bounds[c1])
+            maps = self._composite(c0, i0, i1) if i1 > i0 else None
+            if self.select:
+                np.add(self.dtab[:c1 - c0, None, :] * (self.rows * self.P), self.idx_off[None],
+                       out=self.idx[:c1 - c0])
+            self._steps(c0, c1, i0, maps)
+            if maps is not None:
+                self._interior(i0, i1, maps)
+        self._last_point(npts)
+        return self.Ey
+
+    def _chunk_modes(self, c0: int, c1: int, p1: int) -> None:
+        """``d`` of every path at the chunk's regular points (``dtab``), at the next
+        chunk's first point (``d_cur``) and at the chunk's special points (``spt_d``)."""
+        dtab, jps, jdelta = self.dtab, self.jps, self.jdelta
+        npts = p1 - c0
+        dtab[0] = self.d_cur
+        lo = np.searchsorted(self.j0s, c0 + 1)
+        bnd = np.searchsorted(self.j0s, np.arange(c0 + 1, c1 + 2), side="right")
+        for r in range(1, npts):
+            dtab[r] = dtab[r - 1]
+            hi = bnd[r - 1]
+            if hi > lo:
+                np.add.at(dtab[r], jps[lo:hi], jdelta[lo:hi])
+                lo = hi
+        if p1 == c1:
+            self.d_cur = dtab[npts - 1].copy()
+            hi = bnd[npts - 1]
+            np.add.at(self.d_cur, jps[lo:hi], jdelta[lo:hi])
+        pt = self.pt
+        a0, a1 = self.sp_bounds[c0], self.sp_bounds[p1]
+        self.spt_d[a0:a1] = np.where(pt.rep[a0:a1], pt.repd[a0:a1], dtab[pt.k[a0:a1] - c0, pt.p[a0:a1]])
+
+    def _composite(self, c0: int, i0: int, i1: int) -> _ChunkMaps:
+        """Maps of the pieces of the chunk's special intervals ``i0:i1`` and their
+        compositions ``z(start) -> z(end)``."""
+        it, pc = self.it, self.pc
+        pc.d[pc.off[i0:i1]] = np.where(it.rep[i0:i1], it.repd[i0:i1], self.dtab[it.I[i0:i1] - c0, it.p[i0:i1]])
+        s0, s1 = int(pc.off[i0]), int(pc.last[i1 - 1] + 1)
+        Fs, gs = loop_matrices(self.tab, pc.d[s0:s1], pc.dt[s0:s1], pc.w[s0:s1])
+        cnt = pc.count[i0:i1]
+        Ftot = Fs[pc.off[i0:i1] - s0]
+        gtot = gs[pc.off[i0:i1] - s0]
+        for r in range(1, int(cnt.max())):
+            a = np.flatnonzero(cnt > r)
+            si = pc.off[i0 + a] + r - s0
+            Ftot[a] = Fs[si] @ Ftot[a]
+            gtot[a] = np.einsum("pij,pj->pi", Fs[si], gtot[a]) + gs[si]
+        return _ChunkMaps(Fs, gs, Ftot, gtot, cnt, s0)
+
+    def _steps(self, c0: int, c1: int, i0: int, maps: _ChunkMaps | None) -> None:
+        """The regular steps ``c0 .. c1-1``: ``Ey`` terms of the standard points, states
+        at the special points, composite maps over the special intervals."""
+        nw, nz, Ey, Wreg, wt_std = self.nw, self.nz, self.Ey, self.grid.Wreg, self.grid.wt_std
+        select, idx, dtab = self.select, self.idx, self.dtab
+        Ffull, Gfull, Cz, d_true = self.Ffull, self.Gfull, self.tab.Cz, self.tab.d_true
+        if select:
+            Faug, Y = self.Faug, self.Y
+            Yflat = Y.reshape(-1)
+        spt_p, sp_bounds, spt_x = self.pt.p, self.sp_bounds, self.spt_x
+        it_p, it_bounds, it_x = self.it.p, self.it_bounds, self.it_x
+        ysq = np.empty(self.P)
+        Ba, Bb = self.Ba, self.Bb
+        for k in range(c0, c1):
+            kk = k - c0
+            X = Ba[nw:nw + nz]
+            Ba[:nw] = Wreg[k][:, None]
+            if select:
+                np.matmul(Faug, Ba[:nw + nz], out=Y)
+                np.take(Yflat, idx[kk], out=Bb[nw:])
+                yk = Bb[nw + nz:]
+            else:
+                dcol = dtab[kk]
+                Bb[nw:nw + nz] = ((Ffull[dcol] @ X.T[:, :, None])[:, :, 0] + Gfull[dcol] @ Wreg[k]).T
+                yk = np.einsum("pij,jp->ip", Cz[d_true[dcol]], X)
+            if yk.shape[0] == 1:
+                np.square(yk[0], out=ysq)
+            else:
+                np.sum(np.square(yk), axis=0, out=ysq)
+            b0, b1 = sp_bounds[k], sp_bounds[k + 1]
+            if b1 > b0:
+                pp = spt_p[b0:b1]
+                spt_x[b0:b1] = X[:, pp].T
+                ysq[pp] = 0.0
+            ysq *= wt_std[k]
+            Ey += ysq
+            b0, b1 = it_bounds[k], it_bounds[k + 1]
+            if b1 > b0:
+                Ftot, gtot = maps.Ftot, maps.gtot  # type: ignore[union-attr]
+                pp = it_p[b0:b1]
+                xs = X[:, pp]
+                it_x[b0:b1] = xs.T
+                Bb[nw:nw + nz, pp] = (np.einsum("pij,jp->pi", Ftot[b0 - i0:b1 - i0], xs) + gtot[b0 - i0:b1 - i0]).T
+            Ba, Bb = Bb, Ba
+        self.Ba, self.Bb = Ba, Bb
+
+    def _interior(self, i0: int, i1: int, maps: _ChunkMaps) -> None:
+        """``Ey`` terms of the interior jump points of the special intervals ``i0:i1``,
+        from the stored state at each interval's start."""
+        Fs, gs, cnt, s0 = maps.Fs, maps.gs, maps.cnt, maps.s0
+        pc, Cz, d_true = self.pc, self.tab.Cz, self.tab.d_true
+        xi = self.it_x[i0:i1].copy()
+        for r in range(1, int(cnt.max())):
+            a = np.flatnonzero(cnt > r)
+            si = pc.off[i0 + a] + r  # the piece starting at the point
+            xi[a] = np.einsum("pij,pj->pi", Fs[si - 1 - s0], xi[a]) + gs[si - 1 - s0]
+            qi = np.square(np.einsum("pij,pj->pi", Cz[d_true[pc.d[si]]], xi[a])).sum(axis=1)
+            self.Ey += np.bincount(self.it.p[i0 + a], pc.wt[si] * qi, minlength=self.P)
+
+    def _last_point(self, npts: int) -> None:
+        """``Ey`` terms of the last point ``t_N = horizon`` and of the special points."""
+        Cz, d_true, pt, b = self.tab.Cz, self.tab.d_true, self.pt, self.sp_bounds
+        X = self.Ba[self.nw:self.nw + self.nz]
+        qK = np.square(np.einsum("pij,jp->pi", Cz[d_true[self.dtab[npts - 1]]], X)).sum(axis=1)
+        b0, b1 = b[self.K], b[self.K + 1]
+        if b1 > b0:
+            self.spt_x[b0:b1] = X[:, pt.p[b0:b1]].T
+            qK[pt.p[b0:b1]] = 0.0
+        self.Ey += self.grid.wt_std[self.K] * qK
+        q = np.square(np.einsum("pij,pj->pi", Cz[d_true[self.spt_d]], self.spt_x)).sum(axis=1)
+        self.Ey += np.bincount(pt.p, pt.weight * q, minlength=self.P)

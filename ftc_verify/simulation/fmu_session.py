@@ -1,0 +1,461 @@
+"""One opened FMI 2.0 co-simulation FMU: checks, variables, FMI calls, logging and cleanup.
+
+This module implements :class:`FMUSession`, the FMU side of the co-simulation supervisor
+(:mod:`ftc_verify.simulation.supervisor`):
+
+* the archive is checked before anything is extracted (no member may leave the
+  extraction folder: absolute names, ``..``, drive letters and backslashes are refused),
+  the model description must be FMI 2.0 with a co-simulation interface and a binary for
+  this platform;
+* every variable of the :class:`~ftc_verify.simulation.fault_map.FaultInjectionMap` must
+  exist with a usable type and causality
+  (:func:`~ftc_verify.simulation.fault_map.resolve_variables`);
+* the FMU is extracted into a :class:`tempfile.TemporaryDirectory` owned by the session
+  (removed on :meth:`FMUSession.close`), loaded once and instantiated once; paths reuse
+  the instance through ``fmi2Reset`` (:meth:`FMUSession.start_path`);
+* every ``fmi2*`` status other than OK or Warning raises
+  :class:`~ftc_verify.errors.FMUError` naming the FMU file, the call, the variables and the
+  time, with the FMU's own log messages (:meth:`FMUSession.call_error`).
+
+The logger callback is a plain ctypes callback kept alive by the session until the
+instance is freed (fmpy's ``addLoggerProxy`` is deliberately not used: it keeps the last
+callbacks in a process-wide global). Without the proxy the message arrives unformatted;
+the LinearJumpPlant formats its messages itself (``%`` doubled), which is undone here.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import math
+import os
+import tempfile
+import zipfile
+from collections import deque
+from collections.abc import Callable, Sequence
+from pathlib import Path, PurePosixPath
+from typing import Any
+from xml.etree import ElementTree as ET
+
+import numpy as np
+
+from ..errors import FMUError
+from .fault_map import FaultInjectionMap, ResolvedVariables, resolve_variables
+
+__all__ = ["FMUError", "FMUSession", "VarGroup", "c_buffer"]
+
+_STATUS = ("OK", "Warning", "Discard", "Error", "Fatal", "Pending")
+_FAULT_KIND = {"Real": "real", "Integer": "int", "Enumeration": "int", "Boolean": "bool"}
+
+
+def _status_label(status: int) -> str:
+    return _STATUS[status] if 0 <= status < len(_STATUS) else f"illegal status {status}"
+
+
+def _unsafe_member(name: str) -> str | None:
+    """Why the archive member ``name`` could land outside the extraction folder (or None)."""
+    if "\\" in name:
+        return "contains a backslash"
+    if name.startswith("/"):
+        return "is an absolute path"
+    if ":" in name:
+        return "contains a drive or device letter (':')"
+    if "\0" in name:
+        return "contains a NUL character"
+    if ".." in PurePosixPath(name).parts:
+        return "contains a '..' component"
+    root = os.path.join(os.sep, "extract-root")
+    if os.path.commonpath([root, os.path.normpath(os.path.join(root, name))]) != root:
+        return "resolves outside the extraction folder"
+    return None
+
+
+def c_buffer(ctype: Any, values: Sequence[Any]) -> Any:
+    """A ctypes array of ``ctype`` holding ``values``."""
+    return (ctype * len(values))(*values)
+
+
+class VarGroup:
+    """Value references of a list of variables of one FMI type, with a ctypes buffer."""
+
+    __slots__ = ("names", "vr", "buf", "n")
+
+    def __init__(self, variables: Sequence[Any], ctype: Any = None) -> None:
+        from fmpy.fmi2 import fmi2Real, fmi2ValueReference
+
+        self.names = tuple(v.name for v in variables)
+        self.n = len(variables)
+        self.vr = c_buffer(fmi2ValueReference, [v.valueReference for v in variables])
+        self.buf = ((ctype or fmi2Real) * max(self.n, 1))()
+
+
+# ------------------------------------------------------------------------------------------
+# The session
+# ------------------------------------------------------------------------------------------
+
+
+class FMUSession:
+    """One checked, extracted, loaded and instantiated FMU (module docstring).
+
+    Parameters
+    ----------
+    fmu
+        Path of the ``.fmu`` archive.
+    mapping
+        The :class:`~ftc_verify.simulation.fault_map.FaultInjectionMap` whose variables
+        are resolved (and checked) when the session opens.
+    instance_name
+        ``instanceName`` passed to ``fmi2Instantiate``.
+
+    :attr:`stats` counts library loads, instantiations, resets, paths and steps;
+    :attr:`messages` keeps the FMU's last 200 log messages, :attr:`log_counts` counts them
+    per status. On any error while opening, everything opened so far is released.
+    """
+
+    def __init__(self, fmu: str | os.PathLike[str], mapping: FaultInjectionMap, *,
+                 instance_name: str = "ftc-verify-supervisor") -> None:
+        self.path = Path(fmu)
+        self.mapping = mapping
+        self.instance_name = str(instance_name)
+        self.stats = {"library_loads": 0, "instantiations": 0, "resets": 0, "paths": 0, "steps": 0}
+        self.messages: deque[tuple[str, str, str]] = deque(maxlen=200)  # (status, category, text)
+        self.log_counts: dict[str, int] = {}  # messages logged by the FMU, per status
+        self._tmp: tempfile.TemporaryDirectory[str] | None = None
+        self.slave: Any = None
+        self._component_live = False
+        self._dirty = False  # the instance has been initialised since the last reset
+        self.dead = False  # fmi2Fatal seen: no further calls into the FMU
+        self.closed = False
+        self._callbacks: Any = None
+        self._logger_ref: Any = None
+        self._fault_cache: dict[int, list[tuple[str, Any]]] = {}
+        self._read_groups: dict[bool, tuple[VarGroup, VarGroup]] = {}
+        try:
+            self._open()
+        except BaseException:
+            self.close()
+            raise
+
+    @property
+    def extraction_dir(self) -> Path | None:
+        """The temporary folder the FMU is extracted into (None once closed)."""
+        return None if self._tmp is None else Path(self._tmp.name)
+
+    # -------------------------------------------------------------------- opening
+    def err(self, what: str) -> FMUError:
+        """An :class:`FMUError` naming the FMU file."""
+        return FMUError(f"{self.path}: {what}")
+
+    def _read_archive(self) -> tuple[set[str], bytes]:
+        p = self.path
+        if not p.is_file():
+            raise self.err("no such FMU file")
+        if not zipfile.is_zipfile(p):
+            raise self.err("not an FMU (not a zip archive)")
+        try:
+            with zipfile.ZipFile(p) as zf:
+                infos = zf.infolist()
+                for info in infos:
+                    why = _unsafe_member(info.filename)
+                    if why is not None:
+                        raise self.err(
+                            f"archive member {info.filename!r} {why}: it would be extracted outside the "
+                            "extraction folder (zip-slip); refusing to extract the FMU"
+                        )
+                names = {info.filename for info in infos}
+                if "modelDescription.xml" not in names:
+                    raise self.err("modelDescription.xml is missing from the archive (not an FMU)")
+                return names, zf.read("modelDescription.xml")
+        except FMUError:
+            raise
+        except (zipfile.BadZipFile, OSError, RuntimeError) as exc:
+            raise self.err(f"cannot read the archive: {exc}") from None
+
+    def _read_model_description(self, xml: bytes) -> Any:
+        from fmpy import read_model_description
+
+        try:
+            root = ET.fromstring(xml)
+        except ET.ParseError as exc:
+            raise self.err(f"modelDescription.xml is not well-formed XML: {exc}") from None
+        if root.tag != "fmiModelDescription":
+            raise self.err(f"modelDescription.xml: root element is <{root.tag}>, not <fmiModelDescription>")
+        version = root.get("fmiVersion")
+        if version != "2.0":
+            raise self.err(
+                f"modelDescription.xml declares fmiVersion {version!r}; the supervisor needs an "
+                "FMI 2.0 co-simulation FMU (fmiVersion \"2.0\")"
+            )
+        try:
+            md = read_model_description(str(self.path), validate=True)
+        except Exception as exc:  # fmpy raises plain Exceptions with the schema problems
+            raise self.err(f"invalid modelDescription.xml: {exc}") from None
+        if md.coSimulation is None:
+            raise self.err("modelDescription.xml has no <CoSimulation> element (Model Exchange only?)")
+        return md
+
+    def _open(self) -> None:
+        import fmpy
+
+        names, xml = self._read_archive()
+        md = self._read_model_description(xml)
+        cs = md.coSimulation
+        self.model_description = md
+        self.model_identifier = cs.modelIdentifier
+        self.can_vary_step = bool(cs.canHandleVariableCommunicationStepSize)
+        lib = f"binaries/{fmpy.platform}/{cs.modelIdentifier}{fmpy.sharedLibraryExtension}"
+        if lib not in names:
+            found = sorted({n.split("/")[1] for n in names if n.startswith("binaries/") and n.count("/") >= 2})
+            hint = f"it has binaries for {found}" if found else "it has no binaries"
+            if any(n.startswith("sources/") for n in names):
+                hint += " (C sources are included: rebuild it for this platform)"
+            raise self.err(f"no binary for this platform: {lib} is missing; {hint}")
+
+        self._set_variables(resolve_variables(md, self.mapping, self.err))
+
+        self._tmp = tempfile.TemporaryDirectory(prefix="ftc-verify-fmu-")
+        try:
+            with zipfile.ZipFile(self.path) as zf:
+                zf.extractall(self._tmp.name)
+        except (zipfile.BadZipFile, OSError, RuntimeError) as exc:
+            raise self.err(f"cannot extract the archive: {exc}") from None
+        self._load(md, self._tmp.name)
+
+    def _set_variables(self, rv: ResolvedVariables) -> None:
+        from fmpy.fmi2 import fmi2Boolean, fmi2Integer, fmi2Real
+
+        self.variables = rv
+        self._fault_groups = {
+            kind: VarGroup([v for v in rv.fault if _FAULT_KIND[v.type] == kind], ctype)
+            for kind, ctype in (("real", fmi2Real), ("int", fmi2Integer), ("bool", fmi2Boolean))
+        }
+        self.n, self.nu, self.nw = len(rv.states), len(rv.inputs), len(rv.disturbances)
+        self.ny, self.nym = len(rv.outputs), len(rv.measured)
+        self.feedthrough = rv.feedthrough
+        self.uw = VarGroup(rv.inputs + rv.disturbances)
+        self.delta = VarGroup(rv.delta)
+        self.init = VarGroup(rv.initial)
+
+    def read_groups(self, measured: bool) -> tuple[VarGroup, VarGroup]:
+        """``(before, after)``: the variables read at a grid point before ``u, w`` are
+        written (``x``, then ``y_m`` when ``measured``, then ``y`` unless it has
+        feedthrough) and after (``y`` with feedthrough, else nothing)."""
+        groups = self._read_groups.get(measured)
+        if groups is None:
+            rv = self.variables
+            before = rv.states + (rv.measured if measured else ())
+            if self.feedthrough:
+                groups = (VarGroup(before), VarGroup(rv.outputs))
+            else:
+                groups = (VarGroup(before + rv.outputs), VarGroup(()))
+            self._read_groups[measured] = groups
+        return groups
+
+    def _logger(self) -> Callable[..., None]:
+        messages, counts = self.messages, self.log_counts
+
+        def logger(env: Any, instance: bytes | None, status: int, category: bytes | None,
+                   message: bytes | None) -> None:
+            try:
+                text = (message or b"").decode("utf-8", "replace").replace("%%", "%")
+                label = _status_label(status)
+                counts[label] = counts.get(label, 0) + 1
+                messages.append((label, (category or b"").decode("utf-8", "replace"), text))
+            except Exception:  # never let an exception cross the C boundary
+                pass
+
+        return logger
+
+    def _load(self, md: Any, unzip: str) -> None:
+        from fmpy import calloc, free
+        from fmpy.fmi2 import (
+            FMU2Slave,
+            fmi2CallbackAllocateMemoryTYPE,
+            fmi2CallbackFreeMemoryTYPE,
+            fmi2CallbackFunctions,
+            fmi2CallbackLoggerTYPE,
+        )
+
+        cwd = os.getcwd()
+        try:
+            slave = FMU2Slave(guid=md.guid, unzipDirectory=unzip, modelIdentifier=self.model_identifier,
+                              instanceName=self.instance_name)
+        except Exception as exc:  # missing library, unloadable binary, missing fmi2 functions
+            lib = f"binaries/<platform>/{self.model_identifier}"
+            raise self.err(f"cannot load the FMU binary ({lib}): {exc}") from None
+        finally:
+            if os.getcwd() != cwd:  # fmpy does not restore the directory when loading fails
+                os.chdir(cwd)
+        self.slave = slave
+        self.stats["library_loads"] += 1
+        cb = fmi2CallbackFunctions()
+        self._logger_ref = fmi2CallbackLoggerTYPE(self._logger())
+        cb.logger = self._logger_ref
+        cb.allocateMemory = ctypes.cast(calloc, fmi2CallbackAllocateMemoryTYPE)
+        cb.freeMemory = ctypes.cast(free, fmi2CallbackFreeMemoryTYPE)
+        cb.componentEnvironment = None
+        self._callbacks = cb
+        try:
+            slave.instantiate(callbacks=cb, loggingOn=False)
+        except Exception:
+            raise self.err(f"fmi2Instantiate failed{self.said()}") from None
+        self._component_live = True
+        self.stats["instantiations"] += 1
+
+    # -------------------------------------------------------------------- closing
+    def close(self) -> None:
+        """Terminate and free the instance, unload the library, remove the extracted files."""
+        if self.closed:
+            return
+        self.closed = True
+        slave, self.slave = self.slave, None
+        if slave is not None:
+            try:
+                if self._component_live and not self.dead:
+                    try:
+                        if self._dirty:
+                            slave.terminate()
+                    except Exception:
+                        pass
+                    slave.fmi2FreeInstance(slave.component)
+                self._component_live = False
+            finally:
+                try:
+                    slave.freeLibrary()
+                except Exception:
+                    pass
+        self._callbacks = None
+        self._logger_ref = None
+        if self._tmp is not None:
+            self._tmp.cleanup()
+            self._tmp = None
+
+    # -------------------------------------------------------------------- errors
+    def said(self, count: int = 4) -> str:
+        """The FMU's last non-OK log messages, as a suffix for error messages."""
+        bad = [f"[{s}] {t}" for s, _, t in self.messages if s != "OK"]
+        return ("; the FMU reported: " + " | ".join(bad[-count:])) if bad else ""
+
+    def call_error(self, exc: Any, when: str, names: Sequence[str]) -> FMUError:
+        """The :class:`FMUError` for a failed FMI call (fmpy's ``FMICallException``)."""
+        status = getattr(exc, "status", None)
+        function = getattr(exc, "function", "an fmi2 function")
+        if status == 4:  # fmi2Fatal: the instance must not be called any more
+            self.dead = True
+        label = _status_label(status) if status is not None else "an error"
+        var = f" ({', '.join(names)})" if names else ""
+        return self.err(f"{function}{var} returned {label} {when}{self.said()}")
+
+    def check_open(self) -> None:
+        """Raise unless the instance can be called."""
+        if self.closed or self.slave is None:
+            raise self.err("the supervisor is closed")
+        if self.dead:
+            raise self.err("the FMU returned fmi2Fatal earlier; the instance cannot be used any more")
+
+    # -------------------------------------------------------------------- writing
+    def _fault_value(self, v: Any, val: Any, mode: int) -> Any:
+        kind = _FAULT_KIND[v.type]
+        if kind == "int":
+            if isinstance(val, float) and not val.is_integer():
+                raise self.err(f"fault variable {v.name!r} is {v.type}; mode {mode} maps to non-integer {val!r}")
+            val = int(val)
+            lo = int(v.min) if v.min is not None else None
+            hi = int(v.max) if v.max is not None else None
+            if (lo is not None and val < lo) or (hi is not None and val > hi):
+                raise self.err(f"fault variable {v.name!r}: mode {mode} (0-based) maps to {val}, outside its "
+                               f"declared range [{v.min}, {v.max}]")
+            return val
+        if kind == "bool":
+            if val not in (0, 1):
+                raise self.err(f"fault variable {v.name!r} is Boolean; mode {mode} maps to {val!r}")
+            return int(bool(val))
+        val = float(val)
+        lo = float(v.min) if v.min is not None else -math.inf
+        hi = float(v.max) if v.max is not None else math.inf
+        if not lo <= val <= hi:
+            raise self.err(f"fault variable {v.name!r}: mode {mode} (0-based) maps to {val}, outside its "
+                           f"declared range [{v.min}, {v.max}]")
+        return val
+
+    def fault_writes(self, mode: int) -> list[tuple[str, Any]]:
+        """``[(kind, ctypes values)]`` for the 0-based true mode (validated once per mode)."""
+        cached = self._fault_cache.get(mode)
+        if cached is not None:
+            return cached
+        values = self.mapping.values_for(mode)
+        per_kind: dict[str, list[Any]] = {"real": [], "int": [], "bool": []}
+        for v, val in zip(self.variables.fault, values):
+            per_kind[_FAULT_KIND[v.type]].append(self._fault_value(v, val, mode))
+        out = [(kind, c_buffer(self._fault_groups[kind].buf._type_, vals))
+               for kind, vals in per_kind.items() if vals]
+        self._fault_cache[mode] = out
+        return out
+
+    def set_fault(self, mode: int, when: str) -> None:
+        """Write the 0-based true mode ``mode`` into the fault variables."""
+        from fmpy.fmi1 import FMICallException
+
+        s = self.slave
+        for kind, vals in self.fault_writes(mode):
+            grp = self._fault_groups[kind]
+            try:
+                if kind == "real":
+                    s.fmi2SetReal(s.component, grp.vr, grp.n, vals)
+                elif kind == "int":
+                    s.fmi2SetInteger(s.component, grp.vr, grp.n, vals)
+                else:
+                    s.fmi2SetBoolean(s.component, grp.vr, grp.n, vals)
+            except FMICallException as exc:
+                shown = [f"{n} = {v}" for n, v in zip(grp.names, list(vals))]
+                raise self.call_error(exc, f"{when} (setting fault mode {mode}, 0-based)", shown) from None
+
+    def delta_values(self, seg: tuple[Any, Any]) -> Any:
+        """The ctypes values of ``(Delta1, Delta2)`` for the map's Delta inputs (None: none)."""
+        if self.delta.n == 0:
+            return None
+        from fmpy.fmi2 import fmi2Real
+
+        parts = []
+        if self.mapping.delta1:
+            parts.append(np.asarray(seg[0], dtype=float).ravel())
+        if self.mapping.delta2:
+            parts.append(np.asarray(seg[1], dtype=float).ravel())
+        return c_buffer(fmi2Real, np.concatenate(parts).tolist())
+
+    def set_delta(self, values: Any, when: str) -> None:
+        """Write :meth:`delta_values` into the FMU (nothing for None)."""
+        if values is None or self.delta.n == 0:
+            return
+        from fmpy.fmi1 import FMICallException
+
+        s = self.slave
+        try:
+            s.fmi2SetReal(s.component, self.delta.vr, self.delta.n, values)
+        except FMICallException as exc:
+            raise self.call_error(exc, f"{when} (setting Delta)", self.delta.names) from None
+
+    def start_path(self, x0: Any, mode0: int, delta0: Any) -> None:
+        """Reset (unless fresh), set up, and initialise the instance at ``t = 0`` with the
+        initial state ``x0`` (ctypes), the 0-based true mode and the first Delta values."""
+        from fmpy.fmi1 import FMICallException
+
+        s = self.slave
+        stage, names = "fmi2Reset", ()
+        try:
+            if self._dirty:
+                s.reset()
+                self.stats["resets"] += 1
+            self._dirty = True
+            stage = "fmi2SetupExperiment"
+            s.setupExperiment(startTime=0.0)
+            stage = "fmi2EnterInitializationMode"
+            s.enterInitializationMode()
+            if self.init.n:
+                stage, names = "fmi2SetReal", self.init.names
+                s.fmi2SetReal(s.component, self.init.vr, self.init.n, x0)
+            self.set_fault(mode0, "in initialization mode")
+            self.set_delta(delta0, "in initialization mode")
+            stage, names = "fmi2ExitInitializationMode", ()
+            s.exitInitializationMode()
+        except FMICallException as exc:
+            raise self.call_error(exc, f"in {stage} while initialising a path at t = 0", names) from None

@@ -1,0 +1,187 @@
+r"""Sample paths of the joint (fault, FDI) chain and the communication grid on them.
+
+Both simulators -- the FMU co-simulation supervisor and the numpy reference -- consume
+the same :class:`ChainPath` and the same :func:`communication_grid`, so that on equal
+paths they integrate exactly the same sampled-data loop:
+
+* the joint chain is sampled exactly: from joint mode ``s`` the holding time is
+  exponential with rate :math:`-Q_{ss}` and the next mode is drawn with probabilities
+  :math:`Q_{ss'}/(-Q_{ss})` (the generator of :meth:`JointChain.generator`, so the
+  paper's model or the named ``fault_during_delay`` variant);
+* ``beta`` is fixed by the caller or drawn once per path, uniformly in its box;
+* the communication grid is the union of the control instants ``k h`` and the jump
+  times; on each interval ``[t_k, t_{k+1})`` the joint mode is constant and the loop holds
+  ``u = K[l] x(t_k)``, ``w(t_k)`` and ``Delta(t_k)`` (sample-and-hold, zero-order hold).
+
+Randomness only through an explicit :class:`numpy.random.Generator`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import ValidationError
+from ..model.system import JointChain, Matrix
+
+__all__ = [
+    "ChainPath",
+    "sample_path",
+    "sample_paths",
+    "communication_grid",
+    "Disturbance",
+    "disturbance",
+    "DISTURBANCES",
+]
+
+
+@dataclass(frozen=True, eq=False)
+class ChainPath:
+    """One path of the joint chain on ``[0, horizon]``.
+
+    ``times[0] = 0``; ``true[k], fdi[k]`` (0-based) hold on ``[times[k], times[k+1])``
+    (the last one up to ``horizon``). ``beta`` is the detection-rate matrix used.
+    """
+
+    times: np.ndarray
+    true: np.ndarray
+    fdi: np.ndarray
+    beta: Matrix
+    horizon: float
+
+    @property
+    def fault_switches(self) -> int:
+        """Number of changes of the true mode."""
+        return int(np.count_nonzero(np.diff(self.true)))
+
+    @property
+    def fdi_switches(self) -> int:
+        """Number of changes of the FDI indication."""
+        return int(np.count_nonzero(np.diff(self.fdi)))
+
+    def mode_at(self, t: float) -> tuple[int, int]:
+        """``(true, fdi)`` at time ``t`` (right-continuous)."""
+        k = int(np.searchsorted(self.times, t, side="right")) - 1
+        return int(self.true[k]), int(self.fdi[k])
+
+
+def _check_horizon(horizon: float) -> float:
+    if not (isinstance(horizon, (int, float)) and math.isfinite(horizon) and horizon > 0):
+        raise ValidationError(f"horizon: must be a positive finite number, got {horizon!r}")
+    return float(horizon)
+
+
+def sample_path(
+    chain: JointChain,
+    horizon: float,
+    rng: np.random.Generator,
+    *,
+    beta: Matrix | None = None,
+    start: tuple[int, int] = (0, 0),
+) -> ChainPath:
+    """One exact path. ``beta=None`` draws ``beta`` uniformly in its box for this path;
+    ``start`` is the initial ``(true, fdi)`` (default: no fault, FDI agrees)."""
+    horizon = _check_horizon(horizon)
+    m = chain.m
+    if not (0 <= start[0] < m and 0 <= start[1] < m):
+        raise ValidationError(f"start: joint mode {start} outside 0..{m - 1}")
+    if beta is None:
+        b = chain.beta_min + rng.random((m, m)) * (chain.beta_max - chain.beta_min)
+        np.fill_diagonal(b, 0.0)
+    else:
+        b = chain.check_beta(beta)
+    Q = chain.generator(b)
+    s = start[0] * m + start[1]
+    times, states = [0.0], [s]
+    t = 0.0
+    while True:
+        rate = -Q[s, s]
+        if rate <= 0.0:
+            break
+        t += rng.exponential(1.0 / rate)
+        if t >= horizon:
+            break
+        probs = np.clip(Q[s], 0.0, None)
+        probs[s] = 0.0
+        s = int(rng.choice(m * m, p=probs / probs.sum()))
+        times.append(t)
+        states.append(s)
+    st = np.asarray(states)
+    return ChainPath(np.asarray(times), st // m, st % m, b, horizon)
+
+
+def sample_paths(
+    chain: JointChain,
+    horizon: float,
+    count: int,
+    rng: np.random.Generator,
+    *,
+    beta: Matrix | None = None,
+    start: tuple[int, int] = (0, 0),
+) -> list[ChainPath]:
+    """``count`` independent paths (see :func:`sample_path`)."""
+    if not (isinstance(count, int) and count >= 1):
+        raise ValidationError(f"paths: must be a positive integer, got {count!r}")
+    return [sample_path(chain, horizon, rng, beta=beta, start=start) for _ in range(count)]
+
+
+def communication_grid(path: ChainPath, step: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Communication points and the joint mode on each interval.
+
+    Returns ``(t, true, fdi)``: ``t`` holds ``0 = t_0 < t_1 < ... < t_N = horizon``, the
+    union of the multiples of ``step`` and the jump times; ``true[k], fdi[k]`` hold on
+    ``[t_k, t_{k+1})`` (length ``N``). Grid points closer than ``1e-12 * step`` to a jump
+    time are merged into it, so no interval is degenerate.
+    """
+    if not (math.isfinite(step) and step > 0):
+        raise ValidationError(f"step: must be a positive finite number, got {step!r}")
+    count = int(math.floor(path.horizon / step + 1e-9))
+    regular = np.arange(count + 1) * step
+    if regular[-1] < path.horizon * (1 - 1e-12):
+        regular = np.append(regular, path.horizon)
+    else:
+        regular[-1] = path.horizon
+    jumps = path.times[1:]
+    tol = 1e-12 * step
+    if jumps.size:  # distance to the nearest jump, O((N + J) log J) memory-light
+        idx = np.searchsorted(jumps, regular)
+        left = jumps[np.clip(idx - 1, 0, jumps.size - 1)]
+        right = jumps[np.clip(idx, 0, jumps.size - 1)]
+        near = np.minimum(np.abs(regular - left), np.abs(regular - right)) <= tol
+        near[0] = near[-1] = False
+        regular = regular[~near]
+    t = np.union1d(regular, jumps)
+    k = np.searchsorted(path.times, t[:-1], side="right") - 1
+    return t, path.true[k], path.fdi[k]
+
+
+Disturbance = Callable[[np.ndarray], np.ndarray]
+
+
+def _paper(t: np.ndarray) -> np.ndarray:
+    return np.exp(-0.1 * t) * np.sin(t)
+
+
+#: Scalar disturbance shapes, applied to every disturbance channel.
+DISTURBANCES: dict[str, Disturbance] = {
+    "paper": _paper,  # w = exp(-0.1 t) sin t, the paper's Section VI
+    "zero": lambda t: np.zeros_like(t),
+    "step": lambda t: np.ones_like(t),
+    "pulse": lambda t: (t < 1.0).astype(float),
+    "sine": np.sin,
+}
+
+
+def disturbance(kind: str, nw: int) -> Callable[[np.ndarray], np.ndarray]:
+    """``w(t)`` as an array ``(len(t), nw)``: the named shape on every channel."""
+    if kind not in DISTURBANCES:
+        raise ValidationError(f"disturbance: unknown kind {kind!r}; choose from {sorted(DISTURBANCES)}")
+    shape = DISTURBANCES[kind]
+
+    def w(t: np.ndarray) -> np.ndarray:
+        return np.repeat(shape(np.asarray(t, dtype=float))[:, None], nw, axis=1)
+
+    return w

@@ -1,0 +1,240 @@
+r"""Exact numpy reference simulator of the sampled-data FTC loop, one path at a time.
+
+Sampled-data loop (shared with the FMU backend, see :mod:`ftc_verify.simulation.paths`)
+----------------------------------------------------------------------------------------
+On a path of the joint (true, FDI) chain the communication grid
+:func:`~ftc_verify.simulation.paths.communication_grid` gives ``t_0 < t_1 < ... < t_N``
+(the multiples of ``step`` and the jump times) and the joint mode ``(i, j)`` on each
+interval ``[t_k, t_{k+1})``. On that interval the plant of the true mode ``i`` (paper
+eq. (1) with the uncertainty of eq. (13)) evolves with the control and the disturbance
+held at their values at ``t_k``, and the controller entry :math:`e` (``controller.index(i,
+j, m)``: the FDI mode, or ``i m + j`` for full-information gains) integrates the held
+measurement exactly:
+
+.. math::
+
+    v_k = M_i x_k, \qquad u_k = C_{c,e}\, x_{c,k} + D_{c,e}\, v_k, \qquad w_k = w(t_k),
+
+    A = A_i + A1_i \Delta_1 A2_i, \qquad B = B_i + B1_i \Delta_2 B2_i,
+    \qquad h = t_{k+1} - t_k,
+
+    x_{k+1} = \Phi(h) x_k + \Gamma(h) (B u_k + D_i w_k), \qquad
+    x_{c,k+1} = \Phi_c(h)\, x_{c,k} + \Gamma_c(h)\, v_k,
+
+    \Phi(h) = e^{A h}, \quad \Gamma(h) = \int_0^h e^{A s}\, ds, \quad
+    \Phi_c(h) = e^{A_{c,e} h}, \quad \Gamma_c(h) = \int_0^h e^{A_{c,e} s}\, ds\, B_{c,e},
+
+with :math:`M_i` = ``controller.measurement(mode_i)`` (:math:`I` for state feedback,
+:math:`C_{y,i}` for output feedback) and :math:`(\Delta_1, \Delta_2)` of the chain
+segment containing ``t_k`` (:func:`~ftc_verify.simulation.delta.delta_segments`;
+``delta=None`` means zero). For static state feedback (:math:`n_c = 0`, :math:`M_i = I`)
+this is :math:`u_k = K_j x_k`. This is the exact zero-order-hold discretisation:
+:math:`\Phi, \Gamma B, \Gamma D` are the blocks of :math:`\exp\bigl(\begin{smallmatrix}
+A & B & D \\ 0 & 0 & 0 \\ 0 & 0 & 0 \end{smallmatrix}\bigr) h`
+(:func:`~ftc_verify.simulation.discretise.zoh_matrices`), :math:`\Phi_c, \Gamma_c` of
+:meth:`Controller.discretise`. The output is :math:`y_k = C_i x_k` with ``C`` of the
+*true* mode on the interval that starts at ``t_k`` (at ``t_N``: the last interval's
+mode); ``u``, ``v`` and ``w`` are recorded as the values held on the interval that starts
+there (at ``t_N``: :math:`v_N = M_{i} x_N`, :math:`u_N = C_{c,e} x_{c,N} + D_{c,e} v_N`
+with the last interval's modes, and ``w(t_N)``). Every path starts at ``x0`` (default 0)
+and :math:`x_c(0) = 0`.
+
+Full-length intervals ``[k h, (k+1) h]`` (both ends multiples of ``step``, no jump
+inside) use :math:`h = ` ``step`` exactly and a cached discretisation per
+``(mode, Delta)`` (and per controller entry); intervals cut by jumps (and a shorter last
+interval) get their own exponentials with ``h = t_{k+1} - t_k``.
+
+The other entry points, re-exported here
+----------------------------------------
+* :func:`~ftc_verify.simulation.energies.energies_reference` -- per path
+  :math:`\int |y|^2` and :math:`\int |w|^2` of the same loop, all paths advanced together;
+* :func:`~ftc_verify.simulation.continuous.simulate_continuous` -- the continuous-time
+  loop (no sample-and-hold);
+* :func:`~ftc_verify.simulation.discretise.zoh_matrices`,
+  :func:`~ftc_verify.simulation.discretise.phi_gamma` -- the exponentials.
+
+Randomness only through an explicit :class:`numpy.random.Generator` (``rng``, default
+``numpy.random.default_rng(seed)``), used by ``Delta`` kind ``random`` only: the draws
+are made per path in path order, so every backend given the same generator state sees
+the same :math:`\Delta(t)`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from ..controllers.controller import Controller
+from ..model.system import FTCSystem, Matrix
+from ._common import (
+    check_controller,
+    check_step,
+    delta_key,
+    full_intervals,
+    generator,
+    initial_state,
+    measurements,
+    path_arrays,
+    path_list,
+    perturbed,
+    run_options,
+    schedule_of,
+)
+from .continuous import simulate_continuous
+from .delta import DeltaSchedule, delta_segments
+from .discretise import phi_gamma, zoh_matrices
+from .energies import energies_reference
+from .paths import ChainPath, communication_grid, disturbance as disturbance_fn
+from .records import PathRecord, SimulationResult
+
+__all__ = [
+    "simulate_reference",
+    "energies_reference",
+    "simulate_continuous",
+    "zoh_matrices",
+    "phi_gamma",
+]
+
+_Cache = dict[Any, tuple[Matrix, ...]]
+
+
+def _plant_zoh(system: FTCSystem, i: int, seg: tuple[Matrix | None, Matrix | None], key: Any,
+               h: float, full: bool, cache: _Cache) -> tuple[Matrix, ...]:
+    """``(Phi, Gamma B, Gamma D)`` of true mode ``i`` with the segment's ``Delta``,
+    cached under ``(i, key)`` for a full-length interval."""
+    if not full:
+        A, B = perturbed(system, i, *seg)
+        return zoh_matrices(A, B, system.modes[i].D, h)
+    mats = cache.get((i, key))
+    if mats is None:
+        A, B = perturbed(system, i, *seg)
+        mats = cache[(i, key)] = zoh_matrices(A, B, system.modes[i].D, h)
+    return mats
+
+
+def _controller_zoh(controller: Controller, e: int, h: float, full: bool, cache: _Cache) -> tuple[Matrix, ...]:
+    """``(Phi_c, Gamma_c)`` of entry ``e`` (:meth:`Controller.discretise`), cached for a
+    full-length interval."""
+    if not full:
+        return controller.discretise(e, h)
+    mats = cache.get(("controller", e))
+    if mats is None:
+        mats = cache[("controller", e)] = controller.discretise(e, h)
+    return mats
+
+
+def _simulate_path(system: FTCSystem, controller: Controller, path: ChainPath, segs: list, step: float,
+                   wfun: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, cache: _Cache) -> PathRecord:
+    """One path of the loop of the module docstring, recorded on its grid."""
+    m = system.m
+    n, nu, ny, nw = system.dims
+    nc, nv = controller.n_c, controller.n_v
+    Ms = measurements(system, controller)
+    reads_state = controller.measures == "state"
+    full_info, static = controller.full_information(m), controller.static
+    Cc, Dc = controller.Cc, controller.Dc
+    t, true, fdi = communication_grid(path, step)
+    N = t.size - 1
+    W = wfun(t)
+    seg = np.searchsorted(path.times, t[:-1], side="right") - 1
+    full = full_intervals(t, step)
+    keys = [delta_key(*d) for d in segs]
+    X, U, Y = np.empty((N + 1, n)), np.empty((N + 1, nu)), np.empty((N + 1, ny))
+    XC, V = np.empty((N + 1, nc)), np.empty((N + 1, nv))
+    x, xc = x0.copy(), np.zeros(nc)
+    for k in range(N):
+        i, j, g = int(true[k]), int(fdi[k]), int(seg[k])
+        e = i * m + j if full_info else j
+        v = x if reads_state else Ms[i] @ x
+        u = Dc[e] @ v if static else Cc[e] @ xc + Dc[e] @ v
+        X[k], U[k], Y[k], XC[k], V[k] = x, u, system.modes[i].C @ x, xc, v
+        h = step if full[k] else t[k + 1] - t[k]
+        Phi, GB, GD = _plant_zoh(system, i, segs[g], keys[g], h, bool(full[k]), cache)
+        if not static:
+            Phic, Gamc = _controller_zoh(controller, e, h, bool(full[k]), cache)
+            xc = Phic @ xc + Gamc @ v
+        x = Phi @ x + GB @ u + GD @ W[k]
+    i, j = int(true[-1]), int(fdi[-1])
+    e = i * m + j if full_info else j
+    v = x if reads_state else Ms[i] @ x
+    X[N], U[N], Y[N], XC[N], V[N] = x, controller.output(e, xc, v), system.modes[i].C @ x, xc, v
+    return PathRecord(path, t, true, fdi, X, U, W, Y, XC, V)
+
+
+def simulate_reference(
+    system: FTCSystem,
+    controller: Controller,
+    paths: ChainPath | Sequence[ChainPath],
+    *,
+    step: float,
+    disturbance: str = "paper",
+    delta: DeltaSchedule | str | None = None,
+    x0: ArrayLike | None = None,
+    rng: np.random.Generator | None = None,
+    seed: int | None = None,
+) -> SimulationResult:
+    r"""Simulate the sampled-data loop (module docstring) on every path, exactly.
+
+    Parameters
+    ----------
+    system : FTCSystem
+    controller : Controller
+        One entry per FDI mode (or ``m * m`` full-information state-feedback gains),
+        validated by :meth:`Controller.check`; static gains are
+        ``Controller.state_feedback(gains)``.
+    paths : ChainPath or sequence of ChainPath
+    step : float
+        Control period; the grid is :func:`~ftc_verify.simulation.paths.communication_grid`.
+    disturbance : str
+        A kind of :data:`ftc_verify.simulation.paths.DISTURBANCES` (every channel gets it).
+    delta : DeltaSchedule, its kind, or None (zero)
+        :math:`\Delta(t)`, from :func:`~ftc_verify.simulation.delta.delta_segments` per
+        path in path order.
+    x0 : array-like of n numbers, optional
+        Initial plant state of every path (default 0); the controller starts at
+        :math:`x_c = 0`.
+    rng, seed
+        Generator for ``Delta`` kind ``random`` (default ``numpy.random.default_rng(seed)``);
+        ``seed`` is recorded in the result.
+
+    Returns
+    -------
+    SimulationResult
+        ``backend="reference"``, one :class:`~ftc_verify.simulation.PathRecord` per path
+        (with ``xc`` and the read signal ``ym = v``). ``horizon`` is the largest path
+        horizon.
+
+    Notes
+    -----
+    One loop per path over the grid intervals: :math:`x_{k+1} = \Phi x_k + \Gamma B u_k
+    + \Gamma D w_k` with the blocks of :func:`scipy.linalg.expm` of the augmented matrix
+    (:func:`zoh_matrices`), cached per ``(true mode, Delta)`` for the full-length intervals
+    (``h = step``) across paths, computed afresh for every interval cut by a jump; the
+    same for :math:`(\Phi_c, \Gamma_c)` per controller entry.
+    """
+    step = check_step(step)
+    controller = check_controller(system, controller)
+    plist = path_list(paths)
+    path_arrays(system, plist)
+    schedule = schedule_of(delta)
+    x0v = initial_state(system, x0)
+    wfun = disturbance_fn(disturbance, system.dims[3])
+    gen = generator(rng, seed)
+    cache: _Cache = {}
+    records = []
+    for p in plist:
+        segs = delta_segments(system, p, schedule, gen)
+        records.append(_simulate_path(system, controller, p, segs, step, wfun, x0v, cache))
+    return SimulationResult(
+        backend="reference",
+        seed=seed,
+        step=step,
+        horizon=float(max(p.horizon for p in plist)),
+        disturbance=disturbance,
+        records=tuple(records),
+        options=run_options(system, schedule, x0v, controller,
+                            method="exact zero-order hold (scipy.linalg.expm)"),
+    )

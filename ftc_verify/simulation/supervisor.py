@@ -1,0 +1,464 @@
+r"""Co-simulation supervisor: the sampled-data FTC loop around an FMI 2.0 co-simulation FMU.
+
+The FMU is the plant; the supervisor is the rest of the loop of the reference paper with a
+:class:`~ftc_verify.controllers.Controller` (static state feedback ``u = K[l] x``, or a
+static or dynamic controller on the measured output ``y_m``). On each path of the joint
+(fault, FDI) chain it walks the grid :func:`~ftc_verify.simulation.paths.communication_grid`
+``t_0 < ... < t_N`` (multiples of ``step`` and the jump times). On ``[t_k, t_{k+1})`` with
+joint mode ``(i, j)`` and entry ``e = controller.index(i, j, m)`` it
+
+1. writes the fault mode ``i`` (when it changed) and ``Delta1, Delta2`` of the chain
+   segment (:func:`~ftc_verify.simulation.delta.delta_segments`, when it changed) into the
+   FMU, before reading anything at ``t_k``;
+2. reads ``x_k`` and the controller input ``v_k``: ``x_k`` for state feedback, else the
+   FMU's measured outputs ``y_m(t_k) = C_{y,i} x_k`` (the map's ``measured`` role);
+3. writes ``u_k = Cc[e] xc_k + Dc[e] v_k`` and ``w(t_k)``, then reads ``y_k``;
+4. calls ``fmi2DoStep(t_k, t_{k+1} - t_k)`` (inputs, ``Delta`` and mode held) and advances
+   ``xc_{k+1} = Phi_c xc_k + Gamma_c v_k`` exactly for ``v_k`` held
+   (:meth:`~ftc_verify.controllers.Controller.discretise`, cached per entry for full steps
+   ``[k step, (k+1) step]``), ``xc_0 = 0``.
+
+At ``t_N`` it records ``x_N, y_N, xc_N, v_N``, ``u_N = Cc[e] xc_N + Dc[e] v_N`` with the last
+interval's modes and ``w(t_N)``; every :class:`~ftc_verify.simulation.records.PathRecord`
+holds ``xc`` (zero columns when static) and ``ym`` = the ``v`` read (``x`` for state
+feedback). Paths start at ``x = x0`` (default 0). This is the loop of the numpy reference
+(:mod:`ftc_verify.simulation.reference`): on equal paths and ``Delta`` draws the backends
+agree to rounding. The supervisor only follows the sampled paths, so the chain variant
+``JointChain(..., fault_during_delay=True)`` needs nothing special.
+
+The FMU itself -- checks, extraction, variables, FMI calls and their errors, logging,
+cleanup -- is an :class:`~ftc_verify.simulation.fmu_session.FMUSession` owned by the
+supervisor, loaded and instantiated once; paths reuse the instance through ``fmi2Reset``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..controllers.controller import Controller
+from ..errors import FMUError, ValidationError
+from ..model.system import FTCSystem
+from .delta import DeltaSchedule, delta_segments, delta_shapes
+from .fault_map import FaultInjectionMap
+from .fmu_session import FMUSession, c_buffer
+from .paths import ChainPath, communication_grid
+from .paths import disturbance as disturbance_fn
+from .records import PathRecord, SimulationResult
+
+__all__ = ["FMUError", "FaultInjectionMap", "Supervisor", "simulate_fmu"]
+
+
+def _full_intervals(t: np.ndarray, step: float) -> np.ndarray:
+    """Which grid intervals are full ``[k step, (k+1) step]`` (both ends the floats
+    ``k * step`` exactly, as :func:`communication_grid` makes them)."""
+    k = np.rint(t / step)
+    is_mult = (k * step == t) & (k >= 0)
+    return is_mult[:-1] & is_mult[1:] & (k[1:] == k[:-1] + 1)
+
+
+def _delegate(name: str, doc: str) -> property:
+    """A read-only property forwarding to the attribute ``name`` of ``self.session``."""
+    return property(lambda self: getattr(self.session, name), doc=doc)
+
+
+@dataclass(frozen=True)
+class _Law:
+    """The controller prepared for one run: contiguous matrices and the full-step updates."""
+
+    controller: Controller
+    full_info: bool
+    m: int | None
+    measured: bool  # v = y_m read from the FMU (else v = x)
+    Cc: tuple[np.ndarray, ...]
+    Dc: tuple[np.ndarray, ...]
+    full_steps: tuple[tuple[np.ndarray, np.ndarray], ...]  # (Phi_c, Gamma_c) per entry, h = step
+
+    def entry(self, true: int, fdi: int) -> int:
+        return true * self.m + fdi if self.full_info else fdi  # type: ignore[operator]
+
+    def update(self, e: int, full: bool, h: float) -> tuple[np.ndarray, np.ndarray]:
+        return self.full_steps[e] if full else self.controller.discretise(e, h)
+
+
+@dataclass(frozen=True)
+class _Plan:
+    """One path on its grid: modes, segments and events, the disturbance and Delta values."""
+
+    path: ChainPath
+    t: np.ndarray
+    true: np.ndarray
+    fdi: np.ndarray
+    W: np.ndarray
+    events: list[int]
+    seg: list[int]
+    full: list[bool]
+    delta_c: list[Any] | None
+
+
+def _record(plan: _Plan, law: _Law, n: int, XR: np.ndarray, U: np.ndarray, Y: np.ndarray | None,
+            XC: np.ndarray) -> PathRecord:
+    """The :class:`PathRecord` from the rows read before ``u`` (``x``, ``y_m``, ``y``)."""
+    nv = law.controller.n_v if law.measured else 0
+    X = XR[:, :n]
+    YM = XR[:, n:n + nv] if law.measured else X
+    if Y is None:  # y was read with x
+        Y = XR[:, n + nv:]
+    return PathRecord(path=plan.path, t=plan.t, true=plan.true, fdi=plan.fdi, x=np.ascontiguousarray(X), u=U,
+                      w=plan.W, y=np.ascontiguousarray(Y), xc=XC, ym=np.ascontiguousarray(YM))
+
+
+class Supervisor:
+    """Sampled-data FTC loop around one FMI 2.0 co-simulation FMU (a context manager).
+
+    Parameters
+    ----------
+    fmu
+        Path of the ``.fmu`` archive.
+    mapping
+        The :class:`FaultInjectionMap`; default: :meth:`FaultInjectionMap.for_linear_jump_plant`
+        of ``system``.
+    system
+        The :class:`~ftc_verify.model.FTCSystem` the FMU simulates; needed for ``Delta``
+        (shapes and draws) and to check the controller; optional for other FMUs.
+    instance_name
+        ``instanceName`` passed to ``fmi2Instantiate``.
+
+    The archive is checked, extracted and loaded, and one instance is created, when the
+    supervisor is constructed (:class:`~ftc_verify.simulation.fmu_session.FMUSession`);
+    :meth:`run` reuses it for every path (``fmi2Reset``). :attr:`stats` counts library
+    loads, instantiations, resets, paths and steps.
+    """
+
+    def __init__(self, fmu: str | os.PathLike[str], mapping: FaultInjectionMap | None = None, *,
+                 system: FTCSystem | None = None, instance_name: str = "ftc-verify-supervisor") -> None:
+        if mapping is None:
+            if system is None:
+                raise ValidationError("Supervisor: give a FaultInjectionMap, or the system of a LinearJumpPlant FMU")
+            mapping = FaultInjectionMap.for_linear_jump_plant(system)
+        if not isinstance(mapping, FaultInjectionMap):
+            raise ValidationError(f"Supervisor: mapping must be a FaultInjectionMap, got {type(mapping).__name__}")
+        if system is not None and not isinstance(system, FTCSystem):
+            raise ValidationError(f"Supervisor: system must be an FTCSystem, got {type(system).__name__}")
+        self.path = Path(fmu)
+        self.mapping = mapping
+        self.system = system
+        self.instance_name = str(instance_name)
+        self.session = FMUSession(self.path, mapping, instance_name=self.instance_name)
+
+    # -------------------------------------------------------------------- context manager
+    def __enter__(self) -> "Supervisor":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Terminate and free the instance, unload the library, remove the extracted files."""
+        self.session.close()
+
+    # the session's state, read-only (as attributes of the supervisor before the split)
+    slave = _delegate("slave", "The one :class:`fmpy.fmi2.FMU2Slave` of this supervisor (None once closed).")
+    closed = _delegate("closed", "True once :meth:`close` ran.")
+    extraction_dir = _delegate("extraction_dir", "The temporary folder of the extracted FMU (None once closed).")
+    stats = _delegate("stats", "Library loads, instantiations, resets, paths and steps so far.")
+    messages = _delegate("messages", "The FMU's last log messages ``(status, category, text)``.")
+    log_counts = _delegate("log_counts", "Messages logged by the FMU, per status.")
+    model_description = _delegate("model_description", "fmpy's model description of the FMU.")
+    model_identifier = _delegate("model_identifier", "The FMU's co-simulation model identifier.")
+    can_vary_step = _delegate("can_vary_step", "Whether the FMU can handle variable communication steps.")
+    feedthrough = _delegate("feedthrough", "Whether an output ``y`` depends directly on ``u`` or ``w``.")
+
+    # -------------------------------------------------------------------- checks
+    def _modes(self) -> int | None:
+        if self.system is not None:
+            return self.system.m
+        return len(self.mapping.fault_values) if self.mapping.fault_values is not None else None
+
+    def _law(self, controller: Any, step: float) -> _Law:
+        """Check ``controller`` against the system and the map; prepare its matrices."""
+        if not isinstance(controller, Controller):
+            raise ValidationError(
+                f"controller: expected a Controller (e.g. Controller.state_feedback(gains)), "
+                f"got {type(controller).__name__}"
+            )
+        s, m = self.session, self._modes()
+        if self.system is not None:
+            controller.check(self.system, source="controller")
+        elif m is not None and controller.entries not in ((m, m * m) if controller.is_state_feedback else (m,)):
+            raise ValidationError(f"controller: {controller.entries} entries given, the plant has {m} modes")
+        measured = controller.measures == "output"
+        if measured and not self.mapping.measured:
+            raise ValidationError(
+                f"controller: {controller.describe()} reads the measured output y_m, but "
+                "FaultInjectionMap.measured names no FMU variable"
+            )
+        nv, what = (s.nym, "measured") if measured else (s.n, "states")
+        if controller.nu != s.nu or controller.n_v != nv:
+            raise ValidationError(
+                f"controller: Dc is {controller.nu} x {controller.n_v}, but the fault-injection map has "
+                f"{s.nu} inputs and {nv} {what} variables (expected {s.nu} x {nv})"
+            )
+        full_steps = tuple(controller.discretise(e, step) for e in range(controller.entries)) if controller.n_c else ()
+        return _Law(controller, m is not None and controller.full_information(m), m, measured,
+                    tuple(np.ascontiguousarray(c, dtype=np.float64) for c in controller.Cc),
+                    tuple(np.ascontiguousarray(d, dtype=np.float64) for d in controller.Dc), full_steps)
+
+    def _initial_state(self, x0: Any) -> tuple[np.ndarray, Any]:
+        from fmpy.fmi2 import fmi2Real
+
+        init = self.session.init
+        if x0 is None:
+            arr = np.zeros(init.n)
+        else:
+            if not init.n:
+                raise ValidationError(
+                    "x0: the fault-injection map names no initial_states, so the initial state cannot be set"
+                )
+            arr = np.asarray(x0, dtype=float).reshape(-1)
+            if arr.size != init.n or not np.all(np.isfinite(arr)):
+                raise ValidationError(f"x0: expected {init.n} finite numbers, got {x0!r}")
+        return arr, c_buffer(fmi2Real, arr.tolist())
+
+    def _schedule(self, delta: DeltaSchedule | str | None) -> DeltaSchedule:
+        if delta is None:
+            schedule = DeltaSchedule("zero")
+        elif isinstance(delta, str):
+            schedule = DeltaSchedule(delta)
+        elif isinstance(delta, DeltaSchedule):
+            schedule = delta
+        else:
+            raise ValidationError(f"delta: expected a DeltaSchedule, a kind or None, got {type(delta).__name__}")
+        if self.system is None:
+            if schedule.kind != "zero":
+                raise ValidationError(f"delta: kind {schedule.kind!r} needs the system (Supervisor(..., system=...))")
+            return schedule
+        self.mapping.check_delta(delta_shapes(self.system), schedule.kind)
+        return schedule
+
+    def _check_paths(self, paths: Any, law: _Law) -> list[ChainPath]:
+        if isinstance(paths, ChainPath):
+            paths = [paths]
+        paths = list(paths)
+        if not paths or not all(isinstance(p, ChainPath) for p in paths):
+            raise ValidationError("paths: expected a non-empty sequence of ChainPath")
+        entries = law.controller.entries
+        for i, p in enumerate(paths):
+            top_true, top_fdi = int(np.max(p.true)), int(np.max(p.fdi))
+            if law.m is not None and max(top_true, top_fdi) >= law.m:
+                raise ValidationError(
+                    f"paths[{i}]: mode {max(top_true, top_fdi)} (0-based) but the plant has {law.m} modes"
+                )
+            if not law.full_info and top_fdi >= entries:
+                raise ValidationError(f"paths[{i}]: FDI mode {top_fdi} (0-based) but only {entries} controller entries")
+        return paths
+
+    # -------------------------------------------------------------------- running
+    def run(
+        self,
+        paths: ChainPath | Sequence[ChainPath],
+        controller: Controller,
+        *,
+        step: float,
+        disturbance: str = "paper",
+        delta: DeltaSchedule | str | None = None,
+        x0: Any = None,
+        rng: np.random.Generator | None = None,
+        seed: int | None = None,
+    ) -> SimulationResult:
+        """Co-simulate every path; returns a :class:`~ftc_verify.simulation.records.SimulationResult`
+        with ``backend="fmu"``.
+
+        ``controller``: a :class:`~ftc_verify.controllers.Controller` (``m`` entries, one per
+        FDI mode, or ``m * m`` full-information state-feedback gains ``K[i m + l]``; build
+        static gains with ``Controller.state_feedback(gains)``). ``disturbance``: a kind of
+        :data:`ftc_verify.simulation.paths.DISTURBANCES`. ``delta``: a
+        :class:`~ftc_verify.simulation.delta.DeltaSchedule` or its kind (None: zero); the
+        values come from :func:`~ftc_verify.simulation.delta.delta_segments` per path in
+        order, drawing from ``rng`` (default ``numpy.random.default_rng(seed)``).
+        ``x0``: the initial plant state (default 0; needs
+        :attr:`FaultInjectionMap.initial_states`); the controller state starts at 0.
+        """
+        self.session.check_open()
+        if not (isinstance(step, (int, float)) and math.isfinite(step) and step > 0):
+            raise ValidationError(f"step: must be a positive finite number, got {step!r}")
+        step = float(step)
+        law = self._law(controller, step)
+        paths = self._check_paths(paths, law)
+        wfun = disturbance_fn(disturbance, self.session.nw)
+        x0_arr, x0_c = self._initial_state(x0)
+        schedule = self._schedule(delta)
+        if rng is None:
+            rng = np.random.default_rng(seed)
+        for p in paths:
+            for mode in np.unique(p.true):
+                self.session.fault_writes(int(mode))  # every mode's values checked before any simulation
+
+        warnings_before = self.log_counts.get("Warning", 0)
+        records = []
+        for i, p in enumerate(paths):
+            segs = delta_segments(self.system, p, schedule, rng) if self.system is not None else None
+            records.append(self._run_path(i, self._plan(i, p, step, wfun, segs), law, x0_c))
+        options: dict[str, Any] = {
+            "fmu": str(self.path),
+            "delta": schedule.kind,
+            "x0": x0_arr.tolist(),
+            "gains": "full-information" if law.full_info else "fdi",
+            "controller": controller.describe(law.m),
+            "fmu_warnings": self.log_counts.get("Warning", 0) - warnings_before,
+        }
+        if self.system is not None:
+            options["fault_during_delay"] = bool(self.system.chain.fault_during_delay)
+        return SimulationResult(backend="fmu", seed=seed, step=step, horizon=float(max(p.horizon for p in paths)),
+                                disturbance=disturbance, records=tuple(records), options=options)
+
+    def _plan(self, index: int, path: ChainPath, step: float, wfun: Any, segs: Any) -> _Plan:
+        t, true, fdi = communication_grid(path, step)
+        N = len(t) - 1
+        h = np.diff(t)
+        if not self.can_vary_step and N > 1 and np.ptp(h) > 1e-9 * step:
+            raise self.session.err(
+                "the FMU does not declare canHandleVariableCommunicationStepSize, but the grid of "
+                f"paths[{index}] has steps from {h.min():.6g} to {h.max():.6g} (jump times are grid points)"
+            )
+        seg = np.searchsorted(path.times, t[:-1], side="right") - 1
+        delta_c = None
+        if segs is not None:
+            delta_c = [None] * len(segs)
+            for j in set(seg.tolist()):
+                delta_c[j] = self.session.delta_values(segs[j])
+        # events: grid points (k >= 1) where the true mode, the FDI mode or the segment changes
+        change = np.zeros(N, dtype=bool)
+        if N > 1:
+            change[1:] = (true[1:] != true[:-1]) | (fdi[1:] != fdi[:-1]) | (seg[1:] != seg[:-1])
+        events = np.flatnonzero(change).tolist()
+        events.append(-1)
+        return _Plan(path, t, true, fdi, wfun(t), events, seg.tolist(), _full_intervals(t, step).tolist(), delta_c)
+
+    def _run_path(self, index: int, plan: _Plan, law: _Law, x0_c: Any) -> PathRecord:
+        from fmpy.fmi1 import FMICallException
+
+        s = self.session
+        t, N = plan.t, len(plan.t) - 1
+        tl, hl = t.tolist(), np.diff(t).tolist()
+        true_l, fdi_l, seg_l, delta_c = plan.true.tolist(), plan.fdi.tolist(), plan.seg, plan.delta_c
+        s.start_path(x0_c, true_l[0], None if delta_c is None else delta_c[seg_l[0]])
+        slave = s.slave
+        c = slave.component
+        gr, sr, ds = slave.fmi2GetReal, slave.fmi2SetReal, slave.fmi2DoStep
+        pre, post = s.read_groups(law.measured)
+        n, nu, nw, ny, nv = s.n, s.nu, s.nw, s.ny, law.controller.n_v
+        vr_x, buf_x, nx_read = pre.vr, pre.buf, pre.n
+        vr_y, buf_y, feed = post.vr, post.buf, s.feedthrough
+        vr_uw, buf_uw, nuw = s.uw.vr, s.uw.buf, nu + nw
+        np_xr = np.frombuffer(buf_x, dtype=np.float64, count=nx_read)
+        np_v = np_xr[n:n + nv] if law.measured else np_xr[:n]
+        np_y = np.frombuffer(buf_y, dtype=np.float64, count=ny) if feed else None
+        np_uw = np.frombuffer(buf_uw, dtype=np.float64, count=nuw)
+        np_u, np_w = np_uw[:nu], np_uw[nu:]
+        XR, U, W = np.empty((N + 1, nx_read)), np.empty((N + 1, nu)), plan.W
+        Y = np.empty((N + 1, ny)) if feed else None
+        nc = law.controller.n_c
+        XC = np.zeros((N + 1, nc))
+        xc = XC[0].copy()
+        full_l, update, entry, Cc, Dc = plan.full, law.update, law.entry, law.Cc, law.Dc
+        dot = np.dot
+        r, sg = true_l[0], seg_l[0]
+        e = entry(r, fdi_l[0])
+        K = Dc[e]
+        nxt, ev, k, stage = plan.events[0], 0, 0, ""
+        try:
+            for k in range(N + 1):
+                if k == nxt:
+                    when = f"at t = {tl[k]!r} (paths[{index}], grid point {k})"
+                    if true_l[k] != r:
+                        r = true_l[k]
+                        s.set_fault(r, when)
+                    if seg_l[k] != sg:
+                        sg = seg_l[k]
+                        if delta_c is not None:
+                            s.set_delta(delta_c[sg], when)
+                    e = entry(r, fdi_l[k])
+                    K = Dc[e]
+                    ev += 1
+                    nxt = plan.events[ev]
+                stage = "x"
+                gr(c, vr_x, nx_read, buf_x)
+                XR[k] = np_xr
+                dot(K, np_v, out=np_u)
+                if nc:
+                    np_u += dot(Cc[e], xc)
+                if nw:
+                    np_w[:] = W[k]
+                stage = "uw"
+                sr(c, vr_uw, nuw, buf_uw)
+                U[k] = np_u
+                if feed:
+                    stage = "y"
+                    gr(c, vr_y, ny, buf_y)
+                    Y[k] = np_y
+                if k == N:
+                    break
+                if nc:
+                    Phi, Gam = update(e, full_l[k], hl[k])
+                    xc = dot(Phi, xc) + dot(Gam, np_v)
+                    XC[k + 1] = xc
+                stage = "step"
+                ds(c, tl[k], hl[k], 1)
+        except FMICallException as exc:
+            raise self._loop_error(exc, stage, index, plan, k, law.measured, np_uw) from None
+        finally:
+            s.stats["steps"] += min(k, N)
+        s.stats["paths"] += 1
+        return _record(plan, law, n, XR, U, Y, XC)
+
+    def _loop_error(self, exc: Any, stage: str, index: int, plan: _Plan, k: int, measured: bool,
+                    np_uw: np.ndarray) -> FMUError:
+        """The error for an FMI call that failed at grid point ``k`` in ``stage``."""
+        tl, N = plan.t.tolist(), len(plan.t) - 1
+        if stage == "step":
+            h = tl[k + 1] - tl[k]
+            when = (f"at t = {tl[k]!r} with step size {h!r} (paths[{index}], grid point {k} of {N}, "
+                    f"true mode {int(plan.true[k])}, FDI mode {int(plan.fdi[k])}, 0-based)")
+            names: Sequence[str] = ()
+        else:
+            when = f"at t = {tl[k]!r} (paths[{index}], grid point {k} of {N})"
+            pre, post = self.session.read_groups(measured)
+            uw = [f"{name} = {v!r}" for name, v in zip(self.session.uw.names, np_uw.tolist())]
+            names = {"x": pre.names, "y": post.names, "uw": uw}[stage]
+        return self.session.call_error(exc, when, names)
+
+
+# ------------------------------------------------------------------------------------------
+# Convenience
+# ------------------------------------------------------------------------------------------
+
+
+def simulate_fmu(
+    system: FTCSystem,
+    controller: Controller,
+    paths: ChainPath | Sequence[ChainPath],
+    *,
+    step: float,
+    disturbance: str = "paper",
+    delta: DeltaSchedule | str | None = None,
+    x0: Any = None,
+    rng: np.random.Generator | None = None,
+    seed: int | None = None,
+) -> SimulationResult:
+    """Build the ``LinearJumpPlant`` FMU of ``system`` (:func:`ftc_verify.plants.build_fmu`,
+    compiled once and cached) and co-simulate ``paths`` under ``controller`` with a
+    :class:`Supervisor`; the arguments are those of :meth:`Supervisor.run`."""
+    from ..plants.linear_jump import build_fmu
+
+    if not isinstance(system, FTCSystem):
+        raise ValidationError(f"simulate_fmu: expected an FTCSystem, got {type(system).__name__}")
+    fmu = build_fmu(system)
+    with Supervisor(fmu, FaultInjectionMap.for_linear_jump_plant(system), system=system) as sup:
+        return sup.run(paths, controller, step=step, disturbance=disturbance, delta=delta, x0=x0, rng=rng, seed=seed)

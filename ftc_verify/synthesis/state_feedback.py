@@ -1,0 +1,459 @@
+r"""State-feedback synthesis with gains that use the FDI mode only (``u = K[l_t] x``).
+
+Methods (all return a :class:`SynthesisResult` verified by the core analysis,
+:func:`ftc_verify.analysis.analyze`, never by the synthesis LMI alone):
+
+``two-step``
+    The paper's Theorem 4.1. Step 1 solves the projected inequality of
+    :func:`ftc_verify.lmi.xy_block` (eq. (17) corrected: coupling written as
+    :math:`X(\sum_{s'} q_{ss'}P_{s'})X`, indicator cases as in READING-NOTES) in
+    :math:`X_{ij} > 0, \varepsilon_{ij}, \delta_{ij}` at both ends of every rate, with the
+    margin maximised so that step 2 has room. Step 2 fixes :math:`P_{ij} = X_{ij}^{-1}`,
+    :math:`\lambda = (\varepsilon^{-1}, \delta^{-1})` and solves eq. (18) -- Lemma 4.1's block
+    with the :math:`B_2 K_j` channel in Schur form -- for each :math:`K_j`, over all true
+    modes :math:`i` and rate ends; it decouples over ``j``. Step 1 is only necessary:
+    when step 2 fails, the FDI mode ``j`` that failed is reported and no gains are returned.
+``full-info``
+    The Markov-jump lower bound: gains :math:`K_{ij}` that may use the true mode, convex in
+    :math:`X_{ij}, Y_{ij} = K_{ij} X_{ij}` (the unprojected block). Gains files hold
+    ``m * m`` tables in the order ``s = (true - 1) * m + fdi``.
+``common``
+    One gain for every mode, from a common :math:`X` and :math:`Y = K X` (the coupling
+    cancels), i.e. quadratic stabilisation ignoring the FDI.
+``iterative`` (beyond the paper)
+    Alternating descent on the bilinear Lemma 4.1: a P-step (the core's certified robust
+    gamma with the gains fixed, which returns :math:`P, \lambda`) and a K-step (eq. (18)
+    with :math:`P, \lambda` fixed, minimising gamma per ``j``). Each iterate is certified;
+    the best certified gains are kept, so the result is never worse than the start.
+
+``full-info`` is a relaxation of every FDI-only design: the Lemma 4.1 certificate
+:math:`(P, \lambda, \gamma)` of FDI-mode gains gives a feasible point of the
+full-information LMI (:math:`X_{ij} = P_{ij}^{-1}`, :math:`Y_{ij} = K_j X_{ij}`,
+:math:`\varepsilon = \lambda_1^{-1}`, :math:`\delta = \lambda_2^{-1}`; checked with numpy by the
+property suite). No *numerical* lower bound is claimed from it: Clarabel reported
+``optimal`` at values 1.5x to 4x above certified FDI-only designs whenever the feasible
+set near the optimum needs badly conditioned ``X`` (measured cond 2.5e5), so only a
+dual certificate could make that bound sound.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..controllers.controller import Controller
+from ..analysis.analyze import AnalysisReport, analyze, json_ready
+from ..analysis.closedloop import gain_loop, state_feedback_loop
+from ..errors import ValidationError
+from ..analysis.lmi import block_specs, lyapunov_block, projection, xy_block
+from ..analysis.lmi_analysis import GAMMA_LADDER, hinf_gamma
+from ..model.system import FTCSystem, Matrix
+from ..analysis.solvers import SolveOutcome, choose_solver, solve
+
+__all__ = ["METHODS", "SynthesisResult", "synthesize", "two_step", "gain_step"]
+
+METHODS = ("two-step", "iterative", "full-info", "common")
+#: An (X, Y) problem counts as strictly feasible when its maximised margin exceeds this
+#: (a heuristic only: every result is certified by the core analysis afterwards).
+MARGIN_TOL = 1e-10
+#: Weight of the size penalty that keeps the capped-margin (X, Y) problems bounded.
+CENTRE_WEIGHT = 1e-6
+#: Relative width at which the gamma bisection of ``two-step --minimize`` stops.
+BISECTION_RTOL = 2e-3
+
+
+@dataclass(frozen=True, eq=False)
+class SynthesisResult:
+    """Gains from one method and their independent verification."""
+
+    method: str
+    feasible: bool
+    gains: tuple[Matrix, ...]
+    synthesis_gamma: float | None
+    solver: str
+    solve_seconds: float
+    wall_seconds: float
+    solver_calls: int
+    report: AnalysisReport | None
+    message: str
+    k_max: float | None = None
+    history: tuple[float, ...] = ()
+
+    @property
+    def controller(self) -> Controller | None:
+        """The gains as a :class:`~ftc_verify.controllers.Controller` (``None`` when none
+        were found); what every later stage consumes."""
+        return Controller.state_feedback(self.gains, name=self.method) if self.gains else None
+
+    @property
+    def certified(self) -> bool:
+        """Gains found, certified stable, and a robust gamma certified by the core."""
+        return self.feasible and self.report is not None and self.report.certified_stable and self.report.robust.certified
+
+    @property
+    def gamma_certified(self) -> float | None:
+        """Certified robust gamma of the closed loop (Lemma 4.1 with these gains)."""
+        return self.report.robust.gamma if self.certified and self.report else None
+
+    @property
+    def gamma_nominal_certified(self) -> float | None:
+        """Certified nominal gamma (Theorem 3.2) of the closed loop."""
+        if self.report is None or not self.report.nominal.certified:
+            return None
+        return self.report.nominal.gamma
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready result (the schema documented in the README)."""
+        rep = self.report
+        return json_ready({
+            "feasible": self.feasible,
+            "certified": self.certified,
+            "method": self.method,
+            "gamma_certified": self.gamma_certified,
+            "gamma_nominal_certified": self.gamma_nominal_certified,
+            "spectral_abscissa": None if rep is None else rep.mss.spectral_abscissa,
+            "synthesis_gamma": self.synthesis_gamma,
+            "gains": [K.tolist() for K in self.gains],
+            "max_gain_norm": max((float(np.linalg.norm(K, 2)) for K in self.gains), default=None),
+            "k_max": self.k_max,
+            "solver": self.solver,
+            "solve_seconds": self.solve_seconds,
+            "wall_seconds": self.wall_seconds,
+            "solver_calls": self.solver_calls,
+            "history": list(self.history),
+            "message": self.message,
+            "analysis": None if rep is None else rep.to_dict(),
+        })
+
+
+class _Calls:
+    """Solver calls made by one synthesis run (count and time)."""
+
+    def __init__(self, solver: str) -> None:
+        self.solver = solver
+        self.outcomes: list[SolveOutcome] = []
+        self.nested_calls = 0
+        self.nested_seconds = 0.0
+
+    def run(self, problem: Any) -> SolveOutcome:
+        out = solve(problem, self.solver)
+        self.outcomes.append(out)
+        return out
+
+    def absorb(self, other: "SynthesisResult") -> None:
+        """Count the calls of a nested synthesis (the seeds of ``iterative``)."""
+        self.nested_calls += other.solver_calls
+        self.nested_seconds += other.solve_seconds
+
+    @property
+    def count(self) -> int:
+        return len(self.outcomes) + self.nested_calls
+
+    @property
+    def seconds(self) -> float:
+        return sum(o.seconds for o in self.outcomes) + self.nested_seconds
+
+
+def _gain_bound(K: Any, k_max: float, mu: Any = 1.0) -> Any:
+    r"""``||K||_2 <= k_max * mu`` as the LMI :math:`[[\mu I, K^T/k], [K/k, \mu I]] \succeq 0`.
+
+    Dividing ``K`` by the bound (rather than writing ``k I`` on the diagonal) keeps the
+    problem scaled: a huge bound such as ``1e300`` becomes a vanishing coupling, i.e. no
+    bound, instead of a diagonal that swamps every other entry of the LMI.
+    """
+    nu, n = K.shape
+    import cvxpy as cp
+
+    return cp.bmat([[mu * np.eye(n), K.T / k_max], [K / k_max, mu * np.eye(nu)]]) >> 0
+
+
+def _xy_solve(system: FTCSystem, kind: str, gamma: float | None, calls: _Calls, k_max: float | None) -> dict[str, Any] | None:
+    """Solve the (X, Y) inequality of :func:`xy_block`.
+
+    ``kind``: ``"projected"`` (step 1 of Theorem 4.1, no ``Y``), ``"full-info"`` (one
+    ``X, Y`` per joint mode) or ``"common"`` (one ``X, Y``, no coupling). With ``gamma``
+    given the margin ``t`` is maximised at ``g = gamma**2``; with ``gamma=None`` gamma is
+    minimised first and the problem re-centred at ``gamma* (1 + 1e-3)``. Returns the
+    numbers, or ``None`` when the solver returned no point or no positive margin.
+    """
+    import cvxpy as cp
+
+    m, n, nu = system.m, system.dims[0], system.dims[1]
+    S = m * m
+    common = kind == "common"
+    Xv = [cp.Variable((n, n), symmetric=True)] * S if common else [cp.Variable((n, n), symmetric=True) for _ in range(S)]
+    Yv: list[Any] = [None] * S
+    if kind != "projected":
+        Yv = [cp.Variable((nu, n))] * S if common else [cp.Variable((nu, n)) for _ in range(S)]
+    eps = [cp.Variable(nonneg=True) for _ in range(S)]
+    dlt = [cp.Variable(nonneg=True) for _ in range(S)]
+    g = cp.Variable(nonneg=True)
+    t = cp.Variable()
+    g_par = cp.Parameter(nonneg=True)
+
+    def constraints(gval: Any, margin: Any) -> list[Any]:
+        cons = []
+        seen: set[int] = set()
+        probe = gain_loop(system, [np.zeros((nu, n))] * m, "probe")
+        for spec in block_specs(probe):
+            if common and spec.true in seen:
+                continue
+            seen.add(spec.true)
+            mode = system.modes[spec.true]
+            q_row = None if common else spec.q_row
+            M = xy_block(mode, Xv, spec.s, Yv[spec.s], eps[spec.s], dlt[spec.s], gval, q_row, cp.bmat)
+            if kind == "projected":
+                coupled = sum(1 for k, q in enumerate(spec.q_row) if k != spec.s and q > 0)
+                N = projection(mode, coupled)
+                if N.shape[1] == 0:
+                    continue
+                M = N.T @ M @ N
+            M = 0.5 * (M + M.T)
+            cons.append(M << -margin * np.eye(M.shape[0]))
+        for X in {id(x): x for x in Xv}.values():
+            cons.append(X >> margin * np.eye(n))
+        if k_max is not None and kind != "projected":
+            mu = cp.Variable(nonneg=True)
+            for X, Y in {id(x): (x, y) for x, y in zip(Xv, Yv)}.values():
+                cons += [X >> mu * np.eye(n), _gain_bound(Y, k_max, mu)]
+        return cons
+
+    if gamma is None:
+        out = calls.run(cp.Problem(cp.Minimize(g), constraints(g, 0.0)))
+        if not out.solved or g.value is None:
+            return None
+        value = math.sqrt(max(float(g.value), 0.0))
+        ladder = [value * (1.0 + rho) + 1e-7 for rho in GAMMA_LADDER]
+    else:
+        ladder = [gamma]
+    # The margin is capped (t <= 1) to keep the problem bounded; once the cap binds, the
+    # maximiser is not unique and an interior-point method drifts to huge X, eps, delta
+    # (measured: 1e5-4e6 at gamma = 10, after which step 2 failed). A small penalty on
+    # trace(X) and the multipliers selects a bounded point without changing which t is reachable.
+    # Only step 1 of two-step showed it; the baselines' re-centred margins on degenerate
+    # plants are ~1e-7, which the penalty would swamp, so they keep the plain objective.
+    objective: Any = t
+    if kind == "projected":
+        unique_x = list({id(x): x for x in Xv}.values())
+        size = sum(cp.trace(x) for x in unique_x) / (len(unique_x) * n) + (sum(eps) + sum(dlt)) / (2 * S)
+        objective = t - CENTRE_WEIGHT * size
+    centred = cp.Problem(cp.Maximize(objective), constraints(g_par, t) + [t <= 1.0])
+    for level in ladder:
+        g_par.value = level ** 2
+        out = calls.run(centred)
+        if out.solved and t.value is not None and float(t.value) > MARGIN_TOL:
+            break
+    else:
+        return None
+
+    def num(v: Any) -> float:
+        return math.nan if v.value is None else float(v.value)  # unused multipliers (common X)
+
+    return {
+        "X": [np.array(X.value) for X in Xv],
+        "Y": None if kind == "projected" else [np.array(Y.value) for Y in Yv],
+        "eps": [num(e) for e in eps],
+        "delta": [num(d) for d in dlt],
+        "gamma": level,
+        "margin": float(t.value),
+    }
+
+
+def gain_step(
+    system: FTCSystem,
+    P: list[Matrix],
+    lam: list[list[float]],
+    j: int,
+    calls: _Calls,
+    k_max: float | None,
+    gamma: float | None = None,
+) -> tuple[Matrix | None, float | None, str]:
+    """Eq. (18): with ``P_s`` and multipliers fixed, the gain ``K_j`` of FDI mode ``j``
+    over all true modes and rate ends; returns ``(K, gamma, status)``.
+
+    With ``gamma=None`` gamma is minimised; with ``gamma`` given, the gain of smallest
+    spectral norm achieving it is returned (a real actuator prefers small gains).
+    """
+    import cvxpy as cp
+
+    m, (n, nu, _, _) = system.m, system.dims
+    K = cp.Variable((nu, n))
+    g = cp.Variable(nonneg=True)
+    k = cp.Variable(nonneg=True)
+    gains: list[Any] = [np.zeros((nu, n))] * m
+    gains[j] = K
+    loop = gain_loop(system, gains, "gain step")
+    cons = []
+    for spec in block_specs(loop):
+        if spec.fdi == j:
+            M = lyapunov_block(loop, spec, P, lam[spec.s], g, cp.bmat, schur_F=True)
+            cons.append(0.5 * (M + M.T) << 0)
+    if k_max is not None:
+        cons.append(_gain_bound(K, k_max))
+    if gamma is None:
+        problem = cp.Problem(cp.Minimize(g), cons)
+    else:
+        problem = cp.Problem(cp.Minimize(k), cons + [g <= gamma ** 2, _gain_bound(K, 1.0, k)])
+    out = calls.run(problem)
+    if not out.solved or K.value is None or g.value is None:
+        return None, None, out.status
+    return np.array(K.value), math.sqrt(max(float(g.value), 0.0)), out.status
+
+
+def _multipliers(system: FTCSystem, eps: list[float], delta: list[float]) -> list[list[float]]:
+    """Channel multipliers per joint mode in the order of the closed loop's channels:
+    ``lambda = 1/eps`` for the A channel, ``1/delta`` for the B channel."""
+    lam = []
+    for s, (i, _) in enumerate(system.chain.joint_modes):
+        md, row = system.modes[i], []
+        if md.A1 is not None:
+            row.append(1.0 / max(eps[s], 1e-300))
+        if md.B1 is not None:
+            row.append(1.0 / max(delta[s], 1e-300))
+        lam.append(row)
+    return lam
+
+
+def two_step(system: FTCSystem, gamma: float, calls: _Calls, k_max: float | None) -> tuple[list[Matrix] | None, float | None, str]:
+    """Theorem 4.1 at a given gamma: ``(gains, synthesis gamma, message)``."""
+    step1 = _xy_solve(system, "projected", gamma, calls, None)
+    if step1 is None:
+        return None, None, f"step 1 (eq. 17) infeasible at gamma {gamma:.6g}"
+    P = [np.linalg.inv(0.5 * (X + X.T)) for X in step1["X"]]
+    P = [0.5 * (p + p.T) for p in P]
+    lam = _multipliers(system, step1["eps"], step1["delta"])
+    gains, worst = [], 0.0
+    for j in range(system.m):
+        K, gj, status = gain_step(system, P, lam, j, calls, k_max, gamma)
+        if K is None or gj is None or gj > gamma * (1 + 1e-6):
+            detail = f"solver status {status}" if K is None else f"best gamma {gj:.6g} > {gamma:.6g}"
+            return None, None, f"step 2 (eq. 18) failed for FDI mode {j + 1} at gamma {gamma:.6g} ({detail})"
+        gains.append(K)
+        worst = max(worst, gj)
+    return gains, worst, f"two-step succeeded at gamma {gamma:.6g} (step-1 margin {step1['margin']:.3g})"
+
+
+def _two_step_min(system: FTCSystem, calls: _Calls, k_max: float | None) -> tuple[list[Matrix] | None, float | None, str]:
+    """Smallest gamma at which two-step succeeds: bisection between the full-information
+    design level (a heuristic lower bracket: the full-information LMI relaxes every FDI-only
+    design) and a doubling upper bracket."""
+    low = _xy_solve(system, "full-info", None, calls, None)
+    lo = low["gamma"] / (1 + 1e-3) if low else 1e-3
+    hi, best = max(lo, 1e-3) * 1.5, None
+    for _ in range(12):
+        gains, gsyn, msg = two_step(system, hi, calls, k_max)
+        if gains is not None:
+            best = (gains, gsyn, hi)
+            break
+        lo, hi = hi, hi * 2.0
+    if best is None:
+        return None, None, f"two-step failed for every gamma up to {hi / 2:.6g}: {msg}"
+    while hi - lo > BISECTION_RTOL * hi:
+        mid = 0.5 * (lo + hi)
+        gains, gsyn, _ = two_step(system, mid, calls, k_max)
+        if gains is not None:
+            hi, best = mid, (gains, gsyn, mid)
+        else:
+            lo = mid
+    return best[0], best[1], f"smallest two-step gamma {best[2]:.6g} (bisection to {BISECTION_RTOL:g} relative)"
+
+
+def _verify(system: FTCSystem, gains: list[Matrix], solver: str) -> AnalysisReport:
+    loop = state_feedback_loop(system, gains)
+    return analyze(loop, solver=solver, name=system.name, cross_validation=False)
+
+
+def _iterate(system: FTCSystem, start: list[Matrix], calls: _Calls, k_max: float | None, solver: str,
+             max_iter: int, tol: float) -> tuple[list[Matrix], list[float], str]:
+    """P-step / K-step descent from certified ``start`` gains; returns the best certified
+    gains and the history of certified robust gammas (one per accepted iterate)."""
+    best = start
+    res = hinf_gamma(state_feedback_loop(system, best), robust=True, solver=solver)
+    calls.outcomes.extend(res.attempts)
+    if not res.certified or res.P is None:
+        return best, [], "start gains not certified; no descent"
+    history = [float(res.gamma)]  # type: ignore[arg-type]
+    reason = f"iteration limit {max_iter}"
+    for _ in range(max_iter):
+        lam = [list(r) for r in (res.multipliers or [()] * len(res.P))]
+        new = []
+        for j in range(system.m):
+            K, _, status = gain_step(system, list(res.P), lam, j, calls, k_max)
+            if K is None:
+                return best, history, f"K-step failed for FDI mode {j + 1} ({status})"
+            new.append(K)
+        cand = hinf_gamma(state_feedback_loop(system, new), robust=True, solver=solver)
+        calls.outcomes.extend(cand.attempts)
+        if not cand.certified or cand.gamma is None or cand.gamma >= history[-1] * (1 - tol):
+            reason = f"relative improvement below {tol:g}"
+            if cand.certified and cand.gamma is not None and cand.gamma < history[-1]:
+                best, res = new, cand
+                history.append(float(cand.gamma))
+            break
+        best, res = new, cand
+        history.append(float(cand.gamma))
+    return best, history, f"stopped: {reason}"
+
+
+def synthesize(
+    system: FTCSystem,
+    *,
+    method: str,
+    gamma: float | None = None,
+    k_max: float | None = None,
+    solver: str | None = None,
+    start: list[Matrix] | None = None,
+    max_iter: int = 10,
+    tol: float = 1e-3,
+) -> SynthesisResult:
+    """Synthesize gains by ``method`` (see module docstring) and verify them.
+
+    ``gamma=None`` minimises gamma (bisection for ``two-step``, gamma**2 as a variable
+    for ``full-info``/``common``); a given gamma asks for feasibility at that level.
+    ``iterative`` starts from ``start`` or else from the best certified of two-step
+    (minimised) and common.
+    """
+    if method not in METHODS:
+        raise ValidationError(f"method: unknown method {method!r}; choose from {list(METHODS)}")
+    for name, val in (("gamma", gamma), ("k_max", k_max)):
+        if val is not None and not (math.isfinite(val) and val > 0):
+            raise ValidationError(f"{name}: must be a positive finite number, got {val!r}")
+    t0 = time.perf_counter()
+    n = system.dims[0]
+    name = choose_solver(solver, system.m ** 2 * (n * (n + 1) // 2 + n * system.dims[1]) + 1)
+    calls = _Calls(name)
+    history: list[float] = []
+    if method == "two-step":
+        gains, gsyn, msg = two_step(system, gamma, calls, k_max) if gamma is not None else _two_step_min(system, calls, k_max)
+    elif method in ("full-info", "common"):
+        sol = _xy_solve(system, method, gamma, calls, k_max)
+        if sol is None:
+            gains, gsyn, msg = None, None, f"{method} LMI infeasible" + (f" at gamma {gamma:.6g}" if gamma else "")
+        else:
+            Ks = [Y @ np.linalg.inv(X) for X, Y in zip(sol["X"], sol["Y"])]
+            gains = Ks[:1] * system.m if method == "common" else Ks
+            gsyn, msg = sol["gamma"], f"{method} LMI solved at gamma {sol['gamma']:.6g}"
+    else:
+        seeds: list[tuple[float, list[Matrix]]] = []
+        if start is not None:
+            seeds.append((0.0, list(start)))
+        else:
+            for seed_method in ("two-step", "common"):
+                r = synthesize(system, method=seed_method, gamma=gamma, k_max=k_max, solver=name)
+                calls.absorb(r)
+                if r.certified and r.gamma_certified is not None:
+                    seeds.append((r.gamma_certified, list(r.gains)))
+        if not seeds:
+            gains, gsyn, msg = None, None, "no certified starting gains (two-step and common both failed)"
+        else:
+            gains, history, msg = _iterate(system, min(seeds, key=lambda s_: s_[0])[1], calls, k_max, name, max_iter, tol)
+            gsyn = history[-1] if history else None
+    report = _verify(system, gains, name) if gains is not None else None
+    return SynthesisResult(
+        method, gains is not None, tuple(gains or ()), gsyn, name, calls.seconds,
+        time.perf_counter() - t0, calls.count, report, msg, k_max, tuple(history),
+    )

@@ -1,0 +1,123 @@
+"""Hypothesis settings profiles for property tests of FTC designs: ``ci`` and ``thorough``.
+
+Nothing happens at import time: :func:`register_profiles` registers the profiles (it is
+idempotent, and cheap), :func:`profile` returns one as a :class:`hypothesis.settings`
+object usable as a decorator, and :func:`load_profile` makes one the session default.
+
+* ``ci``: derandomized (the same examples on every run), no example database, no
+  deadline (one LMI solve takes 0.1-0.4 s), 15 examples, the health checks ``too_slow``,
+  ``data_too_large`` and ``filter_too_much`` suppressed (the strategies reject draws
+  whose Riccati equations fail or whose loops miss a stability margin).
+* ``thorough``: the same with 200 randomized examples; use it to hunt for counterexamples.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+from hypothesis import HealthCheck, settings
+
+__all__ = ["PROFILES", "PROFILE_ENV", "register_profiles", "profile", "load_profile"]
+
+#: Name of each profile and the options that differ between them.
+PROFILES: dict[str, dict[str, Any]] = {
+    "ci": {"derandomize": True, "max_examples": 15},
+    "thorough": {"derandomize": False, "max_examples": 200},
+}
+
+#: Environment variable read by :func:`load_profile` when no name is given.
+PROFILE_ENV = "FTC_HYPOTHESIS_PROFILE"
+
+
+def _common() -> dict[str, Any]:
+    """Options shared by every profile."""
+    return {
+        "database": None,
+        "deadline": None,
+        "print_blob": True,
+        "suppress_health_check": (HealthCheck.too_slow, HealthCheck.data_too_large, HealthCheck.filter_too_much),
+    }
+
+
+def register_profiles() -> tuple[str, ...]:
+    """Register the ``ci`` and ``thorough`` profiles with hypothesis.
+
+    Registering again replaces them by identical profiles, so calling this from several
+    ``conftest.py`` files is harmless.
+
+    Returns
+    -------
+    tuple of str
+        The registered profile names.
+
+    Examples
+    --------
+    >>> from hypothesis import settings
+    >>> register_profiles()
+    ('ci', 'thorough')
+    >>> settings.get_profile("ci").max_examples
+    15
+    """
+    for name, options in PROFILES.items():
+        settings.register_profile(name, **_common(), **options)
+    return tuple(PROFILES)
+
+
+def profile(name: str = "ci", **overrides: Any) -> settings:
+    """The settings of profile ``name`` (registered first), with ``overrides`` on top.
+
+    Use it as a decorator of one test, without changing the session's default profile.
+
+    Parameters
+    ----------
+    name : str
+        ``"ci"``, ``"thorough"`` or a profile registered by the caller (hypothesis raises
+        ``InvalidArgument`` for an unknown name).
+    **overrides
+        Any :class:`hypothesis.settings` option, e.g. ``max_examples=5``.
+
+    Returns
+    -------
+    hypothesis.settings
+
+    Examples
+    --------
+    >>> from hypothesis import given, strategies as st
+    >>> @profile("ci", max_examples=3)
+    ... @given(st.integers())
+    ... def test_int(x):
+    ...     assert isinstance(x, int)
+    >>> test_int()
+    >>> profile("thorough").max_examples
+    200
+    """
+    register_profiles()
+    base = settings.get_profile(name)
+    return settings(base, **overrides) if overrides else base
+
+
+def load_profile(name: str | None = None) -> str:
+    """Register the profiles and load ``name`` as hypothesis's default.
+
+    Parameters
+    ----------
+    name : str, optional
+        A profile name; default ``$FTC_HYPOTHESIS_PROFILE``, else ``"ci"``.
+
+    Returns
+    -------
+    str
+        The loaded profile's name.
+
+    Examples
+    --------
+    In a ``conftest.py``::
+
+        from ftc_verify.testing import load_profile
+        load_profile()  # "ci" unless FTC_HYPOTHESIS_PROFILE says otherwise
+    """
+    chosen = name if name is not None else os.environ.get(PROFILE_ENV, "ci")
+    register_profiles()
+    settings.load_profile(chosen)
+    return chosen

@@ -1,0 +1,96 @@
+"""Figures of simulated paths (matplotlib, Agg canvas, no pyplot state).
+
+:func:`plot_path` draws the reference paper's Fig. 1 for one
+:class:`~ftc_verify.simulation.PathRecord`: (a) the system (true fault) modes, (b) the
+FDI modes, (c) the states and (d) the output with the disturbance, in four stacked
+panels sharing the time axis. Modes are shown 1-based, as in the paper.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from ..errors import ValidationError
+from ..simulation.records import PathRecord
+
+__all__ = ["plot_path"]
+
+
+def _mode_steps(t: np.ndarray, modes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Grid and 1-based modes for a post-step plot (the last interval's mode held to the end)."""
+    return t, np.append(modes, modes[-1]) + 1
+
+
+def plot_path(record: PathRecord, path: str | os.PathLike[str], *, title: str = "") -> None:
+    """Draw Fig. 1 of the paper for ``record`` and write it to ``path`` atomically.
+
+    Parameters
+    ----------
+    record : PathRecord
+        One simulated path (any backend).
+    path : str or path-like
+        Output file; the format follows the suffix (``.png`` if none). The figure is
+        saved to a temporary file in the same folder, then renamed over ``path``.
+    title : str
+        Figure title (optional).
+    """
+    if not isinstance(record, PathRecord):
+        raise ValidationError(f"record: expected a PathRecord, got {type(record).__name__}")
+    out = Path(path)
+    fmt = out.suffix[1:].lower() or "png"
+    fig = Figure(figsize=(8.0, 9.0), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(4, 1, sharex=True)
+    t = np.asarray(record.t, dtype=float)
+    m = int(max(np.max(record.true), np.max(record.fdi))) + 1
+    for ax, modes, label, tag in ((axes[0], record.true, "system mode $r_t$", "(a)"),
+                                  (axes[1], record.fdi, "FDI mode $l_t$", "(b)")):
+        tt, mm = _mode_steps(t, np.asarray(modes))
+        ax.step(tt, mm, where="post", color="tab:blue" if tag == "(a)" else "tab:orange")
+        ax.set_ylabel(label)
+        ax.set_yticks(range(1, max(m, 2) + 1))
+        ax.set_ylim(0.5, max(m, 2) + 0.5)
+        ax.set_title(f"{tag} {'system modes' if tag == '(a)' else 'FDI modes'}", loc="left", fontsize=10)
+    x = np.asarray(record.x)
+    for k in range(x.shape[1]):
+        axes[2].plot(t, x[:, k], label=f"$x_{{{k + 1}}}$")
+    axes[2].set_ylabel("state")
+    axes[2].set_title("(c) system state response", loc="left", fontsize=10)
+    axes[2].legend(loc="upper right", fontsize=8)
+    y = np.asarray(record.y)
+    w = np.asarray(record.w)
+    for k in range(y.shape[1]):
+        axes[3].plot(t, y[:, k], label=f"$y_{{{k + 1}}}$" if y.shape[1] > 1 else "$y$")
+    for k in range(w.shape[1]):
+        axes[3].plot(t, w[:, k], "--", label=f"$w_{{{k + 1}}}$" if w.shape[1] > 1 else "$w$")
+    axes[3].set_ylabel("output / disturbance")
+    axes[3].set_title(f"(d) output and disturbance ($\\|y\\|_2$ = {record.y_norm:.4g}, "
+                      f"$\\|w\\|_2$ = {record.w_norm:.4g})", loc="left", fontsize=10)
+    axes[3].legend(loc="upper right", fontsize=8)
+    axes[3].set_xlabel("t")
+    axes[3].set_xlim(t[0], t[-1])
+    for ax in axes:
+        ax.grid(True, alpha=0.3)
+    if title:
+        fig.suptitle(title)
+    folder = out.parent if str(out.parent) else Path(".")
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=f".{fmt}", dir=folder)
+    except OSError as exc:
+        raise ValidationError(f"path: cannot write {out}: {exc.strerror}") from None
+    try:
+        umask = os.umask(0)
+        os.umask(umask)
+        os.fchmod(fd, 0o666 & ~umask)
+        with os.fdopen(fd, "wb") as fh:
+            fig.savefig(fh, format=fmt)
+        os.replace(tmp, out)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise

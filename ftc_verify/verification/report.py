@@ -1,0 +1,175 @@
+"""Writing the main job's report: ``report.json``, ``report.md`` and PNG plots.
+
+The output folder holds exactly one run. Everything is first written into a staging
+folder *beside* it (``.NAME.staging-*`` in the same parent, never inside it), then the
+staging folder replaces the output folder whole: the old folder is renamed aside, the
+staging folder renamed into place, the old one removed. An interrupted run (SIGINT, or
+SIGTERM through the CLI) removes its staging folder and leaves the previous report
+untouched. :func:`check_out_dir` refuses, before any work, a folder that holds anything
+but a previous report, so that no user file is ever replaced.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ProblemFileError
+from .verify import VerifyReport
+
+__all__ = ["REPORT_FILES", "check_out_dir", "write_report", "render_markdown"]
+
+#: Every file a report may hold; a folder with anything else is not replaced.
+REPORT_FILES = frozenset({"report.json", "report.md", "fig1_path.png", "ratio_distribution.png", "worst_case.png"})
+
+
+def render_markdown(rep: VerifyReport) -> str:
+    """The readable summary, with the verdict line first."""
+    d = rep.to_dict()
+    lines = [
+        f"# ftc-verify report: {rep.system.name}",
+        "",
+        f"**Verdict: {d['verdict'].upper()}** -- certified robust gamma "
+        f"{'-' if d['gamma_certified'] is None else format(d['gamma_certified'], '.6g')}",
+        "",
+        "| check | result | detail |",
+        "|---|---|---|",
+    ]
+    lines += [f"| {c['name']} | {'pass' if c['ok'] else 'FAIL'} | {c['detail']} |" for c in d["checks"]]
+    lines += ["", "## Numbers", ""]
+    mc = d["mc"] or {}
+    rows = [
+        ("certified robust gamma (Lemma 4.1)", d["gamma_certified"]),
+        ("certified nominal gamma (Theorem 3.2)", d["gamma_nominal_certified"]),
+        ("spectral abscissa (worst beta vertex)", d["spectral_abscissa"]),
+        ("exact E||y||^2/||w||^2, worst case over beta vertices and Delta", d["exact_energy_ratio"]),
+        ("worst-case disturbance gain (lower bound)", d["worst_case_gain"]),
+        ("Monte Carlo mean ratio (FMU)", mc.get("mean_ratio")),
+        ("Monte Carlo one-sided upper bound (alpha 1e-6)", mc.get("upper_bound")),
+        ("Monte Carlo paths", mc.get("paths")),
+    ]
+    lines += ["| quantity | value |", "|---|---|"]
+    lines += [f"| {k} | {'-' if v is None else format(v, '.6g')} |" for k, v in rows]
+    ctrl = d["controller"] or {}
+    matrices = ctrl.get("gains", ctrl.get("entries"))
+    lines += ["", f"Controller: {ctrl.get('kind', 'none found')}: {matrices}", "",
+              f"Seed {d['seed']}; options {d['options']}; stage times (s) "
+              + ", ".join(f"{k} {v:.2f}" for k, v in d["seconds"].items()), "",
+              "Plots: `fig1_path.png` (one path: true modes, FDI modes, states, output and disturbance), "
+              "`ratio_distribution.png` (||y||_2/||w||_2 over paths against gamma), "
+              "`worst_case.png` (the worst-case disturbance)."]
+    return "\n".join(lines) + "\n"
+
+
+def _ratio_plot(rep: VerifyReport, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ratios = [r.y_norm / r.w_norm for r in rep.records if r.w_norm > 0]
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    ax.hist(ratios, bins=30, color="tab:blue", alpha=0.8)
+    if rep.gamma_certified is not None:
+        ax.axvline(rep.gamma_certified, color="tab:red", label=f"certified gamma {rep.gamma_certified:.4g}")
+    if rep.mc is not None:
+        ax.axvline(np.sqrt(rep.mc.mean_ratio), color="k", ls="--", label="sqrt(mean ratio)")
+    ax.set_xlabel("||y||_2 / ||w||_2 per path")
+    ax.set_ylabel("paths")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _worst_plot(rep: VerifyReport, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    assert rep.worst is not None
+    wc = rep.worst
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    for c in range(wc.w.shape[1]):
+        ax.step(wc.t, np.append(wc.w[:, c], wc.w[-1, c]), where="post", label=f"w[{c + 1}]")
+    ax.set_title(f"worst-case disturbance: gain {wc.gain:.4g} (certified {rep.gamma_certified:.4g})")
+    ax.set_xlabel("t")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def check_out_dir(out_dir: str | os.PathLike[str]) -> Path:
+    """Check before any work that ``out_dir`` can receive a report (module docstring)."""
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise ProblemFileError(f"--out {out}: exists and is not a folder")
+    if out.is_dir():
+        foreign = sorted(p.name for p in out.iterdir() if p.name not in REPORT_FILES)
+        if foreign:
+            raise ProblemFileError(
+                f"--out {out}: holds files that are not an ftc-verify report ({', '.join(foreign[:5])}); "
+                "choose a new or empty folder, or one that holds only a previous report"
+            )
+    parent = out.resolve().parent
+    if not parent.is_dir():
+        raise ProblemFileError(f"--out {out}: folder {parent} does not exist")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise ProblemFileError(f"--out {out}: folder {parent} is not writable")
+    return out
+
+
+def _swap_in(stage: Path, out: Path) -> None:
+    """Replace ``out`` (if any) by ``stage`` whole."""
+    old = None
+    if out.exists():
+        old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=out.parent))
+        os.replace(out, old / "previous")
+    try:
+        os.replace(stage, out)
+    except BaseException:
+        if old is not None:
+            os.replace(old / "previous", out)
+        raise
+    finally:
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+
+
+def write_report(rep: VerifyReport, out_dir: str | os.PathLike[str]) -> list[Path]:
+    """Write ``report.json``, ``report.md`` and the plots as the whole content of
+    ``out_dir``; return the paths."""
+    from .plots import plot_path
+
+    out = check_out_dir(out_dir)
+    try:
+        stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.staging-", dir=out.resolve().parent))
+    except OSError as exc:
+        raise ProblemFileError(f"{out}: cannot create a staging folder beside it: {exc.strerror}") from None
+    try:
+        (stage / "report.json").write_text(json.dumps(rep.to_dict(), indent=2, allow_nan=False) + "\n")
+        (stage / "report.md").write_text(render_markdown(rep))
+        if rep.records:
+            plot_path(rep.records[0], stage / "fig1_path.png", title=f"{rep.system.name}: one sample path")
+            _ratio_plot(rep, stage / "ratio_distribution.png")
+        if rep.worst is not None:
+            _worst_plot(rep, stage / "worst_case.png")
+        names = sorted(item.name for item in stage.iterdir())
+        stage.chmod(0o777 & ~_umask())
+        _swap_in(stage, out)
+        return [out / name for name in names]
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask

@@ -1,0 +1,289 @@
+"""The main job: synthesize, certify and check a controller three independent ways.
+
+:func:`run_verify` runs these stages on a system and a controller (given, or synthesized),
+all on the one closed loop :func:`~ftc_verify.analysis.closedloop.closed_loop` builds:
+
+1. **synthesis** (:func:`ftc_verify.synthesis.synthesize`) unless a controller is given,
+   then the core analysis: exact spectral test, certified Theorem 3.1 and robust gamma
+   (Lemma 4.1);
+2. **cross-validation** of every frozen joint mode with python-control;
+3. **exact expected energy** of the continuous-time loop for the paper's disturbance at
+   every ``beta`` vertex (up to :data:`MAX_EXACT_VERTICES`) and for ``Delta`` in
+   ``{0, +E, -E}`` (``E`` the rectangular identity, norm 1) when the plant is uncertain;
+4. **worst-case disturbance** on a horizon at the worst of those vertices (a lower bound
+   of the stochastic gain);
+5. **Monte Carlo co-simulation** of the FMU plant under Markov faults and delayed FDI
+   switching (sample-and-hold at ``step``), ``beta`` drawn per path from its box, a random
+   ``Delta`` per chain segment when uncertain; the mean ratio's one-sided upper bound
+   (:mod:`ftc_verify.montecarlo`) is compared with gamma^2;
+6. **backend agreement**: the first paths re-simulated by the numpy reference with the
+   same ``Delta`` draws must match the FMU (plant and controller states) to
+   :data:`AGREE_RTOL`.
+
+Each stage becomes a named check; the verdict is ``pass`` only if all pass. Every random
+draw comes from one :class:`numpy.random.Generator` whose seed is in the report.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..analysis.analyze import AnalysisReport, analyze, json_ready
+from ..analysis.closedloop import ClosedLoop, closed_loop
+from ..analysis.crossval import ModeCheck, cross_validate
+from ..controllers.controller import Controller
+from ..model.system import FTCSystem
+from ..simulation.delta import DeltaSchedule, constant_delta_loops
+from ..simulation.paths import ChainPath, sample_paths
+from ..simulation.records import PathRecord
+from ..synthesis.state_feedback import SynthesisResult, synthesize
+from .moments import WorstCase, exact_energy, worst_case_disturbance
+from .montecarlo import MCEstimate, estimate
+
+__all__ = ["Check", "VerifyReport", "run_verify", "AGREE_RTOL", "MAX_EXACT_VERTICES"]
+
+#: Relative agreement required between the FMU and the numpy reference on equal paths.
+AGREE_RTOL = 1e-8
+#: At most this many ``beta`` vertices get an exact energy (all of them for m <= 2..3).
+MAX_EXACT_VERTICES = 64
+#: Paths re-simulated by the reference backend for the agreement check.
+AGREE_PATHS = 5
+#: Paths handed to the supervisor at a time (the progress bar advances per batch).
+FMU_BATCH = 25
+
+
+@dataclass(frozen=True)
+class Check:
+    """One named check of the report."""
+
+    name: str
+    ok: bool
+    detail: str
+
+
+@dataclass(frozen=True, eq=False)
+class VerifyReport:
+    """Everything :func:`run_verify` computed (``controller`` is ``None`` only when
+    synthesis found none)."""
+
+    system: FTCSystem
+    controller: Controller | None
+    gamma_certified: float | None
+    analysis: AnalysisReport | None
+    synthesis: SynthesisResult | None
+    per_mode: tuple[ModeCheck, ...]
+    exact: tuple[dict[str, Any], ...]
+    worst: WorstCase | None
+    mc: MCEstimate | None
+    records: tuple[PathRecord, ...]
+    checks: tuple[Check, ...]
+    seed: int
+    options: dict[str, Any]
+    seconds: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def verdict(self) -> str:
+        """``"pass"`` when every check passed."""
+        return "pass" if self.checks and all(c.ok for c in self.checks) else "fail"
+
+    @property
+    def exact_energy_ratio(self) -> float | None:
+        """Largest exact ``E||y||^2 / ||w||^2`` over the vertices and Deltas evaluated."""
+        return max((e["ratio"] for e in self.exact), default=None)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The ``report.json`` content."""
+        an = self.analysis
+        ctrl = self.controller
+        return json_ready({
+            "verdict": self.verdict,
+            "system": self.system.name,
+            "gamma_certified": self.gamma_certified,
+            "gamma_nominal_certified": an.nominal.gamma if an is not None and an.nominal.certified else None,
+            "spectral_abscissa": None if an is None else an.mss.spectral_abscissa,
+            "exact_energy_ratio": self.exact_energy_ratio,
+            "exact": list(self.exact),
+            "mc": None if self.mc is None else self.mc.to_dict(),
+            "worst_case_gain": None if self.worst is None else self.worst.gain,
+            "worst_case": None if self.worst is None else {
+                "ratio": self.worst.ratio, "horizon": self.worst.horizon, "pieces": self.worst.pieces},
+            "checks": [{"name": c.name, "ok": c.ok, "detail": c.detail} for c in self.checks],
+            "controller": None if ctrl is None else ctrl.to_dict(),
+            "gains": [K.tolist() for K in ctrl.gains] if ctrl is not None and ctrl.is_state_feedback else None,
+            "synthesis": None if self.synthesis is None else {
+                k: v for k, v in self.synthesis.to_dict().items() if k != "analysis"},
+            "analysis": None if an is None else an.to_dict() | {"per_mode": [m.to_dict() for m in self.per_mode]},
+            "seed": self.seed,
+            "options": self.options,
+            "seconds": self.seconds,
+        })
+
+
+def _progress(total: int, enabled: bool) -> Any:
+    if not enabled:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc="Monte Carlo (FMU)", unit="path", file=sys.stderr, leave=False)
+
+
+def _certify(analysis: AnalysisReport, gamma: float | None) -> tuple[float | None, list[Check]]:
+    """The certified robust gamma (``None`` unless stable and certified) and its checks."""
+    ok = analysis.robust.certified and analysis.certified_stable
+    gamma_cert = analysis.robust.gamma if ok else None
+    checks = [Check("certified", gamma_cert is not None,
+                    f"robust gamma {gamma_cert:.6g} (Lemma 4.1), spectral abscissa {analysis.mss.spectral_abscissa:.4g}"
+                    if gamma_cert is not None else f"not certified: {analysis.robust.message}")]
+    if gamma is not None and gamma_cert is not None:
+        checks.append(Check("requested gamma", gamma_cert <= gamma, f"certified {gamma_cert:.6g} vs requested {gamma:.6g}"))
+    return gamma_cert, checks
+
+
+def _exact_energies(system: FTCSystem, loop: ClosedLoop, g2: float) -> tuple[list[dict[str, Any]], Check]:
+    """Exact expected energy at the ``beta`` vertices and the constant Deltas."""
+    exact = []
+    vertices = list(system.chain.vertices())[:MAX_EXACT_VERTICES]
+    for label, dl in constant_delta_loops(system, loop):
+        for b in vertices:
+            e = exact_energy(dl, beta=b)
+            exact.append({"delta": label, "beta": b.tolist(), "y_energy": e.y_energy, "w_energy": e.w_energy,
+                          "ratio": e.ratio})
+    worst = max(exact, key=lambda e: e["ratio"])
+    return exact, Check("exact energy", worst["ratio"] <= g2,
+                        f"max E||y||^2/||w||^2 = {worst['ratio']:.6g} ({worst['delta']}, beta {worst['beta']}) "
+                        f"vs gamma^2 = {g2:.6g}, {len(exact)} cases, infinite horizon")
+
+
+def _fmu_monte_carlo(system: FTCSystem, controller: Controller, chain_paths: list[ChainPath], delta: DeltaSchedule,
+                     delta_seed: int, step: float, progress: bool) -> list[PathRecord]:
+    """Every path co-simulated on the ``LinearJumpPlant`` FMU of ``system``."""
+    from ..plants.linear_jump import build_fmu
+    from ..simulation.supervisor import FaultInjectionMap, Supervisor
+
+    records: list[PathRecord] = []
+    bar = _progress(len(chain_paths), progress)
+    try:
+        with Supervisor(build_fmu(system), FaultInjectionMap.for_linear_jump_plant(system), system=system) as sup:
+            delta_rng = np.random.default_rng(delta_seed)
+            for start in range(0, len(chain_paths), FMU_BATCH):
+                batch = chain_paths[start:start + FMU_BATCH]
+                res = sup.run(batch, controller, step=step, disturbance="paper", delta=delta, rng=delta_rng)
+                records.extend(res.records)
+                if bar is not None:
+                    bar.update(len(batch))
+    finally:
+        if bar is not None:
+            bar.close()
+    return records
+
+
+def _backend_agreement(system: FTCSystem, controller: Controller, chain_paths: list[ChainPath],
+                       records: list[PathRecord], delta: DeltaSchedule, delta_seed: int, step: float) -> Check:
+    """The first paths again on the numpy reference, with the same Delta draws."""
+    from ..simulation.reference import simulate_reference
+
+    ref = simulate_reference(system, controller, chain_paths[:AGREE_PATHS], step=step, disturbance="paper",
+                             delta=delta, rng=np.random.default_rng(delta_seed))
+    worst = 0.0
+    for a, b in zip(records[:AGREE_PATHS], ref.records):
+        za, zb = np.hstack([a.x, a.xc]), np.hstack([b.x, b.xc])
+        worst = max(worst, float(np.max(np.abs(za - zb))) / max(1e-300, float(np.max(np.abs(zb)))))
+    return Check("FMU vs reference", worst <= AGREE_RTOL,
+                 f"max relative state difference (plant and controller) {worst:.3g} on "
+                 f"{min(AGREE_PATHS, len(records))} paths (tolerance {AGREE_RTOL:g})")
+
+
+def run_verify(
+    system: FTCSystem,
+    *,
+    gamma: float | None = None,
+    method: str = "iterative",
+    k_max: float | None = 30.0,
+    controller: Controller | None = None,
+    paths: int = 200,
+    step: float = 0.01,
+    horizon: float = 30.0,
+    seed: int | None = None,
+    solver: str | None = None,
+    progress: bool = False,
+) -> VerifyReport:
+    """Run every stage of the module docstring and collect the checks.
+
+    ``controller=None`` synthesizes state feedback by ``method``; a given controller
+    (static or dynamic, :class:`~ftc_verify.controllers.Controller`) is verified as is.
+    """
+    seconds: dict[str, float] = {}
+    if seed is None:
+        seed = int(np.random.SeedSequence().entropy % 2**63)
+    options = {"method": method if controller is None else "given controller", "gamma": gamma, "k_max": k_max,
+               "paths": paths, "step": step, "horizon": horizon, "solver": solver or "auto", "disturbance": "paper"}
+    checks: list[Check] = []
+
+    def stage(name: str, t0: float) -> None:
+        seconds[name] = time.perf_counter() - t0
+
+    t = time.perf_counter()
+    synthesis = None
+    if controller is None:
+        synthesis = synthesize(system, method=method, gamma=gamma, k_max=k_max, solver=solver)
+        checks.append(Check("synthesis", synthesis.feasible, synthesis.message))
+        controller = synthesis.controller
+    stage("synthesis", t)
+
+    def report(**found: Any) -> VerifyReport:
+        parts: dict[str, Any] = {"gamma_certified": None, "analysis": None, "per_mode": (), "exact": (),
+                                 "worst": None, "mc": None, "records": ()} | found
+        return VerifyReport(system, controller, synthesis=synthesis, checks=tuple(checks), seed=seed,
+                            options=options, seconds=seconds, **parts)
+
+    if controller is None:
+        return report()
+    loop = closed_loop(system, controller.check(system))
+    t = time.perf_counter()
+    analysis = synthesis.report if synthesis is not None and synthesis.report is not None else analyze(
+        loop, solver=solver, name=system.name, cross_validation=False)
+    gamma_cert, found = _certify(analysis, gamma)
+    checks.extend(found)
+    stage("analysis", t)
+    t = time.perf_counter()
+    per_mode = cross_validate(loop)
+    bad = [f"({m.true_mode},{m.fdi_mode}): {m.detail}" for m in per_mode if not m.agree]
+    checks.append(Check("python-control per mode", not bad, "all joint modes agree" if not bad else "; ".join(bad)))
+    stage("cross_validation", t)
+    if gamma_cert is None:
+        return report(analysis=analysis, per_mode=per_mode)
+    g2 = gamma_cert ** 2
+    t = time.perf_counter()
+    exact, check = _exact_energies(system, loop, g2)
+    checks.append(check)
+    stage("exact_energy", t)
+    t = time.perf_counter()
+    worst_beta = np.array(max(exact, key=lambda e: e["ratio"])["beta"])
+    worst = worst_case_disturbance(loop.nominal(), beta=worst_beta, horizon=min(horizon, 30.0), pieces=40)
+    checks.append(Check("worst-case disturbance", worst.gain <= gamma_cert,
+                        f"lower bound of the stochastic gain {worst.gain:.6g} <= certified {gamma_cert:.6g} "
+                        f"(gap {gamma_cert - worst.gain:.3g} = conservatism of the certificate)"))
+    stage("worst_case", t)
+    t = time.perf_counter()
+    rng = np.random.default_rng(seed)
+    chain_paths = sample_paths(system.chain, horizon, paths, rng)
+    delta = DeltaSchedule("random" if system.uncertain else "zero")
+    delta_seed = int(rng.integers(2**63))
+    records = _fmu_monte_carlo(system, controller, chain_paths, delta, delta_seed, step, progress)
+    y = np.array([r.y_norm ** 2 for r in records])
+    w = np.array([r.w_norm ** 2 for r in records])
+    mc = estimate(y, w, alpha=1e-6, gamma=gamma_cert, seed=seed)
+    checks.append(Check("Monte Carlo (FMU)", mc.upper_bound <= g2,
+                        f"mean ratio {mc.mean_ratio:.6g}, one-sided upper bound {mc.upper_bound:.6g} (alpha 1e-6, {paths} paths) "
+                        f"vs gamma^2 = {g2:.6g}; sample-and-hold at h = {step:g}, horizon {horizon:g}"))
+    stage("monte_carlo", t)
+    t = time.perf_counter()
+    checks.append(_backend_agreement(system, controller, chain_paths, records, delta, delta_seed, step))
+    stage("reference", t)
+    return report(gamma_certified=gamma_cert, analysis=analysis, per_mode=per_mode, exact=tuple(exact), worst=worst,
+                  mc=mc, records=tuple(records))
