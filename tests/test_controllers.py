@@ -28,13 +28,6 @@ PAPER_GAINS = ROOT / "examples" / "paper_gains.toml"
 GAMMA_RTOL = 2e-4
 
 
-def with_cy(system: FTCSystem, Cy: np.ndarray) -> FTCSystem:
-    """``system`` with the measured output ``Cy`` in every mode."""
-    modes = tuple(Mode(md.A, md.B, md.C, md.D, md.A1, md.A2, md.B1, md.B2, Cy=Cy, label=md.label)
-                  for md in system.modes)
-    return FTCSystem(system.name, modes, system.chain)
-
-
 def lifted(gains: tuple[np.ndarray, ...], a: float) -> Controller:
     """The dynamic controller ``Ac = -a I, Bc = 0, Cc = 0, Dc = K`` (reads ``y_m = I x``)."""
     nu, n = gains[0].shape
@@ -73,7 +66,7 @@ def test_lifted_loop_spectrum_is_the_union_of_the_parts(paper) -> None:
     (E[x x_c']) to the spectrum; the plant block is unchanged (exact, 1e-9)."""
     system, gains = paper
     static = state_feedback_loop(system, gains)
-    dynamic = closed_loop(with_cy(system, np.eye(2)), lifted(gains, 1.0))
+    dynamic = closed_loop(system.with_measured_output(np.eye(2)), lifted(gains, 1.0))
     assert dynamic.n == 4 and dynamic.n_plant == 2
     for beta in system.chain.vertices():
         expected = max(spectral_abscissa(static, beta), -2.0, first_moment_abscissa(static, beta) - 1.0)
@@ -90,7 +83,7 @@ def test_lifted_controller_equals_static_gains(paper, seed) -> None:
         gains = tuple(-md.B.T @ scipy.linalg.solve_continuous_are(md.A, md.B, np.eye(3), np.eye(2))
                       for md in system.modes)  # per-mode LQR: mean-square stable for these seeds
     static = state_feedback_loop(system, gains)
-    dynamic = closed_loop(with_cy(system, np.eye(system.dims[0])), lifted(gains, 20.0))
+    dynamic = closed_loop(system.with_measured_output(np.eye(system.dims[0])), lifted(gains, 20.0))
     a, b = mean_square_stability(static), mean_square_stability(dynamic)
     assert a.stable and b.spectral_abscissa == pytest.approx(a.spectral_abscissa, abs=1e-9)
     ra, rb = analyze(static, cross_validation=False), analyze(dynamic, cross_validation=False)
@@ -125,7 +118,7 @@ def test_observer_controller_loop_blocks(paper) -> None:
 
     system, gains = paper
     Cy = np.array([[1.0, 2.0]])
-    sys_m = with_cy(system, Cy)
+    sys_m = system.with_measured_output(Cy)
     Ls = [scipy.signal.place_poles(md.A.T, Cy.T, [-6.0, -8.0]).gain_matrix.T for md in system.modes]
     ctrl = Controller.dynamic([md.A + md.B @ K - L @ Cy for md, K, L in zip(system.modes, gains, Ls)], Ls,
                               list(gains), [np.zeros((2, 1))] * 2)
@@ -159,7 +152,7 @@ def test_controller_files_round_trip(tmp_path: Path, paper) -> None:
 
 def test_system_file_measured_output_round_trip(tmp_path: Path, paper) -> None:
     system, _ = paper
-    sys_m = with_cy(system, np.array([[1.0, 0.0], [0.5, 2.0]]))
+    sys_m = system.with_measured_output(np.array([[1.0, 0.0], [0.5, 2.0]]))
     path = tmp_path / "s.toml"
     path.write_text(dump_system(sys_m))
     back = load_system(path)

@@ -12,7 +12,6 @@ shape errors surface as ``ValidationError``.
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -49,12 +48,6 @@ def rel_running(a, b) -> float:
     err = np.max(np.abs(a - b).reshape(len(b), -1), axis=1, initial=0.0)
     scale = np.maximum.accumulate(np.max(np.abs(b).reshape(len(b), -1), axis=1, initial=0.0))
     return float(np.max(err / np.maximum(scale, 1e-300)))
-
-
-def with_cy(system: FTCSystem, Cy: np.ndarray) -> FTCSystem:
-    """The same plant with the measured output ``y_m = Cy x`` in every mode."""
-    return dataclasses.replace(system, modes=tuple(dataclasses.replace(md, Cy=np.asarray(Cy, dtype=float))
-                                                   for md in system.modes))
 
 
 def random_system(seed: int, *, n=3, nu=2, ny=2, nw=2, m=3) -> FTCSystem:
@@ -116,7 +109,7 @@ def inert_dynamic(system: FTCSystem, static: Controller, n_c: int = 2) -> tuple[
     K = static.gains
     dyn = Controller.dynamic([-np.eye(n_c)] * len(K), [np.zeros((n_c, n))] * len(K),
                              [np.zeros((nu, n_c))] * len(K), list(K))
-    return with_cy(system, np.eye(n)), dyn
+    return system.with_measured_output(np.eye(n)), dyn
 
 
 # ----------------------------------------------------------------------------- (a) equivalence
@@ -172,7 +165,7 @@ def observer(paper):
     largest real part is about 32), so the states grow during detection delays: the
     comparisons below are relative to the largest value, at 1e-9."""
     system, static = paper
-    sys_y = with_cy(system, CY)
+    sys_y = system.with_measured_output(CY)
     Ac, Bc, Cc, Dc = [], [], [], []
     for md, K in zip(system.modes, static.gains):
         L = scipy.signal.place_poles(md.A.T, CY.T, [-3.0, -4.0]).gain_matrix.T

@@ -47,14 +47,7 @@ from ftc_verify.simulation.records import l2_norm  # noqa: E402
 from ftc_verify.simulation.supervisor import FaultInjectionMap, Supervisor, simulate_fmu  # noqa: E402
 from ftc_verify.simulation.delta import DeltaSchedule, delta_segments  # noqa: E402
 
-try:
-    from ftc_verify.simulation.reference import simulate_reference
-except ImportError:  # written in parallel; the local reference below covers the meantime
-    simulate_reference = None
-try:
-    from ftc_verify.simulation.reference import energies_reference
-except ImportError:
-    energies_reference = None
+from ftc_verify.simulation.reference import energies_reference, simulate_reference  # noqa: E402
 
 RTOL = 1e-8
 
@@ -143,8 +136,6 @@ def assert_backends_agree(fmu_res, ref_res) -> None:
         assert a.y_norm == pytest.approx(b.y_norm, rel=RTOL)
 
 
-needs_reference = pytest.mark.skipif(simulate_reference is None,
-                                     reason="ftc_verify.simulation.reference is not there yet")
 
 
 # ------------------------------------------------------------------------------------------
@@ -246,7 +237,6 @@ def test_fmu_matches_the_local_reference(request, case: str, kind: str) -> None:
         assert any(not np.allclose(a.x, b.x, rtol=1e-6) for a, b in zip(res.records, nominal.records))
 
 
-@needs_reference
 @pytest.mark.parametrize("case, kind", CASES)
 def test_fmu_matches_simulate_reference(request, case: str, kind: str) -> None:
     system, controller, paths, res = fmu_run(request, case, kind)
@@ -254,11 +244,11 @@ def test_fmu_matches_simulate_reference(request, case: str, kind: str) -> None:
     ref = simulate_reference(system, controller, paths, step=0.01, disturbance="paper",
                              delta=delta_cases(system)[kind], x0=x0, seed=31)
     assert_backends_agree(res, ref)
-    if energies_reference is not None:  # the Monte-Carlo fast path: same energies
-        Ey, Ew = energies_reference(system, controller, paths, step=0.01, disturbance="paper",
-                                    delta=delta_cases(system)[kind], x0=x0, rng=np.random.default_rng(31))
-        assert np.allclose(Ey, [r.y_norm ** 2 for r in res.records], rtol=RTOL, atol=0)
-        assert np.allclose(Ew, [r.w_norm ** 2 for r in res.records], rtol=RTOL, atol=0)
+    # the Monte-Carlo fast path: same energies
+    Ey, Ew = energies_reference(system, controller, paths, step=0.01, disturbance="paper",
+                                delta=delta_cases(system)[kind], x0=x0, rng=np.random.default_rng(31))
+    assert np.allclose(Ey, [r.y_norm ** 2 for r in res.records], rtol=RTOL, atol=0)
+    assert np.allclose(Ew, [r.w_norm ** 2 for r in res.records], rtol=RTOL, atol=0)
 
 
 def test_rng_and_seed_give_the_same_delta_draws(random_case) -> None:
@@ -288,9 +278,8 @@ def test_fault_during_delay_variant_and_full_information_gains() -> None:
                                                   disturbance_kind="sine"))
         assert res.options["fault_during_delay"] is True
         assert res.options["gains"] == ("fdi" if controller.entries == 2 else "full-information")
-        if simulate_reference is not None:
-            assert_backends_agree(res, simulate_reference(system, controller, paths, step=0.02, disturbance="sine",
-                                                          delta="random", seed=9))
+        assert_backends_agree(res, simulate_reference(system, controller, paths, step=0.02, disturbance="sine",
+                                                      delta="random", seed=9))
 
 
 # ------------------------------------------------------------------------------------------
@@ -326,12 +315,8 @@ def small_problems(draw):
 def test_property_backends_agree_on_random_systems(problem) -> None:
     system, controller, paths, step, delta, dist, x0, seed = problem
     res = simulate_fmu(system, controller, paths, step=step, disturbance=dist, delta=delta, x0=x0, seed=seed)
-    if simulate_reference is not None:
-        ref = simulate_reference(system, controller, paths, step=step, disturbance=dist, delta=delta, x0=x0, seed=seed)
-        assert_backends_agree(res, ref)
-    else:
-        assert_matches_local(res, local_reference(system, controller, paths, step=step, disturbance_kind=dist,
-                                                  delta=delta, x0=x0, seed=seed))
+    ref = simulate_reference(system, controller, paths, step=step, disturbance=dist, delta=delta, x0=x0, seed=seed)
+    assert_backends_agree(res, ref)
 
 
 # ------------------------------------------------------------------------------------------
@@ -471,14 +456,6 @@ def test_user_map_on_a_renamed_fmu(paper_case, tmp_path: Path) -> None:
 # ------------------------------------------------------------------------------------------
 
 
-def with_cy(system: FTCSystem, Cy) -> FTCSystem:
-    """``system`` with the measured output ``y_m = Cy x`` in every mode."""
-    import dataclasses
-
-    modes = tuple(dataclasses.replace(md, Cy=np.asarray(Cy, dtype=float)) for md in system.modes)
-    return FTCSystem(system.name + "-cy", modes, system.chain)
-
-
 @pytest.fixture(scope="module")
 def paper_from_files():
     from ftc_verify.model.files import load_system
@@ -491,7 +468,7 @@ def test_dynamic_controller_with_trivial_state_equals_static_gains(paper_from_fi
     """``Ac = -I, Bc = 0, Cc = 0, Dc = K`` on ``y_m = I x`` is ``u = K x``: the same paths (1e-9)."""
     paper, static = paper_from_files
     assert static.is_state_feedback
-    system = with_cy(paper, np.eye(2))
+    system = paper.with_measured_output(np.eye(2))
     K = static.gains
     dynamic = Controller.dynamic([-np.eye(2)] * 2, [np.zeros((2, 2))] * 2, [np.zeros((2, 2))] * 2, list(K))
     paths = sample_paths(system.chain, 6.0, 4, np.random.default_rng(8))
@@ -537,7 +514,7 @@ def test_observer_based_controller_xc_recursion(paper_from_files) -> None:
     loop on that ``ym`` (1e-9), ``u = Cc x_c``; and the numpy reference agrees."""
     paper, static = paper_from_files
     Cy = np.array([[1.0, 2.0]])
-    system = with_cy(paper, Cy)
+    system = paper.with_measured_output(Cy)
     ctrl = observer_controller(system, static.gains, Cy)
     paths = sample_paths(system.chain, 5.0, 4, np.random.default_rng(21))
     assert any(p.fdi_switches for p in paths)
@@ -560,17 +537,16 @@ def test_observer_based_controller_xc_recursion(paper_from_files) -> None:
             E = scipy.linalg.expm(M * (rec.t[k + 1] - rec.t[k]))
             xc = E[:nc, :nc] @ xc + E[:nc, nc:] @ rec.ym[k]
         assert np.max(np.abs(rec.xc)) > 1e-3  # the observer state moves
-    if simulate_reference is not None:
-        ref = simulate_reference(system, ctrl, paths, step=0.01, delta="sign", x0=[0.5, -0.3], seed=3)
-        for a, b in zip(res.records, ref.records):
-            for name in ("x", "y", "u", "xc", "ym"):
-                assert rel_err(getattr(a, name), getattr(b, name)) <= 1e-9, name
+    ref = simulate_reference(system, ctrl, paths, step=0.01, delta="sign", x0=[0.5, -0.3], seed=3)
+    for a, b in zip(res.records, ref.records):
+        for name in ("x", "y", "u", "xc", "ym"):
+            assert rel_err(getattr(a, name), getattr(b, name)) <= 1e-9, name
 
 
 def test_output_feedback_needs_matching_measured_outputs(paper_case) -> None:
     system, controller, paths = paper_case
     Cy = np.array([[1.0, 2.0]])
-    ctrl = observer_controller(with_cy(system, Cy), controller.gains, Cy)
+    ctrl = observer_controller(system.with_measured_output(Cy), controller.gains, Cy)
     wide = Controller.dynamic(ctrl.Ac, [np.hstack([b, b]) for b in ctrl.Bc], ctrl.Cc,
                               [np.zeros((2, 2))] * 2)  # reads 2 measured outputs, the system has 1
     with Supervisor(build_fmu(system), system=system) as sup:

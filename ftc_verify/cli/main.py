@@ -258,21 +258,33 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
         plot_path(res.records[0], args.plot, title=f"{system.name}: path 1 ({args.backend}, seed {seed})")
     d = _strict(res.to_dict())
+    verdict = "fail (a path diverged)" if d["divergence"] else "done"
     if args.json:
-        print(json.dumps(d | {"verdict": "done"}, indent=2, allow_nan=False))
+        print(json.dumps(d | {"verdict": "fail" if d["divergence"] else "done"}, indent=2, allow_nan=False))
     else:
-        y, w = np.array(d["y_norm"]), np.array(d["w_norm"])
-        print(f"ftc-verify simulate: {system.name}, backend {res.backend}, {len(y)} paths, horizon {args.horizon:g}, "
-              f"step {args.step:g}, seed {seed}, disturbance {args.disturbance}, Delta {delta.kind}")
-        print(f"  ||w||_2 = {np.mean(w):.6g} (mean over paths)")
+        _print_simulation(d, res, system.name, args, delta.kind)
+        print(f"  verdict: {verdict}")
+    return EXIT_NEGATIVE if d["divergence"] else EXIT_OK
+
+
+def _print_simulation(d: dict[str, Any], res: Any, name: str, args: argparse.Namespace, delta: str) -> None:
+    """The text summary of ``simulate`` (norms over the paths that did not diverge)."""
+    import numpy as np
+
+    print(f"ftc-verify simulate: {name}, backend {res.backend}, {len(d['y_norm'])} paths, horizon {args.horizon:g}, "
+          f"step {args.step:g}, seed {res.seed}, disturbance {args.disturbance}, Delta {delta}")
+    ok = [k for k, y in enumerate(d["y_norm"]) if y is not None]
+    if d["divergence"]:
+        print(f"  DIVERGED: {d['divergence']}")
+    if ok:
+        y, w = np.array([d["y_norm"][k] for k in ok]), np.array([d["w_norm"][k] for k in ok])
+        print(f"  ||w||_2 = {np.mean(w):.6g} (mean over {len(ok)} paths)")
         print(f"  ||y||_2: mean {np.mean(y):.6g}, min {np.min(y):.6g}, max {np.max(y):.6g}")
         print(f"  ||y||_2/||w||_2: mean {np.mean(y / w):.6g}, max {np.max(y / w):.6g}")
-        sw = d["switches"]
-        print(f"  switches per path: fault {np.mean([s['fault'] for s in sw]):.3g}, FDI {np.mean([s['fdi'] for s in sw]):.3g} (mean)")
-        if args.plot:
-            print(f"  plot written to {args.plot}")
-        print("  verdict: done")
-    return EXIT_OK
+    sw = d["switches"]
+    print(f"  switches per path: fault {np.mean([s['fault'] for s in sw]):.3g}, FDI {np.mean([s['fdi'] for s in sw]):.3g} (mean)")
+    if args.plot:
+        print(f"  plot written to {args.plot}")
 
 
 def _cmd_verify(args: argparse.Namespace) -> int:

@@ -33,7 +33,7 @@ import numpy as np
 import tomli_w
 
 from ..errors import ProblemFileError, ValidationError
-from .system import FTCSystem, JointChain, Matrix, Mode, as_matrix
+from .system import FTCSystem, JointChain, Matrix, Mode
 
 __all__ = [
     "load_system",

@@ -67,6 +67,7 @@ from ._common import (
 from ._energy_maps import Tables, full_maps, loop_matrices, tables
 from .delta import DeltaSchedule, delta_segments, delta_shapes
 from .paths import ChainPath, disturbance as disturbance_fn
+from .records import DIVERGENCE_BOUND
 
 __all__ = ["energies_reference"]
 
@@ -101,6 +102,9 @@ def energies_reference(
     Returns
     -------
     (Ey, Ew) : two (P,) arrays
+        ``Ey`` is ``inf`` for a path that diverged: its energy is not finite or exceeds
+        ``DIVERGENCE_BOUND ** 2`` (the trajectory is not kept, so the test is on the energy,
+        not on the state norm as in ``simulate_reference``).
     """
     step = check_step(step)
     controller = check_controller(system, controller)
@@ -115,13 +119,15 @@ def energies_reference(
     P = len(plist)
     Ey = np.zeros(P)
     Ew = np.zeros(P)
-    for hz in np.unique(pa.horizon):
-        sel = np.flatnonzero(pa.horizon == hz)
-        if sel.size == P:
-            sub_pa, sub_seg_d = pa, seg_d
-        else:
-            sub_pa, sub_seg_d = pa.select(sel), seg_d[pa.segments(sel)]
-        Ey[sel], Ew[sel] = _same_horizon(system, tab, sub_pa, sub_seg_d, float(hz), step, wfun, z0)
+    with np.errstate(over="ignore", invalid="ignore"):  # a diverging path: caught below
+        for hz in np.unique(pa.horizon):
+            sel = np.flatnonzero(pa.horizon == hz)
+            if sel.size == P:
+                sub_pa, sub_seg_d = pa, seg_d
+            else:
+                sub_pa, sub_seg_d = pa.select(sel), seg_d[pa.segments(sel)]
+            Ey[sel], Ew[sel] = _same_horizon(system, tab, sub_pa, sub_seg_d, float(hz), step, wfun, z0)
+    Ey[~(Ey <= DIVERGENCE_BOUND ** 2)] = np.inf  # NaN or beyond the bound: diverged
     return Ey, Ew
 
 

@@ -8,10 +8,17 @@ zero columns for a static controller) and the measured output ``ym`` that the co
 read (``(N+1, n_v)``: ``x`` itself for state feedback). Norms over the horizon use the trapezoidal
 rule on the grid (error O(h^2) for smooth signals; the same rule on both backends, so
 they compare exactly).
+
+A path whose loop state leaves the ball :data:`DIVERGENCE_BOUND` (Euclidean norm of
+``(x, x_c)``, or a non-finite value) is stopped there on both backends: its record keeps
+the grid points before the crossing, ``diverged_at`` is the time of the crossing, and its
+norms are infinite (``null`` with a reason in JSON).
 """
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -19,7 +26,26 @@ import numpy as np
 
 from .paths import ChainPath
 
-__all__ = ["PathRecord", "SimulationResult", "l2_norm"]
+__all__ = ["DIVERGENCE_BOUND", "PathRecord", "SimulationResult", "l2_norm", "diverged", "divergence_note"]
+
+#: Norm of the loop state ``(x, x_c)`` beyond which a path counts as diverged and is stopped.
+DIVERGENCE_BOUND = 1e10
+
+
+def diverged(*states: np.ndarray) -> bool:
+    """True when the stacked states are not finite or their norm exceeds :data:`DIVERGENCE_BOUND`."""
+    sq = sum(float(np.dot(s, s)) for s in states)
+    return not sq <= DIVERGENCE_BOUND ** 2  # NaN compares False: diverged
+
+
+def divergence_note(records: "Sequence[PathRecord]") -> str | None:
+    """One line naming the diverged paths (1-based) and when, or None."""
+    bad = [(k, r.diverged_at) for k, r in enumerate(records, start=1) if r.diverged_at is not None]
+    if not bad:
+        return None
+    shown = ", ".join(f"path {k} at t = {t:.6g}" for k, t in bad[:5])
+    more = f" and {len(bad) - 5} more" if len(bad) > 5 else ""
+    return (f"{len(bad)} of {len(records)} paths diverged (|(x, x_c)| > {DIVERGENCE_BOUND:g}): {shown}{more}")
 
 
 def l2_norm(t: np.ndarray, signal: np.ndarray) -> float:
@@ -42,15 +68,21 @@ class PathRecord:
     y: np.ndarray
     xc: np.ndarray
     ym: np.ndarray
+    diverged_at: float | None = None
+
+    def truncated(self, k: int) -> "PathRecord":
+        """The record of a path that diverged at grid point ``k``: points ``0 .. k-1`` kept."""
+        return PathRecord(self.path, self.t[:k], self.true[:k - 1], self.fdi[:k - 1], self.x[:k], self.u[:k],
+                          self.w[:k], self.y[:k], self.xc[:k], self.ym[:k], diverged_at=float(self.t[k]))
 
     @property
     def y_norm(self) -> float:
-        """``||y||_2`` over the horizon."""
-        return l2_norm(self.t, self.y)
+        """``||y||_2`` over the horizon (infinite for a diverged path)."""
+        return math.inf if self.diverged_at is not None else l2_norm(self.t, self.y)
 
     @property
     def w_norm(self) -> float:
-        """``||w||_2`` over the horizon."""
+        """``||w||_2`` over the horizon (up to the divergence for a diverged path)."""
         return l2_norm(self.t, self.w)
 
     @property
@@ -83,6 +115,9 @@ class SimulationResult:
             "y_norm": [r.y_norm for r in self.records],
             "w_norm": [r.w_norm for r in self.records],
             "switches": [r.switches for r in self.records],
+            "diverged": [{"path": k, "t": r.diverged_at} for k, r in enumerate(self.records, start=1)
+                         if r.diverged_at is not None],
+            "divergence": divergence_note(self.records),
             "beta": [r.path.beta.tolist() for r in self.records],
             "options": self.options,
         }

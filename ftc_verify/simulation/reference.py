@@ -88,7 +88,7 @@ from .delta import DeltaSchedule, delta_segments
 from .discretise import phi_gamma, zoh_matrices
 from .energies import energies_reference
 from .paths import ChainPath, communication_grid, disturbance as disturbance_fn
-from .records import PathRecord, SimulationResult
+from .records import PathRecord, SimulationResult, diverged
 
 __all__ = [
     "simulate_reference",
@@ -146,6 +146,8 @@ def _simulate_path(system: FTCSystem, controller: Controller, path: ChainPath, s
     XC, V = np.empty((N + 1, nc)), np.empty((N + 1, nv))
     x, xc = x0.copy(), np.zeros(nc)
     for k in range(N):
+        if k and diverged(x, xc):
+            return PathRecord(path, t, true, fdi, X, U, W, Y, XC, V).truncated(k)
         i, j, g = int(true[k]), int(fdi[k]), int(seg[k])
         e = i * m + j if full_info else j
         v = x if reads_state else Ms[i] @ x
@@ -157,6 +159,8 @@ def _simulate_path(system: FTCSystem, controller: Controller, path: ChainPath, s
             Phic, Gamc = _controller_zoh(controller, e, h, bool(full[k]), cache)
             xc = Phic @ xc + Gamc @ v
         x = Phi @ x + GB @ u + GD @ W[k]
+    if diverged(x, xc):
+        return PathRecord(path, t, true, fdi, X, U, W, Y, XC, V).truncated(N)
     i, j = int(true[-1]), int(fdi[-1])
     e = i * m + j if full_info else j
     v = x if reads_state else Ms[i] @ x

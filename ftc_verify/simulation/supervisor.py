@@ -50,7 +50,7 @@ from .fault_map import FaultInjectionMap
 from .fmu_session import FMUSession, c_buffer
 from .paths import ChainPath, communication_grid
 from .paths import disturbance as disturbance_fn
-from .records import PathRecord, SimulationResult
+from .records import PathRecord, SimulationResult, diverged
 
 __all__ = ["FMUError", "FaultInjectionMap", "Supervisor", "simulate_fmu"]
 
@@ -372,7 +372,7 @@ class Supervisor:
         r, sg = true_l[0], seg_l[0]
         e = entry(r, fdi_l[0])
         K = Dc[e]
-        nxt, ev, k, stage = plan.events[0], 0, 0, ""
+        nxt, ev, k, stage, stop = plan.events[0], 0, 0, "", 0
         try:
             for k in range(N + 1):
                 if k == nxt:
@@ -391,6 +391,9 @@ class Supervisor:
                 stage = "x"
                 gr(c, vr_x, nx_read, buf_x)
                 XR[k] = np_xr
+                if k and diverged(np_xr[:n], xc):
+                    stop = k
+                    break
                 dot(K, np_v, out=np_u)
                 if nc:
                     np_u += dot(Cc[e], xc)
@@ -416,7 +419,8 @@ class Supervisor:
         finally:
             s.stats["steps"] += min(k, N)
         s.stats["paths"] += 1
-        return _record(plan, law, n, XR, U, Y, XC)
+        record = _record(plan, law, n, XR, U, Y, XC)
+        return record.truncated(stop) if stop else record
 
     def _loop_error(self, exc: Any, stage: str, index: int, plan: _Plan, k: int, measured: bool,
                     np_uw: np.ndarray) -> FMUError:

@@ -64,8 +64,8 @@ def register_profiles() -> tuple[str, ...]:
     return tuple(PROFILES)
 
 
-def profile(name: str = "ci", **overrides: Any) -> settings:
-    """The settings of profile ``name`` (registered first), with ``overrides`` on top.
+def profile(name: str = "ci", *, max_examples: int | None = None, derandomize: bool | None = None) -> settings:
+    """The settings of profile ``name`` (registered first), with the given options on top.
 
     Use it as a decorator of one test, without changing the session's default profile.
 
@@ -74,8 +74,12 @@ def profile(name: str = "ci", **overrides: Any) -> settings:
     name : str
         ``"ci"``, ``"thorough"`` or a profile registered by the caller (hypothesis raises
         ``InvalidArgument`` for an unknown name).
-    **overrides
-        Any :class:`hypothesis.settings` option, e.g. ``max_examples=5``.
+    max_examples : int, optional
+        Examples per property (default: the profile's).
+    derandomize : bool, optional
+        Draw the same examples on every run (default: the profile's).
+
+    For any other option, wrap the result: ``settings(profile("ci"), deadline=1000)``.
 
     Returns
     -------
@@ -94,7 +98,11 @@ def profile(name: str = "ci", **overrides: Any) -> settings:
     """
     register_profiles()
     base = settings.get_profile(name)
-    return settings(base, **overrides) if overrides else base
+    if max_examples is None and derandomize is None:
+        return base
+    return settings(base,
+                    max_examples=base.max_examples if max_examples is None else max_examples,
+                    derandomize=base.derandomize if derandomize is None else derandomize)
 
 
 def load_profile(name: str | None = None) -> str:

@@ -23,6 +23,7 @@ Every estimate records the seed of the generator that drew the paths.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -62,6 +63,7 @@ class MCEstimate:
     event_fraction: float | None
     event_interval: tuple[float, float] | None
     decided: str = "fixed"  # "fixed" (no sequential test), "pass", "fail", "undecided"
+    diverged: int = 0  # paths whose energy is infinite (the loop state left the divergence bound)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary."""
@@ -83,6 +85,9 @@ class MCEstimate:
                 "clopper_pearson": list(self.event_interval or ()),
             },
             "decided": self.decided,
+            "diverged": self.diverged,
+            "note": (f"{self.diverged} of {self.paths} paths diverged: the mean energy and its bounds are "
+                     "infinite (null)") if self.diverged else None,
         }
 
 
@@ -95,25 +100,32 @@ def estimate(
     seed: int | None = None,
 ) -> MCEstimate:
     """Summarise per-path energies (module docstring); bounds are one-sided at ``alpha``
-    each (the pair is a ``1 - 2 alpha`` two-sided interval)."""
+    each (the pair is a ``1 - 2 alpha`` two-sided interval). A path energy of ``inf`` (or NaN)
+    is a diverged path: the mean energy and both bounds are then ``inf``, ``diverged`` counts
+    such paths, and a sequential test decides ``fail``."""
     y = np.asarray(y_energy, dtype=float)
+    y = np.where(np.isnan(y), np.inf, y)
     w = np.asarray(w_energy, dtype=float)
     if y.ndim != 1 or y.shape != w.shape or y.size < 2:
         raise ValidationError(f"energies: need two equal 1-D arrays with >= 2 paths, got {y.shape} and {w.shape}")
     if not (0 < alpha < 0.5):
         raise ValidationError(f"alpha: must lie in (0, 0.5), got {alpha!r}")
-    if not (np.all(np.isfinite(y)) and np.all(np.isfinite(w))):
-        raise ValidationError("energies: non-finite path energy (diverging path?)")
+    if not np.all(np.isfinite(w)):
+        raise ValidationError("w_energy: non-finite disturbance energy")
     n = y.size
-    mean, std = float(np.mean(y)), float(np.std(y, ddof=1))
     wbar = float(np.mean(w))
     if wbar <= 0:
         raise ValidationError(f"w_energy: the disturbance has zero energy ({wbar!r}); the ratio is undefined")
-    half = float(scipy.stats.t.ppf(1 - alpha, n - 1)) * std / math.sqrt(n)
     frac = interval = None
     if gamma is not None:
-        hits = int(np.sum(y <= gamma ** 2 * w))
+        hits = int(np.sum(y <= gamma ** 2 * w))  # a diverged path (inf) is a miss
         frac, interval = hits / n, clopper_pearson(hits, n, 2 * alpha)
+    diverged = int(np.sum(~np.isfinite(y)))
+    if diverged:
+        inf = math.inf
+        return MCEstimate(n, seed, alpha, inf, inf, wbar, inf, inf, inf, gamma, frac, interval, diverged=diverged)
+    mean, std = float(np.mean(y)), float(np.std(y, ddof=1))
+    half = float(scipy.stats.t.ppf(1 - alpha, n - 1)) * std / math.sqrt(n)
     return MCEstimate(n, seed, alpha, mean, std, wbar, mean / wbar, (mean - half) / wbar, (mean + half) / wbar,
                       gamma, frac, interval)
 
@@ -149,8 +161,7 @@ def sequential_estimate(
 
 
 def _decided(est: MCEstimate, verdict: str, alpha: float) -> MCEstimate:
-    return MCEstimate(est.paths, est.seed, alpha, est.mean_energy, est.std_energy, est.w_energy, est.mean_ratio,
-                      est.lower_bound, est.upper_bound, est.gamma, est.event_fraction, est.event_interval, verdict)
+    return dataclasses.replace(est, alpha=alpha, decided=verdict)
 
 
 def monte_carlo(

@@ -12,6 +12,7 @@ but a previous report, so that no user file is ever replaced.
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import tempfile
@@ -72,12 +73,15 @@ def _ratio_plot(rep: VerifyReport, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    ratios = [r.y_norm / r.w_norm for r in rep.records if r.w_norm > 0]
+    ratios = [r.y_norm / r.w_norm for r in rep.records if r.w_norm > 0 and r.diverged_at is None]
+    diverged = sum(r.diverged_at is not None for r in rep.records)
     fig, ax = plt.subplots(figsize=(6, 3.5))
     ax.hist(ratios, bins=30, color="tab:blue", alpha=0.8)
+    if diverged:
+        ax.set_title(f"{diverged} of {len(rep.records)} paths diverged (not shown)")
     if rep.gamma_certified is not None:
         ax.axvline(rep.gamma_certified, color="tab:red", label=f"certified gamma {rep.gamma_certified:.4g}")
-    if rep.mc is not None:
+    if rep.mc is not None and math.isfinite(rep.mc.mean_ratio):
         ax.axvline(np.sqrt(rep.mc.mean_ratio), color="k", ls="--", label="sqrt(mean ratio)")
     ax.set_xlabel("||y||_2 / ||w||_2 per path")
     ax.set_ylabel("paths")

@@ -40,7 +40,7 @@ from ..controllers.controller import Controller
 from ..model.system import FTCSystem
 from ..simulation.delta import DeltaSchedule, constant_delta_loops
 from ..simulation.paths import ChainPath, sample_paths
-from ..simulation.records import PathRecord
+from ..simulation.records import PathRecord, divergence_note
 from ..synthesis.state_feedback import SynthesisResult, synthesize
 from .moments import WorstCase, exact_energy, worst_case_disturbance
 from .montecarlo import MCEstimate, estimate
@@ -190,7 +190,10 @@ def _backend_agreement(system: FTCSystem, controller: Controller, chain_paths: l
     ref = simulate_reference(system, controller, chain_paths[:AGREE_PATHS], step=step, disturbance="paper",
                              delta=delta, rng=np.random.default_rng(delta_seed))
     worst = 0.0
-    for a, b in zip(records[:AGREE_PATHS], ref.records):
+    for k, (a, b) in enumerate(zip(records[:AGREE_PATHS], ref.records), start=1):
+        if a.diverged_at != b.diverged_at:
+            return Check("FMU vs reference", False, f"path {k} diverged at t = {a.diverged_at} on the FMU and at "
+                                                    f"t = {b.diverged_at} on the reference")
         za, zb = np.hstack([a.x, a.xc]), np.hstack([b.x, b.xc])
         worst = max(worst, float(np.max(np.abs(za - zb))) / max(1e-300, float(np.max(np.abs(zb)))))
     return Check("FMU vs reference", worst <= AGREE_RTOL,
@@ -278,7 +281,7 @@ def run_verify(
     y = np.array([r.y_norm ** 2 for r in records])
     w = np.array([r.w_norm ** 2 for r in records])
     mc = estimate(y, w, alpha=1e-6, gamma=gamma_cert, seed=seed)
-    checks.append(Check("Monte Carlo (FMU)", mc.upper_bound <= g2,
+    checks.append(Check("Monte Carlo (FMU)", mc.upper_bound <= g2, divergence_note(records) or
                         f"mean ratio {mc.mean_ratio:.6g}, one-sided upper bound {mc.upper_bound:.6g} (alpha 1e-6, {paths} paths) "
                         f"vs gamma^2 = {g2:.6g}; sample-and-hold at h = {step:g}, horizon {horizon:g}"))
     stage("monte_carlo", t)
