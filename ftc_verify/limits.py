@@ -53,12 +53,14 @@ def memory_limit() -> int:
     return int(value)
 
 
-def check_memory(estimate: float, what: str) -> None:
-    """Raise :class:`MemoryLimitError` naming ``what``, the estimate and the limit when
-    ``estimate`` bytes exceed :func:`memory_limit`."""
+def check_memory(estimate: float, what: str, *, hint: str = "reduce the problem") -> None:
+    """Raise :class:`MemoryLimitError` naming ``what``, the estimate, the limit and ``hint``
+    when ``estimate`` bytes exceed :func:`memory_limit`."""
     limit = memory_limit()
     if estimate > limit:
+        source = "FTC_VERIFY_MEMORY_LIMIT" if os.environ.get("FTC_VERIFY_MEMORY_LIMIT", "").strip() \
+            else "80 % of available memory; set FTC_VERIFY_MEMORY_LIMIT to change it"
         raise MemoryLimitError(
-            f"{what} needs about {format_bytes(estimate)}, above the limit of {format_bytes(limit)} "
-            "(80 % of available memory, or FTC_VERIFY_MEMORY_LIMIT); reduce the problem"
+            f"{what}: about {format_bytes(estimate)} of memory needed, above the limit of "
+            f"{format_bytes(limit)} ({source}); {hint}"
         )

@@ -61,9 +61,26 @@ def test_sequential_decides_both_ways() -> None:
     assert tie.decided == "undecided" and tie.paths == 1000
 
 
+def test_diverged_paths_make_the_bounds_infinite() -> None:
+    """A path energy of inf (or NaN) is a diverged path: bounds infinite, counted, a miss
+    of the event, and strict JSON (null, with a note)."""
+    import json
+
+    from ftc_verify.analysis.analyze import json_ready
+
+    est = estimate(np.array([1.0, np.inf, np.nan, 2.0]), np.ones(4), gamma=2.0)
+    assert est.diverged == 2 and est.upper_bound == est.lower_bound == np.inf
+    assert est.event_fraction == 0.5
+    d = json.loads(json.dumps(json_ready(est.to_dict()), allow_nan=False))
+    assert d["upper_bound"] is None and d["diverged"] == 2 and "2 of 4 paths diverged" in d["note"]
+    assert estimate(np.ones(3), np.ones(3)).to_dict()["note"] is None
+    diverging = sequential_estimate(lambda k: (np.full(k, np.inf), np.ones(k)), gamma=1.0, batch=10, max_paths=100)
+    assert diverging.decided == "fail" and diverging.paths == 10
+
+
 def test_bad_inputs() -> None:
     with pytest.raises(ValidationError, match="non-finite"):
-        estimate(np.array([1.0, np.inf]), np.ones(2))
+        estimate(np.ones(2), np.array([1.0, np.inf]))
     with pytest.raises(ValidationError, match="alpha"):
         estimate(np.ones(3), np.ones(3), alpha=0.7)
     with pytest.raises(ValidationError, match="zero energy"):

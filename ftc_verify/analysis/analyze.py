@@ -22,7 +22,7 @@ from typing import Any
 
 from ..analysis.closedloop import ClosedLoop
 from ..analysis.crossval import ModeCheck, cross_validate
-from ..analysis.lmi_analysis import LMIResult, hinf_gamma, mes_lmi
+from .lmi_analysis import LMIResult, check_lmi_memory, hinf_gamma, mes_lmi
 from ..analysis.stability import MSSResult, mean_square_stability
 
 __all__ = ["AnalysisReport", "analyze", "json_ready"]
@@ -93,28 +93,43 @@ class AnalysisReport:
         })
 
 
-def analyze(loop: ClosedLoop, *, solver: str | None = None, name: str = "", cross_validation: bool = True) -> AnalysisReport:
+def analyze(loop: ClosedLoop, *, solver: str | None = None, name: str = "", cross_validation: bool = True,
+            lmi: bool = True) -> AnalysisReport:
     """Run every analysis of the module docstring on ``loop``.
 
     ``solver`` is ``None``/``"auto"`` (by size), ``"clarabel"``, ``"sdpa"`` or ``"scs"``.
     Without uncertainty channels the robust gamma is the nominal one (Lemma 4.1
     reduces to Theorem 3.2) and is not solved twice. ``cross_validation=False`` skips
     stage 4 (synthesis loops, where python-control's start-up cost would dominate).
+    ``lmi=False`` runs only the exact spectral test and the cross-check (large loops);
+    otherwise the LMI stage's memory is checked first, before any work
+    (:func:`~ftc_verify.analysis.lmi_analysis.check_lmi_memory`).
     """
+    if lmi:
+        check_lmi_memory(loop)
     seconds: dict[str, float] = {}
     t = time.perf_counter()
     mss = mean_square_stability(loop)
     seconds["spectral"] = time.perf_counter() - t
-    t = time.perf_counter()
-    mes = mes_lmi(loop, solver=solver)
-    seconds["theorem_3_1"] = time.perf_counter() - t
-    t = time.perf_counter()
-    nominal = hinf_gamma(loop, robust=False, solver=solver)
-    seconds["theorem_3_2"] = time.perf_counter() - t
-    t = time.perf_counter()
-    robust = hinf_gamma(loop, robust=True, solver=solver) if loop.uncertain else nominal
-    seconds["lemma_4_1"] = time.perf_counter() - t
+    if lmi:
+        t = time.perf_counter()
+        mes = mes_lmi(loop, solver=solver)
+        seconds["theorem_3_1"] = time.perf_counter() - t
+        t = time.perf_counter()
+        nominal = hinf_gamma(loop, robust=False, solver=solver)
+        seconds["theorem_3_2"] = time.perf_counter() - t
+        t = time.perf_counter()
+        robust = hinf_gamma(loop, robust=True, solver=solver) if loop.uncertain else nominal
+        seconds["lemma_4_1"] = time.perf_counter() - t
+    else:
+        mes, nominal, robust = (_not_requested(c) for c in ("Theorem 3.1", "Theorem 3.2", "Lemma 4.1"))
     t = time.perf_counter()
     per_mode = cross_validate(loop) if cross_validation else ()
     seconds["cross_validation"] = time.perf_counter() - t
     return AnalysisReport(name, loop.controller, mss, mes, nominal, robust, per_mode, seconds)
+
+
+def _not_requested(condition: str) -> LMIResult:
+    """The placeholder of an LMI analysis that was not run (``lmi=False``)."""
+    return LMIResult(condition, "not requested", None, "", "", 0.0, 0.0, None,
+                     message="LMIs not requested (exact spectral test only)")

@@ -49,7 +49,7 @@ from .lmi import Certificate, block_specs, check_certificate, lyapunov_block
 from .solvers import SETTINGS, SolveOutcome, choose_solver, second_solver, solve
 
 __all__ = ["GAMMA_LADDER", "LMIResult", "mes_lmi", "hinf_gamma", "decision_size", "balancing_scale",
-           "lmi_memory_estimate", "LMI_BYTES_PER_NONZERO"]
+           "lmi_memory_estimate", "check_lmi_memory", "LMI_BYTES_PER_NONZERO"]
 
 #: Peak memory per estimated nonzero of the LMI data, cvxpy compile plus Clarabel solve
 #: (measured: n = 30, m = 2 took +580 MB for 3.9e5 estimated nonzeros; n = 20, m = 3
@@ -137,7 +137,14 @@ def lmi_memory_estimate(loop: ClosedLoop, *, robust: bool) -> float:
 
 def _check_size(loop: ClosedLoop, robust: bool, condition: str) -> None:
     check_memory(lmi_memory_estimate(loop, robust=robust),
-                 f"the {condition} LMIs of a loop with n = {loop.n} and {len(loop.A)} joint modes")
+                 f"the {condition} LMIs of a loop with n = {loop.n} and {len(loop.A)} joint modes",
+                 hint="reduce the problem, or run the exact spectral test alone (analyze --no-lmi)")
+
+
+def check_lmi_memory(loop: ClosedLoop) -> None:
+    """Raise :class:`~ftc_verify.errors.MemoryLimitError` before any work when the largest
+    LMI problem of :func:`~ftc_verify.analysis.analyze.analyze` would not fit in memory."""
+    _check_size(loop, loop.uncertain, "Lemma 4.1" if loop.uncertain else "Theorem 3.2")
 
 
 def decision_size(loop: ClosedLoop, *, robust: bool) -> int:

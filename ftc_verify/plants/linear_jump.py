@@ -181,7 +181,9 @@ def build_binary(force: bool = False, *, sources: Path | None = None) -> Path:
 
     The file is named ``LinearJumpPlant-<hash>.so`` where the hash covers the C sources,
     the FMI headers, the compiler flags and the compiler's version; an existing file with
-    that name is reused unless ``force``. Compilation writes a temporary file and renames
+    that name is reused unless ``force``, and only while its SHA-256 matches the one
+    recorded beside it at compile time (``<binary>.sha256``): a corrupted or truncated
+    cached binary is compiled again instead of being loaded. Compilation writes a temporary file and renames
     it, so concurrent builds are safe. ``sources`` overrides the sources folder (default
     :func:`source_dir`). Raises :class:`FMUError` when gcc is missing or fails (the
     message carries gcc's command line and stderr).
@@ -204,8 +206,8 @@ def build_binary(force: bool = False, *, sources: Path | None = None) -> Path:
     h.update(" ".join(flags).encode() + b"\0")
     h.update(_compiler_identity(gcc).encode())
     target = cache_dir() / f"{MODEL_IDENTIFIER}-{h.hexdigest()[:20]}{suffix}"
-    if target.is_file() and not force:
-        return target
+    if target.is_file() and not force and _recorded_hash(target) == _file_hash(target):
+        return target  # a missing record or a changed file (corrupted cache): rebuilt below
 
     fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
     os.close(fd)
@@ -228,10 +230,37 @@ def build_binary(force: bool = False, *, sources: Path | None = None) -> Path:
                 f"{proc.returncode})\ncommand: {' '.join(cmd)}\n{proc.stderr.strip()}"
             )
         os.chmod(tmp, 0o755)
+        _record_hash(target, _file_hash(tmp))
         os.replace(tmp, target)
     finally:
         tmp.unlink(missing_ok=True)
     return target
+
+
+def _file_hash(path: Path) -> str:
+    """SHA-256 of a file's bytes (hex)."""
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _hash_file(binary: Path) -> Path:
+    """Where the SHA-256 of a cached binary is recorded: ``<binary>.sha256`` beside it."""
+    return binary.with_name(binary.name + ".sha256")
+
+
+def _recorded_hash(binary: Path) -> str | None:
+    try:
+        return _hash_file(binary).read_text(encoding="ascii").strip()
+    except (OSError, UnicodeDecodeError):
+        return None
+
+
+def _record_hash(binary: Path, digest: str) -> None:
+    """Write ``<binary>.sha256`` atomically (temporary file, then rename)."""
+    record = _hash_file(binary)
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{record.name}.", suffix=".tmp", dir=record.parent)
+    with os.fdopen(fd, "w", encoding="ascii") as fh:
+        fh.write(digest + "\n")
+    os.replace(tmp_name, record)
 
 
 # ------------------------------------------------------------------------------------------

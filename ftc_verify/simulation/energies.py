@@ -102,9 +102,9 @@ def energies_reference(
     Returns
     -------
     (Ey, Ew) : two (P,) arrays
-        ``Ey`` is ``inf`` for a path that diverged: its energy is not finite or exceeds
-        ``DIVERGENCE_BOUND ** 2`` (the trajectory is not kept, so the test is on the energy,
-        not on the state norm as in ``simulate_reference``).
+        ``Ey`` is ``inf`` for a path that diverged: the loop state ``(x, x_c)`` left the
+        ball of radius ``DIVERGENCE_BOUND`` (or was not finite) at a grid point, the test
+        ``simulate_reference`` stops a path on.
     """
     step = check_step(step)
     controller = check_controller(system, controller)
@@ -127,7 +127,6 @@ def energies_reference(
             else:
                 sub_pa, sub_seg_d = pa.select(sel), seg_d[pa.segments(sel)]
             Ey[sel], Ew[sel] = _same_horizon(system, tab, sub_pa, sub_seg_d, float(hz), step, wfun, z0)
-    Ey[~(Ey <= DIVERGENCE_BOUND ** 2)] = np.inf  # NaN or beyond the bound: diverged
     return Ey, Ew
 
 
@@ -173,7 +172,9 @@ def _same_horizon(system: FTCSystem, tab: Tables, pa: PathArrays, seg_d: np.ndar
     pc = eg.pieces(jmp, it, wfun, Ew)
     pt = eg.points(jmp, it, pc, grid, wfun, Ew)
     stepper = _Stepper(tab, pa, seg_d, grid, jmp, it, pc, pt, step, z0)
-    return stepper.run(), Ew
+    Ey = stepper.run()
+    Ey[~(stepper.zmax <= DIVERGENCE_BOUND ** 2)] = np.inf  # diverged (or NaN): records would stop there
+    return Ey, Ew
 
 
 @dataclass(frozen=True)
@@ -219,6 +220,7 @@ class _Stepper:
         self.Ba[self.nw:self.nw + nz] = z0[:, None]
         self.Bb = np.empty_like(self.Ba)
         self.Ey = np.zeros(P)
+        self.zmax = np.zeros(P)  # largest |z|^2 at the regular points (divergence test)
         self.dtab = np.empty((self.L + 1, P), dtype=np.int64)
         self.idx = np.empty((self.L, self.rows, P), dtype=np.int64) if self.select else None
         self.it_x = np.empty((it.key.size, nz))  # z at the start point of each special interval
@@ -310,11 +312,13 @@ class _Stepper:
             Yflat = Y.reshape(-1)
         spt_p, sp_bounds, spt_x = self.pt.p, self.sp_bounds, self.spt_x
         it_p, it_bounds, it_x = self.it.p, self.it_bounds, self.it_x
-        ysq = np.empty(self.P)
+        ysq, zsq, zmax = np.empty(self.P), np.empty(self.P), self.zmax
         Ba, Bb = self.Ba, self.Bb
         for k in range(c0, c1):
             kk = k - c0
             X = Ba[nw:nw + nz]
+            np.einsum("ip,ip->p", X, X, out=zsq)
+            np.maximum(zmax, zsq, out=zmax)  # a NaN propagates: diverged
             Ba[:nw] = Wreg[k][:, None]
             if select:
                 np.matmul(Faug, Ba[:nw + nz], out=Y)
@@ -355,6 +359,7 @@ class _Stepper:
             a = np.flatnonzero(cnt > r)
             si = pc.off[i0 + a] + r  # the piece starting at the point
             xi[a] = np.einsum("pij,pj->pi", Fs[si - 1 - s0], xi[a]) + gs[si - 1 - s0]
+            np.maximum.at(self.zmax, self.it.p[i0 + a], np.einsum("pi,pi->p", xi[a], xi[a]))  # jump points
             qi = np.square(np.einsum("pij,pj->pi", Cz[d_true[pc.d[si]]], xi[a])).sum(axis=1)
             self.Ey += np.bincount(self.it.p[i0 + a], pc.wt[si] * qi, minlength=self.P)
 
@@ -362,6 +367,7 @@ class _Stepper:
         """``Ey`` terms of the last point ``t_N = horizon`` and of the special points."""
         Cz, d_true, pt, b = self.tab.Cz, self.tab.d_true, self.pt, self.sp_bounds
         X = self.Ba[self.nw:self.nw + self.nz]
+        np.maximum(self.zmax, np.einsum("ip,ip->p", X, X), out=self.zmax)
         qK = np.square(np.einsum("pij,jp->pi", Cz[d_true[self.dtab[npts - 1]]], X)).sum(axis=1)
         b0, b1 = b[self.K], b[self.K + 1]
         if b1 > b0:

@@ -123,6 +123,8 @@ def check_out_dir(out_dir: str | os.PathLike[str]) -> Path:
                 "choose a new or empty folder, or one that holds only a previous report"
             )
     parent = out.resolve().parent
+    if parent.exists() and not parent.is_dir():
+        raise ProblemFileError(f"--out {out}: {parent} is a file, not a folder")
     if not parent.is_dir():
         raise ProblemFileError(f"--out {out}: folder {parent} does not exist")
     if not os.access(parent, os.W_OK | os.X_OK):

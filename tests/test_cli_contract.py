@@ -1,0 +1,233 @@
+"""The command line's contract (README "Exit codes and what they promise").
+
+Each command is run as a user runs it (a subprocess, ``python -m ftc_verify``) on a
+catalogue of bad inputs and of hard outcomes, and the test asserts the exit code, one
+message naming the field or file and the value, no traceback, strict JSON, and that
+nothing is left behind (no output file, no staging folder, no extracted FMU).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PAPER = str(ROOT / "examples" / "paper.toml")
+GAINS = str(ROOT / "examples" / "paper_gains.toml")
+PAPER_TEXT = Path(PAPER).read_text(encoding="utf-8")
+FIRST_A = "A  = [[1.0, 0.0], [0.0, 0.8]]"
+
+
+def run_cli(args: list[str], cwd: Path, env: dict[str, str] | None = None,
+            timeout: float = 300) -> subprocess.CompletedProcess[str]:
+    full_env = os.environ | {"TMPDIR": str(cwd / ".tmp")} | (env or {})
+    (cwd / ".tmp").mkdir(exist_ok=True)
+    return subprocess.run([sys.executable, "-m", "ftc_verify", *args], capture_output=True, text=True,
+                          timeout=timeout, cwd=cwd, env=full_env)
+
+
+def strict_json(text: str) -> Any:
+    """Parse JSON refusing NaN and Infinity (which Python's json would accept)."""
+    def refuse(name: str) -> None:
+        raise AssertionError(f"non-standard JSON constant {name}")
+    return json.loads(text, parse_constant=refuse)
+
+
+def files_under(folder: Path) -> set[str]:
+    return {str(p.relative_to(folder)) for p in folder.rglob("*")}
+
+
+def write_inputs(folder: Path) -> None:
+    """The bad input files of the catalogue."""
+    (folder / "malformed.toml").write_text('name = "bad"\n[[chain\n')
+    (folder / "nan.toml").write_text(PAPER_TEXT.replace(FIRST_A, "A  = [[nan, 0.0], [0.0, 0.8]]", 1))
+    (folder / "nongen.toml").write_text(PAPER_TEXT.replace("[[-0.5, 0.5]", "[[-0.5, 0.7]", 1))
+    (folder / "bigint.toml").write_text(PAPER_TEXT.replace(FIRST_A, f"A  = [[1{'0' * 400}, 0.0], [0.0, 0.8]]", 1))
+    (folder / "huge.toml").write_text(PAPER_TEXT.replace(FIRST_A, "A  = [[1e200, 0.0], [0.0, 0.8]]", 1))
+    head, tail = PAPER_TEXT.rsplit("[[mode]]", 1)
+    tail = tail.replace("A1 = [[0.1, 0.0], [0.0, 0.1]]", "A1 = [[0.1], [0.1]]", 1)
+    (folder / "delta.toml").write_text(head + "[[mode]]" + tail.replace("A2 = [[0.1, 0.0], [0.0, 0.1]]",
+                                                                        "A2 = [[0.1, 0.1]]", 1))
+    (folder / "mixed.toml").write_text("[[gain]]\nK = [[1.0, 2.0], [3.0, 4.0]]\n[[controller]]\nAc = [[-1.0]]\n"
+                                       "Bc = [[1.0, 0.0]]\nCc = [[1.0], [0.0]]\nDc = [[0.0, 0.0], [0.0, 0.0]]\n")
+    (folder / "shape.toml").write_text("[[gain]]\nK = [[1.0, 2.0, 3.0], [3.0, 4.0, 5.0]]\n"
+                                       "[[gain]]\nK = [[1.0, 2.0], [3.0, 4.0]]\n")
+    (folder / "adir").mkdir()
+    (folder / "afile").write_text("")
+    (folder / ".tmp").mkdir()
+
+
+#: (id, arguments, environment, substrings the one error line must contain)
+BAD_INPUT = [
+    ("malformed TOML", ["analyze", "malformed.toml", "--gains", GAINS], {}, ["malformed.toml", "line 2"]),
+    ("NaN entry", ["analyze", "nan.toml", "--gains", GAINS], {}, ["nan.toml", "mode[1].A", "nan"]),
+    ("non-generator", ["analyze", "nongen.toml", "--gains", GAINS], {}, ["nongen.toml", "chain.alpha", "0.7"]),
+    ("400-digit integer", ["analyze", "bigint.toml", "--gains", GAINS], {}, ["bigint.toml", "mode[1].A", "308"]),
+    ("entry 1e200", ["verify", "huge.toml", "--gains", GAINS, "--paths", "5", "--out", "out"], {},
+     ["huge.toml", "mode[1].A", "1e+200"]),
+    ("Delta shapes differ", ["verify", "delta.toml", "--gains", GAINS, "--paths", "5", "--out", "out"], {},
+     ["delta.toml", "mode 2", "Delta1"]),
+    ("mixed controller tables", ["analyze", PAPER, "--controller", "mixed.toml"], {},
+     ["mixed.toml", "[[gain]]", "[[controller]]"]),
+    ("controller shapes", ["analyze", PAPER, "--controller", "shape.toml"], {}, ["shape.toml", "gain[2].K", "2 x 2"]),
+    ("missing file", ["analyze", "nowhere.toml", "--gains", GAINS], {}, ["nowhere.toml", "no such file"]),
+    ("synthesize -o DIR", ["synthesize", PAPER, "--gamma", "0.8", "--method", "two-step", "-o", "adir"], {},
+     ["--output adir", "folder"]),
+    ("simulate --plot DIR", ["simulate", PAPER, "--gains", GAINS, "--plot", "adir"], {}, ["--plot adir", "folder"]),
+    ("simulate --plot x.xyz", ["simulate", PAPER, "--gains", GAINS, "--plot", "x.xyz"], {}, ["--plot x.xyz", ".xyz"]),
+    ("horizon 1e-9", ["simulate", PAPER, "--gains", GAINS, "--horizon", "1e-9"], {}, ["--horizon 1e-09"]),
+    ("step over horizon", ["verify", PAPER, "--gains", GAINS, "--step", "2", "--horizon", "1", "--out", "out"], {},
+     ["--horizon 1", "--step 2"]),
+    ("--paths 1", ["verify", PAPER, "--gains", GAINS, "--paths", "1", "--out", "out"], {}, ["--paths 1"]),
+    ("--out under a file", ["verify", PAPER, "--gains", GAINS, "--paths", "5", "--out", "afile/sub"], {},
+     ["--out afile/sub", "not a folder"]),
+    ("negative seed", ["simulate", PAPER, "--gains", GAINS, "--seed", "-1"], {}, ["--seed", "-1"]),
+    ("bad memory limit", ["analyze", PAPER, "--gains", GAINS], {"FTC_VERIFY_MEMORY_LIMIT": "abc"},
+     ["FTC_VERIFY_MEMORY_LIMIT", "abc"]),
+    ("LMIs above the memory limit", ["analyze", PAPER, "--gains", GAINS], {"FTC_VERIFY_MEMORY_LIMIT": "1M"},
+     ["Lemma 4.1", "MB", "1 MB", "--no-lmi"]),
+    ("records above the memory limit",
+     ["simulate", PAPER, "--gains", GAINS, "--paths", "100000", "--horizon", "1000", "--step", "0.001"], {},
+     ["100000 recorded paths", "TB", "--paths"]),
+]
+
+
+@pytest.mark.parametrize("case, args, env, needles", BAD_INPUT, ids=[c[0] for c in BAD_INPUT])
+def test_bad_input_exit_2_one_message_nothing_left(tmp_path: Path, case: str, args: list[str],
+                                                   env: dict[str, str], needles: list[str]) -> None:
+    write_inputs(tmp_path)
+    before = files_under(tmp_path)
+    t0 = time.perf_counter()
+    proc = run_cli(args, tmp_path, env)
+    assert proc.returncode == 2, (case, proc.returncode, proc.stderr)
+    assert proc.stdout == ""
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr
+    for needle in needles:
+        assert needle in lines[0], (needle, lines[0])
+    assert files_under(tmp_path) == before  # no output, no staging folder, no extracted FMU
+    assert time.perf_counter() - t0 < 60  # refused up front, not after the run
+
+
+def test_divergence_is_a_result_on_both_backends(tmp_path: Path) -> None:
+    """A loop sampled too slowly (h = 10) diverges: exit 1 with strict JSON naming the paths
+    and times, the same on both backends; ``verify`` writes a ``fail`` report saying so."""
+    found = {}
+    for backend in ("reference", "fmu"):
+        proc = run_cli(["simulate", PAPER, "--gains", GAINS, "--step", "10", "--horizon", "1000", "--paths", "3",
+                        "--backend", backend, "--seed", "1", "--json"], tmp_path)
+        assert proc.returncode == 1, proc.stderr
+        d = strict_json(proc.stdout)
+        assert d["verdict"] == "fail" and d["y_norm"] == [None, None, None]
+        assert [p["path"] for p in d["diverged"]] == [1, 2, 3] and "diverged" in d["divergence"]
+        found[backend] = [p["t"] for p in d["diverged"]]
+    assert found["reference"] == found["fmu"]
+    proc = run_cli(["verify", PAPER, "--gains", GAINS, "--step", "10", "--horizon", "1000", "--paths", "5",
+                    "--seed", "3", "--out", "rep"], tmp_path)
+    assert proc.returncode == 1 and "verdict: fail" in proc.stdout, proc.stderr
+    report = strict_json((tmp_path / "rep" / "report.json").read_text())
+    assert report["verdict"] == "fail" and report["mc"]["diverged"] == 5 and report["mc"]["upper_bound"] is None
+    assert "5 of 5 paths diverged" in (tmp_path / "rep" / "report.md").read_text()
+
+
+def test_stale_files_are_replaced_by_the_new_run(tmp_path: Path) -> None:
+    """A failing run into the folder of a passing one leaves only its own files."""
+    out = tmp_path / "rep"
+    ok = run_cli(["verify", PAPER, "--gains", GAINS, "--paths", "20", "--horizon", "3", "--seed", "1",
+                  "--out", "rep"], tmp_path)
+    assert ok.returncode == 0, ok.stdout + ok.stderr
+    assert (out / "worst_case.png").is_file()
+    unstable = tmp_path / "unstable.toml"
+    unstable.write_text("[[gain]]\nK = [[0.0, 0.0], [0.0, 0.0]]\n[[gain]]\nK = [[0.0, 0.0], [0.0, 0.0]]\n")
+    bad = run_cli(["verify", PAPER, "--gains", str(unstable), "--paths", "5", "--horizon", "3", "--out", "rep"],
+                  tmp_path)
+    assert bad.returncode == 1, bad.stderr
+    assert strict_json((out / "report.json").read_text())["verdict"] == "fail"
+    assert not (out / "worst_case.png").exists()  # the earlier run's plot is gone
+    assert files_under(tmp_path) - files_under(out.parent) == set()
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".") and p.name != ".tmp") == []
+
+
+def test_sigterm_cleans_up_like_ctrl_c(tmp_path: Path) -> None:
+    """SIGTERM in the FMU Monte Carlo stage: exit 143, one line, no staging folder beside
+    ``--out``, no ``--out``, no extracted FMU left in the temporary folder."""
+    (tmp_path / ".tmp").mkdir()
+    env = os.environ | {"TMPDIR": str(tmp_path / ".tmp")}
+    proc = subprocess.Popen([sys.executable, "-m", "ftc_verify", "verify", PAPER, "--gains", GAINS,
+                             "--paths", "3000", "--horizon", "30", "--out", "rep"],
+                            cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not any((tmp_path / ".tmp").glob("ftc-verify-fmu-*")) and time.monotonic() < deadline:
+        assert proc.poll() is None, proc.communicate()
+        time.sleep(0.05)
+    assert any((tmp_path / ".tmp").glob("ftc-verify-fmu-*")), "the FMU was never extracted"
+    time.sleep(0.5)
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143, (out, err)
+    assert err.strip() == "ftc-verify: terminated" and "Traceback" not in err
+    assert list((tmp_path / ".tmp").iterdir()) == []
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".tmp"]
+
+
+def test_closed_pipe_exit_141_without_traceback(tmp_path: Path) -> None:
+    """``analyze --json | head -1``: the reader leaves; exit 141, no traceback."""
+    proc = subprocess.Popen([sys.executable, "-m", "ftc_verify", "analyze", PAPER, "--gains", GAINS, "--json"],
+                            cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert proc.stdout is not None and proc.stderr is not None
+    proc.stdout.close()  # before the answer is printed (analysis takes about a second)
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=120) == 141
+    assert "Traceback" not in err and "pipe closed" in err
+
+
+def test_corrupted_cached_binary_is_rebuilt(tmp_path: Path) -> None:
+    """A truncated cached FMU binary is detected by its recorded hash and compiled again."""
+    env = {"FTC_VERIFY_CACHE": str(tmp_path / "cache")}
+    first = run_cli(["build-fmus"], tmp_path, env)
+    assert first.returncode == 0, first.stderr
+    binaries = [p for p in (tmp_path / "cache").rglob("LinearJumpPlant-*") if not p.name.endswith(".sha256")]
+    assert len(binaries) == 1
+    data = binaries[0].read_bytes()
+    binaries[0].write_bytes(data[: len(data) // 3])
+    proc = run_cli(["simulate", PAPER, "--gains", GAINS, "--paths", "2", "--horizon", "1", "--backend", "fmu",
+                    "--json"], tmp_path, env)
+    assert proc.returncode == 0, proc.stderr
+    assert strict_json(proc.stdout)["verdict"] == "done"
+    assert binaries[0].read_bytes() == data  # compiled again, identical
+
+
+def test_stable_without_certificate_exits_3(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """Exit 3 = stable by the exact spectral test, no LMI certificate found (never 1). The
+    LMI stage is replaced by one that finds nothing, in process."""
+    import dataclasses
+    import importlib
+
+    from ftc_verify.cli.main import main
+
+    analysis = importlib.import_module("ftc_verify.analysis.analyze")  # the module, not the function
+
+    real = analysis.mes_lmi
+
+    def nothing_found(loop: Any, *, solver: str | None = None) -> Any:
+        return dataclasses.replace(real(loop, solver=solver), outcome="infeasible", certificate=None)
+
+    monkeypatch.setattr(analysis, "mes_lmi", nothing_found)
+    assert main(["analyze", PAPER, "--gains", GAINS]) == 3
+    out = capsys.readouterr().out
+    assert "stable by the exact spectral test, but NO LMI certificate found" in out
+
+
+def test_no_lmi_answers_from_the_exact_test(tmp_path: Path) -> None:
+    proc = run_cli(["analyze", PAPER, "--gains", GAINS, "--no-lmi", "--json"], tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    d = strict_json(proc.stdout)
+    assert d["lmi_requested"] is False and d["mss"]["stable"] is True and d["mes_lmi"]["outcome"] == "not requested"
