@@ -27,7 +27,7 @@ agree to rounding. The supervisor only follows the sampled paths, so the chain v
 ``JointChain(..., fault_during_delay=True)`` needs nothing special.
 
 The FMU itself -- checks, extraction, variables, FMI calls and their errors, logging,
-cleanup -- is an :class:`~ftc_verify.simulation.fmu_session.FMUSession` owned by the
+cleanup -- is an :class:`~ftc_verify.plants.fmu_session.FMUSession` owned by the
 supervisor, loaded and instantiated once; paths reuse the instance through ``fmi2Reset``.
 """
 
@@ -46,8 +46,8 @@ from ..controllers.controller import Controller
 from ..errors import FMUError, ValidationError
 from ..model.system import FTCSystem
 from .delta import DeltaSchedule, delta_segments, delta_shapes
-from .fault_map import FaultInjectionMap
-from .fmu_session import FMUSession, c_buffer
+from ..plants.fault_map import FaultInjectionMap
+from ..plants.fmu_session import FMUSession, c_buffer
 from .paths import ChainPath, communication_grid
 from .paths import disturbance as disturbance_fn
 from .records import PathRecord, SimulationResult, diverged
@@ -131,7 +131,7 @@ class Supervisor:
         ``instanceName`` passed to ``fmi2Instantiate``.
 
     The archive is checked, extracted and loaded, and one instance is created, when the
-    supervisor is constructed (:class:`~ftc_verify.simulation.fmu_session.FMUSession`);
+    supervisor is constructed (:class:`~ftc_verify.plants.fmu_session.FMUSession`);
     :meth:`run` reuses it for every path (``fmi2Reset``). :attr:`stats` counts library
     loads, instantiations, resets, paths and steps.
     """

@@ -7,9 +7,9 @@ This module implements :class:`FMUSession`, the FMU side of the co-simulation su
   extraction folder: absolute names, ``..``, drive letters and backslashes are refused),
   the model description must be FMI 2.0 with a co-simulation interface and a binary for
   this platform;
-* every variable of the :class:`~ftc_verify.simulation.fault_map.FaultInjectionMap` must
+* every variable of the :class:`~ftc_verify.plants.fault_map.FaultInjectionMap` must
   exist with a usable type and causality
-  (:func:`~ftc_verify.simulation.fault_map.resolve_variables`);
+  (:func:`~ftc_verify.plants.fault_map.resolve_variables`);
 * the FMU is extracted into a :class:`tempfile.TemporaryDirectory` owned by the session
   (removed on :meth:`FMUSession.close`), loaded once and instantiated once; paths reuse
   the instance through ``fmi2Reset`` (:meth:`FMUSession.start_path`);
@@ -101,7 +101,7 @@ class FMUSession:
     fmu
         Path of the ``.fmu`` archive.
     mapping
-        The :class:`~ftc_verify.simulation.fault_map.FaultInjectionMap` whose variables
+        The :class:`~ftc_verify.plants.fault_map.FaultInjectionMap` whose variables
         are resolved (and checked) when the session opens.
     instance_name
         ``instanceName`` passed to ``fmi2Instantiate``.

@@ -8,7 +8,7 @@ are recorded, the measured outputs ``y_m`` an output-feedback controller reads, 
 initial-state parameters. :meth:`FaultInjectionMap.for_linear_jump_plant` gives the map of
 the project's ``LinearJumpPlant`` FMU; any other FMU works by naming its variables. The
 names are checked against ``modelDescription.xml`` by :func:`resolve_variables` when the FMU
-is opened (:class:`ftc_verify.simulation.fmu_session.FMUSession`).
+is opened (:class:`ftc_verify.plants.fmu_session.FMUSession`).
 """
 
 from __future__ import annotations
@@ -185,7 +185,7 @@ class FaultInjectionMap:
         Integer ``mode`` (1-based), ``u[k]``, ``w[k]``, ``x[k]``, ``y[k]``, the measured
         outputs ``ym[k]``, ``x0[k]`` and the ``Delta1[i,j]``, ``Delta2[i,j]`` inputs its
         uncertainty channels imply."""
-        from ..plants.system_text import fmu_dims
+        from .system_text import fmu_dims
 
         d = fmu_dims(system)
         return cls(
