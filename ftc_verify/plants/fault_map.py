@@ -24,7 +24,7 @@ import numpy as np
 from ..errors import FMUError, ValidationError
 from ..model.system import FTCSystem
 
-__all__ = ["FAULT_TYPES", "FaultInjectionMap", "ROLES", "ResolvedVariables", "resolve_variables"]
+__all__ = ["FAULT_TYPES", "FaultInjectionMap", "OperatingPoint", "ROLES", "ResolvedVariables", "resolve_variables"]
 
 #: FMI types a fault variable may have.
 FAULT_TYPES = ("Real", "Integer", "Boolean", "Enumeration")
@@ -95,6 +95,32 @@ def _fault_values(vals: Any, fault: tuple[str, ...]) -> tuple[tuple[float | int 
 
 
 @dataclass(frozen=True)
+class OperatingPoint:
+    """The operating point the loop runs around (absolute FMU values).
+
+    The supervisor works in deviation variables: the controller sees ``x - states`` and
+    ``y_m - y_m,op``, its output is added to ``inputs``, the disturbance shape is added to
+    ``disturbances``; records hold deviations (``y - y_op`` for the performance output).
+    ``y_op``, ``y_m,op`` are read from the FMU at this point in the first fault mode when a
+    path set starts (:meth:`ftc_verify.plants.fmu_session.FMUSession.probe_outputs`).
+    """
+
+    inputs: np.ndarray
+    states: np.ndarray
+    disturbances: np.ndarray
+
+    def __post_init__(self) -> None:
+        for name in ("inputs", "states", "disturbances"):
+            arr = np.asarray(getattr(self, name), dtype=float).reshape(-1)
+            if not np.all(np.isfinite(arr)):
+                raise ValidationError(f"OperatingPoint.{name}: expected finite numbers, got {arr.tolist()}")
+            object.__setattr__(self, name, arr)
+
+    def is_zero(self) -> bool:
+        return not (self.inputs.any() or self.states.any() or self.disturbances.any())
+
+
+@dataclass(frozen=True)
 class FaultInjectionMap:
     """Which FMU variables carry what (declarative; names as in ``modelDescription.xml``).
 
@@ -129,6 +155,12 @@ class FaultInjectionMap:
     delta1, delta2
         Real inputs carrying ``Delta1`` and ``Delta2`` row-major
         (:mod:`ftc_verify.uncertainty`); empty: the FMU has no such channel.
+    parameters
+        ``(name, value)`` start values written in initialisation mode on every path.
+    operating_point
+        The :class:`OperatingPoint` (None: the origin, absolute values = deviations).
+    fault_names
+        A name per fault mode (for messages and reports; default ``mode 1``, ...).
     """
 
     fault: tuple[str, ...]
@@ -141,10 +173,26 @@ class FaultInjectionMap:
     delta1: tuple[str, ...] = ()
     delta2: tuple[str, ...] = ()
     measured: tuple[str, ...] = ()
+    parameters: tuple[tuple[str, float | int | bool], ...] = ()
+    operating_point: OperatingPoint | None = None
+    fault_names: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         for name in ROLES:
             object.__setattr__(self, name, _names(getattr(self, name), name))
+        params = tuple((str(k), _scalar(v, f"FaultInjectionMap.parameters[{k!r}]")) for k, v in self.parameters)
+        object.__setattr__(self, "parameters", params)
+        object.__setattr__(self, "fault_names", _names(self.fault_names, "fault_names"))
+        op = self.operating_point
+        if op is not None:
+            if not isinstance(op, OperatingPoint):
+                raise ValidationError(f"FaultInjectionMap.operating_point: expected an OperatingPoint, got {op!r}")
+            for field_name, names in (("inputs", self.inputs), ("states", self.states),
+                                      ("disturbances", self.disturbances)):
+                if getattr(op, field_name).size != len(names):
+                    raise ValidationError(
+                        f"FaultInjectionMap.operating_point.{field_name}: {getattr(op, field_name).size} values "
+                        f"for {len(names)} variables {list(names)}")
         for name in ("fault", "inputs", "states"):
             if not getattr(self, name):
                 raise ValidationError(f"FaultInjectionMap.{name}: at least one variable is needed")
@@ -219,6 +267,7 @@ class ResolvedVariables:
     measured: tuple[Any, ...]
     initial: tuple[Any, ...]
     feedthrough: bool
+    parameters: tuple[Any, ...] = ()
 
 
 def _settable(v: Any, role: str, types: Sequence[str], err: Callable[[str], FMUError]) -> Any:
@@ -226,6 +275,12 @@ def _settable(v: Any, role: str, types: Sequence[str], err: Callable[[str], FMUE
         raise err(f"variable {v.name!r} ({role}) has type {v.type}; expected {' or '.join(types)}")
     if v.causality == "input" or (v.causality == "parameter" and v.variability == "tunable"):
         return v
+    if v.causality == "parameter" and v.variability == "fixed":
+        raise err(
+            f"variable {v.name!r} ({role}) is a fixed parameter: it can only be set before initialisation, "
+            "not when the fault occurs during a path; declare it tunable in the model "
+            "(Modelica: no `final`, annotation Evaluate=false; FMI: variability=\"tunable\") or make it an input"
+        )
     raise err(
         f"variable {v.name!r} ({role}) has causality {v.causality!r}"
         + (f" and variability {v.variability!r}" if v.causality == "parameter" else "")
@@ -251,7 +306,7 @@ def resolve_variables(md: Any, mapping: FaultInjectionMap, err: Callable[[str], 
             if v is None:
                 close = difflib.get_close_matches(name, list(by_name), n=3)
                 hint = f"; did you mean {close}?" if close else ""
-                raise err(f"variable {name!r} ({role} in the fault-injection map) is not declared in "
+                raise err(f"variable {name!r} ({role} in the map) is not declared in "
                           f"modelDescription.xml{hint}")
             out.append(v)
         return out
@@ -265,6 +320,13 @@ def resolve_variables(md: Any, mapping: FaultInjectionMap, err: Callable[[str], 
     states = [_readable(v, "state x", err) for v in lookup(m.states, "state x")]
     outputs = [_readable(v, "output y", err) for v in lookup(m.outputs, "output y")]
     measured = [_readable(v, "measured output y_m", err) for v in lookup(m.measured, "measured output y_m")]
+    params = lookup([k for k, _ in m.parameters], "parameter")
+    for v in params:
+        if v.causality not in ("parameter", "calculatedParameter", "input") and v.initial not in ("exact", "approx"):
+            raise err(f"variable {v.name!r} ([parameters]) has causality {v.causality!r}; only parameters, inputs "
+                      "and variables with an exact or approximate start value can be set before initialisation")
+        if v.causality == "calculatedParameter" or v.variability == "constant":
+            raise err(f"variable {v.name!r} ([parameters]) is a {v.variability} {v.causality}: it cannot be set")
     init = []
     for v in lookup(m.initial_states, "initial state x0"):
         _readable(v, "initial state x0", err)
@@ -282,4 +344,4 @@ def resolve_variables(md: Any, mapping: FaultInjectionMap, err: Callable[[str], 
         for v in outputs
     )
     return ResolvedVariables(tuple(fault), tuple(inputs), tuple(dist), tuple(delta), tuple(states),
-                             tuple(outputs), tuple(measured), tuple(init), feedthrough)
+                             tuple(outputs), tuple(measured), tuple(init), feedthrough, tuple(params))

@@ -105,18 +105,30 @@ class FMUSession:
         are resolved (and checked) when the session opens.
     instance_name
         ``instanceName`` passed to ``fmi2Instantiate``.
+    tolerance
+        Relative tolerance passed to ``fmi2SetupExperiment`` (None: the FMU's default).
+    log
+        Called with ``(status, category, message)`` for every message the FMU logs
+        (``loggingOn`` is always true; the messages are also kept for error messages).
 
-    :attr:`stats` counts library loads, instantiations, resets, paths and steps;
+    :attr:`stats` counts library loads, instantiations (and re-instantiations after a
+    failed ``fmi2Reset``), resets, paths and steps;
     :attr:`messages` keeps the FMU's last 200 log messages, :attr:`log_counts` counts them
     per status. On any error while opening, everything opened so far is released.
     """
 
     def __init__(self, fmu: str | os.PathLike[str], mapping: FaultInjectionMap, *,
-                 instance_name: str = "ftc-verify-supervisor") -> None:
+                 instance_name: str = "ftc-verify-supervisor", tolerance: float | None = None,
+                 log: Callable[[str, str, str], None] | None = None) -> None:
         self.path = Path(fmu)
         self.mapping = mapping
         self.instance_name = str(instance_name)
-        self.stats = {"library_loads": 0, "instantiations": 0, "resets": 0, "paths": 0, "steps": 0}
+        if tolerance is not None and not (isinstance(tolerance, (int, float)) and 0 < tolerance < 1):
+            raise self.err(f"tolerance: expected a number in (0, 1), got {tolerance!r}")
+        self.tolerance = None if tolerance is None else float(tolerance)
+        self.log = log
+        self.stats = {"library_loads": 0, "instantiations": 0, "resets": 0, "reinstantiations": 0,
+                      "paths": 0, "steps": 0}
         self.messages: deque[tuple[str, str, str]] = deque(maxlen=200)  # (status, category, text)
         self.log_counts: dict[str, int] = {}  # messages logged by the FMU, per status
         self._tmp: tempfile.TemporaryDirectory[str] | None = None
@@ -221,19 +233,15 @@ class FMUSession:
         self._load(md, self._tmp.name)
 
     def _set_variables(self, rv: ResolvedVariables) -> None:
-        from fmpy.fmi2 import fmi2Boolean, fmi2Integer, fmi2Real
-
         self.variables = rv
-        self._fault_groups = {
-            kind: VarGroup([v for v in rv.fault if _FAULT_KIND[v.type] == kind], ctype)
-            for kind, ctype in (("real", fmi2Real), ("int", fmi2Integer), ("bool", fmi2Boolean))
-        }
         self.n, self.nu, self.nw = len(rv.states), len(rv.inputs), len(rv.disturbances)
         self.ny, self.nym = len(rv.outputs), len(rv.measured)
         self.feedthrough = rv.feedthrough
         self.uw = VarGroup(rv.inputs + rv.disturbances)
         self.delta = VarGroup(rv.delta)
         self.init = VarGroup(rv.initial)
+        self._param_writes = self._typed_writes(rv.parameters, [v for _, v in self.mapping.parameters],
+                                                "[parameters] sets it to")
 
     def read_groups(self, measured: bool) -> tuple[VarGroup, VarGroup]:
         """``(before, after)``: the variables read at a grid point before ``u, w`` are
@@ -251,7 +259,7 @@ class FMUSession:
         return groups
 
     def _logger(self) -> Callable[..., None]:
-        messages, counts = self.messages, self.log_counts
+        messages, counts, sink = self.messages, self.log_counts, self.log
 
         def logger(env: Any, instance: bytes | None, status: int, category: bytes | None,
                    message: bytes | None) -> None:
@@ -259,7 +267,10 @@ class FMUSession:
                 text = (message or b"").decode("utf-8", "replace").replace("%%", "%")
                 label = _status_label(status)
                 counts[label] = counts.get(label, 0) + 1
-                messages.append((label, (category or b"").decode("utf-8", "replace"), text))
+                cat = (category or b"").decode("utf-8", "replace")
+                messages.append((label, cat, text))
+                if sink is not None:
+                    sink(label, cat, text)
             except Exception:  # never let an exception cross the C boundary
                 pass
 
@@ -294,12 +305,27 @@ class FMUSession:
         cb.freeMemory = ctypes.cast(free, fmi2CallbackFreeMemoryTYPE)
         cb.componentEnvironment = None
         self._callbacks = cb
+        self._instantiate()
+
+    def _instantiate(self) -> None:
         try:
-            slave.instantiate(callbacks=cb, loggingOn=False)
+            self.slave.instantiate(callbacks=self._callbacks, loggingOn=True)
         except Exception:
             raise self.err(f"fmi2Instantiate failed{self.said()}") from None
         self._component_live = True
+        self._dirty = False
         self.stats["instantiations"] += 1
+
+    def _reinstantiate(self) -> None:
+        """Free the instance after a failed ``fmi2Reset`` and create a fresh one."""
+        s = self.slave
+        self._component_live = False
+        try:
+            s.fmi2FreeInstance(s.component)
+        except Exception:
+            pass
+        self._instantiate()
+        self.stats["reinstantiations"] += 1
 
     # -------------------------------------------------------------------- closing
     def close(self) -> None:
@@ -353,61 +379,66 @@ class FMUSession:
             raise self.err("the FMU returned fmi2Fatal earlier; the instance cannot be used any more")
 
     # -------------------------------------------------------------------- writing
-    def _fault_value(self, v: Any, val: Any, mode: int) -> Any:
+    def _typed_value(self, v: Any, val: Any, what: str) -> Any:
+        """``val`` converted for the FMI type of ``v`` and checked against its range;
+        ``what`` says where the value comes from (e.g. "mode 1 (0-based) maps to")."""
         kind = _FAULT_KIND[v.type]
         if kind == "int":
             if isinstance(val, float) and not val.is_integer():
-                raise self.err(f"fault variable {v.name!r} is {v.type}; mode {mode} maps to non-integer {val!r}")
+                raise self.err(f"variable {v.name!r} is {v.type}; {what} non-integer {val!r}")
             val = int(val)
             lo = int(v.min) if v.min is not None else None
             hi = int(v.max) if v.max is not None else None
             if (lo is not None and val < lo) or (hi is not None and val > hi):
-                raise self.err(f"fault variable {v.name!r}: mode {mode} (0-based) maps to {val}, outside its "
-                               f"declared range [{v.min}, {v.max}]")
+                raise self.err(f"variable {v.name!r}: {what} {val}, outside its declared range [{v.min}, {v.max}]")
             return val
         if kind == "bool":
             if val not in (0, 1):
-                raise self.err(f"fault variable {v.name!r} is Boolean; mode {mode} maps to {val!r}")
+                raise self.err(f"variable {v.name!r} is Boolean; {what} {val!r}")
             return int(bool(val))
         val = float(val)
         lo = float(v.min) if v.min is not None else -math.inf
         hi = float(v.max) if v.max is not None else math.inf
         if not lo <= val <= hi:
-            raise self.err(f"fault variable {v.name!r}: mode {mode} (0-based) maps to {val}, outside its "
-                           f"declared range [{v.min}, {v.max}]")
+            raise self.err(f"variable {v.name!r}: {what} {val}, outside its declared range [{v.min}, {v.max}]")
         return val
 
-    def fault_writes(self, mode: int) -> list[tuple[str, Any]]:
-        """``[(kind, ctypes values)]`` for the 0-based true mode (validated once per mode)."""
-        cached = self._fault_cache.get(mode)
-        if cached is not None:
-            return cached
-        values = self.mapping.values_for(mode)
-        per_kind: dict[str, list[Any]] = {"real": [], "int": [], "bool": []}
-        for v, val in zip(self.variables.fault, values):
-            per_kind[_FAULT_KIND[v.type]].append(self._fault_value(v, val, mode))
-        out = [(kind, c_buffer(self._fault_groups[kind].buf._type_, vals))
-               for kind, vals in per_kind.items() if vals]
-        self._fault_cache[mode] = out
+    def _typed_writes(self, variables: Sequence[Any], values: Sequence[Any], what: str) -> list[tuple[str, Any, Any]]:
+        """``[(kind, VarGroup, ctypes values)]`` writing ``values`` into ``variables``."""
+        from fmpy.fmi2 import fmi2Boolean, fmi2Integer, fmi2Real
+
+        out = []
+        for kind, ctype in (("real", fmi2Real), ("int", fmi2Integer), ("bool", fmi2Boolean)):
+            pairs = [(v, self._typed_value(v, val, what)) for v, val in zip(variables, values)
+                     if _FAULT_KIND[v.type] == kind]
+            if pairs:
+                out.append((kind, VarGroup([v for v, _ in pairs], ctype), c_buffer(ctype, [x for _, x in pairs])))
         return out
 
-    def set_fault(self, mode: int, when: str) -> None:
-        """Write the 0-based true mode ``mode`` into the fault variables."""
+    def _write(self, writes: list[tuple[str, Any, Any]], when: str) -> None:
         from fmpy.fmi1 import FMICallException
 
         s = self.slave
-        for kind, vals in self.fault_writes(mode):
-            grp = self._fault_groups[kind]
+        for kind, grp, vals in writes:
+            setter = {"real": s.fmi2SetReal, "int": s.fmi2SetInteger, "bool": s.fmi2SetBoolean}[kind]
             try:
-                if kind == "real":
-                    s.fmi2SetReal(s.component, grp.vr, grp.n, vals)
-                elif kind == "int":
-                    s.fmi2SetInteger(s.component, grp.vr, grp.n, vals)
-                else:
-                    s.fmi2SetBoolean(s.component, grp.vr, grp.n, vals)
+                setter(s.component, grp.vr, grp.n, vals)
             except FMICallException as exc:
                 shown = [f"{n} = {v}" for n, v in zip(grp.names, list(vals))]
-                raise self.call_error(exc, f"{when} (setting fault mode {mode}, 0-based)", shown) from None
+                raise self.call_error(exc, when, shown) from None
+
+    def fault_writes(self, mode: int) -> list[tuple[str, Any, Any]]:
+        """The typed writes of the 0-based true mode's fault values (validated once per mode)."""
+        cached = self._fault_cache.get(mode)
+        if cached is None:
+            what = f"fault mode {mode} (0-based) maps to"
+            cached = self._typed_writes(self.variables.fault, self.mapping.values_for(mode), what)
+            self._fault_cache[mode] = cached
+        return cached
+
+    def set_fault(self, mode: int, when: str) -> None:
+        """Write the 0-based true mode ``mode`` into the fault variables."""
+        self._write(self.fault_writes(mode), f"{when} (setting fault mode {mode}, 0-based)")
 
     def delta_values(self, seg: tuple[Any, Any]) -> Any:
         """The ctypes values of ``(Delta1, Delta2)`` for the map's Delta inputs (None: none)."""
@@ -439,17 +470,20 @@ class FMUSession:
         initial state ``x0`` (ctypes), the 0-based true mode and the first Delta values."""
         from fmpy.fmi1 import FMICallException
 
-        s = self.slave
-        stage, names = "fmi2Reset", ()
-        try:
-            if self._dirty:
-                s.reset()
+        if self._dirty:
+            try:
+                self.slave.reset()
                 self.stats["resets"] += 1
+            except FMICallException:  # an FMU that cannot reset gets a fresh instance
+                self._reinstantiate()
+        s = self.slave
+        stage, names = "fmi2SetupExperiment", ()
+        try:
             self._dirty = True
-            stage = "fmi2SetupExperiment"
-            s.setupExperiment(startTime=0.0)
+            s.setupExperiment(tolerance=self.tolerance, startTime=0.0)
             stage = "fmi2EnterInitializationMode"
             s.enterInitializationMode()
+            self._write(self._param_writes, "in initialization mode (setting [parameters])")
             if self.init.n:
                 stage, names = "fmi2SetReal", self.init.names
                 s.fmi2SetReal(s.component, self.init.vr, self.init.n, x0)
@@ -459,3 +493,40 @@ class FMUSession:
             s.exitInitializationMode()
         except FMICallException as exc:
             raise self.call_error(exc, f"in {stage} while initialising a path at t = 0", names) from None
+
+    def last_successful_time(self) -> float | None:
+        """``fmi2GetRealStatus(fmi2LastSuccessfulTime)``, or None where the FMU does not answer."""
+        try:
+            return float(self.slave.getRealStatus(2))  # fmi2LastSuccessfulTime = 2
+        except Exception:  # fmpy raises on a non-OK status; not every FMU implements the call
+            return None
+
+    def check_advanced(self, t_end: float, where: str) -> None:
+        """Raise when ``fmi2LastSuccessfulTime`` lags behind the end ``t_end`` of the last step."""
+        last = self.last_successful_time()
+        if last is not None and last < t_end - 1e-9 * max(1.0, abs(t_end)):
+            raise self.err(f"{where}: after the last fmi2DoStep to t = {t_end!r} the FMU reports "
+                           f"fmi2LastSuccessfulTime = {last!r}: it did not advance as asked (does it ignore "
+                           "variable communication steps?)")
+
+    def probe_outputs(self, x: np.ndarray, uw: np.ndarray, delta0: Any) -> tuple[np.ndarray, np.ndarray]:
+        """``(y_m, y)`` read at ``t = 0`` after initialising at the state ``x`` (through the
+        initial-state variables) in the first fault mode with inputs and disturbances ``uw``."""
+        from fmpy.fmi1 import FMICallException
+        from fmpy.fmi2 import fmi2Real
+
+        if not self.init.n:
+            raise self.err(
+                "the map has an operating point but no initial_states, so paths cannot start at it; name the "
+                "variables that set the initial state (or the states, if their start values can be set)"
+            )
+        self.start_path(c_buffer(fmi2Real, np.asarray(x, dtype=float).tolist()), 0, delta0)
+        s = self.slave
+        out = VarGroup(self.variables.measured + self.variables.outputs)
+        try:
+            s.fmi2SetReal(s.component, self.uw.vr, self.uw.n, c_buffer(fmi2Real, np.asarray(uw, dtype=float).tolist()))
+            s.fmi2GetReal(s.component, out.vr, out.n, out.buf)
+        except FMICallException as exc:
+            raise self.call_error(exc, "at the operating point (t = 0, first fault mode)", out.names) from None
+        vals = np.array(list(out.buf)[:out.n], dtype=float)
+        return vals[:self.nym], vals[self.nym:]

@@ -43,6 +43,7 @@ from pathlib import Path
 
 from ..errors import FMUError, ValidationError
 from ..model.system import FTCSystem
+from .plant_map import linear_jump_plant_map, map_path_for, save_plant_map
 from .model_description import SOURCE_FILES, model_description, variable_names
 from .system_text import FORMAT_VERSION, MODEL_IDENTIFIER, FMUDims, fmu_dims, parse_system_text, system_text
 
@@ -302,7 +303,8 @@ def build_fmu(system: FTCSystem, dest: Path | None = None) -> Path:
     binary comes from :func:`build_binary` (compiled only when missing or out of date);
     the archive holds ``modelDescription.xml``, ``binaries/<platform>/LinearJumpPlant.so``,
     ``resources/system.txt`` and the C sources in ``sources/``. The same system and
-    binary always give byte-identical FMUs.
+    binary always give byte-identical FMUs. Its plant map (:func:`ftc_verify.plants.plant_map.linear_jump_plant_map`)
+    is written beside it as ``<name>.plant.toml`` (:func:`~ftc_verify.plants.plant_map.map_path_for`).
     """
     if not isinstance(system, FTCSystem):
         raise ValidationError(f"build_fmu: expected an FTCSystem, got {type(system).__name__}")
@@ -329,6 +331,7 @@ def build_fmu(system: FTCSystem, dest: Path | None = None) -> Path:
         if path.is_dir():
             path = path / f"{_slug(system.name)}.fmu"
     _write_zip(path, members)
+    save_plant_map(linear_jump_plant_map(system, path), map_path_for(path))
     return path
 
 

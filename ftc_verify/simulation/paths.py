@@ -28,6 +28,7 @@ from ..errors import ValidationError
 from ..model.system import JointChain, Matrix
 
 __all__ = [
+    "snap_to_grid",
     "ChainPath",
     "sample_path",
     "sample_paths",
@@ -185,3 +186,22 @@ def disturbance(kind: str, nw: int) -> Callable[[np.ndarray], np.ndarray]:
         return np.repeat(shape(np.asarray(t, dtype=float))[:, None], nw, axis=1)
 
     return w
+
+
+def snap_to_grid(path: ChainPath, step: float) -> tuple[ChainPath, float]:
+    """The path with every jump time moved to the nearest multiple of ``step`` (for FMUs
+    that cannot vary their communication step), and the largest time shift.
+
+    Jumps that land on the same grid point merge: the modes after the last of them hold
+    from that point (a segment shorter than half a step can vanish).
+    """
+    k = np.rint(path.times / step)
+    snapped = np.minimum(k * step, path.horizon)
+    snapped[0] = 0.0
+    shift = float(np.max(np.abs(snapped - path.times))) if path.times.size else 0.0
+    keep = np.append(snapped[1:] != snapped[:-1], True)  # the last segment starting at each time
+    times, true, fdi = snapped[keep], path.true[keep], path.fdi[keep]
+    if times.size and times[-1] >= path.horizon and times.size > 1:  # a jump moved onto the horizon
+        times, true, fdi = times[:-1], true[:-1], fdi[:-1]
+    merge = np.append(True, (true[1:] != true[:-1]) | (fdi[1:] != fdi[:-1]))
+    return ChainPath(times[merge], true[merge], fdi[merge], path.beta, path.horizon), shift

@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -48,7 +48,7 @@ from ..model.system import FTCSystem
 from .delta import DeltaSchedule, delta_segments, delta_shapes
 from ..plants.fault_map import FaultInjectionMap
 from ..plants.fmu_session import FMUSession, c_buffer
-from .paths import ChainPath, communication_grid
+from .paths import ChainPath, communication_grid, snap_to_grid
 from .paths import disturbance as disturbance_fn
 from .records import PathRecord, SimulationResult, diverged
 
@@ -85,6 +85,18 @@ class _Law:
 
     def update(self, e: int, full: bool, h: float) -> tuple[np.ndarray, np.ndarray]:
         return self.full_steps[e] if full else self.controller.discretise(e, h)
+
+
+@dataclass(frozen=True)
+class _Offsets:
+    """The operating point as offsets: of the values read before ``u`` (``x``, ``y_m``,
+    maybe ``y``), of ``y`` read after ``u``, and of the written ``u``, ``w``; and ``x_op``."""
+
+    read: np.ndarray
+    y: np.ndarray
+    u: np.ndarray
+    w: np.ndarray
+    x: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -129,6 +141,16 @@ class Supervisor:
         (shapes and draws) and to check the controller; optional for other FMUs.
     instance_name
         ``instanceName`` passed to ``fmi2Instantiate``.
+    tolerance, log
+        Passed to the :class:`~ftc_verify.plants.fmu_session.FMUSession` (the
+        ``fmi2SetupExperiment`` tolerance; a callback for every message the FMU logs).
+
+    With an :attr:`FaultInjectionMap.operating_point` the loop runs in deviation variables
+    (:class:`~ftc_verify.plants.fault_map.OperatingPoint`): paths start at ``x_op + x0``,
+    records hold ``x - x_op``, ``u - u_op``, ``w - w_op``, ``y - y_op``, ``y_m - y_m,op``.
+    FMUs that cannot vary their communication step get paths whose jump times are moved
+    to the grid of ``step`` (:func:`~ftc_verify.simulation.paths.snap_to_grid`); the result
+    options give the largest shift (``timing_error``).
 
     The archive is checked, extracted and loaded, and one instance is created, when the
     supervisor is constructed (:class:`~ftc_verify.plants.fmu_session.FMUSession`);
@@ -137,7 +159,8 @@ class Supervisor:
     """
 
     def __init__(self, fmu: str | os.PathLike[str], mapping: FaultInjectionMap | None = None, *,
-                 system: FTCSystem | None = None, instance_name: str = "ftc-verify-supervisor") -> None:
+                 system: FTCSystem | None = None, instance_name: str = "ftc-verify-supervisor",
+                 tolerance: float | None = None, log: Callable[[str, str, str], None] | None = None) -> None:
         if mapping is None:
             if system is None:
                 raise ValidationError("Supervisor: give a FaultInjectionMap, or the system of a LinearJumpPlant FMU")
@@ -150,7 +173,8 @@ class Supervisor:
         self.mapping = mapping
         self.system = system
         self.instance_name = str(instance_name)
-        self.session = FMUSession(self.path, mapping, instance_name=self.instance_name)
+        self.session = FMUSession(self.path, mapping, instance_name=self.instance_name, tolerance=tolerance, log=log)
+        self._op_outputs: tuple[np.ndarray, np.ndarray] | None = None
 
     # -------------------------------------------------------------------- context manager
     def __enter__(self) -> "Supervisor":
@@ -210,7 +234,30 @@ class Supervisor:
                     tuple(np.ascontiguousarray(c, dtype=np.float64) for c in controller.Cc),
                     tuple(np.ascontiguousarray(d, dtype=np.float64) for d in controller.Dc), full_steps)
 
-    def _initial_state(self, x0: Any) -> tuple[np.ndarray, Any]:
+    def _offsets(self, law: _Law) -> _Offsets | None:
+        """The operating point as offsets of the read and written vectors (None: origin)."""
+        op = self.mapping.operating_point
+        if op is None or op.is_zero():
+            return None
+        if self._op_outputs is None:
+            self._op_outputs = self._probe(op)
+        ym_op, y_op = self._op_outputs
+        pre, _ = self.session.read_groups(law.measured)
+        parts = [op.states] + ([ym_op] if law.measured else [])
+        if pre.n > len(parts[0]) + (len(ym_op) if law.measured else 0):
+            parts.append(y_op)  # y read together with x
+        return _Offsets(np.concatenate(parts), y_op, op.inputs, op.disturbances, op.states)
+
+    def _probe(self, op: Any) -> tuple[np.ndarray, np.ndarray]:
+        """``(y_m, y)`` of the FMU initialised at the operating point in the first fault mode."""
+        s = self.session
+        zero_delta = None
+        if self.system is not None and s.delta.n:
+            shapes = delta_shapes(self.system)
+            zero_delta = s.delta_values(tuple(np.zeros(sh if sh else (0, 0)) for sh in shapes))
+        return s.probe_outputs(op.states, np.concatenate([op.inputs, op.disturbances]), zero_delta)
+
+    def _initial_state(self, x0: Any, off: _Offsets | None) -> tuple[np.ndarray, Any]:
         from fmpy.fmi2 import fmi2Real
 
         init = self.session.init
@@ -224,7 +271,8 @@ class Supervisor:
             arr = np.asarray(x0, dtype=float).reshape(-1)
             if arr.size != init.n or not np.all(np.isfinite(arr)):
                 raise ValidationError(f"x0: expected {init.n} finite numbers, got {x0!r}")
-        return arr, c_buffer(fmi2Real, arr.tolist())
+        start = arr if off is None else arr + off.x
+        return arr, c_buffer(fmi2Real, start.tolist())
 
     def _schedule(self, delta: DeltaSchedule | str | None) -> DeltaSchedule:
         if delta is None:
@@ -292,8 +340,13 @@ class Supervisor:
         law = self._law(controller, step)
         paths = self._check_paths(paths, law)
         wfun = disturbance_fn(disturbance, self.session.nw)
-        x0_arr, x0_c = self._initial_state(x0)
         schedule = self._schedule(delta)
+        off = self._offsets(law)
+        x0_arr, x0_c = self._initial_state(x0, off)
+        shift = 0.0
+        if not self.can_vary_step:
+            snapped = [snap_to_grid(p, step) for p in paths]
+            paths, shift = [p for p, _ in snapped], max(sh for _, sh in snapped)
         if rng is None:
             rng = np.random.default_rng(seed)
         for p in paths:
@@ -304,7 +357,7 @@ class Supervisor:
         records = []
         for i, p in enumerate(paths):
             segs = delta_segments(self.system, p, schedule, rng) if self.system is not None else None
-            records.append(self._run_path(i, self._plan(i, p, step, wfun, segs), law, x0_c))
+            records.append(self._run_path(i, self._plan(i, p, step, wfun, segs), law, x0_c, off))
         options: dict[str, Any] = {
             "fmu": str(self.path),
             "delta": schedule.kind,
@@ -312,6 +365,9 @@ class Supervisor:
             "gains": "full-information" if law.full_info else "fdi",
             "controller": controller.describe(law.m),
             "fmu_warnings": self.log_counts.get("Warning", 0) - warnings_before,
+            "model_identifier": self.model_identifier,
+            "timing_error": shift,
+            "operating_point": off is not None,
         }
         if self.system is not None:
             options["fault_during_delay"] = bool(self.system.chain.fault_during_delay)
@@ -341,7 +397,7 @@ class Supervisor:
         events.append(-1)
         return _Plan(path, t, true, fdi, wfun(t), events, seg.tolist(), _full_intervals(t, step).tolist(), delta_c)
 
-    def _run_path(self, index: int, plan: _Plan, law: _Law, x0_c: Any) -> PathRecord:
+    def _run_path(self, index: int, plan: _Plan, law: _Law, x0_c: Any, off: _Offsets | None) -> PathRecord:
         from fmpy.fmi1 import FMICallException
 
         s = self.session
@@ -358,7 +414,7 @@ class Supervisor:
         vr_y, buf_y, feed = post.vr, post.buf, s.feedthrough
         vr_uw, buf_uw, nuw = s.uw.vr, s.uw.buf, nu + nw
         np_xr = np.frombuffer(buf_x, dtype=np.float64, count=nx_read)
-        np_v = np_xr[n:n + nv] if law.measured else np_xr[:n]
+        vs = slice(n, n + nv) if law.measured else slice(0, n)
         np_y = np.frombuffer(buf_y, dtype=np.float64, count=ny) if feed else None
         np_uw = np.frombuffer(buf_uw, dtype=np.float64, count=nuw)
         np_u, np_w = np_uw[:nu], np_uw[nu:]
@@ -390,27 +446,35 @@ class Supervisor:
                     nxt = plan.events[ev]
                 stage = "x"
                 gr(c, vr_x, nx_read, buf_x)
-                XR[k] = np_xr
-                if k and diverged(np_xr[:n], xc):
+                xr = XR[k]
+                xr[:] = np_xr
+                if off is not None:
+                    xr -= off.read
+                if k and diverged(xr[:n], xc):
                     stop = k
                     break
-                dot(K, np_v, out=np_u)
+                dot(K, xr[vs], out=np_u)
                 if nc:
                     np_u += dot(Cc[e], xc)
+                U[k] = np_u
                 if nw:
                     np_w[:] = W[k]
+                if off is not None:
+                    np_u += off.u
+                    np_w += off.w
                 stage = "uw"
                 sr(c, vr_uw, nuw, buf_uw)
-                U[k] = np_u
                 if feed:
                     stage = "y"
                     gr(c, vr_y, ny, buf_y)
                     Y[k] = np_y
+                    if off is not None:
+                        Y[k] -= off.y
                 if k == N:
                     break
                 if nc:
                     Phi, Gam = update(e, full_l[k], hl[k])
-                    xc = dot(Phi, xc) + dot(Gam, np_v)
+                    xc = dot(Phi, xc) + dot(Gam, xr[vs])
                     XC[k + 1] = xc
                 stage = "step"
                 ds(c, tl[k], hl[k], 1)
@@ -419,6 +483,8 @@ class Supervisor:
         finally:
             s.stats["steps"] += min(k, N)
         s.stats["paths"] += 1
+        if not stop and N:
+            s.check_advanced(tl[N], f"paths[{index}]")
         record = _record(plan, law, n, XR, U, Y, XC)
         return record.truncated(stop) if stop else record
 
@@ -457,12 +523,14 @@ def simulate_fmu(
     seed: int | None = None,
 ) -> SimulationResult:
     """Build the ``LinearJumpPlant`` FMU of ``system`` (:func:`ftc_verify.plants.build_fmu`,
-    compiled once and cached) and co-simulate ``paths`` under ``controller`` with a
+    compiled once and cached), load the plant map written beside it and co-simulate ``paths`` under ``controller`` with a
     :class:`Supervisor`; the arguments are those of :meth:`Supervisor.run`."""
     from ..plants.linear_jump import build_fmu
+    from ..plants.plant_map import load_plant_map, map_path_for
 
     if not isinstance(system, FTCSystem):
         raise ValidationError(f"simulate_fmu: expected an FTCSystem, got {type(system).__name__}")
     fmu = build_fmu(system)
-    with Supervisor(fmu, FaultInjectionMap.for_linear_jump_plant(system), system=system) as sup:
+    mapping = load_plant_map(map_path_for(fmu)).injection_map()  # the same path as a user's plant map
+    with Supervisor(fmu, mapping, system=system) as sup:
         return sup.run(paths, controller, step=step, disturbance=disturbance, delta=delta, x0=x0, rng=rng, seed=seed)
