@@ -259,7 +259,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         _check_output_file(args.plot, "--plot", PLOT_SUFFIXES)
     system, controller = _load(args.system, args.controller)
     _check_records_memory(system, controller, args.paths, args.horizon, args.step)
-    if args.backend == "fmu":
+    plant = _load_plant(args, system)
+    if args.backend == "fmu" and plant is None:
         _check_fmu_dims(system, args.system)
     if args.fault_during_delay:
         ch = system.chain
@@ -269,11 +270,12 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     beta = {"random": None, "min": system.chain.beta_min, "max": system.chain.beta_max,
             "mid": system.chain.midpoint()}[args.beta]
     paths = sample_paths(system.chain, args.horizon, args.paths, rng, beta=beta)
-    delta = DeltaSchedule(args.delta if system.uncertain else "zero")
+    delta = DeltaSchedule(args.delta if system.uncertain and (plant is None or plant.delta1 or plant.delta2) else "zero")
     if args.backend == "fmu":
         from ..simulation.supervisor import simulate_fmu
 
-        res = simulate_fmu(system, controller, paths, step=args.step, disturbance=args.disturbance, delta=delta, rng=rng, seed=seed)
+        res = simulate_fmu(system, controller, paths, step=args.step, disturbance=args.disturbance, delta=delta, rng=rng,
+                           seed=seed, plant=plant, log=_fmu_logger(args))
     else:
         from ..simulation.reference import simulate_reference
 
@@ -298,6 +300,9 @@ def _print_simulation(d: dict[str, Any], res: Any, name: str, args: argparse.Nam
 
     print(f"ftc-verify simulate: {name}, backend {res.backend}, {len(d['y_norm'])} paths, horizon {args.horizon:g}, "
           f"step {args.step:g}, seed {res.seed}, disturbance {args.disturbance}, Delta {delta}")
+    if res.backend == "fmu":
+        print(f"  FMU {d['fmu']} (model identifier {d['model_identifier']}); jump times moved by at most "
+              f"{res.options['timing_error']:.3g} to the FMU's step grid")
     ok = [k for k, y in enumerate(d["y_norm"]) if y is not None]
     if d["divergence"]:
         print(f"  DIVERGED: {d['divergence']}")
@@ -312,6 +317,31 @@ def _print_simulation(d: dict[str, Any], res: Any, name: str, args: argparse.Nam
         print(f"  plot written to {args.plot}")
 
 
+def _load_plant(args: argparse.Namespace, system: Any) -> Any:
+    """The ``--plant`` map checked against the system (None without ``--plant``)."""
+    if getattr(args, "plant", None) is None:
+        return None
+    if getattr(args, "backend", "fmu") != "fmu":
+        raise _bad(f"--plant {args.plant}: a plant map is co-simulated; it needs --backend fmu")
+    from ..plants.plant_map import check_against_system, load_plant_map
+
+    plant = load_plant_map(args.plant)
+    check_against_system(plant, system)
+    plant.require_states_op("co-simulation")
+    return plant
+
+
+def _fmu_logger(args: argparse.Namespace) -> Any:
+    """With ``--fmu-log``: print every message the FMU logs to stderr."""
+    if not getattr(args, "fmu_log", False):
+        return None
+
+    def log(status: str, category: str, message: str) -> None:
+        print(f"[FMU {status}] {category}: {message}", file=sys.stderr)
+
+    return log
+
+
 def _cmd_verify(args: argparse.Namespace) -> int:
     from ..verification.report import check_out_dir, write_report
     from ..verification.verify import run_verify
@@ -321,13 +351,15 @@ def _cmd_verify(args: argparse.Namespace) -> int:
     _check_horizon(args.step, args.horizon)
     check_out_dir(args.out)
     system, controller = _load(args.system, args.controller)
-    _check_fmu_dims(system, args.system)
+    plant = _load_plant(args, system)
+    if plant is None:
+        _check_fmu_dims(system, args.system)
     if controller is not None:
         _check_records_memory(system, controller, args.paths, args.horizon, args.step)
     k_max = None if args.no_gain_bound else args.k_max
     rep = run_verify(system, gamma=args.gamma, method=args.method, k_max=k_max, controller=controller, paths=args.paths,
                      step=args.step, horizon=args.horizon, seed=args.seed, solver=args.solver,
-                     progress=sys.stderr.isatty())
+                     progress=sys.stderr.isatty(), plant=plant, fmu_log=_fmu_logger(args))
     written = write_report(rep, args.out)
     d = rep.to_dict()
     print(f"ftc-verify verify: {system.name}")
@@ -406,6 +438,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="named variant: faults keep occurring during a detection delay (not the paper's model)")
     m.add_argument("--json", action="store_true")
     m.add_argument("--plot", default=None, help="PNG file for the paper's Fig. 1 of the first path")
+    _plant_options(m)
     m.set_defaults(func=_cmd_simulate)
 
     v = sub.add_parser("verify", help="the main job: synthesize, certify, cross-validate, co-simulate, report")
@@ -423,13 +456,23 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--seed", type=_seed, default=None)
     v.add_argument("--out", default="ftc-verify-report", help="output folder (default ./ftc-verify-report)")
     v.add_argument("--solver", default="auto", choices=["auto", "clarabel", "sdpa", "scs"])
+    _plant_options(v)
     v.set_defaults(func=_cmd_verify)
 
     b = sub.add_parser("build-fmus", help="compile the plant FMU binary (and FMUs for given systems), validate")
     b.add_argument("systems", nargs="*", help="system TOML files to build FMUs for")
     b.add_argument("--force", action="store_true", help="recompile even when the cached binary is up to date")
     b.set_defaults(func=_cmd_build_fmus)
+    from .plant_commands import add_plant_commands
+
+    add_plant_commands(sub)
     return p
+
+
+def _plant_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--plant", default=None,
+                        help="plant map TOML file: co-simulate this FMU instead of the built LinearJumpPlant")
+    parser.add_argument("--fmu-log", action="store_true", help="print the FMU's log messages to stderr")
 
 
 @contextmanager

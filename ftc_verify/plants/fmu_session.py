@@ -147,6 +147,12 @@ class FMUSession:
             self.close()
             raise
 
+    def __enter__(self) -> "FMUSession":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
     @property
     def extraction_dir(self) -> Path | None:
         """The temporary folder the FMU is extracted into (None once closed)."""

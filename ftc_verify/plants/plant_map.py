@@ -60,7 +60,7 @@ from ..model.system import FTCSystem, JointChain
 from .fault_map import FaultInjectionMap, OperatingPoint
 
 __all__ = ["FaultMode", "PlantMap", "load_plant_map", "dump_plant_map", "save_plant_map", "ROLE_KEYS",
-           "map_path_for", "linear_jump_plant_map"]
+           "map_path_for", "linear_jump_plant_map", "check_against_system"]
 
 _TOP = {"fmu", "name", "tolerance", "variables", "operating_point", "parameters", "region", "fault", "chain"}
 #: Keys of ``[variables]`` and what they carry.
@@ -382,3 +382,23 @@ def linear_jump_plant_map(system: FTCSystem, fmu: str | os.PathLike[str]) -> Pla
         fault_variables=("mode",), faults=tuple(FaultMode(f"mode {k}", (k,)) for k in range(1, system.m + 1)),
         chain=system.chain, tolerance=None,
     )
+
+
+def check_against_system(pm: PlantMap, system: FTCSystem) -> None:
+    """Raise unless the map's roles and fault tables fit ``system`` (one fault table per
+    mode; as many inputs, states, disturbances, performance and measured outputs as the
+    system's ``B`` columns, ``A`` rows, ``D`` columns, ``C`` rows and ``Cy`` rows)."""
+    n, nu, ny, nw = system.dims
+    if pm.m != system.m:
+        raise ProblemFileError(f"{pm.source}: {pm.m} [[fault]] tables, but the system {system.name!r} has "
+                               f"{system.m} modes (one table per mode, in mode order)")
+    counts = (("inputs", nu, "columns of B"), ("states", n, "rows of A"), ("disturbances", nw, "columns of D"),
+              ("performance", ny, "rows of C"))
+    for role, want, what in counts:
+        got = len(getattr(pm, role))
+        if got != want:
+            raise ProblemFileError(f"{pm.source}: [variables].{role} names {got} variable(s), but the system "
+                                   f"{system.name!r} has {want} ({what})")
+    if pm.measured and len(pm.measured) != system.ny_measured:
+        raise ProblemFileError(f"{pm.source}: [variables].measured names {len(pm.measured)} variable(s), but the "
+                               f"system {system.name!r} has {system.ny_measured} measured outputs (rows of Cy)")

@@ -120,4 +120,6 @@ class SimulationResult:
             "divergence": divergence_note(self.records),
             "beta": [r.path.beta.tolist() for r in self.records],
             "options": self.options,
+            **({"fmu": self.options.get("fmu"), "model_identifier": self.options.get("model_identifier")}
+               if self.backend == "fmu" else {}),
         }

@@ -52,7 +52,7 @@ from .paths import ChainPath, communication_grid, snap_to_grid
 from .paths import disturbance as disturbance_fn
 from .records import PathRecord, SimulationResult, diverged
 
-__all__ = ["FMUError", "FaultInjectionMap", "Supervisor", "simulate_fmu"]
+__all__ = ["FMUError", "FaultInjectionMap", "Supervisor", "open_supervisor", "simulate_fmu"]
 
 
 def _full_intervals(t: np.ndarray, step: float) -> np.ndarray:
@@ -510,6 +510,26 @@ class Supervisor:
 # ------------------------------------------------------------------------------------------
 
 
+def open_supervisor(system: FTCSystem, plant: Any = None, *,
+                    log: Callable[[str, str, str], None] | None = None) -> Supervisor:
+    """A :class:`Supervisor` for ``system`` on the FMU of the plant map ``plant``
+    (:class:`~ftc_verify.plants.plant_map.PlantMap`), checked against the system
+    (:func:`~ftc_verify.plants.plant_map.check_against_system`); default: the
+    ``LinearJumpPlant`` of ``system`` through the map :func:`~ftc_verify.plants.build_fmu`
+    writes beside it -- one code path for every FMU."""
+    from ..plants.linear_jump import build_fmu
+    from ..plants.plant_map import PlantMap, check_against_system, load_plant_map, map_path_for
+
+    if not isinstance(system, FTCSystem):
+        raise ValidationError(f"expected an FTCSystem, got {type(system).__name__}")
+    if plant is None:
+        plant = load_plant_map(map_path_for(build_fmu(system)))
+    elif not isinstance(plant, PlantMap):
+        raise ValidationError(f"plant: expected a PlantMap, got {type(plant).__name__}")
+    check_against_system(plant, system)
+    return Supervisor(plant.fmu, plant.injection_map(), system=system, tolerance=plant.tolerance, log=log)
+
+
 def simulate_fmu(
     system: FTCSystem,
     controller: Controller,
@@ -521,16 +541,12 @@ def simulate_fmu(
     x0: Any = None,
     rng: np.random.Generator | None = None,
     seed: int | None = None,
+    plant: Any = None,
+    log: Callable[[str, str, str], None] | None = None,
 ) -> SimulationResult:
-    """Build the ``LinearJumpPlant`` FMU of ``system`` (:func:`ftc_verify.plants.build_fmu`,
-    compiled once and cached), load the plant map written beside it and co-simulate ``paths`` under ``controller`` with a
-    :class:`Supervisor`; the arguments are those of :meth:`Supervisor.run`."""
-    from ..plants.linear_jump import build_fmu
-    from ..plants.plant_map import load_plant_map, map_path_for
-
-    if not isinstance(system, FTCSystem):
-        raise ValidationError(f"simulate_fmu: expected an FTCSystem, got {type(system).__name__}")
-    fmu = build_fmu(system)
-    mapping = load_plant_map(map_path_for(fmu)).injection_map()  # the same path as a user's plant map
-    with Supervisor(fmu, mapping, system=system) as sup:
+    """Co-simulate ``paths`` under ``controller`` on the plant map ``plant``'s FMU (default:
+    the ``LinearJumpPlant`` of ``system``, compiled once and cached) with a
+    :class:`Supervisor` from :func:`open_supervisor`; the other arguments are those of
+    :meth:`Supervisor.run`."""
+    with open_supervisor(system, plant, log=log) as sup:
         return sup.run(paths, controller, step=step, disturbance=disturbance, delta=delta, x0=x0, rng=rng, seed=seed)

@@ -85,6 +85,7 @@ class VerifyReport:
     seed: int
     options: dict[str, Any]
     seconds: dict[str, float] = field(default_factory=dict)
+    plant: dict[str, Any] | None = None
 
     @property
     def verdict(self) -> str:
@@ -118,6 +119,7 @@ class VerifyReport:
             "synthesis": None if self.synthesis is None else {
                 k: v for k, v in self.synthesis.to_dict().items() if k != "analysis"},
             "analysis": None if an is None else an.to_dict() | {"per_mode": [m.to_dict() for m in self.per_mode]},
+            "plant": self.plant,
             "seed": self.seed,
             "options": self.options,
             "seconds": self.seconds,
@@ -160,15 +162,17 @@ def _exact_energies(system: FTCSystem, loop: ClosedLoop, g2: float) -> tuple[lis
 
 
 def _fmu_monte_carlo(system: FTCSystem, controller: Controller, chain_paths: list[ChainPath], delta: DeltaSchedule,
-                     delta_seed: int, step: float, progress: bool) -> list[PathRecord]:
-    """Every path co-simulated on the ``LinearJumpPlant`` FMU of ``system``."""
-    from ..plants.linear_jump import build_fmu
-    from ..simulation.supervisor import FaultInjectionMap, Supervisor
+                     delta_seed: int, step: float, progress: bool, plant: Any = None,
+                     log: Any = None) -> tuple[list[PathRecord], dict[str, Any]]:
+    """Every path co-simulated on the plant map's FMU (default: the ``LinearJumpPlant`` of
+    ``system``); also the FMU's file and model identifier."""
+    from ..simulation.supervisor import open_supervisor
 
     records: list[PathRecord] = []
     bar = _progress(len(chain_paths), progress)
     try:
-        with Supervisor(build_fmu(system), FaultInjectionMap.for_linear_jump_plant(system), system=system) as sup:
+        with open_supervisor(system, plant, log=log) as sup:
+            fmu = {"fmu": str(sup.path), "model_identifier": sup.model_identifier}
             delta_rng = np.random.default_rng(delta_seed)
             for start in range(0, len(chain_paths), FMU_BATCH):
                 batch = chain_paths[start:start + FMU_BATCH]
@@ -179,7 +183,33 @@ def _fmu_monte_carlo(system: FTCSystem, controller: Controller, chain_paths: lis
     finally:
         if bar is not None:
             bar.close()
-    return records
+    return records, fmu
+
+
+def _plant_summary(plant: Any, records: list[PathRecord], reference: list[PathRecord], mc: MCEstimate,
+                   fmu: dict[str, Any]) -> tuple[dict[str, Any], Check]:
+    """The ``plant`` object of the report and the region check (issue: what "pass" means
+    on a plant): excursions from the operating point, paths leaving ``[region]``, and the
+    measured linearisation error (FMU paths against the linear reference on the same
+    chain and disturbance)."""
+    ok = [r for r in records if r.diverged_at is None]
+    excursion = np.max([np.max(np.abs(r.x), axis=0) for r in ok], axis=0) if ok else None
+    left = 0
+    if plant.states_min is not None and plant.states_op is not None:
+        for r in records:
+            xa = r.x + plant.states_op
+            left += bool(np.any(xa < plant.states_min) or np.any(xa > plant.states_max) or r.diverged_at is not None)
+    err = 0.0
+    for a, b in zip(records, reference):
+        if a.diverged_at is None and b.diverged_at is None:
+            err = max(err, float(np.max(np.abs(a.x - b.x))) / max(1e-300, float(np.max(np.abs(b.x)))))
+    summary = fmu | {"mean_ratio": mc.mean_ratio, "upper_bound": mc.upper_bound,
+                     "max_excursion": None if excursion is None else excursion.tolist(),
+                     "linearisation_error": err, "left_region": left, "paths": len(records)}
+    detail = (f"{left} of {len(records)} paths left [region]; largest excursion from the operating point "
+              f"{summary['max_excursion']}; FMU vs linear reference: largest relative state difference {err:.3g} "
+              f"on {min(len(records), len(reference))} paths (the measured linearisation error)")
+    return summary, Check("plant region", left == 0, detail)
 
 
 def _backend_agreement(system: FTCSystem, controller: Controller, chain_paths: list[ChainPath],
@@ -214,11 +244,17 @@ def run_verify(
     seed: int | None = None,
     solver: str | None = None,
     progress: bool = False,
+    plant: Any = None,
+    fmu_log: Any = None,
 ) -> VerifyReport:
     """Run every stage of the module docstring and collect the checks.
 
     ``controller=None`` synthesizes state feedback by ``method``; a given controller
     (static or dynamic, :class:`~ftc_verify.controllers.Controller`) is verified as is.
+    ``plant``: a :class:`~ftc_verify.plants.plant_map.PlantMap` whose FMU replaces the
+    ``LinearJumpPlant`` in the Monte Carlo (``system`` is then its linearisation); the
+    report gains a ``plant`` object and the region check replaces the backend agreement.
+    ``fmu_log``: called with every message the FMU logs.
     """
     seconds: dict[str, float] = {}
     if seed is None:
@@ -275,9 +311,11 @@ def run_verify(
     t = time.perf_counter()
     rng = np.random.default_rng(seed)
     chain_paths = sample_paths(system.chain, horizon, paths, rng)
-    delta = DeltaSchedule("random" if system.uncertain else "zero")
+    has_delta = plant is None or bool(plant.delta1 or plant.delta2)
+    delta = DeltaSchedule("random" if system.uncertain and has_delta else "zero")
     delta_seed = int(rng.integers(2**63))
-    records = _fmu_monte_carlo(system, controller, chain_paths, delta, delta_seed, step, progress)
+    records, fmu = _fmu_monte_carlo(system, controller, chain_paths, delta, delta_seed, step, progress, plant, fmu_log)
+    options.update(fmu)
     y = np.array([r.y_norm ** 2 for r in records])
     w = np.array([r.w_norm ** 2 for r in records])
     mc = estimate(y, w, alpha=1e-6, gamma=gamma_cert, seed=seed)
@@ -286,7 +324,16 @@ def run_verify(
                         f"vs gamma^2 = {g2:.6g}; sample-and-hold at h = {step:g}, horizon {horizon:g}"))
     stage("monte_carlo", t)
     t = time.perf_counter()
-    checks.append(_backend_agreement(system, controller, chain_paths, records, delta, delta_seed, step))
+    found_plant = None
+    if plant is None:
+        checks.append(_backend_agreement(system, controller, chain_paths, records, delta, delta_seed, step))
+    else:
+        from ..simulation.reference import simulate_reference
+
+        ref = simulate_reference(system, controller, chain_paths[:AGREE_PATHS], step=step, disturbance="paper",
+                                 delta=delta, rng=np.random.default_rng(delta_seed))
+        found_plant, check = _plant_summary(plant, records, list(ref.records), mc, fmu)
+        checks.append(check)
     stage("reference", t)
     return report(gamma_certified=gamma_cert, analysis=analysis, per_mode=per_mode, exact=tuple(exact), worst=worst,
-                  mc=mc, records=tuple(records))
+                  mc=mc, records=tuple(records), plant=found_plant)
