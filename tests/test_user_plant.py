@@ -202,7 +202,7 @@ set = { k_eff = 0.5 }
     (lambda t: t.replace('"Motor.fmu"', '"Nope.fmu"'), "no such file"),
     (lambda t: t.replace('"omega_out"', '"omega_ot"'), "did you mean"),
     (lambda t: t.replace('inputs = ["V"]', 'inputs = ["omega_out"]'), "causality 'output'"),
-    (lambda t: t.replace("k_eff", "J"), "fixed parameter"),
+    (lambda t: t.replace("k_eff", "J"), "variability 'fixed'"),
     (lambda t: t.replace('states = ["omega", "i"]\n', 'states = []\n').replace("states = [100.0, 7.0]", "states = []"),
      "states"),
     (lambda t: t + '[[fault]]\nset = { R_extra = 1.0 }\n', "fault[3].set names ['R_extra']"),

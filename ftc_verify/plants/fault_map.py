@@ -277,9 +277,9 @@ def _settable(v: Any, role: str, types: Sequence[str], err: Callable[[str], FMUE
         return v
     if v.causality == "parameter" and v.variability == "fixed":
         raise err(
-            f"variable {v.name!r} ({role}) is a fixed parameter: it can only be set before initialisation, "
-            "not when the fault occurs during a path; declare it tunable in the model "
-            "(Modelica: no `final`, annotation Evaluate=false; FMI: variability=\"tunable\") or make it an input"
+            f"variable {v.name!r} ({role}) is a parameter with variability 'fixed': it can only be set before initialisation, "
+            "but this role is written during a path, so it must be an input or a tunable parameter; declare it "
+            "tunable in the model (Modelica: annotation Evaluate=false, not final; FMI: variability=\"tunable\")"
         )
     raise err(
         f"variable {v.name!r} ({role}) has causality {v.causality!r}"

@@ -247,7 +247,7 @@ class FMUSession:
         self.delta = VarGroup(rv.delta)
         self.init = VarGroup(rv.initial)
         self._param_writes = self._typed_writes(rv.parameters, [v for _, v in self.mapping.parameters],
-                                                "[parameters] sets it to")
+                                                "[parameters] sets it to", "parameter")
 
     def read_groups(self, measured: bool) -> tuple[VarGroup, VarGroup]:
         """``(before, after)``: the variables read at a grid point before ``u, w`` are
@@ -385,37 +385,38 @@ class FMUSession:
             raise self.err("the FMU returned fmi2Fatal earlier; the instance cannot be used any more")
 
     # -------------------------------------------------------------------- writing
-    def _typed_value(self, v: Any, val: Any, what: str) -> Any:
+    def _typed_value(self, v: Any, val: Any, what: str, label: str) -> Any:
         """``val`` converted for the FMI type of ``v`` and checked against its range;
         ``what`` says where the value comes from (e.g. "mode 1 (0-based) maps to")."""
         kind = _FAULT_KIND[v.type]
         if kind == "int":
             if isinstance(val, float) and not val.is_integer():
-                raise self.err(f"variable {v.name!r} is {v.type}; {what} non-integer {val!r}")
+                raise self.err(f"{label} {v.name!r} is {v.type}; {what} non-integer {val!r}")
             val = int(val)
             lo = int(v.min) if v.min is not None else None
             hi = int(v.max) if v.max is not None else None
             if (lo is not None and val < lo) or (hi is not None and val > hi):
-                raise self.err(f"variable {v.name!r}: {what} {val}, outside its declared range [{v.min}, {v.max}]")
+                raise self.err(f"{label} {v.name!r}: {what} {val}, outside its declared range [{v.min}, {v.max}]")
             return val
         if kind == "bool":
             if val not in (0, 1):
-                raise self.err(f"variable {v.name!r} is Boolean; {what} {val!r}")
+                raise self.err(f"{label} {v.name!r} is Boolean; {what} {val!r}")
             return int(bool(val))
         val = float(val)
         lo = float(v.min) if v.min is not None else -math.inf
         hi = float(v.max) if v.max is not None else math.inf
         if not lo <= val <= hi:
-            raise self.err(f"variable {v.name!r}: {what} {val}, outside its declared range [{v.min}, {v.max}]")
+            raise self.err(f"{label} {v.name!r}: {what} {val}, outside its declared range [{v.min}, {v.max}]")
         return val
 
-    def _typed_writes(self, variables: Sequence[Any], values: Sequence[Any], what: str) -> list[tuple[str, Any, Any]]:
+    def _typed_writes(self, variables: Sequence[Any], values: Sequence[Any], what: str,
+                      label: str = "variable") -> list[tuple[str, Any, Any]]:
         """``[(kind, VarGroup, ctypes values)]`` writing ``values`` into ``variables``."""
         from fmpy.fmi2 import fmi2Boolean, fmi2Integer, fmi2Real
 
         out = []
         for kind, ctype in (("real", fmi2Real), ("int", fmi2Integer), ("bool", fmi2Boolean)):
-            pairs = [(v, self._typed_value(v, val, what)) for v, val in zip(variables, values)
+            pairs = [(v, self._typed_value(v, val, what, label)) for v, val in zip(variables, values)
                      if _FAULT_KIND[v.type] == kind]
             if pairs:
                 out.append((kind, VarGroup([v for v, _ in pairs], ctype), c_buffer(ctype, [x for _, x in pairs])))
@@ -438,7 +439,7 @@ class FMUSession:
         cached = self._fault_cache.get(mode)
         if cached is None:
             what = f"fault mode {mode} (0-based) maps to"
-            cached = self._typed_writes(self.variables.fault, self.mapping.values_for(mode), what)
+            cached = self._typed_writes(self.variables.fault, self.mapping.values_for(mode), what, "fault variable")
             self._fault_cache[mode] = cached
         return cached
 

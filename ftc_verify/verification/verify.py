@@ -231,6 +231,41 @@ def _backend_agreement(system: FTCSystem, controller: Controller, chain_paths: l
                  f"{min(AGREE_PATHS, len(records))} paths (tolerance {AGREE_RTOL:g})")
 
 
+def _against_reference(system: FTCSystem, controller: Controller, chain_paths: list[ChainPath],
+                       records: list[PathRecord], delta: DeltaSchedule, delta_seed: int, step: float, plant: Any,
+                       mc: MCEstimate, fmu: dict[str, Any]) -> tuple[dict[str, Any] | None, Check]:
+    """The backend agreement (LinearJumpPlant), or the plant summary and region check."""
+    if plant is None:
+        return None, _backend_agreement(system, controller, chain_paths, records, delta, delta_seed, step)
+    from ..simulation.reference import simulate_reference
+
+    ref = simulate_reference(system, controller, chain_paths[:AGREE_PATHS], step=step, disturbance="paper",
+                             delta=delta, rng=np.random.default_rng(delta_seed))
+    return _plant_summary(plant, records, list(ref.records), mc, fmu)
+
+
+def _mc_check(records: list[PathRecord], gamma_cert: float, seed: int, step: float,
+              horizon: float) -> tuple[MCEstimate, Check]:
+    """The Monte Carlo estimate of ``E||y||^2/||w||^2`` on the FMU paths against gamma^2."""
+    g2 = gamma_cert ** 2
+    y = np.array([r.y_norm ** 2 for r in records])
+    w = np.array([r.w_norm ** 2 for r in records])
+    mc = estimate(y, w, alpha=1e-6, gamma=gamma_cert, seed=seed)
+    return mc, Check("Monte Carlo (FMU)", mc.upper_bound <= g2, divergence_note(records) or
+                     f"mean ratio {mc.mean_ratio:.6g}, one-sided upper bound {mc.upper_bound:.6g} (alpha 1e-6, "
+                     f"{len(records)} paths) vs gamma^2 = {g2:.6g}; sample-and-hold at h = {step:g}, horizon {horizon:g}")
+
+
+def _worst_case(loop: ClosedLoop, exact: list[dict[str, Any]], horizon: float,
+                gamma_cert: float) -> tuple[WorstCase, Check]:
+    """The worst-case disturbance at the beta vertex of the largest exact energy ratio."""
+    worst_beta = np.array(max(exact, key=lambda e: e["ratio"])["beta"])
+    worst = worst_case_disturbance(loop.nominal(), beta=worst_beta, horizon=min(horizon, 30.0), pieces=40)
+    return worst, Check("worst-case disturbance", worst.gain <= gamma_cert,
+                        f"lower bound of the stochastic gain {worst.gain:.6g} <= certified {gamma_cert:.6g} "
+                        f"(gap {gamma_cert - worst.gain:.3g} = conservatism of the certificate)")
+
+
 def run_verify(
     system: FTCSystem,
     *,
@@ -238,14 +273,8 @@ def run_verify(
     method: str = "iterative",
     k_max: float | None = 30.0,
     controller: Controller | None = None,
-    paths: int = 200,
-    step: float = 0.01,
-    horizon: float = 30.0,
-    seed: int | None = None,
-    solver: str | None = None,
-    progress: bool = False,
-    plant: Any = None,
-    fmu_log: Any = None,
+    paths: int = 200, step: float = 0.01, horizon: float = 30.0, seed: int | None = None,
+    solver: str | None = None, progress: bool = False, plant: Any = None, fmu_log: Any = None,
 ) -> VerifyReport:
     """Run every stage of the module docstring and collect the checks.
 
@@ -302,11 +331,8 @@ def run_verify(
     checks.append(check)
     stage("exact_energy", t)
     t = time.perf_counter()
-    worst_beta = np.array(max(exact, key=lambda e: e["ratio"])["beta"])
-    worst = worst_case_disturbance(loop.nominal(), beta=worst_beta, horizon=min(horizon, 30.0), pieces=40)
-    checks.append(Check("worst-case disturbance", worst.gain <= gamma_cert,
-                        f"lower bound of the stochastic gain {worst.gain:.6g} <= certified {gamma_cert:.6g} "
-                        f"(gap {gamma_cert - worst.gain:.3g} = conservatism of the certificate)"))
+    worst, check = _worst_case(loop, exact, horizon, gamma_cert)
+    checks.append(check)
     stage("worst_case", t)
     t = time.perf_counter()
     rng = np.random.default_rng(seed)
@@ -316,24 +342,13 @@ def run_verify(
     delta_seed = int(rng.integers(2**63))
     records, fmu = _fmu_monte_carlo(system, controller, chain_paths, delta, delta_seed, step, progress, plant, fmu_log)
     options.update(fmu)
-    y = np.array([r.y_norm ** 2 for r in records])
-    w = np.array([r.w_norm ** 2 for r in records])
-    mc = estimate(y, w, alpha=1e-6, gamma=gamma_cert, seed=seed)
-    checks.append(Check("Monte Carlo (FMU)", mc.upper_bound <= g2, divergence_note(records) or
-                        f"mean ratio {mc.mean_ratio:.6g}, one-sided upper bound {mc.upper_bound:.6g} (alpha 1e-6, {paths} paths) "
-                        f"vs gamma^2 = {g2:.6g}; sample-and-hold at h = {step:g}, horizon {horizon:g}"))
+    mc, check = _mc_check(records, gamma_cert, seed, step, horizon)
+    checks.append(check)
     stage("monte_carlo", t)
     t = time.perf_counter()
-    found_plant = None
-    if plant is None:
-        checks.append(_backend_agreement(system, controller, chain_paths, records, delta, delta_seed, step))
-    else:
-        from ..simulation.reference import simulate_reference
-
-        ref = simulate_reference(system, controller, chain_paths[:AGREE_PATHS], step=step, disturbance="paper",
-                                 delta=delta, rng=np.random.default_rng(delta_seed))
-        found_plant, check = _plant_summary(plant, records, list(ref.records), mc, fmu)
-        checks.append(check)
+    found_plant, check = _against_reference(system, controller, chain_paths, records, delta, delta_seed, step,
+                                            plant, mc, fmu)
+    checks.append(check)
     stage("reference", t)
     return report(gamma_certified=gamma_cert, analysis=analysis, per_mode=per_mode, exact=tuple(exact), worst=worst,
                   mc=mc, records=tuple(records), plant=found_plant)
