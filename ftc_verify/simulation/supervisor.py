@@ -215,6 +215,12 @@ class Supervisor:
         s, m = self.session, self._modes()
         if self.system is not None:
             controller.check(self.system, source="controller")
+            n, nu, ny, nw = self.system.dims
+            for count, want, what in ((s.ny, ny, "outputs (performance y)"), (s.nw, nw, "disturbances w"),
+                                      (s.n, n, "states x")):
+                if count != want:
+                    raise ValidationError(f"{self.path}: the map names {count} {what}, but the system "
+                                          f"{self.system.name!r} has {want}; a missing role would read as zero")
         elif m is not None and controller.entries not in ((m, m * m) if controller.is_state_feedback else (m,)):
             raise ValidationError(f"controller: {controller.entries} entries given, the plant has {m} modes")
         measured = controller.measures == "output"

@@ -194,22 +194,25 @@ def _plant_summary(plant: Any, records: list[PathRecord], reference: list[PathRe
     chain and disturbance)."""
     ok = [r for r in records if r.diverged_at is None]
     excursion = np.max([np.max(np.abs(r.x), axis=0) for r in ok], axis=0) if ok else None
-    left = 0
+    left: list[int] = []
     if plant.states_min is not None and plant.states_op is not None:
-        for r in records:
+        for k, r in enumerate(records, start=1):
             xa = r.x + plant.states_op
-            left += bool(np.any(xa < plant.states_min) or np.any(xa > plant.states_max) or r.diverged_at is not None)
+            if np.any(xa < plant.states_min) or np.any(xa > plant.states_max) or r.diverged_at is not None:
+                left.append(k)
     err = 0.0
     for a, b in zip(records, reference):
         if a.diverged_at is None and b.diverged_at is None:
             err = max(err, float(np.max(np.abs(a.x - b.x))) / max(1e-300, float(np.max(np.abs(b.x)))))
     summary = fmu | {"mean_ratio": mc.mean_ratio, "upper_bound": mc.upper_bound,
                      "max_excursion": None if excursion is None else excursion.tolist(),
-                     "linearisation_error": err, "left_region": left, "paths": len(records)}
-    detail = (f"{left} of {len(records)} paths left [region]; largest excursion from the operating point "
+                     "linearisation_error": err, "left_region": len(left), "left_region_paths": left[:20],
+                     "paths": len(records)}
+    shown = f" (paths {left[:10]}{' ...' if len(left) > 10 else ''})" if left else ""
+    detail = (f"{len(left)} of {len(records)} paths left [region]{shown}; largest excursion from the operating point "
               f"{summary['max_excursion']}; FMU vs linear reference: largest relative state difference {err:.3g} "
               f"on {min(len(records), len(reference))} paths (the measured linearisation error)")
-    return summary, Check("plant region", left == 0, detail)
+    return summary, Check("plant region", not left, detail)
 
 
 def _backend_agreement(system: FTCSystem, controller: Controller, chain_paths: list[ChainPath],
