@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 from ftc_verify.controllers import Controller
-from ftc_verify.errors import ProblemFileError
+from ftc_verify.errors import FMUError, ProblemFileError
 from ftc_verify.model.files import load_system
 from ftc_verify.plants.fault_map import FaultInjectionMap
 from ftc_verify.plants.linear_jump import build_fmu
@@ -305,4 +305,14 @@ def test_a_map_without_outputs_is_refused_not_read_as_zero() -> None:
     paths = sample_paths(system.chain, 1.0, 1, np.random.default_rng(0))
     with Supervisor(build_fmu(system), bare, system=system) as sup:
         with pytest.raises(ValidationError, match=r"names 0 outputs .* has 1; a missing role would read as zero"):
+            sup.run(paths, ctrl, step=0.01)
+
+
+def test_an_fmu_that_lags_behind_the_step_is_an_error(monkeypatch: pytest.MonkeyPatch) -> None:
+    system = load_system(PAPER)
+    ctrl = Controller.state_feedback([np.zeros((2, 2))] * 2)
+    paths = sample_paths(system.chain, 1.0, 1, np.random.default_rng(0))
+    with open_supervisor(system) as sup:
+        monkeypatch.setattr(sup.session, "last_successful_time", lambda: 0.5)
+        with pytest.raises(FMUError, match=r"fmi2LastSuccessfulTime = 0.5: it did not advance as asked"):
             sup.run(paths, ctrl, step=0.01)
