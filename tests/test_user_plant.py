@@ -260,6 +260,8 @@ def test_plant_linearize_simulate_verify_commands(motor_dir: Path) -> None:
         assert key in plant
     assert plant["model_identifier"] == "DCMotor" and len(plant["max_excursion"]) == 2
     assert 0 < plant["linearisation_error"] < 1  # nonlinear plant: nonzero, but the design holds near the point
+    md = (motor_dir / "rep" / "report.md").read_text()
+    assert "## Plant:" in md and "DCMotor" in md and "paths that left [region]" in md
 
 
 def test_plant_check_flags_a_fault_that_changes_nothing(motor_dir: Path) -> None:

@@ -56,6 +56,15 @@ def render_markdown(rep: VerifyReport) -> str:
     ]
     lines += ["| quantity | value |", "|---|---|"]
     lines += [f"| {k} | {'-' if v is None else format(v, '.6g')} |" for k, v in rows]
+    plant = d.get("plant")
+    if plant:
+        lines += ["", f"## Plant: {plant['fmu']} (model identifier {plant['model_identifier']})", "",
+                  "| quantity | value |", "|---|---|",
+                  f"| attenuation on the plant: mean E||y - y_op||^2/||w||^2 | {plant['mean_ratio']:.6g} |",
+                  f"| its one-sided upper bound (alpha 1e-6) | {plant['upper_bound']:.6g} |",
+                  f"| largest excursion from the operating point, per state | {plant['max_excursion']} |",
+                  f"| linearisation error (FMU vs linear reference, relative) | {plant['linearisation_error']:.3g} |",
+                  f"| paths that left [region] | {plant['left_region']} of {plant['paths']} |"]
     ctrl = d["controller"] or {}
     matrices = ctrl.get("gains", ctrl.get("entries"))
     lines += ["", f"Controller: {ctrl.get('kind', 'none found')}: {matrices}", "",
