@@ -249,10 +249,13 @@ def trim_plant(pm: PlantMap, *, x_guess: np.ndarray | None = None, tol: float = 
         if x_guess is None:
             x_guess = pm.states_op if pm.states_op is not None else np.array(
                 [float(v.start or 0.0) for v in session.variables.states])
-        if probe.der is not None:
-            fun = lambda x: probe.derivative(0, x, uw0)  # noqa: E731
-        else:
-            fun = lambda x: (probe.flow(0, x, uw0, 1e-2) - x) / 1e-2  # noqa: E731
+
+        def fun(x: np.ndarray) -> np.ndarray:
+            """f_1(x, u_op, w_op), or its one-step difference quotient without der(x)."""
+            if probe.der is not None:
+                return probe.derivative(0, x, uw0)
+            return (probe.flow(0, x, uw0, 1e-2) - x) / 1e-2
+
         sol = scipy.optimize.root(fun, np.asarray(x_guess, dtype=float), method="hybr", tol=tol)
         resid = float(np.max(np.abs(fun(sol.x)))) if np.all(np.isfinite(sol.x)) else np.inf
     scale = max(1.0, float(np.max(np.abs(sol.x)))) if np.all(np.isfinite(sol.x)) else 1.0
