@@ -318,3 +318,18 @@ def test_an_fmu_that_lags_behind_the_step_is_an_error(monkeypatch: pytest.Monkey
         monkeypatch.setattr(sup.session, "last_successful_time", lambda: 0.5)
         with pytest.raises(FMUError, match=r"fmi2LastSuccessfulTime = 0.5: it did not advance as asked"):
             sup.run(paths, ctrl, step=0.01)
+
+
+def test_verify_plant_with_diverging_paths_reports_and_fails(motor_dir: Path) -> None:
+    """High gains certified in continuous time diverge under sample-and-hold at h = 0.01
+    (found by `synthesize --method iterative` without a gain bound): every plant path
+    diverges; the verdict is fail (exit 1), and both reports are written with nulls."""
+    _motor_files(motor_dir)
+    (motor_dir / "K_high.toml").write_text("[[gain]]\nK = [[-20988.26, -96.37]]\n[[gain]]\nK = [[-5296.96, -53.65]]\n")
+    out = run_cli(["verify", "motor.toml", "--gains", "K_high.toml", "--plant", "motor.plant.toml", "--paths", "5",
+                   "--horizon", "2", "--seed", "4", "--out", "rep_high"], motor_dir)
+    assert out.returncode == 1 and "Traceback" not in out.stderr, out
+    assert "diverged" in out.stdout and "every compared path diverged" in out.stdout, out.stdout
+    d = json.loads((motor_dir / "rep_high" / "report.json").read_text())
+    assert d["verdict"] == "fail" and d["plant"]["left_region"] == 5 and d["plant"]["mean_ratio"] is None
+    assert "| paths that left [region] | 5 of 5 |" in (motor_dir / "rep_high" / "report.md").read_text()

@@ -1,5 +1,6 @@
-"""The plant commands of the CLI: ``ftc-verify plant`` and ``ftc-verify linearize``
-(a user's FMU through a plant map, :mod:`ftc_verify.plants.plant_map`).
+"""The plant commands of the CLI: ``ftc-verify plant`` and ``ftc-verify linearize`` (a
+user's FMU through a plant map, :mod:`ftc_verify.plants.plant_map`) and ``ftc-verify
+build-fmu`` (a Modelica model to an FMU, :mod:`ftc_verify.plants.modelica`).
 
 Both follow the exit-code contract of :mod:`ftc_verify.cli.main`: 0 with a verdict line,
 1 when ``plant --check`` finds a fault that changes nothing or ``linearize --trim`` finds no
@@ -159,9 +160,27 @@ def _cmd_linearize(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_build_fmu(args: argparse.Namespace) -> int:
+    from ..plants.modelica import build_modelica_fmu
+
+    if args.output:
+        _check_output_file(args.output, "-o", (".fmu",))
+    fmu = build_modelica_fmu(args.model_file, model=args.model, dest=args.output)
+    print(f"ftc-verify build-fmu: {args.model_file}{f' ({args.model})' if args.model else ''}")
+    print(f"  FMU {fmu}: model exchange + co-simulation, checked against CasADi's evaluation of the model")
+    print("  verdict: built")
+    return EXIT_OK
+
+
 def add_plant_commands(sub: Any) -> None:
-    """Register ``plant`` and ``linearize`` on the CLI's subparsers."""
+    """Register ``plant``, ``linearize`` and ``build-fmu`` on the CLI's subparsers."""
     from ..plants.linearize import ROUTES
+
+    b = sub.add_parser("build-fmu", help="compile a flat Modelica model into an FMI 2.0 FMU (pymoca + CasADi + gcc)")
+    b.add_argument("model_file", help="Modelica .mo file")
+    b.add_argument("--model", default=None, help="model name (default: the file's stem)")
+    b.add_argument("-o", "--output", default=None, help="FMU file to write (default: the cache folder)")
+    b.set_defaults(func=_cmd_build_fmu)
 
     p = sub.add_parser("plant", help="show a plant map's FMU interface and resolved roles (--check: every fault acts)")
     p.add_argument("plant", help="plant map TOML file")

@@ -29,6 +29,11 @@ __all__ = ["REPORT_FILES", "check_out_dir", "write_report", "render_markdown"]
 REPORT_FILES = frozenset({"report.json", "report.md", "fig1_path.png", "ratio_distribution.png", "worst_case.png"})
 
 
+def _num(value: float | None, spec: str = ".6g") -> str:
+    """A number for the report, or "-" where JSON has null (infinite, diverged, not computed)."""
+    return "-" if value is None else format(value, spec)
+
+
 def render_markdown(rep: VerifyReport) -> str:
     """The readable summary, with the verdict line first."""
     d = rep.to_dict()
@@ -55,15 +60,16 @@ def render_markdown(rep: VerifyReport) -> str:
         ("Monte Carlo paths", mc.get("paths")),
     ]
     lines += ["| quantity | value |", "|---|---|"]
-    lines += [f"| {k} | {'-' if v is None else format(v, '.6g')} |" for k, v in rows]
+    lines += [f"| {k} | {_num(v)} |" for k, v in rows]
     plant = d.get("plant")
     if plant:
         lines += ["", f"## Plant: {plant['fmu']} (model identifier {plant['model_identifier']})", "",
                   "| quantity | value |", "|---|---|",
-                  f"| attenuation on the plant: mean E||y - y_op||^2/||w||^2 | {plant['mean_ratio']:.6g} |",
-                  f"| its one-sided upper bound (alpha 1e-6) | {plant['upper_bound']:.6g} |",
-                  f"| largest excursion from the operating point, per state | {plant['max_excursion']} |",
-                  f"| linearisation error (FMU vs linear reference, relative) | {plant['linearisation_error']:.3g} |",
+                  f"| attenuation on the plant: mean E||y - y_op||^2/||w||^2 | {_num(plant['mean_ratio'])} |",
+                  f"| its one-sided upper bound (alpha 1e-6) | {_num(plant['upper_bound'])} |",
+                  f"| largest excursion from the operating point, per state | {plant['max_excursion'] or '-'} |",
+                  f"| linearisation error (FMU vs linear reference, relative) | "
+                  f"{_num(plant['linearisation_error'], '.3g')} |",
                   f"| paths that left [region] | {plant['left_region']} of {plant['paths']} |"]
     ctrl = d["controller"] or {}
     matrices = ctrl.get("gains", ctrl.get("entries"))

@@ -200,18 +200,21 @@ def _plant_summary(plant: Any, records: list[PathRecord], reference: list[PathRe
             xa = r.x + plant.states_op
             if np.any(xa < plant.states_min) or np.any(xa > plant.states_max) or r.diverged_at is not None:
                 left.append(k)
-    err = 0.0
+    err: float | None = None
     for a, b in zip(records, reference):
         if a.diverged_at is None and b.diverged_at is None:
-            err = max(err, float(np.max(np.abs(a.x - b.x))) / max(1e-300, float(np.max(np.abs(b.x)))))
+            diff = float(np.max(np.abs(a.x - b.x))) / max(1e-300, float(np.max(np.abs(b.x))))
+            err = diff if err is None else max(err, diff)
     summary = fmu | {"mean_ratio": mc.mean_ratio, "upper_bound": mc.upper_bound,
                      "max_excursion": None if excursion is None else excursion.tolist(),
                      "linearisation_error": err, "left_region": len(left), "left_region_paths": left[:20],
                      "paths": len(records)}
     shown = f" (paths {left[:10]}{' ...' if len(left) > 10 else ''})" if left else ""
     detail = (f"{len(left)} of {len(records)} paths left [region]{shown}; largest excursion from the operating point "
-              f"{summary['max_excursion']}; FMU vs linear reference: largest relative state difference {err:.3g} "
-              f"on {min(len(records), len(reference))} paths (the measured linearisation error)")
+              f"{summary['max_excursion']}; FMU vs linear reference: "
+              + ("every compared path diverged" if err is None else
+                 f"largest relative state difference {err:.3g} on {min(len(records), len(reference))} paths "
+                 "(the measured linearisation error)"))
     return summary, Check("plant region", not left, detail)
 
 
