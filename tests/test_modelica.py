@@ -9,7 +9,6 @@ import dataclasses
 import math
 import shutil
 import sys
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -315,13 +314,10 @@ def test_missing_backend_names_the_extra(tank_mo: Path, monkeypatch: pytest.Monk
 THREE_TANK = Path(__file__).resolve().parents[1] / "examples" / "three_tank" / "ThreeTank.mo"
 
 
-def test_three_tank_builds_fast(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_three_tank_builds(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Builds and validates (its build time is measured in benchmarks/modelica_build.py)."""
     monkeypatch.setenv("FTC_VERIFY_CACHE", str(tmp_path / "fresh-cache"))  # compile for real
-    translate_modelica(THREE_TANK)  # warm the imports (pymoca's parser, CasADi)
-    start = time.perf_counter()
     fmu = build_modelica_fmu(THREE_TANK, dest=tmp_path)
-    elapsed = time.perf_counter() - start
-    assert elapsed < 5.0, elapsed
     assert validate_fmu(str(fmu)) == []
     md = read_model_description(str(fmu))
     kinds = {v.name: (v.causality, v.variability) for v in md.modelVariables}
