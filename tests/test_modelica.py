@@ -351,3 +351,25 @@ def test_build_fmu_command(tmp_path: Path) -> None:
                          capture_output=True, text=True, cwd=tmp_path, timeout=300)
     assert out.returncode == 2 and "Bad.mo:4" in out.stderr and "'when'" in out.stderr, out.stderr
     assert out.stderr.count("\n") == 1 and not (tmp_path / "bad.fmu").exists()
+
+
+def test_three_tank_plant_map_resolves_and_linearises(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The example map against the built FMU: every role resolves, every fault acts, the
+    nominal mode is a trim (no drift) and the faulty modes shift the equilibrium (drift noted)."""
+    import shutil
+
+    from ftc_verify.plants.linearize import linearize_plant
+    from ftc_verify.plants.plant_map import load_plant_map
+
+    monkeypatch.setenv("FTC_VERIFY_CACHE", str(tmp_path / "cache"))
+    build_modelica_fmu(THREE_TANK, dest=tmp_path / "ThreeTank.fmu")
+    shutil.copy(THREE_TANK.parent / "three_tank.plant.toml", tmp_path / "three_tank.plant.toml")
+    pm = load_plant_map(tmp_path / "three_tank.plant.toml")
+    lin = linearize_plant(pm)
+    assert lin.route == "directional" and len(lin.modes) == 4
+    assert np.linalg.norm(lin.modes[0].drift) < 1e-8
+    assert all(np.linalg.norm(m.drift) > 1e-5 for m in lin.modes[1:])
+    a = 0.0154
+    np.testing.assert_allclose(lin.modes[0].B, [[1 / a, 0], [0, 1 / a], [0, 0]], rtol=1e-12)
+    np.testing.assert_allclose(lin.modes[0].D, [[0], [0], [1e-5 / a]], rtol=1e-12)
+    assert len(lin.notes) == 3

@@ -23,7 +23,8 @@ model ThreeTank
   parameter Real clog13 = 0 "fault: clogging of the valve T1 -> T3 (0 = open, 1 = closed)";
   input Real q1(unit = "m3/s", start = 3.5017e-5) "pump 1 flow command (0 .. 1e-4)";
   input Real q2(unit = "m3/s", start = 2.4410e-5) "pump 2 flow command (0 .. 1e-4)";
-  input Real q_d(unit = "m3/s", start = 0) "disturbance inflow into T3";
+  parameter Real q_unit(unit = "m3/s") = 1e-5 "flow of one unit of the disturbance input (10 ml/s)";
+  input Real q_d(start = 0) "disturbance inflow into T3, in units of q_unit";
   Real h1(start = 0.4, fixed = true, unit = "m") "level of T1";
   Real h2(start = 0.2, fixed = true, unit = "m") "level of T2";
   Real h3(start = 0.3, fixed = true, unit = "m") "level of T3";
@@ -40,7 +41,7 @@ equation
   q20 = az20*s_n*sqrt(2*g)*h2/(h2^2 + delta^2)^0.25;
   q_leak = leak1*sqrt(2*g)*h1/(h1^2 + delta^2)^0.25;
   A*der(h1) = f_pump1*q1 - q13 - q_leak;
-  A*der(h3) = q13 - q32 + q_d;
+  A*der(h3) = q13 - q32 + q_unit*q_d;
   A*der(h2) = q2 + q32 - q20;
   annotation(experiment(StopTime = 600, Interval = 1));
 end ThreeTank;
