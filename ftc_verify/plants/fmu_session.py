@@ -139,7 +139,7 @@ class FMUSession:
         self.closed = False
         self._callbacks: Any = None
         self._logger_ref: Any = None
-        self._fault_cache: dict[int, list[tuple[str, Any]]] = {}
+        self._fault_cache: dict[int, list[tuple[str, Any, Any]]] = {}
         self._read_groups: dict[bool, tuple[VarGroup, VarGroup]] = {}
         try:
             self._open()

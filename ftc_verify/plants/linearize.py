@@ -111,6 +111,7 @@ class _Probe:
         ders = [by_state.get(x) for x in pm.states]
         self.der = VarGroup(ders) if all(d is not None for d in ders) else None
         self.out = VarGroup(session.variables.outputs + session.variables.measured)
+        self.states = VarGroup(session.variables.states)
 
     def start(self, mode: int, x: np.ndarray, uw: np.ndarray) -> None:
         s = self.s
@@ -133,7 +134,7 @@ class _Probe:
     def flow(self, mode: int, x: np.ndarray, uw: np.ndarray, h: float) -> np.ndarray:
         self.start(mode, x, uw)
         self.s.slave.doStep(0.0, h)
-        return self.read(VarGroup(self.s.variables.states))
+        return self.read(self.states)
 
 
 def _central(fun: Callable[[np.ndarray], np.ndarray], z0: np.ndarray, delta: np.ndarray) -> np.ndarray:
