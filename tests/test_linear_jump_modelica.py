@@ -37,14 +37,13 @@ def test_modelica_linear_jump_plant_agrees_with_the_c_fmu(tmp_path: Path, monkey
     monkeypatch.setenv("FTC_VERIFY_CACHE", str(tmp_path / "cache"))
     system = load_system(ROOT / "examples" / "paper.toml")
     gains = load_controller(ROOT / "examples" / "paper_gains.toml")
-    mo = tmp_path / "PaperPlant.mo"
-    mo.write_text(linear_jump_modelica(system, "PaperPlant"))
-    fmu = build_modelica_fmu(mo, dest=tmp_path / "PaperPlant.fmu")
+    mo = ROOT / "fmus" / "modelica" / "LinearJumpPlant.mo"  # the project's own file, built as it is
+    fmu = build_modelica_fmu(mo, dest=tmp_path / "LinearJumpPlant.fmu")
     paths = sample_paths(system.chain, 5.0, 3, np.random.default_rng(3))
     c_fmu = simulate_fmu(system, gains, paths, step=0.01, delta=delta, seed=5)
     with Supervisor(fmu, linear_jump_modelica_map(system), system=system, tolerance=1e-10) as sup:
         mo_fmu = sup.run(paths, gains, step=0.01, delta=delta, seed=5)
-    assert mo_fmu.options["model_identifier"] == "PaperPlant"
+    assert mo_fmu.options["model_identifier"] == "LinearJumpPlant"
     for a, b in zip(c_fmu.records, mo_fmu.records):
         np.testing.assert_array_equal(a.t, b.t)
         for key in ("x", "y", "ym", "u"):
@@ -57,3 +56,12 @@ def test_generated_model_selects_each_mode() -> None:
     text = linear_jump_modelica(system, "P")
     assert "if mode < 1.5 then 1.0 else 0.2" in text  # B[0,1] differs between the modes
     assert text.startswith("model P") and text.rstrip().endswith("end P;")
+
+
+def test_checked_in_model_is_the_generators_output() -> None:
+    """``fmus/modelica/LinearJumpPlant.mo`` (after its comment header) is exactly what
+    ``linear_jump_modelica`` writes for the paper's system, so it cannot drift."""
+    system = load_system(ROOT / "examples" / "paper.toml")
+    text = (ROOT / "fmus" / "modelica" / "LinearJumpPlant.mo").read_text()
+    body = "".join(line for line in text.splitlines(keepends=True) if not line.startswith("//"))
+    assert body == linear_jump_modelica(system, "LinearJumpPlant")

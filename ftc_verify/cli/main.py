@@ -359,7 +359,8 @@ def _cmd_verify(args: argparse.Namespace) -> int:
     k_max = None if args.no_gain_bound else args.k_max
     rep = run_verify(system, gamma=args.gamma, method=args.method, k_max=k_max, controller=controller, paths=args.paths,
                      step=args.step, horizon=args.horizon, seed=args.seed, solver=args.solver,
-                     progress=sys.stderr.isatty(), plant=plant, fmu_log=_fmu_logger(args))
+                     progress=sys.stderr.isatty(), plant=plant, fmu_log=_fmu_logger(args),
+                     measure=args.measure)
     written = write_report(rep, args.out)
     d = rep.to_dict()
     print(f"ftc-verify verify: {system.name}")
@@ -456,6 +457,10 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--seed", type=_seed, default=None)
     v.add_argument("--out", default="ftc-verify-report", help="output folder (default ./ftc-verify-report)")
     v.add_argument("--solver", default="auto", choices=["auto", "clarabel", "sdpa", "scs"])
+    v.add_argument("--measure", default="total", choices=["total", "incremental"],
+                   help="Monte Carlo ratio of the real paths (total, default) or of each path's response to w "
+                        "alone, y(w) - y(w = 0) on the same path (incremental: for plants whose faults move the "
+                        "equilibrium)")
     _plant_options(v)
     v.set_defaults(func=_cmd_verify)
 

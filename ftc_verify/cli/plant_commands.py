@@ -58,6 +58,9 @@ def describe_plant(pm: Any, session: Any) -> dict[str, Any]:
         "parameters": dict(pm.parameters),
         "operating_point": {"inputs": pm.inputs_op.tolist(), "disturbances": pm.disturbances_op.tolist(),
                             "states": None if pm.states_op is None else pm.states_op.tolist()},
+        "region": {f"{role}_{side}": [float(v) if np.isfinite(v) else None for v in getattr(pm, f"{role}_{side}")]
+                   for role in ("states", "inputs") for side in ("min", "max")
+                   if getattr(pm, f"{role}_{side}") is not None},
         "warnings": warnings,
     }
 
@@ -114,6 +117,8 @@ def _cmd_plant(args: argparse.Namespace) -> int:
             print(f"  fault mode {k} ({f['name']}): {f['set']}")
         op = d["operating_point"]
         print(f"  operating point: u = {op['inputs']}, x = {op['states']}, w = {op['disturbances']}")
+        for key, bound in d["region"].items():
+            print(f"  region {key}: {bound}")
         for r in d.get("check", []):
             print(f"  check mode {r['mode']} ({r['name']}): {'CHANGES NOTHING' if r['changes_nothing'] else 'ok'}")
         for w in d["warnings"]:

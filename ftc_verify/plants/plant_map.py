@@ -25,6 +25,8 @@ chain. Full example (README "Your own FMU plant")::
     [region]
     states_min = [50.0, -5.0]
     states_max = [150.0, 15.0]
+    inputs_min = [0.0]            # optional: actuator limits, checked on u_op + u
+    inputs_max = [24.0]
     [[fault]]
     name = "nominal"
     set = { k_eff = 1.0, R_extra = 0.0 }
@@ -114,6 +116,8 @@ class PlantMap:
     parameters: tuple[tuple[str, Scalar], ...]
     states_min: np.ndarray | None
     states_max: np.ndarray | None
+    inputs_min: np.ndarray | None
+    inputs_max: np.ndarray | None
     fault_variables: tuple[str, ...]
     faults: tuple[FaultMode, ...]
     chain: JointChain | None
@@ -241,20 +245,28 @@ def _faults(p: Path, doc: dict[str, Any]) -> tuple[tuple[str, ...], tuple[FaultM
     return tuple(names), tuple(modes)
 
 
-def _region(p: Path, doc: dict[str, Any], n: int) -> tuple[np.ndarray | None, np.ndarray | None]:
-    reg = doc.get("region")
-    if reg is None:
+def _bounds(p: Path, reg: dict[str, Any], role: str, count: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """``[region].{role}_min`` and ``_max`` (a missing side is infinite; both missing: None)."""
+    if f"{role}_min" not in reg and f"{role}_max" not in reg:
         return None, None
-    if not isinstance(reg, dict):
-        raise ProblemFileError(f"{p}: [region]: expected a table, got {reg!r}")
-    unknown_keys(p, "[region]", list(reg), {"states_min", "states_max"})
-    lo = _floats(reg["states_min"], n, f"{p}: [region].states_min", finite=False) if "states_min" in reg else np.full(n, -np.inf)
-    hi = _floats(reg["states_max"], n, f"{p}: [region].states_max", finite=False) if "states_max" in reg else np.full(n, np.inf)
+    lo, hi = (_floats(reg[key], count, f"{p}: [region].{key}", finite=False) if key in reg
+              else np.full(count, sign * np.inf) for key, sign in ((f"{role}_min", -1.0), (f"{role}_max", 1.0)))
     bad = np.flatnonzero(~(lo < hi))
     if bad.size:
         k = int(bad[0])
-        raise ProblemFileError(f"{p}: [region]: states_min[{k}] = {lo[k]!r} is not below states_max[{k}] = {hi[k]!r}")
+        raise ProblemFileError(f"{p}: [region]: {role}_min[{k}] = {lo[k]!r} is not below {role}_max[{k}] = {hi[k]!r}")
     return lo, hi
+
+
+def _region(p: Path, doc: dict[str, Any], n: int, nu: int) -> tuple[np.ndarray | None, ...]:
+    """State bounds (the region the linear design is trusted in) and actuator limits."""
+    reg = doc.get("region")
+    if reg is None:
+        return None, None, None, None
+    if not isinstance(reg, dict):
+        raise ProblemFileError(f"{p}: [region]: expected a table, got {reg!r}")
+    unknown_keys(p, "[region]", list(reg), {"states_min", "states_max", "inputs_min", "inputs_max"})
+    return _bounds(p, reg, "states", n) + _bounds(p, reg, "inputs", nu)
 
 
 def _chain(p: Path, doc: dict[str, Any], m: int) -> JointChain | None:
@@ -317,9 +329,10 @@ def load_plant_map(path: str | os.PathLike[str]) -> PlantMap:
     clash = sorted(set(fault_vars) & {k for k, _ in parameters})
     if clash:
         raise ProblemFileError(f"{p}: {clash} are set both in [parameters] and in [[fault]]; name each in one place")
-    lo, hi = _region(p, doc, n)
+    lo, hi, u_lo, u_hi = _region(p, doc, n, nu)
     return PlantMap(source=p, fmu=fmu_path, name=name, **roles, inputs_op=u_op, states_op=x_op,
                     disturbances_op=w_op, parameters=parameters, states_min=lo, states_max=hi,
+                    inputs_min=u_lo, inputs_max=u_hi,
                     fault_variables=fault_vars, faults=faults, chain=_chain(p, doc, len(faults)),
                     tolerance=None if tol is None else float(tol))
 
@@ -348,8 +361,10 @@ def dump_plant_map(pm: PlantMap, *, relative_to: Path | None = None) -> str:
     doc["operating_point"] = op
     if pm.parameters:
         doc["parameters"] = dict(pm.parameters)
-    if pm.states_min is not None and pm.states_max is not None:
-        doc["region"] = {"states_min": pm.states_min.tolist(), "states_max": pm.states_max.tolist()}
+    region = {f"{role}_{side}": getattr(pm, f"{role}_{side}").tolist()
+              for role in ("states", "inputs") for side in ("min", "max") if getattr(pm, f"{role}_{side}") is not None}
+    if region:
+        doc["region"] = region
     doc["fault"] = [{"name": f.name, "set": dict(zip(pm.fault_variables, f.values))} for f in pm.faults]
     if pm.chain is not None:
         c = pm.chain
@@ -379,6 +394,7 @@ def linear_jump_plant_map(system: FTCSystem, fmu: str | os.PathLike[str]) -> Pla
         disturbances=fim.disturbances, states=fim.states, measured=fim.measured, performance=fim.outputs,
         initial_states=fim.initial_states, delta1=fim.delta1, delta2=fim.delta2, inputs_op=np.zeros(nu),
         states_op=np.zeros(n), disturbances_op=np.zeros(nw), parameters=(), states_min=None, states_max=None,
+        inputs_min=None, inputs_max=None,
         fault_variables=("mode",), faults=tuple(FaultMode(f"mode {k}", (k,)) for k in range(1, system.m + 1)),
         chain=system.chain, tolerance=None,
     )

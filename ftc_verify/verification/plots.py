@@ -27,7 +27,14 @@ def _mode_steps(t: np.ndarray, modes: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return t, np.append(modes, modes[-1]) + 1
 
 
-def plot_path(record: PathRecord, path: str | os.PathLike[str], *, title: str = "") -> None:
+def _switch_times(t: np.ndarray, modes: np.ndarray) -> np.ndarray:
+    """Grid times at which the mode held on the next interval differs from the previous one."""
+    modes = np.asarray(modes)
+    return t[1:len(modes)][np.flatnonzero(np.diff(modes))]
+
+
+def plot_path(record: PathRecord, path: str | os.PathLike[str], *, title: str = "",
+              state_offset: np.ndarray | None = None, state_names: list[str] | None = None) -> None:
     """Draw Fig. 1 of the paper for ``record`` and write it to ``path`` atomically.
 
     Parameters
@@ -39,6 +46,14 @@ def plot_path(record: PathRecord, path: str | os.PathLike[str], *, title: str = 
         saved to a temporary file in the same folder, then renamed over ``path``.
     title : str
         Figure title (optional).
+    state_offset : array, optional
+        Added to the recorded states before drawing them (a plant's operating point, so
+        that panel (c) shows absolute values such as tank levels, not deviations).
+    state_names : list of str, optional
+        Legend labels of the states (a plant map's state variables).
+
+    Fault switches (true mode changes) are marked in panels (c) and (d) by dotted blue
+    lines, FDI switches by dashed orange lines.
     """
     if not isinstance(record, PathRecord):
         raise ValidationError(f"record: expected a PathRecord, got {type(record).__name__}")
@@ -57,10 +72,16 @@ def plot_path(record: PathRecord, path: str | os.PathLike[str], *, title: str = 
         ax.set_yticks(range(1, max(m, 2) + 1))
         ax.set_ylim(0.5, max(m, 2) + 0.5)
         ax.set_title(f"{tag} {'system modes' if tag == '(a)' else 'FDI modes'}", loc="left", fontsize=10)
-    x = np.asarray(record.x)
+    x = np.asarray(record.x) + (0.0 if state_offset is None else np.asarray(state_offset, dtype=float))
+    names = state_names or [f"$x_{{{k + 1}}}$" for k in range(x.shape[1])]
     for k in range(x.shape[1]):
-        axes[2].plot(t, x[:, k], label=f"$x_{{{k + 1}}}$")
-    axes[2].set_ylabel("state")
+        axes[2].plot(t, x[:, k], label=names[k])
+    for ax in axes[2:]:
+        for ts in _switch_times(t, record.true):
+            ax.axvline(ts, color="tab:blue", linestyle=":", linewidth=1.0)
+        for ts in _switch_times(t, record.fdi):
+            ax.axvline(ts, color="tab:orange", linestyle="--", linewidth=1.0)
+    axes[2].set_ylabel("state" if state_offset is None else "state (absolute)")
     axes[2].set_title("(c) system state response", loc="left", fontsize=10)
     axes[2].legend(loc="upper right", fontsize=8)
     y = np.asarray(record.y)

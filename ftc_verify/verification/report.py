@@ -65,12 +65,18 @@ def render_markdown(rep: VerifyReport) -> str:
     if plant:
         lines += ["", f"## Plant: {plant['fmu']} (model identifier {plant['model_identifier']})", "",
                   "| quantity | value |", "|---|---|",
-                  f"| attenuation on the plant: mean E||y - y_op||^2/||w||^2 | {_num(plant['mean_ratio'])} |",
+                  f"| measure | {plant['measure']} |",
+                  f"| attenuation on the plant: mean E||y - y_op||^2/||w||^2"
+                  f"{' of y(w) - y(w = 0)' if plant['measure'] == 'incremental' else ''} | {_num(plant['mean_ratio'])} |",
                   f"| its one-sided upper bound (alpha 1e-6) | {_num(plant['upper_bound'])} |",
                   f"| largest excursion from the operating point, per state | {plant['max_excursion'] or '-'} |",
                   f"| linearisation error (FMU vs linear reference, relative) | "
                   f"{_num(plant['linearisation_error'], '.3g')} |",
-                  f"| paths that left [region] | {plant['left_region']} of {plant['paths']} |"]
+                  f"| inputs: smallest and largest value, per input (absolute) | {plant['input_range'] or '-'} |",
+                  f"| paths that left [region] (states or input limits) | {plant['left_region']} of {plant['paths']} |"]
+        if plant["fault_response_energy"] is not None:
+            lines.append(f"| fault response: mean ||y(w = 0) - y_op||^2 (not bounded by gamma) | "
+                         f"{_num(plant['fault_response_energy'])} |")
     ctrl = d["controller"] or {}
     matrices = ctrl.get("gains", ctrl.get("entries"))
     lines += ["", f"Controller: {ctrl.get('kind', 'none found')}: {matrices}", "",
@@ -178,7 +184,10 @@ def write_report(rep: VerifyReport, out_dir: str | os.PathLike[str]) -> list[Pat
         (stage / "report.json").write_text(json.dumps(rep.to_dict(), indent=2, allow_nan=False) + "\n")
         (stage / "report.md").write_text(render_markdown(rep))
         if rep.records:
-            plot_path(rep.records[0], stage / "fig1_path.png", title=f"{rep.system.name}: one sample path")
+            plant = rep.plant or {}
+            plot_path(rep.records[0], stage / "fig1_path.png", title=f"{rep.system.name}: one sample path"
+                      + (f" on {Path(plant['fmu']).name}" if plant else ""),
+                      state_offset=plant.get("states_op"), state_names=plant.get("states"))
             _ratio_plot(rep, stage / "ratio_distribution.png")
         if rep.worst is not None:
             _worst_plot(rep, stage / "worst_case.png")

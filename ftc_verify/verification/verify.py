@@ -19,6 +19,10 @@ all on the one closed loop :func:`~ftc_verify.analysis.closedloop.closed_loop` b
 6. **backend agreement**: the first paths re-simulated by the numpy reference with the
    same ``Delta`` draws must match the FMU (plant and controller states) to
    :data:`AGREE_RTOL`.
+   With a plant map instead (the user's FMU, ``system`` its linearisation), the **plant
+   region** check: no path leaves ``[region]``; the Monte Carlo measures either the real
+   paths (``measure="total"``) or, for plants whose faults move the equilibrium, each
+   path's incremental response to ``w`` (``"incremental"``, :func:`incremental_records`).
 
 Each stage becomes a named check; the verdict is ``pass`` only if all pass. Every random
 draw comes from one :class:`numpy.random.Generator` whose seed is in the report.
@@ -37,6 +41,7 @@ from ..analysis.analyze import AnalysisReport, analyze, json_ready
 from ..analysis.closedloop import ClosedLoop, closed_loop
 from ..analysis.crossval import ModeCheck, cross_validate
 from ..controllers.controller import Controller
+from ..errors import ValidationError
 from ..model.system import FTCSystem
 from ..simulation.delta import DeltaSchedule, constant_delta_loops
 from ..simulation.paths import ChainPath, sample_paths
@@ -45,7 +50,7 @@ from ..synthesis.state_feedback import SynthesisResult, synthesize
 from .moments import WorstCase, exact_energy, worst_case_disturbance
 from .montecarlo import MCEstimate, estimate
 
-__all__ = ["Check", "VerifyReport", "run_verify", "AGREE_RTOL", "MAX_EXACT_VERTICES"]
+__all__ = ["Check", "VerifyReport", "run_verify", "incremental_records", "AGREE_RTOL", "MAX_EXACT_VERTICES"]
 
 #: Relative agreement required between the FMU and the numpy reference on equal paths.
 AGREE_RTOL = 1e-8
@@ -146,6 +151,13 @@ def _certify(analysis: AnalysisReport, gamma: float | None) -> tuple[float | Non
     return gamma_cert, checks
 
 
+def _cross_validation(loop: ClosedLoop) -> tuple[list[ModeCheck], Check]:
+    """Every frozen joint mode against python-control."""
+    per_mode = cross_validate(loop)
+    bad = [f"({m.true_mode},{m.fdi_mode}): {m.detail}" for m in per_mode if not m.agree]
+    return per_mode, Check("python-control per mode", not bad, "all joint modes agree" if not bad else "; ".join(bad))
+
+
 def _exact_energies(system: FTCSystem, loop: ClosedLoop, g2: float) -> tuple[list[dict[str, Any]], Check]:
     """Exact expected energy at the ``beta`` vertices and the constant Deltas."""
     exact = []
@@ -163,9 +175,10 @@ def _exact_energies(system: FTCSystem, loop: ClosedLoop, g2: float) -> tuple[lis
 
 def _fmu_monte_carlo(system: FTCSystem, controller: Controller, chain_paths: list[ChainPath], delta: DeltaSchedule,
                      delta_seed: int, step: float, progress: bool, plant: Any = None,
-                     log: Any = None) -> tuple[list[PathRecord], dict[str, Any]]:
+                     log: Any = None, disturbance: str = "paper") -> tuple[list[PathRecord], dict[str, Any]]:
     """Every path co-simulated on the plant map's FMU (default: the ``LinearJumpPlant`` of
-    ``system``); also the FMU's file and model identifier."""
+    ``system``) with the named disturbance; also the FMU's file and model identifier. The
+    ``Delta`` draws come from ``delta_seed`` alone, so two calls see the same ``Delta``."""
     from ..simulation.supervisor import open_supervisor
 
     records: list[PathRecord] = []
@@ -176,7 +189,7 @@ def _fmu_monte_carlo(system: FTCSystem, controller: Controller, chain_paths: lis
             delta_rng = np.random.default_rng(delta_seed)
             for start in range(0, len(chain_paths), FMU_BATCH):
                 batch = chain_paths[start:start + FMU_BATCH]
-                res = sup.run(batch, controller, step=step, disturbance="paper", delta=delta, rng=delta_rng)
+                res = sup.run(batch, controller, step=step, disturbance=disturbance, delta=delta, rng=delta_rng)
                 records.extend(res.records)
                 if bar is not None:
                     bar.update(len(batch))
@@ -186,32 +199,76 @@ def _fmu_monte_carlo(system: FTCSystem, controller: Controller, chain_paths: lis
     return records, fmu
 
 
+def incremental_records(with_w: list[PathRecord], without_w: list[PathRecord]) -> list[PathRecord]:
+    """Each path's response to the disturbance alone: the path with ``w`` minus the same
+    path (same chain, FDI switches, ``Delta``) run with ``w = 0``,
+
+    .. math::  y_{inc}(t) = y(t; w) - y(t; 0),
+
+    and likewise for ``x, u, y_m, x_c``; ``w`` is kept. On a linear plant this is the path
+    itself (superposition); on a nonlinear plant whose faults move the equilibrium it
+    removes the fault response ``y(t; 0)``, which the linear model cannot carry, and
+    leaves the incremental ``w -> y`` response that the certified gamma bounds. A path
+    that diverged in either run counts as diverged at the earlier time."""
+    out = []
+    for a, b in zip(with_w, without_w, strict=True):
+        k = min(len(a.t), len(b.t))
+        times = [d for d in (a.diverged_at, b.diverged_at) if d is not None]
+        out.append(PathRecord(a.path, a.t[:k], a.true[:k - 1], a.fdi[:k - 1], a.x[:k] - b.x[:k], a.u[:k] - b.u[:k],
+                              a.w[:k], a.y[:k] - b.y[:k], a.xc[:k] - b.xc[:k], a.ym[:k] - b.ym[:k],
+                              diverged_at=min(times) if times else None))
+    return out
+
+
+def _measured(records: list[PathRecord], measure: str,
+              run_without_w: Any) -> tuple[list[PathRecord], list[PathRecord] | None]:
+    """The records the Monte Carlo measures, and the ``w = 0`` runs when ``measure`` is
+    ``"incremental"`` (``run_without_w()`` simulates them)."""
+    if measure == "total":
+        return records, None
+    fault_only = run_without_w()
+    return incremental_records(records, fault_only), fault_only
+
+
 def _plant_summary(plant: Any, records: list[PathRecord], reference: list[PathRecord], mc: MCEstimate,
-                   fmu: dict[str, Any]) -> tuple[dict[str, Any], Check]:
+                   fmu: dict[str, Any], measured: list[PathRecord], fault_only: list[PathRecord] | None,
+                   ) -> tuple[dict[str, Any], Check]:
     """The ``plant`` object of the report and the region check (issue: what "pass" means
-    on a plant): excursions from the operating point, paths leaving ``[region]``, and the
-    measured linearisation error (FMU paths against the linear reference on the same
-    chain and disturbance)."""
+    on a plant): excursions from the operating point and paths leaving ``[region]`` (on the
+    real paths, ``records``), and the measured linearisation error: the paths the Monte
+    Carlo measured (``measured``: the real ones, or their incremental responses) against the
+    linear reference on the same chain and disturbance. ``fault_only``: the ``w = 0`` runs
+    of the incremental measure, whose mean output energy is the fault response."""
     ok = [r for r in records if r.diverged_at is None]
     excursion = np.max([np.max(np.abs(r.x), axis=0) for r in ok], axis=0) if ok else None
     left: list[int] = []
-    if plant.states_min is not None and plant.states_op is not None:
-        for k, r in enumerate(records, start=1):
-            xa = r.x + plant.states_op
-            if np.any(xa < plant.states_min) or np.any(xa > plant.states_max) or r.diverged_at is not None:
-                left.append(k)
+    x_op = plant.states_op if plant.states_op is not None else np.zeros(len(plant.states))
+    limits = [(lo, hi, op, key) for lo, hi, op, key in ((plant.states_min, plant.states_max, x_op, "x"),
+                                                       (plant.inputs_min, plant.inputs_max, plant.inputs_op, "u"))
+              if lo is not None]
+    for k, r in enumerate(records, start=1):
+        outside = any(np.any(getattr(r, key) + op < lo) or np.any(getattr(r, key) + op > hi)
+                      for lo, hi, op, key in limits)
+        if outside or r.diverged_at is not None:
+            left.append(k)
+    u_range = [np.min([np.min(r.u, axis=0) for r in ok], axis=0) + plant.inputs_op,
+               np.max([np.max(r.u, axis=0) for r in ok], axis=0) + plant.inputs_op] if ok else None
     err: float | None = None
-    for a, b in zip(records, reference):
+    for a, b in zip(measured, reference):
         if a.diverged_at is None and b.diverged_at is None:
             diff = float(np.max(np.abs(a.x - b.x))) / max(1e-300, float(np.max(np.abs(b.x))))
             err = diff if err is None else max(err, diff)
     summary = fmu | {"mean_ratio": mc.mean_ratio, "upper_bound": mc.upper_bound,
                      "max_excursion": None if excursion is None else excursion.tolist(),
+                     "input_range": None if u_range is None else [u_range[0].tolist(), u_range[1].tolist()],
                      "linearisation_error": err, "left_region": len(left), "left_region_paths": left[:20],
-                     "paths": len(records)}
+                     "paths": len(records), "states": list(plant.states),
+                     "states_op": None if plant.states_op is None else plant.states_op.tolist(), "measure": "total" if fault_only is None else "incremental",
+                     "fault_response_energy": None if fault_only is None else
+                     float(np.mean([r.y_norm ** 2 for r in fault_only]))}
     shown = f" (paths {left[:10]}{' ...' if len(left) > 10 else ''})" if left else ""
     detail = (f"{len(left)} of {len(records)} paths left [region]{shown}; largest excursion from the operating point "
-              f"{summary['max_excursion']}; FMU vs linear reference: "
+              f"{summary['max_excursion']}; inputs within {summary['input_range']}; FMU vs linear reference: "
               + ("every compared path diverged" if err is None else
                  f"largest relative state difference {err:.3g} on {min(len(records), len(reference))} paths "
                  "(the measured linearisation error)"))
@@ -239,7 +296,8 @@ def _backend_agreement(system: FTCSystem, controller: Controller, chain_paths: l
 
 def _against_reference(system: FTCSystem, controller: Controller, chain_paths: list[ChainPath],
                        records: list[PathRecord], delta: DeltaSchedule, delta_seed: int, step: float, plant: Any,
-                       mc: MCEstimate, fmu: dict[str, Any]) -> tuple[dict[str, Any] | None, Check]:
+                       mc: MCEstimate, fmu: dict[str, Any], measured: list[PathRecord],
+                       fault_only: list[PathRecord] | None) -> tuple[dict[str, Any] | None, Check]:
     """The backend agreement (LinearJumpPlant), or the plant summary and region check."""
     if plant is None:
         return None, _backend_agreement(system, controller, chain_paths, records, delta, delta_seed, step)
@@ -247,19 +305,21 @@ def _against_reference(system: FTCSystem, controller: Controller, chain_paths: l
 
     ref = simulate_reference(system, controller, chain_paths[:AGREE_PATHS], step=step, disturbance="paper",
                              delta=delta, rng=np.random.default_rng(delta_seed))
-    return _plant_summary(plant, records, list(ref.records), mc, fmu)
+    return _plant_summary(plant, records, list(ref.records), mc, fmu, measured, fault_only)
 
 
 def _mc_check(records: list[PathRecord], gamma_cert: float, seed: int, step: float,
-              horizon: float) -> tuple[MCEstimate, Check]:
-    """The Monte Carlo estimate of ``E||y||^2/||w||^2`` on the FMU paths against gamma^2."""
+              horizon: float, incremental: bool = False) -> tuple[MCEstimate, Check]:
+    """The Monte Carlo estimate of ``E||y||^2/||w||^2`` on the FMU paths against gamma^2
+    (``incremental``: the records are :func:`incremental_records`)."""
     g2 = gamma_cert ** 2
     y = np.array([r.y_norm ** 2 for r in records])
     w = np.array([r.w_norm ** 2 for r in records])
     mc = estimate(y, w, alpha=1e-6, gamma=gamma_cert, seed=seed)
     return mc, Check("Monte Carlo (FMU)", mc.upper_bound <= g2, divergence_note(records) or
                      f"mean ratio {mc.mean_ratio:.6g}, one-sided upper bound {mc.upper_bound:.6g} (alpha 1e-6, "
-                     f"{len(records)} paths) vs gamma^2 = {g2:.6g}; sample-and-hold at h = {step:g}, horizon {horizon:g}")
+                     f"{len(records)} paths) vs gamma^2 = {g2:.6g}; sample-and-hold at h = {step:g}, horizon {horizon:g}"
+                     + ("; incremental: y(w) - y(w = 0) on the same paths" if incremental else ""))
 
 
 def _worst_case(loop: ClosedLoop, exact: list[dict[str, Any]], horizon: float,
@@ -281,6 +341,7 @@ def run_verify(
     controller: Controller | None = None,
     paths: int = 200, step: float = 0.01, horizon: float = 30.0, seed: int | None = None,
     solver: str | None = None, progress: bool = False, plant: Any = None, fmu_log: Any = None,
+    measure: str = "total",
 ) -> VerifyReport:
     """Run every stage of the module docstring and collect the checks.
 
@@ -289,13 +350,16 @@ def run_verify(
     ``plant``: a :class:`~ftc_verify.plants.plant_map.PlantMap` whose FMU replaces the
     ``LinearJumpPlant`` in the Monte Carlo (``system`` is then its linearisation); the
     report gains a ``plant`` object and the region check replaces the backend agreement.
-    ``fmu_log``: called with every message the FMU logs.
+    ``fmu_log``: called with every message the FMU logs. ``measure``: ``"total"`` or
+    ``"incremental"`` (:func:`incremental_records`; the fault response's energy is reported).
     """
+    if measure not in ("total", "incremental"):
+        raise ValidationError(f"measure: {measure!r} is not 'total' or 'incremental'")
     seconds: dict[str, float] = {}
-    if seed is None:
-        seed = int(np.random.SeedSequence().entropy % 2**63)
+    seed = int(np.random.SeedSequence().entropy % 2**63) if seed is None else seed
     options = {"method": method if controller is None else "given controller", "gamma": gamma, "k_max": k_max,
-               "paths": paths, "step": step, "horizon": horizon, "solver": solver or "auto", "disturbance": "paper"}
+               "paths": paths, "step": step, "horizon": horizon, "solver": solver or "auto", "disturbance": "paper",
+               "measure": measure}
     checks: list[Check] = []
 
     def stage(name: str, t0: float) -> None:
@@ -325,9 +389,8 @@ def run_verify(
     checks.extend(found)
     stage("analysis", t)
     t = time.perf_counter()
-    per_mode = cross_validate(loop)
-    bad = [f"({m.true_mode},{m.fdi_mode}): {m.detail}" for m in per_mode if not m.agree]
-    checks.append(Check("python-control per mode", not bad, "all joint modes agree" if not bad else "; ".join(bad)))
+    per_mode, check = _cross_validation(loop)
+    checks.append(check)
     stage("cross_validation", t)
     if gamma_cert is None:
         return report(analysis=analysis, per_mode=per_mode)
@@ -343,17 +406,18 @@ def run_verify(
     t = time.perf_counter()
     rng = np.random.default_rng(seed)
     chain_paths = sample_paths(system.chain, horizon, paths, rng)
-    has_delta = plant is None or bool(plant.delta1 or plant.delta2)
-    delta = DeltaSchedule("random" if system.uncertain and has_delta else "zero")
+    delta = DeltaSchedule("random" if system.uncertain and (plant is None or plant.delta1 or plant.delta2) else "zero")
     delta_seed = int(rng.integers(2**63))
     records, fmu = _fmu_monte_carlo(system, controller, chain_paths, delta, delta_seed, step, progress, plant, fmu_log)
+    measured, fault_only = _measured(records, measure, lambda: _fmu_monte_carlo(
+        system, controller, chain_paths, delta, delta_seed, step, progress, plant, fmu_log, disturbance="zero")[0])
     options.update(fmu)
-    mc, check = _mc_check(records, gamma_cert, seed, step, horizon)
+    mc, check = _mc_check(measured, gamma_cert, seed, step, horizon, incremental=measure == "incremental")
     checks.append(check)
     stage("monte_carlo", t)
     t = time.perf_counter()
     found_plant, check = _against_reference(system, controller, chain_paths, records, delta, delta_seed, step,
-                                            plant, mc, fmu)
+                                            plant, mc, fmu, measured, fault_only)
     checks.append(check)
     stage("reference", t)
     return report(gamma_certified=gamma_cert, analysis=analysis, per_mode=per_mode, exact=tuple(exact), worst=worst,
