@@ -136,3 +136,44 @@ def test_relabelling_modes_keeps_two_step_feasibility(system: FTCSystem, perm: l
     if a.certified and b.certified:
         assert a.gamma_certified is not None and b.gamma_certified is not None
         assert abs(a.gamma_certified - b.gamma_certified) <= RTOL * max(a.gamma_certified, b.gamma_certified) + 1e-6
+
+
+def textbook_lqr(system: FTCSystem) -> list[np.ndarray] | None:
+    """Per-mode LQR, ``Q = 10 I``, ``R = I``, written out as a user would (scipy), not
+    through the project's ``starts`` module."""
+    from scipy.linalg import solve_continuous_are
+
+    gains = []
+    for md in system.modes:
+        n, nu = md.B.shape
+        try:
+            X = solve_continuous_are(md.A, md.B, 10.0 * np.eye(n), np.eye(nu))
+        except (np.linalg.LinAlgError, ValueError):
+            return None
+        gains.append(-md.B.T @ X)
+    return gains
+
+
+@settings(max_examples=4)
+@given(system=systems(n=(2, 3), m=2, uncertain=None))
+def test_iterative_never_loses_to_textbook_lqr(system: FTCSystem) -> None:
+    """Where the textbook per-mode LQR gains are certified by the core (spectral test and
+    robust gamma), ``iterative`` (no gain bound, as the LQR has none) returns certified
+    gains whose robust gamma is at most the LQR's (1e-3 relative: two certified gammas)."""
+    from ftc_verify.analysis.closedloop import state_feedback_loop
+    from ftc_verify.analysis.lmi_analysis import hinf_gamma
+    from ftc_verify.analysis.stability import mean_square_stability
+
+    lqr = textbook_lqr(system)
+    assume(lqr is not None)
+    loop = state_feedback_loop(system, lqr)
+    assume(mean_square_stability(loop).stable)
+    base = hinf_gamma(loop, robust=True, solver="clarabel")
+    assume(base.certified and base.gamma is not None)
+    event("textbook LQR certified")
+    res = synthesize(system, method="iterative", solver="clarabel", max_iter=2)
+    note(res.message)
+    assert res.certified and res.gamma_certified is not None, res.message
+    assert res.gamma_certified <= base.gamma * (1 + RTOL)
+    won = [r for r in res.starts if r["name"] == res.start]
+    assert len(won) == 1 and res.gamma_certified <= won[0]["gamma_certified"] * (1 + RTOL)

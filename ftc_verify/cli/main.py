@@ -154,6 +154,13 @@ def _print_synthesis(res: Any) -> None:
     print(f"ftc-verify synthesize: method {res.method} ({res.solver}, {res.solver_calls} solver calls, "
           f"{res.solve_seconds:.2f} s solving, {res.wall_seconds:.2f} s wall)")
     print(f"  {res.message}")
+    for row in d["starts"]:
+        found = (f"certified gamma {row['gamma_certified']:.6g}" if row["gamma_certified"] is not None
+                 else f"not counted: {row['reason']}")
+        mark = "*" if row["name"] == res.start else " "
+        print(f"  {mark} start {row['name']:22s} {found}" + (f" ({row['note']})" if row["note"] else ""))
+    if res.diagnosis:
+        print(f"  diagnosis: {res.diagnosis['reason']}")
     if not res.feasible:
         print("  no gains")
         return

@@ -24,7 +24,13 @@ Methods (all return a :class:`SynthesisResult` verified by the core analysis,
     Alternating descent on the bilinear Lemma 4.1: a P-step (the core's certified robust
     gamma with the gains fixed, which returns :math:`P, \lambda`) and a K-step (eq. (18)
     with :math:`P, \lambda` fixed, minimising gamma per ``j``). Each iterate is certified;
-    the best certified gains are kept, so the result is never worse than the start.
+    the best certified gains are kept, so the result is never worse than the start. The
+    start is the best certified of: two-step (minimised), common, and the classical designs
+    of :mod:`ftc_verify.synthesis.starts` (per-mode LQR with textbook and output weights
+    and a scale search, the LQR of the averaged plant, the full-information design
+    projected onto FDI-mode gains); so it never loses to any of them, in particular not to
+    the textbook per-mode LQR. When nothing is certified, ``diagnosis`` says why
+    (:func:`~ftc_verify.synthesis.starts.diagnose`).
 
 ``full-info`` is a relaxation of every FDI-only design: the Lemma 4.1 certificate
 :math:`(P, \lambda, \gamma)` of FDI-mode gains gives a feasible point of the
@@ -53,6 +59,7 @@ from ..analysis.lmi import block_specs, lyapunov_block, projection, xy_block
 from ..analysis.lmi_analysis import GAMMA_LADDER, hinf_gamma
 from ..model.system import FTCSystem, Matrix
 from ..analysis.solvers import SolveOutcome, choose_solver, solve
+from .starts import candidates, certify_start, diagnose
 
 __all__ = ["METHODS", "SynthesisResult", "synthesize", "two_step", "gain_step"]
 
@@ -82,6 +89,9 @@ class SynthesisResult:
     message: str
     k_max: float | None = None
     history: tuple[float, ...] = ()
+    start: str | None = None
+    starts: tuple[dict[str, Any], ...] = ()
+    diagnosis: dict[str, Any] | None = None
 
     @property
     def controller(self) -> Controller | None:
@@ -125,6 +135,10 @@ class SynthesisResult:
             "wall_seconds": self.wall_seconds,
             "solver_calls": self.solver_calls,
             "history": list(self.history),
+            "iterations": max(len(self.history) - 1, 0),
+            "start": self.start,
+            "starts": list(self.starts),
+            "diagnosis": self.diagnosis,
             "message": self.message,
             "analysis": None if rep is None else rep.to_dict(),
         })
@@ -368,12 +382,15 @@ def _verify(system: FTCSystem, gains: list[Matrix], solver: str) -> AnalysisRepo
 
 
 def _iterate(system: FTCSystem, start: list[Matrix], calls: _Calls, k_max: float | None, solver: str,
-             max_iter: int, tol: float) -> tuple[list[Matrix], list[float], str]:
+             max_iter: int, tol: float, start_lmi: Any = None) -> tuple[list[Matrix], list[float], str]:
     """P-step / K-step descent from certified ``start`` gains; returns the best certified
-    gains and the history of certified robust gammas (one per accepted iterate)."""
+    gains and the history of certified robust gammas (one per accepted iterate).
+    ``start_lmi``: the start's certified robust-gamma result, when already computed."""
     best = start
-    res = hinf_gamma(state_feedback_loop(system, best), robust=True, solver=solver)
-    calls.outcomes.extend(res.attempts)
+    res = start_lmi
+    if res is None:
+        res = hinf_gamma(state_feedback_loop(system, best), robust=True, solver=solver)
+        calls.outcomes.extend(res.attempts)
     if not res.certified or res.P is None:
         return best, [], "start gains not certified; no descent"
     history = [float(res.gamma)]  # type: ignore[arg-type]
@@ -399,6 +416,59 @@ def _iterate(system: FTCSystem, start: list[Matrix], calls: _Calls, k_max: float
     return best, history, f"stopped: {reason}"
 
 
+def _own_message(r: "SynthesisResult") -> str:
+    """A nested result's message without its diagnosis (the outer run gives its own)."""
+    if r.gains and r.report is not None:
+        rep = r.report
+        why = (f"robust gamma {rep.robust.outcome} ({rep.robust.solver_status})" if rep.mss.stable
+               else "not mean-square stable")
+        return f"gains found but not certified: spectral abscissa {rep.mss.spectral_abscissa:.4g}, {why}"
+    return r.message.removesuffix(f"; {r.diagnosis['message']}") if r.diagnosis else r.message
+
+
+_PUBLIC_START_KEYS = ("name", "gamma_certified", "spectral_abscissa", "note", "reason")
+
+
+def _starts(system: FTCSystem, gamma: float | None, k_max: float | None, solver: str, calls: _Calls,
+            start: list[Matrix] | None) -> list[dict[str, Any]]:
+    """Every start of the iterative method with its certification (module docstring)."""
+    if start is not None:
+        rows = [certify_start(system, "given", start, solver)]
+    else:
+        rows = []
+        for seed_method in ("two-step", "common"):
+            r = synthesize(system, method=seed_method, gamma=gamma, k_max=k_max, solver=solver)
+            calls.absorb(r)
+            rows.append({"name": seed_method, "gamma_certified": r.gamma_certified, "gains": r.gains,
+                         "spectral_abscissa": None if r.report is None else r.report.mss.spectral_abscissa,
+                         "note": "", "reason": "" if r.certified else _own_message(r)})
+        fi = _xy_solve(system, "full-info", None, calls, None)
+        full_info = None if fi is None else [Y @ np.linalg.inv(X) for X, Y in zip(fi["X"], fi["Y"])]
+        for c in candidates(system, k_max, full_info):
+            if c.gains is None:
+                rows.append({"name": c.name, "gamma_certified": None, "spectral_abscissa": None, "note": "",
+                             "reason": c.note})
+            else:
+                rows.append(certify_start(system, c.name, c.gains, solver, c.note))
+    for r in rows:
+        calls.outcomes.extend(r.get("attempts", ()))
+    return rows
+
+
+def _iterative(system: FTCSystem, gamma: float | None, k_max: float | None, solver: str, calls: _Calls,
+               start: list[Matrix] | None, max_iter: int, tol: float,
+               ) -> tuple[list[Matrix] | None, list[float], str, str | None, list[dict[str, Any]]]:
+    """The iterative method: certify the starts, descend from the best one."""
+    rows = _starts(system, gamma, k_max, solver, calls, start)
+    certified = [r for r in rows if r["gamma_certified"] is not None]
+    if not certified:
+        return None, [], f"no certified start ({len(rows)} tried)", None, rows
+    best = min(certified, key=lambda r: r["gamma_certified"])
+    gains, history, msg = _iterate(system, list(best["gains"]), calls, k_max, solver, max_iter, tol, best.get("lmi"))
+    return gains, history, f"start {best['name']} (certified gamma {best['gamma_certified']:.6g}); {msg}", \
+        best["name"], rows
+
+
 def synthesize(
     system: FTCSystem,
     *,
@@ -414,8 +484,8 @@ def synthesize(
 
     ``gamma=None`` minimises gamma (bisection for ``two-step``, gamma**2 as a variable
     for ``full-info``/``common``); a given gamma asks for feasibility at that level.
-    ``iterative`` starts from ``start`` or else from the best certified of two-step
-    (minimised) and common.
+    ``iterative`` starts from ``start`` or else from the best certified of the starts in
+    the module docstring.
     """
     if method not in METHODS:
         raise ValidationError(f"method: unknown method {method!r}; choose from {list(METHODS)}")
@@ -437,23 +507,20 @@ def synthesize(
             Ks = [Y @ np.linalg.inv(X) for X, Y in zip(sol["X"], sol["Y"])]
             gains = Ks[:1] * system.m if method == "common" else Ks
             gsyn, msg = sol["gamma"], f"{method} LMI solved at gamma {sol['gamma']:.6g}"
-    else:
-        seeds: list[tuple[float, list[Matrix]]] = []
-        if start is not None:
-            seeds.append((0.0, list(start)))
-        else:
-            for seed_method in ("two-step", "common"):
-                r = synthesize(system, method=seed_method, gamma=gamma, k_max=k_max, solver=name)
-                calls.absorb(r)
-                if r.certified and r.gamma_certified is not None:
-                    seeds.append((r.gamma_certified, list(r.gains)))
-        if not seeds:
-            gains, gsyn, msg = None, None, "no certified starting gains (two-step and common both failed)"
-        else:
-            gains, history, msg = _iterate(system, min(seeds, key=lambda s_: s_[0])[1], calls, k_max, name, max_iter, tol)
-            gsyn = history[-1] if history else None
+    rows: list[dict[str, Any]] = []
+    start_name = None
+    if method == "iterative":
+        gains, history, msg, start_name, rows = _iterative(system, gamma, k_max, name, calls, start, max_iter, tol)
+        gsyn = history[-1] if history else None
     report = _verify(system, gains, name) if gains is not None else None
+    certified = report is not None and report.certified_stable and report.robust.certified
+    diagnosis = None
+    if not certified:
+        seen = rows + ([{"spectral_abscissa": report.mss.spectral_abscissa}] if report is not None else [])
+        diagnosis = diagnose(system, seen, [o.status for o in calls.outcomes], k_max)
+        msg = f"{msg}; {diagnosis['message']}"
     return SynthesisResult(
         method, gains is not None, tuple(gains or ()), gsyn, name, calls.seconds,
-        time.perf_counter() - t0, calls.count, report, msg, k_max, tuple(history),
+        time.perf_counter() - t0, calls.count, report, msg, k_max, tuple(history), start_name,
+        tuple({k: r.get(k) for k in _PUBLIC_START_KEYS} for r in rows), diagnosis,
     )
