@@ -177,16 +177,17 @@ def stabilisability(system: FTCSystem) -> list[dict[str, Any]]:
 
 
 def certify_start(system: FTCSystem, name: str, gains: tuple[Matrix, ...] | list[Matrix], solver: str,
-                  note: str = "") -> dict[str, Any]:
+                  note: str = "", *, loop: Any = None) -> dict[str, Any]:
     """The core analysis of one start: the exact spectral test at every ``beta`` vertex,
     then the robust gamma of Lemma 4.1 (certificate re-checked with numpy). Returns the
     ``starts`` row of the synthesis result: ``name``, ``gamma_certified`` (``None`` when
-    not certified), ``spectral_abscissa``, ``note`` and ``reason`` (why it does not count)."""
+    not certified), ``spectral_abscissa``, ``note`` and ``reason`` (why it does not count).
+    ``loop``: the closed loop when the gains are not state feedback (output feedback)."""
     from ..analysis.closedloop import state_feedback_loop
     from ..analysis.lmi_analysis import hinf_gamma
     from ..analysis.stability import mean_square_stability
 
-    loop = state_feedback_loop(system, list(gains))
+    loop = state_feedback_loop(system, list(gains)) if loop is None else loop
     mss = mean_square_stability(loop)
     row: dict[str, Any] = {"name": name, "gamma_certified": None, "spectral_abscissa": mss.spectral_abscissa,
                            "note": note, "reason": "", "gains": tuple(gains), "attempts": ()}

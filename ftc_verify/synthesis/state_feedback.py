@@ -53,7 +53,7 @@ import numpy as np
 
 from ..controllers.controller import Controller
 from ..analysis.analyze import AnalysisReport, analyze, json_ready
-from ..analysis.closedloop import gain_loop, state_feedback_loop
+from ..analysis.closedloop import closed_loop, gain_loop, state_feedback_loop
 from ..errors import ValidationError
 from ..analysis.lmi import block_specs, lyapunov_block, projection, xy_block
 from ..analysis.lmi_analysis import GAMMA_LADDER, hinf_gamma
@@ -61,7 +61,7 @@ from ..model.system import FTCSystem, Matrix
 from ..analysis.solvers import SolveOutcome, choose_solver, solve
 from .starts import candidates, certify_start, diagnose
 
-__all__ = ["METHODS", "SynthesisResult", "synthesize", "two_step", "gain_step"]
+__all__ = ["METHODS", "SynthesisResult", "synthesize", "two_step", "gain_step", "descend"]
 
 METHODS = ("two-step", "iterative", "full-info", "common")
 #: An (X, Y) problem counts as strictly feasible when its maximised margin exceeds this
@@ -92,11 +92,16 @@ class SynthesisResult:
     start: str | None = None
     starts: tuple[dict[str, Any], ...] = ()
     diagnosis: dict[str, Any] | None = None
+    dynamic: Controller | None = None
+    ccl_history: tuple[float, ...] = ()
 
     @property
     def controller(self) -> Controller | None:
         """The gains as a :class:`~ftc_verify.controllers.Controller` (``None`` when none
-        were found); what every later stage consumes."""
+        were found; the dynamic controller of output-feedback synthesis); what every later
+        stage consumes."""
+        if self.dynamic is not None:
+            return self.dynamic
         return Controller.state_feedback(self.gains, name=self.method) if self.gains else None
 
     @property
@@ -135,7 +140,9 @@ class SynthesisResult:
             "wall_seconds": self.wall_seconds,
             "solver_calls": self.solver_calls,
             "history": list(self.history),
-            "iterations": max(len(self.history) - 1, 0),
+            "iterations": len(self.ccl_history) if self.method == "ccl" else max(len(self.history) - 1, 0),
+            "ccl_history": list(self.ccl_history),
+            "controller": None if self.dynamic is None else self.dynamic.to_dict(),
             "start": self.start,
             "starts": list(self.starts),
             "diagnosis": self.diagnosis,
@@ -285,21 +292,30 @@ def gain_step(
     calls: _Calls,
     k_max: float | None,
     gamma: float | None = None,
+    measurement: list[Matrix] | None = None,
 ) -> tuple[Matrix | None, float | None, str]:
     """Eq. (18): with ``P_s`` and multipliers fixed, the gain ``K_j`` of FDI mode ``j``
     over all true modes and rate ends; returns ``(K, gamma, status)``.
 
     With ``gamma=None`` gamma is minimised; with ``gamma`` given, the gain of smallest
     spectral norm achieving it is returned (a real actuator prefers small gains).
+    ``measurement``: one matrix ``M_i`` per true mode for static output feedback
+    ``u = K_j M_i x`` (the controller step of output feedback on the augmented plant of
+    :mod:`ftc_verify.synthesis.output_feedback`, with ``M_i = Cbar_i``); the block stays
+    linear in ``K_j`` since ``P`` and the multipliers are fixed.
     """
     import cvxpy as cp
 
     m, (n, nu, _, _) = system.m, system.dims
-    K = cp.Variable((nu, n))
+    K = cp.Variable((nu, n if measurement is None else measurement[0].shape[0]))
     g = cp.Variable(nonneg=True)
     k = cp.Variable(nonneg=True)
-    gains: list[Any] = [np.zeros((nu, n))] * m
-    gains[j] = K
+    gains: list[Any]
+    if measurement is None:
+        gains = [np.zeros((nu, n))] * m
+        gains[j] = K
+    else:
+        gains = [K @ measurement[i] if jj == j else np.zeros((nu, n)) for i, jj in system.chain.joint_modes]
     loop = gain_loop(system, gains, "gain step")
     cons = []
     for spec in block_specs(loop):
@@ -377,19 +393,25 @@ def _two_step_min(system: FTCSystem, calls: _Calls, k_max: float | None) -> tupl
 
 
 def _verify(system: FTCSystem, gains: list[Matrix], solver: str) -> AnalysisReport:
-    loop = state_feedback_loop(system, gains)
-    return analyze(loop, solver=solver, name=system.name, cross_validation=False)
+    return _verify_controller(system, Controller.state_feedback(gains), solver)
 
 
-def _iterate(system: FTCSystem, start: list[Matrix], calls: _Calls, k_max: float | None, solver: str,
-             max_iter: int, tol: float, start_lmi: Any = None) -> tuple[list[Matrix], list[float], str]:
+def _verify_controller(system: FTCSystem, controller: Controller, solver: str) -> AnalysisReport:
+    """The core analysis (spectral test, Theorem 3.1, nominal and robust gamma) of the loop."""
+    return analyze(closed_loop(system, controller), solver=solver, name=system.name, cross_validation=False)
+
+
+def descend(loop_of: Any, step: Any, m: int, start: list[Matrix], calls: _Calls, solver: str,
+            max_iter: int, tol: float, start_lmi: Any = None) -> tuple[list[Matrix], list[float], str]:
     """P-step / K-step descent from certified ``start`` gains; returns the best certified
     gains and the history of certified robust gammas (one per accepted iterate).
+    ``loop_of(gains)`` is the closed loop, ``step(P, lam, j)`` the K-step of FDI mode ``j``
+    returning ``(K, gamma, status)`` (:func:`gain_step`; output feedback passes its own);
     ``start_lmi``: the start's certified robust-gamma result, when already computed."""
     best = start
     res = start_lmi
     if res is None:
-        res = hinf_gamma(state_feedback_loop(system, best), robust=True, solver=solver)
+        res = hinf_gamma(loop_of(best), robust=True, solver=solver)
         calls.outcomes.extend(res.attempts)
     if not res.certified or res.P is None:
         return best, [], "start gains not certified; no descent"
@@ -398,12 +420,12 @@ def _iterate(system: FTCSystem, start: list[Matrix], calls: _Calls, k_max: float
     for _ in range(max_iter):
         lam = [list(r) for r in (res.multipliers or [()] * len(res.P))]
         new = []
-        for j in range(system.m):
-            K, _, status = gain_step(system, list(res.P), lam, j, calls, k_max)
+        for j in range(m):
+            K, _, status = step(list(res.P), lam, j)
             if K is None:
                 return best, history, f"K-step failed for FDI mode {j + 1} ({status})"
             new.append(K)
-        cand = hinf_gamma(state_feedback_loop(system, new), robust=True, solver=solver)
+        cand = hinf_gamma(loop_of(new), robust=True, solver=solver)
         calls.outcomes.extend(cand.attempts)
         if not cand.certified or cand.gamma is None or cand.gamma >= history[-1] * (1 - tol):
             reason = f"relative improvement below {tol:g}"
@@ -464,7 +486,9 @@ def _iterative(system: FTCSystem, gamma: float | None, k_max: float | None, solv
     if not certified:
         return None, [], f"no certified start ({len(rows)} tried)", None, rows
     best = min(certified, key=lambda r: r["gamma_certified"])
-    gains, history, msg = _iterate(system, list(best["gains"]), calls, k_max, solver, max_iter, tol, best.get("lmi"))
+    gains, history, msg = descend(lambda G: state_feedback_loop(system, G),
+                                  lambda P, lam, j: gain_step(system, P, lam, j, calls, k_max), system.m,
+                                  list(best["gains"]), calls, solver, max_iter, tol, best.get("lmi"))
     return gains, history, f"start {best['name']} (certified gamma {best['gamma_certified']:.6g}); {msg}", \
         best["name"], rows
 

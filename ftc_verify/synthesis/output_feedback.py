@@ -1,0 +1,373 @@
+r"""Output-feedback synthesis: full-order dynamic controllers that switch with the FDI mode.
+
+The controller of FDI mode ``j`` reads the measured output :math:`y_m = C_{y,i} x` (``Cy``
+of the true mode ``i``; ``C`` when the system gives none) and is
+
+.. math::  \dot x_c = \hat A_j x_c + \hat B_j y_m, \qquad u = \hat C_j x_c + \hat D_j y_m,
+           \qquad \mathcal K_j = \begin{bmatrix} \hat A_j & \hat B_j \\ \hat C_j & \hat D_j \end{bmatrix},
+
+with :math:`n_c = n`. With the barred matrices of :mod:`ftc_verify.analysis.closedloop`
+(the paper's Section V definitions, ``Cy`` in place of ``C`` in :math:`\bar C_i`) the loop
+is :math:`\bar A_{0i} + \bar B_{0i} \mathcal K_j \bar C_i`: static output feedback of the
+**augmented plant** :func:`augmented_system` (state :math:`(x, x_c)`, input
+:math:`(\dot x_c, u)`) through :math:`\bar C_i`. So every tool of state feedback applies to
+the augmented plant, and the closed loop is the one :func:`closed_loop` builds for the
+dynamic controller (same state order, same two uncertainty channels), on which the core
+analysis certifies every result.
+
+Methods:
+
+``observer`` (baseline)
+    Per FDI mode, certified state-feedback gains :math:`K_j` (``synthesize(method=
+    "iterative")``) and observer gains :math:`L_j = -X C_{y,j}^T R^{-1}` from the dual
+    Riccati equation of :math:`(A_j^T, C_{y,j}^T)` with :math:`Q = D_j D_j^T + 10^{-2} I`,
+    :math:`R = \rho I`, :math:`\rho \in \{10^{-2}, 1, 10^2\}` (Kalman-like): the controller
+    :math:`\hat A_j = A_j + B_j K_j + L_j C_{y,j}`, :math:`\hat B_j = -L_j`,
+    :math:`\hat C_j = K_j`, :math:`\hat D_j = 0`; the best certified of the three.
+``ccl`` (the paper's Theorem 5.1)
+    At a fixed gamma: find :math:`P_s`, :math:`X_s = P_s^{-1}`, multipliers
+    :math:`\lambda_{s,k}` and :math:`\varepsilon_{s,k} = \lambda_{s,k}^{-1}` satisfying the two
+    projected conditions (:func:`ccl_constraints`), by cone complementarity
+    linearisation; then, with ``P`` and the multipliers fixed, the controller of each FDI
+    mode from the LMI in :math:`\mathcal K_j` over all true modes and ``beta`` ends
+    (:func:`~ftc_verify.synthesis.state_feedback.gain_step` on the augmented plant).
+    ``gamma=None`` tries a decreasing ladder from the observer design's certified gamma.
+``vk`` (beyond the paper)
+    The V-K iteration: from the best certified observer design, alternate the core's
+    certified robust gamma with the controller fixed (the V-step, giving ``P`` and the
+    multipliers) and the controller step with them fixed (the K-step); every iterate is
+    certified and the best kept (:func:`~ftc_verify.synthesis.state_feedback.descend`).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from ..analysis.closedloop import barred, closed_loop, gain_loop
+from ..analysis.lmi import block_specs, lyapunov_block, projection, xy_block
+from ..controllers.controller import Controller
+from ..errors import ValidationError
+from ..model.system import FTCSystem, Matrix, Mode
+from .starts import certify_start, lqr_gain
+from .state_feedback import SynthesisResult, _Calls, _verify_controller, descend, gain_step, synthesize
+
+__all__ = ["OF_METHODS", "augmented_system", "controller_from_blocks", "observer_designs", "ccl_constraints",
+           "ccl", "synthesize_output_feedback", "CCL_MAX_ITER", "CCL_TOL"]
+
+OF_METHODS = ("ccl", "observer", "vk")
+#: Iteration limit of the cone complementarity linearisation.
+CCL_MAX_ITER = 30
+#: CCL stops when ``sum(trace(P X)) - n_total + sum(lam eps - 1)`` is below this times
+#: ``n_total`` (and a controller step at those ``P`` is tried after every iteration).
+CCL_TOL = 1e-6
+#: Observer Riccati input weights (the scale search of the baseline).
+OBSERVER_SCALES = (1e-2, 1.0, 1e2)
+
+
+def augmented_system(system: FTCSystem) -> tuple[FTCSystem, list[Matrix]]:
+    """The augmented plant of the module docstring and the :math:`\\bar C_i` per true mode.
+
+    Its modes are ``A = A0bar``, ``B = B0bar``, ``C = C1bar``, ``D = Dbar`` and the two
+    channels ``(A1bar[:, :p1], A2bar[:q1])``, ``(A1bar[:, p1:], B2bar[q1:])``: state
+    feedback ``ubar = G xbar`` on it is the loop of
+    :func:`~ftc_verify.analysis.closedloop.closed_loop` when ``G = K_j Cbar_i``."""
+    n = system.dims[0]
+    modes, cbars = [], []
+    for md in system.modes:
+        bar = barred(md, md.measured, n)
+        entries: dict[str, Any] = dict(A=bar.A0bar, B=bar.B0bar, C=bar.C1bar, D=bar.Dbar)
+        if bar.A1bar is not None:
+            k = bar.split
+            qa = 0 if md.A2 is None else md.A2.shape[0]
+            if md.A1 is not None:
+                entries |= dict(A1=bar.A1bar[:, :k], A2=bar.A2bar[:qa])
+            if md.B1 is not None:
+                entries |= dict(B1=bar.A1bar[:, k:], B2=bar.B2bar[qa:])
+        modes.append(Mode(**entries))
+        cbars.append(bar.Cbar)
+    return FTCSystem(f"{system.name} (augmented)", tuple(modes), system.chain), cbars
+
+
+def controller_from_blocks(system: FTCSystem, blocks: list[Matrix], name: str) -> Controller:
+    """The dynamic controller whose FDI-mode entries are the blocks ``K_j`` (module docstring)."""
+    n = system.dims[0]
+    return Controller.dynamic([K[:n, :n] for K in blocks], [K[:n, n:] for K in blocks],
+                              [K[n:, :n] for K in blocks], [K[n:, n:] for K in blocks], name=name)
+
+
+def _blocks(controller: Controller) -> list[Matrix]:
+    return [np.block([[a, b], [c, d]]) for a, b, c, d in zip(controller.Ac, controller.Bc, controller.Cc,
+                                                              controller.Dc)]
+
+
+def observer_designs(system: FTCSystem, gains: list[Matrix]) -> list[tuple[str, Controller]]:
+    """The observer-based controllers of the module docstring for state-feedback ``gains``
+    (one per FDI mode), one per observer weight; none where the dual Riccati equation has
+    no stabilising solution."""
+    out = []
+    for rho in OBSERVER_SCALES:
+        blocks = []
+        for md, K in zip(system.modes, gains):
+            Cy = md.measured
+            Q = md.D @ md.D.T + 1e-2 * np.eye(md.n)
+            Kd = lqr_gain(md.A.T, Cy.T, Q, rho * np.eye(Cy.shape[0]))
+            if Kd is None:
+                break
+            L = Kd.T
+            blocks.append(np.block([[md.A + md.B @ K + L @ Cy, -L], [K, np.zeros((K.shape[0], Cy.shape[0]))]]))
+        else:
+            out.append((f"observer rho={rho:g}", controller_from_blocks(system, blocks, f"observer rho={rho:g}")))
+    return out
+
+
+def ccl_constraints(aug: FTCSystem, cbars: list[Matrix], P: list[Any], X: list[Any], lam: list[list[Any]],
+                    eps: list[list[Any]], g: float, margin: float) -> list[Any]:
+    r"""The two conditions of Theorem 5.1, re-derived for the augmented plant, and the
+    complementarity cones; cvxpy constraints.
+
+    The Lemma 4.1 block of the loop (Schur form in the channel outputs,
+    :func:`~ftc_verify.analysis.lmi.lyapunov_block` with ``schur_F=True``) is
+    :math:`M_0 + U^T \mathcal K_j V + V^T \mathcal K_j^T U` with
+    :math:`V = [\bar C_i \; 0 \cdots 0]`: the controller enters through
+    :math:`P \bar B_{0i} \mathcal K_j \bar C_i` and the channel output
+    :math:`\bar B_{2i} \mathcal K_j \bar C_i`. By the projection lemma a :math:`\mathcal K_j`
+    exists for this one block iff
+
+    * eq. (22): :math:`N_V^T M_0 N_V < 0`, :math:`N_V = \operatorname{diag}(W_{3i}, I)`,
+      :math:`W_{3i}` a basis of :math:`\ker \bar C_i` (``Cbar`` built with ``Cy``); by a
+      Schur complement on the channel rows this is the plain Lemma 4.1 block of the
+      open augmented loop (:math:`\lambda_k F_k^T F_k` in the corner, linear in
+      :math:`P, \lambda`), projected;
+    * eq. (23): the same block after the congruence with :math:`X = P^{-1}` and projected
+      onto :math:`\ker [\bar B_{0i}^T \; \bar B_{2i}^T]`: exactly step 1 of the
+      state-feedback Theorem 4.1 for the augmented plant (:func:`xy_block` and
+      :func:`projection`), linear in :math:`X, \varepsilon`.
+
+    Slips corrected against the printed (21)-(23) (READING-NOTES): the missing ``+``
+    before :math:`\bar C_{1i}^T \bar C_{1i}` in (21); the coupling in (23) is
+    :math:`X(\sum_{s'} q_{ss'} P_{s'})X`, written with Schur complements in
+    :math:`X_{s'}` (the printed :math:`M_{6ij}` keeps only the diagonal rate); the
+    measured output is ``Cy`` (the paper uses ``C`` for both). The two conditions are only
+    necessary for one :math:`\mathcal K_j` serving every true mode ``i``; the controller
+    step decides. Cones: :math:`[[P_s, I], [I, X_s]] \ge 0` and
+    :math:`[[\lambda, 1], [1, \varepsilon]] \ge 0` per channel, so that the linearised
+    objective's minimum :math:`\operatorname{tr}(P X) = n`, :math:`\lambda\varepsilon = 1`
+    means :math:`X = P^{-1}`, :math:`\varepsilon = \lambda^{-1}`.
+    """
+    import cvxpy as cp
+    import scipy.linalg
+
+    m = aug.m
+    loop0 = gain_loop(aug, [np.zeros(aug.modes[0].B.T.shape)] * (m * m), "open augmented loop")
+    cons: list[Any] = []
+    for spec in block_specs(loop0):
+        i, s = spec.true, spec.s
+        M = lyapunov_block(loop0, spec, P, lam[s], g, cp.bmat)
+        W3 = scipy.linalg.null_space(cbars[i])
+        size = M.shape[0]
+        nb = W3.shape[0]
+        N = scipy.linalg.block_diag(W3, np.eye(size - nb))
+        cons.append(0.5 * (N.T @ M @ N + (N.T @ M @ N).T) << -margin * np.eye(N.shape[1]))
+        mode = aug.modes[i]
+        ch_eps = list(eps[s])
+        e_a = ch_eps.pop(0) if mode.A1 is not None else None
+        e_b = ch_eps.pop(0) if mode.B1 is not None else None
+        Mx = xy_block(mode, X, s, None, e_a, e_b, g, spec.q_row, cp.bmat)
+        coupled = sum(1 for k, q in enumerate(spec.q_row) if k != s and q > 0)
+        Nx = projection(mode, coupled)
+        if Nx.shape[1]:
+            cons.append(0.5 * (Nx.T @ Mx @ Nx + (Nx.T @ Mx @ Nx).T) << -margin * np.eye(Nx.shape[1]))
+    nb = aug.dims[0]
+    for s in range(m * m):
+        cons.append(cp.bmat([[P[s], np.eye(nb)], [np.eye(nb), X[s]]]) >> 0)
+        cons.append(X[s] >> margin * np.eye(nb))
+        for la, ep in zip(lam[s], eps[s]):
+            cons.append(cp.bmat([[cp.reshape(la, (1, 1), order="C"), np.ones((1, 1))], [np.ones((1, 1)), cp.reshape(ep, (1, 1), order="C")]])
+                        >> 0)
+    return cons
+
+
+def _channel_count(aug: FTCSystem, i: int) -> int:
+    md = aug.modes[i]
+    return int(md.A1 is not None) + int(md.B1 is not None)
+
+
+def ccl(system: FTCSystem, gamma: float, calls: _Calls, k_max: float | None, *, max_iter: int = CCL_MAX_ITER,
+        tol: float = CCL_TOL) -> tuple[list[Matrix] | None, list[float], str, float | None]:
+    """Theorem 5.1 at ``gamma`` by cone complementarity linearisation (module docstring):
+    ``(controller blocks or None, residual history, message, the controller step's gamma)``. The residual after each
+    iteration is :math:`\\sum_s \\operatorname{tr}(P_s X_s) - \\bar n S + \\sum (\\lambda
+    \\varepsilon - 1) \\ge 0`; after every iteration the controller step is tried with that
+    ``P`` and those multipliers, and the first success at ``gamma`` ends the iteration."""
+    import cvxpy as cp
+
+    aug, cbars = augmented_system(system)
+    m, nb = system.m, aug.dims[0]
+    S = m * m
+    P = [cp.Variable((nb, nb), symmetric=True) for _ in range(S)]
+    X = [cp.Variable((nb, nb), symmetric=True) for _ in range(S)]
+    chans = [_channel_count(aug, i) for i, _ in aug.chain.joint_modes]
+    lam = [[cp.Variable(nonneg=True) for _ in range(c)] for c in chans]
+    eps = [[cp.Variable(nonneg=True) for _ in range(c)] for c in chans]
+    cons = ccl_constraints(aug, cbars, P, X, lam, eps, gamma ** 2, 1e-7)
+    flat = [(a, b) for ls, es in zip(lam, eps) for a, b in zip(ls, es)]
+    size = sum(cp.trace(p) + cp.trace(x) for p, x in zip(P, X)) + sum(a + b for a, b in flat)
+    out = calls.run(cp.Problem(cp.Minimize(size), cons))
+    if not out.solved or P[0].value is None:
+        return None, [], f"Theorem 5.1 conditions infeasible at gamma {gamma:.6g} (solver status {out.status})", None
+    Pk = [cp.Parameter((nb, nb), symmetric=True) for _ in range(S)]
+    Xk = [cp.Parameter((nb, nb), symmetric=True) for _ in range(S)]
+    lk = [cp.Parameter(nonneg=True) for _ in flat]
+    ek = [cp.Parameter(nonneg=True) for _ in flat]
+    lin = (sum(cp.trace(pk @ x) + cp.trace(xk @ p) for pk, xk, p, x in zip(Pk, Xk, P, X))
+           + sum(lp * b + ep * a for lp, ep, (a, b) in zip(lk, ek, flat)))
+    linearised = cp.Problem(cp.Minimize(lin), cons)
+    history: list[float] = []
+    for _ in range(max_iter):
+        Pv = [0.5 * (p.value + p.value.T) for p in P]
+        Xv = [0.5 * (x.value + x.value.T) for x in X]
+        lv = [[float(a.value) for a in ls] for ls in lam]
+        residual = float(sum(np.trace(p @ x) for p, x in zip(Pv, Xv)) - nb * S
+                         + sum(float(a.value) * float(b.value) - 1.0 for a, b in flat))
+        history.append(residual)
+        blocks, reached = _controller_step(aug, cbars, Pv, lv, gamma, calls, k_max)
+        if blocks is not None:
+            return blocks, history, f"CCL: controller step succeeded after {len(history)} iteration(s)", reached
+        if residual <= tol * nb * S:
+            return None, history, (f"CCL converged (residual {residual:.3g}) but the controller step failed at "
+                                   f"gamma {gamma:.6g}: the necessary conditions hold, one controller per FDI mode "
+                                   "does not fit every true mode"), None
+        for par, v in zip(Pk, Pv):
+            par.value = v
+        for par, v in zip(Xk, Xv):
+            par.value = v
+        for par, (a, b) in zip(lk, flat):
+            par.value = max(float(a.value), 0.0)
+        for par, (a, b) in zip(ek, flat):
+            par.value = max(float(b.value), 0.0)
+        out = calls.run(linearised)
+        if not out.solved or P[0].value is None:
+            return None, history, (f"CCL iteration {len(history)} failed (solver status {out.status}; residual "
+                                   f"{history[-1]:.3g} before it)"), None
+    return None, history, f"CCL: iteration limit {max_iter} reached (residual {history[-1]:.3g})", None
+
+
+def _controller_step(aug: FTCSystem, cbars: list[Matrix], P: list[Matrix], lam: list[list[float]],
+                     gamma: float, calls: _Calls, k_max: float | None) -> tuple[list[Matrix] | None, float | None]:
+    """Controller blocks ``K_j`` with ``P`` and the multipliers fixed, each reaching
+    ``gamma`` over every true mode and ``beta`` end, and the largest gamma they reach."""
+    blocks, worst = [], 0.0
+    for j in range(aug.m):
+        K, gj, _ = gain_step(aug, P, lam, j, calls, k_max, measurement=cbars)
+        if K is None or gj is None or gj > gamma * (1 + 1e-6):
+            return None, None
+        blocks.append(K)
+        worst = max(worst, gj)
+    return blocks, worst
+
+
+def _observer_rows(system: FTCSystem, k_max: float | None, solver: str, calls: _Calls) -> list[dict[str, Any]]:
+    """The certified-or-not observer designs (the baseline and the start of ``vk``)."""
+    sf = synthesize(system, method="iterative", k_max=k_max, solver=solver)
+    calls.absorb(sf)
+    if not sf.certified:
+        return [{"name": "observer", "gamma_certified": None, "spectral_abscissa": None, "note": "",
+                 "reason": f"no certified state-feedback gains: {sf.message}"}]
+    rows = []
+    for label, ctrl in observer_designs(system, list(sf.gains)):
+        rows.append(certify_start(system, label, _blocks(ctrl), solver, loop=closed_loop(system, ctrl))
+                    | {"controller": ctrl})
+    for r in rows:
+        calls.outcomes.extend(r.get("attempts", ()))
+    return rows or [{"name": "observer", "gamma_certified": None, "spectral_abscissa": None, "note": "",
+                     "reason": "no stabilising observer Riccati solution"}]
+
+
+def _ccl_ladder(system: FTCSystem, gamma: float | None, start: float | None, calls: _Calls,
+                k_max: float | None) -> tuple[list[Matrix] | None, float | None, list[float], str]:
+    """CCL at ``gamma``, or (``gamma=None``) down a ladder of levels from ``start`` (the
+    observer design's certified gamma, else 10), each 0.7 times the gamma the previous
+    controller step reached, while it succeeds (at most six levels)."""
+    if gamma is not None:
+        blocks, history, msg, reached = ccl(system, gamma, calls, k_max)
+        return blocks, reached, history, msg
+    level = 10.0 if start is None else start
+    best: tuple[list[Matrix] | None, float | None, list[float], str] = (None, None, [], "")
+    for _ in range(6):
+        blocks, history, msg, reached = ccl(system, level, calls, k_max)
+        if blocks is None or reached is None:
+            return best if best[0] is not None else (None, None, history, msg)
+        best = (blocks, reached, history, f"{msg}; last level that succeeded {level:.6g} (ladder: 0.7 times the "
+                                            "gamma the controller step reached)")
+        level = 0.7 * min(level, reached)
+    return best
+
+
+def synthesize_output_feedback(
+    system: FTCSystem,
+    *,
+    method: str,
+    gamma: float | None = None,
+    k_max: float | None = None,
+    solver: str | None = None,
+    max_iter: int = 10,
+    tol: float = 1e-3,
+) -> SynthesisResult:
+    """A dynamic output-feedback controller by ``method`` (module docstring), certified by
+    the core analysis of its closed loop; the result's ``controller`` is it, ``gains`` its
+    blocks ``K_j``. ``k_max`` bounds ``||K_j||_2`` in the controller steps (``ccl``, ``vk``)
+    and the state-feedback gains of the observer baseline."""
+    from ..analysis.solvers import choose_solver
+    from .starts import diagnose
+
+    if method not in OF_METHODS:
+        raise ValidationError(f"method: {method!r} is not an output-feedback method; choose from {list(OF_METHODS)}")
+    for key, val in (("gamma", gamma), ("k_max", k_max)):
+        if val is not None and not (math.isfinite(val) and val > 0):
+            raise ValidationError(f"{key}: must be a positive finite number, got {val!r}")
+    t0 = time.perf_counter()
+    n = 2 * system.dims[0]
+    name = choose_solver(solver, system.m ** 2 * (n * (n + 1) + 1))
+    calls = _Calls(name)
+    rows = _observer_rows(system, k_max, name, calls)
+    certified = [r for r in rows if r["gamma_certified"] is not None]
+    best = min(certified, key=lambda r: r["gamma_certified"]) if certified else None
+    blocks: list[Matrix] | None = None
+    history: list[float] = []
+    ccl_history: list[float] = []
+    gsyn = None
+    if method == "observer":
+        blocks = None if best is None else list(best["gains"])
+        gsyn = None if best is None else best["gamma_certified"]
+        msg = f"observer baseline: best of {len(rows)} ({best['name']})" if best else "no certified observer design"
+    elif method == "vk":
+        if best is None:
+            msg = "no certified observer design to start the V-K iteration from"
+        else:
+            aug, cbars = augmented_system(system)
+            blocks, history, msg = descend(
+                lambda B: closed_loop(system, controller_from_blocks(system, B, "vk")),
+                lambda P, lam, j: gain_step(aug, P, lam, j, calls, k_max, measurement=cbars), system.m,
+                list(best["gains"]), calls, name, max_iter, tol, best.get("lmi"))
+            gsyn = history[-1] if history else None
+            msg = f"V-K iteration from {best['name']} (certified gamma {best['gamma_certified']:.6g}); {msg}"
+    else:
+        blocks, gsyn, ccl_history, msg = _ccl_ladder(system, gamma, None if best is None else best["gamma_certified"],
+                                                     calls, k_max)
+    ctrl = None if blocks is None else controller_from_blocks(system, blocks, f"{system.name} {method}")
+    report = None if ctrl is None else _verify_controller(system, ctrl, name)
+    ok = report is not None and report.certified_stable and report.robust.certified
+    diagnosis = None
+    if not ok:
+        seen = rows + ([{"spectral_abscissa": report.mss.spectral_abscissa}] if report is not None else [])
+        diagnosis = diagnose(system, seen, [o.status for o in calls.outcomes], k_max)
+        msg = f"{msg}; {diagnosis['message']}"
+    public = tuple({k: r.get(k) for k in ("name", "gamma_certified", "spectral_abscissa", "note", "reason")}
+                   for r in rows)
+    return SynthesisResult(method, ctrl is not None, tuple(blocks or ()), gsyn, name, calls.seconds,
+                           time.perf_counter() - t0, calls.count, report, msg, k_max, tuple(history),
+                           None if best is None else best["name"], public, diagnosis, ctrl, tuple(ccl_history))
