@@ -8,6 +8,7 @@ Run from the repository root::
     python benchmarks/synthesis.py                 # default run (~12 min measured on 2 busy cores)
     python benchmarks/synthesis.py --quick         # smoke run (< 60 s)
     python benchmarks/synthesis.py --seed 3 --out /tmp/synthesis.csv
+    python benchmarks/synthesis.py --output-feedback   # CCL / observer / V-K, n in {2, 4, 6}, m in {2, 3}
 
 Output: one CSV row per ``synthesize`` call (default ``benchmarks/results/synthesis.csv``)
 and a fixed-width table plus a goals block on stdout.
@@ -640,13 +641,68 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                    help="restrict the grid to these sizes, e.g. '8x3,12x4' (default: the whole grid)")
     p.add_argument("--skip-paper", action="store_true", help="skip the paper example (goals and CLI)")
     p.add_argument("-v", "--verbose", action="store_true", help="print each row as it is measured")
+    p.add_argument("--output-feedback", action="store_true",
+                   help="only the output-feedback section: CCL, observer and V-K for n in {2, 4, 6}, m in {2, 3}")
     return p.parse_args(argv)
+
+
+OF_GRID_N = (2, 4, 6)
+OF_GRID_M = (2, 3)
+OF_GOAL_S = 30.0  # CCL, n = 4, 2 modes
+
+
+def output_feedback_benchmark(args: argparse.Namespace) -> int:
+    """``--output-feedback``: CCL (and, for comparison, the observer baseline and V-K) on
+    random systems ``n in OF_GRID_N``, ``m in OF_GRID_M`` (the plants above, uncertain on
+    the checkerboard, with ``max(1, n // 2) + 1`` measured outputs ``Cy`` drawn N(0, 1) from
+    the same seed), gain bound 30, Clarabel. Rows: certified, gamma, CCL iterations, wall
+    time, solver calls; goal: CCL certified within 30 s at n = 4, 2 modes."""
+    import numpy as np
+
+    from ftc_verify.model.system import FTCSystem
+    from ftc_verify.synthesis.output_feedback import synthesize_output_feedback
+
+    out = args.out.with_name(args.out.stem + "_output_feedback.csv")
+    rows: list[dict[str, Any]] = []
+    for a, n in enumerate(OF_GRID_N):
+        for b, m in enumerate(OF_GRID_M):
+            seed = 10000 * args.seed + 100 * n + m
+            plant, _, _ = random_system(n, m, seed, (a + b) % 2 == 1, args.family)
+            cy = np.random.default_rng(seed + 1).normal(size=(max(1, n // 2) + 1, n))
+            modes = [{k: v for k, v in vars(md).items() if k in ("A", "B", "C", "D", "A1", "A2", "B1", "B2")
+                      and v is not None} | {"Cy": cy} for md in plant.modes]
+            system = FTCSystem.from_arrays(name=plant.name + "-of", modes=modes, alpha=plant.chain.alpha,
+                                           beta_min=plant.chain.beta_min, beta_max=plant.chain.beta_max)
+            for method in ("ccl", "observer", "vk"):
+                t0 = time.perf_counter()
+                res = synthesize_output_feedback(system, method=method, k_max=30.0, solver="clarabel")
+                wall = time.perf_counter() - t0
+                d = res.to_dict()
+                rows.append({"n": n, "m": m, "seed": seed, "uncertain": plant.modes[0].uncertain, "method": method,
+                             "certified": res.certified, "gamma": res.gamma_certified,
+                             "iterations": d["iterations"], "wall_s": round(wall, 2),
+                             "solver_calls": res.solver_calls, "message": _short(res.message, 160)})
+                print(f"n={n} m={m} {method:8s} certified={res.certified!s:5s} gamma={_g(res.gamma_certified, 10)} "
+                      f"iterations={d['iterations']:3d} wall={wall:6.1f} s", flush=True)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with out.open("w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    goal = [r for r in rows if r["n"] == 4 and r["m"] == 2 and r["method"] == "ccl"][0]
+    met = goal["certified"] and goal["wall_s"] <= OF_GOAL_S
+    print(f"goal: CCL at n = 4, m = 2 certified within {OF_GOAL_S:g} s: {'met' if met else 'NOT met'} "
+          f"({goal['wall_s']} s, certified {goal['certified']})")
+    print(f"CSV: {out}")
+    return 0
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
     blas = _set_blas_threads(args.blas_threads)
     warnings.simplefilter("ignore")  # solver chatter; statuses are in the rows
+    if args.output_feedback:
+        return output_feedback_benchmark(args)
     bench = Bench(args, blas)
     bench.run()
     write_csv(bench.rows, args.out)

@@ -149,52 +149,6 @@ def _positive(text: str) -> float:
     return value
 
 
-def _print_synthesis(res: Any) -> None:
-    d = res.to_dict()
-    print(f"ftc-verify synthesize: method {res.method} ({res.solver}, {res.solver_calls} solver calls, "
-          f"{res.solve_seconds:.2f} s solving, {res.wall_seconds:.2f} s wall)")
-    print(f"  {res.message}")
-    for row in d["starts"]:
-        found = (f"certified gamma {row['gamma_certified']:.6g}" if row["gamma_certified"] is not None
-                 else f"not counted: {row['reason']}")
-        mark = "*" if row["name"] == res.start else " "
-        print(f"  {mark} start {row['name']:22s} {found}" + (f" ({row['note']})" if row["note"] else ""))
-    if res.diagnosis:
-        print(f"  diagnosis: {res.diagnosis['reason']}")
-    if not res.feasible:
-        print("  no gains")
-        return
-    print(f"  synthesis-side gamma     {_fmt(d['synthesis_gamma'])}")
-    print(f"  certified robust gamma   {_fmt(d['gamma_certified'])}")
-    print(f"  certified nominal gamma  {_fmt(d['gamma_nominal_certified'])}")
-    print(f"  spectral abscissa        {_fmt(d['spectral_abscissa'])}")
-    print(f"  max gain norm            {_fmt(d['max_gain_norm'])}" + (f" (bound {res.k_max:g})" if res.k_max else ""))
-    if res.history:
-        print("  iterate history          " + " -> ".join(f"{g:.6g}" for g in res.history))
-
-
-def _cmd_synthesize(args: argparse.Namespace) -> int:
-    from ..controllers.controller import Controller
-    from ..controllers.files import dump_controller
-    from ..model.files import load_system, write_atomic
-    from ..synthesis.state_feedback import synthesize
-
-    _check_output_file(args.output, "-o/--output")
-    system = load_system(args.system)
-    res = synthesize(system, method=args.method, gamma=args.gamma, k_max=args.k_max, solver=args.solver)
-    if res.certified:
-        named = Controller.state_feedback(res.gains, name=f"{system.name} {res.method}")
-        write_atomic(args.output, dump_controller(named))
-    verdict = "certified" if res.certified else "NOT certified"
-    if args.json:
-        print(json.dumps(_strict(res.to_dict() | {"verdict": verdict}), indent=2, allow_nan=False))
-    else:
-        _print_synthesis(res)
-        print(f"  controller {'written to ' + str(args.output) if res.certified else 'not written (not certified)'}")
-        print(f"  verdict: {verdict}")
-    return EXIT_OK if res.certified else EXIT_NEGATIVE
-
-
 def _positive_int(text: str) -> int:
     try:
         value = int(text)
@@ -416,18 +370,6 @@ def build_parser() -> argparse.ArgumentParser:
                         "for loops whose LMIs would not fit in memory or time")
     a.set_defaults(func=_cmd_analyze)
 
-    y = sub.add_parser("synthesize", help="synthesize state-feedback gains and certify them")
-    y.add_argument("system", help="system TOML file")
-    level = y.add_mutually_exclusive_group()
-    level.add_argument("--gamma", type=_positive, help="attenuation level to achieve (feasibility)")
-    level.add_argument("--minimize", action="store_true", help="make gamma as small as possible (default)")
-    y.add_argument("--method", required=True, choices=["two-step", "iterative", "full-info", "common"])
-    y.add_argument("--k-max", type=_positive, default=None, help="bound on the spectral norm of every gain")
-    y.add_argument("-o", "--output", required=True, help="controller TOML file to write (only when certified)")
-    y.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
-    y.add_argument("--solver", default="auto", choices=["auto", "clarabel", "sdpa", "scs"])
-    y.set_defaults(func=_cmd_synthesize)
-
     m = sub.add_parser("simulate", help="simulate the sampled-data loop under Markov faults and delayed FDI")
     m.add_argument("system", help="system TOML file")
     m.add_argument("--controller", "--gains", dest="controller", required=True,
@@ -476,7 +418,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--force", action="store_true", help="recompile even when the cached binary is up to date")
     b.set_defaults(func=_cmd_build_fmus)
     from .plant_commands import add_plant_commands
+    from .synthesis_commands import add_synthesis_command
 
+    add_synthesis_command(sub)
     add_plant_commands(sub)
     return p
 

@@ -19,11 +19,11 @@ Methods:
 
 ``observer`` (baseline)
     Per FDI mode, certified state-feedback gains :math:`K_j` (``synthesize(method=
-    "iterative")``) and observer gains :math:`L_j = -X C_{y,j}^T R^{-1}` from the dual
-    Riccati equation of :math:`(A_j^T, C_{y,j}^T)` with :math:`Q = D_j D_j^T + 10^{-2} I`,
+    "iterative")`` under ``k_max``, or unbounded and under 30 when none is given) and
+    observer gains :math:`L_j = -X C_{y,j}^T R^{-1}` from the dual Riccati equation of :math:`(A_j^T, C_{y,j}^T)` with :math:`Q = D_j D_j^T + 10^{-2} I`,
     :math:`R = \rho I`, :math:`\rho \in \{10^{-2}, 1, 10^2\}` (Kalman-like): the controller
     :math:`\hat A_j = A_j + B_j K_j + L_j C_{y,j}`, :math:`\hat B_j = -L_j`,
-    :math:`\hat C_j = K_j`, :math:`\hat D_j = 0`; the best certified of the three.
+    :math:`\hat C_j = K_j`, :math:`\hat D_j = 0`; the best certified of them.
 ``ccl`` (the paper's Theorem 5.1)
     At a fixed gamma: find :math:`P_s`, :math:`X_s = P_s^{-1}`, multipliers
     :math:`\lambda_{s,k}` and :math:`\varepsilon_{s,k} = \lambda_{s,k}^{-1}` satisfying the two
@@ -49,6 +49,7 @@ import numpy as np
 
 from ..analysis.closedloop import barred, closed_loop, gain_loop
 from ..analysis.lmi import block_specs, lyapunov_block, projection, xy_block
+from ..analysis.lmi_analysis import hinf_gamma
 from ..controllers.controller import Controller
 from ..errors import ValidationError
 from ..model.system import FTCSystem, Matrix, Mode
@@ -66,6 +67,8 @@ CCL_MAX_ITER = 30
 CCL_TOL = 1e-6
 #: Observer Riccati input weights (the scale search of the baseline).
 OBSERVER_SCALES = (1e-2, 1.0, 1e2)
+#: Gain bound of the baseline's second state-feedback design when none is given.
+OBSERVER_K_MAX = 30.0
 
 
 def augmented_system(system: FTCSystem) -> tuple[FTCSystem, list[Matrix]]:
@@ -184,9 +187,10 @@ def ccl_constraints(aug: FTCSystem, cbars: list[Matrix], P: list[Any], X: list[A
     nb = aug.dims[0]
     for s in range(m * m):
         cons.append(cp.bmat([[P[s], np.eye(nb)], [np.eye(nb), X[s]]]) >> 0)
-        cons.append(X[s] >> margin * np.eye(nb))
+        cons.append(cp.Constant(np.eye(nb)) @ X[s] >> margin * np.eye(nb))  # (also when X holds numbers)
         for la, ep in zip(lam[s], eps[s]):
-            cons.append(cp.bmat([[cp.reshape(la, (1, 1), order="C"), np.ones((1, 1))], [np.ones((1, 1)), cp.reshape(ep, (1, 1), order="C")]])
+            one = np.ones((1, 1))
+            cons.append(cp.bmat([[cp.reshape(la, (1, 1), order="C"), one], [one, cp.reshape(ep, (1, 1), order="C")]])
                         >> 0)
     return cons
 
@@ -271,16 +275,23 @@ def _controller_step(aug: FTCSystem, cbars: list[Matrix], P: list[Matrix], lam: 
 
 
 def _observer_rows(system: FTCSystem, k_max: float | None, solver: str, calls: _Calls) -> list[dict[str, Any]]:
-    """The certified-or-not observer designs (the baseline and the start of ``vk``)."""
-    sf = synthesize(system, method="iterative", k_max=k_max, solver=solver)
-    calls.absorb(sf)
-    if not sf.certified:
-        return [{"name": "observer", "gamma_certified": None, "spectral_abscissa": None, "note": "",
-                 "reason": f"no certified state-feedback gains: {sf.message}"}]
+    """The certified-or-not observer designs (the baseline and the start of ``vk``): the
+    state-feedback gains of ``synthesize(method="iterative")`` under ``k_max``, and, when
+    no bound is given, also under :data:`OBSERVER_K_MAX` (unbounded state-feedback gains
+    reach norms of 1e4 on the paper's plant, and the observer's model mismatch during a
+    detection delay, ``(B_j - B_i) K_j``, then destabilises the loop)."""
     rows = []
-    for label, ctrl in observer_designs(system, list(sf.gains)):
-        rows.append(certify_start(system, label, _blocks(ctrl), solver, loop=closed_loop(system, ctrl))
-                    | {"controller": ctrl})
+    for bound in ([k_max] if k_max is not None else [None, OBSERVER_K_MAX]):
+        sf = synthesize(system, method="iterative", k_max=bound, solver=solver)
+        calls.absorb(sf)
+        tag = "" if bound is None else f", k_max {bound:g}"
+        if not sf.certified:
+            rows.append({"name": f"observer{tag}", "gamma_certified": None, "spectral_abscissa": None, "note": "",
+                         "reason": f"no certified state-feedback gains: {sf.message}"})
+            continue
+        for label, ctrl in observer_designs(system, list(sf.gains)):
+            rows.append(certify_start(system, label + tag, _blocks(ctrl), solver, loop=closed_loop(system, ctrl))
+                        | {"controller": ctrl})
     for r in rows:
         calls.outcomes.extend(r.get("attempts", ()))
     return rows or [{"name": "observer", "gamma_certified": None, "spectral_abscissa": None, "note": "",
@@ -290,8 +301,8 @@ def _observer_rows(system: FTCSystem, k_max: float | None, solver: str, calls: _
 def _ccl_ladder(system: FTCSystem, gamma: float | None, start: float | None, calls: _Calls,
                 k_max: float | None) -> tuple[list[Matrix] | None, float | None, list[float], str]:
     """CCL at ``gamma``, or (``gamma=None``) down a ladder of levels from ``start`` (the
-    observer design's certified gamma, else 10), each 0.7 times the gamma the previous
-    controller step reached, while it succeeds (at most six levels)."""
+    observer design's certified gamma, else 10), each 0.7 times the certified robust gamma
+    of the previous level's controller, while it succeeds (at most six levels)."""
     if gamma is not None:
         blocks, history, msg, reached = ccl(system, gamma, calls, k_max)
         return blocks, reached, history, msg
@@ -301,9 +312,13 @@ def _ccl_ladder(system: FTCSystem, gamma: float | None, start: float | None, cal
         blocks, history, msg, reached = ccl(system, level, calls, k_max)
         if blocks is None or reached is None:
             return best if best[0] is not None else (None, None, history, msg)
+        cert = hinf_gamma(closed_loop(system, controller_from_blocks(system, blocks, "ccl")), robust=True,
+                          solver=calls.solver)
+        calls.outcomes.extend(cert.attempts)
+        certified = cert.gamma if cert.certified and cert.gamma is not None else reached
         best = (blocks, reached, history, f"{msg}; last level that succeeded {level:.6g} (ladder: 0.7 times the "
-                                            "gamma the controller step reached)")
-        level = 0.7 * min(level, reached)
+                                            "certified gamma of the previous level)")
+        level = 0.7 * min(level, certified)
     return best
 
 
@@ -364,7 +379,7 @@ def synthesize_output_feedback(
     diagnosis = None
     if not ok:
         seen = rows + ([{"spectral_abscissa": report.mss.spectral_abscissa}] if report is not None else [])
-        diagnosis = diagnose(system, seen, [o.status for o in calls.outcomes], k_max)
+        diagnosis = diagnose(system, seen, [o.status for o in calls.outcomes], k_max, output_feedback=True)
         msg = f"{msg}; {diagnosis['message']}"
     public = tuple({k: r.get(k) for k in ("name", "gamma_certified", "spectral_abscissa", "note", "reason")}
                    for r in rows)

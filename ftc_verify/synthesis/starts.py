@@ -158,17 +158,19 @@ def candidates(system: FTCSystem, k_max: float | None, full_info: list[Matrix] |
     return out
 
 
-def stabilisability(system: FTCSystem) -> list[dict[str, Any]]:
+def stabilisability(system: FTCSystem, *, dual: bool = False) -> list[dict[str, Any]]:
     """Per true mode, the PBH test: ``{"mode", "stabilisable", "uncontrollable"}`` with the
-    eigenvalues ``lambda`` (real part >= 0) at which ``[A - lambda I, B]`` loses rank."""
+    eigenvalues ``lambda`` (real part >= 0) at which ``[A - lambda I, B]`` loses rank.
+    ``dual=True`` tests detectability of ``(A, Cy)`` instead (``[A' - lambda I, Cy']``)."""
     rows = []
     for i, md in enumerate(system.modes):
         n = md.A.shape[0]
+        A, B = (md.A.T, md.measured.T) if dual else (md.A, md.B)
         bad = []
-        for lam in np.linalg.eigvals(md.A):
+        for lam in np.linalg.eigvals(A):
             if lam.real < 0:
                 continue
-            s = np.linalg.svd(np.hstack([md.A - lam * np.eye(n), md.B.astype(complex)]), compute_uv=False)
+            s = np.linalg.svd(np.hstack([A - lam * np.eye(n), B.astype(complex)]), compute_uv=False)
             if s[-1] <= PBH_RTOL * max(1.0, s[0]):  # n singular values: the smallest decides the rank
                 bad.append(complex(lam))
         rows.append({"mode": i + 1, "stabilisable": not bad,
@@ -200,12 +202,15 @@ def certify_start(system: FTCSystem, name: str, gains: tuple[Matrix, ...] | list
     return row | {"gamma_certified": float(res.gamma), "lmi": res}
 
 
-def diagnose(system: FTCSystem, rows: list[dict[str, Any]], statuses: list[str], k_max: float | None) -> dict[str, Any]:
+def diagnose(system: FTCSystem, rows: list[dict[str, Any]], statuses: list[str], k_max: float | None,
+             *, output_feedback: bool = False) -> dict[str, Any]:
     """Why no certified controller was found, in order of precedence:
 
     * ``not stabilisable``: some true mode fails the PBH test (:func:`stabilisability`):
       no gain moves its unstable uncontrollable eigenvalues, so a controller could only
       rely on the chain leaving that mode;
+    * ``not detectable`` (``output_feedback``): some true mode has an unstable eigenvalue
+      that ``y_m = Cy x`` does not see (the dual PBH test);
     * ``stable but not certified``: some start was mean-square stable, yet no robust gamma
       was certified: the solver failed (its statuses are listed) or the uncertainty is too
       large for those gains;
@@ -217,7 +222,12 @@ def diagnose(system: FTCSystem, rows: list[dict[str, Any]], statuses: list[str],
     best = min(abscissas) if abscissas else None
     trouble = {s: statuses.count(s) for s in sorted(set(statuses)) if s not in ("optimal", "infeasible")}
     bad = [r for r in modes if not r["stabilisable"]]
-    if bad:
+    blind = [r for r in stabilisability(system, dual=True) if not r["stabilisable"]] if output_feedback else []
+    if blind and not bad:
+        eig = ", ".join(f"{complex(*z):.4g}" for r in blind for z in r["uncontrollable"])
+        reason, text = "not detectable", (f"the measured output does not see mode(s) {[r['mode'] for r in blind]} "
+                                          f"(PBH on (A, Cy): unobservable eigenvalue(s) {eig})")
+    elif bad:
         eig = ", ".join(f"{complex(*z):.4g}" for r in bad for z in r["uncontrollable"])
         reason, text = "not stabilisable", (f"the plant is not stabilisable in mode(s) {[r['mode'] for r in bad]} "
                                             f"(PBH: uncontrollable eigenvalue(s) {eig})")

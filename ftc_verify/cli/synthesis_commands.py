@@ -1,0 +1,98 @@
+"""``ftc-verify synthesize``: state-feedback or output-feedback synthesis, certified by the
+core analysis; the controller file is written only when certified. Exit codes: 0
+certified, 1 not found or not certified (with the diagnosis), 2 bad input."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from typing import Any
+
+from .main import EXIT_NEGATIVE, EXIT_OK, _bad, _check_output_file, _fmt, _positive, _strict
+
+__all__ = ["add_synthesis_command"]
+
+
+def _print_synthesis(res: Any) -> None:
+    d = res.to_dict()
+    print(f"ftc-verify synthesize: method {res.method} ({res.solver}, {res.solver_calls} solver calls, "
+          f"{res.solve_seconds:.2f} s solving, {res.wall_seconds:.2f} s wall)")
+    print(f"  {res.message}")
+    for row in d["starts"]:
+        found = (f"certified gamma {row['gamma_certified']:.6g}" if row["gamma_certified"] is not None
+                 else f"not counted: {row['reason']}")
+        mark = "*" if row["name"] == res.start else " "
+        print(f"  {mark} start {row['name']:22s} {found}" + (f" ({row['note']})" if row["note"] else ""))
+    if res.diagnosis:
+        print(f"  diagnosis: {res.diagnosis['reason']}")
+    if not res.feasible:
+        print("  no gains")
+        return
+    print(f"  synthesis-side gamma     {_fmt(d['synthesis_gamma'])}")
+    print(f"  certified robust gamma   {_fmt(d['gamma_certified'])}")
+    print(f"  certified nominal gamma  {_fmt(d['gamma_nominal_certified'])}")
+    print(f"  spectral abscissa        {_fmt(d['spectral_abscissa'])}")
+    print(f"  max gain norm            {_fmt(d['max_gain_norm'])}" + (f" (bound {res.k_max:g})" if res.k_max else ""))
+    if res.history:
+        print("  iterate history          " + " -> ".join(f"{g:.6g}" for g in res.history))
+    if res.ccl_history:
+        print(f"  CCL residuals            {' -> '.join(f'{r:.3g}' for r in res.ccl_history)} "
+              f"({len(res.ccl_history)} iterations)")
+
+
+def _cmd_synthesize(args: argparse.Namespace) -> int:
+    from ..controllers.controller import Controller
+    from ..controllers.files import dump_controller
+    from ..model.files import load_system, write_atomic
+    from ..synthesis.state_feedback import synthesize
+
+    of_methods = ("ccl", "observer", "vk")
+    if args.output_feedback and args.method not in (None, *of_methods):
+        raise _bad(f"--method {args.method}: with --output-feedback choose one of {list(of_methods)}")
+    if not args.output_feedback and args.method in (None, *of_methods):
+        raise _bad(f"--method {args.method}: needs --output-feedback" if args.method else
+                   "--method: required for state feedback (two-step, iterative, full-info, common)")
+    _check_output_file(args.output, "-o/--output")
+    system = load_system(args.system)
+    if args.output_feedback:
+        from ..synthesis.output_feedback import synthesize_output_feedback
+
+        res = synthesize_output_feedback(system, method=args.method or "ccl", gamma=args.gamma, k_max=args.k_max,
+                                         solver=args.solver)
+    else:
+        res = synthesize(system, method=args.method, gamma=args.gamma, k_max=args.k_max, solver=args.solver)
+    if res.certified and res.controller is not None:
+        named = res.controller if args.output_feedback else Controller.state_feedback(
+            res.gains, name=f"{system.name} {res.method}")
+        write_atomic(args.output, dump_controller(named))
+    verdict = "certified" if res.certified else "NOT certified"
+    if args.json:
+        print(json.dumps(_strict(res.to_dict() | {"verdict": verdict}), indent=2, allow_nan=False))
+    else:
+        _print_synthesis(res)
+        print(f"  controller {'written to ' + str(args.output) if res.certified else 'not written (not certified)'}")
+        print(f"  verdict: {verdict}")
+    return EXIT_OK if res.certified else EXIT_NEGATIVE
+
+
+
+def add_synthesis_command(sub: Any) -> None:
+    """Register ``synthesize`` on the subparsers ``sub``."""
+    y = sub.add_parser("synthesize", help="synthesize a controller (state or output feedback) and certify it")
+    y.add_argument("system", help="system TOML file")
+    level = y.add_mutually_exclusive_group()
+    level.add_argument("--gamma", type=_positive, help="attenuation level to achieve (feasibility)")
+    level.add_argument("--minimize", action="store_true", help="make gamma as small as possible (default)")
+    y.add_argument("--method", default=None, choices=["two-step", "iterative", "full-info", "common",
+                                                       "ccl", "observer", "vk"],
+                   help="state feedback: two-step, iterative, full-info, common (required); with "
+                        "--output-feedback: ccl (default), observer, vk")
+    y.add_argument("--output-feedback", action="store_true",
+                   help="a full-order dynamic controller per FDI mode reading y_m = Cy x (Theorem 5.1)")
+    y.add_argument("--k-max", type=_positive, default=None,
+                   help="bound on the spectral norm of every gain (output feedback: of every controller block)")
+    y.add_argument("-o", "--output", required=True, help="controller TOML file to write (only when certified)")
+    y.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    y.add_argument("--solver", default="auto", choices=["auto", "clarabel", "sdpa", "scs"])
+    y.set_defaults(func=_cmd_synthesize)
+
