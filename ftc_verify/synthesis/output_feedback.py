@@ -201,12 +201,22 @@ def _channel_count(aug: FTCSystem, i: int) -> int:
 
 
 def ccl(system: FTCSystem, gamma: float, calls: _Calls, k_max: float | None, *, max_iter: int = CCL_MAX_ITER,
-        tol: float = CCL_TOL) -> tuple[list[Matrix] | None, list[float], str, float | None]:
+        tol: float = CCL_TOL, start: tuple[Any, Any] | None = None,
+        ) -> tuple[list[Matrix] | None, list[float], str, float | None]:
     """Theorem 5.1 at ``gamma`` by cone complementarity linearisation (module docstring):
-    ``(controller blocks or None, residual history, message, the controller step's gamma)``. The residual after each
-    iteration is :math:`\\sum_s \\operatorname{tr}(P_s X_s) - \\bar n S + \\sum (\\lambda
-    \\varepsilon - 1) \\ge 0`; after every iteration the controller step is tried with that
-    ``P`` and those multipliers, and the first success at ``gamma`` ends the iteration."""
+    ``(controller blocks or None, residual history, message, the controller step's gamma)``.
+
+    The first linearisation point is the minimum of :math:`\sum \operatorname{tr}(P + X) +
+    \sum(\lambda + \varepsilon)` under the constraints, or ``start = (P, lambda)``, the
+    certificate of a certified controller (with :math:`X = P^{-1}`,
+    :math:`\varepsilon = \lambda^{-1}`: a warm start from a design known to work at a higher
+    level). Each iteration minimises :math:`\sum \operatorname{tr}(P_k X + X_k P) +
+    \lambda_k \varepsilon + \varepsilon_k \lambda` at the last point. After each point the
+    controller step is tried with its ``P`` and multipliers; the first success at ``gamma``
+    ends the run. Stopping rule: the residual :math:`\sum_s \operatorname{tr}(P_s X_s) -
+    \bar n S + \sum(\lambda \varepsilon - 1) \ge 0` of an iterate below ``tol`` times
+    :math:`\bar n S` (the conditions hold with :math:`X = P^{-1}`, yet no controller fits),
+    a solver failure, or ``max_iter``."""
     import cvxpy as cp
 
     aug, cbars = augmented_system(system)
@@ -219,10 +229,22 @@ def ccl(system: FTCSystem, gamma: float, calls: _Calls, k_max: float | None, *, 
     eps = [[cp.Variable(nonneg=True) for _ in range(c)] for c in chans]
     cons = ccl_constraints(aug, cbars, P, X, lam, eps, gamma ** 2, 1e-7)
     flat = [(a, b) for ls, es in zip(lam, eps) for a, b in zip(ls, es)]
-    size = sum(cp.trace(p) + cp.trace(x) for p, x in zip(P, X)) + sum(a + b for a, b in flat)
-    out = calls.run(cp.Problem(cp.Minimize(size), cons))
-    if not out.solved or P[0].value is None:
-        return None, [], f"Theorem 5.1 conditions infeasible at gamma {gamma:.6g} (solver status {out.status})", None
+
+    def current() -> tuple[list[Matrix], list[Matrix], list[list[float]], list[float]]:
+        return ([0.5 * (p.value + p.value.T) for p in P], [0.5 * (x.value + x.value.T) for x in X],
+                [[float(a.value) for a in ls] for ls in lam], [float(b.value) for _, b in flat])
+
+    if start is None:
+        size = sum(cp.trace(p) + cp.trace(x) for p, x in zip(P, X)) + sum(a + b for a, b in flat)
+        out = calls.run(cp.Problem(cp.Minimize(size), cons))
+        if not out.solved or P[0].value is None:
+            msg = f"Theorem 5.1 conditions infeasible at gamma {gamma:.6g} (solver status {out.status})"
+            return None, [], msg, None
+        point = current()
+    else:
+        P0 = [0.5 * (np.asarray(p) + np.asarray(p).T) for p in start[0]]
+        lam0 = [list(map(float, r)) for r in start[1]]
+        point = (P0, [np.linalg.inv(p) for p in P0], lam0, [1.0 / v for r in lam0 for v in r])
     Pk = [cp.Parameter((nb, nb), symmetric=True) for _ in range(S)]
     Xk = [cp.Parameter((nb, nb), symmetric=True) for _ in range(S)]
     lk = [cp.Parameter(nonneg=True) for _ in flat]
@@ -231,32 +253,27 @@ def ccl(system: FTCSystem, gamma: float, calls: _Calls, k_max: float | None, *, 
            + sum(lp * b + ep * a for lp, ep, (a, b) in zip(lk, ek, flat)))
     linearised = cp.Problem(cp.Minimize(lin), cons)
     history: list[float] = []
-    for _ in range(max_iter):
-        Pv = [0.5 * (p.value + p.value.T) for p in P]
-        Xv = [0.5 * (x.value + x.value.T) for x in X]
-        lv = [[float(a.value) for a in ls] for ls in lam]
+    for k in range(max_iter):
+        Pv, Xv, lv, ev = point
         residual = float(sum(np.trace(p @ x) for p, x in zip(Pv, Xv)) - nb * S
-                         + sum(float(a.value) * float(b.value) - 1.0 for a, b in flat))
+                         + sum(a * b - 1.0 for a, b in zip((v for r in lv for v in r), ev)))
         history.append(residual)
         blocks, reached = _controller_step(aug, cbars, Pv, lv, gamma, calls, k_max)
         if blocks is not None:
-            return blocks, history, f"CCL: controller step succeeded after {len(history)} iteration(s)", reached
-        if residual <= tol * nb * S:
+            return blocks, history, f"CCL: controller step succeeded after {len(history)} point(s)", reached
+        if residual <= tol * nb * S and (start is None or k > 0):
             return None, history, (f"CCL converged (residual {residual:.3g}) but the controller step failed at "
                                    f"gamma {gamma:.6g}: the necessary conditions hold, one controller per FDI mode "
                                    "does not fit every true mode"), None
-        for par, v in zip(Pk, Pv):
+        for par, v in zip(Pk + Xk, Pv + Xv):
             par.value = v
-        for par, v in zip(Xk, Xv):
-            par.value = v
-        for par, (a, b) in zip(lk, flat):
-            par.value = max(float(a.value), 0.0)
-        for par, (a, b) in zip(ek, flat):
-            par.value = max(float(b.value), 0.0)
+        for par, v in zip(lk + ek, [v for r in lv for v in r] + ev):
+            par.value = max(v, 0.0)
         out = calls.run(linearised)
         if not out.solved or P[0].value is None:
             return None, history, (f"CCL iteration {len(history)} failed (solver status {out.status}; residual "
                                    f"{history[-1]:.3g} before it)"), None
+        point = current()
     return None, history, f"CCL: iteration limit {max_iter} reached (residual {history[-1]:.3g})", None
 
 
@@ -299,23 +316,39 @@ def _observer_rows(system: FTCSystem, k_max: float | None, solver: str, calls: _
 
 
 def _ccl_ladder(system: FTCSystem, gamma: float | None, start: float | None, calls: _Calls,
-                k_max: float | None) -> tuple[list[Matrix] | None, float | None, list[float], str]:
+                k_max: float | None, warm: Any = None) -> tuple[list[Matrix] | None, float | None, list[float], str]:
     """CCL at ``gamma``, or (``gamma=None``) down a ladder of levels from ``start`` (the
     observer design's certified gamma, else 10), each 0.7 times the certified robust gamma
-    of the previous level's controller, while it succeeds (at most six levels)."""
+    of the previous level's controller, while it succeeds (at most six levels). ``warm``:
+    the observer design's certificate: where CCL from its own first point fails at a
+    level, it is run again from this point (a design known to work at a higher level);
+    each later level warm-starts from the certificate of the previous level's controller."""
+    point = None if warm is None or warm.P is None else (warm.P, warm.multipliers or [()] * len(warm.P))
+
+    def attempt(level: float) -> tuple[list[Matrix] | None, list[float], str, float | None]:
+        """Cold start first; from the warm point only when that fails."""
+        found = ccl(system, level, calls, k_max)
+        if found[0] is None and point is not None:
+            warm_found = ccl(system, level, calls, k_max, start=point)
+            if warm_found[0] is not None:
+                return warm_found[0], found[1] + warm_found[1], warm_found[2] + " (warm start)", warm_found[3]
+        return found
+
     if gamma is not None:
-        blocks, history, msg, reached = ccl(system, gamma, calls, k_max)
+        blocks, history, msg, reached = attempt(gamma)
         return blocks, reached, history, msg
     level = 10.0 if start is None else start
     best: tuple[list[Matrix] | None, float | None, list[float], str] = (None, None, [], "")
     for _ in range(6):
-        blocks, history, msg, reached = ccl(system, level, calls, k_max)
+        blocks, history, msg, reached = attempt(level)
         if blocks is None or reached is None:
             return best if best[0] is not None else (None, None, history, msg)
         cert = hinf_gamma(closed_loop(system, controller_from_blocks(system, blocks, "ccl")), robust=True,
                           solver=calls.solver)
         calls.outcomes.extend(cert.attempts)
         certified = cert.gamma if cert.certified and cert.gamma is not None else reached
+        if cert.certified and cert.P is not None:
+            point = (cert.P, cert.multipliers or [()] * len(cert.P))
         best = (blocks, reached, history, f"{msg}; last level that succeeded {level:.6g} (ladder: 0.7 times the "
                                             "certified gamma of the previous level)")
         level = 0.7 * min(level, certified)
@@ -372,7 +405,7 @@ def synthesize_output_feedback(
             msg = f"V-K iteration from {best['name']} (certified gamma {best['gamma_certified']:.6g}); {msg}"
     else:
         blocks, gsyn, ccl_history, msg = _ccl_ladder(system, gamma, None if best is None else best["gamma_certified"],
-                                                     calls, k_max)
+                                                     calls, k_max, None if best is None else best.get("lmi"))
     ctrl = None if blocks is None else controller_from_blocks(system, blocks, f"{system.name} {method}")
     report = None if ctrl is None else _verify_controller(system, ctrl, name)
     ok = report is not None and report.certified_stable and report.robust.certified
