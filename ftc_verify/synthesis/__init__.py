@@ -1,13 +1,21 @@
-"""Stage 2b: controllers designed from a system; every result is certified by :mod:`ftc_verify.analysis`."""
+"""Stage 2b: controllers designed from a system; every result is certified by :mod:`ftc_verify.analysis`.
+
+:mod:`.state_feedback` (``u = K_l x``), :mod:`.starts` (the starts of its iterative
+method and the diagnosis when nothing is certified), :mod:`.output_feedback` (dynamic
+controllers on ``y_m = Cy x``: CCL of Theorem 5.1, observer baseline, V-K iteration).
+"""
 
 from __future__ import annotations
 
-from .state_feedback import METHODS, SynthesisResult, synthesize, two_step, gain_step
+from .output_feedback import OF_METHODS, synthesize_output_feedback
+from .state_feedback import METHODS, SynthesisResult, gain_step, synthesize, two_step
 
 __all__ = [
     "METHODS",
+    "OF_METHODS",
     "SynthesisResult",
     "synthesize",
+    "synthesize_output_feedback",
     "two_step",
     "gain_step",
 ]

@@ -368,7 +368,8 @@ def synthesize_output_feedback(
     """A dynamic output-feedback controller by ``method`` (module docstring), certified by
     the core analysis of its closed loop; the result's ``controller`` is it, ``gains`` its
     blocks ``K_j``. ``k_max`` bounds ``||K_j||_2`` in the controller steps (``ccl``, ``vk``)
-    and the state-feedback gains of the observer baseline."""
+    and the state-feedback gains of the observer baseline. ``gamma``: the level CCL
+    works at, and for every method a requirement on the certified robust gamma."""
     from ..analysis.solvers import choose_solver
     from .starts import diagnose
 
@@ -409,6 +410,10 @@ def synthesize_output_feedback(
     ctrl = None if blocks is None else controller_from_blocks(system, blocks, f"{system.name} {method}")
     report = None if ctrl is None else _verify_controller(system, ctrl, name)
     ok = report is not None and report.certified_stable and report.robust.certified
+    if ok and gamma is not None and report is not None and report.robust.gamma > gamma * (1 + 1e-9):
+        ok, ctrl, blocks = False, None, None  # --gamma is a requirement for every method
+        msg = f"{msg}; certified gamma {report.robust.gamma:.6g} is above the requested {gamma:.6g}"
+        report = None
     diagnosis = None
     if not ok:
         seen = rows + ([{"spectral_abscissa": report.mss.spectral_abscissa}] if report is not None else [])
