@@ -185,3 +185,14 @@ def test_undetectable_output_is_diagnosed() -> None:
     d = diagnose(blind, [], [], None, output_feedback=True)
     assert d["reason"] == "not detectable" and "0.8" in d["message"]
     assert diagnose(s, [], [], None, output_feedback=True)["reason"] == "no certified controller"
+
+
+def test_ccl_warm_start_from_a_certificate(certified_observer) -> None:
+    """CCL started from a certified controller's certificate at its own level: the start
+    point has residual ~0 and the controller step succeeds at once."""
+    system, ctrl = certified_observer
+    res = hinf_gamma(closed_loop(system, ctrl), robust=True, solver="clarabel")
+    blocks, history, msg, reached = ccl(system, res.gamma * 1.01, _Calls("clarabel"), None,
+                                        start=(res.P, res.multipliers))
+    assert blocks is not None and len(history) == 1 and abs(history[0]) < 1e-6, msg
+    assert reached <= res.gamma * 1.01

@@ -244,7 +244,8 @@ def ccl(system: FTCSystem, gamma: float, calls: _Calls, k_max: float | None, *, 
     else:
         P0 = [0.5 * (np.asarray(p) + np.asarray(p).T) for p in start[0]]
         lam0 = [list(map(float, r)) for r in start[1]]
-        point = (P0, [np.linalg.inv(p) for p in P0], lam0, [1.0 / v for r in lam0 for v in r])
+        X0 = [np.linalg.inv(p) for p in P0]
+        point = (P0, [0.5 * (x + x.T) for x in X0], lam0, [1.0 / v for r in lam0 for v in r])
     Pk = [cp.Parameter((nb, nb), symmetric=True) for _ in range(S)]
     Xk = [cp.Parameter((nb, nb), symmetric=True) for _ in range(S)]
     lk = [cp.Parameter(nonneg=True) for _ in flat]
