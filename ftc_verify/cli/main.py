@@ -149,6 +149,16 @@ def _positive(text: str) -> float:
     return value
 
 
+def _nonneg_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be 0 or more, got {text!r}")
+    return value
+
+
 def _positive_int(text: str) -> int:
     try:
         value = int(text)
@@ -219,7 +229,9 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     if args.plot:
         _check_output_file(args.plot, "--plot", PLOT_SUFFIXES)
     system, controller = _load(args.system, args.controller)
-    _check_records_memory(system, controller, args.paths, args.horizon, args.step)
+    record = max(args.record, 1 if args.plot else 0)
+    kept = args.paths if args.backend == "fmu" else min(record, args.paths)  # the reference backend streams
+    _check_records_memory(system, controller, kept, args.horizon, args.step)
     plant = _load_plant(args, system)
     if args.backend == "fmu" and plant is None:
         _check_fmu_dims(system, args.system)
@@ -238,9 +250,10 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         res = simulate_fmu(system, controller, paths, step=args.step, disturbance=args.disturbance, delta=delta, rng=rng,
                            seed=seed, plant=plant, log=_fmu_logger(args))
     else:
-        from ..simulation.reference import simulate_reference
+        from ..simulation.streaming import simulate_streaming
 
-        res = simulate_reference(system, controller, paths, step=args.step, disturbance=args.disturbance, delta=delta, rng=rng, seed=seed)
+        res = simulate_streaming(system, controller, paths, step=args.step, disturbance=args.disturbance, delta=delta,
+                                 rng=rng, seed=seed, record=record)
     if args.plot:
         from ..verification.plots import plot_path
 
@@ -380,6 +393,9 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--step", type=_positive, default=0.01, help="control period h (sample-and-hold)")
     m.add_argument("--seed", type=_seed, default=None, help="seed of the numpy Generator (recorded in the output)")
     m.add_argument("--disturbance", default="paper", choices=["paper", "zero", "step", "pulse", "sine"])
+    m.add_argument("--record", type=_nonneg_int, default=0,
+                   help="reference backend: keep full trajectories of the first N paths (default 0, 1 with --plot); "
+                        "every path's norms are computed either way, vectorised and in batches")
     m.add_argument("--beta", default="random", choices=["random", "min", "max", "mid"],
                    help="detection rates: drawn per path in their box (default) or fixed")
     m.add_argument("--delta", default="zero", choices=["zero", "random", "sign", "constant"],

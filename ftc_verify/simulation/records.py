@@ -26,7 +26,8 @@ import numpy as np
 
 from .paths import ChainPath
 
-__all__ = ["DIVERGENCE_BOUND", "PathRecord", "SimulationResult", "l2_norm", "diverged", "divergence_note"]
+__all__ = ["DIVERGENCE_BOUND", "PathRecord", "SimulationResult", "l2_norm", "diverged", "divergence_note",
+           "divergence_line"]
 
 #: Norm of the loop state ``(x, x_c)`` beyond which a path counts as diverged and is stopped.
 DIVERGENCE_BOUND = 1e10
@@ -41,11 +42,16 @@ def diverged(*states: np.ndarray) -> bool:
 def divergence_note(records: "Sequence[PathRecord]") -> str | None:
     """One line naming the diverged paths (1-based) and when, or None."""
     bad = [(k, r.diverged_at) for k, r in enumerate(records, start=1) if r.diverged_at is not None]
+    return divergence_line(bad, len(records))  # type: ignore[arg-type]
+
+
+def divergence_line(bad: "Sequence[tuple[int, float]]", total: int) -> str | None:
+    """The line of :func:`divergence_note` from ``(1-based path, time)`` pairs, or None."""
     if not bad:
         return None
     shown = ", ".join(f"path {k} at t = {t:.6g}" for k, t in bad[:5])
     more = f" and {len(bad) - 5} more" if len(bad) > 5 else ""
-    return (f"{len(bad)} of {len(records)} paths diverged (|(x, x_c)| > {DIVERGENCE_BOUND:g}): {shown}{more}")
+    return (f"{len(bad)} of {total} paths diverged (|(x, x_c)| > {DIVERGENCE_BOUND:g}): {shown}{more}")
 
 
 def l2_norm(t: np.ndarray, signal: np.ndarray) -> float:

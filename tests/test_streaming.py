@@ -1,0 +1,65 @@
+"""Streaming reference simulation (ftc_verify.simulation.streaming): the same numbers as the
+per-path simulator on the same paths and ``Delta`` draws (1e-12), divergences at the same
+times, trajectories only for the recorded paths, batches that do not change the answer."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ftc_verify.controllers import Controller, load_controller
+from ftc_verify.model.files import load_system
+from ftc_verify.simulation.paths import sample_paths
+from ftc_verify.simulation.reference import simulate_reference
+from ftc_verify.simulation.streaming import simulate_streaming
+
+ROOT = Path(__file__).resolve().parents[1]
+PAPER = ROOT / "examples" / "paper.toml"
+
+
+@pytest.mark.parametrize("delta", ["zero", "random", "sign"])
+def test_streaming_equals_per_path(delta: str) -> None:
+    system, gains = load_system(PAPER), load_controller(ROOT / "examples" / "paper_gains.toml")
+    paths = sample_paths(system.chain, 8.0, 12, np.random.default_rng(1))
+    a = simulate_reference(system, gains, paths, step=0.01, delta=delta, rng=np.random.default_rng(7), seed=7)
+    b = simulate_streaming(system, gains, paths, step=0.01, delta=delta, rng=np.random.default_rng(7), seed=7,
+                           record=3, batch=5)
+    ya = np.array([r.y_norm for r in a.records])
+    wa = np.array([r.w_norm for r in a.records])
+    np.testing.assert_allclose(b.y_norm, ya, rtol=1e-12)
+    np.testing.assert_allclose(b.w_norm, wa, rtol=1e-12)
+    da, db = a.to_dict(), b.to_dict()
+    assert set(da) == set(db) and da["switches"] == db["switches"] and da["beta"] == db["beta"]
+    assert len(b.records) == 3
+    for ra, rb in zip(a.records, b.records):
+        np.testing.assert_array_equal(ra.x, rb.x)  # the recorded paths see the same Delta draws
+
+
+def test_streaming_reports_divergence_times_like_per_path() -> None:
+    system = load_system(PAPER)
+    unstable = Controller.state_feedback([np.array([[5.0, 0.0], [0.0, 5.0]])] * 2)
+    paths = sample_paths(system.chain, 30.0, 4, np.random.default_rng(3))
+    a = simulate_reference(system, unstable, paths, step=0.01, delta="random", rng=np.random.default_rng(5))
+    b = simulate_streaming(system, unstable, paths, step=0.01, delta="random", rng=np.random.default_rng(5), record=1)
+    times = {k: r.diverged_at for k, r in enumerate(a.records) if r.diverged_at is not None}
+    assert times and b.diverged_at == pytest.approx(times)
+    assert b.to_dict()["divergence"] == a.to_dict()["divergence"]
+    assert np.all(np.isinf(b.y_norm[list(times)]))
+
+
+def test_cli_simulate_reference_streams(tmp_path: Path) -> None:
+    out = subprocess.run([sys.executable, "-m", "ftc_verify", "simulate", str(PAPER), "--gains",
+                          str(ROOT / "examples" / "paper_gains.toml"), "--backend", "reference", "--paths", "30",
+                          "--horizon", "5", "--seed", "2", "--json"], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    d = json.loads(out.stdout)
+    assert d["paths"] == 30 and len(d["y_norm"]) == 30 and d["options"]["streamed"] and d["options"]["recorded"] == 0
+    out = subprocess.run([sys.executable, "-m", "ftc_verify", "simulate", str(PAPER), "--gains",
+                          str(ROOT / "examples" / "paper_gains.toml"), "--backend", "reference", "--record", "-1"],
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 2 and "--record" in out.stderr
