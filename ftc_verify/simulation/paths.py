@@ -95,19 +95,29 @@ def sample_path(
     else:
         b = chain.check_beta(beta)
     Q = chain.generator(b)
+    # Per joint mode: the holding-time scale and the jump distribution's CDF, computed once
+    # per path. The draw ``cdf.searchsorted(rng.random(), side="right")`` is the one
+    # ``rng.choice(m * m, p=p)`` makes (same uniform, same normalised cumulative sum), so
+    # paths are unchanged for a given seed; it is ~6x faster than calling ``choice``.
+    rates = -np.diag(Q)
+    scale = [1.0 / r if r > 0.0 else 0.0 for r in rates.tolist()]
+    cdfs = []
+    for s_row in range(m * m):
+        probs = np.clip(Q[s_row], 0.0, None)
+        probs[s_row] = 0.0
+        total = probs.sum()
+        cdf = (probs / total).cumsum() if total > 0 else probs
+        cdfs.append(cdf / cdf[-1] if total > 0 else cdf)
     s = start[0] * m + start[1]
     times, states = [0.0], [s]
     t = 0.0
     while True:
-        rate = -Q[s, s]
-        if rate <= 0.0:
+        if rates[s] <= 0.0:
             break
-        t += rng.exponential(1.0 / rate)
+        t += rng.exponential(scale[s])
         if t >= horizon:
             break
-        probs = np.clip(Q[s], 0.0, None)
-        probs[s] = 0.0
-        s = int(rng.choice(m * m, p=probs / probs.sum()))
+        s = int(cdfs[s].searchsorted(rng.random(), side="right"))
         times.append(t)
         states.append(s)
     st = np.asarray(states)
