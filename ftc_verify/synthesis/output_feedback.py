@@ -20,8 +20,9 @@ Methods:
 ``observer`` (baseline)
     Per FDI mode, certified state-feedback gains :math:`K_j` (``synthesize(method=
     "iterative")`` under ``k_max``, or unbounded and under 30 when none is given) and
-    observer gains :math:`L_j = -X C_{y,j}^T R^{-1}` from the dual Riccati equation of :math:`(A_j^T, C_{y,j}^T)` with :math:`Q = D_j D_j^T + 10^{-2} I`,
-    :math:`R = \rho I`, :math:`\rho \in \{10^{-2}, 1, 10^2\}` (Kalman-like): the controller
+    observer gains :math:`L_j = -X C_{y,j}^T R^{-1}` from the dual Riccati equation of
+    :math:`(A_j^T, C_{y,j}^T)` with :math:`Q = D_j D_j^T + 10^{-2} I`, :math:`R = \rho I`,
+    :math:`\rho \in \{10^{-2}, 1, 10^2\}` (Kalman-like): the controller
     :math:`\hat A_j = A_j + B_j K_j + L_j C_{y,j}`, :math:`\hat B_j = -L_j`,
     :math:`\hat C_j = K_j`, :math:`\hat D_j = 0`; the best certified of them.
 ``ccl`` (the paper's Theorem 5.1)
