@@ -228,6 +228,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     _check_horizon(args.step, args.horizon)
     if args.plot:
         _check_output_file(args.plot, "--plot", PLOT_SUFFIXES)
+    if (args.workers or args.scheduler) and args.backend != "reference":
+        raise _bad("--workers/--scheduler: only the reference backend runs on Dask (use --backend reference)")
     system, controller = _load(args.system, args.controller)
     record = max(args.record, 1 if args.plot else 0)
     kept = args.paths if args.backend == "fmu" else min(record, args.paths)  # the reference backend streams
@@ -250,10 +252,12 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         res = simulate_fmu(system, controller, paths, step=args.step, disturbance=args.disturbance, delta=delta, rng=rng,
                            seed=seed, plant=plant, log=_fmu_logger(args))
     else:
+        from ..simulation.cluster import open_client
         from ..simulation.streaming import simulate_streaming
 
-        res = simulate_streaming(system, controller, paths, step=args.step, disturbance=args.disturbance, delta=delta,
-                                 rng=rng, seed=seed, record=record)
+        with open_client(args.workers, args.scheduler) as client:
+            res = simulate_streaming(system, controller, paths, step=args.step, disturbance=args.disturbance,
+                                     delta=delta, rng=rng, seed=seed, record=record, client=client)
     if args.plot:
         from ..verification.plots import plot_path
 
@@ -396,6 +400,11 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--record", type=_nonneg_int, default=0,
                    help="reference backend: keep full trajectories of the first N paths (default 0, 1 with --plot); "
                         "every path's norms are computed either way, vectorised and in batches")
+    where = m.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=_positive_int, default=None,
+                       help="reference backend: run the batches on a local Dask cluster of N worker processes")
+    where.add_argument("--scheduler", default=None,
+                       help="reference backend: run the batches on the Dask cluster at this address (tcp://host:port)")
     m.add_argument("--beta", default="random", choices=["random", "min", "max", "mid"],
                    help="detection rates: drawn per path in their box (default) or fixed")
     m.add_argument("--delta", default="zero", choices=["zero", "random", "sign", "constant"],

@@ -14,6 +14,10 @@ generator (:func:`~ftc_verify.simulation.delta.delta_segments`), and the engine 
 same grid and trapezoidal rule as ``record.y_norm``; a diverged path (``Ey = inf``) gets
 its divergence time by re-simulating that path alone after replaying the draws of the
 paths before it.
+
+Scale-out: with a ``dask.distributed`` client every batch is one task, carrying the
+generator state a serial run would have at its first path (:func:`batch_generators`), so
+serial, local-cluster and remote-cluster runs give identical numbers for a seed.
 """
 
 from __future__ import annotations
@@ -36,10 +40,33 @@ from .paths import ChainPath
 from .records import PathRecord, divergence_line
 from .reference import simulate_reference
 
-__all__ = ["StreamedResult", "simulate_streaming", "STREAM_BATCH"]
+__all__ = ["StreamedResult", "simulate_streaming", "batch_generators", "STREAM_BATCH", "TASK_RETRIES"]
 
 #: Paths per batch of the vectorised engine (memory is linear in it).
 STREAM_BATCH = 2000
+#: Retries of a batch whose Dask worker was lost.
+TASK_RETRIES = 3
+
+
+def batch_generators(system: FTCSystem, paths: list[ChainPath], schedule: DeltaSchedule,
+                     gen: np.random.Generator, batch: int) -> list[np.random.Generator]:
+    """One generator per batch of ``batch`` paths: the state ``gen`` would have after the
+    ``Delta`` draws of every earlier path, so that batches computed anywhere, in any order,
+    draw what a serial run draws. ``gen`` ends where a serial run leaves it."""
+    out = []
+    for b in range(0, len(paths), batch):
+        out.append(copy.deepcopy(gen))
+        if schedule.kind == "random":  # the only kind that draws
+            for p in paths[b:b + batch]:
+                delta_segments(system, p, schedule, gen)
+    return out
+
+
+def _energies_batch(system: FTCSystem, controller: Controller, paths: list[ChainPath], step: float,
+                    disturbance: str, schedule: DeltaSchedule,
+                    gen: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """One batch on the vectorised engine (a Dask task; module-level so that it pickles)."""
+    return energies_reference(system, controller, paths, step=step, disturbance=disturbance, delta=schedule, rng=gen)
 
 
 @dataclass(frozen=True, eq=False)
@@ -86,19 +113,28 @@ def simulate_streaming(
     seed: int | None = None,
     record: int = 0,
     batch: int = STREAM_BATCH,
+    client: Any = None,
 ) -> StreamedResult:
     """The paths of ``simulate_reference`` (same arguments, same numbers) summarised per
-    path, with trajectories for the first ``record`` paths only (module docstring)."""
+    path, with trajectories for the first ``record`` paths only (module docstring).
+    ``client``: a ``dask.distributed.Client``; the batches then run on its workers, with
+    the same numbers as serially (each batch carries its own generator state)."""
     plist = list(paths)
     if not plist:
         raise ValidationError("paths: at least one path is needed")
     gen = generator(rng, seed)
     start = copy.deepcopy(gen)  # the draws before any path, to replay
     schedule = schedule_of(delta)
-    Ey, Ew = np.empty(len(plist)), np.empty(len(plist))
-    for b in range(0, len(plist), max(1, batch)):
-        Ey[b:b + batch], Ew[b:b + batch] = energies_reference(system, controller, plist[b:b + batch], step=step,
-                                                              disturbance=disturbance, delta=schedule, rng=gen)
+    batch = max(1, batch)
+    gens = batch_generators(system, plist, schedule, gen, batch)
+    tasks = [(system, controller, plist[b:b + batch], step, disturbance, schedule, g)
+             for b, g in zip(range(0, len(plist), batch), gens)]
+    if client is None:
+        parts = [_energies_batch(*task) for task in tasks]
+    else:  # Dask: one task per batch; a lost worker's tasks are retried
+        parts = client.gather(client.map(_energies_batch, *zip(*tasks), retries=TASK_RETRIES, pure=False))
+    Ey = np.concatenate([p[0] for p in parts])
+    Ew = np.concatenate([p[1] for p in parts])
     records = ()
     if record > 0:
         records = simulate_reference(system, controller, plist[:record], step=step, disturbance=disturbance,

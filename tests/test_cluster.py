@@ -1,0 +1,64 @@
+"""Monte Carlo on Dask (ftc_verify.simulation.cluster, ``simulate --workers/--scheduler``):
+serial, a local cluster of 2 workers and an existing scheduler's address give identical
+numbers for a seed (every batch carries the generator state of a serial run); misuse is
+one error, exit 2."""
+
+from __future__ import annotations
+
+import json
+import logging
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+distributed = pytest.importorskip("distributed")
+
+from ftc_verify.controllers import load_controller  # noqa: E402
+from ftc_verify.model.files import load_system  # noqa: E402
+from ftc_verify.simulation.cluster import open_client  # noqa: E402
+from ftc_verify.simulation.paths import sample_paths  # noqa: E402
+from ftc_verify.simulation.streaming import simulate_streaming  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+PAPER = ROOT / "examples" / "paper.toml"
+GAINS = ROOT / "examples" / "paper_gains.toml"
+
+
+def _cli(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "ftc_verify", "simulate", str(PAPER), "--gains", str(GAINS),
+                           *args], capture_output=True, text=True, timeout=600)
+
+
+def test_serial_and_two_workers_give_identical_numbers() -> None:
+    system, gains = load_system(PAPER), load_controller(GAINS)
+    paths = sample_paths(system.chain, 6.0, 30, np.random.default_rng(4))
+    serial = simulate_streaming(system, gains, paths, step=0.01, delta="random", rng=np.random.default_rng(9),
+                                batch=7)
+    with open_client(workers=2) as client:
+        assert len(client.scheduler_info()["workers"]) == 2
+        spread = simulate_streaming(system, gains, paths, step=0.01, delta="random", rng=np.random.default_rng(9),
+                                    batch=7, client=client)
+    np.testing.assert_array_equal(spread.y_norm, serial.y_norm)
+    np.testing.assert_array_equal(spread.w_norm, serial.w_norm)
+
+
+def test_cli_scheduler_address_equals_serial() -> None:
+    args = ["--backend", "reference", "--paths", "40", "--horizon", "5", "--seed", "6", "--delta", "random", "--json"]
+    serial = _cli(*args)
+    assert serial.returncode == 0, serial.stderr
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+                                  silence_logs=logging.ERROR) as cluster:
+        remote = _cli(*args, "--scheduler", cluster.scheduler_address)
+    assert remote.returncode == 0, remote.stderr
+    a, b = json.loads(serial.stdout), json.loads(remote.stdout)
+    assert a["y_norm"] == b["y_norm"] and a["w_norm"] == b["w_norm"] and a["switches"] == b["switches"]
+
+
+def test_cluster_misuse_is_one_error() -> None:
+    out = _cli("--backend", "fmu", "--workers", "2")
+    assert out.returncode == 2 and "--backend reference" in out.stderr and out.stderr.count("\n") == 1
+    out = _cli("--backend", "reference", "--scheduler", "tcp://127.0.0.1:9", "--paths", "2")
+    assert out.returncode == 2 and "--scheduler" in out.stderr and "Traceback" not in out.stderr
