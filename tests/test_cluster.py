@@ -62,3 +62,34 @@ def test_cluster_misuse_is_one_error() -> None:
     assert out.returncode == 2 and "--backend reference" in out.stderr and out.stderr.count("\n") == 1
     out = _cli("--backend", "reference", "--scheduler", "tcp://127.0.0.1:9", "--paths", "2")
     assert out.returncode == 2 and "--scheduler" in out.stderr and "Traceback" not in out.stderr
+
+
+def test_a_lost_worker_costs_a_retry_not_the_run() -> None:
+    """One of two workers is killed (SIGKILL to its process) while the batches run; its
+    tasks are rescheduled, the nanny restarts it, and the numbers equal a serial run."""
+    import os
+    import signal
+    import threading
+    import time
+
+    system, gains = load_system(PAPER), load_controller(GAINS)
+    paths = sample_paths(system.chain, 20.0, 240, np.random.default_rng(5))
+    serial = simulate_streaming(system, gains, paths, step=0.01, rng=np.random.default_rng(1), batch=4)
+    found: dict[str, object] = {}
+    with open_client(workers=2) as client:
+        victim = sorted(client.run(os.getpid).items())[0][1]
+
+        def run() -> None:
+            found["result"] = simulate_streaming(system, gains, paths, step=0.01, rng=np.random.default_rng(1),
+                                                 batch=4, client=client)
+
+        worker = threading.Thread(target=run)
+        worker.start()
+        time.sleep(1.0)  # batches are under way (60 tasks of about 0.1 s each)
+        running = worker.is_alive()
+        os.kill(victim, signal.SIGKILL)
+        worker.join(timeout=300)
+        assert running, "the run ended before the kill: make it longer"
+        assert not worker.is_alive()
+    spread = found["result"]
+    np.testing.assert_array_equal(spread.y_norm, serial.y_norm)  # type: ignore[attr-defined]
