@@ -5,6 +5,7 @@ Run from the repository root::
 
     python benchmarks/simulate_stream.py             # ~1-2 min on 2 busy cores
     python benchmarks/simulate_stream.py --paths 2000 --out /tmp/stream.csv
+    python benchmarks/simulate_stream.py --workers-scan   # + serial vs --workers 1, 2, 4 (Dask)
 
 Two measurements, written to ``benchmarks/results/simulate_stream.csv`` and printed:
 
@@ -16,7 +17,10 @@ Two measurements, written to ``benchmarks/results/simulate_stream.csv`` and prin
   examples/paper_gains.toml --backend reference --paths N --horizon 50 --step 0.005 --json``
   as a subprocess (interpreter start-up and imports included), wall seconds and the child's
   peak resident memory (``resource.getrusage(RUSAGE_CHILDREN).ru_maxrss``); goal: N = 10000
-  under 10 s and 500 MB.
+  under 10 s and 500 MB;
+* ``--workers-scan``: the same command serially and with ``--workers 1, 2, 4`` (a Dask
+  ``LocalCluster``; the cluster's start-up is in the wall time), the speed-up over serial
+  and, from ``--workers 1``, the overhead per task. This machine has 2 cores.
 """
 
 from __future__ import annotations
@@ -40,6 +44,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--paths", type=int, default=10000, help="paths of the CLI command (default 10000)")
     ap.add_argument("--compare", type=int, default=200, help="paths of the side-by-side comparison (default 200)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "simulate_stream.csv"))
+    ap.add_argument("--workers-scan", action="store_true",
+                    help="also run the command serially and with --workers 1, 2, 4 (Dask LocalCluster)")
     args = ap.parse_args(argv)
 
     from ftc_verify.controllers import load_controller
@@ -75,6 +81,22 @@ def main(argv: list[str] | None = None) -> int:
                  "wall_s": round(wall, 2), "peak_mb": round(peak, 1),
                  "note": ("exit 0" if ok else f"exit {proc.returncode}: {proc.stderr.strip()[:100]}")
                  + f"; goal < 10 s and < 500 MB: {'met' if ok and wall < 10 and peak < 500 else 'NOT met'}"})
+    if args.workers_scan:
+        base = None
+        for workers in (0, 1, 2, 4):
+            extra = [] if workers == 0 else ["--workers", str(workers)]
+            t = time.perf_counter()
+            proc = subprocess.run(cmd + extra, capture_output=True, text=True)
+            wall = time.perf_counter() - t
+            base = wall if workers == 0 else base
+            tasks = -(-args.paths // 2000)
+            note = ("serial" if workers == 0 else
+                    f"speed-up {base / wall:.2f}x over serial; {tasks} tasks")
+            if workers == 1:
+                note += f"; overhead {(wall - base) / tasks:.2f} s per task (cluster start-up included)"
+            rows.append({"what": f"same command, {'serial' if workers == 0 else f'--workers {workers}'}",
+                         "wall_s": round(wall, 2), "peak_mb": "",
+                         "note": note if proc.returncode == 0 else f"exit {proc.returncode}"})
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     with out.open("w", newline="") as fh:
