@@ -1,7 +1,7 @@
-"""Monte Carlo on Dask (ftc_verify.simulation.cluster, ``simulate --workers/--scheduler``):
+"""Monte Carlo on Dask (ftc_verify.simulation.cluster, ``simulate``/``verify --workers/--scheduler``):
 serial, a local cluster of 2 workers and an existing scheduler's address give identical
-numbers for a seed (every batch carries the generator state of a serial run); misuse is
-one error, exit 2."""
+numbers for a seed (every batch carries the generator state of a serial run), on the
+reference backend and on FMUs loaded once per worker; misuse is one error, exit 2."""
 
 from __future__ import annotations
 
@@ -57,11 +57,46 @@ def test_cli_scheduler_address_equals_serial() -> None:
     assert a["y_norm"] == b["y_norm"] and a["w_norm"] == b["w_norm"] and a["switches"] == b["switches"]
 
 
+def _verify(out: Path, *args: str) -> tuple[subprocess.CompletedProcess[str], dict]:
+    run = subprocess.run([sys.executable, "-m", "ftc_verify", "verify", str(PAPER), "--gains", str(GAINS), "--paths", "30",
+                          "--horizon", "5", "--seed", "3", "--out", str(out), *args],
+                         capture_output=True, text=True, timeout=600)
+    report = json.loads((out / "report.json").read_text()) if run.returncode == 0 else {}
+    return run, report
+
+
+def _without_timings(value: object) -> object:
+    if isinstance(value, dict):
+        return {k: _without_timings(v) for k, v in value.items() if not k.endswith("seconds")}
+    if isinstance(value, list):
+        return [_without_timings(v) for v in value]
+    return value
+
+
+def test_verify_serial_two_workers_and_scheduler_give_identical_reports(tmp_path: Path) -> None:
+    """The FMU Monte Carlo of ``verify`` (random Delta per segment, so every batch needs
+    its generator state) serially, on 2 local workers and on an existing scheduler:
+    report.json identical apart from timings."""
+    serial, a = _verify(tmp_path / "serial")
+    two, b = _verify(tmp_path / "two", "--workers", "2")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+                                  silence_logs=logging.ERROR) as cluster:
+        remote, c = _verify(tmp_path / "remote", "--scheduler", cluster.scheduler_address)
+    for run in (serial, two, remote):
+        assert run.returncode == 0, run.stderr
+    assert load_system(PAPER).uncertain  # so Delta is drawn per segment and the batches need their states
+    assert a["mc"]["paths"] == 30 and a["verdict"] == "pass"
+    assert _without_timings(a) == _without_timings(b) == _without_timings(c)
+
+
 def test_cluster_misuse_is_one_error() -> None:
     out = _cli("--backend", "fmu", "--workers", "2")
     assert out.returncode == 2 and "--backend reference" in out.stderr and out.stderr.count("\n") == 1
     out = _cli("--backend", "reference", "--scheduler", "tcp://127.0.0.1:9", "--paths", "2")
     assert out.returncode == 2 and "--scheduler" in out.stderr and "Traceback" not in out.stderr
+    out = subprocess.run([sys.executable, "-m", "ftc_verify", "verify", str(PAPER), "--gains", str(GAINS), "--workers",
+                          "2", "--fmu-log"], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 2 and "--fmu-log" in out.stderr and out.stderr.count("\n") == 1
 
 
 def test_a_lost_worker_costs_a_retry_not_the_run() -> None:

@@ -334,11 +334,16 @@ def _cmd_verify(args: argparse.Namespace) -> int:
         _check_fmu_dims(system, args.system)
     if controller is not None:
         _check_records_memory(system, controller, args.paths, args.horizon, args.step)
+    if args.fmu_log and (args.workers or args.scheduler):
+        raise _bad("--fmu-log: the FMU's messages stay on the Dask workers; leave out --workers/--scheduler to see them")
     k_max = None if args.no_gain_bound else args.k_max
-    rep = run_verify(system, gamma=args.gamma, method=args.method, k_max=k_max, controller=controller, paths=args.paths,
-                     step=args.step, horizon=args.horizon, seed=args.seed, solver=args.solver,
-                     progress=sys.stderr.isatty(), plant=plant, fmu_log=_fmu_logger(args),
-                     measure=args.measure)
+    from ..simulation.cluster import open_client
+
+    with open_client(args.workers, args.scheduler) as client:
+        rep = run_verify(system, gamma=args.gamma, method=args.method, k_max=k_max, controller=controller,
+                         paths=args.paths, step=args.step, horizon=args.horizon, seed=args.seed, solver=args.solver,
+                         progress=sys.stderr.isatty(), plant=plant, fmu_log=_fmu_logger(args),
+                         measure=args.measure, client=client)
     written = write_report(rep, args.out)
     d = rep.to_dict()
     print(f"ftc-verify verify: {system.name}")
@@ -400,11 +405,7 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--record", type=_nonneg_int, default=0,
                    help="reference backend: keep full trajectories of the first N paths (default 0, 1 with --plot); "
                         "every path's norms are computed either way, vectorised and in batches")
-    where = m.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=_positive_int, default=None,
-                       help="reference backend: run the batches on a local Dask cluster of N worker processes")
-    where.add_argument("--scheduler", default=None,
-                       help="reference backend: run the batches on the Dask cluster at this address (tcp://host:port)")
+    _cluster_options(m, "reference backend: ")
     m.add_argument("--beta", default="random", choices=["random", "min", "max", "mid"],
                    help="detection rates: drawn per path in their box (default) or fixed")
     m.add_argument("--delta", default="zero", choices=["zero", "random", "sign", "constant"],
@@ -436,6 +437,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "alone, y(w) - y(w = 0) on the same path (incremental: for plants whose faults move the "
                         "equilibrium)")
     _plant_options(v)
+    _cluster_options(v)
     v.set_defaults(func=_cmd_verify)
 
     b = sub.add_parser("build-fmus", help="compile the plant FMU binary (and FMUs for given systems), validate")
@@ -448,6 +450,14 @@ def build_parser() -> argparse.ArgumentParser:
     add_synthesis_command(sub)
     add_plant_commands(sub)
     return p
+
+
+def _cluster_options(parser: argparse.ArgumentParser, scope: str = "") -> None:
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=_positive_int, default=None,
+                       help=f"{scope}run the Monte Carlo batches on a local Dask cluster of N worker processes")
+    where.add_argument("--scheduler", default=None,
+                       help=f"{scope}run the Monte Carlo batches on the Dask cluster at this address (tcp://host:port)")
 
 
 def _plant_options(parser: argparse.ArgumentParser) -> None:

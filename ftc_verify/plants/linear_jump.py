@@ -39,6 +39,8 @@ import sys
 import tempfile
 import uuid
 import zipfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from ..errors import FMUError, ValidationError
@@ -184,8 +186,9 @@ def build_binary(force: bool = False, *, sources: Path | None = None) -> Path:
     the FMI headers, the compiler flags and the compiler's version; an existing file with
     that name is reused unless ``force``, and only while its SHA-256 matches the one
     recorded beside it at compile time (``<binary>.sha256``): a corrupted or truncated
-    cached binary is compiled again instead of being loaded. Compilation writes a temporary file and renames
-    it, so concurrent builds are safe. ``sources`` overrides the sources folder (default
+    cached binary is compiled again instead of being loaded. Concurrent builds are safe:
+    the check and the compilation run under :func:`build_lock`, and the binary is written to
+    a temporary file and renamed into place. ``sources`` overrides the sources folder (default
     :func:`source_dir`). Raises :class:`FMUError` when gcc is missing or fails (the
     message carries gcc's command line and stderr).
     """
@@ -207,9 +210,39 @@ def build_binary(force: bool = False, *, sources: Path | None = None) -> Path:
     h.update(" ".join(flags).encode() + b"\0")
     h.update(_compiler_identity(gcc).encode())
     target = cache_dir() / f"{MODEL_IDENTIFIER}-{h.hexdigest()[:20]}{suffix}"
-    if target.is_file() and not force and _recorded_hash(target) == _file_hash(target):
-        return target  # a missing record or a changed file (corrupted cache): rebuilt below
+    with build_lock(target):
+        if not force and _cached(target):
+            return target  # else missing, forced, or corrupted (hash changed): compiled again
+        _compile_binary(gcc, src, include, target)
+    return target
 
+
+def _cached(target: Path) -> bool:
+    """Whether ``target`` exists and still has the SHA-256 recorded at compile time."""
+    return target.is_file() and _recorded_hash(target) == _file_hash(target)
+
+
+@contextmanager
+def build_lock(target: Path, timeout: float = 900.0) -> Iterator[None]:
+    """Hold the file lock ``<target>.lock`` (``filelock``, an OS-level lock released when
+    the process dies) while ``target`` is checked and built, so that processes building
+    the same cache entry at once -- test workers, Dask workers -- compile it once and
+    never load a half-written file (the file itself is also renamed into place)."""
+    from filelock import FileLock, Timeout
+
+    lock = FileLock(f"{target}.lock", timeout=timeout)
+    try:
+        lock.acquire()
+    except Timeout:
+        raise FMUError(f"{target}.lock: another build has held this lock for more than {timeout:g} s") from None
+    try:
+        yield
+    finally:
+        lock.release()
+
+
+def _compile_binary(gcc: str, src: Path, include: Path, target: Path) -> None:
+    """gcc into a temporary file beside ``target``, its hash recorded, renamed into place."""
     fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
     os.close(fd)
     tmp = Path(tmp_name)
@@ -235,7 +268,6 @@ def build_binary(force: bool = False, *, sources: Path | None = None) -> Path:
         os.replace(tmp, target)
     finally:
         tmp.unlink(missing_ok=True)
-    return target
 
 
 def _file_hash(path: Path) -> str:

@@ -53,7 +53,8 @@ from xml.etree import ElementTree as ET
 from .. import __version__
 from ..errors import FMUError, ValidationError
 from .linear_jump import (CFLAGS, FMI2_HEADERS, _compiler_identity, _file_hash, _find_gcc, _link_flags,
-                          _platform, _record_hash, _recorded_hash, _write_zip, cache_dir, fmi2_include_dir)
+                          _platform, _record_hash, _write_zip, _cached, build_lock, cache_dir,
+                          fmi2_include_dir)
 
 __all__ = ["DEFAULT_RTOL", "GLUE_FILES", "OdeVariable", "OdeFmuSpec", "ode_source_dir", "ode_spec_header",
            "ode_model_description", "build_ode_binary", "build_ode_fmu", "compile_count", "motor_spec"]
@@ -394,8 +395,8 @@ def build_ode_binary(spec: OdeFmuSpec, force: bool = False) -> Path:
     The file ``<model_name>-<hash>.so`` is reused while the SHA-256 recorded beside it at
     compile time still matches (unless ``force``). Compiling happens in a temporary folder
     (gcc ``-std=c99 -O2 -fPIC -shared -fvisibility=hidden``, ``-lm``), then the binary is
-    instantiated once (:func:`_probe`) and renamed into place, so concurrent builds are
-    safe. Raises :class:`FMUError` with gcc's command line and stderr when compiling fails,
+    instantiated once (:func:`_probe`) and renamed into place, all under
+    :func:`~ftc_verify.plants.linear_jump.build_lock`, so concurrent builds compile once. Raises :class:`FMUError` with gcc's command line and stderr when compiling fails,
     or with the glue's message when the model file does not match the spec.
     """
     if not isinstance(spec, OdeFmuSpec):
@@ -414,8 +415,17 @@ def build_ode_binary(spec: OdeFmuSpec, force: bool = False) -> Path:
         h.update(name.encode() + b"\0" + (include / name).read_bytes() + b"\0")
     h.update(" ".join(CFLAGS + _link_flags()).encode() + b"\0" + _compiler_identity(gcc).encode())
     target = cache_dir() / f"{spec.model_name}-{h.hexdigest()[:20]}{suffix}"
-    if target.is_file() and not force and _recorded_hash(target) == _file_hash(target):
-        return target
+    with build_lock(target):
+        if not force and _cached(target):
+            return target
+        _compile_ode(gcc, spec, guid, header, src, include, target)
+    return target
+
+
+def _compile_ode(gcc: str, spec: OdeFmuSpec, guid: str, header: str, src: Path, include: Path,
+                 target: Path) -> None:
+    """Compile in a temporary folder, probe, record the hash, rename into place."""
+    _, suffix = _platform()
     with tempfile.TemporaryDirectory(prefix=f".{spec.model_name}.", dir=target.parent) as tmp_name:
         tmp = Path(tmp_name)
         (tmp / "ode_spec.h").write_text(header, encoding="utf-8")
@@ -427,7 +437,6 @@ def build_ode_binary(spec: OdeFmuSpec, force: bool = False) -> Path:
         os.chmod(lib, 0o755)
         _record_hash(target, _file_hash(lib))
         os.replace(lib, target)
-    return target
 
 
 def build_ode_fmu(spec: OdeFmuSpec, dest: Path | None = None) -> Path:

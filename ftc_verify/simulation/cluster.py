@@ -1,7 +1,9 @@
 """Dask clusters for Monte Carlo: a ``LocalCluster`` on this machine or an existing scheduler.
 
 :func:`open_client` is the one place that imports ``dask.distributed`` (an optional
-dependency: ``pip install 'ftc-verify[dask]'``), so that nothing else pays its import time.
+dependency: ``pip install 'ftc-verify[dask]'``), so that nothing else pays its import time;
+a client's work then goes through :mod:`ftc_verify.simulation.streaming` (reference
+backend) or :mod:`ftc_verify.simulation.fmu_workers` (FMU backend).
 """
 
 from __future__ import annotations

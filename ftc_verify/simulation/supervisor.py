@@ -48,11 +48,10 @@ from ..model.system import FTCSystem
 from .delta import DeltaSchedule, delta_segments, delta_shapes
 from ..plants.fault_map import FaultInjectionMap
 from ..plants.fmu_session import FMUSession, c_buffer
-from .paths import ChainPath, communication_grid, snap_to_grid
-from .paths import disturbance as disturbance_fn
+from .paths import ChainPath, communication_grid, disturbance as disturbance_fn, snap_to_grid
 from .records import PathRecord, SimulationResult, diverged
 
-__all__ = ["FMUError", "FaultInjectionMap", "Supervisor", "open_supervisor", "simulate_fmu"]
+__all__ = ["FMUError", "FaultInjectionMap", "Supervisor", "open_supervisor", "resolve_plant", "simulate_fmu"]
 
 
 def _full_intervals(t: np.ndarray, step: float) -> np.ndarray:
@@ -516,13 +515,11 @@ class Supervisor:
 # ------------------------------------------------------------------------------------------
 
 
-def open_supervisor(system: FTCSystem, plant: Any = None, *,
-                    log: Callable[[str, str, str], None] | None = None) -> Supervisor:
-    """A :class:`Supervisor` for ``system`` on the FMU of the plant map ``plant``
-    (:class:`~ftc_verify.plants.plant_map.PlantMap`), checked against the system
-    (:func:`~ftc_verify.plants.plant_map.check_against_system`); default: the
-    ``LinearJumpPlant`` of ``system`` through the map :func:`~ftc_verify.plants.build_fmu`
-    writes beside it -- one code path for every FMU."""
+def resolve_plant(system: FTCSystem, plant: Any = None) -> Any:
+    """The plant map ``plant`` (:class:`~ftc_verify.plants.plant_map.PlantMap`) checked
+    against ``system`` (:func:`~ftc_verify.plants.plant_map.check_against_system`); default:
+    the map :func:`~ftc_verify.plants.build_fmu` writes beside the ``LinearJumpPlant`` of
+    ``system`` -- one code path for every FMU."""
     from ..plants.linear_jump import build_fmu
     from ..plants.plant_map import PlantMap, check_against_system, load_plant_map, map_path_for
 
@@ -533,6 +530,13 @@ def open_supervisor(system: FTCSystem, plant: Any = None, *,
     elif not isinstance(plant, PlantMap):
         raise ValidationError(f"plant: expected a PlantMap, got {type(plant).__name__}")
     check_against_system(plant, system)
+    return plant
+
+
+def open_supervisor(system: FTCSystem, plant: Any = None, *,
+                    log: Callable[[str, str, str], None] | None = None) -> Supervisor:
+    """A :class:`Supervisor` for ``system`` on the FMU of :func:`resolve_plant`."""
+    plant = resolve_plant(system, plant)
     return Supervisor(plant.fmu, plant.injection_map(), system=system, tolerance=plant.tolerance, log=log)
 
 
@@ -550,9 +554,7 @@ def simulate_fmu(
     plant: Any = None,
     log: Callable[[str, str, str], None] | None = None,
 ) -> SimulationResult:
-    """Co-simulate ``paths`` under ``controller`` on the plant map ``plant``'s FMU (default:
-    the ``LinearJumpPlant`` of ``system``, compiled once and cached) with a
-    :class:`Supervisor` from :func:`open_supervisor`; the other arguments are those of
-    :meth:`Supervisor.run`."""
+    """Co-simulate ``paths`` under ``controller`` on :func:`open_supervisor`'s FMU (default:
+    the cached ``LinearJumpPlant`` of ``system``); other arguments as :meth:`Supervisor.run`."""
     with open_supervisor(system, plant, log=log) as sup:
         return sup.run(paths, controller, step=step, disturbance=disturbance, delta=delta, x0=x0, rng=rng, seed=seed)

@@ -175,28 +175,40 @@ def _exact_energies(system: FTCSystem, loop: ClosedLoop, g2: float) -> tuple[lis
 
 def _fmu_monte_carlo(system: FTCSystem, controller: Controller, chain_paths: list[ChainPath], delta: DeltaSchedule,
                      delta_seed: int, step: float, progress: bool, plant: Any = None,
-                     log: Any = None, disturbance: str = "paper") -> tuple[list[PathRecord], dict[str, Any]]:
+                     log: Any = None, disturbance: str = "paper",
+                     client: Any = None) -> tuple[list[PathRecord], dict[str, Any]]:
     """Every path co-simulated on the plant map's FMU (default: the ``LinearJumpPlant`` of
-    ``system``) with the named disturbance; also the FMU's file and model identifier. The
-    ``Delta`` draws come from ``delta_seed`` alone, so two calls see the same ``Delta``."""
-    from ..simulation.supervisor import open_supervisor
+    ``system``) with the named disturbance, in batches of :data:`FMU_BATCH` paths; also the
+    FMU's file and model identifier. The ``Delta`` draws come from ``delta_seed`` alone, so
+    two calls see the same ``Delta``. ``client``: a ``dask.distributed.Client`` whose
+    workers run the batches (:func:`~ftc_verify.simulation.fmu_workers.run_fmu_batches`; the
+    same records as serially)."""
+    from ..simulation.supervisor import Supervisor, resolve_plant
 
-    records: list[PathRecord] = []
+    plant = resolve_plant(system, plant)
+    delta_rng = np.random.default_rng(delta_seed)
     bar = _progress(len(chain_paths), progress)
+    done = bar.update if bar is not None else None
     try:
-        with open_supervisor(system, plant, log=log) as sup:
-            fmu = {"fmu": str(sup.path), "model_identifier": sup.model_identifier}
-            delta_rng = np.random.default_rng(delta_seed)
+        if client is not None:
+            from ..simulation.fmu_workers import run_fmu_batches
+
+            records, ident = run_fmu_batches(client, system, plant, controller, chain_paths, batch=FMU_BATCH,
+                                             step=step, disturbance=disturbance, delta=delta, rng=delta_rng,
+                                             done=done)
+            return records, {"fmu": str(plant.fmu), "model_identifier": ident}
+        records: list[PathRecord] = []
+        with Supervisor(plant.fmu, plant.injection_map(), system=system, tolerance=plant.tolerance, log=log) as sup:
             for start in range(0, len(chain_paths), FMU_BATCH):
                 batch = chain_paths[start:start + FMU_BATCH]
-                res = sup.run(batch, controller, step=step, disturbance=disturbance, delta=delta, rng=delta_rng)
-                records.extend(res.records)
-                if bar is not None:
-                    bar.update(len(batch))
+                records.extend(sup.run(batch, controller, step=step, disturbance=disturbance, delta=delta,
+                                       rng=delta_rng).records)
+                if done is not None:
+                    done(len(batch))
+        return records, {"fmu": str(sup.path), "model_identifier": sup.model_identifier}
     finally:
         if bar is not None:
             bar.close()
-    return records, fmu
 
 
 def incremental_records(with_w: list[PathRecord], without_w: list[PathRecord]) -> list[PathRecord]:
@@ -341,7 +353,7 @@ def run_verify(
     controller: Controller | None = None,
     paths: int = 200, step: float = 0.01, horizon: float = 30.0, seed: int | None = None,
     solver: str | None = None, progress: bool = False, plant: Any = None, fmu_log: Any = None,
-    measure: str = "total",
+    measure: str = "total", client: Any = None,
 ) -> VerifyReport:
     """Run every stage of the module docstring and collect the checks.
 
@@ -352,6 +364,8 @@ def run_verify(
     report gains a ``plant`` object and the region check replaces the backend agreement.
     ``fmu_log``: called with every message the FMU logs. ``measure``: ``"total"`` or
     ``"incremental"`` (:func:`incremental_records`; the fault response's energy is reported).
+    ``client``: a ``dask.distributed.Client`` whose workers co-simulate the Monte Carlo
+    batches (same numbers as serially; ``fmu_log`` is not available there).
     """
     if measure not in ("total", "incremental"):
         raise ValidationError(f"measure: {measure!r} is not 'total' or 'incremental'")
@@ -408,9 +422,11 @@ def run_verify(
     chain_paths = sample_paths(system.chain, horizon, paths, rng)
     delta = DeltaSchedule("random" if system.uncertain and (plant is None or plant.delta1 or plant.delta2) else "zero")
     delta_seed = int(rng.integers(2**63))
-    records, fmu = _fmu_monte_carlo(system, controller, chain_paths, delta, delta_seed, step, progress, plant, fmu_log)
+    records, fmu = _fmu_monte_carlo(system, controller, chain_paths, delta, delta_seed, step, progress, plant, fmu_log,
+                                    client=client)
     measured, fault_only = _measured(records, measure, lambda: _fmu_monte_carlo(
-        system, controller, chain_paths, delta, delta_seed, step, progress, plant, fmu_log, disturbance="zero")[0])
+        system, controller, chain_paths, delta, delta_seed, step, progress, plant, fmu_log, disturbance="zero",
+        client=client)[0])
     options.update(fmu)
     mc, check = _mc_check(measured, gamma_cert, seed, step, horizon, incremental=measure == "incremental")
     checks.append(check)
