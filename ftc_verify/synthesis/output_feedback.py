@@ -204,7 +204,7 @@ def _channel_count(aug: FTCSystem, i: int) -> int:
 def ccl(system: FTCSystem, gamma: float, calls: _Calls, k_max: float | None, *, max_iter: int = CCL_MAX_ITER,
         tol: float = CCL_TOL, start: tuple[Any, Any] | None = None,
         ) -> tuple[list[Matrix] | None, list[float], str, float | None]:
-    """Theorem 5.1 at ``gamma`` by cone complementarity linearisation (module docstring):
+    r"""Theorem 5.1 at ``gamma`` by cone complementarity linearisation (module docstring):
     ``(controller blocks or None, residual history, message, the controller step's gamma)``.
 
     The first linearisation point is the minimum of :math:`\sum \operatorname{tr}(P + X) +
