@@ -7,6 +7,8 @@ Run from the repository root::
     python benchmarks/synthesis_quality.py                # 50 systems (~10 min on 2 busy cores)
     python benchmarks/synthesis_quality.py --systems 8    # smoke run
     python benchmarks/synthesis_quality.py --seed 1 --k-max 50 --out /tmp/q.csv
+    python benchmarks/synthesis_quality.py --workers 4              # one Dask task per system
+    python benchmarks/synthesis_quality.py --scheduler tcp://host:8786
 
 Systems: ``--systems`` random plants, system ``k`` drawn with
 ``numpy.random.default_rng(1000 * seed + k)`` (recorded per row): ``n`` in 2..4, modes
@@ -54,6 +56,7 @@ from ftc_verify.analysis.closedloop import state_feedback_loop  # noqa: E402
 from ftc_verify.analysis.lmi_analysis import hinf_gamma  # noqa: E402
 from ftc_verify.analysis.stability import mean_square_stability  # noqa: E402
 from ftc_verify.model.system import FTCSystem  # noqa: E402
+from ftc_verify.simulation.cluster import open_client  # noqa: E402
 from ftc_verify.synthesis.starts import lqr_gain  # noqa: E402
 from ftc_verify.synthesis.state_feedback import synthesize  # noqa: E402
 
@@ -112,36 +115,63 @@ def lqr_baseline(system: FTCSystem) -> tuple[float | None, str]:
     return (float(res.gamma), "") if res.certified and res.gamma is not None else (None, res.solver_status)
 
 
+def system_rows(seed: int, k: int, k_max: float | None) -> list[dict]:
+    """System ``k``: the CSV rows of every method (a Dask task with ``--workers``)."""
+    system, kind, rs = random_system(seed, k)
+    t = time.perf_counter()
+    base, why = lqr_baseline(system)
+    t_lqr = time.perf_counter() - t
+    t = time.perf_counter()
+    res = synthesize(system, method="iterative", k_max=k_max, solver="clarabel")
+    t_it = time.perf_counter() - t
+    starts = {r["name"]: r for r in res.starts}
+    found = {"lqr": (base, why, t_lqr), "iterative": (res.gamma_certified, "" if res.certified else res.message, t_it)}
+    for name in ("two-step", "common"):
+        found[name] = (starts[name]["gamma_certified"], starts[name]["reason"], math.nan)
+    rows = []
+    for method in METHODS:
+        gamma, reason, seconds = found[method]
+        rows.append({"system": system.name, "rng_seed": rs, "kind": kind, "n": system.dims[0], "m": system.m,
+                     "inputs": system.dims[1], "method": method, "certified": gamma is not None,
+                     "gamma": gamma, "ratio_to_lqr": None if gamma is None or base is None else gamma / base,
+                     "seconds": seconds, "iterative_start": res.start if method == "iterative" else "",
+                     "reason": reason[:200]})
+    return rows
+
+
+def _progress(k: int, total: int, rows: list[dict]) -> None:
+    by = {r["method"]: r for r in rows}
+    it = by["iterative"]
+    print(f"[{k + 1}/{total}] {it['system']}: lqr {by['lqr']['gamma']}, iterative {it['gamma']} "
+          f"(start {it['iterative_start']}, {it['seconds']:.1f} s)", file=sys.stderr, flush=True)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--systems", type=int, default=50)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--k-max", type=float, default=None, help="gain bound for the synthesis methods (default none)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "synthesis_quality.csv"))
+    where = ap.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, default=None, help="one Dask task per system on N local workers")
+    where.add_argument("--scheduler", default=None, help="one Dask task per system on the cluster at this address")
     args = ap.parse_args(argv)
-    rows = []
-    for k in range(args.systems):
-        system, kind, rs = random_system(args.seed, k)
-        t = time.perf_counter()
-        base, why = lqr_baseline(system)
-        t_lqr = time.perf_counter() - t
-        t = time.perf_counter()
-        res = synthesize(system, method="iterative", k_max=args.k_max, solver="clarabel")
-        t_it = time.perf_counter() - t
-        starts = {r["name"]: r for r in res.starts}
-        found = {"lqr": (base, why, t_lqr), "iterative": (res.gamma_certified, "" if res.certified else res.message,
-                                                           t_it)}
-        for name in ("two-step", "common"):
-            found[name] = (starts[name]["gamma_certified"], starts[name]["reason"], math.nan)
-        for method in METHODS:
-            gamma, reason, seconds = found[method]
-            rows.append({"system": system.name, "rng_seed": rs, "kind": kind, "n": system.dims[0], "m": system.m,
-                         "inputs": system.dims[1], "method": method, "certified": gamma is not None,
-                         "gamma": gamma, "ratio_to_lqr": None if gamma is None or base is None else gamma / base,
-                         "seconds": seconds, "iterative_start": res.start if method == "iterative" else "",
-                         "reason": reason[:200]})
-        print(f"[{k + 1}/{args.systems}] {system.name}: lqr {base}, iterative {res.gamma_certified} "
-              f"(start {res.start}, {t_it:.1f} s)", file=sys.stderr, flush=True)
+    per_system: dict[int, list[dict]] = {}
+    with open_client(args.workers, args.scheduler) as client:
+        if client is None:
+            for k in range(args.systems):
+                per_system[k] = system_rows(args.seed, k, args.k_max)
+                _progress(k, args.systems, per_system[k])
+        else:
+            from dask.distributed import as_completed
+
+            futures = {client.submit(system_rows, args.seed, k, args.k_max, pure=False, retries=3): k
+                       for k in range(args.systems)}
+            for fut in as_completed(futures):
+                k = futures[fut]
+                per_system[k] = fut.result()
+                _progress(k, args.systems, per_system[k])
+    rows = [r for k in sorted(per_system) for r in per_system[k]]
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     with out.open("w", newline="") as fh:
