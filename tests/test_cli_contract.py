@@ -194,7 +194,7 @@ def test_corrupted_cached_binary_is_rebuilt(tmp_path: Path) -> None:
     env = {"FTC_VERIFY_CACHE": str(tmp_path / "cache")}
     first = run_cli(["build-fmus"], tmp_path, env)
     assert first.returncode == 0, first.stderr
-    binaries = [p for p in (tmp_path / "cache").rglob("LinearJumpPlant-*") if not p.name.endswith(".sha256")]
+    binaries = [p for p in (tmp_path / "cache").rglob("LinearJumpPlant-*") if not p.name.endswith((".sha256", ".lock"))]
     assert len(binaries) == 1
     data = binaries[0].read_bytes()
     binaries[0].write_bytes(data[: len(data) // 3])

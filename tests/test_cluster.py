@@ -89,9 +89,20 @@ def test_verify_serial_two_workers_and_scheduler_give_identical_reports(tmp_path
     assert _without_timings(a) == _without_timings(b) == _without_timings(c)
 
 
+def test_simulate_fmu_backend_on_two_workers_equals_serial() -> None:
+    """``simulate --backend fmu --workers 2``: batches of 25 paths on workers that each load
+    the FMU once; the JSON equals the serial run's (random Delta, so the generator states
+    matter), including the FMU's file and model identifier."""
+    args = ["--backend", "fmu", "--paths", "60", "--horizon", "4", "--seed", "2", "--delta", "random", "--json"]
+    serial, spread = _cli(*args), _cli(*args, "--workers", "2")
+    assert serial.returncode == 0 and spread.returncode == 0, serial.stderr + spread.stderr
+    a, b = json.loads(serial.stdout), json.loads(spread.stdout)
+    assert a["paths"] == 60 and a == b
+
+
 def test_cluster_misuse_is_one_error() -> None:
-    out = _cli("--backend", "fmu", "--workers", "2")
-    assert out.returncode == 2 and "--backend reference" in out.stderr and out.stderr.count("\n") == 1
+    out = _cli("--backend", "fmu", "--workers", "2", "--fmu-log")
+    assert out.returncode == 2 and "--fmu-log" in out.stderr and out.stderr.count("\n") == 1
     out = _cli("--backend", "reference", "--scheduler", "tcp://127.0.0.1:9", "--paths", "2")
     assert out.returncode == 2 and "--scheduler" in out.stderr and "Traceback" not in out.stderr
     out = subprocess.run([sys.executable, "-m", "ftc_verify", "verify", str(PAPER), "--gains", str(GAINS), "--workers",

@@ -228,8 +228,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     _check_horizon(args.step, args.horizon)
     if args.plot:
         _check_output_file(args.plot, "--plot", PLOT_SUFFIXES)
-    if (args.workers or args.scheduler) and args.backend != "reference":
-        raise _bad("--workers/--scheduler: only the reference backend runs on Dask (use --backend reference)")
+    _check_cluster(args)
     system, controller = _load(args.system, args.controller)
     record = max(args.record, 1 if args.plot else 0)
     kept = args.paths if args.backend == "fmu" else min(record, args.paths)  # the reference backend streams
@@ -246,16 +245,23 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
             "mid": system.chain.midpoint()}[args.beta]
     paths = sample_paths(system.chain, args.horizon, args.paths, rng, beta=beta)
     delta = DeltaSchedule(args.delta if system.uncertain and (plant is None or plant.delta1 or plant.delta2) else "zero")
-    if args.backend == "fmu":
-        from ..simulation.supervisor import simulate_fmu
+    from ..simulation.cluster import open_client
 
-        res = simulate_fmu(system, controller, paths, step=args.step, disturbance=args.disturbance, delta=delta, rng=rng,
-                           seed=seed, plant=plant, log=_fmu_logger(args))
-    else:
-        from ..simulation.cluster import open_client
-        from ..simulation.streaming import simulate_streaming
+    with open_client(args.workers, args.scheduler) as client:
+        if args.backend == "fmu" and client is not None:
+            from ..simulation.fmu_workers import run_fmu_batches
+            from ..simulation.supervisor import resolve_plant
 
-        with open_client(args.workers, args.scheduler) as client:
+            res = run_fmu_batches(client, system, resolve_plant(system, plant), controller, paths, step=args.step,
+                                  disturbance=args.disturbance, delta=delta, rng=rng, seed=seed)
+        elif args.backend == "fmu":
+            from ..simulation.supervisor import simulate_fmu
+
+            res = simulate_fmu(system, controller, paths, step=args.step, disturbance=args.disturbance, delta=delta,
+                               rng=rng, seed=seed, plant=plant, log=_fmu_logger(args))
+        else:
+            from ..simulation.streaming import simulate_streaming
+
             res = simulate_streaming(system, controller, paths, step=args.step, disturbance=args.disturbance,
                                      delta=delta, rng=rng, seed=seed, record=record, client=client)
     if args.plot:
@@ -334,8 +340,7 @@ def _cmd_verify(args: argparse.Namespace) -> int:
         _check_fmu_dims(system, args.system)
     if controller is not None:
         _check_records_memory(system, controller, args.paths, args.horizon, args.step)
-    if args.fmu_log and (args.workers or args.scheduler):
-        raise _bad("--fmu-log: the FMU's messages stay on the Dask workers; leave out --workers/--scheduler to see them")
+    _check_cluster(args)
     k_max = None if args.no_gain_bound else args.k_max
     from ..simulation.cluster import open_client
 
@@ -405,7 +410,7 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--record", type=_nonneg_int, default=0,
                    help="reference backend: keep full trajectories of the first N paths (default 0, 1 with --plot); "
                         "every path's norms are computed either way, vectorised and in batches")
-    _cluster_options(m, "reference backend: ")
+    _cluster_options(m)
     m.add_argument("--beta", default="random", choices=["random", "min", "max", "mid"],
                    help="detection rates: drawn per path in their box (default) or fixed")
     m.add_argument("--delta", default="zero", choices=["zero", "random", "sign", "constant"],
@@ -450,6 +455,11 @@ def build_parser() -> argparse.ArgumentParser:
     add_synthesis_command(sub)
     add_plant_commands(sub)
     return p
+
+
+def _check_cluster(args: argparse.Namespace) -> None:
+    if args.fmu_log and (args.workers or args.scheduler):
+        raise _bad("--fmu-log: the FMU's messages stay on the Dask workers; leave out --workers/--scheduler to see them")
 
 
 def _cluster_options(parser: argparse.ArgumentParser, scope: str = "") -> None:

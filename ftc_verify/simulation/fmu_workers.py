@@ -20,6 +20,7 @@ exists (:func:`~ftc_verify.simulation.cluster.open_client`).
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 import tempfile
 import threading
@@ -36,11 +37,14 @@ from ..controllers.controller import Controller
 from ..model.system import FTCSystem
 from .delta import DeltaSchedule
 from .paths import ChainPath
-from .records import PathRecord
+from .records import SimulationResult
 from .streaming import TASK_RETRIES, batch_generators
 from .supervisor import Supervisor
 
-__all__ = ["SupervisorPlugin", "run_fmu_batches"]
+__all__ = ["SupervisorPlugin", "run_fmu_batches", "FMU_TASK_PATHS"]
+
+#: Paths per task by default (a task of the paper's plant at horizon 30 takes about 1 s).
+FMU_TASK_PATHS = 25
 
 
 class SupervisorPlugin(WorkerPlugin):
@@ -80,31 +84,32 @@ class SupervisorPlugin(WorkerPlugin):
             shutil.rmtree(self._folder, ignore_errors=True)
 
     def run(self, paths: list[ChainPath], controller: Controller, step: float, disturbance: str,
-            delta: DeltaSchedule, gen: np.random.Generator) -> tuple[list[PathRecord], str]:
+            delta: DeltaSchedule, gen: np.random.Generator) -> SimulationResult:
         """One batch on this worker's supervisor (opened on first use)."""
         assert self._lock is not None and self._folder is not None, "SupervisorPlugin.setup did not run"
         with self._lock:
             if self._supervisor is None:
                 self._supervisor = Supervisor(self._folder / "plant.fmu", self.mapping, system=self.system,
                                               tolerance=self.tolerance)
-            res = self._supervisor.run(paths, controller, step=step, disturbance=disturbance, delta=delta, rng=gen)
-            return list(res.records), self._supervisor.model_identifier
+            return self._supervisor.run(paths, controller, step=step, disturbance=disturbance, delta=delta, rng=gen)
 
 
 def _batch_task(name: str, paths: list[ChainPath], controller: Controller, step: float, disturbance: str,
-                delta: DeltaSchedule, gen: np.random.Generator) -> tuple[list[PathRecord], str]:
+                delta: DeltaSchedule, gen: np.random.Generator) -> SimulationResult:
     """A Dask task: one batch on the worker's :class:`SupervisorPlugin` ``name``."""
     return get_worker().plugins[name].run(paths, controller, step, disturbance, delta, gen)
 
 
 def run_fmu_batches(client: Any, system: FTCSystem, plant: Any, controller: Controller,
-                    paths: Sequence[ChainPath], *, batch: int, step: float, disturbance: str,
-                    delta: DeltaSchedule, rng: np.random.Generator,
-                    done: Callable[[int], Any] | None = None) -> tuple[list[PathRecord], str]:
-    """Co-simulate ``paths`` on the FMU of the (resolved and checked) plant map ``plant``
-    on ``client``'s workers, ``batch`` paths per task; the records in path order and the
-    FMU's model identifier. ``rng`` draws ``Delta`` as a serial run's would and ends in
-    the same state. ``done(k)`` is called as each batch of ``k`` paths comes back."""
+                    paths: Sequence[ChainPath], *, step: float, disturbance: str, delta: DeltaSchedule,
+                    rng: np.random.Generator, seed: int | None = None, batch: int = FMU_TASK_PATHS,
+                    done: Callable[[int], Any] | None = None) -> SimulationResult:
+    """What ``Supervisor(plant.fmu, ...).run(paths, ...)`` returns, computed on ``client``'s
+    workers, ``batch`` paths per task: the FMU of the (resolved and checked) plant map
+    ``plant``; ``rng`` draws ``Delta`` as a serial run's would and ends in the same state;
+    ``seed`` is recorded. The options are the first batch's, with the FMU's file as given,
+    the warnings summed and the largest timing error. ``done(k)`` is called as each batch
+    of ``k`` paths comes back."""
     plist = list(paths)
     name = f"ftc-verify-fmu-{uuid.uuid4().hex}"
     client.register_plugin(SupervisorPlugin(name, Path(plant.fmu).read_bytes(), plant.injection_map(), system,
@@ -112,14 +117,18 @@ def run_fmu_batches(client: Any, system: FTCSystem, plant: Any, controller: Cont
     try:
         gens = batch_generators(system, plist, delta, rng, batch)
         chunks = [plist[b:b + batch] for b in range(0, len(plist), batch)]
-        futures = client.map(_batch_task, [name] * len(chunks), chunks, [controller] * len(chunks),
-                             [step] * len(chunks), [disturbance] * len(chunks), [delta] * len(chunks), gens,
-                             retries=TASK_RETRIES, pure=False)
+        k = len(chunks)
+        futures = client.map(_batch_task, [name] * k, chunks, [controller] * k, [step] * k, [disturbance] * k,
+                             [delta] * k, gens, retries=TASK_RETRIES, pure=False)
         size = {f.key: len(c) for f, c in zip(futures, chunks)}
         for fut in as_completed(futures):
             if done is not None:
                 done(size[fut.key])
-        parts = client.gather(futures)
+        parts: list[SimulationResult] = client.gather(futures)
     finally:
         client.unregister_worker_plugin(name)
-    return [r for records, _ in parts for r in records], parts[0][1]
+    options = parts[0].options | {"fmu": str(plant.fmu),
+                                  "fmu_warnings": sum(p.options["fmu_warnings"] for p in parts),
+                                  "timing_error": max(p.options["timing_error"] for p in parts)}
+    return dataclasses.replace(parts[0], seed=seed, horizon=max(p.horizon for p in parts),
+                               records=tuple(r for p in parts for r in p.records), options=options)

@@ -193,10 +193,9 @@ def _fmu_monte_carlo(system: FTCSystem, controller: Controller, chain_paths: lis
         if client is not None:
             from ..simulation.fmu_workers import run_fmu_batches
 
-            records, ident = run_fmu_batches(client, system, plant, controller, chain_paths, batch=FMU_BATCH,
-                                             step=step, disturbance=disturbance, delta=delta, rng=delta_rng,
-                                             done=done)
-            return records, {"fmu": str(plant.fmu), "model_identifier": ident}
+            res = run_fmu_batches(client, system, plant, controller, chain_paths, batch=FMU_BATCH, step=step,
+                                  disturbance=disturbance, delta=delta, rng=delta_rng, done=done)
+            return list(res.records), {"fmu": str(plant.fmu), "model_identifier": res.options["model_identifier"]}
         records: list[PathRecord] = []
         with Supervisor(plant.fmu, plant.injection_map(), system=system, tolerance=plant.tolerance, log=log) as sup:
             for start in range(0, len(chain_paths), FMU_BATCH):
@@ -345,11 +344,7 @@ def _worst_case(loop: ClosedLoop, exact: list[dict[str, Any]], horizon: float,
 
 
 def run_verify(
-    system: FTCSystem,
-    *,
-    gamma: float | None = None,
-    method: str = "iterative",
-    k_max: float | None = 30.0,
+    system: FTCSystem, *, gamma: float | None = None, method: str = "iterative", k_max: float | None = 30.0,
     controller: Controller | None = None,
     paths: int = 200, step: float = 0.01, horizon: float = 30.0, seed: int | None = None,
     solver: str | None = None, progress: bool = False, plant: Any = None, fmu_log: Any = None,
@@ -362,10 +357,9 @@ def run_verify(
     ``plant``: a :class:`~ftc_verify.plants.plant_map.PlantMap` whose FMU replaces the
     ``LinearJumpPlant`` in the Monte Carlo (``system`` is then its linearisation); the
     report gains a ``plant`` object and the region check replaces the backend agreement.
-    ``fmu_log``: called with every message the FMU logs. ``measure``: ``"total"`` or
-    ``"incremental"`` (:func:`incremental_records`; the fault response's energy is reported).
-    ``client``: a ``dask.distributed.Client`` whose workers co-simulate the Monte Carlo
-    batches (same numbers as serially; ``fmu_log`` is not available there).
+    ``measure``: ``"total"`` or ``"incremental"`` (:func:`incremental_records`; the fault
+    response's energy is reported). ``client``: a ``dask.distributed.Client`` whose workers
+    co-simulate the Monte Carlo batches (same numbers); else ``fmu_log`` gets the FMU's messages.
     """
     if measure not in ("total", "incremental"):
         raise ValidationError(f"measure: {measure!r} is not 'total' or 'incremental'")
