@@ -139,3 +139,42 @@ def test_a_lost_worker_costs_a_retry_not_the_run() -> None:
         assert not worker.is_alive()
     spread = found["result"]
     np.testing.assert_array_equal(spread.y_norm, serial.y_norm)  # type: ignore[attr-defined]
+
+
+def test_a_lost_fmu_worker_costs_a_retry_not_the_run() -> None:
+    """The FMU backend: one of two workers is killed mid-run; its batches are retried on
+    the other worker or on the nanny's replacement (which gets the FMU from the plugin the
+    scheduler keeps), and the records equal a serial run's."""
+    import os
+    import signal
+    import threading
+    import time
+
+    from ftc_verify.simulation.delta import DeltaSchedule
+    from ftc_verify.simulation.fmu_workers import run_fmu_batches
+    from ftc_verify.simulation.supervisor import resolve_plant, simulate_fmu
+
+    system, gains = load_system(PAPER), load_controller(GAINS)
+    paths = sample_paths(system.chain, 20.0, 200, np.random.default_rng(5))
+    delta = DeltaSchedule("random")
+    serial = simulate_fmu(system, gains, paths, step=0.01, delta=delta, rng=np.random.default_rng(1))
+    found: dict[str, object] = {}
+    with open_client(workers=2) as client:
+        victim = sorted(client.run(os.getpid).items())[0][1]
+
+        def run() -> None:
+            found["result"] = run_fmu_batches(client, system, resolve_plant(system), gains, paths, step=0.01,
+                                              delta=delta, rng=np.random.default_rng(1), batch=5)
+
+        worker = threading.Thread(target=run)
+        worker.start()
+        time.sleep(1.5)  # 40 tasks of about 0.1 s each are under way
+        running = worker.is_alive()
+        os.kill(victim, signal.SIGKILL)
+        worker.join(timeout=300)
+        assert running, "the run ended before the kill: make it longer"
+        assert not worker.is_alive()
+    spread = found["result"]
+    assert len(spread.records) == 200  # type: ignore[attr-defined]
+    for a, b in zip(spread.records, serial.records):  # type: ignore[attr-defined]
+        np.testing.assert_array_equal(a.x, b.x)

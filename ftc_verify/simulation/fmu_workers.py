@@ -101,7 +101,7 @@ def _batch_task(name: str, paths: list[ChainPath], controller: Controller, step:
 
 
 def run_fmu_batches(client: Any, system: FTCSystem, plant: Any, controller: Controller,
-                    paths: Sequence[ChainPath], *, step: float, disturbance: str, delta: DeltaSchedule,
+                    paths: Sequence[ChainPath], *, step: float, delta: DeltaSchedule, disturbance: str = "paper",
                     rng: np.random.Generator, seed: int | None = None, batch: int = FMU_TASK_PATHS,
                     done: Callable[[int], Any] | None = None) -> SimulationResult:
     """What ``Supervisor(plant.fmu, ...).run(paths, ...)`` returns, computed on ``client``'s
