@@ -17,7 +17,7 @@ wall time of the command (cluster start-up included) and the ``monte_carlo`` sta
 ``report.json`` (``seconds``), and whether report.json equals the serial run's apart from
 timings (it must). Table: medians, the speed-up of the Monte Carlo stage against the
 serial run, and the overhead per task, ``(MC(1 worker) - MC(serial)) / tasks`` with
-``tasks = ceil(P / FMU_BATCH)``. CSV: ``benchmarks/results/verify_cluster.csv``.
+``tasks = ceil(P / FMU_TASK_PATHS)``. CSV: ``benchmarks/results/verify_cluster.csv``.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from ftc_verify.verification.verify import FMU_BATCH  # noqa: E402
+from ftc_verify.simulation.batches import FMU_TASK_PATHS  # noqa: E402
 
 CONFIGS: tuple[int | None, ...] = (None, 1, 2, 4)
 
@@ -95,8 +95,8 @@ def main(argv: list[str] | None = None) -> int:
     med = {c: (statistics.median(r["wall_s"] for r in rows if r["config"] == c),
                statistics.median(r["monte_carlo_s"] for r in rows if r["config"] == c))
            for c in dict.fromkeys(r["config"] for r in rows)}
-    tasks = math.ceil(args.paths / FMU_BATCH)
-    print(f"verify, {args.paths} FMU paths, horizon {args.horizon:g}, {tasks} tasks of {FMU_BATCH} paths, "
+    tasks = math.ceil(args.paths / FMU_TASK_PATHS)
+    print(f"verify, {args.paths} FMU paths, horizon {args.horizon:g}, {tasks} tasks of {FMU_TASK_PATHS} paths, "
           f"medians of {args.repeats}")
     print(f"{'config':12s} {'wall s':>8s} {'MC s':>8s} {'MC speed-up':>12s}")
     for c, (wall, mc) in med.items():

@@ -151,8 +151,8 @@ def test_a_lost_fmu_worker_costs_a_retry_not_the_run() -> None:
     import time
 
     from ftc_verify.simulation.delta import DeltaSchedule
-    from ftc_verify.simulation.fmu_workers import run_fmu_batches
-    from ftc_verify.simulation.supervisor import resolve_plant, simulate_fmu
+    from ftc_verify.simulation.batches import fmu_monte_carlo
+    from ftc_verify.simulation.supervisor import simulate_fmu
 
     system, gains = load_system(PAPER), load_controller(GAINS)
     paths = sample_paths(system.chain, 20.0, 200, np.random.default_rng(5))
@@ -163,8 +163,8 @@ def test_a_lost_fmu_worker_costs_a_retry_not_the_run() -> None:
         victim = sorted(client.run(os.getpid).items())[0][1]
 
         def run() -> None:
-            found["result"] = run_fmu_batches(client, system, resolve_plant(system), gains, paths, step=0.01,
-                                              delta=delta, rng=np.random.default_rng(1), batch=5)
+            found["result"] = fmu_monte_carlo(system, gains, paths, step=0.01, delta=delta,
+                                              rng=np.random.default_rng(1), batch=5, client=client)
 
         worker = threading.Thread(target=run)
         worker.start()

@@ -245,25 +245,24 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
             "mid": system.chain.midpoint()}[args.beta]
     paths = sample_paths(system.chain, args.horizon, args.paths, rng, beta=beta)
     delta = DeltaSchedule(args.delta if system.uncertain and (plant is None or plant.delta1 or plant.delta2) else "zero")
+    from ..simulation.batches import fmu_monte_carlo, progress_bar
     from ..simulation.cluster import open_client
+    from ..simulation.streaming import simulate_streaming
 
-    with open_client(args.workers, args.scheduler) as client:
-        if args.backend == "fmu" and client is not None:
-            from ..simulation.fmu_workers import run_fmu_batches
-            from ..simulation.supervisor import resolve_plant
-
-            res = run_fmu_batches(client, system, resolve_plant(system, plant), controller, paths, step=args.step,
-                                  disturbance=args.disturbance, delta=delta, rng=rng, seed=seed)
-        elif args.backend == "fmu":
-            from ..simulation.supervisor import simulate_fmu
-
-            res = simulate_fmu(system, controller, paths, step=args.step, disturbance=args.disturbance, delta=delta,
-                               rng=rng, seed=seed, plant=plant, log=_fmu_logger(args))
-        else:
-            from ..simulation.streaming import simulate_streaming
-
-            res = simulate_streaming(system, controller, paths, step=args.step, disturbance=args.disturbance,
-                                     delta=delta, rng=rng, seed=seed, record=record, client=client)
+    bar = progress_bar(args.paths, f"simulate ({args.backend})", sys.stderr.isatty())
+    done = None if bar is None else bar.update
+    try:
+        with open_client(args.workers, args.scheduler) as client:
+            if args.backend == "fmu":
+                res = fmu_monte_carlo(system, controller, paths, step=args.step, delta=delta, rng=rng,
+                                      disturbance=args.disturbance, seed=seed, plant=plant, client=client,
+                                      log=_fmu_logger(args), done=done)
+            else:
+                res = simulate_streaming(system, controller, paths, step=args.step, disturbance=args.disturbance,
+                                         delta=delta, rng=rng, seed=seed, record=record, client=client, done=done)
+    finally:
+        if bar is not None:
+            bar.close()
     if args.plot:
         from ..verification.plots import plot_path
 

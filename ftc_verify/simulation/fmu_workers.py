@@ -1,7 +1,8 @@
 """FMU co-simulation on Dask workers: every worker loads the FMU once.
 
 :func:`run_fmu_batches` is the distributed form of calling
-:meth:`~ftc_verify.simulation.supervisor.Supervisor.run` batch after batch. A
+:meth:`~ftc_verify.simulation.supervisor.Supervisor.run` batch after batch (used by
+:func:`~ftc_verify.simulation.batches.fmu_monte_carlo`). A
 :class:`SupervisorPlugin` (a ``dask.distributed`` worker plugin) carries the FMU's bytes,
 so workers on other machines need neither the client's files nor its FMU cache; on each
 worker it writes them to a temporary folder once and opens one
@@ -20,7 +21,6 @@ exists (:func:`~ftc_verify.simulation.cluster.open_client`).
 
 from __future__ import annotations
 
-import dataclasses
 import shutil
 import tempfile
 import threading
@@ -41,10 +41,7 @@ from .records import SimulationResult
 from .streaming import TASK_RETRIES, batch_generators
 from .supervisor import Supervisor
 
-__all__ = ["SupervisorPlugin", "run_fmu_batches", "FMU_TASK_PATHS"]
-
-#: Paths per task by default (a task of the paper's plant at horizon 30 takes about 1 s).
-FMU_TASK_PATHS = 25
+__all__ = ["SupervisorPlugin", "run_fmu_batches"]
 
 
 class SupervisorPlugin(WorkerPlugin):
@@ -101,15 +98,14 @@ def _batch_task(name: str, paths: list[ChainPath], controller: Controller, step:
 
 
 def run_fmu_batches(client: Any, system: FTCSystem, plant: Any, controller: Controller,
-                    paths: Sequence[ChainPath], *, step: float, delta: DeltaSchedule, disturbance: str = "paper",
-                    rng: np.random.Generator, seed: int | None = None, batch: int = FMU_TASK_PATHS,
-                    done: Callable[[int], Any] | None = None) -> SimulationResult:
-    """What ``Supervisor(plant.fmu, ...).run(paths, ...)`` returns, computed on ``client``'s
-    workers, ``batch`` paths per task: the FMU of the (resolved and checked) plant map
-    ``plant``; ``rng`` draws ``Delta`` as a serial run's would and ends in the same state;
-    ``seed`` is recorded. The options are the first batch's, with the FMU's file as given,
-    the warnings summed and the largest timing error. ``done(k)`` is called as each batch
-    of ``k`` paths comes back."""
+                    paths: Sequence[ChainPath], *, step: float, delta: DeltaSchedule, rng: np.random.Generator,
+                    batch: int, disturbance: str = "paper",
+                    done: Callable[[int], Any] | None = None) -> list[SimulationResult]:
+    """What ``Supervisor(plant.fmu, ...).run(batch_k, ...)`` returns for each batch of
+    ``batch`` paths, computed on ``client``'s workers (one task per batch) and returned in
+    order: the FMU of the (resolved and checked) plant map ``plant``; ``rng`` draws
+    ``Delta`` as a serial run's would and ends in the same state. ``done(k)`` is called as
+    each batch of ``k`` paths comes back."""
     plist = list(paths)
     name = f"ftc-verify-fmu-{uuid.uuid4().hex}"
     client.register_plugin(SupervisorPlugin(name, Path(plant.fmu).read_bytes(), plant.injection_map(), system,
@@ -124,11 +120,6 @@ def run_fmu_batches(client: Any, system: FTCSystem, plant: Any, controller: Cont
         for fut in as_completed(futures):
             if done is not None:
                 done(size[fut.key])
-        parts: list[SimulationResult] = client.gather(futures)
+        return client.gather(futures)
     finally:
         client.unregister_worker_plugin(name)
-    options = parts[0].options | {"fmu": str(plant.fmu),
-                                  "fmu_warnings": sum(p.options["fmu_warnings"] for p in parts),
-                                  "timing_error": max(p.options["timing_error"] for p in parts)}
-    return dataclasses.replace(parts[0], seed=seed, horizon=max(p.horizon for p in parts),
-                               records=tuple(r for p in parts for r in p.records), options=options)

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import copy
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -116,11 +116,13 @@ def simulate_streaming(
     record: int = 0,
     batch: int = STREAM_BATCH,
     client: Any = None,
+    done: Callable[[int], Any] | None = None,
 ) -> StreamedResult:
     """The paths of ``simulate_reference`` (same arguments, same numbers) summarised per
     path, with trajectories for the first ``record`` paths only (module docstring).
     ``client``: a ``dask.distributed.Client``; the batches then run on its workers, with
-    the same numbers as serially (each batch carries its own generator state)."""
+    the same numbers as serially (each batch carries its own generator state).
+    ``done(k)``: called as each batch of ``k`` paths is finished (a progress bar)."""
     plist = list(paths)
     if not plist:
         raise ValidationError("paths: at least one path is needed")
@@ -129,13 +131,21 @@ def simulate_streaming(
     schedule = schedule_of(delta)
     batch = max(1, batch)
     starts = range(0, len(plist), batch)
+    report = done if done is not None else (lambda k: None)
     if client is None:  # serially the batches draw from ``gen`` in turn: no replay needed
-        parts = [_energies_batch(system, controller, plist[b:b + batch], step, disturbance, schedule, gen)
-                 for b in starts]
+        parts = []
+        for b in starts:
+            parts.append(_energies_batch(system, controller, plist[b:b + batch], step, disturbance, schedule, gen))
+            report(len(parts[-1][0]))
     else:  # Dask: one task per batch, each with its own generator state; lost workers' tasks are retried
+        from dask.distributed import as_completed
+
         gens = batch_generators(system, plist, schedule, gen, batch)
         tasks = [(system, controller, plist[b:b + batch], step, disturbance, schedule, g) for b, g in zip(starts, gens)]
-        parts = client.gather(client.map(_energies_batch, *zip(*tasks), retries=TASK_RETRIES, pure=False))
+        futures = client.map(_energies_batch, *zip(*tasks), retries=TASK_RETRIES, pure=False)
+        for fut in as_completed(futures):
+            report(len(fut.result()[0]))
+        parts = client.gather(futures)
     Ey = np.concatenate([p[0] for p in parts])
     Ew = np.concatenate([p[1] for p in parts])
     records = ()

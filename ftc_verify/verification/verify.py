@@ -30,7 +30,6 @@ draw comes from one :class:`numpy.random.Generator` whose seed is in the report.
 
 from __future__ import annotations
 
-import sys
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -58,8 +57,6 @@ AGREE_RTOL = 1e-8
 MAX_EXACT_VERTICES = 64
 #: Paths re-simulated by the reference backend for the agreement check.
 AGREE_PATHS = 5
-#: Paths handed to the supervisor at a time (the progress bar advances per batch).
-FMU_BATCH = 25
 
 
 @dataclass(frozen=True)
@@ -131,14 +128,6 @@ class VerifyReport:
         })
 
 
-def _progress(total: int, enabled: bool) -> Any:
-    if not enabled:
-        return None
-    from tqdm import tqdm
-
-    return tqdm(total=total, desc="Monte Carlo (FMU)", unit="path", file=sys.stderr, leave=False)
-
-
 def _certify(analysis: AnalysisReport, gamma: float | None) -> tuple[float | None, list[Check]]:
     """The certified robust gamma (``None`` unless stable and certified) and its checks."""
     ok = analysis.robust.certified and analysis.certified_stable
@@ -178,36 +167,21 @@ def _fmu_monte_carlo(system: FTCSystem, controller: Controller, chain_paths: lis
                      log: Any = None, disturbance: str = "paper",
                      client: Any = None) -> tuple[list[PathRecord], dict[str, Any]]:
     """Every path co-simulated on the plant map's FMU (default: the ``LinearJumpPlant`` of
-    ``system``) with the named disturbance, in batches of :data:`FMU_BATCH` paths; also the
-    FMU's file and model identifier. The ``Delta`` draws come from ``delta_seed`` alone, so
-    two calls see the same ``Delta``. ``client``: a ``dask.distributed.Client`` whose
-    workers run the batches (:func:`~ftc_verify.simulation.fmu_workers.run_fmu_batches`; the
-    same records as serially)."""
-    from ..simulation.supervisor import Supervisor, resolve_plant
+    ``system``) with the named disturbance, in batches (:data:`~ftc_verify.simulation.batches.FMU_TASK_PATHS`), on
+    ``client``'s Dask workers if given (:func:`~ftc_verify.simulation.batches.fmu_monte_carlo`;
+    same records); also the FMU's file and model identifier. The ``Delta`` draws come from
+    ``delta_seed`` alone, so two calls see the same ``Delta``."""
+    from ..simulation.batches import fmu_monte_carlo, progress_bar
 
-    plant = resolve_plant(system, plant)
-    delta_rng = np.random.default_rng(delta_seed)
-    bar = _progress(len(chain_paths), progress)
-    done = bar.update if bar is not None else None
+    bar = progress_bar(len(chain_paths), "Monte Carlo (FMU)", progress)
     try:
-        if client is not None:
-            from ..simulation.fmu_workers import run_fmu_batches
-
-            res = run_fmu_batches(client, system, plant, controller, chain_paths, batch=FMU_BATCH, step=step,
-                                  disturbance=disturbance, delta=delta, rng=delta_rng, done=done)
-            return list(res.records), {"fmu": str(plant.fmu), "model_identifier": res.options["model_identifier"]}
-        records: list[PathRecord] = []
-        with Supervisor(plant.fmu, plant.injection_map(), system=system, tolerance=plant.tolerance, log=log) as sup:
-            for start in range(0, len(chain_paths), FMU_BATCH):
-                batch = chain_paths[start:start + FMU_BATCH]
-                records.extend(sup.run(batch, controller, step=step, disturbance=disturbance, delta=delta,
-                                       rng=delta_rng).records)
-                if done is not None:
-                    done(len(batch))
-        return records, {"fmu": str(sup.path), "model_identifier": sup.model_identifier}
+        res = fmu_monte_carlo(system, controller, chain_paths, step=step, delta=delta,
+                              rng=np.random.default_rng(delta_seed), disturbance=disturbance, plant=plant,
+                              client=client, log=log, done=None if bar is None else bar.update)
     finally:
         if bar is not None:
             bar.close()
+    return list(res.records), {"fmu": res.options["fmu"], "model_identifier": res.options["model_identifier"]}
 
 
 def incremental_records(with_w: list[PathRecord], without_w: list[PathRecord]) -> list[PathRecord]:

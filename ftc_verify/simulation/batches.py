@@ -1,0 +1,79 @@
+"""Monte Carlo on an FMU in batches: serially on one supervisor or on Dask workers, with progress.
+
+:func:`fmu_monte_carlo` is the one FMU Monte Carlo of ``simulate --backend fmu`` and of
+``verify``: the paths in batches of ``batch``, run on one
+:class:`~ftc_verify.simulation.supervisor.Supervisor` in this process, or with a
+``dask.distributed`` client on its workers
+(:func:`~ftc_verify.simulation.fmu_workers.run_fmu_batches`), reporting each finished
+batch to ``done`` (a progress bar). Either way the result is what one
+:meth:`Supervisor.run <ftc_verify.simulation.supervisor.Supervisor.run>` over all paths
+returns: the ``Delta`` draws come from ``rng`` path by path in order.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..controllers.controller import Controller
+from ..model.system import FTCSystem
+from .delta import DeltaSchedule
+from .paths import ChainPath
+from .records import SimulationResult
+from .supervisor import Supervisor, resolve_plant
+
+__all__ = ["FMU_TASK_PATHS", "fmu_monte_carlo", "merge_results", "progress_bar"]
+
+#: Paths per batch (one Dask task; a batch of the paper's plant at horizon 30 takes about 1 s).
+FMU_TASK_PATHS = 25
+
+
+def progress_bar(total: int, desc: str, enabled: bool) -> Any:
+    """A tqdm bar on stderr (``None`` unless ``enabled``, e.g. ``sys.stderr.isatty()``)."""
+    if not enabled:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit="path", file=sys.stderr, leave=False)
+
+
+def merge_results(parts: Sequence[SimulationResult], fmu: str | Path, seed: int | None) -> SimulationResult:
+    """Batches of one run as one result: records in order, the first batch's options with
+    the FMU's file ``fmu``, the FMU's warnings summed and the largest timing error."""
+    options = parts[0].options | {"fmu": str(fmu), "fmu_warnings": sum(p.options["fmu_warnings"] for p in parts),
+                                  "timing_error": max(p.options["timing_error"] for p in parts)}
+    return dataclasses.replace(parts[0], seed=seed, horizon=max(p.horizon for p in parts),
+                               records=tuple(r for p in parts for r in p.records), options=options)
+
+
+def fmu_monte_carlo(system: FTCSystem, controller: Controller, paths: Sequence[ChainPath], *, step: float,
+                    delta: DeltaSchedule, rng: np.random.Generator, disturbance: str = "paper",
+                    seed: int | None = None, plant: Any = None, batch: int = FMU_TASK_PATHS, client: Any = None,
+                    log: Callable[[str, str, str], None] | None = None,
+                    done: Callable[[int], Any] | None = None) -> SimulationResult:
+    """Co-simulate ``paths`` on the FMU of the plant map ``plant`` (default: the
+    ``LinearJumpPlant`` of ``system``; :func:`~ftc_verify.simulation.supervisor.resolve_plant`)
+    in batches of ``batch`` (module docstring). ``client``: run the batches on its
+    workers (``log`` is then not available: the messages stay there). ``done(k)`` is called
+    after each batch of ``k`` paths; ``seed`` is recorded."""
+    plant = resolve_plant(system, plant)
+    plist = list(paths)
+    if client is not None:
+        from .fmu_workers import run_fmu_batches
+
+        parts = run_fmu_batches(client, system, plant, controller, plist, step=step, delta=delta, rng=rng,
+                                disturbance=disturbance, batch=batch, done=done)
+        return merge_results(parts, plant.fmu, seed)
+    parts = []
+    with Supervisor(plant.fmu, plant.injection_map(), system=system, tolerance=plant.tolerance, log=log) as sup:
+        for b in range(0, len(plist), batch):
+            parts.append(sup.run(plist[b:b + batch], controller, step=step, disturbance=disturbance, delta=delta,
+                                 rng=rng))
+            if done is not None:
+                done(len(parts[-1].records))
+    return merge_results(parts, plant.fmu, seed)
