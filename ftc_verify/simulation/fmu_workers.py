@@ -111,11 +111,10 @@ def run_fmu_batches(client: Any, system: FTCSystem, plant: Any, controller: Cont
     client.register_plugin(SupervisorPlugin(name, Path(plant.fmu).read_bytes(), plant.injection_map(), system,
                                             plant.tolerance), name=name)
     try:
-        gens = batch_generators(system, plist, delta, rng, batch)
         chunks = [plist[b:b + batch] for b in range(0, len(plist), batch)]
-        k = len(chunks)
-        futures = client.map(_batch_task, [name] * k, chunks, [controller] * k, [step] * k, [disturbance] * k,
-                             [delta] * k, gens, retries=TASK_RETRIES, pure=False)
+        futures = [client.submit(_batch_task, name, c, controller, step, disturbance, delta, g, retries=TASK_RETRIES,
+                                 pure=False)
+                   for g, c in zip(batch_generators(system, plist, delta, rng, batch), chunks)]
         size = {f.key: len(c) for f, c in zip(futures, chunks)}
         for fut in as_completed(futures):
             if done is not None:

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import copy
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -49,19 +49,19 @@ TASK_RETRIES = 3
 
 
 def batch_generators(system: FTCSystem, paths: list[ChainPath], schedule: DeltaSchedule,
-                     gen: np.random.Generator, batch: int) -> list[np.random.Generator]:
-    """One generator per batch of ``batch`` paths: the state ``gen`` would have after the
-    ``Delta`` draws of every earlier path, so that batches computed anywhere, in any order,
-    draw what a serial run draws. ``gen`` ends where a serial run leaves it. With ``Delta``
-    kind ``random`` this replays every path's draws in the client (as costly as drawing
-    them: about 2 ms per path of 90 segments here), the price of identical numbers."""
-    out = []
+                     gen: np.random.Generator, batch: int) -> Iterator[np.random.Generator]:
+    """One generator per batch of ``batch`` paths, yielded in turn: the state ``gen`` would
+    have after the ``Delta`` draws of every earlier path, so that batches computed
+    anywhere, in any order, draw what a serial run draws. A batch can be submitted as soon
+    as its state is yielded, while the client replays the next one. ``gen`` ends where a
+    serial run leaves it once the iterator is exhausted. With ``Delta`` kind ``random``
+    this replays every path's draws in the client (about 2 ms per path of 90 segments
+    here), the price of identical numbers."""
     for b in range(0, len(paths), batch):
-        out.append(copy.deepcopy(gen))
+        yield copy.deepcopy(gen)
         if schedule.kind == "random":  # the only kind that draws
             for p in paths[b:b + batch]:
                 delta_segments(system, p, schedule, gen)
-    return out
 
 
 def _energies_batch(system: FTCSystem, controller: Controller, paths: list[ChainPath], step: float,
@@ -140,9 +140,9 @@ def simulate_streaming(
     else:  # Dask: one task per batch, each with its own generator state; lost workers' tasks are retried
         from dask.distributed import as_completed
 
-        gens = batch_generators(system, plist, schedule, gen, batch)
-        tasks = [(system, controller, plist[b:b + batch], step, disturbance, schedule, g) for b, g in zip(starts, gens)]
-        futures = client.map(_energies_batch, *zip(*tasks), retries=TASK_RETRIES, pure=False)
+        futures = [client.submit(_energies_batch, system, controller, plist[b:b + batch], step, disturbance, schedule,
+                                 g, retries=TASK_RETRIES, pure=False)
+                   for g, b in zip(batch_generators(system, plist, schedule, gen, batch), starts)]
         for fut in as_completed(futures):
             report(len(fut.result()[0]))
         parts = client.gather(futures)
