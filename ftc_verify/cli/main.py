@@ -25,7 +25,7 @@ import sys
 import threading
 import warnings
 from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 from typing import Any
 
@@ -515,7 +515,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         os.environ.setdefault(var, "1")
     args = build_parser().parse_args(argv)
     try:
-        with _sigterm_raises(), warnings.catch_warnings():
+        from .working import working
+
+        own_bars = args.command in ("simulate", "verify")  # tqdm bars over their paths
+        with _sigterm_raises(), warnings.catch_warnings(), nullcontext() if own_bars else working(args.command):
             warnings.simplefilter("ignore")  # solver chatter; statuses are reported in the results
             code = int(args.func(args))
             sys.stdout.flush()
