@@ -7,9 +7,15 @@ from __future__ import annotations
 
 import json
 import logging
+import os
+import signal
 import subprocess
 import sys
+import threading
+import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -18,9 +24,12 @@ distributed = pytest.importorskip("distributed")
 
 from ftc_verify.controllers import load_controller  # noqa: E402
 from ftc_verify.model.files import load_system  # noqa: E402
+from ftc_verify.simulation.batches import fmu_monte_carlo  # noqa: E402
 from ftc_verify.simulation.cluster import open_client  # noqa: E402
+from ftc_verify.simulation.delta import DeltaSchedule  # noqa: E402
 from ftc_verify.simulation.paths import sample_paths  # noqa: E402
 from ftc_verify.simulation.streaming import simulate_streaming  # noqa: E402
+from ftc_verify.simulation.supervisor import simulate_fmu  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "examples" / "paper.toml"
@@ -110,71 +119,46 @@ def test_cluster_misuse_is_one_error() -> None:
     assert out.returncode == 2 and "--fmu-log" in out.stderr and out.stderr.count("\n") == 1
 
 
-def test_a_lost_worker_costs_a_retry_not_the_run() -> None:
-    """One of two workers is killed (SIGKILL to its process) while the batches run; its
-    tasks are rescheduled, the nanny restarts it, and the numbers equal a serial run."""
-    import os
-    import signal
-    import threading
-    import time
-
-    system, gains = load_system(PAPER), load_controller(GAINS)
-    paths = sample_paths(system.chain, 20.0, 240, np.random.default_rng(5))
-    serial = simulate_streaming(system, gains, paths, step=0.01, rng=np.random.default_rng(1), batch=4)
-    found: dict[str, object] = {}
+def _with_one_worker_killed(run: Callable[[Any], Any], after: float) -> Any:
+    """``run(client)`` on a local cluster of two workers, one of which is killed (SIGKILL
+    to its process) ``after`` seconds into the run; what ``run`` returned."""
+    found: dict[str, Any] = {}
     with open_client(workers=2) as client:
         victim = sorted(client.run(os.getpid).items())[0][1]
-
-        def run() -> None:
-            found["result"] = simulate_streaming(system, gains, paths, step=0.01, rng=np.random.default_rng(1),
-                                                 batch=4, client=client)
-
-        worker = threading.Thread(target=run)
+        worker = threading.Thread(target=lambda: found.update(result=run(client)))
         worker.start()
-        time.sleep(1.0)  # batches are under way (60 tasks of about 0.1 s each)
+        time.sleep(after)
         running = worker.is_alive()
         os.kill(victim, signal.SIGKILL)
         worker.join(timeout=300)
         assert running, "the run ended before the kill: make it longer"
         assert not worker.is_alive()
-    spread = found["result"]
-    np.testing.assert_array_equal(spread.y_norm, serial.y_norm)  # type: ignore[attr-defined]
+    return found["result"]
+
+
+def test_a_lost_worker_costs_a_retry_not_the_run() -> None:
+    """One of two workers is killed while the batches run; its tasks are rescheduled, the
+    nanny restarts it, and the numbers equal a serial run."""
+    system, gains = load_system(PAPER), load_controller(GAINS)
+    paths = sample_paths(system.chain, 20.0, 240, np.random.default_rng(5))
+    serial = simulate_streaming(system, gains, paths, step=0.01, rng=np.random.default_rng(1), batch=4)
+    spread = _with_one_worker_killed(  # 60 tasks of about 0.1 s each, under way after 1 s
+        lambda client: simulate_streaming(system, gains, paths, step=0.01, rng=np.random.default_rng(1), batch=4,
+                                          client=client), after=1.0)
+    np.testing.assert_array_equal(spread.y_norm, serial.y_norm)
 
 
 def test_a_lost_fmu_worker_costs_a_retry_not_the_run() -> None:
     """The FMU backend: one of two workers is killed mid-run; its batches are retried on
     the other worker or on the nanny's replacement (which gets the FMU from the plugin the
     scheduler keeps), and the records equal a serial run's."""
-    import os
-    import signal
-    import threading
-    import time
-
-    from ftc_verify.simulation.delta import DeltaSchedule
-    from ftc_verify.simulation.batches import fmu_monte_carlo
-    from ftc_verify.simulation.supervisor import simulate_fmu
-
     system, gains = load_system(PAPER), load_controller(GAINS)
     paths = sample_paths(system.chain, 20.0, 200, np.random.default_rng(5))
     delta = DeltaSchedule("random")
     serial = simulate_fmu(system, gains, paths, step=0.01, delta=delta, rng=np.random.default_rng(1))
-    found: dict[str, object] = {}
-    with open_client(workers=2) as client:
-        victim = sorted(client.run(os.getpid).items())[0][1]
-
-        def run() -> None:
-            found["result"] = fmu_monte_carlo(system, gains, paths, step=0.01, delta=delta,
-                                              rng=np.random.default_rng(1), batch=5, client=client)
-
-        worker = threading.Thread(target=run)
-        worker.start()
-        time.sleep(1.5)  # 40 tasks of about 0.1 s each are under way
-        running = worker.is_alive()
-        os.kill(victim, signal.SIGKILL)
-        worker.join(timeout=300)
-        assert running, "the run ended before the kill: make it longer"
-        assert not worker.is_alive()
-    spread = found["result"]
-    assert len(spread.records) == 200  # type: ignore[attr-defined]
-    for a, b in zip(spread.records, serial.records):  # type: ignore[attr-defined]
+    spread = _with_one_worker_killed(  # 40 tasks of about 0.1 s each, under way after 1.5 s
+        lambda client: fmu_monte_carlo(system, gains, paths, step=0.01, delta=delta, rng=np.random.default_rng(1),
+                                       batch=5, client=client), after=1.5)
+    assert len(spread.records) == 200
+    for a, b in zip(spread.records, serial.records):
         np.testing.assert_array_equal(a.x, b.x)
