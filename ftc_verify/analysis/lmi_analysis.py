@@ -14,7 +14,9 @@ Lyapunov matrices), where no certificate can pass. So :func:`hinf_gamma` first
 minimises :math:`g = \gamma^2`, then re-solves at :math:`\gamma_1 = \gamma^*(1+\rho)`
 for :math:`\rho` in :data:`GAMMA_LADDER`, maximising a common margin :math:`t` with
 :math:`M_s \preceq -t I`, :math:`P_s \succeq t I`, and reports the first
-:math:`\gamma_1` whose certificate passes.
+:math:`\gamma_1` whose certificate passes -- after :data:`REFINE_STEPS` geometric
+bisections of :math:`\rho` between that step and the one before it when the one before
+failed, so that a coarse ladder does not cost up to a factor 10 in :math:`\rho`.
 
 Scaling: before any LMI is built the loop is balanced by one diagonal similarity
 :math:`x = D\tilde x` common to every joint mode (:func:`balancing_scale`: LAPACK's
@@ -57,6 +59,8 @@ __all__ = ["GAMMA_LADDER", "LMIResult", "mes_lmi", "hinf_gamma", "decision_size"
 LMI_BYTES_PER_NONZERO = 1600
 #: Relative increases of gamma tried, in order, when re-solving for a certificate.
 GAMMA_LADDER = (1e-5, 1e-4, 1e-3, 1e-2, 5e-2, 0.2, 1.0)
+#: Geometric bisections between the last failing and the first certifying ladder step.
+REFINE_STEPS = 3
 
 
 @dataclass(frozen=True, eq=False)
@@ -279,24 +283,42 @@ def _hinf_gamma(target: ClosedLoop, robust: bool, solver: str | None) -> LMIResu
         if not out.solved or g.value is None or not math.isfinite(float(g.value)):
             continue
         gamma_star = math.sqrt(max(float(g.value), 0.0))
-        for rho in GAMMA_LADDER:
+
+        def attempt(rho: float) -> tuple[float, SolveOutcome, Any, Any, Any] | None:
+            """Step 2 at ``gamma_star (1 + rho)``: ``(gamma1, outcome, P, lambda, numpy check)``."""
             gamma1 = max(gamma_star, 1e-7) * (1.0 + rho)
             g_fixed.value = gamma1 ** 2
             out2 = solve(step2, name)
             attempts.append(out2)
             if not (out2.solved and _has_values(P)):
-                continue
+                return None
             Pv, lv = _values(P, lam)
-            cert = check_certificate(target, condition, Pv, lv, gamma1 ** 2)
-            spent = sum(a.seconds for a in attempts)
-            status = out2.status if out2.status != "optimal" else out.status
-            if cert.ok:
-                note = f"minimum {gamma_star:.6g} from step 1; certified at {gamma1:.6g} (+{rho:g} relative)"
+            return gamma1, out2, Pv, lv, check_certificate(target, condition, Pv, lv, gamma1 ** 2)
+
+        failed = 0.0  # the largest rho tried that gave no certificate
+        for rho in GAMMA_LADDER:
+            found = attempt(rho)
+            if found is not None and found[4].ok:
+                for _ in range(REFINE_STEPS if failed > 0 else 0):  # bisect (geometrically) towards gamma_star
+                    mid = math.sqrt(failed * rho)
+                    closer = attempt(mid)
+                    if closer is not None and closer[4].ok:
+                        rho, found = mid, closer
+                    else:
+                        failed = mid
+                gamma1, out2, Pv, lv, cert = found
+                status = out2.status if out2.status != "optimal" else out.status
+                note = f"minimum {gamma_star:.6g} from step 1; certified at {gamma1:.6g} (+{rho:.3g} relative)"
                 if status != "optimal":
                     note += f"; solver status {status}, accepted only because the certificate passed"
-                return LMIResult(condition, "certified", gamma1, name, status, t_build, spent, cert, Pv, lv, note, tuple(attempts))
-            if best is None:
-                best = LMIResult(condition, "candidate", gamma_star, name, status, t_build, spent, cert, Pv, lv,
+                return LMIResult(condition, "certified", gamma1, name, status, t_build,
+                                 sum(a.seconds for a in attempts), cert, Pv, lv, note, tuple(attempts))
+            failed = rho
+            if found is not None and best is None:
+                gamma1, out2, Pv, lv, cert = found
+                status = out2.status if out2.status != "optimal" else out.status
+                best = LMIResult(condition, "candidate", gamma_star, name, status, t_build,
+                                 sum(a.seconds for a in attempts), cert, Pv, lv,
                                  f"no certificate up to gamma {gamma1:.6g}: {cert.reason}", tuple(attempts))
     if best is not None:
         best = dataclasses.replace(best, solve_seconds=sum(a.seconds for a in attempts), attempts=tuple(attempts))
