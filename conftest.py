@@ -10,6 +10,10 @@ here, at the root, so that ``--hypothesis-profile`` works for ``tests/`` and
 * ``thorough``: 200 randomized examples per property (tens of minutes); use it to hunt.
 
 Choose with ``--hypothesis-profile thorough`` or ``FTC_HYPOTHESIS_PROFILE=thorough``.
+
+Scheduling (``pytest -n 2``): tests marked ``slow(seconds)`` run first, longest first, and
+pytest-xdist hands each worker one test at a time (``--maxschedchunk 1``), so the two
+workers share the long tests instead of one of them finishing a tail of them alone.
 """
 
 import os
@@ -23,3 +27,19 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 from ftc_verify.testing.profiles import load_profile  # noqa: E402
 
 load_profile()  # "ci" unless $FTC_HYPOTHESIS_PROFILE names another
+
+
+def pytest_configure(config) -> None:
+    config.addinivalue_line("markers", "slow(seconds): a long test (seconds measured on 2 busy cores); runs first")
+    if getattr(config.option, "maxschedchunk", "no xdist") is None:  # xdist's default: chunks of ~1/4 per worker
+        config.option.maxschedchunk = 1
+
+
+def pytest_collection_modifyitems(config, items) -> None:
+    """Longest first (the ``slow`` marks), the rest in collection order (a stable sort)."""
+
+    def seconds(item) -> float:
+        mark = item.get_closest_marker("slow")
+        return float(mark.args[0]) if mark is not None else 0.0
+
+    items.sort(key=seconds, reverse=True)

@@ -262,6 +262,7 @@ def test_theorem_3_1_on_a_box_is_sufficient(drawn: DrawnLoop, fractions: Matrix)
 # --------------------------------------------------------------------------- (b) similarity
 
 
+@pytest.mark.slow(16)  # seconds measured on 2 busy cores: scheduled first
 @given(drawn=stable_loops(margin=MARGIN, **small()), data=st.data())
 def test_similarity_invariance(drawn: DrawnLoop, data: st.DataObject) -> None:
     r"""A state change :math:`\tilde x = T x` (cond :math:`T \le 10`) maps
@@ -286,6 +287,7 @@ def test_similarity_invariance(drawn: DrawnLoop, data: st.DataObject) -> None:
 # --------------------------------------------------------------------------- (c) relabelling
 
 
+@pytest.mark.slow(7)  # seconds measured on 2 busy cores: scheduled first
 @given(drawn=stable_loops(margin=MARGIN, **small(), chains={"fault_during_delay": None}), data=st.data())
 def test_mode_relabelling_invariance(drawn: DrawnLoop, data: st.DataObject) -> None:
     r"""Renaming the modes by a permutation :math:`\pi` (plant tables, rows and columns of
@@ -311,6 +313,7 @@ def test_mode_relabelling_invariance(drawn: DrawnLoop, data: st.DataObject) -> N
 # --------------------------------------------------------------------------- (d) scaling D
 
 
+@pytest.mark.slow(8)  # seconds measured on 2 busy cores: scheduled first
 @given(drawn=stable_loops(margin=MARGIN, **small(uncertain=False)), c=st.floats(0.2, 5.0))
 def test_disturbance_scaling_scales_gamma(drawn: DrawnLoop, c: float) -> None:
     r""":math:`D_i \to c D_i` (:math:`c > 0`) scales the disturbance-to-output map by
@@ -325,6 +328,7 @@ def test_disturbance_scaling_scales_gamma(drawn: DrawnLoop, c: float) -> None:
 # --------------------------------------------------------------------------- (e) robust vs nominal
 
 
+@pytest.mark.slow(11)  # seconds measured on 2 busy cores: scheduled first
 @given(drawn=stable_loops(margin=MARGIN, **small(uncertain=True)), fractions=matrices(3, 3, bound=1.0).map(np.abs))
 def test_robust_gamma_at_least_nominal(drawn: DrawnLoop, fractions: Matrix) -> None:
     r"""Lemma 4.1's block contains Theorem 3.2's block plus :math:`\lambda F^TF \succeq 0`
@@ -340,6 +344,7 @@ def test_robust_gamma_at_least_nominal(drawn: DrawnLoop, fractions: Matrix) -> N
         assert_negative_definite(hinf_blocks(drawn, robust, b, robust=True), f"Lemma 4.1 at beta={b.tolist()}")
 
 
+@pytest.mark.slow(10)  # seconds measured on 2 busy cores: scheduled first
 @given(drawn=stable_loops(margin=MARGIN, **small(uncertain=True), zero_weights=True))
 def test_robust_gamma_equals_nominal_for_zero_weights(drawn: DrawnLoop) -> None:
     r"""With :math:`A_1 = A_2 = B_1 = B_2 = 0` the uncertainty channels vanish
@@ -367,6 +372,7 @@ def unit_norm(M: Matrix) -> Matrix:
     return M / norm if norm > 0.0 else M
 
 
+@pytest.mark.slow(9)  # seconds measured on 2 busy cores: scheduled first
 @given(drawn=stable_loops(margin=MARGIN, **small(uncertain=True)), data=st.data())
 def test_robust_certificate_covers_every_fixed_delta(drawn: DrawnLoop, data: st.DataObject) -> None:
     r"""Lemma 4.1 bounds every admissible :math:`\Delta` (time-varying, so in particular
@@ -396,6 +402,7 @@ def test_robust_certificate_covers_every_fixed_delta(drawn: DrawnLoop, data: st.
     shrink=matrices(3, 3, bound=0.9).map(np.abs),
     grow=matrices(3, 3, bound=2.0).map(np.abs),
 )
+@pytest.mark.slow(7)  # seconds measured on 2 busy cores: scheduled first
 def test_wider_beta_box_never_lowers_gamma(drawn: DrawnLoop, shrink: Matrix, grow: Matrix) -> None:
     r"""The LMIs hold on a box iff they hold at its rate ends; a wider box
     :math:`[\beta^-(1-s), \beta^+ + w] \supseteq [\beta^-, \beta^+]` imposes a superset of

@@ -11,6 +11,7 @@ well conditioned; the energies are exact (moment equations), so the bound is che
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import assume, event, given, note, settings
 from hypothesis import strategies as st
 
@@ -27,6 +28,7 @@ from ftc_verify.verification.moments import exact_energy
 from .replay import replay_on_failure
 
 
+@pytest.mark.slow(58)  # seconds measured on 2 busy cores: scheduled first
 @settings(max_examples=3, deadline=None)
 @given(system=systems(n=2, m=2, nu=(1, 2), uncertain=None, measured_outputs=(1, 2)),
        method=st.sampled_from(["observer", "vk", "ccl"]))

@@ -10,6 +10,7 @@ tolerances, so comparisons of two certified gammas allow 1e-3 relative.
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import assume, event, given, note, settings
 from hypothesis import strategies as st
 
@@ -60,6 +61,7 @@ def test_reported_designs_pass_independent_verification(system: FTCSystem, metho
             assert max(np.linalg.norm(K, 2) for K in res.gains) <= k_max * (1 + 1e-6)
 
 
+@pytest.mark.slow(6)  # seconds measured on 2 busy cores: scheduled first
 @settings(max_examples=4)
 @given(system=systems(n=(2, 3), m=2, uncertain=False))
 def test_iterative_from_common_never_ends_above(system: FTCSystem) -> None:
@@ -110,6 +112,7 @@ def test_full_info_relaxes_every_fdi_only_design(system: FTCSystem, method: str)
             assert ev[-1] < 1e-9 * max(1.0, float(np.max(np.abs(ev)))), (spec.label, ev[-1])
 
 
+@pytest.mark.slow(9)  # seconds measured on 2 busy cores: scheduled first
 @settings(max_examples=4)
 @given(system=systems(n=(1, 2), m=3, uncertain=False),
        perm=st.permutations([0, 1, 2]))
@@ -154,6 +157,7 @@ def textbook_lqr(system: FTCSystem) -> list[np.ndarray] | None:
     return gains
 
 
+@pytest.mark.slow(32)  # seconds measured on 2 busy cores: scheduled first
 @settings(max_examples=4)
 @given(system=systems(n=(2, 3), m=2, uncertain=None))
 def test_iterative_never_loses_to_textbook_lqr(system: FTCSystem) -> None:

@@ -37,6 +37,7 @@ def example_tests(module: ModuleType) -> list[Callable[[], None]]:
     return [f for name, f in vars(module).items() if name.startswith("test_") and callable(f)]
 
 
+@pytest.mark.slow(5)  # seconds measured on 2 busy cores: scheduled first
 def test_user_example_runs_without_the_readme(monkeypatch: pytest.MonkeyPatch) -> None:
     """Every property of the example passes; no README file is opened meanwhile."""
     real_open = builtins.open

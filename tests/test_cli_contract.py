@@ -138,6 +138,7 @@ def test_divergence_is_a_result_on_both_backends(tmp_path: Path) -> None:
     assert "5 of 5 paths diverged" in (tmp_path / "rep" / "report.md").read_text()
 
 
+@pytest.mark.slow(5)  # seconds measured on 2 busy cores: scheduled first
 def test_stale_files_are_replaced_by_the_new_run(tmp_path: Path) -> None:
     """A failing run into the folder of a passing one leaves only its own files."""
     out = tmp_path / "rep"

@@ -82,6 +82,7 @@ def _without_timings(value: object) -> object:
     return value
 
 
+@pytest.mark.slow(13)  # seconds measured on 2 busy cores: scheduled first
 def test_verify_serial_two_workers_and_scheduler_give_identical_reports(tmp_path: Path) -> None:
     """The FMU Monte Carlo of ``verify`` (random Delta per segment, so every batch needs
     its generator state) serially, on 2 local workers and on an existing scheduler:
@@ -109,6 +110,7 @@ def test_simulate_fmu_backend_on_two_workers_equals_serial() -> None:
     assert a["paths"] == 60 and a == b
 
 
+@pytest.mark.slow(12)  # seconds measured on 2 busy cores: scheduled first
 def test_cluster_misuse_is_one_error() -> None:
     out = _cli("--backend", "fmu", "--workers", "2", "--fmu-log")
     assert out.returncode == 2 and "--fmu-log" in out.stderr and out.stderr.count("\n") == 1
@@ -136,6 +138,7 @@ def _with_one_worker_killed(run: Callable[[Any], Any], after: float) -> Any:
     return found["result"]
 
 
+@pytest.mark.slow(5)  # seconds measured on 2 busy cores: scheduled first
 def test_a_lost_worker_costs_a_retry_not_the_run() -> None:
     """One of two workers is killed while the batches run; its tasks are rescheduled, the
     nanny restarts it, and the numbers equal a serial run."""
@@ -148,6 +151,7 @@ def test_a_lost_worker_costs_a_retry_not_the_run() -> None:
     np.testing.assert_array_equal(spread.y_norm, serial.y_norm)
 
 
+@pytest.mark.slow(9)  # seconds measured on 2 busy cores: scheduled first
 def test_a_lost_fmu_worker_costs_a_retry_not_the_run() -> None:
     """The FMU backend: one of two workers is killed mid-run; its batches are retried on
     the other worker or on the nanny's replacement (which gets the FMU from the plugin the

@@ -119,6 +119,7 @@ def test_bad_arguments() -> None:
         worst_case_disturbance(PAPER_LOOP, beta=PAPER.chain.midpoint(), pieces=0)
 
 
+@pytest.mark.slow(25)  # seconds measured on 2 busy cores: scheduled first
 def test_exact_energy_against_100k_path_monte_carlo() -> None:
     """Paper example, paper's gains, Delta = 0, beta fixed at the midpoint, horizon 15.
 

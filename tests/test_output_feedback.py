@@ -68,6 +68,7 @@ def test_augmented_plant_reproduces_the_dynamic_closed_loop() -> None:
             np.testing.assert_allclose(a.F, b.F, atol=1e-12)
 
 
+@pytest.mark.slow(7)  # seconds measured on 2 busy cores: scheduled first
 def test_theorem_5_1_conditions_hold_for_a_certified_controller(certified_observer) -> None:
     """Necessity, checked with numbers: the robust certificate ``(P, lambda, gamma)`` of a
     certified controller satisfies (22) with ``P, lambda`` and (23) with ``X = P^-1``,
@@ -115,6 +116,7 @@ def test_ccl_reports_its_stopping_reason() -> None:
     assert blocks is None and len(history) == 1 and ("iteration limit 1" in msg or "failed" in msg)
 
 
+@pytest.mark.slow(28)  # seconds measured on 2 busy cores: scheduled first
 def test_three_methods_on_the_two_output_plant() -> None:
     system = paper_two_outputs()
     found = {m: synthesize_output_feedback(system, method=m, k_max=30.0, solver="clarabel")
@@ -136,6 +138,7 @@ def _cli(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-m", "ftc_verify", *args], capture_output=True, text=True, timeout=600)
 
 
+@pytest.mark.slow(11)  # seconds measured on 2 busy cores: scheduled first
 def test_cli_writes_a_dynamic_controller_and_refuses_bad_methods(tmp_path: Path) -> None:
     path = tmp_path / "two.toml"
     save_system(paper_two_outputs(), path)

@@ -71,6 +71,7 @@ def test_pbh_finds_the_uncontrollable_unstable_eigenvalue() -> None:
     assert all(r["stabilisable"] for r in paper)
 
 
+@pytest.mark.slow(5)  # seconds measured on 2 busy cores: scheduled first
 def test_iterative_beats_the_textbook_lqr_where_two_step_fails() -> None:
     system = nearly_parallel()
     base = hinf_gamma(state_feedback_loop(system, textbook(system)), robust=True, solver="clarabel")

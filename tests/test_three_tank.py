@@ -147,6 +147,7 @@ def test_directional_derivatives_equal_finite_differences(three_tank_fmu: Path, 
         fmu.freeInstance()
 
 
+@pytest.mark.slow(27)  # seconds measured on 2 busy cores: scheduled first
 def test_readme_recipe_passes_with_reduced_paths(tmp_path: Path) -> None:
     """build-fmu -> linearize --trim -> synthesize -> verify --plant --measure incremental,
     as in the README, with 10 paths of 300 s (the README: 200 paths of 600 s). The Monte
