@@ -152,10 +152,12 @@ def test_a_lost_worker_costs_a_retry_not_the_run() -> None:
 
 
 @pytest.mark.slow(9)  # seconds measured on 2 busy cores: scheduled first
-def test_a_lost_fmu_worker_costs_a_retry_not_the_run() -> None:
+def test_a_lost_fmu_worker_costs_a_retry_not_the_run(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """The FMU backend: one of two workers is killed mid-run; its batches are retried on
     the other worker or on the nanny's replacement (which gets the FMU from the plugin the
-    scheduler keeps), and the records equal a serial run's."""
+    scheduler keeps), and the records equal a serial run's. The killed worker cannot remove
+    its FMU folders: the workers' temporary folder is this test's."""
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
     system, gains = load_system(PAPER), load_controller(GAINS)
     paths = sample_paths(system.chain, 20.0, 200, np.random.default_rng(5))
     delta = DeltaSchedule("random")
