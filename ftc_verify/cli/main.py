@@ -461,12 +461,12 @@ def _check_cluster(args: argparse.Namespace) -> None:
         raise _bad("--fmu-log: the FMU's messages stay on the Dask workers; leave out --workers/--scheduler to see them")
 
 
-def _cluster_options(parser: argparse.ArgumentParser, scope: str = "") -> None:
+def _cluster_options(parser: argparse.ArgumentParser) -> None:
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--workers", type=_positive_int, default=None,
-                       help=f"{scope}run the Monte Carlo batches on a local Dask cluster of N worker processes")
+                       help="run the Monte Carlo batches on a local Dask cluster of N worker processes")
     where.add_argument("--scheduler", default=None,
-                       help=f"{scope}run the Monte Carlo batches on the Dask cluster at this address (tcp://host:port)")
+                       help="run the Monte Carlo batches on the Dask cluster at this address (tcp://host:port)")
 
 
 def _plant_options(parser: argparse.ArgumentParser) -> None:

@@ -143,8 +143,9 @@ def simulate_streaming(
         futures = [client.submit(_energies_batch, system, controller, plist[b:b + batch], step, disturbance, schedule,
                                  g, retries=TASK_RETRIES, pure=False)
                    for g, b in zip(batch_generators(system, plist, schedule, gen, batch), starts)]
-        for fut in as_completed(futures):
-            report(len(fut.result()[0]))
+        size = {f.key: len(plist[b:b + batch]) for f, b in zip(futures, starts)}
+        for fut in as_completed(futures):  # progress as batches finish; the results are gathered once, below
+            report(size[fut.key])
         parts = client.gather(futures)
     Ey = np.concatenate([p[0] for p in parts])
     Ew = np.concatenate([p[1] for p in parts])
