@@ -56,6 +56,7 @@ __all__ = [
     "SOURCE_FILES",
     "FMUDims",
     "source_dir",
+    "build_lock",
     "fmi2_include_dir",
     "cache_dir",
     "build_binary",

@@ -396,7 +396,8 @@ def build_ode_binary(spec: OdeFmuSpec, force: bool = False) -> Path:
     compile time still matches (unless ``force``). Compiling happens in a temporary folder
     (gcc ``-std=c99 -O2 -fPIC -shared -fvisibility=hidden``, ``-lm``), then the binary is
     instantiated once (:func:`_probe`) and renamed into place, all under
-    :func:`~ftc_verify.plants.linear_jump.build_lock`, so concurrent builds compile once. Raises :class:`FMUError` with gcc's command line and stderr when compiling fails,
+    :func:`~ftc_verify.plants.linear_jump.build_lock`, so concurrent builds compile once.
+    Raises :class:`FMUError` with gcc's command line and stderr when compiling fails,
     or with the glue's message when the model file does not match the spec.
     """
     if not isinstance(spec, OdeFmuSpec):
