@@ -218,8 +218,8 @@ def test_stable_without_certificate_exits_3(monkeypatch: pytest.MonkeyPatch, cap
 
     real = analysis.mes_lmi
 
-    def nothing_found(loop: Any, *, solver: str | None = None) -> Any:
-        return dataclasses.replace(real(loop, solver=solver), outcome="infeasible", certificate=None)
+    def nothing_found(loop: Any, *, solver: str | None = None, known: Any = ()) -> Any:
+        return dataclasses.replace(real(loop, solver=solver, known=known), outcome="infeasible", certificate=None)
 
     monkeypatch.setattr(analysis, "mes_lmi", nothing_found)
     assert main(["analyze", PAPER, "--gains", GAINS]) == 3

@@ -47,8 +47,9 @@ import numpy as np
 from ..limits import check_memory
 from ..model.system import Matrix
 from .closedloop import ClosedLoop
+from .conic import Rows, affine_bmat, scalar_variable, svec_index, sym_variable
 from .lmi import Certificate, block_specs, check_certificate, lyapunov_block
-from .solvers import SETTINGS, SolveOutcome, choose_solver, second_solver, solve
+from .solvers import SETTINGS, SolveOutcome, choose_solver, second_solver, solve_conic
 
 __all__ = ["GAMMA_LADDER", "LMIResult", "mes_lmi", "hinf_gamma", "decision_size", "balancing_scale",
            "lmi_memory_estimate", "check_lmi_memory", "LMI_BYTES_PER_NONZERO"]
@@ -160,39 +161,106 @@ def decision_size(loop: ClosedLoop, *, robust: bool) -> int:
     return count
 
 
-def _variables(loop: ClosedLoop, robust: bool) -> tuple[list[Any], list[list[Any]] | None]:
-    import cvxpy as cp
+@dataclass(frozen=True)
+class _Layout:
+    """Where each decision variable of the analysis programs lives in ``x``:
+    ``svec(P_s)`` for every joint mode, the multipliers ``lambda`` (robust only),
+    then ``g`` and ``t``."""
 
-    P = [cp.Variable((loop.n, loop.n), symmetric=True, name=f"P{s}") for s in range(len(loop.A))]
-    lam = [[cp.Variable(nonneg=True) for _ in chans] for chans in loop.channels] if robust else None
-    return P, lam
+    n: int
+    modes: int
+    channels: tuple[int, ...]  # multipliers per joint mode (all 0 when not robust)
+
+    @property
+    def per_p(self) -> int:
+        return self.n * (self.n + 1) // 2
+
+    @property
+    def lam_start(self) -> tuple[int, ...]:
+        first = self.modes * self.per_p
+        return tuple(first + sum(self.channels[:s]) for s in range(self.modes))
+
+    @property
+    def g(self) -> int:
+        return self.modes * self.per_p + sum(self.channels)
+
+    @property
+    def t(self) -> int:
+        return self.g + 1
+
+    @property
+    def K(self) -> int:
+        return self.g + 2
+
+    def values(self, x: Matrix, robust: bool) -> tuple[tuple[Matrix, ...], tuple[tuple[float, ...], ...] | None]:
+        """``(P, lambda)`` at the point ``x`` (``P`` rebuilt from its ``svec``)."""
+        r, c, w = svec_index(self.n)
+        P = []
+        for s in range(self.modes):
+            M = np.zeros((self.n, self.n))
+            M[r, c] = x[s * self.per_p:(s + 1) * self.per_p] / w
+            M[c, r] = M[r, c]
+            P.append(M)
+        lam = None
+        if robust:
+            lam = tuple(tuple(float(v) for v in x[a:a + k]) for a, k in zip(self.lam_start, self.channels))
+        return tuple(P), lam
 
 
-def _blocks_neg(loop: ClosedLoop, P: Sequence[Any], lam: Sequence[Any] | None, g: Any, margin: Any) -> list[Any]:
-    import cvxpy as cp
+def _layout(loop: ClosedLoop, robust: bool) -> _Layout:
+    return _Layout(loop.n, len(loop.A), tuple(len(c) if robust else 0 for c in loop.channels))
 
-    cons = []
+
+def _block_rows(loop: ClosedLoop, lay: _Layout, *, with_g: bool, margin: float | None) -> Rows:
+    """The rows of every block of :func:`~ftc_verify.analysis.lmi.block_specs`:
+    ``block(P, lambda, g) + t I <= 0`` (``margin`` a number instead of the variable
+    ``t`` when given; ``with_g=False`` gives Theorem 3.1's blocks). Each block is built
+    on its own variables only (``P_s``, the ``P`` it couples to, its multipliers, ``g``,
+    ``t``) and placed into the global columns."""
+    rows = Rows(lay.K)
+    robust = any(lay.channels)
     for spec in block_specs(loop):
-        M = lyapunov_block(loop, spec, P, None if lam is None else lam[spec.s], g, cp.bmat)
-        M = 0.5 * (M + M.T)
-        cons.append(M << -margin * np.eye(M.shape[0]))
-    return cons
+        coupled = [spec.s] + [t for t, q in enumerate(spec.q_row) if q != 0.0 and t != spec.s]
+        columns = np.concatenate([np.arange(t * lay.per_p, (t + 1) * lay.per_p) for t in coupled]
+                                 + [np.arange(lay.lam_start[spec.s], lay.lam_start[spec.s] + lay.channels[spec.s]),
+                                    [lay.g, lay.t]]).astype(int)
+        k_loc = len(columns)
+        P: list[Any] = [None] * lay.modes
+        for pos, t in enumerate(coupled):
+            P[t] = sym_variable(lay.n, pos * lay.per_p, k_loc)
+        base = len(coupled) * lay.per_p
+        lam = [scalar_variable(base + k, k_loc) for k in range(lay.channels[spec.s])] if robust else None
+        g = scalar_variable(k_loc - 2, k_loc) if with_g else None
+        M = lyapunov_block(loop, spec, P, lam, g, affine_bmat)
+        eye = np.eye(M.shape[0])
+        M = M + (margin * eye if margin is not None else scalar_variable(k_loc - 1, k_loc) * eye)
+        rows.lmi(M, columns)
+    return rows
 
 
-def _values(P: Sequence[Any], lam: Sequence[Sequence[Any]] | None) -> tuple[tuple[Matrix, ...], tuple[tuple[float, ...], ...] | None]:
-    Pv = tuple(np.array(p.value, dtype=float) for p in P)
-    lv = None if lam is None else tuple(tuple(float(v.value) for v in row) for row in lam)
-    return Pv, lv
+def _p_rows(rows: Rows, lay: _Layout, *, low: float | None, high: bool) -> None:
+    """``P_s >= low I`` (``t I`` when ``low`` is None) and, with ``high``, ``P_s <= t I``."""
+    for s in range(lay.modes):
+        P = sym_variable(lay.n, 0, lay.per_p + 1)
+        eye = np.eye(lay.n)
+        t = scalar_variable(lay.per_p, lay.per_p + 1)
+        columns = np.concatenate([np.arange(s * lay.per_p, (s + 1) * lay.per_p), [lay.t]]).astype(int)
+        rows.lmi(-P + (low * eye if low is not None else t * eye), columns)
+        if high:
+            rows.lmi(P - t * eye, columns)
+
+
+def _nonneg(rows: Rows, lay: _Layout, index: Sequence[int], sign: float = -1.0, bound: float = 0.0) -> None:
+    """``sign * x_k <= bound`` for each ``k`` in ``index`` (default ``x_k >= 0``)."""
+    A = np.zeros((len(index), lay.K))
+    A[np.arange(len(index)), list(index)] = sign
+    rows.nonneg(A, np.full(len(index), bound))
 
 
 def _solver_order(loop: ClosedLoop, solver: str | None, robust: bool) -> list[str]:
     first = choose_solver(solver, decision_size(loop, robust=robust))
     second = second_solver(first)
     return [first] + ([second] if second else [])
-
-
-def _has_values(P: Sequence[Any]) -> bool:
-    return all(p.value is not None and np.all(np.isfinite(p.value)) for p in P)
 
 
 def _conclude(condition: str, attempts: list[SolveOutcome], best: LMIResult | None, t_build: float) -> LMIResult:
@@ -211,34 +279,48 @@ def _conclude(condition: str, attempts: list[SolveOutcome], best: LMIResult | No
     return LMIResult(condition, "error", None, last.solver, last.status, t_build, seconds, None, message=msg, attempts=tuple(attempts))
 
 
-def mes_lmi(loop: ClosedLoop, *, solver: str | None = None) -> LMIResult:
-    """Theorem 3.1 (eq. (4)) on the nominal loop over the ``beta`` box, certified, on
-    the balanced loop (module docstring)."""
+def mes_lmi(loop: ClosedLoop, *, solver: str | None = None, known: Sequence[LMIResult] = ()) -> LMIResult:
+    r"""Theorem 3.1 (eq. (4)) on the nominal loop over the ``beta`` box, certified, on
+    the balanced loop (module docstring).
+
+    ``known``: certified :math:`H_\infty` results of the same loop (Theorem 3.2, Lemma
+    4.1). Their :math:`P` is tried first, without a solve: :math:`\Pi_s` is the leading
+    principal block of Theorem 3.2's block, and :math:`\Pi_s + \sum_k \lambda_k F_k^T
+    F_k` (with :math:`\lambda_k \ge 0`) that of Lemma 4.1's, so by eigenvalue
+    interlacing :math:`\Pi_s` is negative definite with at least the same margin. The
+    numpy check of Theorem 3.1 is still run on that :math:`P`; only if it fails (or no
+    result is certified) is the LMI solved.
+    """
+    for result in known:
+        if result.certified and result.P is not None:
+            cert = check_certificate(loop.nominal(), "theorem-3.1", result.P, None, None)
+            if cert.ok:
+                note = f"certificate passed with the P of the certified {result.condition} answer (no solve)"
+                return LMIResult("theorem-3.1", "certified", None, result.solver, result.solver_status, 0.0, 0.0,
+                                 cert, result.P, message=note, scale=result.scale)
     _check_size(loop, False, "Theorem 3.1")
     balanced, d = _balanced(loop.nominal())
     return _unscale(_mes_lmi(balanced, solver), d)
 
 
 def _mes_lmi(nominal: ClosedLoop, solver: str | None) -> LMIResult:
-    import cvxpy as cp
-
     condition = "theorem-3.1"
     t0 = time.perf_counter()
-    P, _ = _variables(nominal, robust=False)
-    t = cp.Variable()
-    eye = np.eye(nominal.n)
-    cons = _blocks_neg(nominal, P, None, None, 1.0)
-    cons += [p >> eye for p in P] + [p << t * eye for p in P]
-    problem = cp.Problem(cp.Minimize(t), cons)
+    lay = _layout(nominal, robust=False)
+    rows = _block_rows(nominal, lay, with_g=False, margin=1.0)
+    _p_rows(rows, lay, low=1.0, high=True)
+    objective = np.zeros(lay.K)
+    objective[lay.t] = 1.0
+    problem = rows.problem(objective).fix(lay.g, 0.0)
     t_build = time.perf_counter() - t0
     attempts: list[SolveOutcome] = []
     best: LMIResult | None = None
     for name in _solver_order(nominal, solver, robust=False):
-        out = solve(problem, name)
+        out, x = solve_conic(problem, name)
         attempts.append(out)
-        if not (out.solved and _has_values(P)):
+        if x is None:
             continue
-        Pv, _ = _values(P, None)
+        Pv, _ = lay.values(x, robust=False)
         cert = check_certificate(nominal, condition, Pv, None, None)
         outcome = "certified" if cert.ok else "candidate"
         note = "" if out.status == "optimal" else f"solver status {out.status}; "
@@ -260,39 +342,37 @@ def hinf_gamma(loop: ClosedLoop, *, robust: bool, solver: str | None = None) -> 
 
 
 def _hinf_gamma(target: ClosedLoop, robust: bool, solver: str | None) -> LMIResult:
-    import cvxpy as cp
-
     condition = "lemma-4.1" if robust else "theorem-3.2"
     t0 = time.perf_counter()
-    P, lam = _variables(target, robust)
-    g = cp.Variable(nonneg=True)
-    step1 = cp.Problem(cp.Minimize(g), _blocks_neg(target, P, lam, g, 0.0) + [p >> 0 for p in P])
-    g_fixed = cp.Parameter(nonneg=True)
-    t = cp.Variable()
-    eye = np.eye(target.n)
-    step2 = cp.Problem(
-        cp.Maximize(t),
-        _blocks_neg(target, P, lam, g_fixed, t) + [p >> t * eye for p in P] + [t <= 1.0],
-    )
+    lay = _layout(target, robust)
+    rows = _block_rows(target, lay, with_g=True, margin=None)
+    _p_rows(rows, lay, low=None, high=False)
+    if robust:
+        _nonneg(rows, lay, range(lay.lam_start[0], lay.g))
+    minimise_g = np.zeros(lay.K)
+    minimise_g[lay.g] = 1.0
+    g_row, t_row = np.zeros((1, lay.K)), np.zeros((1, lay.K))
+    g_row[0, lay.g], t_row[0, lay.t] = -1.0, 1.0
+    step1 = rows.extended(g_row, [0.0]).problem(minimise_g).fix(lay.t, 0.0)  # min g: blocks <= 0, P >= 0
+    step2 = rows.extended(t_row, [1.0]).problem(-np.eye(lay.K)[lay.t])  # max t <= 1 at fixed g
     t_build = time.perf_counter() - t0
     attempts: list[SolveOutcome] = []
     best: LMIResult | None = None
     for name in _solver_order(target, solver, robust):
-        out = solve(step1, name)
+        out, x = solve_conic(step1, name)
         attempts.append(out)
-        if not out.solved or g.value is None or not math.isfinite(float(g.value)):
+        if x is None:
             continue
-        gamma_star = math.sqrt(max(float(g.value), 0.0))
+        gamma_star = math.sqrt(max(float(x[lay.g]), 0.0))
 
         def attempt(rho: float) -> tuple[float, SolveOutcome, Any, Any, Any] | None:
             """Step 2 at ``gamma_star (1 + rho)``: ``(gamma1, outcome, P, lambda, numpy check)``."""
             gamma1 = max(gamma_star, 1e-7) * (1.0 + rho)
-            g_fixed.value = gamma1 ** 2
-            out2 = solve(step2, name)
+            out2, x2 = solve_conic(step2.fix(lay.g, gamma1 ** 2), name)
             attempts.append(out2)
-            if not (out2.solved and _has_values(P)):
+            if x2 is None:
                 return None
-            Pv, lv = _values(P, lam)
+            Pv, lv = lay.values(x2, robust)
             return gamma1, out2, Pv, lv, check_certificate(target, condition, Pv, lv, gamma1 ** 2)
 
         failed = 0.0  # the largest rho tried that gave no certificate

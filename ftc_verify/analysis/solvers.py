@@ -34,7 +34,11 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from ..errors import ValidationError
+from ..model.system import Matrix
+from .conic import ConicProblem, solve_clarabel, to_cvxpy
 
 __all__ = [
     "SOLVERS",
@@ -43,6 +47,7 @@ __all__ = [
     "choose_solver",
     "second_solver",
     "solve",
+    "solve_conic",
     "ISOLATED",
 ]
 
@@ -78,10 +83,19 @@ class SolveOutcome:
         return self.status in ("infeasible", "infeasible_inaccurate")
 
 
-def _installed() -> set[str]:
-    import cvxpy as cp
+#: The Python module each solver needs (the ones other than Clarabel also need cvxpy).
+_MODULES = {"clarabel": "clarabel", "sdpa": "sdpap", "scs": "scs"}
 
-    return {name for name, cvx in SOLVERS.items() if cvx in cp.installed_solvers()}
+
+def _installed() -> set[str]:
+    """Solvers importable here, found without importing them (or cvxpy)."""
+    import importlib.util
+
+    def found(module: str) -> bool:
+        return importlib.util.find_spec(module) is not None
+
+    return {name for name, module in _MODULES.items()
+            if found(module) and (name == "clarabel" or found("cvxpy"))}
 
 
 def choose_solver(requested: str | None, n_scalar: int) -> str:
@@ -175,6 +189,31 @@ def _solve_isolated(problem: Any, solver: str) -> tuple[str, str]:
     for var, val in zip(variables, values):
         var.save_value(val)
     return status, message
+
+
+def solve_conic(problem: ConicProblem, solver: str) -> tuple[SolveOutcome, Matrix | None]:
+    """Solve a :class:`~ftc_verify.analysis.conic.ConicProblem`: Clarabel natively, the
+    other solvers through cvxpy (:func:`~ftc_verify.analysis.conic.to_cvxpy`, and
+    :func:`solve`). Returns the outcome and the point (``None`` unless the solver
+    returned a finite one). Nothing a solver raises escapes; a Rust panic in Clarabel
+    (a ``BaseException``) included."""
+    start = time.perf_counter()
+    x: Matrix | None
+    if solver == "clarabel":
+        try:
+            status, message, x = solve_clarabel(problem, SETTINGS["clarabel"])
+        except (KeyboardInterrupt, SystemExit):
+            raise
+        except BaseException as exc:  # noqa: B036 - pyo3's PanicException is a BaseException
+            status, message, x = "error", f"clarabel raised {type(exc).__name__}: {exc}", None
+        outcome = SolveOutcome(solver, status, time.perf_counter() - start, message)
+    else:
+        cvx_problem, var = to_cvxpy(problem)
+        outcome = solve(cvx_problem, solver)
+        x = None if var.value is None else np.asarray(var.value, dtype=float)
+    if x is not None and not (outcome.solved and np.all(np.isfinite(x))):
+        x = None
+    return outcome, x
 
 
 def solve(problem: Any, solver: str) -> SolveOutcome:
