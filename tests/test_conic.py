@@ -14,7 +14,7 @@ from ftc_verify.analysis.conic import Affine, Rows, affine_bmat, scalar_variable
 from ftc_verify.analysis.lmi import block_specs, lyapunov_block
 from ftc_verify.analysis.lmi_analysis import hinf_gamma, mes_lmi
 from ftc_verify.analysis.solvers import SETTINGS
-from ftc_verify.analysis.stability import abscissa_below, mean_square_stability, spectral_abscissa
+from ftc_verify.analysis.stability import abscissa_below, abscissa_near, mean_square_stability, spectral_abscissa
 from ftc_verify.model.system import FTCSystem
 
 
@@ -113,9 +113,19 @@ def test_shift_test_brackets_the_abscissa(paper_loop):
         assert not abscissa_below(nominal, beta, mu - 1e-6 * (1 + abs(mu)))
 
 
+def test_inverse_iteration_abscissa_equals_dense_eigenvalues(paper_loop):
+    """abscissa_near from a level 5 % off (either side) returns the dense value."""
+    nominal = paper_loop.nominal()
+    for beta in nominal.chain.vertices():
+        mu = spectral_abscissa(nominal, beta)
+        for level in (mu - 0.05 * (1 + abs(mu)), mu + 0.05 * (1 + abs(mu))):
+            assert abscissa_near(nominal, beta, level) == pytest.approx(mu, rel=1e-10, abs=1e-10)
+
+
 def test_pruned_vertex_search_equals_the_exhaustive_one(monkeypatch):
     """Three fault modes, n = 5 (a generator of 135 rows: pruned): same worst vertex and
-    value as with the shift test switched off, with fewer eigenvalue problems."""
+    value (to rounding) as with the shift test switched off, with fewer eigenvalue
+    problems."""
     rng = np.random.default_rng(7)
     n, m = 5, 3
     modes = [{"A": rng.normal(size=(n, n)) / 2 - 1.5 * np.eye(n), "B": rng.normal(size=(n, 1)),
@@ -132,5 +142,5 @@ def test_pruned_vertex_search_equals_the_exhaustive_one(monkeypatch):
     full = mean_square_stability(loop)
     assert full.exact_evaluations == full.vertices_evaluated == 64
     assert pruned.vertices_evaluated == 64 and pruned.exact_evaluations < 64
-    assert pruned.spectral_abscissa == full.spectral_abscissa
+    assert pruned.spectral_abscissa == pytest.approx(full.spectral_abscissa, rel=1e-10)
     assert np.array_equal(pruned.worst_beta, full.worst_beta)

@@ -1,6 +1,9 @@
 """Convex solvers behind the LMIs: choice, settings and a call that never crashes.
 
-* ``clarabel`` (``auto`` picks it at every size): interior point, settings :data:`SETTINGS`.
+* ``clarabel`` (``auto`` picks it at every size): interior point, settings :data:`SETTINGS`;
+  one thread: its default of one per core was 1.4x slower on the Lemma 4.1 programs at
+  n = 8, 3 modes and n = 12, 4 modes on this 2-core machine (same answers), and the test
+  suite runs two processes anyway.
 * ``sdpa`` (``sdpa-python``; selectable, and the second opinion that confirms an
   infeasibility claim): a primal-dual interior-point SDP solver. It was meant to be
   chosen automatically above a size threshold, but ``benchmarks/analysis.py`` measured
@@ -55,7 +58,7 @@ __all__ = [
 SOLVERS = {"clarabel": "CLARABEL", "sdpa": "SDPA", "scs": "SCS"}
 #: Settings passed to each solver (cvxpy keyword arguments); quoted in results.
 SETTINGS: dict[str, dict[str, Any]] = {
-    "clarabel": {"tol_gap_abs": 1e-9, "tol_gap_rel": 1e-9, "tol_feas": 1e-9, "max_iter": 200},
+    "clarabel": {"tol_gap_abs": 1e-9, "tol_gap_rel": 1e-9, "tol_feas": 1e-9, "max_iter": 200, "max_threads": 1},
     "sdpa": {},
     "scs": {"eps_abs": 1e-8, "eps_rel": 1e-8, "max_iters": 200_000},
 }
