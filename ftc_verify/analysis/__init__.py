@@ -1,15 +1,17 @@
 """Stage 3: the closed loop built from (system, controller) and everything proved about it: exact
-spectral test, LMI blocks and independently checked certificates, solvers, python-control cross-check."""
+spectral test, LMI blocks and independently checked certificates, the LMIs as conic programs,
+solvers, python-control cross-check."""
 
 from __future__ import annotations
 
 from .analyze import AnalysisReport, analyze, json_ready
+from .conic import ConicProblem
 from .closedloop import Channel, ClosedLoop, Barred, barred, closed_loop, state_feedback_loop, gain_loop
 from .crossval import NORM_RTOL, NORM_AGREE_RTOL, POLE_RTOL, ModeCheck, linf_norm, cross_validate
 from .lmi import CERT_RTOL, MAX_CONDITION, BlockSpec, block_specs, lyapunov_block, xy_block, null_basis, projection, BlockCheck, Certificate, check_certificate
 from .lmi_analysis import GAMMA_LADDER, LMIResult, mes_lmi, hinf_gamma, decision_size
-from .solvers import SOLVERS, SETTINGS, SolveOutcome, choose_solver, second_solver, solve
-from .stability import MSSResult, duplication_matrix, second_moment_generator, spectral_abscissa, mean_square_stability
+from .solvers import SOLVERS, SETTINGS, SolveOutcome, choose_solver, second_solver, solve, solve_conic
+from .stability import MSSResult, duplication_matrix, second_moment_generator, spectral_abscissa, mean_square_stability, abscissa_below, abscissa_near
 
 __all__ = [
     "AnalysisReport",
@@ -50,9 +52,13 @@ __all__ = [
     "choose_solver",
     "second_solver",
     "solve",
+    "solve_conic",
+    "ConicProblem",
     "MSSResult",
     "duplication_matrix",
     "second_moment_generator",
     "spectral_abscissa",
     "mean_square_stability",
+    "abscissa_below",
+    "abscissa_near",
 ]
