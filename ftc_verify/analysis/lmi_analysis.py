@@ -28,6 +28,11 @@ the balanced loop is a certificate of the original loop; the returned ``P`` are 
 back, :math:`P = D^{-1}\tilde P D^{-1}`. Without it a Hurwitz loop with states scaled by
 1e3 and 1e-2 got "error"/"infeasible" from both solvers (``tests/test_lmi_analysis.py``).
 
+The programs are written by :mod:`ftc_verify.analysis.conic` from the blocks of
+:mod:`ftc_verify.analysis.lmi` and solved by :func:`~ftc_verify.analysis.solvers.solve_conic`
+(Clarabel directly; SDPA and SCS through cvxpy). A variable ``P_s`` is its ``svec``
+coordinates, so ``P_s`` is symmetric by construction.
+
 Outcomes: ``certified`` (the numpy check of :mod:`ftc_verify.analysis.lmi` passed),
 ``candidate`` (a solver returned numbers that failed the check), ``infeasible`` (the
 solver and a second, independent solver both claimed infeasibility) and ``error``.
@@ -250,11 +255,11 @@ def _p_rows(rows: Rows, lay: _Layout, *, low: float | None, high: bool) -> None:
             rows.lmi(P - t * eye, columns)
 
 
-def _nonneg(rows: Rows, lay: _Layout, index: Sequence[int], sign: float = -1.0, bound: float = 0.0) -> None:
-    """``sign * x_k <= bound`` for each ``k`` in ``index`` (default ``x_k >= 0``)."""
+def _nonneg(rows: Rows, lay: _Layout, index: Sequence[int]) -> None:
+    """``x_k >= 0`` for each ``k`` in ``index``."""
     A = np.zeros((len(index), lay.K))
-    A[np.arange(len(index)), list(index)] = sign
-    rows.nonneg(A, np.full(len(index), bound))
+    A[np.arange(len(index)), list(index)] = -1.0
+    rows.nonneg(A, np.zeros(len(index)))
 
 
 def _solver_order(loop: ClosedLoop, solver: str | None, robust: bool) -> list[str]:
@@ -341,6 +346,12 @@ def hinf_gamma(loop: ClosedLoop, *, robust: bool, solver: str | None = None) -> 
     return _unscale(_hinf_gamma(balanced, robust, solver), d)
 
 
+def _two_step_status(step1: SolveOutcome, step2: SolveOutcome) -> str:
+    """The status reported for a two-step answer: step 2's, or step 1's when step 2 was
+    ``optimal`` (so an ``optimal_inaccurate`` in either step is never hidden)."""
+    return step2.status if step2.status != "optimal" else step1.status
+
+
 def _hinf_gamma(target: ClosedLoop, robust: bool, solver: str | None) -> LMIResult:
     condition = "lemma-4.1" if robust else "theorem-3.2"
     t0 = time.perf_counter()
@@ -349,12 +360,12 @@ def _hinf_gamma(target: ClosedLoop, robust: bool, solver: str | None) -> LMIResu
     _p_rows(rows, lay, low=None, high=False)
     if robust:
         _nonneg(rows, lay, range(lay.lam_start[0], lay.g))
-    minimise_g = np.zeros(lay.K)
-    minimise_g[lay.g] = 1.0
+    minimise_g, maximise_t = np.zeros(lay.K), np.zeros(lay.K)
+    minimise_g[lay.g], maximise_t[lay.t] = 1.0, -1.0
     g_row, t_row = np.zeros((1, lay.K)), np.zeros((1, lay.K))
     g_row[0, lay.g], t_row[0, lay.t] = -1.0, 1.0
     step1 = rows.extended(g_row, [0.0]).problem(minimise_g).fix(lay.t, 0.0)  # min g: blocks <= 0, P >= 0
-    step2 = rows.extended(t_row, [1.0]).problem(-np.eye(lay.K)[lay.t])  # max t <= 1 at fixed g
+    step2 = rows.extended(t_row, [1.0]).problem(maximise_t)  # max t <= 1 at fixed g
     t_build = time.perf_counter() - t0
     attempts: list[SolveOutcome] = []
     best: LMIResult | None = None
@@ -387,7 +398,7 @@ def _hinf_gamma(target: ClosedLoop, robust: bool, solver: str | None) -> LMIResu
                     else:
                         failed = mid
                 gamma1, out2, Pv, lv, cert = found
-                status = out2.status if out2.status != "optimal" else out.status
+                status = _two_step_status(out, out2)
                 note = f"minimum {gamma_star:.6g} from step 1; certified at {gamma1:.6g} (+{rho:.3g} relative)"
                 if status != "optimal":
                     note += f"; solver status {status}, accepted only because the certificate passed"
@@ -396,7 +407,7 @@ def _hinf_gamma(target: ClosedLoop, robust: bool, solver: str | None) -> LMIResu
             failed = rho
             if found is not None and best is None:
                 gamma1, out2, Pv, lv, cert = found
-                status = out2.status if out2.status != "optimal" else out.status
+                status = _two_step_status(out, out2)
                 best = LMIResult(condition, "candidate", gamma_star, name, status, t_build,
                                  sum(a.seconds for a in attempts), cert, Pv, lv,
                                  f"no certificate up to gamma {gamma1:.6g}: {cert.reason}", tuple(attempts))

@@ -152,11 +152,10 @@ def abscissa_below(loop: ClosedLoop, beta: Matrix, sigma: float, *, modes_part: 
     X[:, cols, rows] = X[:, rows, cols]
     Q = loop.chain.generator(beta)
     coupled = np.einsum("ts,tij->sij", Q, X)
-    eps = np.finfo(float).eps
+    x_norm = 64 * n * np.finfo(float).eps * np.linalg.norm(X, 2, axis=(1, 2)).max()
     for s, A in enumerate(loop.A):
         Y = A @ X[s] + X[s] @ A.T + coupled[s] - sigma * X[s]
-        bound = 64 * n * eps * np.linalg.norm(X, 2, axis=(1, 2)).max() * (
-            2 * np.linalg.norm(A, 2) + abs(sigma) + np.abs(Q).sum())
+        bound = x_norm * (2 * np.linalg.norm(A, 2) + abs(sigma) + np.abs(Q).sum())  # rounding in Y
         try:
             np.linalg.cholesky(X[s])
             np.linalg.cholesky(-Y - bound * np.eye(n))
