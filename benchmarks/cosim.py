@@ -120,7 +120,7 @@ def part1(quick: bool, seed: int, repeats: int) -> list[dict[str, Any]]:
     system = load_system(REPO / "examples" / "paper.toml")
     controller = load_controller(REPO / "examples" / "paper_gains.toml")
     count, horizon, step = (4, 2.0, 0.01) if quick else (20, 10.0, 0.01)
-    paths = sample_paths(system.chain, horizon, count, np.random.default_rng(seed))
+    paths = sample_paths(system.chain, horizon, count, seed)
     grids = [communication_grid(p, step)[0] for p in paths]
     total = sum(len(t) - 1 for t in grids)
     fmu = build_fmu(system)
@@ -206,7 +206,7 @@ def part2(quick: bool, seed: int) -> list[dict[str, Any]]:
             system = random_plant(n, seed)
             g = np.random.default_rng(seed + 1)
             controller = Controller.state_feedback([0.2 * g.uniform(-1, 1, (2, n)) for _ in range(2)])
-        paths = sample_paths(system.chain, steps * step, count, np.random.default_rng(seed))
+        paths = sample_paths(system.chain, steps * step, count, seed)
         total = sum(len(communication_grid(p, step)[0]) - 1 for p in paths)
         try:
             kwargs: dict[str, Any] = dict(step=step, disturbance="paper", seed=seed)

@@ -82,7 +82,7 @@ def run(paths_count: int, horizon: float, step: float, repeat: int, seed: int, d
         cases.append(("filtered n_c=2", 2, *filtered_case(paper, paper_ctrl)))
     for label, n, system, controller in cases:
         t0 = time.perf_counter()
-        paths = sample_paths(system.chain, horizon, paths_count, np.random.default_rng(seed))
+        paths = sample_paths(system.chain, horizon, paths_count, seed)
         sample_s = time.perf_counter() - t0
         steps = int(round(horizon / step))
         jumps = sum(p.times.size - 1 for p in paths)

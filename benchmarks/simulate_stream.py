@@ -13,6 +13,8 @@ Two measurements, written to ``benchmarks/results/simulate_stream.csv`` and prin
   ``zero``, the same sampled paths): the per-path ``simulate_reference`` (every trajectory
   kept) against ``simulate_streaming`` (norms only), on ``--compare`` paths (200), in
   process, wall seconds; the answers must agree to 1e-12;
+* **path sampling**: ``sample_paths(chain, 50, N, 1)`` (per-path streams, all paths'
+  jumps advanced together), best and median of 3;
 * **the command as a user runs it**: ``ftc-verify simulate examples/paper.toml --gains
   examples/paper_gains.toml --backend reference --paths N --horizon 50 --step 0.005 --json``
   as a subprocess (interpreter start-up and imports included), wall seconds and the child's
@@ -56,7 +58,7 @@ def main(argv: list[str] | None = None) -> int:
 
     system = load_system(ROOT / "examples" / "paper.toml")
     gains = load_controller(ROOT / "examples" / "paper_gains.toml")
-    paths = sample_paths(system.chain, 50.0, args.compare, np.random.default_rng(1))
+    paths = sample_paths(system.chain, 50.0, args.compare, 1)
     rows = []
     t = time.perf_counter()
     old = simulate_reference(system, gains, paths, step=0.005)
@@ -69,6 +71,15 @@ def main(argv: list[str] | None = None) -> int:
                  "peak_mb": "", "note": ""})
     rows.append({"what": f"simulate_streaming, same {args.compare} paths", "wall_s": round(t_new, 3), "peak_mb": "",
                  "note": f"speed-up {t_old / t_new:.1f}x, max relative y_norm difference {diff:.1e}"})
+    samples = []
+    for _ in range(3):
+        t = time.perf_counter()
+        drawn = sample_paths(system.chain, 50.0, args.paths, 1)
+        samples.append(time.perf_counter() - t)
+    jumps = sum(len(p.times) - 1 for p in drawn) / len(drawn)
+    rows.append({"what": f"sample_paths, {args.paths} paths, horizon 50, beta per path", "wall_s": round(min(samples), 3),
+                 "peak_mb": "", "note": f"best of 3 (median {sorted(samples)[1]:.3f} s); {jumps:.1f} jumps per path; "
+                                        f"{1e6 * min(samples) / args.paths:.0f} us per path"})
     cmd = [sys.executable, "-m", "ftc_verify", "simulate", str(ROOT / "examples" / "paper.toml"), "--gains",
            str(ROOT / "examples" / "paper_gains.toml"), "--backend", "reference", "--paths", str(args.paths),
            "--horizon", "50", "--step", "0.005", "--json", "--seed", "1"]

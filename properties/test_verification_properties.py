@@ -74,7 +74,7 @@ def test_monte_carlo_agrees_with_exact_moments(drawn: DrawnLoop, seed: int) -> N
     beta, T = system.chain.midpoint(), 6.0
     exact = exact_energy(drawn.loop.nominal(), beta=beta, horizon=T)
     assume(exact.y_energy > 1e-8)
-    paths = sample_paths(system.chain, T, 3000, np.random.default_rng(seed), beta=beta)
+    paths = sample_paths(system.chain, T, 3000, seed, beta=beta)
     y1, w = energies_reference(system, controller, paths, step=0.01)
     y2, _ = energies_reference(system, controller, paths, step=0.005)
     est = estimate(2.0 * y2 - y1, w, alpha=1e-6, seed=seed)

@@ -448,7 +448,7 @@ def test_stub_user_fmu_with_a_real_fault_variable(stub_fmu: Path) -> None:
     chain_sys = FTCSystem.from_arrays(
         name="stub", modes=[dict(A=[[-1.0]], B=[[1.0]], C=[[1.0]], D=[[1.0]])] * 2,
         alpha=[[-1.0, 1.0], [2.0, -2.0]], beta_min=[[0, 2.0], [2.0, 0]], beta_max=[[0, 3.0], [3.0, 0]])
-    paths = sample_paths(chain_sys.chain, 3.0, 4, np.random.default_rng(5))
+    paths = sample_paths(chain_sys.chain, 3.0, 4, 5)
     gains = [np.array([[-1.5]]), np.array([[-4.0]])]
     fmap = FaultInjectionMap(**STUB_MAP, fault_values=(1.0, 0.2))
     with Supervisor(stub_fmu, fmap) as sup:

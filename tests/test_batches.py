@@ -22,7 +22,7 @@ GAINS = load_controller(ROOT / "examples" / "paper_gains.toml")
 
 
 def test_batched_fmu_run_equals_one_run_and_reports_every_batch() -> None:
-    paths = sample_paths(SYSTEM.chain, 3.0, 23, np.random.default_rng(8))
+    paths = sample_paths(SYSTEM.chain, 3.0, 23, 8)
     delta = DeltaSchedule("random")
     whole = simulate_fmu(SYSTEM, GAINS, paths, step=0.01, delta=delta, rng=np.random.default_rng(2), seed=2)
     seen: list[int] = []
@@ -37,7 +37,7 @@ def test_batched_fmu_run_equals_one_run_and_reports_every_batch() -> None:
 
 
 def test_streamed_reference_reports_every_batch() -> None:
-    paths = sample_paths(SYSTEM.chain, 3.0, 23, np.random.default_rng(8))
+    paths = sample_paths(SYSTEM.chain, 3.0, 23, 8)
     seen: list[int] = []
     res = simulate_streaming(SYSTEM, GAINS, paths, step=0.01, rng=np.random.default_rng(2), batch=10,
                              done=seen.append)

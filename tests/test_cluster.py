@@ -43,7 +43,7 @@ def _cli(*args: str) -> subprocess.CompletedProcess[str]:
 
 def test_serial_and_two_workers_give_identical_numbers() -> None:
     system, gains = load_system(PAPER), load_controller(GAINS)
-    paths = sample_paths(system.chain, 6.0, 30, np.random.default_rng(4))
+    paths = sample_paths(system.chain, 6.0, 30, 4)
     serial = simulate_streaming(system, gains, paths, step=0.01, delta="random", rng=np.random.default_rng(9),
                                 batch=7)
     with open_client(workers=2) as client:
@@ -143,7 +143,7 @@ def test_a_lost_worker_costs_a_retry_not_the_run() -> None:
     """One of two workers is killed while the batches run; its tasks are rescheduled, the
     nanny restarts it, and the numbers equal a serial run."""
     system, gains = load_system(PAPER), load_controller(GAINS)
-    paths = sample_paths(system.chain, 20.0, 240, np.random.default_rng(5))
+    paths = sample_paths(system.chain, 20.0, 240, 5)
     serial = simulate_streaming(system, gains, paths, step=0.01, rng=np.random.default_rng(1), batch=4)
     spread = _with_one_worker_killed(  # 60 tasks of about 0.1 s each, under way after 1 s
         lambda client: simulate_streaming(system, gains, paths, step=0.01, rng=np.random.default_rng(1), batch=4,
@@ -159,7 +159,7 @@ def test_a_lost_fmu_worker_costs_a_retry_not_the_run(tmp_path: Path, monkeypatch
     its FMU folders: the workers' temporary folder is this test's."""
     monkeypatch.setenv("TMPDIR", str(tmp_path))
     system, gains = load_system(PAPER), load_controller(GAINS)
-    paths = sample_paths(system.chain, 20.0, 200, np.random.default_rng(5))
+    paths = sample_paths(system.chain, 20.0, 200, 5)
     delta = DeltaSchedule("random")
     serial = simulate_fmu(system, gains, paths, step=0.01, delta=delta, rng=np.random.default_rng(1))
     spread = _with_one_worker_killed(  # 40 tasks of about 0.1 s each, under way after 1.5 s

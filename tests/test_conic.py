@@ -85,6 +85,36 @@ def test_clarabel_native_matches_a_known_sdp_optimum():
     assert x[0] == pytest.approx(1.0, abs=1e-7)
 
 
+class PanicException(BaseException):
+    """Named like pyo3's panic, which is a ``BaseException``."""
+
+
+class Interrupt(BaseException):
+    """Like the CLI's SIGTERM exception: a ``BaseException`` that must pass."""
+
+
+def test_a_clarabel_panic_is_a_solver_failure_but_an_interrupt_passes(monkeypatch):
+    from ftc_verify.analysis import solvers
+
+    rows = Rows(1)
+    rows.lmi(-(scalar_variable(0, 1) * np.eye(2)), np.array([0]))
+    problem = rows.problem(np.array([1.0]))
+
+    def panic(*_):
+        raise PanicException("index out of bounds")
+
+    monkeypatch.setattr(solvers, "solve_clarabel", panic)
+    outcome, x = solvers.solve_conic(problem, "clarabel")
+    assert outcome.status == "error" and "PanicException" in outcome.message and x is None
+
+    def interrupt(*_):
+        raise Interrupt()
+
+    monkeypatch.setattr(solvers, "solve_clarabel", interrupt)
+    with pytest.raises(Interrupt):
+        solvers.solve_conic(problem, "clarabel")
+
+
 def test_native_and_cvxpy_paths_give_the_same_gamma(paper_loop):
     """Clarabel directly and SDPA through cvxpy, both built from one ConicProblem."""
     pytest.importorskip("sdpap")

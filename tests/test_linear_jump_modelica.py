@@ -39,7 +39,7 @@ def test_modelica_linear_jump_plant_agrees_with_the_c_fmu(tmp_path: Path, monkey
     gains = load_controller(ROOT / "examples" / "paper_gains.toml")
     mo = ROOT / "fmus" / "modelica" / "LinearJumpPlant.mo"  # the project's own file, built as it is
     fmu = build_modelica_fmu(mo, dest=tmp_path / "LinearJumpPlant.fmu")
-    paths = sample_paths(system.chain, 5.0, 3, np.random.default_rng(3))
+    paths = sample_paths(system.chain, 5.0, 3, 3)
     c_fmu = simulate_fmu(system, gains, paths, step=0.01, delta=delta, seed=5)
     with Supervisor(fmu, linear_jump_modelica_map(system), system=system, tolerance=1e-10) as sup:
         mo_fmu = sup.run(paths, gains, step=0.01, delta=delta, seed=5)

@@ -134,7 +134,7 @@ def test_exact_energy_against_100k_path_monte_carlo() -> None:
     gains = load_controller(ROOT / "examples" / "paper_gains.toml")
     beta, T = PAPER.chain.midpoint(), 15.0
     exact = exact_energy(PAPER_LOOP, beta=beta, horizon=T)
-    paths = sample_paths(PAPER.chain, T, 100_000, np.random.default_rng(20261122), beta=beta)
+    paths = sample_paths(PAPER.chain, T, 100_000, 20261122, beta=beta)
     y_coarse, w = energies_reference(PAPER, gains, paths, step=0.01)
     y_fine, _ = energies_reference(PAPER, gains, paths, step=0.005)
     est = estimate(2.0 * y_fine - y_coarse, w, alpha=1e-6, seed=20261122)
@@ -153,7 +153,7 @@ def _exact_in_monte_carlo_interval(system, controller, *, horizon, paths, step, 
 
     beta = system.chain.midpoint()
     exact = exact_energy(closed_loop(system, controller).nominal(), beta=beta, horizon=horizon)
-    drawn = sample_paths(system.chain, horizon, paths, np.random.default_rng(seed), beta=beta)
+    drawn = sample_paths(system.chain, horizon, paths, seed, beta=beta)
     y_coarse, w = energies_reference(system, controller, drawn, step=step)
     y_fine, _ = energies_reference(system, controller, drawn, step=step / 2)
     est = estimate(2.0 * y_fine - y_coarse, w, alpha=1e-6, seed=seed)

@@ -14,7 +14,7 @@ import scipy.stats
 
 from ftc_verify.errors import ValidationError
 from ftc_verify.model.system import JointChain
-from ftc_verify.simulation.paths import ChainPath, communication_grid, sample_path, sample_paths
+from ftc_verify.simulation.paths import DRAW_BLOCK, ChainPath, communication_grid, sample_paths
 
 ALPHA = 1e-3
 SAMPLES = 2500
@@ -40,8 +40,7 @@ def test_dwell_time_in_the_fault_free_mode_is_exponential(slow_return_chain) -> 
     chain = slow_return_chain
     rate = -chain.alpha[0, 0]
     horizon = 60.0 / rate  # P(censored) = exp(-60)
-    rng = np.random.default_rng(101)
-    samples = [first_sojourn(sample_path(chain, horizon, rng, beta=chain.midpoint()), (0, 0)) for _ in range(SAMPLES)]
+    samples = [first_sojourn(p, (0, 0)) for p in sample_paths(chain, horizon, SAMPLES, 101, beta=chain.midpoint())]
     assert None not in samples
     res = scipy.stats.kstest(samples, scipy.stats.expon(scale=1.0 / rate).cdf)
     assert res.pvalue > ALPHA, res
@@ -57,12 +56,10 @@ def test_detection_delay_is_exponential_with_rate_beta_fdi_true(true, fdi) -> No
     np.fill_diagonal(alpha, -alpha.sum(axis=1))
     chain = JointChain(alpha, np.array([[0.0, 2.0], [2.5, 0.0]]), np.array([[0.0, 3.0], [3.5, 0.0]]))
     beta = np.array([[0.0, 2.2], [3.1, 0.0]])
-    rng = np.random.default_rng(202 + true)
     rate = beta[fdi, true]
     horizon = 40.0 / rate + 60.0 / 5.0  # P(censored) < 2 exp(-40)
     samples = []
-    for _ in range(SAMPLES):
-        p = sample_path(chain, horizon, rng, beta=beta, start=(fdi, fdi))
+    for p in sample_paths(chain, horizon, SAMPLES, 202 + true, beta=beta, start=(fdi, fdi)):
         assert (p.true[1], p.fdi[1]) == (true, fdi)  # from (j, j) the only move is a fault to (i, j)
         samples.append(first_sojourn(p, (true, fdi)))
     assert None not in samples
@@ -74,10 +71,8 @@ def test_detection_delay_with_beta_drawn_per_path(slow_return_chain) -> None:
     """``beta=None`` draws beta uniformly in its box per path: with each path's own rate,
     ``1 - exp(-beta[0][1] * delay)`` is uniform on [0, 1] (probability integral transform)."""
     chain = slow_return_chain
-    rng = np.random.default_rng(303)
     u = []
-    for _ in range(SAMPLES):
-        p = sample_path(chain, 80.0, rng, start=(0, 0))
+    for p in sample_paths(chain, 80.0, SAMPLES, 303, start=(0, 0)):
         b = p.beta[0, 1]
         assert chain.beta_min[0, 1] <= b <= chain.beta_max[0, 1] and np.all(np.diag(p.beta) == 0)
         u.append(1.0 - np.exp(-b * first_sojourn(p, (1, 0))))
@@ -96,8 +91,9 @@ def test_next_state_frequencies_m3_with_fault_during_delay() -> None:
     Q = chain.generator(beta)
     m = 3
     counts = np.zeros((m * m, m * m))
-    rng = np.random.default_rng(404)
-    for p in sample_paths(chain, 150.0, 40, rng, beta=beta):
+    paths = sample_paths(chain, 150.0, 40, 404, beta=beta)
+    assert min(len(p.times) for p in paths) > 3 * DRAW_BLOCK  # several blocks of draws per path
+    for p in paths:
         s = p.true * m + p.fdi
         np.add.at(counts, (s[:-1], s[1:]), 1)
     off = ~np.eye(m * m, dtype=bool)
@@ -114,6 +110,34 @@ def test_next_state_frequencies_m3_with_fault_during_delay() -> None:
     assert df == 3 * 1 + 6 * 2  # (i,i): 2 faults; (i,j): detection or 2 faults
     pvalue = scipy.stats.chi2.sf(stat, df)
     assert pvalue > ALPHA, (stat, df, pvalue)
+
+
+def test_every_path_has_its_own_stream() -> None:
+    """Path ``k`` is child ``k`` of ``SeedSequence(seed)``: the same whatever is drawn with
+    it (a longer run, or a ``SeedSequence`` spawned from in two calls), and its ``Delta``
+    stream is the same at every call and differs from the other paths'."""
+    chain = JointChain(np.array([[-2.0, 2.0], [3.0, -3.0]]), np.array([[0, 4.0], [5.0, 0]]),
+                       np.array([[0, 6.0], [7.0, 0]]))
+    full = sample_paths(chain, 30.0, 9, 77)
+    assert max(len(p.times) for p in full) > DRAW_BLOCK  # a path that takes a second block
+    root = np.random.SeedSequence(77)
+    parts = sample_paths(chain, 30.0, 4, root) + sample_paths(chain, 30.0, 5, root)
+    for a, b in zip(full, parts, strict=True):
+        assert np.array_equal(a.times, b.times) and np.array_equal(a.true, b.true)
+        assert np.array_equal(a.fdi, b.fdi) and np.array_equal(a.beta, b.beta)
+        assert a.stream is not None and a.stream.spawn_key == b.stream.spawn_key
+    assert [p.stream.spawn_key for p in full] == [(k,) for k in range(9)]
+    draws = [p.delta_generator().random(3) for p in full]
+    assert np.array_equal(draws[2], full[2].delta_generator().random(3))
+    assert len({tuple(d) for d in draws}) == len(draws)
+    assert len({float(p.times[1]) for p in full}) == len(full)  # independent, not copies
+    assert ChainPath(np.zeros(1), np.zeros(1, int), np.zeros(1, int), np.zeros((2, 2)), 1.0).delta_generator() is None
+
+
+@pytest.mark.parametrize("seed", [-1, 1.5, "7", True, None])
+def test_bad_seed_is_refused(slow_return_chain, seed) -> None:
+    with pytest.raises(ValidationError, match="seed"):
+        sample_paths(slow_return_chain, 1.0, 2, seed)
 
 
 # ----------------------------------------------------------------------------- grid
@@ -145,9 +169,8 @@ def check_grid(path: ChainPath, step: float) -> None:
 def test_communication_grid_on_sampled_paths() -> None:
     chain = JointChain(np.array([[-2.0, 2.0], [3.0, -3.0]]), np.array([[0, 4.0], [5.0, 0]]),
                        np.array([[0, 6.0], [7.0, 0]]))
-    rng = np.random.default_rng(505)
-    for horizon, step in ((3.0, 0.01), (2.35, 0.1), (1.0, 0.3), (0.7, 1.0)):
-        for p in sample_paths(chain, horizon, 20, rng):
+    for seed, (horizon, step) in enumerate(((3.0, 0.01), (2.35, 0.1), (1.0, 0.3), (0.7, 1.0))):
+        for p in sample_paths(chain, horizon, 20, 505 + seed):
             check_grid(p, step)
 
 

@@ -148,7 +148,7 @@ def test_scalar_no_jump_matches_the_closed_form_recursion() -> None:
 def test_paths_with_jumps_match_a_hand_rolled_expm_loop(paper_system, paper_gains, kind) -> None:
     d1, d2 = constant_delta(paper_system)
     sched = DeltaSchedule(kind, d1, d2) if kind in ("constant", "sign") else DeltaSchedule(kind)
-    paths = sample_paths(paper_system.chain, 1.0, 2, np.random.default_rng(8)) + edge_paths(1.0, 0.04)[:2]
+    paths = sample_paths(paper_system.chain, 1.0, 2, 8) + edge_paths(1.0, 0.04)[:2]
     assert sum(p.times.size - 1 for p in paths) >= 10
     x0 = np.array([0.6, -0.4])
     res = simulate_reference(paper_system, sf(paper_gains), paths, step=0.04, delta=sched, x0=x0, seed=21)
@@ -163,7 +163,7 @@ def test_paths_with_jumps_match_a_hand_rolled_expm_loop(paper_system, paper_gain
 
 def test_full_information_gains(paper_system, paper_gains) -> None:
     gains = [paper_gains[0], paper_gains[1], 0.5 * paper_gains[0], 0.5 * paper_gains[1]]
-    paths = sample_paths(paper_system.chain, 1.5, 2, np.random.default_rng(1))
+    paths = sample_paths(paper_system.chain, 1.5, 2, 1)
     res = simulate_reference(paper_system, sf(gains), paths, step=0.03, x0=[1.0, 0.0])
     for rec, p in zip(res.records, paths):
         t, X, U, W, Y = hand_rolled(paper_system, gains, p, step=0.03, x0=[1.0, 0.0])
@@ -188,7 +188,7 @@ def _energy_case(system, gains, paths, step, sched, x0, dist="paper"):
 def test_energies_equal_the_records_norms(paper_system, paper_gains, kind, monkeypatch) -> None:
     d1, d2 = constant_delta(paper_system)
     sched = DeltaSchedule(kind, d1, d2) if kind == "sign" else DeltaSchedule(kind)
-    paths = sample_paths(paper_system.chain, 1.5, 4, np.random.default_rng(2)) + edge_paths(1.5, 0.01)
+    paths = sample_paths(paper_system.chain, 1.5, 4, 2) + edge_paths(1.5, 0.01)
     x0 = [1.0, -1.0]
     _energy_case(paper_system, paper_gains, paths, 0.01, sched, x0)
     # one regular step per chunk, and the gathered kernel instead of "all ids, then select"
@@ -202,8 +202,8 @@ def test_energies_other_cases(paper_system, paper_gains, scalar_two_mode, monkey
     # several horizons in one call, a discontinuous disturbance
     d1, d2 = constant_delta(paper_system)
     gains = list(paper_gains) + [0.5 * paper_gains[0], 0.7 * paper_gains[1]]
-    paths = sample_paths(paper_system.chain, 1.234, 3, np.random.default_rng(4)) \
-        + sample_paths(paper_system.chain, 0.9, 2, np.random.default_rng(5))
+    paths = sample_paths(paper_system.chain, 1.234, 3, 4) \
+        + sample_paths(paper_system.chain, 0.9, 2, 5)
     _energy_case(paper_system, gains, paths, 0.025, DeltaSchedule("constant", d1, d2), [0.3, 0.2], dist="pulse")
     # a stiff plant (||A h|| > 1/2: scaling and squaring), few and many matrices
     system, K = scalar_two_mode
@@ -211,13 +211,23 @@ def test_energies_other_cases(paper_system, paper_gains, scalar_two_mode, monkey
         name="stiff", modes=[{"A": [[-40.0]], "B": [[1.0]], "C": [[1.0]], "D": [[1.0]], "A1": [[5.0]], "A2": [[1.0]]},
                              {"A": [[-100.0]], "B": [[0.3]], "C": [[2.0]], "D": [[0.5]], "A1": [[9.0]], "A2": [[1.0]]}],
         alpha=[[-1.0, 1.0], [1.0, -1.0]], beta_min=[[0, 2.0], [2.0, 0]], beta_max=[[0, 3.0], [3.0, 0]])
-    paths = sample_paths(system.chain, 2.0, 4, np.random.default_rng(6)) + edge_paths(2.0, 0.04)
+    paths = sample_paths(system.chain, 2.0, 4, 6) + edge_paths(2.0, 0.04)
     _energy_case(stiff, K, paths, 0.04, DeltaSchedule("sign", np.array([[0.9]])), [1.0], dist="sine")
     monkeypatch.setattr(discretise_mod, "_GROUP_LIMIT", 0)
     _energy_case(stiff, K, paths, 0.04, DeltaSchedule("random"), [1.0], dist="step")
     # a single path, given bare
     ey, ew = energies_reference(system, sf(K), paths[0], step=0.04, disturbance="zero", x0=[1.0])
     assert ew.tolist() == [0.0] and ey[0] > 0
+
+
+@pytest.mark.parametrize("horizon", [2.0, 1.234])
+def test_energies_of_paths_without_any_jump(paper_system, paper_gains, horizon) -> None:
+    """No jump on any path, the horizon a multiple of the step or not (2.0 once failed:
+    no interval was special)."""
+    z = np.zeros((2, 2))
+    paths = [ChainPath(np.array([0.0]), np.array([k]), np.array([k]), z, horizon) for k in (0, 1)]
+    ey, ew = _energy_case(paper_system, paper_gains, paths, 0.04, DeltaSchedule("zero"), [1.0, 0.5])
+    assert np.all(ey > 0) and np.all(ew > 0)
 
 
 def random_system(seed: int, *, n=3, nu=2, ny=2, nw=2, m=3, fault_during_delay=True) -> FTCSystem:
@@ -246,7 +256,7 @@ def test_energies_on_a_random_three_mode_system(kind) -> None:
     gains = [0.5 * g.standard_normal((2, 3)) for _ in range(3)]
     d1, d2 = constant_delta(system)
     sched = DeltaSchedule(kind, d1, d2) if kind != "random" else DeltaSchedule("random")
-    paths = sample_paths(system.chain, 1.2, 5, np.random.default_rng(7))
+    paths = sample_paths(system.chain, 1.2, 5, 7)
     _energy_case(system, gains, paths, 0.03, sched, [0.5, -0.5, 1.0], dist="sine")
 
 
@@ -305,7 +315,7 @@ def test_sampled_loop_converges_to_the_continuous_loop_at_first_order(scalar_two
 
 def test_continuous_loop_conventions_and_the_solve_ivp_fallback(paper_system, paper_gains, monkeypatch) -> None:
     d1, d2 = constant_delta(paper_system)
-    path = sample_paths(paper_system.chain, 2.5, 1, np.random.default_rng(12))[0]
+    path = sample_paths(paper_system.chain, 2.5, 1, 12)[0]
     sched = DeltaSchedule("sign", d1, d2)
     rec = simulate_continuous(paper_system, sf(paper_gains), path, delta=sched, x0=[0.5, 0.5], points_per_unit=40)
     t, true, fdi = communication_grid(path, 1 / 40)
@@ -357,7 +367,7 @@ def test_monte_carlo_second_moment_matches_the_second_moment_equation(paper_syst
     v = scipy.linalg.expm(Lg * T) @ v0
     exact = sum(np.trace((D @ v[s * q:(s + 1) * q]).reshape(n, n, order="F")) for s in range(system.m ** 2))
     N = 2000
-    paths = sample_paths(system.chain, T, N, np.random.default_rng(2024), beta=beta)
+    paths = sample_paths(system.chain, T, N, 2024, beta=beta)
     vals = np.array([np.sum(simulate_continuous(system, sf(paper_gains), p, disturbance="zero", x0=x0,
                                                 points_per_unit=2).x[-1] ** 2) for p in paths])
     z = (vals.mean() - exact) / (vals.std(ddof=1) / math.sqrt(N))
@@ -367,7 +377,7 @@ def test_monte_carlo_second_moment_matches_the_second_moment_equation(paper_syst
 # ----------------------------------------------------------------------------- uncertainty
 def test_delta_kinds_have_norm_at_most_one(paper_system) -> None:
     d1, d2 = constant_delta(paper_system, scale=1.0)
-    paths = sample_paths(paper_system.chain, 20.0, 20, np.random.default_rng(9))
+    paths = sample_paths(paper_system.chain, 20.0, 20, 9)
     rng = np.random.default_rng(10)
     seen = 0
     for kind in ("zero", "constant", "sign", "random"):
@@ -402,7 +412,7 @@ def test_constant_delta_reproduces_the_perturbed_closed_loop(paper_system, paper
 
 # ----------------------------------------------------------------------------- validation
 def test_errors_name_the_field(paper_system, paper_gains) -> None:
-    path = sample_paths(paper_system.chain, 1.0, 1, np.random.default_rng(0))[0]
+    path = sample_paths(paper_system.chain, 1.0, 1, 0)[0]
     bad_mode = ChainPath(np.array([0.0]), np.array([2]), np.array([0]), np.zeros((2, 2)), 1.0)
     bad_times = ChainPath(np.array([0.0, 0.5, 0.4]), np.array([0, 1, 1]), np.array([0, 0, 1]), np.zeros((2, 2)), 1.0)
     cases = [
@@ -436,7 +446,7 @@ def test_errors_name_the_field(paper_system, paper_gains) -> None:
 
 # ----------------------------------------------------------------------------- plots
 def test_plot_path_writes_a_png_atomically(paper_system, paper_gains, tmp_path) -> None:
-    path = sample_paths(paper_system.chain, 10.0, 1, np.random.default_rng(7))[0]
+    path = sample_paths(paper_system.chain, 10.0, 1, 7)[0]
     rec = simulate_reference(paper_system, sf(paper_gains), [path], step=0.01).records[0]
     out = tmp_path / "fig1.png"
     plot_path(rec, out, title="paper example, one path")

@@ -4,6 +4,7 @@ times, trajectories only for the recorded paths, batches that do not change the 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -22,10 +23,14 @@ ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "examples" / "paper.toml"
 
 
-@pytest.mark.parametrize("delta", ["zero", "random", "sign"])
-def test_streaming_equals_per_path(delta: str) -> None:
+@pytest.mark.parametrize("delta, own_stream", [("zero", True), ("random", True), ("random", False), ("sign", True)])
+def test_streaming_equals_per_path(delta: str, own_stream: bool) -> None:
+    """Sampled paths draw ``Delta`` from their own streams; hand-built ones (no stream)
+    from the one generator, in path order, which the batches replay."""
     system, gains = load_system(PAPER), load_controller(ROOT / "examples" / "paper_gains.toml")
-    paths = sample_paths(system.chain, 8.0, 12, np.random.default_rng(1))
+    paths = sample_paths(system.chain, 8.0, 12, 1)
+    if not own_stream:
+        paths = [dataclasses.replace(p, stream=None) for p in paths]
     a = simulate_reference(system, gains, paths, step=0.01, delta=delta, rng=np.random.default_rng(7), seed=7)
     b = simulate_streaming(system, gains, paths, step=0.01, delta=delta, rng=np.random.default_rng(7), seed=7,
                            record=3, batch=5)
@@ -40,10 +45,22 @@ def test_streaming_equals_per_path(delta: str) -> None:
         np.testing.assert_array_equal(ra.x, rb.x)  # the recorded paths see the same Delta draws
 
 
+def test_a_path_gives_the_same_numbers_in_any_company() -> None:
+    """Per-path streams (``SeedSequence(seed).spawn``): paths 7..9 of a run of 12 give the
+    same energies simulated alone, in other batches, as in the full run."""
+    system, gains = load_system(PAPER), load_controller(ROOT / "examples" / "paper_gains.toml")
+    paths = sample_paths(system.chain, 8.0, 12, 4)
+    full = simulate_streaming(system, gains, paths, step=0.01, delta="random", batch=5)
+    part = simulate_streaming(system, gains, paths[7:10], step=0.01, delta="random", batch=2)
+    np.testing.assert_allclose(part.y_norm, full.y_norm[7:10], rtol=1e-12)
+    np.testing.assert_allclose(part.w_norm, full.w_norm[7:10], rtol=1e-12)
+    assert len(set(full.y_norm.tolist())) == 12
+
+
 def test_streaming_reports_divergence_times_like_per_path() -> None:
     system = load_system(PAPER)
     unstable = Controller.state_feedback([np.array([[5.0, 0.0], [0.0, 5.0]])] * 2)
-    paths = sample_paths(system.chain, 30.0, 4, np.random.default_rng(3))
+    paths = sample_paths(system.chain, 30.0, 4, 3)
     a = simulate_reference(system, unstable, paths, step=0.01, delta="random", rng=np.random.default_rng(5))
     b = simulate_streaming(system, unstable, paths, step=0.01, delta="random", rng=np.random.default_rng(5), record=1)
     times = {k: r.diverged_at for k, r in enumerate(a.records) if r.diverged_at is not None}

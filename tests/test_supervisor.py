@@ -23,6 +23,8 @@ reproduces static gains (1e-9); an observer-based controller on ``y_m = [1 2] x`
 
 from __future__ import annotations
 
+import dataclasses
+
 import re
 import shutil
 import zipfile
@@ -195,14 +197,14 @@ def delta_cases(system: FTCSystem):
 
 @pytest.fixture(scope="module")
 def paper_case(paper_system, paper_gains):
-    paths = sample_paths(paper_system.chain, 10.0, 6, np.random.default_rng(2024))
+    paths = sample_paths(paper_system.chain, 10.0, 6, 2024)
     return paper_system, Controller.state_feedback(list(paper_gains)), paths
 
 
 @pytest.fixture(scope="module")
 def random_case():
     system = random_system(7)
-    paths = sample_paths(system.chain, 4.0, 6, np.random.default_rng(11))
+    paths = sample_paths(system.chain, 4.0, 6, 11)
     return system, Controller.state_feedback(random_gains(system, 8)), paths
 
 
@@ -251,14 +253,20 @@ def test_fmu_matches_simulate_reference(request, case: str, kind: str) -> None:
     assert np.allclose(Ew, [r.w_norm ** 2 for r in res.records], rtol=RTOL, atol=0)
 
 
-def test_rng_and_seed_give_the_same_delta_draws(random_case) -> None:
+def test_delta_draws_come_from_the_path_or_from_rng_and_seed(random_case) -> None:
+    """A sampled path draws ``Delta`` from its own stream, whatever ``seed`` says; a
+    hand-built path (no stream) from ``rng`` or ``default_rng(seed)``, alike."""
     system, controller, paths = random_case
-    a = simulate_fmu(system, controller, paths[:2], step=0.05, delta="random", seed=5)
-    b = simulate_fmu(system, controller, paths[:2], step=0.05, delta="random", rng=np.random.default_rng(5))
-    c = simulate_fmu(system, controller, paths[:2], step=0.05, delta="random", seed=6)
-    for ra, rb, rc in zip(a.records, b.records, c.records):
+    own = [simulate_fmu(system, controller, paths[:2], step=0.05, delta="random", seed=s) for s in (5, 6)]
+    bare = [dataclasses.replace(p, stream=None) for p in paths[:2]]
+    a = simulate_fmu(system, controller, bare, step=0.05, delta="random", seed=5)
+    b = simulate_fmu(system, controller, bare, step=0.05, delta="random", rng=np.random.default_rng(5))
+    c = simulate_fmu(system, controller, bare, step=0.05, delta="random", seed=6)
+    for r5, r6, ra, rb, rc in zip(own[0].records, own[1].records, a.records, b.records, c.records):
+        assert np.array_equal(r5.x, r6.x)
         assert np.array_equal(ra.x, rb.x)
         assert not np.array_equal(ra.x, rc.x)
+        assert not np.array_equal(r5.x, ra.x)
 
 
 def test_fault_during_delay_variant_and_full_information_gains() -> None:
@@ -266,7 +274,7 @@ def test_fault_during_delay_variant_and_full_information_gains() -> None:
     are followed like any other; ``m^2`` gains pick ``K[r m + l]``."""
     system = random_system(3, n=2, nu=1, ny=1, nw=2, m=2, q1=0, q2=1, p2=1, partial=False,
                            fault_during_delay=True)
-    paths = sample_paths(system.chain, 6.0, 8, np.random.default_rng(4))
+    paths = sample_paths(system.chain, 6.0, 8, 4)
     lagging_jumps = sum(
         int(np.count_nonzero((np.diff(p.true) != 0) & (p.true[:-1] != p.fdi[:-1]))) for p in paths
     )
@@ -301,7 +309,7 @@ def small_problems(draw):
                            partial=draw(st.booleans()), fault_during_delay=draw(st.booleans()))
     controller = Controller.state_feedback(random_gains(system, draw(st.integers(0, 1000))))
     seed = draw(st.integers(0, 2**31 - 1))
-    paths = sample_paths(system.chain, draw(st.sampled_from([0.5, 1.7, 3.0])), 2, np.random.default_rng(seed))
+    paths = sample_paths(system.chain, draw(st.sampled_from([0.5, 1.7, 3.0])), 2, seed)
     step = draw(st.sampled_from([0.013, 0.05, 0.1]))
     kind = draw(st.sampled_from(["zero", "sign", "random"]))
     delta = delta_cases(system)["sign"] if kind == "sign" else kind
@@ -471,7 +479,7 @@ def test_dynamic_controller_with_trivial_state_equals_static_gains(paper_from_fi
     system = paper.with_measured_output(np.eye(2))
     K = static.gains
     dynamic = Controller.dynamic([-np.eye(2)] * 2, [np.zeros((2, 2))] * 2, [np.zeros((2, 2))] * 2, list(K))
-    paths = sample_paths(system.chain, 6.0, 4, np.random.default_rng(8))
+    paths = sample_paths(system.chain, 6.0, 4, 8)
     kw = dict(step=0.01, delta="random", x0=[0.8, -0.4], seed=12)
     dyn = simulate_fmu(system, dynamic, paths, **kw)
     ref = simulate_fmu(paper, static, paths, **kw)
@@ -516,7 +524,7 @@ def test_observer_based_controller_xc_recursion(paper_from_files) -> None:
     Cy = np.array([[1.0, 2.0]])
     system = paper.with_measured_output(Cy)
     ctrl = observer_controller(system, static.gains, Cy)
-    paths = sample_paths(system.chain, 5.0, 4, np.random.default_rng(21))
+    paths = sample_paths(system.chain, 5.0, 4, 21)
     assert any(p.fdi_switches for p in paths)
     res = simulate_fmu(system, ctrl, paths, step=0.01, delta="sign", x0=[0.5, -0.3], seed=3)
     nc = ctrl.n_c

@@ -75,7 +75,7 @@ def run_cli(args: list[str], cwd: Path) -> subprocess.CompletedProcess[str]:
 def test_linear_jump_plant_through_its_map_is_bit_for_bit() -> None:
     system = load_system(PAPER)
     ctrl = Controller.state_feedback([np.array([[-1.0, -2.0], [0.5, -3.0]]), np.array([[-2.0, 0.0], [0.0, -2.0]])])
-    paths = sample_paths(system.chain, 3.0, 4, np.random.default_rng(5))
+    paths = sample_paths(system.chain, 3.0, 4, 5)
     via_map = simulate_fmu(system, ctrl, paths, step=0.01, seed=1)
     with Supervisor(build_fmu(system), FaultInjectionMap.for_linear_jump_plant(system), system=system) as sup:
         direct = sup.run(paths, ctrl, step=0.01, seed=1)
@@ -134,7 +134,7 @@ def test_the_loop_runs_in_deviation_variables(motor_dir: Path) -> None:
     pm = load_plant_map(motor_dir / "motor.plant.toml")
     system = linearize_plant(pm).system("motor", pm.chain)
     ctrl = Controller.state_feedback([np.array([[-0.5, -0.1]])] * 2)
-    one_mode = sample_paths(system.chain, 1.0, 1, np.random.default_rng(0), beta=system.chain.beta_min)
+    one_mode = sample_paths(system.chain, 1.0, 1, 0, beta=system.chain.beta_min)
     one_mode = [type(p)(p.times[:1], p.true[:1], p.fdi[:1], p.beta, p.horizon) for p in one_mode]  # nominal only
     res = simulate_fmu(system, ctrl, one_mode, step=0.01, disturbance="zero", plant=pm)
     rec = res.records[0]
@@ -151,7 +151,7 @@ def test_failed_reset_reinstantiates(motor_dir: Path, monkeypatch: pytest.Monkey
     pm = load_plant_map(motor_dir / "motor.plant.toml")
     system = linearize_plant(pm).system("motor", pm.chain)
     ctrl = Controller.state_feedback([np.array([[-0.5, -0.1]])] * 2)
-    paths = sample_paths(system.chain, 1.0, 3, np.random.default_rng(2))
+    paths = sample_paths(system.chain, 1.0, 3, 2)
     with open_supervisor(system, pm) as sup:
         good = sup.run(paths, ctrl, step=0.01)
 
@@ -167,7 +167,7 @@ def test_failed_reset_reinstantiates(motor_dir: Path, monkeypatch: pytest.Monkey
 
 def test_fixed_step_fmus_get_jumps_on_their_grid() -> None:
     system = load_system(PAPER)
-    path = sample_paths(system.chain, 5.0, 1, np.random.default_rng(7))[0]
+    path = sample_paths(system.chain, 5.0, 1, 7)[0]
     snapped, shift = snap_to_grid(path, 0.1)
     assert 0 < shift <= 0.05 + 1e-12
     assert np.allclose(snapped.times / 0.1, np.rint(snapped.times / 0.1))
@@ -304,7 +304,7 @@ def test_a_map_without_outputs_is_refused_not_read_as_zero() -> None:
     base = FaultInjectionMap.for_linear_jump_plant(system)
     bare = FaultInjectionMap(fault=base.fault, inputs=base.inputs, states=base.states, disturbances=base.disturbances)
     ctrl = Controller.state_feedback([np.zeros((2, 2))] * 2)
-    paths = sample_paths(system.chain, 1.0, 1, np.random.default_rng(0))
+    paths = sample_paths(system.chain, 1.0, 1, 0)
     with Supervisor(build_fmu(system), bare, system=system) as sup:
         with pytest.raises(ValidationError, match=r"names 0 outputs .* has 1; a missing role would read as zero"):
             sup.run(paths, ctrl, step=0.01)
@@ -313,7 +313,7 @@ def test_a_map_without_outputs_is_refused_not_read_as_zero() -> None:
 def test_an_fmu_that_lags_behind_the_step_is_an_error(monkeypatch: pytest.MonkeyPatch) -> None:
     system = load_system(PAPER)
     ctrl = Controller.state_feedback([np.zeros((2, 2))] * 2)
-    paths = sample_paths(system.chain, 1.0, 1, np.random.default_rng(0))
+    paths = sample_paths(system.chain, 1.0, 1, 0)
     with open_supervisor(system) as sup:
         monkeypatch.setattr(sup.session, "last_successful_time", lambda: 0.5)
         with pytest.raises(FMUError, match=r"fmi2LastSuccessfulTime = 0.5: it did not advance as asked"):

@@ -205,9 +205,9 @@ def solve_conic(problem: ConicProblem, solver: str) -> tuple[SolveOutcome, Matri
     if solver == "clarabel":
         try:
             status, message, x = solve_clarabel(problem, SETTINGS["clarabel"])
-        except (KeyboardInterrupt, SystemExit):
-            raise
         except BaseException as exc:  # noqa: B036 - pyo3's PanicException is a BaseException
+            if not isinstance(exc, Exception) and type(exc).__name__ != "PanicException":
+                raise  # Ctrl-C, SIGTERM (the CLI's own BaseException), SystemExit: never a solver failure
             status, message, x = "error", f"clarabel raised {type(exc).__name__}: {exc}", None
         outcome = SolveOutcome(solver, status, time.perf_counter() - start, message)
     else:

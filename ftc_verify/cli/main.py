@@ -240,10 +240,9 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         ch = system.chain
         system = FTCSystem(system.name, system.modes, JointChain(ch.alpha, ch.beta_min, ch.beta_max, True))
     seed = args.seed if args.seed is not None else int(np.random.SeedSequence().entropy % 2**63)
-    rng = np.random.default_rng(seed)
     beta = {"random": None, "min": system.chain.beta_min, "max": system.chain.beta_max,
             "mid": system.chain.midpoint()}[args.beta]
-    paths = sample_paths(system.chain, args.horizon, args.paths, rng, beta=beta)
+    paths = sample_paths(system.chain, args.horizon, args.paths, seed, beta=beta)
     delta = DeltaSchedule(args.delta if system.uncertain and (plant is None or plant.delta1 or plant.delta2) else "zero")
     from ..simulation.batches import fmu_monte_carlo, progress_bar
     from ..simulation.cluster import open_client
@@ -254,12 +253,12 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     try:
         with open_client(args.workers, args.scheduler) as client:
             if args.backend == "fmu":
-                res = fmu_monte_carlo(system, controller, paths, step=args.step, delta=delta, rng=rng,
+                res = fmu_monte_carlo(system, controller, paths, step=args.step, delta=delta,
                                       disturbance=args.disturbance, seed=seed, plant=plant, client=client,
                                       log=_fmu_logger(args), done=done)
             else:
                 res = simulate_streaming(system, controller, paths, step=args.step, disturbance=args.disturbance,
-                                         delta=delta, rng=rng, seed=seed, record=record, client=client, done=done)
+                                         delta=delta, seed=seed, record=record, client=client, done=done)
     finally:
         if bar is not None:
             bar.close()

@@ -4,7 +4,7 @@ and the FMU co-simulation supervisor (both on the same sampled-data loop)."""
 from __future__ import annotations
 
 from .delta import DELTA_KINDS, DeltaSchedule, delta_shapes, delta_segments, constant_delta_loops
-from .paths import ChainPath, sample_path, sample_paths, communication_grid, Disturbance, disturbance, DISTURBANCES
+from .paths import ChainPath, sample_paths, communication_grid, Disturbance, disturbance, DISTURBANCES
 from .records import PathRecord, SimulationResult, l2_norm
 from .continuous import simulate_continuous
 from .discretise import phi_gamma, zoh_matrices
@@ -19,7 +19,6 @@ __all__ = [
     "delta_segments",
     "constant_delta_loops",
     "ChainPath",
-    "sample_path",
     "sample_paths",
     "communication_grid",
     "Disturbance",

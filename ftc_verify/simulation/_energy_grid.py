@@ -185,7 +185,7 @@ def pieces(jmp: Jumps, it: Items, wfun: Callable[[np.ndarray], np.ndarray], Ew: 
     if not np.all(found):  # pragma: no cover - a bookkeeping error, not an input error
         raise RuntimeError("energies_reference: interior jump outside every special interval")
     count = 1 + np.bincount(in_item, minlength=it.key.size)
-    off = np.concatenate(([0], np.cumsum(count)[:-1])).astype(np.int64)
+    off = (np.cumsum(count) - count).astype(np.int64)  # empty when no interval is special
     last = off + count - 1
     nsub = int(count.sum())
     run_start = np.ones(in_item.size, dtype=bool)

@@ -7,7 +7,7 @@
 (:func:`~ftc_verify.simulation.fmu_workers.run_fmu_batches`), reporting each finished
 batch to ``done`` (a progress bar). Either way the result is what one
 :meth:`Supervisor.run <ftc_verify.simulation.supervisor.Supervisor.run>` over all paths
-returns: the ``Delta`` draws come from ``rng`` path by path in order.
+returns: every path draws its ``Delta`` values from its own stream.
 """
 
 from __future__ import annotations
@@ -52,7 +52,7 @@ def merge_results(parts: Sequence[SimulationResult], fmu: str | Path, seed: int 
 
 
 def fmu_monte_carlo(system: FTCSystem, controller: Controller, paths: Sequence[ChainPath], *, step: float,
-                    delta: DeltaSchedule, rng: np.random.Generator, disturbance: str = "paper",
+                    delta: DeltaSchedule, rng: np.random.Generator | None = None, disturbance: str = "paper",
                     seed: int | None = None, plant: Any = None, batch: int = FMU_TASK_PATHS, client: Any = None,
                     log: Callable[[str, str, str], None] | None = None,
                     done: Callable[[int], Any] | None = None) -> SimulationResult:
@@ -60,8 +60,11 @@ def fmu_monte_carlo(system: FTCSystem, controller: Controller, paths: Sequence[C
     ``LinearJumpPlant`` of ``system``; :func:`~ftc_verify.simulation.supervisor.resolve_plant`)
     in batches of ``batch`` (module docstring). ``client``: run the batches on its
     workers (``log`` is then not available: the messages stay there). ``done(k)`` is called
-    after each batch of ``k`` paths; ``seed`` is recorded."""
+    after each batch of ``k`` paths; ``seed`` is recorded. ``rng`` (default
+    ``numpy.random.default_rng(seed)``) draws ``Delta`` only for paths without their own
+    stream."""
     plant = resolve_plant(system, plant)
+    rng = np.random.default_rng(seed) if rng is None else rng
     plist = list(paths)
     if client is not None:
         from .fmu_workers import run_fmu_batches

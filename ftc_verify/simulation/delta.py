@@ -9,8 +9,8 @@ simulation backends take the values from :func:`delta_segments`, so they see the
 * ``constant`` -- the given matrices throughout;
 * ``sign`` -- the given matrices with alternating sign, flipping at every chain jump;
 * ``random`` -- a fresh random matrix on every segment, :math:`\Delta = s\,G/\|G\|_2`
-  with :math:`G` standard normal and :math:`s` uniform in [0, 1], drawn from the caller's
-  generator.
+  with :math:`G` standard normal and :math:`s` uniform in [0, 1], drawn from the path's
+  own stream (or the caller's generator for a path built by hand).
 
 Every value satisfies :math:`\|\Delta\|_2 \le 1` (checked for given matrices).
 ``Delta1`` is ``p1 x q1`` for ``A1`` (``n x p1``) and ``A2`` (``q1 x n``); ``Delta2`` is
@@ -100,12 +100,17 @@ def delta_segments(
 ) -> list[tuple[Matrix | None, Matrix | None]]:
     """``(Delta1, Delta2)`` on each chain segment of ``path`` (``len(path.times)`` entries).
 
-    ``rng`` is required for ``random`` and unused otherwise.
+    Kind ``random`` draws from the path's own stream
+    (:meth:`~ftc_verify.simulation.paths.ChainPath.delta_generator`: the same values on
+    every call and in every simulator), or from ``rng`` for a path without a stream
+    (built by hand); the other kinds draw nothing.
     """
     segments = len(path.times)
     if schedule.kind == "random":
+        own = path.delta_generator()
+        rng = own if own is not None else rng
         if rng is None:
-            raise ValidationError("delta: kind 'random' needs a numpy Generator")
+            raise ValidationError("delta: kind 'random' needs a numpy Generator for a path without its own stream")
         s1, s2 = delta_shapes(system)
         return [(_random(s1, rng), _random(s2, rng)) for _ in range(segments)]
     if schedule.kind == "zero":

@@ -90,8 +90,8 @@ def energies_reference(
 ) -> tuple[np.ndarray, np.ndarray]:
     r"""Per path :math:`\int_0^T |y|^2 dt` and :math:`\int_0^T |w|^2 dt` of the sampled loop.
 
-    Same loop, grid, ``Delta`` draws (from ``rng``, default ``default_rng()``, per path in
-    path order) and trapezoidal rule as
+    Same loop, grid, ``Delta`` draws (each path's own stream; ``rng``, default
+    ``default_rng()``, for paths without one, in path order) and trapezoidal rule as
     :func:`~ftc_verify.simulation.reference.simulate_reference` followed by
     ``record.y_norm ** 2, record.w_norm ** 2``, without keeping trajectories (module
     docstring). The parameters are those of ``simulate_reference`` (without ``seed``);

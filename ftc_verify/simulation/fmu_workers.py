@@ -11,9 +11,10 @@ then reuses (``fmi2Reset`` between paths, as on one machine). A worker that repl
 lost one gets the plugin from the scheduler, and its tasks are retried
 (:data:`~ftc_verify.simulation.streaming.TASK_RETRIES`).
 
-Same numbers as the serial run: each batch is a task carrying the generator state that a
-serial run has at its first path (:func:`~ftc_verify.simulation.streaming.batch_generators`),
-so the ``Delta`` draws, and therefore the records, are identical wherever a batch runs.
+Same numbers as the serial run: every sampled path draws its ``Delta`` values from its
+own stream (and a hand-built path from the generator state a serial run has at its
+batch, :func:`~ftc_verify.simulation.streaming.batch_generators`), so the records are
+identical wherever a batch runs.
 
 This module imports ``dask.distributed`` at import time: import it only when a client
 exists (:func:`~ftc_verify.simulation.cluster.open_client`).

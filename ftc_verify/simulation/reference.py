@@ -53,10 +53,10 @@ The other entry points, re-exported here
 * :func:`~ftc_verify.simulation.discretise.zoh_matrices`,
   :func:`~ftc_verify.simulation.discretise.phi_gamma` -- the exponentials.
 
-Randomness only through an explicit :class:`numpy.random.Generator` (``rng``, default
-``numpy.random.default_rng(seed)``), used by ``Delta`` kind ``random`` only: the draws
-are made per path in path order, so every backend given the same generator state sees
-the same :math:`\Delta(t)`.
+Randomness: ``Delta`` kind ``random`` only, drawn from each path's own stream
+(:meth:`~ftc_verify.simulation.paths.ChainPath.delta_generator`), so every backend sees
+the same :math:`\Delta(t)` on a path; a hand-built path without a stream draws from
+``rng`` (default ``numpy.random.default_rng(seed)``) in path order.
 """
 
 from __future__ import annotations

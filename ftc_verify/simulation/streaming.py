@@ -9,15 +9,15 @@ paths x steps. Full trajectories (:class:`~ftc_verify.simulation.records.PathRec
 computed only for the first ``record`` paths, by
 :func:`~ftc_verify.simulation.reference.simulate_reference` with the same ``Delta`` draws.
 
-Same numbers as the per-path code: both draw ``Delta`` per path in path order from one
-generator (:func:`~ftc_verify.simulation.delta.delta_segments`), and the engine uses the
-same grid and trapezoidal rule as ``record.y_norm``; a diverged path (``Ey = inf``) gets
-its divergence time by re-simulating that path alone after replaying the draws of the
-paths before it.
+Same numbers as the per-path code: both take each path's ``Delta`` values from
+:func:`~ftc_verify.simulation.delta.delta_segments` (the path's own stream), and the
+engine uses the same grid and trapezoidal rule as ``record.y_norm``; a diverged path
+(``Ey = inf``) gets its divergence time by re-simulating that path alone.
 
-Scale-out: with a ``dask.distributed`` client every batch is one task, carrying the
-generator state a serial run would have at its first path (:func:`batch_generators`), so
-serial, local-cluster and remote-cluster runs give identical numbers for a seed.
+Scale-out: with a ``dask.distributed`` client every batch is one task; sampled paths
+carry their own streams (hand-built paths the generator state a serial run would have at
+the batch's first path, :func:`batch_generators`), so serial, local-cluster and
+remote-cluster runs give identical numbers for a seed.
 """
 
 from __future__ import annotations
@@ -52,16 +52,18 @@ def batch_generators(system: FTCSystem, paths: list[ChainPath], schedule: DeltaS
                      gen: np.random.Generator, batch: int) -> Iterator[np.random.Generator]:
     """One generator per batch of ``batch`` paths, yielded in turn: the state ``gen`` would
     have after the ``Delta`` draws of every earlier path, so that batches computed
-    anywhere, in any order, draw what a serial run draws. A batch can be submitted as soon
-    as its state is yielded, while the client replays the next one. ``gen`` ends where a
-    serial run leaves it once the iterator is exhausted. With ``Delta`` kind ``random``
-    this replays every path's draws in the client (about 2 ms per path of 90 segments
-    here), the price of identical numbers."""
+    anywhere, in any order, draw what a serial run draws. Only paths without their own
+    stream (:attr:`~ftc_verify.simulation.paths.ChainPath.stream`, built by hand) draw
+    from ``gen``; paths from :func:`~ftc_verify.simulation.paths.sample_paths` draw from
+    their stream, so for them nothing is replayed. A batch can be submitted as soon as its
+    state is yielded. ``gen`` ends where a serial run leaves it once the iterator is
+    exhausted."""
     for b in range(0, len(paths), batch):
         yield copy.deepcopy(gen)
         if schedule.kind == "random":  # the only kind that draws
             for p in paths[b:b + batch]:
-                delta_segments(system, p, schedule, gen)
+                if p.stream is None:
+                    delta_segments(system, p, schedule, gen)
 
 
 def _energies_batch(system: FTCSystem, controller: Controller, paths: list[ChainPath], step: float,
@@ -160,7 +162,8 @@ def simulate_streaming(
         else:
             replay = copy.deepcopy(start)
             for p in plist[:k]:
-                delta_segments(system, p, schedule, replay)
+                if p.stream is None and schedule.kind == "random":
+                    delta_segments(system, p, schedule, replay)
             t = simulate_reference(system, controller, [plist[k]], step=step, disturbance=disturbance,
                                    delta=schedule, rng=replay).records[0].diverged_at
         diverged[k] = math.inf if t is None else float(t)

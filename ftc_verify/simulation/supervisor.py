@@ -333,8 +333,8 @@ class Supervisor:
         static gains with ``Controller.state_feedback(gains)``). ``disturbance``: a kind of
         :data:`ftc_verify.simulation.paths.DISTURBANCES`. ``delta``: a
         :class:`~ftc_verify.simulation.delta.DeltaSchedule` or its kind (None: zero); the
-        values come from :func:`~ftc_verify.simulation.delta.delta_segments` per path in
-        order, drawing from ``rng`` (default ``numpy.random.default_rng(seed)``).
+        values come from :func:`~ftc_verify.simulation.delta.delta_segments` (each path's
+        own stream; ``rng``, default ``numpy.random.default_rng(seed)``, for paths without one).
         ``x0``: the initial plant state (default 0; needs
         :attr:`FaultInjectionMap.initial_states`); the controller state starts at 0.
         """

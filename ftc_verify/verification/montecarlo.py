@@ -181,7 +181,8 @@ def monte_carlo(
     delta: Any = None,
 ) -> MCEstimate:
     """Estimate ``E||y||^2/||w||^2`` on ``backend`` (``"reference"`` or ``"fmu"``) with the
-    paper's disturbance: ``paths`` exact chain paths from ``numpy.random.default_rng(seed)``
+    paper's disturbance: ``paths`` exact chain paths, path ``k`` from child ``k`` of
+    ``numpy.random.SeedSequence(seed)``
     (``beta`` drawn per path unless given), sample-and-hold at ``step``. ``sequential=True``
     (needs ``gamma``) draws batches until the comparison with ``gamma**2`` is decided or
     ``paths`` are used. The seed (drawn and recorded when ``None``) is in the result."""
@@ -193,17 +194,17 @@ def monte_carlo(
         raise ValidationError("gamma: the sequential mode compares with gamma, which is missing")
     if seed is None:
         seed = int(np.random.SeedSequence().entropy % 2**63)
-    rng = np.random.default_rng(seed)
+    streams = np.random.SeedSequence(seed)  # spawned from batch after batch: paths numbered on
 
     def draw(count: int) -> tuple[np.ndarray, np.ndarray]:
-        chunk = sample_paths(system.chain, horizon, count, rng, beta=beta)
+        chunk = sample_paths(system.chain, horizon, count, streams, beta=beta)
         if backend == "reference":
             from ..simulation.reference import energies_reference
 
-            return energies_reference(system, controller, chunk, step=step, delta=delta, rng=rng)
+            return energies_reference(system, controller, chunk, step=step, delta=delta)
         from ..simulation.supervisor import simulate_fmu
 
-        res = simulate_fmu(system, controller, chunk, step=step, delta=delta, rng=rng)
+        res = simulate_fmu(system, controller, chunk, step=step, delta=delta)
         return (np.array([r.y_norm ** 2 for r in res.records]), np.array([r.w_norm ** 2 for r in res.records]))
 
     if sequential:

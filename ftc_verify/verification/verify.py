@@ -163,20 +163,20 @@ def _exact_energies(system: FTCSystem, loop: ClosedLoop, g2: float) -> tuple[lis
 
 
 def _fmu_monte_carlo(system: FTCSystem, controller: Controller, chain_paths: list[ChainPath], delta: DeltaSchedule,
-                     delta_seed: int, step: float, progress: bool, plant: Any = None,
+                     step: float, progress: bool, plant: Any = None,
                      log: Any = None, disturbance: str = "paper",
                      client: Any = None) -> tuple[list[PathRecord], dict[str, Any]]:
     """Every path co-simulated on the plant map's FMU (default: the ``LinearJumpPlant`` of
     ``system``) with the named disturbance, in batches (:data:`~ftc_verify.simulation.batches.FMU_TASK_PATHS`), on
     ``client``'s Dask workers if given (:func:`~ftc_verify.simulation.batches.fmu_monte_carlo`;
-    same records); also the FMU's file and model identifier. The ``Delta`` draws come from
-    ``delta_seed`` alone, so two calls see the same ``Delta``."""
+    same records); also the FMU's file and model identifier. Every path draws ``Delta`` from
+    its own stream, so two calls see the same ``Delta``."""
     from ..simulation.batches import fmu_monte_carlo, progress_bar
 
     bar = progress_bar(len(chain_paths), "Monte Carlo (FMU)", progress)
     try:
         res = fmu_monte_carlo(system, controller, chain_paths, step=step, delta=delta,
-                              rng=np.random.default_rng(delta_seed), disturbance=disturbance, plant=plant,
+                              disturbance=disturbance, plant=plant,
                               client=client, log=log, done=None if bar is None else bar.update)
     finally:
         if bar is not None:
@@ -261,12 +261,12 @@ def _plant_summary(plant: Any, records: list[PathRecord], reference: list[PathRe
 
 
 def _backend_agreement(system: FTCSystem, controller: Controller, chain_paths: list[ChainPath],
-                       records: list[PathRecord], delta: DeltaSchedule, delta_seed: int, step: float) -> Check:
+                       records: list[PathRecord], delta: DeltaSchedule, step: float) -> Check:
     """The first paths again on the numpy reference, with the same Delta draws."""
     from ..simulation.reference import simulate_reference
 
     ref = simulate_reference(system, controller, chain_paths[:AGREE_PATHS], step=step, disturbance="paper",
-                             delta=delta, rng=np.random.default_rng(delta_seed))
+                             delta=delta)
     worst = 0.0
     for k, (a, b) in enumerate(zip(records[:AGREE_PATHS], ref.records), start=1):
         if a.diverged_at != b.diverged_at:
@@ -280,16 +280,16 @@ def _backend_agreement(system: FTCSystem, controller: Controller, chain_paths: l
 
 
 def _against_reference(system: FTCSystem, controller: Controller, chain_paths: list[ChainPath],
-                       records: list[PathRecord], delta: DeltaSchedule, delta_seed: int, step: float, plant: Any,
+                       records: list[PathRecord], delta: DeltaSchedule, step: float, plant: Any,
                        mc: MCEstimate, fmu: dict[str, Any], measured: list[PathRecord],
                        fault_only: list[PathRecord] | None) -> tuple[dict[str, Any] | None, Check]:
     """The backend agreement (LinearJumpPlant), or the plant summary and region check."""
     if plant is None:
-        return None, _backend_agreement(system, controller, chain_paths, records, delta, delta_seed, step)
+        return None, _backend_agreement(system, controller, chain_paths, records, delta, step)
     from ..simulation.reference import simulate_reference
 
     ref = simulate_reference(system, controller, chain_paths[:AGREE_PATHS], step=step, disturbance="paper",
-                             delta=delta, rng=np.random.default_rng(delta_seed))
+                             delta=delta)
     return _plant_summary(plant, records, list(ref.records), mc, fmu, measured, fault_only)
 
 
@@ -386,21 +386,19 @@ def run_verify(
     checks.append(check)
     stage("worst_case", t)
     t = time.perf_counter()
-    rng = np.random.default_rng(seed)
-    chain_paths = sample_paths(system.chain, horizon, paths, rng)
+    chain_paths = sample_paths(system.chain, horizon, paths, seed)
     delta = DeltaSchedule("random" if system.uncertain and (plant is None or plant.delta1 or plant.delta2) else "zero")
-    delta_seed = int(rng.integers(2**63))
-    records, fmu = _fmu_monte_carlo(system, controller, chain_paths, delta, delta_seed, step, progress, plant, fmu_log,
+    records, fmu = _fmu_monte_carlo(system, controller, chain_paths, delta, step, progress, plant, fmu_log,
                                     client=client)
     measured, fault_only = _measured(records, measure, lambda: _fmu_monte_carlo(
-        system, controller, chain_paths, delta, delta_seed, step, progress, plant, fmu_log, disturbance="zero",
+        system, controller, chain_paths, delta, step, progress, plant, fmu_log, disturbance="zero",
         client=client)[0])
     options.update(fmu)
     mc, check = _mc_check(measured, gamma_cert, seed, step, horizon, incremental=measure == "incremental")
     checks.append(check)
     stage("monte_carlo", t)
     t = time.perf_counter()
-    found_plant, check = _against_reference(system, controller, chain_paths, records, delta, delta_seed, step,
+    found_plant, check = _against_reference(system, controller, chain_paths, records, delta, step,
                                             plant, mc, fmu, measured, fault_only)
     checks.append(check)
     stage("reference", t)
