@@ -143,7 +143,7 @@ def sample_paths(
     ``beta`` uniformly in its box per path (the first ``m*m`` uniforms of its stream);
     ``start`` is the initial ``(true, fdi)`` (default: no fault, FDI agrees).
 
-    Exact sampling of the generator :math:`Q(eta)` (:meth:`JointChain.generator`): from
+    Exact sampling of the generator :math:`Q(\beta)` (:meth:`JointChain.generator`): from
     joint mode ``s`` the holding time is :math:`E/(-Q_{ss})` with :math:`E` standard
     exponential, and the next mode is the smallest ``s'`` whose cumulative jump
     probability :math:`\sum_{r\le s'} Q_{sr}/(-Q_{ss})` (``r != s``) exceeds a uniform
