@@ -201,8 +201,10 @@ def simulate_reference(
         Initial plant state of every path (default 0); the controller starts at
         :math:`x_c = 0`.
     rng, seed
-        Generator for ``Delta`` kind ``random`` (default ``numpy.random.default_rng(seed)``);
-        ``seed`` is recorded in the result.
+        Generator for ``Delta`` kind ``random`` on paths without their own stream
+        (default ``numpy.random.default_rng(seed)``; sampled paths draw from
+        :meth:`~ftc_verify.simulation.paths.ChainPath.delta_generator`); ``seed`` is
+        recorded in the result.
 
     Returns
     -------
