@@ -389,7 +389,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "(dynamic output feedback), one table per FDI mode; --gains is an alias")
     a.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     a.add_argument("--solver", default="auto", choices=["auto", "clarabel", "sdpa", "scs"],
-                   help="LMI solver (default: auto = clarabel for small problems, sdpa above the size threshold)")
+                   help="LMI solver (default: auto = clarabel at every size; sdpa and scs on request)")
     a.add_argument("--no-lmi", action="store_true",
                    help="only the exact spectral test and the per-mode cross-check (no LMI certificates): "
                         "for loops whose LMIs would not fit in memory or time")
