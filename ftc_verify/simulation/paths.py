@@ -191,8 +191,8 @@ def sample_paths(
                 U[p] = gens[p].random(DRAW_BLOCK)
         r = rates[row[alive], state[alive]]
         t_next = t[alive] + np.where(r > 0.0, E[alive, b] / np.where(r > 0.0, r, 1.0), np.inf)
-        alive = alive[t_next < horizon]
-        t_next = t_next[t_next < horizon]
+        inside = t_next < horizon
+        alive, t_next = alive[inside], t_next[inside]
         t[alive] = t_next
         state[alive] = np.count_nonzero(cdf[row[alive], state[alive]] <= U[alive, b, None], axis=1)
         jump_p.append(alive)
