@@ -148,6 +148,19 @@ class ClosedLoop:
                            for chans in self.channels),
         )
 
+    def transformed(self, T: Matrix, T_inv: Matrix) -> "ClosedLoop":
+        """The similar loop in the coordinates ``x = T x~`` (``T_inv`` the inverse used):
+        ``A~ = T^-1 A T``, ``Bw~ = T^-1 Bw``, ``Cz~ = Cz T``, ``E~ = T^-1 E``, ``F~ = F T``
+        (:mod:`ftc_verify.analysis.conditioning`)."""
+        return replace(
+            self,
+            A=tuple(T_inv @ A @ T for A in self.A),
+            Bw=tuple(T_inv @ B for B in self.Bw),
+            Cz=tuple(C @ T for C in self.Cz),
+            channels=tuple(tuple(Channel(T_inv @ ch.E, ch.F @ T, ch.name) for ch in chans)
+                           for chans in self.channels),
+        )
+
     def perturbed(self, deltas: Mapping[str, Matrix]) -> tuple[Matrix, ...]:
         """State matrices ``A_s + sum_k E_k Delta_k F_k`` for given ``Delta`` per channel
         name (a channel missing from ``deltas`` stays at ``Delta = 0``)."""

@@ -32,6 +32,8 @@ import numpy as np
 import scipy.linalg
 
 from .closedloop import ClosedLoop
+from .conditioning import Similarity, conditioning_transform
+from .verdict import BUDGET_SECONDS, VertexVerdict, certify_vertex, combine, describe
 from ..model.system import Matrix
 
 __all__ = [
@@ -239,11 +241,15 @@ def _vech_order(n: int) -> tuple[Matrix, Matrix]:
 
 @dataclass(frozen=True, eq=False)
 class MSSResult:
-    """Worst spectral abscissa over the ``beta`` vertices evaluated.
+    """Worst spectral abscissa over the ``beta`` vertices evaluated, and the verified verdict.
 
-    ``exhaustive`` tells whether every vertex was evaluated; otherwise a greedy ascent
-    over vertices (single-rate flips from the all-min and all-max vertices) was used
-    and the value is a lower bound of the vertex maximum.
+    ``spectral_abscissa`` is the float64 estimate, computed in the coordinates of
+    :func:`~ftc_verify.analysis.conditioning.conditioning_transform`; ``verdict`` is
+    "stable", "not stable" or "undecided" and is proved at every vertex evaluated
+    (:mod:`ftc_verify.analysis.verdict`; ``vertex_verdicts`` says how). ``exhaustive``
+    tells whether every vertex was evaluated; otherwise a greedy ascent over vertices
+    (single-rate flips from the all-min and all-max vertices) was used and the value is
+    a lower bound of the vertex maximum.
     """
 
     spectral_abscissa: float
@@ -251,17 +257,34 @@ class MSSResult:
     vertices_evaluated: int
     exhaustive: bool
     exact_evaluations: int = 0
+    verdict: str = "undecided"
+    vertex_verdicts: tuple[VertexVerdict, ...] = ()
+    conditioning: Similarity | None = None
 
     @property
     def stable(self) -> bool:
-        """Mean-square stable at every vertex evaluated."""
-        return self.spectral_abscissa < 0.0
+        """Proved mean-square stable at every vertex evaluated."""
+        return self.verdict == "stable"
+
+    @property
+    def unstable(self) -> bool:
+        """Proved not mean-square stable at some vertex."""
+        return self.verdict == "not stable"
+
+    @property
+    def undecided(self) -> bool:
+        """Neither proved (float64 and the higher-precision retries could not decide)."""
+        return self.verdict == "undecided"
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary."""
         return {
             "spectral_abscissa": self.spectral_abscissa,
             "stable": self.stable,
+            "verdict": self.verdict,
+            "verified_by": describe(self.vertex_verdicts),
+            "vertex_verdicts": [v.to_dict() for v in self.vertex_verdicts],
+            "conditioning": None if self.conditioning is None else self.conditioning.to_dict(),
             "worst_beta": self.worst_beta.tolist(),
             "vertices_evaluated": self.vertices_evaluated,
             "exhaustive": self.exhaustive,
@@ -269,19 +292,37 @@ class MSSResult:
         }
 
 
-def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256) -> MSSResult:
-    """Worst spectral abscissa over the vertices of the ``beta`` box.
+def _verified(loop: ClosedLoop, sim: Similarity, vertices: list[Matrix], estimates: list[float | None],
+              budget_seconds: float) -> tuple[str, tuple[VertexVerdict, ...]]:
+    """Verdicts at ``vertices`` (the worst first), stopping at the first "not stable"."""
+    found = []
+    for beta, est in zip(vertices, estimates):
+        v = certify_vertex(loop, beta, sim, estimate=est, budget_seconds=budget_seconds)
+        found.append(v)
+        if v.verdict == "not stable":
+            break
+    return combine(found), tuple(found)
 
-    Every vertex is evaluated when there are at most ``max_vertices``; otherwise a
-    greedy vertex ascent is run with the same budget (``exhaustive=False``). A vertex
-    that :func:`abscissa_below` proves below the worst value found so far needs no
+
+def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256,
+                          budget_seconds: float = BUDGET_SECONDS) -> MSSResult:
+    """Worst spectral abscissa over the vertices of the ``beta`` box, and the verified
+    verdict at every vertex evaluated.
+
+    The loop is first moved to the coordinates of
+    :func:`~ftc_verify.analysis.conditioning.conditioning_transform`. Every vertex is
+    evaluated when there are at most ``max_vertices``; otherwise a greedy vertex ascent
+    is run with the same budget (``exhaustive=False``). A vertex that
+    :func:`abscissa_below` shows below the worst value found so far needs no
     eigenvalues; the others get :func:`abscissa_near` (dense :func:`spectral_abscissa`
-    at the first vertex, and when that fails). The answer is the one every vertex
-    evaluated by dense eigenvalues would give, to rounding (``exact_evaluations`` counts
-    the vertices whose abscissa was computed).
+    at the first vertex, and when that fails). Then
+    :func:`~ftc_verify.analysis.verdict.certify_vertex` proves the verdict at the worst
+    vertex and at every other vertex evaluated (``budget_seconds`` bounds the
+    higher-precision retries of each).
     """
+    sim = conditioning_transform(loop.nominal())
+    nominal = sim.apply(loop.nominal())
     chain = loop.chain
-    nominal = loop.nominal()
     prune = SHIFT_TEST_MIN <= generator_size(nominal) <= SHIFT_TEST_LIMIT
     modes_part = _sparse_modes(nominal) if prune else None
     exact: dict[tuple[bool, ...], float] = {}
@@ -319,7 +360,10 @@ def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256) -> MSSRe
         for bits in order[1:]:
             if above(bits, exact[worst]):
                 worst = bits
-        return MSSResult(exact[worst], vertex(worst), len(order), True, len(exact))
+        rest = [b for b in order if b != worst]
+        verdict, proofs = _verified(loop, sim, [vertex(worst)] + [vertex(b) for b in rest],
+                                    [exact[worst]] + [exact.get(b) for b in rest], budget_seconds)
+        return MSSResult(exact[worst], vertex(worst), len(order), True, len(exact), verdict, proofs, sim)
     for start in ((False,) * len(pairs), (True,) * len(pairs)):
         if start not in seen and len(seen) >= max_vertices:
             break
@@ -334,4 +378,7 @@ def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256) -> MSSRe
                 if above(cand, value(bits)):
                     bits, improved = cand, True
     worst = max(exact, key=lambda k: exact[k])
-    return MSSResult(exact[worst], vertex(worst), len(seen), False, len(exact))
+    rest = [b for b in seen if b != worst]
+    verdict, proofs = _verified(loop, sim, [vertex(worst)] + [vertex(b) for b in rest],
+                                [exact[worst]] + [exact.get(b) for b in rest], budget_seconds)
+    return MSSResult(exact[worst], vertex(worst), len(seen), False, len(exact), verdict, proofs, sim)

@@ -1,0 +1,274 @@
+r"""Verified mean-square stability verdicts: "stable", "not stable" or "undecided", never wrong.
+
+The exact test of :mod:`ftc_verify.analysis.stability` computes the spectral abscissa
+:math:`\mu` of the second-moment generator :math:`\mathcal L` in float64; an
+ill-conditioned loop can move it across zero. Here every verdict at a ``beta`` vertex
+comes with a certificate checked in ball arithmetic (:mod:`ftc_verify.analysis.rigorous`)
+in the loop's *original* coordinates, from the float data taken as exact.
+
+With :math:`\mathcal L(X)_s = A_s X_s + X_s A_s^T + \sum_{t} Q_{ts} X_t` (resolvent
+positive: :math:`e^{\mathcal L t}` maps positive semidefinite stacks to positive
+semidefinite stacks; its adjoint has an eigenvector :math:`Z \succeq 0`, :math:`Z \ne 0`,
+:math:`\mathcal L^*(Z) = \mu Z`, Krein-Rutman), derived here:
+
+* **Stable** (:math:`\mu < 0`) if some :math:`X` has :math:`X_s \succ 0` and
+  :math:`-\mathcal L(X)_s \succ 0` for every joint mode :math:`s`: then
+  :math:`0 > \langle \mathcal L(X), Z\rangle = \mu \langle X, Z\rangle` with
+  :math:`\langle X, Z\rangle > 0`.
+* **Not stable** (:math:`\mu \ge 0`) if some :math:`X` has :math:`-\mathcal L(X)_s
+  \succ 0` for every :math:`s` but some :math:`X_s` has a direction :math:`v` with
+  :math:`v^T X_s v < 0`: were :math:`\mu < 0`, :math:`\mathcal L` would be invertible
+  and :math:`X = \int_0^\infty e^{\mathcal L t}(-\mathcal L(X))\,dt \succeq 0`. (A
+  witness :math:`W \succ 0` with :math:`\mathcal L(W) \succ 0` need not exist: the
+  rightmost eigenvector is often of rank one.) With :math:`X` the exact solution of
+  :math:`\mathcal L(X) = -I` this is the same argument.
+
+The candidate :math:`X` comes from the loop in the coordinates of
+:func:`~ftc_verify.analysis.conditioning.conditioning_transform` (float: solve
+:math:`\tilde{\mathcal L}(\tilde X) = -I`), mapped back exactly as :math:`X = T\tilde X T^T` in ball arithmetic. When that does not
+decide, :math:`\mathcal L(X) = -I` is solved in ball arithmetic (FLINT's certified
+``arb_mat.solve``, an enclosure of the exact solution) at 128, then 256 and 512 bits,
+within :data:`SOLVE_LIMIT` rows and a time budget; what is still open is "undecided".
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..model.system import Matrix
+from .closedloop import ClosedLoop
+from .conditioning import Similarity
+from .rigorous import Ball, ball, precision, proven_not_psd, proven_positive_definite
+
+__all__ = ["VERDICTS", "SOLVE_LIMIT", "BUDGET_SECONDS", "FALLBACK_BITS", "VertexVerdict", "certify_vertex", "combine",
+           "describe"]
+
+#: The three answers a stability verdict can give.
+VERDICTS = ("stable", "not stable", "undecided")
+#: Largest generator (rows) solved in ball arithmetic (about 10 s at 128 bits for 700 rows here).
+SOLVE_LIMIT = 700
+#: Time budget (seconds) of the ball-arithmetic fallback of one vertex.
+BUDGET_SECONDS = 60.0
+#: Precisions (bits) of the ball-arithmetic fallback, in order.
+FALLBACK_BITS = (128, 256, 512)
+
+
+@dataclass(frozen=True)
+class VertexVerdict:
+    """The verified verdict at one ``beta`` vertex and how it was proved."""
+
+    beta: Matrix
+    verdict: str
+    method: str
+    precision_bits: int
+    seconds: float
+    estimate: float | None = None
+
+    def to_dict(self) -> dict[str, object]:
+        """JSON-ready summary."""
+        return {"beta": np.asarray(self.beta).tolist(), "verdict": self.verdict, "method": self.method,
+                "precision_bits": self.precision_bits, "seconds": self.seconds,
+                "float_abscissa": self.estimate}
+
+
+def _exact_generator_matrix(chain_q: Matrix) -> list[list[Ball]]:
+    """The generator ``Q`` as balls, its diagonal the exact negated row sums."""
+    m = chain_q.shape[0]
+    out = []
+    for s in range(m):
+        row = [ball(np.array([[chain_q[s, t]]])) if t != s else None for t in range(m)]
+        total = ball(np.zeros((1, 1)))
+        for t in range(m):
+            if t != s:
+                total = total + row[t]
+        row[s] = -total
+        out.append(row)
+    return out
+
+
+def _lyapunov_operator(loop: ClosedLoop, Q: Matrix, X: Sequence[Ball]) -> list[Ball]:
+    r""":math:`\mathcal L(X)_s` in ball arithmetic from the float data (module docstring)."""
+    q = _exact_generator_matrix(Q)
+    out = []
+    for s, A in enumerate(loop.A):
+        Ab = ball(A)
+        Y = Ab @ X[s] + X[s] @ Ab.T
+        for t in range(len(X)):
+            if t == s or Q[t, s] != 0.0:
+                Y = Y + Ball(q[t][s].value[0, 0] * X[t].value)
+        out.append(Y)
+    return out
+
+
+def _stack_back(sim: Similarity, Xt: np.ndarray) -> list[Ball]:
+    """``T X~_s T'`` exactly, for each matrix of the float stack ``X~``."""
+    T = ball(sim.T)
+    return [T @ ball(0.5 * (x + x.T)) @ T.T for x in Xt]
+
+
+def _float_candidate(conditioned: ClosedLoop, beta: Matrix) -> np.ndarray | None:
+    """The float solution ``X~`` of ``L~(X~) = -I`` for the conditioned loop, as a stack of
+    symmetric matrices (``None`` when the solve fails or is not finite)."""
+    import scipy.linalg
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import splu
+
+    from .stability import DENSE_LIMIT, _sparse_modes, _vech_order, generator_size, second_moment_generator
+
+    n, modes = conditioned.n, len(conditioned.A)
+    rows, cols = _vech_order(n)
+    rhs = np.tile(-(rows == cols).astype(float), modes)
+    try:
+        if generator_size(conditioned) > DENSE_LIMIT:
+            G = _sparse_modes(conditioned) + sp.kron(conditioned.chain.generator(beta).T,
+                                                      sp.identity(len(rows)), format="csc")
+            v = splu(G.tocsc()).solve(rhs)
+        else:
+            v = scipy.linalg.solve(second_moment_generator(conditioned, beta), rhs, check_finite=False)
+    except (RuntimeError, ValueError, np.linalg.LinAlgError, scipy.linalg.LinAlgError):
+        return None
+    if not np.all(np.isfinite(v)):
+        return None
+    X = np.zeros((modes, n, n))
+    X[:, rows, cols] = v.reshape(modes, -1)
+    X[:, cols, rows] = X[:, rows, cols]
+    return X
+
+
+def _decide(X: Sequence[Ball], precond: Matrix | None) -> str | None:
+    """"stable" if every ``X_s`` is proved positive definite, "not stable" if some
+    ``X_s`` is proved to have a negative direction, ``None`` otherwise (``L(X) < 0``
+    already known)."""
+    if all(proven_positive_definite(x, precond) for x in X):
+        return "stable"
+    if any(proven_not_psd(x) for x in X):
+        return "not stable"
+    return None
+
+
+def _ball_generator(loop: ClosedLoop, Q: Matrix) -> object:
+    """The generator in vech coordinates as an exact ball matrix (``arb_mat``)."""
+    import flint
+
+    from .stability import duplication_matrix
+
+    n, modes = loop.n, len(loop.A)
+    D, L = duplication_matrix(n)
+    h = D.shape[1]
+    eye = np.eye(n)
+    size = modes * h
+    G = flint.arb_mat(size, size)
+    q = _exact_generator_matrix(Q)
+    for s, A in enumerate(loop.A):
+        part = (ball(L @ np.kron(eye, A) @ D) + ball(L @ np.kron(A, eye) @ D)).value  # each product exact
+        for r in range(h):
+            for c in range(h):
+                if part[r, c] != 0:
+                    G[s * h + r, s * h + c] = part[r, c]
+    for s in range(modes):
+        for t in range(modes):
+            value = q[t][s].value[0, 0]  # block (s, t) of Q' kron I is Q[t, s] I
+            if value != 0:
+                for r in range(h):
+                    G[s * h + r, t * h + r] += value
+    return G
+
+
+def _ball_solution(loop: ClosedLoop, Q: Matrix, bits: int) -> list[Ball] | None:
+    """An enclosure of the exact solution of ``L(X) = -I`` at ``bits`` (``None`` when
+    FLINT cannot prove the system nonsingular at that precision)."""
+    import flint
+
+    from .stability import _vech_order
+
+    n, modes = loop.n, len(loop.A)
+    rows, cols = _vech_order(n)
+    h = len(rows)
+    with precision(bits):
+        G = _ball_generator(loop, Q)
+        rhs = flint.arb_mat([[-1.0 if r == c else 0.0] for _ in range(modes) for r, c in zip(rows, cols)])
+        try:
+            v = G.solve(rhs)
+        except (ZeroDivisionError, ValueError):
+            return None
+        out = []
+        for s in range(modes):
+            X = flint.arb_mat(n, n)
+            for k, (r, c) in enumerate(zip(rows, cols)):
+                X[int(r), int(c)] = v[s * h + k, 0]
+                X[int(c), int(r)] = v[s * h + k, 0]
+            out.append(Ball(X))
+    return out
+
+
+def certify_vertex(loop: ClosedLoop, beta: Matrix, sim: Similarity, *, estimate: float | None = None,
+                   budget_seconds: float = BUDGET_SECONDS) -> VertexVerdict:
+    """The verified verdict of the nominal ``loop`` at ``beta`` (module docstring).
+
+    ``estimate`` (the float abscissa at ``beta``, if known) is recorded in the result
+    only; the verdict never depends on it.
+    """
+    start = time.perf_counter()
+    nominal = loop.nominal()
+    Q = nominal.chain.generator(beta)
+    conditioned = sim.apply(nominal)
+    precond = sim.T_inv.T  # C' (T X~ T') C = X~
+
+    def done(verdict: str, method: str, bits: int) -> VertexVerdict:
+        return VertexVerdict(np.asarray(beta, dtype=float), verdict, method, bits, time.perf_counter() - start,
+                             estimate)
+
+    Xt = _float_candidate(conditioned, beta)
+    if Xt is not None:
+        with precision():
+            X = _stack_back(sim, Xt)
+            if all(proven_positive_definite(-y, precond) for y in _lyapunov_operator(nominal, Q, X)):
+                verdict = _decide(X, precond)
+                if verdict is not None:
+                    what = "X > 0" if verdict == "stable" else "some X_s indefinite"
+                    return done(verdict, f"L(X) < 0 and {what}, X from float64 in conditioned coordinates, "
+                                         "checked in 128-bit balls", 128)
+    size = len(nominal.A) * nominal.n * (nominal.n + 1) // 2
+    if size > SOLVE_LIMIT:
+        return done("undecided", f"float64 candidates not proved and the generator ({size} rows) is above the "
+                                 f"ball-arithmetic limit ({SOLVE_LIMIT})", 0)
+    for bits in FALLBACK_BITS:
+        if time.perf_counter() - start > budget_seconds:
+            return done("undecided", f"time budget of {budget_seconds:g} s spent before {bits} bits", bits)
+        X = _ball_solution(nominal, Q, bits)
+        if X is None:
+            continue
+        with precision(bits):
+            verdict = _decide(X, precond)
+        if verdict is not None:
+            return done(verdict, f"exact solution of L(X) = -I enclosed at {bits} bits, "
+                                 + ("every X_s > 0" if verdict == "stable" else "some X_s indefinite"), bits)
+    return done("undecided", f"no certificate either way up to {FALLBACK_BITS[-1]} bits", FALLBACK_BITS[-1])
+
+
+def combine(verdicts: Sequence[VertexVerdict]) -> str:
+    """The box's verdict from its vertices': "not stable" if any vertex is, else
+    "undecided" if any is, else "stable"."""
+    found = {v.verdict for v in verdicts}
+    if "not stable" in found:
+        return "not stable"
+    if "undecided" in found or not verdicts:
+        return "undecided"
+    return "stable"
+
+
+def describe(verdicts: Sequence[VertexVerdict]) -> str:
+    """One line: how the deciding vertex verdict was proved."""
+    verdict = combine(verdicts)
+    deciding = next((v for v in verdicts if v.verdict == verdict), None)
+    if deciding is None:
+        return "no vertex certified"
+    if verdict == "stable":
+        bits = max(v.precision_bits for v in verdicts)
+        return f"every vertex: {deciding.method}" + (f" (up to {bits} bits)" if bits > 128 else "")
+    return f"beta {np.asarray(deciding.beta).tolist()}: {deciding.method}"
+
