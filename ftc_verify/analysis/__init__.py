@@ -8,7 +8,7 @@ from .analyze import AnalysisReport, analyze, json_ready
 from .conic import ConicProblem
 from .closedloop import Channel, ClosedLoop, Barred, barred, closed_loop, state_feedback_loop, gain_loop
 from .crossval import NORM_RTOL, NORM_AGREE_RTOL, POLE_RTOL, ModeCheck, linf_norm, cross_validate
-from .lmi import CERT_RTOL, MAX_CONDITION, BlockSpec, block_specs, lyapunov_block, xy_block, null_basis, projection, BlockCheck, Certificate, check_certificate
+from .lmi import BlockSpec, block_specs, lyapunov_block, xy_block, null_basis, projection, BlockCheck, Certificate, check_certificate
 from .lmi_analysis import GAMMA_LADDER, LMIResult, mes_lmi, hinf_gamma, decision_size
 from .solvers import SOLVERS, SETTINGS, SolveOutcome, choose_solver, second_solver, solve, solve_conic
 from .stability import MSSResult, duplication_matrix, second_moment_generator, spectral_abscissa, mean_square_stability, abscissa_below, abscissa_near
@@ -30,8 +30,6 @@ __all__ = [
     "ModeCheck",
     "linf_norm",
     "cross_validate",
-    "CERT_RTOL",
-    "MAX_CONDITION",
     "BlockSpec",
     "block_specs",
     "lyapunov_block",

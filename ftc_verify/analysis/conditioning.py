@@ -19,7 +19,7 @@ certificate is re-checked in the original coordinates in ball arithmetic
 (:mod:`ftc_verify.analysis.rigorous`), so that the transform (computed in float) never
 has to be exact.
 
-:func:`conditioning_transform` chooses :math:`T = D\,T_b`:
+:func:`conditioning_transform` chooses :math:`T = c\,D\,T_b`:
 
 1. :math:`D`: LAPACK's ``gebal`` balancing (powers of two, so exact) of the
    state-to-state gain pattern :math:`\sum_s |A_s| + |B_{w,s}|\mathbf 1\mathbf 1^T
@@ -47,8 +47,13 @@ has to be exact.
    they are the Lyapunov solutions of the mean-square test with right-hand side
    :math:`I`, so the second-moment matrices are well-conditioned too.
 
-When a step fails (a singular or non-finite Gramian), the transform stops at the
-previous step; the result says which steps were applied.
+3. A scalar power of two :math:`c` (:math:`T \leftarrow cT`) that gives
+   :math:`B_w` and :math:`C_z` equal norms: the balanced realisation above normalises
+   them, so without it their ratio (a property of the units, e.g. 6e4 against 6e-5)
+   would reach the :math:`H_\infty` blocks and the solver would stall.
+
+When a step fails (a singular or non-finite Gramian), the transform skips it; the
+result says which steps were applied.
 """
 
 from __future__ import annotations
@@ -175,4 +180,19 @@ def conditioning_transform(loop: ClosedLoop) -> Similarity:
         Tb, Tb_inv = bal
         T, T_inv = d[:, None] * Tb, Tb_inv / d[None, :]
         steps.append("balanced realisation of the mode-averaged loop")
+    c = _io_scale(loop.transformed(T, T_inv))
+    if c != 1.0:
+        T, T_inv = T * c, T_inv / c
+        steps.append(f"scalar {c:g} equalising the input and output norms")
     return Similarity(T, T_inv, tuple(steps))
+
+
+def _io_scale(loop: ClosedLoop) -> float:
+    """The power of two ``c`` nearest to ``sqrt(||Bw|| / ||Cz||)`` (inputs and outputs
+    over all joint modes): ``x = c x~`` gives them equal norms, so that the
+    :math:`H_\infty` blocks ``P Bw`` and ``Cz'`` have comparable scales (step 3)."""
+    b = max(float(np.linalg.norm(B, 2)) if B.size else 0.0 for B in loop.Bw)
+    c = max(float(np.linalg.norm(C, 2)) if C.size else 0.0 for C in loop.Cz)
+    if not (b > 0 and c > 0 and np.isfinite(b) and np.isfinite(c)):
+        return 1.0
+    return float(2.0 ** round(0.5 * np.log2(b / c)))

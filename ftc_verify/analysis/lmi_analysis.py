@@ -18,15 +18,15 @@ for :math:`\rho` in :data:`GAMMA_LADDER`, maximising a common margin :math:`t` w
 bisections of :math:`\rho` between that step and the one before it when the one before
 failed, so that a coarse ladder does not cost up to a factor 10 in :math:`\rho`.
 
-Scaling: before any LMI is built the loop is balanced by one diagonal similarity
-:math:`x = D\tilde x` common to every joint mode (:func:`balancing_scale`: LAPACK's
-``gebal`` on :math:`\sum_s |A_s| + |B_{w,s}| \mathbf 1 \mathbf 1^T |C_{z,s}| + \sum_k
-|E_{s,k}| \mathbf 1 \mathbf 1^T |F_{s,k}|`, the state-to-state gains including the loop that the
-:math:`H_\infty` test closes from :math:`z` back to :math:`w`; :math:`D` holds powers of
-two). Products with :math:`D` are exact in floating point, so the certificate checked on
-the balanced loop is a certificate of the original loop; the returned ``P`` are mapped
-back, :math:`P = D^{-1}\tilde P D^{-1}`. Without it a Hurwitz loop with states scaled by
-1e3 and 1e-2 got "error"/"infeasible" from both solvers (``tests/test_lmi_analysis.py``).
+Conditioning: before any LMI is built the loop is moved to the coordinates of
+:func:`~ftc_verify.analysis.conditioning.conditioning_transform` (one similarity
+:math:`x = T\tilde x` common to every joint mode: power-of-two balancing, then the
+balanced realisation of the mode-averaged loop), where the solver sees well-scaled data.
+The certificate is not trusted to the transform: it is the original-coordinate
+:math:`P_s = T^{-T}\tilde P_s T^{-1}`, formed and checked in ball arithmetic on the
+original loop (:func:`~ftc_verify.analysis.lmi.check_certificate`); the returned ``P``
+are that product rounded to float, ``P_conditioned`` and ``similarity`` the exact
+certificate.
 
 The programs are written by :mod:`ftc_verify.analysis.conic` from the blocks of
 :mod:`ftc_verify.analysis.lmi` and solved by :func:`~ftc_verify.analysis.solvers.solve_conic`
@@ -52,11 +52,12 @@ import numpy as np
 from ..limits import check_memory
 from ..model.system import Matrix
 from .closedloop import ClosedLoop
+from .conditioning import Similarity, conditioning_transform
 from .conic import Rows, affine_bmat, scalar_variable, svec_index, sym_variable
 from .lmi import Certificate, block_specs, check_certificate, lyapunov_block
 from .solvers import SETTINGS, SolveOutcome, choose_solver, second_solver, solve_conic
 
-__all__ = ["GAMMA_LADDER", "LMIResult", "mes_lmi", "hinf_gamma", "decision_size", "balancing_scale",
+__all__ = ["GAMMA_LADDER", "LMIResult", "mes_lmi", "hinf_gamma", "decision_size",
            "lmi_memory_estimate", "check_lmi_memory", "LMI_BYTES_PER_NONZERO"]
 
 #: Peak memory per estimated nonzero of the LMI data, cvxpy compile plus Clarabel solve
@@ -85,7 +86,8 @@ class LMIResult:
     multipliers: tuple[tuple[float, ...], ...] | None = None
     message: str = ""
     attempts: tuple[SolveOutcome, ...] = field(default=())
-    scale: tuple[float, ...] | None = None
+    similarity: Similarity | None = None
+    P_conditioned: tuple[Matrix, ...] | None = None
 
     @property
     def certified(self) -> bool:
@@ -107,32 +109,22 @@ class LMIResult:
             "message": self.message,
             "certificate": None if self.certificate is None else self.certificate.to_dict(),
             "attempts": [{"solver": a.solver, "status": a.status, "seconds": a.seconds, "message": a.message} for a in self.attempts],
-            "balancing_scale": None if self.scale is None else list(self.scale),
+            "conditioning": None if self.similarity is None else self.similarity.to_dict(),
         }
 
 
-def balancing_scale(loop: ClosedLoop) -> Matrix:
-    """Powers of two ``d`` such that ``loop.scaled(d)`` is balanced (module docstring)."""
-    import scipy.linalg
-
-    M = np.zeros((loop.n, loop.n))
-    for A, Bw, Cz, chans in zip(loop.A, loop.Bw, loop.Cz, loop.channels):
-        M += np.abs(A) + np.outer(np.abs(Bw).sum(axis=1), np.abs(Cz).sum(axis=0))
-        for ch in chans:
-            M += np.outer(np.abs(ch.E).sum(axis=1), np.abs(ch.F).sum(axis=0))
-    _, (scale, _) = scipy.linalg.matrix_balance(M, permute=False, separate=True)
-    return np.asarray(scale, dtype=float)
+def _conditioned(loop: ClosedLoop) -> tuple[ClosedLoop, Similarity]:
+    sim = conditioning_transform(loop)
+    return sim.apply(loop), sim
 
 
-def _balanced(loop: ClosedLoop) -> tuple[ClosedLoop, Matrix]:
-    d = balancing_scale(loop)
-    return loop.scaled(d), d
-
-
-def _unscale(result: LMIResult, d: Matrix) -> LMIResult:
-    """Map ``P`` back to the original coordinates and record the scale."""
-    P = None if result.P is None else tuple((P / d[:, None]) / d[None, :] for P in result.P)
-    return dataclasses.replace(result, P=P, scale=tuple(float(v) for v in d))
+def _map_back(result: LMIResult, sim: Similarity) -> LMIResult:
+    """Record the conditioned ``P`` (the certificate, with ``sim``) and map ``P`` back
+    to the original coordinates (rounded: the exact certificate is the product)."""
+    if result.P is None:
+        return dataclasses.replace(result, similarity=sim)
+    return dataclasses.replace(result, P=tuple(sim.lyapunov_back(P) for P in result.P), P_conditioned=result.P,
+                               similarity=sim)
 
 
 def lmi_memory_estimate(loop: ClosedLoop, *, robust: bool) -> float:
@@ -298,17 +290,20 @@ def mes_lmi(loop: ClosedLoop, *, solver: str | None = None, known: Sequence[LMIR
     """
     for result in known:
         if result.certified and result.P is not None:
-            cert = check_certificate(loop.nominal(), "theorem-3.1", result.P, None, None)
+            P = result.P if result.P_conditioned is None else result.P_conditioned
+            cert = check_certificate(loop.nominal(), "theorem-3.1", P, None, None, similarity=result.similarity)
             if cert.ok:
                 note = f"certificate passed with the P of the certified {result.condition} answer (no solve)"
                 return LMIResult("theorem-3.1", "certified", None, result.solver, result.solver_status, 0.0, 0.0,
-                                 cert, result.P, message=note, scale=result.scale)
+                                 cert, result.P, message=note, similarity=result.similarity,
+                                 P_conditioned=result.P_conditioned)
     _check_size(loop, False, "Theorem 3.1")
-    balanced, d = _balanced(loop.nominal())
-    return _unscale(_mes_lmi(balanced, solver), d)
+    nominal, sim = _conditioned(loop.nominal())
+    return _map_back(_mes_lmi(loop.nominal(), nominal, sim, solver), sim)
 
 
-def _mes_lmi(nominal: ClosedLoop, solver: str | None) -> LMIResult:
+def _mes_lmi(original: ClosedLoop, nominal: ClosedLoop, sim: Similarity, solver: str | None) -> LMIResult:
+    """Theorem 3.1 solved on the conditioned ``nominal``, certified on ``original``."""
     condition = "theorem-3.1"
     t0 = time.perf_counter()
     lay = _layout(nominal, robust=False)
@@ -326,7 +321,7 @@ def _mes_lmi(nominal: ClosedLoop, solver: str | None) -> LMIResult:
         if x is None:
             continue
         Pv, _ = lay.values(x, robust=False)
-        cert = check_certificate(nominal, condition, Pv, None, None)
+        cert = check_certificate(original, condition, Pv, None, None, similarity=sim)
         outcome = "certified" if cert.ok else "candidate"
         note = "" if out.status == "optimal" else f"solver status {out.status}; "
         res = LMIResult(condition, outcome, None, name, out.status, t_build, sum(a.seconds for a in attempts), cert, Pv,
@@ -342,8 +337,9 @@ def hinf_gamma(loop: ClosedLoop, *, robust: bool, solver: str | None = None) -> 
     Lemma 4.1 with the gains fixed (``robust=True``, eq. (16) in LMI form), on the
     balanced loop (module docstring)."""
     _check_size(loop, robust, "Lemma 4.1" if robust else "Theorem 3.2")
-    balanced, d = _balanced(loop if robust else loop.nominal())
-    return _unscale(_hinf_gamma(balanced, robust, solver), d)
+    original = loop if robust else loop.nominal()
+    conditioned, sim = _conditioned(original)
+    return _map_back(_hinf_gamma(original, conditioned, sim, robust, solver), sim)
 
 
 def _two_step_status(step1: SolveOutcome, step2: SolveOutcome) -> str:
@@ -352,7 +348,9 @@ def _two_step_status(step1: SolveOutcome, step2: SolveOutcome) -> str:
     return step2.status if step2.status != "optimal" else step1.status
 
 
-def _hinf_gamma(target: ClosedLoop, robust: bool, solver: str | None) -> LMIResult:
+def _hinf_gamma(original: ClosedLoop, target: ClosedLoop, sim: Similarity, robust: bool,
+                solver: str | None) -> LMIResult:
+    """The two steps on the conditioned ``target``, every certificate checked on ``original``."""
     condition = "lemma-4.1" if robust else "theorem-3.2"
     t0 = time.perf_counter()
     lay = _layout(target, robust)
@@ -384,7 +382,7 @@ def _hinf_gamma(target: ClosedLoop, robust: bool, solver: str | None) -> LMIResu
             if x2 is None:
                 return None
             Pv, lv = lay.values(x2, robust)
-            return gamma1, out2, Pv, lv, check_certificate(target, condition, Pv, lv, gamma1 ** 2)
+            return gamma1, out2, Pv, lv, check_certificate(original, condition, Pv, lv, gamma1 ** 2, similarity=sim)
 
         failed = 0.0  # the largest rho tried that gave no certificate
         for rho in GAMMA_LADDER:

@@ -34,7 +34,7 @@ from ..errors import FTCError
 
 __all__ = ["main", "build_parser"]
 
-EXIT_OK, EXIT_NEGATIVE, EXIT_BAD_INPUT, EXIT_UNCERTIFIED, EXIT_INTERNAL = 0, 1, 2, 3, 4
+EXIT_OK, EXIT_NEGATIVE, EXIT_BAD_INPUT, EXIT_UNCERTIFIED, EXIT_INTERNAL, EXIT_UNDECIDED = 0, 1, 2, 3, 4, 5
 EXIT_INTERRUPTED, EXIT_PIPE, EXIT_TERMINATED = 130, 141, 143
 #: Image formats ``--plot`` accepts (what matplotlib's Agg canvas writes).
 PLOT_SUFFIXES = (".png", ".pdf", ".svg")
@@ -78,8 +78,9 @@ def _print_analysis(rep: Any, *, lmi: bool = True) -> None:
     mss = d["mss"]
     vert = f"worst of {mss['vertices_evaluated']} beta vertices" + ("" if mss["exhaustive"] else ", greedy search")
     print(f"ftc-verify analyze: {rep.name} ({rep.controller})")
-    print(f"  mean-square stability    spectral abscissa {_fmt(mss['spectral_abscissa'])} ({vert}): "
-          f"{'stable' if mss['stable'] else 'NOT stable'}")
+    word = {"stable": "stable", "not stable": "NOT stable", "undecided": "UNDECIDED"}[mss["verdict"]]
+    print(f"  mean-square stability    spectral abscissa {_fmt(mss['spectral_abscissa'])} ({vert}): {word}")
+    print(f"      proved: {mss['verified_by']}")
     if not lmi:
         print("  LMI certificates         not requested (--no-lmi)")
     for label, res in (("Theorem 3.1 LMI", rep.mes_lmi), ("nominal gamma (Th. 3.2)", rep.nominal),
@@ -101,6 +102,9 @@ def _print_analysis(rep: Any, *, lmi: bool = True) -> None:
         return
     elif rep.mss.stable:
         verdict = "stable by the exact spectral test, but NO LMI certificate found (not a proof either way)"
+    elif rep.mss.undecided:
+        verdict = ("UNDECIDED: neither stability nor instability could be proved at some beta vertex "
+                   "(float64 and the higher-precision retries)")
     else:
         verdict = "NOT stable (spectral abscissa >= 0 at some beta vertex)"
     print(f"  verdict: {verdict}; certificates {'all passed' if rep.certificate_ok else 'NOT all passed'}")
@@ -136,6 +140,8 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
         _print_analysis(rep, lmi=not args.no_lmi)
     if rep.certified_stable or (args.no_lmi and rep.mss.stable):
         return EXIT_OK
+    if rep.mss.undecided:
+        return EXIT_UNDECIDED
     return EXIT_UNCERTIFIED if rep.mss.stable else EXIT_NEGATIVE
 
 
@@ -356,6 +362,8 @@ def _cmd_verify(args: argparse.Namespace) -> int:
     print(f"  verdict: {d['verdict']}")
     if rep.verdict == "pass":
         return EXIT_OK
+    if rep.analysis is not None and rep.analysis.mss.undecided:
+        return EXIT_UNDECIDED
     stable_uncertified = rep.gamma_certified is None and rep.analysis is not None and rep.analysis.mss.stable
     return EXIT_UNCERTIFIED if stable_uncertified else EXIT_NEGATIVE
 
