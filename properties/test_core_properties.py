@@ -34,6 +34,7 @@ from hypothesis import assume, event, given, note
 from hypothesis import strategies as st
 
 from ftc_verify.analysis.lmi_analysis import GAMMA_LADDER, LMIResult, hinf_gamma, mes_lmi
+from ftc_verify.analysis.rigorous import ball, precision, proven_positive_definite
 from ftc_verify.analysis.stability import second_moment_generator, spectral_abscissa
 from ftc_verify.model.system import Matrix
 from ftc_verify.testing import (
@@ -190,14 +191,16 @@ def hinf_blocks(drawn: DrawnLoop, res: LMIResult, beta: Matrix, *, robust: bool)
 
 
 def assert_negative_definite(blocks: list[Matrix], what: str) -> None:
-    """Every symmetric block has a negative largest eigenvalue (relative margin 1e-9;
-    the certificate itself demanded 1e-8)."""
-    for s, M in enumerate(blocks):
-        M = 0.5 * (M + M.T)
-        eig = np.linalg.eigvalsh(M)
-        assert eig[-1] < -1e-9 * max(1.0, float(np.max(np.abs(eig)))), (
-            f"{what}: block of joint mode {s} has largest eigenvalue {eig[-1]!r}"
-        )
+    """Every symmetric block, assembled here in float, is proved negative definite in
+    ball arithmetic (no margin relative to the block's norm: a certificate needs none,
+    and a multiplier of a zero channel may be large)."""
+    with precision():
+        for s, M in enumerate(blocks):
+            M = 0.5 * (M + M.T)
+            eig = np.linalg.eigvalsh(M)
+            assert eig[-1] < 0 and proven_positive_definite(ball(-M)), (
+                f"{what}: block of joint mode {s} has largest eigenvalue {eig[-1]!r}"
+            )
 
 
 def box_points(drawn: DrawnLoop, fractions: Matrix) -> list[Matrix]:

@@ -18,6 +18,7 @@ import pytest
 from ftc_verify.analysis import analyze, hinf_gamma, mes_lmi, state_feedback_loop
 from ftc_verify.analysis.closedloop import ClosedLoop
 from ftc_verify.analysis.crossval import cross_validate, linf_norm
+from ftc_verify.analysis.lmi import check_certificate
 from ftc_verify.analysis.solvers import _installed, solve
 from ftc_verify.model import FTCSystem
 from ftc_verify.model.files import load_system
@@ -50,13 +51,13 @@ def test_badly_scaled_stable_loop_is_certified(scales: list[float]) -> None:
     assert res.certified, res.message
     # first ladder rung 1e-4 relative (or 1e-5), plus the solver's error on the minimum
     assert ref <= res.gamma <= ref * (1 + 1e-4 + 1e-7)
-    assert res.scale is not None and all(math.log2(v).is_integer() for v in res.scale)
     assert mes_lmi(loop).certified
-    # powers of two: the balanced loop is exactly similar, so its certificate is this loop's
-    d = np.array(res.scale)
-    back = loop.scaled(d).scaled(1.0 / d)
-    assert all(np.array_equal(a, b) for a, b in zip(back.A, loop.A))
-    assert all(np.array_equal(a, b) for a, b in zip(back.Bw, loop.Bw))
+    # solved in conditioned coordinates (powers of two first), certified in the original ones
+    assert res.similarity is not None and res.similarity.steps[0] == "power-of-two diagonal balancing"
+    assert check_certificate(loop.nominal(), "theorem-3.2", res.P_conditioned, None, res.gamma ** 2,
+                             similarity=res.similarity).ok
+    assert not check_certificate(loop.nominal(), "theorem-3.2", res.P_conditioned, None, (0.99 * ref) ** 2,
+                                 similarity=res.similarity).ok
 
 
 def test_stable_but_uncertified_is_not_called_unstable() -> None:

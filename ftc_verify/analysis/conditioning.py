@@ -188,7 +188,7 @@ def conditioning_transform(loop: ClosedLoop) -> Similarity:
 
 
 def _io_scale(loop: ClosedLoop) -> float:
-    """The power of two ``c`` nearest to ``sqrt(||Bw|| / ||Cz||)`` (inputs and outputs
+    r"""The power of two ``c`` nearest to ``sqrt(||Bw|| / ||Cz||)`` (inputs and outputs
     over all joint modes): ``x = c x~`` gives them equal norms, so that the
     :math:`H_\infty` blocks ``P Bw`` and ``Cz'`` have comparable scales (step 3)."""
     b = max(float(np.linalg.norm(B, 2)) if B.size else 0.0 for B in loop.Bw)

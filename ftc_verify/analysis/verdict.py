@@ -34,6 +34,7 @@ within :data:`SOLVE_LIMIT` rows and a time budget; what is still open is "undeci
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -128,7 +129,9 @@ def _float_candidate(conditioned: ClosedLoop, beta: Matrix) -> np.ndarray | None
                                                       sp.identity(len(rows)), format="csc")
             v = splu(G.tocsc()).solve(rhs)
         else:
-            v = scipy.linalg.solve(second_moment_generator(conditioned, beta), rhs, check_finite=False)
+            with warnings.catch_warnings():  # an ill-conditioned solve is expected near mu = 0; the balls judge it
+                warnings.simplefilter("ignore", scipy.linalg.LinAlgWarning)
+                v = scipy.linalg.solve(second_moment_generator(conditioned, beta), rhs, check_finite=False)
     except (RuntimeError, ValueError, np.linalg.LinAlgError, scipy.linalg.LinAlgError):
         return None
     if not np.all(np.isfinite(v)):

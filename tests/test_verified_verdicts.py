@@ -1,0 +1,122 @@
+"""Verdicts that are never wrong (issue 20): each defect of the peer check reproduced first.
+
+* a stable n = 7 loop under a similarity of condition 1e6, which the float64
+  eigenvalues of the raw generator call unstable, is *proved* stable;
+* an unstable loop (true abscissa +0.04) under the same kind of similarity, which the
+  float64 eigenvalues call stable, is *proved* not stable;
+* a loop whose abscissa is exactly 0 is never called stable: "undecided" (exit 5);
+* the ball-arithmetic proofs themselves refuse what is false;
+* H-infinity certificates on loops in physical units reach SLICOT's ``ab13dd`` within
+  1e-3 and are checked in the original coordinates.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ftc_verify.analysis.conditioning import conditioning_transform
+from ftc_verify.analysis.lmi import check_certificate
+from ftc_verify.analysis.lmi_analysis import hinf_gamma
+from ftc_verify.analysis.rigorous import ball, precision, proven_not_psd, proven_positive_definite
+from ftc_verify.analysis.stability import mean_square_stability, spectral_abscissa
+from ftc_verify.analysis.verdict import certify_vertex
+from ftc_verify.testing.illconditioned import identical_mode_loop
+
+pytest.importorskip("slycot")
+
+
+def _shifted(seed: int, n: int, condition: float, target: float):
+    """An identical-mode loop moved by a similarity of ``condition``, its original
+    shifted so that the true second-moment abscissa is ``target``."""
+    p = identical_mode_loop(seed, n, norm=10.0, transform_condition=condition)
+    c = 0.5 * (target - p.abscissa)
+    S_inv = np.linalg.inv(p.S)
+    A = p.S @ (p.original.A[0] + c * np.eye(n)) @ S_inv
+    return replace(p.loop, A=tuple(A for _ in p.loop.A))
+
+
+def test_stable_loop_that_float64_calls_unstable_is_proved_stable() -> None:
+    p = identical_mode_loop(22, 7, norm=10.0, transform_condition=1e6)
+    beta = p.loop.chain.midpoint()
+    assert p.abscissa < -2.0  # truly stable, by a wide margin
+    assert spectral_abscissa(p.loop, beta) > 0  # the defect: raw float64 eigenvalues say unstable
+    r = mean_square_stability(p.loop)
+    assert r.verdict == "stable" and r.stable
+    assert r.spectral_abscissa == pytest.approx(p.abscissa, rel=1e-3)  # estimated in conditioned coordinates
+    assert all(v.verdict == "stable" for v in r.vertex_verdicts) and len(r.vertex_verdicts) == 4
+
+
+def test_unstable_loop_that_float64_calls_stable_is_proved_not_stable() -> None:
+    loop = _shifted(0, 7, 1e6, 0.04)
+    assert spectral_abscissa(loop, loop.chain.midpoint()) < 0  # the defect: raw float64 says stable
+    r = mean_square_stability(loop)
+    assert r.verdict == "not stable" and r.unstable and not r.stable
+    assert "indefinite" in r.vertex_verdicts[0].method
+
+
+def test_verdicts_follow_the_truth_across_conditions() -> None:
+    for seed, condition, target in ((1, 1e4, -0.3), (2, 1e6, 0.1), (3, 1e5, -0.05), (4, 1e6, 0.02)):
+        loop = _shifted(seed, 6, condition, target)
+        verdict = mean_square_stability(loop).verdict
+        assert verdict == ("stable" if target < 0 else "not stable"), (seed, condition, target, verdict)
+
+
+def test_abscissa_exactly_zero_is_undecided_never_stable() -> None:
+    p = identical_mode_loop(0, 2, norm=1.0)
+    A = np.array([[0.0, 1.0], [0.0, -1.0]])  # eigenvalue 0: second-moment abscissa exactly 0
+    loop = replace(p.loop, A=tuple(A for _ in p.loop.A))
+    v = certify_vertex(loop, loop.chain.midpoint(), conditioning_transform(loop), budget_seconds=10.0)
+    assert v.verdict == "undecided"
+    assert mean_square_stability(loop, budget_seconds=10.0).verdict == "undecided"
+
+
+def test_ball_proofs_refuse_what_is_false() -> None:
+    with precision():
+        assert proven_positive_definite(ball(np.diag([1e-12, 1e12])))
+        assert not proven_positive_definite(ball(np.diag([1.0, -1e-30])))
+        assert not proven_positive_definite(ball(np.array([[1.0, 1.0], [1.0, 1.0]])))  # singular
+        near = np.array([[1.0, 1.0], [1.0, 1.0 + 2.0 ** -40]])  # positive definite, cond 4e12
+        assert proven_positive_definite(ball(near))
+        assert proven_not_psd(ball(np.array([[1.0, 2.0], [2.0, 1.0]])))
+        assert not proven_not_psd(ball(np.eye(3)))
+
+
+@pytest.mark.parametrize("seed,n,norm,diagonal,transform", [
+    (101, 8, 1.3, 7e4, 1.2e2),   # Clarabel NumericalError and SDPA "infeasible" before conditioning
+    (106, 10, 44.5, 1.9e5, 1.8),  # diagonal scaling alone: "infeasible" before
+    (109, 9, 0.62, 1e3, 56.0),    # +26 % before the input/output norms were equalised
+    (7, 2, 325.8, 1.0, 1.0),      # large norm: the old 1e-8 relative margin cost +2.24 %
+    (12, 5, 3.28, 7.3e5, 1.0),    # diagonal scaling of condition 7.3e5
+])
+def test_hinf_certificate_reaches_slicot(seed: int, n: int, norm: float, diagonal: float, transform: float) -> None:
+    p = identical_mode_loop(seed, n, norm=norm, diagonal_condition=diagonal, transform_condition=transform)
+    ref = p.reference_norm()
+    r = hinf_gamma(p.loop, robust=False)
+    assert r.certified, r.message
+    assert ref <= r.gamma <= ref * (1 + 1e-3), (r.gamma, ref)
+    # the certificate is the original-coordinate P = T_inv' P~ T_inv, checked there
+    again = check_certificate(p.loop, "theorem-3.2", r.P_conditioned, None, r.gamma ** 2, similarity=r.similarity)
+    assert again.ok
+    below = check_certificate(p.loop, "theorem-3.2", r.P_conditioned, None, (0.999 * ref) ** 2,
+                              similarity=r.similarity)
+    assert not below.ok  # no certificate below the true norm
+
+
+def test_cli_exits_5_when_undecided(tmp_path: Path) -> None:
+    system = tmp_path / "marginal.toml"
+    mode = 'A = [[0.0, 1.0], [0.0, -1.0]]\nB = [[0.0], [1.0]]\nC = [[1.0, 0.0]]\nD = [[0.0], [1.0]]\n'
+    system.write_text('name = "marginal"\n[chain]\nalpha = [[-1.0, 1.0], [1.0, -1.0]]\n'
+                      'beta_min = [[0.0, 2.0], [2.0, 0.0]]\nbeta_max = [[0.0, 2.0], [2.0, 0.0]]\n'
+                      f'[[mode]]\n{mode}[[mode]]\n{mode}')
+    gains = tmp_path / "zero.toml"
+    gains.write_text('[[gain]]\nK = [[0.0, 0.0]]\n[[gain]]\nK = [[0.0, 0.0]]\n')
+    run = subprocess.run([sys.executable, "-m", "ftc_verify", "analyze", str(system), "--gains", str(gains)],
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode == 5, run.stdout + run.stderr
+    assert "UNDECIDED" in run.stdout and "Traceback" not in run.stderr
