@@ -13,8 +13,8 @@ Tolerances on certified gammas
 step-1 minimum from Clarabel (tolerances 1e-9 on :math:`g = \gamma^2`; for the drawn
 well-scaled loops, :math:`\gamma \in [0.05, 50]` roughly, that is well below 1e-5 relative
 on :math:`\gamma`) and :math:`\rho` the first rung of ``GAMMA_LADDER`` whose numpy
-certificate passes (1e-4 for almost every draw, sometimes 1e-3). A certificate is an
-exact-arithmetic proof up to its own margin (1e-8 relative), so
+certificate passes (1e-4 for almost every draw, sometimes 1e-3). A certificate is a
+proof in ball arithmetic (no margin), so
 :math:`\gamma_{\inf} \le \gamma_c \lesssim \gamma_{\inf}(1+\rho)`: two certified values of
 the same :math:`\gamma_{\inf}` agree to about 1.1e-3 relative. :data:`GAMMA_RTOL` = 5e-3
 leaves a 4x headroom over that. When a result reports a rung above 1e-3 (tiny gammas,

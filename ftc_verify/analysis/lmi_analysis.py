@@ -13,7 +13,10 @@ The minimal-:math:`\gamma` optimum lies on the boundary of the feasible set (sin
 Lyapunov matrices), where no certificate can pass. So :func:`hinf_gamma` first
 minimises :math:`g = \gamma^2`, then re-solves at :math:`\gamma_1 = \gamma^*(1+\rho)`
 for :math:`\rho` in :data:`GAMMA_LADDER`, maximising a common margin :math:`t` with
-:math:`M_s \preceq -t I`, :math:`P_s \succeq t I`, and reports the first
+:math:`M_s \preceq -t I`, :math:`P_s \succeq t I` -- on the blocks congruent by
+:math:`\operatorname{diag}(I, \gamma_1^{-1} I, I)`, i.e. with :math:`B_w/\gamma_1` and
+:math:`g = 1`, so that a large :math:`\gamma` does not make the :math:`-gI` row dwarf the
+margin (the same :math:`P` certifies both) -- and reports the first
 :math:`\gamma_1` whose certificate passes -- after :data:`REFINE_STEPS` geometric
 bisections of :math:`\rho` between that step and the one before it when the one before
 failed, so that a coarse ladder does not cost up to a factor 10 in :math:`\rho`.
@@ -53,7 +56,7 @@ from ..limits import check_memory
 from ..model.system import Matrix
 from .closedloop import ClosedLoop
 from .conditioning import Similarity, conditioning_transform
-from .conic import Rows, affine_bmat, scalar_variable, svec_index, sym_variable
+from .conic import ConicProblem, Rows, affine_bmat, scalar_variable, svec_index, sym_variable
 from .lmi import Certificate, block_specs, check_certificate, lyapunov_block
 from .solvers import SETTINGS, SolveOutcome, choose_solver, second_solver, solve_conic
 
@@ -363,7 +366,18 @@ def _hinf_gamma(original: ClosedLoop, target: ClosedLoop, sim: Similarity, robus
     g_row, t_row = np.zeros((1, lay.K)), np.zeros((1, lay.K))
     g_row[0, lay.g], t_row[0, lay.t] = -1.0, 1.0
     step1 = rows.extended(g_row, [0.0]).problem(minimise_g).fix(lay.t, 0.0)  # min g: blocks <= 0, P >= 0
-    step2 = rows.extended(t_row, [1.0]).problem(maximise_t)  # max t <= 1 at fixed g
+
+    def step2(gamma1: float) -> ConicProblem:
+        """max t <= 1 at gamma1, on the loop with ``Bw / gamma1`` and ``g = 1`` (the
+        congruence ``diag(I, I / gamma1, I)`` of the same block, so the same ``P``):
+        the ``-g I`` row no longer dwarfs the others when gamma is large."""
+        scaled = dataclasses.replace(target, Bw=tuple(B / gamma1 for B in target.Bw))
+        rows2 = _block_rows(scaled, lay, with_g=True, margin=None)
+        _p_rows(rows2, lay, low=None, high=False)
+        if robust:
+            _nonneg(rows2, lay, range(lay.lam_start[0], lay.g))
+        return rows2.extended(t_row, [1.0]).problem(maximise_t).fix(lay.g, 1.0)
+
     t_build = time.perf_counter() - t0
     attempts: list[SolveOutcome] = []
     best: LMIResult | None = None
@@ -377,7 +391,7 @@ def _hinf_gamma(original: ClosedLoop, target: ClosedLoop, sim: Similarity, robus
         def attempt(rho: float) -> tuple[float, SolveOutcome, Any, Any, Any] | None:
             """Step 2 at ``gamma_star (1 + rho)``: ``(gamma1, outcome, P, lambda, numpy check)``."""
             gamma1 = max(gamma_star, 1e-7) * (1.0 + rho)
-            out2, x2 = solve_conic(step2.fix(lay.g, gamma1 ** 2), name)
+            out2, x2 = solve_conic(step2(gamma1), name)
             attempts.append(out2)
             if x2 is None:
                 return None

@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # the names below are loaded on first use (see __getattr__)
     from .loops import MODE_KEYS, DrawnLoop, closed_loops, stable_loops, unstable_loops
+    from .illconditioned import PeerLoop, identical_mode_loop, peer_loops
     from .profiles import PROFILE_ENV, PROFILES, load_profile, profile, register_profiles
     from .strategies import (
         GAIN_BOUND,
@@ -44,6 +45,7 @@ _SOURCES = {
                      "similarity_transforms", "lqr_gains", "observer_gains", "GAIN_BOUND"), "strategies"),
     **dict.fromkeys(("DrawnLoop", "MODE_KEYS", "closed_loops", "stable_loops", "unstable_loops"), "loops"),
     **dict.fromkeys(("PROFILES", "PROFILE_ENV", "register_profiles", "profile", "load_profile"), "profiles"),
+    **dict.fromkeys(("PeerLoop", "identical_mode_loop", "peer_loops"), "illconditioned"),
 }
 
 __all__ = [
@@ -67,6 +69,9 @@ __all__ = [
     "register_profiles",
     "profile",
     "load_profile",
+    "PeerLoop",
+    "identical_mode_loop",
+    "peer_loops",
 ]
 
 

@@ -19,10 +19,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hypothesis import strategies as st
+
 from ..analysis.closedloop import ClosedLoop
 from ..model.system import JointChain, Matrix
 
-__all__ = ["PeerLoop", "identical_mode_loop", "similarity", "two_mode_chain"]
+__all__ = ["PeerLoop", "identical_mode_loop", "similarity", "two_mode_chain", "peer_loops"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -94,3 +96,38 @@ def identical_mode_loop(seed: int, n: int, *, norm: float = 1.0, diagonal_condit
     original = make(A, B, C)
     moved = make(S @ A @ S_inv, S @ B, C @ S_inv)
     return PeerLoop(moved, original, S, seed, float(diagonal_condition), float(transform_condition))
+
+
+@st.composite
+def peer_loops(draw: st.DrawFn, *, max_n: int = 6, max_norm: float = 800.0, max_diagonal_condition: float = 1e6,
+               max_transform_condition: float = 1e4, abscissa: float | None = None) -> PeerLoop:
+    """Hypothesis strategy: :func:`identical_mode_loop` with a drawn seed, ``n`` in
+    ``2..max_n``, norm log-uniform in ``[0.1, max_norm]`` and both conditions log-uniform
+    up to their maxima. With ``abscissa`` given, the original is shifted so that the
+    true second-moment abscissa is exactly that (in exact arithmetic), and moved again.
+
+    Examples
+    --------
+    >>> from hypothesis import given, settings
+    >>> @settings(max_examples=3, deadline=None)
+    ... @given(peer_loops(max_n=3))
+    ... def test_abscissa(p):
+    ...     assert p.abscissa < 0
+    >>> test_abscissa()
+    """
+    seed = draw(st.integers(0, 2**32 - 1))
+    n = draw(st.integers(2, max_n))
+    norm = 10.0 ** draw(st.floats(-1.0, float(np.log10(max_norm))))
+    dc = 10.0 ** draw(st.floats(0.0, float(np.log10(max_diagonal_condition))))
+    tc = 10.0 ** draw(st.floats(0.0, float(np.log10(max_transform_condition))))
+    p = identical_mode_loop(seed, n, norm=norm, diagonal_condition=dc, transform_condition=tc)
+    if abscissa is None:
+        return p
+    from dataclasses import replace
+
+    A0 = p.original.A[0] + 0.5 * (abscissa - p.abscissa) * np.eye(n)
+    S_inv = np.linalg.inv(p.S)
+    count = len(p.loop.A)
+    original = replace(p.original, A=(A0,) * count)
+    moved = replace(p.loop, A=(p.S @ A0 @ S_inv,) * count)
+    return PeerLoop(moved, original, p.S, seed, dc, tc)
