@@ -45,7 +45,10 @@ has to be exact.
    factor); the :math:`\delta I` terms make the Gramians positive definite also for
    uncontrollable or unobservable loops and bound :math:`\operatorname{cond}(T_b)`, and
    they are the Lyapunov solutions of the mean-square test with right-hand side
-   :math:`I`, so the second-moment matrices are well-conditioned too.
+   :math:`I`, so the second-moment matrices are well-conditioned too. The
+   :math:`\delta I` terms are not invariant under the similarity still to be undone, so
+   step 2 is repeated in the coordinates it produced (at most :data:`PASSES` times,
+   until a pass changes the coordinates by a condition number below 10).
 
 3. A scalar power of two :math:`c` (:math:`T \leftarrow cT`) that gives
    :math:`B_w` and :math:`C_z` equal norms: the balanced realisation above normalises
@@ -66,10 +69,12 @@ import scipy.linalg
 from ..model.system import Matrix
 from .closedloop import ClosedLoop
 
-__all__ = ["REGULARISATION", "Similarity", "balancing_scale", "conditioning_transform", "stationary_distribution"]
+__all__ = ["REGULARISATION", "PASSES", "Similarity", "balancing_scale", "conditioning_transform", "stationary_distribution"]
 
 #: The :math:`\delta` of the regularised Gramians (relative to the normalised inputs).
 REGULARISATION = 1e-3
+#: Passes of step 2 at most (each in the coordinates the previous one produced).
+PASSES = 3
 
 
 @dataclass(frozen=True, eq=False)
@@ -174,12 +179,15 @@ def conditioning_transform(loop: ClosedLoop) -> Similarity:
     d = balancing_scale(loop)
     T, T_inv = np.diag(d), np.diag(1.0 / d)
     steps = ["power-of-two diagonal balancing"]
-    balanced = loop.scaled(d)
-    bal = _balanced_realisation(balanced)
-    if bal is not None:
+    for _ in range(PASSES):
+        bal = _balanced_realisation(loop.transformed(T, T_inv))
+        if bal is None:
+            break
         Tb, Tb_inv = bal
-        T, T_inv = d[:, None] * Tb, Tb_inv / d[None, :]
+        T, T_inv = T @ Tb, Tb_inv @ T_inv
         steps.append("balanced realisation of the mode-averaged loop")
+        if np.linalg.cond(Tb) < 10.0:  # already balanced: the regularisation no longer moves it
+            break
     c = _io_scale(loop.transformed(T, T_inv))
     if c != 1.0:
         T, T_inv = T * c, T_inv / c

@@ -134,7 +134,8 @@ def _certify(analysis: AnalysisReport, gamma: float | None) -> tuple[float | Non
     gamma_cert = analysis.robust.gamma if ok else None
     checks = [Check("certified", gamma_cert is not None,
                     f"robust gamma {gamma_cert:.6g} (Lemma 4.1), spectral abscissa {analysis.mss.spectral_abscissa:.4g}"
-                    if gamma_cert is not None else f"not certified: {analysis.robust.message}")]
+                    if gamma_cert is not None else
+                    f"not certified: mean-square stability {analysis.mss.verdict}; {analysis.robust.message}")]
     if gamma is not None and gamma_cert is not None:
         checks.append(Check("requested gamma", gamma_cert <= gamma, f"certified {gamma_cert:.6g} vs requested {gamma:.6g}"))
     return gamma_cert, checks
