@@ -146,8 +146,7 @@ def ball_bmat(rows: Sequence[Sequence[Any]]) -> Ball:
 def midpoint(M: Ball) -> Matrix:
     """Float midpoints of a ball matrix."""
     rows, cols = M.shape
-    v = M.value
-    return np.array([[float(v[r, c].mid()) for c in range(cols)] for r in range(rows)], dtype=float).reshape(rows, cols)
+    return np.array(M.value.mid().tolist(), dtype=float).reshape(rows, cols)
 
 
 def _frobenius_below_one(F: Any) -> bool:
@@ -159,13 +158,15 @@ def _frobenius_below_one(F: Any) -> bool:
     return bool(total < 1)
 
 
-def proven_positive_definite(M: Ball, precond: Matrix | None = None, *, rounds: int = 2) -> bool:
+def proven_positive_definite(M: Ball, precond: Matrix | Ball | None = None, *, rounds: int = 2) -> bool:
     """``True`` only if every symmetric matrix in the ball ``M`` is positive definite
-    (module docstring); ``precond`` is the optional float congruence ``C``."""
+    (module docstring); ``precond`` is the optional float congruence ``C`` (a float
+    matrix, or its exact :class:`Ball`)."""
     n = M.shape[0]
     if n == 0:
         return True
-    E = M if precond is None else (ball(precond).T @ M @ ball(precond))
+    C = None if precond is None else ball(precond)
+    E = M if C is None else (C.T @ M @ C)
     eye = np.eye(n)
     for _ in range(rounds):
         mid = midpoint(E)

@@ -33,7 +33,7 @@ import scipy.linalg
 
 from .closedloop import ClosedLoop
 from .conditioning import Similarity, conditioning_transform
-from .verdict import BUDGET_SECONDS, VertexVerdict, certify_vertex, combine, describe
+from .verdict import BUDGET_SECONDS, StabilityProver, VertexVerdict, combine, describe
 from ..model.system import Matrix
 
 __all__ = [
@@ -296,8 +296,9 @@ def _verified(loop: ClosedLoop, sim: Similarity, vertices: list[Matrix], estimat
               budget_seconds: float) -> tuple[str, tuple[VertexVerdict, ...]]:
     """Verdicts at ``vertices`` (the worst first), stopping at the first "not stable"."""
     found = []
+    prover = StabilityProver.build(loop, sim)
     for beta, est in zip(vertices, estimates):
-        v = certify_vertex(loop, beta, sim, estimate=est, budget_seconds=budget_seconds)
+        v = prover.certify(beta, estimate=est, budget_seconds=budget_seconds)
         found.append(v)
         if v.verdict == "not stable":
             break

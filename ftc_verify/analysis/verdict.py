@@ -45,8 +45,8 @@ from .closedloop import ClosedLoop
 from .conditioning import Similarity
 from .rigorous import Ball, ball, precision, proven_not_psd, proven_positive_definite
 
-__all__ = ["VERDICTS", "SOLVE_LIMIT", "BUDGET_SECONDS", "FALLBACK_BITS", "VertexVerdict", "certify_vertex", "combine",
-           "describe"]
+__all__ = ["VERDICTS", "SOLVE_LIMIT", "BUDGET_SECONDS", "FALLBACK_BITS", "VertexVerdict", "StabilityProver",
+           "certify_vertex", "combine", "describe"]
 
 #: The three answers a stability verdict can give.
 VERDICTS = ("stable", "not stable", "undecided")
@@ -91,24 +91,17 @@ def _exact_generator_matrix(chain_q: Matrix) -> list[list[Ball]]:
     return out
 
 
-def _lyapunov_operator(loop: ClosedLoop, Q: Matrix, X: Sequence[Ball]) -> list[Ball]:
-    r""":math:`\mathcal L(X)_s` in ball arithmetic from the float data (module docstring)."""
+def _lyapunov_operator(A: Sequence[Ball], Q: Matrix, X: Sequence[Ball]) -> list[Ball]:
+    r""":math:`\mathcal L(X)_s` in ball arithmetic from the exact ``A_s`` (module docstring)."""
     q = _exact_generator_matrix(Q)
     out = []
-    for s, A in enumerate(loop.A):
-        Ab = ball(A)
+    for s, Ab in enumerate(A):
         Y = Ab @ X[s] + X[s] @ Ab.T
         for t in range(len(X)):
             if t == s or Q[t, s] != 0.0:
                 Y = Y + Ball(q[t][s].value[0, 0] * X[t].value)
         out.append(Y)
     return out
-
-
-def _stack_back(sim: Similarity, Xt: np.ndarray) -> list[Ball]:
-    """``T X~_s T'`` exactly, for each matrix of the float stack ``X~``."""
-    T = ball(sim.T)
-    return [T @ ball(0.5 * (x + x.T)) @ T.T for x in Xt]
 
 
 def _float_candidate(conditioned: ClosedLoop, beta: Matrix) -> np.ndarray | None:
@@ -142,7 +135,7 @@ def _float_candidate(conditioned: ClosedLoop, beta: Matrix) -> np.ndarray | None
     return X
 
 
-def _decide(X: Sequence[Ball], precond: Matrix | None) -> str | None:
+def _decide(X: Sequence[Ball], precond: Ball | None) -> str | None:
     """"stable" if every ``X_s`` is proved positive definite, "not stable" if some
     ``X_s`` is proved to have a negative direction, ``None`` otherwise (``L(X) < 0``
     already known)."""
@@ -208,49 +201,71 @@ def _ball_solution(loop: ClosedLoop, Q: Matrix, bits: int) -> list[Ball] | None:
     return out
 
 
+@dataclass(frozen=True, eq=False)
+class StabilityProver:
+    """Proves verdicts of one loop at any ``beta`` (:meth:`certify`); the loop's
+    conditioned copy and the exact balls of its data are made once."""
+
+    nominal: ClosedLoop
+    sim: Similarity
+    conditioned: ClosedLoop
+    A: tuple[Ball, ...]
+    T: Ball
+    precond: Ball
+
+    @classmethod
+    def build(cls, loop: ClosedLoop, sim: Similarity) -> "StabilityProver":
+        """For the nominal part of ``loop`` and the conditioning ``sim``."""
+        nominal = loop.nominal()
+        with precision():
+            return cls(nominal, sim, sim.apply(nominal), tuple(ball(A) for A in nominal.A), ball(sim.T),
+                       ball(sim.T_inv.T))  # C' (T X~ T') C = X~
+
+    def certify(self, beta: Matrix, *, estimate: float | None = None,
+                budget_seconds: float = BUDGET_SECONDS) -> VertexVerdict:
+        """The verified verdict at ``beta`` (module docstring). ``estimate`` (the float
+        abscissa at ``beta``, if known) is recorded in the result only; the verdict
+        never depends on it."""
+        start = time.perf_counter()
+        Q = self.nominal.chain.generator(beta)
+
+        def done(verdict: str, method: str, bits: int) -> VertexVerdict:
+            return VertexVerdict(np.asarray(beta, dtype=float), verdict, method, bits,
+                                 time.perf_counter() - start, estimate)
+
+        Xt = _float_candidate(self.conditioned, beta)
+        if Xt is not None:
+            with precision():
+                X = [self.T @ ball(0.5 * (x + x.T)) @ self.T.T for x in Xt]
+                if all(proven_positive_definite(-y, self.precond) for y in _lyapunov_operator(self.A, Q, X)):
+                    verdict = _decide(X, self.precond)
+                    if verdict is not None:
+                        what = "X > 0" if verdict == "stable" else "some X_s indefinite"
+                        return done(verdict, f"L(X) < 0 and {what}, X from float64 in conditioned coordinates, "
+                                             "checked in 128-bit balls", 128)
+        size = len(self.nominal.A) * self.nominal.n * (self.nominal.n + 1) // 2
+        if size > SOLVE_LIMIT:
+            return done("undecided", f"float64 candidates not proved and the generator ({size} rows) is above "
+                                     f"the ball-arithmetic limit ({SOLVE_LIMIT})", 0)
+        for bits in FALLBACK_BITS:
+            if time.perf_counter() - start > budget_seconds:
+                return done("undecided", f"time budget of {budget_seconds:g} s spent before {bits} bits", bits)
+            X = _ball_solution(self.nominal, Q, bits)
+            if X is None:
+                continue
+            with precision(bits):
+                verdict = _decide(X, self.precond)
+            if verdict is not None:
+                return done(verdict, f"exact solution of L(X) = -I enclosed at {bits} bits, "
+                                     + ("every X_s > 0" if verdict == "stable" else "some X_s indefinite"), bits)
+        return done("undecided", f"no certificate either way up to {FALLBACK_BITS[-1]} bits", FALLBACK_BITS[-1])
+
+
 def certify_vertex(loop: ClosedLoop, beta: Matrix, sim: Similarity, *, estimate: float | None = None,
                    budget_seconds: float = BUDGET_SECONDS) -> VertexVerdict:
-    """The verified verdict of the nominal ``loop`` at ``beta`` (module docstring).
-
-    ``estimate`` (the float abscissa at ``beta``, if known) is recorded in the result
-    only; the verdict never depends on it.
-    """
-    start = time.perf_counter()
-    nominal = loop.nominal()
-    Q = nominal.chain.generator(beta)
-    conditioned = sim.apply(nominal)
-    precond = sim.T_inv.T  # C' (T X~ T') C = X~
-
-    def done(verdict: str, method: str, bits: int) -> VertexVerdict:
-        return VertexVerdict(np.asarray(beta, dtype=float), verdict, method, bits, time.perf_counter() - start,
-                             estimate)
-
-    Xt = _float_candidate(conditioned, beta)
-    if Xt is not None:
-        with precision():
-            X = _stack_back(sim, Xt)
-            if all(proven_positive_definite(-y, precond) for y in _lyapunov_operator(nominal, Q, X)):
-                verdict = _decide(X, precond)
-                if verdict is not None:
-                    what = "X > 0" if verdict == "stable" else "some X_s indefinite"
-                    return done(verdict, f"L(X) < 0 and {what}, X from float64 in conditioned coordinates, "
-                                         "checked in 128-bit balls", 128)
-    size = len(nominal.A) * nominal.n * (nominal.n + 1) // 2
-    if size > SOLVE_LIMIT:
-        return done("undecided", f"float64 candidates not proved and the generator ({size} rows) is above the "
-                                 f"ball-arithmetic limit ({SOLVE_LIMIT})", 0)
-    for bits in FALLBACK_BITS:
-        if time.perf_counter() - start > budget_seconds:
-            return done("undecided", f"time budget of {budget_seconds:g} s spent before {bits} bits", bits)
-        X = _ball_solution(nominal, Q, bits)
-        if X is None:
-            continue
-        with precision(bits):
-            verdict = _decide(X, precond)
-        if verdict is not None:
-            return done(verdict, f"exact solution of L(X) = -I enclosed at {bits} bits, "
-                                 + ("every X_s > 0" if verdict == "stable" else "some X_s indefinite"), bits)
-    return done("undecided", f"no certificate either way up to {FALLBACK_BITS[-1]} bits", FALLBACK_BITS[-1])
+    """The verified verdict of the nominal ``loop`` at ``beta`` (module docstring;
+    :meth:`StabilityProver.certify` for one vertex)."""
+    return StabilityProver.build(loop, sim).certify(beta, estimate=estimate, budget_seconds=budget_seconds)
 
 
 def combine(verdicts: Sequence[VertexVerdict]) -> str:
