@@ -6,6 +6,7 @@ Run from the repository root::
     python benchmarks/certificates.py                      # 74 loops
     python benchmarks/certificates.py --quick              # 12 + 3 + 2 loops (smoke run)
     python benchmarks/certificates.py --transform-max 1e6 --csv /tmp/c.csv
+    python benchmarks/certificates.py --against /path/to/other/checkout   # the same loops on other code
 
 The peer family (fixed seeds, every loop nominal, its reference computed in the
 well-conditioned original coordinates, the analysed loop moved to bad ones):
@@ -34,6 +35,12 @@ Every loop gets ``analyze(loop, cross_validation=False)``. Counted at the end:
 * loose certificates: certified gamma more than 1e-3 relative above the reference;
 * certificates below the reference: certified gamma < reference (infinite for the unstable
   loops, so any certificate there counts). Such a certificate would be false: must be 0.
+
+``--against DIR`` also analyses every loop with the ``ftc_verify`` of another checkout (a
+child process with ``PYTHONPATH=DIR``, the loops passed as arrays, so the other code
+needs only ``JointChain``, ``ClosedLoop`` and ``analyze``; a verdict is its ``mss.verdict``,
+or ``stable``/``not stable`` from ``mss.stable`` where it has none) and prints the same
+counts for it, side by side in one run.
 
 Output: one CSV row per loop (``--csv``, default ``benchmarks/results/certificates.csv``,
 ``certificates_quick.csv`` with ``--quick``) and the table. BLAS runs on one thread unless
@@ -156,6 +163,69 @@ def run_case(case: dict[str, Any]) -> dict[str, Any]:
     return row
 
 
+_CHILD = r"""
+import json, math, sys, time, warnings
+import numpy as np
+from ftc_verify.analysis.analyze import analyze
+from ftc_verify.analysis.closedloop import ClosedLoop
+from ftc_verify.model.system import JointChain
+for path in sys.argv[1:]:
+    d = np.load(path)
+    chain = JointChain(d["alpha"], d["beta_min"], d["beta_max"])
+    S = len(d["A"])
+    loop = ClosedLoop(chain, tuple(d["A"]), tuple(d["Bw"]), tuple(d["Cz"]), ((),) * S, "peer family")
+    t = time.perf_counter()
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            rep = analyze(loop, cross_validation=False)
+        verdict = getattr(rep.mss, "verdict", "stable" if rep.mss.stable else "not stable")
+        gamma = rep.nominal.gamma if rep.nominal.certified else None
+        out = {"verdict": verdict, "gamma": gamma, "outcome": rep.nominal.outcome}
+    except Exception as exc:
+        out = {"verdict": "error", "gamma": None, "outcome": type(exc).__name__}
+    out["seconds"] = time.perf_counter() - t
+    print(json.dumps(out), flush=True)
+"""
+
+
+def run_against(other: Path, cases: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Every case analysed by the ``ftc_verify`` under ``other`` (module docstring), judged
+    as :func:`run_case` judges this code's answers."""
+    import json
+    import subprocess
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        files = []
+        for i, case in enumerate(cases):
+            loop = case["loop"]
+            f = Path(tmp) / f"loop{i}.npz"
+            np.savez(f, A=np.stack(loop.A), Bw=np.stack(loop.Bw), Cz=np.stack(loop.Cz), alpha=loop.chain.alpha,
+                     beta_min=loop.chain.beta_min, beta_max=loop.chain.beta_max)
+            files.append(str(f))
+        env = dict(os.environ, PYTHONPATH=str(other))
+        run = subprocess.run([sys.executable, "-c", _CHILD, *files], capture_output=True, text=True, env=env,
+                             cwd=str(other), check=False)
+    answers = [json.loads(line) for line in run.stdout.splitlines() if line.startswith("{")]
+    if len(answers) != len(cases):
+        raise SystemExit(f"--against {other}: the other code answered {len(answers)} of {len(cases)} loops\n"
+                         f"{run.stderr[-2000:]}")
+    rows = []
+    for case, a in zip(cases, answers):
+        ref, truth, gamma, verdict = case["reference_gamma"], case["true_abscissa"], a["gamma"], a["verdict"]
+        row = {k: v for k, v in case.items() if k != "loop"}
+        row.update(seconds=a["seconds"], verdict=verdict, outcome=a["outcome"], certified_gamma=gamma,
+                   relative_error=(gamma / ref - 1.0) if gamma is not None and math.isfinite(ref) else None,
+                   estimated_abscissa=None, message="",
+                   false_verdict=(verdict == "stable" and truth >= 0) or (verdict == "not stable" and truth < 0),
+                   missing=truth < 0 and gamma is None,
+                   loose=gamma is not None and gamma > ref * (1.0 + LOOSE_RTOL),
+                   below=gamma is not None and gamma < ref)
+        rows.append(row)
+    return rows
+
+
 def _fmt(value: Any, spec: str) -> str:
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
         return format("-", ">" + spec.split(".")[0])
@@ -215,6 +285,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="CSV file (default benchmarks/results/certificates.csv, certificates_quick.csv with --quick)")
     ap.add_argument("--transform-max", type=float, default=1e4,
                     help="upper end of the log-uniform transform condition (default 1e4; e.g. 1e6)")
+    ap.add_argument("--against", type=Path, default=None, metavar="DIR",
+                    help="also analyse every loop with the ftc_verify of this checkout, side by side")
     args = ap.parse_args(argv)
     if not args.transform_max >= 1.0:
         ap.error(f"--transform-max must be >= 1, got {args.transform_max}")
@@ -234,6 +306,14 @@ def main(argv: list[str] | None = None) -> int:
         write_csv(out, rows)
     false = summary(rows, time.perf_counter() - t0)
     print(f"CSV: {out}")
+    if args.against is not None:
+        t1 = time.perf_counter()
+        other = run_against(args.against, cases)
+        print(f"\nthe same loops with the code in {args.against}:")
+        for i, r in enumerate(other, start=1):
+            print_row(i, r)
+        summary(other, time.perf_counter() - t1)
+        write_csv(out.with_name(out.stem + "_against.csv"), other)
     return 1 if false else 0
 
 
