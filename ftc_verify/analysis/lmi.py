@@ -108,10 +108,13 @@ def _bordered(first: list[Any], diag: list[Any], cols: list[int], bmat: Bmat) ->
 
 
 def _coupling(q_row: Matrix, P: Sequence[Any], s: int) -> Any:
+    r""":math:`\sum_t q_{st} P_t = \sum_{t \ne s} q_{st} (P_t - P_s)`: a generator row sums
+    to zero, so this form uses the off-diagonal rates only, each exactly as given (the
+    float diagonal, their rounded negated sum, never enters the certificate)."""
     total = 0 * P[s]
     for t, q in enumerate(q_row):
-        if q != 0.0:
-            total = total + float(q) * P[t]
+        if t != s and q != 0.0:
+            total = total + float(q) * (P[t] - P[s])
     return total
 
 
@@ -382,8 +385,8 @@ def check_certificate(
        :func:`lyapunov_block` on ball matrices, and :math:`-M` and every
        :math:`P^{orig}_s` proved positive definite
        (:func:`~ftc_verify.analysis.rigorous.proven_positive_definite`, preconditioned by
-       :math:`T` on the state rows). The generator rows are the float ones of
-       :meth:`~ftc_verify.model.system.JointChain.row_generator`.
+       :math:`T` on the state rows). The coupling uses the off-diagonal rates of
+       :meth:`~ftc_verify.model.system.JointChain.row_generator` only (``_coupling``).
     """
     from .rigorous import ball, ball_bmat, precision, proven_positive_definite
 

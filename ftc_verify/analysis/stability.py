@@ -317,9 +317,9 @@ def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256,
     :func:`abscissa_below` shows below the worst value found so far needs no
     eigenvalues; the others get :func:`abscissa_near` (dense :func:`spectral_abscissa`
     at the first vertex, and when that fails). Then
-    :func:`~ftc_verify.analysis.verdict.certify_vertex` proves the verdict at the worst
-    vertex and at every other vertex evaluated (``budget_seconds`` bounds the
-    higher-precision retries of each).
+    :meth:`~ftc_verify.analysis.verdict.StabilityProver.certify` proves the verdict at
+    the worst vertex and at every other vertex evaluated, stopping at the first "not
+    stable" (``budget_seconds`` bounds the higher-precision retries of each).
     """
     sim = conditioning_transform(loop.nominal())
     nominal = sim.apply(loop.nominal())
@@ -353,6 +353,13 @@ def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256,
             return False
         return value(bits, near=level) > level
 
+    def result(worst: tuple[bool, ...], evaluated: list[tuple[bool, ...]], exhaustive: bool) -> MSSResult:
+        """The worst estimate and the verdicts proved at every vertex evaluated (the worst first)."""
+        rest = [b for b in evaluated if b != worst]
+        verdict, proofs = _verified(loop, sim, [vertex(worst)] + [vertex(b) for b in rest],
+                                    [exact[worst]] + [exact.get(b) for b in rest], budget_seconds)
+        return MSSResult(exact[worst], vertex(worst), len(evaluated), exhaustive, len(exact), verdict, proofs, sim)
+
     if chain.vertex_count() <= max_vertices:
         ends = [(False, True) if chain.beta_min[j, i] != chain.beta_max[j, i] else (False,) for j, i in pairs]
         order = list(itertools.product(*ends))  # the order of chain.vertices()
@@ -361,10 +368,7 @@ def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256,
         for bits in order[1:]:
             if above(bits, exact[worst]):
                 worst = bits
-        rest = [b for b in order if b != worst]
-        verdict, proofs = _verified(loop, sim, [vertex(worst)] + [vertex(b) for b in rest],
-                                    [exact[worst]] + [exact.get(b) for b in rest], budget_seconds)
-        return MSSResult(exact[worst], vertex(worst), len(order), True, len(exact), verdict, proofs, sim)
+        return result(worst, order, True)
     for start in ((False,) * len(pairs), (True,) * len(pairs)):
         if start not in seen and len(seen) >= max_vertices:
             break
@@ -378,8 +382,4 @@ def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256,
                     break
                 if above(cand, value(bits)):
                     bits, improved = cand, True
-    worst = max(exact, key=lambda k: exact[k])
-    rest = [b for b in seen if b != worst]
-    verdict, proofs = _verified(loop, sim, [vertex(worst)] + [vertex(b) for b in rest],
-                                [exact[worst]] + [exact.get(b) for b in rest], budget_seconds)
-    return MSSResult(exact[worst], vertex(worst), len(seen), False, len(exact), verdict, proofs, sim)
+    return result(max(exact, key=lambda k: exact[k]), list(seen), False)

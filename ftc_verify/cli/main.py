@@ -106,7 +106,7 @@ def _print_analysis(rep: Any, *, lmi: bool = True) -> None:
         verdict = ("UNDECIDED: neither stability nor instability could be proved at some beta vertex "
                    "(float64 and the higher-precision retries)")
     else:
-        verdict = "NOT stable (spectral abscissa >= 0 at some beta vertex)"
+        verdict = "NOT stable (proved at some beta vertex)"
     print(f"  verdict: {verdict}; certificates {'all passed' if rep.certificate_ok else 'NOT all passed'}")
 
 
