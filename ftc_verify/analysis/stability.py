@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import time
 from dataclasses import dataclass
 from typing import Any
 
@@ -294,11 +295,13 @@ class MSSResult:
 
 def _verified(loop: ClosedLoop, sim: Similarity, vertices: list[Matrix], estimates: list[float | None],
               budget_seconds: float) -> tuple[str, tuple[VertexVerdict, ...]]:
-    """Verdicts at ``vertices`` (the worst first), stopping at the first "not stable"."""
+    """Verdicts at ``vertices`` (the worst first), stopping at the first "not stable";
+    ``budget_seconds`` is shared by all the vertices' higher-precision retries."""
     found = []
     prover = StabilityProver.build(loop, sim)
+    deadline = time.perf_counter() + budget_seconds
     for beta, est in zip(vertices, estimates):
-        v = prover.certify(beta, estimate=est, budget_seconds=budget_seconds)
+        v = prover.certify(beta, estimate=est, budget_seconds=max(0.0, deadline - time.perf_counter()))
         found.append(v)
         if v.verdict == "not stable":
             break
@@ -319,7 +322,8 @@ def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256,
     at the first vertex, and when that fails). Then
     :meth:`~ftc_verify.analysis.verdict.StabilityProver.certify` proves the verdict at
     the worst vertex and at every other vertex evaluated, stopping at the first "not
-    stable" (``budget_seconds`` bounds the higher-precision retries of each).
+    stable" (``budget_seconds`` bounds the higher-precision retries of all of them
+    together).
     """
     sim = conditioning_transform(loop.nominal())
     nominal = sim.apply(loop.nominal())

@@ -52,7 +52,8 @@ __all__ = ["VERDICTS", "SOLVE_LIMIT", "BUDGET_SECONDS", "FALLBACK_BITS", "Vertex
 VERDICTS = ("stable", "not stable", "undecided")
 #: Largest generator (rows) solved in ball arithmetic (about 10 s at 128 bits for 700 rows here).
 SOLVE_LIMIT = 700
-#: Time budget (seconds) of the ball-arithmetic fallback of one vertex.
+#: Time budget (seconds) of the ball-arithmetic fallback (of one vertex, or of the whole
+#: box in :func:`~ftc_verify.analysis.stability.mean_square_stability`).
 BUDGET_SECONDS = 60.0
 #: Precisions (bits) of the ball-arithmetic fallback, in order.
 FALLBACK_BITS = (128, 256, 512)
