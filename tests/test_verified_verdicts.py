@@ -120,3 +120,54 @@ def test_cli_exits_5_when_undecided(tmp_path: Path) -> None:
                          capture_output=True, text=True, timeout=300)
     assert run.returncode == 5, run.stdout + run.stderr
     assert "UNDECIDED" in run.stdout and "Traceback" not in run.stderr
+
+
+def _marginal_system(path: Path, n: int, corner: float) -> Path:
+    """An n-state plant whose open loop has the eigenvalue ``corner`` (second-moment
+    abscissa ``2 corner``), two modes, a beta box with 4 vertices, and zero gains."""
+    A = -np.eye(n) + np.diag(np.full(n - 1, 0.5), 1)
+    A[0, 0] = corner
+    mode = (f"A = {A.tolist()}\nB = {np.eye(n)[:, -1:].tolist()}\nC = {np.ones((1, n)).tolist()}\n"
+            f"D = {np.ones((n, 1)).tolist()}\n")
+    system = path / "marginal.toml"
+    system.write_text('name = "marginal"\n[chain]\nalpha = [[-1.0, 1.0], [1.0, -1.0]]\n'
+                      'beta_min = [[0.0, 2.0], [2.0, 0.0]]\nbeta_max = [[0.0, 3.0], [3.0, 0.0]]\n'
+                      f'[[mode]]\n{mode}[[mode]]\n{mode}')
+    gains = path / "zero.toml"
+    gains.write_text(f'[[gain]]\nK = {np.zeros((1, n)).tolist()}\n[[gain]]\nK = {np.zeros((1, n)).tolist()}\n')
+    return system
+
+
+def test_sigterm_during_the_ball_arithmetic_retry_exits_143(tmp_path: Path) -> None:
+    """The retry in ball arithmetic (364-row generator; abscissa -2e-60, so float64 and
+    128 bits cannot decide, 256 bits can, at each of 4 vertices: about 4 s) is one C
+    call per solve: SIGTERM still ends the run with 143, promptly, one line, no
+    traceback."""
+    import signal
+    import time
+
+    system = _marginal_system(tmp_path, 13, -1e-60)
+    proc = subprocess.Popen([sys.executable, "-m", "ftc_verify", "analyze", str(system), "--gains",
+                             str(tmp_path / "zero.toml")], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(3.5)  # start-up (about 1.5 s), then the ball-arithmetic solves (about 4 s)
+    assert proc.poll() is None, proc.communicate()
+    sent = time.monotonic()
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143, (out, err)
+    assert time.monotonic() - sent < 15.0
+    assert err.strip() == "ftc-verify: terminated" and "Traceback" not in err
+
+
+@pytest.mark.parametrize("corner", [-1e-60, 1e-60, -1e-20])
+def test_higher_precision_decides_what_float64_cannot(tmp_path: Path, corner: float) -> None:
+    """Abscissa +-2e-60: float64 and 128 bits cannot tell the sign, 256 bits can."""
+    from ftc_verify.analysis.closedloop import closed_loop
+    from ftc_verify.controllers.files import load_controller
+    from ftc_verify.model.files import load_system
+
+    system = load_system(_marginal_system(tmp_path, 4, corner))
+    r = mean_square_stability(closed_loop(system, load_controller(tmp_path / "zero.toml")))
+    assert r.verdict == ("stable" if corner < 0 else "not stable")
+    deciding = r.vertex_verdicts[0]
+    assert deciding.precision_bits == (256 if abs(corner) < 1e-40 else 128), deciding.method

@@ -50,8 +50,10 @@ __all__ = ["VERDICTS", "SOLVE_LIMIT", "BUDGET_SECONDS", "FALLBACK_BITS", "Vertex
 
 #: The three answers a stability verdict can give.
 VERDICTS = ("stable", "not stable", "undecided")
-#: Largest generator (rows) solved in ball arithmetic (about 10 s at 128 bits for 700 rows here).
-SOLVE_LIMIT = 700
+#: Largest generator (rows) solved in ball arithmetic: FLINT's solve is one C call that a
+#: signal cannot interrupt, about 1.2 s at 128 bits and 4 s at 512 bits for 400 rows here
+#: (cubic in the rows), so Ctrl-C and SIGTERM are honoured within seconds.
+SOLVE_LIMIT = 400
 #: Time budget (seconds) of the ball-arithmetic fallback (of one vertex, or of the whole
 #: box in :func:`~ftc_verify.analysis.stability.mean_square_stability`).
 BUDGET_SECONDS = 60.0
@@ -136,11 +138,18 @@ def _float_candidate(conditioned: ClosedLoop, beta: Matrix) -> np.ndarray | None
     return X
 
 
-def _decide(X: Sequence[Ball], precond: Ball | None) -> str | None:
+def _positive_definite(M: Ball, precond: Ball) -> bool:
+    """Proved positive definite, preconditioned by the conditioning similarity or, when
+    that fails, in the original coordinates (where a direction of a very different scale
+    may be a coordinate axis that the Jacobi scaling of the proof already separates)."""
+    return proven_positive_definite(M, precond) or proven_positive_definite(M)
+
+
+def _decide(X: Sequence[Ball], precond: Ball) -> str | None:
     """"stable" if every ``X_s`` is proved positive definite, "not stable" if some
     ``X_s`` is proved to have a negative direction, ``None`` otherwise (``L(X) < 0``
     already known)."""
-    if all(proven_positive_definite(x, precond) for x in X):
+    if all(_positive_definite(x, precond) for x in X):
         return "stable"
     if any(proven_not_psd(x) for x in X):
         return "not stable"
@@ -238,7 +247,7 @@ class StabilityProver:
         if Xt is not None:
             with precision():
                 X = [self.T @ ball(0.5 * (x + x.T)) @ self.T.T for x in Xt]
-                if all(proven_positive_definite(-y, self.precond) for y in _lyapunov_operator(self.A, Q, X)):
+                if all(_positive_definite(-y, self.precond) for y in _lyapunov_operator(self.A, Q, X)):
                     verdict = _decide(X, self.precond)
                     if verdict is not None:
                         what = "X > 0" if verdict == "stable" else "some X_s indefinite"
