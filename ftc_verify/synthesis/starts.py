@@ -43,6 +43,7 @@ from typing import Any
 
 import numpy as np
 
+from ..analysis.conditioning import stationary_distribution
 from ..model.system import FTCSystem, Matrix
 
 __all__ = ["LQR_SCALES", "Candidate", "lqr_gain", "candidates", "stationary", "stabilisability", "certify_start",
@@ -83,15 +84,9 @@ def lqr_gain(A: Matrix, B: Matrix, Q: Matrix, R: Matrix) -> Matrix | None:
 
 
 def stationary(G: Matrix) -> Matrix:
-    """Stationary distribution ``p`` of a generator ``G`` (``p G = 0``, ``sum p = 1``), by
-    least squares on the stacked system (unique for an irreducible chain)."""
-    k = G.shape[0]
-    M = np.vstack([G.T, np.ones((1, k))])
-    rhs = np.zeros(k + 1)
-    rhs[-1] = 1.0
-    p = np.linalg.lstsq(M, rhs, rcond=None)[0]
-    p = np.clip(p, 0.0, None)
-    return p / p.sum()
+    """Stationary distribution ``p`` of a generator ``G`` (``p G = 0``, ``sum p = 1``):
+    :func:`~ftc_verify.analysis.conditioning.stationary_distribution`."""
+    return stationary_distribution(G)
 
 
 def _bounded(gains: list[Matrix], k_max: float | None) -> tuple[tuple[Matrix, ...], str]:

@@ -102,7 +102,7 @@ from numpy.typing import ArrayLike
 
 from ..analysis.closedloop import ClosedLoop
 from ..model.system import JointChain, Matrix
-from .illconditioned import similarity, two_mode_chain
+from .illconditioned import PeerLoop, similarity, two_mode_chain
 
 __all__ = [
     "MAX_NEWTON",
@@ -360,17 +360,10 @@ def mjls_hinf_norm_of_loop(loop: ClosedLoop, beta: ArrayLike | None = None, *, r
 
 
 @dataclass(frozen=True, eq=False)
-class MultiModePeer:
+class MultiModePeer(PeerLoop):
     """A genuine multi-mode loop (different ``A_s`` per joint mode) on a chain whose
     ``beta`` box is one point, its well-conditioned original and the similarity ``S``
     (``x' = S x``) between them. The references are computed on the original."""
-
-    loop: ClosedLoop
-    original: ClosedLoop
-    S: Matrix
-    seed: int
-    diagonal_condition: float
-    transform_condition: float
 
     @property
     def generator(self) -> Matrix:
