@@ -1,0 +1,273 @@
+r"""Stabilising output feedback of any order by nonsmooth descent on the exact stability test.
+
+The controller of FDI mode :math:`j` has order :math:`n_c` (0 is static output feedback)
+and the blocks :math:`\mathcal K_j = [[A_{c,j}, B_{c,j}], [C_{c,j}, D_{c,j}]]`; for true
+mode :math:`i` the closed loop is :math:`A_s = \bar A_{0i} + \bar B_{0i}\mathcal K_j \bar C_i`
+(:mod:`ftc_verify.analysis.closedloop`, :func:`~ftc_verify.analysis.closedloop.barred`).
+The objective is the worst-vertex spectral abscissa of the second-moment generator
+
+.. math::
+
+    f(\mathcal K) = \max_{\beta \in \text{vertices}} \mu(\beta), \qquad
+    \mu = \max \operatorname{Re} \lambda(\mathcal L), \quad
+    \mathcal L = \operatorname{blockdiag}_s\bigl(L_n (I \otimes A_s + A_s \otimes I) D_n\bigr)
+                 + Q(\beta)^T \otimes I,
+
+nonsmooth where the active eigenvalue is multiple, smooth almost everywhere. Its gradient
+(derived here) at a simple active eigenvalue :math:`\lambda` with right and left
+eigenvectors :math:`v`, :math:`u` (:math:`u^H \mathcal L = \lambda u^H`) is
+:math:`d\lambda = u^H d\mathcal L\, v / (u^H v)`. With :math:`V_s = \operatorname{vec}^{-1}
+(D_n v_s)` and :math:`U_s = \operatorname{vec}^{-1}(L_n^T u_s)` (the parts of the mode
+:math:`s`), :math:`u_s^H L_n (I\otimes dA + dA\otimes I) D_n v_s = \operatorname{tr}(U_s^H
+(dA\,V_s + V_s\,dA^T))`, so
+
+.. math::
+
+    \nabla_{A_s}\mu = \operatorname{Re}\frac{\bar U_s V_s^T + U_s^H V_s}{u^H v}, \qquad
+    \nabla_{\mathcal K_j}\mu = \sum_i \bar B_{0i}^T \,\nabla_{A_{(i,j)}}\mu\, \bar C_i^T .
+
+The minimisation is BFGS with a weak Wolfe line search, the method Lewis and Overton
+showed to work on such nonsmooth functions (and HIFOO uses for fixed-order
+:math:`H_\infty`): the inverse-Hessian update stays positive definite when the curvature
+:math:`s^T y > 0`, and the line search (bisection and doubling) needs only the Armijo
+decrease :math:`f(x + t d) \le f(x) + c_1 t\, g^T d` and the weak Wolfe condition
+:math:`g(x + t d)^T d \ge c_2\, g^T d`. The gain bound :math:`\|\mathcal K_j\|_2 \le k_{max}`
+is kept by scaling each block back onto the ball after every trial step.
+
+**Continuation in the detection rates.** Faster detection makes the FDI lag shorter, so
+a loop is easier to stabilise with every ``beta`` multiplied by :math:`\kappa > 1`. The
+descent runs at :math:`\kappa` = :data:`KAPPAS` in turn (8, 4, 2, 1.4, 1), each solution
+starting the next, and stops at each level once the abscissa is below ``-margin``.
+
+Nothing here certifies: the descent only proposes a controller, which the caller hands
+to the core analysis (the verified verdict and the certified gammas).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.linalg
+
+from ..analysis.closedloop import barred
+from ..analysis.stability import duplication_matrix
+from ..controllers.controller import Controller
+from ..errors import ValidationError
+from ..model.system import FTCSystem, JointChain, Matrix
+
+__all__ = ["KAPPAS", "Parametrisation", "abscissa_gradient", "worst_abscissa", "bfgs", "DescentResult",
+           "stabilise"]
+
+#: Detection-rate multipliers of the continuation, in order (the last is the true box).
+KAPPAS = (8.0, 4.0, 2.0, 1.4, 1.0)
+
+
+@dataclass(frozen=True, eq=False)
+class Parametrisation:
+    """The controllers of order ``n_c`` for ``system``, as vectors ``theta`` (the blocks
+    ``K_j`` of the FDI modes, row-major, concatenated)."""
+
+    system: FTCSystem
+    n_c: int
+    A0: tuple[Matrix, ...]
+    B0: tuple[Matrix, ...]
+    Cbar: tuple[Matrix, ...]
+
+    @classmethod
+    def build(cls, system: FTCSystem, n_c: int) -> "Parametrisation":
+        """Barred matrices of every true mode for a controller of order ``n_c``."""
+        if n_c < 0:
+            raise ValidationError(f"order: must be >= 0, got {n_c}")
+        bars = [barred(md, md.measured, n_c) for md in system.modes]
+        return cls(system, n_c, tuple(b.A0bar for b in bars), tuple(b.B0bar for b in bars),
+                   tuple(b.Cbar for b in bars))
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """Shape of each block ``K_j``: ``(n_c + nu, n_c + ny)``."""
+        return self.B0[0].shape[1], self.Cbar[0].shape[0]
+
+    @property
+    def size(self) -> int:
+        """Length of ``theta``."""
+        r, c = self.shape
+        return self.system.m * r * c
+
+    def blocks(self, theta: Matrix) -> list[Matrix]:
+        """``theta`` -> the ``m`` blocks ``K_j``."""
+        r, c = self.shape
+        return [np.asarray(b) for b in np.asarray(theta, dtype=float).reshape(self.system.m, r, c)]
+
+    def theta(self, blocks: Sequence[Matrix]) -> Matrix:
+        """The blocks -> ``theta``."""
+        return np.concatenate([np.asarray(K, dtype=float).ravel() for K in blocks])
+
+    def loop_matrices(self, theta: Matrix) -> list[Matrix]:
+        """``A_s`` for every joint mode ``s = i m + j``."""
+        K = self.blocks(theta)
+        m = self.system.m
+        return [self.A0[i] + self.B0[i] @ K[j] @ self.Cbar[i] for i in range(m) for j in range(m)]
+
+    def controller(self, theta: Matrix, name: str) -> Controller:
+        """The dynamic controller of ``theta``."""
+        nc = self.n_c
+        K = self.blocks(theta)
+        return Controller.dynamic([k[:nc, :nc] for k in K], [k[:nc, nc:] for k in K], [k[nc:, :nc] for k in K],
+                                  [k[nc:, nc:] for k in K], name=name)
+
+
+def abscissa_gradient(A: Sequence[Matrix], Q: Matrix) -> tuple[float, list[Matrix]]:
+    """``(mu, [grad_A_s mu])`` of the second-moment generator of the matrices ``A`` and
+    the generator ``Q`` (module docstring); the gradient at the rightmost eigenvalue."""
+    n = A[0].shape[0]
+    D, L = duplication_matrix(n)
+    eye = np.eye(n)
+    G = scipy.linalg.block_diag(*[L @ (np.kron(eye, a) + np.kron(a, eye)) @ D for a in A])
+    G = G + np.kron(Q.T, np.eye(D.shape[1]))
+    vals, vl, vr = scipy.linalg.eig(G, left=True, right=True, check_finite=False)
+    k = int(np.argmax(vals.real))
+    u, v = vl[:, k], vr[:, k]
+    w = np.vdot(u, v)
+    h = D.shape[1]
+    grads = []
+    for s in range(len(A)):
+        V = (D @ v[s * h:(s + 1) * h]).reshape(n, n, order="F")
+        U = (L.T @ u[s * h:(s + 1) * h]).reshape(n, n, order="F")
+        grads.append(np.real((np.conj(U) @ V.T + U.conj().T @ V) / w) if w != 0 else np.zeros((n, n)))
+    return float(vals[k].real), grads
+
+
+def worst_abscissa(par: Parametrisation, chain: JointChain, theta: Matrix) -> tuple[float, Matrix]:
+    """``(f, grad f)``: the worst abscissa over the vertices of ``chain``'s ``beta`` box
+    and its gradient in ``theta`` (module docstring)."""
+    A = par.loop_matrices(theta)
+    best: tuple[float, list[Matrix]] | None = None
+    for beta in chain.vertices():
+        mu, grads = abscissa_gradient(A, chain.generator(beta))
+        if best is None or mu > best[0]:
+            best = (mu, grads)
+    assert best is not None
+    mu, grads = best
+    m = par.system.m
+    r, c = par.shape
+    gK = np.zeros((m, r, c))
+    for i in range(m):
+        for j in range(m):
+            gK[j] += par.B0[i].T @ grads[i * m + j] @ par.Cbar[i].T
+    return mu, gK.ravel()
+
+
+def _project(par: Parametrisation, theta: Matrix, k_max: float | None) -> Matrix:
+    """Each block scaled back onto ``||K_j||_2 <= k_max``."""
+    if k_max is None:
+        return theta
+    out = []
+    for K in par.blocks(theta):
+        norm = np.linalg.norm(K, 2)
+        out.append(K * (k_max / norm) if norm > k_max else K)
+    return par.theta(out)
+
+
+def bfgs(fun, x0: Matrix, *, target: float, max_iter: int = 200, project=lambda x: x,  # noqa: ANN001
+         c1: float = 1e-4, c2: float = 0.9) -> tuple[Matrix, float, int]:
+    """Minimise ``fun(x) -> (f, g)`` by BFGS with a weak Wolfe line search (module
+    docstring) until ``f < target``; returns ``(x, f, evaluations)``."""
+    x = project(np.asarray(x0, dtype=float))
+    f, g = fun(x)
+    evals = 1
+    H = np.eye(x.size)
+    for _ in range(max_iter):
+        if f < target or not np.all(np.isfinite(g)) or np.linalg.norm(g) == 0:
+            break
+        d = -H @ g
+        slope = float(g @ d)
+        if slope >= 0:  # not a descent direction: restart from steepest descent
+            H = np.eye(x.size)
+            d, slope = -g, -float(g @ g)
+        lo, hi, t = 0.0, np.inf, 1.0
+        accepted = None
+        for _ in range(40):
+            xt = project(x + t * d)
+            ft, gt = fun(xt)
+            evals += 1
+            if not np.isfinite(ft) or ft > f + c1 * t * slope:
+                hi = t
+            elif float(gt @ d) < c2 * slope:
+                lo = t
+                accepted = (xt, ft, gt)  # sufficient decrease already: keep the best so far
+            else:
+                accepted = (xt, ft, gt)
+                break
+            t = 0.5 * (lo + hi) if np.isfinite(hi) else 2.0 * lo
+        if accepted is None:
+            break
+        xn, fn, gn = accepted
+        s, y = xn - x, gn - g
+        sy = float(s @ y)
+        if sy > 1e-12 * np.linalg.norm(s) * np.linalg.norm(y):
+            rho = 1.0 / sy
+            I = np.eye(x.size)
+            H = (I - rho * np.outer(s, y)) @ H @ (I - rho * np.outer(y, s)) + rho * np.outer(s, s)
+        x, f, g = xn, fn, gn
+    return x, f, evals
+
+
+@dataclass(frozen=True)
+class DescentResult:
+    """What :func:`stabilise` reached from one start."""
+
+    start: str
+    order: int
+    theta: Matrix
+    abscissa: float
+    gain_norm: float
+    stabilised: bool
+    history: tuple[tuple[float, float], ...] = field(default=())
+    evaluations: int = 0
+    seconds: float = 0.0
+
+    def to_dict(self) -> dict[str, object]:
+        """JSON-ready summary (``theta`` omitted)."""
+        return {"start": self.start, "order": self.order, "abscissa": self.abscissa, "gain_norm": self.gain_norm,
+                "stabilised": self.stabilised, "history": [list(h) for h in self.history],
+                "evaluations": self.evaluations, "seconds": self.seconds}
+
+
+def _scaled_chain(chain: JointChain, kappa: float) -> JointChain:
+    return JointChain(chain.alpha, kappa * chain.beta_min, kappa * chain.beta_max, chain.fault_during_delay)
+
+
+def stabilise(system: FTCSystem, order: int, *, starts: Sequence[tuple[str, Matrix]] = (), seed: int = 0,
+              random_starts: int = 3, k_max: float | None = None, margin: float = 1e-2,
+              kappas: Sequence[float] = KAPPAS, max_iter: int = 150) -> list[DescentResult]:
+    """Descents from every start (the given ``(name, theta)`` ones, the zero controller,
+    and ``random_starts`` drawn from ``numpy.random.default_rng(seed)``), each through the
+    continuation ``kappas`` (module docstring); sorted, best (lowest abscissa at the true
+    rates) first. A start stops at the true rates once its abscissa is below ``-margin``."""
+    par = Parametrisation.build(system, order)
+    rng = np.random.default_rng(seed)
+    scale = 1.0 / np.sqrt(max(1, par.shape[0] * par.shape[1]))
+    all_starts = list(starts) + [("zero", np.zeros(par.size))]
+    all_starts += [(f"random {k} (seed {seed})", scale * rng.standard_normal(par.size)) for k in range(random_starts)]
+    project = lambda x: _project(par, x, k_max)  # noqa: E731
+    out = []
+    for name, theta in all_starts:
+        t0 = time.perf_counter()
+        x = np.asarray(theta, dtype=float)
+        history, evals = [], 0
+        f = np.inf
+        for kappa in kappas:
+            chain = _scaled_chain(system.chain, kappa)
+            x, f, e = bfgs(lambda z: worst_abscissa(par, chain, z), x, target=-margin, max_iter=max_iter,
+                           project=project)
+            evals += e
+            history.append((float(kappa), float(f)))
+        gain = max(float(np.linalg.norm(K, 2)) for K in par.blocks(x))
+        out.append(DescentResult(name, order, x, float(f), gain, bool(f < -margin), tuple(history), evals,
+                                 time.perf_counter() - t0))
+        if f < -margin:
+            break
+    return sorted(out, key=lambda r: r.abscissa)
