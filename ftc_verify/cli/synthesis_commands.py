@@ -29,7 +29,9 @@ def _print_synthesis(res: Any) -> None:
         print("  no gains")
         return
     print(f"  synthesis-side gamma     {_fmt(d['synthesis_gamma'])}")
-    print(f"  certified robust gamma   {_fmt(d['gamma_certified'])}")
+    print(f"  certified robust gamma   {_fmt(d['gamma_certified'])}"
+          + ("  (Lemma 4.1 not certified: the nominal gamma is the certificate)"
+             if d["certified_gamma_kind"] == "nominal" else ""))
     print(f"  certified nominal gamma  {_fmt(d['gamma_nominal_certified'])}")
     print(f"  spectral abscissa        {_fmt(d['spectral_abscissa'])}")
     print(f"  max gain norm            {_fmt(d['max_gain_norm'])}" + (f" (bound {res.k_max:g})" if res.k_max else ""))
@@ -46,19 +48,26 @@ def _cmd_synthesize(args: argparse.Namespace) -> int:
     from ..model.files import load_system, write_atomic
     from ..synthesis.state_feedback import synthesize
 
-    of_methods = ("ccl", "observer", "vk")
+    of_methods = ("auto", "ccl", "observer", "vk", "descent")
     if args.output_feedback and args.method not in (None, *of_methods):
         raise _bad(f"--method {args.method}: with --output-feedback choose one of {list(of_methods)}")
     if not args.output_feedback and args.method in (None, *of_methods):
         raise _bad(f"--method {args.method}: needs --output-feedback" if args.method else
                    "--method: required for state feedback (two-step, iterative, full-info, common)")
+    if args.order is not None and not args.output_feedback:
+        raise _bad(f"--order {args.order}: needs --output-feedback")
+    if args.order is not None and args.order < 0:
+        raise _bad(f"--order {args.order}: must be >= 0 (0 is static output feedback)")
     _check_output_file(args.output, "-o/--output")
     system = load_system(args.system)
     if args.output_feedback:
         from ..synthesis.output_feedback import synthesize_output_feedback
 
-        res = synthesize_output_feedback(system, method=args.method or "ccl", gamma=args.gamma, k_max=args.k_max,
-                                         solver=args.solver)
+        n = system.dims[0]
+        if args.order is not None and args.order != n and args.method not in (None, "auto", "descent"):
+            raise _bad(f"--order {args.order}: method {args.method} designs order n = {n} only; use --method descent")
+        res = synthesize_output_feedback(system, method=args.method or "auto", gamma=args.gamma, k_max=args.k_max,
+                                         solver=args.solver, order=args.order, seed=args.seed)
     else:
         res = synthesize(system, method=args.method, gamma=args.gamma, k_max=args.k_max, solver=args.solver)
     if res.certified and res.controller is not None:
@@ -84,11 +93,16 @@ def add_synthesis_command(sub: Any) -> None:
     level.add_argument("--gamma", type=_positive, help="attenuation level to achieve (feasibility)")
     level.add_argument("--minimize", action="store_true", help="make gamma as small as possible (default)")
     y.add_argument("--method", default=None, choices=["two-step", "iterative", "full-info", "common",
-                                                       "ccl", "observer", "vk"],
+                                                       "auto", "ccl", "observer", "vk", "descent"],
                    help="state feedback: two-step, iterative, full-info, common (required); with "
-                        "--output-feedback: ccl (default), observer, vk")
+                        "--output-feedback: auto (default: every route, the best certified), ccl, observer, vk, "
+                        "descent (nonsmooth descent on the exact stability test, any order)")
     y.add_argument("--output-feedback", action="store_true",
-                   help="a full-order dynamic controller per FDI mode reading y_m = Cy x (Theorem 5.1)")
+                   help="a dynamic controller per FDI mode reading y_m = Cy x (Theorem 5.1)")
+    y.add_argument("--order", type=int, default=None,
+                   help="output feedback: controller order (default n; 0 = static output feedback u = Dc y_m; "
+                        "orders below n only by the descent)")
+    y.add_argument("--seed", type=int, default=0, help="seed of the descent's random starts (default 0)")
     y.add_argument("--k-max", type=_positive, default=None,
                    help="bound on the spectral norm of every gain (output feedback: of every controller block)")
     y.add_argument("-o", "--output", required=True, help="controller TOML file to write (only when certified)")

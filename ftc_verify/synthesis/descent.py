@@ -48,6 +48,7 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import scipy.linalg
@@ -58,11 +59,16 @@ from ..controllers.controller import Controller
 from ..errors import ValidationError
 from ..model.system import FTCSystem, JointChain, Matrix
 
-__all__ = ["KAPPAS", "Parametrisation", "abscissa_gradient", "worst_abscissa", "bfgs", "DescentResult",
-           "stabilise"]
+__all__ = ["rate_scale", "KAPPAS", "LEVELS", "GAIN_SCAN", "Parametrisation", "abscissa_gradient", "worst_abscissa", "bfgs",
+           "DescentResult", "stabilise", "deepen", "gain_scan", "descent_route", "accepted_gamma"]
 
 #: Detection-rate multipliers of the continuation, in order (the last is the true box).
 KAPPAS = (8.0, 4.0, 2.0, 1.4, 1.0)
+#: Abscissa levels of the tuning ladder (:func:`deepen`), in units of the plant's rate
+#: scale ``1 + max |eig(A_i)|``.
+LEVELS = (-0.05, -0.1, -0.2, -0.4, -0.8, -1.6)
+#: Gain bounds of the diagnosis scan (:func:`gain_scan`).
+GAIN_SCAN = (1e1, 1e2, 1e3, 1e4)
 
 
 @dataclass(frozen=True, eq=False)
@@ -243,15 +249,17 @@ def _scaled_chain(chain: JointChain, kappa: float) -> JointChain:
 def stabilise(system: FTCSystem, order: int, *, starts: Sequence[tuple[str, Matrix]] = (), seed: int = 0,
               random_starts: int = 3, k_max: float | None = None, margin: float = 1e-2,
               kappas: Sequence[float] = KAPPAS, max_iter: int = 150) -> list[DescentResult]:
-    """Descents from every start (the given ``(name, theta)`` ones, the zero controller,
-    and ``random_starts`` drawn from ``numpy.random.default_rng(seed)``), each through the
+    """Descents from the starts in turn -- the zero controller, ``random_starts`` drawn from
+    ``numpy.random.default_rng(seed)``, then the given ``(name, theta)`` ones (designed
+    controllers, whose gains tend to be large) -- each through the
     continuation ``kappas`` (module docstring); sorted, best (lowest abscissa at the true
     rates) first. A start stops at the true rates once its abscissa is below ``-margin``."""
     par = Parametrisation.build(system, order)
     rng = np.random.default_rng(seed)
     scale = 1.0 / np.sqrt(max(1, par.shape[0] * par.shape[1]))
-    all_starts = list(starts) + [("zero", np.zeros(par.size))]
+    all_starts = [("zero", np.zeros(par.size))]
     all_starts += [(f"random {k} (seed {seed})", scale * rng.standard_normal(par.size)) for k in range(random_starts)]
+    all_starts += list(starts)  # last: designed starts (observers) tend to have large gains
     project = lambda x: _project(par, x, k_max)  # noqa: E731
     out = []
     for name, theta in all_starts:
@@ -271,3 +279,95 @@ def stabilise(system: FTCSystem, order: int, *, starts: Sequence[tuple[str, Matr
         if f < -margin:
             break
     return sorted(out, key=lambda r: r.abscissa)
+
+
+def rate_scale(system: FTCSystem) -> float:
+    """``1 + max_i max |eig(A_i)|``: the unit of the tuning ladder's abscissa levels."""
+    return 1.0 + max(float(np.max(np.abs(np.linalg.eigvals(md.A)))) for md in system.modes)
+
+
+def deepen(system: FTCSystem, order: int, theta: Matrix, level: float, *, k_max: float | None = None,
+           max_iter: int = 300) -> tuple[Matrix, float]:
+    """Continue the descent at the true rates from ``theta`` until the abscissa is below
+    ``level`` (or no further progress); ``(theta, abscissa)``. The tuning ladder of
+    :func:`~ftc_verify.synthesis.output_feedback.synthesize_output_feedback` calls it at
+    each of :data:`LEVELS` and has every result certified by the core analysis."""
+    par = Parametrisation.build(system, order)
+    x, f, _ = bfgs(lambda z: worst_abscissa(par, system.chain, z), theta, target=level, max_iter=max_iter,
+                   project=lambda z: _project(par, z, k_max))
+    return x, float(f)
+
+
+def gain_scan(system: FTCSystem, order: int, *, seed: int = 0, bounds: Sequence[float] = GAIN_SCAN,
+              max_iter: int = 150) -> list[tuple[float, float]]:
+    """The best abscissa reached under each gain bound of ``bounds`` (each descent starting
+    from the previous one's answer, at the true rates): ``[(k_max, abscissa)]``. An
+    abscissa that stays positive while falling towards 0 as the bound grows says the exact
+    test approaches 0 only with unbounded gains."""
+    par = Parametrisation.build(system, order)
+    x = 0.1 * np.random.default_rng(seed).standard_normal(par.size)
+    out = []
+    for bound in bounds:
+        x, f, _ = bfgs(lambda z: worst_abscissa(par, system.chain, z), x, target=-np.inf, max_iter=max_iter,
+                       project=lambda z, b=bound: _project(par, z, b))
+        out.append((float(bound), float(f)))
+    return out
+
+
+def descent_route(system: FTCSystem, order: int, rows: list[dict[str, Any]], k_max: float | None, solver: str,
+                   calls: Any, seed: int) -> tuple[Controller | None, Any, list[float], str, list[dict[str, Any]]]:
+    """``descent``: stabilise by :func:`~ftc_verify.synthesis.descent.stabilise` (starts: the
+    observer designs of ``rows`` at full order, the zero controller, seeded random ones),
+    then the tuning ladder: deepen the abscissa to each of
+    :data:`~ftc_verify.synthesis.descent.LEVELS` (times the plant's rate scale) and have the
+    core analysis certify each controller; the best certified gamma (robust where Lemma 4.1
+    certifies, else nominal) is kept, and the ladder stops after two levels without a
+    better one. Returns ``(controller, report, history, message, descent rows)``."""
+    from .state_feedback import _verify_controller
+
+    par = Parametrisation.build(system, order)
+    starts = [(r["name"], par.theta(r["gains"])) for r in rows if order == system.dims[0] and r.get("gains")]
+    found = stabilise(system, order, starts=starts, seed=seed, k_max=k_max)
+    public = [{"name": f"descent from {r.start}", "gamma_certified": None, "spectral_abscissa": r.abscissa,
+               "note": f"order {order}, gain norm {r.gain_norm:.3g}, kappa path "
+                       + " -> ".join(f"{k:g}: {f:.3g}" for k, f in r.history),
+               "reason": "stabilised; see the tuning ladder" if r.stabilised else "not stabilised"} for r in found]
+    best = found[0]
+    if not best.stabilised:
+        return None, None, [], (f"descent (order {order}): no stabilising controller; best abscissa "
+                                f"{best.abscissa:.4g} at gain norm {best.gain_norm:.3g}"), public
+    theta, scale = best.theta, rate_scale(system)
+    chosen: tuple[Controller, Any, float] | None = None
+    history: list[float] = []
+    misses = 0
+    for level in LEVELS:
+        theta, reached = deepen(system, order, theta, level * scale, k_max=k_max)
+        ctrl = par.controller(theta, f"{system.name} descent (order {order})")
+        report = _verify_controller(system, ctrl, solver)
+        calls.outcomes.extend(a for res in (report.nominal, report.robust, report.mes_lmi) for a in res.attempts)
+        gamma = accepted_gamma(report, True)
+        if gamma is not None and (chosen is None or gamma < chosen[2]):
+            chosen, misses = (ctrl, report, gamma), 0
+            history.append(gamma)
+        elif chosen is not None:
+            misses += 1
+        if misses >= 2 or reached > level * scale:
+            break
+    if chosen is None:
+        return None, None, [], (f"descent (order {order}) stabilised (abscissa {best.abscissa:.4g} from "
+                                f"{best.start}) but the core certified no controller of the tuning ladder"), public
+    kind = "robust" if chosen[1].robust.certified else "nominal (Lemma 4.1 not certified)"
+    msg = (f"descent (order {order}) from {best.start}: stabilised at the true rates, then the tuning ladder; "
+           f"best certified {kind} gamma {chosen[2]:.6g}")
+    return chosen[0], chosen[1], history, msg, public
+
+
+def accepted_gamma(report: Any, nominal_ok: bool) -> float | None:
+    """The certified gamma a controller is ranked by: Lemma 4.1's, else (``nominal_ok``,
+    the descent) Theorem 3.2's; ``None`` unless the core certified stability (the verdict
+    and Theorem 3.1)."""
+    if report is None or not report.certified_stable:
+        return None
+    if report.robust.certified:
+        return report.robust.gamma
+    return report.nominal.gamma if nominal_ok and report.nominal.certified else None

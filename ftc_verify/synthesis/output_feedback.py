@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -54,13 +55,14 @@ from ..analysis.lmi_analysis import hinf_gamma
 from ..controllers.controller import Controller
 from ..errors import ValidationError
 from ..model.system import FTCSystem, Matrix, Mode
+from .descent import accepted_gamma, descent_route
 from .starts import certify_start, lqr_gain
 from .state_feedback import SynthesisResult, _Calls, _verify_controller, descend, gain_step, synthesize
 
 __all__ = ["OF_METHODS", "augmented_system", "controller_from_blocks", "observer_designs", "ccl_constraints",
            "ccl", "synthesize_output_feedback", "CCL_MAX_ITER", "CCL_TOL"]
 
-OF_METHODS = ("ccl", "observer", "vk")
+OF_METHODS = ("ccl", "observer", "vk", "descent")
 #: Iteration limit of the cone complementarity linearisation.
 CCL_MAX_ITER = 30
 #: CCL stops when ``sum(trace(P X)) - n_total + sum(lam eps - 1)`` is below this times
@@ -357,45 +359,135 @@ def _ccl_ladder(system: FTCSystem, gamma: float | None, start: float | None, cal
     return best
 
 
+@dataclass(frozen=True, eq=False)
+class _Outcome:
+    """What one route produced (the controller is accepted only with ``gamma``)."""
+
+    route: str
+    controller: Controller | None
+    report: Any
+    synthesis_gamma: float | None
+    history: list[float]
+    ccl_history: list[float]
+    message: str
+
+    @property
+    def gamma(self) -> float | None:
+        return accepted_gamma(self.report, self.route == "descent")
+
+    @property
+    def rank(self) -> tuple[int, float]:
+        """Robust-certified before nominal-only, then by gamma."""
+        robust = self.report is not None and self.report.robust.certified
+        return (0 if robust else 1, math.inf if self.gamma is None else self.gamma)
+
+
 def synthesize_output_feedback(
     system: FTCSystem,
     *,
-    method: str,
+    method: str = "auto",
     gamma: float | None = None,
     k_max: float | None = None,
     solver: str | None = None,
     max_iter: int = 10,
     tol: float = 1e-3,
+    order: int | None = None,
+    seed: int = 0,
 ) -> SynthesisResult:
     """A dynamic output-feedback controller by ``method`` (module docstring), certified by
     the core analysis of its closed loop; the result's ``controller`` is it, ``gains`` its
-    blocks ``K_j``. ``k_max`` bounds ``||K_j||_2`` in the controller steps (``ccl``, ``vk``)
-    and the state-feedback gains of the observer baseline. ``gamma``: the level CCL
-    works at, and for every method a requirement on the certified robust gamma."""
+    blocks ``K_j``. ``k_max`` bounds ``||K_j||_2`` in the controller steps (``ccl``, ``vk``),
+    the descent, and the state-feedback gains of the observer baseline. ``gamma``: the
+    level CCL works at, and for every method a requirement on the certified gamma.
+    ``order``: the controller order (default ``n``; other orders only by ``descent``, 0 is
+    static output feedback). ``method="auto"`` runs every route (observer, V-K, CCL at full
+    order, and the descent) and keeps the best certified controller, each route's outcome
+    in ``starts``. A controller counts as certified when the core proves it stable and
+    certifies Lemma 4.1's robust gamma -- or, for the descent, Theorem 3.2's nominal gamma
+    when Lemma 4.1 finds no certificate (the result says which)."""
     from ..analysis.solvers import choose_solver
     from .starts import diagnose
 
-    if method not in OF_METHODS:
-        raise ValidationError(f"method: {method!r} is not an output-feedback method; choose from {list(OF_METHODS)}")
+    if method not in OF_METHODS + ("auto",):
+        raise ValidationError(f"method: {method!r} is not an output-feedback method; choose from "
+                              f"{list(OF_METHODS + ('auto',))}")
     for key, val in (("gamma", gamma), ("k_max", k_max)):
         if val is not None and not (math.isfinite(val) and val > 0):
             raise ValidationError(f"{key}: must be a positive finite number, got {val!r}")
+    n0 = system.dims[0]
+    order = n0 if order is None else order
+    if not isinstance(order, int) or order < 0:
+        raise ValidationError(f"order: must be a whole number >= 0, got {order!r}")
+    if order != n0 and method not in ("descent", "auto"):
+        raise ValidationError(f"order: {order} needs the descent (method descent or auto); {method} designs order "
+                              f"n = {n0} only")
     t0 = time.perf_counter()
-    n = 2 * system.dims[0]
+    n = n0 + order
     name = choose_solver(solver, system.m ** 2 * (n * (n + 1) + 1))
     calls = _Calls(name)
-    rows = _observer_rows(system, k_max, name, calls)
+    full = order == n0
+    rows = _observer_rows(system, k_max, name, calls) if full else []
+    routes = [r for r in (("observer", "vk", "ccl") if full else ()) if method in (r, "auto")]
+    if method in ("descent", "auto"):
+        routes.append("descent")
+    outcomes: list[_Outcome] = []
+    descent_rows: list[dict[str, Any]] = []
+    for route in routes:
+        if route == "descent":
+            ctrl, report, history, msg, descent_rows = descent_route(system, order, rows, k_max, name, calls, seed)
+            outcomes.append(_Outcome(route, ctrl, report, history[-1] if history else None, history, [], msg))
+        else:
+            outcomes.append(_Outcome(route, *_run_route(route, system, rows, gamma, k_max, name, calls, max_iter, tol)))
+    if gamma is not None:  # --gamma is a requirement for every method
+        outcomes = [o if o.gamma is None or o.gamma <= gamma * (1 + 1e-9) else
+                    _Outcome(o.route, None, None, o.synthesis_gamma, o.history, o.ccl_history,
+                             f"{o.message}; certified gamma {o.gamma:.6g} is above the requested {gamma:.6g}")
+                    for o in outcomes]
+    certified = [o for o in outcomes if o.gamma is not None]
+    chosen = min(certified, key=lambda o: o.rank) if certified else outcomes[-1]
+    msg = chosen.message
+    if method == "auto":
+        msg = f"best of {len(outcomes)} routes: {chosen.route}; {msg}" if certified else f"no route certified; {msg}"
+    ctrl, report = (chosen.controller, chosen.report) if certified else (None, chosen.report)
+    diagnosis = None
+    if not certified:
+        seen = rows + descent_rows + ([{"spectral_abscissa": report.mss.spectral_abscissa}] if report is not None
+                                      else [])
+        diagnosis = diagnose(system, seen, [o.status for o in calls.outcomes], k_max, output_feedback=True)
+        msg = f"{msg}; {diagnosis['message']}"
+    public = tuple({k: r.get(k) for k in ("name", "gamma_certified", "spectral_abscissa", "note", "reason")}
+                   for r in rows + descent_rows)
+    if method == "auto":
+        public += tuple({"name": f"route {o.route}", "gamma_certified": o.gamma,
+                         "spectral_abscissa": None if o.report is None else o.report.mss.spectral_abscissa,
+                         "note": "", "reason": "" if o.gamma is not None else o.message} for o in outcomes)
+    blocks = [] if ctrl is None else _blocks(ctrl)
+    return SynthesisResult(chosen.route if method == "auto" else method, ctrl is not None, tuple(blocks),
+                           chosen.synthesis_gamma, name, calls.seconds, time.perf_counter() - t0, calls.count, report,
+                           msg, k_max, tuple(chosen.history), _best_row_name(rows), public, diagnosis, ctrl,
+                           tuple(chosen.ccl_history), nominal_accepted=chosen.route == "descent")
+
+
+def _best_row_name(rows: list[dict[str, Any]]) -> str | None:
+    certified = [r for r in rows if r["gamma_certified"] is not None]
+    return min(certified, key=lambda r: r["gamma_certified"])["name"] if certified else None
+
+
+def _run_route(route: str, system: FTCSystem, rows: list[dict[str, Any]], gamma: float | None, k_max: float | None,
+               name: str, calls: _Calls, max_iter: int, tol: float) -> tuple[Any, Any, Any, list[float], list[float], str]:
+    """One LMI route at full order: ``(controller, report, synthesis gamma, history, CCL
+    history, message)``; the controller is certified by the core (``report``)."""
     certified = [r for r in rows if r["gamma_certified"] is not None]
     best = min(certified, key=lambda r: r["gamma_certified"]) if certified else None
     blocks: list[Matrix] | None = None
     history: list[float] = []
     ccl_history: list[float] = []
     gsyn = None
-    if method == "observer":
+    if route == "observer":
         blocks = None if best is None else list(best["gains"])
         gsyn = None if best is None else best["gamma_certified"]
         msg = f"observer baseline: best of {len(rows)} ({best['name']})" if best else "no certified observer design"
-    elif method == "vk":
+    elif route == "vk":
         if best is None:
             msg = "no certified observer design to start the V-K iteration from"
         else:
@@ -409,20 +501,6 @@ def synthesize_output_feedback(
     else:
         blocks, gsyn, ccl_history, msg = _ccl_ladder(system, gamma, None if best is None else best["gamma_certified"],
                                                      calls, k_max, None if best is None else best.get("lmi"))
-    ctrl = None if blocks is None else controller_from_blocks(system, blocks, f"{system.name} {method}")
+    ctrl = None if blocks is None else controller_from_blocks(system, blocks, f"{system.name} {route}")
     report = None if ctrl is None else _verify_controller(system, ctrl, name)
-    ok = report is not None and report.certified_stable and report.robust.certified
-    if ok and gamma is not None and report is not None and report.robust.gamma > gamma * (1 + 1e-9):
-        ok, ctrl, blocks = False, None, None  # --gamma is a requirement for every method
-        msg = f"{msg}; certified gamma {report.robust.gamma:.6g} is above the requested {gamma:.6g}"
-        report = None
-    diagnosis = None
-    if not ok:
-        seen = rows + ([{"spectral_abscissa": report.mss.spectral_abscissa}] if report is not None else [])
-        diagnosis = diagnose(system, seen, [o.status for o in calls.outcomes], k_max, output_feedback=True)
-        msg = f"{msg}; {diagnosis['message']}"
-    public = tuple({k: r.get(k) for k in ("name", "gamma_certified", "spectral_abscissa", "note", "reason")}
-                   for r in rows)
-    return SynthesisResult(method, ctrl is not None, tuple(blocks or ()), gsyn, name, calls.seconds,
-                           time.perf_counter() - t0, calls.count, report, msg, k_max, tuple(history),
-                           None if best is None else best["name"], public, diagnosis, ctrl, tuple(ccl_history))
+    return ctrl, report, gsyn, history, ccl_history, msg

@@ -94,6 +94,7 @@ class SynthesisResult:
     diagnosis: dict[str, Any] | None = None
     dynamic: Controller | None = None
     ccl_history: tuple[float, ...] = ()
+    nominal_accepted: bool = False
 
     @property
     def controller(self) -> Controller | None:
@@ -106,13 +107,18 @@ class SynthesisResult:
 
     @property
     def certified(self) -> bool:
-        """Gains found, certified stable, and a robust gamma certified by the core."""
-        return self.feasible and self.report is not None and self.report.certified_stable and self.report.robust.certified
+        """Gains found, certified stable, and a robust gamma certified by the core (or, with
+        ``nominal_accepted`` -- the output-feedback descent -- at least the nominal one)."""
+        rep = self.report
+        if not (self.feasible and rep is not None and rep.certified_stable):
+            return False
+        return rep.robust.certified or (self.nominal_accepted and rep.nominal.certified)
 
     @property
     def gamma_certified(self) -> float | None:
         """Certified robust gamma of the closed loop (Lemma 4.1 with these gains)."""
-        return self.report.robust.gamma if self.certified and self.report else None
+        ok = self.certified and self.report is not None and self.report.robust.certified
+        return self.report.robust.gamma if ok and self.report is not None else None
 
     @property
     def gamma_nominal_certified(self) -> float | None:
@@ -127,6 +133,8 @@ class SynthesisResult:
         return json_ready({
             "feasible": self.feasible,
             "certified": self.certified,
+            "certified_gamma_kind": (None if not self.certified or self.report is None else
+                                     "robust" if self.report.robust.certified else "nominal"),
             "method": self.method,
             "gamma_certified": self.gamma_certified,
             "gamma_nominal_certified": self.gamma_nominal_certified,
