@@ -25,6 +25,8 @@ def _print_synthesis(res: Any) -> None:
         print(f"  {mark} start {row['name']:22s} {found}" + (f" ({row['note']})" if row["note"] else ""))
     if res.diagnosis:
         print(f"  diagnosis: {res.diagnosis['reason']}")
+        if "descent" in res.diagnosis:
+            print(f"  descent: {res.diagnosis['descent']['message']}")
     if not res.feasible:
         print("  no gains")
         return

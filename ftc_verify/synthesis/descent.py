@@ -59,8 +59,9 @@ from ..controllers.controller import Controller
 from ..errors import ValidationError
 from ..model.system import FTCSystem, JointChain, Matrix
 
-__all__ = ["rate_scale", "KAPPAS", "LEVELS", "GAIN_SCAN", "Parametrisation", "abscissa_gradient", "worst_abscissa", "bfgs",
-           "DescentResult", "stabilise", "deepen", "gain_scan", "descent_route", "accepted_gamma"]
+__all__ = ["rate_scale", "BUDGET_SECONDS", "DESIGNED_STARTS", "KAPPAS", "LEVELS", "GAIN_SCAN", "Parametrisation", "abscissa_gradient", "worst_abscissa", "bfgs",
+           "DescentResult", "stabilise", "deepen", "gain_scan", "unbounded_gain_diagnosis", "descent_route",
+           "accepted_gamma"]
 
 #: Detection-rate multipliers of the continuation, in order (the last is the true box).
 KAPPAS = (8.0, 4.0, 2.0, 1.4, 1.0)
@@ -69,6 +70,10 @@ KAPPAS = (8.0, 4.0, 2.0, 1.4, 1.0)
 LEVELS = (-0.05, -0.1, -0.2, -0.4, -0.8, -1.6)
 #: Gain bounds of the diagnosis scan (:func:`gain_scan`).
 GAIN_SCAN = (1e1, 1e2, 1e3, 1e4)
+#: Seconds after which :func:`stabilise` begins no new start.
+BUDGET_SECONDS = 30.0
+#: Designed starts (observer controllers) tried at most, the most stable first.
+DESIGNED_STARTS = 2
 
 
 @dataclass(frozen=True, eq=False)
@@ -247,13 +252,15 @@ def _scaled_chain(chain: JointChain, kappa: float) -> JointChain:
 
 
 def stabilise(system: FTCSystem, order: int, *, starts: Sequence[tuple[str, Matrix]] = (), seed: int = 0,
-              random_starts: int = 3, k_max: float | None = None, margin: float = 1e-2,
-              kappas: Sequence[float] = KAPPAS, max_iter: int = 150) -> list[DescentResult]:
+              random_starts: int = 2, k_max: float | None = None, margin: float = 1e-2,
+              kappas: Sequence[float] = KAPPAS, max_iter: int = 100,
+              budget_seconds: float = BUDGET_SECONDS) -> list[DescentResult]:
     """Descents from the starts in turn -- the zero controller, ``random_starts`` drawn from
     ``numpy.random.default_rng(seed)``, then the given ``(name, theta)`` ones (designed
     controllers, whose gains tend to be large) -- each through the
     continuation ``kappas`` (module docstring); sorted, best (lowest abscissa at the true
-    rates) first. A start stops at the true rates once its abscissa is below ``-margin``."""
+    rates) first. A start stops at the true rates once its abscissa is below ``-margin``;
+    no new start begins after ``budget_seconds`` (the first always runs)."""
     par = Parametrisation.build(system, order)
     rng = np.random.default_rng(seed)
     scale = 1.0 / np.sqrt(max(1, par.shape[0] * par.shape[1]))
@@ -261,8 +268,11 @@ def stabilise(system: FTCSystem, order: int, *, starts: Sequence[tuple[str, Matr
     all_starts += [(f"random {k} (seed {seed})", scale * rng.standard_normal(par.size)) for k in range(random_starts)]
     all_starts += list(starts)  # last: designed starts (observers) tend to have large gains
     project = lambda x: _project(par, x, k_max)  # noqa: E731
-    out = []
+    out: list[DescentResult] = []
+    deadline = time.perf_counter() + budget_seconds
     for name, theta in all_starts:
+        if out and time.perf_counter() > deadline:
+            break
         t0 = time.perf_counter()
         x = np.asarray(theta, dtype=float)
         history, evals = [], 0
@@ -314,6 +324,27 @@ def gain_scan(system: FTCSystem, order: int, *, seed: int = 0, bounds: Sequence[
     return out
 
 
+def unbounded_gain_diagnosis(system: FTCSystem, order: int, found: Sequence[DescentResult], *,
+                             seed: int = 0) -> dict[str, Any]:
+    """Why the descent found nothing: the best abscissa and the gain norm where it was
+    reached, and :func:`gain_scan`. When the scan's abscissa falls as the bound grows
+    and stays positive, the exact test approaches 0 only with unbounded gains (if at all):
+    measuring more outputs or detecting faster is what helps, not a larger bound."""
+    best = min(found, key=lambda r: r.abscissa)
+    scan = gain_scan(system, order, seed=seed)
+    values = [f for _, f in scan]
+    falling = all(b <= a + 1e-9 for a, b in zip(values, values[1:])) and values[-1] < values[0]
+    text = (f"no controller of order <= {order} found: best abscissa {best.abscissa:.4g} at gain norm "
+            f"{best.gain_norm:.3g} (from {best.start}); best abscissa under gain bounds "
+            + ", ".join(f"{k:g}: {f:.3g}" for k, f in scan))
+    if falling and values[-1] > 0:
+        text += ("; it falls as the bound grows and stays positive: the exact test approaches 0 only with "
+                 "unbounded gains, if at all -- measure more outputs or detect faster")
+    return {"order": order, "best_abscissa": best.abscissa, "best_gain_norm": best.gain_norm,
+            "gain_scan": [list(p) for p in scan], "unbounded_gains_only": bool(falling and values[-1] > 0),
+            "message": text}
+
+
 def descent_route(system: FTCSystem, order: int, rows: list[dict[str, Any]], k_max: float | None, solver: str,
                    calls: Any, seed: int) -> tuple[Controller | None, Any, list[float], str, list[dict[str, Any]]]:
     """``descent``: stabilise by :func:`~ftc_verify.synthesis.descent.stabilise` (starts: the
@@ -326,7 +357,9 @@ def descent_route(system: FTCSystem, order: int, rows: list[dict[str, Any]], k_m
     from .state_feedback import _verify_controller
 
     par = Parametrisation.build(system, order)
-    starts = [(r["name"], par.theta(r["gains"])) for r in rows if order == system.dims[0] and r.get("gains")]
+    designed = sorted((r for r in rows if order == system.dims[0] and r.get("gains")),
+                      key=lambda r: r["spectral_abscissa"] if r.get("spectral_abscissa") is not None else np.inf)
+    starts = [(r["name"], par.theta(r["gains"])) for r in designed[:DESIGNED_STARTS]]
     found = stabilise(system, order, starts=starts, seed=seed, k_max=k_max)
     public = [{"name": f"descent from {r.start}", "gamma_certified": None, "spectral_abscissa": r.abscissa,
                "note": f"order {order}, gain norm {r.gain_norm:.3g}, kappa path "
@@ -334,8 +367,8 @@ def descent_route(system: FTCSystem, order: int, rows: list[dict[str, Any]], k_m
                "reason": "stabilised; see the tuning ladder" if r.stabilised else "not stabilised"} for r in found]
     best = found[0]
     if not best.stabilised:
-        return None, None, [], (f"descent (order {order}): no stabilising controller; best abscissa "
-                                f"{best.abscissa:.4g} at gain norm {best.gain_norm:.3g}"), public
+        scan = unbounded_gain_diagnosis(system, order, found, seed=seed)
+        return None, None, [], f"descent: {scan['message']}", public + [{"name": "descent gain scan", **scan}]
     theta, scale = best.theta, rate_scale(system)
     chosen: tuple[Controller, Any, float] | None = None
     history: list[float] = []

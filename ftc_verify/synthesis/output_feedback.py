@@ -454,9 +454,12 @@ def synthesize_output_feedback(
         seen = rows + descent_rows + ([{"spectral_abscissa": report.mss.spectral_abscissa}] if report is not None
                                       else [])
         diagnosis = diagnose(system, seen, [o.status for o in calls.outcomes], k_max, output_feedback=True)
+        scan = next((r for r in descent_rows if r["name"] == "descent gain scan"), None)
+        if scan is not None:
+            diagnosis = diagnosis | {"descent": {k: v for k, v in scan.items() if k != "name"}}
         msg = f"{msg}; {diagnosis['message']}"
     public = tuple({k: r.get(k) for k in ("name", "gamma_certified", "spectral_abscissa", "note", "reason")}
-                   for r in rows + descent_rows)
+                   for r in rows + descent_rows if r["name"] != "descent gain scan")
     if method == "auto":
         public += tuple({"name": f"route {o.route}", "gamma_certified": o.gamma,
                          "spectral_abscissa": None if o.report is None else o.report.mss.spectral_abscissa,
