@@ -389,10 +389,54 @@ def descent_route(system: FTCSystem, order: int, rows: list[dict[str, Any]], k_m
     if chosen is None:
         return None, None, [], (f"descent (order {order}) stabilised (abscissa {best.abscissa:.4g} from "
                                 f"{best.start}) but the core certified no controller of the tuning ladder"), public
+    tuned, why = _alternate(system, par, chosen, k_max, solver, calls)
+    note = f"; P-K alternation: {why}"
+    if tuned is not None:
+        chosen = tuned
+        history.append(chosen[2])
     kind = "robust" if chosen[1].robust.certified else "nominal (Lemma 4.1 not certified)"
-    msg = (f"descent (order {order}) from {best.start}: stabilised at the true rates, then the tuning ladder; "
+    msg = (f"descent (order {order}) from {best.start}: stabilised at the true rates, then the tuning ladder{note}; "
            f"best certified {kind} gamma {chosen[2]:.6g}")
     return chosen[0], chosen[1], history, msg, public
+
+
+def _nominal_system(system: FTCSystem) -> FTCSystem:
+    """``system`` without its uncertainty channels."""
+    from dataclasses import replace
+
+    return replace(system, modes=tuple(replace(md, A1=None, A2=None, B1=None, B2=None) for md in system.modes))
+
+
+def _alternate(system: FTCSystem, par: Parametrisation, chosen: tuple[Controller, Any, float], k_max: float | None,
+               solver: str, calls: Any) -> tuple[tuple[Controller, Any, float] | None, str]:
+    """The P-K alternation (the V-K iteration of ``vk``) from the ladder's best controller:
+    the certified gamma's ``P`` and multipliers fixed, the controller blocks from the LMI
+    of :func:`~ftc_verify.synthesis.state_feedback.gain_step`, and back; on the system as
+    it is when Lemma 4.1 certified the start, else on its nominal part (Theorem 3.2's
+    gamma). Every iterate is certified by the core; the result only if the core certifies
+    it below the start on the real system (``None`` otherwise), with what happened."""
+    from ..analysis.closedloop import closed_loop
+    from .output_feedback import augmented_system
+    from .state_feedback import _verify_controller, descend, gain_step
+
+    target = system if chosen[1].robust.certified else _nominal_system(system)
+    aug, cbars = augmented_system(target, par.n_c)
+    blocks, history, why = descend(
+        lambda B: closed_loop(target, par.controller(par.theta(B), "p-k")),
+        lambda P, lam, j: gain_step(aug, P, lam, j, calls, k_max, measurement=cbars), system.m,
+        _controller_blocks(chosen[0]), calls, solver, 10, 1e-3)
+    if len(history) < 2:
+        return None, f"no improvement ({why})"
+    ctrl = par.controller(par.theta(blocks), chosen[0].name)
+    report = _verify_controller(system, ctrl, solver)
+    gamma = accepted_gamma(report, True)
+    if gamma is None or gamma >= chosen[2] or (chosen[1].robust.certified and not report.robust.certified):
+        return None, f"its answer not certified below the ladder's ({why})"
+    return (ctrl, report, gamma), f"{chosen[2]:.6g} -> {gamma:.6g} ({why})"
+
+
+def _controller_blocks(ctrl: Controller) -> list[Matrix]:
+    return [np.block([[a, b], [c, d]]) for a, b, c, d in zip(ctrl.Ac, ctrl.Bc, ctrl.Cc, ctrl.Dc)]
 
 
 def accepted_gamma(report: Any, nominal_ok: bool) -> float | None:

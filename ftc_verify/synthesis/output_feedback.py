@@ -74,14 +74,15 @@ OBSERVER_SCALES = (1e-2, 1.0, 1e2)
 OBSERVER_K_MAX = 30.0
 
 
-def augmented_system(system: FTCSystem) -> tuple[FTCSystem, list[Matrix]]:
+def augmented_system(system: FTCSystem, n_c: int | None = None) -> tuple[FTCSystem, list[Matrix]]:
     """The augmented plant of the module docstring and the :math:`\\bar C_i` per true mode.
 
     Its modes are ``A = A0bar``, ``B = B0bar``, ``C = C1bar``, ``D = Dbar`` and the two
     channels ``(A1bar[:, :p1], A2bar[:q1])``, ``(A1bar[:, p1:], B2bar[q1:])``: state
     feedback ``ubar = G xbar`` on it is the loop of
-    :func:`~ftc_verify.analysis.closedloop.closed_loop` when ``G = K_j Cbar_i``."""
-    n = system.dims[0]
+    :func:`~ftc_verify.analysis.closedloop.closed_loop` when ``G = K_j Cbar_i``. ``n_c``: the
+    controller order (default ``n``)."""
+    n = system.dims[0] if n_c is None else n_c
     modes, cbars = [], []
     for md in system.modes:
         bar = barred(md, md.measured, n)
