@@ -8,7 +8,7 @@ Run from the repository root::
     python benchmarks/synthesis.py                 # default run (~12 min measured on 2 busy cores)
     python benchmarks/synthesis.py --quick         # smoke run (< 60 s)
     python benchmarks/synthesis.py --seed 3 --out /tmp/synthesis.csv
-    python benchmarks/synthesis.py --output-feedback   # CCL / observer / V-K, n in {2, 4, 6}, m in {2, 3}
+    python benchmarks/synthesis.py --output-feedback   # CCL / observer / V-K / descent, n in {2, 4, 6}, m in {2, 3}
 
 Output: one CSV row per ``synthesize`` call (default ``benchmarks/results/synthesis.csv``)
 and a fixed-width table plus a goals block on stdout.
@@ -642,12 +642,14 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--skip-paper", action="store_true", help="skip the paper example (goals and CLI)")
     p.add_argument("-v", "--verbose", action="store_true", help="print each row as it is measured")
     p.add_argument("--output-feedback", action="store_true",
-                   help="only the output-feedback section: CCL, observer and V-K for n in {2, 4, 6}, m in {2, 3}")
+                   help="only the output-feedback section: CCL, observer, V-K and descent for n in {2, 4, 6}, "
+                        "m in {2, 3}, and the descent with one measured output at n = 4, m = 2")
     return p.parse_args(argv)
 
 
 OF_GRID_N = (2, 4, 6)
 OF_GRID_M = (2, 3)
+DESCENT_GOAL_S = 60.0
 OF_GOAL_S = 30.0  # CCL, n = 4, 2 modes
 
 
@@ -673,7 +675,7 @@ def output_feedback_benchmark(args: argparse.Namespace) -> int:
                       and v is not None} | {"Cy": cy} for md in plant.modes]
             system = FTCSystem.from_arrays(name=plant.name + "-of", modes=modes, alpha=plant.chain.alpha,
                                            beta_min=plant.chain.beta_min, beta_max=plant.chain.beta_max)
-            for method in ("ccl", "observer", "vk"):
+            for method in ("ccl", "observer", "vk", "descent"):
                 t0 = time.perf_counter()
                 res = synthesize_output_feedback(system, method=method, k_max=30.0, solver="clarabel")
                 wall = time.perf_counter() - t0
@@ -693,8 +695,38 @@ def output_feedback_benchmark(args: argparse.Namespace) -> int:
     met = goal["certified"] and goal["wall_s"] <= OF_GOAL_S
     print(f"goal: CCL at n = 4, m = 2 certified within {OF_GOAL_S:g} s: {'met' if met else 'NOT met'} "
           f"({goal['wall_s']} s, certified {goal['certified']})")
+    single = _descent_single_output(args)
+    rows.append(single)
+    print(f"goal: descent at n = 4, m = 2, one measured output within {DESCENT_GOAL_S:g} s: "
+          f"{'met' if single['wall_s'] <= DESCENT_GOAL_S else 'NOT met'} ({single['wall_s']} s, "
+          f"certified {single['certified']}, gamma {_g(single['gamma'], 10)})")
     print(f"CSV: {out}")
     return 0
+
+
+def _descent_single_output(args: argparse.Namespace) -> dict[str, Any]:
+    """The issue-21 speed case: ``--method descent`` on the n = 4, m = 2 plant of the grid
+    with a single measured output (the first row of its ``Cy``), gain bound 30."""
+    import numpy as np
+
+    from ftc_verify.model.system import FTCSystem
+    from ftc_verify.synthesis.output_feedback import synthesize_output_feedback
+
+    n, m = 4, 2
+    seed = 10000 * args.seed + 100 * n + m
+    plant, _, _ = random_system(n, m, seed, False, args.family)
+    cy = np.random.default_rng(seed + 1).normal(size=(1, n))
+    modes = [{k: v for k, v in vars(md).items() if k in ("A", "B", "C", "D", "A1", "A2", "B1", "B2")
+              and v is not None} | {"Cy": cy} for md in plant.modes]
+    system = FTCSystem.from_arrays(name=plant.name + "-of1", modes=modes, alpha=plant.chain.alpha,
+                                   beta_min=plant.chain.beta_min, beta_max=plant.chain.beta_max)
+    t0 = time.perf_counter()
+    res = synthesize_output_feedback(system, method="descent", k_max=30.0, solver="clarabel")
+    wall = time.perf_counter() - t0
+    gamma = res.gamma_certified if res.gamma_certified is not None else res.gamma_nominal_certified
+    return {"n": n, "m": m, "seed": seed, "uncertain": plant.modes[0].uncertain, "method": "descent (1 output)",
+            "certified": res.certified, "gamma": gamma if res.certified else None, "iterations": len(res.history),
+            "wall_s": round(wall, 2), "solver_calls": res.solver_calls, "message": _short(res.message, 160)}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
