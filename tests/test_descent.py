@@ -133,3 +133,20 @@ def test_cli_doubled_rates_certified_by_analyze_and_paper_rates_diagnosed(tmp_pa
     assert "no controller of order <= 2 found" in run.stdout
     assert "approaches 0 only with unbounded gains" in run.stdout
     assert not none.exists() and "Traceback" not in run.stderr
+
+
+@pytest.mark.parametrize("options,word", [
+    (["--output-feedback", "--order", "-1"], "--order -1"),
+    (["--output-feedback", "--order", "1", "--method", "ccl"], "--order 1"),
+    (["--order", "1", "--method", "iterative"], "--order 1: needs --output-feedback"),
+    (["--output-feedback", "--method", "two-step"], "--method two-step"),
+])
+def test_order_and_method_misuse_is_one_error(tmp_path: Path, options: list[str], word: str) -> None:
+    import subprocess
+    import sys
+
+    out = tmp_path / "K.toml"
+    run = subprocess.run([sys.executable, "-m", "ftc_verify", "synthesize", str(ROOT / "examples" / "paper.toml"),
+                          *options, "-o", str(out)], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 2, run.stdout + run.stderr
+    assert word in run.stderr and len(run.stderr.strip().splitlines()) == 1 and not out.exists()
