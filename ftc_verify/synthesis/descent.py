@@ -151,13 +151,16 @@ def abscissa_gradient(A: Sequence[Matrix], Q: Matrix) -> tuple[float, list[Matri
     return float(vals[k].real), grads
 
 
-def worst_abscissa(par: Parametrisation, chain: JointChain, theta: Matrix) -> tuple[float, Matrix]:
+def worst_abscissa(par: Parametrisation, chain: JointChain, theta: Matrix,
+                   vertices: Sequence[int] | None = None) -> tuple[float, Matrix]:
     """``(f, grad f)``: the worst abscissa over the vertices of ``chain``'s ``beta`` box
-    and its gradient in ``theta`` (module docstring)."""
+    (or over the vertex indices ``vertices`` of :meth:`JointChain.vertices`) and its
+    gradient in ``theta`` (module docstring)."""
     A = par.loop_matrices(theta)
+    betas = list(chain.vertices())
     best: tuple[float, list[Matrix]] | None = None
-    for beta in chain.vertices():
-        mu, grads = abscissa_gradient(A, chain.generator(beta))
+    for k in (range(len(betas)) if vertices is None else vertices):
+        mu, grads = abscissa_gradient(A, chain.generator(betas[k]))
         if best is None or mu > best[0]:
             best = (mu, grads)
     assert best is not None
@@ -169,6 +172,32 @@ def worst_abscissa(par: Parametrisation, chain: JointChain, theta: Matrix) -> tu
         for j in range(m):
             gK[j] += par.B0[i].T @ grads[i * m + j] @ par.Cbar[i].T
     return mu, gK.ravel()
+
+
+def _minimise(par: Parametrisation, chain: JointChain, x0: Matrix, *, target: float, max_iter: int,
+              project: Any) -> tuple[Matrix, float, int]:
+    """:func:`bfgs` on the worst abscissa over an active set of vertices: the set starts
+    with the worst vertex at ``x0``; after each run every vertex is evaluated, and a
+    vertex worse than the set's maximum joins it and the run continues (so the answer is
+    the maximum over all vertices, at a fraction of the cost when the box has many)."""
+    def values(x: Matrix) -> list[float]:
+        A = par.loop_matrices(x)
+        return [abscissa_gradient(A, chain.generator(b))[0] for b in chain.vertices()]
+
+    x = project(np.asarray(x0, dtype=float))
+    every = values(x)
+    active = {int(np.argmax(every))}
+    evals = len(every)
+    for _ in range(2 * len(every)):
+        x, f, e = bfgs(lambda z: worst_abscissa(par, chain, z, sorted(active)), x, target=target,
+                       max_iter=max_iter, project=project)
+        every = values(x)
+        evals += e * len(active) + len(every)
+        worst = int(np.argmax(every))
+        if every[worst] <= f + 1e-12 * max(1.0, abs(f)) or worst in active:
+            return x, float(max(every)), evals
+        active.add(worst)
+    return x, float(max(every)), evals
 
 
 def _project(par: Parametrisation, theta: Matrix, k_max: float | None) -> Matrix:
@@ -279,8 +308,7 @@ def stabilise(system: FTCSystem, order: int, *, starts: Sequence[tuple[str, Matr
         f = np.inf
         for kappa in kappas:
             chain = _scaled_chain(system.chain, kappa)
-            x, f, e = bfgs(lambda z: worst_abscissa(par, chain, z), x, target=-margin, max_iter=max_iter,
-                           project=project)
+            x, f, e = _minimise(par, chain, x, target=-margin, max_iter=max_iter, project=project)
             evals += e
             history.append((float(kappa), float(f)))
         gain = max(float(np.linalg.norm(K, 2)) for K in par.blocks(x))
@@ -297,14 +325,14 @@ def rate_scale(system: FTCSystem) -> float:
 
 
 def deepen(system: FTCSystem, order: int, theta: Matrix, level: float, *, k_max: float | None = None,
-           max_iter: int = 300) -> tuple[Matrix, float]:
+           max_iter: int = 150) -> tuple[Matrix, float]:
     """Continue the descent at the true rates from ``theta`` until the abscissa is below
     ``level`` (or no further progress); ``(theta, abscissa)``. The tuning ladder of
     :func:`~ftc_verify.synthesis.output_feedback.synthesize_output_feedback` calls it at
     each of :data:`LEVELS` and has every result certified by the core analysis."""
     par = Parametrisation.build(system, order)
-    x, f, _ = bfgs(lambda z: worst_abscissa(par, system.chain, z), theta, target=level, max_iter=max_iter,
-                   project=lambda z: _project(par, z, k_max))
+    x, f, _ = _minimise(par, system.chain, theta, target=level, max_iter=max_iter,
+                        project=lambda z: _project(par, z, k_max))
     return x, float(f)
 
 
@@ -318,8 +346,8 @@ def gain_scan(system: FTCSystem, order: int, *, seed: int = 0, bounds: Sequence[
     x = 0.1 * np.random.default_rng(seed).standard_normal(par.size)
     out = []
     for bound in bounds:
-        x, f, _ = bfgs(lambda z: worst_abscissa(par, system.chain, z), x, target=-np.inf, max_iter=max_iter,
-                       project=lambda z, b=bound: _project(par, z, b))
+        x, f, _ = _minimise(par, system.chain, x, target=-np.inf, max_iter=max_iter,
+                            project=lambda z, b=bound: _project(par, z, b))
         out.append((float(bound), float(f)))
     return out
 
