@@ -59,7 +59,7 @@ from ..controllers.controller import Controller
 from ..errors import ValidationError
 from ..model.system import FTCSystem, JointChain, Matrix
 
-__all__ = ["rate_scale", "BUDGET_SECONDS", "DESIGNED_STARTS", "KAPPAS", "LEVELS", "GAIN_SCAN", "Parametrisation", "abscissa_gradient", "worst_abscissa", "bfgs",
+__all__ = ["rate_scale", "BUDGET_SECONDS", "TUNING_SECONDS", "DESIGNED_STARTS", "KAPPAS", "LEVELS", "GAIN_SCAN", "Parametrisation", "abscissa_gradient", "worst_abscissa", "bfgs",
            "DescentResult", "stabilise", "deepen", "gain_scan", "unbounded_gain_diagnosis", "descent_route",
            "accepted_gamma"]
 
@@ -72,6 +72,8 @@ LEVELS = (-0.05, -0.1, -0.2, -0.4, -0.8, -1.6)
 GAIN_SCAN = (1e1, 1e2, 1e3, 1e4)
 #: Seconds after which :func:`stabilise` begins no new start.
 BUDGET_SECONDS = 30.0
+#: Seconds after which the descent route begins no new tuning level and no P-K alternation.
+TUNING_SECONDS = 60.0
 #: Designed starts (observer controllers) tried at most, the most stable first.
 DESIGNED_STARTS = 2
 
@@ -381,7 +383,9 @@ def descent_route(system: FTCSystem, order: int, rows: list[dict[str, Any]], k_m
     :data:`~ftc_verify.synthesis.descent.LEVELS` (times the plant's rate scale) and have the
     core analysis certify each controller; the best certified gamma (robust where Lemma 4.1
     certifies, else nominal) is kept, and the ladder stops after two levels without a
-    better one. Returns ``(controller, report, history, message, descent rows)``."""
+    better one, or once a level is certified after :data:`TUNING_SECONDS`; then the P-K
+    alternation (within that budget, at most 5 iterations). Returns ``(controller, report,
+    history, message, descent rows)``."""
     from .state_feedback import _verify_controller
 
     par = Parametrisation.build(system, order)
@@ -401,7 +405,10 @@ def descent_route(system: FTCSystem, order: int, rows: list[dict[str, Any]], k_m
     chosen: tuple[Controller, Any, float] | None = None
     history: list[float] = []
     misses = 0
+    deadline = time.perf_counter() + TUNING_SECONDS
     for level in LEVELS:
+        if chosen is not None and time.perf_counter() > deadline:
+            break
         theta, reached = deepen(system, order, theta, level * scale, k_max=k_max)
         ctrl = par.controller(theta, f"{system.name} descent (order {order})")
         report = _verify_controller(system, ctrl, solver)
@@ -417,7 +424,8 @@ def descent_route(system: FTCSystem, order: int, rows: list[dict[str, Any]], k_m
     if chosen is None:
         return None, None, [], (f"descent (order {order}) stabilised (abscissa {best.abscissa:.4g} from "
                                 f"{best.start}) but the core certified no controller of the tuning ladder"), public
-    tuned, why = _alternate(system, par, chosen, k_max, solver, calls)
+    tuned, why = (_alternate(system, par, chosen, k_max, solver, calls) if time.perf_counter() < deadline
+                  else (None, f"not tried (tuning budget of {TUNING_SECONDS:g} s spent)"))
     note = f"; P-K alternation: {why}"
     if tuned is not None:
         chosen = tuned
@@ -452,7 +460,7 @@ def _alternate(system: FTCSystem, par: Parametrisation, chosen: tuple[Controller
     blocks, history, why = descend(
         lambda B: closed_loop(target, par.controller(par.theta(B), "p-k")),
         lambda P, lam, j: gain_step(aug, P, lam, j, calls, k_max, measurement=cbars), system.m,
-        _controller_blocks(chosen[0]), calls, solver, 10, 1e-3)
+        _controller_blocks(chosen[0]), calls, solver, 5, 1e-3)
     if len(history) < 2:
         return None, f"no improvement ({why})"
     ctrl = par.controller(par.theta(blocks), chosen[0].name)
