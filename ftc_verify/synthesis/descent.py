@@ -452,7 +452,7 @@ def _alternate(system: FTCSystem, par: Parametrisation, chosen: tuple[Controller
     gamma). Every iterate is certified by the core; the result only if the core certifies
     it below the start on the real system (``None`` otherwise), with what happened."""
     from ..analysis.closedloop import closed_loop
-    from .output_feedback import augmented_system
+    from .output_feedback import _blocks, augmented_system
     from .state_feedback import _verify_controller, descend, gain_step
 
     target = system if chosen[1].robust.certified else _nominal_system(system)
@@ -460,7 +460,7 @@ def _alternate(system: FTCSystem, par: Parametrisation, chosen: tuple[Controller
     blocks, history, why = descend(
         lambda B: closed_loop(target, par.controller(par.theta(B), "p-k")),
         lambda P, lam, j: gain_step(aug, P, lam, j, calls, k_max, measurement=cbars), system.m,
-        _controller_blocks(chosen[0]), calls, solver, 5, 1e-3)
+        _blocks(chosen[0]), calls, solver, 5, 1e-3)
     if len(history) < 2:
         return None, f"no improvement ({why})"
     ctrl = par.controller(par.theta(blocks), chosen[0].name)
@@ -470,9 +470,6 @@ def _alternate(system: FTCSystem, par: Parametrisation, chosen: tuple[Controller
         return None, f"its answer not certified below the ladder's ({why})"
     return (ctrl, report, gamma), f"{chosen[2]:.6g} -> {gamma:.6g} ({why})"
 
-
-def _controller_blocks(ctrl: Controller) -> list[Matrix]:
-    return [np.block([[a, b], [c, d]]) for a, b, c, d in zip(ctrl.Ac, ctrl.Bc, ctrl.Cc, ctrl.Dc)]
 
 
 def accepted_gamma(report: Any, nominal_ok: bool) -> float | None:
