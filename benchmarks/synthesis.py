@@ -702,8 +702,9 @@ def output_feedback_benchmark(args: argparse.Namespace) -> int:
           f"({goal['wall_s']} s, certified {goal['certified']})")
     single = _descent_single_output(args)
     rows.append(single)
-    print(f"goal: descent at n = 4, m = 2, one measured output within {DESCENT_GOAL_S:g} s: "
-          f"{'met' if single['wall_s'] <= DESCENT_GOAL_S else 'NOT met'} ({single['wall_s']} s, "
+    met = single["certified"] and single["wall_s"] <= DESCENT_GOAL_S
+    print(f"goal: descent certifies a design at n = 4, m = 2, one measured output within {DESCENT_GOAL_S:g} s: "
+          f"{'met' if met else 'NOT met'} ({single['wall_s']} s, "
           f"certified {single['certified']}, gamma {_g(single['gamma'], 10)})")
     print(f"CSV: {out}")
     return 0
