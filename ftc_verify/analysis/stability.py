@@ -26,6 +26,7 @@ from __future__ import annotations
 import itertools
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -41,6 +42,8 @@ __all__ = [
     "MSSResult",
     "duplication_matrix",
     "second_moment_generator",
+    "second_moment_matrix",
+    "unvech_stack",
     "spectral_abscissa",
     "generator_size",
     "DENSE_LIMIT",
@@ -75,12 +78,27 @@ def duplication_matrix(n: int) -> tuple[Matrix, Matrix]:
 
 def second_moment_generator(loop: ClosedLoop, beta: Matrix) -> Matrix:
     """The matrix :math:`\\mathcal{L}` of the module docstring for rates ``beta``."""
-    n = loop.n
+    return second_moment_matrix(loop.A, loop.chain.generator(beta))
+
+
+def second_moment_matrix(A: Sequence[Matrix], Q: Matrix) -> Matrix:
+    """:math:`\\mathcal{L}` of the module docstring for the joint-mode matrices ``A`` and
+    the joint generator ``Q``."""
+    n = A[0].shape[0]
     D, L = duplication_matrix(n)
     eye = np.eye(n)
-    blocks = [L @ (np.kron(eye, A) + np.kron(A, eye)) @ D for A in loop.A]
-    Q = loop.chain.generator(beta)
+    blocks = [L @ (np.kron(eye, a) + np.kron(a, eye)) @ D for a in A]
     return scipy.linalg.block_diag(*blocks) + np.kron(Q.T, np.eye(D.shape[1]))
+
+
+def unvech_stack(v: Matrix, modes: int, n: int) -> Matrix:
+    """The stack of ``modes`` symmetric ``n x n`` matrices whose ``vech`` (lower triangle
+    column by column) are the consecutive pieces of ``v``."""
+    rows, cols = _vech_order(n)
+    X = np.zeros((modes, n, n), dtype=np.asarray(v).dtype)
+    X[:, rows, cols] = np.asarray(v).reshape(modes, -1)
+    X[:, cols, rows] = X[:, rows, cols]
+    return X
 
 
 def spectral_abscissa(loop: ClosedLoop, beta: Matrix) -> float:
@@ -150,9 +168,7 @@ def abscissa_below(loop: ClosedLoop, beta: Matrix, sigma: float, *, modes_part: 
         return False
     if not np.all(np.isfinite(v)):
         return False
-    X = np.zeros((modes, n, n))
-    X[:, rows, cols] = v.reshape(modes, -1)
-    X[:, cols, rows] = X[:, rows, cols]
+    X = unvech_stack(v, modes, n)
     Q = loop.chain.generator(beta)
     coupled = np.einsum("ts,tij->sij", Q, X)
     x_norm = 64 * n * np.finfo(float).eps * np.linalg.norm(X, 2, axis=(1, 2)).max()
@@ -214,10 +230,7 @@ def abscissa_near(loop: ClosedLoop, beta: Matrix, level: float, *, modes_part: A
             return None
         for _ in range(6):
             steps += 1
-            v = lu.solve(X[:, rows, cols].ravel())
-            Y = np.zeros_like(X)
-            Y[:, rows, cols] = v.reshape(modes, -1)
-            Y[:, cols, rows] = Y[:, rows, cols]
+            Y = unvech_stack(lu.solve(X[:, rows, cols].ravel()), modes, n)
             try:
                 ev = [scipy.linalg.eigh(Y[s], X[s], eigvals_only=True) for s in range(modes)]
             except (np.linalg.LinAlgError, ValueError):

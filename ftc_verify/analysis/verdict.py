@@ -79,30 +79,29 @@ class VertexVerdict:
                 "float_abscissa": self.estimate}
 
 
-def _exact_generator_matrix(chain_q: Matrix) -> list[list[Ball]]:
-    """The generator ``Q`` as balls, its diagonal the exact negated row sums."""
-    m = chain_q.shape[0]
+def _exact_generator(Q: Matrix) -> list[list[object]]:
+    """The generator ``Q`` as exact balls (``arb``), its diagonal the exact negated row
+    sums of the float off-diagonal rates."""
+    import flint
+
+    m = Q.shape[0]
     out = []
     for s in range(m):
-        row = [ball(np.array([[chain_q[s, t]]])) if t != s else None for t in range(m)]
-        total = ball(np.zeros((1, 1)))
-        for t in range(m):
-            if t != s:
-                total = total + row[t]
-        row[s] = -total
+        row = [flint.arb(float(Q[s, t])) if t != s else flint.arb(0) for t in range(m)]
+        row[s] = -sum((row[t] for t in range(m) if t != s), flint.arb(0))
         out.append(row)
     return out
 
 
 def _lyapunov_operator(A: Sequence[Ball], Q: Matrix, X: Sequence[Ball]) -> list[Ball]:
     r""":math:`\mathcal L(X)_s` in ball arithmetic from the exact ``A_s`` (module docstring)."""
-    q = _exact_generator_matrix(Q)
+    q = _exact_generator(Q)
     out = []
     for s, Ab in enumerate(A):
         Y = Ab @ X[s] + X[s] @ Ab.T
         for t in range(len(X)):
             if t == s or Q[t, s] != 0.0:
-                Y = Y + Ball(q[t][s].value[0, 0] * X[t].value)
+                Y = Y + Ball(q[t][s] * X[t].value)
         out.append(Y)
     return out
 
@@ -114,7 +113,7 @@ def _float_candidate(conditioned: ClosedLoop, beta: Matrix) -> np.ndarray | None
     import scipy.sparse as sp
     from scipy.sparse.linalg import splu
 
-    from .stability import DENSE_LIMIT, _sparse_modes, _vech_order, generator_size, second_moment_generator
+    from .stability import DENSE_LIMIT, _sparse_modes, _vech_order, generator_size, second_moment_generator, unvech_stack
 
     n, modes = conditioned.n, len(conditioned.A)
     rows, cols = _vech_order(n)
@@ -132,10 +131,7 @@ def _float_candidate(conditioned: ClosedLoop, beta: Matrix) -> np.ndarray | None
         return None
     if not np.all(np.isfinite(v)):
         return None
-    X = np.zeros((modes, n, n))
-    X[:, rows, cols] = v.reshape(modes, -1)
-    X[:, cols, rows] = X[:, rows, cols]
-    return X
+    return unvech_stack(v, modes, n)
 
 
 def _positive_definite(M: Ball, precond: Ball) -> bool:
@@ -168,7 +164,7 @@ def _ball_generator(loop: ClosedLoop, Q: Matrix) -> object:
     eye = np.eye(n)
     size = modes * h
     G = flint.arb_mat(size, size)
-    q = _exact_generator_matrix(Q)
+    q = _exact_generator(Q)
     for s, A in enumerate(loop.A):
         part = (ball(L @ np.kron(eye, A) @ D) + ball(L @ np.kron(A, eye) @ D)).value  # each product exact
         for r in range(h):
@@ -177,7 +173,7 @@ def _ball_generator(loop: ClosedLoop, Q: Matrix) -> object:
                     G[s * h + r, s * h + c] = part[r, c]
     for s in range(modes):
         for t in range(modes):
-            value = q[t][s].value[0, 0]  # block (s, t) of Q' kron I is Q[t, s] I
+            value = q[t][s]  # block (s, t) of Q' kron I is Q[t, s] I
             if value != 0:
                 for r in range(h):
                     G[s * h + r, t * h + r] += value

@@ -54,7 +54,7 @@ import numpy as np
 import scipy.linalg
 
 from ..analysis.closedloop import barred
-from ..analysis.stability import duplication_matrix
+from ..analysis.stability import duplication_matrix, second_moment_matrix
 from ..controllers.controller import Controller
 from ..errors import ValidationError
 from ..model.system import FTCSystem, JointChain, Matrix
@@ -137,9 +137,7 @@ def abscissa_gradient(A: Sequence[Matrix], Q: Matrix) -> tuple[float, list[Matri
     the generator ``Q`` (module docstring); the gradient at the rightmost eigenvalue."""
     n = A[0].shape[0]
     D, L = duplication_matrix(n)
-    eye = np.eye(n)
-    G = scipy.linalg.block_diag(*[L @ (np.kron(eye, a) + np.kron(a, eye)) @ D for a in A])
-    G = G + np.kron(Q.T, np.eye(D.shape[1]))
+    G = second_moment_matrix(A, Q)
     vals, vl, vr = scipy.linalg.eig(G, left=True, right=True, check_finite=False)
     k = int(np.argmax(vals.real))
     u, v = vl[:, k], vr[:, k]

@@ -468,21 +468,21 @@ def synthesize_output_feedback(
     blocks = [] if ctrl is None else _blocks(ctrl)
     return SynthesisResult(chosen.route if method == "auto" else method, ctrl is not None, tuple(blocks),
                            chosen.synthesis_gamma, name, calls.seconds, time.perf_counter() - t0, calls.count, report,
-                           msg, k_max, tuple(chosen.history), _best_row_name(rows), public, diagnosis, ctrl,
+                           msg, k_max, tuple(chosen.history), (_best_row(rows) or {}).get("name"), public, diagnosis, ctrl,
                            tuple(chosen.ccl_history), nominal_accepted=chosen.route == "descent")
 
 
-def _best_row_name(rows: list[dict[str, Any]]) -> str | None:
+def _best_row(rows: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """The observer design with the smallest certified gamma (``None`` when none is)."""
     certified = [r for r in rows if r["gamma_certified"] is not None]
-    return min(certified, key=lambda r: r["gamma_certified"])["name"] if certified else None
+    return min(certified, key=lambda r: r["gamma_certified"]) if certified else None
 
 
 def _run_route(route: str, system: FTCSystem, rows: list[dict[str, Any]], gamma: float | None, k_max: float | None,
                name: str, calls: _Calls, max_iter: int, tol: float) -> tuple[Any, Any, Any, list[float], list[float], str]:
     """One LMI route at full order: ``(controller, report, synthesis gamma, history, CCL
     history, message)``; the controller is certified by the core (``report``)."""
-    certified = [r for r in rows if r["gamma_certified"] is not None]
-    best = min(certified, key=lambda r: r["gamma_certified"]) if certified else None
+    best = _best_row(rows)
     blocks: list[Matrix] | None = None
     history: list[float] = []
     ccl_history: list[float] = []
