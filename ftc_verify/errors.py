@@ -15,6 +15,7 @@ __all__ = [
     "SolverError",
     "FMUError",
     "MemoryLimitError",
+    "PlantRunError",
 ]
 
 
@@ -43,3 +44,37 @@ class FMUError(FTCError, RuntimeError):
 
 class MemoryLimitError(FTCError, MemoryError):
     """A problem would need more memory than allowed (names the estimate and the limit)."""
+
+
+class PlantRunError(FMUError):
+    """The plant FMU crashed, or returned ``fmi2Fatal``, while a run was under way.
+
+    A property of the plant, not bad input and not a bug of this tool: the command line
+    reports it as a negative result (exit 1) naming the FMU, the path and the time.
+    (An ``fmi2Error`` or ``fmi2Discard`` during a path is not raised: that path is
+    recorded as failed and the run goes on.)
+
+    Attributes
+    ----------
+    fmu : str
+        The FMU file.
+    path : int or None
+        The 0-based index of the path that was running (None: not known).
+    time : float or None
+        The simulated time reached on that path (None: not known).
+    detail : str
+        What happened (the signal that ended the process, the FMU's last log line...).
+    batch : tuple of int or None
+        ``(first, stop)``: the 0-based path range of the batch that was running, when the
+        path itself is not known (a Dask worker that died).
+    """
+
+    def __init__(self, fmu: str, detail: str, *, path: int | None = None, time: float | None = None,
+                 batch: tuple[int, int] | None = None) -> None:
+        self.fmu, self.detail, self.path, self.time, self.batch = str(fmu), detail, path, time, batch
+        where = ""
+        if path is not None:
+            where = f" on paths[{path}]" + ("" if time is None else f" at t = {time:.6g}")
+        elif batch is not None:
+            where = f" on paths[{batch[0]}:{batch[1]}]"
+        super().__init__(f"{fmu}: the plant FMU failed{where}: {detail}")

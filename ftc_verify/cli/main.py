@@ -50,9 +50,15 @@ def _bad(message: str) -> "FTCError":
     return ValidationError(message)
 
 
-def _check_output_file(path: str, option: str, suffixes: tuple[str, ...] | None = None) -> None:
-    """A file the command will write: not a folder, in a writable folder, right suffix."""
+def _check_output_file(path: str, option: str, suffixes: tuple[str, ...] | None = None,
+                       inputs: tuple[str, ...] = ()) -> None:
+    """A file the command will write: not a folder, not one of the command's ``inputs``,
+    in a writable folder, right suffix."""
     p = Path(path)
+    for given in inputs:
+        if p.resolve() == Path(given).resolve():
+            raise _bad(f"{option} {path}: is the input file {given}; writing it would replace the input "
+                       "(choose another output file)")
     if p.is_dir():
         raise _bad(f"{option} {path}: is a folder; give a file name")
     if suffixes is not None and p.suffix.lower() not in suffixes:
