@@ -8,6 +8,8 @@ Messages name the offending field, file or solver together with the value seen.
 
 from __future__ import annotations
 
+from typing import Any
+
 __all__ = [
     "FTCError",
     "ValidationError",
@@ -78,3 +80,11 @@ class PlantRunError(FMUError):
         elif batch is not None:
             where = f" on paths[{batch[0]}:{batch[1]}]"
         super().__init__(f"{fmu}: the plant FMU failed{where}: {detail}")
+
+    def __reduce__(self) -> tuple[Any, ...]:  # picklable across processes
+        return (_plant_run_error, (self.fmu, self.detail, self.path, self.time, self.batch))
+
+
+def _plant_run_error(fmu: str, detail: str, path: int | None, time: float | None,
+                     batch: tuple[int, int] | None) -> PlantRunError:
+    return PlantRunError(fmu, detail, path=path, time=time, batch=batch)

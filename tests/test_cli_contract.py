@@ -166,10 +166,10 @@ def test_sigterm_cleans_up_like_ctrl_c(tmp_path: Path) -> None:
                              "--paths", "3000", "--horizon", "30", "--out", "rep"],
                             cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
-    while not any((tmp_path / ".tmp").glob("ftc-verify-fmu-*")) and time.monotonic() < deadline:
+    while not any((tmp_path / ".tmp").rglob("ftc-verify-fmu-*")) and time.monotonic() < deadline:
         assert proc.poll() is None, proc.communicate()
         time.sleep(0.05)
-    assert any((tmp_path / ".tmp").glob("ftc-verify-fmu-*")), "the FMU was never extracted"
+    assert any((tmp_path / ".tmp").rglob("ftc-verify-fmu-*")), "the FMU was never extracted"
     time.sleep(0.5)
     proc.send_signal(signal.SIGTERM)
     out, err = proc.communicate(timeout=60)

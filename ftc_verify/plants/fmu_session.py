@@ -17,6 +17,10 @@ This module implements :class:`FMUSession`, the FMU side of the co-simulation su
   :class:`~ftc_verify.errors.FMUError` naming the FMU file, the call, the variables and the
   time, with the FMU's own log messages (:meth:`FMUSession.call_error`).
 
+A signal handler's exception (Ctrl-C, the CLI's SIGTERM) raised inside the logger
+callback, where ctypes would drop it, is kept as :attr:`FMUSession.pending` and raised
+after the FMI call returns (:meth:`FMUSession.raise_pending`).
+
 The logger callback is a plain ctypes callback kept alive by the session until the
 instance is freed (fmpy's ``addLoggerProxy`` is deliberately not used: it keeps the last
 callbacks in a process-wide global). Without the proxy the message arrives unformatted;
@@ -110,6 +114,8 @@ class FMUSession:
     log
         Called with ``(status, category, message)`` for every message the FMU logs
         (``loggingOn`` is always true; the messages are also kept for error messages).
+    workdir
+        Where the FMU's temporary extraction folder is made (default: the system's).
 
     :attr:`stats` counts library loads, instantiations (and re-instantiations after a
     failed ``fmi2Reset``), resets, paths and steps;
@@ -119,8 +125,10 @@ class FMUSession:
 
     def __init__(self, fmu: str | os.PathLike[str], mapping: FaultInjectionMap, *,
                  instance_name: str = "ftc-verify-supervisor", tolerance: float | None = None,
-                 log: Callable[[str, str, str], None] | None = None) -> None:
+                 log: Callable[[str, str, str], None] | None = None,
+                 workdir: str | os.PathLike[str] | None = None) -> None:
         self.path = Path(fmu)
+        self.workdir, self.pending = None if workdir is None else str(workdir), None  # see the module docstring
         self.mapping = mapping
         self.instance_name = str(instance_name)
         if tolerance is not None and not (isinstance(tolerance, (int, float)) and 0 < tolerance < 1):
@@ -230,7 +238,7 @@ class FMUSession:
 
         self._set_variables(resolve_variables(md, self.mapping, self.err))
 
-        self._tmp = tempfile.TemporaryDirectory(prefix="ftc-verify-fmu-")
+        self._tmp = tempfile.TemporaryDirectory(prefix="ftc-verify-fmu-", dir=self.workdir)
         try:
             with zipfile.ZipFile(self.path) as zf:
                 zf.extractall(self._tmp.name)
@@ -265,22 +273,33 @@ class FMUSession:
         return groups
 
     def _logger(self) -> Callable[..., None]:
-        messages, counts, sink = self.messages, self.log_counts, self.log
-
         def logger(env: Any, instance: bytes | None, status: int, category: bytes | None,
                    message: bytes | None) -> None:
             try:
-                text = (message or b"").decode("utf-8", "replace").replace("%%", "%")
-                label = _status_label(status)
-                counts[label] = counts.get(label, 0) + 1
-                cat = (category or b"").decode("utf-8", "replace")
-                messages.append((label, cat, text))
-                if sink is not None:
-                    sink(label, cat, text)
+                self._log_message(status, category, message)
             except Exception:  # never let an exception cross the C boundary
                 pass
+            except BaseException as exc:  # a signal's exception: re-raised after the FMI call
+                if self.pending is None:
+                    self.pending = exc
 
         return logger
+
+    def _log_message(self, status: int, category: bytes | None, message: bytes | None) -> None:
+        """Keep (and forward to :attr:`log`) one message of the FMU's logger callback."""
+        text = (message or b"").decode("utf-8", "replace").replace("%%", "%")
+        label = _status_label(status)
+        self.log_counts[label] = self.log_counts.get(label, 0) + 1
+        cat = (category or b"").decode("utf-8", "replace")
+        self.messages.append((label, cat, text))
+        if self.log is not None:
+            self.log(label, cat, text)
+
+    def raise_pending(self) -> None:
+        """Raise :attr:`pending` (module docstring); call it between FMI calls."""
+        exc, self.pending = self.pending, None
+        if exc is not None:
+            raise exc
 
     def _load(self, md: Any, unzip: str) -> None:
         from fmpy import calloc, free
@@ -500,6 +519,8 @@ class FMUSession:
             s.exitInitializationMode()
         except FMICallException as exc:
             raise self.call_error(exc, f"in {stage} while initialising a path at t = 0", names) from None
+        finally:
+            self.raise_pending()
 
     def last_successful_time(self) -> float | None:
         """``fmi2GetRealStatus(fmi2LastSuccessfulTime)``, or None where the FMU does not answer."""

@@ -12,6 +12,7 @@ returns: every path draws its ``Delta`` values from its own stream.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import sys
 from collections.abc import Callable, Sequence
@@ -21,10 +22,12 @@ from typing import Any
 import numpy as np
 
 from ..controllers.controller import Controller
+from ..errors import PlantRunError
 from ..model.system import FTCSystem
 from .delta import DeltaSchedule
 from .paths import ChainPath
 from .records import SimulationResult
+from .streaming import batch_generators
 from .supervisor import Supervisor, resolve_plant
 
 __all__ = ["FMU_TASK_PATHS", "fmu_monte_carlo", "merge_results", "progress_bar"]
@@ -55,22 +58,48 @@ def fmu_monte_carlo(system: FTCSystem, controller: Controller, paths: Sequence[C
                     delta: DeltaSchedule, rng: np.random.Generator | None = None, disturbance: str = "paper",
                     seed: int | None = None, plant: Any = None, batch: int = FMU_TASK_PATHS, client: Any = None,
                     log: Callable[[str, str, str], None] | None = None,
-                    done: Callable[[int], Any] | None = None) -> SimulationResult:
+                    done: Callable[[int], Any] | None = None, isolate: bool = True) -> SimulationResult:
     """Co-simulate ``paths`` on the FMU of the plant map ``plant`` (default: the
     ``LinearJumpPlant`` of ``system``; :func:`~ftc_verify.simulation.supervisor.resolve_plant`)
     in batches of ``batch`` (module docstring). ``client``: run the batches on its
     workers (``log`` is then not available: the messages stay there). ``done(k)`` is called
     after each batch of ``k`` paths; ``seed`` is recorded. ``rng`` (default
     ``numpy.random.default_rng(seed)``) draws ``Delta`` only for paths without their own
-    stream."""
+    stream.
+
+    ``isolate`` (default): without a client, run the FMU in a watched child process
+    (:func:`~ftc_verify.simulation.isolated.run_isolated`), so that a plant whose code
+    crashes raises :class:`~ftc_verify.errors.PlantRunError` naming the path and the time
+    instead of ending this process; ``False`` runs it in this process. With a client, a
+    batch whose worker died repeatedly is run again in a watched child to find where the
+    plant crashed.
+
+    Paths on which the FMU returned ``fmi2Error`` or ``fmi2Discard`` come back as failed
+    records (:meth:`~ftc_verify.simulation.records.PathRecord.failed`); ``fmi2Fatal`` and
+    crashes raise :class:`~ftc_verify.errors.PlantRunError`.
+    """
     plant = resolve_plant(system, plant)
     rng = np.random.default_rng(seed) if rng is None else rng
     plist = list(paths)
     if client is not None:
         from .fmu_workers import run_fmu_batches
 
-        parts = run_fmu_batches(client, system, plant, controller, plist, step=step, delta=delta, rng=rng,
-                                disturbance=disturbance, batch=batch, done=done)
+        starts = list(batch_generators(system, plist, delta, copy.deepcopy(rng), batch))
+        try:
+            parts = run_fmu_batches(client, system, plant, controller, plist, step=step, delta=delta, rng=rng,
+                                    disturbance=disturbance, batch=batch, done=done)
+        except PlantRunError as exc:
+            if exc.batch is None:
+                raise
+            _locate_crash(exc, system, plant, controller, plist, starts[exc.batch[0] // batch], step=step,
+                          delta=delta, disturbance=disturbance)
+            raise
+        return merge_results(parts, plant.fmu, seed)
+    if isolate:
+        from .isolated import run_isolated
+
+        parts = run_isolated(system, plant, controller, plist, step=step, delta=delta, rng=rng, batch=batch,
+                             disturbance=disturbance, log=log, done=done)
         return merge_results(parts, plant.fmu, seed)
     parts = []
     with Supervisor(plant.fmu, plant.injection_map(), system=system, tolerance=plant.tolerance, log=log) as sup:
@@ -80,3 +109,21 @@ def fmu_monte_carlo(system: FTCSystem, controller: Controller, paths: Sequence[C
             if done is not None:
                 done(len(parts[-1].records))
     return merge_results(parts, plant.fmu, seed)
+
+
+def _locate_crash(exc: PlantRunError, system: FTCSystem, plant: Any, controller: Controller,
+                  paths: list[ChainPath], rng: np.random.Generator, *, step: float, delta: DeltaSchedule,
+                  disturbance: str) -> None:
+    """The batch ``exc.batch`` that killed its Dask workers, run again in a watched child:
+    raises the :class:`PlantRunError` naming the path and time where the plant crashes;
+    returns when it does not crash there (the workers died of something else)."""
+    from .isolated import run_isolated
+
+    first, stop = exc.batch  # type: ignore[misc]
+    try:
+        run_isolated(system, plant, controller, paths[first:stop], step=step, delta=delta, rng=rng,
+                     batch=stop - first, disturbance=disturbance)
+    except PlantRunError as found:
+        raise PlantRunError(found.fmu, found.detail + f" (the Dask workers running paths[{first}:{stop}] died "
+                            "the same way)", path=None if found.path is None else first + found.path,
+                            time=found.time) from None

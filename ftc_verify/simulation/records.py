@@ -13,6 +13,11 @@ A path whose loop state leaves the ball :data:`DIVERGENCE_BOUND` (Euclidean norm
 ``(x, x_c)``, or a non-finite value) is stopped there on both backends: its record keeps
 the grid points before the crossing, ``diverged_at`` is the time of the crossing, and its
 norms are infinite (``null`` with a reason in JSON).
+
+A path on which the plant FMU failed (an ``fmi2Error`` or ``fmi2Discard`` status inside
+the loop: a plant that escapes in finite time, a ``sqrt`` of a negative number...) is
+stopped the same way: ``diverged_at`` is the time of the failing call, ``failure`` the
+FMU's message, and its norms are infinite. Neither is bad input: both are results.
 """
 
 from __future__ import annotations
@@ -40,18 +45,31 @@ def diverged(*states: np.ndarray) -> bool:
 
 
 def divergence_note(records: "Sequence[PathRecord]") -> str | None:
-    """One line naming the diverged paths (1-based) and when, or None."""
+    """One line naming the diverged and failed paths (1-based) and when, or None."""
     bad = [(k, r.diverged_at) for k, r in enumerate(records, start=1) if r.diverged_at is not None]
-    return divergence_line(bad, len(records))  # type: ignore[arg-type]
+    failures = {k: r.failure for k, r in enumerate(records, start=1) if r.failure is not None}
+    return divergence_line(bad, len(records), failures)  # type: ignore[arg-type]
 
 
-def divergence_line(bad: "Sequence[tuple[int, float]]", total: int) -> str | None:
-    """The line of :func:`divergence_note` from ``(1-based path, time)`` pairs, or None."""
+def divergence_line(bad: "Sequence[tuple[int, float]]", total: int,
+                    failures: dict[int, str] | None = None) -> str | None:
+    """The line of :func:`divergence_note` from ``(1-based path, time)`` pairs, or None;
+    ``failures`` maps the paths on which the plant FMU failed to its message."""
     if not bad:
         return None
-    shown = ", ".join(f"path {k} at t = {t:.6g}" for k, t in bad[:5])
+    failures = failures or {}
+    shown = ", ".join(f"path {k} at t = {t:.6g}" + (" (the plant FMU failed)" if k in failures else "")
+                      for k, t in bad[:5])
     more = f" and {len(bad) - 5} more" if len(bad) > 5 else ""
-    return (f"{len(bad)} of {total} paths diverged (|(x, x_c)| > {DIVERGENCE_BOUND:g}): {shown}{more}")
+    failed = len(failures)
+    what = (f"diverged (|(x, x_c)| > {DIVERGENCE_BOUND:g})" if not failed else
+            "failed in the plant FMU" if failed == len(bad) else
+            f"diverged (|(x, x_c)| > {DIVERGENCE_BOUND:g}) or failed in the plant FMU")
+    line = f"{len(bad)} of {total} paths {what}: {shown}{more}"
+    if failed:
+        first = min(failures)
+        line += f"; path {first}: {failures[first]}"
+    return line
 
 
 def l2_norm(t: np.ndarray, signal: np.ndarray) -> float:
@@ -75,11 +93,20 @@ class PathRecord:
     xc: np.ndarray
     ym: np.ndarray
     diverged_at: float | None = None
+    failure: str | None = None
 
     def truncated(self, k: int) -> "PathRecord":
         """The record of a path that diverged at grid point ``k``: points ``0 .. k-1`` kept."""
         return PathRecord(self.path, self.t[:k], self.true[:k - 1], self.fdi[:k - 1], self.x[:k], self.u[:k],
                           self.w[:k], self.y[:k], self.xc[:k], self.ym[:k], diverged_at=float(self.t[k]))
+
+    def failed(self, keep: int, time: float, message: str) -> "PathRecord":
+        """The record of a path on which the plant FMU failed at ``time`` with ``message``:
+        the grid points ``0 .. keep-1`` (those completely recorded) kept."""
+        j = max(keep - 1, 0)
+        return PathRecord(self.path, self.t[:keep], self.true[:j], self.fdi[:j], self.x[:keep], self.u[:keep],
+                          self.w[:keep], self.y[:keep], self.xc[:keep], self.ym[:keep], diverged_at=float(time),
+                          failure=message)
 
     @property
     def y_norm(self) -> float:
@@ -121,8 +148,8 @@ class SimulationResult:
             "y_norm": [r.y_norm for r in self.records],
             "w_norm": [r.w_norm for r in self.records],
             "switches": [r.switches for r in self.records],
-            "diverged": [{"path": k, "t": r.diverged_at} for k, r in enumerate(self.records, start=1)
-                         if r.diverged_at is not None],
+            "diverged": [{"path": k, "t": r.diverged_at} | ({"fmu_failure": r.failure} if r.failure else {})
+                         for k, r in enumerate(self.records, start=1) if r.diverged_at is not None],
             "divergence": divergence_note(self.records),
             "beta": [r.path.beta.tolist() for r in self.records],
             "options": self.options,

@@ -36,93 +36,27 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..controllers.controller import Controller
-from ..errors import FMUError, ValidationError
+from ..errors import FMUError, PlantRunError, ValidationError
 from ..model.system import FTCSystem
 from .delta import DeltaSchedule, delta_segments, delta_shapes
 from ..plants.fault_map import FaultInjectionMap
 from ..plants.fmu_session import FMUSession, c_buffer
 from .paths import ChainPath, communication_grid, disturbance as disturbance_fn, snap_to_grid
+from .loop_parts import LoopLaw, Offsets, PathPlan, full_intervals, record_from_rows
 from .records import PathRecord, SimulationResult, diverged
 
 __all__ = ["FMUError", "FaultInjectionMap", "Supervisor", "open_supervisor", "resolve_plant", "simulate_fmu"]
 
 
-def _full_intervals(t: np.ndarray, step: float) -> np.ndarray:
-    """Which grid intervals are full ``[k step, (k+1) step]`` (both ends the floats
-    ``k * step`` exactly, as :func:`communication_grid` makes them)."""
-    k = np.rint(t / step)
-    is_mult = (k * step == t) & (k >= 0)
-    return is_mult[:-1] & is_mult[1:] & (k[1:] == k[:-1] + 1)
-
-
 def _delegate(name: str, doc: str) -> property:
     """A read-only property forwarding to the attribute ``name`` of ``self.session``."""
     return property(lambda self: getattr(self.session, name), doc=doc)
-
-
-@dataclass(frozen=True)
-class _Law:
-    """The controller prepared for one run: contiguous matrices and the full-step updates."""
-
-    controller: Controller
-    full_info: bool
-    m: int | None
-    measured: bool  # v = y_m read from the FMU (else v = x)
-    Cc: tuple[np.ndarray, ...]
-    Dc: tuple[np.ndarray, ...]
-    full_steps: tuple[tuple[np.ndarray, np.ndarray], ...]  # (Phi_c, Gamma_c) per entry, h = step
-
-    def entry(self, true: int, fdi: int) -> int:
-        return true * self.m + fdi if self.full_info else fdi  # type: ignore[operator]
-
-    def update(self, e: int, full: bool, h: float) -> tuple[np.ndarray, np.ndarray]:
-        return self.full_steps[e] if full else self.controller.discretise(e, h)
-
-
-@dataclass(frozen=True)
-class _Offsets:
-    """The operating point as offsets: of the values read before ``u`` (``x``, ``y_m``,
-    maybe ``y``), of ``y`` read after ``u``, and of the written ``u``, ``w``; and ``x_op``."""
-
-    read: np.ndarray
-    y: np.ndarray
-    u: np.ndarray
-    w: np.ndarray
-    x: np.ndarray
-
-
-@dataclass(frozen=True)
-class _Plan:
-    """One path on its grid: modes, segments and events, the disturbance and Delta values."""
-
-    path: ChainPath
-    t: np.ndarray
-    true: np.ndarray
-    fdi: np.ndarray
-    W: np.ndarray
-    events: list[int]
-    seg: list[int]
-    full: list[bool]
-    delta_c: list[Any] | None
-
-
-def _record(plan: _Plan, law: _Law, n: int, XR: np.ndarray, U: np.ndarray, Y: np.ndarray | None,
-            XC: np.ndarray) -> PathRecord:
-    """The :class:`PathRecord` from the rows read before ``u`` (``x``, ``y_m``, ``y``)."""
-    nv = law.controller.n_v if law.measured else 0
-    X = XR[:, :n]
-    YM = XR[:, n:n + nv] if law.measured else X
-    if Y is None:  # y was read with x
-        Y = XR[:, n + nv:]
-    return PathRecord(path=plan.path, t=plan.t, true=plan.true, fdi=plan.fdi, x=np.ascontiguousarray(X), u=U,
-                      w=plan.W, y=np.ascontiguousarray(Y), xc=XC, ym=np.ascontiguousarray(YM))
 
 
 class Supervisor:
@@ -140,9 +74,10 @@ class Supervisor:
         (shapes and draws) and to check the controller; optional for other FMUs.
     instance_name
         ``instanceName`` passed to ``fmi2Instantiate``.
-    tolerance, log
+    tolerance, log, workdir
         Passed to the :class:`~ftc_verify.plants.fmu_session.FMUSession` (the
-        ``fmi2SetupExperiment`` tolerance; a callback for every message the FMU logs).
+        ``fmi2SetupExperiment`` tolerance; a callback for every message the FMU logs; the
+        folder to extract the FMU in).
 
     With an :attr:`FaultInjectionMap.operating_point` the loop runs in deviation variables
     (:class:`~ftc_verify.plants.fault_map.OperatingPoint`): paths start at ``x_op + x0``,
@@ -159,7 +94,8 @@ class Supervisor:
 
     def __init__(self, fmu: str | os.PathLike[str], mapping: FaultInjectionMap | None = None, *,
                  system: FTCSystem | None = None, instance_name: str = "ftc-verify-supervisor",
-                 tolerance: float | None = None, log: Callable[[str, str, str], None] | None = None) -> None:
+                 tolerance: float | None = None, log: Callable[[str, str, str], None] | None = None,
+                 workdir: str | os.PathLike[str] | None = None) -> None:
         if mapping is None:
             if system is None:
                 raise ValidationError("Supervisor: give a FaultInjectionMap, or the system of a LinearJumpPlant FMU")
@@ -172,7 +108,8 @@ class Supervisor:
         self.mapping = mapping
         self.system = system
         self.instance_name = str(instance_name)
-        self.session = FMUSession(self.path, mapping, instance_name=self.instance_name, tolerance=tolerance, log=log)
+        self.session = FMUSession(self.path, mapping, instance_name=self.instance_name, tolerance=tolerance, log=log,
+                                  workdir=workdir)
         self._op_outputs: tuple[np.ndarray, np.ndarray] | None = None
 
     # -------------------------------------------------------------------- context manager
@@ -204,7 +141,7 @@ class Supervisor:
             return self.system.m
         return len(self.mapping.fault_values) if self.mapping.fault_values is not None else None
 
-    def _law(self, controller: Any, step: float) -> _Law:
+    def _law(self, controller: Any, step: float) -> LoopLaw:
         """Check ``controller`` against the system and the map; prepare its matrices."""
         if not isinstance(controller, Controller):
             raise ValidationError(
@@ -235,11 +172,11 @@ class Supervisor:
                 f"{s.nu} inputs and {nv} {what} variables (expected {s.nu} x {nv})"
             )
         full_steps = tuple(controller.discretise(e, step) for e in range(controller.entries)) if controller.n_c else ()
-        return _Law(controller, m is not None and controller.full_information(m), m, measured,
+        return LoopLaw(controller, m is not None and controller.full_information(m), m, measured,
                     tuple(np.ascontiguousarray(c, dtype=np.float64) for c in controller.Cc),
                     tuple(np.ascontiguousarray(d, dtype=np.float64) for d in controller.Dc), full_steps)
 
-    def _offsets(self, law: _Law) -> _Offsets | None:
+    def _offsets(self, law: LoopLaw) -> Offsets | None:
         """The operating point as offsets of the read and written vectors (None: origin)."""
         op = self.mapping.operating_point
         if op is None or op.is_zero():
@@ -251,7 +188,7 @@ class Supervisor:
         parts = [op.states] + ([ym_op] if law.measured else [])
         if pre.n > len(parts[0]) + (len(ym_op) if law.measured else 0):
             parts.append(y_op)  # y read together with x
-        return _Offsets(np.concatenate(parts), y_op, op.inputs, op.disturbances, op.states)
+        return Offsets(np.concatenate(parts), y_op, op.inputs, op.disturbances, op.states)
 
     def _probe(self, op: Any) -> tuple[np.ndarray, np.ndarray]:
         """``(y_m, y)`` of the FMU initialised at the operating point in the first fault mode."""
@@ -262,7 +199,7 @@ class Supervisor:
             zero_delta = s.delta_values(tuple(np.zeros(sh if sh else (0, 0)) for sh in shapes))
         return s.probe_outputs(op.states, np.concatenate([op.inputs, op.disturbances]), zero_delta)
 
-    def _initial_state(self, x0: Any, off: _Offsets | None) -> tuple[np.ndarray, Any]:
+    def _initial_state(self, x0: Any, off: Offsets | None) -> tuple[np.ndarray, Any]:
         from fmpy.fmi2 import fmi2Real
 
         init = self.session.init
@@ -295,7 +232,7 @@ class Supervisor:
         self.mapping.check_delta(delta_shapes(self.system), schedule.kind)
         return schedule
 
-    def _check_paths(self, paths: Any, law: _Law) -> list[ChainPath]:
+    def _check_paths(self, paths: Any, law: LoopLaw) -> list[ChainPath]:
         if isinstance(paths, ChainPath):
             paths = [paths]
         paths = list(paths)
@@ -324,6 +261,7 @@ class Supervisor:
         x0: Any = None,
         rng: np.random.Generator | None = None,
         seed: int | None = None,
+        monitor: np.ndarray | None = None,
     ) -> SimulationResult:
         """Co-simulate every path; returns a :class:`~ftc_verify.simulation.records.SimulationResult`
         with ``backend="fmu"``.
@@ -337,8 +275,15 @@ class Supervisor:
         own stream; ``rng``, default ``numpy.random.default_rng(seed)``, for paths without one).
         ``x0``: the initial plant state (default 0; needs
         :attr:`FaultInjectionMap.initial_states`); the controller state starts at 0.
+        ``monitor``: a float64 array of at least 2 entries (e.g. in memory shared with a
+        watching process) that holds the index of the running path and the time reached.
+
+        An ``fmi2Error`` or ``fmi2Discard`` inside a path's loop ends that path as a failed
+        record (:meth:`~ftc_verify.simulation.records.PathRecord.failed`) and the next path
+        runs; ``fmi2Fatal`` raises :class:`~ftc_verify.errors.PlantRunError`.
         """
         self.session.check_open()
+        monitor = np.zeros(3) if monitor is None else monitor
         if not (isinstance(step, (int, float)) and math.isfinite(step) and step > 0):
             raise ValidationError(f"step: must be a positive finite number, got {step!r}")
         step = float(step)
@@ -362,7 +307,8 @@ class Supervisor:
         records = []
         for i, p in enumerate(paths):
             segs = delta_segments(self.system, p, schedule, rng) if self.system is not None else None
-            records.append(self._run_path(i, self._plan(i, p, step, wfun, segs), law, x0_c, off))
+            monitor[:2] = (i, 0.0)
+            records.append(self._run_path(i, self._plan(i, p, step, wfun, segs), law, x0_c, off, monitor))
         options: dict[str, Any] = {
             "fmu": str(self.path),
             "delta": schedule.kind,
@@ -379,7 +325,7 @@ class Supervisor:
         return SimulationResult(backend="fmu", seed=seed, step=step, horizon=float(max(p.horizon for p in paths)),
                                 disturbance=disturbance, records=tuple(records), options=options)
 
-    def _plan(self, index: int, path: ChainPath, step: float, wfun: Any, segs: Any) -> _Plan:
+    def _plan(self, index: int, path: ChainPath, step: float, wfun: Any, segs: Any) -> PathPlan:
         t, true, fdi = communication_grid(path, step)
         N = len(t) - 1
         h = np.diff(t)
@@ -400,9 +346,10 @@ class Supervisor:
             change[1:] = (true[1:] != true[:-1]) | (fdi[1:] != fdi[:-1]) | (seg[1:] != seg[:-1])
         events = np.flatnonzero(change).tolist()
         events.append(-1)
-        return _Plan(path, t, true, fdi, wfun(t), events, seg.tolist(), _full_intervals(t, step).tolist(), delta_c)
+        return PathPlan(path, t, true, fdi, wfun(t), events, seg.tolist(), full_intervals(t, step).tolist(), delta_c)
 
-    def _run_path(self, index: int, plan: _Plan, law: _Law, x0_c: Any, off: _Offsets | None) -> PathRecord:
+    def _run_path(self, index: int, plan: PathPlan, law: LoopLaw, x0_c: Any, off: Offsets | None,
+                  monitor: np.ndarray | None) -> PathRecord:
         from fmpy.fmi1 import FMICallException
 
         s = self.session
@@ -410,8 +357,7 @@ class Supervisor:
         tl, hl = t.tolist(), np.diff(t).tolist()
         true_l, fdi_l, seg_l, delta_c = plan.true.tolist(), plan.fdi.tolist(), plan.seg, plan.delta_c
         s.start_path(x0_c, true_l[0], None if delta_c is None else delta_c[seg_l[0]])
-        slave = s.slave
-        c = slave.component
+        slave, c = s.slave, s.slave.component
         gr, sr, ds = slave.fmi2GetReal, slave.fmi2SetReal, slave.fmi2DoStep
         pre, post = s.read_groups(law.measured)
         n, nu, nw, ny, nv = s.n, s.nu, s.nw, s.ny, law.controller.n_v
@@ -423,13 +369,11 @@ class Supervisor:
         np_y = np.frombuffer(buf_y, dtype=np.float64, count=ny) if feed else None
         np_uw = np.frombuffer(buf_uw, dtype=np.float64, count=nuw)
         np_u, np_w = np_uw[:nu], np_uw[nu:]
-        XR, U, W = np.empty((N + 1, nx_read)), np.empty((N + 1, nu)), plan.W
-        Y = np.empty((N + 1, ny)) if feed else None
+        XR, U, W, Y = np.empty((N + 1, nx_read)), np.empty((N + 1, nu)), plan.W, np.empty((N + 1, ny)) if feed else None
         nc = law.controller.n_c
         XC = np.zeros((N + 1, nc))
         xc = XC[0].copy()
-        full_l, update, entry, Cc, Dc = plan.full, law.update, law.entry, law.Cc, law.Dc
-        dot = np.dot
+        full_l, update, entry, Cc, Dc, dot = plan.full, law.update, law.entry, law.Cc, law.Dc, np.dot
         r, sg = true_l[0], seg_l[0]
         e = entry(r, fdi_l[0])
         K = Dc[e]
@@ -437,17 +381,8 @@ class Supervisor:
         try:
             for k in range(N + 1):
                 if k == nxt:
-                    when = f"at t = {tl[k]!r} (paths[{index}], grid point {k})"
-                    if true_l[k] != r:
-                        r = true_l[k]
-                        s.set_fault(r, when)
-                    if seg_l[k] != sg:
-                        sg = seg_l[k]
-                        if delta_c is not None:
-                            s.set_delta(delta_c[sg], when)
-                    e = entry(r, fdi_l[k])
-                    K = Dc[e]
-                    ev += 1
+                    r, sg, e = self._switch(plan, law, index, k, r, sg)
+                    K, ev = Dc[e], ev + 1
                     nxt = plan.events[ev]
                 stage = "x"
                 gr(c, vr_x, nx_read, buf_x)
@@ -482,18 +417,45 @@ class Supervisor:
                     xc = dot(Phi, xc) + dot(Gam, xr[vs])
                     XC[k + 1] = xc
                 stage = "step"
+                monitor[1] = tl[k]
                 ds(c, tl[k], hl[k], 1)
+                if s.pending is not None:
+                    s.raise_pending()
         except FMICallException as exc:
-            raise self._loop_error(exc, stage, index, plan, k, law.measured, np_uw) from None
+            error = self._loop_error(exc, stage, index, plan, k, law.measured, np_uw)
+            keep = k + 1 if stage == "step" else k  # the grid points recorded completely
+            return self._failed(error, index, tl[k], record_from_rows(plan, law, n, XR, U, Y, XC), keep)
         finally:
             s.stats["steps"] += min(k, N)
+            s.raise_pending()
         s.stats["paths"] += 1
         if not stop and N:
             s.check_advanced(tl[N], f"paths[{index}]")
-        record = _record(plan, law, n, XR, U, Y, XC)
+        record = record_from_rows(plan, law, n, XR, U, Y, XC)
         return record.truncated(stop) if stop else record
 
-    def _loop_error(self, exc: Any, stage: str, index: int, plan: _Plan, k: int, measured: bool,
+    def _switch(self, plan: PathPlan, law: LoopLaw, index: int, k: int, r: int, sg: int) -> tuple[int, int, int]:
+        """At the event grid point ``k``: write the new fault mode and ``Delta`` where they
+        changed; the new true mode, segment and controller entry."""
+        when = f"at t = {float(plan.t[k])!r} (paths[{index}], grid point {k})"
+        if plan.true[k] != r:
+            r = int(plan.true[k])
+            self.session.set_fault(r, when)
+        if plan.seg[k] != sg:
+            sg = plan.seg[k]
+            if plan.delta_c is not None:
+                self.session.set_delta(plan.delta_c[sg], when)
+        return r, sg, law.entry(r, int(plan.fdi[k]))
+
+    def _failed(self, error: FMUError, index: int, time: float, record: PathRecord, keep: int) -> PathRecord:
+        """The path ``index`` after the FMU failed in its loop at ``time``: a failed record,
+        or :class:`PlantRunError` after ``fmi2Fatal`` (no further path can run)."""
+        if self.session.dead:
+            raise PlantRunError(str(self.path), str(error), path=index, time=time) from None
+        self.session.stats["paths"] += 1
+        return record.failed(keep, time, str(error))
+
+    def _loop_error(self, exc: Any, stage: str, index: int, plan: PathPlan, k: int, measured: bool,
                     np_uw: np.ndarray) -> FMUError:
         """The error for an FMI call that failed at grid point ``k`` in ``stage``."""
         tl, N = plan.t.tolist(), len(plan.t) - 1

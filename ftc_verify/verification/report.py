@@ -47,6 +47,8 @@ def render_markdown(rep: VerifyReport) -> str:
         "|---|---|---|",
     ]
     lines += [f"| {c['name']} | {'pass' if c['ok'] else 'FAIL'} | {c['detail']} |" for c in d["checks"]]
+    if d["options"].get("delta"):
+        lines += ["", f"Delta in the Monte Carlo: {d['options']['delta']}."]
     lines += ["", "## Numbers", ""]
     mc = d["mc"] or {}
     rows = [
@@ -61,6 +63,13 @@ def render_markdown(rep: VerifyReport) -> str:
     ]
     lines += ["| quantity | value |", "|---|---|"]
     lines += [f"| {k} | {_num(v)} |" for k, v in rows]
+    failure = d.get("plant_failure")
+    if failure:
+        lines += ["", "## The plant FMU failed", "",
+                  f"{failure['fmu']} crashed or returned fmi2Fatal"
+                  + (f" on path {failure['path'] + 1}" if failure["path"] is not None else "")
+                  + (f" at t = {failure['time']:.6g}" if failure["time"] is not None else "")
+                  + f": {failure['detail']}. The Monte Carlo stopped there."]
     plant = d.get("plant")
     if plant:
         lines += ["", f"## Plant: {plant['fmu']} (model identifier {plant['model_identifier']})", "",

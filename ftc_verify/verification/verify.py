@@ -31,6 +31,7 @@ draw comes from one :class:`numpy.random.Generator` whose seed is in the report.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -40,9 +41,9 @@ from ..analysis.analyze import AnalysisReport, analyze, json_ready
 from ..analysis.closedloop import ClosedLoop, closed_loop
 from ..analysis.crossval import ModeCheck, cross_validate
 from ..controllers.controller import Controller
-from ..errors import ValidationError
+from ..errors import PlantRunError, ValidationError
 from ..model.system import FTCSystem
-from ..simulation.delta import DeltaSchedule, constant_delta_loops
+from ..simulation.delta import DeltaSchedule, constant_delta_loops, plant_delta
 from ..simulation.paths import ChainPath, sample_paths
 from ..simulation.records import PathRecord, divergence_note
 from ..synthesis.state_feedback import SynthesisResult, synthesize
@@ -88,6 +89,7 @@ class VerifyReport:
     options: dict[str, Any]
     seconds: dict[str, float] = field(default_factory=dict)
     plant: dict[str, Any] | None = None
+    plant_failure: PlantRunError | None = None  # the plant FMU crashed or returned fmi2Fatal
 
     @property
     def verdict(self) -> str:
@@ -122,6 +124,9 @@ class VerifyReport:
                 k: v for k, v in self.synthesis.to_dict().items() if k != "analysis"},
             "analysis": None if an is None else an.to_dict() | {"per_mode": [m.to_dict() for m in self.per_mode]},
             "plant": self.plant,
+            "plant_failure": None if self.plant_failure is None else {
+                "fmu": self.plant_failure.fmu, "path": self.plant_failure.path, "time": self.plant_failure.time,
+                "detail": self.plant_failure.detail},
             "seed": self.seed,
             "options": self.options,
             "seconds": self.seconds,
@@ -253,8 +258,10 @@ def _plant_summary(plant: Any, records: list[PathRecord], reference: list[PathRe
                      "fault_response_energy": None if fault_only is None else
                      float(np.mean([r.y_norm ** 2 for r in fault_only]))}
     shown = f" (paths {left[:10]}{' ...' if len(left) > 10 else ''})" if left else ""
+    excursion_text = ("none measured (every path diverged or failed)" if excursion is None else
+                      f"{summary['max_excursion']}; inputs within {summary['input_range']}")
     detail = (f"{len(left)} of {len(records)} paths left [region]{shown}; largest excursion from the operating point "
-              f"{summary['max_excursion']}; inputs within {summary['input_range']}; FMU vs linear reference: "
+              f"{excursion_text}; FMU vs linear reference: "
               + ("every compared path diverged" if err is None else
                  f"largest relative state difference {err:.3g} on {min(len(records), len(reference))} paths "
                  "(the measured linearisation error)"))
@@ -348,6 +355,14 @@ def run_verify(
     def stage(name: str, t0: float) -> None:
         seconds[name] = time.perf_counter() - t0
 
+    def timed(name: str, run: Callable[[], tuple[Any, Check]]) -> Any:
+        """``run()``'s finding; its check appended and its time recorded as ``name``."""
+        t0 = time.perf_counter()
+        found, check = run()
+        checks.append(check)
+        stage(name, t0)
+        return found
+
     t = time.perf_counter()
     synthesis = None
     if controller is None:
@@ -371,37 +386,32 @@ def run_verify(
     gamma_cert, found = _certify(analysis, gamma)
     checks.extend(found)
     stage("analysis", t)
-    t = time.perf_counter()
-    per_mode, check = _cross_validation(loop)
-    checks.append(check)
-    stage("cross_validation", t)
+    per_mode = timed("cross_validation", lambda: _cross_validation(loop))
     if gamma_cert is None:
         return report(analysis=analysis, per_mode=per_mode)
     g2 = gamma_cert ** 2
-    t = time.perf_counter()
-    exact, check = _exact_energies(system, loop, g2)
-    checks.append(check)
-    stage("exact_energy", t)
-    t = time.perf_counter()
-    worst, check = _worst_case(loop, exact, horizon, gamma_cert)
-    checks.append(check)
-    stage("worst_case", t)
+    exact = timed("exact_energy", lambda: _exact_energies(system, loop, g2))
+    worst = timed("worst_case", lambda: _worst_case(loop, exact, horizon, gamma_cert))
     t = time.perf_counter()
     chain_paths = sample_paths(system.chain, horizon, paths, seed)
-    delta = DeltaSchedule("random" if system.uncertain and (plant is None or plant.delta1 or plant.delta2) else "zero")
-    records, fmu = _fmu_monte_carlo(system, controller, chain_paths, delta, step, progress, plant, fmu_log,
-                                    client=client)
-    measured, fault_only = _measured(records, measure, lambda: _fmu_monte_carlo(
-        system, controller, chain_paths, delta, step, progress, plant, fmu_log, disturbance="zero",
-        client=client)[0])
+    kind, options["delta"] = plant_delta(system, plant, "random", explicit=False)
+    delta = DeltaSchedule(kind)
+    try:
+        records, fmu = _fmu_monte_carlo(system, controller, chain_paths, delta, step, progress, plant, fmu_log,
+                                        client=client)
+        measured, fault_only = _measured(records, measure, lambda: _fmu_monte_carlo(
+            system, controller, chain_paths, delta, step, progress, plant, fmu_log, disturbance="zero",
+            client=client)[0])
+    except PlantRunError as exc:  # the plant crashed: a result, reported
+        checks.append(Check("Monte Carlo (FMU)", False, str(exc)))
+        stage("monte_carlo", t)
+        return report(gamma_certified=gamma_cert, analysis=analysis, per_mode=per_mode, exact=tuple(exact),
+                      worst=worst, plant_failure=exc)
     options.update(fmu)
     mc, check = _mc_check(measured, gamma_cert, seed, step, horizon, incremental=measure == "incremental")
     checks.append(check)
     stage("monte_carlo", t)
-    t = time.perf_counter()
-    found_plant, check = _against_reference(system, controller, chain_paths, records, delta, step,
-                                            plant, mc, fmu, measured, fault_only)
-    checks.append(check)
-    stage("reference", t)
+    found_plant = timed("reference", lambda: _against_reference(system, controller, chain_paths, records, delta, step,
+                                                                 plant, mc, fmu, measured, fault_only))
     return report(gamma_certified=gamma_cert, analysis=analysis, per_mode=per_mode, exact=tuple(exact), worst=worst,
                   mc=mc, records=tuple(records), plant=found_plant)

@@ -1,0 +1,296 @@
+"""The run commands of the CLI: ``ftc-verify simulate`` and ``ftc-verify verify``.
+
+Both follow the exit-code contract of :mod:`ftc_verify.cli.main`. A plant FMU that fails
+during a run is a result, not bad input: a path on which the FMU returned ``fmi2Error``
+or ``fmi2Discard`` is reported as failed (like a diverged path), and a plant FMU that
+crashes or returns ``fmi2Fatal`` (:class:`~ftc_verify.errors.PlantRunError`) ends the
+Monte Carlo with the FMU, the path and the time named; both give exit 1, with the JSON
+(``simulate --json``) or the report (``verify``) written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Any
+
+from ..errors import FTCError, PlantRunError
+from .main import (EXIT_NEGATIVE, EXIT_OK, EXIT_UNCERTIFIED, EXIT_UNDECIDED, PLOT_SUFFIXES, _bad, _check_output_file,
+                   _load, _positive, _positive_int, _nonneg_int, _seed, _strict)
+
+__all__ = ["add_run_commands"]
+
+
+#: Fewest communication steps a horizon must cover (shorter runs measure nothing).
+MIN_STEPS = 10
+
+
+def _check_horizon(step: float, horizon: float) -> None:
+    if horizon < MIN_STEPS * step:
+        raise _bad(f"--horizon {horizon:g}: must cover at least {MIN_STEPS} steps of --step {step:g} "
+                   f"(at least {MIN_STEPS * step:g})")
+
+
+#: Bytes per recorded number of a path record: the float64 arrays measured 8.05 bytes per
+#: number at peak (tracemalloc, reference backend, 100 paths of the paper example); twice
+#: that leaves room for the FMU backend's buffers and the plot.
+RECORD_BYTES_PER_NUMBER = 16
+
+
+def _check_records_memory(system: Any, controller: Any, paths: int, horizon: float, step: float) -> None:
+    """Refuse before simulating when the kept trajectories would not fit in memory."""
+    from ..limits import check_memory
+
+    n, nu, ny, nw = system.dims
+    jumps = 2.0 * horizon * float(max(-system.chain.alpha.min(), system.chain.beta_max.max()))
+    points = horizon / step + jumps + 2
+    numbers = n + nu + ny + nw + controller.n_c + controller.n_v + 3
+    check_memory(paths * points * numbers * RECORD_BYTES_PER_NUMBER,
+                 f"{paths} recorded paths of about {points:.3g} grid points each",
+                 hint="use fewer --paths, a shorter --horizon or a larger --step")
+
+
+def _check_fmu_dims(system: Any, source: str) -> None:
+    """The FMU has one Delta input per channel: the modes must agree on its shape."""
+    from ..plants.linear_jump import fmu_dims
+
+    try:
+        fmu_dims(system)
+    except FTCError as exc:
+        raise _bad(f"{source}: {exc}") from None
+
+
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from ..model.system import FTCSystem, JointChain
+    from ..simulation.delta import DeltaSchedule, plant_delta
+    from ..simulation.paths import sample_paths
+
+    _check_horizon(args.step, args.horizon)
+    if args.plot:
+        _check_output_file(args.plot, "--plot", PLOT_SUFFIXES)
+    _check_cluster(args)
+    system, controller = _load(args.system, args.controller)
+    record = max(args.record, 1 if args.plot else 0)
+    kept = args.paths if args.backend == "fmu" else min(record, args.paths)  # the reference backend streams
+    _check_records_memory(system, controller, kept, args.horizon, args.step)
+    plant = _load_plant(args, system)
+    if args.backend == "fmu" and plant is None:
+        _check_fmu_dims(system, args.system)
+    if args.fault_during_delay:
+        ch = system.chain
+        system = FTCSystem(system.name, system.modes, JointChain(ch.alpha, ch.beta_min, ch.beta_max, True))
+    seed = args.seed if args.seed is not None else int(np.random.SeedSequence().entropy % 2**63)
+    beta = {"random": None, "min": system.chain.beta_min, "max": system.chain.beta_max,
+            "mid": system.chain.midpoint()}[args.beta]
+    paths = sample_paths(system.chain, args.horizon, args.paths, seed, beta=beta)
+    delta = DeltaSchedule(plant_delta(system, plant, args.delta, explicit=True)[0])
+    from ..simulation.batches import fmu_monte_carlo, progress_bar
+    from ..simulation.cluster import open_client
+    from ..simulation.streaming import simulate_streaming
+
+    bar = progress_bar(args.paths, f"simulate ({args.backend})", sys.stderr.isatty())
+    done = None if bar is None else bar.update
+    try:
+        with open_client(args.workers, args.scheduler) as client:
+            if args.backend == "fmu":
+                res = fmu_monte_carlo(system, controller, paths, step=args.step, delta=delta,
+                                      disturbance=args.disturbance, seed=seed, plant=plant, client=client,
+                                      log=_fmu_logger(args), done=done)
+            else:
+                res = simulate_streaming(system, controller, paths, step=args.step, disturbance=args.disturbance,
+                                         delta=delta, seed=seed, record=record, client=client, done=done)
+    except PlantRunError as exc:
+        return _plant_failed(exc, args, system.name, seed)
+    finally:
+        if bar is not None:
+            bar.close()
+    if args.plot:
+        from ..verification.plots import plot_path
+
+        plot_path(res.records[0], args.plot, title=f"{system.name}: path 1 ({args.backend}, seed {seed})")
+    d = _strict(res.to_dict())
+    verdict = "fail (a path diverged or the plant FMU failed)" if d["divergence"] else "done"
+    if args.json:
+        print(json.dumps(d | {"verdict": "fail" if d["divergence"] else "done"}, indent=2, allow_nan=False))
+    else:
+        _print_simulation(d, res, system.name, args, delta.kind)
+        print(f"  verdict: {verdict}")
+    return EXIT_NEGATIVE if d["divergence"] else EXIT_OK
+
+
+def _plant_failed(exc: PlantRunError, args: argparse.Namespace, name: str, seed: int) -> int:
+    """``simulate`` when the plant FMU crashed or returned fmi2Fatal: the failure, exit 1."""
+    if args.json:
+        failure = {"fmu": exc.fmu, "path": exc.path, "time": exc.time, "detail": exc.detail}
+        print(json.dumps(_strict({"backend": args.backend, "seed": seed, "plant_failure": failure,
+                                  "verdict": "fail"}), indent=2, allow_nan=False))
+    else:
+        print(f"ftc-verify simulate: {name}, backend {args.backend}, seed {seed}")
+        print(f"  PLANT FMU FAILED: {exc}")
+        print("  verdict: fail (the plant FMU failed; the run stopped there)")
+    return EXIT_NEGATIVE
+
+
+def _print_simulation(d: dict[str, Any], res: Any, name: str, args: argparse.Namespace, delta: str) -> None:
+    """The text summary of ``simulate`` (norms over the paths that did not diverge)."""
+    import numpy as np
+
+    print(f"ftc-verify simulate: {name}, backend {res.backend}, {len(d['y_norm'])} paths, horizon {args.horizon:g}, "
+          f"step {args.step:g}, seed {res.seed}, disturbance {args.disturbance}, Delta {delta}")
+    if res.backend == "fmu":
+        print(f"  FMU {d['fmu']} (model identifier {d['model_identifier']}); jump times moved by at most "
+              f"{res.options['timing_error']:.3g} to the FMU's step grid")
+    ok = [k for k, y in enumerate(d["y_norm"]) if y is not None]
+    if d["divergence"]:
+        print(f"  DIVERGED OR FAILED: {d['divergence']}")
+    if ok:
+        y, w = np.array([d["y_norm"][k] for k in ok]), np.array([d["w_norm"][k] for k in ok])
+        print(f"  ||w||_2 = {np.mean(w):.6g} (mean over {len(ok)} paths)")
+        print(f"  ||y||_2: mean {np.mean(y):.6g}, min {np.min(y):.6g}, max {np.max(y):.6g}")
+        print(f"  ||y||_2/||w||_2: mean {np.mean(y / w):.6g}, max {np.max(y / w):.6g}")
+    sw = d["switches"]
+    print(f"  switches per path: fault {np.mean([s['fault'] for s in sw]):.3g}, FDI {np.mean([s['fdi'] for s in sw]):.3g} (mean)")
+    if args.plot:
+        print(f"  plot written to {args.plot}")
+
+
+def _load_plant(args: argparse.Namespace, system: Any) -> Any:
+    """The ``--plant`` map checked against the system (None without ``--plant``)."""
+    if getattr(args, "plant", None) is None:
+        return None
+    if getattr(args, "backend", "fmu") != "fmu":
+        raise _bad(f"--plant {args.plant}: a plant map is co-simulated; it needs --backend fmu")
+    from ..plants.plant_map import check_against_system, load_plant_map
+
+    plant = load_plant_map(args.plant)
+    check_against_system(plant, system)
+    plant.require_states_op("co-simulation")
+    return plant
+
+
+def _fmu_logger(args: argparse.Namespace) -> Any:
+    """With ``--fmu-log``: print every message the FMU logs to stderr."""
+    if not getattr(args, "fmu_log", False):
+        return None
+
+    def log(status: str, category: str, message: str) -> None:
+        print(f"[FMU {status}] {category}: {message}", file=sys.stderr)
+
+    return log
+
+
+def _cmd_verify(args: argparse.Namespace) -> int:
+    from ..verification.report import check_out_dir, write_report
+    from ..verification.verify import run_verify
+
+    if args.paths < 2:
+        raise _bad(f"--paths {args.paths}: the Monte Carlo bound needs at least 2 paths")
+    _check_horizon(args.step, args.horizon)
+    check_out_dir(args.out)
+    system, controller = _load(args.system, args.controller)
+    plant = _load_plant(args, system)
+    if plant is None:
+        _check_fmu_dims(system, args.system)
+    if controller is not None:
+        _check_records_memory(system, controller, args.paths, args.horizon, args.step)
+    _check_cluster(args)
+    k_max = None if args.no_gain_bound else args.k_max
+    from ..simulation.cluster import open_client
+
+    with open_client(args.workers, args.scheduler) as client:
+        rep = run_verify(system, gamma=args.gamma, method=args.method, k_max=k_max, controller=controller,
+                         paths=args.paths, step=args.step, horizon=args.horizon, seed=args.seed, solver=args.solver,
+                         progress=sys.stderr.isatty(), plant=plant, fmu_log=_fmu_logger(args),
+                         measure=args.measure, client=client)
+    written = write_report(rep, args.out)
+    d = rep.to_dict()
+    print(f"ftc-verify verify: {system.name}")
+    for c in d["checks"]:
+        print(f"  [{'pass' if c['ok'] else 'FAIL'}] {c['name']}: {c['detail']}")
+    if d["options"].get("delta"):
+        print(f"  Delta in the Monte Carlo: {d['options']['delta']}")
+    print(f"  report: {', '.join(str(p) for p in written)}")
+    print(f"  verdict: {d['verdict']}")
+    if rep.verdict == "pass":
+        return EXIT_OK
+    if rep.analysis is not None and rep.analysis.mss.undecided:
+        return EXIT_UNDECIDED
+    stable_uncertified = rep.gamma_certified is None and rep.analysis is not None and rep.analysis.mss.stable
+    return EXIT_UNCERTIFIED if stable_uncertified else EXIT_NEGATIVE
+
+
+
+def add_run_commands(sub: Any) -> None:
+    """Register ``simulate`` and ``verify`` on the CLI's subparsers."""
+    m = sub.add_parser("simulate", help="simulate the sampled-data loop under Markov faults and delayed FDI")
+    m.add_argument("system", help="system TOML file")
+    m.add_argument("--controller", "--gains", dest="controller", required=True,
+                   help="controller TOML file (static gains or dynamic; --gains is an alias)")
+    m.add_argument("--backend", default="fmu", choices=["fmu", "reference"])
+    m.add_argument("--paths", type=_positive_int, default=10)
+    m.add_argument("--horizon", type=_positive, default=30.0)
+    m.add_argument("--step", type=_positive, default=0.01, help="control period h (sample-and-hold)")
+    m.add_argument("--seed", type=_seed, default=None, help="seed of the numpy Generator (recorded in the output)")
+    m.add_argument("--disturbance", default="paper", choices=["paper", "zero", "step", "pulse", "sine"])
+    m.add_argument("--record", type=_nonneg_int, default=0,
+                   help="reference backend: keep full trajectories of the first N paths (default 0, 1 with --plot); "
+                        "every path's norms are computed either way, vectorised and in batches")
+    _cluster_options(m)
+    m.add_argument("--beta", default="random", choices=["random", "min", "max", "mid"],
+                   help="detection rates: drawn per path in their box (default) or fixed")
+    m.add_argument("--delta", default="zero", choices=["zero", "random", "sign", "constant"],
+                   help="time-varying uncertainty (random: a new Delta per chain segment)")
+    m.add_argument("--fault-during-delay", action="store_true",
+                   help="named variant: faults keep occurring during a detection delay (not the paper's model)")
+    m.add_argument("--json", action="store_true")
+    m.add_argument("--plot", default=None, help="PNG file for the paper's Fig. 1 of the first path")
+    _plant_options(m)
+    m.set_defaults(func=_cmd_simulate)
+
+    v = sub.add_parser("verify", help="the main job: synthesize, certify, cross-validate, co-simulate, report")
+    v.add_argument("system", help="system TOML file")
+    v.add_argument("--gamma", type=_positive, default=None, help="attenuation level (default: minimise)")
+    v.add_argument("--method", default="iterative", choices=["two-step", "iterative", "full-info", "common"])
+    v.add_argument("--controller", "--gains", dest="controller", default=None,
+                   help="verify this controller file (static gains or dynamic) instead of synthesizing; "
+                        "--gains is an alias")
+    v.add_argument("--k-max", type=_positive, default=30.0, help="gain norm bound for synthesis (default 30)")
+    v.add_argument("--no-gain-bound", action="store_true", help="synthesize without a gain bound")
+    v.add_argument("--paths", type=_positive_int, default=200, help="Monte Carlo paths on the FMU (default 200)")
+    v.add_argument("--step", type=_positive, default=0.01)
+    v.add_argument("--horizon", type=_positive, default=30.0)
+    v.add_argument("--seed", type=_seed, default=None)
+    v.add_argument("--out", default="ftc-verify-report", help="output folder (default ./ftc-verify-report)")
+    v.add_argument("--solver", default="auto", choices=["auto", "clarabel", "sdpa", "scs"])
+    v.add_argument("--measure", default="total", choices=["total", "incremental"],
+                   help="Monte Carlo ratio of the real paths (total, default) or of each path's response to w "
+                        "alone, y(w) - y(w = 0) on the same path (incremental: for plants whose faults move the "
+                        "equilibrium)")
+    _plant_options(v)
+    _cluster_options(v)
+    v.set_defaults(func=_cmd_verify)
+
+
+
+def _check_cluster(args: argparse.Namespace) -> None:
+    if args.fmu_log and (args.workers or args.scheduler):
+        raise _bad("--fmu-log: the FMU's messages stay on the Dask workers; leave out --workers/--scheduler to see them")
+
+
+def _cluster_options(parser: argparse.ArgumentParser) -> None:
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=_positive_int, default=None,
+                       help="run the Monte Carlo batches on a local Dask cluster of N worker processes")
+    where.add_argument("--scheduler", default=None,
+                       help="run the Monte Carlo batches on the Dask cluster at this address (tcp://host:port)")
+
+
+def _plant_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--plant", default=None,
+                        help="plant map TOML file: co-simulate this FMU instead of the built LinearJumpPlant")
+    parser.add_argument("--fmu-log", action="store_true", help="print the FMU's log messages to stderr")
+
+
