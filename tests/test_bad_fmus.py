@@ -465,13 +465,20 @@ def test_stub_user_fmu_with_a_real_fault_variable(stub_fmu: Path) -> None:
 
 def test_stub_do_step_error(stub_fmu: Path) -> None:
     """Mode 1 maps to a negative effectiveness: the stub's fmi2DoStep returns fmi2Error
-    at the fault time; one FMUError names the file, the call, the time and the FMU's message."""
+    at the fault time. That is a result of the plant, not bad input: the path is recorded
+    as failed there, and its failure names the file, the call, the time and the FMU's
+    message; the next path runs on the reset instance."""
     fmap = FaultInjectionMap(**STUB_MAP, fault_values=(1.0, -1.0))
     gains = [np.array([[-1.0]]), np.array([[-2.0]])]
     with Supervisor(stub_fmu, fmap) as sup:
-        with raises_fmu_error(stub_fmu, "fmi2DoStep", "returned Error", "at t = 0.35", "true mode 1",
-                              "actuatorEffectiveness = -1 is negative"):
-            sup.run([one_jump_path()], Controller.state_feedback(gains), step=0.1, x0=[1.0])
+        res = sup.run([one_jump_path(), one_jump_path()], Controller.state_feedback(gains), step=0.1, x0=[1.0])
+        for rec in res.records:
+            assert rec.diverged_at == pytest.approx(0.35) and rec.y_norm == float("inf")
+            for part in (str(stub_fmu), "fmi2DoStep", "returned Error", "at t = 0.35", "true mode 1",
+                         "actuatorEffectiveness = -1 is negative"):
+                assert part in rec.failure, (part, rec.failure)
+            assert rec.t[-1] == pytest.approx(0.35) and len(rec.t) == len(rec.x)
+        assert "failed in the plant FMU" in res.to_dict()["divergence"]
         extraction = sup.extraction_dir
         assert extraction is not None and extraction.is_dir()
     assert not extraction.exists()  # removed on close

@@ -16,12 +16,12 @@ Theorem 3.1 certificate passed (which covers the whole box).
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass
 from typing import Any
 
 from ..analysis.closedloop import ClosedLoop
+from ..jsonable import jsonable
 from ..analysis.crossval import ModeCheck, cross_validate
 from .lmi_analysis import LMIResult, check_lmi_memory, hinf_gamma, mes_lmi
 from ..analysis.stability import MSSResult, mean_square_stability
@@ -30,14 +30,8 @@ __all__ = ["AnalysisReport", "analyze", "json_ready"]
 
 
 def json_ready(value: Any) -> Any:
-    """Replace non-finite floats by ``None`` recursively (strict JSON)."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {k: json_ready(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [json_ready(v) for v in value]
-    return value
+    """JSON-ready built-ins, non-finite floats as ``None`` (:func:`ftc_verify.jsonable.jsonable`)."""
+    return jsonable(value)
 
 
 @dataclass(frozen=True, eq=False)

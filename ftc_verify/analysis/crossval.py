@@ -174,7 +174,7 @@ def cross_validate(loop: ClosedLoop) -> tuple[ModeCheck, ...]:
             norm_ok = math.isinf(ours) and math.isinf(theirs)
         else:
             norm_ok = abs(ours - theirs) <= NORM_AGREE_RTOL * max(ours, theirs, 1e-300)
-        agree = pole_err <= POLE_RTOL and norm_ok
+        agree = bool(pole_err <= POLE_RTOL and norm_ok)
         if not agree:
             note = "; ".join(
                 x for x in (

@@ -18,7 +18,6 @@ Every command checks its output paths and options before any work starts.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import signal
 import sys
@@ -31,6 +30,7 @@ from typing import Any
 
 from .. import __version__
 from ..errors import FTCError
+from ..jsonable import dumps, jsonable
 
 __all__ = ["main", "build_parser"]
 
@@ -128,10 +128,8 @@ def _load(system_path: str, controller_path: str | None) -> tuple[Any, Any]:
 
 
 def _strict(value: Any) -> Any:
-    """JSON-ready with every non-finite float replaced by ``None`` (strict JSON)."""
-    from ..analysis.analyze import json_ready
-
-    return json_ready(value)
+    """JSON-ready built-ins, every non-finite float replaced by ``None`` (strict JSON)."""
+    return jsonable(value)
 
 
 def _cmd_analyze(args: argparse.Namespace) -> int:
@@ -141,7 +139,7 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
     system, controller = _load(args.system, args.controller)
     rep = analyze(closed_loop(system, controller), solver=args.solver, name=system.name, lmi=not args.no_lmi)
     if args.json:
-        print(json.dumps(rep.to_dict() | {"lmi_requested": not args.no_lmi}, indent=2, allow_nan=False))
+        print(dumps(rep.to_dict() | {"lmi_requested": not args.no_lmi}))
     else:
         _print_analysis(rep, lmi=not args.no_lmi)
     if rep.certified_stable or (args.no_lmi and rep.mss.stable):

@@ -3,18 +3,25 @@ user's FMU through a plant map, :mod:`ftc_verify.plants.plant_map`) and ``ftc-ve
 build-fmu`` (a Modelica model to an FMU, :mod:`ftc_verify.plants.modelica`).
 
 Both follow the exit-code contract of :mod:`ftc_verify.cli.main`: 0 with a verdict line,
-1 when ``plant --check`` finds a fault that changes nothing or ``linearize --trim`` finds no
-stationary point, 2 for a bad map or FMU (one line naming the file, the key and the value).
+1 when ``plant --check`` finds a fault that changes nothing, ``linearize --trim`` finds no
+stationary point, or the plant FMU fails in one of these commands' FMI calls (an ``fmi2DoStep``
+returning ``fmi2Error``...: a failed check, a linearisation that could not be computed; the
+verdict line names the FMU, the call, the fault mode and time and the FMU's own log message,
+and ``--json`` prints it in one JSON object), 2 for a bad map or FMU (one line naming the
+file, the key and the value), and never writes an output that is one of its inputs.
+``linearize -o`` writes a linearisation whose error estimate exceeds
+:data:`~ftc_verify.plants.linearize.ACCURACY_FRACTION` of its entries only with
+``--accept-inaccurate`` (exit 1 otherwise, nothing written).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 from typing import Any
 
 import numpy as np
 
+from ..jsonable import dumps
 from .main import EXIT_NEGATIVE, EXIT_OK, _check_output_file, _positive
 
 __all__ = ["add_plant_commands", "describe_plant"]
@@ -65,28 +72,58 @@ def describe_plant(pm: Any, session: Any) -> dict[str, Any]:
     }
 
 
-def _check_faults(pm: Any, session: Any, step: float) -> list[dict[str, Any]]:
-    """One step of ``step`` from the operating point in every fault mode; a mode whose
-    states and outputs equal the first mode's after the step changes nothing."""
+def _step_mode(pm: Any, session: Any, mode: int, step: float, grp: Any) -> np.ndarray:
+    """The states and outputs after one step of ``step`` from the operating point in the
+    0-based fault mode ``mode``; every FMI call through the session's error path
+    (:func:`~ftc_verify.plants.linearize.fmi_calls`: a failing call raises ``PlantRunError``)."""
     from fmpy.fmi2 import fmi2Real
 
-    from ..plants.fmu_session import VarGroup, c_buffer
+    from ..plants.fmu_session import c_buffer
+    from ..plants.linearize import fmi_calls
 
     x0 = pm.states_op if pm.states_op is not None else np.zeros(len(pm.states))
     uw = np.concatenate([pm.inputs_op, pm.disturbances_op])
-    rv = session.variables
-    grp = VarGroup(rv.states + rv.outputs + rv.measured)
-    rows, first = [], None
-    for i, f in enumerate(pm.faults):
-        session.start_path(c_buffer(fmi2Real, x0.tolist()), i, None)
+    where = f"in fault mode {mode + 1} ({pm.faults[mode].name}) during plant --check"
+    with fmi_calls(session, f"at t = 0 {where}", session.uw.names):
+        session.start_path(c_buffer(fmi2Real, x0.tolist()), mode, None)
         s = session.slave
         s.fmi2SetReal(s.component, session.uw.vr, session.uw.n, c_buffer(fmi2Real, uw.tolist()))
+    with fmi_calls(session, f"in the step from t = 0 to t = {step:g} {where}"):
         s.doStep(0.0, step)
+    with fmi_calls(session, f"at t = {step:g} {where}", grp.names):
         s.fmi2GetReal(s.component, grp.vr, grp.n, grp.buf)
-        vals = np.array(list(grp.buf)[:grp.n])
-        first = vals if first is None else first
-        inert = i > 0 and bool(np.array_equal(vals, first))
-        rows.append({"mode": i + 1, "name": f.name, "after_step": vals.tolist(), "changes_nothing": inert})
+    return np.array(list(grp.buf)[:grp.n], dtype=float)
+
+
+def _check_faults(pm: Any, session: Any, step: float) -> list[dict[str, Any]]:
+    """One step of ``step`` from the operating point in every fault mode; a mode whose
+    states and outputs equal the first mode's after the step changes nothing. A mode in
+    which the FMU fails gets ``error`` (the FMU, call, time and log message) instead of
+    values; after ``fmi2Fatal`` the remaining modes are not run."""
+    from ..errors import PlantRunError
+    from ..plants.fmu_session import VarGroup
+
+    rv = session.variables
+    grp = VarGroup(rv.states + rv.outputs + rv.measured)
+    for i in range(pm.m):  # bad fault values are bad input (exit 2), found before any step
+        session.fault_writes(i)
+    rows: list[dict[str, Any]] = []
+    first = None
+    for i, f in enumerate(pm.faults):
+        row: dict[str, Any] = {"mode": i + 1, "name": f.name, "after_step": None, "changes_nothing": False,
+                               "error": None}
+        rows.append(row)
+        if session.dead:
+            row["error"] = "not run: the FMU returned fmi2Fatal in an earlier mode"
+            continue
+        try:
+            vals = _step_mode(pm, session, i, step, grp)
+        except PlantRunError as exc:
+            row["error"] = str(exc)
+            continue
+        first = vals if i == 0 else first
+        row["after_step"] = vals.tolist()
+        row["changes_nothing"] = i > 0 and first is not None and bool(np.array_equal(vals, first))
     return rows
 
 
@@ -100,9 +137,12 @@ def _cmd_plant(args: argparse.Namespace) -> int:
         if args.check:
             d["check"] = _check_faults(pm, session, args.step)
     inert = [r["name"] for r in d.get("check", []) if r["changes_nothing"]]
-    verdict = "fail" if inert else ("checked" if args.check else "done")
+    failed = [r for r in d.get("check", []) if r["error"]]
+    verdict = "fail" if inert or failed else ("checked" if args.check else "done")
+    reasons = ([f"fault modes {inert} change nothing"] if inert else []) + \
+        ([f"the plant FMU failed in fault modes {[r['name'] for r in failed]}"] if failed else [])
     if args.json:
-        print(json.dumps(d | {"verdict": verdict}, indent=2, allow_nan=False))
+        print(dumps(d | {"verdict": verdict, "reason": "; ".join(reasons) or None}))
     else:
         print(f"ftc-verify plant: {d['map']}")
         print(f"  FMU {d['fmu']}: FMI {d['fmi_version']}, model identifier {d['model_identifier']}, "
@@ -120,56 +160,80 @@ def _cmd_plant(args: argparse.Namespace) -> int:
         for key, bound in d["region"].items():
             print(f"  region {key}: {bound}")
         for r in d.get("check", []):
-            print(f"  check mode {r['mode']} ({r['name']}): {'CHANGES NOTHING' if r['changes_nothing'] else 'ok'}")
+            state = "FMU FAILED" if r["error"] else ("CHANGES NOTHING" if r["changes_nothing"] else "ok")
+            print(f"  check mode {r['mode']} ({r['name']}): {state}" + (f": {r['error']}" if r["error"] else ""))
         for w in d["warnings"]:
             print(f"  warning: {w}")
-        print(f"  verdict: {verdict}" + (f" (fault modes {inert} change nothing)" if inert else ""))
-    return EXIT_NEGATIVE if inert else EXIT_OK
+        print(f"  verdict: {verdict}" + (f" ({'; '.join(reasons)})" if reasons else ""))
+    return EXIT_NEGATIVE if inert or failed else EXIT_OK
+
+
+def _linearize_failed(args: argparse.Namespace, pm: Any, reason: str, detail: str) -> int:
+    """The answer of a ``linearize`` that could not give a linearisation: the verdict line
+    (or one JSON object with ``verdict: fail``), exit 1, nothing written."""
+    if args.json:
+        print(dumps({"map": str(pm.source), "fmu": str(pm.fmu), "output": None, "verdict": "fail",
+                     "reason": reason, "detail": detail}))
+    else:
+        print(f"ftc-verify linearize: {pm.source} ({pm.fmu.name})")
+        print(f"  {detail}")
+        print(f"  verdict: fail ({reason})")
+    return EXIT_NEGATIVE
 
 
 def _cmd_linearize(args: argparse.Namespace) -> int:
-    from ..errors import FMUError
+    from ..errors import FMUError, PlantRunError
     from ..model.files import save_system
-    from ..plants.linearize import linearize_plant, trim_plant
+    from ..plants.linearize import ACCURACY_FRACTION, TrimFailed, linearize_plant, trim_plant
     from ..plants.plant_map import load_plant_map
 
     if args.output:
-        _check_output_file(args.output, "-o")
+        _check_output_file(args.output, "-o", inputs=(args.plant,))
     pm = load_plant_map(args.plant)
     if pm.chain is None and args.output:
         raise FMUError(f"{pm.source}: [chain] is missing; a system file needs the chain (add it to the map)")
-    if args.trim:
-        try:
-            pm = pm.with_states_op(trim_plant(pm))
-        except FMUError as exc:
-            print(f"ftc-verify linearize: {exc}")
-            print("  verdict: fail (no stationary point)")
-            return EXIT_NEGATIVE
-    lin = linearize_plant(pm, route=args.route)
-    if args.output:
+    try:
+        if args.trim:
+            try:
+                pm = pm.with_states_op(trim_plant(pm))
+            except TrimFailed as exc:
+                return _linearize_failed(args, pm, "no stationary point", str(exc))
+        lin = linearize_plant(pm, route=args.route)
+    except PlantRunError as exc:
+        return _linearize_failed(args, pm, "the linearisation could not be computed: the plant FMU failed", str(exc))
+    refused = bool(lin.inaccurate) and bool(args.output) and not args.accept_inaccurate
+    if args.output and not refused:
         save_system(lin.system(pm.name, pm.chain), args.output)
-    d = lin.to_dict() | {"map": str(pm.source), "fmu": str(pm.fmu), "output": args.output, "verdict": "done"}
+    verdict = "fail" if refused else "done"
+    d = lin.to_dict() | {"map": str(pm.source), "fmu": str(pm.fmu), "output": None if refused else args.output,
+                         "verdict": verdict}
+    if refused:
+        d["reason"] = (f"the error estimates exceed {ACCURACY_FRACTION:g} of the entries; the system file was not "
+                       "written (--accept-inaccurate writes it anyway)")
     if args.json:
-        print(json.dumps(d, indent=2, allow_nan=False))
-        return EXIT_OK
+        print(dumps(d))
+        return EXIT_NEGATIVE if refused else EXIT_OK
     print(f"ftc-verify linearize: {pm.source} ({pm.fmu.name}), route {lin.route}")
     print(f"  operating point x = {lin.states_op.tolist()}, u = {pm.inputs_op.tolist()}")
     for k, m in enumerate(lin.modes, start=1):
         print(f"  mode {k} ({m.name}): A = {np.round(m.A, 6).tolist()}, B = {np.round(m.B, 6).tolist()}; "
-              f"drift |f| = {np.linalg.norm(m.drift):.3g}; error estimates {m.errors}")
+              f"drift |f| = {np.linalg.norm(m.drift):.3g}; error estimates "
+              + ", ".join(f"{key} {val:.3g}" for key, val in m.errors.items()))
     for note in lin.notes:
         print(f"  note: {note}")
-    if args.output:
+    for warning in lin.inaccurate:
+        print(f"  warning: inaccurate linearisation: {warning}")
+    if args.output and not refused:
         print(f"  system written to {args.output}")
-    print("  verdict: done")
-    return EXIT_OK
+    print(f"  verdict: {verdict}" + (f" ({d['reason']})" if refused else ""))
+    return EXIT_NEGATIVE if refused else EXIT_OK
 
 
 def _cmd_build_fmu(args: argparse.Namespace) -> int:
     from ..plants.modelica import build_modelica_fmu
 
     if args.output:
-        _check_output_file(args.output, "-o", (".fmu",))
+        _check_output_file(args.output, "-o", (".fmu",), inputs=(args.model_file,))
     fmu = build_modelica_fmu(args.model_file, model=args.model, dest=args.output)
     print(f"ftc-verify build-fmu: {args.model_file}{f' ({args.model})' if args.model else ''}")
     print(f"  FMU {fmu}: model exchange + co-simulation, checked against CasADi's evaluation of the model")
@@ -179,7 +243,7 @@ def _cmd_build_fmu(args: argparse.Namespace) -> int:
 
 def add_plant_commands(sub: Any) -> None:
     """Register ``plant``, ``linearize`` and ``build-fmu`` on the CLI's subparsers."""
-    from ..plants.linearize import ROUTES
+    from ..plants.linearize import ACCURACY_FRACTION, ROUTES
 
     b = sub.add_parser("build-fmu", help="compile a flat Modelica model into an FMI 2.0 FMU (pymoca + CasADi + gcc)")
     b.add_argument("model_file", help="Modelica .mo file")
@@ -189,7 +253,8 @@ def add_plant_commands(sub: Any) -> None:
 
     p = sub.add_parser("plant", help="show a plant map's FMU interface and resolved roles (--check: every fault acts)")
     p.add_argument("plant", help="plant map TOML file")
-    p.add_argument("--check", action="store_true", help="one short step in every fault mode; flag faults that change nothing")
+    p.add_argument("--check", action="store_true", help="one short step in every fault mode; a fault that changes nothing, or an FMU "
+                        "call that fails (e.g. fmi2DoStep returning fmi2Error), fails the check (exit 1)")
     p.add_argument("--step", type=_positive, default=0.1, help="step length of --check (default 0.1)")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=_cmd_plant)
@@ -198,6 +263,9 @@ def add_plant_commands(sub: Any) -> None:
     lz.add_argument("plant", help="plant map TOML file")
     lz.add_argument("--trim", action="store_true", help="first find the states that make mode 1 stationary")
     lz.add_argument("--route", default=None, choices=ROUTES, help="default: the best the FMU allows")
-    lz.add_argument("-o", "--output", default=None, help="system TOML file to write")
+    lz.add_argument("-o", "--output", default=None, help="system TOML file to write (not the map itself)")
+    lz.add_argument("--accept-inaccurate", action="store_true",
+                    help=f"write -o even when a matrix's error estimate exceeds {ACCURACY_FRACTION:g} of its largest "
+                         "entry (without it such a linearisation is reported, exit 1, and not written)")
     lz.add_argument("--json", action="store_true")
     lz.set_defaults(func=_cmd_linearize)

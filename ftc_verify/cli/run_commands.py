@@ -11,11 +11,11 @@ Monte Carlo with the FMU, the path and the time named; both give exit 1, with th
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from typing import Any
 
 from ..errors import FTCError, PlantRunError
+from ..jsonable import dumps
 from .main import (EXIT_NEGATIVE, EXIT_OK, EXIT_UNCERTIFIED, EXIT_UNDECIDED, PLOT_SUFFIXES, _bad, _check_output_file,
                    _load, _positive, _positive_int, _nonneg_int, _seed, _strict)
 
@@ -76,7 +76,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     record = max(args.record, 1 if args.plot else 0)
     kept = args.paths if args.backend == "fmu" else min(record, args.paths)  # the reference backend streams
     _check_records_memory(system, controller, kept, args.horizon, args.step)
-    plant = _load_plant(args, system)
+    plant = _load_plant(args, system, controller)
     if args.backend == "fmu" and plant is None:
         _check_fmu_dims(system, args.system)
     if args.fault_during_delay:
@@ -114,7 +114,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     d = _strict(res.to_dict())
     verdict = "fail (a path diverged or the plant FMU failed)" if d["divergence"] else "done"
     if args.json:
-        print(json.dumps(d | {"verdict": "fail" if d["divergence"] else "done"}, indent=2, allow_nan=False))
+        print(dumps(d | {"verdict": "fail" if d["divergence"] else "done"}))
     else:
         _print_simulation(d, res, system.name, args, delta.kind)
         print(f"  verdict: {verdict}")
@@ -125,8 +125,7 @@ def _plant_failed(exc: PlantRunError, args: argparse.Namespace, name: str, seed:
     """``simulate`` when the plant FMU crashed or returned fmi2Fatal: the failure, exit 1."""
     if args.json:
         failure = {"fmu": exc.fmu, "path": exc.path, "time": exc.time, "detail": exc.detail}
-        print(json.dumps(_strict({"backend": args.backend, "seed": seed, "plant_failure": failure,
-                                  "verdict": "fail"}), indent=2, allow_nan=False))
+        print(dumps({"backend": args.backend, "seed": seed, "plant_failure": failure, "verdict": "fail"}))
     else:
         print(f"ftc-verify simulate: {name}, backend {args.backend}, seed {seed}")
         print(f"  PLANT FMU FAILED: {exc}")
@@ -157,16 +156,19 @@ def _print_simulation(d: dict[str, Any], res: Any, name: str, args: argparse.Nam
         print(f"  plot written to {args.plot}")
 
 
-def _load_plant(args: argparse.Namespace, system: Any) -> Any:
-    """The ``--plant`` map checked against the system (None without ``--plant``)."""
+def _load_plant(args: argparse.Namespace, system: Any, controller: Any) -> Any:
+    """The ``--plant`` map checked against the system and, when given, the controller
+    (None without ``--plant``): every mismatch is refused before any work starts."""
     if getattr(args, "plant", None) is None:
         return None
     if getattr(args, "backend", "fmu") != "fmu":
         raise _bad(f"--plant {args.plant}: a plant map is co-simulated; it needs --backend fmu")
-    from ..plants.plant_map import check_against_system, load_plant_map
+    from ..plants.plant_map import check_against_system, check_controller, load_plant_map
 
     plant = load_plant_map(args.plant)
     check_against_system(plant, system)
+    if controller is not None:
+        check_controller(plant, controller, args.controller)
     plant.require_states_op("co-simulation")
     return plant
 
@@ -191,7 +193,7 @@ def _cmd_verify(args: argparse.Namespace) -> int:
     _check_horizon(args.step, args.horizon)
     check_out_dir(args.out)
     system, controller = _load(args.system, args.controller)
-    plant = _load_plant(args, system)
+    plant = _load_plant(args, system, controller)
     if plant is None:
         _check_fmu_dims(system, args.system)
     if controller is not None:

@@ -1,14 +1,15 @@
 """``ftc-verify synthesize``: state-feedback or output-feedback synthesis, certified by the
 core analysis; the controller file is written only when certified. Exit codes: 0
-certified, 1 not found or not certified (with the diagnosis), 2 bad input."""
+certified, 1 not found or not certified (with the diagnosis), 2 bad input (an output file
+that is the input system file included: never replaced)."""
 
 from __future__ import annotations
 
 import argparse
-import json
 from typing import Any
 
-from .main import EXIT_NEGATIVE, EXIT_OK, _bad, _check_output_file, _fmt, _positive, _strict
+from ..jsonable import dumps
+from .main import EXIT_NEGATIVE, EXIT_OK, _bad, _check_output_file, _fmt, _positive
 
 __all__ = ["add_synthesis_command"]
 
@@ -60,7 +61,7 @@ def _cmd_synthesize(args: argparse.Namespace) -> int:
         raise _bad(f"--order {args.order}: needs --output-feedback")
     if args.order is not None and args.order < 0:
         raise _bad(f"--order {args.order}: must be >= 0 (0 is static output feedback)")
-    _check_output_file(args.output, "-o/--output")
+    _check_output_file(args.output, "-o/--output", inputs=(args.system,))
     system = load_system(args.system)
     if args.output_feedback:
         from ..synthesis.output_feedback import synthesize_output_feedback
@@ -78,7 +79,7 @@ def _cmd_synthesize(args: argparse.Namespace) -> int:
         write_atomic(args.output, dump_controller(named))
     verdict = "certified" if res.certified else "NOT certified"
     if args.json:
-        print(json.dumps(_strict(res.to_dict() | {"verdict": verdict}), indent=2, allow_nan=False))
+        print(dumps(res.to_dict() | {"verdict": verdict}))
     else:
         _print_synthesis(res)
         print(f"  controller {'written to ' + str(args.output) if res.certified else 'not written (not certified)'}")
@@ -107,7 +108,7 @@ def add_synthesis_command(sub: Any) -> None:
     y.add_argument("--seed", type=int, default=0, help="seed of the descent's random starts (default 0)")
     y.add_argument("--k-max", type=_positive, default=None,
                    help="bound on the spectral norm of every gain (output feedback: of every controller block)")
-    y.add_argument("-o", "--output", required=True, help="controller TOML file to write (only when certified)")
+    y.add_argument("-o", "--output", required=True, help="controller TOML file to write (only when certified; not the system file)")
     y.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     y.add_argument("--solver", default="auto", choices=["auto", "clarabel", "sdpa", "scs"])
     y.set_defaults(func=_cmd_synthesize)

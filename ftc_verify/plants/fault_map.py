@@ -16,7 +16,7 @@ from __future__ import annotations
 import difflib
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -161,6 +161,9 @@ class FaultInjectionMap:
         The :class:`OperatingPoint` (None: the origin, absolute values = deviations).
     fault_names
         A name per fault mode (for messages and reports; default ``mode 1``, ...).
+    source
+        The plant map file this map comes from, named in errors about its roles (None:
+        built in code; not compared).
     """
 
     fault: tuple[str, ...]
@@ -176,6 +179,7 @@ class FaultInjectionMap:
     parameters: tuple[tuple[str, float | int | bool], ...] = ()
     operating_point: OperatingPoint | None = None
     fault_names: tuple[str, ...] = ()
+    source: str | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
         for name in ROLES:
@@ -294,9 +298,24 @@ def _readable(v: Any, role: str, err: Callable[[str], FMUError]) -> Any:
     return v
 
 
+def _state(v: Any, continuous_states: set[str], source: str | None, err: Callable[[str], FMUError]) -> Any:
+    """``v`` if it can be a state ``x``: Real, and a continuous-time state of the FMU (the
+    variable of a derivative in ``ModelStructure/Derivatives``) or at least a local or output
+    variable with variability continuous; a parameter or an input is refused."""
+    _readable(v, "state x", err)
+    if v.name in continuous_states or (v.causality in ("local", "output") and v.variability == "continuous"):
+        return v
+    where = f"{source}: [variables].states" if source else "FaultInjectionMap.states"
+    raise err(f"{where}: variable {v.name!r} has causality {v.causality!r} and variability {v.variability!r}; a "
+              "state must be a continuous-time state of the FMU (listed in ModelStructure/Derivatives) or at least a "
+              "local or output variable with variability 'continuous' (parameters and inputs are written by the "
+              "loop, not states)")
+
+
 def resolve_variables(md: Any, mapping: FaultInjectionMap, err: Callable[[str], FMUError]) -> ResolvedVariables:
     """Check every name of ``mapping`` against the model description ``md`` (fmpy's);
-    ``err(what)`` builds the error naming the FMU."""
+    ``err(what)`` builds the error naming the FMU. Each role's variables must fit it: see
+    :func:`_settable` (written roles), :func:`_state` (the states) and the checks below."""
     by_name = {v.name: v for v in md.modelVariables}
 
     def lookup(names: Sequence[str], role: str) -> list[Any]:
@@ -317,7 +336,9 @@ def resolve_variables(md: Any, mapping: FaultInjectionMap, err: Callable[[str], 
     dist = [_settable(v, "disturbance input w", ("Real",), err)
             for v in lookup(m.disturbances, "disturbance input w")]
     delta = [_settable(v, "Delta input", ("Real",), err) for v in lookup(m.delta1 + m.delta2, "Delta input")]
-    states = [_readable(v, "state x", err) for v in lookup(m.states, "state x")]
+    continuous_states = {d.variable.derivative.name for d in md.derivatives
+                         if d.variable is not None and d.variable.derivative is not None}
+    states = [_state(v, continuous_states, m.source, err) for v in lookup(m.states, "state x")]
     outputs = [_readable(v, "output y", err) for v in lookup(m.outputs, "output y")]
     measured = [_readable(v, "measured output y_m", err) for v in lookup(m.measured, "measured output y_m")]
     params = lookup([k for k, _ in m.parameters], "parameter")

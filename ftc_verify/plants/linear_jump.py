@@ -34,6 +34,7 @@ import importlib.util
 import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -57,6 +58,7 @@ __all__ = [
     "FMUDims",
     "source_dir",
     "build_lock",
+    "run_compiler",
     "fmi2_include_dir",
     "cache_dir",
     "build_binary",
@@ -160,14 +162,72 @@ def _find_gcc(src: Path) -> str:
     return gcc
 
 
-def _compiler_identity(gcc: str) -> str:
+def run_compiler(cmd: list[str], what: str, timeout: float = 600.0) -> subprocess.CompletedProcess[str]:
+    """Run the compiler command ``cmd`` and return its completed process (text output).
+
+    gcc starts in its own process group (``start_new_session``) with ``TMPDIR`` set to a
+    fresh folder this call owns, so its helpers (``cc1``, ``as``, ``collect2``) and their
+    ``cc*.s`` / ``cc*.o`` files are reachable: on *any* exception while it runs (Ctrl-C, the
+    command line's SIGTERM exception, the time limit) the whole group is killed with SIGKILL
+    and waited for before the exception goes on, and the folder is removed in every case.
+
+    Parameters
+    ----------
+    cmd : list of str
+        The command line, compiler first.
+    what : str
+        What is compiled (a file name), for the error messages.
+    timeout : float
+        Seconds before the group is killed and :class:`FMUError` raised.
+
+    Raises
+    ------
+    FMUError
+        When the compiler cannot be started or does not finish within ``timeout``.
+    """
+    scratch = tempfile.mkdtemp(prefix="ftc-verify-gcc-")
+    proc: subprocess.Popen[str] | None = None
     try:
-        out = subprocess.run(
-            [gcc, "-dumpfullversion", "-dumpmachine"],
-            capture_output=True, text=True, timeout=60, check=False,
-        )
-    except OSError as exc:
-        raise FMUError(f"{gcc}: cannot run the compiler: {exc.strerror}") from None
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                env=os.environ | {"TMPDIR": scratch}, start_new_session=True)
+        out, err = proc.communicate(timeout=timeout)
+    except BaseException as exc:
+        if proc is not None:
+            _kill_group(proc)
+        if isinstance(exc, OSError):
+            raise FMUError(f"{cmd[0]}: cannot run the compiler: {exc.strerror}") from None
+        if isinstance(exc, subprocess.TimeoutExpired):
+            raise FMUError(f"{what}: gcc did not finish within {timeout:g} s") from None
+        raise
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+    return subprocess.CompletedProcess(cmd, proc.returncode, out, err)
+
+
+def _kill_group(proc: subprocess.Popen[str]) -> None:
+    """SIGKILL the process group of ``proc`` (its own session), wait for it and (up to 5 s)
+    for the rest of the group (``cc1``, ``as``: reaped by init once gcc is gone), close its pipes."""
+    import time
+
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except (ProcessLookupError, PermissionError):
+        pass
+    proc.wait()
+    deadline = time.monotonic() + 5.0
+    while time.monotonic() < deadline:
+        try:
+            os.killpg(proc.pid, 0)
+        except (ProcessLookupError, PermissionError):
+            break
+        time.sleep(0.01)
+    for pipe in (proc.stdout, proc.stderr):
+        if pipe is not None:
+            pipe.close()
+
+
+def _compiler_identity(gcc: str) -> str:
+    out = run_compiler([gcc, "-dumpfullversion", "-dumpmachine"], gcc, timeout=60)
     if out.returncode != 0:
         raise FMUError(f"{gcc}: `gcc -dumpfullversion -dumpmachine` failed: {out.stderr.strip()}")
     return " ".join(out.stdout.split())
@@ -253,12 +313,7 @@ def _compile_binary(gcc: str, src: Path, include: Path, target: Path) -> None:
         "-o", str(tmp), *_link_flags(),
     ]
     try:
-        try:
-            proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600, check=False)
-        except OSError as exc:
-            raise FMUError(f"{gcc}: cannot run the compiler: {exc.strerror}") from None
-        except subprocess.TimeoutExpired:
-            raise FMUError(f"{src}: gcc did not finish within 600 s") from None
+        proc = run_compiler(cmd, str(src))
         if proc.returncode != 0:
             raise FMUError(
                 f"{src}: compiling the {MODEL_IDENTIFIER} FMU failed (gcc exit status "
@@ -306,7 +361,24 @@ def _slug(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("._-") or "system"
 
 
+def _umask() -> int:
+    """The process's umask, read without changing it where Linux tells it
+    (``/proc/self/status``), else by setting and restoring it."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def _write_zip(path: Path, members: list[tuple[str, bytes, int]]) -> None:
+    """Write the FMU archive atomically; the file gets ``0o666 & ~umask`` like any other
+    output (the temporary file it is renamed from was created ``0o600``)."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
@@ -321,6 +393,7 @@ def _write_zip(path: Path, members: list[tuple[str, bytes, int]]) -> None:
                 info.compress_type = zipfile.ZIP_DEFLATED
                 info.external_attr = (0o100000 | mode) << 16
                 zf.writestr(info, data)
+        os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
     except OSError as exc:
         raise FMUError(f"{path}: cannot write the FMU: {exc.strerror}") from None

@@ -37,26 +37,88 @@ Routes, best first (:func:`linearize_plant` picks the best the FMU allows):
 
 The outputs are linear maps of the state read at :math:`t = 0` after initialisation
 (central differences; an output depending directly on ``u`` or ``w`` is reported).
+
+Accuracy: a matrix whose error estimate exceeds :data:`ACCURACY_FRACTION` of its largest
+entry is listed in :attr:`Linearisation.inaccurate` (the command line warns and writes the
+system file only with ``--accept-inaccurate``).
+
+Every FMI call goes through the session's error path (:meth:`FMUSession.call_error`): an FMU
+that fails during a probe raises :class:`~ftc_verify.errors.PlantRunError` naming the FMU
+file, the call, the fault mode and time, and the FMU's own log messages (:func:`fmi_calls`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import numpy as np
 import scipy.linalg
 
-from ..errors import FMUError, ValidationError
+from ..errors import FMUError, PlantRunError, ValidationError
 from ..model.system import FTCSystem, JointChain, Mode
 from .fmu_session import FMUSession, VarGroup, c_buffer
 from .plant_map import PlantMap
 
-__all__ = ["ModeLinearisation", "Linearisation", "linearize_plant", "trim_plant", "ROUTES"]
+__all__ = ["ModeLinearisation", "Linearisation", "linearize_plant", "trim_plant", "ROUTES", "ACCURACY_FRACTION",
+           "TrimFailed", "fmi_calls", "fmu_failure"]
 
 ROUTES = ("directional", "finite-differences", "identification")
 #: The ``fmi2SetupExperiment`` tolerance used while linearising (or the map's, if tighter).
 LINEARISATION_TOLERANCE = 1e-12
+#: Largest error estimate a linearised matrix may have, as a fraction of its largest absolute
+#: entry (``A``; ``[B D]``; ``[C; Cy]``, per fault mode). A matrix whose entries are all below
+#: 1e-6 of the largest entry of ``[A B D]`` is measured against that instead (an exactly zero
+#: block is not "inaccurate" for a rounding-level estimate). Above it the linearisation is
+#: reported as inaccurate (:attr:`Linearisation.inaccurate`): the text output warns, the JSON
+#: lists it, and ``linearize -o`` refuses to write it without ``--accept-inaccurate``.
+ACCURACY_FRACTION = 1e-3
+
+
+class TrimFailed(FMUError):
+    """:func:`trim_plant` found no stationary point (a result of the plant, not bad input)."""
+
+
+def fmu_failure(session: FMUSession, exc: Exception, when: str, names: Sequence[str] = ()) -> PlantRunError:
+    """The :class:`PlantRunError` for a failed FMI call, built by :meth:`FMUSession.call_error`.
+
+    Parameters
+    ----------
+    session : FMUSession
+        The session the call was made on.
+    exc : Exception
+        fmpy's ``FMICallException``, or the :class:`FMUError` a session method (e.g.
+        :meth:`FMUSession.start_path`) already built for one.
+    when : str
+        Where the call happened (fault mode, time), e.g. ``"at t = 0 in fault mode 1"``.
+    names : sequence of str
+        The variables of the call.
+
+    Returns
+    -------
+    PlantRunError
+        Naming the FMU file, the call, ``when`` and the FMU's own log messages.
+    """
+    err = exc if isinstance(exc, FMUError) else session.call_error(exc, when, names)
+    text, prefix = str(err), f"{session.path}: "
+    return PlantRunError(str(session.path), text[len(prefix):] if text.startswith(prefix) else text)
+
+
+@contextmanager
+def fmi_calls(session: FMUSession, when: str, names: Sequence[str] = ()) -> Iterator[None]:
+    """Turn a failing FMI call inside the block into :func:`fmu_failure`'s
+    :class:`PlantRunError` (``FMICallException`` and the session's own call errors; fault
+    values must have been validated before, :meth:`FMUSession.fault_writes`)."""
+    from fmpy.fmi1 import FMICallException
+
+    try:
+        yield
+    except PlantRunError:
+        raise
+    except (FMICallException, FMUError) as exc:
+        raise fmu_failure(session, exc, when, names) from None
 
 
 @dataclass(frozen=True)
@@ -82,6 +144,7 @@ class Linearisation:
     modes: tuple[ModeLinearisation, ...]
     states_op: np.ndarray
     notes: tuple[str, ...]
+    inaccurate: tuple[str, ...] = ()
 
     def system(self, name: str, chain: JointChain) -> FTCSystem:
         """The core-format system (``A, B, C, D, Cy`` per mode) with ``chain``."""
@@ -91,6 +154,7 @@ class Linearisation:
 
     def to_dict(self) -> dict[str, Any]:
         return {"route": self.route, "states_op": self.states_op.tolist(), "notes": list(self.notes),
+                "accuracy_fraction": ACCURACY_FRACTION, "inaccurate": list(self.inaccurate),
                 "modes": [{"name": m.name, "drift": m.drift.tolist(), "drift_norm": float(np.linalg.norm(m.drift)),
                            "errors": m.errors} for m in self.modes]}
 
@@ -112,14 +176,20 @@ class _Probe:
         self.der = VarGroup(ders) if all(d is not None for d in ders) else None
         self.out = VarGroup(session.variables.outputs + session.variables.measured)
         self.states = VarGroup(session.variables.states)
+        for mode in range(pm.m):  # the map's fault values, checked before any FMI call
+            session.fault_writes(mode)
+        self.at = ""
 
     def start(self, mode: int, x: np.ndarray, uw: np.ndarray) -> None:
         s = self.s
-        s.start_path(c_buffer(self.real, x.tolist()), mode, None)
-        s.slave.fmi2SetReal(s.slave.component, s.uw.vr, s.uw.n, c_buffer(self.real, uw.tolist()))
+        self.at = f"in fault mode {mode + 1} ({self.pm.faults[mode].name}) while linearising"
+        with fmi_calls(s, f"at t = 0 {self.at}", s.uw.names):
+            s.start_path(c_buffer(self.real, x.tolist()), mode, None)
+            s.slave.fmi2SetReal(s.slave.component, s.uw.vr, s.uw.n, c_buffer(self.real, uw.tolist()))
 
-    def read(self, grp: VarGroup) -> np.ndarray:
-        self.s.slave.fmi2GetReal(self.s.slave.component, grp.vr, grp.n, grp.buf)
+    def read(self, grp: VarGroup, t: float = 0.0) -> np.ndarray:
+        with fmi_calls(self.s, f"at t = {t:g} {self.at}", grp.names):
+            self.s.slave.fmi2GetReal(self.s.slave.component, grp.vr, grp.n, grp.buf)
         return np.array(list(grp.buf)[:grp.n], dtype=float)
 
     def derivative(self, mode: int, x: np.ndarray, uw: np.ndarray) -> np.ndarray:
@@ -133,8 +203,9 @@ class _Probe:
 
     def flow(self, mode: int, x: np.ndarray, uw: np.ndarray, h: float) -> np.ndarray:
         self.start(mode, x, uw)
-        self.s.slave.doStep(0.0, h)
-        return self.read(self.states)
+        with fmi_calls(self.s, f"in the step from t = 0 to t = {h:g} {self.at}"):
+            self.s.slave.doStep(0.0, h)
+        return self.read(self.states, h)
 
 
 def _central(fun: Callable[[np.ndarray], np.ndarray], z0: np.ndarray, delta: np.ndarray) -> np.ndarray:
@@ -164,7 +235,7 @@ def _identify(probe: _Probe, mode: int, x0: np.ndarray, uw0: np.ndarray, h: floa
     L = scipy.linalg.logm(M) / h
     if np.iscomplexobj(L):
         if np.max(np.abs(L.imag)) > 1e-9 * max(1.0, np.max(np.abs(L.real))):
-            raise FMUError(f"identification: logm of the step response is complex for step {h!r}; "
+            raise FMUError(f"identification: logm of the step response is complex for step {h:g}; "
                            "the step is too long for the plant's fastest oscillation")
         L = L.real
     return L[:n]
@@ -180,7 +251,8 @@ def _mode(probe: _Probe, route: str, mode: int, x0: np.ndarray, uw0: np.ndarray,
         probe.start(mode, x0, uw0)
         known = [v.valueReference for v in s.variables.states + s.variables.inputs + s.variables.disturbances]
         unknown = list(probe.der.vr)  # type: ignore[union-attr]
-        J = np.column_stack([s.slave.getDirectionalDerivative(unknown, [vr], [1.0]) for vr in known])
+        with fmi_calls(s, f"at t = 0 {probe.at}", probe.der.names):  # type: ignore[union-attr]
+            J = np.column_stack([s.slave.getDirectionalDerivative(unknown, [vr], [1.0]) for vr in known])
         f = probe.read(probe.der)  # type: ignore[arg-type]
         errors["A"] = errors["B"] = 0.0
     elif route == "finite-differences":
@@ -234,7 +306,23 @@ def linearize_plant(pm: PlantMap, *, route: str | None = None, rel_step: float =
              for k, m in enumerate(modes, start=1) if np.linalg.norm(m.drift) > 1e-8 * max(1.0, np.linalg.norm(x_op))]
     notes += [f"mode {k}: an output depends directly on u or w (largest entry {m.errors['output_feedthrough']:.3g}); "
               "the core model has no feedthrough" for k, m in enumerate(modes, start=1) if "output_feedthrough" in m.errors]
-    return Linearisation(chosen, modes, x_op, tuple(notes))
+    return Linearisation(chosen, modes, x_op, tuple(notes), tuple(w for k, m in enumerate(modes, start=1)
+                                                                  for w in _inaccurate(k, m)))
+
+
+def _inaccurate(k: int, m: ModeLinearisation) -> list[str]:
+    """Why the matrices of mode ``k`` miss :data:`ACCURACY_FRACTION` (empty: they do not)."""
+    mats = {"A": ("A", m.A), "B": ("[B D]", np.hstack([m.B, m.D])),
+            "C": ("[C; Cy]", m.C if m.Cy is None else np.vstack([m.C, m.Cy]))}
+    floor = 1e-6 * float(np.max(np.abs(np.hstack([m.A, m.B, m.D])), initial=0.0))
+    out = []
+    for key, (label, M) in mats.items():
+        err = m.errors.get(key)
+        scale = max(float(np.max(np.abs(M), initial=0.0)), floor)
+        if err is not None and err > ACCURACY_FRACTION * scale:
+            out.append(f"mode {k} ({m.name}): the error estimate of {label}, {err:.3g}, exceeds "
+                       f"{ACCURACY_FRACTION:g} of its largest entry {scale:.3g}")
+    return out
 
 
 def trim_plant(pm: PlantMap, *, x_guess: np.ndarray | None = None, tol: float = 1e-9) -> np.ndarray:
@@ -261,6 +349,6 @@ def trim_plant(pm: PlantMap, *, x_guess: np.ndarray | None = None, tol: float = 
         resid = float(np.max(np.abs(fun(sol.x)))) if np.all(np.isfinite(sol.x)) else np.inf
     scale = max(1.0, float(np.max(np.abs(sol.x)))) if np.all(np.isfinite(sol.x)) else 1.0
     if not resid <= 1e-6 * scale:
-        raise FMUError(f"{pm.fmu}: trim failed: no stationary point of mode 1 found at inputs "
-                       f"{pm.inputs_op.tolist()} (residual {resid:.3g}; {sol.message})")
+        raise TrimFailed(f"{pm.fmu}: trim failed: no stationary point of mode 1 found at inputs "
+                       f"{pm.inputs_op.tolist()} (residual {resid:.3g}; {' '.join(str(sol.message).split())})")
     return sol.x

@@ -475,8 +475,8 @@ def build_modelica_fmu(mo_file: str | Path, *, model: str | None = None, dest: s
     fmu = build_ode_fmu(translation.spec, None if dest is None else Path(dest))
     try:
         check_modelica_fmu(fmu, translation)
-    except Exception:
-        fmu.unlink(missing_ok=True)  # never leave a wrong FMU behind
+    except BaseException:  # a wrong FMU, or one interrupted before it was checked: never left behind
+        fmu.unlink(missing_ok=True)
         raise
     return fmu
 

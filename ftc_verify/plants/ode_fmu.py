@@ -43,7 +43,6 @@ import itertools
 import math
 import os
 import re
-import subprocess
 import tempfile
 import uuid
 from dataclasses import dataclass
@@ -54,7 +53,7 @@ from .. import __version__
 from ..errors import FMUError, ValidationError
 from .linear_jump import (CFLAGS, FMI2_HEADERS, _compiler_identity, _file_hash, _find_gcc, _link_flags,
                           _platform, _record_hash, _write_zip, _cached, build_lock, cache_dir,
-                          fmi2_include_dir)
+                          fmi2_include_dir, run_compiler)
 
 __all__ = ["DEFAULT_RTOL", "GLUE_FILES", "OdeVariable", "OdeFmuSpec", "ode_source_dir", "ode_spec_header",
            "ode_model_description", "build_ode_binary", "build_ode_fmu", "compile_count", "motor_spec"]
@@ -341,12 +340,7 @@ def _compile(gcc: str, spec: OdeFmuSpec, sources: list[Path], includes: list[Pat
     global _COMPILES
     cmd = [gcc, *CFLAGS, *(a for d in includes for a in ("-I", str(d))), *map(str, sources), "-o", str(out),
            *_link_flags()]
-    try:
-        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600, check=False)
-    except OSError as exc:
-        raise FMUError(f"{gcc}: cannot run the compiler: {exc.strerror}") from None
-    except subprocess.TimeoutExpired:
-        raise FMUError(f"{spec.model_name}.c: gcc did not finish within 600 s") from None
+    proc = run_compiler(cmd, f"{spec.model_name}.c")  # own process group and TMPDIR, killed on any exception
     _COMPILES += 1
     if proc.returncode != 0:
         raise FMUError(

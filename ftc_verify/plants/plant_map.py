@@ -62,7 +62,7 @@ from ..model.system import FTCSystem, JointChain
 from .fault_map import FaultInjectionMap, OperatingPoint
 
 __all__ = ["FaultMode", "PlantMap", "load_plant_map", "dump_plant_map", "save_plant_map", "ROLE_KEYS",
-           "map_path_for", "linear_jump_plant_map", "check_against_system"]
+           "map_path_for", "linear_jump_plant_map", "check_against_system", "check_controller"]
 
 _TOP = {"fmu", "name", "tolerance", "variables", "operating_point", "parameters", "region", "fault", "chain"}
 #: Keys of ``[variables]`` and what they carry.
@@ -164,7 +164,7 @@ class PlantMap:
                 fault_values=tuple(f.values for f in self.faults), initial_states=self.initial_states,
                 delta1=self.delta1, delta2=self.delta2, parameters=self.parameters,
                 operating_point=None if self.states_op is None else self.operating_point(),
-                fault_names=tuple(f.name for f in self.faults),
+                fault_names=tuple(f.name for f in self.faults), source=str(self.source),
             )
         except ValidationError as exc:
             raise ProblemFileError(f"{self.source}: {exc}") from None
@@ -187,18 +187,29 @@ def _scalar(value: Any, where: str) -> Scalar:
     raise ProblemFileError(f"{where}: expected a finite number or true/false, got {value!r}")
 
 
+def _shown(value: Any) -> str:
+    """``value`` for an error message: numpy scalars and arrays as plain numbers and lists
+    (``200.0``, ``[1.0, 2.0]``, never ``np.float64(200.0)``), anything else as its repr."""
+    if isinstance(value, (np.ndarray, np.generic)):
+        return repr(value.tolist())
+    if isinstance(value, (list, tuple)):
+        return repr([v.tolist() if isinstance(v, (np.ndarray, np.generic)) else v for v in value])
+    return repr(value)
+
+
 def _floats(value: Any, count: int, where: str, *, finite: bool = True) -> np.ndarray:
     if isinstance(value, (str, bytes, dict)) or not isinstance(value, (list, tuple, np.ndarray)):
-        raise ProblemFileError(f"{where}: expected a list of {count} numbers, got {value!r}")
+        raise ProblemFileError(f"{where}: expected a list of {count} numbers, got {_shown(value)}")
     if len(value) != count:
-        raise ProblemFileError(f"{where}: expected {count} numbers (one per variable), got {len(value)}: {value!r}")
+        raise ProblemFileError(f"{where}: expected {count} numbers (one per variable), got {len(value)}: "
+                               f"{_shown(value)}")
     out = []
     for v in value:
         if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
-            raise ProblemFileError(f"{where}: expected numbers, got {v!r}")
+            raise ProblemFileError(f"{where}: expected numbers, got {_shown(v)}")
         f = float(v)
         if math.isnan(f) or (finite and not math.isfinite(f)):
-            raise ProblemFileError(f"{where}: expected finite numbers, got {v!r}")
+            raise ProblemFileError(f"{where}: expected finite numbers, got {_shown(v)}")
         out.append(f)
     return np.asarray(out, dtype=float)
 
@@ -254,7 +265,8 @@ def _bounds(p: Path, reg: dict[str, Any], role: str, count: int) -> tuple[np.nda
     bad = np.flatnonzero(~(lo < hi))
     if bad.size:
         k = int(bad[0])
-        raise ProblemFileError(f"{p}: [region]: {role}_min[{k}] = {lo[k]!r} is not below {role}_max[{k}] = {hi[k]!r}")
+        raise ProblemFileError(f"{p}: [region]: {role}_min[{k}] = {_shown(lo[k])} is not below "
+                               f"{role}_max[{k}] = {_shown(hi[k])}")
     return lo, hi
 
 
@@ -418,3 +430,36 @@ def check_against_system(pm: PlantMap, system: FTCSystem) -> None:
     if pm.measured and len(pm.measured) != system.ny_measured:
         raise ProblemFileError(f"{pm.source}: [variables].measured names {len(pm.measured)} variable(s), but the "
                                f"system {system.name!r} has {system.ny_measured} measured outputs (rows of Cy)")
+
+
+def check_controller(plant: PlantMap, controller: Any, source: str | os.PathLike[str]) -> None:
+    """Raise unless ``controller`` can read the plant map's signals, before any analysis.
+
+    An output-feedback controller (``controller.measures == "output"``) reads
+    ``controller.n_v`` measured outputs: ``[variables].measured`` must name exactly that many
+    (an empty list is refused: there is nothing to read); a state-feedback controller reads
+    ``controller.n_v`` states: ``[variables].states`` must name that many.
+
+    Parameters
+    ----------
+    plant : PlantMap
+        The loaded plant map.
+    controller : Controller
+        The loaded controller (:class:`ftc_verify.controllers.controller.Controller`).
+    source : str or path
+        The controller's file, named in the error.
+
+    Raises
+    ------
+    ProblemFileError
+        Naming the map file, the key, the count, the controller file and its input count.
+    """
+    output = controller.measures == "output"
+    role = "measured" if output else "states"
+    kind, signals = ("output-feedback", "measured outputs") if output else ("state-feedback", "states")
+    got, want = len(getattr(plant, role)), int(controller.n_v)
+    if got == want:
+        return
+    named = "is empty" if got == 0 else f"names {got} variable(s)"
+    raise ProblemFileError(f"{plant.source}: [variables].{role} ({ROLE_KEYS[role]}) {named}, but the {kind} "
+                           f"controller {source} reads {want} {signals} (its input count n_v = {want})")

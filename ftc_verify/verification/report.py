@@ -11,7 +11,6 @@ but a previous report, so that no user file is ever replaced.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import shutil
@@ -21,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ProblemFileError
+from ..jsonable import dumps
 from .verify import VerifyReport
 
 __all__ = ["REPORT_FILES", "check_out_dir", "write_report", "render_markdown"]
@@ -190,7 +190,7 @@ def write_report(rep: VerifyReport, out_dir: str | os.PathLike[str]) -> list[Pat
     except OSError as exc:
         raise ProblemFileError(f"{out}: cannot create a staging folder beside it: {exc.strerror}") from None
     try:
-        (stage / "report.json").write_text(json.dumps(rep.to_dict(), indent=2, allow_nan=False) + "\n")
+        (stage / "report.json").write_text(dumps(rep.to_dict()) + "\n")
         (stage / "report.md").write_text(render_markdown(rep))
         if rep.records:
             plant = rep.plant or {}

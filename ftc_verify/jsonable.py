@@ -1,0 +1,58 @@
+"""The one way results become JSON: typed, strict, and nothing numpy escapes.
+
+Every ``to_dict`` of a result object and every JSON the command line prints or writes
+goes through :func:`jsonable` (and :func:`dumps`), which converts recursively to the
+built-in types JSON knows:
+
+* ``dict`` (keys as ``str``), ``list`` (from lists, tuples and numpy arrays), ``str``,
+  ``bool`` (also ``numpy.bool_``), ``int`` (also numpy integers), ``None``;
+* ``float`` (also numpy floats) when finite, else ``None`` (strict JSON has no NaN or
+  Infinity; the fields that can be infinite say so in their documentation);
+* ``pathlib.Path`` as its text, complex numbers as ``[real, imag]``.
+
+Anything else raises ``TypeError`` naming the value's type and where it sits (the chain
+of keys and indices), so a new field of an unexpected type fails in the tests instead of
+in a user's run.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import PurePath
+from typing import Any
+
+import numpy as np
+
+__all__ = ["jsonable", "dumps"]
+
+
+def jsonable(value: Any, where: str = "$") -> Any:
+    """``value`` as JSON-ready built-ins (module docstring); ``where`` names its place in
+    the error message."""
+    if value is None or isinstance(value, (str, bool)):
+        return value
+    if isinstance(value, np.bool_):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        v = float(value)
+        return v if math.isfinite(v) else None
+    if isinstance(value, (complex, np.complexfloating)):
+        return [jsonable(value.real, where), jsonable(value.imag, where)]
+    if isinstance(value, dict):
+        return {str(k): jsonable(v, f"{where}.{k}") for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [jsonable(v, f"{where}[{i}]") for i, v in enumerate(value)]
+    if isinstance(value, np.ndarray):
+        return jsonable(value.tolist(), where)
+    if isinstance(value, PurePath):
+        return str(value)
+    raise TypeError(f"{where}: a {type(value).__module__}.{type(value).__name__} cannot be written as JSON "
+                    f"({value!r:.80})")
+
+
+def dumps(value: Any) -> str:
+    """``value`` as strict JSON text (:func:`jsonable`, indented by 2)."""
+    return json.dumps(jsonable(value), indent=2, allow_nan=False)
