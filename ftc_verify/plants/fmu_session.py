@@ -119,7 +119,7 @@ class FMUSession:
 
     :attr:`stats` counts library loads, instantiations (and re-instantiations after a
     failed ``fmi2Reset``), resets, paths and steps;
-    :attr:`messages` keeps the FMU's last 200 log messages, :attr:`log_counts` counts them
+    :attr:`messages` keeps the FMU's last 200 log messages of the current path, :attr:`log_counts` counts them
     per status. On any error while opening, everything opened so far is released.
     """
 
@@ -374,8 +374,7 @@ class FMUSession:
                     slave.freeLibrary()
                 except Exception:
                     pass
-        self._callbacks = None
-        self._logger_ref = None
+        self._callbacks = self._logger_ref = None
         if self._tmp is not None:
             self._tmp.cleanup()
             self._tmp = None
@@ -496,6 +495,7 @@ class FMUSession:
         initial state ``x0`` (ctypes), the 0-based true mode and the first Delta values."""
         from fmpy.fmi1 import FMICallException
 
+        self.messages.clear()  # errors of this path quote this path's messages only
         if self._dirty:
             try:
                 self.slave.reset()
