@@ -11,9 +11,7 @@ import os
 import signal
 import subprocess
 import sys
-import threading
-import time
-from collections.abc import Callable
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -121,50 +119,115 @@ def test_cluster_misuse_is_one_error() -> None:
     assert out.returncode == 2 and "--fmu-log" in out.stderr and out.stderr.count("\n") == 1
 
 
-def _with_one_worker_killed(run: Callable[[Any], Any], after: float) -> Any:
-    """``run(client)`` on a local cluster of two workers, one of which is killed (SIGKILL
-    to its process) ``after`` seconds into the run; what ``run`` returned."""
-    found: dict[str, Any] = {}
-    with open_client(workers=2) as client:
-        victim = sorted(client.run(os.getpid).items())[0][1]
-        worker = threading.Thread(target=lambda: found.update(result=run(client)))
-        worker.start()
-        time.sleep(after)
-        running = worker.is_alive()
-        os.kill(victim, signal.SIGKILL)
-        worker.join(timeout=300)
-        assert running, "the run ended before the kill: make it longer"
-        assert not worker.is_alive()
-    return found["result"]
+def _die_if_first(marker: str) -> None:
+    """In a worker: SIGKILL this process if it takes (removes) the marker file first."""
+    try:
+        os.unlink(marker)
+    except FileNotFoundError:
+        return
+    os.kill(os.getpid(), signal.SIGKILL)
+
+
+def _arm_reference(marker: str) -> None:
+    """Run on the workers: the first reference batch a worker process starts after taking
+    the marker kills the process (one process in all)."""
+    from ftc_verify.simulation import streaming
+
+    batch = streaming._energies_batch
+
+    def dying(*args: Any) -> Any:
+        _die_if_first(marker)
+        return batch(*args)
+
+    streaming._energies_batch = dying
 
 
 @pytest.mark.slow(5)  # seconds measured on 2 busy cores: scheduled first
-def test_a_lost_worker_costs_a_retry_not_the_run() -> None:
-    """One of two workers is killed while the batches run; its tasks are rescheduled, the
-    nanny restarts it, and the numbers equal a serial run."""
+def test_a_lost_worker_costs_a_retry_not_the_run(tmp_path: Path) -> None:
+    """Without depending on timing: one of two workers is killed before the run and the
+    other kills itself in its first batch; the tasks are rescheduled on the workers the
+    nannies start in their place, and the numbers equal a serial run."""
     system, gains = load_system(PAPER), load_controller(GAINS)
-    paths = sample_paths(system.chain, 20.0, 240, 5)
+    paths = sample_paths(system.chain, 20.0, 80, 5)
     serial = simulate_streaming(system, gains, paths, step=0.01, rng=np.random.default_rng(1), batch=4)
-    spread = _with_one_worker_killed(  # 60 tasks of about 0.1 s each, under way after 1 s
-        lambda client: simulate_streaming(system, gains, paths, step=0.01, rng=np.random.default_rng(1), batch=4,
-                                          client=client), after=1.0)
+    marker = tmp_path / "die-once"
+    marker.touch()
+    with open_client(workers=2) as client:
+        pids = client.run(os.getpid)
+        client.run(_arm_reference, str(marker))
+        os.kill(min(pids.values()), signal.SIGKILL)
+        spread = simulate_streaming(system, gains, paths, step=0.01, rng=np.random.default_rng(1), batch=4,
+                                    client=client)
+    assert not marker.exists(), "no worker died in a batch"
     np.testing.assert_array_equal(spread.y_norm, serial.y_norm)
+
+
+def _arm(marker: str, phase: str) -> None:
+    """Run on the workers: from now on, the first FMU supervisor this worker process opens
+    (``phase`` "setup") or runs a batch on ("run") kills the process with SIGKILL -- if it
+    takes the marker file first (one process in all does: the marker is removed by it)."""
+    from ftc_verify.simulation import fmu_workers
+
+    base = fmu_workers.Supervisor
+
+    def die_if_first() -> None:
+        _die_if_first(marker)
+
+    class Dying(base):  # type: ignore[misc, valid-type]
+        def __init__(self, fmu: Any, mapping: Any, *, system: Any, tolerance: Any) -> None:
+            if phase == "setup":
+                die_if_first()
+            super().__init__(fmu, mapping, system=system, tolerance=tolerance)
+
+        def run(self, paths: Any, controller: Any, *, step: float, disturbance: str, delta: Any, rng: Any) -> Any:
+            if phase == "run":
+                die_if_first()
+            return super().run(paths, controller, step=step, disturbance=disturbance, delta=delta, rng=rng)
+
+    fmu_workers.Supervisor = Dying
+
+
+def _fmu_run_with_losses(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, phase: str, kill_first: bool) -> None:
+    """The FMU backend on two workers armed with :func:`_arm` (``phase``), one of them
+    SIGKILLed before the run with ``kill_first``: the marker is taken (a worker died in
+    that phase), the records equal a serial run's and the temporary folder is empty."""
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    monkeypatch.setenv("TMPDIR", str(tmp))
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp))
+    system, gains = load_system(PAPER), load_controller(GAINS)
+    paths = sample_paths(system.chain, 5.0, 40, 5)
+    delta = DeltaSchedule("random")
+    serial = simulate_fmu(system, gains, paths, step=0.01, delta=delta, rng=np.random.default_rng(1))
+    marker = tmp_path / "die-once"
+    marker.touch()
+    with open_client(workers=2) as client:
+        pids = client.run(os.getpid)
+        client.run(_arm, str(marker), phase)
+        if kill_first:
+            os.kill(min(pids.values()), signal.SIGKILL)
+        spread = fmu_monte_carlo(system, gains, paths, step=0.01, delta=delta, rng=np.random.default_rng(1),
+                                 batch=5, client=client)
+    assert not marker.exists(), f"no worker died in the {phase} phase"
+    assert len(spread.records) == 40
+    for a, b in zip(spread.records, serial.records):
+        np.testing.assert_array_equal(a.x, b.x)
+        np.testing.assert_array_equal(a.y, b.y)
+    assert list(tmp.iterdir()) == []  # the run folder, with what the killed workers left, is gone
 
 
 @pytest.mark.slow(9)  # seconds measured on 2 busy cores: scheduled first
 def test_a_lost_fmu_worker_costs_a_retry_not_the_run(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """The FMU backend: one of two workers is killed mid-run; its batches are retried on
-    the other worker or on the nanny's replacement (which gets the FMU from the plugin the
-    scheduler keeps), and the records equal a serial run's. The killed worker cannot remove
-    its FMU folders: the workers' temporary folder is this test's."""
-    monkeypatch.setenv("TMPDIR", str(tmp_path))
-    system, gains = load_system(PAPER), load_controller(GAINS)
-    paths = sample_paths(system.chain, 20.0, 200, 5)
-    delta = DeltaSchedule("random")
-    serial = simulate_fmu(system, gains, paths, step=0.01, delta=delta, rng=np.random.default_rng(1))
-    spread = _with_one_worker_killed(  # 40 tasks of about 0.1 s each, under way after 1.5 s
-        lambda client: fmu_monte_carlo(system, gains, paths, step=0.01, delta=delta, rng=np.random.default_rng(1),
-                                       batch=5, client=client), after=1.5)
-    assert len(spread.records) == 200
-    for a, b in zip(spread.records, serial.records):
-        np.testing.assert_array_equal(a.x, b.x)
+    """The FMU backend, without depending on timing: one worker is killed before the run
+    and the other kills itself in its first batch; the batches are retried on the
+    workers the nannies start in their place (each writes and opens the FMU itself), and
+    the records equal a serial run's."""
+    _fmu_run_with_losses(tmp_path, monkeypatch, "run", kill_first=True)
+
+
+@pytest.mark.slow(9)  # seconds measured on 2 busy cores: scheduled first
+def test_a_worker_lost_while_it_opens_the_fmu_costs_a_retry(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The set-up phase (issue 22, item 6: a worker lost while the FMU was being
+    registered killed the run): the first worker to open the FMU dies doing it; its
+    batch is retried and the records equal a serial run's."""
+    _fmu_run_with_losses(tmp_path, monkeypatch, "setup", kill_first=False)

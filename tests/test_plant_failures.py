@@ -231,3 +231,29 @@ def test_failed_records_keep_what_was_recorded(plants: dict[str, Path]) -> None:
         assert r.failure is not None and r.diverged_at == r.t[-1] == 2.0
         assert len(r.t) == len(r.x) == len(r.u) == len(r.y) == len(r.true) + 1
         assert np.all(np.isfinite(r.x)) and r.y_norm == float("inf")
+
+
+# ------------------------------------------------------------------------------------------ items 2, 7 on Dask
+
+
+@pytest.mark.slow(20)
+def test_crashing_and_failing_plants_on_two_workers(plants: dict[str, Path]) -> None:
+    """``--workers 2``: the segfaulting plant kills its workers; the batch is run again in a
+    watched child, which names the path and the time (it was exit 4 "KilledWorker" with 8
+    folders left); the plant failing in fmi2DoStep gives the same JSON as the serial run,
+    nothing on stderr (it was 85 lines and 12 tracebacks)."""
+    pytest.importorskip("distributed")
+    cwd = plants["crash"]
+    out = _cli(["simulate", "system.toml", "--gains", "K.toml", "--plant", "plant.toml", "--paths", "4",
+                "--horizon", "4", "--seed", "1", "--workers", "2", "--json"], cwd)
+    assert out.returncode == 1 and "Traceback" not in out.stderr, out
+    failure = json.loads(out.stdout)["plant_failure"]
+    assert failure["path"] == 0 and 2.0 <= failure["time"] < 2.011 and "SIGSEGV" in failure["detail"]
+    assert _left(cwd) == []
+    cwd = plants["fail"]
+    args = ["simulate", "system.toml", "--gains", "K.toml", "--plant", "plant.toml", "--paths", "30",
+            "--horizon", "4", "--seed", "1", "--json"]
+    serial, spread = _cli(args, cwd), _cli(args + ["--workers", "2"], cwd)
+    assert serial.returncode == spread.returncode == 1 and spread.stderr == "", spread
+    assert json.loads(serial.stdout) == json.loads(spread.stdout)
+    assert _left(cwd) == []

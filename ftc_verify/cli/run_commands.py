@@ -192,13 +192,13 @@ def _cmd_verify(args: argparse.Namespace) -> int:
         raise _bad(f"--paths {args.paths}: the Monte Carlo bound needs at least 2 paths")
     _check_horizon(args.step, args.horizon)
     check_out_dir(args.out)
+    _check_cluster(args)
     system, controller = _load(args.system, args.controller)
     plant = _load_plant(args, system, controller)
     if plant is None:
         _check_fmu_dims(system, args.system)
     if controller is not None:
         _check_records_memory(system, controller, args.paths, args.horizon, args.step)
-    _check_cluster(args)
     k_max = None if args.no_gain_bound else args.k_max
     from ..simulation.cluster import open_client
 
@@ -278,8 +278,14 @@ def add_run_commands(sub: Any) -> None:
 
 
 def _check_cluster(args: argparse.Namespace) -> None:
+    """``--workers`` / ``--scheduler`` checked before any work: the worker count within the
+    machine's bound, the address's syntax, no ``--fmu-log`` with them."""
     if args.fmu_log and (args.workers or args.scheduler):
         raise _bad("--fmu-log: the FMU's messages stay on the Dask workers; leave out --workers/--scheduler to see them")
+    if args.workers or args.scheduler:
+        from ..simulation.cluster import check_cluster_options
+
+        check_cluster_options(args.workers, args.scheduler)
 
 
 def _cluster_options(parser: argparse.ArgumentParser) -> None:

@@ -4,44 +4,311 @@
 dependency: ``pip install 'ftc-verify[dask]'``), so that nothing else pays its import time;
 a client's work then goes through :mod:`ftc_verify.simulation.streaming` (reference
 backend) or :mod:`ftc_verify.simulation.fmu_workers` (FMU backend).
+
+The contract (issue 22):
+
+* :func:`check_cluster_options` refuses, before any work, a worker count above
+  :func:`max_workers` (cores and memory) and a scheduler address that is not
+  ``[PROTOCOL://]HOST:PORT``; it needs no Dask.
+* Connecting to ``--scheduler`` is time-boxed (:data:`CONNECT_TIMEOUT`, connection and
+  handshake together): a closed port, a silent server or a server that is not a Dask
+  scheduler (an HTTP server) is one :class:`~ftc_verify.errors.ValidationError`.
+* A local cluster lives in one run folder (``ftc-verify-cluster-*`` in the temporary
+  folder): the scheduler's and workers' ``local_directory`` and the workers' ``TMPDIR``,
+  so everything a worker writes (its FMU copies, the FMUs extracted by ``tempfile``) is
+  inside it. The folder is removed when the client closes, however it closes (an
+  exception, SIGTERM/SIGINT as a ``BaseException``, a worker that was SIGKILLed).
+* Interrupting the start or the run of a local cluster shuts it down quietly (no Dask log
+  lines, bounded by :data:`CLOSE_TIMEOUT`) and lets the interrupting exception propagate
+  unchanged. Worker processes ignore SIGINT (:func:`dask_setup`, their preload): a Ctrl-C
+  in a terminal reaches the whole process group, and the client tears them down anyway.
 """
 
 from __future__ import annotations
 
+import asyncio
+import importlib.util
 import logging
+import multiprocessing
+import os
+import re
+import shutil
+import signal
+import socket
+import tempfile
+import threading
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
 from ..errors import ValidationError
+from ..limits import format_bytes, memory_limit
 
-__all__ = ["open_client"]
+__all__ = ["open_client", "check_cluster_options", "max_workers", "dask_setup", "CONNECT_TIMEOUT",
+           "CLOSE_TIMEOUT", "WORKERS_PER_CORE", "WORKER_MEMORY", "ALLOWED_FAILURES"]
 
 _INSTALL = "pip install 'ftc-verify[dask]'"
+#: Seconds for connecting to ``--scheduler``, handshake included.
+CONNECT_TIMEOUT = 10.0
+#: Seconds each of the client and the local cluster may take to close.
+CLOSE_TIMEOUT = 10.0
+#: Seconds an interrupted local cluster start may still take, so that it can be shut down.
+START_TIMEOUT = 60.0
+#: Local workers per core at most: a worker is one process with one thread running CPU-bound
+#: batches, so more workers than cores buy no speed (README: 1.36x with 2 workers, 1.40x
+#: with 4 on 2 cores); a little oversubscription is harmless, thousands of processes are not.
+WORKERS_PER_CORE = 4
+#: Memory budgeted per local worker process: a Dask worker measured 114 MB resident idle and
+#: 140 MB after 100 FMU paths of the paper plant (psutil RSS); the rest is headroom for
+#: larger plants and the results in flight.
+WORKER_MEMORY = 256 * 1024 ** 2
+#: Deaths of the worker running a task before the local scheduler gives the task up
+#: (``KilledWorker``): a lost worker is retried twice, a crashing plant FMU is found fast.
+ALLOWED_FAILURES = 2
+_PROTOCOLS = ("tcp", "tls", "ws", "wss", "ucx")
+_ADDRESS = re.compile(r"^(?:(?P<protocol>[A-Za-z][A-Za-z0-9+.-]*)://)?(?P<host>\[[0-9A-Fa-f:.]+\]|[^\s:/\[\]]+)"
+                      r":(?P<port>[0-9]{1,5})/?$")
+_QUIET = ("distributed", "tornado", "asyncio")
+_WORKER_PROCESS = "Dask Worker process"  # the name the Nanny gives its worker processes
+
+
+def _cores() -> int:
+    try:
+        return max(len(os.sched_getaffinity(0)), 1)
+    except (AttributeError, OSError):
+        return max(os.cpu_count() or 1, 1)
+
+
+def max_workers() -> int:
+    """The most local workers this machine takes: ``min(cores x WORKERS_PER_CORE,
+    memory limit / WORKER_MEMORY)``, at least 1 (cores: the CPUs this process may use;
+    memory limit: :func:`ftc_verify.limits.memory_limit`)."""
+    return max(1, min(_cores() * WORKERS_PER_CORE, memory_limit() // WORKER_MEMORY))
+
+
+def check_cluster_options(workers: int | None, scheduler: str | None) -> None:
+    """Refuse ``--workers`` / ``--scheduler`` values before any work (no Dask needed).
+
+    Parameters
+    ----------
+    workers : int or None
+        ``--workers``: at least 1 and at most :func:`max_workers`.
+    scheduler : str or None
+        ``--scheduler``: ``[PROTOCOL://]HOST:PORT`` with a Dask protocol (``tcp`` by default).
+
+    Raises
+    ------
+    ValidationError
+        Naming the option, the value and what is allowed.
+    """
+    if workers is not None and scheduler is not None:
+        raise ValidationError(f"--workers {workers} --scheduler {scheduler}: give one of them, not both")
+    if workers is not None:
+        if workers < 1:
+            raise ValidationError(f"--workers {workers}: must be at least 1")
+        bound = max_workers()
+        if workers > bound:
+            raise ValidationError(
+                f"--workers {workers}: above the bound of {bound} for this machine ({_cores()} cores x "
+                f"{WORKERS_PER_CORE}, or {format_bytes(memory_limit())} of memory limit / "
+                f"{format_bytes(WORKER_MEMORY)} per worker, whichever is smaller); give at most {bound}")
+    if scheduler is not None:
+        found = _ADDRESS.match(scheduler.strip())
+        if found is None:
+            raise ValidationError(f"--scheduler {scheduler!r}: not a scheduler address; give tcp://HOST:PORT "
+                                  "(e.g. tcp://10.0.0.5:8786)")
+        protocol = (found["protocol"] or "tcp").lower()
+        if protocol not in _PROTOCOLS:
+            raise ValidationError(f"--scheduler {scheduler!r}: unknown protocol {protocol!r}; use one of "
+                                  f"{', '.join(_PROTOCOLS)} (e.g. tcp://10.0.0.5:8786)")
+        if not 1 <= int(found["port"]) <= 65535:
+            raise ValidationError(f"--scheduler {scheduler!r}: port {found['port']} is not in 1..65535")
+
+
+def dask_setup(worker: Any) -> None:
+    """Preload hook of the local cluster's workers (Dask calls it as the worker starts):
+    the worker process ignores SIGINT, which a terminal's Ctrl-C sends to the whole process
+    group; the client shuts the workers down itself."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+@contextmanager
+def _quiet_logs() -> Iterator[None]:
+    """Disable the ``distributed``, ``tornado`` and ``asyncio`` loggers for the block."""
+    names = {n for n in logging.root.manager.loggerDict if n.split(".")[0] in _QUIET} | set(_QUIET)
+    saved = {n: logging.getLogger(n).disabled for n in names}
+    for n in names:
+        logging.getLogger(n).disabled = True
+    try:
+        yield
+    finally:
+        for n, disabled in saved.items():
+            logging.getLogger(n).disabled = disabled
+
+
+def _shutdown(client: Any, cluster: Any) -> None:
+    """Close ``client`` and ``cluster`` (either may be None) quietly, each within
+    :data:`CLOSE_TIMEOUT`; their errors are dropped, so that the exception that ended
+    the run (if any) is the one that propagates."""
+    with _quiet_logs():
+        for part in (client, cluster):
+            if part is None:
+                continue
+            try:
+                part.close(timeout=CLOSE_TIMEOUT)
+            except (Exception, asyncio.CancelledError):
+                pass
+
+
+def _reap_workers(seconds: float, earlier: set[Any]) -> None:
+    """Wait up to ``seconds`` for the Dask worker processes this process started since
+    ``earlier`` (its children then) to end, then kill the rest: a worker still starting
+    when its cluster was shut down could otherwise write into the run folder after it
+    was removed."""
+    deadline = time.monotonic() + seconds
+    for child in multiprocessing.active_children():
+        if child not in earlier and child.name.startswith(_WORKER_PROCESS):
+            child.join(max(deadline - time.monotonic(), 0.0))
+            if child.is_alive():
+                child.kill()
+                child.join(1.0)
+
+
+def _reachable(address: str, where: str) -> None:
+    """Refuse a ``tcp`` address at once when nothing listens there (Dask's ``connect``
+    retries a refused connection until its timeout), its host is unknown, or it does not
+    accept a connection within :data:`CONNECT_TIMEOUT`."""
+    found = _ADDRESS.match(address)
+    if found is None or (found["protocol"] or "tcp").lower() != "tcp":
+        return
+    try:
+        socket.create_connection((found["host"].strip("[]"), int(found["port"])), timeout=CONNECT_TIMEOUT).close()
+    except ConnectionRefusedError:
+        raise ValidationError(f"{where}: nothing listens at that address (connection refused); start the "
+                              "scheduler first (dask scheduler) or give the address it printed") from None
+    except socket.gaierror as exc:
+        raise ValidationError(f"{where}: unknown host {found['host']!r} ({exc.strerror or exc})") from None
+    except TimeoutError:
+        raise ValidationError(f"{where}: no connection within {CONNECT_TIMEOUT:g} s") from None
+    except OSError as exc:
+        raise ValidationError(f"{where}: cannot connect ({exc.strerror or exc})") from None
+
+
+def _connect(address: str) -> Any:
+    """A client of the scheduler at ``address``, or a :class:`ValidationError` within
+    :data:`CONNECT_TIMEOUT` (asks for the server's identity first: ``Client`` itself can
+    wait forever on a server that accepts and never answers like a scheduler)."""
+    from distributed import Client
+    from distributed.comm import connect
+
+    async def identity() -> Any:
+        comm = await connect(address, timeout=CONNECT_TIMEOUT)
+        try:
+            await comm.write({"op": "identity"})
+            return await comm.read()
+        finally:
+            comm.abort()
+
+    where = f"--scheduler {address}"
+    deadline = time.monotonic() + CONNECT_TIMEOUT
+    _reachable(address, where)
+    try:
+        with _quiet_logs():
+            reply = asyncio.run(asyncio.wait_for(identity(), max(deadline - time.monotonic(), 1.0)))
+    except TimeoutError:
+        raise ValidationError(f"{where}: no Dask scheduler answered within {CONNECT_TIMEOUT:g} s "
+                              "(is it the address the scheduler printed?)") from None
+    except OSError as exc:  # closed during the handshake, TLS trouble...
+        raise ValidationError(f"{where}: cannot connect to a Dask scheduler ({type(exc).__name__}: "
+                              f"{str(exc).strip()[:200] or 'no detail'})") from None
+    except Exception as exc:  # an answer that is not Dask's protocol (it can even fail to allocate)
+        raise ValidationError(f"{where}: the server there is not a Dask scheduler (its answer could not be read: "
+                              f"{type(exc).__name__})") from None
+    kind = reply.get("type") if isinstance(reply, dict) else None
+    if kind != "Scheduler":
+        raise ValidationError(f"{where}: the server there is not a Dask scheduler (it answered as {kind!r})")
+    try:
+        return Client(address, timeout=CONNECT_TIMEOUT)
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise ValidationError(f"{where}: cannot connect ({exc})") from None
+
+
+def _start_local(workers: int, folder: Path) -> Any:
+    """A ``LocalCluster`` of ``workers`` one-thread worker processes living in ``folder``.
+
+    It is built in a helper thread: an exception raised in the main thread meanwhile
+    (SIGTERM, Ctrl-C) waits up to :data:`START_TIMEOUT` for the half-built cluster, shuts
+    it down quietly and propagates."""
+    from distributed import LocalCluster
+
+    box: dict[str, Any] = {}
+    finished = threading.Event()  # not Thread.join: an interrupted join marks a live thread as stopped
+
+    def start() -> None:
+        try:
+            box["cluster"] = LocalCluster(
+                n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                silence_logs=logging.CRITICAL, local_directory=str(folder), env={"TMPDIR": str(folder)},
+                preload=[__name__],
+                scheduler_kwargs={"local_directory": str(folder), "allowed_failures": ALLOWED_FAILURES})
+        except BaseException as exc:  # handed to the main thread
+            box["error"] = exc
+        finally:
+            finished.set()
+
+    starter = threading.Thread(target=start, name="ftc-verify-cluster-start", daemon=True)
+    starter.start()
+    try:
+        while not finished.wait(0.1):
+            pass
+    except BaseException:
+        with _quiet_logs():
+            finished.wait(START_TIMEOUT)
+        _shutdown(None, box.get("cluster"))
+        raise
+    if "error" in box:
+        raise box["error"]
+    return box["cluster"]
 
 
 @contextmanager
 def open_client(workers: int | None = None, scheduler: str | None = None) -> Iterator[Any]:
     """A ``dask.distributed.Client``: ``workers`` local worker processes (one thread each),
     or the scheduler at ``scheduler`` (``tcp://host:port``); ``None`` when neither is
-    given. The local cluster is shut down on exit; a remote one is only disconnected."""
+    given (module docstring for the contract).
+
+    The options are checked first (:func:`check_cluster_options`). The local cluster is
+    shut down on exit and its run folder removed; a remote one is only disconnected.
+    Whatever ends the block (``KeyboardInterrupt``, a SIGTERM exception) propagates as it is.
+    """
     if not workers and not scheduler:
         yield None
         return
-    try:
-        from dask.distributed import Client, LocalCluster
-    except ImportError:
-        raise ValidationError(f"--workers/--scheduler: dask.distributed is not installed ({_INSTALL})") from None
+    check_cluster_options(workers, scheduler)
+    if importlib.util.find_spec("distributed") is None:
+        raise ValidationError(f"--workers/--scheduler: dask.distributed is not installed ({_INSTALL})")
     if scheduler:
-        try:
-            client = Client(scheduler, timeout="10s")
-        except (OSError, TimeoutError, ValueError) as exc:
-            raise ValidationError(f"--scheduler {scheduler!r}: cannot connect ({exc})") from None
+        client = _connect(scheduler.strip())
         try:
             yield client
         finally:
-            client.close()
+            _shutdown(client, None)
         return
-    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                      silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+    earlier = set(multiprocessing.active_children())
+    cluster = client = None
+    folder: Path | None = None
+    try:
+        folder = Path(tempfile.mkdtemp(prefix="ftc-verify-cluster-"))
+        cluster = _start_local(int(workers), folder)
+        from distributed import Client
+
+        client = Client(cluster)
         yield client
+    finally:
+        _shutdown(client, cluster)
+        _reap_workers(CLOSE_TIMEOUT, earlier)
+        if folder is not None:
+            shutil.rmtree(folder, ignore_errors=True)
