@@ -162,7 +162,7 @@ def run_isolated(system: FTCSystem, plant: Any, controller: Controller, paths: S
     parts: list[SimulationResult] = []
     try:
         child = subprocess.Popen([sys.executable, "-m", "ftc_verify.simulation.isolated", workdir, str(write_fd)],
-                                 stdin=subprocess.PIPE, stdout=sys.stderr.fileno(), pass_fds=(write_fd,),
+                                 stdin=subprocess.PIPE, stdout=2, pass_fds=(write_fd,),
                                  start_new_session=True)
         os.close(write_fd)
         write_fd = -1
