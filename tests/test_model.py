@@ -390,10 +390,14 @@ def test_check_beta_wrong_shape():
     raises_naming(lambda: chain2().check_beta(np.zeros((3, 3))), "beta", "(3, 3)")
 
 
-def test_row_beta_ends_and_row_generator(ref):
+def test_row_rate_points_and_row_generator(ref):
     ch = chain2()
-    assert ch.row_beta_ends(0, 1) == (4.0, 5.0)  # row (true 0, fdi 1) uses beta[1][0]
-    assert ch.row_beta_ends(1, 0) == (2.0, 3.0)
-    assert math.isnan(ch.row_beta_ends(0, 0)[0])
+    s01, s10, s00 = ch.state_index(0, 1), ch.state_index(1, 0), ch.state_index(0, 0)
+    assert [p[1, 0] for p in ch.row_rate_points(s01)] == [4.0, 5.0]  # row (true 0, fdi 1) uses beta[1][0]
+    assert [p[0, 1] for p in ch.row_rate_points(s10)] == [2.0, 3.0]
+    assert ch.row_rates(s00) == () and len(ch.row_rate_points(s00)) == 1
+    assert ch.row_label(s01, ch.row_rate_points(s01)[1]) == "beta[2][1]=5"
     full = ref.joint_generator(ALPHA_D, [[0.0, 2.5], [4.75, 0.0]])
-    np.testing.assert_allclose(ch.row_generator(0, 1, 4.75), full[1], atol=1e-15)
+    point = ch.midpoint().copy()
+    point[1, 0] = 4.75
+    np.testing.assert_allclose(ch.row_generator(s01, point), full[1], atol=1e-15)

@@ -79,11 +79,12 @@ def _fmt(x: float | None, digits: int = 6) -> str:
     return "-" if x is None else f"{x:.{digits}g}"
 
 
-def _print_analysis(rep: Any, *, lmi: bool = True) -> None:
+def _print_analysis(rep: Any, fdi_model: str, *, lmi: bool = True) -> None:
     d = rep.to_dict()
     mss = d["mss"]
-    vert = f"worst of {mss['vertices_evaluated']} beta vertices" + ("" if mss["exhaustive"] else ", greedy search")
+    vert = f"worst of {mss['vertices_evaluated']} rate vertices" + ("" if mss["exhaustive"] else ", greedy search")
     print(f"ftc-verify analyze: {rep.name} ({rep.controller})")
+    print(f"  {fdi_model}")
     word = {"stable": "stable", "not stable": "NOT stable", "undecided": "UNDECIDED"}[mss["verdict"]]
     print(f"  mean-square stability    spectral abscissa {_fmt(mss['spectral_abscissa'])} ({vert}): {word}")
     print(f"      proved: {mss['verified_by']}")
@@ -139,9 +140,9 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
     system, controller = _load(args.system, args.controller)
     rep = analyze(closed_loop(system, controller), solver=args.solver, name=system.name, lmi=not args.no_lmi)
     if args.json:
-        print(dumps(rep.to_dict() | {"lmi_requested": not args.no_lmi}))
+        print(dumps(rep.to_dict() | {"lmi_requested": not args.no_lmi, "fdi_model": system.chain.describe()}))
     else:
-        _print_analysis(rep, lmi=not args.no_lmi)
+        _print_analysis(rep, system.chain.describe(), lmi=not args.no_lmi)
     if rep.certified_stable or (args.no_lmi and rep.mss.stable):
         return EXIT_OK
     if rep.mss.undecided:

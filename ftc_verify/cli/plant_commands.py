@@ -69,6 +69,7 @@ def describe_plant(pm: Any, session: Any) -> dict[str, Any]:
                    for role in ("states", "inputs") for side in ("min", "max")
                    if getattr(pm, f"{role}_{side}") is not None},
         "warnings": warnings,
+        "fdi_model": None if pm.chain is None else pm.chain.describe(),
     }
 
 
@@ -145,6 +146,8 @@ def _cmd_plant(args: argparse.Namespace) -> int:
         print(dumps(d | {"verdict": verdict, "reason": "; ".join(reasons) or None}))
     else:
         print(f"ftc-verify plant: {d['map']}")
+        if d["fdi_model"]:
+            print(f"  [chain] {d['fdi_model']}")
         print(f"  FMU {d['fmu']}: FMI {d['fmi_version']}, model identifier {d['model_identifier']}, "
               f"{' + '.join(d['interfaces'])}")
         print(f"  variable communication steps: {'yes' if d['can_handle_variable_communication_step_size'] else 'no'}; "

@@ -114,9 +114,10 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     d = _strict(res.to_dict())
     verdict = "fail (a path diverged or the plant FMU failed)" if d["divergence"] else "done"
     if args.json:
-        print(dumps(d | {"verdict": "fail" if d["divergence"] else "done"}))
+        print(dumps(d | {"fdi_model": system.chain.describe(), "verdict": "fail" if d["divergence"] else "done"}))
     else:
         _print_simulation(d, res, system.name, args, delta.kind)
+        print(f"  {system.chain.describe()}")
         print(f"  verdict: {verdict}")
     return EXIT_NEGATIVE if d["divergence"] else EXIT_OK
 
@@ -210,6 +211,7 @@ def _cmd_verify(args: argparse.Namespace) -> int:
     written = write_report(rep, args.out)
     d = rep.to_dict()
     print(f"ftc-verify verify: {system.name}")
+    print(f"  {system.chain.describe()}")
     for c in d["checks"]:
         print(f"  [{'pass' if c['ok'] else 'FAIL'}] {c['name']}: {c['detail']}")
     if d["options"].get("delta"):

@@ -8,6 +8,9 @@ System file (all keys shown; ``A1, A2, B1, B2`` optional, in pairs)::
     beta_min = [[0.0, 2.0], [2.5, 0.0]]   # beta[fdi][true]
     beta_max = [[0.0, 3.0], [3.5, 0.0]]
     fault_during_delay = true             # optional: the named variant (not the paper's model)
+    delay_phases = 4                      # optional: Erlang-4 detection delays (default 1, exponential)
+    false_alarm_min = [[0.0, 0.05], [0.05, 0.0]]   # optional, with false_alarm_max:
+    false_alarm_max = [[0.0, 0.2], [0.2, 0.0]]     # false-alarm rates [true][reported]
     [[mode]]            # one table per fault mode, in order 1..m
     A = [[...]]; B = [[...]]; C = [[...]]; D = [[...]]
     Cy = [[...]]        # optional: measured outputs y_m = Cy x (default C)
@@ -40,11 +43,12 @@ __all__ = [
     "dump_system",
     "save_system",
     "write_atomic",
+    "parse_chain",
 ]
 
 _TOP_KEYS = {"name", "chain", "mode"}
 _CHAIN_KEYS = {"alpha", "beta_min", "beta_max"}
-_CHAIN_OPTIONAL = {"fault_during_delay"}
+_CHAIN_OPTIONAL = {"fault_during_delay", "delay_phases", "false_alarm_min", "false_alarm_max"}
 _MODE_KEYS = ("A", "B", "C", "D", "Cy", "A1", "A2", "B1", "B2")
 
 
@@ -84,6 +88,27 @@ def tables(path: Path, doc: dict[str, Any], key: str) -> list[dict[str, Any]]:
     return val
 
 
+def parse_chain(p: Path, chain_doc: dict[str, Any]) -> JointChain:
+    """The :class:`JointChain` of a ``[chain]`` table of the file ``p`` (a system file or a
+    plant map): every error names the file, ``[chain]`` and the key."""
+    unknown_keys(p, "[chain]", list(chain_doc), _CHAIN_KEYS | _CHAIN_OPTIONAL)
+    for key in sorted(_CHAIN_KEYS):
+        if key not in chain_doc:
+            raise ProblemFileError(f"{p}: [chain]: missing key '{key}'")
+    variant = chain_doc.get("fault_during_delay", False)
+    if not isinstance(variant, bool):
+        raise ProblemFileError(f"{p}: [chain].fault_during_delay: expected true or false, got {variant!r}")
+    phases = chain_doc.get("delay_phases", 1)
+    if isinstance(phases, bool) or not isinstance(phases, int):
+        raise ProblemFileError(f"{p}: [chain].delay_phases: expected a whole number of phases (1 = exponential "
+                               f"delays), got {phases!r}")
+    try:
+        return JointChain(chain_doc["alpha"], chain_doc["beta_min"], chain_doc["beta_max"], variant, phases,
+                          chain_doc.get("false_alarm_min"), chain_doc.get("false_alarm_max"))
+    except ValidationError as exc:
+        raise ProblemFileError(f"{p}: {exc}") from None
+
+
 def load_system(path: str | os.PathLike[str]) -> FTCSystem:
     """Read and validate an FTC system file (format in the module docstring)."""
     p = Path(path)
@@ -92,18 +117,7 @@ def load_system(path: str | os.PathLike[str]) -> FTCSystem:
     name = doc.get("name", p.stem)
     if not isinstance(name, str):
         raise ProblemFileError(f"{p}: name: expected a string, got {name!r}")
-    chain_doc = _table(p, doc, "chain")
-    unknown_keys(p, "[chain]", list(chain_doc), _CHAIN_KEYS | _CHAIN_OPTIONAL)
-    for key in sorted(_CHAIN_KEYS):
-        if key not in chain_doc:
-            raise ProblemFileError(f"{p}: [chain]: missing key '{key}'")
-    variant = chain_doc.get("fault_during_delay", False)
-    if not isinstance(variant, bool):
-        raise ProblemFileError(f"{p}: [chain].fault_during_delay: expected true or false, got {variant!r}")
-    try:
-        chain = JointChain(chain_doc["alpha"], chain_doc["beta_min"], chain_doc["beta_max"], variant)
-    except ValidationError as exc:
-        raise ProblemFileError(f"{p}: {exc}") from None
+    chain = parse_chain(p, _table(p, doc, "chain"))
     modes = []
     for k, md in enumerate(tables(p, doc, "mode"), start=1):
         unknown_keys(p, f"mode[{k}]", list(md), _MODE_KEYS)
@@ -134,6 +148,9 @@ def dump_system(system: FTCSystem) -> str:
             "beta_min": tolist(ch.beta_min),
             "beta_max": tolist(ch.beta_max),
             **({"fault_during_delay": True} if ch.fault_during_delay else {}),
+            **({"delay_phases": ch.delay_phases} if ch.delay_phases != 1 else {}),
+            **({"false_alarm_min": tolist(ch.false_alarm_min), "false_alarm_max": tolist(ch.false_alarm_max)}
+               if ch.has_false_alarms else {}),
         },
         "mode": [
             {key: tolist(getattr(md, key)) for key in _MODE_KEYS if getattr(md, key) is not None}

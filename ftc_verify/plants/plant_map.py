@@ -57,7 +57,7 @@ import numpy as np
 import tomli_w
 
 from ..errors import ProblemFileError, ValidationError
-from ..model.files import read_toml, tables, unknown_keys, write_atomic
+from ..model.files import parse_chain, read_toml, tables, unknown_keys, write_atomic
 from ..model.system import FTCSystem, JointChain
 from .fault_map import FaultInjectionMap, OperatingPoint
 
@@ -77,7 +77,6 @@ ROLE_KEYS = {
     "delta2": "Delta2 inputs",
 }
 _OP = {"inputs", "states", "disturbances"}
-_CHAIN = {"alpha", "beta_min", "beta_max", "fault_during_delay"}
 
 Scalar = float | int | bool
 
@@ -287,14 +286,7 @@ def _chain(p: Path, doc: dict[str, Any], m: int) -> JointChain | None:
         return None
     if not isinstance(ch, dict):
         raise ProblemFileError(f"{p}: [chain]: expected a table, got {ch!r}")
-    unknown_keys(p, "[chain]", list(ch), _CHAIN)
-    for key in ("alpha", "beta_min", "beta_max"):
-        if key not in ch:
-            raise ProblemFileError(f"{p}: [chain]: missing key '{key}'")
-    try:
-        chain = JointChain(ch["alpha"], ch["beta_min"], ch["beta_max"], bool(ch.get("fault_during_delay", False)))
-    except ValidationError as exc:
-        raise ProblemFileError(f"{p}: [chain]: {exc}") from None
+    chain = parse_chain(p, ch)
     if chain.m != m:
         raise ProblemFileError(f"{p}: [chain] has {chain.m} modes but there are {m} [[fault]] tables")
     return chain

@@ -43,6 +43,8 @@ def render_markdown(rep: VerifyReport) -> str:
         f"**Verdict: {d['verdict'].upper()}** -- certified robust gamma "
         f"{'-' if d['gamma_certified'] is None else format(d['gamma_certified'], '.6g')}",
         "",
+        f"{d['options']['fdi_model']}.",
+        "",
         "| check | result | detail |",
         "|---|---|---|",
     ]
