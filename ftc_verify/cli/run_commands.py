@@ -11,6 +11,7 @@ Monte Carlo with the FMU, the path and the time named; both give exit 1, with th
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from typing import Any
 
@@ -43,7 +44,7 @@ def _check_records_memory(system: Any, controller: Any, paths: int, horizon: flo
     from ..limits import check_memory
 
     n, nu, ny, nw = system.dims
-    jumps = 2.0 * horizon * float(max(-system.chain.alpha.min(), system.chain.beta_max.max()))
+    jumps = 2.0 * horizon * float(max(-system.chain.alpha.min(), system.chain.rate_max.max()))
     points = horizon / step + jumps + 2
     numbers = n + nu + ny + nw + controller.n_c + controller.n_v + 3
     check_memory(paths * points * numbers * RECORD_BYTES_PER_NUMBER,
@@ -64,7 +65,6 @@ def _check_fmu_dims(system: Any, source: str) -> None:
 def _cmd_simulate(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from ..model.system import FTCSystem, JointChain
     from ..simulation.delta import DeltaSchedule, plant_delta
     from ..simulation.paths import sample_paths
 
@@ -80,10 +80,9 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     if args.backend == "fmu" and plant is None:
         _check_fmu_dims(system, args.system)
     if args.fault_during_delay:
-        ch = system.chain
-        system = FTCSystem(system.name, system.modes, JointChain(ch.alpha, ch.beta_min, ch.beta_max, True))
+        system = dataclasses.replace(system, chain=dataclasses.replace(system.chain, fault_during_delay=True))
     seed = args.seed if args.seed is not None else int(np.random.SeedSequence().entropy % 2**63)
-    beta = {"random": None, "min": system.chain.beta_min, "max": system.chain.beta_max,
+    beta = {"random": None, "min": system.chain.rate_min, "max": system.chain.rate_max,
             "mid": system.chain.midpoint()}[args.beta]
     paths = sample_paths(system.chain, args.horizon, args.paths, seed, beta=beta)
     delta = DeltaSchedule(plant_delta(system, plant, args.delta, explicit=True)[0])

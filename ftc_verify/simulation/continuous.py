@@ -1,8 +1,9 @@
 r"""The continuous-time closed loop on one path (no sample-and-hold).
 
 On the augmented state :math:`\xi = (x, x_c)` the loop of
-:func:`ftc_verify.analysis.closedloop.closed_loop` in joint mode :math:`s = (i, j)` with the
-:math:`\Delta` of the chain segment at :math:`t` is
+:func:`ftc_verify.analysis.closedloop.closed_loop` in joint mode :math:`(i, j)` (its state
+:math:`s` = ``chain.state_index(i, j)``; every detection phase of :math:`(i, j)` has the
+same matrices) with the :math:`\Delta` of the chain segment at :math:`t` is
 
 .. math::
 
@@ -239,17 +240,20 @@ def simulate_continuous(
         raise ValidationError(f"points_per_unit: must be a positive integer, got {points_per_unit!r}")
     schedule = schedule_of(delta)
     z0 = np.concatenate((initial_state(system, x0), np.zeros(controller.n_c)))
-    nw, m = system.dims[3], system.m
+    nw = system.dims[3]
     wfun = disturbance_fn(disturbance, nw)
     segs = delta_segments(system, path, schedule, generator(rng, None))
     loop = closed_loop(system, controller)
     t, true, fdi = communication_grid(path, 1.0 / points_per_unit)
     seg = np.searchsorted(path.times, t[:-1], side="right") - 1
     dkeys = [delta_key(*d) for d in segs]
-    keys = tuple((int(true[k]) * m + int(fdi[k]), dkeys[int(seg[k])]) for k in range(t.size - 1))
+    # the loop's matrices of joint mode (true, fdi): those of its state at phase 0 (all
+    # phases of a detection share them)
+    state = [loop.chain.state_index(int(true[k]), int(fdi[k])) for k in range(t.size - 1)]
+    keys = tuple((state[k], dkeys[int(seg[k])]) for k in range(t.size - 1))
 
     def closed(k: int) -> tuple[Matrix, Matrix]:
-        return _loop_matrix(loop, int(true[k]) * m + int(fdi[k]), segs[int(seg[k])])
+        return _loop_matrix(loop, state[k], segs[int(seg[k])])
 
     grid = _Grid(t, true, fdi, seg, keys, closed)
     exo = _exosystem(disturbance, nw)

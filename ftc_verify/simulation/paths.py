@@ -1,14 +1,19 @@
-r"""Sample paths of the joint (fault, FDI) chain and the communication grid on them.
+r"""Sample paths of the joint (fault, FDI, phase) chain and the communication grid on them.
 
 Both simulators -- the FMU co-simulation supervisor and the numpy reference -- consume
 the same :class:`ChainPath` and the same :func:`communication_grid`, so that on equal
 paths they integrate exactly the same sampled-data loop:
 
-* the joint chain is sampled exactly: from joint mode ``s`` the holding time is
-  exponential with rate :math:`-Q_{ss}` and the next mode is drawn with probabilities
+* the joint chain (:mod:`ftc_verify.model.chain`: states ``(true, fdi, phase)``, Erlang-k
+  detection delays, false alarms) is sampled exactly: from state ``s`` the holding time
+  is exponential with rate :math:`-Q_{ss}` and the next state is drawn with probabilities
   :math:`Q_{ss'}/(-Q_{ss})` (the generator of :meth:`JointChain.generator`, so the
-  paper's model or the named ``fault_during_delay`` variant);
-* ``beta`` is fixed by the caller or drawn once per path, uniformly in its box;
+  paper's model, the named ``fault_during_delay`` variant or a richer FDI model);
+* a path exposes only the joint mode ``(true, fdi)`` per segment: consecutive states with
+  the same ``(true, fdi)`` (a detection advancing by one phase) are one segment, so the
+  simulators see exactly the switches of the true mode and of the FDI indication;
+* the rate array (``beta``, or ``[beta, false_alarm]``) is fixed by the caller or drawn
+  once per path, uniformly in its box;
 * every path has its own random stream, a child of ``numpy.random.SeedSequence(seed)``
   (:func:`sample_paths`), for its chain and its ``Delta`` draws: a path is the same
   whatever else is drawn or simulated with it, serially or on a cluster;
@@ -52,7 +57,9 @@ class ChainPath:
     """One path of the joint chain on ``[0, horizon]``.
 
     ``times[0] = 0``; ``true[k], fdi[k]`` (0-based) hold on ``[times[k], times[k+1])``
-    (the last one up to ``horizon``). ``beta`` is the detection-rate matrix used.
+    (the last one up to ``horizon``); consecutive segments differ in ``true`` or ``fdi``.
+    ``beta`` is the rate array used (:attr:`JointChain.rate_shape`: the detection rates
+    ``beta[fdi, true]``, or the stack ``[beta, false_alarm]``).
     ``stream``: the path's own ``numpy.random.SeedSequence`` (:func:`sample_paths`), from
     which it was drawn and from which its ``Delta`` values are drawn
     (:meth:`delta_generator`).
@@ -105,23 +112,90 @@ def _check_seed(seed: int | np.random.SeedSequence) -> np.random.SeedSequence:
     return np.random.SeedSequence(int(seed))
 
 
-def _generators(chain: JointChain, betas: np.ndarray) -> np.ndarray:
-    r""":meth:`JointChain.generator` of every ``betas[p]`` at once, ``(P, m*m, m*m)``.
+def _targets(chain: JointChain) -> np.ndarray:
+    """Per state the states it can jump to anywhere in the rate box, ascending, padded
+    with ``-1`` to a common width ``W`` (``(N, W)``).
 
-    ``Q`` is affine in ``beta``: :math:`Q(b) = Q(b_{min}) + \sum_{(j,i)} (b_{ji} -
-    b^{min}_{ji})\,\partial Q/\partial b_{ji}`, each derivative the difference of two
+    Every off-diagonal entry of the generator is a fault rate, a false-alarm rate or
+    ``k beta``, non-decreasing in every rate, so it can be positive somewhere in the box
+    iff it is positive at the upper corner :attr:`JointChain.rate_max`."""
+    q = chain.generator(chain.rate_max)
+    np.fill_diagonal(q, 0.0)
+    nz = q > 0.0
+    width = max(1, int(nz.sum(axis=1).max()))
+    out = np.full((q.shape[0], width), -1, dtype=np.int64)
+    for s in range(q.shape[0]):
+        cols = np.flatnonzero(nz[s])
+        out[s, :cols.size] = cols
+    return out
+
+
+def _jump_tables(q: np.ndarray, targets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    r"""``(rates, cdf)`` of generators ``q`` (``(P, N, N)``): the exit rates
+    :math:`-Q_{ss}` (``(P, N)``) and the cumulative jump probabilities over
+    :func:`_targets` (``(P, N, W)``, the last entry of a row with a jump exactly 1)."""
+    rows = np.arange(q.shape[1])
+    rates = -q[:, rows, rows]
+    return rates, _cdf(np.clip(q[:, rows[:, None], np.maximum(targets, 0)], 0.0, None), targets)
+
+
+def _cdf(probs: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """Cumulative, normalised jump probabilities; padding entries carry no mass."""
+    probs = np.where(targets[None] >= 0, probs, 0.0)
+    cdf = np.cumsum(probs, axis=2)
+    cdf /= np.where(cdf[..., -1:] > 0.0, cdf[..., -1:], 1.0)  # the last entry exactly 1
+    return cdf
+
+
+def _generators(chain: JointChain, rates: np.ndarray, targets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    r"""The ``(rates, cdf)`` of :func:`_jump_tables` of :meth:`JointChain.generator` at
+    every rate array ``rates[p]`` at once, without the ``(P, N, N)`` generators.
+
+    ``Q`` is affine in the rate array ``r``: :math:`Q(r) = Q(r_{min}) + \sum_{\iota}
+    (r_\iota - r^{min}_\iota)\,\partial Q/\partial r_\iota` over
+    :attr:`JointChain.rate_indices` :math:`\iota`, each derivative the difference of two
     calls of :meth:`JointChain.generator` at valid points of the box divided by the width.
+    Only the diagonal and the entries of :func:`_targets` are formed (each by the same
+    floating-point operations, in the same order, as on the full matrix).
     """
-    lo, hi = chain.beta_min, chain.beta_max
+    lo, hi = chain.rate_min, chain.rate_max
+    rows = np.arange(targets.shape[0])
+    cols = np.maximum(targets, 0)
     q_lo = chain.generator(lo)
-    out = np.broadcast_to(q_lo, (betas.shape[0], *q_lo.shape)).copy()
-    for j, i in chain.beta_pairs:
-        width = hi[j, i] - lo[j, i]
+    diag = np.broadcast_to(q_lo[rows, rows], (rates.shape[0], rows.size)).copy()
+    off = np.broadcast_to(q_lo[rows[:, None], cols], (rates.shape[0], *targets.shape)).copy()
+    for idx in chain.rate_indices:
+        width = hi[idx] - lo[idx]
         if width > 0.0:
             top = lo.copy()
-            top[j, i] = hi[j, i]
-            out += (betas[:, j, i] - lo[j, i])[:, None, None] * ((chain.generator(top) - q_lo) / width)
-    return out
+            top[idx] = hi[idx]
+            dq = (chain.generator(top) - q_lo) / width
+            coef = rates[(slice(None), *idx)] - lo[idx]
+            diag += coef[:, None] * dq[rows, rows][None]
+            off += coef[:, None, None] * dq[rows[:, None], cols][None]
+    return -diag, _cdf(np.clip(off, 0.0, None), targets)
+
+
+def _draw_rates(chain: JointChain, gens: list[np.random.Generator]) -> np.ndarray:
+    """A rate array per path, uniform in the box: the first ``m*m`` uniforms of each
+    stream for ``beta``, then (with false alarms only) ``m*m`` for the false-alarm rates."""
+    lo, hi = chain.rate_min, chain.rate_max
+    rates = lo + np.stack([g.random(chain.rate_shape) for g in gens]) * (hi - lo)
+    diag = np.arange(chain.m)
+    rates[..., diag, diag] = 0.0
+    return rates
+
+
+def _check_start(chain: JointChain, start: tuple[int, int]) -> int:
+    """The state index of the initial joint mode ``(true, fdi)`` (phase 0)."""
+    m = chain.m
+    try:
+        true, fdi = (int(v) for v in start)
+    except (TypeError, ValueError):
+        raise ValidationError(f"start: expected a joint mode (true, fdi), got {start!r}") from None
+    if not (0 <= true < m and 0 <= fdi < m):
+        raise ValidationError(f"start: joint mode {start} outside 0..{m - 1}")
+    return chain.state_index(true, fdi)
 
 
 def sample_paths(
@@ -139,45 +213,62 @@ def sample_paths(
     ``numpy.random.SeedSequence(seed).spawn(count)`` (a ``SeedSequence`` given as
     ``seed`` is spawned from, so successive calls continue its numbering), and carries it
     as :attr:`ChainPath.stream`. A path therefore does not depend on how many paths are
-    drawn with it, nor on where or in which batch it is simulated. ``beta=None`` draws
-    ``beta`` uniformly in its box per path (the first ``m*m`` uniforms of its stream);
-    ``start`` is the initial ``(true, fdi)`` (default: no fault, FDI agrees).
+    drawn with it, nor on where or in which batch it is simulated. ``beta`` is a rate
+    array (:meth:`JointChain.check_beta`); ``beta=None`` draws it uniformly in its box per
+    path (:func:`_draw_rates`: the first ``m*m`` uniforms of its stream for ``beta``, as
+    in the paper's model, then ``m*m`` more for the false-alarm rates when the chain has
+    them). ``start`` is the initial ``(true, fdi)`` (default: no fault, FDI agrees).
 
-    Exact sampling of the generator :math:`Q(\beta)` (:meth:`JointChain.generator`): from
-    joint mode ``s`` the holding time is :math:`E/(-Q_{ss})` with :math:`E` standard
-    exponential, and the next mode is the smallest ``s'`` whose cumulative jump
-    probability :math:`\sum_{r\le s'} Q_{sr}/(-Q_{ss})` (``r != s``) exceeds a uniform
-    :math:`U`. Each path draws :math:`E` and :math:`U` in blocks of :data:`DRAW_BLOCK`
-    from its stream; the jump recursion then advances all paths together in numpy.
+    Exact sampling of the generator :math:`Q` (:meth:`JointChain.generator`) on the
+    ``N = n_states`` states: from state ``s`` the holding time is :math:`E/(-Q_{ss})`
+    with :math:`E` standard exponential, and the next state is the smallest ``s'`` whose
+    cumulative jump probability :math:`\sum_{r\le s'} Q_{sr}/(-Q_{ss})` (``r != s``)
+    exceeds a uniform :math:`U` (the sum runs over the states ``s`` can reach,
+    :func:`_targets`; the others add exact zeros). Each path draws :math:`E` and
+    :math:`U` in blocks of :data:`DRAW_BLOCK` from its stream; the jump recursion then
+    advances all paths together in numpy. Each state is reported as its ``(true, fdi)``
+    (:attr:`JointChain.states`) and consecutive equal modes are merged (a phase of a
+    detection is not a mode switch).
     """
     horizon = _check_horizon(horizon)
     if isinstance(count, bool) or not (isinstance(count, (int, np.integer)) and count >= 1):
         raise ValidationError(f"paths: must be a positive integer, got {count!r}")
-    m = chain.m
-    if not (0 <= start[0] < m and 0 <= start[1] < m):
-        raise ValidationError(f"start: joint mode {start} outside 0..{m - 1}")
+    s_start = _check_start(chain, start)
     streams = _check_seed(seed).spawn(int(count))
     gens = [np.random.default_rng(k) for k in streams]
+    targets = _targets(chain)
     if beta is None:
-        betas = chain.beta_min + np.stack([g.random((m, m)) for g in gens]) * (chain.beta_max - chain.beta_min)
-        betas[:, np.arange(m), np.arange(m)] = 0.0
-        Q = _generators(chain, betas)
+        betas = _draw_rates(chain, gens)
+        rates, cdf = _generators(chain, betas, targets)
         row = np.arange(count)
     else:
-        betas = np.broadcast_to(chain.check_beta(beta), (count, m, m))
-        Q = chain.generator(betas[0])[None]
+        betas = np.broadcast_to(chain.check_beta(beta), (count, *chain.rate_shape))
+        rates, cdf = _jump_tables(chain.generator(betas[0])[None], targets)
         row = np.zeros(count, dtype=np.int64)
-    M = m * m
-    rates = -np.diagonal(Q, axis1=1, axis2=2)  # (·, M)
-    probs = np.clip(Q, 0.0, None)
-    probs[:, np.arange(M), np.arange(M)] = 0.0
-    cdf = np.cumsum(probs, axis=2)
-    cdf /= np.where(cdf[..., -1:] > 0.0, cdf[..., -1:], 1.0)  # the last entry exactly 1
+    path_of, times, states = _run(rates, cdf, targets, row, gens, s_start, horizon)
+    true_of, fdi_of = (np.array(v, dtype=np.int64) for v in zip(*chain.joint_modes))
+    true, fdi = true_of[states], fdi_of[states]
+    keep = np.ones(times.size, dtype=bool)  # a path's first segment, or a change of (true, fdi)
+    keep[1:] = (path_of[1:] != path_of[:-1]) | (true[1:] != true[:-1]) | (fdi[1:] != fdi[:-1])
+    path_of, times, true, fdi = path_of[keep], times[keep], true[keep], fdi[keep]
+    bounds = np.searchsorted(path_of, np.arange(count + 1))
+    out = []
+    for p in range(count):
+        seg = slice(bounds[p], bounds[p + 1])
+        out.append(ChainPath(times[seg], true[seg], fdi[seg], np.array(betas[p]), horizon, streams[p]))
+    return out
+
+
+def _run(rates: np.ndarray, cdf: np.ndarray, targets: np.ndarray, row: np.ndarray,
+         gens: list[np.random.Generator], s_start: int, horizon: float) -> tuple[np.ndarray, ...]:
+    """The jump recursion of :func:`sample_paths`; ``(path, time, state)`` of every
+    segment, ordered by path and, within a path, by time."""
+    count = len(gens)
     E = U = np.empty((count, 0))
-    state = np.full(count, start[0] * m + start[1], dtype=np.int64)
+    state = np.full(count, s_start, dtype=np.int64)
     t = np.zeros(count)
     alive = np.arange(count)
-    jump_t: list[np.ndarray] = []  # per jump k: the paths that jumped, their times, their new modes
+    jump_t: list[np.ndarray] = []  # per jump k: the paths that jumped, their times, their new states
     jump_p: list[np.ndarray] = []
     jump_s: list[np.ndarray] = []
     k = 0
@@ -194,7 +285,8 @@ def sample_paths(
         inside = t_next < horizon
         alive, t_next = alive[inside], t_next[inside]
         t[alive] = t_next
-        state[alive] = np.count_nonzero(cdf[row[alive], state[alive]] <= U[alive, b, None], axis=1)
+        pick = np.count_nonzero(cdf[row[alive], state[alive]] <= U[alive, b, None], axis=1)
+        state[alive] = targets[state[alive], pick]
         jump_p.append(alive)
         jump_t.append(t_next)
         jump_s.append(state[alive])
@@ -202,13 +294,8 @@ def sample_paths(
     path_of = np.concatenate([np.arange(count), *jump_p])
     order = np.argsort(path_of, kind="stable")  # per path, jumps in time order
     times = np.concatenate([np.zeros(count), *jump_t])[order]
-    modes = np.concatenate([np.full(count, start[0] * m + start[1]), *jump_s])[order]
-    bounds = np.searchsorted(path_of[order], np.arange(count + 1))
-    out = []
-    for p in range(count):
-        seg = slice(bounds[p], bounds[p + 1])
-        out.append(ChainPath(times[seg], modes[seg] // m, modes[seg] % m, np.array(betas[p]), horizon, streams[p]))
-    return out
+    states = np.concatenate([np.full(count, s_start), *jump_s])[order]
+    return path_of[order], times, states
 
 
 def communication_grid(path: ChainPath, step: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

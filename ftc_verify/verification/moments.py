@@ -9,7 +9,10 @@ moments :math:`X_s = E[\xi\xi^T 1\{\theta = s\}]` obey (Dynkin's formula, derive
     \dot X_s = A_s X_s + X_s A_s^T + B_s w\, m_s^T + m_s w^T B_s^T + \sum_{s'} Q_{s's} X_{s'},
     \quad \dot m_s = A_s m_s + B_s w\, p_s + \sum_{s'} Q_{s's} m_{s'},
 
-with :math:`m_s = E[\xi 1\{\theta=s\}]`, :math:`p = P(\theta = \cdot)`, and
+with :math:`m_s = E[\xi 1\{\theta=s\}]`, :math:`p = P(\theta = \cdot)`, :math:`\theta` the
+state ``(true, fdi, phase)`` of the joint chain (:mod:`ftc_verify.model.chain`, ``n_states``
+of them; :math:`Q` = :meth:`JointChain.generator` at the rate array ``beta``; the phases of
+a detection share their loop matrices), and
 :math:`E\int |z|^2 = \int \sum_s \operatorname{tr}(C_s X_s C_s^T)\,dt`. Both are folded into
 *one* homogeneous jump-linear system by augmenting the state, so that the second-moment
 generator of :mod:`ftc_verify.stability` applies unchanged:
@@ -79,6 +82,18 @@ def _vech(X: Matrix) -> Matrix:
     return np.concatenate([X[c:, c] for c in range(n)])
 
 
+def _start_state(loop: ClosedLoop, start: tuple[int, int]) -> int:
+    """The chain state of the initial joint mode ``(true, fdi)`` (phase 0), validated."""
+    m = loop.chain.m
+    try:
+        true, fdi = (int(v) for v in start)
+    except (TypeError, ValueError):
+        raise ValidationError(f"start: expected a joint mode (true, fdi), got {start!r}") from None
+    if not (0 <= true < m and 0 <= fdi < m):
+        raise ValidationError(f"start: joint mode {start} outside 0..{m - 1}")
+    return loop.chain.state_index(true, fdi)
+
+
 def _propagate(L: Matrix, ell: Matrix, v0: Matrix, horizon: float) -> tuple[Matrix, float]:
     """``(v(T), int_0^T ell' v dt)`` with ``v' = L v`` exactly (one augmented expm)."""
     N = L.shape[0]
@@ -92,7 +107,7 @@ def _propagate(L: Matrix, ell: Matrix, v0: Matrix, horizon: float) -> tuple[Matr
 
 @dataclass(frozen=True)
 class ExactEnergy:
-    """``E int_0^T |z|^2`` and ``int_0^T |w|^2`` for one disturbance, start and beta."""
+    """``E int_0^T |z|^2`` and ``int_0^T |w|^2`` for one disturbance, start and rate array."""
 
     y_energy: float
     w_energy: float
@@ -120,13 +135,15 @@ def exact_energy(
     a decaying disturbance, e.g. ``paper``); each disturbance channel gets the same
     shape, as in :func:`ftc_verify.paths.disturbance`. Works on the nominal loop or one
     with a fixed ``Delta`` applied (``ClosedLoop`` built from ``perturbed`` matrices).
+    ``beta`` is a rate array of the loop's chain (:meth:`JointChain.check_beta`: ``beta``,
+    or ``[beta, false_alarm]``); ``start`` is the initial ``(true, fdi)``, at phase 0.
     """
     if disturbance not in EXOSYSTEMS:
         raise ValidationError(f"disturbance: no exact model for {disturbance!r}; choose from {sorted(EXOSYSTEMS)}")
     if not (horizon > 0):
         raise ValidationError(f"horizon: must be positive, got {horizon!r}")
     beta = loop.chain.check_beta(beta)
-    m = loop.chain.m
+    s0 = _start_state(loop, start)
     n = loop.n
     x_init = np.zeros(n) if x0 is None else np.asarray(x0, dtype=float).reshape(-1)
     if x_init.shape != (n,):
@@ -134,12 +151,11 @@ def exact_energy(
     S, c, zeta0 = EXOSYSTEMS[disturbance]
     nw = loop.Bw[0].shape[1]
     # every disturbance channel is a copy of the scalar shape: one exosystem, w = 1 c' zeta
-    aug = _augmented(loop, [S] * (m * m), [Bw @ np.ones((nw, 1)) @ c[None, :] for Bw in loop.Bw])
+    aug = _augmented(loop, [S] * loop.chain.n_states, [Bw @ np.ones((nw, 1)) @ c[None, :] for Bw in loop.Bw])
     L = second_moment_generator(aug, beta)
     ell = _energy_functional(aug)
     xz = np.append(x_init, zeta0)
     size = aug.n * (aug.n + 1) // 2
-    s0 = start[0] * m + start[1]
     v = np.zeros(L.shape[0])
     v[s0 * size:(s0 + 1) * size] = _vech(np.outer(xz, xz))
     if math.isinf(horizon):
@@ -211,7 +227,8 @@ def worst_case_disturbance(
     if not (isinstance(pieces, int) and 1 <= pieces <= 400):
         raise ValidationError(f"pieces: must be an integer in 1..400, got {pieces!r}")
     beta = loop.chain.check_beta(beta)
-    m, n = loop.chain.m, loop.n
+    s0 = _start_state(loop, start)
+    n = loop.n
     nw = loop.Bw[0].shape[1]
     h = horizon / pieces
     values = [np.zeros(nw)] + [np.eye(nw)[c] for c in range(nw)]
@@ -222,7 +239,7 @@ def worst_case_disturbance(
             values.append(np.eye(nw)[c1] + np.eye(nw)[c2])
     steps = []
     for wv in values:
-        aug = _augmented(loop, [np.zeros((1, 1))] * (m * m), [(Bw @ wv)[:, None] for Bw in loop.Bw])
+        aug = _augmented(loop, [np.zeros((1, 1))] * loop.chain.n_states, [(Bw @ wv)[:, None] for Bw in loop.Bw])
         L = second_moment_generator(aug, beta)
         ell = _energy_functional(aug)
         size = L.shape[0]
@@ -233,7 +250,6 @@ def worst_case_disturbance(
     na = n + 1
     vsize = na * (na + 1) // 2
     v0 = np.zeros(steps[0].shape[0])
-    s0 = start[0] * m + start[1]
     e_last = np.zeros((na, na))
     e_last[n, n] = 1.0
     v0[s0 * vsize:(s0 + 1) * vsize] = _vech(e_last)

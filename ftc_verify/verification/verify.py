@@ -347,10 +347,9 @@ def run_verify(
         raise ValidationError(f"measure: {measure!r} is not 'total' or 'incremental'")
     seconds: dict[str, float] = {}
     seed = int(np.random.SeedSequence().entropy % 2**63) if seed is None else seed
-    options = {"fdi_model": system.chain.describe(),
-               "method": method if controller is None else "given controller", "gamma": gamma, "k_max": k_max,
-               "paths": paths, "step": step, "horizon": horizon, "solver": solver or "auto", "disturbance": "paper",
-               "measure": measure}
+    options = {"fdi_model": system.chain.describe(), "method": method if controller is None else "given controller",
+               "gamma": gamma, "k_max": k_max, "paths": paths, "step": step, "horizon": horizon,
+               "solver": solver or "auto", "disturbance": "paper", "measure": measure}
     checks: list[Check] = []
 
     def stage(name: str, t0: float) -> None:
