@@ -1,14 +1,19 @@
 r"""The closed-loop representation every analysis runs on.
 
-A :class:`ClosedLoop` is a linear jump system on the joint (true, FDI) chain: for each
-joint mode :math:`s = (i, j)`
+A :class:`ClosedLoop` is a linear jump system on the joint chain of
+:mod:`ftc_verify.model.chain` (true mode, FDI mode and, with phase-type detection
+delays, the phase of a detection under way): for each joint state :math:`s` with pair
+:math:`(i, j)` = (true, FDI)
 
 .. math::
 
     \dot\xi = \Bigl(A_s + \sum_k E_{s,k} \Delta_k F_{s,k}\Bigr)\xi + B_{w,s} w,
     \qquad z = C_{z,s} \xi, \qquad \|\Delta_k\| \le 1,
 
-where the :math:`(E, F)` pairs are the norm-bounded uncertainty channels.
+where the :math:`(E, F)` pairs are the norm-bounded uncertainty channels. The matrices
+of a state depend on its pair only (the controller sees the FDI mode :math:`j`, the plant
+is in mode :math:`i`), so the phases of one pair repeat the same entries; the chain's
+generator alone tells them apart.
 
 :func:`closed_loop` builds it from ``(system, controller)`` for every controller of
 :mod:`ftc_verify.controllers`, with the augmented state :math:`\xi = (x, x_c)`.
@@ -74,15 +79,16 @@ class Channel:
 
 @dataclass(frozen=True, eq=False)
 class ClosedLoop:
-    """Closed loop on the joint chain; per joint mode ``s = true * m + fdi``.
+    """Closed loop on the joint chain; one entry per joint state, in the order of
+    :attr:`JointChain.states` (with the paper's FDI model ``s = true * m + fdi``).
 
     Attributes
     ----------
     chain : JointChain
-        The joint (true, FDI) chain and its rate bounds.
-    A, Bw, Cz : tuple of arrays, one per joint mode
+        The joint (true, FDI, phase) chain and its rate bounds.
+    A, Bw, Cz : tuple of arrays, one per joint state
         Closed-loop state matrix, disturbance input and performance output.
-    channels : tuple of tuples of :class:`Channel`, one per joint mode
+    channels : tuple of tuples of :class:`Channel`, one per joint state
         Uncertainty channels (empty for a nominal loop).
     controller : str
         What produced the loop (for reports).
@@ -100,11 +106,11 @@ class ClosedLoop:
     n_plant: int | None = None
 
     def __post_init__(self) -> None:
-        count = self.chain.m ** 2
+        count = self.chain.n_states
         for name in ("A", "Bw", "Cz", "channels"):
             if len(getattr(self, name)) != count:
                 raise ValidationError(
-                    f"ClosedLoop.{name}: expected {count} joint modes, got {len(getattr(self, name))}"
+                    f"ClosedLoop.{name}: expected {count} joint states, got {len(getattr(self, name))}"
                 )
 
     @property
@@ -114,7 +120,8 @@ class ClosedLoop:
 
     @property
     def modes(self) -> tuple[tuple[int, int], ...]:
-        """Joint modes ``(true, fdi)``, 0-based, in index order."""
+        """The pair ``(true, fdi)`` of every joint state, 0-based, in index order (a pair
+        repeats once per detection phase)."""
         return self.chain.joint_modes
 
     @property
@@ -127,9 +134,13 @@ class ClosedLoop:
         return replace(self, channels=tuple(() for _ in self.A))
 
     def with_chain(self, chain: JointChain) -> "ClosedLoop":
-        """The same loop on another chain with the same number of modes."""
+        """The same loop on another chain with the same joint states (modes, phases)."""
         if chain.m != self.chain.m:
             raise ValidationError(f"with_chain: chain has {chain.m} modes, the loop {self.chain.m}")
+        if chain.states != self.chain.states:
+            raise ValidationError(f"with_chain: chain has {chain.n_states} joint states "
+                                  f"({chain.delay_phases} phases), the loop {self.chain.n_states} "
+                                  f"({self.chain.delay_phases} phases)")
         return replace(self, chain=chain)
 
     def scaled(self, d: Matrix) -> "ClosedLoop":
@@ -226,7 +237,8 @@ def barred(mode: Mode, measurement: Matrix, n_c: int) -> Barred:
 
 def _assemble(system: FTCSystem, entry: Callable[[int, int], tuple[Any, Any, Any, Any]],
               measurement: Callable[[Mode], Matrix], n_c: int, label: str) -> ClosedLoop:
-    """The loop of the module docstring from ``entry(i, j) = (Ac, Bc, Cc, Dc)``.
+    """The loop of the module docstring from ``entry(i, j) = (Ac, Bc, Cc, Dc)``, one
+    entry per joint state (``entry`` is called with the state's pair).
 
     With ``n_c = 0`` only ``Dc`` is used, so it may be a cvxpy expression (the synthesis
     LMIs); otherwise the entries are numbers and the barred form is used as written."""
@@ -280,15 +292,19 @@ def closed_loop(system: FTCSystem, controller: Controller) -> ClosedLoop:
 
 def state_feedback_loop(system: FTCSystem, gains: Sequence[Matrix], *, controller: str | None = None) -> ClosedLoop:
     """:func:`closed_loop` of static state feedback: ``m`` FDI-mode gains or ``m * m``
-    full-information gains (``controller`` overrides the label)."""
+    full-information gains, indexed ``true * m + fdi`` of a state's pair and shared by
+    its phases (``controller`` overrides the label)."""
     loop = closed_loop(system, Controller.state_feedback(gains).check(system, source="gains"))
     return loop if controller is None else replace(loop, controller=controller)
 
 
 def gain_loop(system: FTCSystem, gains: Sequence[Any], controller: str) -> ClosedLoop:
-    """State-feedback loop from ``m`` or ``m * m`` gains without validation, so that the
-    gains may be cvxpy expressions (the synthesis LMIs)."""
+    """State-feedback loop from ``m`` FDI-mode gains or ``m * m`` full-information gains
+    (index ``true * m + fdi`` of a state's pair, shared by its phases) without
+    validation, so that the gains may be cvxpy expressions (the synthesis LMIs)."""
     m = system.m
+    if len(gains) not in (m, m * m):
+        raise ValidationError(f"gain_loop: expected {m} or {m * m} gains, got {len(gains)}")
     full_info = len(gains) == m * m
 
     def entry(i: int, j: int) -> tuple[Any, Any, Any, Any]:

@@ -4,7 +4,7 @@ Plants come in physical units (metres against cubic metres per second) and in
 realisations nobody chose for their numerics, so the same loop can reach the float
 computations in coordinates where its Lyapunov matrices have condition numbers of
 1e12 and more. Every state-space quantity this project computes is invariant under a
-similarity :math:`x = T\tilde x` common to all joint modes
+similarity :math:`x = T\tilde x` common to all joint states
 
 .. math::
 
@@ -28,7 +28,7 @@ has to be exact.
    diagonal part of a change of units exactly.
 2. :math:`T_b`: the square-root balanced realisation of the *mode-averaged* loop
    :math:`\bar A = \sum_s \pi_s A_s` (:math:`\pi` the stationary distribution of the
-   joint chain at the centre of the ``beta`` box), shifted left if needed so that it is
+   joint chain at the centre of the rate box), shifted left if needed so that it is
    Hurwitz, with the regularised Gramians
 
    .. math::

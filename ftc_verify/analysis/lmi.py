@@ -4,8 +4,9 @@ The same functions build each block from cvxpy variables (solver path) and from 
 numbers a solver returned (certificate path): they only use ``+``, ``@``, ``.T``,
 scalar products and a ``bmat`` passed in (``cvxpy.bmat`` or :func:`numpy.block`).
 
-For joint mode :math:`s = (i, j)` with generator row :math:`q_s` (evaluated at one end
-of the only rate, :math:`\beta_{ji}`, that the row contains), let
+For joint state :math:`s` of the chain of :mod:`ftc_verify.model.chain` (pair
+:math:`(i, j)` = (true, FDI), and a detection phase) with generator row :math:`q_s`
+(evaluated at one vertex of the few rates that the row contains), let
 
 .. math::
 
@@ -34,9 +35,40 @@ of the only rate, :math:`\beta_{ji}`, that the row contains), let
 
   which is linear in :math:`(P, \lambda, g)` once the gains are fixed.
 
-Each block depends on one rate :math:`\beta_{ji}` affinely, so imposing it at both
-interval ends covers the whole ``beta`` box (paper, Remark 3) with ``m + 2 m (m - 1)``
-blocks instead of ``m**2 * 2**(m (m - 1))``.
+**Why these are the conditions for any joint chain** (re-derived for the richer FDI
+model). Nothing above uses the paper's particular generator: with
+:math:`V = \xi^T P_{\theta_t} \xi` and *any* generator :math:`Q` (off-diagonal rates
+:math:`\ge 0`, rows summing to zero), Dynkin's formula gives
+:math:`\frac{d}{dt} E[V] = E[\xi^T \Pi_{\theta_t} \xi]` (plus the :math:`w, z, \Delta`
+terms of the :math:`H_\infty` and robust blocks), so the blocks hold *row by row*: the
+block of state :math:`s` is all that is needed while the chain sits in :math:`s`, for
+every initial state; irreducibility is never used. The phases of an Erlang delay are
+states like any other (one :math:`P_s` each; the loop matrices of a pair repeat), a false
+alarm is a transition out of a matched state.
+
+**Covering the rate box.** Row :math:`s` of the generator depends affinely on few rates
+(:meth:`JointChain.row_rates`: the :math:`\beta_{ji}` of a detection state, entering as
+:math:`k \beta_{ji}`; the false-alarm rates out of :math:`i` for a matched state), and
+each block is affine in row :math:`s`; so imposing it at every vertex of those rates
+(:meth:`JointChain.row_rate_points`) covers the whole box (paper, Remark 3): with the
+paper's model ``m + 2 m (m - 1)`` blocks instead of ``m**2 * 2**(m (m - 1))``. The
+certificate is proved for the generator entries as floats (``k * beta`` rounded once
+when ``k`` is not a power of two).
+
+**Missed detections** (a vertex with :math:`\beta_{ji} = 0`). :math:`Q` is still a
+generator there: the detection states of the pair :math:`(i, j)` have no exit except,
+with ``fault_during_delay``, a new fault; without it the first phase of the pair (the one a
+fault enters) is absorbing. The block of a detection state at :math:`\beta_{ji} = 0`
+loses its detection coupling, :math:`\Pi_s = A_s^T P_s + P_s A_s` (plus the fault
+coupling of the variant): :math:`P_s` must be a Lyapunov (resp. bounded
+real, robust bounded real) certificate of the *frozen mismatched loop* (true mode
+:math:`i` under the controller of FDI mode :math:`j`) on its own. So a certificate at
+such a vertex means: the loop is mean-square stable, with the certified :math:`\gamma`,
+even for an FDI that never detects that fault -- the mismatched loop held for ever after
+it -- and, by the affine argument, for every detection rate in the interval, however
+slow. A missed detection is not always certifiable: if the frozen mismatched loop is
+unstable, so is the jump loop at that vertex (the absorbing block of the second-moment
+generator is that loop's Lyapunov operator), and both the exact test and the LMIs say so.
 """
 
 from __future__ import annotations
@@ -70,28 +102,41 @@ Bmat = Callable[[list[list[Any]]], Any]
 
 @dataclass(frozen=True, eq=False)
 class BlockSpec:
-    """One LMI instance: joint mode ``s = (true, fdi)`` at one end ``beta`` of its rate."""
+    """One LMI instance: joint state ``s`` (pair ``(true, fdi)``, detection ``phase`` of
+    ``phases``) at one vertex ``beta`` of the rates that enter its generator row.
+
+    ``beta`` is a rate array (shape :attr:`JointChain.rate_shape`: the rates of the row at
+    that vertex, the others at the box's midpoint), ``q_row`` the generator row there,
+    ``rates`` the row's rates at that vertex as :meth:`JointChain.row_label` writes them
+    (empty when the row depends on no uncertain rate)."""
 
     s: int
     true: int
     fdi: int
-    beta: float  # value of beta[fdi, true]; nan on diagonal modes (row independent of beta)
+    beta: Matrix
     q_row: Matrix
+    rates: str = ""
+    phase: int = 0
+    phases: int = 1
 
     @property
     def label(self) -> str:
-        """Human-readable name, 1-based modes as in the paper."""
-        base = f"(true {self.true + 1}, fdi {self.fdi + 1})"
-        return base if math.isnan(self.beta) else f"{base} beta[{self.fdi + 1}][{self.true + 1}]={self.beta:g}"
+        """Human-readable name, 1-based modes as in the paper (with the paper's FDI model
+        ``(true 1, fdi 2) beta[2][1]=2.5``)."""
+        base = f"(true {self.true + 1}, fdi {self.fdi + 1}"
+        base += f", phase {self.phase + 1}/{self.phases})" if self.phases > 1 and self.true != self.fdi else ")"
+        return f"{base} {self.rates}" if self.rates else base
 
 
 def block_specs(loop: ClosedLoop) -> tuple[BlockSpec, ...]:
-    """All LMI instances that cover the ``beta`` box (both ends of each row's rate)."""
+    """All LMI instances that cover the rate box: every joint state at every vertex of
+    the rates that enter its row (:meth:`JointChain.row_rate_points`)."""
     chain = loop.chain
     specs = []
-    for s, (i, j) in enumerate(chain.joint_modes):
-        for b in chain.row_beta_ends(i, j):
-            specs.append(BlockSpec(s, i, j, b, chain.row_generator(i, j, 0.0 if math.isnan(b) else b)))
+    for s, (i, j, p) in enumerate(chain.states):
+        for point in chain.row_rate_points(s):
+            specs.append(BlockSpec(s, i, j, point, chain.row_generator(s, point), chain.row_label(s, point), p,
+                                   chain.delay_phases))
     return tuple(specs)
 
 
@@ -132,7 +177,7 @@ def lyapunov_block(
 
     ``g is None`` gives Theorem 3.1's block; ``lam is None`` drops the uncertainty
     channels (Theorem 3.2); both given give Lemma 4.1's block. ``lam`` holds one
-    multiplier per channel of joint mode ``spec.s``.
+    multiplier per channel of joint state ``spec.s``.
 
     ``schur_F=True`` writes each :math:`\lambda_k F_k^T F_k` term in Schur form, as an
     extra row :math:`[F_k \;\; 0 \cdots -\lambda_k^{-1} I]`; this is the same
@@ -172,7 +217,7 @@ def xy_block(
     q_row: Matrix | None,
     bmat: Bmat,
 ) -> Any:
-    r"""Lemma 4.1's inequality for joint mode ``s`` in :math:`X_s = P_s^{-1}`, :math:`Y_s = K X_s`.
+    r"""Lemma 4.1's inequality for joint state ``s`` in :math:`X_s = P_s^{-1}`, :math:`Y_s = K X_s`.
 
     Derived here from eq. (16) by the congruence :math:`X_s (\cdot) X_s`, with
     :math:`\varepsilon = \lambda_1^{-1}`, :math:`\delta = \lambda_2^{-1}` and Schur
@@ -386,7 +431,7 @@ def check_certificate(
        :math:`P^{orig}_s` proved positive definite
        (:func:`~ftc_verify.analysis.rigorous.proven_positive_definite`, preconditioned by
        :math:`T` on the state rows). The coupling uses the off-diagonal rates of
-       :meth:`~ftc_verify.model.system.JointChain.row_generator` only (``_coupling``).
+       :meth:`~ftc_verify.model.chain.JointChain.row_generator` only (``_coupling``).
     """
     from .rigorous import ball, ball_bmat, precision, proven_positive_definite
 

@@ -1,7 +1,10 @@
 r"""LMI analysis of a fixed closed loop, with independently checked certificates.
 
-* :func:`mes_lmi` -- Theorem 3.1 over the whole ``beta`` box: find :math:`P_s > 0` with
-  :math:`\Pi_s < 0` at both ends of every rate. The conditions are homogeneous in
+* :func:`mes_lmi` -- Theorem 3.1 over the whole rate box: find :math:`P_s > 0` (one per
+  joint state of :mod:`ftc_verify.model.chain`) with :math:`\Pi_s < 0` at every vertex of
+  the rates of row :math:`s` (:func:`~ftc_verify.analysis.lmi.block_specs`; what a
+  certificate means at a missed-detection vertex, :math:`\beta = 0`, is stated in
+  :mod:`ftc_verify.analysis.lmi`). The conditions are homogeneous in
   :math:`P`, so the solver is asked for :math:`P_s \succeq I`, :math:`\Pi_s \preceq -I`
   (equivalent to strict feasibility) while minimising :math:`\max_s \lambda_{max}(P_s)`
   for conditioning.
@@ -23,7 +26,7 @@ failed, so that a coarse ladder does not cost up to a factor 10 in :math:`\rho`.
 
 Conditioning: before any LMI is built the loop is moved to the coordinates of
 :func:`~ftc_verify.analysis.conditioning.conditioning_transform` (one similarity
-:math:`x = T\tilde x` common to every joint mode: power-of-two balancing, then the
+:math:`x = T\tilde x` common to every joint state: power-of-two balancing, then the
 balanced realisation of the mode-averaged loop), where the solver sees well-scaled data.
 The certificate is not trusted to the transform: it is the original-coordinate
 :math:`P_s = T^{-T}\tilde P_s T^{-1}`, formed and checked in ball arithmetic on the
@@ -136,13 +139,13 @@ def lmi_memory_estimate(loop: ClosedLoop, *, robust: bool) -> float:
     n, modes = loop.n, len(loop.A)
     extra = max((sum(ch.E.shape[1] for ch in chans) if robust else 0) + Bw.shape[1] + Cz.shape[0]
                 for chans, Bw, Cz in zip(loop.channels, loop.Bw, loop.Cz))
-    blocks = sum(len(loop.chain.row_beta_ends(i, j)) for i, j in loop.modes)
+    blocks = sum(len(loop.chain.row_rate_points(s)) for s in range(loop.chain.n_states))
     return float(blocks * (n + extra) ** 2 * (2 * n + modes) * LMI_BYTES_PER_NONZERO)
 
 
 def _check_size(loop: ClosedLoop, robust: bool, condition: str) -> None:
     check_memory(lmi_memory_estimate(loop, robust=robust),
-                 f"the {condition} LMIs of a loop with n = {loop.n} and {len(loop.A)} joint modes",
+                 f"the {condition} LMIs of a loop with n = {loop.n} and {len(loop.A)} joint states",
                  hint="reduce the problem, or run the exact spectral test alone (analyze --no-lmi)")
 
 
@@ -164,12 +167,12 @@ def decision_size(loop: ClosedLoop, *, robust: bool) -> int:
 @dataclass(frozen=True)
 class _Layout:
     """Where each decision variable of the analysis programs lives in ``x``:
-    ``svec(P_s)`` for every joint mode, the multipliers ``lambda`` (robust only),
+    ``svec(P_s)`` for every joint state, the multipliers ``lambda`` (robust only),
     then ``g`` and ``t``."""
 
     n: int
     modes: int
-    channels: tuple[int, ...]  # multipliers per joint mode (all 0 when not robust)
+    channels: tuple[int, ...]  # multipliers per joint state (all 0 when not robust)
 
     @property
     def per_p(self) -> int:
@@ -280,7 +283,7 @@ def _conclude(condition: str, attempts: list[SolveOutcome], best: LMIResult | No
 
 
 def mes_lmi(loop: ClosedLoop, *, solver: str | None = None, known: Sequence[LMIResult] = ()) -> LMIResult:
-    r"""Theorem 3.1 (eq. (4)) on the nominal loop over the ``beta`` box, certified, on
+    r"""Theorem 3.1 (eq. (4)) on the nominal loop over the rate box, certified, on
     the balanced loop (module docstring).
 
     ``known``: certified :math:`H_\infty` results of the same loop (Theorem 3.2, Lemma

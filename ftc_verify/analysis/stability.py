@@ -77,7 +77,8 @@ def duplication_matrix(n: int) -> tuple[Matrix, Matrix]:
 
 
 def second_moment_generator(loop: ClosedLoop, beta: Matrix) -> Matrix:
-    """The matrix :math:`\\mathcal{L}` of the module docstring for rates ``beta``."""
+    """The matrix :math:`\\mathcal{L}` of the module docstring for the rate array ``beta``
+    (shape :attr:`JointChain.rate_shape`)."""
     return second_moment_matrix(loop.A, loop.chain.generator(beta))
 
 
@@ -255,7 +256,7 @@ def _vech_order(n: int) -> tuple[Matrix, Matrix]:
 
 @dataclass(frozen=True, eq=False)
 class MSSResult:
-    """Worst spectral abscissa over the ``beta`` vertices evaluated, and the verified verdict.
+    """Worst spectral abscissa over the rate vertices evaluated, and the verified verdict.
 
     ``spectral_abscissa`` is the float64 estimate, computed in the coordinates of
     :func:`~ftc_verify.analysis.conditioning.conditioning_transform`; ``verdict`` is
@@ -263,7 +264,8 @@ class MSSResult:
     (:mod:`ftc_verify.analysis.verdict`; ``vertex_verdicts`` says how). ``exhaustive``
     tells whether every vertex was evaluated; otherwise a greedy ascent over vertices
     (single-rate flips from the all-min and all-max vertices) was used and the value is
-    a lower bound of the vertex maximum.
+    a lower bound of the vertex maximum. ``worst_beta`` is the worst vertex as a rate
+    array (:attr:`JointChain.rate_shape`: ``beta``, or ``[beta, false_alarm]``).
     """
 
     spectral_abscissa: float
@@ -323,8 +325,15 @@ def _verified(loop: ClosedLoop, sim: Similarity, vertices: list[Matrix], estimat
 
 def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256,
                           budget_seconds: float = BUDGET_SECONDS) -> MSSResult:
-    """Worst spectral abscissa over the vertices of the ``beta`` box, and the verified
-    verdict at every vertex evaluated.
+    """Worst spectral abscissa over the vertices of the rate box (:meth:`JointChain.vertices`:
+    ``beta``, and the false-alarm rates when given), and the verified verdict at every
+    vertex evaluated.
+
+    A vertex with a detection rate 0 is a missed detection: the detection states of that
+    pair are absorbing there (without ``fault_during_delay``), the second-moment generator
+    is block triangular and its abscissa is at least twice the abscissa of that frozen
+    mismatched loop; the verdict there is about an FDI that never detects the fault
+    (:mod:`ftc_verify.analysis.lmi`).
 
     The loop is first moved to the coordinates of
     :func:`~ftc_verify.analysis.conditioning.conditioning_transform`. Every vertex is
@@ -345,12 +354,13 @@ def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256,
     modes_part = _sparse_modes(nominal) if prune else None
     exact: dict[tuple[bool, ...], float] = {}
     seen: set[tuple[bool, ...]] = set()
-    pairs = chain.beta_pairs
+    pairs = chain.rate_indices  # beta pairs first, then the false-alarm pairs (chain.vertices() order)
+    lo, hi = chain.rate_min, chain.rate_max
 
     def vertex(bits: tuple[bool, ...]) -> Matrix:
-        b = np.zeros((chain.m, chain.m))
-        for (j, i), hi in zip(pairs, bits):
-            b[j, i] = chain.beta_max[j, i] if hi else chain.beta_min[j, i]
+        b = np.zeros(chain.rate_shape)
+        for idx, up in zip(pairs, bits):
+            b[idx] = hi[idx] if up else lo[idx]
         return b
 
     def value(bits: tuple[bool, ...], near: float | None = None) -> float:
@@ -378,7 +388,7 @@ def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256,
         return MSSResult(exact[worst], vertex(worst), len(evaluated), exhaustive, len(exact), verdict, proofs, sim)
 
     if chain.vertex_count() <= max_vertices:
-        ends = [(False, True) if chain.beta_min[j, i] != chain.beta_max[j, i] else (False,) for j, i in pairs]
+        ends = [(False, True) if lo[idx] != hi[idx] else (False,) for idx in pairs]
         order = list(itertools.product(*ends))  # the order of chain.vertices()
         worst = order[0]
         value(worst)

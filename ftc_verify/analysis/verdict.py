@@ -2,9 +2,11 @@ r"""Verified mean-square stability verdicts: "stable", "not stable" or "undecide
 
 The exact test of :mod:`ftc_verify.analysis.stability` computes the spectral abscissa
 :math:`\mu` of the second-moment generator :math:`\mathcal L` in float64; an
-ill-conditioned loop can move it across zero. Here every verdict at a ``beta`` vertex
-comes with a certificate checked in ball arithmetic (:mod:`ftc_verify.analysis.rigorous`)
-in the loop's *original* coordinates, from the float data taken as exact.
+ill-conditioned loop can move it across zero. Here every verdict at a vertex of the
+rate box (a rate array of :mod:`ftc_verify.model.chain`: ``beta``, or ``[beta,
+false_alarm]``) comes with a certificate checked in ball arithmetic
+(:mod:`ftc_verify.analysis.rigorous`) in the loop's *original* coordinates, from the
+float data taken as exact.
 
 With :math:`\mathcal L(X)_s = A_s X_s + X_s A_s^T + \sum_{t} Q_{ts} X_t` (resolvent
 positive: :math:`e^{\mathcal L t}` maps positive semidefinite stacks to positive
@@ -12,7 +14,7 @@ semidefinite stacks; its adjoint has an eigenvector :math:`Z \succeq 0`, :math:`
 :math:`\mathcal L^*(Z) = \mu Z`, Krein-Rutman), derived here:
 
 * **Stable** (:math:`\mu < 0`) if some :math:`X` has :math:`X_s \succ 0` and
-  :math:`-\mathcal L(X)_s \succ 0` for every joint mode :math:`s`: then
+  :math:`-\mathcal L(X)_s \succ 0` for every joint state :math:`s`: then
   :math:`0 > \langle \mathcal L(X), Z\rangle = \mu \langle X, Z\rangle` with
   :math:`\langle X, Z\rangle > 0`.
 * **Not stable** (:math:`\mu \ge 0`) if some :math:`X` has :math:`-\mathcal L(X)_s
@@ -22,6 +24,12 @@ semidefinite stacks; its adjoint has an eigenvector :math:`Z \succeq 0`, :math:`
   witness :math:`W \succ 0` with :math:`\mathcal L(W) \succ 0` need not exist: the
   rightmost eigenvector is often of rank one.) With :math:`X` the exact solution of
   :math:`\mathcal L(X) = -I` this is the same argument.
+
+Both arguments use only that :math:`Q` is a generator (off-diagonal rates
+:math:`\ge 0`, rows summing to zero), never that the chain is irreducible: they hold on
+the joint chain with detection phases and false alarms, and at a missed-detection vertex
+(:math:`\beta_{ji} = 0`, the detection states of the pair absorbing), where "stable"
+means stable for an FDI that never detects that fault.
 
 The candidate :math:`X` comes from the loop in the coordinates of
 :func:`~ftc_verify.analysis.conditioning.conditioning_transform` (float: solve
@@ -63,7 +71,7 @@ FALLBACK_BITS = (128, 256, 512)
 
 @dataclass(frozen=True)
 class VertexVerdict:
-    """The verified verdict at one ``beta`` vertex and how it was proved."""
+    """The verified verdict at one vertex (a rate array ``beta``) and how it was proved."""
 
     beta: Matrix
     verdict: str

@@ -24,7 +24,11 @@ eigenvectors :math:`v`, :math:`u` (:math:`u^H \mathcal L = \lambda u^H`) is
 .. math::
 
     \nabla_{A_s}\mu = \operatorname{Re}\frac{\bar U_s V_s^T + U_s^H V_s}{u^H v}, \qquad
-    \nabla_{\mathcal K_j}\mu = \sum_i \bar B_{0i}^T \,\nabla_{A_{(i,j)}}\mu\, \bar C_i^T .
+    \nabla_{\mathcal K_j}\mu = \sum_{s = (i, j, p)} \bar B_{0i}^T \,\nabla_{A_s}\mu\, \bar C_i^T ,
+
+the sum over every joint state of FDI mode :math:`j` (every true mode :math:`i` and, with
+the phase-type delays of :mod:`ftc_verify.model.chain`, every phase :math:`p`: the
+phases share the matrix :math:`A_{(i,j)}`, so their gradients add up).
 
 The minimisation is BFGS with a weak Wolfe line search, the method Lewis and Overton
 showed to work on such nonsmooth functions (and HIFOO uses for fixed-order
@@ -45,6 +49,7 @@ to the core analysis (the verified verdict and the certified gammas).
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -119,10 +124,11 @@ class Parametrisation:
         return np.concatenate([np.asarray(K, dtype=float).ravel() for K in blocks])
 
     def loop_matrices(self, theta: Matrix) -> list[Matrix]:
-        """``A_s`` for every joint mode ``s = i m + j``."""
+        """``A_s`` for every joint state ``s`` of the system's chain (pair ``(i, j)``; the
+        phases of a pair repeat its matrix)."""
         K = self.blocks(theta)
-        m = self.system.m
-        return [self.A0[i] + self.B0[i] @ K[j] @ self.Cbar[i] for i in range(m) for j in range(m)]
+        pair = {(i, j): self.A0[i] + self.B0[i] @ K[j] @ self.Cbar[i] for i, j in set(self.system.chain.joint_modes)}
+        return [pair[ij] for ij in self.system.chain.joint_modes]
 
     def controller(self, theta: Matrix, name: str) -> Controller:
         """The dynamic controller of ``theta``."""
@@ -153,9 +159,11 @@ def abscissa_gradient(A: Sequence[Matrix], Q: Matrix) -> tuple[float, list[Matri
 
 def worst_abscissa(par: Parametrisation, chain: JointChain, theta: Matrix,
                    vertices: Sequence[int] | None = None) -> tuple[float, Matrix]:
-    """``(f, grad f)``: the worst abscissa over the vertices of ``chain``'s ``beta`` box
+    """``(f, grad f)``: the worst abscissa over the vertices of ``chain``'s rate box
     (or over the vertex indices ``vertices`` of :meth:`JointChain.vertices`) and its
-    gradient in ``theta`` (module docstring)."""
+    gradient in ``theta`` (module docstring; the sum over :math:`i` there runs over every
+    joint state of FDI mode :math:`j`, all phases). ``chain`` has the joint states of
+    ``par.system.chain`` (the continuation only scales its rates)."""
     A = par.loop_matrices(theta)
     betas = list(chain.vertices())
     best: tuple[float, list[Matrix]] | None = None
@@ -165,12 +173,10 @@ def worst_abscissa(par: Parametrisation, chain: JointChain, theta: Matrix,
             best = (mu, grads)
     assert best is not None
     mu, grads = best
-    m = par.system.m
     r, c = par.shape
-    gK = np.zeros((m, r, c))
-    for i in range(m):
-        for j in range(m):
-            gK[j] += par.B0[i].T @ grads[i * m + j] @ par.Cbar[i].T
+    gK = np.zeros((par.system.m, r, c))
+    for s, (i, j) in enumerate(chain.joint_modes):  # every state of the pair (i, j): its phases
+        gK[j] += par.B0[i].T @ grads[s] @ par.Cbar[i].T
     return mu, gK.ravel()
 
 
@@ -277,7 +283,9 @@ class DescentResult:
 
 
 def _scaled_chain(chain: JointChain, kappa: float) -> JointChain:
-    return JointChain(chain.alpha, kappa * chain.beta_min, kappa * chain.beta_max, chain.fault_during_delay)
+    """``chain`` with every detection rate times ``kappa`` (mean delays divided by it; the
+    phases, false-alarm rates and variant kept)."""
+    return dataclasses.replace(chain, beta_min=kappa * chain.beta_min, beta_max=kappa * chain.beta_max)
 
 
 def stabilise(system: FTCSystem, order: int, *, starts: Sequence[tuple[str, Matrix]] = (), seed: int = 0,

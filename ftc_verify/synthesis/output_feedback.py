@@ -189,7 +189,7 @@ def ccl_constraints(aug: FTCSystem, cbars: list[Matrix], P: list[Any], X: list[A
         if Nx.shape[1]:
             cons.append(0.5 * (Nx.T @ Mx @ Nx + (Nx.T @ Mx @ Nx).T) << -margin * np.eye(Nx.shape[1]))
     nb = aug.dims[0]
-    for s in range(m * m):
+    for s in range(aug.chain.n_states):
         cons.append(cp.bmat([[P[s], np.eye(nb)], [np.eye(nb), X[s]]]) >> 0)
         cons.append(cp.Constant(np.eye(nb)) @ X[s] >> margin * np.eye(nb))  # (also when X holds numbers)
         for la, ep in zip(lam[s], eps[s]):
@@ -224,8 +224,8 @@ def ccl(system: FTCSystem, gamma: float, calls: _Calls, k_max: float | None, *, 
     import cvxpy as cp
 
     aug, cbars = augmented_system(system)
-    m, nb = system.m, aug.dims[0]
-    S = m * m
+    nb = aug.dims[0]
+    S = aug.chain.n_states  # one P_s, X_s per joint state
     P = [cp.Variable((nb, nb), symmetric=True) for _ in range(S)]
     X = [cp.Variable((nb, nb), symmetric=True) for _ in range(S)]
     chans = [_channel_count(aug, i) for i, _ in aug.chain.joint_modes]
@@ -424,7 +424,7 @@ def synthesize_output_feedback(
                               f"n = {n0} only")
     t0 = time.perf_counter()
     n = n0 + order
-    name = choose_solver(solver, system.m ** 2 * (n * (n + 1) + 1))
+    name = choose_solver(solver, system.chain.n_states * (n * (n + 1) + 1))
     calls = _Calls(name)
     full = order == n0
     rows = _observer_rows(system, k_max, name, calls) if full else []

@@ -22,10 +22,12 @@ exact spectral test and certified a robust gamma (Lemma 4.1) for it.
     distribution :math:`\pi` of the fault chain,
     :math:`\bar A = \sum_i \pi_i A_i`, :math:`\bar B = \sum_i \pi_i B_i` (textbook weights).
 ``full-info projected``
-    The full-information design (gains :math:`K_{ij}` that may use the true mode, the
-    convex relaxation) projected onto FDI-mode gains by averaging over the true modes with
-    the weights of the joint chain's stationary distribution at the midpoint of the
-    ``beta`` box: :math:`K_j = \sum_i p_{ij} K_{ij} / \sum_i p_{ij}`.
+    The full-information design (gains :math:`K_s` that may use the true mode, the
+    convex relaxation; one per joint state ``s``) projected onto FDI-mode gains by
+    averaging over the joint states of FDI mode ``j`` (every true mode and, with
+    phase-type delays, every phase) with the weights of the joint chain's stationary
+    distribution at the midpoint of the rate box:
+    :math:`K_j = \sum_{s = (i, j, p)} p_s K_s / \sum_{s = (i, j, p)} p_s`.
 
 With a gain bound ``k_max`` a candidate gain with :math:`\|K_j\|_2 > k_{max}` is scaled onto
 the bound (:math:`K_j k_{max}/\|K_j\|_2`) and the start is marked "scaled to the gain
@@ -122,7 +124,8 @@ def _output_weight(mode: Any) -> Matrix:
 
 def candidates(system: FTCSystem, k_max: float | None, full_info: list[Matrix] | None) -> list[Candidate]:
     """The classical starting designs of the module docstring, in order. ``full_info``:
-    the full-information gains ``K_s`` in joint-mode order (``None`` when that LMI failed)."""
+    the full-information gains ``K_s``, one per joint state in the chain's order (``None``
+    when that LMI failed)."""
     n, nu = system.dims[0], system.dims[1]
     out = [_per_mode("lqr", system, lambda md: (10.0 * np.eye(n), np.eye(nu)), k_max)]
     for rho in LQR_SCALES:
@@ -175,7 +178,7 @@ def stabilisability(system: FTCSystem, *, dual: bool = False) -> list[dict[str, 
 
 def certify_start(system: FTCSystem, name: str, gains: tuple[Matrix, ...] | list[Matrix], solver: str,
                   note: str = "", *, loop: Any = None) -> dict[str, Any]:
-    """The core analysis of one start: the exact spectral test at every ``beta`` vertex,
+    """The core analysis of one start: the exact spectral test at every rate vertex,
     then the robust gamma of Lemma 4.1 (certificate re-checked with numpy). Returns the
     ``starts`` row of the synthesis result: ``name``, ``gamma_certified`` (``None`` when
     not certified), ``spectral_abscissa``, ``note`` and ``reason`` (why it does not count).

@@ -40,6 +40,20 @@ property suite). No *numerical* lower bound is claimed from it: Clarabel reporte
 ``optimal`` at values 1.5x to 4x above certified FDI-only designs whenever the feasible
 set near the optimum needs badly conditioned ``X`` (measured cond 2.5e5), so only a
 dual certificate could make that bound sound.
+
+**The joint chain** (:mod:`ftc_verify.model.chain`: Erlang-``k`` detection delays, false
+alarms, missed detections). The index ``ij`` above stands for a joint *state* ``s``: one
+:math:`X_s` (:math:`P_s`), :math:`\varepsilon_s, \delta_s` per state, and each block
+imposed at every vertex of the rates in its generator row
+(:func:`~ftc_verify.analysis.lmi.block_specs`); the gains :math:`K_j` still depend on the
+FDI mode only, shared across true modes and phases. With ``delay_phases > 1`` the
+``full-info`` design shares :math:`X, Y` among the phases of a pair (the gain of a pair
+is one matrix, as the ``m * m`` tables hold), so it is then a design and no longer a
+relaxation of every FDI-only design (that argument needs one :math:`X` per state); with
+the paper's model nothing changes. At a missed-detection vertex (:math:`\beta_{ji} = 0`)
+the blocks of the pair ``(i, j)`` lose their detection coupling, so the designed
+:math:`K_j` must make the frozen loop of true mode ``i`` stable (and
+:math:`\gamma`-attenuating) on its own (:mod:`ftc_verify.analysis.lmi`).
 """
 
 from __future__ import annotations
@@ -55,20 +69,16 @@ from ..controllers.controller import Controller
 from ..analysis.analyze import AnalysisReport, analyze, json_ready
 from ..analysis.closedloop import closed_loop, gain_loop, state_feedback_loop
 from ..errors import ValidationError
-from ..analysis.lmi import block_specs, lyapunov_block, projection, xy_block
-from ..analysis.lmi_analysis import GAMMA_LADDER, hinf_gamma
+from ..analysis.lmi import block_specs, lyapunov_block
+from ..analysis.lmi_analysis import hinf_gamma
 from ..model.system import FTCSystem, Matrix
 from ..analysis.solvers import SolveOutcome, choose_solver, solve
 from .starts import candidates, certify_start, diagnose
+from .xy_design import CENTRE_WEIGHT, MARGIN_TOL, _gain_bound, _xy_solve  # noqa: F401 (re-exported for callers)
 
 __all__ = ["METHODS", "SynthesisResult", "synthesize", "two_step", "gain_step", "descend"]
 
 METHODS = ("two-step", "iterative", "full-info", "common")
-#: An (X, Y) problem counts as strictly feasible when its maximised margin exceeds this
-#: (a heuristic only: every result is certified by the core analysis afterwards).
-MARGIN_TOL = 1e-10
-#: Weight of the size penalty that keeps the capped-margin (X, Y) problems bounded.
-CENTRE_WEIGHT = 1e-6
 #: Relative width at which the gamma bisection of ``two-step --minimize`` stops.
 BISECTION_RTOL = 2e-3
 
@@ -187,111 +197,6 @@ class _Calls:
         return sum(o.seconds for o in self.outcomes) + self.nested_seconds
 
 
-def _gain_bound(K: Any, k_max: float, mu: Any = 1.0) -> Any:
-    r"""``||K||_2 <= k_max * mu`` as the LMI :math:`[[\mu I, K^T/k], [K/k, \mu I]] \succeq 0`.
-
-    Dividing ``K`` by the bound (rather than writing ``k I`` on the diagonal) keeps the
-    problem scaled: a huge bound such as ``1e300`` becomes a vanishing coupling, i.e. no
-    bound, instead of a diagonal that swamps every other entry of the LMI.
-    """
-    nu, n = K.shape
-    import cvxpy as cp
-
-    return cp.bmat([[mu * np.eye(n), K.T / k_max], [K / k_max, mu * np.eye(nu)]]) >> 0
-
-
-def _xy_solve(system: FTCSystem, kind: str, gamma: float | None, calls: _Calls, k_max: float | None) -> dict[str, Any] | None:
-    """Solve the (X, Y) inequality of :func:`xy_block`.
-
-    ``kind``: ``"projected"`` (step 1 of Theorem 4.1, no ``Y``), ``"full-info"`` (one
-    ``X, Y`` per joint mode) or ``"common"`` (one ``X, Y``, no coupling). With ``gamma``
-    given the margin ``t`` is maximised at ``g = gamma**2``; with ``gamma=None`` gamma is
-    minimised first and the problem re-centred at ``gamma* (1 + 1e-3)``. Returns the
-    numbers, or ``None`` when the solver returned no point or no positive margin.
-    """
-    import cvxpy as cp
-
-    m, n, nu = system.m, system.dims[0], system.dims[1]
-    S = m * m
-    common = kind == "common"
-    Xv = [cp.Variable((n, n), symmetric=True)] * S if common else [cp.Variable((n, n), symmetric=True) for _ in range(S)]
-    Yv: list[Any] = [None] * S
-    if kind != "projected":
-        Yv = [cp.Variable((nu, n))] * S if common else [cp.Variable((nu, n)) for _ in range(S)]
-    eps = [cp.Variable(nonneg=True) for _ in range(S)]
-    dlt = [cp.Variable(nonneg=True) for _ in range(S)]
-    g = cp.Variable(nonneg=True)
-    t = cp.Variable()
-    g_par = cp.Parameter(nonneg=True)
-
-    def constraints(gval: Any, margin: Any) -> list[Any]:
-        cons = []
-        seen: set[int] = set()
-        probe = gain_loop(system, [np.zeros((nu, n))] * m, "probe")
-        for spec in block_specs(probe):
-            if common and spec.true in seen:
-                continue
-            seen.add(spec.true)
-            mode = system.modes[spec.true]
-            q_row = None if common else spec.q_row
-            M = xy_block(mode, Xv, spec.s, Yv[spec.s], eps[spec.s], dlt[spec.s], gval, q_row, cp.bmat)
-            if kind == "projected":
-                coupled = sum(1 for k, q in enumerate(spec.q_row) if k != spec.s and q > 0)
-                N = projection(mode, coupled)
-                if N.shape[1] == 0:
-                    continue
-                M = N.T @ M @ N
-            M = 0.5 * (M + M.T)
-            cons.append(M << -margin * np.eye(M.shape[0]))
-        for X in {id(x): x for x in Xv}.values():
-            cons.append(X >> margin * np.eye(n))
-        if k_max is not None and kind != "projected":
-            mu = cp.Variable(nonneg=True)
-            for X, Y in {id(x): (x, y) for x, y in zip(Xv, Yv)}.values():
-                cons += [X >> mu * np.eye(n), _gain_bound(Y, k_max, mu)]
-        return cons
-
-    if gamma is None:
-        out = calls.run(cp.Problem(cp.Minimize(g), constraints(g, 0.0)))
-        if not out.solved or g.value is None:
-            return None
-        value = math.sqrt(max(float(g.value), 0.0))
-        ladder = [value * (1.0 + rho) + 1e-7 for rho in GAMMA_LADDER]
-    else:
-        ladder = [gamma]
-    # The margin is capped (t <= 1) to keep the problem bounded; once the cap binds, the
-    # maximiser is not unique and an interior-point method drifts to huge X, eps, delta
-    # (measured: 1e5-4e6 at gamma = 10, after which step 2 failed). A small penalty on
-    # trace(X) and the multipliers selects a bounded point without changing which t is reachable.
-    # Only step 1 of two-step showed it; the baselines' re-centred margins on degenerate
-    # plants are ~1e-7, which the penalty would swamp, so they keep the plain objective.
-    objective: Any = t
-    if kind == "projected":
-        unique_x = list({id(x): x for x in Xv}.values())
-        size = sum(cp.trace(x) for x in unique_x) / (len(unique_x) * n) + (sum(eps) + sum(dlt)) / (2 * S)
-        objective = t - CENTRE_WEIGHT * size
-    centred = cp.Problem(cp.Maximize(objective), constraints(g_par, t) + [t <= 1.0])
-    for level in ladder:
-        g_par.value = level ** 2
-        out = calls.run(centred)
-        if out.solved and t.value is not None and float(t.value) > MARGIN_TOL:
-            break
-    else:
-        return None
-
-    def num(v: Any) -> float:
-        return math.nan if v.value is None else float(v.value)  # unused multipliers (common X)
-
-    return {
-        "X": [np.array(X.value) for X in Xv],
-        "Y": None if kind == "projected" else [np.array(Y.value) for Y in Yv],
-        "eps": [num(e) for e in eps],
-        "delta": [num(d) for d in dlt],
-        "gamma": level,
-        "margin": float(t.value),
-    }
-
-
 def gain_step(
     system: FTCSystem,
     P: list[Matrix],
@@ -323,7 +228,7 @@ def gain_step(
         gains = [np.zeros((nu, n))] * m
         gains[j] = K
     else:
-        gains = [K @ measurement[i] if jj == j else np.zeros((nu, n)) for i, jj in system.chain.joint_modes]
+        gains = [K @ measurement[i] if jj == j else np.zeros((nu, n)) for i in range(m) for jj in range(m)]
     loop = gain_loop(system, gains, "gain step")
     cons = []
     for spec in block_specs(loop):
@@ -526,7 +431,7 @@ def synthesize(
             raise ValidationError(f"{name}: must be a positive finite number, got {val!r}")
     t0 = time.perf_counter()
     n = system.dims[0]
-    name = choose_solver(solver, system.m ** 2 * (n * (n + 1) // 2 + n * system.dims[1]) + 1)
+    name = choose_solver(solver, system.chain.n_states * (n * (n + 1) // 2 + n * system.dims[1]) + 1)
     calls = _Calls(name)
     history: list[float] = []
     if method == "two-step":
@@ -536,8 +441,9 @@ def synthesize(
         if sol is None:
             gains, gsyn, msg = None, None, f"{method} LMI infeasible" + (f" at gamma {gamma:.6g}" if gamma else "")
         else:
-            Ks = [Y @ np.linalg.inv(X) for X, Y in zip(sol["X"], sol["Y"])]
-            gains = Ks[:1] * system.m if method == "common" else Ks
+            Ks = [Y @ np.linalg.inv(X) for X, Y in zip(sol["X"], sol["Y"])]  # per joint state
+            pairs = [Ks[system.chain.state_index(i, j)] for i in range(system.m) for j in range(system.m)]
+            gains = Ks[:1] * system.m if method == "common" else pairs
             gsyn, msg = sol["gamma"], f"{method} LMI solved at gamma {sol['gamma']:.6g}"
     rows: list[dict[str, Any]] = []
     start_name = None

@@ -88,7 +88,7 @@ def identical_mode_loop(seed: int, n: int, *, norm: float = 1.0, diagonal_condit
     C = C * (norm / base)
     S = similarity(rng, n, diagonal_condition, transform_condition)
     S_inv = np.linalg.inv(S)
-    count = chain.m ** 2
+    count = chain.n_states
 
     def make(a: Matrix, b: Matrix, c: Matrix) -> ClosedLoop:
         return ClosedLoop(chain, (a,) * count, (b,) * count, (c,) * count, ((),) * count, "peer family")

@@ -93,7 +93,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
@@ -381,11 +381,15 @@ class MultiModePeer(PeerLoop):
 
 
 def point_chain(chain: JointChain | None = None) -> JointChain:
-    """``chain`` (default the paper's two-mode chain) with its ``beta`` box collapsed to
-    its midpoint, so that the loop has one generator."""
+    """``chain`` (default the paper's two-mode chain) with its rate box (detection and, when
+    given, false-alarm rates) collapsed to its midpoint, so that the loop has one
+    generator; its phases and variant kept."""
     chain = two_mode_chain() if chain is None else chain
-    mid = chain.midpoint()
-    return JointChain(chain.alpha, mid, mid.copy(), chain.fault_during_delay)
+    beta, false_alarm = chain.split(chain.midpoint())
+    if false_alarm is None:
+        return replace(chain, beta_min=beta, beta_max=beta.copy())
+    return replace(chain, beta_min=beta, beta_max=beta.copy(), false_alarm_min=false_alarm,
+                   false_alarm_max=false_alarm.copy())
 
 
 def multi_mode_loop(seed: int, n: int, *, norm: float | None = None, diagonal_condition: float = 1.0,
@@ -394,7 +398,8 @@ def multi_mode_loop(seed: int, n: int, *, norm: float | None = None, diagonal_co
     """A mean-square stable loop with different modes, drawn from
     ``numpy.random.default_rng(seed)`` on :func:`point_chain` of ``chain``.
 
-    Per joint mode: ``A_s`` standard normal shifted so that its abscissa is in
+    Per joint state (one per pair with the paper's FDI model; a chain with detection
+    phases draws a matrix per phase too): ``A_s`` standard normal shifted so that its abscissa is in
     ``-[0.2, 1.5]``, ``Bw_s`` n x 1 and ``Cz_s`` 1 x n standard normal (redrawn from the
     same stream until the MJLS is mean-square stable); with ``norm`` every ``Cz_s`` is
     scaled so that the :func:`mjls_hinf_norm` is ``norm`` (the norm is linear in ``Cz``).
@@ -403,7 +408,7 @@ def multi_mode_loop(seed: int, n: int, *, norm: float | None = None, diagonal_co
     """
     rng = np.random.default_rng(seed)
     chain = point_chain(chain)
-    count = chain.m ** 2
+    count = chain.n_states
     Q = chain.generator(chain.midpoint())
     for _ in range(max_draws):
         A = []
