@@ -337,6 +337,11 @@ class JointChain:
         """Row ``s`` of the generator at the rate array ``point``."""
         return self.generator(point)[s]
 
+    def rate_text(self, point: ArrayLike) -> str:
+        """A rate array for messages: ``beta [[...]]`` (and ``false_alarm [[...]]``)."""
+        b, fa = self.split(point)
+        return f"beta {b.tolist()}" + ("" if fa is None else f", false_alarm {fa.tolist()}")
+
     def describe(self) -> str:
         """The FDI model in one line."""
         k = self.delay_phases

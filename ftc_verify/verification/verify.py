@@ -164,7 +164,8 @@ def _exact_energies(system: FTCSystem, loop: ClosedLoop, g2: float) -> tuple[lis
                           "ratio": e.ratio})
     worst = max(exact, key=lambda e: e["ratio"])
     return exact, Check("exact energy", worst["ratio"] <= g2,
-                        f"max E||y||^2/||w||^2 = {worst['ratio']:.6g} ({worst['delta']}, beta {worst['beta']}) "
+                        f"max E||y||^2/||w||^2 = {worst['ratio']:.6g} ({worst['delta']}, "
+                        f"{system.chain.rate_text(worst['beta'])}) "
                         f"vs gamma^2 = {g2:.6g}, {len(exact)} cases, infinite horizon")
 
 
