@@ -195,6 +195,16 @@ class JointChain:
             return before + fdi * k
         return before + fdi * k + phase - (k - 1) * (fdi > true)
 
+    def start_state(self, start: tuple[int, int]) -> int:
+        """The state index of an initial joint mode ``(true, fdi)`` (phase 0), validated."""
+        try:
+            true, fdi = (int(v) for v in start)
+        except (TypeError, ValueError):
+            raise ValidationError(f"start: expected a joint mode (true, fdi), got {start!r}") from None
+        if not (0 <= true < self.m and 0 <= fdi < self.m):
+            raise ValidationError(f"start: joint mode {start} outside 0..{self.m - 1}")
+        return self.state_index(true, fdi)
+
     @property
     def beta_pairs(self) -> tuple[tuple[int, int], ...]:
         """Index pairs ``(fdi, true)`` of the detection rates, ``fdi != true``."""

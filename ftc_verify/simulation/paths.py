@@ -186,18 +186,6 @@ def _draw_rates(chain: JointChain, gens: list[np.random.Generator]) -> np.ndarra
     return rates
 
 
-def _check_start(chain: JointChain, start: tuple[int, int]) -> int:
-    """The state index of the initial joint mode ``(true, fdi)`` (phase 0)."""
-    m = chain.m
-    try:
-        true, fdi = (int(v) for v in start)
-    except (TypeError, ValueError):
-        raise ValidationError(f"start: expected a joint mode (true, fdi), got {start!r}") from None
-    if not (0 <= true < m and 0 <= fdi < m):
-        raise ValidationError(f"start: joint mode {start} outside 0..{m - 1}")
-    return chain.state_index(true, fdi)
-
-
 def sample_paths(
     chain: JointChain,
     horizon: float,
@@ -233,7 +221,7 @@ def sample_paths(
     horizon = _check_horizon(horizon)
     if isinstance(count, bool) or not (isinstance(count, (int, np.integer)) and count >= 1):
         raise ValidationError(f"paths: must be a positive integer, got {count!r}")
-    s_start = _check_start(chain, start)
+    s_start = chain.start_state(start)
     streams = _check_seed(seed).spawn(int(count))
     gens = [np.random.default_rng(k) for k in streams]
     targets = _targets(chain)

@@ -82,18 +82,6 @@ def _vech(X: Matrix) -> Matrix:
     return np.concatenate([X[c:, c] for c in range(n)])
 
 
-def _start_state(loop: ClosedLoop, start: tuple[int, int]) -> int:
-    """The chain state of the initial joint mode ``(true, fdi)`` (phase 0), validated."""
-    m = loop.chain.m
-    try:
-        true, fdi = (int(v) for v in start)
-    except (TypeError, ValueError):
-        raise ValidationError(f"start: expected a joint mode (true, fdi), got {start!r}") from None
-    if not (0 <= true < m and 0 <= fdi < m):
-        raise ValidationError(f"start: joint mode {start} outside 0..{m - 1}")
-    return loop.chain.state_index(true, fdi)
-
-
 def _propagate(L: Matrix, ell: Matrix, v0: Matrix, horizon: float) -> tuple[Matrix, float]:
     """``(v(T), int_0^T ell' v dt)`` with ``v' = L v`` exactly (one augmented expm)."""
     N = L.shape[0]
@@ -143,7 +131,7 @@ def exact_energy(
     if not (horizon > 0):
         raise ValidationError(f"horizon: must be positive, got {horizon!r}")
     beta = loop.chain.check_beta(beta)
-    s0 = _start_state(loop, start)
+    s0 = loop.chain.start_state(start)
     n = loop.n
     x_init = np.zeros(n) if x0 is None else np.asarray(x0, dtype=float).reshape(-1)
     if x_init.shape != (n,):
@@ -227,7 +215,7 @@ def worst_case_disturbance(
     if not (isinstance(pieces, int) and 1 <= pieces <= 400):
         raise ValidationError(f"pieces: must be an integer in 1..400, got {pieces!r}")
     beta = loop.chain.check_beta(beta)
-    s0 = _start_state(loop, start)
+    s0 = loop.chain.start_state(start)
     n = loop.n
     nw = loop.Bw[0].shape[1]
     h = horizon / pieces
