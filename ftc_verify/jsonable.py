@@ -22,14 +22,14 @@ import math
 from pathlib import PurePath
 from typing import Any
 
-import numpy as np
-
 __all__ = ["jsonable", "dumps"]
 
 
 def jsonable(value: Any, where: str = "$") -> Any:
     """``value`` as JSON-ready built-ins (module docstring); ``where`` names its place in
     the error message."""
+    import numpy as np  # here, not at import time: the command line's --help needs no numpy
+
     if value is None or isinstance(value, (str, bool)):
         return value
     if isinstance(value, np.bool_):

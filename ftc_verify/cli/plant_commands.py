@@ -17,14 +17,20 @@ file, the key and the value), and never writes an output that is one of its inpu
 from __future__ import annotations
 
 import argparse
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
+if TYPE_CHECKING:
+    import numpy as np
 
 from ..jsonable import dumps
 from .main import EXIT_NEGATIVE, EXIT_OK, _check_output_file, _positive
 
-__all__ = ["add_plant_commands", "describe_plant"]
+__all__ = ["add_plant_commands", "describe_plant", "LINEARIZE_ROUTES", "LINEARIZE_ACCURACY"]
+
+#: :data:`ftc_verify.plants.linearize.ROUTES` and ``ACCURACY_FRACTION``, written here so that
+#: building the parser (``--help``) imports neither numpy nor scipy (a test checks they agree).
+LINEARIZE_ROUTES = ("directional", "finite-differences", "identification")
+LINEARIZE_ACCURACY = 1e-3
 
 
 def _variable(v: Any) -> dict[str, Any]:
@@ -35,6 +41,8 @@ def _variable(v: Any) -> dict[str, Any]:
 
 def describe_plant(pm: Any, session: Any) -> dict[str, Any]:
     """The FMU's interface and every role of the map resolved to its variable."""
+    import numpy as np
+
     md, rv = session.model_description, session.variables
     cs, me = md.coSimulation, md.modelExchange
     by_name = {v.name: v for v in md.modelVariables}
@@ -77,6 +85,8 @@ def _step_mode(pm: Any, session: Any, mode: int, step: float, grp: Any) -> np.nd
     """The states and outputs after one step of ``step`` from the operating point in the
     0-based fault mode ``mode``; every FMI call through the session's error path
     (:func:`~ftc_verify.plants.linearize.fmi_calls`: a failing call raises ``PlantRunError``)."""
+    import numpy as np
+
     from fmpy.fmi2 import fmi2Real
 
     from ..plants.fmu_session import c_buffer
@@ -101,6 +111,8 @@ def _check_faults(pm: Any, session: Any, step: float) -> list[dict[str, Any]]:
     states and outputs equal the first mode's after the step changes nothing. A mode in
     which the FMU fails gets ``error`` (the FMU, call, time and log message) instead of
     values; after ``fmi2Fatal`` the remaining modes are not run."""
+    import numpy as np
+
     from ..errors import PlantRunError
     from ..plants.fmu_session import VarGroup
 
@@ -185,6 +197,8 @@ def _linearize_failed(args: argparse.Namespace, pm: Any, reason: str, detail: st
 
 
 def _cmd_linearize(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from ..errors import FMUError, PlantRunError
     from ..model.files import save_system
     from ..plants.linearize import ACCURACY_FRACTION, TrimFailed, linearize_plant, trim_plant
@@ -246,8 +260,6 @@ def _cmd_build_fmu(args: argparse.Namespace) -> int:
 
 def add_plant_commands(sub: Any) -> None:
     """Register ``plant``, ``linearize`` and ``build-fmu`` on the CLI's subparsers."""
-    from ..plants.linearize import ACCURACY_FRACTION, ROUTES
-
     b = sub.add_parser("build-fmu", help="compile a flat Modelica model into an FMI 2.0 FMU (pymoca + CasADi + gcc)")
     b.add_argument("model_file", help="Modelica .mo file")
     b.add_argument("--model", default=None, help="model name (default: the file's stem)")
@@ -265,10 +277,10 @@ def add_plant_commands(sub: Any) -> None:
     lz = sub.add_parser("linearize", help="linearise a plant map's FMU per fault mode into a system file")
     lz.add_argument("plant", help="plant map TOML file")
     lz.add_argument("--trim", action="store_true", help="first find the states that make mode 1 stationary")
-    lz.add_argument("--route", default=None, choices=ROUTES, help="default: the best the FMU allows")
+    lz.add_argument("--route", default=None, choices=LINEARIZE_ROUTES, help="default: the best the FMU allows")
     lz.add_argument("-o", "--output", default=None, help="system TOML file to write (not the map itself)")
     lz.add_argument("--accept-inaccurate", action="store_true",
-                    help=f"write -o even when a matrix's error estimate exceeds {ACCURACY_FRACTION:g} of its largest "
+                    help=f"write -o even when a matrix's error estimate exceeds {LINEARIZE_ACCURACY:g} of its largest "
                          "entry (without it such a linearisation is reported, exit 1, and not written)")
     lz.add_argument("--json", action="store_true")
     lz.set_defaults(func=_cmd_linearize)
