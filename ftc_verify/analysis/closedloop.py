@@ -184,6 +184,72 @@ class ClosedLoop:
             out.append(M)
         return tuple(out)
 
+    def to_statespace(self, *, deltas: Mapping[str, Matrix] | None = None) -> dict[tuple[int, int], Any]:
+        r"""The frozen closed loop of every pair ``(true, fdi)`` as a ``control.StateSpace``.
+
+        For the pair :math:`(i, j)` of joint state :math:`s`, the linear system from the
+        disturbance :math:`w` to the performance output :math:`z`
+
+        .. math::
+
+            \dot\xi = \Bigl(A_s + \sum_k E_{s,k} \Delta_k F_{s,k}\Bigr)\xi + B_{w,s} w,
+            \qquad z = C_{z,s} \xi + 0 \cdot w,
+
+        the loop with the true mode and the FDI indication held at :math:`i` and
+        :math:`j` (continuous time, ``dt = 0``). Its poles are the eigenvalues of the
+        frozen :math:`A_s`, its :math:`H_\infty` norm the frozen mode's of
+        :func:`ftc_verify.analysis.crossval.cross_validate`; the switching loop's
+        mean-square stability and attenuation are not properties of any one of them.
+
+        Parameters
+        ----------
+        deltas : mapping of channel name to array, optional
+            Uncertainty values :math:`\Delta_k` per channel name (as in :meth:`perturbed`;
+            a channel left out stays at 0). Default: the nominal loop, all
+            :math:`\Delta_k = 0`.
+
+        Returns
+        -------
+        dict
+            ``{(true, fdi): control.StateSpace}``, the pairs 0-based as in :attr:`modes`,
+            in the order they first occur there; the detection phases of a pair share its
+            matrices (module docstring) and give one entry. State labels are
+            ``x[k]`` for the plant states and ``xc[k]`` for a dynamic controller's (in the
+            loop's own coordinates), inputs ``w[k]``, outputs ``z[k]``; the name is
+            ``"(true, fdi) = (i, j)"``.
+
+        Raises
+        ------
+        ValidationError
+            When two phases of one pair have different matrices (a loop built by hand).
+
+        Examples
+        --------
+        Build with :func:`closed_loop`; ``control.poles(loop.to_statespace()[(1, 0)])``
+        are the poles while the FDI still shows mode 0 after a fault to mode 1.
+        python-control is imported when this is called, not with the package.
+        """
+        import control
+
+        A_all = self.A if deltas is None else self.perturbed(deltas)
+        n_plant = self.n if self.n_plant is None else self.n_plant
+        states = [f"x[{k}]" for k in range(n_plant)] + [f"xc[{k}]" for k in range(self.n - n_plant)]
+        out: dict[tuple[int, int], Any] = {}
+        first: dict[tuple[int, int], int] = {}
+        for s, pair in enumerate(self.modes):
+            f = first.setdefault(pair, s)
+            if f != s:
+                if not all(np.array_equal(M[f], M[s]) for M in (A_all, self.Bw, self.Cz)):
+                    raise ValidationError(f"to_statespace: joint states {f} and {s} of the pair {pair} have "
+                                          "different matrices; one frozen loop per pair is undefined")
+                continue
+            B, C = self.Bw[s], self.Cz[s]
+            out[pair] = control.ss(
+                A_all[s], B, C, np.zeros((C.shape[0], B.shape[1])), states=states,
+                inputs=[f"w[{k}]" for k in range(B.shape[1])], outputs=[f"z[{k}]" for k in range(C.shape[0])],
+                name=f"(true, fdi) = {pair}")
+        return out
+
 
 @dataclass(frozen=True, eq=False)
 class Barred:

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -28,6 +29,13 @@ from numpy.typing import ArrayLike
 from ..errors import ValidationError
 from .chain import JointChain
 from .matrices import GENERATOR_RTOL, MAX_ENTRY, Matrix, arrays_equal as _arrays_equal, as_matrix
+
+if TYPE_CHECKING:  # python-control is imported only where it is used (start-up time)
+    import control
+
+#: A signal of a ``control.StateSpace``: its label, a base name ``"u"`` standing for
+#: ``"u[0]", "u[1]", ...``, or a 0-based index (python-control's convention).
+Signal = str | int
 
 __all__ = [
     "GENERATOR_RTOL",
@@ -125,6 +133,109 @@ class Mode:
     __hash__ = None  # type: ignore[assignment]
 
 
+_UNCERTAINTY_KEYS = ("A1", "A2", "B1", "B2")
+
+
+def _signals(labels: Sequence[str], wanted: Signal | Sequence[Signal] | None, role: str, kind: str) -> list[int]:
+    """0-based indices of the signals ``wanted`` (labels, base names or indices) among
+    ``labels`` (mode 1's input or output labels), in the order given."""
+    items = [wanted] if isinstance(wanted, (str, int, np.integer)) else list(wanted or ())
+    out: list[int] = []
+    for item in items:
+        if isinstance(item, (bool, np.bool_)) or not isinstance(item, (str, int, np.integer)):
+            raise ValidationError(f"{role}: expected {kind} labels or 0-based indices, got {item!r}")
+        if isinstance(item, str):
+            found = ([labels.index(item)] if item in labels else
+                     [k for k, lab in enumerate(labels) if lab.startswith(item + "[") and lab.endswith("]")])
+            if not found:
+                raise ValidationError(f"{role}: {item!r} is not an {kind} of mode 1 ({kind}s: {list(labels)})")
+        else:
+            if not 0 <= int(item) < len(labels):
+                raise ValidationError(f"{role}: {kind} index {int(item)} out of range: mode 1 has "
+                                      f"{len(labels)} {kind}s {list(labels)} (indices 0-based)")
+            found = [int(item)]
+        for k in found:
+            if k in out:
+                raise ValidationError(f"{role}: {kind} {labels[k]!r} named twice")
+            out.append(k)
+    if not out:
+        raise ValidationError(f"{role}: no {kind} named (the FTC model needs at least one)")
+    return out
+
+
+def _split_inputs(labels: list[str], inputs: Signal | Sequence[Signal],
+                  disturbances: Signal | Sequence[Signal]) -> tuple[list[int], list[int]]:
+    """Column indices of ``u`` and ``w``: disjoint, and together every input."""
+    u = _signals(labels, inputs, "inputs", "input")
+    w = _signals(labels, disturbances, "disturbances", "input")
+    both = [labels[c] for c in u if c in w]
+    if both:
+        raise ValidationError(f"inputs {both} named both as control inputs and as disturbances")
+    unused = [lab for c, lab in enumerate(labels) if c not in u and c not in w]
+    if unused:
+        raise ValidationError(f"inputs {unused} of mode 1 are neither control inputs nor disturbances "
+                              "(name each in inputs= or disturbances=)")
+    return u, w
+
+
+def _statespace_mode(k: int, sys: Any, ref: Any) -> None:
+    """Check mode ``k`` (1-based): a continuous-time ``control.StateSpace`` with the
+    states and signals of mode 1 (``ref``)."""
+    import control
+
+    if not isinstance(sys, control.StateSpace):
+        hint = " (convert it with control.ss; its states are the model's x)" if isinstance(sys, control.LTI) else ""
+        raise ValidationError(f"mode {k}: expected a control.StateSpace, got {type(sys).__name__}{hint}")
+    if sys.isdtime(strict=True):
+        raise ValidationError(f"mode {k}: {sys.name!r} is discrete-time (dt = {sys.dt}); the FTC model is "
+                              "continuous-time (dt = 0)")
+    if sys.nstates != ref.nstates:
+        raise ValidationError(f"mode {k}: {sys.nstates} states differ from mode 1 ({ref.nstates})")
+    for kind in ("input", "output"):
+        mine, first = list(getattr(sys, f"{kind}_labels")), list(getattr(ref, f"{kind}_labels"))
+        if mine != first:
+            raise ValidationError(f"mode {k}: {kind}s {mine} differ from mode 1's {first} (every mode has "
+                                  "the same signals, in the same order)")
+
+
+def _uncertainty(value: Mapping[str, ArrayLike] | Sequence[Mapping[str, ArrayLike]] | None,
+                 m: int) -> list[dict[str, ArrayLike]]:
+    """One mapping of uncertainty weights per mode (one mapping given: every mode)."""
+    if value is None:
+        return [{} for _ in range(m)]
+    per_mode = list(value) if not isinstance(value, Mapping) else [value] * m
+    if len(per_mode) != m:
+        raise ValidationError(f"uncertainty: {len(per_mode)} mappings given for {m} modes")
+    for k, weights in enumerate(per_mode, start=1):
+        if not isinstance(weights, Mapping):
+            raise ValidationError(f"uncertainty: mode {k}: expected a mapping with keys {list(_UNCERTAINTY_KEYS)}, "
+                                  f"got {type(weights).__name__}")
+        unknown = set(weights) - set(_UNCERTAINTY_KEYS)
+        if unknown:
+            raise ValidationError(f"uncertainty: mode {k}: unknown keys {sorted(unknown)} "
+                                  f"(allowed: {list(_UNCERTAINTY_KEYS)})")
+    return [dict(w) for w in per_mode]
+
+
+def _from_statespace(k: int, sys: Any, cols: Sequence[list[int]], rows: Sequence[list[int] | None],
+                     weights: Mapping[str, ArrayLike]) -> Mode:
+    """The :class:`Mode` of ``sys`` (mode ``k``, 1-based) from the selected input columns
+    ``(u, w)`` and output rows ``(y, y_m or None)``; refuses a feedthrough among them."""
+    A, B, C, D = (np.asarray(getattr(sys, key), dtype=float) for key in ("A", "B", "C", "D"))
+    used_out = sorted({r for sel in rows if sel is not None for r in sel})
+    used_in = sorted({c for sel in cols for c in sel})
+    for r in used_out:
+        for c in used_in:
+            if D[r, c] != 0:
+                raise ValidationError(
+                    f"mode {k}: nonzero feedthrough D[{sys.output_labels[r]!r}, {sys.input_labels[c]!r}] = "
+                    f"{float(D[r, c])!r} of {sys.name!r} (the FTC model has none: y = C x, y_m = Cy x)")
+    u, w = cols
+    y, ym = rows
+    return Mode(A, B[:, u], C[y, :], B[:, w], Cy=None if ym is None else C[ym, :], label=f"mode {k}",
+                **weights)  # type: ignore[arg-type]
+
+
 @dataclass(frozen=True, eq=False)
 class FTCSystem:
     """An FTC plant: one :class:`Mode` per fault mode and the :class:`JointChain`.
@@ -180,6 +291,94 @@ class FTCSystem:
             built.append(Mode(**{key: md[key] for key in md}, label=f"mode {k}"))  # type: ignore[arg-type]
         chain = JointChain(alpha, beta_min, beta_max, fault_during_delay)  # type: ignore[arg-type]
         return cls(name=name, modes=tuple(built), chain=chain)
+
+    @classmethod
+    def from_statespace(
+        cls,
+        *,
+        modes: Sequence["control.StateSpace"],
+        chain: JointChain,
+        inputs: Signal | Sequence[Signal],
+        disturbances: Signal | Sequence[Signal],
+        performance: Signal | Sequence[Signal],
+        measured: Signal | Sequence[Signal] | None = None,
+        uncertainty: Mapping[str, ArrayLike] | Sequence[Mapping[str, ArrayLike]] | None = None,
+        name: str = "python-control",
+    ) -> "FTCSystem":
+        r"""Build from one continuous-time ``control.StateSpace`` per fault mode.
+
+        Mode :math:`i` is :math:`\dot x = A_i x + \bar B_i v`, :math:`o = \bar C_i x + \bar D_i v`
+        with inputs :math:`v` and outputs :math:`o`. The inputs are split, by name or index,
+        into the control inputs :math:`u` (``inputs``) and the disturbances :math:`w`
+        (``disturbances``); the outputs named ``performance`` are :math:`y` and those
+        named ``measured`` are :math:`y_m`. With :math:`P_u, P_w` selecting columns and
+        :math:`S_y, S_m` selecting rows,
+
+        .. math::
+
+            B_i = \bar B_i P_u, \quad D_i = \bar B_i P_w, \quad
+            C_i = S_y \bar C_i, \quad C_{y,i} = S_m \bar C_i
+
+        give the plant of the module docstring (``D`` is this project's disturbance input
+        matrix, not python-control's feedthrough). The FTC model has no
+        feedthrough, so :math:`S_o \bar D_i P_v = 0` is required for every selected
+        output and input. python-control is imported here, not with :mod:`ftc_verify.model`;
+        the way back is :meth:`ftc_verify.analysis.closedloop.ClosedLoop.to_statespace`.
+
+        Parameters
+        ----------
+        modes : sequence of control.StateSpace
+            One per fault mode, in order (as many as rows of ``chain.alpha``), all
+            continuous-time (``dt = 0``; ``dt = None``, python-control's "unspecified",
+            is taken as continuous), with the same number of states and the same input
+            and output labels in the same order.
+        chain : JointChain
+            The fault and FDI chain.
+        inputs, disturbances : label, index or sequence of them
+            The control inputs :math:`u` and the disturbances :math:`w`, in the order of
+            the columns of ``B`` and ``D``. A label is one of the StateSpace's
+            ``input_labels``; a base name ``"u"`` stands for ``"u[0]", "u[1]", ...``
+            (python-control's vector signals); an integer is a 0-based index. Every input
+            is one or the other (an input left out would silently be held at zero).
+        performance : label, index or sequence of them
+            The performance outputs :math:`y` (rows of ``C``), whose energy is the
+            attenuation measure.
+        measured : label, index, sequence of them, or None
+            The measured outputs :math:`y_m` (rows of ``Cy``), read by an output-feedback
+            controller; may overlap ``performance``. ``None`` (default): no ``Cy``, the
+            controller measures :math:`y`. Outputs named in neither are ignored.
+        uncertainty : mapping or sequence of mappings, optional
+            Norm-bounded uncertainty weights ``A1, A2, B1, B2`` (in pairs, as in a system
+            file): one mapping for every mode or one per mode.
+        name : str
+            The system's name.
+
+        Raises
+        ------
+        ValidationError
+            Naming the mode (1-based) and the offending signal or value: not a
+            StateSpace, discrete-time (with its ``dt``), different states or signals
+            from mode 1, an unknown label or out-of-range index, a signal named twice
+            or both as control input and disturbance, an input named in neither, a
+            nonzero feedthrough (with its output and input), or any check of
+            :class:`Mode` and :class:`FTCSystem`.
+        """
+        import control
+
+        if isinstance(modes, control.LTI) or not isinstance(modes, Sequence) or not modes:
+            raise ValidationError(f"modes: expected a non-empty sequence of control.StateSpace, got {modes!r:.80}")
+        if not isinstance(chain, JointChain):
+            raise ValidationError(f"chain: expected a JointChain, got {type(chain).__name__}")
+        for k, sys in enumerate(modes, start=1):
+            _statespace_mode(k, sys, modes[0] if k > 1 else sys)
+        u, w = _split_inputs(list(modes[0].input_labels), inputs, disturbances)
+        outs = list(modes[0].output_labels)
+        y = _signals(outs, performance, "performance", "output")
+        ym = None if measured is None else _signals(outs, measured, "measured", "output")
+        weights = _uncertainty(uncertainty, len(modes))
+        built = tuple(_from_statespace(k, sys, (u, w), (y, ym), weights[k - 1])
+                      for k, sys in enumerate(modes, start=1))
+        return cls(name=name, modes=built, chain=chain)
 
     @property
     def m(self) -> int:

@@ -1,0 +1,229 @@
+"""python-control in and out: ``FTCSystem.from_statespace`` and ``ClosedLoop.to_statespace``.
+
+Round trip of the paper's systems, the refusals (discrete time, feedthrough, unknown or
+misused signals), the frozen loops against our eigenvalues and python-control's norm
+against :func:`ftc_verify.analysis.crossval.cross_validate`, and the README's example.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import control
+import numpy as np
+import pytest
+
+from ftc_verify.analysis import closed_loop, cross_validate
+from ftc_verify.controllers import Controller, load_controller
+from ftc_verify.errors import ValidationError
+from ftc_verify.model import FTCSystem, load_system
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLES = ROOT / "examples"
+WEIGHTS = ("A1", "A2", "B1", "B2")
+
+
+def as_statespace(system: FTCSystem, *, measured: bool) -> list:
+    """One ``control.ss`` per mode: inputs ``u[k]`` then ``w``, outputs ``y`` then ``m[k]``."""
+    out = []
+    for md in system.modes:
+        C = np.vstack([md.C, md.measured]) if measured else md.C
+        outputs = ["y"] + ([f"m[{k}]" for k in range(md.ny_measured)] if measured else [])
+        out.append(control.ss(md.A, np.hstack([md.B, md.D]), C, 0,
+                              inputs=[f"u[{k}]" for k in range(md.B.shape[1])] + ["w"], outputs=outputs))
+    return out
+
+
+def weights(system: FTCSystem) -> list[dict[str, np.ndarray]]:
+    return [{k: getattr(md, k) for k in WEIGHTS if getattr(md, k) is not None} for md in system.modes]
+
+
+# ------------------------------------------------------------------ in
+
+@pytest.mark.parametrize("file, measured", [("paper.toml", False), ("paper_two_outputs.toml", True)])
+def test_round_trip_equals_the_system_file(file: str, measured: bool) -> None:
+    want = load_system(EXAMPLES / file)
+    got = FTCSystem.from_statespace(
+        modes=as_statespace(want, measured=measured), chain=want.chain, inputs="u", disturbances="w",
+        performance="y", measured="m" if measured else None, uncertainty=weights(want), name=want.name)
+    assert got == want
+    assert (got.modes[0].Cy is not None) == measured
+
+
+def test_signals_by_index_and_in_any_order() -> None:
+    paper = load_system(EXAMPLES / "paper.toml")
+    plants = [control.ss(md.A, np.hstack([md.D, md.B[:, ::-1]]), np.vstack([md.C, md.C, [[1.0, 0.0]]]), 0)
+              for md in paper.modes]  # python-control's default labels u[0..2], y[0..2]
+    got = FTCSystem.from_statespace(modes=plants, chain=paper.chain, inputs=[2, "u[1]"], disturbances=0,
+                                    performance="y[0]", measured=[1, 2])
+    assert got.modes == paper.nominal().with_measured_output([[1.0, 2.0], [1.0, 0.0]]).modes
+    assert got.name == "python-control"
+    # a feedthrough into an output named in neither role does not matter
+    plants = [control.ss(p.A, p.B, p.C, [[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [7.0, 0.0, 0.0]]) for p in plants]
+    got = FTCSystem.from_statespace(modes=plants, chain=paper.chain, inputs=[2, 1], disturbances=0, performance=0)
+    assert got.modes[1].D.tolist() == paper.modes[1].D.tolist()
+
+
+@pytest.fixture(scope="module")
+def paper_ss() -> tuple[FTCSystem, list]:
+    paper = load_system(EXAMPLES / "paper_two_outputs.toml")
+    return paper, as_statespace(paper, measured=True)
+
+
+def build(paper_ss, **changes):
+    paper, plants = paper_ss
+    kwargs = dict(modes=plants, chain=paper.chain, inputs="u", disturbances="w", performance="y", measured="m")
+    kwargs.update(changes)
+    return FTCSystem.from_statespace(**kwargs)
+
+
+def test_discrete_time_is_refused_naming_mode_and_dt(paper_ss) -> None:
+    plants = list(paper_ss[1])
+    plants[1] = control.c2d(plants[1], 0.05)
+    with pytest.raises(ValidationError, match=r"mode 2: .*discrete-time \(dt = 0\.05\)"):
+        build(paper_ss, modes=plants)
+
+
+def test_feedthrough_is_refused_naming_mode_and_entry(paper_ss) -> None:
+    plants = list(paper_ss[1])
+    D = np.zeros((3, 3))
+    D[2, 2] = 0.25  # from w to m[1]
+    plants[1] = control.ss(plants[1].A, plants[1].B, plants[1].C, D, inputs=plants[1].input_labels,
+                           outputs=plants[1].output_labels)
+    with pytest.raises(ValidationError, match=r"mode 2: nonzero feedthrough D\['m\[1\]', 'w'\] = 0\.25"):
+        build(paper_ss, modes=plants)
+    build(paper_ss, modes=plants, measured="m[0]")  # m[1] no longer used
+
+
+@pytest.mark.parametrize("changes, message", [
+    (dict(inputs=("u", "v")), r"inputs: 'v' is not an input of mode 1 \(inputs: \['u\[0\]', 'u\[1\]', 'w'\]\)"),
+    (dict(performance="z"), r"performance: 'z' is not an output of mode 1"),
+    (dict(measured=[0, 5]), r"measured: output index 5 out of range: mode 1 has 3 outputs"),
+    (dict(inputs="u[0]"), r"inputs \['u\[1\]'\] of mode 1 are neither control inputs nor disturbances"),
+    (dict(disturbances=["w", "u[1]"]), r"inputs \['u\[1\]'\] named both as control inputs and as disturbances"),
+    (dict(inputs=["u", "u[0]"]), r"inputs: input 'u\[0\]' named twice"),
+    (dict(performance=()), r"performance: no output named"),
+    (dict(inputs=[True]), r"inputs: expected input labels or 0-based indices, got True"),
+    (dict(uncertainty={"A1": np.eye(2)}), r"mode 1\.A2: missing while A1 is given"),
+    (dict(uncertainty={"C1": np.eye(2)}), r"uncertainty: mode 1: unknown keys \['C1'\]"),
+    (dict(chain="chain"), r"chain: expected a JointChain, got str"),
+])
+def test_misused_signals_are_refused(paper_ss, changes, message) -> None:
+    with pytest.raises(ValidationError, match=message):
+        build(paper_ss, **changes)
+
+
+def test_modes_must_agree(paper_ss) -> None:
+    plants = paper_ss[1]
+    relabelled = control.ss(plants[1].A, plants[1].B, plants[1].C, 0, inputs=["u[0]", "u[1]", "d"],
+                            outputs=plants[1].output_labels)
+    with pytest.raises(ValidationError, match=r"mode 2: inputs \['u\[0\]', 'u\[1\]', 'd'\] differ from mode 1's"):
+        build(paper_ss, modes=[plants[0], relabelled])
+    bigger = control.ss(np.eye(3), np.ones((3, 3)), np.ones((3, 3)), 0, inputs=plants[0].input_labels,
+                        outputs=plants[0].output_labels)
+    with pytest.raises(ValidationError, match=r"mode 2: 3 states differ from mode 1 \(2\)"):
+        build(paper_ss, modes=[plants[0], bigger])
+    with pytest.raises(ValidationError, match=r"mode 1: expected a control.StateSpace, got TransferFunction"):
+        build(paper_ss, modes=[control.tf([1.0], [1.0, 1.0]), plants[1]])
+    with pytest.raises(ValidationError, match=r"modes: expected a non-empty sequence"):
+        build(paper_ss, modes=plants[0])
+    with pytest.raises(ValidationError, match=r"3 mode tables given but chain.alpha has 2 rows"):
+        build(paper_ss, modes=[*plants, plants[0]])
+
+
+def test_model_import_does_not_import_control() -> None:
+    code = "import sys, ftc_verify.model, ftc_verify.analysis.closedloop; print('control' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
+# ------------------------------------------------------------------ out
+
+def loops():
+    paper = load_system(EXAMPLES / "paper.toml")
+    phased = load_system(EXAMPLES / "paper_phase_type.toml")
+    gains = load_controller(EXAMPLES / "paper_gains.toml")
+    return {
+        "state feedback": closed_loop(paper, gains),
+        "observer": closed_loop(paper, load_controller(EXAMPLES / "paper_observer.toml")),
+        "phase-type": closed_loop(phased, gains),
+    }
+
+
+@pytest.mark.parametrize("name", ["state feedback", "observer", "phase-type"])
+def test_frozen_loops_match_our_eigenvalues_and_crossval_norms(name: str) -> None:
+    loop = loops()[name]
+    frozen = loop.to_statespace()
+    assert list(frozen) == list(dict.fromkeys(loop.modes))  # distinct pairs, 0-based, first-seen order
+    for s, pair in enumerate(loop.modes):
+        G = frozen[pair]
+        assert G.dt == 0 and G.nstates == loop.n and np.array_equal(G.A, loop.A[s])
+        assert np.array_equal(G.B, loop.Bw[s]) and np.array_equal(G.C, loop.Cz[s]) and not np.any(G.D)
+        ours = np.sort_complex(np.linalg.eigvals(loop.A[s]))
+        theirs = np.sort_complex(np.asarray(control.poles(G), dtype=complex))
+        np.testing.assert_allclose(theirs, ours, rtol=1e-9, atol=1e-9)
+    n_c = 0 if loop.n_plant is None else loop.n - loop.n_plant
+    G = next(iter(frozen.values()))
+    assert G.state_labels == [f"x[{k}]" for k in range(loop.n - n_c)] + [f"xc[{k}]" for k in range(n_c)]
+    assert G.input_labels == ["w[0]"] and G.output_labels == ["z[0]"]
+    checks = cross_validate(loop)
+    assert {(c.true_mode - 1, c.fdi_mode - 1) for c in checks} == set(frozen)
+    for c in checks:
+        G = frozen[(c.true_mode - 1, c.fdi_mode - 1)]
+        norm = float(control.linfnorm(G, tol=1e-10)[0])
+        assert math.isclose(norm, c.linf_norm, rel_tol=1e-6), (c.true_mode, c.fdi_mode, norm, c.linf_norm)
+
+
+def test_deltas_perturb_the_frozen_loops() -> None:
+    loop = loops()["state feedback"]
+    deltas = {"Delta1 (A)": np.eye(2), "Delta2 (B)": -np.eye(2)}
+    frozen = loop.to_statespace(deltas=deltas)
+    for s, pair in enumerate(loop.modes):
+        assert np.array_equal(frozen[pair].A, loop.perturbed(deltas)[s])
+        assert not np.array_equal(frozen[pair].A, loop.A[s])
+
+
+def test_phases_with_different_matrices_are_refused() -> None:
+    from dataclasses import replace
+
+    loop = loops()["phase-type"]
+    s = [k for k, pair in enumerate(loop.modes) if pair == (1, 0)][1]
+    A = list(loop.A)
+    A[s] = A[s] + 1.0
+    with pytest.raises(ValidationError, match=r"joint states \d+ and \d+ of the pair \(1, 0\)"):
+        replace(loop, A=tuple(A)).to_statespace()
+
+
+def test_round_trip_through_a_static_controller() -> None:
+    """In, close the loop, out: the frozen loop of the matched pair is A + B K."""
+    paper = load_system(EXAMPLES / "paper.toml")
+    system = FTCSystem.from_statespace(modes=as_statespace(paper, measured=False), chain=paper.chain,
+                                       inputs="u", disturbances="w", performance="y")
+    K = [np.array([[-1.0, 0.5], [-2.0, -3.0]])] * 2
+    G = closed_loop(system, Controller.state_feedback(K)).to_statespace()[(1, 1)]
+    np.testing.assert_array_equal(G.A, paper.modes[1].A + paper.modes[1].B @ K[1])
+
+
+# ------------------------------------------------------------------ README
+
+def readme_example() -> str:
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    section = text.split("## python-control in and out", 1)[1].split("\n## ", 1)[0]
+    blocks = re.findall(r"```python\n(.*?)```", section, flags=re.DOTALL)
+    assert len(blocks) == 1, "the section has one python example"
+    return blocks[0]
+
+
+def test_readme_example_runs(tmp_path: Path) -> None:
+    script = tmp_path / "example.py"
+    script.write_text(readme_example(), encoding="utf-8")
+    out = subprocess.run([sys.executable, str(script)], cwd=ROOT, capture_output=True, text=True, timeout=120,
+                         check=False)
+    assert out.returncode == 0, out.stderr
+    lines = out.stdout.splitlines()
+    assert [line.split(":")[0] for line in lines] == [
+        "true 0, FDI 0", "true 0, FDI 1", "true 1, FDI 0", "true 1, FDI 1"]
