@@ -1,14 +1,16 @@
 """The fault-injection map: which FMU variables carry which role of the FTC loop.
 
 This module implements :class:`FaultInjectionMap`, a declarative, frozen description of an
-FMI 2.0 co-simulation FMU as seen by the supervisor (:mod:`ftc_verify.simulation.supervisor`):
+FMI 2.0 or 3.0 co-simulation FMU as seen by the supervisor (:mod:`ftc_verify.simulation.supervisor`):
 the variable(s) the true fault mode is written into, the control inputs ``u``, the
 disturbance inputs ``w``, the ``Delta`` inputs, the state ``x`` and the outputs ``y`` that
 are recorded, the measured outputs ``y_m`` an output-feedback controller reads, and the
 initial-state parameters. :meth:`FaultInjectionMap.for_linear_jump_plant` gives the map of
 the project's ``LinearJumpPlant`` FMU; any other FMU works by naming its variables. The
 names are checked against ``modelDescription.xml`` by :func:`resolve_variables` when the FMU
-is opened (:class:`ftc_verify.plants.fmu_session.FMUSession`).
+is opened (:class:`ftc_verify.plants.fmu_session.FMUSession`). Types are named as in FMI 2.0;
+in an FMI 3.0 FMU a Real is a scalar ``Float64`` and an Integer any of ``Int8`` .. ``UInt64``
+(:data:`FAULT_TYPES_FMI3`); array variables are refused.
 """
 
 from __future__ import annotations
@@ -24,10 +26,13 @@ import numpy as np
 from ..errors import FMUError, ValidationError
 from ..model.system import FTCSystem
 
-__all__ = ["FAULT_TYPES", "FaultInjectionMap", "OperatingPoint", "ROLES", "ResolvedVariables", "resolve_variables"]
+__all__ = ["FAULT_TYPES", "FAULT_TYPES_FMI3", "FaultInjectionMap", "OperatingPoint", "ROLES", "ResolvedVariables", "resolve_variables"]
 
 #: FMI types a fault variable may have.
 FAULT_TYPES = ("Real", "Integer", "Boolean", "Enumeration")
+#: The same for an FMI 3.0 FMU.
+FAULT_TYPES_FMI3 = ("Float64", "Int8", "UInt8", "Int16", "UInt16", "Int32", "UInt32", "Int64", "UInt64", "Boolean",
+                    "Enumeration")
 
 #: The name-list fields of the map and what they carry (used in error messages).
 ROLES = {
@@ -292,17 +297,18 @@ def _settable(v: Any, role: str, types: Sequence[str], err: Callable[[str], FMUE
     )
 
 
-def _readable(v: Any, role: str, err: Callable[[str], FMUError]) -> Any:
-    if v.type != "Real":
-        raise err(f"variable {v.name!r} ({role}) has type {v.type}; expected Real")
+def _readable(v: Any, role: str, err: Callable[[str], FMUError], real: str = "Real") -> Any:
+    if v.type != real:
+        raise err(f"variable {v.name!r} ({role}) has type {v.type}; expected {real}")
     return v
 
 
-def _state(v: Any, continuous_states: set[str], source: str | None, err: Callable[[str], FMUError]) -> Any:
-    """``v`` if it can be a state ``x``: Real, and a continuous-time state of the FMU (the
-    variable of a derivative in ``ModelStructure/Derivatives``) or at least a local or output
-    variable with variability continuous; a parameter or an input is refused."""
-    _readable(v, "state x", err)
+def _state(v: Any, continuous_states: set[str], source: str | None, err: Callable[[str], FMUError],
+           real: str = "Real") -> Any:
+    """``v`` if it can be a state ``x``: Real (``Float64``), and a continuous-time state of the
+    FMU (the variable of a derivative in ``ModelStructure/Derivatives``) or at least a local or
+    output variable with variability continuous; a parameter or an input is refused."""
+    _readable(v, "state x", err, real)
     if v.name in continuous_states or (v.causality in ("local", "output") and v.variability == "continuous"):
         return v
     where = f"{source}: [variables].states" if source else "FaultInjectionMap.states"
@@ -317,6 +323,8 @@ def resolve_variables(md: Any, mapping: FaultInjectionMap, err: Callable[[str], 
     ``err(what)`` builds the error naming the FMU. Each role's variables must fit it: see
     :func:`_settable` (written roles), :func:`_state` (the states) and the checks below."""
     by_name = {v.name: v for v in md.modelVariables}
+    fmi3 = str(getattr(md, "fmiVersion", "") or "").startswith("3.")
+    real, fault_types = ("Float64", FAULT_TYPES_FMI3) if fmi3 else ("Real", FAULT_TYPES)
 
     def lookup(names: Sequence[str], role: str) -> list[Any]:
         out = []
@@ -327,22 +335,31 @@ def resolve_variables(md: Any, mapping: FaultInjectionMap, err: Callable[[str], 
                 hint = f"; did you mean {close}?" if close else ""
                 raise err(f"variable {name!r} ({role} in the map) is not declared in "
                           f"modelDescription.xml{hint}")
+            if getattr(v, "dimensions", None):
+                raise err(f"variable {name!r} ({role} in the map) is an array {v.type} of shape {v.shape}; the "
+                          "map's roles take scalar variables only")
             out.append(v)
         return out
 
     m = mapping
-    fault = [_settable(v, "fault mode", FAULT_TYPES, err) for v in lookup(m.fault, "fault mode")]
-    inputs = [_settable(v, "control input u", ("Real",), err) for v in lookup(m.inputs, "control input u")]
-    dist = [_settable(v, "disturbance input w", ("Real",), err)
+    fault = [_settable(v, "fault mode", fault_types, err) for v in lookup(m.fault, "fault mode")]
+    inputs = [_settable(v, "control input u", (real,), err) for v in lookup(m.inputs, "control input u")]
+    dist = [_settable(v, "disturbance input w", (real,), err)
             for v in lookup(m.disturbances, "disturbance input w")]
-    delta = [_settable(v, "Delta input", ("Real",), err) for v in lookup(m.delta1 + m.delta2, "Delta input")]
+    delta = [_settable(v, "Delta input", (real,), err) for v in lookup(m.delta1 + m.delta2, "Delta input")]
     continuous_states = {d.variable.derivative.name for d in md.derivatives
                          if d.variable is not None and d.variable.derivative is not None}
-    states = [_state(v, continuous_states, m.source, err) for v in lookup(m.states, "state x")]
-    outputs = [_readable(v, "output y", err) for v in lookup(m.outputs, "output y")]
-    measured = [_readable(v, "measured output y_m", err) for v in lookup(m.measured, "measured output y_m")]
+    states = [_state(v, continuous_states, m.source, err, real) for v in lookup(m.states, "state x")]
+    outputs = [_readable(v, "output y", err, real) for v in lookup(m.outputs, "output y")]
+    measured = [_readable(v, "measured output y_m", err, real) for v in lookup(m.measured, "measured output y_m")]
     params = lookup([k for k, _ in m.parameters], "parameter")
     for v in params:
+        if v.type not in fault_types:
+            raise err(f"variable {v.name!r} ([parameters]) has type {v.type}; [parameters] can set "
+                      f"{', '.join(fault_types)}")
+        if v.causality == "structuralParameter":
+            raise err(f"variable {v.name!r} ([parameters]) is a structural parameter: it can only be set in "
+                      "Configuration Mode, which the supervisor does not use")
         if v.causality not in ("parameter", "calculatedParameter", "input") and v.initial not in ("exact", "approx"):
             raise err(f"variable {v.name!r} ([parameters]) has causality {v.causality!r}; only parameters, inputs "
                       "and variables with an exact or approximate start value can be set before initialisation")
@@ -350,7 +367,7 @@ def resolve_variables(md: Any, mapping: FaultInjectionMap, err: Callable[[str], 
             raise err(f"variable {v.name!r} ([parameters]) is a {v.variability} {v.causality}: it cannot be set")
     init = []
     for v in lookup(m.initial_states, "initial state x0"):
-        _readable(v, "initial state x0", err)
+        _readable(v, "initial state x0", err, real)
         if not (v.causality in ("parameter", "input") or v.initial in ("exact", "approx")):
             raise err(f"variable {v.name!r} (initial state x0) has causality {v.causality!r} and initial "
                       f"{v.initial!r}; it cannot be set before initialisation")

@@ -1,12 +1,12 @@
-"""One opened FMI 2.0 co-simulation FMU: checks, variables, FMI calls, logging and cleanup.
+"""One opened FMI 2.0 or 3.0 co-simulation FMU: checks, variables, FMI calls, logging and cleanup.
 
 This module implements :class:`FMUSession`, the FMU side of the co-simulation supervisor
 (:mod:`ftc_verify.simulation.supervisor`):
 
 * the archive is checked before anything is extracted (no member may leave the
   extraction folder: absolute names, ``..``, drive letters and backslashes are refused),
-  the model description must be FMI 2.0 with a co-simulation interface and a binary for
-  this platform;
+  the model description must be FMI 2.0 or 3.0 with a co-simulation interface and a binary
+  for this platform (an FMI 3.0 FMU is called through :mod:`ftc_verify.plants.fmi3`);
 * every variable of the :class:`~ftc_verify.plants.fault_map.FaultInjectionMap` must
   exist with a usable type and causality
   (:func:`~ftc_verify.plants.fault_map.resolve_variables`);
@@ -17,7 +17,7 @@ This module implements :class:`FMUSession`, the FMU side of the co-simulation su
   :class:`~ftc_verify.errors.FMUError` naming the FMU file, the call, the variables and the
   time, with the FMU's own log messages (:meth:`FMUSession.call_error`).
 
-A signal handler's exception (Ctrl-C, the CLI's SIGTERM) raised inside the logger
+Call names in errors are those of the FMU's version (``fmi3DoStep``...). A signal handler's exception (Ctrl-C, the CLI's SIGTERM) raised inside the logger
 callback, where ctypes would drop it, is kept as :attr:`FMUSession.pending` and raised
 after the FMI call returns (:meth:`FMUSession.raise_pending`).
 
@@ -29,7 +29,6 @@ the LinearJumpPlant formats its messages itself (``%`` doubled), which is undone
 
 from __future__ import annotations
 
-import ctypes
 import math
 import os
 import tempfile
@@ -44,11 +43,11 @@ import numpy as np
 
 from ..errors import FMUError
 from .fault_map import FaultInjectionMap, ResolvedVariables, resolve_variables
+from .fmi3 import CALL_NAMES, FAULT_KINDS as _FAULT_KIND, INT_RANGES, is_fmi3, load_slave
 
 __all__ = ["FMUError", "FMUSession", "VarGroup", "c_buffer"]
 
 _STATUS = ("OK", "Warning", "Discard", "Error", "Fatal", "Pending")
-_FAULT_KIND = {"Real": "real", "Integer": "int", "Enumeration": "int", "Boolean": "bool"}
 
 
 def _status_label(status: int) -> str:
@@ -108,9 +107,10 @@ class FMUSession:
         The :class:`~ftc_verify.plants.fault_map.FaultInjectionMap` whose variables
         are resolved (and checked) when the session opens.
     instance_name
-        ``instanceName`` passed to ``fmi2Instantiate``.
+        ``instanceName`` passed to ``fmi2Instantiate`` (``fmi3InstantiateCoSimulation``).
     tolerance
-        Relative tolerance passed to ``fmi2SetupExperiment`` (None: the FMU's default).
+        Relative tolerance passed to ``fmi2SetupExperiment`` (``fmi3EnterInitializationMode``;
+        None: the FMU's default).
     log
         Called with ``(status, category, message)`` for every message the FMU logs
         (``loggingOn`` is always true; the messages are also kept for error messages).
@@ -130,6 +130,7 @@ class FMUSession:
         self.path = Path(fmu)
         self.workdir, self.pending = None if workdir is None else str(workdir), None  # see the module docstring
         self.mapping = mapping
+        self.fmi_version, self.calls = "2.0", CALL_NAMES["2.0"]  # set from the model description
         self.instance_name = str(instance_name)
         if tolerance is not None and not (isinstance(tolerance, (int, float)) and 0 < tolerance < 1):
             raise self.err(f"tolerance: expected a number in (0, 1), got {tolerance!r}")
@@ -206,17 +207,25 @@ class FMUSession:
         if root.tag != "fmiModelDescription":
             raise self.err(f"modelDescription.xml: root element is <{root.tag}>, not <fmiModelDescription>")
         version = root.get("fmiVersion")
-        if version != "2.0":
+        if version != "2.0" and not str(version).startswith("3."):
             raise self.err(
                 f"modelDescription.xml declares fmiVersion {version!r}; the supervisor needs an "
-                "FMI 2.0 co-simulation FMU (fmiVersion \"2.0\")"
+                "FMI 2.0 or 3.0 co-simulation FMU (fmiVersion \"2.0\" or \"3.0\")"
             )
+        if version != "2.0" and (root.get("guid") is not None or root.find("ModelVariables/ScalarVariable") is not None):
+            raise self.err(f"modelDescription.xml declares fmiVersion {version!r} but is laid out as FMI 2.0 (guid, "
+                           "ScalarVariable): declare fmiVersion \"2.0\", or export the model as FMI 3.0")
         try:
             md = read_model_description(str(self.path), validate=True)
         except Exception as exc:  # fmpy raises plain Exceptions with the schema problems
             raise self.err(f"invalid modelDescription.xml: {exc}") from None
         if md.coSimulation is None:
             raise self.err("modelDescription.xml has no <CoSimulation> element (Model Exchange only?)")
+        self.fmi_version = "3.0" if is_fmi3(md) else "2.0"
+        self.calls = CALL_NAMES[self.fmi_version]
+        if self.fmi_version == "3.0":  # fmpy reads FMI 3.0's plural attribute into nothing
+            cs = root.find("CoSimulation")
+            md.coSimulation.providesDirectionalDerivative = cs.get("providesDirectionalDerivatives") in ("true", "1")
         return md
 
     def _open(self) -> None:
@@ -228,7 +237,8 @@ class FMUSession:
         self.model_description = md
         self.model_identifier = cs.modelIdentifier
         self.can_vary_step = bool(cs.canHandleVariableCommunicationStepSize)
-        lib = f"binaries/{fmpy.platform}/{cs.modelIdentifier}{fmpy.sharedLibraryExtension}"
+        platform = fmpy.platform_tuple if self.fmi_version == "3.0" else fmpy.platform
+        lib = f"binaries/{platform}/{cs.modelIdentifier}{fmpy.sharedLibraryExtension}"
         if lib not in names:
             found = sorted({n.split("/")[1] for n in names if n.startswith("binaries/") and n.count("/") >= 2})
             hint = f"it has binaries for {found}" if found else "it has no binaries"
@@ -273,10 +283,9 @@ class FMUSession:
         return groups
 
     def _logger(self) -> Callable[..., None]:
-        def logger(env: Any, instance: bytes | None, status: int, category: bytes | None,
-                   message: bytes | None) -> None:
+        def logger(*args: Any) -> None:  # FMI 2.0: (env, instance, status, category, message); 3.0: no instance
             try:
-                self._log_message(status, category, message)
+                self._log_message(args[-3], args[-2], args[-1], escaped=len(args) == 5)
             except Exception:  # never let an exception cross the C boundary
                 pass
             except BaseException as exc:  # a signal's exception: re-raised after the FMI call
@@ -285,9 +294,11 @@ class FMUSession:
 
         return logger
 
-    def _log_message(self, status: int, category: bytes | None, message: bytes | None) -> None:
-        """Keep (and forward to :attr:`log`) one message of the FMU's logger callback."""
-        text = (message or b"").decode("utf-8", "replace").replace("%%", "%")
+    def _log_message(self, status: int, category: bytes | None, message: bytes | None, escaped: bool = True) -> None:
+        """Keep (and forward to :attr:`log`) one message of the FMU's logger callback
+        (``escaped``: an FMI 2.0 message, a printf format with ``%`` doubled)."""
+        text = (message or b"").decode("utf-8", "replace")
+        text = text.replace("%%", "%") if escaped else text
         label = _status_label(status)
         self.log_counts[label] = self.log_counts.get(label, 0) + 1
         cat = (category or b"").decode("utf-8", "replace")
@@ -302,41 +313,25 @@ class FMUSession:
             raise exc
 
     def _load(self, md: Any, unzip: str) -> None:
-        from fmpy import calloc, free
-        from fmpy.fmi2 import (
-            FMU2Slave,
-            fmi2CallbackAllocateMemoryTYPE,
-            fmi2CallbackFreeMemoryTYPE,
-            fmi2CallbackFunctions,
-            fmi2CallbackLoggerTYPE,
-        )
-
         cwd = os.getcwd()
-        try:
-            slave = FMU2Slave(guid=md.guid, unzipDirectory=unzip, modelIdentifier=self.model_identifier,
-                              instanceName=self.instance_name)
-        except Exception as exc:  # missing library, unloadable binary, missing fmi2 functions
+        try:  # FMI 3.0: an FMU3Adapter answering the FMI 2.0 calls (plants/fmi3.py)
+            self._logger_ref = self._logger()
+            self.slave, self._callbacks = load_slave(md, unzip, self.model_identifier, self.instance_name,
+                                                     self._logger_ref)
+        except Exception as exc:  # missing library, unloadable binary, missing fmi2/fmi3 functions
             lib = f"binaries/<platform>/{self.model_identifier}"
             raise self.err(f"cannot load the FMU binary ({lib}): {exc}") from None
         finally:
             if os.getcwd() != cwd:  # fmpy does not restore the directory when loading fails
                 os.chdir(cwd)
-        self.slave = slave
         self.stats["library_loads"] += 1
-        cb = fmi2CallbackFunctions()
-        self._logger_ref = fmi2CallbackLoggerTYPE(self._logger())
-        cb.logger = self._logger_ref
-        cb.allocateMemory = ctypes.cast(calloc, fmi2CallbackAllocateMemoryTYPE)
-        cb.freeMemory = ctypes.cast(free, fmi2CallbackFreeMemoryTYPE)
-        cb.componentEnvironment = None
-        self._callbacks = cb
         self._instantiate()
 
     def _instantiate(self) -> None:
         try:
             self.slave.instantiate(callbacks=self._callbacks, loggingOn=True)
         except Exception:
-            raise self.err(f"fmi2Instantiate failed{self.said()}") from None
+            raise self.err(f"{self.calls['instantiate']} failed{self.said()}") from None
         self._component_live = True
         self._dirty = False
         self.stats["instantiations"] += 1
@@ -388,8 +383,8 @@ class FMUSession:
     def call_error(self, exc: Any, when: str, names: Sequence[str]) -> FMUError:
         """The :class:`FMUError` for a failed FMI call (fmpy's ``FMICallException``)."""
         status = getattr(exc, "status", None)
-        function = getattr(exc, "function", "an fmi2 function")
-        if status == 4:  # fmi2Fatal: the instance must not be called any more
+        function = getattr(exc, "function", f"an {self.calls['prefix']} function")
+        if status == 4:  # fmi2Fatal / fmi3Fatal: the instance must not be called any more
             self.dead = True
         label = _status_label(status) if status is not None else "an error"
         var = f" ({', '.join(names)})" if names else ""
@@ -400,7 +395,7 @@ class FMUSession:
         if self.closed or self.slave is None:
             raise self.err("the supervisor is closed")
         if self.dead:
-            raise self.err("the FMU returned fmi2Fatal earlier; the instance cannot be used any more")
+            raise self.err(f"the FMU returned {self.calls['fatal']} earlier; the instance cannot be used any more")
 
     # -------------------------------------------------------------------- writing
     def _typed_value(self, v: Any, val: Any, what: str, label: str) -> Any:
@@ -411,10 +406,10 @@ class FMUSession:
             if isinstance(val, float) and not val.is_integer():
                 raise self.err(f"{label} {v.name!r} is {v.type}; {what} non-integer {val!r}")
             val = int(val)
-            lo = int(v.min) if v.min is not None else None
-            hi = int(v.max) if v.max is not None else None
+            lo, hi = INT_RANGES.get(v.type, (None, None))
+            lo, hi = (int(v.min) if v.min is not None else lo), (int(v.max) if v.max is not None else hi)
             if (lo is not None and val < lo) or (hi is not None and val > hi):
-                raise self.err(f"{label} {v.name!r}: {what} {val}, outside its declared range [{v.min}, {v.max}]")
+                raise self.err(f"{label} {v.name!r}: {what} {val}, outside its range [{lo}, {hi}] ({v.type})")
             return val
         if kind == "bool":
             if val not in (0, 1):
@@ -502,20 +497,20 @@ class FMUSession:
                 self.stats["resets"] += 1
             except FMICallException:  # an FMU that cannot reset gets a fresh instance
                 self._reinstantiate()
-        s = self.slave
-        stage, names = "fmi2SetupExperiment", ()
+        s, calls = self.slave, self.calls
+        stage, names = calls["setup"], ()
         try:
             self._dirty = True
             s.setupExperiment(tolerance=self.tolerance, startTime=0.0)
-            stage = "fmi2EnterInitializationMode"
+            stage = calls["enter"]
             s.enterInitializationMode()
             self._write(self._param_writes, "in initialization mode (setting [parameters])")
             if self.init.n:
-                stage, names = "fmi2SetReal", self.init.names
+                stage, names = calls["set_real"], self.init.names
                 s.fmi2SetReal(s.component, self.init.vr, self.init.n, x0)
             self.set_fault(mode0, "in initialization mode")
             self.set_delta(delta0, "in initialization mode")
-            stage, names = "fmi2ExitInitializationMode", ()
+            stage, names = calls["exit"], ()
             s.exitInitializationMode()
         except FMICallException as exc:
             raise self.call_error(exc, f"in {stage} while initialising a path at t = 0", names) from None
@@ -533,8 +528,8 @@ class FMUSession:
         """Raise when ``fmi2LastSuccessfulTime`` lags behind the end ``t_end`` of the last step."""
         last = self.last_successful_time()
         if last is not None and last < t_end - 1e-9 * max(1.0, abs(t_end)):
-            raise self.err(f"{where}: after the last fmi2DoStep to t = {t_end!r} the FMU reports "
-                           f"fmi2LastSuccessfulTime = {last!r}: it did not advance as asked (does it ignore "
+            raise self.err(f"{where}: after the last {self.calls['step']} to t = {t_end!r} the FMU reports "
+                           f"{self.calls['last_time']} = {last!r}: it did not advance as asked (does it ignore "
                            "variable communication steps?)")
 
     def probe_outputs(self, x: np.ndarray, uw: np.ndarray, delta0: Any) -> tuple[np.ndarray, np.ndarray]:

@@ -434,7 +434,7 @@ def _compile_ode(gcc: str, spec: OdeFmuSpec, guid: str, header: str, src: Path, 
         os.replace(lib, target)
 
 
-def build_ode_fmu(spec: OdeFmuSpec, dest: Path | None = None) -> Path:
+def build_ode_fmu(spec: OdeFmuSpec, dest: Path | None = None, *, fmi_version: str = "2.0") -> Path:
     """Build the ``.fmu`` of ``spec`` and return its path.
 
     Parameters
@@ -444,6 +444,9 @@ def build_ode_fmu(spec: OdeFmuSpec, dest: Path | None = None) -> Path:
     dest : Path, optional
         The ``.fmu`` file, or an existing folder (then ``<folder>/<model_name>.fmu``);
         default ``<cache_dir()>/<model_name>-<hash>.fmu``.
+    fmi_version : str
+        ``"2.0"`` (Model Exchange and Co-Simulation), or ``"3.0"`` for an FMI 3.0
+        Co-Simulation FMU (:func:`ftc_verify.plants.ode_fmu3.build_ode_fmu3`).
 
     Returns
     -------
@@ -452,6 +455,12 @@ def build_ode_fmu(spec: OdeFmuSpec, dest: Path | None = None) -> Path:
         :func:`build_ode_binary`) and ``sources/`` (glue, header, generated ``ode_spec.h``,
         ``<model_name>.c``), written atomically; the same spec gives a byte-identical file.
     """
+    if fmi_version == "3.0":
+        from .ode_fmu3 import build_ode_fmu3
+
+        return build_ode_fmu3(spec, dest)
+    if fmi_version != "2.0":
+        raise ValidationError(f"build_ode_fmu: fmi_version must be \"2.0\" or \"3.0\", got {fmi_version!r}")
     binary = build_ode_binary(spec)
     src = ode_source_dir()
     guid = _guid(spec, src)

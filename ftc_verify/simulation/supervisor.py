@@ -1,4 +1,4 @@
-r"""Co-simulation supervisor: the sampled-data FTC loop around an FMI 2.0 co-simulation FMU.
+r"""Co-simulation supervisor: the sampled-data FTC loop around an FMI 2.0 or 3.0 co-simulation FMU.
 
 The FMU is the plant; the supervisor is the rest of the loop of the reference paper with a
 :class:`~ftc_verify.controllers.Controller` (static state feedback ``u = K[l] x``, or a
@@ -29,6 +29,9 @@ agree to rounding. The supervisor only follows the sampled paths, so the chain v
 The FMU itself -- checks, extraction, variables, FMI calls and their errors, logging,
 cleanup -- is an :class:`~ftc_verify.plants.fmu_session.FMUSession` owned by the
 supervisor, loaded and instantiated once; paths reuse the instance through ``fmi2Reset``.
+An FMI 3.0 FMU is called through :class:`~ftc_verify.plants.fmi3.FMU3Adapter`, which answers
+the same ``fmi2*`` calls with ``fmi3GetFloat64``, ``fmi3SetFloat64``, ``fmi3DoStep``...; the
+steps above and the handling of failed calls are the same for both versions.
 """
 
 from __future__ import annotations
@@ -60,7 +63,7 @@ def _delegate(name: str, doc: str) -> property:
 
 
 class Supervisor:
-    """Sampled-data FTC loop around one FMI 2.0 co-simulation FMU (a context manager).
+    """Sampled-data FTC loop around one FMI 2.0 or 3.0 co-simulation FMU (a context manager).
 
     Parameters
     ----------
@@ -124,7 +127,8 @@ class Supervisor:
         self.session.close()
 
     # the session's state, read-only (as attributes of the supervisor before the split)
-    slave = _delegate("slave", "The one :class:`fmpy.fmi2.FMU2Slave` of this supervisor (None once closed).")
+    slave = _delegate("slave", "The one :class:`fmpy.fmi2.FMU2Slave` (FMI 3.0: :class:`~ftc_verify.plants.fmi3."
+                               "FMU3Adapter`) of this supervisor (None once closed).")
     closed = _delegate("closed", "True once :meth:`close` ran.")
     extraction_dir = _delegate("extraction_dir", "The temporary folder of the extracted FMU (None once closed).")
     stats = _delegate("stats", "Library loads, instantiations, resets, paths and steps so far.")
@@ -278,9 +282,10 @@ class Supervisor:
         ``monitor``: a float64 array of at least 2 entries (e.g. in memory shared with a
         watching process) that holds the index of the running path and the time reached.
 
-        An ``fmi2Error`` or ``fmi2Discard`` inside a path's loop ends that path as a failed
-        record (:meth:`~ftc_verify.simulation.records.PathRecord.failed`) and the next path
-        runs; ``fmi2Fatal`` raises :class:`~ftc_verify.errors.PlantRunError`.
+        An ``fmi2Error`` or ``fmi2Discard`` (FMI 3.0: ``fmi3Error``, ``fmi3Discard``) inside a
+        path's loop ends that path as a failed record
+        (:meth:`~ftc_verify.simulation.records.PathRecord.failed`) and the next path runs;
+        ``fmi2Fatal`` (``fmi3Fatal``) raises :class:`~ftc_verify.errors.PlantRunError`.
         """
         self.session.check_open()
         monitor = np.zeros(3) if monitor is None else monitor

@@ -1,0 +1,207 @@
+"""FMI 3.0 Co-Simulation FMUs of the ODE models of :mod:`ftc_verify.plants.ode_fmu`.
+
+The same :class:`~ftc_verify.plants.ode_fmu.OdeFmuSpec` and model C file, compiled with
+``fmus/ode/ode_glue3.c``: the FMI 3.0 glue that includes the FMI 2.0 glue ``ode_glue.c``
+and forwards to it, so integration (Dormand--Prince 5(4), the tolerance of
+``fmi3EnterInitializationMode``), directional derivatives and the FMU state are those of
+the FMI 2.0 FMU. Variables are ``Float64`` scalars with the value references of
+``fmus/ode/ode_model.h`` plus the independent variable ``time`` (value reference 0); the
+binary lies in ``binaries/<platform tuple>/`` (``x86_64-linux``) as FMI 3.0 requires.
+Only Co-Simulation is served.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import itertools
+import os
+import tempfile
+import uuid
+from pathlib import Path
+from xml.etree import ElementTree as ET
+
+from .. import __version__
+from ..errors import FMUError, ValidationError
+from .linear_jump import (CFLAGS, _cached, _compiler_identity, _file_hash, _find_gcc, _link_flags, _platform,
+                          _record_hash, _write_zip, build_lock, cache_dir, fmi2_include_dir)
+from .ode_fmu import _GROUPS, GLUE_FILES, OdeFmuSpec, _compile, ode_source_dir, ode_spec_header
+
+__all__ = ["GLUE3_FILES", "FMI3_HEADERS", "ode_model_description3", "build_ode_binary3", "build_ode_fmu3"]
+
+#: Files of ``fmus/ode`` every FMI 3.0 ODE FMU is built from.
+GLUE3_FILES = GLUE_FILES + ("ode_glue3.c",)
+#: FMI 3.0 headers (from fmpy) the glue includes; their content enters the hash.
+FMI3_HEADERS = ("fmi3Functions.h", "fmi3FunctionTypes.h", "fmi3PlatformTypes.h")
+_LAYOUT_VERSION = "1"
+_LOG_CATEGORIES = (("logEvents", "information: instantiation, internal steps per fmi3DoStep"),
+                   ("logStatusWarning", "warnings"), ("logStatusError", "errors (always reported)"),
+                   ("logAll", "all of the above"))
+
+
+def _guid3(spec: OdeFmuSpec, src: Path) -> str:
+    h = hashlib.sha256(f"ftc-verify ode fmu3 {_LAYOUT_VERSION}\0{spec!r}\0".encode())
+    for name in GLUE3_FILES:
+        h.update((src / name).read_bytes())
+    return "{" + str(uuid.UUID(hex=h.hexdigest()[:32], version=5)) + "}"
+
+
+def _variables(spec: OdeFmuSpec) -> list[dict[str, str]]:
+    """The ``<Float64>`` attributes in value-reference order (``time`` first, reference 0)."""
+    def extra(v: object, start: bool = True) -> dict[str, str]:
+        out = {"description": v.description} if v.description else {}  # type: ignore[attr-defined]
+        if v.unit:  # type: ignore[attr-defined]
+            out["unit"] = v.unit  # type: ignore[attr-defined]
+        if start:
+            out["start"] = repr(v.start)  # type: ignore[attr-defined]
+        return out
+
+    out = [{"name": "time", "causality": "independent", "variability": "continuous",
+            "description": "simulation time"}]
+    out += [{"name": v.name, "causality": "local", "variability": "continuous", "initial": "exact", **extra(v)}
+            for v in spec.states]
+    out += [{"name": f"der({v.name})", "causality": "local", "variability": "continuous", "initial": "calculated",
+             "description": f"time derivative of {v.name}", "derivative": str(k)}
+            for k, v in enumerate(spec.states, start=1)]
+    out += [{"name": v.name, "causality": "input", "variability": "continuous", **extra(v)} for v in spec.inputs]
+    out += [{"name": v.name, "causality": "parameter", "variability": "tunable" if v.tunable else "fixed",
+             "initial": "exact", **extra(v)} for v in spec.parameters]
+    out += [{"name": v.name, "causality": "output", "variability": "continuous", "initial": "calculated",
+             **extra(v, start=False)} for v in spec.outputs]
+    return out
+
+
+def ode_model_description3(spec: OdeFmuSpec, guid: str) -> str:
+    """The FMI 3.0 ``modelDescription.xml`` text (``<CoSimulation>`` only)."""
+    root = ET.Element("fmiModelDescription", {
+        "fmiVersion": "3.0", "modelName": spec.model_name, "instantiationToken": guid,
+        "description": spec.description or f"ODE model {spec.model_name}",
+        "generationTool": f"ftc-verify {__version__} (ode_fmu3)", "variableNamingConvention": "structured",
+    })
+    ET.SubElement(root, "CoSimulation", {
+        "modelIdentifier": spec.model_name, "needsExecutionTool": "false",
+        "canBeInstantiatedOnlyOncePerProcess": "false", "canGetAndSetFMUState": "true",
+        "canSerializeFMUState": "true", "providesDirectionalDerivatives": "true" if spec.has_jacobian else "false",
+        "canHandleVariableCommunicationStepSize": "true", "maxOutputDerivativeOrder": "0",
+        "hasEventMode": "false", "providesIntermediateUpdate": "false", "mightReturnEarlyFromDoStep": "false",
+    })
+    units = sorted({v.unit for g in _GROUPS for v in getattr(spec, g) if v.unit})
+    if units:
+        defs = ET.SubElement(root, "UnitDefinitions")
+        for name in units:
+            ET.SubElement(defs, "Unit", {"name": name})
+    cats = ET.SubElement(root, "LogCategories")
+    for name, text in _LOG_CATEGORIES:
+        ET.SubElement(cats, "Category", {"name": name, "description": text})
+    ET.SubElement(root, "DefaultExperiment", {"startTime": "0.0", "stopTime": repr(spec.stop_time),
+                                              "tolerance": repr(spec.tolerance), "stepSize": repr(spec.step_size)})
+    variables = ET.SubElement(root, "ModelVariables")
+    for vr, attrs in enumerate(_variables(spec)):
+        name = attrs.pop("name")
+        ET.SubElement(variables, "Float64", {"name": name, "valueReference": str(vr), **attrs})
+    sizes = [len(spec.states), *(len(getattr(spec, g)) for g in _GROUPS)]  # x, der(x), u, p, y
+    bounds = list(itertools.accumulate([1, *sizes]))
+    states, derivs, inputs, params, outputs = (list(range(a, b)) for a, b in zip(bounds, bounds[1:]))
+    structure = ET.SubElement(root, "ModelStructure")
+    for tag, refs, deps in (("Output", outputs, states + inputs), ("ContinuousStateDerivative", derivs, states + inputs),
+                            ("InitialUnknown", derivs + outputs, states + inputs + params)):
+        for vr in refs:
+            ET.SubElement(structure, tag, {"valueReference": str(vr), "dependencies": " ".join(map(str, deps)),
+                                           "dependenciesKind": " ".join(["dependent"] * len(deps))})
+    ET.indent(root, space="  ")
+    return '<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
+
+
+def _probe3(lib: Path, spec: OdeFmuSpec, guid: str) -> None:
+    """Instantiate the fresh binary once (the glue checks the model file against the spec)."""
+    from fmpy import freeLibrary
+
+    messages: list[str] = []
+    log_type = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_char_p)
+    logger = log_type(lambda env, status, cat, msg: messages.append((msg or b"").decode("utf-8", "replace")))
+    try:
+        dll = ctypes.CDLL(str(lib))
+    except OSError as exc:
+        raise FMUError(f"{lib}: cannot load the compiled FMI 3.0 ODE FMU binary: {exc}") from None
+    try:
+        inst = dll.fmi3InstantiateCoSimulation
+        inst.restype = ctypes.c_void_p
+        inst.argtypes = [ctypes.c_char_p, ctypes.c_char_p, ctypes.c_char_p, ctypes.c_bool, ctypes.c_bool,
+                         ctypes.c_bool, ctypes.c_bool, ctypes.c_void_p, ctypes.c_size_t, ctypes.c_void_p,
+                         log_type, ctypes.c_void_p]
+        dll.fmi3FreeInstance.argtypes = [ctypes.c_void_p]
+        comp = inst(b"probe", guid.encode(), b"", False, False, False, False, None, 0, None, logger, None)
+        if not comp:
+            raise FMUError(f"{spec.model_name}.c: the model file does not match its OdeFmuSpec: "
+                           + ("; ".join(messages) or "fmi3InstantiateCoSimulation failed"))
+        dll.fmi3FreeInstance(comp)
+    finally:
+        freeLibrary(dll._handle)
+
+
+def build_ode_binary3(spec: OdeFmuSpec, force: bool = False) -> Path:
+    """Compile (or reuse) the FMI 3.0 shared library of ``spec`` in :func:`cache_dir`
+    (as :func:`~ftc_verify.plants.ode_fmu.build_ode_binary`, with ``ode_glue3.c``)."""
+    if not isinstance(spec, OdeFmuSpec):
+        raise ValidationError(f"build_ode_binary3: expected an OdeFmuSpec, got {type(spec).__name__}")
+    src = ode_source_dir()
+    if not (src / "ode_glue3.c").is_file():
+        raise FMUError(f"{src / 'ode_glue3.c'}: the FMI 3.0 glue of the ODE FMU is missing")
+    guid = _guid3(spec, src)
+    header = ode_spec_header(spec, guid)
+    include = fmi2_include_dir()
+    missing = [h for h in FMI3_HEADERS if not (include / h).is_file()]
+    if missing:
+        raise FMUError(f"{include}: FMI 3.0 header(s) {missing} not found in the fmpy package")
+    gcc = _find_gcc(src)
+    _, suffix = _platform()
+    h = hashlib.sha256(f"ftc-verify ode binary3 {_LAYOUT_VERSION}\0".encode())
+    for name in GLUE3_FILES:
+        h.update(name.encode() + b"\0" + (src / name).read_bytes() + b"\0")
+    h.update(header.encode() + b"\0" + spec.c_source.encode() + b"\0")
+    for name in FMI3_HEADERS + ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h"):
+        h.update(name.encode() + b"\0" + (include / name).read_bytes() + b"\0")
+    h.update(" ".join(CFLAGS + _link_flags()).encode() + b"\0" + _compiler_identity(gcc).encode())
+    target = cache_dir() / f"{spec.model_name}-fmi3-{h.hexdigest()[:20]}{suffix}"
+    with build_lock(target):
+        if not force and _cached(target):
+            return target
+        with tempfile.TemporaryDirectory(prefix=f".{spec.model_name}.", dir=target.parent) as tmp_name:
+            tmp = Path(tmp_name)
+            (tmp / "ode_spec.h").write_text(header, encoding="utf-8")
+            model = tmp / f"{spec.model_name}.c"
+            model.write_text(spec.c_source, encoding="utf-8")
+            lib = tmp / f"{spec.model_name}{suffix}"
+            _compile(gcc, spec, [model, src / "ode_glue3.c"], [tmp, src, include], lib)
+            _probe3(lib, spec, guid)
+            os.chmod(lib, 0o755)
+            _record_hash(target, _file_hash(lib))
+            os.replace(lib, target)
+    return target
+
+
+def build_ode_fmu3(spec: OdeFmuSpec, dest: Path | None = None) -> Path:
+    """Build the FMI 3.0 Co-Simulation ``.fmu`` of ``spec`` and return its path (``dest``
+    as for :func:`~ftc_verify.plants.ode_fmu.build_ode_fmu`; default
+    ``<cache_dir()>/<model_name>-fmi3-<hash>.fmu``)."""
+    import fmpy
+
+    binary = build_ode_binary3(spec)
+    src = ode_source_dir()
+    guid = _guid3(spec, src)
+    _, suffix = _platform()
+    members = [
+        ("modelDescription.xml", ode_model_description3(spec, guid).encode(), 0o644),
+        (f"binaries/{fmpy.platform_tuple}/{spec.model_name}{suffix}", binary.read_bytes(), 0o755),
+        ("sources/ode_spec.h", ode_spec_header(spec, guid).encode(), 0o644),
+        (f"sources/{spec.model_name}.c", spec.c_source.encode(), 0o644),
+    ]
+    members += [(f"sources/{name}", (src / name).read_bytes(), 0o644) for name in GLUE3_FILES]
+    if dest is None:
+        path = cache_dir() / f"{spec.model_name}-fmi3-{guid[1:13]}.fmu"
+    else:
+        path = Path(dest)
+        if path.is_dir():
+            path = path / f"{spec.model_name}.fmu"
+    _write_zip(path, members)
+    return path
