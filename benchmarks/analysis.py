@@ -165,6 +165,16 @@ def _instrument(conn: Any, events: dict[str, Any]) -> None:
             return out, x
 
         la.solve_conic = solve_conic
+        if hasattr(la, "solve_conic_dual"):  # the one-solve path of issue 24 (Clarabel with its dual)
+            orig_dual = la.solve_conic_dual
+
+            def solve_conic_dual(problem: Any) -> Any:
+                out, x, z = orig_dual(problem)
+                events["solves"].append(("clarabel", out.seconds, None, None, out.status))
+                conn.send(("solve", "clarabel", out.seconds))
+                return out, x, z
+
+            la.solve_conic_dual = solve_conic_dual
     else:  # the cvxpy path (code before the native path, for side-by-side runs)
         orig_solve = la.solve
 

@@ -114,7 +114,8 @@ def analyze(loop: ClosedLoop, *, solver: str | None = None, name: str = "", cros
         nominal = hinf_gamma(loop, robust=False, solver=solver)
         seconds["theorem_3_2"] = time.perf_counter() - t
         t = time.perf_counter()
-        robust = hinf_gamma(loop, robust=True, solver=solver) if loop.uncertain else nominal
+        hint = nominal.gamma if nominal.certified else None  # Lemma 4.1's gamma is at least this
+        robust = hinf_gamma(loop, robust=True, solver=solver, gamma_hint=hint) if loop.uncertain else nominal
         seconds["lemma_4_1"] = time.perf_counter() - t
         t = time.perf_counter()
         mes = mes_lmi(loop, solver=solver, known=(nominal, robust))

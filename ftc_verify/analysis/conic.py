@@ -40,7 +40,7 @@ import scipy.sparse as sp
 from ..model.system import Matrix
 
 __all__ = ["Affine", "affine_bmat", "svec_index", "sym_variable", "scalar_variable", "Rows", "ConicProblem",
-           "solve_clarabel", "to_cvxpy"]
+           "solve_clarabel", "solve_clarabel_dual", "to_cvxpy"]
 
 _R2 = math.sqrt(2.0)
 
@@ -222,6 +222,14 @@ def solve_clarabel(problem: ConicProblem, settings: dict[str, Any]) -> tuple[str
     Statuses outside :data:`_CLARABEL_STATUS` (numerical error, insufficient progress)
     become ``"error"`` with Clarabel's status in the message.
     """
+    status, message, x, _ = solve_clarabel_dual(problem, settings)
+    return status, message, x
+
+
+def solve_clarabel_dual(problem: ConicProblem, settings: dict[str, Any]) -> tuple[str, str, Matrix | None, Matrix | None]:
+    """:func:`solve_clarabel` that also returns the dual point ``z`` (``A' z + c = 0``,
+    ``z`` in the dual cone; ``-b' z`` is the dual objective, a lower bound on
+    ``min c' x`` up to the solver's tolerances), ``None`` with ``x``."""
     import clarabel
 
     opts = clarabel.DefaultSettings()
@@ -236,8 +244,9 @@ def solve_clarabel(problem: ConicProblem, settings: dict[str, Any]) -> tuple[str
     raw = str(sol.status)
     status = _CLARABEL_STATUS.get(raw, "error")
     message = "" if raw in _CLARABEL_STATUS else f"clarabel status {raw}"
-    x = np.asarray(sol.x, dtype=float) if status in ("optimal", "optimal_inaccurate") else None
-    return status, message, x
+    if status not in ("optimal", "optimal_inaccurate"):
+        return status, message, None, None
+    return status, message, np.asarray(sol.x, dtype=float), np.asarray(sol.z, dtype=float)
 
 
 def to_cvxpy(problem: ConicProblem) -> tuple[Any, Any]:

@@ -41,7 +41,8 @@ import numpy as np
 
 from ..errors import ValidationError
 from ..model.system import Matrix
-from .conic import ConicProblem, solve_clarabel, to_cvxpy
+from ..interrupts import deferred_signals
+from .conic import ConicProblem, solve_clarabel, solve_clarabel_dual, to_cvxpy
 
 __all__ = [
     "SOLVERS",
@@ -51,6 +52,7 @@ __all__ = [
     "second_solver",
     "solve",
     "solve_conic",
+    "solve_conic_dual",
     "ISOLATED",
 ]
 
@@ -194,29 +196,48 @@ def _solve_isolated(problem: Any, solver: str) -> tuple[str, str]:
     return status, message
 
 
+def _clarabel_guarded(call: Any, problem: ConicProblem) -> tuple[SolveOutcome, tuple[Any, ...]]:
+    """Run ``call(problem, SETTINGS["clarabel"])`` (``(status, message, *arrays)``);
+    anything it raises, a Rust panic (a ``BaseException``) included, becomes status
+    ``"error"`` and arrays ``None``. SIGINT and SIGTERM are held during the call and
+    delivered after it (:func:`~ftc_verify.interrupts.deferred_signals`): raised inside
+    Clarabel's callbacks into Python they would come out as such a panic."""
+    start = time.perf_counter()
+    try:
+        with deferred_signals():
+            status, message, *arrays = call(problem, SETTINGS["clarabel"])
+    except BaseException as exc:  # noqa: B036 - pyo3's PanicException is a BaseException
+        if not isinstance(exc, Exception) and type(exc).__name__ != "PanicException":
+            raise  # Ctrl-C, SIGTERM (the CLI's own BaseException), SystemExit: never a solver failure
+        status, message, arrays = "error", f"clarabel raised {type(exc).__name__}: {exc}", []
+    outcome = SolveOutcome("clarabel", status, time.perf_counter() - start, message)
+    usable = outcome.solved and arrays and all(a is not None and np.all(np.isfinite(a)) for a in arrays)
+    return outcome, tuple(arrays) if usable else (None,) * 2
+
+
 def solve_conic(problem: ConicProblem, solver: str) -> tuple[SolveOutcome, Matrix | None]:
     """Solve a :class:`~ftc_verify.analysis.conic.ConicProblem`: Clarabel natively, the
     other solvers through cvxpy (:func:`~ftc_verify.analysis.conic.to_cvxpy`, and
     :func:`solve`). Returns the outcome and the point (``None`` unless the solver
     returned a finite one). Nothing a solver raises escapes; a Rust panic in Clarabel
     (a ``BaseException``) included."""
-    start = time.perf_counter()
-    x: Matrix | None
     if solver == "clarabel":
-        try:
-            status, message, x = solve_clarabel(problem, SETTINGS["clarabel"])
-        except BaseException as exc:  # noqa: B036 - pyo3's PanicException is a BaseException
-            if not isinstance(exc, Exception) and type(exc).__name__ != "PanicException":
-                raise  # Ctrl-C, SIGTERM (the CLI's own BaseException), SystemExit: never a solver failure
-            status, message, x = "error", f"clarabel raised {type(exc).__name__}: {exc}", None
-        outcome = SolveOutcome(solver, status, time.perf_counter() - start, message)
-    else:
-        cvx_problem, var = to_cvxpy(problem)
-        outcome = solve(cvx_problem, solver)
-        x = None if var.value is None else np.asarray(var.value, dtype=float)
+        outcome, arrays = _clarabel_guarded(solve_clarabel, problem)
+        return outcome, arrays[0]
+    cvx_problem, var = to_cvxpy(problem)
+    outcome = solve(cvx_problem, solver)
+    x = None if var.value is None else np.asarray(var.value, dtype=float)
     if x is not None and not (outcome.solved and np.all(np.isfinite(x))):
         x = None
     return outcome, x
+
+
+def solve_conic_dual(problem: ConicProblem) -> tuple[SolveOutcome, Matrix | None, Matrix | None]:
+    """Clarabel on ``problem`` with the dual point: ``(outcome, x, z)``, both ``None``
+    unless finite ones were returned (:func:`~ftc_verify.analysis.conic.solve_clarabel_dual`);
+    nothing raised escapes, as in :func:`solve_conic`."""
+    outcome, (x, z) = _clarabel_guarded(solve_clarabel_dual, problem)
+    return outcome, x, z
 
 
 def solve(problem: Any, solver: str) -> SolveOutcome:

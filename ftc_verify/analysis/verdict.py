@@ -48,6 +48,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..interrupts import deferred_signals
 from ..model.system import Matrix
 from .closedloop import ClosedLoop
 from .conditioning import Similarity
@@ -202,7 +203,8 @@ def _ball_solution(loop: ClosedLoop, Q: Matrix, bits: int) -> list[Ball] | None:
         G = _ball_generator(loop, Q)
         rhs = flint.arb_mat([[-1.0 if r == c else 0.0] for _ in range(modes) for r, c in zip(rows, cols)])
         try:
-            v = G.solve(rhs)
+            with deferred_signals():  # a signal handled inside solve() came out as a ZeroDivisionError
+                v = G.solve(rhs)
         except (ZeroDivisionError, ValueError):
             return None
         out = []
