@@ -66,7 +66,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     import numpy as np
 
     from ..simulation.delta import DeltaSchedule, plant_delta
-    from ..simulation.paths import sample_paths
+    from ..simulation.paths import PathSpec, sample_paths
 
     _check_horizon(args.step, args.horizon)
     if args.plot:
@@ -84,7 +84,10 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     seed = args.seed if args.seed is not None else int(np.random.SeedSequence().entropy % 2**63)
     beta = {"random": None, "min": system.chain.rate_min, "max": system.chain.rate_max,
             "mid": system.chain.midpoint()}[args.beta]
-    paths = sample_paths(system.chain, args.horizon, args.paths, seed, beta=beta)
+    if args.backend == "fmu":
+        paths = sample_paths(system.chain, args.horizon, args.paths, seed, beta=beta)
+    else:  # the reference backend samples each batch where it runs: in turn here, or on the Dask workers
+        paths = PathSpec(system.chain, args.horizon, args.paths, seed, beta=beta)
     delta = DeltaSchedule(plant_delta(system, plant, args.delta, explicit=True)[0])
     from ..simulation.batches import fmu_monte_carlo, progress_bar
     from ..simulation.cluster import open_client

@@ -28,8 +28,9 @@ from them.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
+from typing import overload
 
 import numpy as np
 
@@ -45,6 +46,9 @@ __all__ = [
     "snap_to_grid",
     "ChainPath",
     "sample_paths",
+    "path_streams",
+    "sample_path_range",
+    "PathSpec",
     "communication_grid",
     "Disturbance",
     "disturbance",
@@ -219,10 +223,54 @@ def sample_paths(
     detection is not a mode switch).
     """
     horizon = _check_horizon(horizon)
+    count = _check_count(count)
+    s_start = chain.start_state(start)
+    return _sample(chain, horizon, _check_seed(seed).spawn(count), beta, s_start)
+
+
+def _check_count(count: int) -> int:
     if isinstance(count, bool) or not (isinstance(count, (int, np.integer)) and count >= 1):
         raise ValidationError(f"paths: must be a positive integer, got {count!r}")
-    s_start = chain.start_state(start)
-    streams = _check_seed(seed).spawn(int(count))
+    return int(count)
+
+
+def path_streams(seed: int | np.random.SeedSequence, first: int, stop: int) -> list[np.random.SeedSequence]:
+    """The streams of paths ``first .. stop - 1`` of ``sample_paths(..., seed)``: children
+    ``first .. stop - 1`` of ``SeedSequence(seed).spawn(count)`` (any ``count >= stop``),
+    built directly as ``SeedSequence(entropy, spawn_key=(*spawn_key, n + k))`` with ``n``
+    the children ``seed`` has spawned so far (0 for an integer); a ``SeedSequence`` given
+    as ``seed`` is not advanced."""
+    root = _check_seed(seed)
+    if not 0 <= first <= stop:
+        raise ValidationError(f"paths: expected 0 <= first <= stop, got first={first!r}, stop={stop!r}")
+    base = root.n_children_spawned
+    return [np.random.SeedSequence(root.entropy, spawn_key=(*root.spawn_key, base + k), pool_size=root.pool_size)
+            for k in range(int(first), int(stop))]
+
+
+def sample_path_range(
+    chain: JointChain,
+    horizon: float,
+    seed: int | np.random.SeedSequence,
+    first: int,
+    stop: int,
+    *,
+    beta: Matrix | None = None,
+    start: tuple[int, int] = (0, 0),
+) -> list[ChainPath]:
+    """Paths ``first .. stop - 1`` of a run of :func:`sample_paths` with this ``seed``,
+    sampled on their own: exactly ``sample_paths(chain, horizon, count, seed, ...)[first:stop]``
+    for any ``count >= stop`` (every path draws only from its stream, :func:`path_streams`),
+    so that a Dask worker can sample its batch itself. ``seed`` is not advanced."""
+    horizon = _check_horizon(horizon)
+    _check_count(stop - first)
+    return _sample(chain, horizon, path_streams(seed, first, stop), beta, chain.start_state(start))
+
+
+def _sample(chain: JointChain, horizon: float, streams: list[np.random.SeedSequence], beta: Matrix | None,
+            s_start: int) -> list[ChainPath]:
+    """The paths of ``streams`` (one per path), from state ``s_start`` (:func:`sample_paths`)."""
+    count = len(streams)
     gens = [np.random.default_rng(k) for k in streams]
     targets = _targets(chain)
     if beta is None:
@@ -284,6 +332,62 @@ def _run(rates: np.ndarray, cdf: np.ndarray, targets: np.ndarray, row: np.ndarra
     times = np.concatenate([np.zeros(count), *jump_t])[order]
     states = np.concatenate([np.full(count, s_start), *jump_s])[order]
     return path_of[order], times, states
+
+
+@dataclass(frozen=True, eq=False)
+class PathSpec(Sequence[ChainPath]):
+    """The paths of ``sample_paths(chain, horizon, n_paths, seed, beta=beta, start=start)``
+    as a recipe instead of a list: small to ship (a Dask task gets the recipe and the
+    indices of its batch and samples its paths itself, :func:`sample_path_range`), and a
+    sequence of :class:`ChainPath` whose items are sampled when asked for (``spec[k]``,
+    ``spec[a:b]``: the same paths as the list). A ``SeedSequence`` seed is copied, not
+    advanced."""
+
+    chain: JointChain
+    horizon: float
+    n_paths: int
+    seed: int | np.random.SeedSequence
+    beta: Matrix | None = None
+    start: tuple[int, int] = (0, 0)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "horizon", _check_horizon(self.horizon))
+        object.__setattr__(self, "n_paths", _check_count(self.n_paths))
+        s = _check_seed(self.seed)
+        seed = int(self.seed) if s is not self.seed else np.random.SeedSequence(
+            s.entropy, spawn_key=s.spawn_key, pool_size=s.pool_size, n_children_spawned=s.n_children_spawned)
+        object.__setattr__(self, "seed", seed)
+        if self.beta is not None:
+            object.__setattr__(self, "beta", self.chain.check_beta(self.beta))
+        self.chain.start_state(self.start)
+
+    def sample(self, first: int = 0, stop: int | None = None) -> list[ChainPath]:
+        """Paths ``first .. stop - 1`` (all by default), sampled now."""
+        stop = self.n_paths if stop is None else min(int(stop), self.n_paths)
+        return sample_path_range(self.chain, self.horizon, self.seed, first, stop, beta=self.beta, start=self.start)
+
+    def __len__(self) -> int:
+        return self.n_paths
+
+    @overload
+    def __getitem__(self, k: int) -> ChainPath: ...
+
+    @overload
+    def __getitem__(self, k: slice) -> list[ChainPath]: ...
+
+    def __getitem__(self, k: int | slice) -> ChainPath | list[ChainPath]:
+        if isinstance(k, slice):
+            idx = range(self.n_paths)[k]
+            if idx.step == 1:
+                return self.sample(idx.start, idx.stop) if len(idx) else []
+            return [self[i] for i in idx]
+        i = range(self.n_paths)[k]  # IndexError out of range, negative indices from the end
+        return self.sample(i, i + 1)[0]
+
+    def __iter__(self) -> Iterator[ChainPath]:
+        """All paths, sampled in blocks of 1000 (not all held at once by the iterator)."""
+        for b in range(0, self.n_paths, 1000):
+            yield from self.sample(b, b + 1000)
 
 
 def communication_grid(path: ChainPath, step: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
