@@ -80,9 +80,11 @@ def test_paper_model_explicit_one_phase_is_the_default(paper_reports) -> None:
 def test_paper_model_numbers_as_before_the_change(paper_reports, paper_loop) -> None:
     rep = paper_reports[0]
     assert _rel(rep.mss.spectral_abscissa, BEFORE["mu"]) <= 1e-9
-    # Same blocks, same problems: the solver's answers agree to its tolerance (bit for bit here).
-    assert _rel(rep.nominal.gamma, BEFORE["nominal"]) <= 1e-6
-    assert _rel(rep.robust.gamma, BEFORE["robust"]) <= 1e-6
+    # Same blocks, same problems. The gammas were pinned before the one-solve search of
+    # issue 24, which certifies closer to the minimum: never above, at most 1e-4 below.
+    for name in ("nominal", "robust"):
+        gamma = getattr(rep, name).gamma
+        assert BEFORE[name] * (1 - 1e-4) <= gamma <= BEFORE[name] * (1 + 1e-9), (name, gamma)
     assert [s.label for s in block_specs(paper_loop)] == BEFORE_LABELS
     assert np.array_equal(rep.mss.worst_beta, [[0.0, 3.0], [3.5, 0.0]])
 
