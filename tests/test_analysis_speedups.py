@@ -95,7 +95,10 @@ def test_analyze_passes_the_nominal_gamma_as_hint(loop, monkeypatch: pytest.Monk
 
     import importlib
 
+    import os
+
     monkeypatch.setattr(importlib.import_module("ftc_verify.analysis.analyze"), "hinf_gamma", spy)
+    monkeypatch.delattr(os, "fork")  # one program after the other (where the two cannot run at once)
     report = analyze(loop, cross_validation=False)
     assert report.certificate_ok
     assert seen == [None, report.nominal.gamma]
@@ -147,3 +150,37 @@ def test_solve_conic_dual_matches_solve_conic(loop) -> None:
     assert out.status == out2.status == "optimal"
     assert np.allclose(x, x2) and z is not None
     assert abs(problem.c @ x2 + problem.b @ z) <= 1e-6 * max(1.0, abs(problem.c @ x2))  # strong duality
+
+
+# ------------------------------------------------------------------------------------------ two programs at once
+
+
+def test_forked_call_returns_raises_and_cancels() -> None:
+    import os
+    import time
+
+    from ftc_verify.analysis.solvers import ForkedCall
+    from ftc_verify.errors import SolverError
+
+    assert ForkedCall(lambda: {"gamma": 0.5, "pid": os.getpid()}, "test").result()["gamma"] == 0.5
+    with pytest.raises(ValueError, match="from the child"):
+        ForkedCall(lambda: (_ for _ in ()).throw(ValueError("from the child")), "test").result()
+    with pytest.raises(SolverError, match="test: the forked solve process killed by signal 9"):
+        ForkedCall(lambda: os.kill(os.getpid(), 9), "test").result()
+    slow = ForkedCall(lambda: time.sleep(60), "test")
+    pid = slow.pid
+    slow.cancel()
+    with pytest.raises(ChildProcessError):
+        os.waitpid(pid, os.WNOHANG)  # killed and reaped
+
+
+def test_the_forked_nominal_program_gives_the_sequential_answer(paper_loop) -> None:
+    from ftc_verify.analysis.analyze import analyze
+    from ftc_verify.analysis.lmi_analysis import hinf_gamma
+
+    rep = analyze(paper_loop, cross_validation=False)
+    assert "gammas_wall" in rep.seconds  # the paper's loop is uncertain: the two ran at once
+    alone = hinf_gamma(paper_loop, robust=False)
+    assert rep.nominal.certified and rep.nominal.gamma == pytest.approx(alone.gamma, rel=1e-12)
+    robust = hinf_gamma(paper_loop, robust=True, gamma_hint=alone.gamma)
+    assert rep.robust.certified and rep.robust.gamma == pytest.approx(robust.gamma, rel=1e-5)

@@ -48,6 +48,7 @@ __all__ = [
     "SOLVERS",
     "SETTINGS",
     "SolveOutcome",
+    "ForkedCall",
     "choose_solver",
     "second_solver",
     "solve",
@@ -247,3 +248,72 @@ def solve(problem: Any, solver: str) -> SolveOutcome:
     run = _solve_isolated if solver in ISOLATED else _solve_here
     status, message = run(problem, solver)
     return SolveOutcome(solver, status, time.perf_counter() - start, message)
+
+
+class ForkedCall:
+    """``fn()`` running in a forked child process beside this one (POSIX), its result sent
+    back pickled: how :func:`~ftc_verify.analysis.analyze.analyze` solves the nominal and
+    the robust gamma programs on two cores at once (each solve is single-threaded,
+    :data:`SETTINGS`; FLINT's precision, used by the certificate checks, is per process, so
+    the two never share state).
+
+    :meth:`result` waits for the answer (the child's exception is raised again here; a
+    child that died without an answer is a :class:`~ftc_verify.errors.SolverError`);
+    :meth:`cancel` kills a child still running (call it in a ``finally``). The child
+    ignores SIGINT (a terminal sends it to the whole group; this process cancels it) and
+    never returns into the caller's code.
+    """
+
+    def __init__(self, fn: Any, what: str) -> None:
+        import signal
+
+        self.what = what
+        read_fd, write_fd = os.pipe()
+        sys.stdout.flush()
+        sys.stderr.flush()
+        self.pid = os.fork()
+        if self.pid == 0:  # child
+            try:
+                signal.signal(signal.SIGINT, signal.SIG_IGN)
+                signal.signal(signal.SIGTERM, signal.SIG_DFL)
+                os.close(read_fd)
+                try:
+                    payload: tuple[str, Any] = ("ok", fn())
+                except Exception as exc:
+                    payload = ("error", exc)
+                with os.fdopen(write_fd, "wb") as out:
+                    pickle.dump(payload, out)
+            finally:
+                os._exit(0)
+        os.close(write_fd)
+        self._read_fd: int | None = read_fd
+
+    def result(self) -> Any:
+        """The child's return value (its exception raised again)."""
+        from ..errors import SolverError
+
+        assert self._read_fd is not None, "ForkedCall.result called twice"
+        with os.fdopen(self._read_fd, "rb") as src:
+            self._read_fd = None
+            data = src.read()
+        _, wait_status = os.waitpid(self.pid, 0)
+        self.pid = 0
+        if not data:
+            raise SolverError(f"{self.what}: {_child_ended('the forked solve', wait_status)}")
+        kind, value = pickle.loads(data)
+        if kind == "error":
+            raise value
+        return value
+
+    def cancel(self) -> None:
+        """Kill and reap the child if it is still there."""
+        import signal
+
+        if self.pid:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(self.pid, signal.SIGKILL)
+            os.waitpid(self.pid, 0)
+            self.pid = 0
+        if self._read_fd is not None:
+            os.close(self._read_fd)
+            self._read_fd = None
