@@ -56,7 +56,8 @@ from .linear_jump import (CFLAGS, FMI2_HEADERS, _compiler_identity, _file_hash, 
                           fmi2_include_dir, run_compiler)
 
 __all__ = ["DEFAULT_RTOL", "GLUE_FILES", "OdeVariable", "OdeFmuSpec", "ode_source_dir", "ode_spec_header",
-           "ode_model_description", "build_ode_binary", "build_ode_fmu", "compile_count", "motor_spec"]
+           "ode_model_description", "build_ode_binary", "build_ode_fmu", "package_ode_fmu", "compile_count",
+           "motor_spec"]
 
 #: Relative tolerance of ``fmi2DoStep`` when ``fmi2SetupExperiment`` defines none.
 DEFAULT_RTOL = 1e-8
@@ -464,16 +465,28 @@ def build_ode_fmu(spec: OdeFmuSpec, dest: Path | None = None, *, fmi_version: st
     binary = build_ode_binary(spec)
     src = ode_source_dir()
     guid = _guid(spec, src)
-    platform, suffix = _platform()
+    return package_ode_fmu(spec, guid=guid, binary=binary, platform=_platform()[0],
+                           model_description=ode_model_description(spec, guid), glue_files=GLUE_FILES,
+                           dest=dest, cache_stem=f"{spec.model_name}-{guid[1:13]}")
+
+
+def package_ode_fmu(spec: OdeFmuSpec, *, guid: str, binary: Path, platform: str, model_description: str,
+                    glue_files: tuple[str, ...], dest: Path | None, cache_stem: str) -> Path:
+    """The ``.fmu`` archive of an ODE FMU, for either FMI version: ``modelDescription.xml``,
+    the ``binary`` under ``binaries/<platform>/``, and the sources (the generated
+    ``ode_spec.h``, the model, ``glue_files``); written atomically to ``dest`` (a folder:
+    ``<model_name>.fmu`` in it; None: ``<cache_dir()>/<cache_stem>.fmu``)."""
+    src = ode_source_dir()
+    suffix = _platform()[1]
     members = [
-        ("modelDescription.xml", ode_model_description(spec, guid).encode(), 0o644),
+        ("modelDescription.xml", model_description.encode(), 0o644),
         (f"binaries/{platform}/{spec.model_name}{suffix}", binary.read_bytes(), 0o755),
         ("sources/ode_spec.h", ode_spec_header(spec, guid).encode(), 0o644),
         (f"sources/{spec.model_name}.c", spec.c_source.encode(), 0o644),
     ]
-    members += [(f"sources/{name}", (src / name).read_bytes(), 0o644) for name in GLUE_FILES]
+    members += [(f"sources/{name}", (src / name).read_bytes(), 0o644) for name in glue_files]
     if dest is None:
-        path = cache_dir() / f"{spec.model_name}-{guid[1:13]}.fmu"
+        path = cache_dir() / f"{cache_stem}.fmu"
     else:
         path = Path(dest)
         if path.is_dir():

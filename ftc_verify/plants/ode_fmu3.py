@@ -24,8 +24,8 @@ from xml.etree import ElementTree as ET
 from .. import __version__
 from ..errors import FMUError, ValidationError
 from .linear_jump import (CFLAGS, _cached, _compiler_identity, _file_hash, _find_gcc, _link_flags, _platform,
-                          _record_hash, _write_zip, build_lock, cache_dir, fmi2_include_dir)
-from .ode_fmu import _GROUPS, GLUE_FILES, OdeFmuSpec, _compile, ode_source_dir, ode_spec_header
+                          _record_hash, build_lock, cache_dir, fmi2_include_dir)
+from .ode_fmu import _GROUPS, GLUE_FILES, OdeFmuSpec, _compile, ode_source_dir, ode_spec_header, package_ode_fmu
 
 __all__ = ["GLUE3_FILES", "FMI3_HEADERS", "ode_model_description3", "build_ode_binary3", "build_ode_fmu3"]
 
@@ -187,21 +187,7 @@ def build_ode_fmu3(spec: OdeFmuSpec, dest: Path | None = None) -> Path:
     import fmpy
 
     binary = build_ode_binary3(spec)
-    src = ode_source_dir()
-    guid = _guid3(spec, src)
-    _, suffix = _platform()
-    members = [
-        ("modelDescription.xml", ode_model_description3(spec, guid).encode(), 0o644),
-        (f"binaries/{fmpy.platform_tuple}/{spec.model_name}{suffix}", binary.read_bytes(), 0o755),
-        ("sources/ode_spec.h", ode_spec_header(spec, guid).encode(), 0o644),
-        (f"sources/{spec.model_name}.c", spec.c_source.encode(), 0o644),
-    ]
-    members += [(f"sources/{name}", (src / name).read_bytes(), 0o644) for name in GLUE3_FILES]
-    if dest is None:
-        path = cache_dir() / f"{spec.model_name}-fmi3-{guid[1:13]}.fmu"
-    else:
-        path = Path(dest)
-        if path.is_dir():
-            path = path / f"{spec.model_name}.fmu"
-    _write_zip(path, members)
-    return path
+    guid = _guid3(spec, ode_source_dir())
+    return package_ode_fmu(spec, guid=guid, binary=binary, platform=fmpy.platform_tuple,
+                           model_description=ode_model_description3(spec, guid), glue_files=GLUE3_FILES,
+                           dest=dest, cache_stem=f"{spec.model_name}-fmi3-{guid[1:13]}")
