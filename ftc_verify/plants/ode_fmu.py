@@ -47,6 +47,7 @@ import tempfile
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 from xml.etree import ElementTree as ET
 
 from .. import __version__
@@ -56,7 +57,8 @@ from .linear_jump import (CFLAGS, FMI2_HEADERS, _compiler_identity, _file_hash, 
                           fmi2_include_dir, run_compiler)
 
 __all__ = ["DEFAULT_RTOL", "GLUE_FILES", "OdeVariable", "OdeFmuSpec", "ode_source_dir", "ode_spec_header",
-           "ode_model_description", "build_ode_binary", "build_ode_fmu", "package_ode_fmu", "compile_count",
+           "ode_model_description", "build_ode_binary", "compile_ode_binary", "build_ode_fmu",
+           "package_ode_fmu", "compile_count",
            "motor_spec"]
 
 #: Relative tolerance of ``fmi2DoStep`` when ``fmi2SetupExperiment`` defines none.
@@ -399,41 +401,47 @@ def build_ode_binary(spec: OdeFmuSpec, force: bool = False) -> Path:
         raise ValidationError(f"build_ode_binary: expected an OdeFmuSpec, got {type(spec).__name__}")
     src = ode_source_dir()
     guid = _guid(spec, src)
+    return compile_ode_binary(spec, guid, force=force, hash_tag="ode binary", stem=spec.model_name,
+                              glue_files=GLUE_FILES, glue_source="ode_glue.c", headers=FMI2_HEADERS,
+                              probe=_probe)
+
+
+def compile_ode_binary(spec: OdeFmuSpec, guid: str, *, force: bool, hash_tag: str, stem: str,
+                       glue_files: tuple[str, ...], glue_source: str, headers: tuple[str, ...],
+                       probe: Any) -> Path:
+    """The cached shared library of ``spec`` for either FMI version (:func:`build_ode_binary`):
+    ``<stem>-<hash>.so`` in :func:`cache_dir`, the hash over ``hash_tag``, the
+    ``glue_files``, the generated header, the model, the FMI ``headers``, the flags and the
+    compiler; compiled from the model and ``glue_source`` and checked by
+    ``probe(lib, spec, guid)`` under the build lock."""
+    src = ode_source_dir()
     header = ode_spec_header(spec, guid)
     include = fmi2_include_dir()
     gcc = _find_gcc(src)
     _, suffix = _platform()
-    h = hashlib.sha256(f"ftc-verify ode binary {_LAYOUT_VERSION}\0".encode())
-    for name in GLUE_FILES:
+    h = hashlib.sha256(f"ftc-verify {hash_tag} {_LAYOUT_VERSION}\0".encode())
+    for name in glue_files:
         h.update(name.encode() + b"\0" + (src / name).read_bytes() + b"\0")
     h.update(header.encode() + b"\0" + spec.c_source.encode() + b"\0")
-    for name in FMI2_HEADERS:
+    for name in headers:
         h.update(name.encode() + b"\0" + (include / name).read_bytes() + b"\0")
     h.update(" ".join(CFLAGS + _link_flags()).encode() + b"\0" + _compiler_identity(gcc).encode())
-    target = cache_dir() / f"{spec.model_name}-{h.hexdigest()[:20]}{suffix}"
+    target = cache_dir() / f"{stem}-{h.hexdigest()[:20]}{suffix}"
     with build_lock(target):
         if not force and _cached(target):
             return target
-        _compile_ode(gcc, spec, guid, header, src, include, target)
+        with tempfile.TemporaryDirectory(prefix=f".{spec.model_name}.", dir=target.parent) as tmp_name:
+            tmp = Path(tmp_name)
+            (tmp / "ode_spec.h").write_text(header, encoding="utf-8")
+            model = tmp / f"{spec.model_name}.c"
+            model.write_text(spec.c_source, encoding="utf-8")
+            lib = tmp / f"{spec.model_name}{suffix}"
+            _compile(gcc, spec, [model, src / glue_source], [tmp, src, include], lib)
+            probe(lib, spec, guid)
+            os.chmod(lib, 0o755)
+            _record_hash(target, _file_hash(lib))
+            os.replace(lib, target)
     return target
-
-
-def _compile_ode(gcc: str, spec: OdeFmuSpec, guid: str, header: str, src: Path, include: Path,
-                 target: Path) -> None:
-    """Compile in a temporary folder, probe, record the hash, rename into place."""
-    _, suffix = _platform()
-    with tempfile.TemporaryDirectory(prefix=f".{spec.model_name}.", dir=target.parent) as tmp_name:
-        tmp = Path(tmp_name)
-        (tmp / "ode_spec.h").write_text(header, encoding="utf-8")
-        model = tmp / f"{spec.model_name}.c"
-        model.write_text(spec.c_source, encoding="utf-8")
-        lib = tmp / f"{spec.model_name}{suffix}"
-        _compile(gcc, spec, [model, src / "ode_glue.c"], [tmp, src, include], lib)
-        _probe(lib, spec, guid)
-        os.chmod(lib, 0o755)
-        _record_hash(target, _file_hash(lib))
-        os.replace(lib, target)
-
 
 def build_ode_fmu(spec: OdeFmuSpec, dest: Path | None = None, *, fmi_version: str = "2.0") -> Path:
     """Build the ``.fmu`` of ``spec`` and return its path.

@@ -15,17 +15,14 @@ from __future__ import annotations
 import ctypes
 import hashlib
 import itertools
-import os
-import tempfile
 import uuid
 from pathlib import Path
 from xml.etree import ElementTree as ET
 
 from .. import __version__
 from ..errors import FMUError, ValidationError
-from .linear_jump import (CFLAGS, _cached, _compiler_identity, _file_hash, _find_gcc, _link_flags, _platform,
-                          _record_hash, build_lock, cache_dir, fmi2_include_dir)
-from .ode_fmu import _GROUPS, GLUE_FILES, OdeFmuSpec, _compile, ode_source_dir, ode_spec_header, package_ode_fmu
+from .linear_jump import fmi2_include_dir
+from .ode_fmu import _GROUPS, GLUE_FILES, OdeFmuSpec, compile_ode_binary, ode_source_dir, package_ode_fmu
 
 __all__ = ["GLUE3_FILES", "FMI3_HEADERS", "ode_model_description3", "build_ode_binary3", "build_ode_fmu3"]
 
@@ -147,37 +144,14 @@ def build_ode_binary3(spec: OdeFmuSpec, force: bool = False) -> Path:
     src = ode_source_dir()
     if not (src / "ode_glue3.c").is_file():
         raise FMUError(f"{src / 'ode_glue3.c'}: the FMI 3.0 glue of the ODE FMU is missing")
-    guid = _guid3(spec, src)
-    header = ode_spec_header(spec, guid)
     include = fmi2_include_dir()
     missing = [h for h in FMI3_HEADERS if not (include / h).is_file()]
     if missing:
         raise FMUError(f"{include}: FMI 3.0 header(s) {missing} not found in the fmpy package")
-    gcc = _find_gcc(src)
-    _, suffix = _platform()
-    h = hashlib.sha256(f"ftc-verify ode binary3 {_LAYOUT_VERSION}\0".encode())
-    for name in GLUE3_FILES:
-        h.update(name.encode() + b"\0" + (src / name).read_bytes() + b"\0")
-    h.update(header.encode() + b"\0" + spec.c_source.encode() + b"\0")
-    for name in FMI3_HEADERS + ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h"):
-        h.update(name.encode() + b"\0" + (include / name).read_bytes() + b"\0")
-    h.update(" ".join(CFLAGS + _link_flags()).encode() + b"\0" + _compiler_identity(gcc).encode())
-    target = cache_dir() / f"{spec.model_name}-fmi3-{h.hexdigest()[:20]}{suffix}"
-    with build_lock(target):
-        if not force and _cached(target):
-            return target
-        with tempfile.TemporaryDirectory(prefix=f".{spec.model_name}.", dir=target.parent) as tmp_name:
-            tmp = Path(tmp_name)
-            (tmp / "ode_spec.h").write_text(header, encoding="utf-8")
-            model = tmp / f"{spec.model_name}.c"
-            model.write_text(spec.c_source, encoding="utf-8")
-            lib = tmp / f"{spec.model_name}{suffix}"
-            _compile(gcc, spec, [model, src / "ode_glue3.c"], [tmp, src, include], lib)
-            _probe3(lib, spec, guid)
-            os.chmod(lib, 0o755)
-            _record_hash(target, _file_hash(lib))
-            os.replace(lib, target)
-    return target
+    return compile_ode_binary(spec, _guid3(spec, src), force=force, hash_tag="ode binary3",
+                              stem=f"{spec.model_name}-fmi3", glue_files=GLUE3_FILES, glue_source="ode_glue3.c",
+                              headers=FMI3_HEADERS + ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h"),
+                              probe=_probe3)
 
 
 def build_ode_fmu3(spec: OdeFmuSpec, dest: Path | None = None) -> Path:
