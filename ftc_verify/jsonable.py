@@ -30,6 +30,22 @@ def jsonable(value: Any, where: str = "$") -> Any:
     the error message."""
     import numpy as np  # here, not at import time: the command line's --help needs no numpy
 
+    try:
+        return _convert(value, np)
+    except _Refused as exc:
+        place = where + "".join(f"[{key}]" if isinstance(key, int) else f".{key}" for key in reversed(exc.keys))
+        raise TypeError(f"{place}: a {type(exc.value).__module__}.{type(exc.value).__name__} cannot be written "
+                        f"as JSON ({exc.value!r:.80})") from None
+
+
+class _Refused(Exception):
+    """A value of no JSON type; ``keys`` collects its place on the way out (innermost first)."""
+
+    def __init__(self, value: Any) -> None:
+        self.value, self.keys = value, []
+
+
+def _convert(value: Any, np: Any) -> Any:
     if value is None or isinstance(value, (str, bool)):
         return value
     if isinstance(value, np.bool_):
@@ -40,17 +56,28 @@ def jsonable(value: Any, where: str = "$") -> Any:
         v = float(value)
         return v if math.isfinite(v) else None
     if isinstance(value, (complex, np.complexfloating)):
-        return [jsonable(value.real, where), jsonable(value.imag, where)]
-    if isinstance(value, dict):
-        return {str(k): jsonable(v, f"{where}.{k}") for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [jsonable(v, f"{where}[{i}]") for i, v in enumerate(value)]
+        return [_convert(value.real, np), _convert(value.imag, np)]
     if isinstance(value, np.ndarray):
-        return jsonable(value.tolist(), where)
+        return _convert(value.tolist(), np)
     if isinstance(value, PurePath):
         return str(value)
-    raise TypeError(f"{where}: a {type(value).__module__}.{type(value).__name__} cannot be written as JSON "
-                    f"({value!r:.80})")
+    if isinstance(value, dict):
+        items, out = value.items(), {}
+    elif isinstance(value, (list, tuple)):
+        items, out = enumerate(value), []
+    else:
+        raise _Refused(value)
+    for key, item in items:
+        try:
+            converted = _convert(item, np)
+        except _Refused as exc:
+            exc.keys.append(key)
+            raise
+        if isinstance(out, dict):
+            out[str(key)] = converted
+        else:
+            out.append(converted)
+    return out
 
 
 def dumps(value: Any) -> str:
