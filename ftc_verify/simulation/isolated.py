@@ -117,7 +117,7 @@ def _child_main(workdir: str, fd: int) -> None:
 
 def _messages(fd: int, child: subprocess.Popen[bytes]) -> Any:
     """The child's messages as they arrive; ends when the pipe closes (the child ended)."""
-    buffer = b""
+    buffer = bytearray()  # grown in place: a batch of several MB arrives in many reads
     while True:
         ready, _, _ = select.select([fd], [], [], POLL_SECONDS)
         if not ready:
@@ -130,8 +130,9 @@ def _messages(fd: int, child: subprocess.Popen[bytes]) -> Any:
             (size,) = _HEADER.unpack_from(buffer)
             if len(buffer) < _HEADER.size + size:
                 break
-            yield pickle.loads(buffer[_HEADER.size:_HEADER.size + size])
-            buffer = buffer[_HEADER.size + size:]
+            message = pickle.loads(buffer[_HEADER.size:_HEADER.size + size])
+            del buffer[:_HEADER.size + size]
+            yield message
 
 
 def run_isolated(system: FTCSystem, plant: Any, controller: Controller, paths: Sequence[ChainPath], *, step: float,
