@@ -124,11 +124,12 @@ def test_relabelling_modes_keeps_two_step_feasibility(system: FTCSystem, perm: l
     set; the suite found draws where it differed between labellings inside one pytest
     process but not in another (order-dependent solver numerics), so a difference there is
     recorded as an event, not asserted."""
-    from ftc_verify.synthesis.state_feedback import _Calls, _xy_solve
+    from ftc_verify.synthesis.results import SolverCalls
+    from ftc_verify.synthesis.xy_design import xy_solve
 
     relabelled = relabel(system, perm)
-    a1 = _xy_solve(system, "projected", 5.0, _Calls("clarabel"), None)
-    b1 = _xy_solve(relabelled, "projected", 5.0, _Calls("clarabel"), None)
+    a1 = xy_solve(system, "projected", 5.0, SolverCalls("clarabel"), None)
+    b1 = xy_solve(relabelled, "projected", 5.0, SolverCalls("clarabel"), None)
     assert (a1 is None) == (b1 is None)
     if a1 is not None and b1 is not None:
         assert abs(a1["margin"] - b1["margin"]) <= 1e-3 * max(1.0, a1["margin"])

@@ -80,3 +80,35 @@ def test_modules_and_functions_stay_small(path: Path) -> None:
         if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
             length = node.end_lineno - node.lineno + 1  # type: ignore[operator]
             assert length <= MAX_FUNCTION_LINES, f"{path}:{node.lineno}: {node.name} has {length} lines"
+
+
+def _private_imports(path: Path) -> list[str]:
+    """``from X import _name`` in ``path`` with ``X`` in ftc_verify, except a private module
+    of the importing module's own subpackage (``from . import _energy_grid``) and dunder
+    names (``__version__``)."""
+    here = list(path.relative_to(PACKAGE.parent).with_suffix("").parts)
+    out = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if not isinstance(node, ast.ImportFrom):
+            continue
+        if node.level:
+            target = ".".join(here[: len(here) - node.level] + ([node.module] if node.module else []))
+        else:
+            target = node.module or ""
+        if target.split(".")[0] != "ftc_verify":
+            continue
+        folder = PACKAGE.parent.joinpath(*target.split("."))
+        for alias in node.names:
+            name = alias.name
+            if not name.startswith("_") or (name.startswith("__") and name.endswith("__")):
+                continue
+            own_module = folder == path.parent and ((folder / f"{name}.py").exists() or (folder / name).is_dir())
+            if not own_module:
+                out.append(f"{path.relative_to(PACKAGE)}:{node.lineno}: from {target} import {name}")
+    return out
+
+
+def test_no_private_name_is_imported_across_modules() -> None:
+    found = [line for path in _modules() for line in _private_imports(path)]
+    assert not found, ("private names imported from another module (make them public or move them):\n"
+                       + "\n".join(found))

@@ -27,7 +27,8 @@ from ftc_verify.synthesis.output_feedback import (
     observer_designs,
     synthesize_output_feedback,
 )
-from ftc_verify.synthesis.state_feedback import _Calls, gain_step, synthesize
+from ftc_verify.synthesis.results import SolverCalls
+from ftc_verify.synthesis.state_feedback import gain_step, synthesize
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "examples" / "paper.toml"
@@ -94,7 +95,7 @@ def test_controller_step_recovers_the_level_of_a_certified_controller(certified_
     res = hinf_gamma(closed_loop(system, ctrl), robust=True, solver="clarabel")
     aug, cbars = augmented_system(system)
     lam = [list(r) for r in res.multipliers]
-    calls = _Calls("clarabel")
+    calls = SolverCalls("clarabel")
     for j in range(system.m):
         K, g, status = gain_step(aug, list(res.P), lam, j, calls, None, measurement=cbars)
         assert K is not None and K.shape == (4, 4), status
@@ -108,11 +109,11 @@ def test_ccl_reports_its_stopping_reason() -> None:
     s = load_system(PAPER)
     nominal = FTCSystem.from_arrays(name="nominal", modes=[dict(A=m.A, B=m.B, C=m.C, D=m.D) for m in s.modes],
                                     alpha=s.chain.alpha, beta_min=s.chain.beta_min, beta_max=s.chain.beta_max)
-    blocks, history, msg, reached = ccl(nominal, 10.0, _Calls("clarabel"), None)
+    blocks, history, msg, reached = ccl(nominal, 10.0, SolverCalls("clarabel"), None)
     assert blocks is None and reached is None
     assert history and all(h >= -1e-6 for h in history) and history[-1] <= 1e-6 * 4 * 4
     assert "controller step failed" in msg
-    blocks, history, msg, _ = ccl(load_system(PAPER), 10.0, _Calls("clarabel"), None, max_iter=1)
+    blocks, history, msg, _ = ccl(load_system(PAPER), 10.0, SolverCalls("clarabel"), None, max_iter=1)
     assert blocks is None and len(history) == 1 and ("iteration limit 1" in msg or "failed" in msg)
 
 
@@ -195,7 +196,7 @@ def test_ccl_warm_start_from_a_certificate(certified_observer) -> None:
     point has residual ~0 and the controller step succeeds at once."""
     system, ctrl = certified_observer
     res = hinf_gamma(closed_loop(system, ctrl), robust=True, solver="clarabel")
-    blocks, history, msg, reached = ccl(system, res.gamma * 1.01, _Calls("clarabel"), None,
+    blocks, history, msg, reached = ccl(system, res.gamma * 1.01, SolverCalls("clarabel"), None,
                                         start=(res.P, res.multipliers))
     assert blocks is not None and len(history) == 1 and abs(history[0]) < 1e-6, msg
     assert reached <= res.gamma * 1.01

@@ -14,7 +14,8 @@ from ftc_verify.errors import ValidationError
 from ftc_verify.analysis.lmi import block_specs, null_basis, projection, xy_block
 from ftc_verify.model.system import FTCSystem
 from ftc_verify.model.files import load_system
-from ftc_verify.synthesis.state_feedback import _Calls, gain_step, synthesize
+from ftc_verify.synthesis.results import SolverCalls
+from ftc_verify.synthesis.state_feedback import gain_step, synthesize
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = load_system(ROOT / "examples" / "paper.toml")
@@ -61,7 +62,7 @@ def test_gain_step_matches_hand_solution() -> None:
     P = [np.array([[1.0]])] * 4
     lam: list[list[float]] = [[] for _ in range(4)]
     for j in (0, 1):
-        K, gamma, status = gain_step(system, P, lam, j, _Calls("clarabel"), 3.0)
+        K, gamma, status = gain_step(system, P, lam, j, SolverCalls("clarabel"), 3.0)
         assert status == "optimal"
         assert K is not None and gamma is not None
         assert K[0, 0] == pytest.approx(-3.0, abs=1e-5)
@@ -72,7 +73,7 @@ def test_gain_step_with_gamma_returns_smallest_gain() -> None:
     """Same case at gamma^2 = 1/2: need -2(1 + K) - 1 >= 2, i.e. K <= -2.5; smallest |K| is 2.5."""
     system = scalar_system()
     P = [np.array([[1.0]])] * 4
-    K, gamma, _ = gain_step(system, P, [[] for _ in range(4)], 0, _Calls("clarabel"), None, math.sqrt(0.5))
+    K, gamma, _ = gain_step(system, P, [[] for _ in range(4)], 0, SolverCalls("clarabel"), None, math.sqrt(0.5))
     assert K is not None and gamma is not None
     assert K[0, 0] == pytest.approx(-2.5, abs=1e-5)
     assert gamma <= math.sqrt(0.5) * (1 + 1e-6)

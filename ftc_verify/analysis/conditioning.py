@@ -61,11 +61,12 @@ result says which steps were applied.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg
 
+from ..jsonable import OMIT, fields_dict
 from ..model.system import Matrix
 from .closedloop import ClosedLoop
 
@@ -82,9 +83,11 @@ class Similarity:
     """``x = T x~`` with ``T`` and its computed inverse ``T_inv`` (floats; ``T_inv`` need
     not be the exact inverse: certificates are re-checked in the original coordinates)."""
 
-    T: Matrix
-    T_inv: Matrix
+    T: Matrix = field(metadata=OMIT)
+    T_inv: Matrix = field(metadata=OMIT)
     steps: tuple[str, ...]
+
+    JSON_PROPERTIES = ("condition",)
 
     @property
     def condition(self) -> float:
@@ -104,8 +107,8 @@ class Similarity:
         return self.T_inv.T @ P @ self.T_inv
 
     def to_dict(self) -> dict[str, object]:
-        """JSON-ready summary."""
-        return {"steps": list(self.steps), "condition": self.condition}
+        """JSON-ready summary: ``steps`` and ``condition``."""
+        return fields_dict(self)
 
 
 def balancing_scale(loop: ClosedLoop) -> Matrix:

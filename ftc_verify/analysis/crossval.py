@@ -30,11 +30,12 @@ switching loop); both tools' :math:`L_\infty` values are still compared.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from ..jsonable import OMIT, fields_dict
 from .closedloop import ClosedLoop
 from ..model.system import Matrix
 
@@ -118,27 +119,15 @@ class ModeCheck:
     stable: bool
     hinf_norm: float
     linf_norm: float
-    control_poles: np.ndarray
+    control_poles: np.ndarray = field(metadata=OMIT)
     control_linf_norm: float
     agree: bool
     detail: str
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready; modes 1-based; poles as ``[re, im]`` pairs; inf norm as null."""
-        def num(v: float) -> float | None:
-            return v if math.isfinite(v) else None
-
-        return {
-            "true_mode": self.true_mode,
-            "fdi_mode": self.fdi_mode,
-            "poles": [[float(p.real), float(p.imag)] for p in self.poles],
-            "stable": self.stable,
-            "hinf_norm": num(self.hinf_norm),
-            "linf_norm": num(self.linf_norm),
-            "control_linf_norm": num(self.control_linf_norm),
-            "agree": self.agree,
-            "detail": self.detail,
-        }
+        """JSON-ready fields (``control_poles`` left out); modes 1-based; the poles (complex)
+        as ``[re, im]`` pairs; an infinite norm as null."""
+        return fields_dict(self)
 
 
 def _pole_match(ours: np.ndarray, theirs: np.ndarray) -> float:

@@ -64,6 +64,7 @@ from typing import Any
 
 import numpy as np
 
+from ..jsonable import fields_dict
 from ..limits import check_memory
 from ..model.system import Matrix
 from .closedloop import ClosedLoop
@@ -132,7 +133,7 @@ class LMIResult:
             "solve_seconds": self.solve_seconds,
             "message": self.message,
             "certificate": None if self.certificate is None else self.certificate.to_dict(),
-            "attempts": [{"solver": a.solver, "status": a.status, "seconds": a.seconds, "message": a.message} for a in self.attempts],
+            "attempts": [fields_dict(a) for a in self.attempts],
             "conditioning": None if self.similarity is None else self.similarity.to_dict(),
         }
 

@@ -44,6 +44,8 @@ __all__ = [
     "second_moment_generator",
     "second_moment_matrix",
     "unvech_stack",
+    "vech_order",
+    "sparse_mode_blocks",
     "spectral_abscissa",
     "generator_size",
     "DENSE_LIMIT",
@@ -95,7 +97,7 @@ def second_moment_matrix(A: Sequence[Matrix], Q: Matrix) -> Matrix:
 def unvech_stack(v: Matrix, modes: int, n: int) -> Matrix:
     """The stack of ``modes`` symmetric ``n x n`` matrices whose ``vech`` (lower triangle
     column by column) are the consecutive pieces of ``v``."""
-    rows, cols = _vech_order(n)
+    rows, cols = vech_order(n)
     X = np.zeros((modes, n, n), dtype=np.asarray(v).dtype)
     X[:, rows, cols] = np.asarray(v).reshape(modes, -1)
     X[:, cols, rows] = X[:, rows, cols]
@@ -132,7 +134,7 @@ def generator_size(loop: ClosedLoop) -> int:
 SHIFT_TEST_MIN, SHIFT_TEST_LIMIT = 100, 20_000
 
 
-def _sparse_modes(loop: ClosedLoop) -> Any:
+def sparse_mode_blocks(loop: ClosedLoop) -> Any:
     """The ``beta``-independent part of :func:`second_moment_generator` (the
     block-diagonal Kronecker sums), sparse."""
     import scipy.sparse as sp
@@ -159,9 +161,9 @@ def abscissa_below(loop: ClosedLoop, beta: Matrix, sigma: float, *, modes_part: 
     from scipy.sparse.linalg import splu
 
     n, modes = loop.n, len(loop.A)
-    base = _sparse_modes(loop) if modes_part is None else modes_part
+    base = sparse_mode_blocks(loop) if modes_part is None else modes_part
     G = base + sp.kron(loop.chain.generator(beta).T, sp.identity(n * (n + 1) // 2), format="csc")
-    rows, cols = _vech_order(n)
+    rows, cols = vech_order(n)
     rhs = np.tile(-(rows == cols).astype(float), modes)
     try:
         v = splu((G - sigma * sp.identity(G.shape[0], format="csc")).tocsc()).solve(rhs)
@@ -213,14 +215,14 @@ def abscissa_near(loop: ClosedLoop, beta: Matrix, level: float, *, modes_part: A
     from scipy.sparse.linalg import splu
 
     n, modes = loop.n, len(loop.A)
-    base = _sparse_modes(loop) if modes_part is None else modes_part
+    base = sparse_mode_blocks(loop) if modes_part is None else modes_part
     G = base + sp.kron(loop.chain.generator(beta).T, sp.identity(n * (n + 1) // 2), format="csc")
     eye = sp.identity(G.shape[0], format="csc")
     sigma = next((level + d * (1 + abs(level)) for d in (0.01, 0.04, 0.16, 0.64)
                   if abscissa_below(loop, beta, level + d * (1 + abs(level)), modes_part=base)), None)
     if sigma is None:
         return None
-    rows, cols = _vech_order(n)
+    rows, cols = vech_order(n)
     X = np.tile(np.eye(n), (modes, 1, 1))
     lower, upper = -np.inf, sigma
     steps = 0
@@ -247,7 +249,7 @@ def abscissa_near(loop: ClosedLoop, beta: Matrix, level: float, *, modes_part: A
     return None
 
 
-def _vech_order(n: int) -> tuple[Matrix, Matrix]:
+def vech_order(n: int) -> tuple[Matrix, Matrix]:
     """``(rows, cols)`` of ``vech``: the lower triangle column by column."""
     rows, cols = np.tril_indices(n)
     order = np.lexsort((rows, cols))
@@ -351,7 +353,7 @@ def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256,
     nominal = sim.apply(loop.nominal())
     chain = loop.chain
     prune = SHIFT_TEST_MIN <= generator_size(nominal) <= SHIFT_TEST_LIMIT
-    modes_part = _sparse_modes(nominal) if prune else None
+    modes_part = sparse_mode_blocks(nominal) if prune else None
     exact: dict[tuple[bool, ...], float] = {}
     seen: set[tuple[bool, ...]] = set()
     pairs = chain.rate_indices  # beta pairs first, then the false-alarm pairs (chain.vertices() order)

@@ -44,11 +44,12 @@ from __future__ import annotations
 import time
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..interrupts import deferred_signals
+from ..jsonable import fields_dict, renamed
 from ..model.system import Matrix
 from .closedloop import ClosedLoop
 from .conditioning import Similarity
@@ -79,13 +80,11 @@ class VertexVerdict:
     method: str
     precision_bits: int
     seconds: float
-    estimate: float | None = None
+    estimate: float | None = field(default=None, metadata=renamed("float_abscissa"))
 
     def to_dict(self) -> dict[str, object]:
-        """JSON-ready summary."""
-        return {"beta": np.asarray(self.beta).tolist(), "verdict": self.verdict, "method": self.method,
-                "precision_bits": self.precision_bits, "seconds": self.seconds,
-                "float_abscissa": self.estimate}
+        """JSON-ready summary (the fields; ``estimate`` as ``float_abscissa``)."""
+        return fields_dict(self)
 
 
 def _exact_generator(Q: Matrix) -> list[list[object]]:
@@ -122,15 +121,15 @@ def _float_candidate(conditioned: ClosedLoop, beta: Matrix) -> np.ndarray | None
     import scipy.sparse as sp
     from scipy.sparse.linalg import splu
 
-    from .stability import DENSE_LIMIT, _sparse_modes, _vech_order, generator_size, second_moment_generator, unvech_stack
+    from .stability import DENSE_LIMIT, sparse_mode_blocks, vech_order, generator_size, second_moment_generator, unvech_stack
 
     n, modes = conditioned.n, len(conditioned.A)
-    rows, cols = _vech_order(n)
+    rows, cols = vech_order(n)
     rhs = np.tile(-(rows == cols).astype(float), modes)
     try:
         if generator_size(conditioned) > DENSE_LIMIT:
-            G = _sparse_modes(conditioned) + sp.kron(conditioned.chain.generator(beta).T,
-                                                      sp.identity(len(rows)), format="csc")
+            G = sparse_mode_blocks(conditioned) + sp.kron(conditioned.chain.generator(beta).T,
+                                                           sp.identity(len(rows)), format="csc")
             v = splu(G.tocsc()).solve(rhs)
         else:
             with warnings.catch_warnings():  # an ill-conditioned solve is expected near mu = 0; the balls judge it
@@ -194,10 +193,10 @@ def _ball_solution(loop: ClosedLoop, Q: Matrix, bits: int) -> list[Ball] | None:
     FLINT cannot prove the system nonsingular at that precision)."""
     import flint
 
-    from .stability import _vech_order
+    from .stability import vech_order
 
     n, modes = loop.n, len(loop.A)
-    rows, cols = _vech_order(n)
+    rows, cols = vech_order(n)
     h = len(rows)
     with precision(bits):
         G = _ball_generator(loop, Q)

@@ -62,7 +62,9 @@ from ..analysis.closedloop import barred
 from ..analysis.stability import duplication_matrix, second_moment_matrix
 from ..controllers.controller import Controller
 from ..errors import ValidationError
+from ..jsonable import OMIT, fields_dict
 from ..model.system import FTCSystem, JointChain, Matrix
+from .results import SolverCalls, verify_controller
 
 __all__ = ["rate_scale", "BUDGET_SECONDS", "TUNING_SECONDS", "DESIGNED_STARTS", "KAPPAS", "LEVELS", "GAIN_SCAN", "Parametrisation", "abscissa_gradient", "worst_abscissa", "bfgs",
            "DescentResult", "stabilise", "deepen", "gain_scan", "unbounded_gain_diagnosis", "descent_route",
@@ -267,7 +269,7 @@ class DescentResult:
 
     start: str
     order: int
-    theta: Matrix
+    theta: Matrix = field(metadata=OMIT)
     abscissa: float
     gain_norm: float
     stabilised: bool
@@ -276,10 +278,8 @@ class DescentResult:
     seconds: float = 0.0
 
     def to_dict(self) -> dict[str, object]:
-        """JSON-ready summary (``theta`` omitted)."""
-        return {"start": self.start, "order": self.order, "abscissa": self.abscissa, "gain_norm": self.gain_norm,
-                "stabilised": self.stabilised, "history": [list(h) for h in self.history],
-                "evaluations": self.evaluations, "seconds": self.seconds}
+        """JSON-ready summary: the fields, ``theta`` omitted."""
+        return fields_dict(self)
 
 
 def _scaled_chain(chain: JointChain, kappa: float) -> JointChain:
@@ -382,7 +382,7 @@ def unbounded_gain_diagnosis(system: FTCSystem, order: int, found: Sequence[Desc
 
 
 def descent_route(system: FTCSystem, order: int, rows: list[dict[str, Any]], k_max: float | None, solver: str,
-                   calls: Any, seed: int) -> tuple[Controller | None, Any, list[float], str, list[dict[str, Any]]]:
+                   calls: SolverCalls, seed: int) -> tuple[Controller | None, Any, list[float], str, list[dict[str, Any]]]:
     """``descent``: stabilise by :func:`~ftc_verify.synthesis.descent.stabilise` (starts: the
     observer designs of ``rows`` at full order, the zero controller, seeded random ones),
     then the tuning ladder: deepen the abscissa to each of
@@ -392,8 +392,6 @@ def descent_route(system: FTCSystem, order: int, rows: list[dict[str, Any]], k_m
     better one, or once a level is certified after :data:`TUNING_SECONDS`; then the P-K
     alternation (within that budget, at most 5 iterations). Returns ``(controller, report,
     history, message, descent rows)``."""
-    from .state_feedback import _verify_controller
-
     par = Parametrisation.build(system, order)
     designed = sorted((r for r in rows if order == system.dims[0] and r.get("gains")),
                       key=lambda r: r["spectral_abscissa"] if r.get("spectral_abscissa") is not None else np.inf)
@@ -417,7 +415,7 @@ def descent_route(system: FTCSystem, order: int, rows: list[dict[str, Any]], k_m
             break
         theta, reached = deepen(system, order, theta, level * scale, k_max=k_max)
         ctrl = par.controller(theta, f"{system.name} descent (order {order})")
-        report = _verify_controller(system, ctrl, solver)
+        report = verify_controller(system, ctrl, solver)
         calls.outcomes.extend(a for res in (report.nominal, report.robust, report.mes_lmi) for a in res.attempts)
         gamma = accepted_gamma(report, True)
         if gamma is not None and (chosen is None or gamma < chosen[2]):
@@ -450,7 +448,7 @@ def _nominal_system(system: FTCSystem) -> FTCSystem:
 
 
 def _alternate(system: FTCSystem, par: Parametrisation, chosen: tuple[Controller, Any, float], k_max: float | None,
-               solver: str, calls: Any) -> tuple[tuple[Controller, Any, float] | None, str]:
+               solver: str, calls: SolverCalls) -> tuple[tuple[Controller, Any, float] | None, str]:
     """The P-K alternation (the V-K iteration of ``vk``) from the ladder's best controller:
     the certified gamma's ``P`` and multipliers fixed, the controller blocks from the LMI
     of :func:`~ftc_verify.synthesis.state_feedback.gain_step`, and back; on the system as
@@ -458,19 +456,19 @@ def _alternate(system: FTCSystem, par: Parametrisation, chosen: tuple[Controller
     gamma). Every iterate is certified by the core; the result only if the core certifies
     it below the start on the real system (``None`` otherwise), with what happened."""
     from ..analysis.closedloop import closed_loop
-    from .output_feedback import _blocks, augmented_system
-    from .state_feedback import _verify_controller, descend, gain_step
+    from .output_feedback import augmented_system, controller_blocks
+    from .state_feedback import descend, gain_step
 
     target = system if chosen[1].robust.certified else _nominal_system(system)
     aug, cbars = augmented_system(target, par.n_c)
     blocks, history, why = descend(
         lambda B: closed_loop(target, par.controller(par.theta(B), "p-k")),
         lambda P, lam, j: gain_step(aug, P, lam, j, calls, k_max, measurement=cbars), system.m,
-        _blocks(chosen[0]), calls, solver, 5, 1e-3)
+        controller_blocks(chosen[0]), calls, solver, 5, 1e-3)
     if len(history) < 2:
         return None, f"no improvement ({why})"
     ctrl = par.controller(par.theta(blocks), chosen[0].name)
-    report = _verify_controller(system, ctrl, solver)
+    report = verify_controller(system, ctrl, solver)
     gamma = accepted_gamma(report, True)
     if gamma is None or gamma >= chosen[2] or (chosen[1].robust.certified and not report.robust.certified):
         return None, f"its answer not certified below the ladder's ({why})"

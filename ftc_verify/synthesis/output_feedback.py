@@ -57,10 +57,11 @@ from ..errors import ValidationError
 from ..model.system import FTCSystem, Matrix, Mode
 from .descent import accepted_gamma, descent_route
 from .starts import certify_start, lqr_gain
-from .state_feedback import SynthesisResult, _Calls, _verify_controller, descend, gain_step, synthesize
+from .results import SolverCalls, SynthesisResult, verify_controller
+from .state_feedback import descend, gain_step, synthesize
 
-__all__ = ["OF_METHODS", "augmented_system", "controller_from_blocks", "observer_designs", "ccl_constraints",
-           "ccl", "synthesize_output_feedback", "CCL_MAX_ITER", "CCL_TOL"]
+__all__ = ["OF_METHODS", "augmented_system", "controller_from_blocks", "controller_blocks", "observer_designs",
+           "ccl_constraints", "ccl", "synthesize_output_feedback", "CCL_MAX_ITER", "CCL_TOL"]
 
 OF_METHODS = ("ccl", "observer", "vk", "descent")
 #: Iteration limit of the cone complementarity linearisation.
@@ -106,7 +107,9 @@ def controller_from_blocks(system: FTCSystem, blocks: list[Matrix], name: str) -
                               [K[n:, :n] for K in blocks], [K[n:, n:] for K in blocks], name=name)
 
 
-def _blocks(controller: Controller) -> list[Matrix]:
+def controller_blocks(controller: Controller) -> list[Matrix]:
+    """The blocks ``K_j = [[Ac_j, Bc_j], [Cc_j, Dc_j]]`` of ``controller``, one per entry
+    (the inverse of :func:`controller_from_blocks`)."""
     return [np.block([[a, b], [c, d]]) for a, b, c, d in zip(controller.Ac, controller.Bc, controller.Cc,
                                                               controller.Dc)]
 
@@ -204,7 +207,7 @@ def _channel_count(aug: FTCSystem, i: int) -> int:
     return int(md.A1 is not None) + int(md.B1 is not None)
 
 
-def ccl(system: FTCSystem, gamma: float, calls: _Calls, k_max: float | None, *, max_iter: int = CCL_MAX_ITER,
+def ccl(system: FTCSystem, gamma: float, calls: SolverCalls, k_max: float | None, *, max_iter: int = CCL_MAX_ITER,
         tol: float = CCL_TOL, start: tuple[Any, Any] | None = None,
         ) -> tuple[list[Matrix] | None, list[float], str, float | None]:
     r"""Theorem 5.1 at ``gamma`` by cone complementarity linearisation (module docstring):
@@ -283,7 +286,7 @@ def ccl(system: FTCSystem, gamma: float, calls: _Calls, k_max: float | None, *, 
 
 
 def _controller_step(aug: FTCSystem, cbars: list[Matrix], P: list[Matrix], lam: list[list[float]],
-                     gamma: float, calls: _Calls, k_max: float | None) -> tuple[list[Matrix] | None, float | None]:
+                     gamma: float, calls: SolverCalls, k_max: float | None) -> tuple[list[Matrix] | None, float | None]:
     """Controller blocks ``K_j`` with ``P`` and the multipliers fixed, each reaching
     ``gamma`` over every true mode and ``beta`` end, and the largest gamma they reach."""
     blocks, worst = [], 0.0
@@ -296,7 +299,7 @@ def _controller_step(aug: FTCSystem, cbars: list[Matrix], P: list[Matrix], lam: 
     return blocks, worst
 
 
-def _observer_rows(system: FTCSystem, k_max: float | None, solver: str, calls: _Calls) -> list[dict[str, Any]]:
+def _observer_rows(system: FTCSystem, k_max: float | None, solver: str, calls: SolverCalls) -> list[dict[str, Any]]:
     """The certified-or-not observer designs (the baseline and the start of ``vk``): the
     state-feedback gains of ``synthesize(method="iterative")`` under ``k_max``, and, when
     no bound is given, also under :data:`OBSERVER_K_MAX` (unbounded state-feedback gains
@@ -312,7 +315,7 @@ def _observer_rows(system: FTCSystem, k_max: float | None, solver: str, calls: _
                          "reason": f"no certified state-feedback gains: {sf.message}"})
             continue
         for label, ctrl in observer_designs(system, list(sf.gains)):
-            rows.append(certify_start(system, label + tag, _blocks(ctrl), solver, loop=closed_loop(system, ctrl))
+            rows.append(certify_start(system, label + tag, controller_blocks(ctrl), solver, loop=closed_loop(system, ctrl))
                         | {"controller": ctrl})
     for r in rows:
         calls.outcomes.extend(r.get("attempts", ()))
@@ -320,7 +323,7 @@ def _observer_rows(system: FTCSystem, k_max: float | None, solver: str, calls: _
                      "reason": "no stabilising observer Riccati solution"}]
 
 
-def _ccl_ladder(system: FTCSystem, gamma: float | None, start: float | None, calls: _Calls,
+def _ccl_ladder(system: FTCSystem, gamma: float | None, start: float | None, calls: SolverCalls,
                 k_max: float | None, warm: Any = None) -> tuple[list[Matrix] | None, float | None, list[float], str]:
     """CCL at ``gamma``, or (``gamma=None``) down a ladder of levels from ``start`` (the
     observer design's certified gamma, else 10), each 0.7 times the certified robust gamma
@@ -425,7 +428,7 @@ def synthesize_output_feedback(
     t0 = time.perf_counter()
     n = n0 + order
     name = choose_solver(solver, system.chain.n_states * (n * (n + 1) + 1))
-    calls = _Calls(name)
+    calls = SolverCalls(name)
     full = order == n0
     rows = _observer_rows(system, k_max, name, calls) if full else []
     routes = [r for r in (("observer", "vk", "ccl") if full else ()) if method in (r, "auto")]
@@ -465,11 +468,12 @@ def synthesize_output_feedback(
         public += tuple({"name": f"route {o.route}", "gamma_certified": o.gamma,
                          "spectral_abscissa": None if o.report is None else o.report.mss.spectral_abscissa,
                          "note": "", "reason": "" if o.gamma is not None else o.message} for o in outcomes)
-    blocks = [] if ctrl is None else _blocks(ctrl)
+    blocks = [] if ctrl is None else controller_blocks(ctrl)
     return SynthesisResult(chosen.route if method == "auto" else method, ctrl is not None, tuple(blocks),
                            chosen.synthesis_gamma, name, calls.seconds, time.perf_counter() - t0, calls.count, report,
                            msg, k_max, tuple(chosen.history), (_best_row(rows) or {}).get("name"), public, diagnosis, ctrl,
-                           tuple(chosen.ccl_history), nominal_accepted=chosen.route == "descent")
+                           tuple(chosen.ccl_history), nominal_accepted=chosen.route == "descent",
+                           iterations=len(chosen.ccl_history) if chosen.route == "ccl" else None)
 
 
 def _best_row(rows: list[dict[str, Any]]) -> dict[str, Any] | None:
@@ -479,7 +483,7 @@ def _best_row(rows: list[dict[str, Any]]) -> dict[str, Any] | None:
 
 
 def _run_route(route: str, system: FTCSystem, rows: list[dict[str, Any]], gamma: float | None, k_max: float | None,
-               name: str, calls: _Calls, max_iter: int, tol: float) -> tuple[Any, Any, Any, list[float], list[float], str]:
+               name: str, calls: SolverCalls, max_iter: int, tol: float) -> tuple[Any, Any, Any, list[float], list[float], str]:
     """One LMI route at full order: ``(controller, report, synthesis gamma, history, CCL
     history, message)``; the controller is certified by the core (``report``)."""
     best = _best_row(rows)
@@ -506,5 +510,5 @@ def _run_route(route: str, system: FTCSystem, rows: list[dict[str, Any]], gamma:
         blocks, gsyn, ccl_history, msg = _ccl_ladder(system, gamma, None if best is None else best["gamma_certified"],
                                                      calls, k_max, None if best is None else best.get("lmi"))
     ctrl = None if blocks is None else controller_from_blocks(system, blocks, f"{system.name} {route}")
-    report = None if ctrl is None else _verify_controller(system, ctrl, name)
+    report = None if ctrl is None else verify_controller(system, ctrl, name)
     return ctrl, report, gsyn, history, ccl_history, msg

@@ -1,6 +1,6 @@
 r"""State-feedback synthesis with gains that use the FDI mode only (``u = K[l_t] x``).
 
-Methods (all return a :class:`SynthesisResult` verified by the core analysis,
+Methods (all return a :class:`~ftc_verify.synthesis.results.SynthesisResult` verified by the core analysis,
 :func:`ftc_verify.analysis.analyze`, never by the synthesis LMI alone):
 
 ``two-step``
@@ -60,21 +60,21 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from ..controllers.controller import Controller
-from ..analysis.analyze import AnalysisReport, analyze, json_ready
-from ..analysis.closedloop import closed_loop, gain_loop, state_feedback_loop
+from ..analysis.analyze import AnalysisReport
+from ..analysis.closedloop import gain_loop, state_feedback_loop
 from ..errors import ValidationError
 from ..analysis.lmi import block_specs, lyapunov_block
 from ..analysis.lmi_analysis import hinf_gamma
 from ..model.system import FTCSystem, Matrix
-from ..analysis.solvers import SolveOutcome, choose_solver, solve
+from ..analysis.solvers import choose_solver
 from .starts import candidates, certify_start, diagnose
-from .xy_design import CENTRE_WEIGHT, MARGIN_TOL, _gain_bound, _xy_solve  # noqa: F401 (re-exported for callers)
+from .results import SolverCalls, SynthesisResult, verify_controller
+from .xy_design import gain_bound, xy_solve
 
 __all__ = ["METHODS", "SynthesisResult", "synthesize", "two_step", "gain_step", "descend"]
 
@@ -83,126 +83,12 @@ METHODS = ("two-step", "iterative", "full-info", "common")
 BISECTION_RTOL = 2e-3
 
 
-@dataclass(frozen=True, eq=False)
-class SynthesisResult:
-    """Gains from one method and their independent verification."""
-
-    method: str
-    feasible: bool
-    gains: tuple[Matrix, ...]
-    synthesis_gamma: float | None
-    solver: str
-    solve_seconds: float
-    wall_seconds: float
-    solver_calls: int
-    report: AnalysisReport | None
-    message: str
-    k_max: float | None = None
-    history: tuple[float, ...] = ()
-    start: str | None = None
-    starts: tuple[dict[str, Any], ...] = ()
-    diagnosis: dict[str, Any] | None = None
-    dynamic: Controller | None = None
-    ccl_history: tuple[float, ...] = ()
-    nominal_accepted: bool = False
-
-    @property
-    def controller(self) -> Controller | None:
-        """The gains as a :class:`~ftc_verify.controllers.Controller` (``None`` when none
-        were found; the dynamic controller of output-feedback synthesis); what every later
-        stage consumes."""
-        if self.dynamic is not None:
-            return self.dynamic
-        return Controller.state_feedback(self.gains, name=self.method) if self.gains else None
-
-    @property
-    def certified(self) -> bool:
-        """Gains found, certified stable, and a robust gamma certified by the core (or, with
-        ``nominal_accepted`` -- the output-feedback descent -- at least the nominal one)."""
-        rep = self.report
-        if not (self.feasible and rep is not None and rep.certified_stable):
-            return False
-        return rep.robust.certified or (self.nominal_accepted and rep.nominal.certified)
-
-    @property
-    def gamma_certified(self) -> float | None:
-        """Certified robust gamma of the closed loop (Lemma 4.1 with these gains)."""
-        ok = self.certified and self.report is not None and self.report.robust.certified
-        return self.report.robust.gamma if ok and self.report is not None else None
-
-    @property
-    def gamma_nominal_certified(self) -> float | None:
-        """Certified nominal gamma (Theorem 3.2) of the closed loop."""
-        if self.report is None or not self.report.nominal.certified:
-            return None
-        return self.report.nominal.gamma
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready result (the schema documented in the README)."""
-        rep = self.report
-        return json_ready({
-            "feasible": self.feasible,
-            "certified": self.certified,
-            "certified_gamma_kind": (None if not self.certified or self.report is None else
-                                     "robust" if self.report.robust.certified else "nominal"),
-            "method": self.method,
-            "gamma_certified": self.gamma_certified,
-            "gamma_nominal_certified": self.gamma_nominal_certified,
-            "spectral_abscissa": None if rep is None else rep.mss.spectral_abscissa,
-            "synthesis_gamma": self.synthesis_gamma,
-            "gains": [K.tolist() for K in self.gains],
-            "max_gain_norm": max((float(np.linalg.norm(K, 2)) for K in self.gains), default=None),
-            "k_max": self.k_max,
-            "solver": self.solver,
-            "solve_seconds": self.solve_seconds,
-            "wall_seconds": self.wall_seconds,
-            "solver_calls": self.solver_calls,
-            "history": list(self.history),
-            "iterations": len(self.ccl_history) if self.method == "ccl" else max(len(self.history) - 1, 0),
-            "ccl_history": list(self.ccl_history),
-            "controller": None if self.dynamic is None else self.dynamic.to_dict(),
-            "start": self.start,
-            "starts": list(self.starts),
-            "diagnosis": self.diagnosis,
-            "message": self.message,
-            "analysis": None if rep is None else rep.to_dict(),
-        })
-
-
-class _Calls:
-    """Solver calls made by one synthesis run (count and time)."""
-
-    def __init__(self, solver: str) -> None:
-        self.solver = solver
-        self.outcomes: list[SolveOutcome] = []
-        self.nested_calls = 0
-        self.nested_seconds = 0.0
-
-    def run(self, problem: Any) -> SolveOutcome:
-        out = solve(problem, self.solver)
-        self.outcomes.append(out)
-        return out
-
-    def absorb(self, other: "SynthesisResult") -> None:
-        """Count the calls of a nested synthesis (the seeds of ``iterative``)."""
-        self.nested_calls += other.solver_calls
-        self.nested_seconds += other.solve_seconds
-
-    @property
-    def count(self) -> int:
-        return len(self.outcomes) + self.nested_calls
-
-    @property
-    def seconds(self) -> float:
-        return sum(o.seconds for o in self.outcomes) + self.nested_seconds
-
-
 def gain_step(
     system: FTCSystem,
     P: list[Matrix],
     lam: list[list[float]],
     j: int,
-    calls: _Calls,
+    calls: SolverCalls,
     k_max: float | None,
     gamma: float | None = None,
     measurement: list[Matrix] | None = None,
@@ -236,11 +122,11 @@ def gain_step(
             M = lyapunov_block(loop, spec, P, lam[spec.s], g, cp.bmat, schur_F=True)
             cons.append(0.5 * (M + M.T) << 0)
     if k_max is not None:
-        cons.append(_gain_bound(K, k_max))
+        cons.append(gain_bound(K, k_max))
     if gamma is None:
         problem = cp.Problem(cp.Minimize(g), cons)
     else:
-        problem = cp.Problem(cp.Minimize(k), cons + [g <= gamma ** 2, _gain_bound(K, 1.0, k)])
+        problem = cp.Problem(cp.Minimize(k), cons + [g <= gamma ** 2, gain_bound(K, 1.0, k)])
     out = calls.run(problem)
     if not out.solved or K.value is None or g.value is None:
         return None, None, out.status
@@ -261,9 +147,9 @@ def _multipliers(system: FTCSystem, eps: list[float], delta: list[float]) -> lis
     return lam
 
 
-def two_step(system: FTCSystem, gamma: float, calls: _Calls, k_max: float | None) -> tuple[list[Matrix] | None, float | None, str]:
+def two_step(system: FTCSystem, gamma: float, calls: SolverCalls, k_max: float | None) -> tuple[list[Matrix] | None, float | None, str]:
     """Theorem 4.1 at a given gamma: ``(gains, synthesis gamma, message)``."""
-    step1 = _xy_solve(system, "projected", gamma, calls, None)
+    step1 = xy_solve(system, "projected", gamma, calls, None)
     if step1 is None:
         return None, None, f"step 1 (eq. 17) infeasible at gamma {gamma:.6g}"
     P = [np.linalg.inv(0.5 * (X + X.T)) for X in step1["X"]]
@@ -280,11 +166,11 @@ def two_step(system: FTCSystem, gamma: float, calls: _Calls, k_max: float | None
     return gains, worst, f"two-step succeeded at gamma {gamma:.6g} (step-1 margin {step1['margin']:.3g})"
 
 
-def _two_step_min(system: FTCSystem, calls: _Calls, k_max: float | None) -> tuple[list[Matrix] | None, float | None, str]:
+def _two_step_min(system: FTCSystem, calls: SolverCalls, k_max: float | None) -> tuple[list[Matrix] | None, float | None, str]:
     """Smallest gamma at which two-step succeeds: bisection between the full-information
     design level (a heuristic lower bracket: the full-information LMI relaxes every FDI-only
     design) and a doubling upper bracket."""
-    low = _xy_solve(system, "full-info", None, calls, None)
+    low = xy_solve(system, "full-info", None, calls, None)
     lo = low["gamma"] / (1 + 1e-3) if low else 1e-3
     hi, best = max(lo, 1e-3) * 1.5, None
     for _ in range(12):
@@ -306,15 +192,10 @@ def _two_step_min(system: FTCSystem, calls: _Calls, k_max: float | None) -> tupl
 
 
 def _verify(system: FTCSystem, gains: list[Matrix], solver: str) -> AnalysisReport:
-    return _verify_controller(system, Controller.state_feedback(gains), solver)
+    return verify_controller(system, Controller.state_feedback(gains), solver)
 
 
-def _verify_controller(system: FTCSystem, controller: Controller, solver: str) -> AnalysisReport:
-    """The core analysis (spectral test, Theorem 3.1, nominal and robust gamma) of the loop."""
-    return analyze(closed_loop(system, controller), solver=solver, name=system.name, cross_validation=False)
-
-
-def descend(loop_of: Any, step: Any, m: int, start: list[Matrix], calls: _Calls, solver: str,
+def descend(loop_of: Any, step: Any, m: int, start: list[Matrix], calls: SolverCalls, solver: str,
             max_iter: int, tol: float, start_lmi: Any = None) -> tuple[list[Matrix], list[float], str]:
     """P-step / K-step descent from certified ``start`` gains; returns the best certified
     gains and the history of certified robust gammas (one per accepted iterate).
@@ -364,7 +245,7 @@ def _own_message(r: "SynthesisResult") -> str:
 _PUBLIC_START_KEYS = ("name", "gamma_certified", "spectral_abscissa", "note", "reason")
 
 
-def _starts(system: FTCSystem, gamma: float | None, k_max: float | None, solver: str, calls: _Calls,
+def _starts(system: FTCSystem, gamma: float | None, k_max: float | None, solver: str, calls: SolverCalls,
             start: list[Matrix] | None) -> list[dict[str, Any]]:
     """Every start of the iterative method with its certification (module docstring)."""
     if start is not None:
@@ -377,7 +258,7 @@ def _starts(system: FTCSystem, gamma: float | None, k_max: float | None, solver:
             rows.append({"name": seed_method, "gamma_certified": r.gamma_certified, "gains": r.gains,
                          "spectral_abscissa": None if r.report is None else r.report.mss.spectral_abscissa,
                          "note": "", "reason": "" if r.certified else _own_message(r)})
-        fi = _xy_solve(system, "full-info", None, calls, None)
+        fi = xy_solve(system, "full-info", None, calls, None)
         full_info = None if fi is None else [Y @ np.linalg.inv(X) for X, Y in zip(fi["X"], fi["Y"])]
         for c in candidates(system, k_max, full_info):
             if c.gains is None:
@@ -390,7 +271,7 @@ def _starts(system: FTCSystem, gamma: float | None, k_max: float | None, solver:
     return rows
 
 
-def _iterative(system: FTCSystem, gamma: float | None, k_max: float | None, solver: str, calls: _Calls,
+def _iterative(system: FTCSystem, gamma: float | None, k_max: float | None, solver: str, calls: SolverCalls,
                start: list[Matrix] | None, max_iter: int, tol: float,
                ) -> tuple[list[Matrix] | None, list[float], str, str | None, list[dict[str, Any]]]:
     """The iterative method: certify the starts, descend from the best one."""
@@ -432,12 +313,12 @@ def synthesize(
     t0 = time.perf_counter()
     n = system.dims[0]
     name = choose_solver(solver, system.chain.n_states * (n * (n + 1) // 2 + n * system.dims[1]) + 1)
-    calls = _Calls(name)
+    calls = SolverCalls(name)
     history: list[float] = []
     if method == "two-step":
         gains, gsyn, msg = two_step(system, gamma, calls, k_max) if gamma is not None else _two_step_min(system, calls, k_max)
     elif method in ("full-info", "common"):
-        sol = _xy_solve(system, method, gamma, calls, k_max)
+        sol = xy_solve(system, method, gamma, calls, k_max)
         if sol is None:
             gains, gsyn, msg = None, None, f"{method} LMI infeasible" + (f" at gamma {gamma:.6g}" if gamma else "")
         else:

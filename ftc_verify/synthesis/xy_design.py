@@ -1,4 +1,4 @@
-r"""The :math:`(X, Y)` design LMIs of state-feedback synthesis (:func:`_xy_solve`).
+r"""The :math:`(X, Y)` design LMIs of state-feedback synthesis (:func:`xy_solve`).
 
 Step 1 of the paper's Theorem 4.1 (the projected inequality), the full-information and
 the common-``X`` designs: :func:`~ftc_verify.analysis.lmi.xy_block` in
@@ -21,7 +21,7 @@ from ..analysis.lmi import block_specs, projection, xy_block
 from ..analysis.lmi_analysis import GAMMA_LADDER
 from ..model.system import FTCSystem
 
-__all__ = ["MARGIN_TOL", "CENTRE_WEIGHT"]
+__all__ = ["MARGIN_TOL", "CENTRE_WEIGHT", "gain_bound", "xy_solve"]
 
 #: An (X, Y) problem counts as strictly feasible when its maximised margin exceeds this
 #: (a heuristic only: every result is certified by the core analysis afterwards).
@@ -30,7 +30,7 @@ MARGIN_TOL = 1e-10
 CENTRE_WEIGHT = 1e-6
 
 
-def _gain_bound(K: Any, k_max: float, mu: Any = 1.0) -> Any:
+def gain_bound(K: Any, k_max: float, mu: Any = 1.0) -> Any:
     r"""``||K||_2 <= k_max * mu`` as the LMI :math:`[[\mu I, K^T/k], [K/k, \mu I]] \succeq 0`.
 
     Dividing ``K`` by the bound (rather than writing ``k I`` on the diagonal) keeps the
@@ -44,7 +44,7 @@ def _gain_bound(K: Any, k_max: float, mu: Any = 1.0) -> Any:
 
 
 def _variable_groups(system: FTCSystem, kind: str) -> list[int]:
-    """Which ``X`` (and ``Y``) variable each joint state uses in :func:`_xy_solve`: one for
+    """Which ``X`` (and ``Y``) variable each joint state uses in :func:`xy_solve`: one for
     all (``common``); one per pair ``(true, fdi)``, index ``true * m + fdi``, shared by the
     pair's detection phases (``full-info``: the gain :math:`K = Y X^{-1}` of a pair is then
     one matrix, as a full-information controller needs); one per state (``projected``:
@@ -69,13 +69,13 @@ def _xy_variables(system: FTCSystem, kind: str) -> tuple[list[Any], list[Any]]:
     return [Xg[k] for k in group], [Yg[k] for k in group]
 
 
-def _xy_solve(system: FTCSystem, kind: str, gamma: float | None, calls: Any, k_max: float | None) -> dict[str, Any] | None:
-    """Solve the (X, Y) inequality of :func:`xy_block`.
+def xy_solve(system: FTCSystem, kind: str, gamma: float | None, calls: Any, k_max: float | None) -> dict[str, Any] | None:
+    """Solve the (X, Y) inequality of :func:`~ftc_verify.analysis.lmi.xy_block`.
 
     ``kind``: ``"projected"`` (step 1 of Theorem 4.1, no ``Y``; one ``X`` per joint
     state), ``"full-info"`` (one ``X, Y`` per pair ``(true, fdi)``, shared by its phases:
     :func:`_variable_groups`) or ``"common"`` (one ``X, Y``, no coupling). The blocks are
-    one per joint state and vertex of its row's rates (:func:`block_specs`); ``X``,
+    one per joint state and vertex of its row's rates (:func:`~ftc_verify.analysis.lmi.block_specs`); ``X``,
     ``Y`` and the multipliers are returned per joint state. With ``gamma``
     given the margin ``t`` is maximised at ``g = gamma**2``; with ``gamma=None`` gamma is
     minimised first and the problem re-centred at ``gamma* (1 + 1e-3)``. Returns the
@@ -117,7 +117,7 @@ def _xy_solve(system: FTCSystem, kind: str, gamma: float | None, calls: Any, k_m
         if k_max is not None and kind != "projected":
             mu = cp.Variable(nonneg=True)
             for X, Y in {id(x): (x, y) for x, y in zip(Xv, Yv)}.values():
-                cons += [X >> mu * np.eye(n), _gain_bound(Y, k_max, mu)]
+                cons += [X >> mu * np.eye(n), gain_bound(Y, k_max, mu)]
         return cons
 
     if gamma is None:

@@ -23,7 +23,8 @@ from ..analysis.closedloop import ClosedLoop, closed_loop
 from ..analysis.stability import MSSResult, mean_square_stability
 from ..controllers.controller import Controller
 from ..model.system import FTCSystem, Matrix
-from .strategies import Opt, controllers as _controllers, systems as _systems
+from . import strategies
+from .strategies import Opt
 
 __all__ = ["MODE_KEYS", "DrawnLoop", "closed_loops", "stable_loops", "unstable_loops"]
 
@@ -171,12 +172,12 @@ def closed_loops(
     >>> test_order()
     """
     if systems is None:
-        systems = _systems(**system_options)
+        systems = strategies.systems(**system_options)
     elif system_options:
         raise TypeError("closed_loops: give either systems or system options, not both")
     system = draw(systems)
-    controller = draw(_controllers(system, dynamic=dynamic, n_c=n_c, extra_states=extra_states,
-                                    scale=gain_scale))
+    controller = draw(strategies.controllers(system, dynamic=dynamic, n_c=n_c, extra_states=extra_states,
+                                               scale=gain_scale))
     return DrawnLoop(system, controller)
 
 

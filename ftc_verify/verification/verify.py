@@ -42,6 +42,7 @@ from ..analysis.closedloop import ClosedLoop, closed_loop
 from ..analysis.crossval import ModeCheck, cross_validate
 from ..controllers.controller import Controller
 from ..errors import PlantRunError, ValidationError
+from ..jsonable import fields_dict
 from ..model.system import FTCSystem
 from ..simulation.delta import DeltaSchedule, constant_delta_loops, plant_delta
 from ..simulation.paths import ChainPath, sample_paths
@@ -117,7 +118,7 @@ class VerifyReport:
             "worst_case_gain": None if self.worst is None else self.worst.gain,
             "worst_case": None if self.worst is None else {
                 "ratio": self.worst.ratio, "horizon": self.worst.horizon, "pieces": self.worst.pieces},
-            "checks": [{"name": c.name, "ok": c.ok, "detail": c.detail} for c in self.checks],
+            "checks": [fields_dict(c) for c in self.checks],
             "controller": None if ctrl is None else ctrl.to_dict(),
             "gains": [K.tolist() for K in ctrl.gains] if ctrl is not None and ctrl.is_state_feedback else None,
             "synthesis": None if self.synthesis is None else {
