@@ -150,11 +150,14 @@ class FMUSession:
         self._dirty = False  # the instance has been initialised since the last reset
         self.dead = False  # fmi2Fatal seen: no further calls into the FMU
         self.closed = False
+        from fmpy.fmi1 import FMICallException
+
+        self._call_exception = FMICallException  # what the calls raise above Warning
         self._calls: SlaveCalls | None = None
+        self._setters: dict[str, Callable[..., Any]] = {}  # per VarGroup kind
         self._component: Any = None  # the instance the calls of read, write and step go to
-        self._call_exception: Any = None  # fmpy's FMICallException, once the library is loaded
         self._logger_ref: Any = None
-        self._fault_cache: dict[int, list[tuple[str, Any, Any]]] = {}
+        self._fault_cache: dict[int, list[tuple[VarGroup, Any]]] = {}
         self._read_groups: dict[bool, tuple[VarGroup, VarGroup]] = {}
         try:
             self._open()
@@ -254,20 +257,18 @@ class FMUSession:
             raise exc
 
     def _load(self, md: Any, unzip: str) -> None:
-        from fmpy.fmi1 import FMICallException
-
         cwd = os.getcwd()
-        self._call_exception = FMICallException
         try:
             self._logger_ref = self._logger()
-            self.slave, self._calls = load_slave(md, unzip, self.model_identifier, self.instance_name,
-                                                 self._logger_ref)
+            self.slave, calls = load_slave(md, unzip, self.model_identifier, self.instance_name, self._logger_ref)
         except Exception as exc:  # missing library, unloadable binary, missing fmi2/fmi3 functions
             lib = f"binaries/<platform>/{self.model_identifier}"
             raise self.err(f"cannot load the FMU binary ({lib}): {exc}") from None
         finally:
             if os.getcwd() != cwd:  # fmpy does not restore the directory when loading fails
                 os.chdir(cwd)
+        self._calls = calls
+        self._setters = {"real": calls.set_real, "int": calls.set_integer, "bool": calls.set_boolean}
         self.stats["library_loads"] += 1
         self._instantiate()
 
@@ -314,6 +315,7 @@ class FMUSession:
                 except Exception:
                     pass
         self._calls = self._component = self._logger_ref = None
+        self._setters = {}
         if self._tmp is not None:
             self._tmp.cleanup()
             self._tmp = None
@@ -445,11 +447,8 @@ class FMUSession:
         if not isinstance(values, ctypes.Array):
             values = c_buffer(group.ctype, np.asarray(values, dtype=float).tolist() if group.kind == "real"
                               else [int(v) for v in values])
-        calls = self._calls
-        setter = calls.set_real if group.kind == "real" else (  # type: ignore[union-attr]
-            calls.set_integer if group.kind == "int" else calls.set_boolean)  # type: ignore[union-attr]
         try:
-            setter(self._component, group.vr, group.n, values)
+            self._setters[group.kind](self._component, group.vr, group.n, values)
         except self._call_exception as exc:
             raise self._failed_call(exc, group.names) from None
 
