@@ -112,3 +112,20 @@ def test_no_private_name_is_imported_across_modules() -> None:
     found = [line for path in _modules() for line in _private_imports(path)]
     assert not found, ("private names imported from another module (make them public or move them):\n"
                        + "\n".join(found))
+
+
+@pytest.mark.parametrize("path", _modules(), ids=lambda p: str(p.relative_to(PACKAGE)))
+def test_only_the_plants_talk_to_fmpy(path: Path) -> None:
+    """One FMU layer: fmpy is imported in ``ftc_verify/plants`` only (the rest of the
+    package calls :class:`~ftc_verify.plants.fmu_session.FMUSession`)."""
+    if path.relative_to(PACKAGE).parts[0] == "plants":
+        return
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and not node.level:
+            names = [node.module or ""]
+        elif isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        else:
+            continue
+        assert not any(n == "fmpy" or n.startswith("fmpy.") for n in names), \
+            f"{path}:{node.lineno}: imports {names[0]}; only ftc_verify/plants may import fmpy"

@@ -87,23 +87,19 @@ def _step_mode(pm: Any, session: Any, mode: int, step: float, grp: Any) -> np.nd
     (:func:`~ftc_verify.plants.linearize.fmi_calls`: a failing call raises ``PlantRunError``)."""
     import numpy as np
 
-    from fmpy.fmi2 import fmi2Real
-
-    from ..plants.fmu_session import c_buffer
     from ..plants.linearize import fmi_calls
 
     x0 = pm.states_op if pm.states_op is not None else np.zeros(len(pm.states))
     uw = np.concatenate([pm.inputs_op, pm.disturbances_op])
     where = f"in fault mode {mode + 1} ({pm.faults[mode].name}) during plant --check"
     with fmi_calls(session, f"at t = 0 {where}", session.uw.names):
-        session.start_path(c_buffer(fmi2Real, x0.tolist()), mode, None)
-        s = session.slave
-        s.fmi2SetReal(s.component, session.uw.vr, session.uw.n, c_buffer(fmi2Real, uw.tolist()))
+        session.start_path(x0, mode, None)
+        session.write(session.uw, uw)
     with fmi_calls(session, f"in the step from t = 0 to t = {step:g} {where}"):
-        s.doStep(0.0, step)
+        session.step(0.0, step)
     with fmi_calls(session, f"at t = {step:g} {where}", grp.names):
-        s.fmi2GetReal(s.component, grp.vr, grp.n, grp.buf)
-    return np.array(list(grp.buf)[:grp.n], dtype=float)
+        values = session.read(grp)
+    return np.array(list(values)[:grp.n], dtype=float)
 
 
 def _check_faults(pm: Any, session: Any, step: float) -> list[dict[str, Any]]:

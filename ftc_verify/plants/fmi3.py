@@ -1,38 +1,48 @@
-"""FMI 3.0 co-simulation FMUs behind the calls the package makes on an FMI 2.0 slave.
+"""The FMI calls of a co-simulation FMU, for FMI 2.0 and FMI 3.0.
 
 :class:`~ftc_verify.plants.fmu_session.FMUSession` opens both versions with
-:func:`load_slave`. For FMI 2.0 that is fmpy's ``FMU2Slave`` itself (the supervisor's inner
-loop binds its ``fmi2GetReal``, ``fmi2SetReal``, ``fmi2DoStep`` to locals: nothing is added
-there). For FMI 3.0 it is an :class:`FMU3Adapter`: fmpy's ``FMU3Slave`` with the methods of
-``FMU2Slave`` the package calls (``fmi2GetReal``, ``fmi2SetReal``, ``fmi2SetInteger``,
-``fmi2SetBoolean``, ``fmi2DoStep``, ``fmi2FreeInstance``, ``instantiate``,
-``setupExperiment``, ``enterInitializationMode``, ``exitInitializationMode``, ``reset``,
-``terminate``, ``doStep``, ``getRealStatus``, ``getDirectionalDerivative``,
-``freeLibrary``), each forwarding to the FMI 3.0 call:
+:func:`load_slave`: fmpy's ``FMU2Slave`` or ``FMU3Slave``, and the :class:`SlaveCalls`
+its :meth:`~ftc_verify.plants.fmu_session.FMUSession.read`,
+:meth:`~ftc_verify.plants.fmu_session.FMUSession.write`,
+:meth:`~ftc_verify.plants.fmu_session.FMUSession.step` and life-cycle methods make, each
+the function of the FMU's version:
 
-=========================  ===============================================================
-``fmi2GetReal/SetReal``    ``fmi3GetFloat64/SetFloat64`` (``Float64`` scalars)
-``fmi2SetInteger``         ``fmi3SetInt8`` .. ``fmi3SetUInt64`` by each variable's type
-                           (``Enumeration``: ``fmi3SetInt64``)
-``fmi2SetBoolean``         ``fmi3SetBoolean``
-``setupExperiment``        kept, passed to ``fmi3EnterInitializationMode``
-``fmi2DoStep``             ``fmi3DoStep`` (no event mode, no early return); its
-                           ``lastSuccessfulTime`` answers ``getRealStatus``; an FMU that
-                           sets ``terminateSimulation`` fails the step (status Discard)
-=========================  ===============================================================
+========================  =================================  ===================================
+:class:`SlaveCalls`       FMI 2.0                            FMI 3.0
+========================  =================================  ===================================
+``get_real, set_real``    ``fmi2GetReal, fmi2SetReal``       ``fmi3GetFloat64, fmi3SetFloat64``
+                                                             (``Float64`` scalars)
+``set_integer``           ``fmi2SetInteger``                 ``fmi3SetInt8`` .. ``fmi3SetUInt64``
+                                                             by each variable's type
+                                                             (``Enumeration``: ``fmi3SetInt64``)
+``set_boolean``           ``fmi2SetBoolean``                 ``fmi3SetBoolean``
+``do_step``               ``fmi2DoStep``                     ``fmi3DoStep`` (no event mode, no
+                                                             early return; an FMU that sets
+                                                             ``terminateSimulation`` fails the
+                                                             step, status Discard)
+``instantiate``           ``fmi2Instantiate``                ``fmi3InstantiateCoSimulation``
+``setup_experiment``      ``fmi2SetupExperiment``            kept for the next call
+``enter_initialization``  ``fmi2EnterInitializationMode``    ``fmi3EnterInitializationMode``
+``free_instance``         ``fmi2FreeInstance``               ``fmi3FreeInstance``
+``last_successful_time``  ``fmi2GetRealStatus``              ``lastSuccessfulTime`` of the last
+                          (``fmi2LastSuccessfulTime``)       ``fmi3DoStep``
+========================  =================================  ===================================
 
-A status other than OK or Warning raises fmpy's ``FMICallException`` naming the FMI 3.0
-function, exactly where the FMI 2.0 call would: errors name the FMU, the call and the time,
-and an Error or Discard inside a path's loop ends that path as a failed record.
+The calls both fmpy classes name alike (``exitInitializationMode``, ``reset``,
+``terminate``, ``getDirectionalDerivative``, ``freeLibrary``) are made on the slave itself.
+A status other than OK or Warning raises fmpy's ``FMICallException`` naming the function
+of the FMU's version; the session turns it into its own error
+(:class:`~ftc_verify.plants.fmu_session.FMICallError`).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["CALL_NAMES", "FAULT_KINDS", "INT_RANGES", "FMU3Adapter", "is_fmi3", "load_slave"]
+__all__ = ["CALL_NAMES", "FAULT_KINDS", "INT_RANGES", "SlaveCalls", "is_fmi3", "load_slave", "typed_value"]
 
 #: The names of the calls :class:`~ftc_verify.plants.fmu_session.FMUSession` reports, per version.
 CALL_NAMES = {
@@ -61,28 +71,72 @@ def is_fmi3(md: Any) -> bool:
     return str(getattr(md, "fmiVersion", "") or "").startswith("3.")
 
 
-def load_slave(md: Any, unzip: str, model_identifier: str, instance_name: str,
-               logger: Callable[..., None]) -> tuple[Any, Any]:
-    """``(slave, callbacks)``: the loaded (not yet instantiated) slave of ``md`` extracted in
-    ``unzip`` and the object to pass to its ``instantiate(callbacks=...)`` (kept alive by the
-    caller). ``logger(*args)`` receives the FMU's messages, ``(env, instance, status,
-    category, message)`` from FMI 2.0 and ``(env, status, category, message)`` from FMI 3.0."""
-    if is_fmi3(md):
-        return FMU3Adapter(md, unzip, model_identifier, instance_name, logger), None
-    import ctypes
+def typed_value(v: Any, val: Any, what: str, label: str, err: Callable[[str], Exception]) -> Any:
+    """``val`` converted for the FMI type of the variable ``v`` and checked against its range.
 
-    from fmpy import calloc, free
-    from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
-                           fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
+    Parameters
+    ----------
+    v
+        fmpy's model variable (its ``type``, ``min``, ``max``, ``name``).
+    val
+        The value to write.
+    what, label
+        Where the value comes from (e.g. ``"mode 1 (0-based) maps to"``) and what the
+        variable is (e.g. ``"fault variable"``), for the messages.
+    err
+        Makes the exception raised for a value the variable cannot take.
 
-    slave = FMU2Slave(guid=md.guid, unzipDirectory=unzip, modelIdentifier=model_identifier,
-                      instanceName=instance_name)
-    cb = fmi2CallbackFunctions()
-    cb.logger = fmi2CallbackLoggerTYPE(logger)
-    cb.allocateMemory = ctypes.cast(calloc, fmi2CallbackAllocateMemoryTYPE)
-    cb.freeMemory = ctypes.cast(free, fmi2CallbackFreeMemoryTYPE)
-    cb.componentEnvironment = None
-    return slave, cb
+    Returns
+    -------
+    float or int
+        The value for the variable's kind (:data:`FAULT_KINDS`; a Boolean as 0 or 1).
+    """
+    kind = FAULT_KINDS[v.type]
+    if kind == "int":
+        if isinstance(val, float) and not val.is_integer():
+            raise err(f"{label} {v.name!r} is {v.type}; {what} non-integer {val!r}")
+        val = int(val)
+        lo, hi = INT_RANGES.get(v.type, (None, None))
+        lo, hi = (int(v.min) if v.min is not None else lo), (int(v.max) if v.max is not None else hi)
+        if (lo is not None and val < lo) or (hi is not None and val > hi):
+            raise err(f"{label} {v.name!r}: {what} {val}, outside its range [{lo}, {hi}] ({v.type})")
+        return val
+    if kind == "bool":
+        if val not in (0, 1):
+            raise err(f"{label} {v.name!r} is Boolean; {what} {val!r}")
+        return int(bool(val))
+    val = float(val)
+    lo = float(v.min) if v.min is not None else -math.inf
+    hi = float(v.max) if v.max is not None else math.inf
+    if not lo <= val <= hi:
+        raise err(f"{label} {v.name!r}: {what} {val}, outside its declared range [{v.min}, {v.max}]")
+    return val
+
+
+@dataclass(frozen=True)
+class SlaveCalls:
+    """The FMI calls of one loaded slave (module docstring), each raising fmpy's
+    ``FMICallException`` on a status above Warning.
+
+    ``get_real``, ``set_real``, ``set_integer`` and ``set_boolean`` take ``(component,
+    value references, count, values)`` (ctypes arrays); ``do_step`` takes ``(component,
+    t, h)``; ``setup_experiment`` takes the tolerance (None: the FMU's default) and the
+    start time; ``instantiate``, ``enter_initialization`` and ``free_instance`` act on the
+    slave's current instance; ``last_successful_time`` raises where the FMU gives none.
+    ``keep`` holds the ctypes callbacks the FMU calls, alive as long as these calls.
+    """
+
+    get_real: Callable[[Any, Any, int, Any], Any]
+    set_real: Callable[[Any, Any, int, Any], Any]
+    set_integer: Callable[[Any, Any, int, Any], Any]
+    set_boolean: Callable[[Any, Any, int, Any], Any]
+    do_step: Callable[[Any, float, float], Any]
+    instantiate: Callable[[], None]
+    setup_experiment: Callable[[float | None, float], None]
+    enter_initialization: Callable[[], None]
+    free_instance: Callable[[], None]
+    last_successful_time: Callable[[], float]
+    keep: Any = None
 
 
 def _checked(fun: Any, name: str) -> Callable[..., int]:
@@ -98,119 +152,126 @@ def _checked(fun: Any, name: str) -> Callable[..., int]:
     return call
 
 
-class FMU3Adapter:
-    """fmpy's ``FMU3Slave`` of an FMI 3.0 co-simulation FMU, called as an ``FMU2Slave``
-    (module docstring). ``md`` is fmpy's model description (the variables' types choose the
-    integer setters); ``logger`` gets ``(env, status, category, message)``."""
+def load_slave(md: Any, unzip: str, model_identifier: str, instance_name: str,
+               logger: Callable[..., None]) -> tuple[Any, SlaveCalls]:
+    """The loaded (not yet instantiated) slave of the FMU extracted in ``unzip`` and its calls.
 
-    fmi_version = "3.0"
+    Parameters
+    ----------
+    md
+        fmpy's model description of the FMU (its version chooses the slave class).
+    unzip
+        The folder the FMU is extracted in.
+    model_identifier, instance_name
+        The co-simulation model identifier and the ``instanceName`` to instantiate with.
+    logger
+        Receives the FMU's messages: ``(env, instance, status, category, message)`` from
+        FMI 2.0, ``(env, status, category, message)`` from FMI 3.0.
 
-    def __init__(self, md: Any, unzip: str, model_identifier: str, instance_name: str,
-                 logger: Callable[..., None]) -> None:
+    Returns
+    -------
+    tuple
+        ``(slave, calls)``: fmpy's ``FMU2Slave`` or ``FMU3Slave``, and its :class:`SlaveCalls`.
+    """
+    if is_fmi3(md):
         from fmpy.fmi3 import FMU3Slave
 
-        self.fmu = FMU3Slave(guid=md.guid, unzipDirectory=unzip, modelIdentifier=model_identifier,
-                             instanceName=instance_name)
-        self._logger = logger
-        self._types = {v.valueReference: v.type for v in md.modelVariables}
-        self.component: Any = None
-        self._tolerance: float | None = None
-        self._start = 0.0
-        self._bind()
+        slave = FMU3Slave(guid=md.guid, unzipDirectory=unzip, modelIdentifier=model_identifier,
+                          instanceName=instance_name)
+        return slave, _fmi3_calls(slave, md, logger)
+    from fmpy.fmi2 import FMU2Slave
 
-    def _bind(self) -> None:
-        """The FMI 2.0-named calls of the inner loop, as closures over the ctypes functions."""
-        import ctypes
+    slave = FMU2Slave(guid=md.guid, unzipDirectory=unzip, modelIdentifier=model_identifier,
+                      instanceName=instance_name)
+    return slave, _fmi2_calls(slave, logger)
 
-        from fmpy.fmi1 import FMICallException
-        from fmpy.fmi3 import fmi3Boolean, fmi3Float64
 
-        f = self.fmu._functions
-        get64, set64 = _checked(f["fmi3GetFloat64"], "fmi3GetFloat64"), _checked(f["fmi3SetFloat64"], "fmi3SetFloat64")
-        step = f["fmi3DoStep"]
-        event, term, early, last = fmi3Boolean(), fmi3Boolean(), fmi3Boolean(), fmi3Float64(math.nan)
-        refs = ctypes.byref(event), ctypes.byref(term), ctypes.byref(early), ctypes.byref(last)
-        self._last = last
+def _fmi2_calls(slave: Any, logger: Callable[..., None]) -> SlaveCalls:
+    import ctypes
 
-        def fmi2GetReal(c: Any, vr: Any, n: int, buf: Any) -> int:
-            return get64(c, vr, n, buf, n)
+    from fmpy import calloc, free
+    from fmpy.fmi2 import (fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE, fmi2CallbackFunctions,
+                           fmi2CallbackLoggerTYPE)
 
-        def fmi2SetReal(c: Any, vr: Any, n: int, buf: Any) -> int:
-            return set64(c, vr, n, buf, n)
+    cb = fmi2CallbackFunctions()
+    cb.logger = fmi2CallbackLoggerTYPE(logger)
+    cb.allocateMemory = ctypes.cast(calloc, fmi2CallbackAllocateMemoryTYPE)
+    cb.freeMemory = ctypes.cast(free, fmi2CallbackFreeMemoryTYPE)
+    cb.componentEnvironment = None
+    f = slave._functions
+    step = _checked(f["fmi2DoStep"], "fmi2DoStep")
 
-        def fmi2DoStep(c: Any, t: float, h: float, no_set: Any) -> int:
-            last.value = math.nan
-            status = step(c, t, h, bool(no_set), *refs)
-            if status > 1:
-                raise FMICallException(function="fmi3DoStep", status=status)
-            if term.value:
-                raise FMICallException(function="fmi3DoStep (the FMU set terminateSimulation)", status=2)
-            return status
+    def do_step(c: Any, t: float, h: float) -> int:
+        return step(c, t, h, 1)
 
-        self.fmi2GetReal, self.fmi2SetReal, self.fmi2DoStep = fmi2GetReal, fmi2SetReal, fmi2DoStep
+    return SlaveCalls(
+        get_real=_checked(f["fmi2GetReal"], "fmi2GetReal"), set_real=_checked(f["fmi2SetReal"], "fmi2SetReal"),
+        set_integer=_checked(f["fmi2SetInteger"], "fmi2SetInteger"),
+        set_boolean=_checked(f["fmi2SetBoolean"], "fmi2SetBoolean"), do_step=do_step,
+        instantiate=lambda: slave.instantiate(callbacks=cb, loggingOn=True),
+        setup_experiment=lambda tolerance, start: slave.setupExperiment(tolerance=tolerance, startTime=start),
+        enter_initialization=lambda: slave.enterInitializationMode(),
+        free_instance=lambda: slave.fmi2FreeInstance(slave.component),
+        last_successful_time=lambda: slave.getRealStatus(2),  # fmi2LastSuccessfulTime = 2
+        keep=cb)
 
-    # ------------------------------------------------------------------ typed writes
-    def fmi2SetInteger(self, c: Any, vr: Any, n: int, values: Any) -> None:
+
+def _fmi3_calls(slave: Any, md: Any, logger: Callable[..., None]) -> SlaveCalls:
+    import ctypes
+
+    from fmpy import fmi3
+    from fmpy.fmi1 import FMICallException
+
+    f = slave._functions
+    get64, set64 = _checked(f["fmi3GetFloat64"], "fmi3GetFloat64"), _checked(f["fmi3SetFloat64"], "fmi3SetFloat64")
+    step = f["fmi3DoStep"]
+    event, term, early, last = fmi3.fmi3Boolean(), fmi3.fmi3Boolean(), fmi3.fmi3Boolean(), fmi3.fmi3Float64(math.nan)
+    outs = ctypes.byref(event), ctypes.byref(term), ctypes.byref(early), ctypes.byref(last)
+    types = {v.valueReference: v.type for v in md.modelVariables}
+    experiment: dict[str, Any] = {"tolerance": None, "start": 0.0}
+
+    def do_step(c: Any, t: float, h: float) -> int:
+        last.value = math.nan
+        status = step(c, t, h, True, *outs)
+        if status > 1:
+            raise FMICallException(function="fmi3DoStep", status=status)
+        if term.value:
+            raise FMICallException(function="fmi3DoStep (the FMU set terminateSimulation)", status=2)
+        return status
+
+    def set_integer(c: Any, vr: Any, n: int, values: Any) -> None:
         """Each variable through the setter of its FMI 3.0 type."""
-        from fmpy import fmi3
-
         groups: dict[str, list[tuple[int, int]]] = {}
         for ref, value in zip(list(vr)[:n], list(values)[:n]):
-            kind = self._types.get(ref, "Int32")
+            kind = types.get(ref, "Int32")
             groups.setdefault("Int64" if kind == "Enumeration" else kind, []).append((ref, int(value)))
         for kind, pairs in groups.items():
             ctype = getattr(fmi3, f"fmi3{kind}")
             refs = (fmi3.fmi3ValueReference * len(pairs))(*[r for r, _ in pairs])
             vals = (ctype * len(pairs))(*[v for _, v in pairs])
-            self.fmu._call(f"fmi3Set{kind}", c, refs, len(pairs), vals, len(pairs))
+            slave._call(f"fmi3Set{kind}", c, refs, len(pairs), vals, len(pairs))
 
-    def fmi2SetBoolean(self, c: Any, vr: Any, n: int, values: Any) -> None:
-        from fmpy.fmi3 import fmi3Boolean
+    def set_boolean(c: Any, vr: Any, n: int, values: Any) -> None:
+        vals = (fmi3.fmi3Boolean * max(n, 1))(*[bool(v) for v in list(values)[:n]])
+        slave.fmi3SetBoolean(c, vr, n, vals, n)
 
-        vals = (fmi3Boolean * max(n, 1))(*[bool(v) for v in list(values)[:n]])
-        self.fmu.fmi3SetBoolean(c, vr, n, vals, n)
+    def setup_experiment(tolerance: float | None, start: float) -> None:
+        experiment.update(tolerance=tolerance, start=float(start))
 
-    # ------------------------------------------------------------------ life cycle
-    def instantiate(self, callbacks: Any = None, loggingOn: bool = True) -> None:
-        """``fmi3InstantiateCoSimulation`` (no event mode, no early return); ``callbacks`` is unused."""
-        self.fmu.instantiate(loggingOn=loggingOn, logMessage=self._logger)
-        self.component = self.fmu.component
+    def free_instance() -> None:
+        slave.fmi3FreeInstance(slave.component)
+        slave.component = None
 
-    def setupExperiment(self, tolerance: float | None = None, startTime: float = 0.0,
-                        stopTime: float | None = None) -> None:
-        self._tolerance, self._start = tolerance, float(startTime)
-
-    def enterInitializationMode(self) -> None:
-        self.fmu.enterInitializationMode(tolerance=self._tolerance, startTime=self._start)
-
-    def exitInitializationMode(self) -> None:
-        self.fmu.exitInitializationMode()
-
-    def reset(self) -> int:
-        return self.fmu.reset()
-
-    def terminate(self) -> int:
-        return self.fmu.terminate()
-
-    def fmi2FreeInstance(self, c: Any) -> None:
-        self.fmu.fmi3FreeInstance(c)
-        self.component = None
-
-    def freeLibrary(self) -> None:
-        self.fmu.freeLibrary()
-
-    # ------------------------------------------------------------------ stepping, queries
-    def doStep(self, currentCommunicationPoint: float, communicationStepSize: float,
-               noSetFMUStatePriorToCurrentPoint: bool = True) -> int:
-        return self.fmi2DoStep(self.component, currentCommunicationPoint, communicationStepSize,
-                               noSetFMUStatePriorToCurrentPoint)
-
-    def getRealStatus(self, kind: int) -> float:
-        """``lastSuccessfulTime`` of the last ``fmi3DoStep`` (``kind`` 2, as FMI 2.0's
-        ``fmi2LastSuccessfulTime``); raises when there is none."""
-        if kind != 2 or not math.isfinite(self._last.value):
+    def last_successful_time() -> float:
+        if not math.isfinite(last.value):
             raise ValueError("no lastSuccessfulTime")
-        return float(self._last.value)
+        return float(last.value)
 
-    def getDirectionalDerivative(self, vUnknown_ref: Any, vKnown_ref: Any, dvKnown: Any) -> list[float]:
-        return self.fmu.getDirectionalDerivative(list(vUnknown_ref), list(vKnown_ref), list(dvKnown))
+    return SlaveCalls(
+        get_real=lambda c, vr, n, buf: get64(c, vr, n, buf, n), set_real=lambda c, vr, n, buf: set64(c, vr, n, buf, n),
+        set_integer=set_integer, set_boolean=set_boolean, do_step=do_step,
+        instantiate=lambda: slave.instantiate(loggingOn=True, logMessage=logger),
+        setup_experiment=setup_experiment,
+        enter_initialization=lambda: slave.enterInitializationMode(tolerance=experiment["tolerance"],
+                                                                   startTime=experiment["start"]),
+        free_instance=free_instance, last_successful_time=last_successful_time)

@@ -4,18 +4,20 @@ This module implements :class:`FMUSession`, the FMU side of the co-simulation su
 (:mod:`ftc_verify.simulation.supervisor`):
 
 * the archive is checked before anything is extracted (no member may leave the
-  extraction folder: absolute names, ``..``, drive letters and backslashes are refused),
-  the model description must be FMI 2.0 or 3.0 with a co-simulation interface and a binary
-  for this platform (an FMI 3.0 FMU is called through :mod:`ftc_verify.plants.fmi3`);
+  extraction folder; :mod:`ftc_verify.plants.fmu_archive`), the model description must be
+  FMI 2.0 or 3.0 with a co-simulation interface and a binary for this platform;
 * every variable of the :class:`~ftc_verify.plants.fault_map.FaultInjectionMap` must
   exist with a usable type and causality
   (:func:`~ftc_verify.plants.fault_map.resolve_variables`);
 * the FMU is extracted into a :class:`tempfile.TemporaryDirectory` owned by the session
   (removed on :meth:`FMUSession.close`), loaded once and instantiated once; paths reuse
   the instance through ``fmi2Reset`` (:meth:`FMUSession.start_path`);
-* every ``fmi2*`` status other than OK or Warning raises
-  :class:`~ftc_verify.errors.FMUError` naming the FMU file, the call, the variables and the
-  time, with the FMU's own log messages (:meth:`FMUSession.call_error`).
+* the variables are read, written and the FMU stepped with :meth:`FMUSession.read`,
+  :meth:`FMUSession.write` and :meth:`FMUSession.step`, each the call of the FMU's version
+  (``fmi2GetReal`` or ``fmi3GetFloat64``...: :class:`~ftc_verify.plants.fmi3.SlaveCalls`);
+  a status other than OK or Warning raises :class:`FMICallError`, which
+  :meth:`FMUSession.call_error` turns into the :class:`~ftc_verify.errors.FMUError` naming
+  the FMU file, the call, the variables and the time, with the FMU's own log messages.
 
 Call names in errors are those of the FMU's version (``fmi3DoStep``...). A signal handler's exception (Ctrl-C, the CLI's SIGTERM) raised inside the logger
 callback, where ctypes would drop it, is kept as :attr:`FMUSession.pending` and raised
@@ -29,23 +31,23 @@ the LinearJumpPlant formats its messages itself (``%`` doubled), which is undone
 
 from __future__ import annotations
 
-import math
+import ctypes
 import os
 import tempfile
 import zipfile
 from collections import deque
 from collections.abc import Callable, Sequence
-from pathlib import Path, PurePosixPath
+from pathlib import Path
 from typing import Any
-from xml.etree import ElementTree as ET
 
 import numpy as np
 
 from ..errors import FMUError
 from .fault_map import FaultInjectionMap, ResolvedVariables, resolve_variables
-from .fmi3 import CALL_NAMES, FAULT_KINDS as _FAULT_KIND, INT_RANGES, is_fmi3, load_slave
+from .fmi3 import CALL_NAMES, FAULT_KINDS, SlaveCalls, load_slave, typed_value
+from .fmu_archive import read_archive, read_model_description, require_binary
 
-__all__ = ["FMUError", "FMUSession", "VarGroup", "c_buffer"]
+__all__ = ["FMUError", "FMICallError", "FMUSession", "VarGroup", "c_buffer"]
 
 _STATUS = ("OK", "Warning", "Discard", "Error", "Fatal", "Pending")
 
@@ -54,41 +56,43 @@ def _status_label(status: int) -> str:
     return _STATUS[status] if 0 <= status < len(_STATUS) else f"illegal status {status}"
 
 
-def _unsafe_member(name: str) -> str | None:
-    """Why the archive member ``name`` could land outside the extraction folder (or None)."""
-    if "\\" in name:
-        return "contains a backslash"
-    if name.startswith("/"):
-        return "is an absolute path"
-    if ":" in name:
-        return "contains a drive or device letter (':')"
-    if "\0" in name:
-        return "contains a NUL character"
-    if ".." in PurePosixPath(name).parts:
-        return "contains a '..' component"
-    root = os.path.join(os.sep, "extract-root")
-    if os.path.commonpath([root, os.path.normpath(os.path.join(root, name))]) != root:
-        return "resolves outside the extraction folder"
-    return None
-
-
 def c_buffer(ctype: Any, values: Sequence[Any]) -> Any:
     """A ctypes array of ``ctype`` holding ``values``."""
     return (ctype * len(values))(*values)
 
 
 class VarGroup:
-    """Value references of a list of variables of one FMI type, with a ctypes buffer."""
+    """Value references of a list of variables of one kind (``"real"``, ``"int"`` or
+    ``"bool"``, :data:`~ftc_verify.plants.fmi3.FAULT_KINDS`), with a ctypes buffer."""
 
-    __slots__ = ("names", "vr", "buf", "n")
+    __slots__ = ("names", "vr", "buf", "n", "kind", "ctype")
 
-    def __init__(self, variables: Sequence[Any], ctype: Any = None) -> None:
-        from fmpy.fmi2 import fmi2Real, fmi2ValueReference
-
+    def __init__(self, variables: Sequence[Any], kind: str = "real") -> None:
         self.names = tuple(v.name for v in variables)
         self.n = len(variables)
-        self.vr = c_buffer(fmi2ValueReference, [v.valueReference for v in variables])
-        self.buf = ((ctype or fmi2Real) * max(self.n, 1))()
+        self.kind = kind
+        self.ctype = ctypes.c_double if kind == "real" else ctypes.c_int  # fmi2Real; fmi2Integer, fmi2Boolean
+        self.vr = c_buffer(ctypes.c_uint, [v.valueReference for v in variables])  # fmi2ValueReference
+        self.buf = (self.ctype * max(self.n, 1))()
+
+
+class FMICallError(FMUError):
+    """An FMI call of an :class:`FMUSession` returned a status other than OK or Warning.
+
+    Attributes
+    ----------
+    function : str
+        The FMI function, named as in the FMU's version (``fmi2DoStep``, ``fmi3GetFloat64``...).
+    status : int
+        Its status (2 Discard, 3 Error, 4 Fatal).
+    """
+
+    def __init__(self, message: str, function: str, status: int) -> None:
+        super().__init__(message)
+        self.function, self.status = function, status
+
+    def __reduce__(self) -> tuple[Any, ...]:  # picklable across processes
+        return (FMICallError, (str(self), self.function, self.status))
 
 
 # ------------------------------------------------------------------------------------------
@@ -146,9 +150,14 @@ class FMUSession:
         self._dirty = False  # the instance has been initialised since the last reset
         self.dead = False  # fmi2Fatal seen: no further calls into the FMU
         self.closed = False
-        self._callbacks: Any = None
+        from fmpy.fmi1 import FMICallException
+
+        self._call_exception = FMICallException  # what the calls raise above Warning
+        self._calls: SlaveCalls | None = None
+        self._setters: dict[str, Callable[..., Any]] = {}  # per VarGroup kind
+        self._component: Any = None  # the instance the calls of read, write and step go to
         self._logger_ref: Any = None
-        self._fault_cache: dict[int, list[tuple[str, Any, Any]]] = {}
+        self._fault_cache: dict[int, list[tuple[VarGroup, Any]]] = {}
         self._read_groups: dict[bool, tuple[VarGroup, VarGroup]] = {}
         try:
             self._open()
@@ -172,80 +181,15 @@ class FMUSession:
         """An :class:`FMUError` naming the FMU file."""
         return FMUError(f"{self.path}: {what}")
 
-    def _read_archive(self) -> tuple[set[str], bytes]:
-        p = self.path
-        if not p.is_file():
-            raise self.err("no such FMU file")
-        if not zipfile.is_zipfile(p):
-            raise self.err("not an FMU (not a zip archive)")
-        try:
-            with zipfile.ZipFile(p) as zf:
-                infos = zf.infolist()
-                for info in infos:
-                    why = _unsafe_member(info.filename)
-                    if why is not None:
-                        raise self.err(
-                            f"archive member {info.filename!r} {why}: it would be extracted outside the "
-                            "extraction folder (zip-slip); refusing to extract the FMU"
-                        )
-                names = {info.filename for info in infos}
-                if "modelDescription.xml" not in names:
-                    raise self.err("modelDescription.xml is missing from the archive (not an FMU)")
-                return names, zf.read("modelDescription.xml")
-        except FMUError:
-            raise
-        except (zipfile.BadZipFile, OSError, RuntimeError) as exc:
-            raise self.err(f"cannot read the archive: {exc}") from None
-
-    def _read_model_description(self, xml: bytes) -> Any:
-        from fmpy import read_model_description
-
-        try:
-            root = ET.fromstring(xml)
-        except ET.ParseError as exc:
-            raise self.err(f"modelDescription.xml is not well-formed XML: {exc}") from None
-        if root.tag != "fmiModelDescription":
-            raise self.err(f"modelDescription.xml: root element is <{root.tag}>, not <fmiModelDescription>")
-        version = root.get("fmiVersion")
-        if version != "2.0" and not str(version).startswith("3."):
-            raise self.err(
-                f"modelDescription.xml declares fmiVersion {version!r}; the supervisor needs an "
-                "FMI 2.0 or 3.0 co-simulation FMU (fmiVersion \"2.0\" or \"3.0\")"
-            )
-        if version != "2.0" and (root.get("guid") is not None or root.find("ModelVariables/ScalarVariable") is not None):
-            raise self.err(f"modelDescription.xml declares fmiVersion {version!r} but is laid out as FMI 2.0 (guid, "
-                           "ScalarVariable): declare fmiVersion \"2.0\", or export the model as FMI 3.0")
-        try:
-            md = read_model_description(str(self.path), validate=True)
-        except Exception as exc:  # fmpy raises plain Exceptions with the schema problems
-            raise self.err(f"invalid modelDescription.xml: {exc}") from None
-        if md.coSimulation is None:
-            raise self.err("modelDescription.xml has no <CoSimulation> element (Model Exchange only?)")
-        self.fmi_version = "3.0" if is_fmi3(md) else "2.0"
-        self.calls = CALL_NAMES[self.fmi_version]
-        if self.fmi_version == "3.0":  # fmpy reads FMI 3.0's plural attribute into nothing
-            cs = root.find("CoSimulation")
-            md.coSimulation.providesDirectionalDerivative = cs.get("providesDirectionalDerivatives") in ("true", "1")
-        return md
-
     def _open(self) -> None:
-        import fmpy
-
-        names, xml = self._read_archive()
-        md = self._read_model_description(xml)
+        names, xml = read_archive(self.path, self.err)
+        md, self.fmi_version = read_model_description(self.path, xml, self.err)
+        self.calls = CALL_NAMES[self.fmi_version]
         cs = md.coSimulation
         self.model_description = md
         self.model_identifier = cs.modelIdentifier
         self.can_vary_step = bool(cs.canHandleVariableCommunicationStepSize)
-        platform = fmpy.platform_tuple if self.fmi_version == "3.0" else fmpy.platform
-        lib = f"binaries/{platform}/{cs.modelIdentifier}{fmpy.sharedLibraryExtension}"
-        if lib not in names:
-            found = sorted({n.split("/")[1] for n in names if n.startswith("binaries/") and n.count("/") >= 2})
-            hint = f"it has binaries for {found}" if found else "it has no binaries"
-            if any(n.startswith("sources/") for n in names):
-                hint += " (C sources are included: rebuild it for this platform)"
-            raise self.err(f"no binary for this platform: {lib} is missing; {hint}")
-
+        require_binary(names, cs.modelIdentifier, self.fmi_version, self.err)
         self._set_variables(resolve_variables(md, self.mapping, self.err))
 
         self._tmp = tempfile.TemporaryDirectory(prefix="ftc-verify-fmu-", dir=self.workdir)
@@ -314,34 +258,35 @@ class FMUSession:
 
     def _load(self, md: Any, unzip: str) -> None:
         cwd = os.getcwd()
-        try:  # FMI 3.0: an FMU3Adapter answering the FMI 2.0 calls (plants/fmi3.py)
+        try:
             self._logger_ref = self._logger()
-            self.slave, self._callbacks = load_slave(md, unzip, self.model_identifier, self.instance_name,
-                                                     self._logger_ref)
+            self.slave, calls = load_slave(md, unzip, self.model_identifier, self.instance_name, self._logger_ref)
         except Exception as exc:  # missing library, unloadable binary, missing fmi2/fmi3 functions
             lib = f"binaries/<platform>/{self.model_identifier}"
             raise self.err(f"cannot load the FMU binary ({lib}): {exc}") from None
         finally:
             if os.getcwd() != cwd:  # fmpy does not restore the directory when loading fails
                 os.chdir(cwd)
+        self._calls = calls
+        self._setters = {"real": calls.set_real, "int": calls.set_integer, "bool": calls.set_boolean}
         self.stats["library_loads"] += 1
         self._instantiate()
 
     def _instantiate(self) -> None:
         try:
-            self.slave.instantiate(callbacks=self._callbacks, loggingOn=True)
+            self._calls.instantiate()  # type: ignore[union-attr]
         except Exception:
             raise self.err(f"{self.calls['instantiate']} failed{self.said()}") from None
+        self._component = self.slave.component
         self._component_live = True
         self._dirty = False
         self.stats["instantiations"] += 1
 
     def _reinstantiate(self) -> None:
         """Free the instance after a failed ``fmi2Reset`` and create a fresh one."""
-        s = self.slave
         self._component_live = False
         try:
-            s.fmi2FreeInstance(s.component)
+            self._calls.free_instance()  # type: ignore[union-attr]
         except Exception:
             pass
         self._instantiate()
@@ -362,14 +307,15 @@ class FMUSession:
                             slave.terminate()
                     except Exception:
                         pass
-                    slave.fmi2FreeInstance(slave.component)
+                    self._calls.free_instance()  # type: ignore[union-attr]
                 self._component_live = False
             finally:
                 try:
                     slave.freeLibrary()
                 except Exception:
                     pass
-        self._callbacks = self._logger_ref = None
+        self._calls = self._component = self._logger_ref = None
+        self._setters = {}
         if self._tmp is not None:
             self._tmp.cleanup()
             self._tmp = None
@@ -381,14 +327,20 @@ class FMUSession:
         return ("; the FMU reported: " + " | ".join(bad[-count:])) if bad else ""
 
     def call_error(self, exc: Any, when: str, names: Sequence[str]) -> FMUError:
-        """The :class:`FMUError` for a failed FMI call (fmpy's ``FMICallException``)."""
+        """The :class:`FMUError` for a failed FMI call (an :class:`FMICallError`, or
+        fmpy's ``FMICallException``) made ``when`` on the variables ``names``."""
         status = getattr(exc, "status", None)
         function = getattr(exc, "function", f"an {self.calls['prefix']} function")
         if status == 4:  # fmi2Fatal / fmi3Fatal: the instance must not be called any more
             self.dead = True
         label = _status_label(status) if status is not None else "an error"
         var = f" ({', '.join(names)})" if names else ""
-        return self.err(f"{function}{var} returned {label} {when}{self.said()}")
+        return self.err(f"{function}{var} returned {label}{' ' + when if when else ''}{self.said()}")
+
+    def _failed_call(self, exc: Any, names: Sequence[str]) -> FMICallError:
+        """The :class:`FMICallError` of fmpy's ``FMICallException`` ``exc`` on the variables ``names``."""
+        error = self.call_error(exc, "", names)
+        return FMICallError(str(error), exc.function, exc.status)
 
     def check_open(self) -> None:
         """Raise unless the instance can be called."""
@@ -398,56 +350,27 @@ class FMUSession:
             raise self.err(f"the FMU returned {self.calls['fatal']} earlier; the instance cannot be used any more")
 
     # -------------------------------------------------------------------- writing
-    def _typed_value(self, v: Any, val: Any, what: str, label: str) -> Any:
-        """``val`` converted for the FMI type of ``v`` and checked against its range;
-        ``what`` says where the value comes from (e.g. "mode 1 (0-based) maps to")."""
-        kind = _FAULT_KIND[v.type]
-        if kind == "int":
-            if isinstance(val, float) and not val.is_integer():
-                raise self.err(f"{label} {v.name!r} is {v.type}; {what} non-integer {val!r}")
-            val = int(val)
-            lo, hi = INT_RANGES.get(v.type, (None, None))
-            lo, hi = (int(v.min) if v.min is not None else lo), (int(v.max) if v.max is not None else hi)
-            if (lo is not None and val < lo) or (hi is not None and val > hi):
-                raise self.err(f"{label} {v.name!r}: {what} {val}, outside its range [{lo}, {hi}] ({v.type})")
-            return val
-        if kind == "bool":
-            if val not in (0, 1):
-                raise self.err(f"{label} {v.name!r} is Boolean; {what} {val!r}")
-            return int(bool(val))
-        val = float(val)
-        lo = float(v.min) if v.min is not None else -math.inf
-        hi = float(v.max) if v.max is not None else math.inf
-        if not lo <= val <= hi:
-            raise self.err(f"{label} {v.name!r}: {what} {val}, outside its declared range [{v.min}, {v.max}]")
-        return val
-
     def _typed_writes(self, variables: Sequence[Any], values: Sequence[Any], what: str,
-                      label: str = "variable") -> list[tuple[str, Any, Any]]:
-        """``[(kind, VarGroup, ctypes values)]`` writing ``values`` into ``variables``."""
-        from fmpy.fmi2 import fmi2Boolean, fmi2Integer, fmi2Real
-
+                      label: str = "variable") -> list[tuple[VarGroup, Any]]:
+        """``[(VarGroup, ctypes values)]`` writing ``values`` into ``variables``, one group per kind."""
         out = []
-        for kind, ctype in (("real", fmi2Real), ("int", fmi2Integer), ("bool", fmi2Boolean)):
-            pairs = [(v, self._typed_value(v, val, what, label)) for v, val in zip(variables, values)
-                     if _FAULT_KIND[v.type] == kind]
+        for kind in ("real", "int", "bool"):
+            pairs = [(v, typed_value(v, val, what, label, self.err)) for v, val in zip(variables, values)
+                     if FAULT_KINDS[v.type] == kind]
             if pairs:
-                out.append((kind, VarGroup([v for v, _ in pairs], ctype), c_buffer(ctype, [x for _, x in pairs])))
+                grp = VarGroup([v for v, _ in pairs], kind)
+                out.append((grp, c_buffer(grp.ctype, [x for _, x in pairs])))
         return out
 
-    def _write(self, writes: list[tuple[str, Any, Any]], when: str) -> None:
-        from fmpy.fmi1 import FMICallException
-
-        s = self.slave
-        for kind, grp, vals in writes:
-            setter = {"real": s.fmi2SetReal, "int": s.fmi2SetInteger, "bool": s.fmi2SetBoolean}[kind]
+    def _write(self, writes: list[tuple[VarGroup, Any]], when: str) -> None:
+        for grp, vals in writes:
             try:
-                setter(s.component, grp.vr, grp.n, vals)
-            except FMICallException as exc:
+                self.write(grp, vals)
+            except FMICallError as exc:
                 shown = [f"{n} = {v}" for n, v in zip(grp.names, list(vals))]
                 raise self.call_error(exc, when, shown) from None
 
-    def fault_writes(self, mode: int) -> list[tuple[str, Any, Any]]:
+    def fault_writes(self, mode: int) -> list[tuple[VarGroup, Any]]:
         """The typed writes of the 0-based true mode's fault values (validated once per mode)."""
         cached = self._fault_cache.get(mode)
         if cached is None:
@@ -464,63 +387,134 @@ class FMUSession:
         """The ctypes values of ``(Delta1, Delta2)`` for the map's Delta inputs (None: none)."""
         if self.delta.n == 0:
             return None
-        from fmpy.fmi2 import fmi2Real
-
         parts = []
         if self.mapping.delta1:
             parts.append(np.asarray(seg[0], dtype=float).ravel())
         if self.mapping.delta2:
             parts.append(np.asarray(seg[1], dtype=float).ravel())
-        return c_buffer(fmi2Real, np.concatenate(parts).tolist())
+        return c_buffer(self.delta.ctype, np.concatenate(parts).tolist())
 
     def set_delta(self, values: Any, when: str) -> None:
         """Write :meth:`delta_values` into the FMU (nothing for None)."""
         if values is None or self.delta.n == 0:
             return
-        from fmpy.fmi1 import FMICallException
-
-        s = self.slave
         try:
-            s.fmi2SetReal(s.component, self.delta.vr, self.delta.n, values)
-        except FMICallException as exc:
+            self.write(self.delta, values)
+        except FMICallError as exc:
             raise self.call_error(exc, f"{when} (setting Delta)", self.delta.names) from None
 
+    # -------------------------------------------------------------------- FMI calls
+    def read(self, group: VarGroup) -> Any:
+        """Read the Real (FMI 3.0: ``Float64``) variables of ``group`` into its buffer.
+
+        Parameters
+        ----------
+        group : VarGroup
+            The variables (``fmi2GetReal`` / ``fmi3GetFloat64``).
+
+        Returns
+        -------
+        ctypes array
+            ``group.buf``, whose first ``group.n`` entries now hold the values.
+
+        Raises
+        ------
+        FMICallError
+            When the call returns a status other than OK or Warning.
+        """
+        try:
+            self._calls.get_real(self._component, group.vr, group.n, group.buf)  # type: ignore[union-attr]
+        except self._call_exception as exc:
+            raise self._failed_call(exc, group.names) from None
+        return group.buf
+
+    def write(self, group: VarGroup, values: Any) -> None:
+        """Set the variables of ``group`` to ``values``, through the setter of its kind.
+
+        Parameters
+        ----------
+        group : VarGroup
+            The variables: Real (``fmi2SetReal`` / ``fmi3SetFloat64``), Integer
+            (``fmi2SetInteger`` / ``fmi3SetInt32``... by type) or Boolean.
+        values
+            A ctypes array of ``group.ctype`` (e.g. ``group.buf``), or numbers.
+
+        Raises
+        ------
+        FMICallError
+            When the call returns a status other than OK or Warning.
+        """
+        if not isinstance(values, ctypes.Array):
+            values = c_buffer(group.ctype, np.asarray(values, dtype=float).tolist() if group.kind == "real"
+                              else [int(v) for v in values])
+        try:
+            self._setters[group.kind](self._component, group.vr, group.n, values)
+        except self._call_exception as exc:
+            raise self._failed_call(exc, group.names) from None
+
+    def step(self, t: float, h: float) -> None:
+        """One communication step from ``t`` to ``t + h`` (``fmi2DoStep`` / ``fmi3DoStep``),
+        then :meth:`raise_pending`.
+
+        Raises
+        ------
+        FMICallError
+            When the call returns a status other than OK or Warning (FMI 3.0: also when the
+            FMU sets ``terminateSimulation``).
+        """
+        try:
+            self._calls.do_step(self._component, t, h)  # type: ignore[union-attr]
+        except self._call_exception as exc:
+            raise self._failed_call(exc, ()) from None
+        if self.pending is not None:
+            self.raise_pending()
+
+    def directional_derivative(self, unknowns: Sequence[int], knowns: Sequence[int],
+                               seed: Sequence[float]) -> list[float]:
+        """The derivatives of the variables ``unknowns`` along ``seed`` in the variables
+        ``knowns`` (value references; ``fmi2GetDirectionalDerivative`` /
+        ``fmi3GetDirectionalDerivative``). Raises :class:`FMICallError` as :meth:`read`."""
+        try:
+            return list(self.slave.getDirectionalDerivative(list(unknowns), list(knowns), list(seed)))
+        except self._call_exception as exc:
+            raise self._failed_call(exc, ()) from None
+
+    # -------------------------------------------------------------------- paths
     def start_path(self, x0: Any, mode0: int, delta0: Any) -> None:
         """Reset (unless fresh), set up, and initialise the instance at ``t = 0`` with the
-        initial state ``x0`` (ctypes), the 0-based true mode and the first Delta values."""
-        from fmpy.fmi1 import FMICallException
-
+        initial state ``x0`` (ctypes or numbers), the 0-based true mode and the first Delta values."""
         self.messages.clear()  # errors of this path quote this path's messages only
         if self._dirty:
             try:
                 self.slave.reset()
                 self.stats["resets"] += 1
-            except FMICallException:  # an FMU that cannot reset gets a fresh instance
+            except self._call_exception:  # an FMU that cannot reset gets a fresh instance
                 self._reinstantiate()
-        s, calls = self.slave, self.calls
-        stage, names = calls["setup"], ()
+        calls, names = self._calls, ()
+        stage = self.calls["setup"]
         try:
             self._dirty = True
-            s.setupExperiment(tolerance=self.tolerance, startTime=0.0)
-            stage = calls["enter"]
-            s.enterInitializationMode()
+            calls.setup_experiment(self.tolerance, 0.0)  # type: ignore[union-attr]
+            stage = self.calls["enter"]
+            calls.enter_initialization()  # type: ignore[union-attr]
             self._write(self._param_writes, "in initialization mode (setting [parameters])")
             if self.init.n:
-                stage, names = calls["set_real"], self.init.names
-                s.fmi2SetReal(s.component, self.init.vr, self.init.n, x0)
+                stage, names = self.calls["set_real"], self.init.names
+                self.write(self.init, x0)
             self.set_fault(mode0, "in initialization mode")
             self.set_delta(delta0, "in initialization mode")
-            stage, names = calls["exit"], ()
-            s.exitInitializationMode()
-        except FMICallException as exc:
+            stage, names = self.calls["exit"], ()
+            self.slave.exitInitializationMode()
+        except (self._call_exception, FMICallError) as exc:
             raise self.call_error(exc, f"in {stage} while initialising a path at t = 0", names) from None
         finally:
             self.raise_pending()
 
     def last_successful_time(self) -> float | None:
-        """``fmi2GetRealStatus(fmi2LastSuccessfulTime)``, or None where the FMU does not answer."""
+        """``fmi2GetRealStatus(fmi2LastSuccessfulTime)`` (FMI 3.0: ``lastSuccessfulTime`` of
+        the last ``fmi3DoStep``), or None where the FMU does not answer."""
         try:
-            return float(self.slave.getRealStatus(2))  # fmi2LastSuccessfulTime = 2
+            return float(self._calls.last_successful_time())  # type: ignore[union-attr]
         except Exception:  # fmpy raises on a non-OK status; not every FMU implements the call
             return None
 
@@ -535,21 +529,17 @@ class FMUSession:
     def probe_outputs(self, x: np.ndarray, uw: np.ndarray, delta0: Any) -> tuple[np.ndarray, np.ndarray]:
         """``(y_m, y)`` read at ``t = 0`` after initialising at the state ``x`` (through the
         initial-state variables) in the first fault mode with inputs and disturbances ``uw``."""
-        from fmpy.fmi1 import FMICallException
-        from fmpy.fmi2 import fmi2Real
-
         if not self.init.n:
             raise self.err(
                 "the map has an operating point but no initial_states, so paths cannot start at it; name the "
                 "variables that set the initial state (or the states, if their start values can be set)"
             )
-        self.start_path(c_buffer(fmi2Real, np.asarray(x, dtype=float).tolist()), 0, delta0)
-        s = self.slave
+        self.start_path(np.asarray(x, dtype=float), 0, delta0)
         out = VarGroup(self.variables.measured + self.variables.outputs)
         try:
-            s.fmi2SetReal(s.component, self.uw.vr, self.uw.n, c_buffer(fmi2Real, np.asarray(uw, dtype=float).tolist()))
-            s.fmi2GetReal(s.component, out.vr, out.n, out.buf)
-        except FMICallException as exc:
+            self.write(self.uw, np.asarray(uw, dtype=float))
+            self.read(out)
+        except FMICallError as exc:
             raise self.call_error(exc, "at the operating point (t = 0, first fault mode)", out.names) from None
         vals = np.array(list(out.buf)[:out.n], dtype=float)
         return vals[:self.nym], vals[self.nym:]

@@ -12,7 +12,8 @@ mode ``r`` (an Integer input), with the uncertainties as inputs::
 One compiled binary serves every system: the C sources in ``fmus/LinearJumpPlant`` are
 compiled once with gcc into a cache folder (``$FTC_VERIFY_CACHE/fmus``, default
 ``~/.cache/ftc-verify/fmus``; the file name carries a hash of the sources, the FMI headers,
-the compiler flags and the compiler version, so a stale binary is never reused), and
+the compiler flags and the compiler version, so a stale binary is never reused; the
+toolchain is :mod:`ftc_verify.plants.build`), and
 :func:`build_fmu` zips it together with a ``modelDescription.xml`` and a
 ``resources/system.txt`` generated for the given system.
 
@@ -33,19 +34,15 @@ import hashlib
 import importlib.util
 import os
 import re
-import shutil
-import signal
-import subprocess
-import sys
 import tempfile
 import uuid
 import zipfile
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
 from ..errors import FMUError, ValidationError
 from ..model.system import FTCSystem
+from .build import (CFLAGS, FMI2_HEADERS, binary_platform, build_lock, cache_dir, compiler_identity, file_hash,
+                    find_gcc, fmi2_include_dir, is_cached, link_flags, record_hash, run_compiler, write_zip)
 from .plant_map import linear_jump_plant_map, map_path_for, save_plant_map
 from .model_description import SOURCE_FILES, model_description, variable_names
 from .system_text import FORMAT_VERSION, MODEL_IDENTIFIER, FMUDims, fmu_dims, parse_system_text, system_text
@@ -71,13 +68,8 @@ __all__ = [
     "variable_names",
 ]
 
-#: FMI 2.0 headers (from fmpy) the sources include; their content enters the hash.
-FMI2_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
-#: Compiler flags (the hash covers them).
-CFLAGS = ("-std=c99", "-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-Wall", "-Wextra")
 #: Bumped when the generated FMU layout changes (enters the GUID).
 _LAYOUT_VERSION = "2"
-_ZIP_DATE = (1980, 1, 1, 0, 0, 0)  # fixed timestamps: the same system gives the same .fmu
 
 
 # ------------------------------------------------------------------------------------------
@@ -108,136 +100,9 @@ def source_dir() -> Path:
     )
 
 
-def fmi2_include_dir() -> Path:
-    """Folder with the FMI 2.0 C headers shipped inside the fmpy package."""
-    try:
-        import fmpy
-    except ImportError as exc:  # pragma: no cover - fmpy is a dependency
-        raise FMUError(f"fmpy is needed for the FMI 2.0 headers and validation: {exc}") from None
-    path = Path(fmpy.__file__).resolve().parent / "c-code"
-    missing = [h for h in FMI2_HEADERS if not (path / h).is_file()]
-    if missing:
-        raise FMUError(f"{path}: FMI 2.0 header(s) {missing} not found in the fmpy package")
-    return path
-
-
-def cache_dir() -> Path:
-    """Cache folder for binaries and FMUs: ``$FTC_VERIFY_CACHE/fmus`` if that variable is
-    set, else ``$XDG_CACHE_HOME/ftc-verify/fmus`` (default ``~/.cache/ftc-verify/fmus``)."""
-    root = os.environ.get("FTC_VERIFY_CACHE")
-    if root:
-        base = Path(root).expanduser()
-    else:
-        xdg = os.environ.get("XDG_CACHE_HOME")
-        base = (Path(xdg).expanduser() if xdg else Path.home() / ".cache") / "ftc-verify"
-    path = base / "fmus"
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise FMUError(f"{path}: cannot create the FMU cache folder: {exc.strerror}") from None
-    return path
-
-
-def _platform() -> tuple[str, str]:
-    """``(binaries folder, shared library suffix)`` of this machine, as fmpy names them."""
-    import fmpy
-
-    if sys.platform.startswith("win"):
-        raise FMUError("building the LinearJumpPlant FMU with gcc is not supported on Windows")
-    return fmpy.platform, fmpy.sharedLibraryExtension
-
-
 # ------------------------------------------------------------------------------------------
 # Compiling the shared library
 # ------------------------------------------------------------------------------------------
-
-
-def _find_gcc(src: Path) -> str:
-    gcc = shutil.which("gcc")
-    if gcc is None:
-        raise FMUError(
-            f"gcc not found on PATH: it is needed to compile the FMU binary from {src} "
-            "(install it, e.g. `apt-get install gcc`)"
-        )
-    return gcc
-
-
-def run_compiler(cmd: list[str], what: str, timeout: float = 600.0) -> subprocess.CompletedProcess[str]:
-    """Run the compiler command ``cmd`` and return its completed process (text output).
-
-    gcc starts in its own process group (``start_new_session``) with ``TMPDIR`` set to a
-    fresh folder this call owns, so its helpers (``cc1``, ``as``, ``collect2``) and their
-    ``cc*.s`` / ``cc*.o`` files are reachable: on *any* exception while it runs (Ctrl-C, the
-    command line's SIGTERM exception, the time limit) the whole group is killed with SIGKILL
-    and waited for before the exception goes on, and the folder is removed in every case.
-
-    Parameters
-    ----------
-    cmd : list of str
-        The command line, compiler first.
-    what : str
-        What is compiled (a file name), for the error messages.
-    timeout : float
-        Seconds before the group is killed and :class:`FMUError` raised.
-
-    Raises
-    ------
-    FMUError
-        When the compiler cannot be started or does not finish within ``timeout``.
-    """
-    scratch = tempfile.mkdtemp(prefix="ftc-verify-gcc-")
-    proc: subprocess.Popen[str] | None = None
-    try:
-        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                env=os.environ | {"TMPDIR": scratch}, start_new_session=True)
-        out, err = proc.communicate(timeout=timeout)
-    except BaseException as exc:
-        if proc is not None:
-            _kill_group(proc)
-        if isinstance(exc, OSError):
-            raise FMUError(f"{cmd[0]}: cannot run the compiler: {exc.strerror}") from None
-        if isinstance(exc, subprocess.TimeoutExpired):
-            raise FMUError(f"{what}: gcc did not finish within {timeout:g} s") from None
-        raise
-    finally:
-        shutil.rmtree(scratch, ignore_errors=True)
-    return subprocess.CompletedProcess(cmd, proc.returncode, out, err)
-
-
-def _kill_group(proc: subprocess.Popen[str]) -> None:
-    """SIGKILL the process group of ``proc`` (its own session), wait for it and (up to 5 s)
-    for the rest of the group (``cc1``, ``as``: reaped by init once gcc is gone), close its pipes."""
-    import time
-
-    try:
-        os.killpg(proc.pid, signal.SIGKILL)
-    except (ProcessLookupError, PermissionError):
-        pass
-    proc.wait()
-    deadline = time.monotonic() + 5.0
-    while time.monotonic() < deadline:
-        try:
-            os.killpg(proc.pid, 0)
-        except (ProcessLookupError, PermissionError):
-            break
-        time.sleep(0.01)
-    for pipe in (proc.stdout, proc.stderr):
-        if pipe is not None:
-            pipe.close()
-
-
-def _compiler_identity(gcc: str) -> str:
-    out = run_compiler([gcc, "-dumpfullversion", "-dumpmachine"], gcc, timeout=60)
-    if out.returncode != 0:
-        raise FMUError(f"{gcc}: `gcc -dumpfullversion -dumpmachine` failed: {out.stderr.strip()}")
-    return " ".join(out.stdout.split())
-
-
-def _link_flags() -> tuple[str, ...]:
-    flags: tuple[str, ...] = ("-lm",)
-    if sys.platform.startswith("linux"):
-        flags += ("-Wl,-z,defs",)  # every symbol resolved at link time
-    return flags
 
 
 def build_binary(force: bool = False, *, sources: Path | None = None) -> Path:
@@ -258,9 +123,9 @@ def build_binary(force: bool = False, *, sources: Path | None = None) -> Path:
         if not (src / name).is_file():
             raise FMUError(f"{src / name}: C source of the {MODEL_IDENTIFIER} FMU not found")
     include = fmi2_include_dir()
-    gcc = _find_gcc(src)
-    _, suffix = _platform()
-    flags = CFLAGS + _link_flags()
+    gcc = find_gcc(src)
+    _, suffix = binary_platform()
+    flags = CFLAGS + link_flags()
 
     h = hashlib.sha256()
     h.update(f"ftc-verify {MODEL_IDENTIFIER} binary\0".encode())
@@ -269,37 +134,13 @@ def build_binary(force: bool = False, *, sources: Path | None = None) -> Path:
     for name in FMI2_HEADERS:
         h.update(name.encode() + b"\0" + (include / name).read_bytes() + b"\0")
     h.update(" ".join(flags).encode() + b"\0")
-    h.update(_compiler_identity(gcc).encode())
+    h.update(compiler_identity(gcc).encode())
     target = cache_dir() / f"{MODEL_IDENTIFIER}-{h.hexdigest()[:20]}{suffix}"
     with build_lock(target):
-        if not force and _cached(target):
+        if not force and is_cached(target):
             return target  # else missing, forced, or corrupted (hash changed): compiled again
         _compile_binary(gcc, src, include, target)
     return target
-
-
-def _cached(target: Path) -> bool:
-    """Whether ``target`` exists and still has the SHA-256 recorded at compile time."""
-    return target.is_file() and _recorded_hash(target) == _file_hash(target)
-
-
-@contextmanager
-def build_lock(target: Path, timeout: float = 900.0) -> Iterator[None]:
-    """Hold the file lock ``<target>.lock`` (``filelock``, an OS-level lock released when
-    the process dies) while ``target`` is checked and built, so that processes building
-    the same cache entry at once -- test workers, Dask workers -- compile it once and
-    never load a half-written file (the file itself is also renamed into place)."""
-    from filelock import FileLock, Timeout
-
-    lock = FileLock(f"{target}.lock", timeout=timeout)
-    try:
-        lock.acquire()
-    except Timeout:
-        raise FMUError(f"{target}.lock: another build has held this lock for more than {timeout:g} s") from None
-    try:
-        yield
-    finally:
-        lock.release()
 
 
 def _compile_binary(gcc: str, src: Path, include: Path, target: Path) -> None:
@@ -310,7 +151,7 @@ def _compile_binary(gcc: str, src: Path, include: Path, target: Path) -> None:
     cmd = [
         gcc, *CFLAGS, "-I", str(include), "-I", str(src),
         *(str(src / name) for name in SOURCE_FILES if name.endswith(".c")),
-        "-o", str(tmp), *_link_flags(),
+        "-o", str(tmp), *link_flags(),
     ]
     try:
         proc = run_compiler(cmd, str(src))
@@ -320,36 +161,10 @@ def _compile_binary(gcc: str, src: Path, include: Path, target: Path) -> None:
                 f"{proc.returncode})\ncommand: {' '.join(cmd)}\n{proc.stderr.strip()}"
             )
         os.chmod(tmp, 0o755)
-        _record_hash(target, _file_hash(tmp))
+        record_hash(target, file_hash(tmp))
         os.replace(tmp, target)
     finally:
         tmp.unlink(missing_ok=True)
-
-
-def _file_hash(path: Path) -> str:
-    """SHA-256 of a file's bytes (hex)."""
-    return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-def _hash_file(binary: Path) -> Path:
-    """Where the SHA-256 of a cached binary is recorded: ``<binary>.sha256`` beside it."""
-    return binary.with_name(binary.name + ".sha256")
-
-
-def _recorded_hash(binary: Path) -> str | None:
-    try:
-        return _hash_file(binary).read_text(encoding="ascii").strip()
-    except (OSError, UnicodeDecodeError):
-        return None
-
-
-def _record_hash(binary: Path, digest: str) -> None:
-    """Write ``<binary>.sha256`` atomically (temporary file, then rename)."""
-    record = _hash_file(binary)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{record.name}.", suffix=".tmp", dir=record.parent)
-    with os.fdopen(fd, "w", encoding="ascii") as fh:
-        fh.write(digest + "\n")
-    os.replace(tmp_name, record)
 
 
 # ------------------------------------------------------------------------------------------
@@ -359,46 +174,6 @@ def _record_hash(binary: Path, digest: str) -> None:
 
 def _slug(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("._-") or "system"
-
-
-def _umask() -> int:
-    """The process's umask, read without changing it where Linux tells it
-    (``/proc/self/status``), else by setting and restoring it."""
-    try:
-        with open("/proc/self/status", encoding="ascii") as fh:
-            for line in fh:
-                if line.startswith("Umask:"):
-                    return int(line.split()[1], 8)
-    except (OSError, ValueError, IndexError):
-        pass
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
-
-
-def _write_zip(path: Path, members: list[tuple[str, bytes, int]]) -> None:
-    """Write the FMU archive atomically; the file gets ``0o666 & ~umask`` like any other
-    output (the temporary file it is renamed from was created ``0o600``)."""
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    except OSError as exc:
-        raise FMUError(f"{path}: cannot write the FMU: {exc.strerror}") from None
-    os.close(fd)
-    tmp = Path(tmp_name)
-    try:
-        with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as zf:
-            for name, data, mode in members:
-                info = zipfile.ZipInfo(name, date_time=_ZIP_DATE)
-                info.compress_type = zipfile.ZIP_DEFLATED
-                info.external_attr = (0o100000 | mode) << 16
-                zf.writestr(info, data)
-        os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, path)
-    except OSError as exc:
-        raise FMUError(f"{path}: cannot write the FMU: {exc.strerror}") from None
-    finally:
-        tmp.unlink(missing_ok=True)
 
 
 def build_fmu(system: FTCSystem, dest: Path | None = None) -> Path:
@@ -416,7 +191,7 @@ def build_fmu(system: FTCSystem, dest: Path | None = None) -> Path:
         raise ValidationError(f"build_fmu: expected an FTCSystem, got {type(system).__name__}")
     fmu_dims(system)  # channel consistency, before compiling anything
     binary = build_binary()
-    platform, suffix = _platform()
+    platform, suffix = binary_platform()
     src = source_dir()
     unguided = system_text(system)
     digest = hashlib.sha256(
@@ -436,7 +211,7 @@ def build_fmu(system: FTCSystem, dest: Path | None = None) -> Path:
         path = Path(dest)
         if path.is_dir():
             path = path / f"{_slug(system.name)}.fmu"
-    _write_zip(path, members)
+    write_zip(path, members)
     save_plant_map(linear_jump_plant_map(system, path), map_path_for(path))
     return path
 
@@ -466,7 +241,7 @@ def validate(path: str | os.PathLike[str]) -> list[str]:
     problems = list(validate_fmu(str(p)))
     if problems:
         return problems
-    platform, suffix = _platform()
+    platform, suffix = binary_platform()
     lib = f"binaries/{platform}/{MODEL_IDENTIFIER}{suffix}"
     with zipfile.ZipFile(p) as zf:
         names = set(zf.namelist())

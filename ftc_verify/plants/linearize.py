@@ -59,7 +59,7 @@ import scipy.linalg
 
 from ..errors import FMUError, PlantRunError, ValidationError
 from ..model.system import FTCSystem, JointChain, Mode
-from .fmu_session import FMUSession, VarGroup, c_buffer
+from .fmu_session import FMICallError, FMUSession, VarGroup
 from .plant_map import PlantMap
 
 __all__ = ["ModeLinearisation", "Linearisation", "linearize_plant", "trim_plant", "ROUTES", "ACCURACY_FRACTION",
@@ -89,7 +89,8 @@ def fmu_failure(session: FMUSession, exc: Exception, when: str, names: Sequence[
     session : FMUSession
         The session the call was made on.
     exc : Exception
-        fmpy's ``FMICallException``, or the :class:`FMUError` a session method (e.g.
+        The :class:`~ftc_verify.plants.fmu_session.FMICallError` of a session call
+        (:meth:`FMUSession.read`...), or the :class:`FMUError` a session method (e.g.
         :meth:`FMUSession.start_path`) already built for one.
     when : str
         Where the call happened (fault mode, time), e.g. ``"at t = 0 in fault mode 1"``.
@@ -101,7 +102,7 @@ def fmu_failure(session: FMUSession, exc: Exception, when: str, names: Sequence[
     PlantRunError
         Naming the FMU file, the call, ``when`` and the FMU's own log messages.
     """
-    err = exc if isinstance(exc, FMUError) else session.call_error(exc, when, names)
+    err = session.call_error(exc, when, names) if isinstance(exc, FMICallError) else exc
     text, prefix = str(err), f"{session.path}: "
     return PlantRunError(str(session.path), text[len(prefix):] if text.startswith(prefix) else text)
 
@@ -109,15 +110,14 @@ def fmu_failure(session: FMUSession, exc: Exception, when: str, names: Sequence[
 @contextmanager
 def fmi_calls(session: FMUSession, when: str, names: Sequence[str] = ()) -> Iterator[None]:
     """Turn a failing FMI call inside the block into :func:`fmu_failure`'s
-    :class:`PlantRunError` (``FMICallException`` and the session's own call errors; fault
-    values must have been validated before, :meth:`FMUSession.fault_writes`)."""
-    from fmpy.fmi1 import FMICallException
-
+    :class:`PlantRunError` (:class:`~ftc_verify.plants.fmu_session.FMICallError` and the
+    session's own call errors; fault values must have been validated before,
+    :meth:`FMUSession.fault_writes`)."""
     try:
         yield
     except PlantRunError:
         raise
-    except (FMICallException, FMUError) as exc:
+    except FMUError as exc:
         raise fmu_failure(session, exc, when, names) from None
 
 
@@ -163,9 +163,7 @@ class _Probe:
     """Evaluations of the FMU at a state, inputs and fault mode (each from a fresh initialisation)."""
 
     def __init__(self, session: FMUSession, pm: PlantMap) -> None:
-        from fmpy.fmi2 import fmi2Real
-
-        self.s, self.pm, self.real = session, pm, fmi2Real
+        self.s, self.pm = session, pm
         md = session.model_description
         if not session.init.n:
             raise ValidationError(f"{pm.source}: linearisation sets the state through [variables].initial_states "
@@ -184,12 +182,12 @@ class _Probe:
         s = self.s
         self.at = f"in fault mode {mode + 1} ({self.pm.faults[mode].name}) while linearising"
         with fmi_calls(s, f"at t = 0 {self.at}", s.uw.names):
-            s.start_path(c_buffer(self.real, x.tolist()), mode, None)
-            s.slave.fmi2SetReal(s.slave.component, s.uw.vr, s.uw.n, c_buffer(self.real, uw.tolist()))
+            s.start_path(x, mode, None)
+            s.write(s.uw, uw)
 
     def read(self, grp: VarGroup, t: float = 0.0) -> np.ndarray:
         with fmi_calls(self.s, f"at t = {t:g} {self.at}", grp.names):
-            self.s.slave.fmi2GetReal(self.s.slave.component, grp.vr, grp.n, grp.buf)
+            self.s.read(grp)
         return np.array(list(grp.buf)[:grp.n], dtype=float)
 
     def derivative(self, mode: int, x: np.ndarray, uw: np.ndarray) -> np.ndarray:
@@ -204,7 +202,7 @@ class _Probe:
     def flow(self, mode: int, x: np.ndarray, uw: np.ndarray, h: float) -> np.ndarray:
         self.start(mode, x, uw)
         with fmi_calls(self.s, f"in the step from t = 0 to t = {h:g} {self.at}"):
-            self.s.slave.doStep(0.0, h)
+            self.s.step(0.0, h)
         return self.read(self.states, h)
 
 
@@ -252,7 +250,7 @@ def _mode(probe: _Probe, route: str, mode: int, x0: np.ndarray, uw0: np.ndarray,
         known = [v.valueReference for v in s.variables.states + s.variables.inputs + s.variables.disturbances]
         unknown = list(probe.der.vr)  # type: ignore[union-attr]
         with fmi_calls(s, f"at t = 0 {probe.at}", probe.der.names):  # type: ignore[union-attr]
-            J = np.column_stack([s.slave.getDirectionalDerivative(unknown, [vr], [1.0]) for vr in known])
+            J = np.column_stack([s.directional_derivative(unknown, [vr], [1.0]) for vr in known])
         f = probe.read(probe.der)  # type: ignore[arg-type]
         errors["A"] = errors["B"] = 0.0
     elif route == "finite-differences":

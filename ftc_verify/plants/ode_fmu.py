@@ -28,7 +28,7 @@ internal step is cut so that a communication step ends exactly at :math:`t + h`.
 Model Exchange leaves integration to the importer. With ``has_jacobian`` the model's exact
 Jacobians serve ``fmi2GetDirectionalDerivative``.
 
-The binary is cached in :func:`~ftc_verify.plants.linear_jump.cache_dir` under a name
+The binary is cached in :func:`~ftc_verify.plants.build.cache_dir` under a name
 carrying the SHA-256 of the glue, the model source, the generated header, the FMI headers,
 the compiler flags and the compiler's identity, and is checked once after compiling by
 instantiating it (the model's ``ODE_NX``.. and ``ODE_HAS_JACOBIAN`` must match the spec).
@@ -52,12 +52,11 @@ from xml.etree import ElementTree as ET
 
 from .. import __version__
 from ..errors import FMUError, ValidationError
-from .linear_jump import (CFLAGS, FMI2_HEADERS, _compiler_identity, _file_hash, _find_gcc, _link_flags,
-                          _platform, _record_hash, _write_zip, _cached, build_lock, cache_dir,
-                          fmi2_include_dir, run_compiler)
+from .build import (CFLAGS, FMI2_HEADERS, binary_platform, build_lock, cache_dir, compiler_identity, file_hash,
+                    find_gcc, fmi2_include_dir, is_cached, link_flags, record_hash, run_compiler, write_zip)
 
-__all__ = ["DEFAULT_RTOL", "GLUE_FILES", "OdeVariable", "OdeFmuSpec", "ode_source_dir", "ode_spec_header",
-           "ode_model_description", "build_ode_binary", "compile_ode_binary", "build_ode_fmu",
+__all__ = ["DEFAULT_RTOL", "GLUE_FILES", "VARIABLE_GROUPS", "OdeVariable", "OdeFmuSpec", "ode_source_dir",
+           "ode_spec_header", "ode_model_description", "build_ode_binary", "compile_ode_binary", "build_ode_fmu",
            "package_ode_fmu", "compile_count",
            "motor_spec"]
 
@@ -67,7 +66,8 @@ DEFAULT_RTOL = 1e-8
 GLUE_FILES = ("ode_model.h", "ode_glue.c")
 _LAYOUT_VERSION = "1"  # bumped when the generated layout changes (enters the GUID)
 _IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
-_GROUPS = ("states", "inputs", "parameters", "outputs")
+#: The variable groups of an :class:`OdeFmuSpec`, in value-reference order (``der(x)`` follows the states).
+VARIABLE_GROUPS = ("states", "inputs", "parameters", "outputs")
 _COMPILES = 0
 
 
@@ -157,7 +157,7 @@ class OdeFmuSpec:
             raise ValidationError("OdeFmuSpec.model_name: 'ode_glue' is reserved")
         where = f"OdeFmuSpec {self.model_name!r}"
         seen: dict[str, str] = {}
-        for group in _GROUPS:
+        for group in VARIABLE_GROUPS:
             items = getattr(self, group)
             if isinstance(items, (str, bytes)) or not hasattr(items, "__iter__"):
                 raise ValidationError(f"{where}: {group} must be a sequence of OdeVariable, got {items!r}")
@@ -184,7 +184,7 @@ class OdeFmuSpec:
     def variable_names(self) -> list[str]:
         """All variable names in value-reference order (1, 2, ...)."""
         return ([v.name for v in self.states] + [f"der({v.name})" for v in self.states]
-                + [v.name for group in _GROUPS[1:] for v in getattr(self, group)])
+                + [v.name for group in VARIABLE_GROUPS[1:] for v in getattr(self, group)])
 
 
 # ------------------------------------------------------------------------------------------
@@ -231,12 +231,12 @@ def ode_spec_header(spec: OdeFmuSpec, guid: str) -> str:
         f'#define ODE_SPEC_MODEL_NAME "{spec.model_name}"', f'#define ODE_SPEC_GUID "{guid}"',
         f"#define ODE_SPEC_HAS_JACOBIAN {int(spec.has_jacobian)}",
     ]
-    for key, group in zip("XUPY", _GROUPS):
+    for key, group in zip("XUPY", VARIABLE_GROUPS):
         lines.append(f"#define ODE_SPEC_N{key} {len(getattr(spec, group))}")
-    for key, group in zip("XUP", _GROUPS):
+    for key, group in zip("XUP", VARIABLE_GROUPS):
         lines.append(array("double", f"ODE_SPEC_{key}_START", [repr(v.start) for v in getattr(spec, group)], "0.0"))
     lines.append(array("int", "ODE_SPEC_P_TUNABLE", [str(int(v.tunable)) for v in spec.parameters], "0"))
-    for key, group in zip("XUPY", _GROUPS):
+    for key, group in zip("XUPY", VARIABLE_GROUPS):
         lines.append(array("char *const", f"ODE_SPEC_{key}_NAMES", [f'"{v.name}"' for v in getattr(spec, group)], '""'))
     return "\n".join(lines + ["#endif", ""])
 
@@ -282,7 +282,7 @@ def _scalar_variables(spec: OdeFmuSpec) -> list[tuple[dict[str, str], dict[str, 
 def _model_structure(parent: ET.Element, spec: OdeFmuSpec) -> None:
     """Outputs and derivatives depend on all states and inputs; initial unknowns also on
     the parameters (declared conservatively, ``dependenciesKind="dependent"``)."""
-    sizes = [len(spec.states), *(len(getattr(spec, g)) for g in _GROUPS)]  # x, der(x), u, p, y
+    sizes = [len(spec.states), *(len(getattr(spec, g)) for g in VARIABLE_GROUPS)]  # x, der(x), u, p, y
     bounds = list(itertools.accumulate([1, *sizes]))
     states, derivs, inputs, params, outputs = (list(range(a, b)) for a, b in zip(bounds, bounds[1:]))
     for tag, indices, deps in (("Outputs", outputs, states + inputs), ("Derivatives", derivs, states + inputs),
@@ -310,7 +310,7 @@ def ode_model_description(spec: OdeFmuSpec, guid: str) -> str:
         files = ET.SubElement(el, "SourceFiles")
         for name in ("ode_glue.c", f"{spec.model_name}.c"):
             ET.SubElement(files, "File", {"name": name})
-    units = sorted({v.unit for g in _GROUPS for v in getattr(spec, g) if v.unit})
+    units = sorted({v.unit for g in VARIABLE_GROUPS for v in getattr(spec, g) if v.unit})
     if units:
         defs = ET.SubElement(root, "UnitDefinitions")
         for name in units:
@@ -342,7 +342,7 @@ def compile_count() -> int:
 def _compile(gcc: str, spec: OdeFmuSpec, sources: list[Path], includes: list[Path], out: Path) -> None:
     global _COMPILES
     cmd = [gcc, *CFLAGS, *(a for d in includes for a in ("-I", str(d))), *map(str, sources), "-o", str(out),
-           *_link_flags()]
+           *link_flags()]
     proc = run_compiler(cmd, f"{spec.model_name}.c")  # own process group and TMPDIR, killed on any exception
     _COMPILES += 1
     if proc.returncode != 0:
@@ -393,7 +393,7 @@ def build_ode_binary(spec: OdeFmuSpec, force: bool = False) -> Path:
     compile time still matches (unless ``force``). Compiling happens in a temporary folder
     (gcc ``-std=c99 -O2 -fPIC -shared -fvisibility=hidden``, ``-lm``), then the binary is
     instantiated once (:func:`_probe`) and renamed into place, all under
-    :func:`~ftc_verify.plants.linear_jump.build_lock`, so concurrent builds compile once.
+    :func:`~ftc_verify.plants.build.build_lock`, so concurrent builds compile once.
     Raises :class:`FMUError` with gcc's command line and stderr when compiling fails,
     or with the glue's message when the model file does not match the spec.
     """
@@ -417,18 +417,18 @@ def compile_ode_binary(spec: OdeFmuSpec, guid: str, *, force: bool, hash_tag: st
     src = ode_source_dir()
     header = ode_spec_header(spec, guid)
     include = fmi2_include_dir()
-    gcc = _find_gcc(src)
-    _, suffix = _platform()
+    gcc = find_gcc(src)
+    _, suffix = binary_platform()
     h = hashlib.sha256(f"ftc-verify {hash_tag} {_LAYOUT_VERSION}\0".encode())
     for name in glue_files:
         h.update(name.encode() + b"\0" + (src / name).read_bytes() + b"\0")
     h.update(header.encode() + b"\0" + spec.c_source.encode() + b"\0")
     for name in headers:
         h.update(name.encode() + b"\0" + (include / name).read_bytes() + b"\0")
-    h.update(" ".join(CFLAGS + _link_flags()).encode() + b"\0" + _compiler_identity(gcc).encode())
+    h.update(" ".join(CFLAGS + link_flags()).encode() + b"\0" + compiler_identity(gcc).encode())
     target = cache_dir() / f"{stem}-{h.hexdigest()[:20]}{suffix}"
     with build_lock(target):
-        if not force and _cached(target):
+        if not force and is_cached(target):
             return target
         with tempfile.TemporaryDirectory(prefix=f".{spec.model_name}.", dir=target.parent) as tmp_name:
             tmp = Path(tmp_name)
@@ -439,7 +439,7 @@ def compile_ode_binary(spec: OdeFmuSpec, guid: str, *, force: bool, hash_tag: st
             _compile(gcc, spec, [model, src / glue_source], [tmp, src, include], lib)
             probe(lib, spec, guid)
             os.chmod(lib, 0o755)
-            _record_hash(target, _file_hash(lib))
+            record_hash(target, file_hash(lib))
             os.replace(lib, target)
     return target
 
@@ -473,7 +473,7 @@ def build_ode_fmu(spec: OdeFmuSpec, dest: Path | None = None, *, fmi_version: st
     binary = build_ode_binary(spec)
     src = ode_source_dir()
     guid = _guid(spec, src)
-    return package_ode_fmu(spec, guid=guid, binary=binary, platform=_platform()[0],
+    return package_ode_fmu(spec, guid=guid, binary=binary, platform=binary_platform()[0],
                            model_description=ode_model_description(spec, guid), glue_files=GLUE_FILES,
                            dest=dest, cache_stem=f"{spec.model_name}-{guid[1:13]}")
 
@@ -485,7 +485,7 @@ def package_ode_fmu(spec: OdeFmuSpec, *, guid: str, binary: Path, platform: str,
     ``ode_spec.h``, the model, ``glue_files``); written atomically to ``dest`` (a folder:
     ``<model_name>.fmu`` in it; None: ``<cache_dir()>/<cache_stem>.fmu``)."""
     src = ode_source_dir()
-    suffix = _platform()[1]
+    suffix = binary_platform()[1]
     members = [
         ("modelDescription.xml", model_description.encode(), 0o644),
         (f"binaries/{platform}/{spec.model_name}{suffix}", binary.read_bytes(), 0o755),
@@ -499,7 +499,7 @@ def package_ode_fmu(spec: OdeFmuSpec, *, guid: str, binary: Path, platform: str,
         path = Path(dest)
         if path.is_dir():
             path = path / f"{spec.model_name}.fmu"
-    _write_zip(path, members)
+    write_zip(path, members)
     return path
 
 

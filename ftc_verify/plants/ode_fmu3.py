@@ -21,8 +21,8 @@ from xml.etree import ElementTree as ET
 
 from .. import __version__
 from ..errors import FMUError, ValidationError
-from .linear_jump import fmi2_include_dir
-from .ode_fmu import _GROUPS, GLUE_FILES, OdeFmuSpec, compile_ode_binary, ode_source_dir, package_ode_fmu
+from .build import FMI2_HEADERS, fmi2_include_dir
+from .ode_fmu import VARIABLE_GROUPS, GLUE_FILES, OdeFmuSpec, compile_ode_binary, ode_source_dir, package_ode_fmu
 
 __all__ = ["GLUE3_FILES", "FMI3_HEADERS", "ode_model_description3", "build_ode_binary3", "build_ode_fmu3"]
 
@@ -82,7 +82,7 @@ def ode_model_description3(spec: OdeFmuSpec, guid: str) -> str:
         "canHandleVariableCommunicationStepSize": "true", "maxOutputDerivativeOrder": "0",
         "hasEventMode": "false", "providesIntermediateUpdate": "false", "mightReturnEarlyFromDoStep": "false",
     })
-    units = sorted({v.unit for g in _GROUPS for v in getattr(spec, g) if v.unit})
+    units = sorted({v.unit for g in VARIABLE_GROUPS for v in getattr(spec, g) if v.unit})
     if units:
         defs = ET.SubElement(root, "UnitDefinitions")
         for name in units:
@@ -96,7 +96,7 @@ def ode_model_description3(spec: OdeFmuSpec, guid: str) -> str:
     for vr, attrs in enumerate(_variables(spec)):
         name = attrs.pop("name")
         ET.SubElement(variables, "Float64", {"name": name, "valueReference": str(vr), **attrs})
-    sizes = [len(spec.states), *(len(getattr(spec, g)) for g in _GROUPS)]  # x, der(x), u, p, y
+    sizes = [len(spec.states), *(len(getattr(spec, g)) for g in VARIABLE_GROUPS)]  # x, der(x), u, p, y
     bounds = list(itertools.accumulate([1, *sizes]))
     states, derivs, inputs, params, outputs = (list(range(a, b)) for a, b in zip(bounds, bounds[1:]))
     structure = ET.SubElement(root, "ModelStructure")
@@ -150,7 +150,7 @@ def build_ode_binary3(spec: OdeFmuSpec, force: bool = False) -> Path:
         raise FMUError(f"{include}: FMI 3.0 header(s) {missing} not found in the fmpy package")
     return compile_ode_binary(spec, _guid3(spec, src), force=force, hash_tag="ode binary3",
                               stem=f"{spec.model_name}-fmi3", glue_files=GLUE3_FILES, glue_source="ode_glue3.c",
-                              headers=FMI3_HEADERS + ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h"),
+                              headers=FMI3_HEADERS + FMI2_HEADERS,
                               probe=_probe3)
 
 

@@ -1,6 +1,21 @@
-"""The pieces of one supervisor run that are plain data: the prepared control law, the
-operating-point offsets, one path's plan on its grid, and the record built from the rows
-read (:class:`~ftc_verify.simulation.supervisor.Supervisor` runs the FMI calls)."""
+"""The pieces of one supervisor run.
+
+Plain data: the prepared control law (:class:`LoopLaw`), the operating-point offsets
+(:class:`Offsets`), one path's plan on its grid (:class:`PathPlan`) and the record built
+from the rows read (:func:`record_from_rows`).
+
+The three parts of one path's loop, organised as FMPy's ``simulateCS`` (an ``Input``
+applying the inputs, the FMU's ``doStep``, a ``Recorder`` sampling the outputs), with the
+controller between them; :meth:`~ftc_verify.simulation.supervisor.Supervisor.run` walks
+the grid with them:
+
+* :class:`PathInputs` writes into the FMU: the true fault mode and the ``Delta`` segment
+  at the plan's events, and ``u``, ``w(t_k)`` at every grid point;
+* :class:`PathController` chooses the controller entry of the modes, computes
+  ``u_k = Cc[e] xc_k + Dc[e] v_k`` and advances ``xc`` exactly over a step;
+* :class:`PathRecorder` reads the FMU's values at every grid point (before ``u, w`` are
+  written and, with feedthrough, after) and keeps the rows of the record.
+"""
 
 from __future__ import annotations
 
@@ -10,10 +25,12 @@ from typing import Any
 import numpy as np
 
 from ..controllers.controller import Controller
+from ..plants.fmu_session import FMUSession
 from .paths import ChainPath
 from .records import PathRecord
 
-__all__ = ["LoopLaw", "Offsets", "PathPlan", "full_intervals", "record_from_rows"]
+__all__ = ["LoopLaw", "Offsets", "PathPlan", "PathInputs", "PathController", "PathRecorder", "full_intervals",
+           "record_from_rows"]
 
 
 def full_intervals(t: np.ndarray, step: float) -> np.ndarray:
@@ -80,3 +97,166 @@ def record_from_rows(plan: PathPlan, law: LoopLaw, n: int, XR: np.ndarray, U: np
         Y = XR[:, n + nv:]
     return PathRecord(path=plan.path, t=plan.t, true=plan.true, fdi=plan.fdi, x=np.ascontiguousarray(X), u=U,
                       w=plan.W, y=np.ascontiguousarray(Y), xc=XC, ym=np.ascontiguousarray(YM))
+
+
+class PathInputs:
+    """What the loop writes into the FMU on one path (as FMPy's ``Input``).
+
+    Parameters
+    ----------
+    session : FMUSession
+        The FMU.
+    plan : PathPlan
+        The path on its grid (modes, segments, events, ``w`` and ``Delta`` values).
+    law : LoopLaw
+        The control law (its :meth:`LoopLaw.entry` of the modes).
+    offsets : Offsets or None
+        The operating point, added to ``u`` and ``w`` as written.
+    index : int
+        The path's index, for the messages.
+
+    :attr:`u` and :attr:`values` are views of the buffer written by :meth:`write`
+    (``u`` then ``w``); :attr:`next_event` is the next grid point where a mode or the
+    segment changes (-1: none).
+    """
+
+    def __init__(self, session: FMUSession, plan: PathPlan, law: LoopLaw, offsets: Offsets | None,
+                 index: int) -> None:
+        self.session, self.plan, self.law, self.offsets, self.index = session, plan, law, offsets, index
+        self.true_mode, self.segment = int(plan.true[0]), plan.seg[0]
+        self.entry = law.entry(self.true_mode, int(plan.fdi[0]))
+        self.next_event, self._events_done = plan.events[0], 0
+        self.group = session.uw
+        self.values = np.frombuffer(self.group.buf, dtype=np.float64, count=self.group.n)
+        self.u, self.w = self.values[:session.nu], self.values[session.nu:]
+        self._has_w = session.nw > 0
+
+    def start(self, x0: Any) -> None:
+        """Initialise the FMU for the path at ``t = 0`` (:meth:`FMUSession.start_path`)
+        from the state ``x0`` in the first true mode and ``Delta`` segment."""
+        delta = self.plan.delta_c
+        self.session.start_path(x0, self.true_mode, None if delta is None else delta[self.segment])
+
+    def switch(self, k: int) -> int:
+        """At the event grid point ``k``: write the new fault mode and ``Delta`` where they
+        changed; return the controller entry of the new modes."""
+        plan, session = self.plan, self.session
+        when = f"at t = {float(plan.t[k])!r} (paths[{self.index}], grid point {k})"
+        if plan.true[k] != self.true_mode:
+            self.true_mode = int(plan.true[k])
+            session.set_fault(self.true_mode, when)
+        if plan.seg[k] != self.segment:
+            self.segment = plan.seg[k]
+            if plan.delta_c is not None:
+                session.set_delta(plan.delta_c[self.segment], when)
+        self._events_done += 1
+        self.next_event = plan.events[self._events_done]
+        self.entry = self.law.entry(self.true_mode, int(plan.fdi[k]))
+        return self.entry
+
+    def write(self, k: int) -> None:
+        """Write :attr:`u` (already computed) and ``w(t_k)``, plus the operating point."""
+        if self._has_w:
+            self.w[:] = self.plan.W[k]
+        if self.offsets is not None:
+            self.u += self.offsets.u
+            self.w += self.offsets.w
+        self.session.write(self.group, self.group.buf)
+
+
+class PathController:
+    """The controller on one path: ``u_k = Cc[e] xc_k + Dc[e] v_k`` and the exact update of ``xc``.
+
+    Parameters
+    ----------
+    law : LoopLaw
+        The prepared controller.
+    plan : PathPlan
+        The path's grid (which intervals are full steps, their lengths).
+    u : numpy.ndarray
+        Where :meth:`output` writes ``u`` (:attr:`PathInputs.u`).
+    entry : int
+        The first controller entry.
+    n : int
+        The number of states: ``v`` is the ``y_m`` read after them when the controller
+        measures the output, else the states.
+
+    :attr:`state` is ``xc`` (zero at the start, empty for a static controller).
+    """
+
+    def __init__(self, law: LoopLaw, plan: PathPlan, u: np.ndarray, entry: int, n: int) -> None:
+        self.law, self.u = law, u
+        self.dynamic = law.controller.n_c > 0
+        self.state = np.zeros(law.controller.n_c)
+        self.v = slice(n, n + law.controller.n_v) if law.measured else slice(0, n)
+        self._full, self._steps = plan.full, np.diff(plan.t).tolist()
+        self.select(entry)
+
+    def select(self, entry: int) -> None:
+        """Use the controller entry ``entry`` from now on."""
+        self.entry, self._gain = entry, self.law.Dc[entry]
+
+    def output(self, row: np.ndarray) -> np.ndarray:
+        """``u_k`` from the row read at ``t_k`` (:meth:`PathRecorder.sample_before`), written into :attr:`u`."""
+        np.dot(self._gain, row[self.v], out=self.u)
+        if self.dynamic:
+            self.u += np.dot(self.law.Cc[self.entry], self.state)
+        return self.u
+
+    def advance(self, k: int, row: np.ndarray) -> np.ndarray:
+        """``xc_{k+1} = Phi_c xc_k + Gamma_c v_k`` over the interval ``k`` (``v_k`` held)."""
+        phi, gamma = self.law.update(self.entry, self._full[k], self._steps[k])
+        self.state = np.dot(phi, self.state) + np.dot(gamma, row[self.v])
+        return self.state
+
+
+class PathRecorder:
+    """The rows one path records (as FMPy's ``Recorder``), read from the FMU at each grid point.
+
+    Parameters
+    ----------
+    session : FMUSession
+        The FMU.
+    plan : PathPlan
+        The path on its grid.
+    law : LoopLaw
+        The control law (whether ``y_m`` is read).
+    offsets : Offsets or None
+        The operating point, subtracted from the values read.
+
+    The rows: :attr:`read_rows` (``x``, ``y_m`` when measured, ``y`` without
+    feedthrough: :meth:`FMUSession.read_groups`), :attr:`U`, :attr:`Y` (``y`` read after
+    ``u, w`` with feedthrough, else None) and :attr:`XC`.
+    """
+
+    def __init__(self, session: FMUSession, plan: PathPlan, law: LoopLaw, offsets: Offsets | None) -> None:
+        self.session, self.plan, self.law, self.offsets = session, plan, law, offsets
+        self.before, self.after = session.read_groups(law.measured)
+        self.feedthrough = session.feedthrough
+        rows = len(plan.t)
+        self._before = np.frombuffer(self.before.buf, dtype=np.float64, count=self.before.n)
+        self._after = np.frombuffer(self.after.buf, dtype=np.float64, count=session.ny) if self.feedthrough else None
+        self.read_rows = np.empty((rows, self.before.n))
+        self.U = np.empty((rows, session.nu))
+        self.Y = np.empty((rows, session.ny)) if self.feedthrough else None
+        self.XC = np.zeros((rows, law.controller.n_c))
+
+    def sample_before(self, k: int) -> np.ndarray:
+        """Read the values before ``u, w`` at grid point ``k`` into their row, which is returned."""
+        self.session.read(self.before)
+        row = self.read_rows[k]
+        row[:] = self._before
+        if self.offsets is not None:
+            row -= self.offsets.read
+        return row
+
+    def sample_after(self, k: int) -> None:
+        """Read ``y`` after ``u, w`` at grid point ``k`` (feedthrough) into its row."""
+        self.session.read(self.after)
+        self.Y[k] = self._after  # type: ignore[index]
+        if self.offsets is not None:
+            self.Y[k] -= self.offsets.y  # type: ignore[index]
+
+    def record(self) -> PathRecord:
+        """The :class:`PathRecord` of the rows (:func:`record_from_rows`)."""
+        return record_from_rows(self.plan, self.law, self.session.n, self.read_rows, self.U, self.Y, self.XC)

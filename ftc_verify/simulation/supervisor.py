@@ -29,9 +29,15 @@ agree to rounding. The supervisor only follows the sampled paths, so the chain v
 The FMU itself -- checks, extraction, variables, FMI calls and their errors, logging,
 cleanup -- is an :class:`~ftc_verify.plants.fmu_session.FMUSession` owned by the
 supervisor, loaded and instantiated once; paths reuse the instance through ``fmi2Reset``.
-An FMI 3.0 FMU is called through :class:`~ftc_verify.plants.fmi3.FMU3Adapter`, which answers
-the same ``fmi2*`` calls with ``fmi3GetFloat64``, ``fmi3SetFloat64``, ``fmi3DoStep``...; the
-steps above and the handling of failed calls are the same for both versions.
+Its :meth:`~ftc_verify.plants.fmu_session.FMUSession.read`,
+:meth:`~ftc_verify.plants.fmu_session.FMUSession.write` and
+:meth:`~ftc_verify.plants.fmu_session.FMUSession.step` make the calls of the FMU's version
+(``fmi3GetFloat64``, ``fmi3SetFloat64``, ``fmi3DoStep``... for FMI 3.0); the steps above and
+the handling of failed calls are the same for both versions. One path's loop is organised
+as FMPy's ``simulateCS``: :class:`~ftc_verify.simulation.loop_parts.PathInputs` writes the
+fault mode, ``Delta``, ``u`` and ``w``,
+:class:`~ftc_verify.simulation.loop_parts.PathController` computes ``u`` and advances
+``xc``, :class:`~ftc_verify.simulation.loop_parts.PathRecorder` reads and keeps the rows.
 """
 
 from __future__ import annotations
@@ -49,9 +55,9 @@ from ..errors import FMUError, PlantRunError, ValidationError
 from ..model.system import FTCSystem
 from .delta import DeltaSchedule, delta_segments, delta_shapes
 from ..plants.fault_map import FaultInjectionMap
-from ..plants.fmu_session import FMUSession, c_buffer
+from ..plants.fmu_session import FMICallError, FMUSession
 from .paths import ChainPath, communication_grid, disturbance as disturbance_fn, snap_to_grid
-from .loop_parts import LoopLaw, Offsets, PathPlan, full_intervals, record_from_rows
+from .loop_parts import LoopLaw, Offsets, PathController, PathInputs, PathPlan, PathRecorder, full_intervals
 from .records import PathRecord, SimulationResult, diverged
 
 __all__ = ["FMUError", "FaultInjectionMap", "Supervisor", "open_supervisor", "resolve_plant", "simulate_fmu"]
@@ -127,14 +133,14 @@ class Supervisor:
         self.session.close()
 
     # the session's state, read-only (as attributes of the supervisor before the split)
-    slave = _delegate("slave", "The one :class:`fmpy.fmi2.FMU2Slave` (FMI 3.0: :class:`~ftc_verify.plants.fmi3."
-                               "FMU3Adapter`) of this supervisor (None once closed).")
+    slave = _delegate("slave", "The loaded FMU of this supervisor's session (``session.slave``; "
+                               "None once closed).")
     closed = _delegate("closed", "True once :meth:`close` ran.")
     extraction_dir = _delegate("extraction_dir", "The temporary folder of the extracted FMU (None once closed).")
     stats = _delegate("stats", "Library loads, instantiations, resets, paths and steps so far.")
     messages = _delegate("messages", "The FMU's last log messages ``(status, category, text)``.")
     log_counts = _delegate("log_counts", "Messages logged by the FMU, per status.")
-    model_description = _delegate("model_description", "fmpy's model description of the FMU.")
+    model_description = _delegate("model_description", "The FMU's model description (``session.model_description``).")
     model_identifier = _delegate("model_identifier", "The FMU's co-simulation model identifier.")
     can_vary_step = _delegate("can_vary_step", "Whether the FMU can handle variable communication steps.")
     feedthrough = _delegate("feedthrough", "Whether an output ``y`` depends directly on ``u`` or ``w``.")
@@ -203,9 +209,8 @@ class Supervisor:
             zero_delta = s.delta_values(tuple(np.zeros(sh if sh else (0, 0)) for sh in shapes))
         return s.probe_outputs(op.states, np.concatenate([op.inputs, op.disturbances]), zero_delta)
 
-    def _initial_state(self, x0: Any, off: Offsets | None) -> tuple[np.ndarray, Any]:
-        from fmpy.fmi2 import fmi2Real
-
+    def _initial_state(self, x0: Any, off: Offsets | None) -> tuple[np.ndarray, np.ndarray]:
+        """``(x0, the state the FMU starts at)``: ``x0`` checked (default 0), and plus ``x_op``."""
         init = self.session.init
         if x0 is None:
             arr = np.zeros(init.n)
@@ -218,7 +223,7 @@ class Supervisor:
             if arr.size != init.n or not np.all(np.isfinite(arr)):
                 raise ValidationError(f"x0: expected {init.n} finite numbers, got {x0!r}")
         start = arr if off is None else arr + off.x
-        return arr, c_buffer(fmi2Real, start.tolist())
+        return arr, start
 
     def _schedule(self, delta: DeltaSchedule | str | None) -> DeltaSchedule:
         if delta is None:
@@ -353,104 +358,53 @@ class Supervisor:
         events.append(-1)
         return PathPlan(path, t, true, fdi, wfun(t), events, seg.tolist(), full_intervals(t, step).tolist(), delta_c)
 
-    def _run_path(self, index: int, plan: PathPlan, law: LoopLaw, x0_c: Any, off: Offsets | None,
+    def _run_path(self, index: int, plan: PathPlan, law: LoopLaw, x0: Any, off: Offsets | None,
                   monitor: np.ndarray | None) -> PathRecord:
-        from fmpy.fmi1 import FMICallException
-
+        """The path ``index`` on the FMU (module docstring): at every grid point the inputs
+        of the events, the values read, the controller's ``u`` and ``w`` written, a step;
+        the parts of :mod:`~ftc_verify.simulation.loop_parts` do each."""
         s = self.session
-        t, N = plan.t, len(plan.t) - 1
-        tl, hl = t.tolist(), np.diff(t).tolist()
-        true_l, fdi_l, seg_l, delta_c = plan.true.tolist(), plan.fdi.tolist(), plan.seg, plan.delta_c
-        s.start_path(x0_c, true_l[0], None if delta_c is None else delta_c[seg_l[0]])
-        slave, c = s.slave, s.slave.component
-        gr, sr, ds = slave.fmi2GetReal, slave.fmi2SetReal, slave.fmi2DoStep
-        pre, post = s.read_groups(law.measured)
-        n, nu, nw, ny, nv = s.n, s.nu, s.nw, s.ny, law.controller.n_v
-        vr_x, buf_x, nx_read = pre.vr, pre.buf, pre.n
-        vr_y, buf_y, feed = post.vr, post.buf, s.feedthrough
-        vr_uw, buf_uw, nuw = s.uw.vr, s.uw.buf, nu + nw
-        np_xr = np.frombuffer(buf_x, dtype=np.float64, count=nx_read)
-        vs = slice(n, n + nv) if law.measured else slice(0, n)
-        np_y = np.frombuffer(buf_y, dtype=np.float64, count=ny) if feed else None
-        np_uw = np.frombuffer(buf_uw, dtype=np.float64, count=nuw)
-        np_u, np_w = np_uw[:nu], np_uw[nu:]
-        XR, U, W, Y = np.empty((N + 1, nx_read)), np.empty((N + 1, nu)), plan.W, np.empty((N + 1, ny)) if feed else None
-        nc = law.controller.n_c
-        XC = np.zeros((N + 1, nc))
-        xc = XC[0].copy()
-        full_l, update, entry, Cc, Dc, dot = plan.full, law.update, law.entry, law.Cc, law.Dc, np.dot
-        r, sg = true_l[0], seg_l[0]
-        e = entry(r, fdi_l[0])
-        K = Dc[e]
-        nxt, ev, k, stage, stop = plan.events[0], 0, 0, "", 0
+        inputs = PathInputs(s, plan, law, off, index)
+        inputs.start(x0)
+        controller = PathController(law, plan, inputs.u, inputs.entry, s.n)
+        recorder = PathRecorder(s, plan, law, off)
+        times, steps = plan.t.tolist(), np.diff(plan.t).tolist()
+        last, n = len(times) - 1, s.n
+        k, stage, stop = 0, "", 0
         try:
-            for k in range(N + 1):
-                if k == nxt:
-                    r, sg, e = self._switch(plan, law, index, k, r, sg)
-                    K, ev = Dc[e], ev + 1
-                    nxt = plan.events[ev]
+            for k in range(last + 1):
+                if k == inputs.next_event:
+                    controller.select(inputs.switch(k))
                 stage = "x"
-                gr(c, vr_x, nx_read, buf_x)
-                xr = XR[k]
-                xr[:] = np_xr
-                if off is not None:
-                    xr -= off.read
-                if k and diverged(xr[:n], xc):
+                row = recorder.sample_before(k)
+                if k and diverged(row[:n], controller.state):
                     stop = k
                     break
-                dot(K, xr[vs], out=np_u)
-                if nc:
-                    np_u += dot(Cc[e], xc)
-                U[k] = np_u
-                if nw:
-                    np_w[:] = W[k]
-                if off is not None:
-                    np_u += off.u
-                    np_w += off.w
+                recorder.U[k] = controller.output(row)
                 stage = "uw"
-                sr(c, vr_uw, nuw, buf_uw)
-                if feed:
+                inputs.write(k)
+                if recorder.feedthrough:
                     stage = "y"
-                    gr(c, vr_y, ny, buf_y)
-                    Y[k] = np_y
-                    if off is not None:
-                        Y[k] -= off.y
-                if k == N:
+                    recorder.sample_after(k)
+                if k == last:
                     break
-                if nc:
-                    Phi, Gam = update(e, full_l[k], hl[k])
-                    xc = dot(Phi, xc) + dot(Gam, xr[vs])
-                    XC[k + 1] = xc
+                if controller.dynamic:
+                    recorder.XC[k + 1] = controller.advance(k, row)
                 stage = "step"
-                monitor[1] = tl[k]
-                ds(c, tl[k], hl[k], 1)
-                if s.pending is not None:
-                    s.raise_pending()
-        except FMICallException as exc:
-            error = self._loop_error(exc, stage, index, plan, k, law.measured, np_uw)
+                monitor[1] = times[k]  # type: ignore[index]
+                s.step(times[k], steps[k])
+        except FMICallError as exc:
+            error = self._loop_error(exc, stage, index, plan, k, law.measured, inputs.values)
             keep = k + 1 if stage == "step" else k  # the grid points recorded completely
-            return self._failed(error, index, tl[k], record_from_rows(plan, law, n, XR, U, Y, XC), keep)
+            return self._failed(error, index, times[k], recorder.record(), keep)
         finally:
-            s.stats["steps"] += min(k, N)
+            s.stats["steps"] += min(k, last)
             s.raise_pending()
         s.stats["paths"] += 1
-        if not stop and N:
-            s.check_advanced(tl[N], f"paths[{index}]")
-        record = record_from_rows(plan, law, n, XR, U, Y, XC)
+        if not stop and last:
+            s.check_advanced(times[last], f"paths[{index}]")
+        record = recorder.record()
         return record.truncated(stop) if stop else record
-
-    def _switch(self, plan: PathPlan, law: LoopLaw, index: int, k: int, r: int, sg: int) -> tuple[int, int, int]:
-        """At the event grid point ``k``: write the new fault mode and ``Delta`` where they
-        changed; the new true mode, segment and controller entry."""
-        when = f"at t = {float(plan.t[k])!r} (paths[{index}], grid point {k})"
-        if plan.true[k] != r:
-            r = int(plan.true[k])
-            self.session.set_fault(r, when)
-        if plan.seg[k] != sg:
-            sg = plan.seg[k]
-            if plan.delta_c is not None:
-                self.session.set_delta(plan.delta_c[sg], when)
-        return r, sg, law.entry(r, int(plan.fdi[k]))
 
     def _failed(self, error: FMUError, index: int, time: float, record: PathRecord, keep: int) -> PathRecord:
         """The path ``index`` after the FMU failed in its loop at ``time``: a failed record,
