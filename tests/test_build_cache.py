@@ -16,9 +16,12 @@ from ftc_verify.errors import FMUError
 from ftc_verify.plants.linear_jump import build_lock
 
 _CHILD = """
-from ftc_verify.plants.ode_fmu import build_ode_binary, compile_count, motor_spec
-path = build_ode_binary(motor_spec())
-print(compile_count(), path)
+from ftc_verify.plants import ode_fmu
+runs = []
+compiler = ode_fmu.run_compiler
+ode_fmu.run_compiler = lambda *args: runs.append(args) or compiler(*args)  # count gcc runs
+path = ode_fmu.build_ode_binary(ode_fmu.motor_spec())
+print(len(runs), path)
 """
 
 

@@ -40,7 +40,6 @@ from ftc_verify.plants.ode_fmu import (  # noqa: E402
     OdeVariable,
     build_ode_binary,
     build_ode_fmu,
-    compile_count,
     motor_spec,
 )
 
@@ -458,7 +457,15 @@ def test_missing_jacobian_function_is_a_link_error() -> None:
     assert "ode_jac" in str(info.value)
 
 
-def test_rebuild_reuses_cached_binary(motor_fmu: Path, tmp_path: Path) -> None:
+def test_rebuild_reuses_cached_binary(motor_fmu: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from ftc_verify.plants import ode_fmu
+    runs: list[object] = []
+    compiler = ode_fmu.run_compiler
+    monkeypatch.setattr(ode_fmu, "run_compiler", lambda *args: runs.append(args) or compiler(*args))
+
+    def compile_count() -> int:  # gcc runs (cache misses) in this test
+        return len(runs)
+
     binary = build_ode_binary(motor_spec())
     mtime, count = binary.stat().st_mtime_ns, compile_count()
     again = build_ode_fmu(motor_spec(), tmp_path / "again.fmu")

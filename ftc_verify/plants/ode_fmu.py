@@ -57,7 +57,7 @@ from .build import (CFLAGS, FMI2_HEADERS, binary_platform, build_lock, cache_dir
 
 __all__ = ["DEFAULT_RTOL", "GLUE_FILES", "VARIABLE_GROUPS", "OdeVariable", "OdeFmuSpec", "ode_source_dir",
            "ode_spec_header", "ode_model_description", "build_ode_binary", "compile_ode_binary", "build_ode_fmu",
-           "package_ode_fmu", "compile_count",
+           "package_ode_fmu",
            "motor_spec"]
 
 #: Relative tolerance of ``fmi2DoStep`` when ``fmi2SetupExperiment`` defines none.
@@ -68,7 +68,6 @@ _LAYOUT_VERSION = "1"  # bumped when the generated layout changes (enters the GU
 _IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
 #: The variable groups of an :class:`OdeFmuSpec`, in value-reference order (``der(x)`` follows the states).
 VARIABLE_GROUPS = ("states", "inputs", "parameters", "outputs")
-_COMPILES = 0
 
 
 # ------------------------------------------------------------------------------------------
@@ -334,17 +333,10 @@ def ode_model_description(spec: OdeFmuSpec, guid: str) -> str:
 # ------------------------------------------------------------------------------------------
 
 
-def compile_count() -> int:
-    """How many times this process has run gcc for an ODE FMU (cache misses)."""
-    return _COMPILES
-
-
 def _compile(gcc: str, spec: OdeFmuSpec, sources: list[Path], includes: list[Path], out: Path) -> None:
-    global _COMPILES
     cmd = [gcc, *CFLAGS, *(a for d in includes for a in ("-I", str(d))), *map(str, sources), "-o", str(out),
            *link_flags()]
     proc = run_compiler(cmd, f"{spec.model_name}.c")  # own process group and TMPDIR, killed on any exception
-    _COMPILES += 1
     if proc.returncode != 0:
         raise FMUError(
             f"{spec.model_name}.c: compiling the ODE FMU {spec.model_name!r} failed (gcc exit status "
