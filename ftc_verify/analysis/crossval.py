@@ -100,11 +100,11 @@ def linf_norm(A: Matrix, B: Matrix, C: Matrix, *, rtol: float = NORM_RTOL) -> fl
 
 def _control_linf(sys: Any) -> tuple[float, str]:
     """python-control's norm: SLICOT ab13dd when slycot is there, else its scipy method."""
+    import importlib.util
+
     import control
 
-    try:
-        import slycot  # noqa: F401
-    except ImportError:
+    if importlib.util.find_spec("slycot") is None:
         return float(control.norm(sys, "inf", method="scipy", print_warning=False)), "control.norm (scipy)"
     return float(control.linfnorm(sys, tol=1e-10)[0]), "control.linfnorm (SLICOT ab13dd)"
 
