@@ -29,6 +29,7 @@ from ..errors import ValidationError
 from ..model.system import FTCSystem, Matrix
 from .delta import DeltaSchedule
 from .paths import ChainPath
+from .spec import schedule_of
 
 __all__ = [
     "PathArrays",
@@ -36,7 +37,6 @@ __all__ = [
     "check_controller",
     "schedule_of",
     "initial_state",
-    "generator",
     "path_list",
     "path_arrays",
     "perturbed",
@@ -67,17 +67,6 @@ def check_controller(system: FTCSystem, controller: Any) -> Controller:
     return controller.check(system)
 
 
-def schedule_of(delta: DeltaSchedule | str | None) -> DeltaSchedule:
-    """The :class:`DeltaSchedule` of ``delta`` (``None`` is ``zero``, a string a kind)."""
-    if delta is None:
-        return DeltaSchedule("zero")
-    if isinstance(delta, str):
-        return DeltaSchedule(delta)
-    if isinstance(delta, DeltaSchedule):
-        return delta
-    raise ValidationError(f"delta: expected a DeltaSchedule, a kind or None, got {type(delta).__name__}")
-
-
 def initial_state(system: FTCSystem, x0: ArrayLike | None) -> np.ndarray:
     """The plant initial state: ``n`` finite numbers (default zeros)."""
     n = system.dims[0]
@@ -90,17 +79,6 @@ def initial_state(system: FTCSystem, x0: ArrayLike | None) -> np.ndarray:
     if arr.size != n or not np.all(np.isfinite(arr)):
         raise ValidationError(f"x0: expected {n} finite numbers, got {x0!r}")
     return arr
-
-
-def generator(rng: np.random.Generator | None, seed: int | None) -> np.random.Generator:
-    """``rng`` itself, else ``numpy.random.default_rng(seed)``."""
-    if rng is not None:
-        if not isinstance(rng, np.random.Generator):
-            raise ValidationError(f"rng: expected a numpy.random.Generator, got {type(rng).__name__}")
-        return rng
-    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))):
-        raise ValidationError(f"seed: expected an integer or None, got {seed!r}")
-    return np.random.default_rng(seed)
 
 
 def path_list(paths: ChainPath | Sequence[ChainPath]) -> list[ChainPath]:
