@@ -337,8 +337,11 @@ def _monte_carlo_stage(system: FTCSystem, controller: Controller, spec: Simulati
 
 
 def _verify_spec(spec: SimulationSpec | None, given: dict[str, Any]) -> SimulationSpec:
-    """The spec of :func:`run_verify` (default: ``Delta`` kind ``random`` where the plant
-    carries it, not asked for explicitly), with a seed."""
+    """The spec of :func:`run_verify`: ``n_paths``, ``step``, ``horizon``, ``seed`` (drawn
+    and reported when ``None``), ``delta`` as
+    :meth:`~ftc_verify.simulation.spec.SimulationSpec.resolve_delta` decides on the plant
+    (from the keywords: kind ``random`` wherever the plant carries it), the paper's
+    disturbance, ``workers``/``scheduler`` for the cluster."""
     if spec is None:
         given = given | {"delta": "random", "delta_explicit": False}
     spec = spec_from(spec, given).with_seed()
@@ -360,12 +363,8 @@ def run_verify(
     ``controller=None`` synthesizes state feedback by ``method``; a given controller
     (static or dynamic, :class:`~ftc_verify.controllers.Controller`) is verified as is.
     ``spec``: the :class:`~ftc_verify.simulation.spec.SimulationSpec` of the Monte Carlo
-    (``n_paths``, ``step``, ``horizon``, ``seed`` -- drawn and reported when ``None`` --,
-    ``delta`` as :meth:`~ftc_verify.simulation.spec.SimulationSpec.resolve_delta` decides on
-    the plant, the paper's disturbance, ``workers``/``scheduler``); the keywords ``paths``,
-    ``step``, ``horizon``, ``seed`` are its shorthand, with ``Delta`` kind ``random``
-    wherever the plant carries it. The kept records are checked against the memory limit
-    before the analysis (:meth:`~ftc_verify.simulation.spec.SimulationSpec.check_memory`).
+    (seed drawn when ``None``; ``Delta`` resolved on the plant; records' memory checked
+    first); the keywords ``paths``, ``step``, ``horizon``, ``seed`` are its shorthand.
     ``plant``: a :class:`~ftc_verify.plants.plant_map.PlantMap` whose FMU replaces the
     ``LinearJumpPlant`` in the Monte Carlo (``system`` is then its linearisation); the
     report gains a ``plant`` object and the region check replaces the backend agreement.
