@@ -16,7 +16,6 @@ full-information gains), reading :math:`v = M_i x` with
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -29,13 +28,10 @@ from ..errors import ValidationError
 from ..model.system import FTCSystem, Matrix
 from .delta import DeltaSchedule
 from .paths import ChainPath
-from .spec import schedule_of
 
 __all__ = [
     "PathArrays",
-    "check_step",
     "check_controller",
-    "schedule_of",
     "initial_state",
     "path_list",
     "path_arrays",
@@ -48,14 +44,6 @@ __all__ = [
 
 
 # ------------------------------------------------------------------------------ arguments
-def check_step(step: Any) -> float:
-    """``step`` as a positive finite float (``ValidationError`` naming ``step`` otherwise)."""
-    if isinstance(step, bool) or not isinstance(step, (int, float, np.integer, np.floating)) \
-            or not math.isfinite(step) or step <= 0:
-        raise ValidationError(f"step: must be a positive finite number, got {step!r}")
-    return float(step)
-
-
 def check_controller(system: FTCSystem, controller: Any) -> Controller:
     """``controller`` after :meth:`Controller.check` against ``system`` (a bare gain list
     or any other type is rejected, naming ``controller``)."""
