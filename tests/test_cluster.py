@@ -179,10 +179,10 @@ def _arm(marker: str, phase: str) -> None:
                 die_if_first()
             super().__init__(fmu, mapping, system=system, tolerance=tolerance)
 
-        def run(self, paths: Any, controller: Any, *, step: float, disturbance: str, delta: Any, rng: Any) -> Any:
+        def run(self, paths: Any, controller: Any, *, spec: Any, rng: Any) -> Any:
             if phase == "run":
                 die_if_first()
-            return super().run(paths, controller, step=step, disturbance=disturbance, delta=delta, rng=rng)
+            return super().run(paths, controller, spec=spec, rng=rng)
 
     fmu_workers.Supervisor = Dying
 

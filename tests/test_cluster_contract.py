@@ -28,6 +28,7 @@ from ftc_verify.simulation import cluster  # noqa: E402
 from ftc_verify.simulation.cluster import check_cluster_options, max_workers, open_client  # noqa: E402
 from ftc_verify.simulation.delta import DeltaSchedule  # noqa: E402
 from ftc_verify.simulation.paths import sample_paths  # noqa: E402
+from ftc_verify.simulation.spec import SimulationSpec  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from fmu_plants import build_plant  # noqa: E402
@@ -283,8 +284,9 @@ def test_a_batch_whose_worker_keeps_dying_is_a_plant_run_error(crash_plant: Path
     paths = sample_paths(system.chain, 1.5, 2, 1) + sample_paths(system.chain, 4.0, 2, 2)
     with open_client(workers=2) as client:
         with pytest.raises(PlantRunError) as err:
-            run_fmu_batches(client, system, plant, controller, paths, step=0.01, delta=DeltaSchedule("zero"),
-                            rng=np.random.default_rng(0), batch=2)
+            run_fmu_batches(client, system, plant, controller, paths,
+                            spec=SimulationSpec(step=0.01, delta=DeltaSchedule("zero"), batch=2),
+                            rng=np.random.default_rng(0))
     assert err.value.batch == (2, 4) and err.value.path is None
     assert err.value.fmu == str(plant.fmu)
     assert f"died {cluster.ALLOWED_FAILURES + 1} times" in err.value.detail
@@ -303,7 +305,8 @@ def test_other_task_errors_come_back_as_themselves(crash_plant: Path, temp_dir: 
     system, controller = load_system(crash_plant / "system.toml"), load_controller(crash_plant / "K.toml")
     with open_client(workers=1) as client:
         with pytest.raises(FMUError) as err:
-            run_fmu_batches(client, system, fake, controller, sample_paths(system.chain, 1.0, 2, 1), step=0.01,
-                            delta=DeltaSchedule("zero"), rng=np.random.default_rng(0), batch=1)
+            run_fmu_batches(client, system, fake, controller, sample_paths(system.chain, 1.0, 2, 1),
+                            spec=SimulationSpec(step=0.01, delta=DeltaSchedule("zero"), batch=1),
+                            rng=np.random.default_rng(0))
     assert not isinstance(err.value, PlantRunError)
     assert list(temp_dir.iterdir()) == []

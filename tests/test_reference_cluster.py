@@ -116,7 +116,7 @@ def test_the_task_malloc_setting_changes_no_number(monkeypatch: pytest.MonkeyPat
     batch and restores it; the numbers are the batch's own."""
     system, gains = load_system(PAPER), load_controller(GAINS)
     spec = PathSpec(system.chain, 5.0, 12, 4)
-    args = (system, gains, spec, 3, 9, 0.01, "paper", streaming.schedule_of("random"), np.random.default_rng(0))
+    args = (system, gains, spec, 3, 9, 0.01, "paper", streaming.DeltaSchedule("random"), np.random.default_rng(0))
     plain = streaming._sampled_batch(*args)
     monkeypatch.setenv("MALLOC_TRIM_THRESHOLD_", "65536")
     task = streaming._sampled_task(*args)

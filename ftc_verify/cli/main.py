@@ -25,58 +25,24 @@ import threading
 import warnings
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager, nullcontext
-from pathlib import Path
 from typing import Any
 
 from .. import __version__
 from ..errors import FTCError
-from ..jsonable import dumps, jsonable
+from ..jsonable import dumps
+from .common import (EXIT_BAD_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_NEGATIVE, EXIT_OK, EXIT_PIPE,
+                     EXIT_TERMINATED, EXIT_UNCERTIFIED, EXIT_UNDECIDED, fmt, load)
 
 __all__ = ["main", "build_parser"]
-
-EXIT_OK, EXIT_NEGATIVE, EXIT_BAD_INPUT, EXIT_UNCERTIFIED, EXIT_INTERNAL, EXIT_UNDECIDED = 0, 1, 2, 3, 4, 5
-EXIT_INTERRUPTED, EXIT_PIPE, EXIT_TERMINATED = 130, 141, 143
-#: Image formats ``--plot`` accepts (what matplotlib's Agg canvas writes).
-PLOT_SUFFIXES = (".png", ".pdf", ".svg")
 
 
 class _Terminated(BaseException):
     """Raised in the main thread by SIGTERM so that every ``finally`` cleans up."""
 
 
-def _bad(message: str) -> "FTCError":
-    from ..errors import ValidationError
-
-    return ValidationError(message)
-
-
-def _check_output_file(path: str, option: str, suffixes: tuple[str, ...] | None = None,
-                       inputs: tuple[str, ...] = ()) -> None:
-    """A file the command will write: not a folder, not one of the command's ``inputs``,
-    in a writable folder, right suffix."""
-    p = Path(path)
-    for given in inputs:
-        if p.resolve() == Path(given).resolve():
-            raise _bad(f"{option} {path}: is the input file {given}; writing it would replace the input "
-                       "(choose another output file)")
-    if p.is_dir():
-        raise _bad(f"{option} {path}: is a folder; give a file name")
-    if suffixes is not None and p.suffix.lower() not in suffixes:
-        raise _bad(f"{option} {path}: unsupported file type {p.suffix or '(none)'!r}; use one of {', '.join(suffixes)}")
-    parent = p.parent if str(p.parent) else Path(".")
-    if not parent.is_dir():
-        raise _bad(f"{option} {path}: folder {parent} does not exist")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise _bad(f"{option} {path}: folder {parent} is not writable")
-
-
 class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> None:  # one line, exit 2, no usage dump
         self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message}\n")
-
-
-def _fmt(x: float | None, digits: int = 6) -> str:
-    return "-" if x is None else f"{x:.{digits}g}"
 
 
 def _print_analysis(rep: Any, fdi_model: str, *, lmi: bool = True) -> None:
@@ -86,7 +52,7 @@ def _print_analysis(rep: Any, fdi_model: str, *, lmi: bool = True) -> None:
     print(f"ftc-verify analyze: {rep.name} ({rep.controller})")
     print(f"  {fdi_model}")
     word = {"stable": "stable", "not stable": "NOT stable", "undecided": "UNDECIDED"}[mss["verdict"]]
-    print(f"  mean-square stability    spectral abscissa {_fmt(mss['spectral_abscissa'])} ({vert}): {word}")
+    print(f"  mean-square stability    spectral abscissa {fmt(mss['spectral_abscissa'])} ({vert}): {word}")
     print(f"      proved: {mss['verified_by']}")
     if not lmi:
         print("  LMI certificates         not requested (--no-lmi)")
@@ -117,27 +83,11 @@ def _print_analysis(rep: Any, fdi_model: str, *, lmi: bool = True) -> None:
     print(f"  verdict: {verdict}; certificates {'all passed' if rep.certificate_ok else 'NOT all passed'}")
 
 
-def _load(system_path: str, controller_path: str | None) -> tuple[Any, Any]:
-    """The system and (when a path is given) the controller checked against it."""
-    from ..controllers.files import load_controller
-    from ..model.files import load_system
-
-    system = load_system(system_path)
-    if controller_path is None:
-        return system, None
-    return system, load_controller(controller_path).check(system, source=str(controller_path))
-
-
-def _strict(value: Any) -> Any:
-    """JSON-ready built-ins, every non-finite float replaced by ``None`` (strict JSON)."""
-    return jsonable(value)
-
-
 def _cmd_analyze(args: argparse.Namespace) -> int:
     from ..analysis.analyze import analyze
     from ..analysis.closedloop import closed_loop
 
-    system, controller = _load(args.system, args.controller)
+    system, controller = load(args.system, args.controller)
     rep = analyze(closed_loop(system, controller), solver=args.solver, name=system.name, lmi=not args.no_lmi)
     if args.json:
         print(dumps(rep.to_dict() | {"lmi_requested": not args.no_lmi, "fdi_model": system.chain.describe()}))
@@ -148,46 +98,6 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
     if rep.mss.undecided:
         return EXIT_UNDECIDED
     return EXIT_UNCERTIFIED if rep.mss.stable else EXIT_NEGATIVE
-
-
-def _positive(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (value > 0 and value < float("inf")):
-        raise argparse.ArgumentTypeError(f"must be positive and finite, got {text!r}")
-    return value
-
-
-def _nonneg_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be 0 or more, got {text!r}")
-    return value
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {text!r}")
-    return value
-
-
-def _seed(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer seed: {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"seeds are non-negative, got {text!r}")
-    return value
 
 
 def _cmd_build_fmus(args: argparse.Namespace) -> int:

@@ -23,7 +23,7 @@ if TYPE_CHECKING:
     import numpy as np
 
 from ..jsonable import dumps
-from .main import EXIT_NEGATIVE, EXIT_OK, _check_output_file, _positive
+from .common import EXIT_NEGATIVE, EXIT_OK, check_output_file, positive
 
 __all__ = ["add_plant_commands", "describe_plant", "LINEARIZE_ROUTES", "LINEARIZE_ACCURACY"]
 
@@ -201,7 +201,7 @@ def _cmd_linearize(args: argparse.Namespace) -> int:
     from ..plants.plant_map import load_plant_map
 
     if args.output:
-        _check_output_file(args.output, "-o", inputs=(args.plant,))
+        check_output_file(args.output, "-o", inputs=(args.plant,))
     pm = load_plant_map(args.plant)
     if pm.chain is None and args.output:
         raise FMUError(f"{pm.source}: [chain] is missing; a system file needs the chain (add it to the map)")
@@ -246,7 +246,7 @@ def _cmd_build_fmu(args: argparse.Namespace) -> int:
     from ..plants.modelica import build_modelica_fmu
 
     if args.output:
-        _check_output_file(args.output, "-o", (".fmu",), inputs=(args.model_file,))
+        check_output_file(args.output, "-o", (".fmu",), inputs=(args.model_file,))
     fmu = build_modelica_fmu(args.model_file, model=args.model, dest=args.output)
     print(f"ftc-verify build-fmu: {args.model_file}{f' ({args.model})' if args.model else ''}")
     print(f"  FMU {fmu}: model exchange + co-simulation, checked against CasADi's evaluation of the model")
@@ -266,7 +266,7 @@ def add_plant_commands(sub: Any) -> None:
     p.add_argument("plant", help="plant map TOML file")
     p.add_argument("--check", action="store_true", help="one short step in every fault mode; a fault that changes nothing, or an FMU "
                         "call that fails (e.g. fmi2DoStep returning fmi2Error), fails the check (exit 1)")
-    p.add_argument("--step", type=_positive, default=0.1, help="step length of --check (default 0.1)")
+    p.add_argument("--step", type=positive, default=0.1, help="step length of --check (default 0.1)")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=_cmd_plant)
 

@@ -17,8 +17,8 @@ from typing import Any
 
 from ..errors import FTCError, PlantRunError
 from ..jsonable import dumps
-from .main import (EXIT_NEGATIVE, EXIT_OK, EXIT_UNCERTIFIED, EXIT_UNDECIDED, PLOT_SUFFIXES, _bad, _check_output_file,
-                   _load, _positive, _positive_int, _nonneg_int, _seed, _strict)
+from .common import (EXIT_NEGATIVE, EXIT_OK, EXIT_UNCERTIFIED, EXIT_UNDECIDED, PLOT_SUFFIXES, bad, check_output_file,
+                     load, nonneg_int, positive, positive_int, seed_int, strict)
 
 __all__ = ["add_run_commands"]
 
@@ -29,27 +29,8 @@ MIN_STEPS = 10
 
 def _check_horizon(step: float, horizon: float) -> None:
     if horizon < MIN_STEPS * step:
-        raise _bad(f"--horizon {horizon:g}: must cover at least {MIN_STEPS} steps of --step {step:g} "
+        raise bad(f"--horizon {horizon:g}: must cover at least {MIN_STEPS} steps of --step {step:g} "
                    f"(at least {MIN_STEPS * step:g})")
-
-
-#: Bytes per recorded number of a path record: the float64 arrays measured 8.05 bytes per
-#: number at peak (tracemalloc, reference backend, 100 paths of the paper example); twice
-#: that leaves room for the FMU backend's buffers and the plot.
-RECORD_BYTES_PER_NUMBER = 16
-
-
-def _check_records_memory(system: Any, controller: Any, paths: int, horizon: float, step: float) -> None:
-    """Refuse before simulating when the kept trajectories would not fit in memory."""
-    from ..limits import check_memory
-
-    n, nu, ny, nw = system.dims
-    jumps = 2.0 * horizon * float(max(-system.chain.alpha.min(), system.chain.rate_max.max()))
-    points = horizon / step + jumps + 2
-    numbers = n + nu + ny + nw + controller.n_c + controller.n_v + 3
-    check_memory(paths * points * numbers * RECORD_BYTES_PER_NUMBER,
-                 f"{paths} recorded paths of about {points:.3g} grid points each",
-                 hint="use fewer --paths, a shorter --horizon or a larger --step")
 
 
 def _check_fmu_dims(system: Any, source: str) -> None:
@@ -59,51 +40,48 @@ def _check_fmu_dims(system: Any, source: str) -> None:
     try:
         fmu_dims(system)
     except FTCError as exc:
-        raise _bad(f"{source}: {exc}") from None
+        raise bad(f"{source}: {exc}") from None
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    import numpy as np
-
-    from ..simulation.delta import DeltaSchedule, plant_delta
-    from ..simulation.paths import PathSpec, sample_paths
+    from ..simulation.spec import SimulationSpec
 
     _check_horizon(args.step, args.horizon)
     if args.plot:
-        _check_output_file(args.plot, "--plot", PLOT_SUFFIXES)
+        check_output_file(args.plot, "--plot", PLOT_SUFFIXES)
     _check_cluster(args)
-    system, controller = _load(args.system, args.controller)
+    system, controller = load(args.system, args.controller)
     record = max(args.record, 1 if args.plot else 0)
     kept = args.paths if args.backend == "fmu" else min(record, args.paths)  # the reference backend streams
-    _check_records_memory(system, controller, kept, args.horizon, args.step)
+    spec = SimulationSpec(step=args.step, horizon=args.horizon, n_paths=args.paths, seed=args.seed,
+                          disturbance=args.disturbance, delta=args.delta, record=record, workers=args.workers,
+                          scheduler=args.scheduler)
+    spec.check_memory(system, controller, kept)
     plant = _load_plant(args, system, controller)
     if args.backend == "fmu" and plant is None:
         _check_fmu_dims(system, args.system)
     if args.fault_during_delay:
         system = dataclasses.replace(system, chain=dataclasses.replace(system.chain, fault_during_delay=True))
-    seed = args.seed if args.seed is not None else int(np.random.SeedSequence().entropy % 2**63)
     beta = {"random": None, "min": system.chain.rate_min, "max": system.chain.rate_max,
             "mid": system.chain.midpoint()}[args.beta]
+    spec, _ = dataclasses.replace(spec, beta=beta).with_seed().resolve_delta(system, plant)
+    seed = spec.seed
     if args.backend == "fmu":
-        paths = sample_paths(system.chain, args.horizon, args.paths, seed, beta=beta)
+        paths = spec.sample_paths(system.chain)
     else:  # the reference backend samples each batch where it runs: in turn here, or on the Dask workers
-        paths = PathSpec(system.chain, args.horizon, args.paths, seed, beta=beta)
-    delta = DeltaSchedule(plant_delta(system, plant, args.delta, explicit=True)[0])
+        paths = spec.path_spec(system.chain)
     from ..simulation.batches import fmu_monte_carlo, progress_bar
-    from ..simulation.cluster import open_client
     from ..simulation.streaming import simulate_streaming
 
     bar = progress_bar(args.paths, f"simulate ({args.backend})", sys.stderr.isatty())
     done = None if bar is None else bar.update
     try:
-        with open_client(args.workers, args.scheduler) as client:
+        with spec.client() as client:
             if args.backend == "fmu":
-                res = fmu_monte_carlo(system, controller, paths, step=args.step, delta=delta,
-                                      disturbance=args.disturbance, seed=seed, plant=plant, client=client,
+                res = fmu_monte_carlo(system, controller, paths, spec=spec, plant=plant, client=client,
                                       log=_fmu_logger(args), done=done)
             else:
-                res = simulate_streaming(system, controller, paths, step=args.step, disturbance=args.disturbance,
-                                         delta=delta, seed=seed, record=record, client=client, done=done)
+                res = simulate_streaming(system, controller, paths, spec=spec, client=client, done=done)
     except PlantRunError as exc:
         return _plant_failed(exc, args, system.name, seed)
     finally:
@@ -113,12 +91,12 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         from ..verification.plots import plot_path
 
         plot_path(res.records[0], args.plot, title=f"{system.name}: path 1 ({args.backend}, seed {seed})")
-    d = _strict(res.to_dict())
+    d = strict(res.to_dict())
     verdict = "fail (a path diverged or the plant FMU failed)" if d["divergence"] else "done"
     if args.json:
         print(dumps(d | {"fdi_model": system.chain.describe(), "verdict": "fail" if d["divergence"] else "done"}))
     else:
-        _print_simulation(d, res, system.name, args, delta.kind)
+        _print_simulation(d, res, system.name, args, spec.schedule.kind)
         print(f"  {system.chain.describe()}")
         print(f"  verdict: {verdict}")
     return EXIT_NEGATIVE if d["divergence"] else EXIT_OK
@@ -165,7 +143,7 @@ def _load_plant(args: argparse.Namespace, system: Any, controller: Any) -> Any:
     if getattr(args, "plant", None) is None:
         return None
     if getattr(args, "backend", "fmu") != "fmu":
-        raise _bad(f"--plant {args.plant}: a plant map is co-simulated; it needs --backend fmu")
+        raise bad(f"--plant {args.plant}: a plant map is co-simulated; it needs --backend fmu")
     from ..plants.plant_map import check_against_system, check_controller, load_plant_map
 
     plant = load_plant_map(args.plant)
@@ -188,28 +166,28 @@ def _fmu_logger(args: argparse.Namespace) -> Any:
 
 
 def _cmd_verify(args: argparse.Namespace) -> int:
+    from ..simulation.spec import SimulationSpec
     from ..verification.report import check_out_dir, write_report
     from ..verification.verify import run_verify
 
     if args.paths < 2:
-        raise _bad(f"--paths {args.paths}: the Monte Carlo bound needs at least 2 paths")
+        raise bad(f"--paths {args.paths}: the Monte Carlo bound needs at least 2 paths")
     _check_horizon(args.step, args.horizon)
     check_out_dir(args.out)
     _check_cluster(args)
-    system, controller = _load(args.system, args.controller)
+    system, controller = load(args.system, args.controller)
     plant = _load_plant(args, system, controller)
     if plant is None:
         _check_fmu_dims(system, args.system)
+    spec = SimulationSpec(step=args.step, horizon=args.horizon, n_paths=args.paths, seed=args.seed,
+                          delta="random", delta_explicit=False, workers=args.workers, scheduler=args.scheduler)
     if controller is not None:
-        _check_records_memory(system, controller, args.paths, args.horizon, args.step)
+        spec.check_memory(system, controller, args.paths)
     k_max = None if args.no_gain_bound else args.k_max
-    from ..simulation.cluster import open_client
-
-    with open_client(args.workers, args.scheduler) as client:
+    with spec.client() as client:  # started before the synthesis: a bad cluster is refused before any work
         rep = run_verify(system, gamma=args.gamma, method=args.method, k_max=k_max, controller=controller,
-                         paths=args.paths, step=args.step, horizon=args.horizon, seed=args.seed, solver=args.solver,
-                         progress=sys.stderr.isatty(), plant=plant, fmu_log=_fmu_logger(args),
-                         measure=args.measure, client=client)
+                         spec=spec, solver=args.solver, progress=sys.stderr.isatty(), plant=plant,
+                         fmu_log=_fmu_logger(args), measure=args.measure, client=client)
     written = write_report(rep, args.out)
     d = rep.to_dict()
     print(f"ftc-verify verify: {system.name}")
@@ -236,12 +214,12 @@ def add_run_commands(sub: Any) -> None:
     m.add_argument("--controller", "--gains", dest="controller", required=True,
                    help="controller TOML file (static gains or dynamic; --gains is an alias)")
     m.add_argument("--backend", default="fmu", choices=["fmu", "reference"])
-    m.add_argument("--paths", type=_positive_int, default=10)
-    m.add_argument("--horizon", type=_positive, default=30.0)
-    m.add_argument("--step", type=_positive, default=0.01, help="control period h (sample-and-hold)")
-    m.add_argument("--seed", type=_seed, default=None, help="seed of the numpy Generator (recorded in the output)")
+    m.add_argument("--paths", type=positive_int, default=10)
+    m.add_argument("--horizon", type=positive, default=30.0)
+    m.add_argument("--step", type=positive, default=0.01, help="control period h (sample-and-hold)")
+    m.add_argument("--seed", type=seed_int, default=None, help="seed of the numpy Generator (recorded in the output)")
     m.add_argument("--disturbance", default="paper", choices=["paper", "zero", "step", "pulse", "sine"])
-    m.add_argument("--record", type=_nonneg_int, default=0,
+    m.add_argument("--record", type=nonneg_int, default=0,
                    help="reference backend: keep full trajectories of the first N paths (default 0, 1 with --plot); "
                         "every path's norms are computed either way, vectorised and in batches")
     _cluster_options(m)
@@ -258,17 +236,17 @@ def add_run_commands(sub: Any) -> None:
 
     v = sub.add_parser("verify", help="the main job: synthesize, certify, cross-validate, co-simulate, report")
     v.add_argument("system", help="system TOML file")
-    v.add_argument("--gamma", type=_positive, default=None, help="attenuation level (default: minimise)")
+    v.add_argument("--gamma", type=positive, default=None, help="attenuation level (default: minimise)")
     v.add_argument("--method", default="iterative", choices=["two-step", "iterative", "full-info", "common"])
     v.add_argument("--controller", "--gains", dest="controller", default=None,
                    help="verify this controller file (static gains or dynamic) instead of synthesizing; "
                         "--gains is an alias")
-    v.add_argument("--k-max", type=_positive, default=30.0, help="gain norm bound for synthesis (default 30)")
+    v.add_argument("--k-max", type=positive, default=30.0, help="gain norm bound for synthesis (default 30)")
     v.add_argument("--no-gain-bound", action="store_true", help="synthesize without a gain bound")
-    v.add_argument("--paths", type=_positive_int, default=200, help="Monte Carlo paths on the FMU (default 200)")
-    v.add_argument("--step", type=_positive, default=0.01)
-    v.add_argument("--horizon", type=_positive, default=30.0)
-    v.add_argument("--seed", type=_seed, default=None)
+    v.add_argument("--paths", type=positive_int, default=200, help="Monte Carlo paths on the FMU (default 200)")
+    v.add_argument("--step", type=positive, default=0.01)
+    v.add_argument("--horizon", type=positive, default=30.0)
+    v.add_argument("--seed", type=seed_int, default=None)
     v.add_argument("--out", default="ftc-verify-report", help="output folder (default ./ftc-verify-report)")
     v.add_argument("--solver", default="auto", choices=["auto", "clarabel", "sdpa", "scs"])
     v.add_argument("--measure", default="total", choices=["total", "incremental"],
@@ -285,7 +263,7 @@ def _check_cluster(args: argparse.Namespace) -> None:
     """``--workers`` / ``--scheduler`` checked before any work: the worker count within the
     machine's bound, the address's syntax, no ``--fmu-log`` with them."""
     if args.fmu_log and (args.workers or args.scheduler):
-        raise _bad("--fmu-log: the FMU's messages stay on the Dask workers; leave out --workers/--scheduler to see them")
+        raise bad("--fmu-log: the FMU's messages stay on the Dask workers; leave out --workers/--scheduler to see them")
     if args.workers or args.scheduler:
         from ..simulation.cluster import check_cluster_options
 
@@ -294,7 +272,7 @@ def _check_cluster(args: argparse.Namespace) -> None:
 
 def _cluster_options(parser: argparse.ArgumentParser) -> None:
     where = parser.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=_positive_int, default=None,
+    where.add_argument("--workers", type=positive_int, default=None,
                        help="run the Monte Carlo batches on a local Dask cluster of N worker processes")
     where.add_argument("--scheduler", default=None,
                        help="run the Monte Carlo batches on the Dask cluster at this address (tcp://host:port)")

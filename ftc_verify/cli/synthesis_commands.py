@@ -9,7 +9,7 @@ import argparse
 from typing import Any
 
 from ..jsonable import dumps
-from .main import EXIT_NEGATIVE, EXIT_OK, _bad, _check_output_file, _fmt, _positive
+from .common import EXIT_NEGATIVE, EXIT_OK, bad, check_output_file, fmt, positive
 
 __all__ = ["add_synthesis_command"]
 
@@ -31,13 +31,13 @@ def _print_synthesis(res: Any) -> None:
     if not res.feasible:
         print("  no gains")
         return
-    print(f"  synthesis-side gamma     {_fmt(d['synthesis_gamma'])}")
-    print(f"  certified robust gamma   {_fmt(d['gamma_certified'])}"
+    print(f"  synthesis-side gamma     {fmt(d['synthesis_gamma'])}")
+    print(f"  certified robust gamma   {fmt(d['gamma_certified'])}"
           + ("  (Lemma 4.1 not certified: the nominal gamma is the certificate)"
              if d["certified_gamma_kind"] == "nominal" else ""))
-    print(f"  certified nominal gamma  {_fmt(d['gamma_nominal_certified'])}")
-    print(f"  spectral abscissa        {_fmt(d['spectral_abscissa'])}")
-    print(f"  max gain norm            {_fmt(d['max_gain_norm'])}" + (f" (bound {res.k_max:g})" if res.k_max else ""))
+    print(f"  certified nominal gamma  {fmt(d['gamma_nominal_certified'])}")
+    print(f"  spectral abscissa        {fmt(d['spectral_abscissa'])}")
+    print(f"  max gain norm            {fmt(d['max_gain_norm'])}" + (f" (bound {res.k_max:g})" if res.k_max else ""))
     if res.history:
         print("  iterate history          " + " -> ".join(f"{g:.6g}" for g in res.history))
     if res.ccl_history:
@@ -53,22 +53,22 @@ def _cmd_synthesize(args: argparse.Namespace) -> int:
 
     of_methods = ("auto", "ccl", "observer", "vk", "descent")
     if args.output_feedback and args.method not in (None, *of_methods):
-        raise _bad(f"--method {args.method}: with --output-feedback choose one of {list(of_methods)}")
+        raise bad(f"--method {args.method}: with --output-feedback choose one of {list(of_methods)}")
     if not args.output_feedback and args.method in (None, *of_methods):
-        raise _bad(f"--method {args.method}: needs --output-feedback" if args.method else
+        raise bad(f"--method {args.method}: needs --output-feedback" if args.method else
                    "--method: required for state feedback (two-step, iterative, full-info, common)")
     if args.order is not None and not args.output_feedback:
-        raise _bad(f"--order {args.order}: needs --output-feedback")
+        raise bad(f"--order {args.order}: needs --output-feedback")
     if args.order is not None and args.order < 0:
-        raise _bad(f"--order {args.order}: must be >= 0 (0 is static output feedback)")
-    _check_output_file(args.output, "-o/--output", inputs=(args.system,))
+        raise bad(f"--order {args.order}: must be >= 0 (0 is static output feedback)")
+    check_output_file(args.output, "-o/--output", inputs=(args.system,))
     system = load_system(args.system)
     if args.output_feedback:
         from ..synthesis.output_feedback import synthesize_output_feedback
 
         n = system.dims[0]
         if args.order is not None and args.order != n and args.method not in (None, "auto", "descent"):
-            raise _bad(f"--order {args.order}: method {args.method} designs order n = {n} only; use --method descent")
+            raise bad(f"--order {args.order}: method {args.method} designs order n = {n} only; use --method descent")
         res = synthesize_output_feedback(system, method=args.method or "auto", gamma=args.gamma, k_max=args.k_max,
                                          solver=args.solver, order=args.order, seed=args.seed)
     else:
@@ -93,7 +93,7 @@ def add_synthesis_command(sub: Any) -> None:
     y = sub.add_parser("synthesize", help="synthesize a controller (state or output feedback) and certify it")
     y.add_argument("system", help="system TOML file")
     level = y.add_mutually_exclusive_group()
-    level.add_argument("--gamma", type=_positive, help="attenuation level to achieve (feasibility)")
+    level.add_argument("--gamma", type=positive, help="attenuation level to achieve (feasibility)")
     level.add_argument("--minimize", action="store_true", help="make gamma as small as possible (default)")
     y.add_argument("--method", default=None, choices=["two-step", "iterative", "full-info", "common",
                                                        "auto", "ccl", "observer", "vk", "descent"],
@@ -106,7 +106,7 @@ def add_synthesis_command(sub: Any) -> None:
                    help="output feedback: controller order (default n; 0 = static output feedback u = Dc y_m; "
                         "orders below n only by the descent)")
     y.add_argument("--seed", type=int, default=0, help="seed of the descent's random starts (default 0)")
-    y.add_argument("--k-max", type=_positive, default=None,
+    y.add_argument("--k-max", type=positive, default=None,
                    help="bound on the spectral norm of every gain (output feedback: of every controller block)")
     y.add_argument("-o", "--output", required=True, help="controller TOML file to write (only when certified; not the system file)")
     y.add_argument("--json", action="store_true", help="print one JSON object instead of a table")

@@ -6,6 +6,7 @@ from __future__ import annotations
 from .delta import DELTA_KINDS, DeltaSchedule, delta_shapes, delta_segments, constant_delta_loops
 from .paths import ChainPath, sample_paths, communication_grid, Disturbance, disturbance, DISTURBANCES
 from .records import PathRecord, SimulationResult, l2_norm
+from .spec import SimulationSpec
 from .continuous import simulate_continuous
 from .discretise import phi_gamma, zoh_matrices
 from .energies import energies_reference
@@ -24,6 +25,7 @@ __all__ = [
     "Disturbance",
     "disturbance",
     "DISTURBANCES",
+    "SimulationSpec",
     "PathRecord",
     "SimulationResult",
     "l2_norm",

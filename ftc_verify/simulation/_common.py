@@ -16,7 +16,6 @@ full-information gains), reading :math:`v = M_i x` with
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -32,11 +31,8 @@ from .paths import ChainPath
 
 __all__ = [
     "PathArrays",
-    "check_step",
     "check_controller",
-    "schedule_of",
     "initial_state",
-    "generator",
     "path_list",
     "path_arrays",
     "perturbed",
@@ -48,14 +44,6 @@ __all__ = [
 
 
 # ------------------------------------------------------------------------------ arguments
-def check_step(step: Any) -> float:
-    """``step`` as a positive finite float (``ValidationError`` naming ``step`` otherwise)."""
-    if isinstance(step, bool) or not isinstance(step, (int, float, np.integer, np.floating)) \
-            or not math.isfinite(step) or step <= 0:
-        raise ValidationError(f"step: must be a positive finite number, got {step!r}")
-    return float(step)
-
-
 def check_controller(system: FTCSystem, controller: Any) -> Controller:
     """``controller`` after :meth:`Controller.check` against ``system`` (a bare gain list
     or any other type is rejected, naming ``controller``)."""
@@ -65,17 +53,6 @@ def check_controller(system: FTCSystem, controller: Any) -> Controller:
             f"got {type(controller).__name__}"
         )
     return controller.check(system)
-
-
-def schedule_of(delta: DeltaSchedule | str | None) -> DeltaSchedule:
-    """The :class:`DeltaSchedule` of ``delta`` (``None`` is ``zero``, a string a kind)."""
-    if delta is None:
-        return DeltaSchedule("zero")
-    if isinstance(delta, str):
-        return DeltaSchedule(delta)
-    if isinstance(delta, DeltaSchedule):
-        return delta
-    raise ValidationError(f"delta: expected a DeltaSchedule, a kind or None, got {type(delta).__name__}")
 
 
 def initial_state(system: FTCSystem, x0: ArrayLike | None) -> np.ndarray:
@@ -90,17 +67,6 @@ def initial_state(system: FTCSystem, x0: ArrayLike | None) -> np.ndarray:
     if arr.size != n or not np.all(np.isfinite(arr)):
         raise ValidationError(f"x0: expected {n} finite numbers, got {x0!r}")
     return arr
-
-
-def generator(rng: np.random.Generator | None, seed: int | None) -> np.random.Generator:
-    """``rng`` itself, else ``numpy.random.default_rng(seed)``."""
-    if rng is not None:
-        if not isinstance(rng, np.random.Generator):
-            raise ValidationError(f"rng: expected a numpy.random.Generator, got {type(rng).__name__}")
-        return rng
-    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))):
-        raise ValidationError(f"seed: expected an integer or None, got {seed!r}")
-    return np.random.default_rng(seed)
 
 
 def path_list(paths: ChainPath | Sequence[ChainPath]) -> list[ChainPath]:

@@ -2,9 +2,10 @@ r"""Grid bookkeeping of the vectorised energies (all paths of one horizon at onc
 
 The communication grid of a path (:func:`~ftc_verify.simulation.paths.communication_grid`)
 is the *regular grid* ``reg[k] = k step`` (``k = 0..K``, the last point the horizon) with
-the path's jump times added, a regular point within ``1e-12 step`` of a jump replaced by
-it. The trapezoidal rule of :func:`~ftc_verify.simulation.records.l2_norm` gives point
-:math:`t_g` the weight :math:`\omega_g = (t_{g+1} - t_{g-1}) / 2` (halved at the ends), so
+the path's jump times added, a regular point within
+:func:`~ftc_verify.simulation.spec.grid_snap_tolerance` of a jump replaced by it. The
+trapezoidal rule of :func:`~ftc_verify.simulation.records.l2_norm` gives point :math:`t_g`
+the weight :math:`\omega_g = (t_{g+1} - t_{g-1}) / 2` (halved at the ends), so
 
 .. math::
 
@@ -28,6 +29,7 @@ import numpy as np
 
 from ._common import PathArrays, full_intervals
 from .paths import ChainPath, communication_grid
+from .spec import grid_snap_tolerance
 
 __all__ = ["RegularGrid", "Jumps", "Items", "Pieces", "Points", "regular_grid", "jumps", "items", "pieces",
            "points", "lookup", "unique"]
@@ -107,10 +109,11 @@ class Jumps:
 
 
 def jumps(pa: PathArrays, seg_d: np.ndarray, grid: RegularGrid, step: float) -> Jumps:
-    """Locate every jump on the regular grid; the first jump within ``1e-12 step`` of a
-    regular point (not the ends) replaces it."""
+    """Locate every jump on the regular grid; the first jump within
+    :func:`~ftc_verify.simulation.spec.grid_snap_tolerance` of a regular point (not the
+    ends) replaces it."""
     P, K, reg = pa.count.size, grid.K, grid.reg
-    tol = 1e-12 * step
+    tol = grid_snap_tolerance(step)
     is_jump = np.ones(pa.times.size, dtype=bool)
     is_jump[pa.off] = False
     jidx = np.flatnonzero(is_jump)

@@ -27,6 +27,7 @@ from ..model.system import FTCSystem
 from .delta import DeltaSchedule
 from .paths import ChainPath
 from .records import SimulationResult
+from .spec import SimulationSpec, spec_from
 from .streaming import batch_generators
 from .supervisor import Supervisor, resolve_plant
 
@@ -54,20 +55,29 @@ def merge_results(parts: Sequence[SimulationResult], fmu: str | Path, seed: int 
                                records=tuple(r for p in parts for r in p.records), options=options)
 
 
-def fmu_monte_carlo(system: FTCSystem, controller: Controller, paths: Sequence[ChainPath], *, step: float,
-                    delta: DeltaSchedule, rng: np.random.Generator | None = None, disturbance: str = "paper",
-                    seed: int | None = None, plant: Any = None, batch: int = FMU_TASK_PATHS, client: Any = None,
-                    log: Callable[[str, str, str], None] | None = None,
-                    done: Callable[[int], Any] | None = None, isolate: bool = True) -> SimulationResult:
+def fmu_monte_carlo(system: FTCSystem, controller: Controller, paths: Sequence[ChainPath], *,
+                    spec: SimulationSpec | None = None, step: float | None = None,
+                    delta: DeltaSchedule | str | None = None, rng: np.random.Generator | None = None,
+                    disturbance: str | None = None, seed: int | None = None, plant: Any = None,
+                    batch: int | None = None, client: Any = None, log: Callable[[str, str, str], None] | None = None,
+                    done: Callable[[int], Any] | None = None, isolate: bool | None = None) -> SimulationResult:
     """Co-simulate ``paths`` on the FMU of the plant map ``plant`` (default: the
     ``LinearJumpPlant`` of ``system``; :func:`~ftc_verify.simulation.supervisor.resolve_plant`)
-    in batches of ``batch`` (module docstring). ``client``: run the batches on its
-    workers (``log`` is then not available: the messages stay there). ``done(k)`` is called
-    after each batch of ``k`` paths; ``seed`` is recorded. ``rng`` (default
-    ``numpy.random.default_rng(seed)``) draws ``Delta`` only for paths without their own
-    stream.
+    in batches (module docstring).
 
-    ``isolate`` (default): without a client, run the FMU in a watched child process
+    ``spec`` (:class:`~ftc_verify.simulation.spec.SimulationSpec`; the keywords ``step``,
+    ``delta``, ``disturbance``, ``seed``, ``batch``, ``isolate`` are its shorthand,
+    :func:`~ftc_verify.simulation.spec.spec_from`): ``step``, ``disturbance`` and
+    ``delta`` of the loop; ``seed``, recorded; ``batch``, paths per batch (default
+    :data:`FMU_TASK_PATHS`); ``workers``/``scheduler``, the Dask cluster opened for the
+    run when no ``client`` is given. The kept records are checked against the memory limit
+    first (:meth:`~ftc_verify.simulation.spec.SimulationSpec.check_memory`). ``client``:
+    run the batches on its workers (``log`` is then not available: the messages stay
+    there). ``done(k)`` is called after each batch of ``k`` paths. ``rng`` (default
+    :meth:`~ftc_verify.simulation.spec.SimulationSpec.generator`) draws ``Delta`` only for
+    paths without their own stream.
+
+    ``spec.isolate`` (default): without a client, run the FMU in a watched child process
     (:func:`~ftc_verify.simulation.isolated.run_isolated`), so that a plant whose code
     crashes raises :class:`~ftc_verify.errors.PlantRunError` naming the path and the time
     instead of ending this process; ``False`` runs it in this process. With a client, a
@@ -78,42 +88,53 @@ def fmu_monte_carlo(system: FTCSystem, controller: Controller, paths: Sequence[C
     records (:meth:`~ftc_verify.simulation.records.PathRecord.failed`); ``fmi2Fatal`` and
     crashes raise :class:`~ftc_verify.errors.PlantRunError`.
     """
+    spec = spec_from(spec, {"step": step, "delta": delta, "disturbance": disturbance, "seed": seed, "batch": batch,
+                            "isolate": isolate})
+    if spec.batch is None:
+        spec = dataclasses.replace(spec, batch=FMU_TASK_PATHS)
     plant = resolve_plant(system, plant)
-    rng = np.random.default_rng(seed) if rng is None else rng
+    rng = spec.generator(rng)
     plist = list(paths)
-    if client is not None:
-        from .fmu_workers import run_fmu_batches
+    if plist and isinstance(controller, Controller):
+        spec.check_memory(system, controller, len(plist), max(p.horizon for p in plist))
+    with spec.client(client) as client:
+        if client is not None:
+            return _on_cluster(client, system, plant, controller, plist, spec, rng, done)
+        if spec.isolate:
+            from .isolated import run_isolated
 
-        starts = list(batch_generators(system, plist, delta, copy.deepcopy(rng), batch))
-        try:
-            parts = run_fmu_batches(client, system, plant, controller, plist, step=step, delta=delta, rng=rng,
-                                    disturbance=disturbance, batch=batch, done=done)
-        except PlantRunError as exc:
-            if exc.batch is None:
-                raise
-            _locate_crash(exc, system, plant, controller, plist, starts[exc.batch[0] // batch], step=step,
-                          delta=delta, disturbance=disturbance)
-            raise
-        return merge_results(parts, plant.fmu, seed)
-    if isolate:
-        from .isolated import run_isolated
-
-        parts = run_isolated(system, plant, controller, plist, step=step, delta=delta, rng=rng, batch=batch,
-                             disturbance=disturbance, log=log, done=done)
-        return merge_results(parts, plant.fmu, seed)
+            parts = run_isolated(system, plant, controller, plist, spec=spec, rng=rng, log=log, done=done)
+            return merge_results(parts, plant.fmu, spec.seed)
     parts = []
+    batch = spec.batch
     with Supervisor(plant.fmu, plant.injection_map(), system=system, tolerance=plant.tolerance, log=log) as sup:
         for b in range(0, len(plist), batch):
-            parts.append(sup.run(plist[b:b + batch], controller, step=step, disturbance=disturbance, delta=delta,
-                                 rng=rng))
+            parts.append(sup.run(plist[b:b + batch], controller, spec=spec, rng=rng))
             if done is not None:
                 done(len(parts[-1].records))
-    return merge_results(parts, plant.fmu, seed)
+    return merge_results(parts, plant.fmu, spec.seed)
+
+
+def _on_cluster(client: Any, system: FTCSystem, plant: Any, controller: Controller, plist: list[ChainPath],
+                spec: SimulationSpec, rng: np.random.Generator, done: Callable[[int], Any] | None) -> SimulationResult:
+    """:func:`fmu_monte_carlo` on ``client``'s workers; a batch that killed its workers
+    is run again in a watched child to name the path and time of the crash."""
+    from .fmu_workers import run_fmu_batches
+
+    batch = int(spec.batch)  # type: ignore[arg-type]
+    starts = list(batch_generators(system, plist, spec.schedule, copy.deepcopy(rng), batch))
+    try:
+        parts = run_fmu_batches(client, system, plant, controller, plist, spec=spec, rng=rng, done=done)
+    except PlantRunError as exc:
+        if exc.batch is None:
+            raise
+        _locate_crash(exc, system, plant, controller, plist, starts[exc.batch[0] // batch], spec)
+        raise
+    return merge_results(parts, plant.fmu, spec.seed)
 
 
 def _locate_crash(exc: PlantRunError, system: FTCSystem, plant: Any, controller: Controller,
-                  paths: list[ChainPath], rng: np.random.Generator, *, step: float, delta: DeltaSchedule,
-                  disturbance: str) -> None:
+                  paths: list[ChainPath], rng: np.random.Generator, spec: SimulationSpec) -> None:
     """The batch ``exc.batch`` that killed its Dask workers, run again in a watched child:
     raises the :class:`PlantRunError` naming the path and time where the plant crashes;
     returns when it does not crash there (the workers died of something else)."""
@@ -121,8 +142,8 @@ def _locate_crash(exc: PlantRunError, system: FTCSystem, plant: Any, controller:
 
     first, stop = exc.batch  # type: ignore[misc]
     try:
-        run_isolated(system, plant, controller, paths[first:stop], step=step, delta=delta, rng=rng,
-                     batch=stop - first, disturbance=disturbance)
+        run_isolated(system, plant, controller, paths[first:stop], spec=dataclasses.replace(spec, batch=stop - first),
+                     rng=rng)
     except PlantRunError as found:
         raise PlantRunError(found.fmu, found.detail + f" (the Dask workers running paths[{first}:{stop}] died "
                             "the same way)", path=None if found.path is None else first + found.path,

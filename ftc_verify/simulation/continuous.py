@@ -43,11 +43,12 @@ from ..analysis.closedloop import ClosedLoop, closed_loop
 from ..controllers.controller import Controller
 from ..errors import ValidationError
 from ..model.system import FTCSystem, Matrix
-from ._common import check_controller, delta_key, generator, initial_state, measurements, path_arrays, schedule_of
+from ._common import check_controller, delta_key, initial_state, measurements, path_arrays
 from .delta import DeltaSchedule, delta_segments
 from .discretise import phi_gamma
 from .paths import DISTURBANCES, ChainPath, communication_grid, disturbance as disturbance_fn
 from .records import PathRecord
+from .spec import SimulationSpec, spec_from
 
 __all__ = ["simulate_continuous"]
 
@@ -217,7 +218,8 @@ def simulate_continuous(
     controller: Controller,
     path: ChainPath,
     *,
-    disturbance: str = "paper",
+    spec: SimulationSpec | None = None,
+    disturbance: str | None = None,
     delta: DeltaSchedule | str | None = None,
     x0: ArrayLike | None = None,
     rng: np.random.Generator | None = None,
@@ -229,20 +231,26 @@ def simulate_continuous(
     conventions of :func:`~ftc_verify.simulation.reference.simulate_reference` (``u, v, y``
     with the modes of the interval starting at the point; at the end the last
     interval's), ``w`` continuous. ``controller`` is validated by
-    :meth:`Controller.check`; ``x0`` is the plant initial state, :math:`x_c(0) = 0`;
-    ``rng`` draws ``Delta`` kind ``random`` (default ``numpy.random.default_rng()``).
+    :meth:`Controller.check`. ``spec``
+    (:class:`~ftc_verify.simulation.spec.SimulationSpec`; its ``step`` is not used) gives
+    the ``disturbance``, the ``delta`` and ``x0``, the plant initial state
+    (:math:`x_c(0) = 0`); the keywords ``disturbance``, ``delta``, ``x0`` are its shorthand
+    (:func:`~ftc_verify.simulation.spec.spec_from`). ``rng`` draws ``Delta`` kind
+    ``random`` (default :meth:`~ftc_verify.simulation.spec.SimulationSpec.generator`).
     """
+    spec = spec_from(spec, {"disturbance": disturbance, "delta": delta, "x0": x0})
+    disturbance = spec.disturbance
     controller = check_controller(system, controller)
     if not isinstance(path, ChainPath):
         raise ValidationError(f"path: expected a ChainPath, got {type(path).__name__}")
     path_arrays(system, [path])
     if isinstance(points_per_unit, bool) or not isinstance(points_per_unit, (int, np.integer)) or points_per_unit < 1:
         raise ValidationError(f"points_per_unit: must be a positive integer, got {points_per_unit!r}")
-    schedule = schedule_of(delta)
-    z0 = np.concatenate((initial_state(system, x0), np.zeros(controller.n_c)))
+    schedule = spec.schedule
+    z0 = np.concatenate((initial_state(system, spec.x0), np.zeros(controller.n_c)))
     nw = system.dims[3]
     wfun = disturbance_fn(disturbance, nw)
-    segs = delta_segments(system, path, schedule, generator(rng, None))
+    segs = delta_segments(system, path, schedule, spec.generator(rng))
     loop = closed_loop(system, controller)
     t, true, fdi = communication_grid(path, 1.0 / points_per_unit)
     seg = np.searchsorted(path.times, t[:-1], side="right") - 1

@@ -20,16 +20,18 @@ Every value satisfies :math:`\|\Delta\|_2 \le 1` (checked for given matrices).
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..analysis.closedloop import ClosedLoop
 from ..errors import ValidationError
 from ..model.system import FTCSystem, Matrix, as_matrix
-from .paths import ChainPath
 
-__all__ = ["DELTA_KINDS", "DeltaSchedule", "delta_shapes", "delta_segments", "constant_delta_loops", "plant_delta"]
+if TYPE_CHECKING:
+    from .paths import ChainPath
+
+__all__ = ["DELTA_KINDS", "DeltaSchedule", "delta_shapes", "delta_segments", "constant_delta_loops"]
 
 DELTA_KINDS = ("zero", "constant", "sign", "random")
 
@@ -144,32 +146,3 @@ def constant_delta_loops(system: FTCSystem, loop: ClosedLoop) -> list[tuple[str,
         A = loop.perturbed(deltas)
         out.append((label, replace(loop.nominal(), A=A)))
     return out
-
-
-def plant_delta(system: FTCSystem, plant: Any, requested: str, *, explicit: bool) -> tuple[str, str]:
-    """The ``Delta`` kind a run of ``system`` on ``plant`` uses, and one line saying why.
-
-    ``requested`` is the kind asked for; ``plant`` a plant map (``None``: the
-    ``LinearJumpPlant``, which always has the ``Delta`` inputs). The kind is ``"zero"`` for
-    a certain system, and for an uncertain one whose plant map names no ``Delta`` inputs
-    (``[variables].delta1``/``delta2``): the FMU cannot carry the model's uncertainty. With
-    ``explicit`` (the user chose ``requested``) that case is refused instead of being
-    replaced silently by zero.
-
-    Raises
-    ------
-    ValidationError
-        ``explicit``, ``requested`` is not ``"zero"``, the system is uncertain and the
-        plant map names no ``Delta`` inputs.
-    """
-    if not system.uncertain:
-        return "zero", "zero (the system has no norm-bounded uncertainty)"
-    if plant is not None and not (plant.delta1 or plant.delta2):
-        if explicit and requested != "zero":
-            raise ValidationError(
-                f"--delta {requested}: the plant map {plant.source} names no Delta inputs ([variables].delta1, "
-                f"delta2), so the system's uncertainty cannot be applied to its FMU; use --delta zero, or add the "
-                "FMU's Delta inputs to the map")
-        return "zero", ("zero: the plant map names no Delta inputs, so the model's uncertainty (Delta) is not "
-                        "exercised on this FMU")
-    return requested, f"{requested} (the system's norm-bounded uncertainty, Delta, drawn as {requested!r})"

@@ -56,18 +56,16 @@ from . import _energy_grid as eg
 from ._common import (
     PathArrays,
     check_controller,
-    check_step,
     delta_key,
-    generator,
     initial_state,
     path_arrays,
     path_list,
-    schedule_of,
 )
 from ._energy_maps import Tables, full_maps, loop_matrices, tables
 from .delta import DeltaSchedule, delta_segments, delta_shapes
 from .paths import ChainPath, disturbance as disturbance_fn
 from .records import DIVERGENCE_BOUND
+from .spec import SimulationSpec, spec_from
 
 __all__ = ["energies_reference"]
 
@@ -82,8 +80,9 @@ def energies_reference(
     controller: Controller,
     paths: ChainPath | Sequence[ChainPath],
     *,
-    step: float,
-    disturbance: str = "paper",
+    spec: SimulationSpec | None = None,
+    step: float | None = None,
+    disturbance: str | None = None,
     delta: DeltaSchedule | str | None = None,
     x0: ArrayLike | None = None,
     rng: np.random.Generator | None = None,
@@ -91,13 +90,15 @@ def energies_reference(
     r"""Per path :math:`\int_0^T |y|^2 dt` and :math:`\int_0^T |w|^2 dt` of the sampled loop.
 
     Same loop, grid, ``Delta`` draws (each path's own stream; ``rng``, default
-    ``default_rng()``, for paths without one, in path order) and trapezoidal rule as
+    :meth:`~ftc_verify.simulation.spec.SimulationSpec.generator`, for paths without one,
+    in path order) and trapezoidal rule as
     :func:`~ftc_verify.simulation.reference.simulate_reference` followed by
     ``record.y_norm ** 2, record.w_norm ** 2``, without keeping trajectories (module
-    docstring). The parameters are those of ``simulate_reference`` (without ``seed``);
-    ``controller`` is validated by :meth:`Controller.check`; paths may have different
-    horizons. A regular point within ``1e-12 step`` of a jump is replaced by the jump, as
-    in :func:`~ftc_verify.simulation.paths.communication_grid`.
+    docstring). The parameters are those of ``simulate_reference`` (the shorthand
+    keywords without ``seed``); ``controller`` is validated by :meth:`Controller.check`;
+    paths may have different horizons. A regular point within
+    :func:`~ftc_verify.simulation.spec.grid_snap_tolerance` of a jump is replaced by the
+    jump, as in :func:`~ftc_verify.simulation.paths.communication_grid`.
 
     Returns
     -------
@@ -106,14 +107,15 @@ def energies_reference(
         ball of radius ``DIVERGENCE_BOUND`` (or was not finite) at a grid point, the test
         ``simulate_reference`` stops a path on.
     """
-    step = check_step(step)
+    spec = spec_from(spec, {"step": step, "disturbance": disturbance, "delta": delta, "x0": x0})
+    step = spec.step
     controller = check_controller(system, controller)
     plist = path_list(paths)
     pa = path_arrays(system, plist)
-    schedule = schedule_of(delta)
-    x0v = initial_state(system, x0)
-    wfun = disturbance_fn(disturbance, system.dims[3])
-    gen = generator(rng, None)
+    schedule = spec.schedule
+    x0v = initial_state(system, spec.x0)
+    wfun = disturbance_fn(spec.disturbance, system.dims[3])
+    gen = spec.generator(rng)
     tab, seg_d = _dynamics_ids(system, controller, plist, pa, schedule, gen)
     z0 = np.concatenate((x0v, np.zeros(controller.n_c)))
     P = len(plist)

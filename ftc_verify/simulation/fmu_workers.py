@@ -47,9 +47,9 @@ from distributed import KilledWorker, as_completed, get_worker, wait
 from ..controllers.controller import Controller
 from ..errors import PlantRunError
 from ..model.system import FTCSystem
-from .delta import DeltaSchedule
 from .paths import ChainPath
 from .records import SimulationResult
+from .spec import SimulationSpec
 from .streaming import TASK_RETRIES, batch_generators
 from .supervisor import Supervisor
 
@@ -157,8 +157,8 @@ def _release(entry: _Entry) -> None:
             entry.lock.release()
 
 
-def _batch_task(job: FmuJob, paths: list[ChainPath], controller: Controller, step: float, disturbance: str,
-                delta: DeltaSchedule, gen: np.random.Generator) -> SimulationResult:
+def _batch_task(job: FmuJob, paths: list[ChainPath], controller: Controller, spec: SimulationSpec,
+                gen: np.random.Generator) -> SimulationResult:
     """A Dask task: one batch on this worker's supervisor of ``job`` (opened by the run's
     first task here)."""
     worker = get_worker()
@@ -170,7 +170,7 @@ def _batch_task(job: FmuJob, paths: list[ChainPath], controller: Controller, ste
             entry.used = time.monotonic()
             try:
                 sup = entry.open(job, worker.local_directory)
-                res = sup.run(paths, controller, step=step, disturbance=disturbance, delta=delta, rng=gen)
+                res = sup.run(paths, controller, spec=spec, rng=gen)
                 copy = str(sup.path)
                 return dataclasses.replace(res, records=tuple(
                     dataclasses.replace(r, failure=r.failure.replace(copy, job.fmu)) if r.failure else r
@@ -226,14 +226,14 @@ def _raise_failed(future: Any, span: tuple[int, int], fmu: str) -> NoReturn:
 
 
 def run_fmu_batches(client: Any, system: FTCSystem, plant: Any, controller: Controller,
-                    paths: Sequence[ChainPath], *, step: float, delta: DeltaSchedule, rng: np.random.Generator,
-                    batch: int, disturbance: str = "paper",
+                    paths: Sequence[ChainPath], *, spec: SimulationSpec, rng: np.random.Generator,
                     done: Callable[[int], Any] | None = None) -> list[SimulationResult]:
-    """What ``Supervisor(plant.fmu, ...).run(batch_k, ...)`` returns for each batch of
-    ``batch`` paths, computed on ``client``'s workers (one task per batch) and returned in
-    order: the FMU of the (resolved and checked) plant map ``plant``; ``rng`` draws
-    ``Delta`` as a serial run's would and ends in the same state. ``done(k)`` is called as
-    each batch of ``k`` paths comes back.
+    """What ``Supervisor(plant.fmu, ...).run(batch_k, controller, spec=spec, ...)``
+    returns for each batch of ``spec.batch`` paths (default
+    :data:`~ftc_verify.simulation.batches.FMU_TASK_PATHS`), computed on ``client``'s
+    workers (one task per batch) and returned in order: the FMU of the (resolved and
+    checked) plant map ``plant``; ``rng`` draws ``Delta`` as a serial run's would and ends
+    in the same state. ``done(k)`` is called as each batch of ``k`` paths comes back.
 
     Raises
     ------
@@ -242,14 +242,16 @@ def run_fmu_batches(client: Any, system: FTCSystem, plant: Any, controller: Cont
     Exception
         Any other exception of a task, as it was raised there.
     """
+    from .batches import FMU_TASK_PATHS
+
     plist = list(paths)
-    batch = max(1, int(batch))
+    batch = FMU_TASK_PATHS if spec.batch is None else spec.batch
     job = FmuJob(uuid.uuid4().hex, Path(plant.fmu).read_bytes(), plant.injection_map(), system, plant.tolerance,
                  str(plant.fmu))
     starts = range(0, len(plist), batch)
-    futures = [client.submit(_batch_task, job, plist[b:b + batch], controller, step, disturbance, delta, g,
+    futures = [client.submit(_batch_task, job, plist[b:b + batch], controller, spec, g,
                              retries=TASK_RETRIES, pure=False, key=f"ftc-verify-fmu-batch-{job.run}-{b}")
-               for g, b in zip(batch_generators(system, plist, delta, rng, batch), starts)]
+               for g, b in zip(batch_generators(system, plist, spec.schedule, rng, batch), starts)]
     span = {f.key: (b, min(b + batch, len(plist))) for f, b in zip(futures, starts)}
     try:
         for fut in as_completed(futures):

@@ -28,6 +28,7 @@ and raised again here as themselves.
 
 from __future__ import annotations
 
+import dataclasses
 import mmap
 import os
 import pickle
@@ -47,9 +48,9 @@ import numpy as np
 from ..controllers.controller import Controller
 from ..errors import FMUError, PlantRunError
 from ..model.system import FTCSystem
-from .delta import DeltaSchedule
 from .paths import ChainPath
 from .records import SimulationResult
+from .spec import SimulationSpec
 
 __all__ = ["POLL_SECONDS", "run_isolated"]
 
@@ -94,7 +95,8 @@ def _child_main(workdir: str, fd: int) -> None:
     with open(Path(workdir) / _MONITOR, "r+b") as f:
         mm = mmap.mmap(f.fileno(), 3 * 8)
     monitor = np.frombuffer(mm, dtype=np.float64)
-    plant, paths, batch, rng = job["plant"], job["paths"], job["batch"], job["rng"]
+    plant, paths, spec, rng = job["plant"], job["paths"], job["spec"], job["rng"]
+    batch = int(spec.batch)
 
     def log(status: str, category: str, message: str) -> None:
         _send(out, ("log", (status, category, message)))
@@ -104,8 +106,7 @@ def _child_main(workdir: str, fd: int) -> None:
                         log=log if job["log"] else None, workdir=workdir) as sup:
             for b in range(0, len(paths), batch):
                 monitor[2] = b
-                _send(out, ("batch", sup.run(paths[b:b + batch], job["controller"], step=job["step"],
-                                             disturbance=job["disturbance"], delta=job["delta"], rng=rng,
+                _send(out, ("batch", sup.run(paths[b:b + batch], job["controller"], spec=spec, rng=rng,
                                              monitor=monitor)))
         _send(out, ("end", rng.bit_generator.state))
     except Exception as exc:  # sent back and raised again in the parent
@@ -135,15 +136,16 @@ def _messages(fd: int, child: subprocess.Popen[bytes]) -> Any:
             yield message
 
 
-def run_isolated(system: FTCSystem, plant: Any, controller: Controller, paths: Sequence[ChainPath], *, step: float,
-                 delta: DeltaSchedule, rng: np.random.Generator, batch: int, disturbance: str = "paper",
-                 log: Callable[[str, str, str], None] | None = None,
+def run_isolated(system: FTCSystem, plant: Any, controller: Controller, paths: Sequence[ChainPath], *,
+                 spec: SimulationSpec, rng: np.random.Generator, log: Callable[[str, str, str], None] | None = None,
                  done: Callable[[int], Any] | None = None) -> list[SimulationResult]:
-    """What ``Supervisor(plant.fmu, ...).run(batch_k, ...)`` returns for each batch of
-    ``batch`` paths, computed in a watched child process (module docstring). ``plant``: a
-    resolved and checked :class:`~ftc_verify.plants.plant_map.PlantMap`; ``rng`` ends in
-    the state a run in this process leaves it in; ``log`` gets the FMU's messages and
-    ``done(k)`` is called after each batch of ``k`` paths.
+    """What ``Supervisor(plant.fmu, ...).run(batch_k, controller, spec=spec, ...)``
+    returns for each batch of ``spec.batch`` paths (default
+    :data:`~ftc_verify.simulation.batches.FMU_TASK_PATHS`), computed in a watched child
+    process (module docstring). ``plant``: a resolved and checked
+    :class:`~ftc_verify.plants.plant_map.PlantMap`; ``rng`` ends in the state a run in
+    this process leaves it in; ``log`` gets the FMU's messages and ``done(k)`` is called
+    after each batch of ``k`` paths.
 
     Raises
     ------
@@ -151,10 +153,13 @@ def run_isolated(system: FTCSystem, plant: Any, controller: Controller, paths: S
         The child died (the plant FMU crashed, or something killed the process): names
         the FMU, the signal, the path (0-based index into ``paths``) and the time reached.
     """
+    from .batches import FMU_TASK_PATHS
+
     plist = list(paths)
-    job = pickle.dumps({"plant": plant, "system": system, "controller": controller, "paths": plist, "step": step,
-                        "delta": delta, "rng": rng, "batch": batch, "disturbance": disturbance,
-                        "log": log is not None}, protocol=pickle.HIGHEST_PROTOCOL)
+    if spec.batch is None:
+        spec = dataclasses.replace(spec, batch=FMU_TASK_PATHS)
+    job = pickle.dumps({"plant": plant, "system": system, "controller": controller, "paths": plist, "spec": spec,
+                        "rng": rng, "log": log is not None}, protocol=pickle.HIGHEST_PROTOCOL)
     workdir = tempfile.mkdtemp(prefix="ftc-verify-plant-")
     monitor_file = Path(workdir) / _MONITOR
     monitor_file.write_bytes(bytes(3 * 8))

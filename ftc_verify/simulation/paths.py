@@ -36,6 +36,7 @@ import numpy as np
 
 from ..errors import ValidationError
 from ..model.system import JointChain, Matrix
+from .spec import delta_stream, grid_snap_tolerance, path_streams, seed_sequence
 
 #: Exponential and uniform draws a path takes from its stream at a time (another block
 #: when it jumps more often).
@@ -82,9 +83,7 @@ class ChainPath:
         simulator sees the same draws; ``None`` for a path without a stream."""
         if self.stream is None:
             return None
-        s = self.stream
-        return np.random.default_rng(np.random.SeedSequence(s.entropy, spawn_key=(*s.spawn_key, 0),
-                                                            pool_size=s.pool_size))
+        return np.random.default_rng(delta_stream(self.stream))
 
     @property
     def fault_switches(self) -> int:
@@ -106,14 +105,6 @@ def _check_horizon(horizon: float) -> float:
     if not (isinstance(horizon, (int, float)) and math.isfinite(horizon) and horizon > 0):
         raise ValidationError(f"horizon: must be a positive finite number, got {horizon!r}")
     return float(horizon)
-
-
-def _check_seed(seed: int | np.random.SeedSequence) -> np.random.SeedSequence:
-    if isinstance(seed, np.random.SeedSequence):
-        return seed
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValidationError(f"seed: expected a non-negative integer or a numpy SeedSequence, got {seed!r}")
-    return np.random.SeedSequence(int(seed))
 
 
 def _targets(chain: JointChain) -> np.ndarray:
@@ -225,27 +216,13 @@ def sample_paths(
     horizon = _check_horizon(horizon)
     count = _check_count(count)
     s_start = chain.start_state(start)
-    return _sample(chain, horizon, _check_seed(seed).spawn(count), beta, s_start)
+    return _sample(chain, horizon, seed_sequence(seed).spawn(count), beta, s_start)
 
 
 def _check_count(count: int) -> int:
     if isinstance(count, bool) or not (isinstance(count, (int, np.integer)) and count >= 1):
         raise ValidationError(f"paths: must be a positive integer, got {count!r}")
     return int(count)
-
-
-def path_streams(seed: int | np.random.SeedSequence, first: int, stop: int) -> list[np.random.SeedSequence]:
-    """The streams of paths ``first .. stop - 1`` of ``sample_paths(..., seed)``: children
-    ``first .. stop - 1`` of ``SeedSequence(seed).spawn(count)`` (any ``count >= stop``),
-    built directly as ``SeedSequence(entropy, spawn_key=(*spawn_key, n + k))`` with ``n``
-    the children ``seed`` has spawned so far (0 for an integer); a ``SeedSequence`` given
-    as ``seed`` is not advanced."""
-    root = _check_seed(seed)
-    if not 0 <= first <= stop:
-        raise ValidationError(f"paths: expected 0 <= first <= stop, got first={first!r}, stop={stop!r}")
-    base = root.n_children_spawned
-    return [np.random.SeedSequence(root.entropy, spawn_key=(*root.spawn_key, base + k), pool_size=root.pool_size)
-            for k in range(int(first), int(stop))]
 
 
 def sample_path_range(
@@ -260,7 +237,8 @@ def sample_path_range(
 ) -> list[ChainPath]:
     """Paths ``first .. stop - 1`` of a run of :func:`sample_paths` with this ``seed``,
     sampled on their own: exactly ``sample_paths(chain, horizon, count, seed, ...)[first:stop]``
-    for any ``count >= stop`` (every path draws only from its stream, :func:`path_streams`),
+    for any ``count >= stop`` (every path draws only from its stream,
+    :func:`~ftc_verify.simulation.spec.path_streams`),
     so that a Dask worker can sample its batch itself. ``seed`` is not advanced."""
     horizon = _check_horizon(horizon)
     _check_count(stop - first)
@@ -353,7 +331,7 @@ class PathSpec(Sequence[ChainPath]):
     def __post_init__(self) -> None:
         object.__setattr__(self, "horizon", _check_horizon(self.horizon))
         object.__setattr__(self, "n_paths", _check_count(self.n_paths))
-        s = _check_seed(self.seed)
+        s = seed_sequence(self.seed)
         seed = int(self.seed) if s is not self.seed else np.random.SeedSequence(
             s.entropy, spawn_key=s.spawn_key, pool_size=s.pool_size, n_children_spawned=s.n_children_spawned)
         object.__setattr__(self, "seed", seed)
@@ -395,8 +373,9 @@ def communication_grid(path: ChainPath, step: float) -> tuple[np.ndarray, np.nda
 
     Returns ``(t, true, fdi)``: ``t`` holds ``0 = t_0 < t_1 < ... < t_N = horizon``, the
     union of the multiples of ``step`` and the jump times; ``true[k], fdi[k]`` hold on
-    ``[t_k, t_{k+1})`` (length ``N``). Grid points closer than ``1e-12 * step`` to a jump
-    time are merged into it, so no interval is degenerate.
+    ``[t_k, t_{k+1})`` (length ``N``). Grid points closer than
+    :func:`~ftc_verify.simulation.spec.grid_snap_tolerance` to a jump time are merged
+    into it, so no interval is degenerate.
     """
     if not (math.isfinite(step) and step > 0):
         raise ValidationError(f"step: must be a positive finite number, got {step!r}")
@@ -407,7 +386,7 @@ def communication_grid(path: ChainPath, step: float) -> tuple[np.ndarray, np.nda
     else:
         regular[-1] = path.horizon
     jumps = path.times[1:]
-    tol = 1e-12 * step
+    tol = grid_snap_tolerance(step)
     if jumps.size:  # distance to the nearest jump, O((N + J) log J) memory-light
         idx = np.searchsorted(jumps, regular)
         left = jumps[np.clip(idx - 1, 0, jumps.size - 1)]

@@ -71,17 +71,14 @@ from ..controllers.controller import Controller
 from ..model.system import FTCSystem, Matrix
 from ._common import (
     check_controller,
-    check_step,
     delta_key,
     full_intervals,
-    generator,
     initial_state,
     measurements,
     path_arrays,
     path_list,
     perturbed,
     run_options,
-    schedule_of,
 )
 from .continuous import simulate_continuous
 from .delta import DeltaSchedule, delta_segments
@@ -89,6 +86,7 @@ from .discretise import phi_gamma, zoh_matrices
 from .energies import energies_reference
 from .paths import ChainPath, communication_grid, disturbance as disturbance_fn
 from .records import PathRecord, SimulationResult, diverged
+from .spec import SimulationSpec, spec_from
 
 __all__ = [
     "simulate_reference",
@@ -173,8 +171,9 @@ def simulate_reference(
     controller: Controller,
     paths: ChainPath | Sequence[ChainPath],
     *,
-    step: float,
-    disturbance: str = "paper",
+    spec: SimulationSpec | None = None,
+    step: float | None = None,
+    disturbance: str | None = None,
     delta: DeltaSchedule | str | None = None,
     x0: ArrayLike | None = None,
     rng: np.random.Generator | None = None,
@@ -190,21 +189,24 @@ def simulate_reference(
         validated by :meth:`Controller.check`; static gains are
         ``Controller.state_feedback(gains)``.
     paths : ChainPath or sequence of ChainPath
-    step : float
-        Control period; the grid is :func:`~ftc_verify.simulation.paths.communication_grid`.
-    disturbance : str
-        A kind of :data:`ftc_verify.simulation.paths.DISTURBANCES` (every channel gets it).
-    delta : DeltaSchedule, its kind, or None (zero)
-        :math:`\Delta(t)`, from :func:`~ftc_verify.simulation.delta.delta_segments` per
-        path in path order.
-    x0 : array-like of n numbers, optional
-        Initial plant state of every path (default 0); the controller starts at
-        :math:`x_c = 0`.
-    rng, seed
+    spec : SimulationSpec, optional
+        The run: :attr:`~ftc_verify.simulation.spec.SimulationSpec.step` (the control
+        period; the grid is :func:`~ftc_verify.simulation.paths.communication_grid`),
+        ``disturbance`` (a kind of :data:`ftc_verify.simulation.paths.DISTURBANCES`, on
+        every channel), ``delta`` (:math:`\Delta(t)`, from
+        :func:`~ftc_verify.simulation.delta.delta_segments` per path in path order),
+        ``x0`` (initial plant state of every path, default 0; the controller starts at
+        :math:`x_c = 0`) and ``seed`` (of the generator for ``Delta`` kind ``random`` on
+        paths without their own stream; recorded in the result). The kept records are
+        checked against the memory limit
+        (:meth:`~ftc_verify.simulation.spec.SimulationSpec.check_memory`).
+    step, disturbance, delta, x0, seed
+        Shorthand for ``spec=SimulationSpec(step=..., ...)``
+        (:func:`~ftc_verify.simulation.spec.spec_from`); not together with ``spec``.
+    rng
         Generator for ``Delta`` kind ``random`` on paths without their own stream
-        (default ``numpy.random.default_rng(seed)``; sampled paths draw from
-        :meth:`~ftc_verify.simulation.paths.ChainPath.delta_generator`); ``seed`` is
-        recorded in the result.
+        (default :meth:`~ftc_verify.simulation.spec.SimulationSpec.generator`; sampled
+        paths draw from :meth:`~ftc_verify.simulation.paths.ChainPath.delta_generator`).
 
     Returns
     -------
@@ -221,25 +223,27 @@ def simulate_reference(
     (``h = step``) across paths, computed afresh for every interval cut by a jump; the
     same for :math:`(\Phi_c, \Gamma_c)` per controller entry.
     """
-    step = check_step(step)
+    spec = spec_from(spec, {"step": step, "disturbance": disturbance, "delta": delta, "x0": x0, "seed": seed})
     controller = check_controller(system, controller)
     plist = path_list(paths)
     path_arrays(system, plist)
-    schedule = schedule_of(delta)
-    x0v = initial_state(system, x0)
-    wfun = disturbance_fn(disturbance, system.dims[3])
-    gen = generator(rng, seed)
+    horizon = float(max(p.horizon for p in plist))
+    spec.check_memory(system, controller, len(plist), horizon)
+    schedule = spec.schedule
+    x0v = initial_state(system, spec.x0)
+    wfun = disturbance_fn(spec.disturbance, system.dims[3])
+    gen = spec.generator(rng)
     cache: _Cache = {}
     records = []
     for p in plist:
         segs = delta_segments(system, p, schedule, gen)
-        records.append(_simulate_path(system, controller, p, segs, step, wfun, x0v, cache))
+        records.append(_simulate_path(system, controller, p, segs, spec.step, wfun, x0v, cache))
     return SimulationResult(
         backend="reference",
-        seed=seed,
-        step=step,
-        horizon=float(max(p.horizon for p in plist)),
-        disturbance=disturbance,
+        seed=spec.seed,
+        step=spec.step,
+        horizon=horizon,
+        disturbance=spec.disturbance,
         records=tuple(records),
         options=run_options(system, schedule, x0v, controller,
                             method="exact zero-order hold (scipy.linalg.expm)"),

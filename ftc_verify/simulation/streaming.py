@@ -45,12 +45,12 @@ import numpy as np
 from ..controllers.controller import Controller
 from ..errors import ValidationError
 from ..model.system import FTCSystem
-from ._common import generator, schedule_of
 from .delta import DeltaSchedule, delta_segments
 from .energies import energies_reference
 from .paths import ChainPath, PathSpec
 from .records import PathRecord, divergence_line
 from .reference import simulate_reference
+from .spec import SimulationSpec, spec_from
 
 __all__ = ["StreamedResult", "simulate_streaming", "batch_generators", "STREAM_BATCH", "DASK_BATCH",
            "TASK_RETRIES"]
@@ -202,39 +202,56 @@ def simulate_streaming(
     controller: Controller,
     paths: Sequence[ChainPath] | PathSpec,
     *,
-    step: float,
-    disturbance: str = "paper",
+    spec: SimulationSpec | None = None,
+    step: float | None = None,
+    disturbance: str | None = None,
     delta: DeltaSchedule | str | None = None,
     rng: np.random.Generator | None = None,
     seed: int | None = None,
-    record: int = 0,
+    record: int | None = None,
     batch: int | None = None,
     client: Any = None,
     done: Callable[[int], Any] | None = None,
 ) -> StreamedResult:
     """The paths of ``simulate_reference`` (same arguments, same numbers) summarised per
-    path, with trajectories for the first ``record`` paths only (module docstring).
+    path, with trajectories for the first ``spec.record`` paths only (module docstring).
+
     ``paths``: sampled paths, or a :class:`~ftc_verify.simulation.paths.PathSpec` to have
-    each batch sampled where it runs (on a Dask worker with ``client``), with the same
-    numbers. ``batch``: paths per batch, default :data:`STREAM_BATCH`
-    (:data:`DASK_BATCH` for a ``PathSpec`` on a client).
+    each batch sampled where it runs (on a Dask worker with a client), with the same
+    numbers. ``spec`` (:class:`~ftc_verify.simulation.spec.SimulationSpec`): ``step``,
+    ``disturbance``, ``delta``, ``seed`` as for ``simulate_reference``; ``record``;
+    ``batch``, paths per batch, default :data:`STREAM_BATCH` (:data:`DASK_BATCH` for a
+    ``PathSpec`` on a client); ``workers``/``scheduler``, the Dask cluster opened for the
+    run when no ``client`` is given. The keywords ``step`` ... ``batch`` are its shorthand
+    (:func:`~ftc_verify.simulation.spec.spec_from`).
     ``client``: a ``dask.distributed.Client``; the batches then run on its workers, with
     the same numbers as serially (each batch carries its own generator state).
     ``done(k)``: called as each batch of ``k`` paths is finished (a progress bar)."""
-    spec = paths if isinstance(paths, PathSpec) else None
-    plist: Sequence[ChainPath] = spec if spec is not None else list(paths)
+    spec = spec_from(spec, {"step": step, "disturbance": disturbance, "delta": delta, "seed": seed,
+                            "record": record, "batch": batch})
+    with spec.client(client) as client:
+        return _stream(system, controller, paths, spec, rng, client, done)
+
+
+def _stream(system: FTCSystem, controller: Controller, paths: Sequence[ChainPath] | PathSpec, spec: SimulationSpec,
+            rng: np.random.Generator | None, client: Any, done: Callable[[int], Any] | None) -> StreamedResult:
+    """:func:`simulate_streaming` once the spec and the client are settled."""
+    if spec.x0 is not None:
+        raise ValidationError("x0: a streamed run starts every path at x = 0; use simulate_reference for another x0")
+    pspec = paths if isinstance(paths, PathSpec) else None
+    plist: Sequence[ChainPath] = pspec if pspec is not None else list(paths)
     if not len(plist):
         raise ValidationError("paths: at least one path is needed")
-    gen = generator(rng, seed)
+    gen = spec.generator(rng)
     start = copy.deepcopy(gen)  # the draws before any path, to replay
-    schedule = schedule_of(delta)
+    schedule, step, disturbance, record = spec.schedule, spec.step, spec.disturbance, spec.record
+    batch = spec.batch
     if batch is None:
-        batch = DASK_BATCH if spec is not None and client is not None else STREAM_BATCH
-    batch = max(1, int(batch))
+        batch = DASK_BATCH if pspec is not None and client is not None else STREAM_BATCH
     report = done if done is not None else (lambda k: None)
     job = (system, controller, step, disturbance, schedule)
-    if spec is not None:
-        parts = _spec_parts(job, spec, gen, batch, client, report)
+    if pspec is not None:
+        parts = _spec_parts(job, pspec, gen, batch, client, report)
         switches, betas = np.concatenate([p[2] for p in parts]), np.concatenate([p[3] for p in parts])
     else:
         parts = _list_parts(job, list(plist), gen, batch, client, report)
@@ -243,12 +260,12 @@ def simulate_streaming(
     Ew = np.concatenate([p[1] for p in parts])
     records = ()
     if record > 0:
-        records = simulate_reference(system, controller, plist[:record], step=step, disturbance=disturbance,
-                                     delta=schedule, rng=copy.deepcopy(start), seed=seed).records
+        records = simulate_reference(system, controller, plist[:record], spec=spec,
+                                     rng=copy.deepcopy(start)).records
     diverged = _divergence_times(job, plist, Ey, records, start)
-    horizon = spec.horizon if spec is not None else float(max(p.horizon for p in plist))
-    return StreamedResult("reference", seed, step, horizon, disturbance, np.sqrt(Ey), np.sqrt(Ew),
-                          spec if spec is not None else tuple(plist), diverged, tuple(records),
+    horizon = pspec.horizon if pspec is not None else float(max(p.horizon for p in plist))
+    return StreamedResult("reference", spec.seed, step, horizon, disturbance, np.sqrt(Ey), np.sqrt(Ew),
+                          pspec if pspec is not None else tuple(plist), diverged, tuple(records),
                           {"streamed": True, "batch": batch, "recorded": len(records)}, switches, betas)
 
 

@@ -42,7 +42,6 @@ fault mode, ``Delta``, ``u`` and ``w``,
 
 from __future__ import annotations
 
-import math
 import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -59,6 +58,7 @@ from ..plants.fmu_session import FMICallError, FMUSession
 from .paths import ChainPath, communication_grid, disturbance as disturbance_fn, snap_to_grid
 from .loop_parts import LoopLaw, Offsets, PathController, PathInputs, PathPlan, PathRecorder, full_intervals
 from .records import PathRecord, SimulationResult, diverged
+from .spec import SimulationSpec, spec_from
 
 __all__ = ["FMUError", "FaultInjectionMap", "Supervisor", "open_supervisor", "resolve_plant", "simulate_fmu"]
 
@@ -264,8 +264,9 @@ class Supervisor:
         paths: ChainPath | Sequence[ChainPath],
         controller: Controller,
         *,
-        step: float,
-        disturbance: str = "paper",
+        spec: SimulationSpec | None = None,
+        step: float | None = None,
+        disturbance: str | None = None,
         delta: DeltaSchedule | str | None = None,
         x0: Any = None,
         rng: np.random.Generator | None = None,
@@ -277,13 +278,18 @@ class Supervisor:
 
         ``controller``: a :class:`~ftc_verify.controllers.Controller` (``m`` entries, one per
         FDI mode, or ``m * m`` full-information state-feedback gains ``K[i m + l]``; build
-        static gains with ``Controller.state_feedback(gains)``). ``disturbance``: a kind of
-        :data:`ftc_verify.simulation.paths.DISTURBANCES`. ``delta``: a
-        :class:`~ftc_verify.simulation.delta.DeltaSchedule` or its kind (None: zero); the
-        values come from :func:`~ftc_verify.simulation.delta.delta_segments` (each path's
-        own stream; ``rng``, default ``numpy.random.default_rng(seed)``, for paths without one).
-        ``x0``: the initial plant state (default 0; needs
-        :attr:`FaultInjectionMap.initial_states`); the controller state starts at 0.
+        static gains with ``Controller.state_feedback(gains)``). ``spec``: the
+        :class:`~ftc_verify.simulation.spec.SimulationSpec` of the run -- its ``step``;
+        ``disturbance``, a kind of :data:`ftc_verify.simulation.paths.DISTURBANCES`;
+        ``delta``, whose values come from
+        :func:`~ftc_verify.simulation.delta.delta_segments` (each path's own stream;
+        ``rng``, default :meth:`~ftc_verify.simulation.spec.SimulationSpec.generator`, for
+        paths without one); ``x0``, the initial plant state (default 0; needs
+        :attr:`FaultInjectionMap.initial_states`; the controller state starts at 0);
+        ``seed``, recorded. The keywords ``step``, ``disturbance``, ``delta``, ``x0``,
+        ``seed`` are its shorthand (:func:`~ftc_verify.simulation.spec.spec_from`). With a
+        system, the kept records are checked against the memory limit
+        (:meth:`~ftc_verify.simulation.spec.SimulationSpec.check_memory`).
         ``monitor``: a float64 array of at least 2 entries (e.g. in memory shared with a
         watching process) that holds the index of the running path and the time reached.
 
@@ -293,22 +299,22 @@ class Supervisor:
         ``fmi2Fatal`` (``fmi3Fatal``) raises :class:`~ftc_verify.errors.PlantRunError`.
         """
         self.session.check_open()
+        spec = spec_from(spec, {"step": step, "disturbance": disturbance, "delta": delta, "x0": x0, "seed": seed})
         monitor = np.zeros(3) if monitor is None else monitor
-        if not (isinstance(step, (int, float)) and math.isfinite(step) and step > 0):
-            raise ValidationError(f"step: must be a positive finite number, got {step!r}")
-        step = float(step)
+        step = spec.step
         law = self._law(controller, step)
         paths = self._check_paths(paths, law)
-        wfun = disturbance_fn(disturbance, self.session.nw)
-        schedule = self._schedule(delta)
+        if self.system is not None:
+            spec.check_memory(self.system, law.controller, len(paths), max(p.horizon for p in paths))
+        wfun = disturbance_fn(spec.disturbance, self.session.nw)
+        schedule = self._schedule(spec.schedule)
         off = self._offsets(law)
-        x0_arr, x0_c = self._initial_state(x0, off)
+        x0_arr, x0_c = self._initial_state(spec.x0, off)
         shift = 0.0
         if not self.can_vary_step:
             snapped = [snap_to_grid(p, step) for p in paths]
             paths, shift = [p for p, _ in snapped], max(sh for _, sh in snapped)
-        if rng is None:
-            rng = np.random.default_rng(seed)
+        rng = spec.generator(rng)
         for p in paths:
             for mode in np.unique(p.true):
                 self.session.fault_writes(int(mode))  # every mode's values checked before any simulation
@@ -332,8 +338,9 @@ class Supervisor:
         }
         if self.system is not None:
             options["fault_during_delay"] = bool(self.system.chain.fault_during_delay)
-        return SimulationResult(backend="fmu", seed=seed, step=step, horizon=float(max(p.horizon for p in paths)),
-                                disturbance=disturbance, records=tuple(records), options=options)
+        return SimulationResult(backend="fmu", seed=spec.seed, step=step,
+                                horizon=float(max(p.horizon for p in paths)), disturbance=spec.disturbance,
+                                records=tuple(records), options=options)
 
     def _plan(self, index: int, path: ChainPath, step: float, wfun: Any, segs: Any) -> PathPlan:
         t, true, fdi = communication_grid(path, step)
@@ -466,8 +473,9 @@ def simulate_fmu(
     controller: Controller,
     paths: ChainPath | Sequence[ChainPath],
     *,
-    step: float,
-    disturbance: str = "paper",
+    spec: SimulationSpec | None = None,
+    step: float | None = None,
+    disturbance: str | None = None,
     delta: DeltaSchedule | str | None = None,
     x0: Any = None,
     rng: np.random.Generator | None = None,
@@ -476,6 +484,8 @@ def simulate_fmu(
     log: Callable[[str, str, str], None] | None = None,
 ) -> SimulationResult:
     """Co-simulate ``paths`` under ``controller`` on :func:`open_supervisor`'s FMU (default:
-    the cached ``LinearJumpPlant`` of ``system``); other arguments as :meth:`Supervisor.run`."""
+    the cached ``LinearJumpPlant`` of ``system``); ``spec`` (or its shorthand keywords) and
+    ``rng`` as :meth:`Supervisor.run`, checked before the FMU is opened."""
+    spec = spec_from(spec, {"step": step, "disturbance": disturbance, "delta": delta, "x0": x0, "seed": seed})
     with open_supervisor(system, plant, log=log) as sup:
-        return sup.run(paths, controller, step=step, disturbance=disturbance, delta=delta, x0=x0, rng=rng, seed=seed)
+        return sup.run(paths, controller, spec=spec, rng=rng)

@@ -27,7 +27,7 @@ import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import scipy.stats
@@ -35,6 +35,9 @@ import scipy.stats
 from ..controllers.controller import Controller
 from ..errors import ValidationError
 from ..model.system import FTCSystem
+
+if TYPE_CHECKING:
+    from ..simulation.spec import SimulationSpec
 
 __all__ = ["MCEstimate", "estimate", "clopper_pearson", "sequential_estimate", "monte_carlo"]
 
@@ -169,9 +172,10 @@ def monte_carlo(
     controller: Controller,
     *,
     backend: str = "reference",
-    paths: int = 1000,
-    horizon: float = 30.0,
-    step: float = 0.01,
+    spec: SimulationSpec | None = None,
+    paths: int | None = None,
+    horizon: float | None = None,
+    step: float | None = None,
     seed: int | None = None,
     gamma: float | None = None,
     alpha: float = 1e-6,
@@ -181,34 +185,43 @@ def monte_carlo(
     delta: Any = None,
 ) -> MCEstimate:
     """Estimate ``E||y||^2/||w||^2`` on ``backend`` (``"reference"`` or ``"fmu"``) with the
-    paper's disturbance: ``paths`` exact chain paths, path ``k`` from child ``k`` of
-    ``numpy.random.SeedSequence(seed)``
-    (``beta`` drawn per path unless given), sample-and-hold at ``step``. ``sequential=True``
-    (needs ``gamma``) draws batches until the comparison with ``gamma**2`` is decided or
-    ``paths`` are used. The seed (drawn and recorded when ``None``) is in the result."""
-    from ..simulation.paths import sample_paths
+    run of ``spec`` (:class:`~ftc_verify.simulation.spec.SimulationSpec`: ``n_paths`` exact
+    chain paths on ``[0, horizon]``, path ``k`` from stream ``k`` of ``seed``
+    (:func:`~ftc_verify.simulation.spec.path_streams`), ``beta`` drawn per path unless
+    given, ``delta``, sample-and-hold at ``step``, the spec's disturbance). The keywords
+    ``paths`` (default 1000), ``horizon``, ``step``, ``seed``, ``beta``, ``delta`` are its
+    shorthand (:func:`~ftc_verify.simulation.spec.spec_from`). ``sequential=True`` (needs
+    ``gamma``) draws batches of ``batch`` paths until the comparison with ``gamma**2`` is
+    decided or ``n_paths`` are used. The seed (drawn and recorded when ``None``) is in the
+    result."""
+    from ..simulation.spec import spec_from
 
     if backend not in ("reference", "fmu"):
         raise ValidationError(f"backend: must be 'reference' or 'fmu', got {backend!r}")
     if sequential and gamma is None:
         raise ValidationError("gamma: the sequential mode compares with gamma, which is missing")
-    if seed is None:
-        seed = int(np.random.SeedSequence().entropy % 2**63)
-    streams = np.random.SeedSequence(seed)  # spawned from batch after batch: paths numbered on
+    if spec is None and paths is None:
+        paths = 1000
+    spec = spec_from(spec, {"n_paths": paths, "horizon": horizon, "step": step, "seed": seed, "beta": beta,
+                            "delta": delta}).with_seed()
+    drawn = 0  # paths numbered on from batch to batch
 
     def draw(count: int) -> tuple[np.ndarray, np.ndarray]:
-        chunk = sample_paths(system.chain, horizon, count, streams, beta=beta)
+        nonlocal drawn
+        chunk = spec.sample_paths(system.chain, drawn, drawn + count)
+        drawn += count
         if backend == "reference":
             from ..simulation.reference import energies_reference
 
-            return energies_reference(system, controller, chunk, step=step, delta=delta)
+            return energies_reference(system, controller, chunk, spec=spec)
         from ..simulation.supervisor import simulate_fmu
 
-        res = simulate_fmu(system, controller, chunk, step=step, delta=delta)
+        res = simulate_fmu(system, controller, chunk, spec=spec)
         return (np.array([r.y_norm ** 2 for r in res.records]), np.array([r.w_norm ** 2 for r in res.records]))
 
     if sequential:
         assert gamma is not None
-        return sequential_estimate(draw, gamma=gamma, batch=batch, max_paths=paths, alpha=alpha, seed=seed)
-    y, w = draw(paths)
-    return estimate(y, w, alpha=alpha, gamma=gamma, seed=seed)
+        return sequential_estimate(draw, gamma=gamma, batch=batch, max_paths=spec.n_paths, alpha=alpha,
+                                   seed=spec.seed)
+    y, w = draw(spec.n_paths)
+    return estimate(y, w, alpha=alpha, gamma=gamma, seed=spec.seed)

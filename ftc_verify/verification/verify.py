@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -44,9 +44,10 @@ from ..controllers.controller import Controller
 from ..errors import PlantRunError, ValidationError
 from ..jsonable import fields_dict
 from ..model.system import FTCSystem
-from ..simulation.delta import DeltaSchedule, constant_delta_loops, plant_delta
-from ..simulation.paths import ChainPath, sample_paths
+from ..simulation.delta import constant_delta_loops
+from ..simulation.paths import ChainPath
 from ..simulation.records import PathRecord, divergence_note
+from ..simulation.spec import SimulationSpec, spec_from
 from ..synthesis.state_feedback import SynthesisResult, synthesize
 from .moments import WorstCase, exact_energy, worst_case_disturbance
 from .montecarlo import MCEstimate, estimate
@@ -170,12 +171,11 @@ def _exact_energies(system: FTCSystem, loop: ClosedLoop, g2: float) -> tuple[lis
                         f"vs gamma^2 = {g2:.6g}, {len(exact)} cases, infinite horizon")
 
 
-def _fmu_monte_carlo(system: FTCSystem, controller: Controller, chain_paths: list[ChainPath], delta: DeltaSchedule,
-                     step: float, progress: bool, plant: Any = None,
-                     log: Any = None, disturbance: str = "paper",
+def _fmu_monte_carlo(system: FTCSystem, controller: Controller, chain_paths: list[ChainPath], spec: SimulationSpec,
+                     progress: bool, plant: Any = None, log: Any = None,
                      client: Any = None) -> tuple[list[PathRecord], dict[str, Any]]:
     """Every path co-simulated on the plant map's FMU (default: the ``LinearJumpPlant`` of
-    ``system``) with the named disturbance, in batches (:data:`~ftc_verify.simulation.batches.FMU_TASK_PATHS`), on
+    ``system``) as ``spec`` says, in batches (:data:`~ftc_verify.simulation.batches.FMU_TASK_PATHS`), on
     ``client``'s Dask workers if given (:func:`~ftc_verify.simulation.batches.fmu_monte_carlo`;
     same records); also the FMU's file and model identifier. Every path draws ``Delta`` from
     its own stream, so two calls see the same ``Delta``."""
@@ -183,8 +183,7 @@ def _fmu_monte_carlo(system: FTCSystem, controller: Controller, chain_paths: lis
 
     bar = progress_bar(len(chain_paths), "Monte Carlo (FMU)", progress)
     try:
-        res = fmu_monte_carlo(system, controller, chain_paths, step=step, delta=delta,
-                              disturbance=disturbance, plant=plant,
+        res = fmu_monte_carlo(system, controller, chain_paths, spec=spec, plant=plant,
                               client=client, log=log, done=None if bar is None else bar.update)
     finally:
         if bar is not None:
@@ -271,12 +270,11 @@ def _plant_summary(plant: Any, records: list[PathRecord], reference: list[PathRe
 
 
 def _backend_agreement(system: FTCSystem, controller: Controller, chain_paths: list[ChainPath],
-                       records: list[PathRecord], delta: DeltaSchedule, step: float) -> Check:
+                       records: list[PathRecord], spec: SimulationSpec) -> Check:
     """The first paths again on the numpy reference, with the same Delta draws."""
     from ..simulation.reference import simulate_reference
 
-    ref = simulate_reference(system, controller, chain_paths[:AGREE_PATHS], step=step, disturbance="paper",
-                             delta=delta)
+    ref = simulate_reference(system, controller, chain_paths[:AGREE_PATHS], spec=spec)
     worst = 0.0
     for k, (a, b) in enumerate(zip(records[:AGREE_PATHS], ref.records), start=1):
         if a.diverged_at != b.diverged_at:
@@ -290,16 +288,15 @@ def _backend_agreement(system: FTCSystem, controller: Controller, chain_paths: l
 
 
 def _against_reference(system: FTCSystem, controller: Controller, chain_paths: list[ChainPath],
-                       records: list[PathRecord], delta: DeltaSchedule, step: float, plant: Any,
+                       records: list[PathRecord], spec: SimulationSpec, plant: Any,
                        mc: MCEstimate, fmu: dict[str, Any], measured: list[PathRecord],
                        fault_only: list[PathRecord] | None) -> tuple[dict[str, Any] | None, Check]:
     """The backend agreement (LinearJumpPlant), or the plant summary and region check."""
     if plant is None:
-        return None, _backend_agreement(system, controller, chain_paths, records, delta, step)
+        return None, _backend_agreement(system, controller, chain_paths, records, spec)
     from ..simulation.reference import simulate_reference
 
-    ref = simulate_reference(system, controller, chain_paths[:AGREE_PATHS], step=step, disturbance="paper",
-                             delta=delta)
+    ref = simulate_reference(system, controller, chain_paths[:AGREE_PATHS], spec=spec)
     return _plant_summary(plant, records, list(ref.records), mc, fmu, measured, fault_only)
 
 
@@ -327,10 +324,38 @@ def _worst_case(loop: ClosedLoop, exact: list[dict[str, Any]], horizon: float,
                         f"(gap {gamma_cert - worst.gain:.3g} = conservatism of the certificate)")
 
 
+def _monte_carlo_stage(system: FTCSystem, controller: Controller, spec: SimulationSpec, plant: Any, fmu_log: Any,
+                       measure: str, progress: bool, client: Any) -> tuple[Any, ...]:
+    """The paths of ``spec``, their FMU records and the records the Monte Carlo measures
+    (:func:`_measured`); the ``w = 0`` runs of the incremental measure (else ``None``)."""
+    chain_paths = spec.sample_paths(system.chain)
+    with spec.client(client) as client:
+        records, fmu = _fmu_monte_carlo(system, controller, chain_paths, spec, progress, plant, fmu_log, client=client)
+        measured, fault_only = _measured(records, measure, lambda: _fmu_monte_carlo(
+            system, controller, chain_paths, replace(spec, disturbance="zero"), progress, plant, fmu_log,
+            client=client)[0])
+    return chain_paths, records, fmu, measured, fault_only
+
+
+def _verify_spec(spec: SimulationSpec | None, given: dict[str, Any]) -> SimulationSpec:
+    """The spec of :func:`run_verify`: ``n_paths``, ``step``, ``horizon``, ``seed`` (drawn
+    and reported when ``None``), ``delta`` as
+    :meth:`~ftc_verify.simulation.spec.SimulationSpec.resolve_delta` decides on the plant
+    (from the keywords: kind ``random`` wherever the plant carries it), the paper's
+    disturbance, ``workers``/``scheduler`` for the cluster."""
+    if spec is None:
+        given = given | {"delta": "random", "delta_explicit": False}
+    spec = spec_from(spec, given).with_seed()
+    if spec.disturbance != "paper":
+        raise ValidationError(f"spec.disturbance: {spec.disturbance!r}; verify measures the paper's disturbance "
+                              "(its exact energies are compared), give 'paper'")
+    return spec
+
+
 def run_verify(
     system: FTCSystem, *, gamma: float | None = None, method: str = "iterative", k_max: float | None = 30.0,
-    controller: Controller | None = None,
-    paths: int = 200, step: float = 0.01, horizon: float = 30.0, seed: int | None = None,
+    controller: Controller | None = None, spec: SimulationSpec | None = None,
+    paths: int | None = None, step: float | None = None, horizon: float | None = None, seed: int | None = None,
     solver: str | None = None, progress: bool = False, plant: Any = None, fmu_log: Any = None,
     measure: str = "total", client: Any = None,
 ) -> VerifyReport:
@@ -338,6 +363,9 @@ def run_verify(
 
     ``controller=None`` synthesizes state feedback by ``method``; a given controller
     (static or dynamic, :class:`~ftc_verify.controllers.Controller`) is verified as is.
+    ``spec``: the :class:`~ftc_verify.simulation.spec.SimulationSpec` of the Monte Carlo
+    (seed drawn when ``None``; ``Delta`` resolved on the plant; records' memory checked
+    first); the keywords ``paths``, ``step``, ``horizon``, ``seed`` are its shorthand.
     ``plant``: a :class:`~ftc_verify.plants.plant_map.PlantMap` whose FMU replaces the
     ``LinearJumpPlant`` in the Monte Carlo (``system`` is then its linearisation); the
     report gains a ``plant`` object and the region check replaces the backend agreement.
@@ -347,11 +375,12 @@ def run_verify(
     """
     if measure not in ("total", "incremental"):
         raise ValidationError(f"measure: {measure!r} is not 'total' or 'incremental'")
+    spec = _verify_spec(spec, {"n_paths": paths, "step": step, "horizon": horizon, "seed": seed})
     seconds: dict[str, float] = {}
-    seed = int(np.random.SeedSequence().entropy % 2**63) if seed is None else seed
+    seed = int(spec.seed)  # type: ignore[arg-type]
     options = {"fdi_model": system.chain.describe(), "method": method if controller is None else "given controller",
-               "gamma": gamma, "k_max": k_max, "paths": paths, "step": step, "horizon": horizon,
-               "solver": solver or "auto", "disturbance": "paper", "measure": measure}
+               "gamma": gamma, "k_max": k_max, "paths": spec.n_paths, "step": spec.step, "horizon": spec.horizon,
+               "solver": solver or "auto", "disturbance": spec.disturbance, "measure": measure}
     checks: list[Check] = []
 
     def stage(name: str, t0: float) -> None:
@@ -382,6 +411,7 @@ def run_verify(
     if controller is None:
         return report()
     loop = closed_loop(system, controller.check(system))
+    spec.check_memory(system, controller, spec.n_paths)
     t = time.perf_counter()
     analysis = synthesis.report if synthesis is not None and synthesis.report is not None else analyze(
         loop, solver=solver, name=system.name, cross_validation=False)
@@ -393,27 +423,22 @@ def run_verify(
         return report(analysis=analysis, per_mode=per_mode)
     g2 = gamma_cert ** 2
     exact = timed("exact_energy", lambda: _exact_energies(system, loop, g2))
-    worst = timed("worst_case", lambda: _worst_case(loop, exact, horizon, gamma_cert))
+    worst = timed("worst_case", lambda: _worst_case(loop, exact, spec.horizon, gamma_cert))
     t = time.perf_counter()
-    chain_paths = sample_paths(system.chain, horizon, paths, seed)
-    kind, options["delta"] = plant_delta(system, plant, "random", explicit=False)
-    delta = DeltaSchedule(kind)
+    spec, options["delta"] = spec.resolve_delta(system, plant)
     try:
-        records, fmu = _fmu_monte_carlo(system, controller, chain_paths, delta, step, progress, plant, fmu_log,
-                                        client=client)
-        measured, fault_only = _measured(records, measure, lambda: _fmu_monte_carlo(
-            system, controller, chain_paths, delta, step, progress, plant, fmu_log, disturbance="zero",
-            client=client)[0])
+        chain_paths, records, fmu, measured, fault_only = _monte_carlo_stage(
+            system, controller, spec, plant, fmu_log, measure, progress, client)
     except PlantRunError as exc:  # the plant crashed: a result, reported
         checks.append(Check("Monte Carlo (FMU)", False, str(exc)))
         stage("monte_carlo", t)
         return report(gamma_certified=gamma_cert, analysis=analysis, per_mode=per_mode, exact=tuple(exact),
                       worst=worst, plant_failure=exc)
     options.update(fmu)
-    mc, check = _mc_check(measured, gamma_cert, seed, step, horizon, incremental=measure == "incremental")
+    mc, check = _mc_check(measured, gamma_cert, seed, spec.step, spec.horizon, incremental=measure == "incremental")
     checks.append(check)
     stage("monte_carlo", t)
-    found_plant = timed("reference", lambda: _against_reference(system, controller, chain_paths, records, delta, step,
+    found_plant = timed("reference", lambda: _against_reference(system, controller, chain_paths, records, spec,
                                                                  plant, mc, fmu, measured, fault_only))
     return report(gamma_certified=gamma_cert, analysis=analysis, per_mode=per_mode, exact=tuple(exact), worst=worst,
                   mc=mc, records=tuple(records), plant=found_plant)

@@ -1,0 +1,135 @@
+"""What every command of the CLI shares: the exit codes, argument types, input loading and
+output checks (:mod:`ftc_verify.cli.main` and the subcommand modules import them from here).
+
+Exit codes are a contract (:mod:`ftc_verify.cli.main`). Nothing here imports numpy: building
+the parser (``ftc-verify --help``) stays free of the numerical libraries.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+from typing import Any
+
+from ..errors import FTCError
+from ..jsonable import jsonable
+
+__all__ = [
+    "EXIT_OK",
+    "EXIT_NEGATIVE",
+    "EXIT_BAD_INPUT",
+    "EXIT_UNCERTIFIED",
+    "EXIT_INTERNAL",
+    "EXIT_UNDECIDED",
+    "EXIT_INTERRUPTED",
+    "EXIT_PIPE",
+    "EXIT_TERMINATED",
+    "PLOT_SUFFIXES",
+    "bad",
+    "check_output_file",
+    "fmt",
+    "load",
+    "strict",
+    "positive",
+    "nonneg_int",
+    "positive_int",
+    "seed_int",
+]
+
+EXIT_OK, EXIT_NEGATIVE, EXIT_BAD_INPUT, EXIT_UNCERTIFIED, EXIT_INTERNAL, EXIT_UNDECIDED = 0, 1, 2, 3, 4, 5
+EXIT_INTERRUPTED, EXIT_PIPE, EXIT_TERMINATED = 130, 141, 143
+#: Image formats ``--plot`` accepts (what matplotlib's Agg canvas writes).
+PLOT_SUFFIXES = (".png", ".pdf", ".svg")
+
+
+def bad(message: str) -> FTCError:
+    """The error of a bad input (a :class:`~ftc_verify.errors.ValidationError`: exit 2)."""
+    from ..errors import ValidationError
+
+    return ValidationError(message)
+
+
+def check_output_file(path: str, option: str, suffixes: tuple[str, ...] | None = None,
+                      inputs: tuple[str, ...] = ()) -> None:
+    """A file the command will write: not a folder, not one of the command's ``inputs``,
+    in a writable folder, right suffix."""
+    p = Path(path)
+    for given in inputs:
+        if p.resolve() == Path(given).resolve():
+            raise bad(f"{option} {path}: is the input file {given}; writing it would replace the input "
+                      "(choose another output file)")
+    if p.is_dir():
+        raise bad(f"{option} {path}: is a folder; give a file name")
+    if suffixes is not None and p.suffix.lower() not in suffixes:
+        raise bad(f"{option} {path}: unsupported file type {p.suffix or '(none)'!r}; use one of {', '.join(suffixes)}")
+    parent = p.parent if str(p.parent) else Path(".")
+    if not parent.is_dir():
+        raise bad(f"{option} {path}: folder {parent} does not exist")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise bad(f"{option} {path}: folder {parent} is not writable")
+
+
+def fmt(x: float | None, digits: int = 6) -> str:
+    """``x`` with ``digits`` significant digits, ``-`` for ``None``."""
+    return "-" if x is None else f"{x:.{digits}g}"
+
+
+def load(system_path: str, controller_path: str | None) -> tuple[Any, Any]:
+    """The system and (when a path is given) the controller checked against it."""
+    from ..controllers.files import load_controller
+    from ..model.files import load_system
+
+    system = load_system(system_path)
+    if controller_path is None:
+        return system, None
+    return system, load_controller(controller_path).check(system, source=str(controller_path))
+
+
+def strict(value: Any) -> Any:
+    """JSON-ready built-ins, every non-finite float replaced by ``None`` (strict JSON)."""
+    return jsonable(value)
+
+
+def positive(text: str) -> float:
+    """Argument type: a positive finite number."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not (value > 0 and value < float("inf")):
+        raise argparse.ArgumentTypeError(f"must be positive and finite, got {text!r}")
+    return value
+
+
+def nonneg_int(text: str) -> int:
+    """Argument type: an integer, 0 or more."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be 0 or more, got {text!r}")
+    return value
+
+
+def positive_int(text: str) -> int:
+    """Argument type: an integer, at least 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {text!r}")
+    return value
+
+
+def seed_int(text: str) -> int:
+    """Argument type: a seed, a non-negative integer."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer seed: {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"seeds are non-negative, got {text!r}")
+    return value
