@@ -225,15 +225,8 @@ class Supervisor:
         start = arr if off is None else arr + off.x
         return arr, start
 
-    def _schedule(self, delta: DeltaSchedule | str | None) -> DeltaSchedule:
-        if delta is None:
-            schedule = DeltaSchedule("zero")
-        elif isinstance(delta, str):
-            schedule = DeltaSchedule(delta)
-        elif isinstance(delta, DeltaSchedule):
-            schedule = delta
-        else:
-            raise ValidationError(f"delta: expected a DeltaSchedule, a kind or None, got {type(delta).__name__}")
+    def _schedule(self, schedule: DeltaSchedule) -> DeltaSchedule:
+        """``schedule`` checked against the plant map's Delta inputs."""
         if self.system is None:
             if schedule.kind != "zero":
                 raise ValidationError(f"delta: kind {schedule.kind!r} needs the system (Supervisor(..., system=...))")
