@@ -129,11 +129,11 @@ class ClosedLoop:
         """True when some joint mode has an uncertainty channel."""
         return any(self.channels)
 
-    def nominal(self) -> "ClosedLoop":
+    def nominal(self) -> ClosedLoop:
         """The loop with every uncertainty channel removed (``Delta = 0``)."""
         return replace(self, channels=tuple(() for _ in self.A))
 
-    def with_chain(self, chain: JointChain) -> "ClosedLoop":
+    def with_chain(self, chain: JointChain) -> ClosedLoop:
         """The same loop on another chain with the same joint states (modes, phases)."""
         if chain.m != self.chain.m:
             raise ValidationError(f"with_chain: chain has {chain.m} modes, the loop {self.chain.m}")
@@ -143,7 +143,7 @@ class ClosedLoop:
                                   f"({self.chain.delay_phases} phases)")
         return replace(self, chain=chain)
 
-    def scaled(self, d: Matrix) -> "ClosedLoop":
+    def scaled(self, d: Matrix) -> ClosedLoop:
         """The similar loop in the coordinates ``x = diag(d) x~``: ``A~ = D^-1 A D``,
         ``Bw~ = D^-1 Bw``, ``Cz~ = Cz D``, ``E~ = D^-1 E``, ``F~ = F D``. With ``d`` powers
         of two (:func:`ftc_verify.analysis.lmi_analysis.balancing_scale`) every product is
@@ -159,7 +159,7 @@ class ClosedLoop:
                            for chans in self.channels),
         )
 
-    def transformed(self, T: Matrix, T_inv: Matrix) -> "ClosedLoop":
+    def transformed(self, T: Matrix, T_inv: Matrix) -> ClosedLoop:
         """The similar loop in the coordinates ``x = T x~`` (``T_inv`` the inverse used):
         ``A~ = T^-1 A T``, ``Bw~ = T^-1 Bw``, ``Cz~ = Cz T``, ``E~ = T^-1 E``, ``F~ = F T``
         (:mod:`ftc_verify.analysis.conditioning`)."""

@@ -65,27 +65,27 @@ class Affine:
         return self.const.shape
 
     @property
-    def T(self) -> "Affine":  # noqa: N802 - numpy's name
+    def T(self) -> Affine:  # noqa: N802 - numpy's name
         """Transpose."""
         return Affine(self.const.T, np.swapaxes(self.lin, 0, 1))
 
-    def __add__(self, other: Any) -> "Affine":
+    def __add__(self, other: Any) -> Affine:
         if isinstance(other, Affine):
             return Affine(self.const + other.const, self.lin + other.lin)
         return Affine(self.const + np.asarray(other, dtype=float), self.lin)
 
     __radd__ = __add__
 
-    def __neg__(self) -> "Affine":
+    def __neg__(self) -> Affine:
         return Affine(-self.const, -self.lin)
 
-    def __sub__(self, other: Any) -> "Affine":
+    def __sub__(self, other: Any) -> Affine:
         return self + (-other)
 
-    def __rsub__(self, other: Any) -> "Affine":
+    def __rsub__(self, other: Any) -> Affine:
         return (-self) + other
 
-    def __mul__(self, other: Any) -> "Affine":
+    def __mul__(self, other: Any) -> Affine:
         value = np.asarray(other, dtype=float)
         if value.ndim == 0:
             return Affine(self.const * value, self.lin * value)
@@ -95,11 +95,11 @@ class Affine:
 
     __rmul__ = __mul__
 
-    def __matmul__(self, other: Matrix) -> "Affine":
+    def __matmul__(self, other: Matrix) -> Affine:
         M = np.asarray(other, dtype=float)
         return Affine(self.const @ M, np.einsum("ijk,jl->ilk", self.lin, M))
 
-    def __rmatmul__(self, other: Matrix) -> "Affine":
+    def __rmatmul__(self, other: Matrix) -> Affine:
         M = np.asarray(other, dtype=float)
         return Affine(M @ self.const, np.einsum("ij,jlk->ilk", M, self.lin))
 
@@ -166,14 +166,14 @@ class Rows:
         A = sp.csr_matrix((local.data, (local.row, np.asarray(columns)[local.col])), shape=(len(r), self.K))
         self.blocks.append(("psd", const.shape[0], A, -const[r, c] * w))
 
-    def extended(self, A: Matrix, b: Matrix) -> "Rows":
+    def extended(self, A: Matrix, b: Matrix) -> Rows:
         """A copy with the rows ``b - A x >= 0`` added."""
         out = Rows(self.K)
         out.blocks = list(self.blocks)
         out.nonneg(A, b)
         return out
 
-    def problem(self, c: Matrix) -> "ConicProblem":
+    def problem(self, c: Matrix) -> ConicProblem:
         """The program ``min c x`` subject to every row added (nonnegative rows first)."""
         ordered = sorted(self.blocks, key=lambda blk: blk[0] != "nonneg")
         A = sp.vstack([blk[2] for blk in ordered], format="csc")
@@ -192,7 +192,7 @@ class ConicProblem:
     b: Matrix
     cones: tuple[tuple[str, int], ...]
 
-    def fix(self, index: int, value: float) -> "ConicProblem":
+    def fix(self, index: int, value: float) -> ConicProblem:
         """The same program with variable ``index`` fixed at ``value`` (column removed)."""
         keep = np.arange(self.A.shape[1]) != index
         b = self.b - value * self.A[:, index].toarray().ravel()

@@ -56,7 +56,7 @@ class MomentOperator:
     weight: np.ndarray
 
     @classmethod
-    def build(cls, loop: ClosedLoop, beta: Matrix) -> "MomentOperator":
+    def build(cls, loop: ClosedLoop, beta: Matrix) -> MomentOperator:
         n = loop.n
         rows, cols = np.triu_indices(n)
         weight = np.where(rows == cols, 1.0, math.sqrt(2.0))

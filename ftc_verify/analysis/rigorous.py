@@ -72,7 +72,7 @@ class Ball:
         return (self.value.nrows(), self.value.ncols())
 
     @property
-    def T(self) -> "Ball":  # noqa: N802 - numpy's name
+    def T(self) -> Ball:  # noqa: N802 - numpy's name
         return Ball(self.value.transpose())
 
     def _coerce(self, other: Any) -> Any:
@@ -83,31 +83,31 @@ class Ball:
             return _flint().arb(float(arr))
         return _to_arb(arr)
 
-    def __add__(self, other: Any) -> "Ball":
+    def __add__(self, other: Any) -> Ball:
         return Ball(self.value + self._coerce(other))
 
     __radd__ = __add__
 
-    def __neg__(self) -> "Ball":
+    def __neg__(self) -> Ball:
         return Ball(-self.value)
 
-    def __sub__(self, other: Any) -> "Ball":
+    def __sub__(self, other: Any) -> Ball:
         return Ball(self.value - self._coerce(other))
 
-    def __rsub__(self, other: Any) -> "Ball":
+    def __rsub__(self, other: Any) -> Ball:
         return Ball(self._coerce(other) - self.value)
 
-    def __mul__(self, other: Any) -> "Ball":
+    def __mul__(self, other: Any) -> Ball:
         if isinstance(other, Ball) or np.ndim(other) != 0:
             raise TypeError("Ball * matrix: use @")
         return Ball(self.value * self._coerce(other))
 
     __rmul__ = __mul__
 
-    def __matmul__(self, other: Any) -> "Ball":
+    def __matmul__(self, other: Any) -> Ball:
         return Ball(self.value * self._coerce(other))
 
-    def __rmatmul__(self, other: Any) -> "Ball":
+    def __rmatmul__(self, other: Any) -> Ball:
         return Ball(self._coerce(other) * self.value)
 
 

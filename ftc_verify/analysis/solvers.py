@@ -207,7 +207,7 @@ def _clarabel_guarded(call: Any, problem: ConicProblem) -> tuple[SolveOutcome, t
     try:
         with deferred_signals():
             status, message, *arrays = call(problem, SETTINGS["clarabel"])
-    except BaseException as exc:  # noqa: B036 - pyo3's PanicException is a BaseException
+    except BaseException as exc:  # pyo3's PanicException is a BaseException
         if not isinstance(exc, Exception) and type(exc).__name__ != "PanicException":
             raise  # Ctrl-C, SIGTERM (the CLI's own BaseException), SystemExit: never a solver failure
         status, message, arrays = "error", f"clarabel raised {type(exc).__name__}: {exc}", []

@@ -229,7 +229,7 @@ class StabilityProver:
     precond: Ball
 
     @classmethod
-    def build(cls, loop: ClosedLoop, sim: Similarity) -> "StabilityProver":
+    def build(cls, loop: ClosedLoop, sim: Similarity) -> StabilityProver:
         """For the nominal part of ``loop`` and the conditioning ``sim``."""
         nominal = loop.nominal()
         with precision():

@@ -106,7 +106,7 @@ class Controller:
 
     # ---------------------------------------------------------------- constructors
     @classmethod
-    def state_feedback(cls, gains: Sequence[ArrayLike], *, name: str = "") -> "Controller":
+    def state_feedback(cls, gains: Sequence[ArrayLike], *, name: str = "") -> Controller:
         """Static state feedback ``u = K[l] x`` (``m`` gains) or ``u = K[i m + l] x``
         (``m * m`` full-information gains)."""
         Ks = [as_matrix(K, f"gain[{k}].K") for k, K in enumerate(gains, start=1)]
@@ -127,7 +127,7 @@ class Controller:
         Dc: Sequence[ArrayLike],
         *,
         name: str = "",
-    ) -> "Controller":
+    ) -> Controller:
         """Dynamic output feedback on ``y_m``, one ``(Ac, Bc, Cc, Dc)`` per FDI mode."""
         return cls(tuple(Ac), tuple(Bc), tuple(Cc), tuple(Dc), "output", name)  # type: ignore[arg-type]
 
@@ -191,7 +191,7 @@ class Controller:
         return np.eye(mode.n) if self.measures == "state" else mode.measured
 
     # ---------------------------------------------------------------- checks
-    def check(self, system: FTCSystem, *, source: str = "controller") -> "Controller":
+    def check(self, system: FTCSystem, *, source: str = "controller") -> Controller:
         """Validate against ``system``; errors name ``source``, the entry and the shapes.
 
         Returns ``self`` so that ``Controller(...).check(system)`` reads naturally.

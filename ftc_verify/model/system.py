@@ -276,7 +276,7 @@ class FTCSystem:
         beta_min: ArrayLike,
         beta_max: ArrayLike,
         fault_during_delay: bool = False,
-    ) -> "FTCSystem":
+    ) -> FTCSystem:
         """Build from plain arrays; ``modes`` are mappings with keys ``A, B, C, D`` and
         optionally ``Cy, A1, A2, B1, B2``."""
         allowed = {"A", "B", "C", "D", "A1", "A2", "B1", "B2", "Cy"}
@@ -296,7 +296,7 @@ class FTCSystem:
     def from_statespace(
         cls,
         *,
-        modes: Sequence["control.StateSpace"],
+        modes: Sequence[control.StateSpace],
         chain: JointChain,
         inputs: Signal | Sequence[Signal],
         disturbances: Signal | Sequence[Signal],
@@ -304,7 +304,7 @@ class FTCSystem:
         measured: Signal | Sequence[Signal] | None = None,
         uncertainty: Mapping[str, ArrayLike] | Sequence[Mapping[str, ArrayLike]] | None = None,
         name: str = "python-control",
-    ) -> "FTCSystem":
+    ) -> FTCSystem:
         r"""Build from one continuous-time ``control.StateSpace`` per fault mode.
 
         Mode :math:`i` is :math:`\dot x = A_i x + \bar B_i v`, :math:`o = \bar C_i x + \bar D_i v`
@@ -405,12 +405,12 @@ class FTCSystem:
         """True when some mode has an uncertainty channel."""
         return any(md.uncertain for md in self.modes)
 
-    def nominal(self) -> "FTCSystem":
+    def nominal(self) -> FTCSystem:
         """The same system without uncertainty weights."""
         modes = tuple(Mode(md.A, md.B, md.C, md.D, Cy=md.Cy, label=md.label) for md in self.modes)
         return FTCSystem(self.name, modes, self.chain)
 
-    def with_measured_output(self, Cy: ArrayLike | Sequence[ArrayLike]) -> "FTCSystem":
+    def with_measured_output(self, Cy: ArrayLike | Sequence[ArrayLike]) -> FTCSystem:
         """The same plant measured through ``y_m = Cy x``: one matrix for every mode, or one
         per mode (checked like a system file's ``Cy``)."""
         per_mode = isinstance(Cy, (list, tuple)) and len(Cy) > 0 and np.ndim(Cy[0]) == 2

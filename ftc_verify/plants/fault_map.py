@@ -237,7 +237,7 @@ class FaultInjectionMap:
                 raise ValidationError(f"delta: kind {kind!r} needs FaultInjectionMap.{label} (the FMU's {which} inputs)")
 
     @classmethod
-    def for_linear_jump_plant(cls, system: FTCSystem) -> "FaultInjectionMap":
+    def for_linear_jump_plant(cls, system: FTCSystem) -> FaultInjectionMap:
         """The map of the ``LinearJumpPlant`` FMU of ``system`` (:func:`ftc_verify.plants.build_fmu`):
         Integer ``mode`` (1-based), ``u[k]``, ``w[k]``, ``x[k]``, ``y[k]``, the measured
         outputs ``ym[k]``, ``x0[k]`` and the ``Delta1[i,j]``, ``Delta2[i,j]`` inputs its
@@ -377,7 +377,7 @@ def resolve_variables(md: Any, mapping: FaultInjectionMap, err: Callable[[str], 
     uw_vrs = {v.valueReference for v in inputs + dist}
     deps = {u.variable.name: u.dependencies for u in md.outputs if u.variable is not None}
     feedthrough = any(
-        deps.get(v.name, None) is None and v.causality == "output"
+        (deps.get(v.name) is None and v.causality == "output")
         or any(d.valueReference in uw_vrs for d in (deps.get(v.name) or ()))
         for v in outputs
     )

@@ -57,7 +57,7 @@ CALL_NAMES = {
 
 #: How a fault value is written, per variable type of both versions.
 FAULT_KINDS = {"Real": "real", "Integer": "int", "Enumeration": "int", "Boolean": "bool", "Float64": "real",
-               **{t: "int" for t in ("Int8", "UInt8", "Int16", "UInt16", "Int32", "UInt32", "Int64", "UInt64")}}
+               **dict.fromkeys(("Int8", "UInt8", "Int16", "UInt16", "Int32", "UInt32", "Int64", "UInt64"), "int")}
 
 #: The value range of the FMI 3.0 integer types (FMI 2.0 ``Integer`` is 32 bits).
 INT_RANGES = {"Integer": (-2**31, 2**31 - 1), "Int8": (-2**7, 2**7 - 1), "UInt8": (0, 2**8 - 1),

@@ -65,7 +65,7 @@ class VarGroup:
     """Value references of a list of variables of one kind (``"real"``, ``"int"`` or
     ``"bool"``, :data:`~ftc_verify.plants.fmi3.FAULT_KINDS`), with a ctypes buffer."""
 
-    __slots__ = ("names", "vr", "buf", "n", "kind", "ctype")
+    __slots__ = ("buf", "ctype", "kind", "n", "names", "vr")
 
     def __init__(self, variables: Sequence[Any], kind: str = "real") -> None:
         self.names = tuple(v.name for v in variables)
@@ -165,7 +165,7 @@ class FMUSession:
             self.close()
             raise
 
-    def __enter__(self) -> "FMUSession":
+    def __enter__(self) -> FMUSession:
         return self
 
     def __exit__(self, *exc: object) -> None:

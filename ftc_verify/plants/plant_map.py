@@ -146,7 +146,7 @@ class PlantMap:
             )
         return self.states_op
 
-    def with_states_op(self, states_op: np.ndarray) -> "PlantMap":
+    def with_states_op(self, states_op: np.ndarray) -> PlantMap:
         """The same map with the operating-point states (e.g. found by trimming)."""
         return replace(self, states_op=_floats(states_op, len(self.states), self.where("[operating_point].states")))
 

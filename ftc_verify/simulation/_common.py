@@ -97,7 +97,7 @@ class PathArrays:
     off: np.ndarray  # (P,) offset of the first segment
     horizon: np.ndarray  # (P,)
 
-    def select(self, sel: np.ndarray) -> "PathArrays":
+    def select(self, sel: np.ndarray) -> PathArrays:
         """The arrays of the paths ``sel`` only (in that order)."""
         segsel = self.segments(sel)
         cnt = self.count[sel]

@@ -379,7 +379,7 @@ def communication_grid(path: ChainPath, step: float) -> tuple[np.ndarray, np.nda
     """
     if not (math.isfinite(step) and step > 0):
         raise ValidationError(f"step: must be a positive finite number, got {step!r}")
-    count = int(math.floor(path.horizon / step + 1e-9))
+    count = math.floor(path.horizon / step + 1e-9)
     regular = np.arange(count + 1) * step
     if regular[-1] < path.horizon * (1 - 1e-12):
         regular = np.append(regular, path.horizon)

@@ -44,14 +44,14 @@ def diverged(*states: np.ndarray) -> bool:
     return not sq <= DIVERGENCE_BOUND ** 2  # NaN compares False: diverged
 
 
-def divergence_note(records: "Sequence[PathRecord]") -> str | None:
+def divergence_note(records: Sequence[PathRecord]) -> str | None:
     """One line naming the diverged and failed paths (1-based) and when, or None."""
     bad = [(k, r.diverged_at) for k, r in enumerate(records, start=1) if r.diverged_at is not None]
     failures = {k: r.failure for k, r in enumerate(records, start=1) if r.failure is not None}
     return divergence_line(bad, len(records), failures)  # type: ignore[arg-type]
 
 
-def divergence_line(bad: "Sequence[tuple[int, float]]", total: int,
+def divergence_line(bad: Sequence[tuple[int, float]], total: int,
                     failures: dict[int, str] | None = None) -> str | None:
     """The line of :func:`divergence_note` from ``(1-based path, time)`` pairs, or None;
     ``failures`` maps the paths on which the plant FMU failed to its message."""
@@ -95,12 +95,12 @@ class PathRecord:
     diverged_at: float | None = None
     failure: str | None = None
 
-    def truncated(self, k: int) -> "PathRecord":
+    def truncated(self, k: int) -> PathRecord:
         """The record of a path that diverged at grid point ``k``: points ``0 .. k-1`` kept."""
         return PathRecord(self.path, self.t[:k], self.true[:k - 1], self.fdi[:k - 1], self.x[:k], self.u[:k],
                           self.w[:k], self.y[:k], self.xc[:k], self.ym[:k], diverged_at=float(self.t[k]))
 
-    def failed(self, keep: int, time: float, message: str) -> "PathRecord":
+    def failed(self, keep: int, time: float, message: str) -> PathRecord:
         """The record of a path on which the plant FMU failed at ``time`` with ``message``:
         the grid points ``0 .. keep-1`` (those completely recorded) kept."""
         j = max(keep - 1, 0)

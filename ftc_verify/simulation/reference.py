@@ -128,7 +128,7 @@ def _simulate_path(system: FTCSystem, controller: Controller, path: ChainPath, s
                    wfun: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, cache: _Cache) -> PathRecord:
     """One path of the loop of the module docstring, recorded on its grid."""
     m = system.m
-    n, nu, ny, nw = system.dims
+    n, nu, ny, _ = system.dims
     nc, nv = controller.n_c, controller.n_v
     Ms = measurements(system, controller)
     reads_state = controller.measures == "state"

@@ -122,7 +122,7 @@ class Supervisor:
         self._op_outputs: tuple[np.ndarray, np.ndarray] | None = None
 
     # -------------------------------------------------------------------- context manager
-    def __enter__(self) -> "Supervisor":
+    def __enter__(self) -> Supervisor:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -161,7 +161,7 @@ class Supervisor:
         s, m = self.session, self._modes()
         if self.system is not None:
             controller.check(self.system, source="controller")
-            n, nu, ny, nw = self.system.dims
+            n, _, ny, nw = self.system.dims
             for count, want, what in ((s.ny, ny, "outputs (performance y)"), (s.nw, nw, "disturbances w"),
                                       (s.n, n, "states x")):
                 if count != want:

@@ -97,7 +97,7 @@ class Parametrisation:
     Cbar: tuple[Matrix, ...]
 
     @classmethod
-    def build(cls, system: FTCSystem, n_c: int) -> "Parametrisation":
+    def build(cls, system: FTCSystem, n_c: int) -> Parametrisation:
         """Barred matrices of every true mode for a controller of order ``n_c``."""
         if n_c < 0:
             raise ValidationError(f"order: must be >= 0, got {n_c}")

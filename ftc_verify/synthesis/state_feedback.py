@@ -232,7 +232,7 @@ def descend(loop_of: Any, step: Any, m: int, start: list[Matrix], calls: SolverC
     return best, history, f"stopped: {reason}"
 
 
-def _own_message(r: "SynthesisResult") -> str:
+def _own_message(r: SynthesisResult) -> str:
     """A nested result's message without its diagnosis (the outer run gives its own)."""
     if r.gains and r.report is not None:
         rep = r.report

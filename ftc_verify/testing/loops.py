@@ -74,7 +74,7 @@ class DrawnLoop:
         dynamic: Mapping[str, Sequence[Any]] | None = None,
         fault_during_delay: bool = False,
         name: str = "drawn",
-    ) -> "DrawnLoop":
+    ) -> DrawnLoop:
         """Build from plain arrays (the inverse of :meth:`spec`): state-feedback ``gains``
         or a ``dynamic`` controller given as lists ``{"Ac": [...], "Bc": [...], ...}``."""
         if (gains is None) == (dynamic is None):
@@ -145,7 +145,7 @@ def closed_loops(
     *,
     systems: st.SearchStrategy[FTCSystem] | None = None,
     gain_scale: Opt[float] = 1.0,
-    dynamic: bool | None | st.SearchStrategy[bool] = False,
+    dynamic: bool | st.SearchStrategy[bool] | None = False,
     n_c: Opt[int] | None = None,
     extra_states: Opt[int] = 0,
     **system_options: Any,

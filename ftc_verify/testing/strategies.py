@@ -95,7 +95,7 @@ def _opt(value: Any, *, floats: bool = False) -> st.SearchStrategy[Any]:
     return st.just(value)
 
 
-def _flag(value: bool | None | st.SearchStrategy[bool]) -> st.SearchStrategy[bool]:
+def _flag(value: bool | st.SearchStrategy[bool] | None) -> st.SearchStrategy[bool]:
     """A boolean option: ``None`` means either."""
     return st.booleans() if value is None else _opt(value)
 
@@ -129,7 +129,7 @@ def chains(
     alpha_max: float = RATE_RANGE[1],
     beta_max: float = RATE_RANGE[1],
     beta_width: Opt[float] = WIDTH_MAX,
-    fault_during_delay: bool | None | st.SearchStrategy[bool] = False,
+    fault_during_delay: bool | st.SearchStrategy[bool] | None = False,
 ) -> JointChain:
     """Joint (true, FDI) chains: a valid fault generator and a box of detection rates.
 
@@ -201,8 +201,8 @@ def systems(
     ny: Opt[int] = (1, 2),
     nw: Opt[int] = (1, 2),
     stability_margin: Opt[float] | None = None,
-    uncertain: bool | None | st.SearchStrategy[bool] = False,
-    zero_weights: bool | None | st.SearchStrategy[bool] = False,
+    uncertain: bool | st.SearchStrategy[bool] | None = False,
+    zero_weights: bool | st.SearchStrategy[bool] | None = False,
     measured_outputs: Opt[int] | None = None,
     chains: st.SearchStrategy[JointChain] | Mapping[str, Any] | None = None,
     spread: Opt[float] = (0.0, 0.5),
@@ -393,7 +393,7 @@ def controllers(
     draw: st.DrawFn,
     system: FTCSystem,
     *,
-    dynamic: bool | None | st.SearchStrategy[bool] = False,
+    dynamic: bool | st.SearchStrategy[bool] | None = False,
     n_c: Opt[int] | None = None,
     extra_states: Opt[int] = 0,
     scale: Opt[float] = 1.0,
