@@ -19,7 +19,7 @@ detection phases of :mod:`ftc_verify.model.chain`) the frozen closed loop
 * by python-control: ``control.poles`` and, where slycot is installed (a dependency),
   ``control.linfnorm`` (SLICOT ``ab13dd``, tolerance 1e-10); without slycot
   ``control.norm(sys, 'inf', method='scipy')`` (python-control's own bisection, documented
-  accuracy 1e-6, and it raised ``LinAlgError`` on a first-order mode in version 0.10.2).
+  accuracy 1e-6; python-control 0.10.2 raises ``LinAlgError`` there on a first-order mode).
 
 Disagreements beyond :data:`POLE_RTOL` or :data:`NORM_AGREE_RTOL` are reported, not
 hidden. The :math:`H_\infty` norm of a frozen mode is infinite when the mode is

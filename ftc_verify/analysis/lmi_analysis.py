@@ -20,8 +20,8 @@ first solves *one* program with the margin built in (:func:`_margin_gamma`): min
 hint from below or 1); its optimum is interior, so its certificate passes, and the dual
 point bounds the :math:`\tau = 0` minimum from below, which says how far above the
 minimum the certified gamma is (re-solved, at most :data:`MARGIN_SOLVES` times, when more
-than :data:`MARGIN_GAP`). This replaced the two solves per gamma of the ladder below
-(issue 24). When that path gives no certificate, and with the other solvers, the
+than :data:`MARGIN_GAP`): one solve per certified gamma where the ladder below needs
+two. When that path gives no certificate, and with the other solvers, the
 two-step ladder runs: minimise :math:`g = \gamma^2`, then re-solve at
 :math:`\gamma_1 = \gamma^*(1+\rho)`
 for :math:`\rho` in :data:`GAMMA_LADDER`, maximising a common margin :math:`t` with

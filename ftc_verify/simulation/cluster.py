@@ -5,7 +5,7 @@ dependency: ``pip install 'ftc-verify[dask]'``), so that nothing else pays its i
 a client's work then goes through :mod:`ftc_verify.simulation.streaming` (reference
 backend) or :mod:`ftc_verify.simulation.fmu_workers` (FMU backend).
 
-The contract (issue 22):
+The contract:
 
 * :func:`check_cluster_options` refuses, before any work, a worker count above
   :func:`max_workers` (cores and memory) and a scheduler address that is not
