@@ -2,7 +2,7 @@
 
 Round trip of the paper's systems, the refusals (discrete time, feedthrough, unknown or
 misused signals), the frozen loops against our eigenvalues and python-control's norm
-against :func:`ftc_verify.analysis.crossval.cross_validate`, and the README's example.
+against :func:`ftc_verify.analysis.crossval.cross_validate`, and the documentation's example.
 """
 
 from __future__ import annotations
@@ -208,13 +208,13 @@ def test_round_trip_through_a_static_controller() -> None:
     np.testing.assert_array_equal(G.A, paper.modes[1].A + paper.modes[1].B @ K[1])
 
 
-# ------------------------------------------------------------------ README
+# ------------------------------------------------------------------ the documentation's example
 
 def readme_example() -> str:
-    text = (ROOT / "README.md").read_text(encoding="utf-8")
-    section = text.split("## python-control in and out", 1)[1].split("\n## ", 1)[0]
-    blocks = re.findall(r"```python\n(.*?)```", section, flags=re.DOTALL)
-    assert len(blocks) == 1, "the section has one python example"
+    """The one python example of the docs' page "python-control in and out"."""
+    text = (ROOT / "docs" / "user-guide" / "python-control.md").read_text(encoding="utf-8")
+    blocks = re.findall(r"```python\n(.*?)```", text, flags=re.DOTALL)
+    assert len(blocks) == 1, "the page has one python example"
     return blocks[0]
 
 
