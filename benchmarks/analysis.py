@@ -588,7 +588,7 @@ def print_table(rows: list[dict[str, Any]]) -> None:
             case = "paper-cli"
         unc = "" if r.get("uncertain", "") == "" else ("y" if r["uncertain"] else "n")
         print(f"{case:<10}{_f(r.get('n'), 3)}{_f(r.get('m'), 3)}{_f(r.get('variables'), 6)} {unc:>3} "
-              f"{str(r.get('solver', '')):<9}{str(r.get('solvers_used', '') or '-'):<14}"
+              f"{r.get('solver', '')!s:<9}{r.get('solvers_used', '') or '-'!s:<14}"
               f"{_f(r.get('spectral_s'), 9)}{_f(r.get('build_s'), 7)}{_f(r.get('solve_s'), 8)}"
               f"{_f(r.get('canon_s'), 7)}{_f(r.get('solver_core_s'), 8)}{_f(r.get('crossval_s'), 6)}"
               f"{_f(r.get('total_s'), 8)} {_f(r.get('certified'), 4)}{_f(r.get('nominal_gamma'), 8, 3)}"

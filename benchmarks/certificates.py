@@ -141,7 +141,7 @@ def run_case(case: dict[str, Any]) -> dict[str, Any]:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             rep = analyze(case["loop"], cross_validation=False)
-    except Exception as exc:  # noqa: BLE001 -- a crash is a result too: recorded, not fatal
+    except Exception as exc:
         row.update(seconds=time.perf_counter() - t, verdict="error", outcome="error", certified_gamma=None,
                    relative_error=None, estimated_abscissa=None, message=f"{type(exc).__name__}: {exc}",
                    false_verdict=False, missing=case["true_abscissa"] < 0, loose=False, below=False)

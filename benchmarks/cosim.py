@@ -50,12 +50,12 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from ftc_verify.plants.linear_jump import build_fmu  # noqa: E402
-from ftc_verify.model.system import FTCSystem  # noqa: E402
-from ftc_verify.simulation.paths import communication_grid, sample_paths  # noqa: E402
-from ftc_verify.model.files import load_system  # noqa: E402
-from ftc_verify.controllers import Controller, load_controller  # noqa: E402
-from ftc_verify.simulation.supervisor import FaultInjectionMap, Supervisor  # noqa: E402
+from ftc_verify.plants.linear_jump import build_fmu
+from ftc_verify.model.system import FTCSystem
+from ftc_verify.simulation.paths import communication_grid, sample_paths
+from ftc_verify.model.files import load_system
+from ftc_verify.controllers import Controller, load_controller
+from ftc_verify.simulation.supervisor import FaultInjectionMap, Supervisor
 
 DEFAULT_OUT = REPO / "benchmarks" / "results" / "cosim.csv"
 RATIO_GOAL = 1.5

@@ -84,7 +84,7 @@ def run(paths_count: int, horizon: float, step: float, repeat: int, seed: int, d
         t0 = time.perf_counter()
         paths = sample_paths(system.chain, horizon, paths_count, seed)
         sample_s = time.perf_counter() - t0
-        steps = int(round(horizon / step))
+        steps = round(horizon / step)
         jumps = sum(p.times.size - 1 for p in paths)
         best = np.inf
         for _ in range(repeat):

@@ -115,7 +115,7 @@ def main(argv: list[str] | None = None) -> int:
         w.writeheader()
         w.writerows(rows)
     for r in rows:
-        print(f"{r['what']:78s} {r['wall_s']:>8} s {str(r['peak_mb']):>8} MB  {r['note']}")
+        print(f"{r['what']:78s} {r['wall_s']:>8} s {r['peak_mb']!s:>8} MB  {r['note']}")
     print(f"CSV: {out}")
     return 0 if ok and diff < 1e-12 else 1
 

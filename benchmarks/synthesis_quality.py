@@ -52,13 +52,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from ftc_verify.analysis.closedloop import state_feedback_loop  # noqa: E402
-from ftc_verify.analysis.lmi_analysis import hinf_gamma  # noqa: E402
-from ftc_verify.analysis.stability import mean_square_stability  # noqa: E402
-from ftc_verify.model.system import FTCSystem  # noqa: E402
-from ftc_verify.simulation.cluster import open_client  # noqa: E402
-from ftc_verify.synthesis.starts import lqr_gain  # noqa: E402
-from ftc_verify.synthesis.state_feedback import synthesize  # noqa: E402
+from ftc_verify.analysis.closedloop import state_feedback_loop
+from ftc_verify.analysis.lmi_analysis import hinf_gamma
+from ftc_verify.analysis.stability import mean_square_stability
+from ftc_verify.model.system import FTCSystem
+from ftc_verify.simulation.cluster import open_client
+from ftc_verify.synthesis.starts import lqr_gain
+from ftc_verify.synthesis.state_feedback import synthesize
 
 METHODS = ("two-step", "common", "iterative", "lqr")
 RTOL = 1e-3

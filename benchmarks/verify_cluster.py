@@ -38,7 +38,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from ftc_verify.simulation.batches import FMU_TASK_PATHS  # noqa: E402
+from ftc_verify.simulation.batches import FMU_TASK_PATHS
 
 CONFIGS: tuple[int | None, ...] = (None, 1, 2, 4)
 

@@ -21,7 +21,7 @@ from ftc_verify import __version__  # noqa: E402
 
 project = "ftc-verify"
 author = "the ftc-verify developers"
-copyright = "the ftc-verify developers"  # noqa: A001
+copyright = "the ftc-verify developers"
 version = release = __version__
 
 extensions = [

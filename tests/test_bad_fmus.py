@@ -33,13 +33,13 @@ fmpy = pytest.importorskip("fmpy")
 if shutil.which("gcc") is None:  # pragma: no cover
     pytest.skip("gcc is needed to compile the FMUs", allow_module_level=True)
 
-from ftc_verify.errors import ValidationError  # noqa: E402
-from ftc_verify.plants.linear_jump import FMUError, build_fmu, fmi2_include_dir  # noqa: E402
-from ftc_verify.model.system import FTCSystem  # noqa: E402
-from ftc_verify.simulation.paths import ChainPath, sample_paths  # noqa: E402
-from ftc_verify.model.files import load_system  # noqa: E402
-from ftc_verify.controllers import Controller, load_gains  # noqa: E402
-from ftc_verify.simulation.supervisor import FaultInjectionMap, Supervisor  # noqa: E402
+from ftc_verify.errors import ValidationError
+from ftc_verify.plants.linear_jump import FMUError, build_fmu, fmi2_include_dir
+from ftc_verify.model.system import FTCSystem
+from ftc_verify.simulation.paths import ChainPath, sample_paths
+from ftc_verify.model.files import load_system
+from ftc_verify.controllers import Controller, load_gains
+from ftc_verify.simulation.supervisor import FaultInjectionMap, Supervisor
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 LIB = f"binaries/{fmpy.platform}/LinearJumpPlant{fmpy.sharedLibraryExtension}"
@@ -56,7 +56,7 @@ def cache_root(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture(autouse=True)
-def _isolated(cache_root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+def isolated_root(cache_root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
     """FMU cache in a temp folder; ``tempfile`` writes only below ``tmp_path/tmp``; the
     working directory is unchanged and the temp folder is empty after each test."""
     monkeypatch.setenv("FTC_VERIFY_CACHE", str(cache_root))
@@ -244,7 +244,7 @@ def test_map_measured_role_is_checked(paper: FTCSystem, paper_fmu: Path, control
     observer = Controller.dynamic([-np.eye(1)] * 2, [np.zeros((1, 1))] * 2, [np.zeros((2, 1))] * 2,
                                   [np.ones((2, 1))] * 2)
     with Supervisor(paper_fmu, dataclasses.replace(base, measured=()), system=paper) as sup:
-        with pytest.raises(ValidationError, match="FaultInjectionMap.measured names no FMU variable"):
+        with pytest.raises(ValidationError, match=r"FaultInjectionMap\.measured names no FMU variable"):
             sup.run([one_jump_path()], observer, step=0.1)
         assert sup.run([one_jump_path()], controller, step=0.1).records[0].ym.shape[1] == 2  # x itself
 
@@ -492,7 +492,7 @@ def test_stub_do_step_error(stub_fmu: Path) -> None:
 @pytest.mark.parametrize("member", ["../evil.txt", "resources/../../evil.txt", "/tmp/evil.txt",
                                     "C:/evil.txt", "..\\evil.txt"])
 def test_zip_slip_is_refused_before_extracting(tmp_path: Path, paper: FTCSystem, paper_fmu: Path,
-                                              _isolated: Path, member: str) -> None:
+                                              isolated_root: Path, member: str) -> None:
     inner = tmp_path / "a" / "b"
     inner.mkdir(parents=True)
     bad = doctor(paper_fmu, inner / "slip.fmu", extra=[(member, b"owned")])
@@ -503,4 +503,4 @@ def test_zip_slip_is_refused_before_extracting(tmp_path: Path, paper: FTCSystem,
         Supervisor(bad, system=paper)
     assert sorted(p for p in tmp_path.rglob("*")) == before  # nothing written anywhere below tmp_path
     assert [p.exists() for p in outside] == existed
-    assert list(_isolated.iterdir()) == []  # not even an extraction folder was created
+    assert list(isolated_root.iterdir()) == []  # not even an extraction folder was created

@@ -20,14 +20,14 @@ import pytest
 
 distributed = pytest.importorskip("distributed")
 
-from ftc_verify.controllers import load_controller  # noqa: E402
-from ftc_verify.model.files import load_system  # noqa: E402
-from ftc_verify.simulation.batches import fmu_monte_carlo  # noqa: E402
-from ftc_verify.simulation.cluster import open_client  # noqa: E402
-from ftc_verify.simulation.delta import DeltaSchedule  # noqa: E402
-from ftc_verify.simulation.paths import sample_paths  # noqa: E402
-from ftc_verify.simulation.streaming import simulate_streaming  # noqa: E402
-from ftc_verify.simulation.supervisor import simulate_fmu  # noqa: E402
+from ftc_verify.controllers import load_controller
+from ftc_verify.model.files import load_system
+from ftc_verify.simulation.batches import fmu_monte_carlo
+from ftc_verify.simulation.cluster import open_client
+from ftc_verify.simulation.delta import DeltaSchedule
+from ftc_verify.simulation.paths import sample_paths
+from ftc_verify.simulation.streaming import simulate_streaming
+from ftc_verify.simulation.supervisor import simulate_fmu
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "examples" / "paper.toml"

@@ -20,18 +20,18 @@ import pytest
 
 distributed = pytest.importorskip("distributed")
 
-from ftc_verify.controllers import load_controller  # noqa: E402
-from ftc_verify.errors import FMUError, PlantRunError, ValidationError  # noqa: E402
-from ftc_verify.model.files import load_system  # noqa: E402
-from ftc_verify.plants.plant_map import load_plant_map  # noqa: E402
-from ftc_verify.simulation import cluster  # noqa: E402
-from ftc_verify.simulation.cluster import check_cluster_options, max_workers, open_client  # noqa: E402
-from ftc_verify.simulation.delta import DeltaSchedule  # noqa: E402
-from ftc_verify.simulation.paths import sample_paths  # noqa: E402
-from ftc_verify.simulation.spec import SimulationSpec  # noqa: E402
+from ftc_verify.controllers import load_controller
+from ftc_verify.errors import FMUError, PlantRunError, ValidationError
+from ftc_verify.model.files import load_system
+from ftc_verify.plants.plant_map import load_plant_map
+from ftc_verify.simulation import cluster
+from ftc_verify.simulation.cluster import check_cluster_options, max_workers, open_client
+from ftc_verify.simulation.delta import DeltaSchedule
+from ftc_verify.simulation.paths import sample_paths
+from ftc_verify.simulation.spec import SimulationSpec
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from fmu_plants import build_plant  # noqa: E402
+from fmu_plants import build_plant
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "examples" / "paper.toml"

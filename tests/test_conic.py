@@ -43,7 +43,7 @@ def robust_loop(seed: int = 3):
     rng = np.random.default_rng(seed)
     n, m = 3, 2
     modes = []
-    for i in range(m):
+    for _i in range(m):
         modes.append({"A": rng.normal(size=(n, n)) - 2 * np.eye(n), "B": rng.normal(size=(n, 1)),
                       "C": rng.normal(size=(1, n)), "D": rng.normal(size=(n, 1)),
                       "A1": 0.1 * np.eye(n), "A2": 0.1 * np.eye(n), "B1": 0.1 * np.eye(n), "B2": 0.1 * np.ones((n, 1))})

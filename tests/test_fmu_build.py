@@ -15,9 +15,9 @@ fmpy = pytest.importorskip("fmpy")
 if shutil.which("gcc") is None:  # pragma: no cover - gcc is on every supported machine
     pytest.skip("gcc is needed to compile the FMU", allow_module_level=True)
 
-from fmpy import calloc, extract, free, read_model_description, simulate_fmu  # noqa: E402
-from fmpy.fmi1 import FMICallException  # noqa: E402
-from fmpy.fmi2 import (  # noqa: E402
+from fmpy import calloc, extract, free, read_model_description, simulate_fmu
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import (
     FMU2Slave,
     fmi2CallbackAllocateMemoryTYPE,
     fmi2CallbackFreeMemoryTYPE,
@@ -26,8 +26,8 @@ from fmpy.fmi2 import (  # noqa: E402
     fmi2LastSuccessfulTime,
 )
 
-from ftc_verify.errors import FTCError, ValidationError  # noqa: E402
-from ftc_verify.plants.linear_jump import (  # noqa: E402
+from ftc_verify.errors import FTCError, ValidationError
+from ftc_verify.plants.linear_jump import (
     FMUError,
     build_binary,
     build_fmu,
@@ -39,8 +39,8 @@ from ftc_verify.plants.linear_jump import (  # noqa: E402
     validate,
     variable_names,
 )
-from ftc_verify.model.system import FTCSystem  # noqa: E402
-from ftc_verify.model.files import load_system  # noqa: E402
+from ftc_verify.model.system import FTCSystem
+from ftc_verify.model.files import load_system
 
 PAPER = Path(__file__).resolve().parents[1] / "examples" / "paper.toml"
 CHAIN2 = dict(alpha=[[-1.0, 1.0], [2.0, -2.0]], beta_min=[[0, 1.0], [1.0, 0]], beta_max=[[0, 2.0], [2.0, 0]])
@@ -367,7 +367,7 @@ def test_scalar_plant_matches_the_analytic_solution(scalar_fmu: Path, open_plant
 
 
 def test_paper_system_matches_scipy_expm_with_uncertainty(paper: FTCSystem, paper_fmu: Path, open_plant) -> None:
-    n, nu, ny, nw = paper.dims
+    n, _nu, ny, _nw = paper.dims
     x = np.array([1.0, -0.5])
     plant = open_plant(paper_fmu, x0=x)
     D1 = np.array([[0.3, -0.5], [0.2, 0.7]])

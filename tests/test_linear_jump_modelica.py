@@ -21,12 +21,12 @@ pytest.importorskip("casadi")
 if shutil.which("gcc") is None:  # pragma: no cover
     pytest.skip("gcc is needed to compile the FMUs", allow_module_level=True)
 
-from ftc_verify.controllers import load_controller  # noqa: E402
-from ftc_verify.model.files import load_system  # noqa: E402
-from ftc_verify.plants.linear_jump_modelica import linear_jump_modelica, linear_jump_modelica_map  # noqa: E402
-from ftc_verify.plants.modelica import build_modelica_fmu  # noqa: E402
-from ftc_verify.simulation.paths import sample_paths  # noqa: E402
-from ftc_verify.simulation.supervisor import Supervisor, simulate_fmu  # noqa: E402
+from ftc_verify.controllers import load_controller
+from ftc_verify.model.files import load_system
+from ftc_verify.plants.linear_jump_modelica import linear_jump_modelica, linear_jump_modelica_map
+from ftc_verify.plants.modelica import build_modelica_fmu
+from ftc_verify.simulation.paths import sample_paths
+from ftc_verify.simulation.supervisor import Supervisor, simulate_fmu
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -22,12 +22,12 @@ fmpy = pytest.importorskip("fmpy")
 if shutil.which("gcc") is None:  # pragma: no cover - gcc is on every supported machine
     pytest.skip("gcc is needed to compile the FMU", allow_module_level=True)
 
-from fmpy import extract, read_model_description, simulate_fmu  # noqa: E402
-from fmpy.fmi2 import FMU2Model  # noqa: E402
-from fmpy.validation import validate_fmu  # noqa: E402
+from fmpy import extract, read_model_description, simulate_fmu
+from fmpy.fmi2 import FMU2Model
+from fmpy.validation import validate_fmu
 
-from ftc_verify.errors import FMUError, ValidationError  # noqa: E402
-from ftc_verify.plants.modelica import (  # noqa: E402
+from ftc_verify.errors import FMUError, ValidationError
+from ftc_verify.plants.modelica import (
     build_modelica_fmu,
     check_modelica_fmu,
     modelica_spec,

@@ -20,9 +20,9 @@ fmpy = pytest.importorskip("fmpy")
 if shutil.which("gcc") is None:  # pragma: no cover - gcc is on every supported machine
     pytest.skip("gcc is needed to compile the FMU", allow_module_level=True)
 
-from fmpy import calloc, extract, free, read_model_description, simulate_fmu  # noqa: E402
-from fmpy.fmi1 import FMICallException  # noqa: E402
-from fmpy.fmi2 import (  # noqa: E402
+from fmpy import calloc, extract, free, read_model_description, simulate_fmu
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import (
     FMU2Model,
     FMU2Slave,
     fmi2CallbackAllocateMemoryTYPE,
@@ -32,10 +32,10 @@ from fmpy.fmi2 import (  # noqa: E402
     fmi2Error,
     fmi2LastSuccessfulTime,
 )
-from fmpy.validation import validate_fmu  # noqa: E402
+from fmpy.validation import validate_fmu
 
-from ftc_verify.errors import FMUError, ValidationError  # noqa: E402
-from ftc_verify.plants.ode_fmu import (  # noqa: E402
+from ftc_verify.errors import FMUError, ValidationError
+from ftc_verify.plants.ode_fmu import (
     OdeFmuSpec,
     OdeVariable,
     build_ode_binary,

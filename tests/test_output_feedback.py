@@ -47,7 +47,7 @@ def certified_observer() -> tuple[FTCSystem, object]:
     system = paper_two_outputs()
     sf = synthesize(system, method="iterative", k_max=30.0, solver="clarabel")
     assert sf.certified
-    name, ctrl = observer_designs(system, list(sf.gains))[0]
+    _name, ctrl = observer_designs(system, list(sf.gains))[0]
     return system, ctrl
 
 

@@ -47,7 +47,7 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 def hand_rolled(system, gains, path, *, step, kind="paper", delta=None, x0=None, rng=None):
     """Per grid interval one ``scipy.linalg.expm`` of ``[[A, B, D], [0, 0, 0]] h`` with
     ``h = t[k+1] - t[k]`` (no caching, no special cases); returns ``(t, x, u, w, y)``."""
-    n, nu, ny, nw = system.dims
+    n, nu, _ny, nw = system.dims
     m = system.m
     sched = delta or DeltaSchedule("zero")
     segs = delta_segments(system, path, sched, rng)
@@ -166,7 +166,7 @@ def test_full_information_gains(paper_system, paper_gains) -> None:
     paths = sample_paths(paper_system.chain, 1.5, 2, 1)
     res = simulate_reference(paper_system, sf(gains), paths, step=0.03, x0=[1.0, 0.0])
     for rec, p in zip(res.records, paths):
-        t, X, U, W, Y = hand_rolled(paper_system, gains, p, step=0.03, x0=[1.0, 0.0])
+        _t, X, U, _W, _Y = hand_rolled(paper_system, gains, p, step=0.03, x0=[1.0, 0.0])
         assert rel(rec.x, X) < 1e-12 and rel(rec.u, U) < 1e-12
     assert res.options["gains"] == "full-information"
 
@@ -428,7 +428,7 @@ def test_errors_name_the_field(paper_system, paper_gains) -> None:
                 fn(paper_system, sf(paper_gains), [path], **kw)
         with pytest.raises(ValidationError, match="controller: 1 entries given"):
             fn(paper_system, sf(paper_gains[:1]), [path], step=0.1)
-        with pytest.raises(ValidationError, match="controller: expected a ftc_verify.controllers.Controller"):
+        with pytest.raises(ValidationError, match=r"controller: expected a ftc_verify\.controllers\.Controller"):
             fn(paper_system, list(paper_gains), [path], step=0.1)  # a bare gain list is refused
         with pytest.raises(ValidationError, match=r"paths\[1\]"):
             fn(paper_system, sf(paper_gains), [path, "not a path"], step=0.1)

@@ -112,7 +112,7 @@ def test_spec_and_keywords_give_the_same_numbers(paper: tuple) -> None:
     for ra, rb in zip(a.records, b.records, strict=True):
         np.testing.assert_array_equal(ra.x, rb.x)
         np.testing.assert_array_equal(ra.y, rb.y)
-    ey, ew = energies_reference(system, controller, paths, spec=spec)
+    ey, _ew = energies_reference(system, controller, paths, spec=spec)
     np.testing.assert_allclose(ey, [r.y_norm ** 2 for r in a.records], rtol=1e-10)
     streamed = simulate_streaming(system, controller, paths, spec=SimulationSpec(step=0.02, delta="random", seed=9,
                                                                                record=2))

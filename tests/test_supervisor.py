@@ -40,16 +40,16 @@ fmpy = pytest.importorskip("fmpy")
 if shutil.which("gcc") is None:  # pragma: no cover
     pytest.skip("gcc is needed to compile the FMU", allow_module_level=True)
 
-from ftc_verify.controllers import Controller, load_controller  # noqa: E402
-from ftc_verify.errors import ValidationError  # noqa: E402
-from ftc_verify.plants.linear_jump import build_fmu  # noqa: E402
-from ftc_verify.model.system import FTCSystem  # noqa: E402
-from ftc_verify.simulation.paths import communication_grid, disturbance, sample_paths  # noqa: E402
-from ftc_verify.simulation.records import l2_norm  # noqa: E402
-from ftc_verify.simulation.supervisor import FaultInjectionMap, Supervisor, simulate_fmu  # noqa: E402
-from ftc_verify.simulation.delta import DeltaSchedule, delta_segments  # noqa: E402
+from ftc_verify.controllers import Controller, load_controller
+from ftc_verify.errors import ValidationError
+from ftc_verify.plants.linear_jump import build_fmu
+from ftc_verify.model.system import FTCSystem
+from ftc_verify.simulation.paths import communication_grid, disturbance, sample_paths
+from ftc_verify.simulation.records import l2_norm
+from ftc_verify.simulation.supervisor import FaultInjectionMap, Supervisor, simulate_fmu
+from ftc_verify.simulation.delta import DeltaSchedule, delta_segments
 
-from ftc_verify.simulation.reference import energies_reference, simulate_reference  # noqa: E402
+from ftc_verify.simulation.reference import energies_reference, simulate_reference
 
 RTOL = 1e-8
 
@@ -369,7 +369,7 @@ def test_library_loaded_and_instantiated_once(paper_case, monkeypatch: pytest.Mo
 
 
 def test_switches_norms_and_grid_are_recorded(request) -> None:
-    system, controller, paths, res = fmu_run(request, "paper_case", "random")
+    _system, controller, paths, res = fmu_run(request, "paper_case", "random")
     summary = res.to_dict()
     assert summary["backend"] == "fmu" and summary["paths"] == len(paths) and summary["step"] == 0.01
     assert summary["horizon"] == 10.0 and summary["disturbance"] == "paper"

@@ -30,10 +30,11 @@ fmpy = pytest.importorskip("fmpy")
 if shutil.which("gcc") is None:  # pragma: no cover
     pytest.skip("gcc is needed to compile the FMUs", allow_module_level=True)
 
-from fmpy import extract, read_model_description, simulate_fmu  # noqa: E402
-from fmpy.fmi2 import FMU2Model, fmi2Real  # noqa: E402
+from fmpy import extract, read_model_description, simulate_fmu
+from fmpy.fmi2 import FMU2Model, fmi2Real
 
-from ftc_verify.plants.modelica import build_modelica_fmu  # noqa: E402
+from ftc_verify.plants.modelica import build_modelica_fmu
+import itertools
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "three_tank"
 AREA = 0.0154
@@ -47,7 +48,7 @@ SIGNAL = np.array([(0.0, 3.5e-5, 2.4e-5, 0.0), (10.0, 3.5e-5, 2.4e-5, 2.0), (20.
 def _steps(signal: np.ndarray) -> np.ndarray:
     """Piecewise-constant form for fmpy: each change as two rows at the same time."""
     rows = [tuple(signal[0])]
-    for prev, row in zip(signal[:-1], signal[1:]):
+    for prev, row in itertools.pairwise(signal):
         rows.append((row["time"],) + tuple(prev)[1:])
         rows.append(tuple(row))
     return np.array(rows, dtype=signal.dtype)

@@ -112,8 +112,8 @@ def test_motor_routes_agree_with_python_control(motor_dir: Path, route: str) -> 
         with FMUSession(pm.fmu, pm.injection_map(), tolerance=1e-12) as session:
             probe = _Probe(session, pm)
             sys_ = control.NonlinearIOSystem(
-                lambda t, x, u, params: probe.derivative(mode, np.asarray(x, float), np.asarray(u, float)),
-                lambda t, x, u, params: probe.outputs(mode, np.asarray(x, float), np.asarray(u, float)),
+                lambda t, x, u, params, probe=probe, mode=mode: probe.derivative(mode, np.asarray(x, float), np.asarray(u, float)),
+                lambda t, x, u, params, probe=probe, mode=mode: probe.outputs(mode, np.asarray(x, float), np.asarray(u, float)),
                 states=2, inputs=2, outputs=2)
             ref = control.linearize(sys_, pm.states_op, np.concatenate([pm.inputs_op, pm.disturbances_op]))
         got = np.hstack([m.A, m.B, m.D])

@@ -65,7 +65,7 @@ class Affine:
         return self.const.shape
 
     @property
-    def T(self) -> Affine:  # noqa: N802 - numpy's name
+    def T(self) -> Affine:
         """Transpose."""
         return Affine(self.const.T, np.swapaxes(self.lin, 0, 1))
 

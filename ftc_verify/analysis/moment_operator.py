@@ -91,7 +91,7 @@ class MomentOperator:
         Y = AX + np.transpose(AX, (0, 2, 1)) + np.einsum("ts,tij->sij", self.Q, X)
         return self.vec(Y)
 
-    def linear_operator(self):  # noqa: ANN201 - scipy type
+    def linear_operator(self):
         import scipy.sparse.linalg as spla
 
         return spla.LinearOperator((self.size, self.size), matvec=self.apply, dtype=float)

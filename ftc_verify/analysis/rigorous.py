@@ -72,7 +72,7 @@ class Ball:
         return (self.value.nrows(), self.value.ncols())
 
     @property
-    def T(self) -> Ball:  # noqa: N802 - numpy's name
+    def T(self) -> Ball:
         return Ball(self.value.transpose())
 
     def _coerce(self, other: Any) -> Any:

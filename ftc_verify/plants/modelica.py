@@ -102,7 +102,7 @@ def _load(b: SimpleNamespace, path: Path, text: str, model: str) -> tuple[Any, A
     """``(pymoca CasADi model, flattened class)``; pymoca failures become ValidationError."""
     try:
         tree = b.parser.parse(text)
-    except Exception as exc:  # noqa: BLE001 - pymoca raises many types
+    except Exception as exc:
         raise ValidationError(f"{path}: pymoca cannot parse the file: {exc}") from None
     try:
         flat = b.flatten(tree, b.ast.ComponentRef.from_string(model))
@@ -110,7 +110,7 @@ def _load(b: SimpleNamespace, path: Path, text: str, model: str) -> tuple[Any, A
         b.generator.GeneratorWalker().walk(gen, flat)
         gen.model.simplify(dict(b.options))
         return gen.model, flat.classes[model]
-    except Exception as exc:  # noqa: BLE001
+    except Exception as exc:
         raise ValidationError(f"{path}: pymoca cannot translate the model {model!r}: "
                               f"{type(exc).__name__}: {exc}") from None
 

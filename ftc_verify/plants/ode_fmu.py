@@ -283,7 +283,7 @@ def _model_structure(parent: ET.Element, spec: OdeFmuSpec) -> None:
     the parameters (declared conservatively, ``dependenciesKind="dependent"``)."""
     sizes = [len(spec.states), *(len(getattr(spec, g)) for g in VARIABLE_GROUPS)]  # x, der(x), u, p, y
     bounds = list(itertools.accumulate([1, *sizes]))
-    states, derivs, inputs, params, outputs = (list(range(a, b)) for a, b in zip(bounds, bounds[1:]))
+    states, derivs, inputs, params, outputs = (list(range(a, b)) for a, b in itertools.pairwise(bounds))
     for tag, indices, deps in (("Outputs", outputs, states + inputs), ("Derivatives", derivs, states + inputs),
                                ("InitialUnknowns", derivs + outputs, states + inputs + params)):
         if not indices:

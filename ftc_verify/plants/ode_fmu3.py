@@ -98,7 +98,7 @@ def ode_model_description3(spec: OdeFmuSpec, guid: str) -> str:
         ET.SubElement(variables, "Float64", {"name": name, "valueReference": str(vr), **attrs})
     sizes = [len(spec.states), *(len(getattr(spec, g)) for g in VARIABLE_GROUPS)]  # x, der(x), u, p, y
     bounds = list(itertools.accumulate([1, *sizes]))
-    states, derivs, inputs, params, outputs = (list(range(a, b)) for a, b in zip(bounds, bounds[1:]))
+    states, derivs, inputs, params, outputs = (list(range(a, b)) for a, b in itertools.pairwise(bounds))
     structure = ET.SubElement(root, "ModelStructure")
     for tag, refs, deps in (("Output", outputs, states + inputs), ("ContinuousStateDerivative", derivs, states + inputs),
                             ("InitialUnknown", derivs + outputs, states + inputs + params)):

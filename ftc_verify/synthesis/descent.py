@@ -65,6 +65,7 @@ from ..errors import ValidationError
 from ..jsonable import OMIT, fields_dict
 from ..model.system import FTCSystem, JointChain, Matrix
 from .results import SolverCalls, verify_controller
+import itertools
 
 __all__ = ["rate_scale", "BUDGET_SECONDS", "TUNING_SECONDS", "DESIGNED_STARTS", "KAPPAS", "LEVELS", "GAIN_SCAN", "Parametrisation", "abscissa_gradient", "worst_abscissa", "bfgs",
            "DescentResult", "stabilise", "deepen", "gain_scan", "unbounded_gain_diagnosis", "descent_route",
@@ -219,7 +220,7 @@ def _project(par: Parametrisation, theta: Matrix, k_max: float | None) -> Matrix
     return par.theta(out)
 
 
-def bfgs(fun, x0: Matrix, *, target: float, max_iter: int = 200, project=lambda x: x,  # noqa: ANN001
+def bfgs(fun, x0: Matrix, *, target: float, max_iter: int = 200, project=lambda x: x,
          c1: float = 1e-4, c2: float = 0.9) -> tuple[Matrix, float, int]:
     """Minimise ``fun(x) -> (f, g)`` by BFGS with a weak Wolfe line search (module
     docstring) until ``f < target``; returns ``(x, f, evaluations)``."""
@@ -369,7 +370,7 @@ def unbounded_gain_diagnosis(system: FTCSystem, order: int, found: Sequence[Desc
     best = min(found, key=lambda r: r.abscissa)
     scan = gain_scan(system, order, seed=seed)
     values = [f for _, f in scan]
-    falling = all(b <= a + 1e-9 for a, b in zip(values, values[1:])) and values[-1] < values[0]
+    falling = all(b <= a + 1e-9 for a, b in itertools.pairwise(values)) and values[-1] < values[0]
     text = (f"no controller of order <= {order} found: best abscissa {best.abscissa:.4g} at gain norm "
             f"{best.gain_norm:.3g} (from {best.start}); best abscissa under gain bounds "
             + ", ".join(f"{k:g}: {f:.3g}" for k, f in scan))
