@@ -48,6 +48,16 @@ autodoc_default_options = {"members": True, "member-order": "bysource", "show-in
 autodoc_typehints = "signature"
 autodoc_preserve_defaults = True
 autoclass_content = "class"
+# The package's type aliases, where they are documented: docs/_ext/ftc_refs.py resolves
+# an alias left by name in a signature (an annotation autodoc cannot evaluate: a name
+# imported under ``TYPE_CHECKING``, a subscripted alias such as ``Opt[int]``). Not
+# ``autodoc_type_aliases``: Sphinx 9 renders an alias inside ``X | None`` or
+# ``tuple[X, ...]`` as its internal ``TypeAliasForwardRef`` class.
+ftc_type_aliases = {
+    "Matrix": "ftc_verify.model.matrices.Matrix",
+    "Signal": "ftc_verify.model.system.Signal",
+    "Opt": "ftc_verify.testing.strategies.Opt",
+}
 numpydoc_show_class_members = False
 numpydoc_class_members_toctree = False
 numpydoc_attributes_as_param_list = False

@@ -8,12 +8,24 @@ Two things the stock autodoc does not do for a package laid out as this one:
   The API pages document every object once, in the module that defines it
   (:func:`skip_reexport`), and a reference to a re-exported name is resolved to that
   place (:func:`resolve_reexport`).
+* A type alias of ``ftc_type_aliases`` in conf.py (``Matrix``, ``Signal``, ``Opt``)
+  written by name in an annotation autodoc could not evaluate (a name imported under
+  ``TYPE_CHECKING``, a subscripted alias such as ``Opt[int]``) is resolved to the
+  alias the configuration names (:func:`resolve_reexport`).
+* A dataclass field with a ``default_factory`` has the default ``<factory>`` in the
+  generated ``__init__``, which is not Python, so the signature would be split at every
+  comma; it is shown as the factory's call, ``dict()`` (:func:`factory_defaults`).
+* A documented module-level alias such as ``Matrix = NDArray[np.float64]`` is callable,
+  so numpydoc's signature hook would take the aliased class's docstring signature
+  (``ndarray(shape, ...)``) for the alias, which autodoc 9 cannot attach to data;
+  :func:`data_signature` keeps data without a signature.
 * A name that cannot be imported (a module or object that does not exist) stays
   unresolved, so ``sphinx -n`` reports it.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 from typing import Any
 
@@ -23,7 +35,7 @@ from sphinx.application import Sphinx
 from sphinx.environment import BuildEnvironment
 from sphinx.util.nodes import make_refnode
 
-__all__ = ["setup", "skip_reexport", "resolve_reexport"]
+__all__ = ["setup", "skip_reexport", "resolve_reexport", "factory_defaults", "data_signature"]
 
 _current_module: list[str] = [""]
 
@@ -81,6 +93,7 @@ def resolve_reexport(app: Sphinx, env: BuildEnvironment, node: pending_xref,
     if node.get("refdomain") != "py":
         return None
     target = node.get("reftarget", "")
+    target = app.config.ftc_type_aliases.get(target, target)
     if not target.startswith("ftc_verify."):
         # A bare name in a docstring or a type hint: what that name is in the module
         # whose docstring holds it (the module's own import of it).
@@ -100,8 +113,29 @@ def resolve_reexport(app: Sphinx, env: BuildEnvironment, node: pending_xref,
     return make_refnode(app.builder, node["refdoc"], entry.docname, entry.node_id, contnode, name)
 
 
+def factory_defaults(app: Sphinx, what: str, name: str, obj: Any, options: Any, signature: str | None,
+                     return_annotation: str | None) -> tuple[str | None, str | None] | None:
+    """Show a dataclass field's ``<factory>`` default as the factory's call, ``dict()``."""
+    if what != "class" or not signature or "<factory>" not in signature or not dataclasses.is_dataclass(obj):
+        return None
+    for f in dataclasses.fields(obj):
+        if f.init and f.default_factory is not dataclasses.MISSING:
+            called = getattr(f.default_factory, "__qualname__", "")
+            signature = signature.replace("<factory>", f"{called}()" if called.isidentifier() else "...", 1)
+    return signature, return_annotation
+
+
+def data_signature(app: Sphinx, what: str, name: str, obj: Any, options: Any, signature: str | None,
+                   return_annotation: str | None) -> tuple[str | None, str | None] | None:
+    """Module-level data keeps the signature autodoc gives it (runs before numpydoc's hook)."""
+    return (signature, return_annotation) if what == "data" else None
+
+
 def setup(app: Sphinx) -> dict[str, Any]:
+    app.add_config_value("ftc_type_aliases", {}, "env", dict)
     app.connect("autodoc-process-docstring", _note_module)
+    app.connect("autodoc-process-signature", factory_defaults)
+    app.connect("autodoc-process-signature", data_signature, priority=400)
     app.connect("autodoc-skip-member", skip_reexport)
     app.connect("missing-reference", resolve_reexport)
     return {"parallel_read_safe": False, "parallel_write_safe": True}

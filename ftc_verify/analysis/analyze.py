@@ -1,15 +1,15 @@
 """The full analysis of one closed loop: exact stability, certified LMIs, cross-validation.
 
-:func:`analyze` runs, on any :class:`~ftc_verify.closedloop.ClosedLoop`:
+:func:`analyze` runs, on any :class:`~ftc_verify.analysis.closedloop.ClosedLoop`:
 
-1. the exact mean-square stability test (:mod:`ftc_verify.stability`), worst over the
+1. the exact mean-square stability test (:mod:`ftc_verify.analysis.stability`), worst over the
    vertices of the rate box (detection rates ``beta`` and, when given, false-alarm
    rates, :mod:`ftc_verify.model.chain`);
 2. the smallest certified nominal gamma (Theorem 3.2) and robust gamma (Lemma 4.1,
    gains fixed), both over the rate box;
-3. Theorem 3.1 over the rate box, certified (:func:`~ftc_verify.lmi_analysis.mes_lmi`),
+3. Theorem 3.1 over the rate box, certified (:func:`~ftc_verify.analysis.lmi_analysis.mes_lmi`),
    first with the ``P`` of step 2 (no solve), solved only when that check fails;
-4. per-mode cross-validation with python-control (:mod:`ftc_verify.crossval`).
+4. per-mode cross-validation with python-control (:mod:`ftc_verify.analysis.crossval`).
 
 "Certified stable" means the spectral test says stable at every vertex *and* the
 Theorem 3.1 certificate passed (which covers the whole box). At a missed-detection

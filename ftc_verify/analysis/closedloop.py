@@ -146,7 +146,7 @@ class ClosedLoop:
     def scaled(self, d: Matrix) -> ClosedLoop:
         """The similar loop in the coordinates ``x = diag(d) x~``: ``A~ = D^-1 A D``,
         ``Bw~ = D^-1 Bw``, ``Cz~ = Cz D``, ``E~ = D^-1 E``, ``F~ = F D``. With ``d`` powers
-        of two (:func:`ftc_verify.analysis.lmi_analysis.balancing_scale`) every product is
+        of two (:func:`ftc_verify.analysis.conditioning.balancing_scale`) every product is
         exact in floating point, so a certificate of the scaled loop is one of this loop."""
         d = np.asarray(d, dtype=float)
         inv = 1.0 / d

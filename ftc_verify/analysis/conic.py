@@ -219,7 +219,7 @@ _CLARABEL_STATUS = {
 def solve_clarabel(problem: ConicProblem, settings: dict[str, Any]) -> tuple[str, str, Matrix | None]:
     """Solve with Clarabel; ``(status, message, x)``, ``x`` ``None`` without a point.
 
-    Statuses outside :data:`_CLARABEL_STATUS` (numerical error, insufficient progress)
+    Statuses outside ``_CLARABEL_STATUS`` (numerical error, insufficient progress)
     become ``"error"`` with Clarabel's status in the message.
     """
     status, message, x, _ = solve_clarabel_dual(problem, settings)

@@ -14,13 +14,13 @@ r"""LMI analysis of a fixed closed loop, with independently checked certificates
 
 The minimal-:math:`\gamma` optimum lies on the boundary of the feasible set (singular
 Lyapunov matrices), where no certificate can pass. With Clarabel, :func:`hinf_gamma`
-first solves *one* program with the margin built in (:func:`_margin_gamma`): minimise
+first solves *one* program with the margin built in (``_margin_gamma``): minimise
 :math:`g` with every block :math:`\preceq -\tau I` and :math:`P_s \succeq \tau I`
-(:data:`MARGIN_TAU`, on the blocks with :math:`B_w/\hat\gamma`, :math:`\hat\gamma` a
+(``MARGIN_TAU``, on the blocks with :math:`B_w/\hat\gamma`, :math:`\hat\gamma` a
 hint from below or 1); its optimum is interior, so its certificate passes, and the dual
 point bounds the :math:`\tau = 0` minimum from below, which says how far above the
-minimum the certified gamma is (re-solved, at most :data:`MARGIN_SOLVES` times, when more
-than :data:`MARGIN_GAP`): one solve per certified gamma where the ladder below needs
+minimum the certified gamma is (re-solved, at most ``MARGIN_SOLVES`` times, when more
+than ``MARGIN_GAP``): one solve per certified gamma where the ladder below needs
 two. When that path gives no certificate, and with the other solvers, the
 two-step ladder runs: minimise :math:`g = \gamma^2`, then re-solve at
 :math:`\gamma_1 = \gamma^*(1+\rho)`
@@ -29,7 +29,7 @@ for :math:`\rho` in :data:`GAMMA_LADDER`, maximising a common margin :math:`t` w
 :math:`\operatorname{diag}(I, \gamma_1^{-1} I, I)`, i.e. with :math:`B_w/\gamma_1` and
 :math:`g = 1`, so that a large :math:`\gamma` does not make the :math:`-gI` row dwarf the
 margin (the same :math:`P` certifies both) -- and reports the first
-:math:`\gamma_1` whose certificate passes -- after :data:`REFINE_STEPS` geometric
+:math:`\gamma_1` whose certificate passes -- after ``REFINE_STEPS`` geometric
 bisections of :math:`\rho` between that step and the one before it when the one before
 failed, so that a coarse ladder does not cost up to a factor 10 in :math:`\rho`.
 
@@ -84,7 +84,7 @@ LMI_BYTES_PER_NONZERO = 1600
 GAMMA_LADDER = (1e-5, 1e-4, 1e-3, 1e-2, 5e-2, 0.2, 1.0)
 #: Geometric bisections between the last failing and the first certifying ladder step.
 REFINE_STEPS = 3
-#: Margin of the one-solve program (:func:`_margin_gamma`): blocks <= -tau I, P >= tau I,
+#: Margin of the one-solve program (``_margin_gamma``): blocks <= -tau I, P >= tau I,
 #: in the coordinates where the output row is -I and ``g`` is about 1. Measured on
 #: random n = 8, 3 modes and n = 12, 4 modes: certified at 1e-7 already, gamma
 #: 1e-6 relative above the dual bound at 1e-6.
@@ -365,7 +365,7 @@ def hinf_gamma(loop: ClosedLoop, *, robust: bool, solver: str | None = None,
 
     ``gamma_hint``: an estimate of the answer, preferably from below (the certified
     nominal gamma for Lemma 4.1, whose blocks contain Theorem 3.2's as leading blocks);
-    it only scales the one-solve program (:func:`_margin_gamma`), never the answer."""
+    it only scales the one-solve program (``_margin_gamma``), never the answer."""
     _check_size(loop, robust, "Lemma 4.1" if robust else "Theorem 3.2")
     original = loop if robust else loop.nominal()
     conditioned, sim = _conditioned(original)
@@ -406,14 +406,14 @@ def _margin_gamma(original: ClosedLoop, target: ClosedLoop, sim: Similarity, rob
     gives no certificate (the caller then runs the two-step ladder).
 
     Minimise ``g`` with every block :math:`\preceq -\tau I` and :math:`P_s \succeq \tau I`
-    (:data:`MARGIN_TAU`; ``Bw / gamma_hat`` as in step 2 of the ladder, ``gamma_hat``
+    (``MARGIN_TAU``; ``Bw / gamma_hat`` as in step 2 of the ladder, ``gamma_hat``
     the hint, else 1): the optimum is interior by :math:`\tau`, so its certificate
     passes where the plain minimum's cannot, and ``-b' z`` at the dual point ``z`` bounds
     the :math:`\tau = 0` minimum from below (the dual constraints do not depend on
-    :math:`\tau`). When the certified gamma is more than :data:`MARGIN_GAP` above that
+    :math:`\tau`). When the certified gamma is more than ``MARGIN_GAP`` above that
     bound, the program is re-solved scaled by the certified gamma with :math:`\tau` cut
     in proportion; when the certificate fails, with :math:`100\tau`. At most
-    :data:`MARGIN_SOLVES` solves; the smallest certified gamma is kept. The certificate
+    ``MARGIN_SOLVES`` solves; the smallest certified gamma is kept. The certificate
     is the proof; the bound is only the reported minimum (as step 1's)."""
     condition = "lemma-4.1" if robust else "theorem-3.2"
     lay = _layout(target, robust)

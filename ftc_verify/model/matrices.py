@@ -17,6 +17,7 @@ GENERATOR_RTOL = 1e-9
 #: replace answers, so such a model is refused with a request to rescale its units.
 MAX_ENTRY = 1e15
 
+#: A float64 NumPy array: the annotation of the matrices (and vectors) of the package.
 Matrix = NDArray[np.float64]
 
 

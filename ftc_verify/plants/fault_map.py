@@ -141,7 +141,7 @@ class FaultInjectionMap:
         and read by state-feedback controllers, in the order of their columns.
     disturbances
         The disturbance inputs ``w`` (Real); every channel gets the same shape
-        (:func:`ftc_verify.paths.disturbance`).
+        (:func:`ftc_verify.simulation.paths.disturbance`).
     outputs
         The outputs ``y`` (Real) recorded at every grid point.
     measured
@@ -159,7 +159,7 @@ class FaultInjectionMap:
         initialization mode; empty: the FMU's own initial state (``x0`` must be None).
     delta1, delta2
         Real inputs carrying ``Delta1`` and ``Delta2`` row-major
-        (:mod:`ftc_verify.uncertainty`); empty: the FMU has no such channel.
+        (:mod:`ftc_verify.simulation.delta`); empty: the FMU has no such channel.
     parameters
         ``(name, value)`` start values written in initialisation mode on every path.
     operating_point
@@ -213,7 +213,7 @@ class FaultInjectionMap:
             object.__setattr__(self, "fault_values", _fault_values(self.fault_values, self.fault))
 
     def values_for(self, mode: int) -> tuple[float | int | bool, ...]:
-        """Values written into :attr:`fault` in the 0-based true mode ``mode``."""
+        """Values written into ``fault`` in the 0-based true mode ``mode``."""
         if self.fault_values is None:
             return (mode + 1,) * len(self.fault)
         if not 0 <= mode < len(self.fault_values):
@@ -224,7 +224,7 @@ class FaultInjectionMap:
         return self.fault_values[mode]
 
     def check_delta(self, shapes: tuple[tuple[int, int] | None, tuple[int, int] | None], kind: str) -> None:
-        """Check :attr:`delta1`, :attr:`delta2` against the system's ``Delta`` shapes
+        """Check ``delta1``, ``delta2`` against the system's ``Delta`` shapes
         (:func:`ftc_verify.simulation.delta.delta_shapes`) for a schedule of ``kind``."""
         for shape, names, label in ((shapes[0], self.delta1, "delta1"), (shapes[1], self.delta2, "delta2")):
             size = 0 if shape is None else shape[0] * shape[1]
@@ -321,7 +321,7 @@ def _state(v: Any, continuous_states: set[str], source: str | None, err: Callabl
 def resolve_variables(md: Any, mapping: FaultInjectionMap, err: Callable[[str], FMUError]) -> ResolvedVariables:
     """Check every name of ``mapping`` against the model description ``md`` (fmpy's);
     ``err(what)`` builds the error naming the FMU. Each role's variables must fit it: see
-    :func:`_settable` (written roles), :func:`_state` (the states) and the checks below."""
+    ``_settable`` (written roles), ``_state`` (the states) and the checks below."""
     by_name = {v.name: v for v in md.modelVariables}
     fmi3 = str(getattr(md, "fmiVersion", "") or "").startswith("3.")
     real, fault_types = ("Float64", FAULT_TYPES_FMI3) if fmi3 else ("Real", FAULT_TYPES)

@@ -121,9 +121,11 @@ class FMUSession:
     workdir
         Where the FMU's temporary extraction folder is made (default: the system's).
 
-    :attr:`stats` counts library loads, instantiations (and re-instantiations after a
+    Notes
+    -----
+    ``stats`` counts library loads, instantiations (and re-instantiations after a
     failed ``fmi2Reset``), resets, paths and steps;
-    :attr:`messages` keeps the FMU's last 200 log messages of the current path, :attr:`log_counts` counts them
+    ``messages`` keeps the FMU's last 200 log messages of the current path, ``log_counts`` counts them
     per status. On any error while opening, everything opened so far is released.
     """
 
@@ -251,7 +253,7 @@ class FMUSession:
             self.log(label, cat, text)
 
     def raise_pending(self) -> None:
-        """Raise :attr:`pending` (module docstring); call it between FMI calls."""
+        """Raise ``pending`` (module docstring); call it between FMI calls."""
         exc, self.pending = self.pending, None
         if exc is not None:
             raise exc

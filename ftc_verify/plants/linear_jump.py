@@ -19,13 +19,13 @@ toolchain is :mod:`ftc_verify.plants.build`), and
 
 Functions
 ---------
-:func:`build_binary`  compile (or reuse) the shared library.
-:func:`build_fmu`     assemble the ``.fmu`` for a system.
-:func:`validate`      :func:`fmpy.validation.validate_fmu` plus consistency checks.
-:func:`system_text`, :func:`parse_system_text`  the resource file format
-                      (:mod:`ftc_verify.plants.system_text`, re-exported here).
-:func:`model_description`, :func:`variable_names`  the model description
-                      (:mod:`ftc_verify.plants.model_description`, re-exported here).
+* :func:`build_binary` -- compile (or reuse) the shared library.
+* :func:`build_fmu` -- assemble the ``.fmu`` for a system.
+* :func:`validate` -- :func:`fmpy.validation.validate_fmu` plus consistency checks.
+* :func:`system_text`, :func:`parse_system_text` -- the resource file format
+  (:mod:`ftc_verify.plants.system_text`, re-exported here).
+* :func:`model_description`, :func:`variable_names` -- the model description
+  (:mod:`ftc_verify.plants.model_description`, re-exported here).
 """
 
 from __future__ import annotations
@@ -106,14 +106,14 @@ def source_dir() -> Path:
 
 
 def build_binary(force: bool = False, *, sources: Path | None = None) -> Path:
-    """Compile the FMU's shared library into :func:`cache_dir` and return its path.
+    """Compile the FMU's shared library into :func:`~ftc_verify.plants.build.cache_dir` and return its path.
 
     The file is named ``LinearJumpPlant-<hash>.so`` where the hash covers the C sources,
     the FMI headers, the compiler flags and the compiler's version; an existing file with
     that name is reused unless ``force``, and only while its SHA-256 matches the one
     recorded beside it at compile time (``<binary>.sha256``): a corrupted or truncated
     cached binary is compiled again instead of being loaded. Concurrent builds are safe:
-    the check and the compilation run under :func:`build_lock`, and the binary is written to
+    the check and the compilation run under :func:`~ftc_verify.plants.build.build_lock`, and the binary is written to
     a temporary file and renamed into place. ``sources`` overrides the sources folder (default
     :func:`source_dir`). Raises :class:`FMUError` when gcc is missing or fails (the
     message carries gcc's command line and stderr).

@@ -66,6 +66,7 @@ from .plant_map import PlantMap
 __all__ = ["ModeLinearisation", "Linearisation", "linearize_plant", "trim_plant", "ROUTES", "ACCURACY_FRACTION",
            "TrimFailed", "fmi_calls", "fmu_failure"]
 
+#: The linearisation routes: the values of ``route`` of :func:`linearize_plant`.
 ROUTES = ("directional", "finite-differences", "identification")
 #: The ``fmi2SetupExperiment`` tolerance used while linearising (or the map's, if tighter).
 LINEARISATION_TOLERANCE = 1e-12
@@ -289,7 +290,7 @@ def linearize_plant(pm: PlantMap, *, route: str | None = None, rel_step: float =
                     id_step: float = 1e-2) -> Linearisation:
     """Linearise the map's FMU in every fault mode at its operating point (module docstring).
 
-    ``route``: one of :data:`ROUTES` (default: the best available). ``rel_step``: central
+    ``route``: one of :data:`~ftc_verify.plants.linearize.ROUTES` (default: the best available). ``rel_step``: central
     difference step relative to ``max(1, |value|)``. ``id_step``: the ``doStep`` length of
     the identification route.
     """

@@ -379,12 +379,12 @@ def _probe(lib: Path, spec: OdeFmuSpec, guid: str) -> None:
 
 
 def build_ode_binary(spec: OdeFmuSpec, force: bool = False) -> Path:
-    """Compile (or reuse) the shared library of ``spec`` in :func:`cache_dir`; its path.
+    """Compile (or reuse) the shared library of ``spec`` in :func:`~ftc_verify.plants.build.cache_dir`; its path.
 
     The file ``<model_name>-<hash>.so`` is reused while the SHA-256 recorded beside it at
     compile time still matches (unless ``force``). Compiling happens in a temporary folder
     (gcc ``-std=c99 -O2 -fPIC -shared -fvisibility=hidden``, ``-lm``), then the binary is
-    instantiated once (:func:`_probe`) and renamed into place, all under
+    instantiated once (``_probe``) and renamed into place, all under
     :func:`~ftc_verify.plants.build.build_lock`, so concurrent builds compile once.
     Raises :class:`FMUError` with gcc's command line and stderr when compiling fails,
     or with the glue's message when the model file does not match the spec.
@@ -402,7 +402,7 @@ def compile_ode_binary(spec: OdeFmuSpec, guid: str, *, force: bool, hash_tag: st
                        glue_files: tuple[str, ...], glue_source: str, headers: tuple[str, ...],
                        probe: Any) -> Path:
     """The cached shared library of ``spec`` for either FMI version (:func:`build_ode_binary`):
-    ``<stem>-<hash>.so`` in :func:`cache_dir`, the hash over ``hash_tag``, the
+    ``<stem>-<hash>.so`` in :func:`~ftc_verify.plants.build.cache_dir`, the hash over ``hash_tag``, the
     ``glue_files``, the generated header, the model, the FMI ``headers``, the flags and the
     compiler; compiled from the model and ``glue_source`` and checked by
     ``probe(lib, spec, guid)`` under the build lock."""

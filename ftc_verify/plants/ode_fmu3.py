@@ -137,7 +137,7 @@ def _probe3(lib: Path, spec: OdeFmuSpec, guid: str) -> None:
 
 
 def build_ode_binary3(spec: OdeFmuSpec, force: bool = False) -> Path:
-    """Compile (or reuse) the FMI 3.0 shared library of ``spec`` in :func:`cache_dir`
+    """Compile (or reuse) the FMI 3.0 shared library of ``spec`` in :func:`~ftc_verify.plants.build.cache_dir`
     (as :func:`~ftc_verify.plants.ode_fmu.build_ode_binary`, with ``ode_glue3.c``)."""
     if not isinstance(spec, OdeFmuSpec):
         raise ValidationError(f"build_ode_binary3: expected an OdeFmuSpec, got {type(spec).__name__}")

@@ -61,7 +61,7 @@ class FMUDims:
             object.__setattr__(self, "nym", self.ny)
 
     def as_tuple(self) -> tuple[int, ...]:
-        """The ten dimensions in the order of the system file (:data:`DIM_NAMES`)."""
+        """The ten dimensions in the order of the system file (``DIM_NAMES``)."""
         return (self.n, self.nu, self.ny, self.nw, self.m, self.q1, self.p1, self.q2, self.p2,
                 int(self.nym))  # type: ignore[arg-type]
 

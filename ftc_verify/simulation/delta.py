@@ -1,6 +1,6 @@
 r"""Time-varying norm-bounded uncertainty :math:`\Delta(t)` for simulation.
 
-A :class:`DeltaSchedule` gives, for one :class:`~ftc_verify.paths.ChainPath`, the pair
+A :class:`DeltaSchedule` gives, for one :class:`~ftc_verify.simulation.paths.ChainPath`, the pair
 ``(Delta1, Delta2)`` on each chain segment (between consecutive jump times); both
 simulation backends take the values from :func:`delta_segments`, so they see the same
 :math:`\Delta(t)`. Kinds:

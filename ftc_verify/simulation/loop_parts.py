@@ -35,7 +35,7 @@ __all__ = ["LoopLaw", "Offsets", "PathPlan", "PathInputs", "PathController", "Pa
 
 def full_intervals(t: np.ndarray, step: float) -> np.ndarray:
     """Which grid intervals are full ``[k step, (k+1) step]`` (both ends the floats
-    ``k * step`` exactly, as :func:`communication_grid` makes them)."""
+    ``k * step`` exactly, as :func:`~ftc_verify.simulation.paths.communication_grid` makes them)."""
     k = np.rint(t / step)
     is_mult = (k * step == t) & (k >= 0)
     return is_mult[:-1] & is_mult[1:] & (k[1:] == k[:-1] + 1)
@@ -115,8 +115,10 @@ class PathInputs:
     index : int
         The path's index, for the messages.
 
-    :attr:`u` and :attr:`values` are views of the buffer written by :meth:`write`
-    (``u`` then ``w``); :attr:`next_event` is the next grid point where a mode or the
+    Notes
+    -----
+    ``u`` and ``values`` are views of the buffer written by :meth:`write`
+    (``u`` then ``w``); ``next_event`` is the next grid point where a mode or the
     segment changes (-1: none).
     """
 
@@ -155,7 +157,7 @@ class PathInputs:
         return self.entry
 
     def write(self, k: int) -> None:
-        """Write :attr:`u` (already computed) and ``w(t_k)``, plus the operating point."""
+        """Write ``u`` (already computed) and ``w(t_k)``, plus the operating point."""
         if self._has_w:
             self.w[:] = self.plan.W[k]
         if self.offsets is not None:
@@ -174,14 +176,16 @@ class PathController:
     plan : PathPlan
         The path's grid (which intervals are full steps, their lengths).
     u : numpy.ndarray
-        Where :meth:`output` writes ``u`` (:attr:`PathInputs.u`).
+        Where :meth:`output` writes ``u`` (``PathInputs.u``).
     entry : int
         The first controller entry.
     n : int
         The number of states: ``v`` is the ``y_m`` read after them when the controller
         measures the output, else the states.
 
-    :attr:`state` is ``xc`` (zero at the start, empty for a static controller).
+    Notes
+    -----
+    ``state`` is ``xc`` (zero at the start, empty for a static controller).
     """
 
     def __init__(self, law: LoopLaw, plan: PathPlan, u: np.ndarray, entry: int, n: int) -> None:
@@ -197,7 +201,7 @@ class PathController:
         self.entry, self._gain = entry, self.law.Dc[entry]
 
     def output(self, row: np.ndarray) -> np.ndarray:
-        """``u_k`` from the row read at ``t_k`` (:meth:`PathRecorder.sample_before`), written into :attr:`u`."""
+        """``u_k`` from the row read at ``t_k`` (:meth:`PathRecorder.sample_before`), written into ``u``."""
         np.dot(self._gain, row[self.v], out=self.u)
         if self.dynamic:
             self.u += np.dot(self.law.Cc[self.entry], self.state)
@@ -224,9 +228,11 @@ class PathRecorder:
     offsets : Offsets or None
         The operating point, subtracted from the values read.
 
-    The rows: :attr:`read_rows` (``x``, ``y_m`` when measured, ``y`` without
-    feedthrough: :meth:`FMUSession.read_groups`), :attr:`U`, :attr:`Y` (``y`` read after
-    ``u, w`` with feedthrough, else None) and :attr:`XC`.
+    Notes
+    -----
+    The rows: ``read_rows`` (``x``, ``y_m`` when measured, ``y`` without
+    feedthrough: :meth:`FMUSession.read_groups`), ``U``, ``Y`` (``y`` read after
+    ``u, w`` with feedthrough, else None) and ``XC``.
     """
 
     def __init__(self, session: FMUSession, plan: PathPlan, law: LoopLaw, offsets: Offsets | None) -> None:

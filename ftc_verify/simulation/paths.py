@@ -79,7 +79,7 @@ class ChainPath:
 
     def delta_generator(self) -> np.random.Generator | None:
         """The generator of this path's ``Delta`` draws: the first child of
-        :attr:`stream` (independent of the chain's draws), new at every call so that every
+        ``stream`` (independent of the chain's draws), new at every call so that every
         simulator sees the same draws; ``None`` for a path without a stream."""
         if self.stream is None:
             return None
@@ -128,7 +128,7 @@ def _targets(chain: JointChain) -> np.ndarray:
 def _jump_tables(q: np.ndarray, targets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     r"""``(rates, cdf)`` of generators ``q`` (``(P, N, N)``): the exit rates
     :math:`-Q_{ss}` (``(P, N)``) and the cumulative jump probabilities over
-    :func:`_targets` (``(P, N, W)``, the last entry of a row with a jump exactly 1)."""
+    ``_targets`` (``(P, N, W)``, the last entry of a row with a jump exactly 1)."""
     rows = np.arange(q.shape[1])
     rates = -q[:, rows, rows]
     return rates, _cdf(np.clip(q[:, rows[:, None], np.maximum(targets, 0)], 0.0, None), targets)
@@ -150,7 +150,7 @@ def _generators(chain: JointChain, rates: np.ndarray, targets: np.ndarray) -> tu
     (r_\iota - r^{min}_\iota)\,\partial Q/\partial r_\iota` over
     :attr:`JointChain.rate_indices` :math:`\iota`, each derivative the difference of two
     calls of :meth:`JointChain.generator` at valid points of the box divided by the width.
-    Only the diagonal and the entries of :func:`_targets` are formed (each by the same
+    Only the diagonal and the entries of ``_targets`` are formed (each by the same
     floating-point operations, in the same order, as on the full matrix).
     """
     lo, hi = chain.rate_min, chain.rate_max
@@ -195,10 +195,10 @@ def sample_paths(
     Path ``k`` draws only from its own stream, child ``k`` of
     ``numpy.random.SeedSequence(seed).spawn(count)`` (a ``SeedSequence`` given as
     ``seed`` is spawned from, so successive calls continue its numbering), and carries it
-    as :attr:`ChainPath.stream`. A path therefore does not depend on how many paths are
+    as ``ChainPath.stream``. A path therefore does not depend on how many paths are
     drawn with it, nor on where or in which batch it is simulated. ``beta`` is a rate
     array (:meth:`JointChain.check_beta`); ``beta=None`` draws it uniformly in its box per
-    path (:func:`_draw_rates`: the first ``m*m`` uniforms of its stream for ``beta``, as
+    path (``_draw_rates``: the first ``m*m`` uniforms of its stream for ``beta``, as
     in the paper's model, then ``m*m`` more for the false-alarm rates when the chain has
     them). ``start`` is the initial ``(true, fdi)`` (default: no fault, FDI agrees).
 
@@ -207,7 +207,7 @@ def sample_paths(
     with :math:`E` standard exponential, and the next state is the smallest ``s'`` whose
     cumulative jump probability :math:`\sum_{r\le s'} Q_{sr}/(-Q_{ss})` (``r != s``)
     exceeds a uniform :math:`U` (the sum runs over the states ``s`` can reach,
-    :func:`_targets`; the others add exact zeros). Each path draws :math:`E` and
+    ``_targets``; the others add exact zeros). Each path draws :math:`E` and
     :math:`U` in blocks of :data:`DRAW_BLOCK` from its stream; the jump recursion then
     advances all paths together in numpy. Each state is reported as its ``(true, fdi)``
     (:attr:`JointChain.states`) and consecutive equal modes are merged (a phase of a

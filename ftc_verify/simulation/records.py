@@ -1,7 +1,7 @@
 """Result types shared by the simulation backends (FMU supervisor and numpy reference).
 
 A :class:`PathRecord` holds one simulated path on its communication grid
-(:func:`ftc_verify.paths.communication_grid`): ``t`` (N+1 points), the joint mode on each
+(:func:`ftc_verify.simulation.paths.communication_grid`): ``t`` (N+1 points), the joint mode on each
 interval, and ``x, u, w, y`` sampled at the grid points (``u`` and ``w`` are the values
 held on the interval that starts there), plus the controller state ``xc`` (``(N+1, n_c)``,
 zero columns for a static controller) and the measured output ``ym`` that the controller

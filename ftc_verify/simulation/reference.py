@@ -190,7 +190,7 @@ def simulate_reference(
         ``Controller.state_feedback(gains)``.
     paths : ChainPath or sequence of ChainPath
     spec : SimulationSpec, optional
-        The run: :attr:`~ftc_verify.simulation.spec.SimulationSpec.step` (the control
+        The run: ``step`` (the control
         period; the grid is :func:`~ftc_verify.simulation.paths.communication_grid`),
         ``disturbance`` (a kind of :data:`ftc_verify.simulation.paths.DISTURBANCES`, on
         every channel), ``delta`` (:math:`\Delta(t)`, from

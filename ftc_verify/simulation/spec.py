@@ -70,7 +70,7 @@ RECORD_BYTES_PER_NUMBER = 16
 def grid_snap_tolerance(step: float) -> float:
     """The distance below which a grid point of period ``step`` merges into a jump time:
     ``GRID_SNAP_RTOL * step`` (:func:`~ftc_verify.simulation.paths.communication_grid` and
-    :mod:`~ftc_verify.simulation._energy_grid` both use it)."""
+    ``ftc_verify.simulation._energy_grid`` both use it)."""
     return GRID_SNAP_RTOL * step
 
 
@@ -244,7 +244,7 @@ class SimulationSpec:
 
     @property
     def schedule(self) -> DeltaSchedule:
-        """:attr:`delta` as the :class:`DeltaSchedule` it is stored as."""
+        """``delta`` as the :class:`DeltaSchedule` it is stored as."""
         return self.delta  # type: ignore[return-value]
 
     # -------------------------------------------------------------------- seeds and paths
@@ -263,8 +263,8 @@ class SimulationSpec:
 
     def sample_paths(self, chain: JointChain, first: int = 0, stop: int | None = None, *,
                      start: tuple[int, int] = (0, 0)) -> list[ChainPath]:
-        """Paths ``first .. stop - 1`` (default: all :attr:`n_paths`) of ``chain`` on
-        ``[0, horizon]``, path ``k`` from stream ``k`` of :attr:`seed`
+        """Paths ``first .. stop - 1`` (default: all ``n_paths``) of ``chain`` on
+        ``[0, horizon]``, path ``k`` from stream ``k`` of ``seed``
         (:func:`~ftc_verify.simulation.paths.sample_path_range`)."""
         from .paths import sample_path_range
 
@@ -292,13 +292,13 @@ class SimulationSpec:
         ``plant`` is a plant map (``None``: the ``LinearJumpPlant``, which always has the
         ``Delta`` inputs). The kind is ``zero`` for a certain system, and for an uncertain
         one whose plant map names no ``Delta`` inputs (``[variables].delta1``/``delta2``):
-        the FMU cannot carry the model's uncertainty. With :attr:`delta_explicit` that case
+        the FMU cannot carry the model's uncertainty. With ``delta_explicit`` that case
         is refused instead of being replaced silently by zero.
 
         Raises
         ------
         ValidationError
-            :attr:`delta_explicit`, a kind other than ``zero`` asked for, an uncertain
+            ``delta_explicit``, a kind other than ``zero`` asked for, an uncertain
             system and a plant map that names no ``Delta`` inputs.
         """
         requested = self.schedule.kind
@@ -319,7 +319,7 @@ class SimulationSpec:
     def check_memory(self, system: FTCSystem, controller: Controller, count: int,
                      horizon: float | None = None) -> None:
         """Refuse before simulating when ``count`` kept path records of ``horizon``
-        (default :attr:`horizon`) would not fit in memory
+        (default ``horizon``) would not fit in memory
         (:func:`~ftc_verify.limits.check_memory`): grid points per path ``horizon / step``
         plus twice the expected jumps at the largest rate of the chain, each point
         :data:`RECORD_BYTES_PER_NUMBER` bytes per recorded number.
@@ -341,7 +341,7 @@ class SimulationSpec:
     @contextmanager
     def client(self, given: Any = None) -> Iterator[Any]:
         """The Dask client of a Monte Carlo run: ``given`` when there is one, else a
-        cluster of :attr:`workers` / :attr:`scheduler` opened for the block
+        cluster of ``workers`` / ``scheduler`` opened for the block
         (:func:`~ftc_verify.simulation.cluster.open_client`), else ``None``."""
         if given is not None or (self.workers is None and self.scheduler is None):
             yield given

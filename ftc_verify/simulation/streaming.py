@@ -73,7 +73,7 @@ def batch_generators(system: FTCSystem, paths: list[ChainPath], schedule: DeltaS
     """One generator per batch of ``batch`` paths, yielded in turn: the state ``gen`` would
     have after the ``Delta`` draws of every earlier path, so that batches computed
     anywhere, in any order, draw what a serial run draws. Only paths without their own
-    stream (:attr:`~ftc_verify.simulation.paths.ChainPath.stream`, built by hand) draw
+    stream (``ChainPath.stream`` is None: built by hand) draw
     from ``gen``; paths from :func:`~ftc_verify.simulation.paths.sample_paths` draw from
     their stream, so for them nothing is replayed. A batch can be submitted as soon as its
     state is yielded. ``gen`` ends where a serial run leaves it once the iterator is

@@ -88,7 +88,9 @@ class Supervisor:
         ``fmi2SetupExperiment`` tolerance; a callback for every message the FMU logs; the
         folder to extract the FMU in).
 
-    With an :attr:`FaultInjectionMap.operating_point` the loop runs in deviation variables
+    Notes
+    -----
+    With an ``operating_point`` in the :class:`FaultInjectionMap` the loop runs in deviation variables
     (:class:`~ftc_verify.plants.fault_map.OperatingPoint`): paths start at ``x_op + x0``,
     records hold ``x - x_op``, ``u - u_op``, ``w - w_op``, ``y - y_op``, ``y_m - y_m,op``.
     FMUs that cannot vary their communication step get paths whose jump times are moved

@@ -149,7 +149,7 @@ class SolverCalls:
     """The solver calls of one synthesis run: how many and how long.
 
     Every convex program of a run goes through :meth:`run`; the attempts of the core's
-    certifications are appended to :attr:`outcomes` by the caller, and the totals of a
+    certifications are appended to ``outcomes`` by the caller, and the totals of a
     nested run (the seeds of ``iterative``, the state-feedback designs under the
     observers) are added by :meth:`absorb`.
 

@@ -5,7 +5,7 @@ Methods (all return a :class:`~ftc_verify.synthesis.results.SynthesisResult` ver
 
 ``two-step``
     The paper's Theorem 4.1. Step 1 solves the projected inequality of
-    :func:`ftc_verify.lmi.xy_block` (eq. (17) corrected: coupling written as
+    :func:`ftc_verify.analysis.lmi.xy_block` (eq. (17) corrected: coupling written as
     :math:`X(\sum_{s'} q_{ss'}P_{s'})X`, indicator cases as in READING-NOTES) in
     :math:`X_{ij} > 0, \varepsilon_{ij}, \delta_{ij}` at both ends of every rate, with the
     margin maximised so that step 2 has room. Step 2 fixes :math:`P_{ij} = X_{ij}^{-1}`,

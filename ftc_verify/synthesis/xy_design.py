@@ -5,7 +5,7 @@ the common-``X`` designs: :func:`~ftc_verify.analysis.lmi.xy_block` in
 :math:`X_s = P_s^{-1}`, :math:`Y_s = K X_s` at every joint state ``s`` of the chain of
 :mod:`ftc_verify.model.chain` and every vertex of the rates in its generator row
 (:func:`~ftc_verify.analysis.lmi.block_specs`), so the same blocks as the analysis
-cover the whole rate box. Which states share a variable is :func:`_variable_groups`.
+cover the whole rate box. Which states share a variable is ``_variable_groups``.
 Used by :mod:`ftc_verify.synthesis.state_feedback`, which documents the methods.
 """
 
@@ -59,7 +59,7 @@ def _variable_groups(system: FTCSystem, kind: str) -> list[int]:
 
 def _xy_variables(system: FTCSystem, kind: str) -> tuple[list[Any], list[Any]]:
     """``X`` and ``Y`` (``None`` for ``projected``) of every joint state, one cvxpy variable
-    per group of :func:`_variable_groups` (all ``X`` created first, then all ``Y``)."""
+    per group of ``_variable_groups`` (all ``X`` created first, then all ``Y``)."""
     import cvxpy as cp
 
     n, nu = system.dims[0], system.dims[1]
@@ -74,7 +74,7 @@ def xy_solve(system: FTCSystem, kind: str, gamma: float | None, calls: Any, k_ma
 
     ``kind``: ``"projected"`` (step 1 of Theorem 4.1, no ``Y``; one ``X`` per joint
     state), ``"full-info"`` (one ``X, Y`` per pair ``(true, fdi)``, shared by its phases:
-    :func:`_variable_groups`) or ``"common"`` (one ``X, Y``, no coupling). The blocks are
+    ``_variable_groups``) or ``"common"`` (one ``X, Y``, no coupling). The blocks are
     one per joint state and vertex of its row's rates (:func:`~ftc_verify.analysis.lmi.block_specs`); ``X``,
     ``Y`` and the multipliers are returned per joint state. With ``gamma``
     given the margin ``t`` is maximised at ``g = gamma**2``; with ``gamma=None`` gamma is

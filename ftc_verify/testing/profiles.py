@@ -68,6 +68,7 @@ def profile(name: str = "ci", *, max_examples: int | None = None, derandomize: b
     """The settings of profile ``name`` (registered first), with the given options on top.
 
     Use it as a decorator of one test, without changing the session's default profile.
+    For any other option, wrap the result: ``settings(profile("ci"), deadline=1000)``.
 
     Parameters
     ----------
@@ -78,8 +79,6 @@ def profile(name: str = "ci", *, max_examples: int | None = None, derandomize: b
         Examples per property (default: the profile's).
     derandomize : bool, optional
         Draw the same examples on every run (default: the profile's).
-
-    For any other option, wrap the result: ``settings(profile("ci"), deadline=1000)``.
 
     Returns
     -------

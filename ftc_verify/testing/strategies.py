@@ -64,6 +64,7 @@ __all__ = [
 ]
 
 Matrix = NDArray[np.float64]
+#: The type of the value of an :data:`Opt`.
 T = TypeVar("T")
 #: An option: a value, an inclusive ``(low, high)`` range, or a strategy.
 Opt = T | tuple[T, T] | st.SearchStrategy[T]

@@ -1,6 +1,6 @@
 r"""Exact expected output energy and worst-case disturbances, from the moment equations.
 
-For a :class:`~ftc_verify.closedloop.ClosedLoop` (continuous time, no sample-and-hold)
+For a :class:`~ftc_verify.analysis.closedloop.ClosedLoop` (continuous time, no sample-and-hold)
 with :math:`\dot\xi = A_\theta \xi + B_\theta w`, :math:`z = C_\theta \xi`, the conditional
 moments :math:`X_s = E[\xi\xi^T 1\{\theta = s\}]` obey (Dynkin's formula, derived here)
 
@@ -15,7 +15,7 @@ of them; :math:`Q` = :meth:`JointChain.generator` at the rate array ``beta``; th
 a detection share their loop matrices), and
 :math:`E\int |z|^2 = \int \sum_s \operatorname{tr}(C_s X_s C_s^T)\,dt`. Both are folded into
 *one* homogeneous jump-linear system by augmenting the state, so that the second-moment
-generator of :mod:`ftc_verify.stability` applies unchanged:
+generator of :mod:`ftc_verify.analysis.stability` applies unchanged:
 
 * a disturbance produced by an exosystem :math:`\dot\zeta = S\zeta`, :math:`w = c^T\zeta`
   (the paper's :math:`e^{-0.1t}\sin t`, steps, sines) gives
@@ -121,7 +121,7 @@ def exact_energy(
 
     ``horizon=inf`` requires a Hurwitz augmented generator (mean-square stable loop and
     a decaying disturbance, e.g. ``paper``); each disturbance channel gets the same
-    shape, as in :func:`ftc_verify.paths.disturbance`. Works on the nominal loop or one
+    shape, as in :func:`ftc_verify.simulation.paths.disturbance`. Works on the nominal loop or one
     with a fixed ``Delta`` applied (``ClosedLoop`` built from ``perturbed`` matrices).
     ``beta`` is a rate array of the loop's chain (:meth:`JointChain.check_beta`: ``beta``,
     or ``[beta, false_alarm]``); ``start`` is the initial ``(true, fdi)``, at phase 0.

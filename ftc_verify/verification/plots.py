@@ -52,6 +52,8 @@ def plot_path(record: PathRecord, path: str | os.PathLike[str], *, title: str = 
     state_names : list of str, optional
         Legend labels of the states (a plant map's state variables).
 
+    Notes
+    -----
     Fault switches (true mode changes) are marked in panels (c) and (d) by dotted blue
     lines, FDI switches by dashed orange lines.
     """

@@ -15,7 +15,7 @@ all on the one closed loop :func:`~ftc_verify.analysis.closedloop.closed_loop` b
 5. **Monte Carlo co-simulation** of the FMU plant under Markov faults and delayed FDI
    switching (sample-and-hold at ``step``), ``beta`` drawn per path from its box, a random
    ``Delta`` per chain segment when uncertain; the mean ratio's one-sided upper bound
-   (:mod:`ftc_verify.montecarlo`) is compared with gamma^2;
+   (:mod:`ftc_verify.verification.montecarlo`) is compared with gamma^2;
 6. **backend agreement**: the first paths re-simulated by the numpy reference with the
    same ``Delta`` draws must match the FMU (plant and controller states) to
    :data:`AGREE_RTOL`.
