@@ -1,5 +1,5 @@
 """The three-tank benchmark (examples/three_tank): physics of the built FMU and the
-README recipe end to end.
+tutorial's recipe end to end.
 
 * mass balance: with two accumulator states added to the model (integrated inflow and
   outflow), stored volume + outflow - inflow stays constant to 1e-8 relative on the
@@ -8,16 +8,16 @@ README recipe end to end.
   5(4), tolerance 1e-10) agree to 1e-7 relative;
 * exact directional derivatives equal central differences of the model-exchange
   derivatives (1e-6 relative), also at equal levels where the regularised square root acts;
-* the README recipe (build-fmu, linearize --trim, synthesize, verify --plant --measure
-  incremental) passes with reduced paths.
+* the tutorial's recipe (``docs/tutorials/three-tank.md``: build-fmu, linearize --trim,
+  synthesize, verify --plant --measure incremental, state and output feedback) passes
+  with reduced paths.
 """
 
 from __future__ import annotations
 
+import itertools
 import json
 import shutil
-import subprocess
-import sys
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -33,8 +33,9 @@ if shutil.which("gcc") is None:  # pragma: no cover
 from fmpy import extract, read_model_description, simulate_fmu
 from fmpy.fmi2 import FMU2Model, fmi2Real
 
+from tutorials import DOCS, run_tutorial
+
 from ftc_verify.plants.modelica import build_modelica_fmu
-import itertools
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "three_tank"
 AREA = 0.0154
@@ -149,32 +150,21 @@ def test_directional_derivatives_equal_finite_differences(three_tank_fmu: Path, 
 
 
 @pytest.mark.slow(27)  # seconds measured on 2 busy cores: scheduled first
-def test_readme_recipe_passes_with_reduced_paths(tmp_path: Path) -> None:
-    """build-fmu -> linearize --trim -> synthesize -> verify --plant --measure incremental,
-    as in the README, with 10 paths of 300 s (the README: 200 paths of 600 s). The Monte
-    Carlo's false failure probability is at most its alpha, 1e-6, for a controller whose
-    incremental gain really is below the certified gamma; the seed is fixed."""
-    work = tmp_path / "three_tank"
-    shutil.copytree(EXAMPLE, work, ignore=shutil.ignore_patterns("*.fmu"))
-    env = {"FTC_VERIFY_CACHE": str(tmp_path / "cache")}
-
-    def run(*args: str) -> subprocess.CompletedProcess[str]:
-        import os
-
-        out = subprocess.run([sys.executable, "-m", "ftc_verify", *args], capture_output=True, text=True, cwd=work,
-                             timeout=600, env=os.environ | env)
-        assert out.returncode == 0 and "Traceback" not in out.stderr, (args, out.stdout, out.stderr)
-        return out
-
-    run("build-fmu", "ThreeTank.mo", "-o", "ThreeTank.fmu")
-    lin = run("linearize", "three_tank.plant.toml", "--trim", "-o", "three_tank.toml")
+@pytest.mark.slow(125)
+def test_tutorial_recipe_passes_with_reduced_paths(tmp_path: Path) -> None:
+    """Every command of ``docs/tutorials/three-tank.md`` (build-fmu -> linearize --trim ->
+    synthesize -> verify --plant --measure incremental, state and output feedback), run
+    by :func:`tutorials.run_tutorial` with 10 paths of 300 s (the page: 200 paths of
+    600 s). The Monte Carlo's false failure probability is at most its alpha, 1e-6, per
+    verify, for a controller whose incremental gain really is below the certified gamma;
+    the seed is fixed."""
+    page = DOCS / "tutorials" / "three-tank.md"
+    root, results = run_tutorial(page, tmp_path)
+    work = root / "examples" / "three_tank"
+    lin = next(out for line, out in results.items() if line.startswith("ftc-verify linearize three_tank.plant.toml"))
     assert "drift" in lin.stdout
-    syn = json.loads(run("synthesize", "three_tank.toml", "--method", "iterative", "--k-max", "0.0015",
-                         "-o", "K.toml", "--json").stdout)
-    assert syn["feasible"] and syn["gamma_certified"] is not None
-    run("verify", "three_tank.toml", "--controller", "K.toml", "--plant", "three_tank.plant.toml", "--measure",
-        "incremental", "--paths", "10", "--horizon", "300", "--step", "0.5", "--seed", "1", "--out", "report")
     rep = json.loads((work / "report" / "report.json").read_text())
+    assert rep["gamma_certified"] is not None and (work / "K.toml").is_file()  # the synthesized design, certified
     plant = rep["plant"]
     assert rep["verdict"] == "pass" and plant["measure"] == "incremental" and plant["left_region"] == 0
     assert plant["upper_bound"] <= rep["gamma_certified"] ** 2
@@ -182,3 +172,5 @@ def test_readme_recipe_passes_with_reduced_paths(tmp_path: Path) -> None:
     lo, hi = plant["input_range"]
     assert min(lo) >= 0.0 and max(hi) <= 1e-4  # the pumps stayed within 0 .. 100 ml/s
     assert (work / "report" / "fig1_path.png").stat().st_size > 0
+    of = json.loads((work / "report_of" / "report.json").read_text())
+    assert of["verdict"] == "pass" and of["plant"]["left_region"] == 0
