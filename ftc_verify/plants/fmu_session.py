@@ -132,7 +132,8 @@ class FMUSession:
                  log: Callable[[str, str, str], None] | None = None,
                  workdir: str | os.PathLike[str] | None = None) -> None:
         self.path = Path(fmu)
-        self.workdir, self.pending = None if workdir is None else str(workdir), None  # see the module docstring
+        self.workdir = None if workdir is None else str(workdir)
+        self.pending: BaseException | None = None  # see the module docstring
         self.mapping = mapping
         self.fmi_version, self.calls = "2.0", CALL_NAMES["2.0"]  # set from the model description
         self.instance_name = str(instance_name)

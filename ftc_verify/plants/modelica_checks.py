@@ -235,7 +235,7 @@ def _points(spec: Any, seed: int) -> list[tuple[float, np.ndarray, np.ndarray, n
     start = [np.array([v.start for v in getattr(spec, g)], dtype=float) for g in ("states", "inputs", "parameters")]
     rng = np.random.default_rng(seed)
     near = [a * (1.0 + 0.01 * rng.uniform(-1.0, 1.0, a.shape)) for a in start]
-    return [(0.0, *start), (0.37, *near)]
+    return [(0.0, start[0], start[1], start[2]), (0.37, near[0], near[1], near[2])]
 
 
 def _differs(got: np.ndarray, want: np.ndarray, rtol: float) -> int | None:
