@@ -384,7 +384,7 @@ class FMUSession:
         """Write the 0-based true mode ``mode`` into the fault variables."""
         self._write(self.fault_writes(mode), f"{when} (setting fault mode {mode}, 0-based)")
 
-    def delta_values(self, seg: tuple[Any, Any]) -> Any:
+    def delta_values(self, seg: Sequence[Any]) -> Any:
         """The ctypes values of ``(Delta1, Delta2)`` for the map's Delta inputs (None: none)."""
         if self.delta.n == 0:
             return None

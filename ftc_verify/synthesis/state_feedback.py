@@ -266,8 +266,8 @@ def _starts(system: FTCSystem, gamma: float | None, k_max: float | None, solver:
                              "reason": c.note})
             else:
                 rows.append(certify_start(system, c.name, c.gains, solver, c.note))
-    for r in rows:
-        calls.outcomes.extend(r.get("attempts", ()))
+    for row in rows:
+        calls.outcomes.extend(row.get("attempts", ()))
     return rows
 
 
