@@ -103,7 +103,8 @@ def linear_jump_modelica_map(system: FTCSystem) -> FaultInjectionMap:
     return FaultInjectionMap(
         fault=("mode",), fault_values=tuple((float(k),) for k in range(1, system.m + 1)),
         inputs=names("u", d.nu), states=names("x", d.n), disturbances=names("w", d.nw),
-        outputs=names("y", d.ny), measured=names("ym", int(d.ny if d.nym is None else d.nym)), initial_states=names("x", d.n),
+        outputs=names("y", d.ny), measured=names("ym", int(d.ny if d.nym is None else d.nym)),
+        initial_states=names("x", d.n),
         delta1=tuple(f"Delta1_{i}_{j}" for i in range(1, d.q1 + 1) for j in range(1, d.p1 + 1)),
         delta2=tuple(f"Delta2_{i}_{j}" for i in range(1, d.q2 + 1) for j in range(1, d.p2 + 1)),
     )
