@@ -49,7 +49,7 @@ def deferred_signals() -> Iterator[None]:
             signal.signal(s, handler)
         if arrived:
             signum, frame = arrived[0]
-            handler = previous[signum]
+            handler = previous[signal.Signals(signum)]
             if callable(handler):
                 handler(signum, frame)
             elif handler == signal.SIG_DFL:

@@ -25,7 +25,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from pathlib import PurePath
 from types import MappingProxyType
 from typing import Any
@@ -57,7 +57,8 @@ class _Refused(Exception):
     """A value of no JSON type; ``keys`` collects its place on the way out (innermost first)."""
 
     def __init__(self, value: Any) -> None:
-        self.value, self.keys = value, []
+        self.value = value
+        self.keys: list[int | str] = []
 
 
 def _convert(value: Any, np: Any) -> Any:
@@ -76,6 +77,8 @@ def _convert(value: Any, np: Any) -> Any:
         return _convert(value.tolist(), np)
     if isinstance(value, PurePath):
         return str(value)
+    items: Iterable[tuple[Any, Any]]
+    out: dict[str, Any] | list[Any]
     if isinstance(value, dict):
         items, out = value.items(), {}
     elif isinstance(value, (list, tuple)):

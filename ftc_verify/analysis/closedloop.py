@@ -334,9 +334,9 @@ def _assemble(system: FTCSystem, entry: Callable[[int, int], tuple[Any, Any, Any
         if bar.A1bar is not None:
             F = bar.A2bar + bar.B2bar @ K @ bar.Cbar
             k = bar.split
-            if md.A1 is not None:
+            if md.A1 is not None and md.A2 is not None:
                 c.append(Channel(bar.A1bar[:, :k], F[:md.A2.shape[0]], "Delta1 (A)"))
-            if md.B1 is not None:
+            if md.B1 is not None and md.B2 is not None:
                 c.append(Channel(bar.A1bar[:, k:], F[F.shape[0] - md.B2.shape[0]:], "Delta2 (B)"))
         chans.append(tuple(c))
     n_plant = None if n_c == 0 else system.dims[0]

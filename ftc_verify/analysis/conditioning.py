@@ -153,7 +153,7 @@ def _balanced_realisation(loop: ClosedLoop) -> tuple[Matrix, Matrix] | None:
                   + [ch.F for chans in loop.channels for ch in chans])
     if not (np.all(np.isfinite(A)) and np.all(np.isfinite(B)) and np.all(np.isfinite(C))):
         return None
-    size = max(np.linalg.norm(A, 2), np.finfo(float).tiny)
+    size = max(float(np.linalg.norm(A, 2)), float(np.finfo(float).tiny))
     alpha = float(np.max(np.linalg.eigvals(A).real))
     shift = max(0.0, alpha + 1e-3 * size)
     A = A - shift * np.eye(n)

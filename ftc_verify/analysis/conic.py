@@ -36,6 +36,7 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
+from numpy.typing import ArrayLike
 
 from ..model.system import Matrix
 
@@ -120,7 +121,7 @@ def affine_bmat(rows: Sequence[Sequence[Any]]) -> Affine:
     return Affine(const, lin)
 
 
-def svec_index(d: int) -> tuple[Matrix, Matrix, Matrix]:
+def svec_index(d: int) -> tuple[np.ndarray, np.ndarray, Matrix]:
     """``(rows, cols, weights)`` of ``svec`` for a ``d x d`` matrix (module docstring)."""
     cols, rows = np.tril_indices(d)  # row-major lower triangle = column-major upper
     return rows, cols, np.where(rows == cols, 1.0, _R2)
@@ -151,7 +152,7 @@ class Rows:
         self.K = K
         self.blocks: list[tuple[str, int, sp.csr_matrix, Matrix]] = []
 
-    def nonneg(self, A: Matrix, b: Matrix) -> None:
+    def nonneg(self, A: Matrix, b: ArrayLike) -> None:
         """``b - A x >= 0`` elementwise."""
         A = np.atleast_2d(np.asarray(A, dtype=float))
         self.blocks.append(("nonneg", A.shape[0], sp.csr_matrix(A), np.asarray(b, dtype=float).ravel()))
@@ -166,7 +167,7 @@ class Rows:
         A = sp.csr_matrix((local.data, (local.row, np.asarray(columns)[local.col])), shape=(len(r), self.K))
         self.blocks.append(("psd", const.shape[0], A, -const[r, c] * w))
 
-    def extended(self, A: Matrix, b: Matrix) -> Rows:
+    def extended(self, A: Matrix, b: ArrayLike) -> Rows:
         """A copy with the rows ``b - A x >= 0`` added."""
         out = Rows(self.K)
         out.blocks = list(self.blocks)

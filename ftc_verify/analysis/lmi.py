@@ -211,8 +211,8 @@ def xy_block(
     X: Sequence[Any],
     s: int,
     Y: Any | None,
-    eps: Any | None,
-    delta: Any | None,
+    eps: Any,
+    delta: Any,
     g: Any,
     q_row: Matrix | None,
     bmat: Bmat,
@@ -400,9 +400,12 @@ def _ball_loop(loop: ClosedLoop) -> ClosedLoop:
     from .closedloop import Channel
     from .rigorous import ball
 
-    return replace(loop, A=tuple(ball(A) for A in loop.A), Bw=tuple(ball(B) for B in loop.Bw),
-                   Cz=tuple(ball(C) for C in loop.Cz),
-                   channels=tuple(tuple(Channel(ball(ch.E), ball(ch.F), ch.name) for ch in chans)
+    def exact(M: Matrix) -> Any:
+        return ball(M)
+
+    return replace(loop, A=tuple(exact(A) for A in loop.A), Bw=tuple(exact(B) for B in loop.Bw),
+                   Cz=tuple(exact(C) for C in loop.Cz),
+                   channels=tuple(tuple(Channel(exact(ch.E), exact(ch.F), ch.name) for ch in chans)
                                   for chans in loop.channels))
 
 

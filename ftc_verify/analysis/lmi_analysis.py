@@ -418,7 +418,8 @@ def _margin_gamma(original: ClosedLoop, target: ClosedLoop, sim: Similarity, rob
     condition = "lemma-4.1" if robust else "theorem-3.2"
     lay = _layout(target, robust)
     gamma_hat = gamma_hint if gamma_hint is not None and math.isfinite(gamma_hint) and gamma_hint > 0 else 1.0
-    tau, best = MARGIN_TAU, None
+    tau = MARGIN_TAU
+    best: LMIResult | None = None
     for _ in range(MARGIN_SOLVES):
         problem = _margin_problem(target, lay, robust, gamma_hat)
         out, x, z = solve_conic_dual(problem.fix(lay.t, tau))
@@ -436,7 +437,7 @@ def _margin_gamma(original: ClosedLoop, target: ClosedLoop, sim: Similarity, rob
             tau *= 100.0
             continue
         gap = gamma / bound - 1.0 if bound > 0 else math.inf
-        if best is None or gamma < best.gamma:
+        if best is None or best.gamma is None or gamma < best.gamma:
             note = (f"minimum {bound:.6g} (dual bound of the margin program); certified at {gamma:.6g} "
                     f"(+{max(gap, 0.0):.3g} relative), margin {tau:.3g}, one-solve path")
             if out.status != "optimal":

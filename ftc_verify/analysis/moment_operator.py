@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -91,7 +92,7 @@ class MomentOperator:
         Y = AX + np.transpose(AX, (0, 2, 1)) + np.einsum("ts,tij->sij", self.Q, X)
         return self.vec(Y)
 
-    def linear_operator(self):
+    def linear_operator(self) -> Any:
         import scipy.sparse.linalg as spla
 
         return spla.LinearOperator((self.size, self.size), matvec=self.apply, dtype=float)

@@ -249,7 +249,7 @@ def abscissa_near(loop: ClosedLoop, beta: Matrix, level: float, *, modes_part: A
     return None
 
 
-def vech_order(n: int) -> tuple[Matrix, Matrix]:
+def vech_order(n: int) -> tuple[np.ndarray, np.ndarray]:
     """``(rows, cols)`` of ``vech``: the lower triangle column by column."""
     rows, cols = np.tril_indices(n)
     order = np.lexsort((rows, cols))
@@ -386,7 +386,7 @@ def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256,
         """The worst estimate and the verdicts proved at every vertex evaluated (the worst first)."""
         rest = [b for b in evaluated if b != worst]
         verdict, proofs = _verified(loop, sim, [vertex(worst)] + [vertex(b) for b in rest],
-                                    [exact[worst]] + [exact.get(b) for b in rest], budget_seconds)
+                                    [exact[worst], *(exact.get(b) for b in rest)], budget_seconds)
         return MSSResult(exact[worst], vertex(worst), len(evaluated), exhaustive, len(exact), verdict, proofs, sim)
 
     if chain.vertex_count() <= max_vertices:

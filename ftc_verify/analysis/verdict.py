@@ -45,6 +45,7 @@ import time
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -87,7 +88,7 @@ class VertexVerdict:
         return fields_dict(self)
 
 
-def _exact_generator(Q: Matrix) -> list[list[object]]:
+def _exact_generator(Q: Matrix) -> list[list[Any]]:
     """The generator ``Q`` as exact balls (``arb``), its diagonal the exact negated row
     sums of the float off-diagonal rates."""
     import flint
@@ -160,7 +161,7 @@ def _decide(X: Sequence[Ball], precond: Ball) -> str | None:
     return None
 
 
-def _ball_generator(loop: ClosedLoop, Q: Matrix) -> object:
+def _ball_generator(loop: ClosedLoop, Q: Matrix) -> Any:
     """The generator in vech coordinates as an exact ball matrix (``arb_mat``)."""
     import flint
 
@@ -265,11 +266,11 @@ class StabilityProver:
         for bits in FALLBACK_BITS:
             if time.perf_counter() - start > budget_seconds:
                 return done("undecided", f"time budget of {budget_seconds:g} s spent before {bits} bits", bits)
-            X = _ball_solution(self.nominal, Q, bits)
-            if X is None:
+            solution = _ball_solution(self.nominal, Q, bits)
+            if solution is None:
                 continue
             with precision(bits):
-                verdict = _decide(X, self.precond)
+                verdict = _decide(solution, self.precond)
             if verdict is not None:
                 return done(verdict, f"exact solution of L(X) = -I enclosed at {bits} bits, "
                                      + ("every X_s > 0" if verdict == "stable" else "some X_s indefinite"), bits)

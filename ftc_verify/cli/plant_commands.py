@@ -216,6 +216,7 @@ def _cmd_linearize(args: argparse.Namespace) -> int:
         return _linearize_failed(args, pm, "the linearisation could not be computed: the plant FMU failed", str(exc))
     refused = bool(lin.inaccurate) and bool(args.output) and not args.accept_inaccurate
     if args.output and not refused:
+        assert pm.chain is not None
         save_system(lin.system(pm.name, pm.chain), args.output)
     verdict = "fail" if refused else "done"
     d = lin.to_dict() | {"map": str(pm.source), "fmu": str(pm.fmu), "output": None if refused else args.output,

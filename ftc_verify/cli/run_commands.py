@@ -13,12 +13,18 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import sys
-from typing import Any
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
 
 from ..errors import FTCError, PlantRunError
 from ..jsonable import dumps
 from .common import (EXIT_NEGATIVE, EXIT_OK, EXIT_UNCERTIFIED, EXIT_UNDECIDED, PLOT_SUFFIXES, bad, check_output_file,
                      load, nonneg_int, positive, positive_int, seed_int, strict)
+
+if TYPE_CHECKING:
+    from ..simulation.paths import ChainPath
+    from ..simulation.records import SimulationResult
+    from ..simulation.streaming import StreamedResult
 
 __all__ = ["add_run_commands"]
 
@@ -66,6 +72,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
             "mid": system.chain.midpoint()}[args.beta]
     spec, _ = dataclasses.replace(spec, beta=beta).with_seed().resolve_delta(system, plant)
     seed = spec.seed
+    paths: Sequence[ChainPath]
     if args.backend == "fmu":
         paths = spec.sample_paths(system.chain)
     else:  # the reference backend samples each batch where it runs: in turn here, or on the Dask workers
@@ -75,6 +82,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
     bar = progress_bar(args.paths, f"simulate ({args.backend})", sys.stderr.isatty())
     done = None if bar is None else bar.update
+    res: SimulationResult | StreamedResult
     try:
         with spec.client() as client:
             if args.backend == "fmu":
@@ -102,7 +110,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     return EXIT_NEGATIVE if d["divergence"] else EXIT_OK
 
 
-def _plant_failed(exc: PlantRunError, args: argparse.Namespace, name: str, seed: int) -> int:
+def _plant_failed(exc: PlantRunError, args: argparse.Namespace, name: str, seed: int | None) -> int:
     """``simulate`` when the plant FMU crashed or returned fmi2Fatal: the failure, exit 1."""
     if args.json:
         failure = {"fmu": exc.fmu, "path": exc.path, "time": exc.time, "detail": exc.detail}

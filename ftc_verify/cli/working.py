@@ -74,7 +74,7 @@ def working(command: str, *, stream: TextIO | None = None, delay: float = 1.0,
                 shown = False
 
     out = sys.stdout
-    sys.stdout = _FinishOnWrite(out, finish)  # type: ignore[assignment]
+    sys.stdout = _FinishOnWrite(out, finish)
     thread.start()
     try:
         yield

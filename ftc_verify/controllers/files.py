@@ -64,7 +64,7 @@ def _matrix(p: Path, value: Any, where: str) -> Matrix:
 
 
 def _load_gain_tables(p: Path, tbls: list[dict[str, Any]], name: str) -> Controller:
-    gains = []
+    gains: list[Matrix] = []
     for k, tbl in enumerate(tbls, start=1):
         unknown_keys(p, f"gain[{k}]", list(tbl), {"K"})
         if "K" not in tbl:
@@ -105,7 +105,8 @@ def _load_controller_tables(p: Path, tbls: list[dict[str, Any]], name: str) -> C
         parts["Bc"] = [np.zeros((0, nv))] * len(tbls)
         parts["Cc"] = [np.zeros((nu, 0))] * len(tbls)
     try:
-        return Controller(*(tuple(parts[key]) for key in _DYNAMIC_KEYS), measures="output", name=name)
+        return Controller(tuple(parts["Ac"]), tuple(parts["Bc"]), tuple(parts["Cc"]), tuple(parts["Dc"]),
+                          measures="output", name=name)
     except ValidationError as exc:
         raise ProblemFileError(f"{p}: {exc}") from None
 

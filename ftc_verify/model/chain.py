@@ -219,12 +219,12 @@ class JointChain:
     @property
     def rate_min(self) -> Matrix:
         """The lower corner of the rate box (a rate array)."""
-        return np.stack([self.beta_min, self.false_alarm_min]) if self.has_false_alarms else self.beta_min
+        return self.beta_min if self.false_alarm_min is None else np.stack([self.beta_min, self.false_alarm_min])
 
     @property
     def rate_max(self) -> Matrix:
         """The upper corner of the rate box (a rate array)."""
-        return np.stack([self.beta_max, self.false_alarm_max]) if self.has_false_alarms else self.beta_max
+        return self.beta_max if self.false_alarm_max is None else np.stack([self.beta_max, self.false_alarm_max])
 
     @property
     def rate_indices(self) -> tuple[tuple[int, ...], ...]:
@@ -358,7 +358,7 @@ class JointChain:
         delay = ("exponential detection delays (the paper's model)" if k == 1 else
                  f"Erlang-{k} detection delays ({k} phases; mean 1/beta, variance 1/({k} beta^2))")
         parts = [delay]
-        if self.has_false_alarms:
+        if self.false_alarm_min is not None and self.false_alarm_max is not None:
             lo, hi = self.false_alarm_min, self.false_alarm_max
             off = ~np.eye(self.m, dtype=bool)
             parts.append(f"false alarms at rates in [{float(np.min(lo[off])):g}, {float(np.max(hi[off])):g}]")

@@ -150,7 +150,7 @@ def dump_system(system: FTCSystem) -> str:
             **({"fault_during_delay": True} if ch.fault_during_delay else {}),
             **({"delay_phases": ch.delay_phases} if ch.delay_phases != 1 else {}),
             **({"false_alarm_min": tolist(ch.false_alarm_min), "false_alarm_max": tolist(ch.false_alarm_max)}
-               if ch.has_false_alarms else {}),
+               if ch.false_alarm_min is not None and ch.false_alarm_max is not None else {}),
         },
         "mode": [
             {key: tolist(getattr(md, key)) for key in _MODE_KEYS if getattr(md, key) is not None}

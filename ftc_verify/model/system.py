@@ -413,8 +413,9 @@ class FTCSystem:
     def with_measured_output(self, Cy: ArrayLike | Sequence[ArrayLike]) -> FTCSystem:
         """The same plant measured through ``y_m = Cy x``: one matrix for every mode, or one
         per mode (checked like a system file's ``Cy``)."""
-        per_mode = isinstance(Cy, (list, tuple)) and len(Cy) > 0 and np.ndim(Cy[0]) == 2
-        cys = list(Cy) if per_mode else [Cy] * self.m  # type: ignore[arg-type]
+        cys: list[Any] = [Cy] * self.m
+        if isinstance(Cy, (list, tuple)) and len(Cy) > 0 and np.ndim(Cy[0]) == 2:
+            cys = list(Cy)
         if len(cys) != self.m:
             raise ValidationError(f"Cy: {len(cys)} matrices given for {self.m} modes")
         modes = tuple(Mode(md.A, md.B, md.C, md.D, md.A1, md.A2, md.B1, md.B2, Cy=c, label=md.label)

@@ -106,9 +106,9 @@ def typed_value(v: Any, val: Any, what: str, label: str, err: Callable[[str], Ex
             raise err(f"{label} {v.name!r} is Boolean; {what} {val!r}")
         return int(bool(val))
     val = float(val)
-    lo = float(v.min) if v.min is not None else -math.inf
-    hi = float(v.max) if v.max is not None else math.inf
-    if not lo <= val <= hi:
+    low = float(v.min) if v.min is not None else -math.inf
+    high = float(v.max) if v.max is not None else math.inf
+    if not low <= val <= high:
         raise err(f"{label} {v.name!r}: {what} {val}, outside its declared range [{v.min}, {v.max}]")
     return val
 

@@ -137,6 +137,8 @@ def read_model_description(path: Path, xml: bytes, err: Callable[[str], FMUError
     fmi_version = "3.0" if is_fmi3(md) else "2.0"
     if fmi_version == "3.0":  # fmpy reads FMI 3.0's plural attribute into nothing
         cs = root.find("CoSimulation")
+        if cs is None:
+            raise err("modelDescription.xml has no <CoSimulation> element (Model Exchange only?)")
         md.coSimulation.providesDirectionalDerivative = cs.get("providesDirectionalDerivatives") in ("true", "1")
     return md, fmi_version
 

@@ -134,7 +134,8 @@ class FMUSession:
                  log: Callable[[str, str, str], None] | None = None,
                  workdir: str | os.PathLike[str] | None = None) -> None:
         self.path = Path(fmu)
-        self.workdir, self.pending = None if workdir is None else str(workdir), None  # see the module docstring
+        self.workdir = None if workdir is None else str(workdir)
+        self.pending: BaseException | None = None  # see the module docstring
         self.mapping = mapping
         self.fmi_version, self.calls = "2.0", CALL_NAMES["2.0"]  # set from the model description
         self.instance_name = str(instance_name)
@@ -385,7 +386,7 @@ class FMUSession:
         """Write the 0-based true mode ``mode`` into the fault variables."""
         self._write(self.fault_writes(mode), f"{when} (setting fault mode {mode}, 0-based)")
 
-    def delta_values(self, seg: tuple[Any, Any]) -> Any:
+    def delta_values(self, seg: Sequence[Any]) -> Any:
         """The ctypes values of ``(Delta1, Delta2)`` for the map's Delta inputs (None: none)."""
         if self.delta.n == 0:
             return None

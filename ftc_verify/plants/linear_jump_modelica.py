@@ -76,7 +76,7 @@ def linear_jump_modelica(system: FTCSystem, name: str = "LinearJumpPlantModel") 
                      if any(t != "0" for t in rhs) else f"  der(x[{i + 1}]) = 0;")
     for i in range(d.ny):
         lines.append(f"  y[{i + 1}] = {_row([[m.C[i, j] for m in md] for j in range(d.n)], x)};")
-    for i in range(int(d.nym)):
+    for i in range(int(d.ny if d.nym is None else d.nym)):
         lines.append(f"  ym[{i + 1}] = {_row([[m.measured[i, j] for m in md] for j in range(d.n)], x)};")
     lines.append(f"end {name};")
     return "\n".join(lines) + "\n"
@@ -101,9 +101,10 @@ def linear_jump_modelica_map(system: FTCSystem) -> FaultInjectionMap:
         return tuple(f"{prefix}_{k}" for k in range(1, count + 1))
 
     return FaultInjectionMap(
-        fault=("mode",), fault_values=tuple(float(k) for k in range(1, system.m + 1)),
+        fault=("mode",), fault_values=tuple((float(k),) for k in range(1, system.m + 1)),
         inputs=names("u", d.nu), states=names("x", d.n), disturbances=names("w", d.nw),
-        outputs=names("y", d.ny), measured=names("ym", int(d.nym)), initial_states=names("x", d.n),
+        outputs=names("y", d.ny), measured=names("ym", int(d.ny if d.nym is None else d.nym)),
+        initial_states=names("x", d.n),
         delta1=tuple(f"Delta1_{i}_{j}" for i in range(1, d.q1 + 1) for j in range(1, d.p1 + 1)),
         delta2=tuple(f"Delta2_{i}_{j}" for i in range(1, d.q2 + 1) for j in range(1, d.p2 + 1)),
     )

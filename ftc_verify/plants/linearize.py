@@ -303,7 +303,8 @@ def linearize_plant(pm: PlantMap, *, route: str | None = None, rel_step: float =
         modes = tuple(_mode(probe, chosen, i, x_op, uw0, rel_step, id_step) for i in range(pm.m))
     notes = [f"mode {k} ({m.name}): drift |f(x_op, u_op)| = {np.linalg.norm(m.drift):.3g}: the operating point is "
              "not an equilibrium here and the linear model does not carry the drift"
-             for k, m in enumerate(modes, start=1) if np.linalg.norm(m.drift) > 1e-8 * max(1.0, np.linalg.norm(x_op))]
+             for k, m in enumerate(modes, start=1)
+             if np.linalg.norm(m.drift) > 1e-8 * max(1.0, float(np.linalg.norm(x_op)))]
     notes += [f"mode {k}: an output depends directly on u or w (largest entry {m.errors['output_feedthrough']:.3g}); "
               "the core model has no feedthrough" for k, m in enumerate(modes, start=1) if "output_feedthrough" in m.errors]
     return Linearisation(chosen, modes, x_op, tuple(notes), tuple(w for k, m in enumerate(modes, start=1)

@@ -138,7 +138,7 @@ def _meta(flat_class: Any, name: str) -> tuple[str, str, bool]:
     return str(sym.comment or ""), unit if isinstance(unit, str) else "", bool(sym.final)
 
 
-def _number(ca: Any, value: Any, symbols: list, values: list[float]) -> float:
+def _number(ca: Any, value: Any, symbols: list[Any], values: list[float]) -> float:
     """A metadata value as a float (MX expressions evaluated at the parameter values); NaN
     when it is not a scalar number."""
     try:
@@ -158,7 +158,7 @@ def _where(path: Path, text: str, name: str) -> str:
     return f"{path}:{line}" if line else str(path)
 
 
-def _parameters(b: SimpleNamespace, m: Any, path: Path, text: str) -> tuple[list, list[float], list[int]]:
+def _parameters(b: SimpleNamespace, m: Any, path: Path, text: str) -> tuple[list[Any], list[float], list[int]]:
     """``(symbols, values, indices of the Real ones)`` of pymoca's parameters; a parameter
     without a finite value (pymoca's NaN, e.g. when it has only ``start``) is refused."""
     values, real = [], []
@@ -361,7 +361,7 @@ void ode_jac(double t, const double *x, const double *u, const double *p, double
 """
 
 
-def _c_source(b: SimpleNamespace, functions: list, sizes: dict[str, int], title: str) -> str:
+def _c_source(b: SimpleNamespace, functions: list[Any], sizes: dict[str, int], title: str) -> str:
     """CasADi's C code of ``functions`` (one file, no header) plus the ode_model.h wrapper."""
     ca = b.ca
     cg = ca.CodeGenerator("ftc_modelica", {"with_header": False, "casadi_int": "int", "casadi_real": "double"})

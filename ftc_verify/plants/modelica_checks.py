@@ -204,8 +204,8 @@ def experiment_settings(text: str) -> dict[str, float]:
     return out
 
 
-def check_start_point(ca: Any, args: list, blocks: list, functions: list, labels: tuple, start: list,
-                      where: str) -> None:
+def check_start_point(ca: Any, args: list[Any], blocks: list[Any], functions: list[Any], labels: tuple[Any, ...],
+                      start: list[Any], where: str) -> None:
     """Refuse a singular or non-finite block coefficient matrix ``blocks = [(unknown names,
     SX matrix), ...]`` or a non-finite output of ``functions`` (named by ``labels``) at the
     point ``start`` (values of the symbols ``args``)."""
@@ -235,7 +235,7 @@ def _points(spec: Any, seed: int) -> list[tuple[float, np.ndarray, np.ndarray, n
     start = [np.array([v.start for v in getattr(spec, g)], dtype=float) for g in ("states", "inputs", "parameters")]
     rng = np.random.default_rng(seed)
     near = [a * (1.0 + 0.01 * rng.uniform(-1.0, 1.0, a.shape)) for a in start]
-    return [(0.0, *start), (0.37, *near)]
+    return [(0.0, start[0], start[1], start[2]), (0.37, near[0], near[1], near[2])]
 
 
 def _differs(got: np.ndarray, want: np.ndarray, rtol: float) -> int | None:
@@ -250,7 +250,7 @@ def _differs(got: np.ndarray, want: np.ndarray, rtol: float) -> int | None:
     return None
 
 
-def _fmu_values(model: Any, spec: Any, point: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _fmu_values(model: Any, spec: Any, point: tuple[Any, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(derivatives, outputs, dfdx and dfdu as columns)`` of an instantiated FMU2Model."""
     t, x, u, p = point
     nx, nu, np_ = len(x), len(u), len(p)

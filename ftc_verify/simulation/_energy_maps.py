@@ -101,10 +101,10 @@ def tables(system: FTCSystem, controller: Controller, a_true: np.ndarray, a_d1: 
     Bm = np.stack([md.B for md in system.modes])
     Dm = np.stack([md.D for md in system.modes])
     A = Am[a_true].copy()
-    if A1 is not None and a_d1 is not None:
+    if A1 is not None and A2 is not None and a_d1 is not None:
         A += A1[a_true] @ a_d1 @ A2[a_true]
     B = Bm[d_true].copy()
-    if B1 is not None and d_d2 is not None:
+    if B1 is not None and B2 is not None and d_d2 is not None:
         B += B1[d_true] @ d_d2 @ B2[d_true]
     BK, entry, M = _input_maps(system, controller, B, d_true, d_fdi)
     Cz = np.stack([md.C for md in system.modes])

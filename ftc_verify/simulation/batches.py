@@ -106,7 +106,7 @@ def fmu_monte_carlo(system: FTCSystem, controller: Controller, paths: Sequence[C
             parts = run_isolated(system, plant, controller, plist, spec=spec, rng=rng, log=log, done=done)
             return merge_results(parts, plant.fmu, spec.seed)
     parts = []
-    batch = spec.batch
+    batch = FMU_TASK_PATHS if spec.batch is None else spec.batch
     with Supervisor(plant.fmu, plant.injection_map(), system=system, tolerance=plant.tolerance, log=log) as sup:
         for b in range(0, len(plist), batch):
             parts.append(sup.run(plist[b:b + batch], controller, spec=spec, rng=rng))

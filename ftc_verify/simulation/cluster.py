@@ -297,6 +297,7 @@ def open_client(workers: int | None = None, scheduler: str | None = None) -> Ite
         finally:
             _shutdown(client, None)
         return
+    assert workers is not None
     earlier = set(multiprocessing.active_children())
     cluster = client = None
     folder: Path | None = None

@@ -159,11 +159,11 @@ def _exact(grid: _Grid, exo: _Exosystem, z0: np.ndarray) -> np.ndarray:
             v[nx:] = starts[k]
         while True:
             v = E[pi] @ v
-            reset = pieces[pi][2]
+            after = pieces[pi][2]
             pi += 1
-            if reset is None:
+            if after is None:
                 break
-            v[nx:] = reset
+            v[nx:] = after
         X[k + 1] = v[:nx]
     return X
 

@@ -73,7 +73,7 @@ class DeltaSchedule:
 
 
 def _given(system: FTCSystem, schedule: DeltaSchedule) -> tuple[Matrix | None, Matrix | None]:
-    out = []
+    out: list[Matrix | None] = []
     for name, shape in zip(("Delta1", "Delta2"), delta_shapes(system)):
         val = getattr(schedule, name)
         if shape is None:

@@ -46,12 +46,13 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from ..controllers.controller import Controller
-from ..model.system import FTCSystem
+from ..model.system import FTCSystem, Matrix
 from . import _energy_grid as eg
 from ._common import (
     PathArrays,
@@ -142,8 +143,8 @@ def _dynamics_ids(system: FTCSystem, controller: Controller, plist: list[ChainPa
     s1, s2 = delta_shapes(system)
     if schedule.kind == "random":
         flat = [d for p in plist for d in delta_segments(system, p, schedule, gen)]
-        d1 = None if s1 is None else np.stack([d[0] for d in flat])
-        d2 = None if s2 is None else np.stack([d[1] for d in flat])
+        d1 = None if s1 is None else np.stack([cast(Matrix, d[0]) for d in flat])
+        d2 = None if s2 is None else np.stack([cast(Matrix, d[1]) for d in flat])
         seg_d = np.arange(pa.times.size)
         return tables(system, controller, pa.true, d1, pa.true, pa.fdi, d2, seg_d), seg_d
     segs0 = delta_segments(system, plist[int(np.argmax(pa.count))], schedule, gen)
@@ -255,7 +256,7 @@ class _Stepper:
             self._chunk_modes(c0, c1, p1)
             i0, i1 = int(self.it_bounds[c0]), int(self.it_bounds[c1])
             maps = self._composite(c0, i0, i1) if i1 > i0 else None
-            if self.select:
+            if self.idx is not None:
                 np.add(self.dtab[:c1 - c0, None, :] * (self.rows * self.P), self.idx_off[None],
                        out=self.idx[:c1 - c0])
             self._steps(c0, c1, i0, maps)
@@ -322,7 +323,7 @@ class _Stepper:
             np.einsum("ip,ip->p", X, X, out=zsq)
             np.maximum(zmax, zsq, out=zmax)  # a NaN propagates: diverged
             Ba[:nw] = Wreg[k][:, None]
-            if select:
+            if idx is not None:
                 np.matmul(Faug, Ba[:nw + nz], out=Y)
                 np.take(Yflat, idx[kk], out=Bb[nw:])
                 yk = Bb[nw + nz:]

@@ -129,7 +129,8 @@ class PathInputs:
         self.entry = law.entry(self.true_mode, int(plan.fdi[0]))
         self.next_event, self._events_done = plan.events[0], 0
         self.group = session.uw
-        self.values = np.frombuffer(self.group.buf, dtype=np.float64, count=self.group.n)
+        self.values = np.frombuffer(  # type: ignore[call-overload]  # numpy stub: ctypes arrays are buffers too
+            self.group.buf, dtype=np.float64, count=self.group.n)
         self.u, self.w = self.values[:session.nu], self.values[session.nu:]
         self._has_w = session.nw > 0
 
@@ -240,8 +241,10 @@ class PathRecorder:
         self.before, self.after = session.read_groups(law.measured)
         self.feedthrough = session.feedthrough
         rows = len(plan.t)
-        self._before = np.frombuffer(self.before.buf, dtype=np.float64, count=self.before.n)
-        self._after = np.frombuffer(self.after.buf, dtype=np.float64, count=session.ny) if self.feedthrough else None
+        self._before = np.frombuffer(  # type: ignore[call-overload]  # numpy stub: ctypes arrays are buffers too
+            self.before.buf, dtype=np.float64, count=self.before.n)
+        self._after = np.frombuffer(  # type: ignore[call-overload]  # numpy stub: ctypes arrays are buffers too
+            self.after.buf, dtype=np.float64, count=session.ny) if self.feedthrough else None
         self.read_rows = np.empty((rows, self.before.n))
         self.U = np.empty((rows, session.nu))
         self.Y = np.empty((rows, session.ny)) if self.feedthrough else None

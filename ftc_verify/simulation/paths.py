@@ -165,7 +165,8 @@ def _generators(chain: JointChain, rates: np.ndarray, targets: np.ndarray) -> tu
             top = lo.copy()
             top[idx] = hi[idx]
             dq = (chain.generator(top) - q_lo) / width
-            coef = rates[(slice(None), *idx)] - lo[idx]
+            column: tuple[slice | int, ...] = (slice(None), *idx)
+            coef = rates[column] - lo[idx]
             diag += coef[:, None] * dq[rows, rows][None]
             off += coef[:, None, None] * dq[rows[:, None], cols][None]
     return -diag, _cdf(np.clip(off, 0.0, None), targets)
@@ -332,7 +333,7 @@ class PathSpec(Sequence[ChainPath]):
         object.__setattr__(self, "horizon", _check_horizon(self.horizon))
         object.__setattr__(self, "n_paths", _check_count(self.n_paths))
         s = seed_sequence(self.seed)
-        seed = int(self.seed) if s is not self.seed else np.random.SeedSequence(
+        seed = int(self.seed) if not isinstance(self.seed, np.random.SeedSequence) else np.random.SeedSequence(
             s.entropy, spawn_key=s.spawn_key, pool_size=s.pool_size, n_children_spawned=s.n_children_spawned)
         object.__setattr__(self, "seed", seed)
         if self.beta is not None:

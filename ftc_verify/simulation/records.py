@@ -48,7 +48,7 @@ def divergence_note(records: Sequence[PathRecord]) -> str | None:
     """One line naming the diverged and failed paths (1-based) and when, or None."""
     bad = [(k, r.diverged_at) for k, r in enumerate(records, start=1) if r.diverged_at is not None]
     failures = {k: r.failure for k, r in enumerate(records, start=1) if r.failure is not None}
-    return divergence_line(bad, len(records), failures)  # type: ignore[arg-type]
+    return divergence_line(bad, len(records), failures)
 
 
 def divergence_line(bad: Sequence[tuple[int, float]], total: int,

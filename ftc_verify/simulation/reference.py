@@ -124,7 +124,7 @@ def _controller_zoh(controller: Controller, e: int, h: float, full: bool, cache:
     return mats
 
 
-def _simulate_path(system: FTCSystem, controller: Controller, path: ChainPath, segs: list, step: float,
+def _simulate_path(system: FTCSystem, controller: Controller, path: ChainPath, segs: list[Any], step: float,
                    wfun: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, cache: _Cache) -> PathRecord:
     """One path of the loop of the module docstring, recorded on its grid."""
     m = system.m

@@ -31,7 +31,7 @@ import math
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -112,7 +112,7 @@ def delta_stream(stream: np.random.SeedSequence) -> np.random.SeedSequence:
 
 def fresh_seed() -> int:
     """A seed drawn from the operating system's entropy (recorded where a run reports it)."""
-    return int(np.random.SeedSequence().entropy % 2**63)
+    return int(cast(int, np.random.SeedSequence().entropy) % 2**63)
 
 
 def schedule_of(delta: DeltaSchedule | str | None) -> DeltaSchedule:

@@ -122,7 +122,7 @@ def _task_malloc() -> Iterator[None]:
     try:
         yield
     finally:
-        if libc is not None:
+        if libc is not None and trim is not None:
             libc.mallopt(_M_MMAP_THRESHOLD, 128 * 1024)  # glibc's default, which the variable froze
             libc.mallopt(_M_TRIM_THRESHOLD, int(trim))
             libc.malloc_trim(0)
@@ -258,7 +258,7 @@ def _stream(system: FTCSystem, controller: Controller, paths: Sequence[ChainPath
         switches, betas = _summaries(plist)
     Ey = np.concatenate([p[0] for p in parts])
     Ew = np.concatenate([p[1] for p in parts])
-    records = ()
+    records: tuple[PathRecord, ...] = ()
     if record > 0:
         records = simulate_reference(system, controller, plist[:record], spec=spec,
                                      rng=copy.deepcopy(start)).records
@@ -275,7 +275,7 @@ def _list_parts(job: tuple[Any, ...], plist: list[ChainPath], gen: np.random.Gen
     system, controller, step, disturbance, schedule = job
     starts = range(0, len(plist), batch)
     if client is None:  # serially the batches draw from ``gen`` in turn: no replay needed
-        parts = []
+        parts: list[tuple[np.ndarray, ...]] = []
         for b in starts:
             parts.append(_energies_batch(system, controller, plist[b:b + batch], step, disturbance, schedule, gen))
             report(len(parts[-1][0]))
@@ -295,7 +295,7 @@ def _spec_parts(job: tuple[Any, ...], spec: PathSpec, gen: np.random.Generator, 
     system, controller, step, disturbance, schedule = job
     ranges = [(b, min(b + batch, spec.n_paths)) for b in range(0, spec.n_paths, batch)]
     if client is None:
-        parts = []
+        parts: list[tuple[np.ndarray, ...]] = []
         for first, stop in ranges:
             parts.append(_sampled_batch(system, controller, spec, first, stop, step, disturbance, schedule, gen))
             report(stop - first)

@@ -51,7 +51,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -220,7 +220,8 @@ def _project(par: Parametrisation, theta: Matrix, k_max: float | None) -> Matrix
     return par.theta(out)
 
 
-def bfgs(fun, x0: Matrix, *, target: float, max_iter: int = 200, project=lambda x: x,
+def bfgs(fun: Callable[[Matrix], tuple[float, Matrix]], x0: Matrix, *, target: float, max_iter: int = 200,
+         project: Callable[[Matrix], Matrix] = lambda x: x,
          c1: float = 1e-4, c2: float = 0.9) -> tuple[Matrix, float, int]:
     """Minimise ``fun(x) -> (f, g)`` by BFGS with a weak Wolfe line search (module
     docstring) until ``f < target``; returns ``(x, f, evaluations)``."""

@@ -53,7 +53,7 @@ from ..analysis.closedloop import barred, closed_loop, gain_loop
 from ..analysis.lmi import block_specs, lyapunov_block, projection, xy_block
 from ..analysis.lmi_analysis import hinf_gamma
 from ..controllers.controller import Controller
-from ..errors import ValidationError
+from ..errors import SolverError, ValidationError
 from ..model.system import FTCSystem, Matrix, Mode
 from .descent import accepted_gamma, descent_route
 from .starts import certify_start, lqr_gain
@@ -88,7 +88,7 @@ def augmented_system(system: FTCSystem, n_c: int | None = None) -> tuple[FTCSyst
     for md in system.modes:
         bar = barred(md, md.measured, n)
         entries: dict[str, Any] = dict(A=bar.A0bar, B=bar.B0bar, C=bar.C1bar, D=bar.Dbar)
-        if bar.A1bar is not None:
+        if bar.A1bar is not None and bar.A2bar is not None and bar.B2bar is not None:
             k = bar.split
             qa = 0 if md.A2 is None else md.A2.shape[0]
             if md.A1 is not None:
@@ -237,9 +237,14 @@ def ccl(system: FTCSystem, gamma: float, calls: SolverCalls, k_max: float | None
     cons = ccl_constraints(aug, cbars, P, X, lam, eps, gamma ** 2, 1e-7)
     flat = [(a, b) for ls, es in zip(lam, eps) for a, b in zip(ls, es)]
 
+    def solved(v: cp.Variable) -> np.ndarray:
+        if v.value is None:
+            raise SolverError("CCL: a variable has no value after a solved step")
+        return v.value
+
     def current() -> tuple[list[Matrix], list[Matrix], list[list[float]], list[float]]:
-        return ([0.5 * (p.value + p.value.T) for p in P], [0.5 * (x.value + x.value.T) for x in X],
-                [[float(a.value) for a in ls] for ls in lam], [float(b.value) for _, b in flat])
+        return ([0.5 * (solved(p) + solved(p).T) for p in P], [0.5 * (solved(x) + solved(x).T) for x in X],
+                [[float(solved(a)) for a in ls] for ls in lam], [float(solved(b)) for _, b in flat])
 
     if start is None:
         size = sum(cp.trace(p) + cp.trace(x) for p, x in zip(P, X)) + sum(a + b for a, b in flat)
@@ -275,8 +280,8 @@ def ccl(system: FTCSystem, gamma: float, calls: SolverCalls, k_max: float | None
                                    "does not fit every true mode"), None
         for par, v in zip(Pk + Xk, Pv + Xv):
             par.value = v
-        for par, v in zip(lk + ek, [v for r in lv for v in r] + ev):
-            par.value = max(v, 0.0)
+        for par, val in zip(lk + ek, [v for r in lv for v in r] + ev):
+            par.value = max(val, 0.0)
         out = calls.run(linearised)
         if not out.solved or P[0].value is None:
             return None, history, (f"CCL iteration {len(history)} failed (solver status {out.status}; residual "
@@ -305,7 +310,7 @@ def _observer_rows(system: FTCSystem, k_max: float | None, solver: str, calls: S
     no bound is given, also under :data:`OBSERVER_K_MAX` (unbounded state-feedback gains
     reach norms of 1e4 on the paper's plant, and the observer's model mismatch during a
     detection delay, ``(B_j - B_i) K_j``, then destabilises the loop)."""
-    rows = []
+    rows: list[dict[str, Any]] = []
     for bound in ([k_max] if k_max is not None else [None, OBSERVER_K_MAX]):
         sf = synthesize(system, method="iterative", k_max=bound, solver=solver)
         calls.absorb(sf)

@@ -145,13 +145,13 @@ def candidates(system: FTCSystem, k_max: float | None, full_info: list[Matrix] |
     else:
         p = stationary(system.chain.generator(system.chain.midpoint()))
         joint = system.chain.joint_modes
-        gains = []
+        projected: list[Matrix] = []
         for j in range(system.m):
             w = np.array([p[s] for s, (_, l_) in enumerate(joint) if l_ == j])
             Ks = [full_info[s] for s, (_, l_) in enumerate(joint) if l_ == j]
             w = w / w.sum() if w.sum() > 0 else np.full(len(Ks), 1.0 / len(Ks))
-            gains.append(sum(wk * Kk for wk, Kk in zip(w, Ks)))
-        bounded, note = _bounded(gains, k_max)
+            projected.append(sum(wk * Kk for wk, Kk in zip(w, Ks)))
+        bounded, note = _bounded(projected, k_max)
         out.append(Candidate("full-info projected", bounded, note))
     return out
 

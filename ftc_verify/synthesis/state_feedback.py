@@ -209,7 +209,7 @@ def descend(loop_of: Any, step: Any, m: int, start: list[Matrix], calls: SolverC
         calls.outcomes.extend(res.attempts)
     if not res.certified or res.P is None:
         return best, [], "start gains not certified; no descent"
-    history = [float(res.gamma)]  # type: ignore[arg-type]
+    history = [float(res.gamma)]
     reason = f"iteration limit {max_iter}"
     for _ in range(max_iter):
         lam = [list(r) for r in (res.multipliers or [()] * len(res.P))]
@@ -266,8 +266,8 @@ def _starts(system: FTCSystem, gamma: float | None, k_max: float | None, solver:
                              "reason": c.note})
             else:
                 rows.append(certify_start(system, c.name, c.gains, solver, c.note))
-    for r in rows:
-        calls.outcomes.extend(r.get("attempts", ()))
+    for row in rows:
+        calls.outcomes.extend(row.get("attempts", ()))
     return rows
 
 

@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Mapping
-from typing import Any, TypeVar
+from typing import Any, TypeAlias, TypeVar
 
 import numpy as np
 import scipy.linalg
@@ -67,7 +67,7 @@ Matrix = NDArray[np.float64]
 #: The type of the value of an :data:`Opt`.
 T = TypeVar("T")
 #: An option: a value, an inclusive ``(low, high)`` range, or a strategy.
-Opt = T | tuple[T, T] | st.SearchStrategy[T]
+Opt: TypeAlias = T | tuple[T, T] | st.SearchStrategy[T]
 
 #: Bounds of the drawn data (module docstring).
 A_BOUND, A_SHIFT = 1.3, 0.2

@@ -243,7 +243,7 @@ def worst_case_disturbance(
     v0[s0 * vsize:(s0 + 1) * vsize] = _vech(e_last)
     basis = [(k, c) for k in range(pieces) for c in range(nw)]
     N = len(basis)
-    cols = [(a,) for a in range(N)] + [(a, b) for a in range(N) for b in range(a + 1, N)]
+    cols: list[tuple[int, ...]] = [(a,) for a in range(N)] + [(a, b) for a in range(N) for b in range(a + 1, N)]
     # which precomputed step each column uses on each piece
     choice = np.zeros((pieces, len(cols)), dtype=np.int64)
     for j, col in enumerate(cols):

@@ -30,6 +30,7 @@ draw comes from one :class:`numpy.random.Generator` whose seed is in the report.
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -148,7 +149,7 @@ def _certify(analysis: AnalysisReport, gamma: float | None) -> tuple[float | Non
     return gamma_cert, checks
 
 
-def _cross_validation(loop: ClosedLoop) -> tuple[list[ModeCheck], Check]:
+def _cross_validation(loop: ClosedLoop) -> tuple[tuple[ModeCheck, ...], Check]:
     """Every frozen joint mode against python-control."""
     per_mode = cross_validate(loop)
     bad = [f"({m.true_mode},{m.fdi_mode}): {m.detail}" for m in per_mode if not m.agree]
@@ -423,7 +424,7 @@ def run_verify(
         return report(analysis=analysis, per_mode=per_mode)
     g2 = gamma_cert ** 2
     exact = timed("exact_energy", lambda: _exact_energies(system, loop, g2))
-    worst = timed("worst_case", lambda: _worst_case(loop, exact, spec.horizon, gamma_cert))
+    worst = timed("worst_case", functools.partial(_worst_case, loop, exact, spec.horizon, gamma_cert))
     t = time.perf_counter()
     spec, options["delta"] = spec.resolve_delta(system, plant)
     try:
