@@ -34,7 +34,8 @@ if shutil.which("gcc") is None:  # pragma: no cover
     pytest.skip("gcc is needed to compile the FMUs", allow_module_level=True)
 
 from ftc_verify.errors import ValidationError
-from ftc_verify.plants.linear_jump import FMUError, build_fmu, fmi2_include_dir
+from ftc_verify.plants.build import fmi2_include_dir
+from ftc_verify.plants.linear_jump import FMUError, build_fmu
 from ftc_verify.model.system import FTCSystem
 from ftc_verify.simulation.paths import ChainPath, sample_paths
 from ftc_verify.model.files import load_system

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from ftc_verify.errors import FMUError
-from ftc_verify.plants.linear_jump import build_lock
+from ftc_verify.plants.build import build_lock
 
 _CHILD = """
 from ftc_verify.plants import ode_fmu

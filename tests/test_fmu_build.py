@@ -27,11 +27,11 @@ from fmpy.fmi2 import (
 )
 
 from ftc_verify.errors import FTCError, ValidationError
+from ftc_verify.plants.build import cache_dir
 from ftc_verify.plants.linear_jump import (
     FMUError,
     build_binary,
     build_fmu,
-    cache_dir,
     fmu_dims,
     parse_system_text,
     source_dir,

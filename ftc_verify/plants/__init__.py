@@ -5,8 +5,8 @@
 
 from __future__ import annotations
 
-from .build import build_lock, run_compiler
-from .linear_jump import FMUError, MODEL_IDENTIFIER, FORMAT_VERSION, FMUDims, source_dir, fmi2_include_dir, cache_dir, build_binary, build_fmu, validate, fmu_dims, system_text, parse_system_text, model_description, variable_names
+from .build import build_lock, cache_dir, fmi2_include_dir, run_compiler
+from .linear_jump import FMUError, MODEL_IDENTIFIER, FORMAT_VERSION, FMUDims, source_dir, build_binary, build_fmu, validate, fmu_dims, system_text, parse_system_text, model_description, variable_names
 
 __all__ = [
     "FMUError",
