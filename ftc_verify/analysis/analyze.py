@@ -68,7 +68,7 @@ class AnalysisReport:
         return all(m.agree for m in self.per_mode)
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready report (the schema documented in the README)."""
+        """JSON-ready report (the schema of :doc:`/reference/report-schema`)."""
         return json_ready({
             "name": self.name,
             "controller": self.controller,

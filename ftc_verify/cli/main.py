@@ -1,6 +1,6 @@
 """Command-line interface: ``ftc-verify COMMAND ...`` (also ``python -m ftc_verify``).
 
-Exit codes are a contract (README "Exit codes and what they promise"):
+Exit codes are a contract (:doc:`/reference/exit-codes`):
 
 * 0 -- the claim holds (certified / pass / done) and its verdict line was printed;
 * 1 -- a negative answer that was shown: instability, a bound exceeded, a failed check;
@@ -9,6 +9,8 @@ Exit codes are a contract (README "Exit codes and what they promise"):
 * 3 -- the exact spectral test says mean-square stable but no LMI certificate was found
   (neither a proof of stability nor of instability);
 * 4 -- an internal error (a bug): one line on stderr, never a traceback;
+* 5 -- undecided: at some rate vertex neither mean-square stability nor instability could
+  be proved (float64 nor ball arithmetic), never reported as 0 or 1;
 * 130 / 143 -- interrupted by SIGINT / SIGTERM (temporary files removed);
 * 141 -- the output pipe closed before the answer was printed (e.g. ``| head -1``).
 

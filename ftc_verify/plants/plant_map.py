@@ -3,7 +3,7 @@
 A plant map names, for one FMU, the variables of every role of the loop, the operating
 point the linear design is made around, start values of parameters, the region the design
 is trusted in, one table of fault values per fault mode, and optionally the fault/FDI
-chain. Full example (README "Your own FMU plant")::
+chain. Full example (:doc:`/user-guide/plant`)::
 
     fmu = "Motor.fmu"                     # relative to this file
     name = "dc-motor"                     # optional (default: the file's stem)

@@ -57,8 +57,8 @@ CLOSE_TIMEOUT = 10.0
 #: Seconds an interrupted local cluster start may still take, so that it can be shut down.
 START_TIMEOUT = 60.0
 #: Local workers per core at most: a worker is one process with one thread running CPU-bound
-#: batches, so more workers than cores buy no speed (README: 1.36x with 2 workers, 1.40x
-#: with 4 on 2 cores); a little oversubscription is harmless, thousands of processes are not.
+#: batches, so more workers than cores buy no speed (:doc:`/performance`: 1.36x with 2
+#: workers, 1.40x with 4 on 2 cores); a little oversubscription is harmless, thousands of processes are not.
 WORKERS_PER_CORE = 4
 #: Memory budgeted per local worker process: a Dask worker measured 114 MB resident idle and
 #: 140 MB after 100 FMU paths of the paper plant (psutil RSS); the rest is headroom for

@@ -114,7 +114,7 @@ class SynthesisResult:
         return self.report.nominal.gamma
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready result (the schema documented in the README)."""
+        """JSON-ready result (the schema of :doc:`/reference/report-schema`)."""
         rep = self.report
         return json_ready({
             "feasible": self.feasible,
