@@ -18,7 +18,7 @@ from typing import Any
 from xml.etree import ElementTree as ET
 
 from ..errors import FMUError
-from .fmi3 import is_fmi3
+from .fmi_calls import is_fmi3
 
 __all__ = ["unsafe_member", "read_archive", "read_model_description", "require_binary"]
 

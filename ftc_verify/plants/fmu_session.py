@@ -14,7 +14,7 @@ This module implements :class:`FMUSession`, the FMU side of the co-simulation su
   the instance through ``fmi2Reset`` (:meth:`FMUSession.start_path`);
 * the variables are read, written and the FMU stepped with :meth:`FMUSession.read`,
   :meth:`FMUSession.write` and :meth:`FMUSession.step`, each the call of the FMU's version
-  (``fmi2GetReal`` or ``fmi3GetFloat64``...: :class:`~ftc_verify.plants.fmi3.SlaveCalls`);
+  (``fmi2GetReal`` or ``fmi3GetFloat64``...: :class:`~ftc_verify.plants.fmi_calls.SlaveCalls`);
   a status other than OK or Warning raises :class:`FMICallError`, which
   :meth:`FMUSession.call_error` turns into the :class:`~ftc_verify.errors.FMUError` naming
   the FMU file, the call, the variables and the time, with the FMU's own log messages.
@@ -44,7 +44,7 @@ import numpy as np
 
 from ..errors import FMUError
 from .fault_map import FaultInjectionMap, ResolvedVariables, resolve_variables
-from .fmi3 import CALL_NAMES, FAULT_KINDS, SlaveCalls, load_slave, typed_value
+from .fmi_calls import CALL_NAMES, FAULT_KINDS, SlaveCalls, load_slave, typed_value
 from .fmu_archive import read_archive, read_model_description, require_binary
 
 __all__ = ["FMUError", "FMICallError", "FMUSession", "VarGroup", "c_buffer"]
@@ -63,7 +63,7 @@ def c_buffer(ctype: Any, values: Sequence[Any]) -> Any:
 
 class VarGroup:
     """Value references of a list of variables of one kind (``"real"``, ``"int"`` or
-    ``"bool"``, :data:`~ftc_verify.plants.fmi3.FAULT_KINDS`), with a ctypes buffer."""
+    ``"bool"``, :data:`~ftc_verify.plants.fmi_calls.FAULT_KINDS`), with a ctypes buffer."""
 
     __slots__ = ("buf", "ctype", "kind", "n", "names", "vr")
 
