@@ -56,7 +56,7 @@ from .build import (CFLAGS, FMI2_HEADERS, binary_platform, build_lock, cache_dir
                     find_gcc, fmi2_include_dir, is_cached, link_flags, record_hash, run_compiler, write_zip)
 
 __all__ = ["DEFAULT_RTOL", "GLUE_FILES", "VARIABLE_GROUPS", "OdeVariable", "OdeFmuSpec", "ode_source_dir",
-           "ode_spec_header", "ode_model_description", "build_ode_binary", "compile_ode_binary", "build_ode_fmu",
+           "ode_spec_header", "ode_model_description", "value_reference_groups", "add_description_basics", "build_ode_binary", "compile_ode_binary", "build_ode_fmu",
            "package_ode_fmu",
            "motor_spec"]
 
@@ -245,9 +245,6 @@ _CAPABILITIES = {"needsExecutionTool": "false", "canBeInstantiatedOnlyOncePerPro
                  "canSerializeFMUstate": "true"}
 _CS_CAPABILITIES = {"canHandleVariableCommunicationStepSize": "true", "canInterpolateInputs": "false",
                     "maxOutputDerivativeOrder": "0", "canRunAsynchronuously": "false"}
-_LOG_CATEGORIES = (("logEvents", "information: instantiation, internal steps per fmi2DoStep"),
-                   ("logStatusWarning", "warnings"), ("logStatusError", "errors (always reported)"),
-                   ("logAll", "all of the above"))
 
 
 def _scalar_variables(spec: OdeFmuSpec) -> list[tuple[dict[str, str], dict[str, str]]]:
@@ -278,12 +275,36 @@ def _scalar_variables(spec: OdeFmuSpec) -> list[tuple[dict[str, str], dict[str, 
     return out
 
 
+def value_reference_groups(spec: OdeFmuSpec) -> list[list[int]]:
+    """The value references of the states, ``der(states)``, inputs, parameters and outputs
+    of ``spec``'s FMU (both FMI versions): consecutive from 1, in that order."""
+    sizes = [len(spec.states), *(len(getattr(spec, g)) for g in VARIABLE_GROUPS)]  # x, der(x), u, p, y
+    bounds = list(itertools.accumulate([1, *sizes]))
+    return [list(range(a, b)) for a, b in itertools.pairwise(bounds)]
+
+
+def add_description_basics(root: ET.Element, spec: OdeFmuSpec, step_call: str) -> None:
+    """The ``UnitDefinitions``, ``LogCategories`` and ``DefaultExperiment`` elements of
+    ``spec``'s model description, the same for both FMI versions but for the name of the
+    step function (``step_call``) in the ``logEvents`` description."""
+    units = sorted({v.unit for g in VARIABLE_GROUPS for v in getattr(spec, g) if v.unit})
+    if units:
+        defs = ET.SubElement(root, "UnitDefinitions")
+        for name in units:
+            ET.SubElement(defs, "Unit", {"name": name})
+    cats = ET.SubElement(root, "LogCategories")
+    for name, text in (("logEvents", f"information: instantiation, internal steps per {step_call}"),
+                       ("logStatusWarning", "warnings"), ("logStatusError", "errors (always reported)"),
+                       ("logAll", "all of the above")):
+        ET.SubElement(cats, "Category", {"name": name, "description": text})
+    ET.SubElement(root, "DefaultExperiment", {"startTime": "0.0", "stopTime": repr(spec.stop_time),
+                                              "tolerance": repr(spec.tolerance), "stepSize": repr(spec.step_size)})
+
+
 def _model_structure(parent: ET.Element, spec: OdeFmuSpec) -> None:
     """Outputs and derivatives depend on all states and inputs; initial unknowns also on
     the parameters (declared conservatively, ``dependenciesKind="dependent"``)."""
-    sizes = [len(spec.states), *(len(getattr(spec, g)) for g in VARIABLE_GROUPS)]  # x, der(x), u, p, y
-    bounds = list(itertools.accumulate([1, *sizes]))
-    states, derivs, inputs, params, outputs = (list(range(a, b)) for a, b in itertools.pairwise(bounds))
+    states, derivs, inputs, params, outputs = value_reference_groups(spec)
     for tag, indices, deps in (("Outputs", outputs, states + inputs), ("Derivatives", derivs, states + inputs),
                                ("InitialUnknowns", derivs + outputs, states + inputs + params)):
         if not indices:
@@ -309,16 +330,7 @@ def ode_model_description(spec: OdeFmuSpec, guid: str) -> str:
         files = ET.SubElement(el, "SourceFiles")
         for name in ("ode_glue.c", f"{spec.model_name}.c"):
             ET.SubElement(files, "File", {"name": name})
-    units = sorted({v.unit for g in VARIABLE_GROUPS for v in getattr(spec, g) if v.unit})
-    if units:
-        defs = ET.SubElement(root, "UnitDefinitions")
-        for name in units:
-            ET.SubElement(defs, "Unit", {"name": name})
-    cats = ET.SubElement(root, "LogCategories")
-    for name, text in _LOG_CATEGORIES:
-        ET.SubElement(cats, "Category", {"name": name, "description": text})
-    ET.SubElement(root, "DefaultExperiment", {"startTime": "0.0", "stopTime": repr(spec.stop_time),
-                                              "tolerance": repr(spec.tolerance), "stepSize": repr(spec.step_size)})
+    add_description_basics(root, spec, "fmi2DoStep")
     variables = ET.SubElement(root, "ModelVariables")
     for vr, (attrs, real) in enumerate(_scalar_variables(spec), start=1):
         sv = ET.SubElement(variables, "ScalarVariable", {"name": attrs.pop("name"), "valueReference": str(vr), **attrs})

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import ctypes
 import hashlib
-import itertools
 import uuid
 from pathlib import Path
 from xml.etree import ElementTree as ET
@@ -22,7 +21,8 @@ from xml.etree import ElementTree as ET
 from .. import __version__
 from ..errors import FMUError, ValidationError
 from .build import FMI2_HEADERS, fmi2_include_dir
-from .ode_fmu import VARIABLE_GROUPS, GLUE_FILES, OdeFmuSpec, compile_ode_binary, ode_source_dir, package_ode_fmu
+from .ode_fmu import (GLUE_FILES, OdeFmuSpec, add_description_basics, compile_ode_binary, ode_source_dir,
+                      package_ode_fmu, value_reference_groups)
 
 __all__ = ["GLUE3_FILES", "FMI3_HEADERS", "ode_model_description3", "build_ode_binary3", "build_ode_fmu3"]
 
@@ -31,9 +31,6 @@ GLUE3_FILES = GLUE_FILES + ("ode_glue3.c",)
 #: FMI 3.0 headers (from fmpy) the glue includes; their content enters the hash.
 FMI3_HEADERS = ("fmi3Functions.h", "fmi3FunctionTypes.h", "fmi3PlatformTypes.h")
 _LAYOUT_VERSION = "1"
-_LOG_CATEGORIES = (("logEvents", "information: instantiation, internal steps per fmi3DoStep"),
-                   ("logStatusWarning", "warnings"), ("logStatusError", "errors (always reported)"),
-                   ("logAll", "all of the above"))
 
 
 def _guid3(spec: OdeFmuSpec, src: Path) -> str:
@@ -82,23 +79,12 @@ def ode_model_description3(spec: OdeFmuSpec, guid: str) -> str:
         "canHandleVariableCommunicationStepSize": "true", "maxOutputDerivativeOrder": "0",
         "hasEventMode": "false", "providesIntermediateUpdate": "false", "mightReturnEarlyFromDoStep": "false",
     })
-    units = sorted({v.unit for g in VARIABLE_GROUPS for v in getattr(spec, g) if v.unit})
-    if units:
-        defs = ET.SubElement(root, "UnitDefinitions")
-        for name in units:
-            ET.SubElement(defs, "Unit", {"name": name})
-    cats = ET.SubElement(root, "LogCategories")
-    for name, text in _LOG_CATEGORIES:
-        ET.SubElement(cats, "Category", {"name": name, "description": text})
-    ET.SubElement(root, "DefaultExperiment", {"startTime": "0.0", "stopTime": repr(spec.stop_time),
-                                              "tolerance": repr(spec.tolerance), "stepSize": repr(spec.step_size)})
+    add_description_basics(root, spec, "fmi3DoStep")
     variables = ET.SubElement(root, "ModelVariables")
     for vr, attrs in enumerate(_variables(spec)):
         name = attrs.pop("name")
         ET.SubElement(variables, "Float64", {"name": name, "valueReference": str(vr), **attrs})
-    sizes = [len(spec.states), *(len(getattr(spec, g)) for g in VARIABLE_GROUPS)]  # x, der(x), u, p, y
-    bounds = list(itertools.accumulate([1, *sizes]))
-    states, derivs, inputs, params, outputs = (list(range(a, b)) for a, b in itertools.pairwise(bounds))
+    states, derivs, inputs, params, outputs = value_reference_groups(spec)
     structure = ET.SubElement(root, "ModelStructure")
     for tag, refs, deps in (("Output", outputs, states + inputs), ("ContinuousStateDerivative", derivs, states + inputs),
                             ("InitialUnknown", derivs + outputs, states + inputs + params)):
