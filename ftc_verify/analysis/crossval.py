@@ -62,11 +62,6 @@ def _sigma_max(A: Matrix, B: Matrix, C: Matrix, omega: float) -> float:
     return float(np.linalg.norm(G, 2))
 
 
-def _imag_axis_eig(H: Matrix) -> bool:
-    ev = np.linalg.eigvals(H)
-    return bool(np.any(np.abs(ev.real) <= 1e-9 * np.maximum(1.0, np.abs(ev))))
-
-
 def linf_norm(A: Matrix, B: Matrix, C: Matrix, *, rtol: float = NORM_RTOL) -> float:
     """:math:`L_\\infty` norm of ``C (sI - A)^{-1} B`` (module docstring).
 
