@@ -78,6 +78,8 @@ class Ball:
     def _coerce(self, other: Any) -> Any:
         if isinstance(other, Ball):
             return other.value
+        if isinstance(other, _flint().arb):
+            return other
         arr = np.asarray(other, dtype=float)
         if arr.ndim == 0:
             return _flint().arb(float(arr))
@@ -98,6 +100,8 @@ class Ball:
         return Ball(self._coerce(other) - self.value)
 
     def __mul__(self, other: Any) -> Ball:
+        if isinstance(other, _flint().arb):
+            return Ball(self.value * other)
         if isinstance(other, Ball) or np.ndim(other) != 0:
             raise TypeError("Ball * matrix: use @")
         return Ball(self.value * self._coerce(other))

@@ -6,7 +6,7 @@ ill-conditioned loop can move it across zero. Here every verdict at a vertex of 
 rate box (a rate array of :mod:`ftc_verify.model.chain`: ``beta``, or ``[beta,
 false_alarm]``) comes with a certificate checked in ball arithmetic
 (:mod:`ftc_verify.analysis.rigorous`) in the loop's *original* coordinates, from the
-float data taken as exact.
+data as the user wrote them (:mod:`ftc_verify.analysis.exact`).
 
 With :math:`\mathcal L(X)_s = A_s X_s + X_s A_s^T + \sum_{t} Q_{ts} X_t` (resolvent
 positive: :math:`e^{\mathcal L t}` maps positive semidefinite stacks to positive
@@ -54,6 +54,7 @@ from ..jsonable import fields_dict, renamed
 from ..model.system import Matrix
 from .closedloop import ClosedLoop
 from .conditioning import Similarity
+from .exact import ball_generator, exact_loop, literals_of
 from .rigorous import Ball, ball, precision, proven_not_psd, proven_positive_definite
 
 __all__ = ["VERDICTS", "SOLVE_LIMIT", "BUDGET_SECONDS", "FALLBACK_BITS", "VertexVerdict", "StabilityProver",
@@ -88,28 +89,14 @@ class VertexVerdict:
         return fields_dict(self)
 
 
-def _exact_generator(Q: Matrix) -> list[list[Any]]:
-    """The generator ``Q`` as exact balls (``arb``), its diagonal the exact negated row
-    sums of the float off-diagonal rates."""
-    import flint
-
-    m = Q.shape[0]
-    out = []
-    for s in range(m):
-        row = [flint.arb(float(Q[s, t])) if t != s else flint.arb(0) for t in range(m)]
-        row[s] = -sum((row[t] for t in range(m) if t != s), flint.arb(0))
-        out.append(row)
-    return out
-
-
-def _lyapunov_operator(A: Sequence[Ball], Q: Matrix, X: Sequence[Ball]) -> list[Ball]:
-    r""":math:`\mathcal L(X)_s` in ball arithmetic from the exact ``A_s`` (module docstring)."""
-    q = _exact_generator(Q)
+def _lyapunov_operator(A: Sequence[Ball], q: list[list[Any]], X: Sequence[Ball]) -> list[Ball]:
+    r""":math:`\mathcal L(X)_s` in ball arithmetic from the enclosures ``A_s`` and the
+    ball generator ``q`` (module docstring)."""
     out = []
     for s, Ab in enumerate(A):
         Y = Ab @ X[s] + X[s] @ Ab.T
         for t in range(len(X)):
-            if t == s or Q[t, s] != 0.0:
+            if t == s or q[t][s] != 0:
                 Y = Y + Ball(q[t][s] * X[t].value)
         out.append(Y)
     return out
@@ -161,25 +148,26 @@ def _decide(X: Sequence[Ball], precond: Ball) -> str | None:
     return None
 
 
-def _ball_generator(loop: ClosedLoop, Q: Matrix) -> Any:
-    """The generator in vech coordinates as an exact ball matrix (``arb_mat``)."""
+def _ball_generator(A: Sequence[Ball], q: list[list[Any]]) -> Any:
+    """The generator in vech coordinates as a ball matrix (``arb_mat``) from the ball
+    matrices ``A_s``: row ``(r, c)`` of :math:`A X + X A^T` takes :math:`A_{rp}` at
+    :math:`X_{pc}` and :math:`A_{cp}` at :math:`X_{rp}` (``X`` symmetric)."""
     import flint
 
-    from .stability import duplication_matrix
+    from .stability import vech_order
 
-    n, modes = loop.n, len(loop.A)
-    D, L = duplication_matrix(n)
-    h = D.shape[1]
-    eye = np.eye(n)
-    size = modes * h
-    G = flint.arb_mat(size, size)
-    q = _exact_generator(Q)
-    for s, A in enumerate(loop.A):
-        part = (ball(L @ np.kron(eye, A) @ D) + ball(L @ np.kron(A, eye) @ D)).value  # each product exact
-        for r in range(h):
-            for c in range(h):
-                if part[r, c] != 0:
-                    G[s * h + r, s * h + c] = part[r, c]
+    n, modes = A[0].shape[0], len(A)
+    rows, cols = vech_order(n)
+    index = {(int(r), int(c)): k for k, (r, c) in enumerate(zip(rows, cols))}
+    h = len(rows)
+    G = flint.arb_mat(modes * h, modes * h)
+    for s, Ab in enumerate(A):
+        a = Ab.value
+        for k, (r, c) in enumerate(zip(rows, cols)):
+            r, c = int(r), int(c)
+            for p in range(n):
+                G[s * h + k, s * h + index[max(p, c), min(p, c)]] += a[r, p]
+                G[s * h + k, s * h + index[max(r, p), min(r, p)]] += a[c, p]
     for s in range(modes):
         for t in range(modes):
             value = q[t][s]  # block (s, t) of Q' kron I is Q[t, s] I
@@ -189,18 +177,18 @@ def _ball_generator(loop: ClosedLoop, Q: Matrix) -> Any:
     return G
 
 
-def _ball_solution(loop: ClosedLoop, Q: Matrix, bits: int) -> list[Ball] | None:
+def _ball_solution(A: Sequence[Ball], q: list[list[Any]], bits: int) -> list[Ball] | None:
     """An enclosure of the exact solution of ``L(X) = -I`` at ``bits`` (``None`` when
     FLINT cannot prove the system nonsingular at that precision)."""
     import flint
 
     from .stability import vech_order
 
-    n, modes = loop.n, len(loop.A)
+    n, modes = A[0].shape[0], len(A)
     rows, cols = vech_order(n)
     h = len(rows)
     with precision(bits):
-        G = _ball_generator(loop, Q)
+        G = _ball_generator(A, q)
         rhs = flint.arb_mat([[-1.0 if r == c else 0.0] for _ in range(modes) for r, c in zip(rows, cols)])
         try:
             with deferred_signals():  # a signal handled inside solve() came out as a ZeroDivisionError
@@ -215,6 +203,11 @@ def _ball_solution(loop: ClosedLoop, Q: Matrix, bits: int) -> list[Ball] | None:
                 X[int(c), int(r)] = v[s * h + k, 0]
             out.append(Ball(X))
     return out
+
+
+def _balls(matrices: Sequence[Any]) -> tuple[Ball, ...]:
+    """The matrices of a loop made by :func:`~ftc_verify.analysis.exact.exact_loop`."""
+    return tuple(m for m in matrices if isinstance(m, Ball))
 
 
 @dataclass(frozen=True, eq=False)
@@ -234,7 +227,7 @@ class StabilityProver:
         """For the nominal part of ``loop`` and the conditioning ``sim``."""
         nominal = loop.nominal()
         with precision():
-            return cls(nominal, sim, sim.apply(nominal), tuple(ball(A) for A in nominal.A), ball(sim.T),
+            return cls(nominal, sim, sim.apply(nominal), _balls(exact_loop(nominal).A), ball(sim.T),
                        ball(sim.T_inv.T))  # C' (T X~ T') C = X~
 
     def certify(self, beta: Matrix, *, estimate: float | None = None,
@@ -243,8 +236,6 @@ class StabilityProver:
         abscissa at ``beta``, if known) is recorded in the result only; the verdict
         never depends on it."""
         start = time.perf_counter()
-        Q = self.nominal.chain.generator(beta)
-
         def done(verdict: str, method: str, bits: int) -> VertexVerdict:
             return VertexVerdict(np.asarray(beta, dtype=float), verdict, method, bits,
                                  time.perf_counter() - start, estimate)
@@ -253,7 +244,8 @@ class StabilityProver:
         if Xt is not None:
             with precision():
                 X = [self.T @ ball(0.5 * (x + x.T)) @ self.T.T for x in Xt]
-                if all(_positive_definite(-y, self.precond) for y in _lyapunov_operator(self.A, Q, X)):
+                q = ball_generator(self.nominal.chain, beta, literals_of(self.nominal))
+                if all(_positive_definite(-y, self.precond) for y in _lyapunov_operator(self.A, q, X)):
                     verdict = _decide(X, self.precond)
                     if verdict is not None:
                         what = "X > 0" if verdict == "stable" else "some X_s indefinite"
@@ -266,7 +258,10 @@ class StabilityProver:
         for bits in FALLBACK_BITS:
             if time.perf_counter() - start > budget_seconds:
                 return done("undecided", f"time budget of {budget_seconds:g} s spent before {bits} bits", bits)
-            solution = _ball_solution(self.nominal, Q, bits)
+            with precision(bits):
+                A = _balls(exact_loop(self.nominal).A)  # the enclosures at this precision
+                q = ball_generator(self.nominal.chain, beta, literals_of(self.nominal))
+            solution = _ball_solution(A, q, bits)
             if solution is None:
                 continue
             with precision(bits):
