@@ -29,7 +29,7 @@ floats contains the box the user wrote.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from typing import Any
 
@@ -41,7 +41,7 @@ from .closedloop import Channel, ClosedLoop
 from .rigorous import Ball, ball, ball_bmat
 
 __all__ = ["WRITTEN_RTOL", "Literals", "enclose", "written", "ball_generator", "literals_of", "written_box",
-           "exact_loop", "float_balls"]
+           "exact_loop", "float_balls", "ball_matrices"]
 
 #: Float read -> the decimal texts that were read as it (:func:`ftc_verify.model.files.read_toml`).
 Literals = Mapping[float, tuple[str, ...]]
@@ -56,23 +56,24 @@ def enclose(value: float, literals: Literals | None, *, computed_exact: bool = F
     """The ball (``flint.arb``, at the working precision) of one number of the user's data.
 
     ``literals is None``: the float is the data (exact). Otherwise the float was read from
-    a file: the hull of the decimal texts read as it (and the float itself, in case the
-    loader computed it rather than copied it); a float with no text is a number the
-    loader computed, enclosed by the read tolerance of the module docstring -- or, with
-    ``computed_exact``, a point the analysis chose itself (a rate inside the box), exact.
+    a file: the decimal text read as it, enclosed at the working precision (the hull of
+    the texts when several were read as the same float); a float with no text is a
+    number the loader computed, enclosed by the read tolerance of the module docstring
+    -- or, with ``computed_exact``, a point the analysis chose itself (a rate inside the
+    box), exact.
     """
     import flint
 
     v = float(value)
-    out = flint.arb(v)
     if literals is None or v == 0.0:
-        return out
+        return flint.arb(v)
     texts = literals.get(v)
     if texts:
-        for text in texts:
+        out = flint.arb(texts[0])
+        for text in texts[1:]:
             out = out.union(flint.arb(text))
         return out
-    return out if computed_exact else flint.arb(v, abs(v) * WRITTEN_RTOL + _WRITTEN_ATOL)
+    return flint.arb(v) if computed_exact else flint.arb(v, abs(v) * WRITTEN_RTOL + _WRITTEN_ATOL)
 
 
 def written(M: Matrix, literals: Literals | None = None) -> Ball:
@@ -215,6 +216,14 @@ def exact_loop(loop: ClosedLoop) -> ClosedLoop:
     if not all(_encloses(a, af) for a, af in zip(A, loop.A)):
         return float_balls(loop)  # the source does not describe these matrices (a bug guard)
     return replace(loop, A=tuple(A), Bw=tuple(Bw), Cz=tuple(Cz), channels=tuple(chans))
+
+
+def ball_matrices(matrices: Sequence[Any]) -> tuple[Ball, ...]:
+    """The matrices of a loop made by :func:`exact_loop` (typed as balls)."""
+    out = tuple(m for m in matrices if isinstance(m, Ball))
+    if len(out) != len(matrices):
+        raise TypeError("ball_matrices: a matrix is not a Ball (not a loop made by exact_loop)")
+    return out
 
 
 def _encloses(exact: Ball, approx: Matrix) -> bool:

@@ -44,7 +44,7 @@ from __future__ import annotations
 import time
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -54,11 +54,11 @@ from ..jsonable import fields_dict, renamed
 from ..model.system import Matrix
 from .closedloop import ClosedLoop
 from .conditioning import Similarity
-from .exact import ball_generator, exact_loop, literals_of
+from .exact import ball_generator, ball_matrices, exact_loop, literals_of
 from .rigorous import Ball, ball, precision, proven_not_psd, proven_positive_definite
 
 __all__ = ["VERDICTS", "SOLVE_LIMIT", "BUDGET_SECONDS", "FALLBACK_BITS", "VertexVerdict", "StabilityProver",
-           "certify_vertex", "combine", "describe"]
+           "certify_vertex", "combine", "describe", "ball_lyapunov_solution"]
 
 #: The three answers a stability verdict can give.
 VERDICTS = ("stable", "not stable", "undecided")
@@ -177,7 +177,7 @@ def _ball_generator(A: Sequence[Ball], q: list[list[Any]]) -> Any:
     return G
 
 
-def _ball_solution(A: Sequence[Ball], q: list[list[Any]], bits: int) -> list[Ball] | None:
+def ball_lyapunov_solution(A: Sequence[Ball], q: list[list[Any]], bits: int) -> list[Ball] | None:
     """An enclosure of the exact solution of ``L(X) = -I`` at ``bits`` (``None`` when
     FLINT cannot prove the system nonsingular at that precision)."""
     import flint
@@ -205,11 +205,6 @@ def _ball_solution(A: Sequence[Ball], q: list[list[Any]], bits: int) -> list[Bal
     return out
 
 
-def _balls(matrices: Sequence[Any]) -> tuple[Ball, ...]:
-    """The matrices of a loop made by :func:`~ftc_verify.analysis.exact.exact_loop`."""
-    return tuple(m for m in matrices if isinstance(m, Ball))
-
-
 @dataclass(frozen=True, eq=False)
 class StabilityProver:
     """Proves verdicts of one loop at any ``beta`` (:meth:`certify`); the loop's
@@ -227,25 +222,39 @@ class StabilityProver:
         """For the nominal part of ``loop`` and the conditioning ``sim``."""
         nominal = loop.nominal()
         with precision():
-            return cls(nominal, sim, sim.apply(nominal), _balls(exact_loop(nominal).A), ball(sim.T),
+            return cls(nominal, sim, sim.apply(nominal), ball_matrices(exact_loop(nominal).A), ball(sim.T),
                        ball(sim.T_inv.T))  # C' (T X~ T') C = X~
 
     def certify(self, beta: Matrix, *, estimate: float | None = None,
-                budget_seconds: float = BUDGET_SECONDS) -> VertexVerdict:
-        """The verified verdict at ``beta`` (module docstring). ``estimate`` (the float
+                budget_seconds: float = BUDGET_SECONDS, shift: float = 0.0) -> VertexVerdict:
+        r"""The verified verdict at ``beta`` (module docstring). ``estimate`` (the float
         abscissa at ``beta``, if known) is recorded in the result only; the verdict
-        never depends on it."""
+        never depends on it.
+
+        ``shift`` (a float ``sigma``) decides the sign of :math:`\mu - \sigma` instead,
+        on the operator :math:`\mathcal L - \sigma I`, i.e. with every :math:`A_s`
+        replaced by :math:`A_s - (\sigma/2) I` (exactly, in the balls): "stable" then
+        proves :math:`\mu < \sigma`, "not stable" :math:`\mu \ge \sigma`
+        (the enclosure of an abscissa, :func:`abscissa_enclosure`)."""
         start = time.perf_counter()
+        half = 0.5 * float(shift)
+
         def done(verdict: str, method: str, bits: int) -> VertexVerdict:
             return VertexVerdict(np.asarray(beta, dtype=float), verdict, method, bits,
                                  time.perf_counter() - start, estimate)
 
-        Xt = _float_candidate(self.conditioned, beta)
+        def shifted(A: Sequence[Ball]) -> tuple[Ball, ...]:
+            return tuple(a if half == 0.0 else a - half * np.eye(a.shape[0]) for a in A)
+
+        conditioned = self.conditioned
+        if half != 0.0:
+            conditioned = replace(conditioned, A=tuple(a - half * np.eye(a.shape[0]) for a in conditioned.A))
+        Xt = _float_candidate(conditioned, beta)
         if Xt is not None:
             with precision():
                 X = [self.T @ ball(0.5 * (x + x.T)) @ self.T.T for x in Xt]
                 q = ball_generator(self.nominal.chain, beta, literals_of(self.nominal))
-                if all(_positive_definite(-y, self.precond) for y in _lyapunov_operator(self.A, q, X)):
+                if all(_positive_definite(-y, self.precond) for y in _lyapunov_operator(shifted(self.A), q, X)):
                     verdict = _decide(X, self.precond)
                     if verdict is not None:
                         what = "X > 0" if verdict == "stable" else "some X_s indefinite"
@@ -259,9 +268,9 @@ class StabilityProver:
             if time.perf_counter() - start > budget_seconds:
                 return done("undecided", f"time budget of {budget_seconds:g} s spent before {bits} bits", bits)
             with precision(bits):
-                A = _balls(exact_loop(self.nominal).A)  # the enclosures at this precision
+                A = shifted(ball_matrices(exact_loop(self.nominal).A))  # the enclosures at this precision
                 q = ball_generator(self.nominal.chain, beta, literals_of(self.nominal))
-            solution = _ball_solution(A, q, bits)
+            solution = ball_lyapunov_solution(A, q, bits)
             if solution is None:
                 continue
             with precision(bits):
@@ -270,6 +279,22 @@ class StabilityProver:
                 return done(verdict, f"exact solution of L(X) = -I enclosed at {bits} bits, "
                                      + ("every X_s > 0" if verdict == "stable" else "some X_s indefinite"), bits)
         return done("undecided", f"no certificate either way up to {FALLBACK_BITS[-1]} bits", FALLBACK_BITS[-1])
+
+    def abscissa_enclosure(self, beta: Matrix, estimate: float, *,
+                           budget_seconds: float = BUDGET_SECONDS) -> tuple[float, float] | None:
+        """A proved enclosure ``[lo, hi)`` of the spectral abscissa at ``beta`` around the
+        float ``estimate``: :meth:`certify` with ``shift = lo`` says "not stable" and
+        with ``shift = hi`` "stable"; widths ``1e-9 .. 1e-3`` of ``1 + |estimate|`` are
+        tried. ``None`` when none is proved."""
+        deadline = time.perf_counter() + budget_seconds
+        for width in (1e-9, 1e-6, 1e-3):
+            d = width * (1.0 + abs(estimate))
+            lo, hi = estimate - d, estimate + d
+            left = max(0.0, deadline - time.perf_counter())
+            if (self.certify(beta, shift=lo, budget_seconds=left).verdict == "not stable"
+                    and self.certify(beta, shift=hi, budget_seconds=left).verdict == "stable"):
+                return lo, hi
+        return None
 
 
 def certify_vertex(loop: ClosedLoop, beta: Matrix, sim: Similarity, *, estimate: float | None = None,
