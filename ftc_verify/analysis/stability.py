@@ -23,6 +23,7 @@ is attained at a positive semidefinite eigenvector.
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 from collections.abc import Sequence
@@ -87,10 +88,41 @@ def second_moment_matrix(A: Sequence[Matrix], Q: Matrix) -> Matrix:
     """:math:`\\mathcal{L}` of the module docstring for the joint-mode matrices ``A`` and
     the joint generator ``Q``."""
     n = A[0].shape[0]
-    D, L = duplication_matrix(n)
-    eye = np.eye(n)
-    blocks = [L @ (np.kron(eye, a) + np.kron(a, eye)) @ D for a in A]
-    return scipy.linalg.block_diag(*blocks) + np.kron(Q.T, np.eye(D.shape[1]))
+    h = n * (n + 1) // 2
+    out: Matrix = np.kron(np.asarray(Q, dtype=float).T, np.eye(h))
+    for s, a in enumerate(A):
+        out[s * h:(s + 1) * h, s * h:(s + 1) * h] += lyapunov_vech(a)
+    return out
+
+
+@functools.lru_cache(maxsize=64)
+def _vech_index(n: int) -> tuple[np.ndarray, ...]:
+    """Index arrays of :func:`lyapunov_vech`: row ``(r, c)`` of ``vech(A X + X A')``
+    takes ``A[r, p]`` at ``X[p, c]`` and ``A[c, p]`` at ``X[r, p]`` (``X`` symmetric).
+    Memoised (a pure function of ``n``; the arrays are read-only)."""
+    rows, cols = vech_order(n)
+    index = np.zeros((n, n), dtype=int)
+    index[rows, cols] = np.arange(rows.size)
+    index[cols, rows] = np.arange(rows.size)
+    k = np.repeat(np.arange(rows.size), n)
+    r = np.repeat(rows, n)
+    c = np.repeat(cols, n)
+    p = np.tile(np.arange(n), rows.size)
+    out = (k, index[p, c], r, p, index[r, p], c)
+    for arr in out:
+        arr.flags.writeable = False
+    return out
+
+
+def lyapunov_vech(A: Matrix) -> Matrix:
+    r"""The matrix of :math:`X \mapsto A X + X A^T` on ``vech`` coordinates
+    (:math:`L_n (I \otimes A + A \otimes I) D_n`), assembled from index arrays."""
+    n = A.shape[0]
+    k, j1, r, p, j2, c = _vech_index(n)
+    out = np.zeros((n * (n + 1) // 2,) * 2)
+    np.add.at(out, (k, j1), A[r, p])
+    np.add.at(out, (k, j2), A[c, p])
+    return out
 
 
 def unvech_stack(v: Matrix, modes: int, n: int) -> Matrix:

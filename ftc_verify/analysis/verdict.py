@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -177,9 +177,11 @@ def _ball_generator(A: Sequence[Ball], q: list[list[Any]]) -> Any:
     return G
 
 
-def ball_lyapunov_solution(A: Sequence[Ball], q: list[list[Any]], bits: int) -> list[Ball] | None:
-    """An enclosure of the exact solution of ``L(X) = -I`` at ``bits`` (``None`` when
-    FLINT cannot prove the system nonsingular at that precision)."""
+def ball_lyapunov_solution(A: Sequence[Ball], q: list[list[Any]], bits: int,
+                           rhs: Sequence[Ball] | None = None) -> list[Ball] | None:
+    """An enclosure of the exact solution of ``L(X) = -I`` (or ``L(X) = -R`` for the
+    symmetric ball matrices ``rhs``) at ``bits`` (``None`` when FLINT cannot prove the
+    system nonsingular at that precision)."""
     import flint
 
     from .stability import vech_order
@@ -189,10 +191,16 @@ def ball_lyapunov_solution(A: Sequence[Ball], q: list[list[Any]], bits: int) -> 
     h = len(rows)
     with precision(bits):
         G = _ball_generator(A, q)
-        rhs = flint.arb_mat([[-1.0 if r == c else 0.0] for _ in range(modes) for r, c in zip(rows, cols)])
+        if rhs is None:
+            b = flint.arb_mat([[-1.0 if r == c else 0.0] for _ in range(modes) for r, c in zip(rows, cols)])
+        else:
+            b = flint.arb_mat(modes * h, 1)
+            for s in range(modes):
+                for k, (r, c) in enumerate(zip(rows, cols)):
+                    b[s * h + k, 0] = -rhs[s].value[int(r), int(c)]
         try:
             with deferred_signals():  # a signal handled inside solve() came out as a ZeroDivisionError
-                v = G.solve(rhs)
+                v = G.solve(b)
         except (ZeroDivisionError, ValueError):
             return None
         out = []
@@ -216,6 +224,7 @@ class StabilityProver:
     A: tuple[Ball, ...]
     T: Ball
     precond: Ball
+    enclosures: Callable[[], tuple[Ball, ...]] | None = None
 
     @classmethod
     def build(cls, loop: ClosedLoop, sim: Similarity) -> StabilityProver:
@@ -224,6 +233,18 @@ class StabilityProver:
         with precision():
             return cls(nominal, sim, sim.apply(nominal), ball_matrices(exact_loop(nominal).A), ball(sim.T),
                        ball(sim.T_inv.T))  # C' (T X~ T') C = X~
+
+    @classmethod
+    def for_matrices(cls, loop: ClosedLoop, sim: Similarity, enclosures: Callable[[], tuple[Ball, ...]]) -> StabilityProver:
+        """For the state matrices that ``enclosures()`` encloses at the working precision
+        (a loop modified in ball arithmetic, such as a worst-case feedback loop), with
+        ``loop`` their float version (the chain, and the float candidates)."""
+        nominal = replace(loop.nominal(), source=None)
+        with precision():
+            return cls(nominal, sim, sim.apply(nominal), enclosures(), ball(sim.T), ball(sim.T_inv.T), enclosures)
+
+    def _enclosures(self) -> tuple[Ball, ...]:
+        return self.enclosures() if self.enclosures is not None else ball_matrices(exact_loop(self.nominal).A)
 
     def certify(self, beta: Matrix, *, estimate: float | None = None,
                 budget_seconds: float = BUDGET_SECONDS, shift: float = 0.0) -> VertexVerdict:
@@ -268,7 +289,7 @@ class StabilityProver:
             if time.perf_counter() - start > budget_seconds:
                 return done("undecided", f"time budget of {budget_seconds:g} s spent before {bits} bits", bits)
             with precision(bits):
-                A = shifted(ball_matrices(exact_loop(self.nominal).A))  # the enclosures at this precision
+                A = shifted(self._enclosures())  # the enclosures at this precision
                 q = ball_generator(self.nominal.chain, beta, literals_of(self.nominal))
             solution = ball_lyapunov_solution(A, q, bits)
             if solution is None:
