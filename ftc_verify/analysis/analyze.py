@@ -23,8 +23,6 @@ from __future__ import annotations
 
 import os
 import time
-
-import numpy as np
 from dataclasses import dataclass
 from typing import Any
 
@@ -32,7 +30,7 @@ from ..analysis.closedloop import ClosedLoop
 from ..jsonable import jsonable
 from ..analysis.crossval import ModeCheck, cross_validate
 from .lmi_analysis import LMIResult, check_lmi_memory, hinf_gamma, mes_lmi
-from .lower_bound import GainLowerBound, gain_lower_bound
+from .lower_bound import GainLowerBound, gain_lower_bound, worst_constant_delta
 from .solvers import ForkedCall
 from ..analysis.stability import MSSResult, mean_square_stability
 
@@ -168,16 +166,15 @@ def analyze(loop: ClosedLoop, *, solver: str | None = None, name: str = "", cros
 def _lower_bounds(loop: ClosedLoop, mss: MSSResult, nominal: LMIResult,
                   robust: LMIResult) -> tuple[GainLowerBound | None, GainLowerBound | None]:
     """The nominal lower bound and the robust one (the best of the nominal and the
-    constant ``Delta = +E`` and ``-E`` on every channel, ``E`` the rectangular identity)."""
+    constant ``Delta`` of :func:`~ftc_verify.analysis.lower_bound.worst_constant_delta`
+    at the nominal bound's rates)."""
     upper = nominal.gamma if nominal.certified else None
     low = gain_lower_bound(loop, worst_rates=mss.worst_beta, upper=upper)
-    if not loop.uncertain:
+    if not loop.uncertain or low is None:
         return low, low
-    shapes = {ch.name: (ch.E.shape[1], ch.F.shape[0]) for chans in loop.channels for ch in chans}
-    deltas = [(f"Delta={sign}E", {name: (1.0 if sign == "+" else -1.0) * np.eye(*shape)
-                                  for name, shape in shapes.items()}) for sign in "+-"]
-    high = gain_lower_bound(loop, deltas=deltas, worst_rates=mss.worst_beta,
-                            upper=robust.gamma if robust.certified else None)
+    top = robust.gamma if robust.certified else None
+    delta = worst_constant_delta(loop, low.rates, upper=top)
+    high = gain_lower_bound(loop, deltas=[delta], worst_rates=mss.worst_beta, upper=top)
     candidates = [b for b in (low, high) if b is not None]
     best = max(candidates, key=lambda b: (b.value is not None, b.value or b.estimate), default=None)
     return low, best

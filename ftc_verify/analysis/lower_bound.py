@@ -84,7 +84,8 @@ from .rigorous import Ball, ball, midpoint, precision
 from .stability import second_moment_matrix, unvech_stack, vech_order
 from .verdict import SOLVE_LIMIT, StabilityProver, ball_lyapunov_solution
 
-__all__ = ["GainLowerBound", "gain_lower_bound", "float_gain", "worst_case_feedback", "BISECTION_RTOL"]
+__all__ = ["GainLowerBound", "gain_lower_bound", "float_gain", "worst_case_feedback", "worst_constant_delta",
+           "BISECTION_RTOL"]
 
 #: Relative width of the float bisection on the gain.
 BISECTION_RTOL = 1e-7
@@ -353,6 +354,45 @@ def _proved_ratio(loop: ClosedLoop, deltas: dict[str, Matrix], sim: Similarity, 
         ratio = (N / D).sqrt()
         return float(ratio.lower()), (f"w = F x + e cos({omega:.6g} t): its stationary energy ratio enclosed in "
                                       f"{bits}-bit balls, the feedback loop proved mean-square stable")
+
+
+def worst_constant_delta(loop: ClosedLoop, rates: Matrix, *, upper: float | None = None,
+                         passes: int = 2) -> tuple[str, dict[str, Matrix]]:
+    """A constant uncertainty of norm 1 that makes the float gain at ``rates`` large: on
+    every channel a rectangular diagonal of signs (an extreme point of the unit ball),
+    the same in every joint state, found by flipping one sign at a time while the coarse
+    float gain grows (at most ``passes`` sweeps). A search: the bound it leads to is
+    proved afterwards. Returns a label and ``{channel name: Delta}``."""
+    shapes = {ch.name: (ch.E.shape[1], ch.F.shape[0]) for chans in loop.channels for ch in chans}
+    signs = {name: np.ones(min(shape)) for name, shape in shapes.items()}
+    Q = loop.chain.generator(rates)
+
+    def deltas(sg: dict[str, np.ndarray]) -> dict[str, Matrix]:
+        out = {}
+        for name, (p, q) in shapes.items():
+            D = np.zeros((p, q))
+            D[np.arange(len(sg[name])), np.arange(len(sg[name]))] = sg[name]
+            out[name] = D
+        return out
+
+    def gain(sg: dict[str, np.ndarray]) -> float:
+        found = float_gain(loop.perturbed(deltas(sg)), loop.Bw, loop.Cz, Q, upper=upper, rtol=1e-3)
+        return -math.inf if found is None else found[0]
+
+    best = gain(signs)
+    for _ in range(passes):
+        improved = False
+        for name in signs:
+            for k in range(len(signs[name])):
+                trial = {key: v.copy() for key, v in signs.items()}
+                trial[name][k] = -trial[name][k]
+                g = gain(trial)
+                if g > best:
+                    best, signs, improved = g, trial, True
+        if not improved:
+            break
+    label = "Delta = " + ", ".join(f"{name}: diag{[int(v) for v in sg]}" for name, sg in signs.items())
+    return label, deltas(signs)
 
 
 def _perturbation(chans: Sequence[Any], deltas: dict[str, Matrix], like: Ball) -> Ball:
