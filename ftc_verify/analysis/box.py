@@ -32,6 +32,12 @@ float solution is not positive definite: then :math:`\mu(c) \ge 0` in float64) b
 :meth:`~ftc_verify.analysis.verdict.StabilityProver.certify`, with a proved enclosure of
 the abscissa there when one is found.
 
+When the centre's candidate fails, the Theorem 3.1 LMI is solved on the sub-box
+(Clarabel, :func:`~ftc_verify.analysis.lmi_analysis.mes_lmi`): the best common
+:math:`P` of the sub-box, proved the same way. Loops too ill-conditioned for float64
+candidates get, at the whole box, a candidate solved in ball arithmetic at 256 then 512
+bits (:meth:`_Checker.check_precise`).
+
 **Branching.** A sub-box whose check fails is split in two along one rate: among the
 rates of the rows that failed, the widest relative to the whole box (all rates when the
 failing rows contain none); at the geometric mean when the rate spans more than a factor
@@ -51,11 +57,12 @@ import math
 import time
 from collections import deque
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
+from ..errors import FTCError
 from ..jsonable import fields_dict
 from ..model.system import Matrix
 from .closedloop import ClosedLoop
@@ -315,6 +322,22 @@ class _Checker:
         return True
 
 
+def _lmi_on(loop: ClosedLoop, lo: Matrix, hi: Matrix) -> bool:
+    """Theorem 3.1 solved (Clarabel) and certified on the sub-box ``[lo, hi]``: the best
+    common ``P`` of the sub-box, for boxes where the centre's candidate is too sensitive to
+    the rates (:func:`~ftc_verify.analysis.lmi_analysis.mes_lmi`; its proof is the one of
+    this module, on the loop as written)."""
+    from .lmi_analysis import mes_lmi
+
+    chain = loop.chain
+    (b_lo, fa_lo), (b_hi, fa_hi) = chain.split(lo), chain.split(hi)
+    try:
+        sub = replace(chain, beta_min=b_lo, beta_max=b_hi, false_alarm_min=fa_lo, false_alarm_max=fa_hi)
+        return mes_lmi(loop.nominal().with_chain(sub), solver="clarabel", second_opinion=False).certified
+    except FTCError:  # a solver failure is not a proof either way
+        return False
+
+
 def _try_precise(checker: _Checker, lo: Matrix, hi: Matrix, proved: list[RegionVerdict], region: Any,
                  t0: float) -> bool:
     """:meth:`_Checker.check_precise` on the sub-box; records it when proved."""
@@ -368,6 +391,10 @@ def box_stability(loop: ClosedLoop, sim: Similarity, *, budget_seconds: float = 
                                  "of every row's rates in 128-bit balls", 128, t0))
             continue
         if boxes == 1 and _try_precise(checker, lo, hi, proved, region, t0):  # float64 may be too inaccurate
+            continue
+        if status == "failed" and _lmi_on(loop, lo, hi):
+            proved.append(region(lo, hi, "stable", "P from the Theorem 3.1 LMI on the sub-box (Clarabel), P > 0 and "
+                                 "-L*(P) > 0 proved at the vertices of every row's rates in 128-bit balls", 128, t0))
             continue
         centre = _centre(lo, hi)
         splittable = [r for r in uncertain if hi[r] - lo[r] > MIN_RELATIVE_WIDTH * root_width[r]]
