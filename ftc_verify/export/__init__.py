@@ -9,4 +9,9 @@
 
 from __future__ import annotations
 
-__all__: list[str] = []
+from .ccode import ControllerTables, controller_c_source, controller_tables
+from .certificate import ExportCertificate, export_certificate
+from .controller_fmu import build_controller_fmu
+
+__all__ = ["ControllerTables", "controller_tables", "controller_c_source", "ExportCertificate", "export_certificate",
+           "build_controller_fmu"]

@@ -7,7 +7,7 @@ glue ``fmus/controller/ctrl_glue.c`` (FMI 2.0 Co-Simulation) or ``ctrl_glue3.c``
 the ODE FMUs' FMI 3.0 glue ``fmus/ode/ode_glue3.c`` around the FMI 2.0 glue). Built with
 the package's toolchain (:mod:`ftc_verify.plants.build`: gcc, the FMI headers of fmpy,
 the flags, the atomic reproducible archive) and the model-description elements of the ODE
-FMUs (:func:`~ftc_verify.plants.ode_fmu.add_description_elements`).
+FMUs (:func:`~ftc_verify.plants.model_description.add_description_elements`).
 
 Variables, value references (one sequence over every type) and causalities:
 
@@ -41,7 +41,8 @@ from .. import __version__
 from ..errors import FMUError, ValidationError
 from ..plants.build import (CFLAGS, binary_platform, find_gcc, fmi2_include_dir, fmi3_platform_tuple, link_flags,
                             run_compiler, write_zip)
-from ..plants.ode_fmu import add_description_elements, ode_source_dir
+from ..plants.model_description import add_description_elements
+from ..plants.ode_fmu import ode_source_dir
 from .ccode import ControllerTables
 
 __all__ = ["FMI_VERSIONS", "CONTROLLER_SOURCE", "controller_source_dir", "model_identifier", "controller_guid",

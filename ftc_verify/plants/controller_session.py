@@ -109,7 +109,7 @@ class ControllerFMU:
             raise
 
     def _refs(self, refs: dict[str, int], base: str) -> list[int]:
-        out = []
+        out: list[int] = []
         while f"{base}[{len(out) + 1}]" in refs:
             out.append(refs[f"{base}[{len(out) + 1}]"])
         if base != "xc" and not out:
@@ -188,13 +188,13 @@ class ControllerFMU:
                 if getattr(self, "_live", False):
                     self.slave.terminate()
                     self.slave.freeInstance()
-            except Exception:  # noqa: BLE001 - closing must not raise over the original error
+            except Exception:
                 pass
             try:
                 from fmpy import freeLibrary
 
                 freeLibrary(self.slave.dll._handle)
-            except Exception:  # noqa: BLE001
+            except Exception:
                 pass
             self.slave = None
         self._tmp.cleanup()

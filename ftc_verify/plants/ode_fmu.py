@@ -45,7 +45,6 @@ import os
 import re
 import tempfile
 import uuid
-from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -53,12 +52,12 @@ from xml.etree import ElementTree as ET
 
 from .. import __version__
 from ..errors import FMUError, ValidationError
+from .model_description import add_description_elements
 from .build import (CFLAGS, FMI2_HEADERS, binary_platform, build_lock, cache_dir, compiler_identity, file_hash,
                     find_gcc, fmi2_include_dir, is_cached, link_flags, record_hash, run_compiler, write_zip)
 
 __all__ = ["DEFAULT_RTOL", "GLUE_FILES", "VARIABLE_GROUPS", "OdeVariable", "OdeFmuSpec", "ode_source_dir",
-           "ode_spec_header", "ode_model_description", "value_reference_groups", "add_description_basics",
-           "add_description_elements", "build_ode_binary", "compile_ode_binary", "build_ode_fmu",
+           "ode_spec_header", "ode_model_description", "value_reference_groups", "add_description_basics", "build_ode_binary", "compile_ode_binary", "build_ode_fmu",
            "package_ode_fmu",
            "motor_spec"]
 
@@ -292,28 +291,6 @@ def add_description_basics(root: ET.Element, spec: OdeFmuSpec, step_call: str) -
     units = {v.unit for g in VARIABLE_GROUPS for v in getattr(spec, g) if v.unit}
     add_description_elements(root, units, f"information: instantiation, internal steps per {step_call}",
                              stop_time=spec.stop_time, tolerance=spec.tolerance, step_size=spec.step_size)
-
-
-def add_description_elements(root: ET.Element, units: Iterable[str], events: str, *, stop_time: float,
-                             tolerance: float | None, step_size: float) -> None:
-    """``<UnitDefinitions>`` (the ``units``, sorted; none when empty), ``<LogCategories>``
-    (``logEvents`` described by ``events``, warnings, errors, all) and
-    ``<DefaultExperiment>`` (start 0, ``stop_time``, ``tolerance`` when given, ``step_size``):
-    the elements every FMU of the package writes, for FMI 2.0 and 3.0 alike."""
-    names = sorted(set(units))
-    if names:
-        defs = ET.SubElement(root, "UnitDefinitions")
-        for name in names:
-            ET.SubElement(defs, "Unit", {"name": name})
-    cats = ET.SubElement(root, "LogCategories")
-    for name, text in (("logEvents", events),
-                       ("logStatusWarning", "warnings"), ("logStatusError", "errors (always reported)"),
-                       ("logAll", "all of the above")):
-        ET.SubElement(cats, "Category", {"name": name, "description": text})
-    experiment = {"startTime": "0.0", "stopTime": repr(stop_time)}
-    if tolerance is not None:
-        experiment["tolerance"] = repr(tolerance)
-    ET.SubElement(root, "DefaultExperiment", experiment | {"stepSize": repr(step_size)})
 
 
 def _model_structure(parent: ET.Element, spec: OdeFmuSpec) -> None:
