@@ -112,3 +112,37 @@ def add_export_commands(sub: Any) -> None:
                    help="export a controller the analysis does not certify (the record says so)")
     e.add_argument("--solver", default="auto", choices=["auto", "clarabel", "sdpa", "scs"], help="LMI solver")
     e.set_defaults(func=_cmd_export_controller)
+
+
+def add_controller_fmu_option(parser: argparse.ArgumentParser) -> None:
+    """``--controller-fmu`` of ``simulate`` and ``verify``."""
+    parser.add_argument("--controller-fmu", default=None,
+                        help="run the loop with this controller FMU (written by export-controller) computing u and "
+                             "x_c; its sampling period must be --step; jump times move to its step grid")
+
+
+def load_loop(args: argparse.Namespace) -> tuple[Any, Any]:
+    """The system and controller of ``simulate``/``verify``: from ``--controller`` (or
+    none: ``verify`` synthesizes), or the controller an exported FMU carries, bound to it
+    (:class:`~ftc_verify.plants.controller_session.ExportedController`); every mismatch
+    (dimensions, period, backend) refused before any work."""
+    path = getattr(args, "controller_fmu", None)
+    if path is None:
+        if args.command == "simulate" and args.controller is None:
+            raise bad("simulate: give --controller (a controller file) or --controller-fmu (an exported FMU)")
+        return load(args.system, args.controller)
+    if args.controller is not None:
+        raise bad(f"--controller-fmu {path}: give --controller or --controller-fmu, not both")
+    if getattr(args, "backend", "fmu") != "fmu":
+        raise bad(f"--controller-fmu {path}: an exported controller is co-simulated; it needs --backend fmu")
+    if not Path(path).is_file():
+        raise bad(f"--controller-fmu {path}: no such file")
+    from ..model.files import load_system
+    from ..plants.controller_session import ControllerFMU, check_period, controller_of_fmu
+
+    system = load_system(args.system)
+    controller = controller_of_fmu(path)
+    controller.check(system, source=str(path))
+    with ControllerFMU(path) as fmu:
+        check_period(fmu, float(args.step))
+    return system, controller

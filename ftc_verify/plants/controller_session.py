@@ -130,11 +130,26 @@ class ControllerFMU:
             from fmpy.fmi2 import FMU2Slave
 
             self.slave = FMU2Slave(**kwargs)
-            self.slave.instantiate(loggingOn=False, logger=self._log2)
+            self.slave.instantiate(loggingOn=False, callbacks=self._callbacks2())
             self._set_real, self._get_real, self._set_int = (self.slave.setReal, self.slave.getReal,
                                                              self.slave.setInteger)
         self._live = True
         self.reset()
+
+    def _callbacks2(self) -> Any:
+        """FMI 2.0 callbacks whose logger keeps the messages (nothing printed)."""
+        import ctypes
+
+        from fmpy import calloc, free
+        from fmpy.fmi2 import (fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE, fmi2CallbackFunctions,
+                               fmi2CallbackLoggerTYPE)
+
+        cb = fmi2CallbackFunctions()
+        cb.logger = fmi2CallbackLoggerTYPE(self._log2)
+        cb.allocateMemory = ctypes.cast(calloc, fmi2CallbackAllocateMemoryTYPE)
+        cb.freeMemory = ctypes.cast(free, fmi2CallbackFreeMemoryTYPE)
+        self._keep = cb  # the C side holds pointers into it
+        return cb
 
     def _log2(self, env: Any, name: Any, status: int, category: Any, message: bytes | None) -> None:
         self.messages.append((message or b"").decode("utf-8", "replace"))
