@@ -14,7 +14,8 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from .common import EXIT_NEGATIVE, EXIT_OK, EXIT_UNCERTIFIED, EXIT_UNDECIDED, bad, check_output_file, load, positive
+from .common import (EXIT_NEGATIVE, EXIT_OK, EXIT_UNCERTIFIED, EXIT_UNDECIDED, bad, check_output_file, fmt, load,
+                     positive)
 
 __all__ = ["add_export_commands"]
 
@@ -45,7 +46,7 @@ def _cmd_export_controller(args: argparse.Namespace) -> int:
         find_gcc(controller_source_dir() / "ctrl_glue.c")  # a missing compiler is refused before the analysis
     cert, rep = export_certificate(system, controller, float(args.step), solver=args.solver)
     print(f"ftc-verify export-controller: {system.name} ({controller.describe(system.m)})")
-    gammas = f"nominal gamma {cert.nominal_gamma!r}, robust gamma {cert.robust_gamma!r}" if cert.certified else ""
+    gammas = f"nominal gamma {fmt(cert.nominal_gamma)}, robust gamma {fmt(cert.robust_gamma)}" if cert.certified else ""
     print(f"  analysis: {cert.verdict}{'; ' + gammas if gammas else ''}")
     if not cert.certified and not args.allow_uncertified:
         print("  verdict: refused (the controller is not certified; --allow-uncertified exports it anyway, "
