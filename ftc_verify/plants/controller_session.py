@@ -25,7 +25,8 @@ from ..controllers.controller import Controller
 from ..errors import FMUError, ValidationError
 from .fmu_archive import read_archive, read_model_description, require_binary
 
-__all__ = ["ExportedController", "ControllerFMU", "controller_of_fmu", "check_period", "fmu_problems"]
+__all__ = ["ExportedController", "ControllerFMU", "controller_of_fmu", "check_period", "fmu_problems",
+           "fmu_variable_types"]
 
 
 def fmu_problems(path: str | os.PathLike[str]) -> list[str]:
@@ -33,6 +34,16 @@ def fmu_problems(path: str | os.PathLike[str]) -> list[str]:
     from fmpy.validation import validate_fmu
 
     return [str(p) for p in validate_fmu(str(path))]
+
+
+def fmu_variable_types(path: str | os.PathLike[str]) -> dict[str, str]:
+    """The FMI 2.0 type name (``Real``, ``Integer``, ``Boolean``, ``String``,
+    ``Enumeration``) of every variable of the FMU ``path``, by name."""
+    from fmpy import read_model_description
+
+    md = read_model_description(str(path), validate=False)
+    names = {"Float64": "Real", "Float32": "Real", "Int32": "Integer"}
+    return {v.name: names.get(v.type, v.type) for v in md.modelVariables}
 
 
 @dataclass(frozen=True, eq=False)
