@@ -301,3 +301,10 @@ def test_failing_compiler_gives_its_first_error_line(tmp_path: Path, monkeypatch
     err = capsys.readouterr().err
     assert "error: this compiler always fails" in err and "second line" not in err
     assert not out.exists() and [p.name for p in tmp_path.iterdir()] == ["bin"]
+
+
+def test_the_default_period_is_the_simulators_default_step() -> None:
+    from ftc_verify.cli.export_commands import DEFAULT_STEP
+    from ftc_verify.simulation.spec import SimulationSpec
+
+    assert DEFAULT_STEP == SimulationSpec.__dataclass_fields__["step"].default

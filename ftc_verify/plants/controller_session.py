@@ -89,9 +89,12 @@ class ControllerFMU:
     ----------
     path
         The ``.fmu`` written by ``export-controller``.
+    workdir
+        Where the temporary extraction folder is made (default: the system's), e.g. the
+        folder a watching parent process removes if this one is killed.
     """
 
-    def __init__(self, path: str | os.PathLike[str]) -> None:
+    def __init__(self, path: str | os.PathLike[str], workdir: str | os.PathLike[str] | None = None) -> None:
         self.path = Path(path)
         self.err = _err(self.path)
         names, xml = read_archive(self.path, self.err)
@@ -109,7 +112,8 @@ class ControllerFMU:
         self.period = float(period.start)
         self.modes = int(next(v for v in md.modelVariables if v.name == "fdi_mode").max)
         self.messages: list[str] = []
-        self._tmp = tempfile.TemporaryDirectory(prefix="ftc-verify-ctrl-fmu-")
+        self._tmp = tempfile.TemporaryDirectory(prefix="ftc-verify-ctrl-fmu-",
+                                                dir=None if workdir is None else str(workdir))
         self.slave: Any = None
         try:
             with zipfile.ZipFile(self.path) as zf:

@@ -203,7 +203,7 @@ class Supervisor:
         if not isinstance(controller, ExportedController):
             return None
         if controller.fmu not in self._controller_fmus:
-            self._controller_fmus[controller.fmu] = ControllerFMU(controller.fmu)
+            self._controller_fmus[controller.fmu] = ControllerFMU(controller.fmu, workdir=self.session.workdir)
         fmu = self._controller_fmus[controller.fmu]
         check_period(fmu, step)
         return fmu
