@@ -7,6 +7,7 @@ the controller is the FMU `ftc-verify export-controller` wrote. A fault (mode 2)
 t = 1 s and the FDI detects it at t = 1.5 s; both FMUs step with the controller's period.
 """
 
+import shutil
 import sys
 
 import numpy as np
@@ -16,11 +17,15 @@ from fmpy.fmi2 import FMU2Slave
 from ftc_verify.model.files import load_system
 from ftc_verify.plants.linear_jump import build_fmu
 
+UNZIPPED = []  # the extracted FMUs, removed at the end
+
 
 def open_fmu(path, name):
     """Instantiate a co-simulation FMU; return it and its value references by name."""
     md = read_model_description(path)
-    fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(path), modelIdentifier=md.coSimulation.modelIdentifier,
+    unzipped = extract(path)
+    UNZIPPED.append(unzipped)
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipped, modelIdentifier=md.coSimulation.modelIdentifier,
                     instanceName=name)
     fmu.instantiate()
     fmu.setupExperiment(startTime=0.0)
@@ -62,3 +67,5 @@ print(f"largest |u - K x| over the run: {worst:.1e}")
 for fmu in (plant, ctrl):
     fmu.terminate()
     fmu.freeInstance()
+for folder in UNZIPPED:
+    shutil.rmtree(folder, ignore_errors=True)

@@ -1,7 +1,7 @@
 """The package is laid out as the pipeline: imports only point down it, modules stay small.
 
 Pipeline order (README "Architecture"): errors, limits, jsonable, interrupts < model < controllers < plants < analysis
-< synthesis < simulation < verification < cli, testing. A module may import from its own
+< synthesis < simulation < verification < export < cli, testing. A module may import from its own
 subpackage and from any earlier stage, never from a later one.
 """
 
