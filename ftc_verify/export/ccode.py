@@ -7,8 +7,10 @@ For FDI mode :math:`l` (1-based in C, ``0 <= l - 1 < m``) the controller of
 
     \dot x_c = A_{c,l} x_c + B_{c,l} v, \qquad u = C_{c,l} x_c + D_{c,l} v
 
-is sampled with the period :math:`h` of the export and the input :math:`v` held over a
-sample, as the simulators run it (the loop of the reference paper with sample-and-hold,
+(static state feedback :math:`u = K_l x`, the paper's eq. (2), is :math:`n_c = 0`,
+:math:`D_{c,l} = K_l`; the dynamic controllers of the paper's Section V have
+:math:`n_c \ge 1`) is sampled with the period :math:`h` of the export and the input
+:math:`v` held over a sample, as the simulators run it (the loop of the reference paper with sample-and-hold,
 :mod:`ftc_verify.simulation.supervisor`):
 
 .. math::
@@ -17,6 +19,8 @@ sample, as the simulators run it (the loop of the reference paper with sample-an
     x_{c,k+1} = \Phi_{c,l} x_{c,k} + \Gamma_{c,l} v_k, \qquad
     \Phi_{c,l} = e^{A_{c,l} h}, \quad \Gamma_{c,l} = \int_0^h e^{A_{c,l} s}\, ds\, B_{c,l},
 
+(the solution :math:`x_c(t + h) = e^{A_{c,l} h} x_c(t) + \int_0^h e^{A_{c,l}(h - s)} ds\,
+B_{c,l} v` of the ODE with :math:`v` constant, the integral substituted :math:`s \to h - s`),
 with :math:`(\Phi_{c,l}, \Gamma_{c,l})` from :meth:`Controller.discretise
 <ftc_verify.controllers.controller.Controller.discretise>` -- the very matrices the
 supervisor uses for a full step -- written into the file with 17 significant digits
