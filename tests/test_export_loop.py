@@ -13,6 +13,7 @@ h = 0.005).
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 import zipfile
 from pathlib import Path
@@ -117,3 +118,32 @@ def test_existing_output_and_uncertified_controller_are_refused(tmp_path: Path,
     assert "--force" in capsys.readouterr().err and out.read_text() == "keep"
     assert main(["export-loop", PAPER, "--controller", OBSERVER, "-o", str(out), "--force"]) == 1
     assert "refused" in capsys.readouterr().out and out.read_text() == "keep"
+
+
+def test_loop_spec_of_a_plant_map_with_real_fault_values() -> None:
+    """A user's plant map: a Real fault variable with values per mode, fixed parameters,
+    output feedback on the named measured outputs; an operating point is refused."""
+    from ftc_verify.controllers.controller import Controller
+    from ftc_verify.errors import ValidationError
+    from ftc_verify.export.ssp import loop_spec, loop_ssd, loop_ssv
+    from ftc_verify.plants.fault_map import FaultInjectionMap, OperatingPoint
+
+    mapping = FaultInjectionMap(fault=("k_eff",), inputs=("V",), states=("omega", "i"), disturbances=("tau",),
+                                outputs=("omega_out",), measured=("omega_meas",), fault_values=((1.0,), (0.6,)),
+                                initial_states=("omega", "i"), parameters=(("R", 2.0),))
+    ctrl = Controller.dynamic([np.array([[-1.0]])] * 2, [np.array([[1.0]])] * 2, [np.array([[0.5]])] * 2,
+                              [np.array([[-0.1]])] * 2)
+    types = {"k_eff": "Real", "R": "Real"}
+    spec = loop_spec(mapping, types, ctrl, fault_mode=2, fdi_mode=1, x0=[100.0, 7.0], step=0.01, stop_time=5.0,
+                     name="motor")
+    assert spec.reads == ("omega_meas",)
+    assert spec.parameters == (("k_eff", "Real", "0.6"), ("omega", "Real", "100.0"), ("i", "Real", "7.0"),
+                               ("R", "Real", "2.0"))
+    ssd, ssv = loop_ssd(spec), loop_ssv(spec)
+    assert 'startConnector="omega_meas"' in ssd and 'endConnector="V"' in ssd and 'name="plant.k_eff"' in ssv
+    assert 'name="controller.fdi_mode"' in ssv
+    with_op = dataclasses.replace(mapping, operating_point=OperatingPoint(np.array([12.0]), np.array([100.0, 7.0]),
+                                                                         np.zeros(1)))
+    with pytest.raises(ValidationError, match="operating point"):
+        loop_spec(with_op, types, ctrl, fault_mode=1, fdi_mode=1, x0=None, step=0.01, stop_time=5.0, name="motor")
+
