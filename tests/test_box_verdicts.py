@@ -211,3 +211,24 @@ def test_bracket_against_an_independent_coupled_riccati_gain() -> None:
     assert gamma / low.value < 1.002  # the bracket within 0.2 %
     robust = rep.to_dict()["hinf"]["robust_lower_bound"]
     assert robust["proved"] and robust["value"] <= rep.robust.gamma and robust["ratio"] < 1.05
+
+
+def test_dynamic_controller_loop_is_formed_in_balls_from_its_files() -> None:
+    """The observer-based controller's augmented loop: every block formed from the files'
+    decimals (enclosures about the float loop, of the reading's width, not exact floats)."""
+    from ftc_verify.analysis.rigorous import midpoint
+
+    system = load_system(ROOT / "examples/paper.toml")
+    controller = load_controller(ROOT / "examples/paper_observer.toml")
+    loop = closed_loop(system, controller)
+    assert loop.source is not None and controller.literals
+    with precision():
+        exact = exact_loop(loop)
+        for A_ball, A in zip(exact.A, loop.A):
+            mid = midpoint(A_ball)
+            assert mid.shape == A.shape == (loop.n, loop.n) and loop.n > system.dims[0]
+            assert np.abs(mid - A).max() <= 1e-12 * np.abs(A).max()
+        radii = [float(e.rad()) for e in exact.A[0].value.entries()]
+        assert max(radii) > 0  # the decimal 0.1 etc. are not floats: enclosed, not taken as exact
+    moved = loop.transformed(2.0 * np.eye(loop.n), 0.5 * np.eye(loop.n))
+    assert moved.source is None  # a loop in other coordinates is its own data

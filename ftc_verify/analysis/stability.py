@@ -27,7 +27,7 @@ import functools
 import itertools
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -338,6 +338,14 @@ class MSSResult:
     def witness(self) -> RegionVerdict | None:
         """The rate vector where instability was proved (``None`` unless "not stable")."""
         return self.vertex_verdicts[-1] if self.unstable and self.vertex_verdicts else None
+
+    def proved_by(self, certificate: str, chain: Any) -> MSSResult:
+        """This result, "undecided" by the branch and bound, decided "stable" by another
+        proof over the whole box (a certified Theorem 3.1 LMI: one Lyapunov stack for
+        every rate of the box, time-varying included)."""
+        region = RegionVerdict(chain.rate_min.copy(), chain.rate_max.copy(), "stable", certificate, 128, 0.0)
+        return replace(self, verdict="stable", vertex_verdicts=(region,), time_varying=True,
+                       reason=f"the branch and bound was undecided ({self.reason}); {certificate}")
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary."""
