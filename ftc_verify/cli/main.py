@@ -149,7 +149,19 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_synthesis_command(sub)
     add_plant_commands(sub)
+    _no_abbreviations(p)
     return p
+
+
+def _no_abbreviations(parser: argparse.ArgumentParser) -> None:
+    """No abbreviated options on ``parser`` and every subcommand's parser: ``--path 10`` is
+    an error, not ``--paths`` (a prefix that matches one option today could match another
+    tomorrow, and a typo should not silently become a different option)."""
+    parser.allow_abbrev = False
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                _no_abbreviations(sub)
 
 
 @contextmanager
