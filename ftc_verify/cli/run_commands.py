@@ -197,15 +197,9 @@ def _cmd_verify(args: argparse.Namespace) -> int:
                          spec=spec, solver=args.solver, progress=sys.stderr.isatty(), plant=plant,
                          fmu_log=_fmu_logger(args), measure=args.measure, client=client)
     written = write_report(rep, args.out)
-    d = rep.to_dict()
-    print(f"ftc-verify verify: {system.name}")
-    print(f"  {system.chain.describe()}")
-    for c in d["checks"]:
-        print(f"  [{'pass' if c['ok'] else 'FAIL'}] {c['name']}: {c['detail']}")
-    if d["options"].get("delta"):
-        print(f"  Delta in the Monte Carlo: {d['options']['delta']}")
-    print(f"  report: {', '.join(str(p) for p in written)}")
-    print(f"  verdict: {d['verdict']}")
+    from ..verification.summary import verify_summary
+
+    print(verify_summary(rep, written=written))
     if rep.verdict == "pass":
         return EXIT_OK
     if rep.analysis is not None and rep.analysis.mss.undecided:
