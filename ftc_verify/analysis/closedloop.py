@@ -223,7 +223,7 @@ class ClosedLoop:
             :attr:`AnalysisReport.per_mode <ftc_verify.analysis.analyze.AnalysisReport>`,
             the CLI and the reports (:attr:`modes` is 0-based), in the order the pairs first
             occur in :attr:`modes`; the detection phases of a pair share its matrices
-            (module docstring) and give one entry. Labels are the user's (:attr:`names`,
+            (module docstring) and give one entry. Labels are the user's (``names``,
             from :meth:`FTCSystem.from_statespace
             <ftc_verify.model.system.FTCSystem.from_statespace>`): the plant's state labels,
             then ``xc[k]`` for a dynamic controller's states, the disturbance labels as

@@ -403,7 +403,7 @@ class FTCSystem:
 
     @property
     def signal_names(self) -> SignalNames:
-        """:attr:`names`, or the defaults of :meth:`SignalNames.default` when there are none."""
+        """``names``, or the defaults of :meth:`SignalNames.default` when there are none."""
         return self.names or SignalNames.default(self.m, self.dims, self.ny_measured)
 
     @property
