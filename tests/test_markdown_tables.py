@@ -52,7 +52,7 @@ def _report() -> VerifyReport:
         Check("region", False, "2 of 5 paths left [region]; inputs within [[-1.5], [2.5]] | clipped"),
     )
     plant = {"fmu": "Motor.fmu", "model_identifier": "Motor", "measure": "incremental", "mean_ratio": 2.68e-6,
-             "upper_bound": 2.69e-6, "max_excursion": [0.1, 0.2], "linearisation_error": 0.0123,
+             "upper_bound": 2.69e-6, "max_excursion": [0.12345678901234, 0.2], "linearisation_error": 0.0123,
              "input_range": [[-1.5], [2.5]], "left_region": 2, "paths": 5, "fault_response_energy": 3.25e-3}
     return VerifyReport(system=system, controller=None, gamma_certified=0.360844, analysis=None, synthesis=None,
                         per_mode=(), exact=({"ratio": 0.0547037},), worst=None, mc=mc, records=(), checks=checks,
@@ -81,6 +81,8 @@ def test_report_md_parsed_back_keeps_its_numbers() -> None:
     plant = {row[0]: row[1] for row in parsed[2][1:]}
     assert plant["attenuation on the plant: mean E||y - y_op||^2/||w||^2 of y(w) - y(w = 0)"] == "2.68e-06"
     assert plant["fault response: mean ||y(w = 0) - y_op||^2 (not bounded by gamma)"] == "0.00325"
+    assert plant["largest excursion from the operating point, per state"] == "[0.1235, 0.2]"
+    assert plant["inputs: smallest and largest value, per input (absolute)"] == "[[-1.5], [2.5]]"
 
 
 def _markdown_pages() -> list[Path]:

@@ -16,6 +16,7 @@ import os
 import shutil
 import tempfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -32,6 +33,19 @@ REPORT_FILES = frozenset({"report.json", "report.md", "fig1_path.png", "ratio_di
 def _num(value: float | None, spec: str = ".6g") -> str:
     """A number for the report, or "-" where JSON has null (infinite, diverged, not computed)."""
     return "-" if value is None else format(value, spec)
+
+
+def _nums(values: Any, spec: str = ".4g") -> str:
+    """A (nested) list of numbers as written in the report, ``-`` for none or null.
+
+    >>> _nums([[0.1234567891, 2.0], [None, 1e-9]])
+    '[[0.1235, 2], [-, 1e-09]]'
+    """
+    if values is None:
+        return "-"
+    if isinstance(values, (list, tuple)):
+        return "[" + ", ".join(_nums(v, spec) for v in values) + "]"
+    return format(values, spec)
 
 
 def table_row(*cells: object) -> str:
@@ -95,10 +109,10 @@ def render_markdown(rep: VerifyReport) -> str:
                             + (" of y(w) - y(w = 0)" if plant["measure"] == "incremental" else ""),
                             _num(plant["mean_ratio"])),
                   table_row("its one-sided upper bound (alpha 1e-6)", _num(plant["upper_bound"])),
-                  table_row("largest excursion from the operating point, per state", plant["max_excursion"] or "-"),
+                  table_row("largest excursion from the operating point, per state", _nums(plant["max_excursion"])),
                   table_row("linearisation error (FMU vs linear reference, relative)",
                             _num(plant["linearisation_error"], ".3g")),
-                  table_row("inputs: smallest and largest value, per input (absolute)", plant["input_range"] or "-"),
+                  table_row("inputs: smallest and largest value, per input (absolute)", _nums(plant["input_range"])),
                   table_row("paths that left [region] (states or input limits)",
                             f"{plant['left_region']} of {plant['paths']}")]
         if plant["fault_response_energy"] is not None:
