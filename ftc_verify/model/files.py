@@ -90,9 +90,11 @@ def _closest(key: str, allowed: set[str] | Sequence[str]) -> list[str]:
     return same_case[:1] or difflib.get_close_matches(key, list(allowed), n=1, cutoff=0.6)
 
 
-#: The kinds of file the commands read, each told by its top-level tables (:func:`check_kind`).
+#: A system file, told by its ``[chain]`` and ``[[mode]]`` tables (:func:`check_kind`).
 SYSTEM_FILE = "a system file ([chain] and [[mode]] tables)"
+#: A controller file, told by its ``[[gain]]`` or ``[[controller]]`` tables.
 CONTROLLER_FILE = "a controller file ([[gain]] or [[controller]] tables)"
+#: A plant map, told by its ``fmu`` key and ``[variables]`` table.
 PLANT_MAP = "a plant map (fmu and [variables])"
 _KINDS = ((SYSTEM_FILE, ("chain", "mode")), (CONTROLLER_FILE, ("gain",)), (CONTROLLER_FILE, ("controller",)),
           (PLANT_MAP, ("fmu", "variables")))
