@@ -55,7 +55,7 @@ def _report() -> VerifyReport:
              "upper_bound": 2.69e-6, "max_excursion": [0.12345678901234, 0.2], "linearisation_error": 0.0123,
              "input_range": [[-1.5], [2.5]], "left_region": 2, "paths": 5, "fault_response_energy": 3.25e-3}
     return VerifyReport(system=system, controller=None, gamma_certified=0.360844, analysis=None, synthesis=None,
-                        per_mode=(), exact=({"ratio": 0.0547037},), worst=None, mc=mc, records=(), checks=checks,
+                        per_mode=(), exact=({"ratio": 0.0547037},), mc=mc, records=(), checks=checks,
                         seed=1, options={"fdi_model": "FDI: exponential detection delays"}, plant=plant)
 
 

@@ -282,5 +282,5 @@ def test_names_of_the_wrong_length_are_refused() -> None:
     paper = load_system(EXAMPLES / "paper.toml")
     bad = replace(paper.signal_names, states=("only-one",))
     with pytest.raises(ValidationError, match=r"names\.states: 1 names \['only-one'\] for 2 states"):
-        FTCSystem(paper.name, paper.modes, paper.chain, bad)
+        FTCSystem(paper.name, paper.modes, paper.chain, names=bad)
     assert isinstance(bad, SignalNames)

@@ -56,7 +56,7 @@ this is state feedback: :math:`A_s = A_i + B_i K_j`, channels :math:`(A1_i, A2_i
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -100,6 +100,11 @@ class ClosedLoop:
         The plant's mode and signal names (:attr:`FTCSystem.names
         <ftc_verify.model.system.FTCSystem>`), used only to label :meth:`to_statespace`;
         ``None``: the defaults.
+    source : (FTCSystem, Controller) or None
+        The system and controller the loop was formed from (set by :func:`closed_loop`):
+        the proofs form the loop again from them in ball arithmetic
+        (:func:`~ftc_verify.analysis.exact.exact_loop`). ``None`` for a loop built by
+        hand or moved to other coordinates (its float matrices are then the data).
     """
 
     chain: JointChain
@@ -110,6 +115,7 @@ class ClosedLoop:
     controller: str = "state feedback"
     n_plant: int | None = None
     names: SignalNames | None = None
+    source: tuple[FTCSystem, Controller] | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         count = self.chain.n_states
@@ -158,6 +164,7 @@ class ClosedLoop:
         inv = 1.0 / d
         return replace(
             self,
+            source=None,
             A=tuple(inv[:, None] * A * d[None, :] for A in self.A),
             Bw=tuple(inv[:, None] * B for B in self.Bw),
             Cz=tuple(C * d[None, :] for C in self.Cz),
@@ -171,6 +178,7 @@ class ClosedLoop:
         (:mod:`ftc_verify.analysis.conditioning`)."""
         return replace(
             self,
+            source=None,
             A=tuple(T_inv @ A @ T for A in self.A),
             Bw=tuple(T_inv @ B for B in self.Bw),
             Cz=tuple(C @ T for C in self.Cz),
@@ -372,7 +380,8 @@ def closed_loop(system: FTCSystem, controller: Controller) -> ClosedLoop:
         k = controller.index(i, j, m)
         return controller.Ac[k], controller.Bc[k], controller.Cc[k], controller.Dc[k]
 
-    return _assemble(system, entry, controller.measurement, controller.n_c, controller.describe(m))
+    loop = _assemble(system, entry, controller.measurement, controller.n_c, controller.describe(m))
+    return replace(loop, source=(system, controller))
 
 
 def state_feedback_loop(system: FTCSystem, gains: Sequence[Matrix], *, controller: str | None = None) -> ClosedLoop:

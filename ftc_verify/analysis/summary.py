@@ -8,7 +8,7 @@ which the report does not hold.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from .analyze import AnalysisReport
@@ -40,7 +40,8 @@ def analysis_summary(rep: AnalysisReport, *, fdi_model: str | None = None) -> st
     d = rep.to_dict()
     mss = d["mss"]
     lmi = rep.mes_lmi.outcome != "not requested"
-    vert = f"worst of {mss['vertices_evaluated']} rate vertices" + ("" if mss["exhaustive"] else ", greedy search")
+    vert = (f"float estimate, worst of {mss['vertices_evaluated']} rate vertices"
+            + ("" if mss["exhaustive"] else ", greedy search") + (" and the witness" if mss["witness"] else ""))
     lines = [f"ftc-verify analyze: {rep.name} ({rep.controller})"] + ([f"  {fdi_model}"] if fdi_model else [])
     word = {"stable": "stable", "not stable": "NOT stable", "undecided": "UNDECIDED"}[mss["verdict"]]
     lines += [f"  mean-square stability    spectral abscissa {_num(mss['spectral_abscissa'])} ({vert}): {word}",
@@ -54,6 +55,10 @@ def analysis_summary(rep: AnalysisReport, *, fdi_model: str | None = None) -> st
         lines.append(f"  {label:<24} {value}{status}")
         if not res.certified and res.message:
             lines.append(f"      {res.message}")
+        low = None if label.startswith("Theorem") else d["hinf"][
+            "nominal_lower_bound" if label.startswith("nominal") else "robust_lower_bound"]
+        if low is not None:
+            lines.append(f"      {_bracket_text(low)}")
     lines.append("  per joint mode (true, fdi): frozen poles, H-inf norm, python-control")
     for m in rep.per_mode:
         poles = ", ".join(f"{p.real:.4g}{p.imag:+.4g}j" if abs(p.imag) > 1e-12 else f"{p.real:.4g}" for p in m.poles)
@@ -67,9 +72,19 @@ def analysis_summary(rep: AnalysisReport, *, fdi_model: str | None = None) -> st
     elif rep.mss.stable:
         verdict = "stable by the exact spectral test, but NO LMI certificate found (not a proof either way)"
     elif rep.mss.undecided:
-        verdict = ("UNDECIDED: neither stability nor instability could be proved at some beta vertex "
-                   "(float64 and the higher-precision retries)")
+        verdict = ("UNDECIDED: neither stability nor instability could be proved over the whole rate box "
+                   f"({rep.mss.reason})")
     else:
-        verdict = "NOT stable (proved at some beta vertex)"
+        verdict = "NOT stable (proved at a rate vector of the box)"
     lines.append(f"  verdict: {verdict}; certificates {'all passed' if rep.certificate_ok else 'NOT all passed'}")
     return "\n".join(lines)
+
+
+def _bracket_text(low: dict[str, Any]) -> str:
+    """One line: the proved lower bound beside a certified gamma."""
+    where = f"{low['delta']}, rates {low['rates']}, w = F x + e cos({low['frequency']:.4g} t)"
+    if low["value"] is None:
+        return f"lower bound: none proved ({low['method']}); float estimate {low['estimate']:.6g} at {where}"
+    ratio = "" if low["ratio"] is None else f"; certified / lower = {low['ratio']:.6g}"
+    flag = " (LOOSE: above 1.05)" if low["loose"] else ""
+    return f"proved lower bound {low['value']:.6g} at {where}{ratio}{flag}"

@@ -250,6 +250,9 @@ class FTCSystem:
     name: str
     modes: tuple[Mode, ...]
     chain: JointChain
+    #: The numbers of the system file as written (float read -> decimal texts), set by
+    #: :func:`~ftc_verify.model.files.load_system`; ``None`` when the floats are the data.
+    literals: Mapping[float, tuple[str, ...]] | None = field(default=None, compare=False, repr=False)
     names: SignalNames | None = None
 
     def __post_init__(self) -> None:
@@ -429,7 +432,7 @@ class FTCSystem:
     def nominal(self) -> FTCSystem:
         """The same system without uncertainty weights."""
         modes = tuple(Mode(md.A, md.B, md.C, md.D, Cy=md.Cy, label=md.label) for md in self.modes)
-        return FTCSystem(self.name, modes, self.chain, self.names)
+        return FTCSystem(self.name, modes, self.chain, names=self.names)
 
     def with_measured_output(self, Cy: ArrayLike | Sequence[ArrayLike]) -> FTCSystem:
         """The same plant measured through ``y_m = Cy x``: one matrix for every mode, or one
@@ -443,7 +446,7 @@ class FTCSystem:
                       for md, c in zip(self.modes, cys))
         names = None if self.names is None else replace(  # new measured outputs: the default names
             self.names, measured=tuple(f"y_m[{k}]" for k in range(modes[0].ny_measured)))
-        return FTCSystem(self.name, modes, self.chain, names)
+        return FTCSystem(self.name, modes, self.chain, names=names)
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, FTCSystem):

@@ -4,14 +4,15 @@
 all on the one closed loop :func:`~ftc_verify.analysis.closedloop.closed_loop` builds:
 
 1. **synthesis** (:func:`ftc_verify.synthesis.synthesize`) unless a controller is given,
-   then the core analysis: exact spectral test, certified Theorem 3.1 and robust gamma
-   (Lemma 4.1);
+   then the core analysis: stability proved over the whole rate box, certified Theorem
+   3.1 and robust gamma (Lemma 4.1), and a proved lower bound of the robust gain;
 2. **cross-validation** of every frozen joint mode with python-control;
 3. **exact expected energy** of the continuous-time loop for the paper's disturbance at
    every ``beta`` vertex (up to :data:`MAX_EXACT_VERTICES`) and for ``Delta`` in
    ``{0, +E, -E}`` (``E`` the rectangular identity, norm 1) when the plant is uncertain;
-4. **worst-case disturbance** on a horizon at the worst of those vertices (a lower bound
-   of the stochastic gain);
+4. **gamma bracket**: the proved lower bound of the analysis
+   (:mod:`ftc_verify.analysis.lower_bound`) does not exceed the certified gamma, and
+   their ratio says how far from the truth the certificate can be;
 5. **Monte Carlo co-simulation** of the FMU plant under Markov faults and delayed FDI
    switching (sample-and-hold at ``step``), ``beta`` drawn per path from its box, a random
    ``Delta`` per chain segment when uncertain; the mean ratio's one-sided upper bound
@@ -38,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from ..analysis.analyze import AnalysisReport, analyze, json_ready
+from ..analysis.analyze import AnalysisReport, analyze, bracket, json_ready
 from ..analysis.closedloop import ClosedLoop, closed_loop
 from ..analysis.crossval import ModeCheck, cross_validate
 from ..controllers.controller import Controller
@@ -50,7 +51,7 @@ from ..simulation.paths import ChainPath
 from ..simulation.records import PathRecord, divergence_note
 from ..simulation.spec import SimulationSpec, spec_from
 from ..synthesis.state_feedback import SynthesisResult, synthesize
-from .moments import WorstCase, exact_energy, worst_case_disturbance
+from .moments import exact_energy
 from .montecarlo import MCEstimate, estimate
 
 __all__ = ["Check", "VerifyReport", "run_verify", "incremental_records", "AGREE_RTOL", "MAX_EXACT_VERTICES"]
@@ -84,7 +85,6 @@ class VerifyReport:
     synthesis: SynthesisResult | None
     per_mode: tuple[ModeCheck, ...]
     exact: tuple[dict[str, Any], ...]
-    worst: WorstCase | None
     mc: MCEstimate | None
     records: tuple[PathRecord, ...]
     checks: tuple[Check, ...]
@@ -123,9 +123,7 @@ class VerifyReport:
             "exact_energy_ratio": self.exact_energy_ratio,
             "exact": list(self.exact),
             "mc": None if self.mc is None else self.mc.to_dict(),
-            "worst_case_gain": None if self.worst is None else self.worst.gain,
-            "worst_case": None if self.worst is None else {
-                "ratio": self.worst.ratio, "horizon": self.worst.horizon, "pieces": self.worst.pieces},
+            "gamma_lower_bound": None if an is None else bracket(an.robust, an.robust_lower),
             "checks": [fields_dict(c) for c in self.checks],
             "controller": None if ctrl is None else ctrl.to_dict(),
             "gains": [K.tolist() for K in ctrl.gains] if ctrl is not None and ctrl.is_state_feedback else None,
@@ -321,14 +319,17 @@ def _mc_check(records: list[PathRecord], gamma_cert: float, seed: int, step: flo
                      + ("; incremental: y(w) - y(w = 0) on the same paths" if incremental else ""))
 
 
-def _worst_case(loop: ClosedLoop, exact: list[dict[str, Any]], horizon: float,
-                gamma_cert: float) -> tuple[WorstCase, Check]:
-    """The worst-case disturbance at the beta vertex of the largest exact energy ratio."""
-    worst_beta = np.array(max(exact, key=lambda e: e["ratio"])["beta"])
-    worst = worst_case_disturbance(loop.nominal(), beta=worst_beta, horizon=min(horizon, 30.0), pieces=40)
-    return worst, Check("worst-case disturbance", worst.gain <= gamma_cert,
-                        f"lower bound of the stochastic gain {worst.gain:.6g} <= certified {gamma_cert:.6g} "
-                        f"(gap {gamma_cert - worst.gain:.3g} = conservatism of the certificate)")
+def _bracket(analysis: AnalysisReport, gamma_cert: float) -> tuple[None, Check]:
+    """The proved lower bound beside the certified robust gamma (computed by the
+    analysis): it must not exceed the certificate."""
+    low = bracket(analysis.robust, analysis.robust_lower)
+    if low is None or low["value"] is None:
+        why = "no candidate loop was stable" if low is None else low["method"]
+        return None, Check("gamma bracket", True, f"certified {gamma_cert:.6g}; no lower bound proved ({why})")
+    return None, Check("gamma bracket", low["value"] <= gamma_cert,
+                       f"proved lower bound {low['value']:.6g} <= certified {gamma_cert:.6g} (ratio "
+                       f"{gamma_cert / low['value']:.6g}{', LOOSE' if low['loose'] else ''}; {low['delta']}, "
+                       f"rates {low['rates']}, w = F x + e cos({low['frequency']:.4g} t))")
 
 
 def _monte_carlo_stage(system: FTCSystem, controller: Controller, spec: SimulationSpec, plant: Any, fmu_log: Any,
@@ -411,7 +412,7 @@ def run_verify(
 
     def report(**found: Any) -> VerifyReport:
         parts: dict[str, Any] = {"gamma_certified": None, "analysis": None, "per_mode": (), "exact": (),
-                                 "worst": None, "mc": None, "records": ()} | found
+                                 "mc": None, "records": ()} | found
         return VerifyReport(system, controller, synthesis=synthesis, checks=tuple(checks), seed=seed,
                             options=options, seconds=seconds, **parts)
 
@@ -430,7 +431,7 @@ def run_verify(
         return report(analysis=analysis, per_mode=per_mode)
     g2 = gamma_cert ** 2
     exact = timed("exact_energy", lambda: _exact_energies(system, loop, g2))
-    worst = timed("worst_case", functools.partial(_worst_case, loop, exact, spec.horizon, gamma_cert))
+    timed("gamma_bracket", functools.partial(_bracket, analysis, gamma_cert))
     t = time.perf_counter()
     spec, options["delta"] = spec.resolve_delta(system, plant)
     try:
@@ -440,12 +441,12 @@ def run_verify(
         checks.append(Check("Monte Carlo (FMU)", False, str(exc)))
         stage("monte_carlo", t)
         return report(gamma_certified=gamma_cert, analysis=analysis, per_mode=per_mode, exact=tuple(exact),
-                      worst=worst, plant_failure=exc)
+                      plant_failure=exc)
     options.update(fmu)
     mc, check = _mc_check(measured, gamma_cert, seed, spec.step, spec.horizon, incremental=measure == "incremental")
     checks.append(check)
     stage("monte_carlo", t)
     found_plant = timed("reference", lambda: _against_reference(system, controller, chain_paths, records, spec,
                                                                  plant, mc, fmu, measured, fault_only))
-    return report(gamma_certified=gamma_cert, analysis=analysis, per_mode=per_mode, exact=tuple(exact), worst=worst,
+    return report(gamma_certified=gamma_cert, analysis=analysis, per_mode=per_mode, exact=tuple(exact),
                   mc=mc, records=tuple(records), plant=found_plant)
