@@ -113,6 +113,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_synthesis_command(sub)
     add_plant_commands(sub)
+    from .export_commands import add_export_commands
+
+    add_export_commands(sub)
     _no_abbreviations(p)
     return p
 

@@ -18,8 +18,9 @@ from typing import TYPE_CHECKING, Any
 
 from ..errors import FTCError, PlantRunError
 from ..jsonable import dumps
+from .export_commands import add_controller_fmu_option, load_loop
 from .common import (EXIT_NEGATIVE, EXIT_OK, EXIT_UNCERTIFIED, EXIT_UNDECIDED, PLOT_SUFFIXES, bad, check_output_file,
-                     load, nonneg_int, positive, positive_int, seed_int, strict)
+                     nonneg_int, positive, positive_int, seed_int, strict)
 
 if TYPE_CHECKING:
     from ..simulation.paths import ChainPath
@@ -56,7 +57,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     if args.plot:
         check_output_file(args.plot, "--plot", PLOT_SUFFIXES)
     _check_cluster(args)
-    system, controller = load(args.system, args.controller)
+    system, controller = load_loop(args)
     record = max(args.record, 1 if args.plot else 0)
     kept = args.paths if args.backend == "fmu" else min(record, args.paths)  # the reference backend streams
     spec = SimulationSpec(step=args.step, horizon=args.horizon, n_paths=args.paths, seed=args.seed,
@@ -131,6 +132,8 @@ def _print_simulation(d: dict[str, Any], res: Any, name: str, args: argparse.Nam
     if res.backend == "fmu":
         print(f"  FMU {d['fmu']} (model identifier {d['model_identifier']}); jump times moved by at most "
               f"{res.options['timing_error']:.3g} to the FMU's step grid")
+        if res.options.get("controller_fmu"):
+            print(f"  controller FMU {res.options['controller_fmu']} (u and x_c computed by the exported controller)")
     ok = [k for k, y in enumerate(d["y_norm"]) if y is not None]
     if d["divergence"]:
         print(f"  DIVERGED OR FAILED: {d['divergence']}")
@@ -183,7 +186,7 @@ def _cmd_verify(args: argparse.Namespace) -> int:
     _check_horizon(args.step, args.horizon)
     check_out_dir(args.out)
     _check_cluster(args)
-    system, controller = load(args.system, args.controller)
+    system, controller = load_loop(args)
     plant = _load_plant(args, system, controller)
     if plant is None:
         _check_fmu_dims(system, args.system)
@@ -213,7 +216,7 @@ def add_run_commands(sub: Any) -> None:
     """Register ``simulate`` and ``verify`` on the CLI's subparsers."""
     m = sub.add_parser("simulate", help="simulate the sampled-data loop under Markov faults and delayed FDI")
     m.add_argument("system", help="system TOML file")
-    m.add_argument("--controller", "--gains", dest="controller", required=True,
+    m.add_argument("--controller", "--gains", dest="controller", default=None,
                    help="controller TOML file (static gains or dynamic; --gains is an alias)")
     m.add_argument("--backend", default="fmu", choices=["fmu", "reference"],
                    help="fmu: co-simulate the LinearJumpPlant FMU (or --plant's FMU); reference: the same "
@@ -240,6 +243,7 @@ def add_run_commands(sub: Any) -> None:
     m.add_argument("--json", action="store_true", help="print one JSON object instead of a summary")
     m.add_argument("--plot", default=None, help="PNG file for the paper's Fig. 1 of the first path")
     _plant_options(m)
+    add_controller_fmu_option(m)
     m.set_defaults(func=_cmd_simulate)
 
     v = sub.add_parser("verify", help="the main job: synthesize, certify, cross-validate, co-simulate, report")
@@ -270,6 +274,7 @@ def add_run_commands(sub: Any) -> None:
                         "alone, y(w) - y(w = 0) on the same path (incremental: for plants whose faults move the "
                         "equilibrium)")
     _plant_options(v)
+    add_controller_fmu_option(v)
     _cluster_options(v)
     v.set_defaults(func=_cmd_verify)
 

@@ -193,7 +193,8 @@ def _fmu_monte_carlo(system: FTCSystem, controller: Controller, chain_paths: lis
     finally:
         if bar is not None:
             bar.close()
-    return list(res.records), {"fmu": res.options["fmu"], "model_identifier": res.options["model_identifier"]}
+    extra = {"controller_fmu": res.options["controller_fmu"]} if "controller_fmu" in res.options else {}
+    return list(res.records), {"fmu": res.options["fmu"], "model_identifier": res.options["model_identifier"], **extra}
 
 
 def incremental_records(with_w: list[PathRecord], without_w: list[PathRecord]) -> list[PathRecord]:
@@ -279,7 +280,8 @@ def _backend_agreement(system: FTCSystem, controller: Controller, chain_paths: l
     """The first paths again on the numpy reference, with the same Delta draws."""
     from ..simulation.reference import simulate_reference
 
-    ref = simulate_reference(system, controller, chain_paths[:AGREE_PATHS], spec=spec)
+    # the paths the FMU ran (jump times on its step grid when it or the controller FMU has a fixed step)
+    ref = simulate_reference(system, controller, [r.path for r in records[:AGREE_PATHS]], spec=spec)
     worst = 0.0
     for k, (a, b) in enumerate(zip(records[:AGREE_PATHS], ref.records), start=1):
         if a.diverged_at != b.diverged_at:
