@@ -46,6 +46,8 @@ __all__ = [
     "save_system",
     "write_atomic",
     "parse_chain",
+    "read_toml",
+    "unknown_keys",
     "check_kind",
     "SYSTEM_FILE",
     "CONTROLLER_FILE",
