@@ -99,6 +99,10 @@ def ball_generator(chain: JointChain, lo: Matrix, hi: Matrix) -> Ball:
     return Ball(out)
 
 
+def _float(a: Any) -> Matrix:
+    return np.asarray(a, dtype=float)
+
+
 def _kron(A: Ball, B: Ball) -> Ball:
     """Kronecker product of two ball matrices."""
     flint = _flint()
@@ -184,7 +188,8 @@ def ball_one_period_map(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix) -> 
     Dr, Lr = duplication_matrix(loop.r)
     vd, S = Dd.shape[1], loop.states
     eye = np.eye(loop.d)
-    blocks = [ball(Ld) @ (ball(np.kron(eye, A)) + ball(np.kron(A, eye))) @ ball(Dd) for A in loop.flow]
+    blocks = [ball(Ld) @ (ball(_float(np.kron(eye, A))) + ball(_float(np.kron(A, eye)))) @ ball(Dd)
+              for A in loop.flow]
     G = _block_diag(blocks).value
     for s in range(S):
         for t in range(S):
