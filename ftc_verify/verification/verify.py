@@ -6,7 +6,9 @@ all on the one closed loop :func:`~ftc_verify.analysis.closedloop.closed_loop` b
 1. **synthesis** (:func:`ftc_verify.synthesis.synthesize`) unless a controller is given,
    then the core analysis: exact spectral test, certified Theorem 3.1 and robust gamma
    (Lemma 4.1);
-2. **cross-validation** of every frozen joint mode with python-control;
+2. **cross-validation** of every frozen joint mode with python-control, then the
+   **sampled loop** at ``step`` (:mod:`ftc_verify.verification.sampled_stage`:
+   mean-square stability over the rate box proved at the period, and ``h_max``);
 3. **exact expected energy** of the continuous-time loop for the paper's disturbance at
    every ``beta`` vertex (up to :data:`MAX_EXACT_VERTICES`) and for ``Delta`` in
    ``{0, +E, -E}`` (``E`` the rectangular identity, norm 1) when the plant is uncertain;
@@ -93,6 +95,7 @@ class VerifyReport:
     seconds: dict[str, float] = field(default_factory=dict)
     plant: dict[str, Any] | None = None
     plant_failure: PlantRunError | None = None  # the plant FMU crashed or returned fmi2Fatal
+    sampled: Any = None  # SampledResult of the loop at the simulation step (verification.sampled_stage)
 
     @property
     def verdict(self) -> str:
@@ -130,6 +133,7 @@ class VerifyReport:
             "plant_failure": None if self.plant_failure is None else {
                 "fmu": self.plant_failure.fmu, "path": self.plant_failure.path, "time": self.plant_failure.time,
                 "detail": self.plant_failure.detail},
+            "sampled": None if self.sampled is None else self.sampled.to_dict(),
             "seed": self.seed,
             "options": self.options,
             "seconds": self.seconds,
@@ -403,9 +407,11 @@ def run_verify(
         controller = synthesis.controller
     stage("synthesis", t)
 
+    extra: dict[str, Any] = {}
+
     def report(**found: Any) -> VerifyReport:
         parts: dict[str, Any] = {"gamma_certified": None, "analysis": None, "per_mode": (), "exact": (),
-                                 "worst": None, "mc": None, "records": ()} | found
+                                 "worst": None, "mc": None, "records": ()} | extra | found
         return VerifyReport(system, controller, synthesis=synthesis, checks=tuple(checks), seed=seed,
                             options=options, seconds=seconds, **parts)
 
@@ -420,6 +426,9 @@ def run_verify(
     checks.extend(found)
     stage("analysis", t)
     per_mode = timed("cross_validation", lambda: _cross_validation(loop))
+    from .sampled_stage import sampled_stage  # the loop it simulates, at its period
+
+    extra["sampled"] = timed("sampled", lambda: sampled_stage(system, controller, spec.step))
     if gamma_cert is None:
         return report(analysis=analysis, per_mode=per_mode)
     g2 = gamma_cert ** 2

@@ -1,0 +1,75 @@
+"""The CLI's handling of a sampling period: ``--period`` against ``--step`` and
+``--horizon``, and the lines that report the sampled loop
+(:func:`ftc_verify.analysis.sampled.sampled_analysis`).
+
+Nothing here imports numpy at import time (the parser is built without it).
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from .common import EXIT_NEGATIVE, EXIT_OK, EXIT_UNCERTIFIED, EXIT_UNDECIDED, bad
+
+__all__ = ["DEFAULT_STEP", "check_period_option", "resolve_step", "sampled_exit", "print_sampled"]
+
+#: The simulators' step when neither ``--step``, ``--period`` nor the controller file gives one.
+DEFAULT_STEP = 0.01
+
+
+def check_period_option(args: argparse.Namespace) -> None:
+    """``--period`` against ``--step`` and ``--horizon``, before any work (exit 2 naming
+    ``--period``); the value itself is checked by the argument type (positive, finite)."""
+    period = args.period
+    if period is None:
+        return
+    if getattr(args, "step", None) is not None and args.step != period:
+        raise bad(f"--period {period:g} and --step {args.step:g} disagree: the simulation samples the controller "
+                  "every --step; give one of them")
+    horizon = getattr(args, "horizon", None)
+    if horizon is not None and period > horizon:
+        raise bad(f"--period {period:g}: longer than --horizon {horizon:g} (the controller would not sample again)")
+
+
+def resolve_step(args: argparse.Namespace, controller: Any) -> float:
+    """The simulation step: ``--period``, else ``--step``, else the controller file's
+    ``period`` (checked against ``--horizon``), else :data:`DEFAULT_STEP`."""
+    if args.period is not None:
+        return float(args.period)
+    if args.step is not None:
+        return float(args.step)
+    period = None if controller is None else controller.period
+    if period is not None:
+        if period > args.horizon:
+            raise bad(f"{args.controller}: period {period:g} is longer than --horizon {args.horizon:g} "
+                      "(give --period or --step)")
+        return float(period)
+    return DEFAULT_STEP
+
+
+def sampled_exit(code: int, sampled: Any) -> int:
+    """The exit code with the sampled loop's verdict: a loop certified in continuous time
+    whose sampled loop is proved unstable exits 1, undecided 5."""
+    if sampled is None or sampled.verdict == "stable" or code not in (EXIT_OK, EXIT_UNCERTIFIED):
+        return code
+    return EXIT_NEGATIVE if sampled.verdict == "not stable" else EXIT_UNDECIDED
+
+
+def print_sampled(res: Any) -> None:
+    """The sampled loop's lines of ``analyze``."""
+    word = {"stable": "stable", "not stable": "NOT stable", "undecided": "UNDECIDED"}[res.verdict]
+    print(f"  sampled loop, period h = {res.period:g} (controller reads x and the FDI report every h, holds u)")
+    print(f"    mean-square stability  spectral radius of the one-period map {res.spectral_radius:.6g}: {word}")
+    print(f"      proved: {res.proof}")
+    if res.h_max is not None:
+        print(f"    h_max {res.h_max:.6g}: proved stable over the rate box there, proved unstable at "
+              f"{res.h_max_unstable:.6g}")
+    else:
+        print(f"    h_max not found: {res.h_max_note}")
+    intervals = ", ".join(f"[{a:.4g}, {b:.4g}]" for a, b in res.stability_intervals) or "none"
+    print(f"    stable periods in the scan [{res.scan[0]:.3g}, {res.scan[1]:.3g}] (float64): {intervals}")
+    verdict = {"stable": "mean-square stable over the rate box (proved)",
+               "not stable": "NOT mean-square stable (proved)",
+               "undecided": "UNDECIDED (neither stability nor instability proved)"}[res.verdict]
+    print(f"  verdict at period h = {res.period:g}: the sampled loop is {verdict}")
