@@ -428,7 +428,8 @@ def run_verify(
     per_mode = timed("cross_validation", lambda: _cross_validation(loop))
     from .sampled_stage import sampled_stage  # the loop it simulates, at its period
 
-    extra["sampled"] = timed("sampled", lambda: sampled_stage(system, controller, spec.step))
+    step = float(spec.step)
+    extra["sampled"] = timed("sampled", lambda: sampled_stage(system, controller, step))
     if gamma_cert is None:
         return report(analysis=analysis, per_mode=per_mode)
     g2 = gamma_cert ** 2
