@@ -76,7 +76,8 @@ import scipy.linalg
 from ..controllers.controller import Controller, check_period
 from ..model.chain import JointChain
 from ..model.system import FTCSystem, Matrix
-from .stability import duplication_matrix, second_moment_matrix
+from .closedloop import closed_loop
+from .stability import duplication_matrix, second_moment_matrix, vech_order
 
 __all__ = ["SampledLoop", "SampledResult", "one_period_map", "spectral_radius", "rate_points",
            "worst_radius", "scan_periods", "stability_intervals", "h_max_bracket", "sampled_analysis",
@@ -105,6 +106,12 @@ class SampledLoop:
         Plant states and inputs.
     modes_part : array
         The rate-independent part of :math:`\\mathcal L` (its block diagonal).
+    scale : (d,) array
+        Powers of two: ``flow``, :meth:`resets` and the maps with ``scaled=True`` are in
+        the balanced coordinates :math:`z = \\operatorname{diag}(scale)\\, \\tilde z`
+        (a similarity, exact in floating point; the spectrum is the same).
+    speed : float
+        The largest closed-loop rate (for the range of periods scanned).
     """
 
     chain: JointChain
@@ -115,25 +122,45 @@ class SampledLoop:
     n: int
     nu: int
     modes_part: Matrix
+    scale: Matrix
+    speed: float
 
     @classmethod
     def build(cls, system: FTCSystem, controller: Controller) -> SampledLoop:
         """The sampled loop of ``system`` under ``controller`` (checked against it)."""
         controller.check(system)
         n, nu, _, _ = system.dims
-        d = n + nu + controller.n_c
+        nc = controller.n_c
+        d = n + nu + nc
         flows, meas, entries = [], [], []
+        pattern = np.zeros((d, d))  # |flow| + |reset pattern| over the states, to balance
         for i, j in system.chain.joint_modes:
             mode = system.modes[i]
             Ab = np.zeros((d, d))
             Ab[:n, :n] = mode.A
             Ab[:n, n:n + nu] = mode.B
+            M = controller.measurement(mode)
+            e = controller.index(i, j, system.m)
             flows.append(Ab)
-            meas.append(controller.measurement(mode))
-            entries.append(controller.index(i, j, system.m))
+            meas.append(M)
+            entries.append(e)
+            pattern += np.abs(Ab)
+            pattern[n:n + nu, :n] += np.abs(controller.Dc[e] @ M)
+            pattern[n:n + nu, n + nu:] += np.abs(controller.Cc[e])
+            pattern[n + nu:, :n] += np.abs(controller.Bc[e] @ M)
+            pattern[n + nu:, n + nu:] += np.abs(controller.Ac[e])
+        scale = np.ones(d)
+        if np.all(np.isfinite(pattern)):
+            _, (found, _) = scipy.linalg.matrix_balance(pattern + np.eye(d), permute=False, separate=True)
+            scale = np.asarray(found, dtype=float)
+        flows = [Ab / scale[:, None] * scale[None, :] for Ab in flows]
         S = system.chain.n_states
         modes_part = second_moment_matrix(flows, np.zeros((S, S)))
-        return cls(system.chain, tuple(flows), tuple(meas), tuple(entries), controller, n, nu, modes_part)
+        loop = closed_loop(system, controller)
+        rates = [float(np.linalg.norm(A, 2)) for A in loop.A]
+        rates.append(float(np.max(np.abs(system.chain.generator(system.chain.rate_max)))))
+        return cls(system.chain, tuple(flows), tuple(meas), tuple(entries), controller, n, nu, modes_part, scale,
+                   max(*rates, 1e-9))
 
     @property
     def nc(self) -> int:
@@ -167,8 +194,21 @@ class SampledLoop:
         P[self.n:, self.n + self.nu:] = np.eye(self.nc)
         return P
 
+    @property
+    def scale_r(self) -> Matrix:
+        """The scale of the sampled state ``(x, x_c)``."""
+        return np.concatenate([self.scale[:self.n], self.scale[self.n + self.nu:]])
+
+    def vech_weights(self) -> Matrix:
+        """``vech`` of :math:`\\operatorname{diag}(s) X \\operatorname{diag}(s)` is ``weights *
+        vech(X)`` (``s`` = :attr:`scale_r`), tiled over the joint states."""
+        rows, cols = vech_order(self.r)
+        c = self.scale_r
+        return np.tile(c[rows] * c[cols], self.states)
+
     def resets(self, h: float) -> tuple[Matrix, ...]:
-        """:math:`R_s` (``d x r``) of every joint state at period ``h`` (float64)."""
+        """:math:`R_s` (``d x r``) of every joint state at period ``h`` (float64), in the
+        balanced coordinates."""
         n, nu, nc = self.n, self.nu, self.nc
         out = []
         for M, e in zip(self.measurement, self.entry):
@@ -180,12 +220,14 @@ class SampledLoop:
                 R[n:n + nu, n:] = self.controller.Cc[e]
                 R[n + nu:, :n] = Gamc @ M
                 R[n + nu:, n:] = Phic
-            out.append(R)
+            out.append(R / self.scale[:, None] * self.scale_r[None, :])
         return tuple(out)
 
 
-def one_period_map(loop: SampledLoop, h: float, rates: Matrix) -> Matrix:
-    """:math:`T` of the module docstring at period ``h`` and rate array ``rates`` (float64)."""
+def one_period_map(loop: SampledLoop, h: float, rates: Matrix, *, scaled: bool = False) -> Matrix:
+    """:math:`T` of the module docstring at period ``h`` and rate array ``rates`` (float64),
+    computed in the balanced coordinates (:attr:`SampledLoop.scale`) and returned in the
+    loop's own (``scaled=False``) or in those (``scaled=True``)."""
     Q = loop.chain.generator(rates)
     Dd, Ld = duplication_matrix(loop.d)
     Dr, Lr = duplication_matrix(loop.r)
@@ -194,13 +236,17 @@ def one_period_map(loop: SampledLoop, h: float, rates: Matrix) -> Matrix:
     P = loop.restriction()
     restrict = Lr @ np.kron(P, P) @ Dd
     lifts = np.stack([Ld @ np.kron(R, R) @ Dr for R in loop.resets(h)])
-    T = np.einsum("ab,tbsc,scd->tasd", restrict, F.reshape(S, vd, S, vd), lifts, optimize=True)
-    return T.reshape(S * vr, S * vr)
+    T = np.einsum("ab,tbsc,scd->tasd", restrict, F.reshape(S, vd, S, vd), lifts, optimize=True).reshape(S * vr, -1)
+    if scaled:
+        return T
+    w = loop.vech_weights()
+    return T * w[:, None] / w[None, :]
 
 
 def spectral_radius(loop: SampledLoop, h: float, rates: Matrix) -> float:
     """:math:`\\rho(T)` at period ``h`` and ``rates`` (float64 eigenvalues)."""
-    return float(np.max(np.abs(scipy.linalg.eigvals(one_period_map(loop, h, rates), check_finite=False))))
+    T = one_period_map(loop, h, rates, scaled=True)
+    return float(np.max(np.abs(scipy.linalg.eigvals(T, check_finite=False))))
 
 
 def rate_points(chain: JointChain, limit: int = 16) -> tuple[Matrix, ...]:
@@ -356,14 +402,9 @@ class SampledResult:
 
 def scan_range(loop: SampledLoop, period: float | None = None) -> tuple[float, float]:
     """Periods scanned for ``h_max``: from ``1e-3 / c`` to ``20 / c`` with ``c`` the
-    largest closed-loop rate (``||A_i + B_i D_{c,e} M_i||_2``, the controller's and the
-    chain's), widened to contain ``period``."""
-    n, nu = loop.n, loop.nu
-    rates = [float(np.linalg.norm(A[:n, :n] + A[:n, n:n + nu] @ loop.controller.Dc[e] @ M, 2))
-             for A, M, e in zip(loop.flow, loop.measurement, loop.entry)]
-    rates += [float(np.linalg.norm(a, 2)) for a in loop.controller.Ac if a.size]
-    rates.append(float(np.max(np.abs(loop.chain.generator(loop.chain.rate_max)))))
-    c = max(*rates, 1e-9)
+    largest closed-loop rate (:attr:`SampledLoop.speed`: the 2-norms of the continuous
+    loop's matrices and the largest generator entry), widened to contain ``period``."""
+    c = loop.speed
     lo, hi = 1e-3 / c, 20.0 / c
     if period is not None:
         lo, hi = min(lo, period / 2), max(hi, period * 2)

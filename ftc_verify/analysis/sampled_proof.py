@@ -175,13 +175,15 @@ def _ball_resets(loop: SampledLoop, h: float) -> list[Ball]:
                     R[n + nu + i, j] = GM[i, j]
                 for j in range(nc):
                     R[n + nu + i, n + j] = Phi[i, j]
-        out.append(Ball(R))
+        # the balanced coordinates: powers of two, exact
+        out.append(ball(np.diag(1.0 / loop.scale)) @ Ball(R) @ ball(np.diag(loop.scale_r)))
     return out
 
 
 def ball_one_period_map(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix) -> Ball:
     """A ball matrix containing :math:`T` (:mod:`ftc_verify.analysis.sampled`) at period
-    ``h`` for every rate array in ``[lo, hi]``."""
+    ``h`` for every rate array in ``[lo, hi]``, in the balanced coordinates of
+    :attr:`SampledLoop.scale` (``one_period_map(..., scaled=True)``; same spectrum)."""
     flint = _flint()
     Q = ball_generator(loop.chain, lo, hi).value
     Dd, Ld = duplication_matrix(loop.d)
@@ -265,7 +267,7 @@ def prove_point_unstable(loop: SampledLoop, h: float, rates: Matrix) -> bool:
     """``True`` only if the sampled loop at period ``h`` is proved not mean-square stable
     at the rate array ``rates`` (of the box)."""
     rates = np.asarray(rates, dtype=float)
-    T_mid = one_period_map(loop, h, rates)
+    T_mid = one_period_map(loop, h, rates, scaled=True)
     with precision(PRECISION_BITS):
         T = ball_one_period_map(loop, h, rates, rates)
         return prove_unstable(T, T_mid, loop.states, loop.r)
@@ -317,7 +319,7 @@ def box_verdict(loop: SampledLoop, h: float, *, max_boxes: int = 64) -> BoxVerdi
                               f"[{text(lo)}] .. [{text(hi)}]", done, (lo, hi))
         done += 1
         mid = 0.5 * (lo + hi)
-        T_mid = one_period_map(loop, h, mid)
+        T_mid = one_period_map(loop, h, mid, scaled=True)
         proved = False
         for bits in (64, PRECISION_BITS) if np.array_equal(lo, hi) else (64,):
             with precision(bits):
