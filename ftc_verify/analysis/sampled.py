@@ -310,7 +310,7 @@ def stability_intervals(loop: SampledLoop, hs: Matrix, rho: Matrix, rtol: float 
 
 
 def h_max_bracket(loop: SampledLoop, stable_h: float, unstable_h: float, *, rtol: float = H_MAX_RTOL,
-                  max_boxes: int = 64) -> tuple[float | None, float | None, str]:
+                  max_boxes: int = 32, max_seconds: float = 10.0) -> tuple[float | None, float | None, str]:
     """``(h_max, h_max_unstable, note)``: a period proved stable over the rate box and a
     larger one proved unstable at some rate point, within ``rtol`` relative, starting
     from a float64 bracket ``stable_h < unstable_h``; ``None`` where no proof was found."""
@@ -322,17 +322,19 @@ def h_max_bracket(loop: SampledLoop, stable_h: float, unstable_h: float, *, rtol
     while worst_radius(loop, b, pts)[0] < 1.0 and b < unstable_h:  # pragma: no cover - float ties
         b = min(unstable_h, b * (1 + rtol / 16))
     proved_a = proved_b = None
-    for f in (0.25, 0.375, 0.5):  # a margin below the crossing makes the box proof cheap
+    for f in (0.25, 0.75):  # a margin below the crossing makes the box proof cheaper
         ha = a * (1 - f * rtol)
-        if box_verdict(loop, ha, max_boxes=max_boxes).verdict == "stable":
+        if box_verdict(loop, ha, max_boxes=max_boxes, max_seconds=max_seconds).verdict == "stable":
             proved_a = ha
             break
-    for f in (0.125, 0.25, 0.375):
+    for f in (0.0, 0.0625, 0.125):  # with a's margins, the gap stays below rtol
         hb = b * (1 + f * rtol)
         rho, where = worst_radius(loop, hb, pts)
         if rho > 1.0 and prove_point_unstable(loop, hb, where):
             proved_b = hb
             break
+    if proved_a is not None and proved_b is not None and proved_b - proved_a > rtol * proved_b:
+        return None, None, f"the proved periods {proved_a:.6g} and {proved_b:.6g} are further apart than {rtol:g}"
     if proved_a is None or proved_b is None:
         missing = " and ".join(w for w, v in (("stability", proved_a), ("instability", proved_b)) if v is None)
         return proved_a, proved_b, f"{missing} near the float64 crossing {a:.6g} not proved"
@@ -440,6 +442,6 @@ def sampled_analysis(system: FTCSystem, controller: Controller, period: float, *
             note = f"stable at every scanned period up to {hs[-1]:.6g} (float64 scan); no h_max below it"
         else:
             k = int(np.searchsorted(hs, intervals[0][1], side="right"))
-            hm, hu, note = h_max_bracket(loop, float(hs[k - 1]), float(hs[k]), max_boxes=max_boxes)
+            hm, hu, note = h_max_bracket(loop, float(hs[k - 1]), float(hs[k]))
     return SampledResult(period, verdict.verdict, rho, where, verdict.detail, verdict.boxes, hm, hu, note,
                          intervals, (lo, hi), time.perf_counter() - t0)

@@ -32,13 +32,18 @@ midpoint first; if some point has :math:`\rho \ge 1`, instability is proved ther
 Otherwise the stable proof is tried on the whole box, and a sub-box where it fails is
 halved along its widest rate (relative to the box), breadth first, until every
 sub-box is proved -- or a sub-box's midpoint is proved unstable, or the budget of
-sub-boxes runs out: then the verdict is ``undecided`` and names the sub-box. A set of
+sub-boxes (or seconds) runs out: then the verdict is ``undecided`` and names the
+sub-box. On each sub-box the direct ball of :math:`T` is tried first, then a
+first-order expansion at its midpoint whose remainder is quadratic in the width
+(:func:`_first_order_stable`). A set of
 vertices is never called proved.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import itertools
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -51,7 +56,7 @@ from .rigorous import PRECISION_BITS, Ball, ball, precision, proven_positive_def
 from .sampled import SampledLoop, one_period_map, rate_points, spectral_radius, worst_radius
 from .stability import duplication_matrix, vech_order
 
-__all__ = ["BoxVerdict", "ball_generator", "ball_one_period_map", "prove_stable", "prove_unstable",
+__all__ = ["BoxVerdict", "generator_coefficients", "ball_generator", "ball_one_period_map", "prove_stable", "prove_unstable",
            "prove_point_unstable", "box_verdict"]
 
 
@@ -61,16 +66,15 @@ def _flint() -> Any:
     return flint
 
 
-def ball_generator(chain: JointChain, lo: Matrix, hi: Matrix) -> Ball:
-    """The joint generator as a ball matrix containing :math:`Q(r)` for every rate array
-    ``r`` with ``lo <= r <= hi``.
+def generator_coefficients(chain: JointChain) -> tuple[Matrix, tuple[tuple[tuple[int, ...], Matrix], ...]]:
+    """``(base, ((idx, coef), ...))``: :math:`Q(r) = base + \\sum_{idx} r_{idx}\\, coef_{idx}`
+    exactly (:mod:`ftc_verify.model.chain`: the generator is affine in every rate).
 
-    :math:`Q` is affine in the rates (:mod:`ftc_verify.model.chain`): its off-diagonal
-    entries are those of :meth:`JointChain.generator` at rate 0 plus an integer
-    coefficient (the number of phases, or 1) times one rate. The coefficients are read
-    from the generator of the same chain on the box ``[0, 1]`` (at 0 and at each unit
-    rate: exact differences of integers); the diagonal is minus the ball row sum."""
-    flint = _flint()
+    The coefficients are read from the generator of the same chain on the box ``[0, 1]``
+    (at 0 and at each unit rate): their off-diagonal entries are integers (the number of
+    phases, or 1), the diagonal minus their row sums -- exact in floating point. ``base``
+    holds the off-diagonal entries at rate 0 (the fault rates ``alpha`` as written) and
+    a zero diagonal (a ball row sum is formed where it is used)."""
     m = chain.m
     ones, zeros = np.ones((m, m)), np.zeros((m, m))
     fa = (zeros, ones) if chain.has_false_alarms else (None, None)
@@ -78,16 +82,31 @@ def ball_generator(chain: JointChain, lo: Matrix, hi: Matrix) -> Ball:
     base = wide.generator(np.zeros(chain.rate_shape))
     S = chain.n_states
     off = ~np.eye(S, dtype=bool)
-    Q = [[flint.arb(float(base[s, t])) if off[s, t] else flint.arb(0) for t in range(S)] for s in range(S)]
+    coefs = []
     for idx in chain.rate_indices:
         e = np.zeros(chain.rate_shape)
         e[idx] = 1.0
-        coef = wide.generator(e) - base
-        if not np.array_equal(coef[off], np.round(coef[off])):  # pragma: no cover - structure of chain.py
+        coef = np.where(off, wide.generator(e) - base, 0.0)
+        if not np.array_equal(coef, np.round(coef)):  # pragma: no cover - structure of chain.py
             raise AssertionError("generator coefficients are not integers")
+        coef[np.diag_indices(S)] = -coef.sum(axis=1)
+        coefs.append((idx, coef))
+    return np.where(off, base, 0.0), tuple(coefs)
+
+
+def ball_generator(chain: JointChain, lo: Matrix, hi: Matrix) -> Ball:
+    """The joint generator as a ball matrix containing :math:`Q(r)` for every rate array
+    ``r`` with ``lo <= r <= hi`` (:func:`generator_coefficients`; the diagonal is minus
+    the ball row sum, so every row sums to an enclosure of zero)."""
+    flint = _flint()
+    base, coefs = generator_coefficients(chain)
+    S = chain.n_states
+    Q = [[flint.arb(float(base[s, t])) for t in range(S)] for s in range(S)]
+    for idx, coef in coefs:
         rate = flint.arb(float(lo[idx])).union(flint.arb(float(hi[idx])))
-        for s, t in zip(*np.nonzero(coef * off)):
-            Q[s][t] += int(coef[s, t]) * rate
+        for s, t in zip(*np.nonzero(coef)):
+            if s != t:
+                Q[s][t] += int(coef[s, t]) * rate
     out = flint.arb_mat(S, S)
     for s in range(S):
         total = flint.arb(0)
@@ -180,30 +199,82 @@ def _ball_resets(loop: SampledLoop, h: float) -> list[Ball]:
     return out
 
 
+@dataclass(frozen=True, eq=False)
+class _MapParts:
+    """The rate-independent balls of :math:`T` at one period: the block diagonal of
+    :math:`\\mathcal L`, :math:`\\mathcal P`, :math:`\\mathcal R`, the period."""
+
+    modes: Any
+    res: Any
+    lift: Any
+    h: Any
+    vd: int
+    states: int
+
+    @classmethod
+    def build(cls, loop: SampledLoop, h: float) -> _MapParts:
+        flint = _flint()
+        Dd, Ld = duplication_matrix(loop.d)
+        Dr, Lr = duplication_matrix(loop.r)
+        eye = np.eye(loop.d)
+        blocks = [ball(Ld) @ (ball(_float(np.kron(eye, A))) + ball(_float(np.kron(A, eye)))) @ ball(Dd)
+                  for A in loop.flow]
+        P = loop.restriction()
+        restrict = ball(np.asarray(Lr @ np.kron(P, P) @ Dd, dtype=float))  # 0/1 products of 0/1 matrices: exact
+        lift = _block_diag([ball(Ld) @ _kron(R, R) @ ball(Dr) for R in _ball_resets(loop, h)])
+        return cls(_block_diag(blocks).value, _block_diag([restrict] * loop.states).value, lift.value,
+                   flint.arb(float(h)), Dd.shape[1], loop.states)
+
+    def generator(self, Q: Any) -> Any:
+        """:math:`\\mathcal L = ` blocks :math:`+ Q^T \\otimes I` for a ball generator ``Q``."""
+        G = _flint().arb_mat(self.modes)
+        vd = self.vd
+        for s in range(self.states):
+            for t in range(self.states):
+                q = Q[t, s]
+                for k in range(vd):
+                    G[s * vd + k, t * vd + k] += q
+        return G
+
+    def map(self, Q: Any) -> Any:
+        """:math:`T = \\mathcal P e^{\\mathcal L h} \\mathcal R` (ball)."""
+        return self.res * (self.generator(Q) * self.h).exp() * self.lift
+
+    def derivative(self, Q: Any, coef: Matrix) -> Any:
+        """:math:`\\partial T / \\partial r` along a rate whose generator coefficient is
+        ``coef`` (:math:`\\partial Q / \\partial r`): the top-right block of
+        :math:`\\exp\\bigl(\\bigl[\\begin{smallmatrix} \\mathcal L & E \\\\ 0 & \\mathcal L
+        \\end{smallmatrix}\\bigr] h\\bigr)` with :math:`E = coef^T \\otimes I` (Van Loan:
+        the Frechet derivative of the exponential), between :math:`\\mathcal P` and
+        :math:`\\mathcal R`."""
+        flint = _flint()
+        G = self.generator(Q)
+        N, vd = G.nrows(), self.vd
+        V = flint.arb_mat(2 * N, 2 * N)
+        for i in range(N):
+            for j in range(N):
+                g = G[i, j]
+                V[i, j] = g
+                V[N + i, N + j] = g
+        for s in range(self.states):
+            for t in range(self.states):
+                c = float(coef[t, s])
+                if c:
+                    for k in range(vd):
+                        V[s * vd + k, N + t * vd + k] = c
+        E = (V * self.h).exp()
+        D = flint.arb_mat(N, N)
+        for i in range(N):
+            for j in range(N):
+                D[i, j] = E[i, N + j]
+        return self.res * D * self.lift
+
+
 def ball_one_period_map(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix) -> Ball:
     """A ball matrix containing :math:`T` (:mod:`ftc_verify.analysis.sampled`) at period
     ``h`` for every rate array in ``[lo, hi]``, in the balanced coordinates of
     :attr:`SampledLoop.scale` (``one_period_map(..., scaled=True)``; same spectrum)."""
-    flint = _flint()
-    Q = ball_generator(loop.chain, lo, hi).value
-    Dd, Ld = duplication_matrix(loop.d)
-    Dr, Lr = duplication_matrix(loop.r)
-    vd, S = Dd.shape[1], loop.states
-    eye = np.eye(loop.d)
-    blocks = [ball(Ld) @ (ball(_float(np.kron(eye, A))) + ball(_float(np.kron(A, eye)))) @ ball(Dd)
-              for A in loop.flow]
-    G = _block_diag(blocks).value
-    for s in range(S):
-        for t in range(S):
-            q = Q[t, s]
-            for k in range(vd):
-                G[s * vd + k, t * vd + k] += q
-    F = (G * flint.arb(float(h))).exp()
-    P = loop.restriction()
-    restrict = ball(np.asarray(Lr @ np.kron(P, P) @ Dd, dtype=float))  # 0/1 products of 0/1 matrices: exact
-    lift = _block_diag([ball(Ld) @ _kron(R, R) @ ball(Dr) for R in _ball_resets(loop, h)])
-    res = _block_diag([restrict] * S)
-    return Ball(res.value * F * lift.value)
+    return Ball(_MapParts.build(loop, h).map(ball_generator(loop.chain, lo, hi).value))
 
 
 def _unvech_ball(col: Any, start: int, r: int) -> Ball:
@@ -241,6 +312,59 @@ def prove_stable(T: Ball, T_mid: Matrix, states: int, r: int) -> bool:
     if not _stack_pd(Y.value, states, r):
         return False
     return _stack_pd((Y - T @ Y).value, states, r)
+
+
+def _first_order_stable(loop: SampledLoop, parts: _MapParts, lo: Matrix, hi: Matrix, T_mid: Matrix) -> bool:
+    """The stable proof on a sub-box by a first-order expansion at its midpoint
+    :math:`r_0` (derived here): for every :math:`r` of the sub-box, with
+    :math:`\\delta = r - r_0` and :math:`J_a = \\partial T / \\partial r_a`,
+
+    .. math::
+
+        T(r) = T(r_0) + \\sum_a \\delta_a J_a(r_0) + \\sum_a \\delta_a
+        \\int_0^1 \\bigl(J_a(r_0 + t\\delta) - J_a(r_0)\\bigr) dt,
+
+    and the last sum lies in the ball :math:`\\mathbf E = \\sum_a [\\delta_a]
+    (\\mathbf J_a - J_a(r_0))` with :math:`\\mathbf J_a` the derivative's ball over
+    the sub-box -- a remainder quadratic in the sub-box's width, where the direct ball
+    of :math:`T` over the sub-box is only linear. :math:`Y - T(r)Y` is affine in
+    :math:`\\delta` up to :math:`\\mathbf E Y`; if it is proved positive definite at
+    every vertex of the :math:`\\delta` box for every element of :math:`\\mathbf E Y`,
+    it is at every :math:`r` (a convex combination of those matrices)."""
+    flint = _flint()
+    N = T_mid.shape[0]
+    try:
+        y = np.linalg.solve(np.eye(N) - T_mid, _identity_stack(loop.states, loop.r))
+    except np.linalg.LinAlgError:
+        return False
+    if not np.all(np.isfinite(y)):
+        return False
+    Yf = np.asarray(y[:, None], dtype=float)
+    if not _stack_pd(ball(Yf).value, loop.states, loop.r):
+        return False
+    mid = 0.5 * (lo + hi)
+    Q0 = ball_generator(loop.chain, mid, mid).value
+    Qb = ball_generator(loop.chain, lo, hi).value
+    Y = ball(Yf).value
+    base = Y - parts.map(Q0) * Y
+    rem = flint.arb_mat(N, 1)
+    linear = []
+    for idx, coef in generator_coefficients(loop.chain)[1]:
+        if hi[idx] <= lo[idx]:
+            continue
+        J0Y = parts.derivative(Q0, coef) * Y
+        JbY = parts.derivative(Qb, coef) * Y
+        ends = (flint.arb(float(lo[idx])) - flint.arb(float(mid[idx])),
+                flint.arb(float(hi[idx])) - flint.arb(float(mid[idx])))
+        rem += ends[0].union(ends[1]) * (JbY - J0Y)
+        linear.append((ends, J0Y))
+    for corner in itertools.product((0, 1), repeat=len(linear)):
+        vec = base - rem
+        for k, (ends, J0Y) in zip(corner, linear):
+            vec -= ends[k] * J0Y
+        if not _stack_pd(vec, loop.states, loop.r):
+            return False
+    return True
 
 
 def prove_unstable(T: Ball, T_mid: Matrix, states: int, r: int) -> bool:
@@ -298,9 +422,10 @@ def _widest(chain: JointChain, lo: Matrix, hi: Matrix) -> tuple[int, ...] | None
     return where
 
 
-def box_verdict(loop: SampledLoop, h: float, *, max_boxes: int = 64) -> BoxVerdict:
+def box_verdict(loop: SampledLoop, h: float, *, max_boxes: int = 64, max_seconds: float = 20.0) -> BoxVerdict:
     """Mean-square stability of the sampled loop at period ``h`` over the whole rate box
-    (module docstring)."""
+    (module docstring); at most ``max_boxes`` sub-boxes and about ``max_seconds`` seconds
+    before the verdict is ``undecided``."""
     chain = loop.chain
     rho, where = worst_radius(loop, h, rate_points(chain))
     text = chain.rate_text
@@ -311,21 +436,25 @@ def box_verdict(loop: SampledLoop, h: float, *, max_boxes: int = 64) -> BoxVerdi
         return BoxVerdict("undecided", f"float64 spectral radius {rho:.6g} >= 1 at {text(where)}, but "
                           "instability not proved there", 1, where)
     queue = [(np.array(chain.rate_min, dtype=float), np.array(chain.rate_max, dtype=float))]
-    done = 0
+    done, t0 = 0, time.perf_counter()
+    with precision(64):
+        parts = _MapParts.build(loop, h)
     while queue:
         lo, hi = queue.pop(0)
-        if done >= max_boxes:
-            return BoxVerdict("undecided", f"budget of {max_boxes} sub-boxes spent; not proved on "
-                              f"[{text(lo)}] .. [{text(hi)}]", done, (lo, hi))
+        if done >= max_boxes or time.perf_counter() - t0 > max_seconds:
+            return BoxVerdict("undecided", f"budget ({max_boxes} sub-boxes, {max_seconds:g} s) spent after {done} "
+                              f"sub-boxes; not proved on [{text(lo)}] .. [{text(hi)}]", done, (lo, hi))
         done += 1
         mid = 0.5 * (lo + hi)
         T_mid = one_period_map(loop, h, mid, scaled=True)
-        proved = False
-        for bits in (64, PRECISION_BITS) if np.array_equal(lo, hi) else (64,):
-            with precision(bits):
-                if prove_stable(ball_one_period_map(loop, h, lo, hi), T_mid, loop.states, loop.r):
-                    proved = True
-                    break
+        with precision(64):
+            T = Ball(parts.map(ball_generator(chain, lo, hi).value))
+            proved = prove_stable(T, T_mid, loop.states, loop.r)
+            if not proved and not np.array_equal(lo, hi):
+                proved = _first_order_stable(loop, parts, lo, hi, T_mid)
+        if not proved and np.array_equal(lo, hi):
+            with precision(PRECISION_BITS):
+                proved = prove_stable(ball_one_period_map(loop, h, lo, hi), T_mid, loop.states, loop.r)
         if proved:
             continue
         if spectral_radius(loop, h, mid) >= 1.0:
