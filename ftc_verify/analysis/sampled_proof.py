@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -56,7 +57,7 @@ from .rigorous import PRECISION_BITS, Ball, ball, precision, proven_positive_def
 from .sampled import SampledLoop, one_period_map, rate_points, spectral_radius, worst_radius
 from .stability import duplication_matrix, vech_order
 
-__all__ = ["BoxVerdict", "generator_coefficients", "ball_generator", "ball_one_period_map", "prove_stable", "prove_unstable",
+__all__ = ["FIRST_ORDER_LIMIT", "BoxVerdict", "generator_coefficients", "ball_generator", "ball_one_period_map", "prove_stable", "prove_unstable",
            "prove_point_unstable", "box_verdict"]
 
 
@@ -314,7 +315,13 @@ def prove_stable(T: Ball, T_mid: Matrix, states: int, r: int) -> bool:
     return _stack_pd((Y - T @ Y).value, states, r)
 
 
-def _first_order_stable(loop: SampledLoop, parts: _MapParts, lo: Matrix, hi: Matrix, T_mid: Matrix) -> bool:
+#: Largest Van Loan block (rows, twice the moment generator's) the first-order form
+#: exponentiates in ball arithmetic; above it only the direct ball is tried (cost).
+FIRST_ORDER_LIMIT = 256
+
+
+def _first_order_stable(loop: SampledLoop, parts: _MapParts, lo: Matrix, hi: Matrix, T_mid: Matrix,
+                        deadline: float = math.inf) -> bool:
     """The stable proof on a sub-box by a first-order expansion at its midpoint
     :math:`r_0` (derived here): for every :math:`r` of the sub-box, with
     :math:`\\delta = r - r_0` and :math:`J_a = \\partial T / \\partial r_a`,
@@ -330,8 +337,12 @@ def _first_order_stable(loop: SampledLoop, parts: _MapParts, lo: Matrix, hi: Mat
     of :math:`T` over the sub-box is only linear. :math:`Y - T(r)Y` is affine in
     :math:`\\delta` up to :math:`\\mathbf E Y`; if it is proved positive definite at
     every vertex of the :math:`\\delta` box for every element of :math:`\\mathbf E Y`,
-    it is at every :math:`r` (a convex combination of those matrices)."""
+    it is at every :math:`r` (a convex combination of those matrices). ``False`` also when
+    the Van Loan block exceeds :data:`FIRST_ORDER_LIMIT` or ``deadline``
+    (``time.perf_counter()``) passes."""
     flint = _flint()
+    if 2 * parts.modes.nrows() > FIRST_ORDER_LIMIT:
+        return False
     N = T_mid.shape[0]
     try:
         y = np.linalg.solve(np.eye(N) - T_mid, _identity_stack(loop.states, loop.r))
@@ -352,6 +363,8 @@ def _first_order_stable(loop: SampledLoop, parts: _MapParts, lo: Matrix, hi: Mat
     for idx, coef in generator_coefficients(loop.chain)[1]:
         if hi[idx] <= lo[idx]:
             continue
+        if time.perf_counter() > deadline:
+            return False
         J0Y = parts.derivative(Q0, coef) * Y
         JbY = parts.derivative(Qb, coef) * Y
         ends = (flint.arb(float(lo[idx])) - flint.arb(float(mid[idx])),
@@ -451,7 +464,7 @@ def box_verdict(loop: SampledLoop, h: float, *, max_boxes: int = 64, max_seconds
             T = Ball(parts.map(ball_generator(chain, lo, hi).value))
             proved = prove_stable(T, T_mid, loop.states, loop.r)
             if not proved and not np.array_equal(lo, hi):
-                proved = _first_order_stable(loop, parts, lo, hi, T_mid)
+                proved = _first_order_stable(loop, parts, lo, hi, T_mid, t0 + max_seconds)
         if not proved and np.array_equal(lo, hi):
             with precision(PRECISION_BITS):
                 proved = prove_stable(ball_one_period_map(loop, h, lo, hi), T_mid, loop.states, loop.r)
