@@ -310,10 +310,16 @@ def stability_intervals(loop: SampledLoop, hs: Matrix, rho: Matrix, rtol: float 
 
 
 def h_max_bracket(loop: SampledLoop, stable_h: float, unstable_h: float, *, rtol: float = H_MAX_RTOL,
-                  max_boxes: int = 32, max_seconds: float = 10.0) -> tuple[float | None, float | None, str]:
-    """``(h_max, h_max_unstable, note)``: a period proved stable over the rate box and a
-    larger one proved unstable at some rate point, within ``rtol`` relative, starting
-    from a float64 bracket ``stable_h < unstable_h``; ``None`` where no proof was found."""
+                  max_boxes: int = 16, max_seconds: float = 5.0) -> tuple[float | None, float | None, str]:
+    """``(h_max, h_max_unstable, note)`` from a float64 bracket ``stable_h < unstable_h``
+    of the crossing: a period proved mean-square stable over the whole rate box and a
+    larger one proved unstable at some rate point.
+
+    The crossing is bisected in float64 to ``rtol / 16``; stability is then tried at
+    ``(1 - f) a`` for ``f`` in ``rtol / 4, 3 rtol / 4`` (the bracket within ``rtol``),
+    then, if those proofs run out of their budget (``max_boxes`` sub-boxes,
+    ``max_seconds`` each), further below (``f`` up to 10 %), and the note says the
+    bracket is wider than ``rtol``. ``None`` where no proof was found."""
     from .sampled_proof import box_verdict, prove_point_unstable
 
     pts = rate_points(loop.chain)
@@ -321,25 +327,29 @@ def h_max_bracket(loop: SampledLoop, stable_h: float, unstable_h: float, *, rtol
     b = a * (1 + rtol / 16)
     while worst_radius(loop, b, pts)[0] < 1.0 and b < unstable_h:  # pragma: no cover - float ties
         b = min(unstable_h, b * (1 + rtol / 16))
-    proved_a = proved_b = None
-    for f in (0.25, 0.75):  # a margin below the crossing makes the box proof cheaper
-        ha = a * (1 - f * rtol)
-        if box_verdict(loop, ha, max_boxes=max_boxes, max_seconds=max_seconds).verdict == "stable":
-            proved_a = ha
-            break
-    for f in (0.0, 0.0625, 0.125):  # with a's margins, the gap stays below rtol
+    proved_b = None
+    for f in (0.0, 0.0625, 0.125):  # with a's first margins, the gap stays below rtol
         hb = b * (1 + f * rtol)
         rho, where = worst_radius(loop, hb, pts)
         if rho > 1.0 and prove_point_unstable(loop, hb, where):
             proved_b = hb
             break
-    if proved_a is not None and proved_b is not None and proved_b - proved_a > rtol * proved_b:
-        return None, None, f"the proved periods {proved_a:.6g} and {proved_b:.6g} are further apart than {rtol:g}"
+    proved_a = None
+    for f in (0.25 * rtol, 0.75 * rtol, 1e-2, 0.1):
+        ha = a * (1 - f)
+        if box_verdict(loop, ha, max_boxes=max_boxes, max_seconds=max_seconds).verdict == "stable":
+            proved_a = ha
+            break
     if proved_a is None or proved_b is None:
         missing = " and ".join(w for w, v in (("stability", proved_a), ("instability", proved_b)) if v is None)
         return proved_a, proved_b, f"{missing} near the float64 crossing {a:.6g} not proved"
+    gap = (proved_b - proved_a) / proved_b
+    if gap > rtol:
+        return proved_a, proved_b, (f"proved stable over the rate box at {proved_a:.6g}, unstable at a rate point at "
+                                    f"{proved_b:.6g}: the bracket ({gap:.1e} relative) is WIDER than {rtol:g} "
+                                    f"(the sub-box budget ran out nearer the float64 crossing {a:.6g})")
     return proved_a, proved_b, (f"proved stable over the rate box at {proved_a:.6g}, proved unstable at a rate "
-                                f"point at {proved_b:.6g} (relative gap {(proved_b - proved_a) / proved_b:.1e})")
+                                f"point at {proved_b:.6g} (relative gap {gap:.1e})")
 
 
 @dataclass(frozen=True, eq=False)

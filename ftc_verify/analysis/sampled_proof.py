@@ -27,13 +27,30 @@ the loop is not mean-square stable at that rate. :math:`X` is the float Perron
 eigenvector of :math:`T_{mid}` (a positive semidefinite stack), shifted by a small
 multiple of :math:`I` when singular.
 
+**Upper envelope** (derived here). Split :math:`\\mathcal L(r) = \\mathcal D(r) +
+\\mathcal O(r)`: :math:`\\mathcal D` acts on each joint state alone,
+:math:`X_s \\mapsto \\bar A X_s + X_s \\bar A^T + Q_{ss} X_s`, and :math:`\\mathcal O`
+moves mass between states, :math:`X \\mapsto (\\sum_{s' \\ne s} Q_{s's} X_{s'})_s`.
+:math:`e^{\\mathcal D t}` and :math:`\\mathcal O` are positive (they map positive
+semidefinite stacks to positive semidefinite stacks), so every term of the Dyson
+series of :math:`e^{(\\mathcal D + \\mathcal O) h}` is a product of positive maps, each
+monotone in the rates: :math:`e^{\\mathcal D(r) t}` decreases (the diagonal
+:math:`Q_{ss}` falls as the rates grow), :math:`\\mathcal O(r)` increases. Products of
+positive maps are monotone, hence for every :math:`r` in :math:`[lo, hi]`,
+:math:`T(r) \\preceq T_{up} = \\mathcal P e^{(\\mathcal D(lo) + \\mathcal O(hi)) h}
+\\mathcal R` in the order of positive maps, and :math:`Y - T(r)(Y) \\succeq Y -
+T_{up}(Y)` for :math:`Y \\succeq 0`: one point computation, without the wrapping of
+a ball over the box (:func:`envelope_generator`). Its price is the mass it creates,
+about :math:`h` times the widths of the rates.
+
 **Over the box** (:func:`box_verdict`): the float64 radius at the vertices and the
 midpoint first; if some point has :math:`\rho \ge 1`, instability is proved there.
 Otherwise the stable proof is tried on the whole box, and a sub-box where it fails is
 halved along its widest rate (relative to the box), breadth first, until every
 sub-box is proved -- or a sub-box's midpoint is proved unstable, or the budget of
 sub-boxes (or seconds) runs out: then the verdict is ``undecided`` and names the
-sub-box. On each sub-box the direct ball of :math:`T` is tried first, then a
+sub-box. On each sub-box the upper envelope is tried first, then the direct ball of
+:math:`T`, then a
 first-order expansion at its midpoint whose remainder is quadratic in the width
 (:func:`_first_order_stable`). A set of
 vertices is never called proved.
@@ -53,11 +70,11 @@ import numpy as np
 
 from ..model.chain import JointChain
 from ..model.system import Matrix
-from .rigorous import PRECISION_BITS, Ball, ball, precision, proven_positive_definite
+from .rigorous import PRECISION_BITS, Ball, ball, midpoint, precision, proven_positive_definite
 from .sampled import SampledLoop, one_period_map, rate_points, spectral_radius, worst_radius
 from .stability import duplication_matrix, vech_order
 
-__all__ = ["FIRST_ORDER_LIMIT", "BoxVerdict", "generator_coefficients", "ball_generator", "ball_one_period_map", "prove_stable", "prove_unstable",
+__all__ = ["FIRST_ORDER_LIMIT", "BoxVerdict", "generator_coefficients", "ball_generator", "envelope_generator", "ball_one_period_map", "prove_stable", "prove_unstable",
            "prove_point_unstable", "box_verdict"]
 
 
@@ -117,6 +134,39 @@ def ball_generator(chain: JointChain, lo: Matrix, hi: Matrix) -> Ball:
                 total += Q[s][t]
         out[s, s] = -total
     return Ball(out)
+
+
+def envelope_generator(chain: JointChain, lo: Matrix, hi: Matrix) -> Ball:
+    """The upper envelope of the generator over ``[lo, hi]``: off-diagonal entries at
+    the rates ``hi``, the diagonal minus the row sums at ``lo`` (a ball matrix; rows sum
+    to at least 0). Used by :func:`_envelope_stable` (module docstring)."""
+    flint = _flint()
+    base, coefs = generator_coefficients(chain)
+    S = chain.n_states
+    upper = [[flint.arb(float(base[s, t])) for t in range(S)] for s in range(S)]
+    lower = [[flint.arb(float(base[s, t])) for t in range(S)] for s in range(S)]
+    for idx, coef in coefs:
+        for s, t in zip(*np.nonzero(coef)):
+            if s != t:
+                upper[s][t] += int(coef[s, t]) * flint.arb(float(hi[idx]))
+                lower[s][t] += int(coef[s, t]) * flint.arb(float(lo[idx]))
+    out = flint.arb_mat(S, S)
+    for s in range(S):
+        total = flint.arb(0)
+        for t in range(S):
+            if t != s:
+                out[s, t] = upper[s][t]
+                total += lower[s][t]
+        out[s, s] = -total
+    return Ball(out)
+
+
+def _envelope_stable(loop: SampledLoop, parts: _MapParts, lo: Matrix, hi: Matrix) -> bool:
+    """The stable proof on a sub-box by the upper envelope (module docstring):
+    :math:`T(r) \\preceq T_{up}` for every rate of the sub-box, so :math:`Y \\succ 0`,
+    :math:`Y - T_{up}(Y) \\succ 0` proves :math:`\\rho(T(r)) < 1` for all of them."""
+    T_up = Ball(parts.map(envelope_generator(loop.chain, lo, hi).value))
+    return prove_stable(T_up, midpoint(T_up), loop.states, loop.r)
 
 
 def _float(a: Any) -> Matrix:
@@ -461,8 +511,10 @@ def box_verdict(loop: SampledLoop, h: float, *, max_boxes: int = 64, max_seconds
         mid = 0.5 * (lo + hi)
         T_mid = one_period_map(loop, h, mid, scaled=True)
         with precision(64):
-            T = Ball(parts.map(ball_generator(chain, lo, hi).value))
-            proved = prove_stable(T, T_mid, loop.states, loop.r)
+            proved = _envelope_stable(loop, parts, lo, hi)
+            if not proved:
+                T = Ball(parts.map(ball_generator(chain, lo, hi).value))
+                proved = prove_stable(T, T_mid, loop.states, loop.r)
             if not proved and not np.array_equal(lo, hi):
                 proved = _first_order_stable(loop, parts, lo, hi, T_mid, t0 + max_seconds)
         if not proved and np.array_equal(lo, hi):
