@@ -14,7 +14,7 @@ import pytest
 import scipy.linalg
 
 from ftc_verify.analysis.closedloop import closed_loop
-from ftc_verify.analysis.rigorous import midpoint
+from ftc_verify.analysis.rigorous import Ball, midpoint
 from ftc_verify.analysis.sampled import (SampledLoop, h_max_bracket, one_period_map, sampled_analysis,
                                          spectral_radius)
 from ftc_verify.analysis.sampled_proof import ball_one_period_map, box_verdict, prove_point_unstable
@@ -343,3 +343,57 @@ def test_first_order_form_proves_where_the_direct_ball_cannot(paper: tuple[FTCSy
         assert _first_order_stable(loop, parts, chain.rate_min, chain.rate_max, T_mid)
     v = box_verdict(loop, 0.2)
     assert v.verdict == "stable" and v.boxes == 1
+
+
+def test_upper_envelope_dominates_every_rate_of_the_box(paper: tuple[FTCSystem, Controller]) -> None:
+    """T_up - T(r) is a positive map for random rates r of the box (Erlang-2 delays and
+    false alarms): applied to random positive semidefinite stacks it gives positive
+    semidefinite stacks (float64, to rounding)."""
+    from ftc_verify.analysis.rigorous import midpoint, precision
+    from ftc_verify.analysis.sampled_proof import _MapParts, envelope_generator
+
+    system = _erlang_false_alarm(paper[0])
+    loop, chain = SampledLoop.build(system, paper[1]), system.chain
+    h = 0.05
+    with precision(64):
+        T_up = midpoint(Ball(_MapParts.build(loop, h).map(envelope_generator(chain, chain.rate_min,
+                                                                             chain.rate_max).value)))
+    rng = np.random.default_rng(5)
+    rows, cols = np.tril_indices(loop.r)
+    order = np.lexsort((rows, cols))
+    for _ in range(10):
+        r = chain.rate_min + rng.random(chain.rate_shape) * (chain.rate_max - chain.rate_min)
+        D = T_up - one_period_map(loop, h, r, scaled=True)
+        G = rng.standard_normal((loop.states, loop.r, loop.r))
+        X = G @ np.transpose(G, (0, 2, 1))
+        out = unvech_stack(D @ X[:, rows[order], cols[order]].reshape(-1), loop.states, loop.r)
+        assert all(np.linalg.eigvalsh(Y).min() >= -1e-9 * np.abs(Y).max() for Y in out)
+
+
+def test_real_eigenvalue_fallback() -> None:
+    """The determinant sign change proves a real eigenvalue above 1, and only then."""
+    from ftc_verify.analysis.rigorous import ball
+    from ftc_verify.analysis.sampled_proof import _real_eigenvalue_above_one
+
+    for M, expected in ((np.diag([1.5, 0.5, 0.2]), True), (np.diag([0.9, 0.5, 0.2]), False),
+                        (np.array([[0.9, 0.8, 0.0], [-0.8, 0.9, 0.0], [0.0, 0.0, 0.5]]), False),  # |complex| > 1
+                        (np.diag([1.2, 1.1, 0.3]), True)):
+        assert _real_eigenvalue_above_one(ball(M), np.linalg.eigvals(M)) is expected
+
+
+def test_synthesize_period_designs_for_the_sampled_loop(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """At h = 0.2 the gain bound 30 gives a loop certified in continuous time but not
+    stable sampled; synthesize --period tries smaller bounds and writes the first design
+    proved stable at 0.2, with period = 0.2 in the file; analyze proves it again."""
+    out = tmp_path / "K.toml"
+    code = main(["synthesize", str(PAPER), "--method", "common", "--k-max", "30", "--period", "0.2", "-o", str(out),
+                 "--json"])
+    d = json.loads(capsys.readouterr().out)
+    assert code == 0 and d["verdict"] == "certified"
+    attempts = d["period_attempts"]
+    assert attempts[0]["k_max"] == 30 and attempts[0]["sampled_verdict"] == "not stable"
+    assert attempts[-1]["sampled_verdict"] == "stable" and d["sampled"]["verdict"] == "stable"
+    controller = load_controller(out)
+    assert controller.period == 0.2
+    system = load_system(PAPER)
+    assert box_verdict(SampledLoop.build(system, controller), 0.2).verdict == "stable"

@@ -25,21 +25,23 @@ with :math:`\mathbf T(Y)` in ball arithmetic -- for every rate of the sub-box at
 :math:`T^k(X) \succeq (1 + \epsilon)^k X` grows without bound: :math:`\rho(T) > 1`,
 the loop is not mean-square stable at that rate. :math:`X` is the float Perron
 eigenvector of :math:`T_{mid}` (a positive semidefinite stack), shifted by a small
-multiple of :math:`I` when singular.
+multiple of :math:`I` when singular. When that fails (a singular Perron stack), a
+sign change of :math:`\det(T - x I)` across the largest real eigenvalue, proved by
+Arb's determinant, shows an eigenvalue above 1 (:func:`_real_eigenvalue_above_one`).
 
-**Upper envelope** (derived here). Split :math:`\\mathcal L(r) = \\mathcal D(r) +
-\\mathcal O(r)`: :math:`\\mathcal D` acts on each joint state alone,
-:math:`X_s \\mapsto \\bar A X_s + X_s \\bar A^T + Q_{ss} X_s`, and :math:`\\mathcal O`
-moves mass between states, :math:`X \\mapsto (\\sum_{s' \\ne s} Q_{s's} X_{s'})_s`.
-:math:`e^{\\mathcal D t}` and :math:`\\mathcal O` are positive (they map positive
+**Upper envelope** (derived here). Split :math:`\mathcal L(r) = \mathcal D(r) +
+\mathcal O(r)`: :math:`\mathcal D` acts on each joint state alone,
+:math:`X_s \mapsto \bar A X_s + X_s \bar A^T + Q_{ss} X_s`, and :math:`\mathcal O`
+moves mass between states, :math:`X \mapsto (\sum_{s' \ne s} Q_{s's} X_{s'})_s`.
+:math:`e^{\mathcal D t}` and :math:`\mathcal O` are positive (they map positive
 semidefinite stacks to positive semidefinite stacks), so every term of the Dyson
-series of :math:`e^{(\\mathcal D + \\mathcal O) h}` is a product of positive maps, each
-monotone in the rates: :math:`e^{\\mathcal D(r) t}` decreases (the diagonal
-:math:`Q_{ss}` falls as the rates grow), :math:`\\mathcal O(r)` increases. Products of
+series of :math:`e^{(\mathcal D + \mathcal O) h}` is a product of positive maps, each
+monotone in the rates: :math:`e^{\mathcal D(r) t}` decreases (the diagonal
+:math:`Q_{ss}` falls as the rates grow), :math:`\mathcal O(r)` increases. Products of
 positive maps are monotone, hence for every :math:`r` in :math:`[lo, hi]`,
-:math:`T(r) \\preceq T_{up} = \\mathcal P e^{(\\mathcal D(lo) + \\mathcal O(hi)) h}
-\\mathcal R` in the order of positive maps, and :math:`Y - T(r)(Y) \\succeq Y -
-T_{up}(Y)` for :math:`Y \\succeq 0`: one point computation, without the wrapping of
+:math:`T(r) \preceq T_{up} = \mathcal P e^{(\mathcal D(lo) + \mathcal O(hi)) h}
+\mathcal R` in the order of positive maps, and :math:`Y - T(r)(Y) \succeq Y -
+T_{up}(Y)` for :math:`Y \succeq 0`: one point computation, without the wrapping of
 a ball over the box (:func:`envelope_generator`). Its price is the mass it creates,
 about :math:`h` times the widths of the rates.
 
@@ -447,7 +449,34 @@ def prove_unstable(T: Ball, T_mid: Matrix, states: int, r: int) -> bool:
         X = ball(x[:, None])
         if _stack_pd(X.value, states, r) and _stack_pd((T @ X - X).value, states, r):
             return True
-    return False
+    return _real_eigenvalue_above_one(T, w)
+
+
+def _real_eigenvalue_above_one(T: Ball, w: Matrix) -> bool:
+    """``True`` only if every map in the ball ``T`` has a real eigenvalue above 1 (so
+    :math:`\\rho > 1`), when the Perron stack is singular and the cone proof cannot be
+    used: :math:`p(x) = \\det(T - x I)` is real and continuous in :math:`x`, and if
+    :math:`p(a)\\, p(b) < 0` (both signs proved by Arb's determinant) for some
+    :math:`1 < a < b`, :math:`p` has a root in :math:`(a, b)`. ``w`` are the float
+    eigenvalues; :math:`(a, b)` is placed around the largest real one, away from the
+    other real ones (complex pairs do not change the sign of :math:`p`)."""
+    flint = _flint()
+    real = np.sort(np.real(w[np.abs(np.imag(w)) <= 1e-12 * np.maximum(1.0, np.abs(w))]))
+    if real.size == 0 or real[-1] <= 1.0:
+        return False
+    lam = float(real[-1])
+    below = real[real < lam]
+    a = max(1.0 + 0.5 * (lam - 1.0), 0.5 * (lam + float(below[-1])) if below.size else -np.inf)
+    b = lam + 0.5 * (lam - a)
+    if not 1.0 < a < lam < b:
+        return False
+    N = T.shape[0]
+    eye = flint.arb_mat(N, N)
+    for i in range(N):
+        eye[i, i] = 1
+    pa = (T.value - eye * flint.arb(a)).det()
+    pb = (T.value - eye * flint.arb(b)).det()
+    return bool((pa > 0 and pb < 0) or (pa < 0 and pb > 0))
 
 
 def prove_point_unstable(loop: SampledLoop, h: float, rates: Matrix) -> bool:

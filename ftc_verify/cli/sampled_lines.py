@@ -12,7 +12,8 @@ from typing import Any
 
 from .common import EXIT_NEGATIVE, EXIT_OK, EXIT_UNCERTIFIED, EXIT_UNDECIDED, bad
 
-__all__ = ["DEFAULT_STEP", "check_period_option", "resolve_step", "sampled_exit", "print_sampled"]
+__all__ = ["DEFAULT_STEP", "check_period_option", "resolve_step", "sampled_exit", "print_sampled",
+           "print_period_design", "warn_short_h_max"]
 
 #: The simulators' step when neither ``--step``, ``--period`` nor the controller file gives one.
 DEFAULT_STEP = 0.01
@@ -62,7 +63,7 @@ def print_sampled(res: Any) -> None:
     print(f"  sampled loop, period h = {res.period:g} (controller reads x and the FDI report every h, holds u)")
     print(f"    mean-square stability  spectral radius of the one-period map {res.spectral_radius:.6g}: {word}")
     print(f"      proved: {res.proof}")
-    if res.h_max is not None:
+    if res.h_max is not None and res.h_max_unstable is not None:
         print(f"    h_max {res.h_max:.6g}: proved stable over the rate box there, proved unstable at "
               f"{res.h_max_unstable:.6g}")
     else:
@@ -73,3 +74,42 @@ def print_sampled(res: Any) -> None:
                "not stable": "NOT mean-square stable (proved)",
                "undecided": "UNDECIDED (neither stability nor instability proved)"}[res.verdict]
     print(f"  verdict at period h = {res.period:g}: the sampled loop is {verdict}")
+
+
+def print_period_design(design: Any, period: float) -> None:
+    """The lines of ``synthesize --period``: each gain bound tried and the outcome."""
+    print(f"  designed for the sampled loop at period h = {period:g} (gain bounds tried, largest first):")
+    for row in design.attempts:
+        bound = "none" if row["k_max"] is None else f"{row['k_max']:g}"
+        gamma = "not certified" if not row["certified"] else f"certified gamma {row['gamma_certified']:.6g}"
+        sampled = "" if row["sampled_verdict"] is None else f"; sampled loop {row['sampled_verdict']}"
+        h_max = "" if row["h_max"] is None else f" (h_max {row['h_max']:.6g})"
+        print(f"    k_max {bound:>6}: {gamma}{sampled}{h_max}")
+    if design.found and design.sampled is not None:
+        print(f"  sampled loop at h = {period:g}: {design.sampled.proof}")
+    else:
+        print(f"  no certified design whose sampled loop at h = {period:g} is proved mean-square stable")
+
+
+def warn_short_h_max(system: Any, controller: Any) -> None:
+    """Without ``--period``: a warning on stderr when the certified controller's sampled
+    loop is not stable at some period up to 10 times :data:`DEFAULT_STEP` (float64 scan
+    of the rate vertices and midpoint: its ``h_max`` is then below that; a warning, not a
+    certificate -- ``analyze --period`` proves it)."""
+    import sys
+
+    import numpy as np
+
+    from ..analysis.sampled import SampledLoop, rate_points, worst_radius
+
+    limit = 10 * DEFAULT_STEP
+    loop = SampledLoop.build(system, controller)
+    pts = rate_points(loop.chain)
+    for h in np.geomspace(limit / 100, limit, 12):
+        rho = worst_radius(loop, float(h), pts)[0]
+        if not rho < 1.0:
+            print(f"ftc-verify synthesize: warning: the sampled loop of this controller is not mean-square stable "
+                  f"at period {h:.3g} (float64 spectral radius {rho:.4g}): its h_max is below {limit:g}, 10 times "
+                  f"the simulator's default step; check the period it will run at with analyze --period, or "
+                  f"design for it with synthesize --period", file=sys.stderr)
+            return

@@ -34,8 +34,10 @@ def sampled_stage(system: FTCSystem, controller: Controller, step: float) -> tup
         return None, Check(name, True, f"NOT analysed: its moment generator has {rows} rows (limit {SAMPLED_LIMIT}); "
                                        "the certificates above are those of the continuous-time loop")
     res = sampled_analysis(system, controller, step)
-    bracket = ("h_max not found: " + res.h_max_note if res.h_max is None else
-               f"h_max {res.h_max:.6g} (proved stable; unstable at {res.h_max_unstable:.6g})")
+    if res.h_max is None or res.h_max_unstable is None:
+        bracket = "h_max not found: " + res.h_max_note
+    else:
+        bracket = f"h_max {res.h_max:.6g} (proved stable; unstable at {res.h_max_unstable:.6g})"
     word = {"stable": "mean-square stable", "not stable": "NOT mean-square stable",
             "undecided": "UNDECIDED"}[res.verdict]
     return res, Check(name, res.stable, f"{word}: spectral radius of the one-period map {res.spectral_radius:.6g}; "
