@@ -81,7 +81,7 @@ from .stability import duplication_matrix, second_moment_matrix, vech_order
 
 __all__ = ["SampledLoop", "SampledResult", "one_period_map", "spectral_radius", "rate_points",
            "worst_radius", "scan_periods", "stability_intervals", "h_max_bracket", "sampled_analysis",
-           "H_MAX_RTOL"]
+           "H_MAX_RTOL", "SCAN_PER_OCTAVE"]
 
 #: Relative width of the proved ``h_max`` bracket (proved stable, proved unstable).
 H_MAX_RTOL = 1e-3
@@ -229,14 +229,9 @@ def one_period_map(loop: SampledLoop, h: float, rates: Matrix, *, scaled: bool =
     computed in the balanced coordinates (:attr:`SampledLoop.scale`) and returned in the
     loop's own (``scaled=False``) or in those (``scaled=True``)."""
     Q = loop.chain.generator(rates)
-    Dd, Ld = duplication_matrix(loop.d)
-    Dr, Lr = duplication_matrix(loop.r)
-    vd, vr, S = Dd.shape[1], Dr.shape[1], loop.states
+    vd = loop.d * (loop.d + 1) // 2
     F = scipy.linalg.expm((loop.modes_part + np.kron(Q.T, np.eye(vd))) * float(h))
-    P = loop.restriction()
-    restrict = Lr @ np.kron(P, P) @ Dd
-    lifts = np.stack([Ld @ np.kron(R, R) @ Dr for R in loop.resets(h)])
-    T = np.einsum("ab,tbsc,scd->tasd", restrict, F.reshape(S, vd, S, vd), lifts, optimize=True).reshape(S * vr, -1)
+    T = _assemble(loop, F, h)
     if scaled:
         return T
     w = loop.vech_weights()
@@ -268,12 +263,42 @@ def worst_radius(loop: SampledLoop, h: float, points: Sequence[Matrix]) -> tuple
     return best, where
 
 
-def scan_periods(loop: SampledLoop, lo: float, hi: float, count: int = 120) -> tuple[Matrix, Matrix]:
-    """``(hs, rho)``: log-spaced periods in ``[lo, hi]`` and the worst float64
-    :math:`\\rho(T)` over :func:`rate_points` at each."""
-    hs = np.geomspace(lo, hi, count)
-    pts = rate_points(loop.chain)
-    return hs, np.array([worst_radius(loop, float(h), pts)[0] for h in hs])
+#: Periods per octave of the scan (:func:`scan_periods`).
+SCAN_PER_OCTAVE = 8
+
+
+def _assemble(loop: SampledLoop, F: Matrix, h: float) -> Matrix:
+    """:math:`T` in the balanced coordinates from the flow :math:`F = e^{\\mathcal L h}`."""
+    Dd, Ld = duplication_matrix(loop.d)
+    Dr, Lr = duplication_matrix(loop.r)
+    vd, vr, S = Dd.shape[1], Dr.shape[1], loop.states
+    P = loop.restriction()
+    restrict = Lr @ np.kron(P, P) @ Dd
+    lifts = np.stack([Ld @ np.kron(R, R) @ Dr for R in loop.resets(h)])
+    return np.einsum("ab,tbsc,scd->tasd", restrict, F.reshape(S, vd, S, vd), lifts, optimize=True).reshape(S * vr, -1)
+
+
+def scan_periods(loop: SampledLoop, lo: float, hi: float) -> tuple[Matrix, Matrix]:
+    """``(hs, rho)``: periods from ``lo`` to at least ``hi``, :data:`SCAN_PER_OCTAVE` per
+    octave (``h_k = lo 2^{k/8}``), and the worst float64 :math:`\\rho(T)` over
+    :func:`rate_points` at each. The flows of the first octave are exponentials; every
+    later one is the square of the one an octave before (:math:`e^{\\mathcal L 2h} =
+    (e^{\\mathcal L h})^2`), one product instead of an exponential."""
+    K = SCAN_PER_OCTAVE
+    count = max(K + 1, math.ceil(K * math.log2(hi / lo)) + 1)
+    hs = lo * 2.0 ** (np.arange(count) / K)
+    vd = loop.d * (loop.d + 1) // 2
+    rho = np.zeros(count)
+    for p in rate_points(loop.chain):
+        G = loop.modes_part + np.kron(loop.chain.generator(p).T, np.eye(vd))
+        flows: list[Matrix] = []
+        for k, h in enumerate(hs):
+            F = scipy.linalg.expm(G * float(h)) if k < K else flows[k - K] @ flows[k - K]
+            flows.append(F)
+            T = _assemble(loop, F, float(h))
+            r = float(np.max(np.abs(scipy.linalg.eigvals(T, check_finite=False)))) if np.all(np.isfinite(T)) else math.inf
+            rho[k] = max(rho[k], r)
+    return hs, rho
 
 
 def _crossing(loop: SampledLoop, a: float, b: float, stable_at_a: bool, rtol: float) -> float:
@@ -310,7 +335,7 @@ def stability_intervals(loop: SampledLoop, hs: Matrix, rho: Matrix, rtol: float 
 
 
 def h_max_bracket(loop: SampledLoop, stable_h: float, unstable_h: float, *, rtol: float = H_MAX_RTOL,
-                  max_boxes: int = 16, max_seconds: float = 5.0) -> tuple[float | None, float | None, str]:
+                  max_boxes: int = 16, max_seconds: float = 3.0) -> tuple[float | None, float | None, str]:
     """``(h_max, h_max_unstable, note)`` from a float64 bracket ``stable_h < unstable_h``
     of the crossing: a period proved mean-square stable over the whole rate box and a
     larger one proved unstable at some rate point.
