@@ -27,7 +27,7 @@ the loop is not mean-square stable at that rate. :math:`X` is the float Perron
 eigenvector of :math:`T_{mid}` (a positive semidefinite stack), shifted by a small
 multiple of :math:`I` when singular. When that fails (a singular Perron stack), a
 sign change of :math:`\det(T - x I)` across the largest real eigenvalue, proved by
-Arb's determinant, shows an eigenvalue above 1 (:func:`_real_eigenvalue_above_one`).
+Arb's determinant, shows an eigenvalue above 1 (``_real_eigenvalue_above_one``).
 
 **Upper envelope** (derived here). Split :math:`\mathcal L(r) = \mathcal D(r) +
 \mathcal O(r)`: :math:`\mathcal D` acts on each joint state alone,
@@ -54,7 +54,7 @@ sub-boxes (or seconds) runs out: then the verdict is ``undecided`` and names the
 sub-box. On each sub-box the upper envelope is tried first, then the direct ball of
 :math:`T`, then a
 first-order expansion at its midpoint whose remainder is quadratic in the width
-(:func:`_first_order_stable`). A set of
+(``_first_order_stable``). A set of
 vertices is never called proved.
 """
 
@@ -141,7 +141,7 @@ def ball_generator(chain: JointChain, lo: Matrix, hi: Matrix) -> Ball:
 def envelope_generator(chain: JointChain, lo: Matrix, hi: Matrix) -> Ball:
     """The upper envelope of the generator over ``[lo, hi]``: off-diagonal entries at
     the rates ``hi``, the diagonal minus the row sums at ``lo`` (a ball matrix; rows sum
-    to at least 0). Used by :func:`_envelope_stable` (module docstring)."""
+    to at least 0). Used by ``_envelope_stable`` (module docstring)."""
     flint = _flint()
     base, coefs = generator_coefficients(chain)
     S = chain.n_states
