@@ -24,14 +24,14 @@ from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
-import scipy.linalg  # noqa: E402
+import numpy as np
+import scipy.linalg
 
-from ftc_verify.analysis.sampled import SampledLoop, sampled_analysis  # noqa: E402
-from ftc_verify.controllers.controller import Controller  # noqa: E402
-from ftc_verify.controllers.files import load_controller  # noqa: E402
-from ftc_verify.model.files import load_system  # noqa: E402
-from ftc_verify.model.system import FTCSystem  # noqa: E402
+from ftc_verify.analysis.sampled import SampledLoop, sampled_analysis
+from ftc_verify.controllers.controller import Controller
+from ftc_verify.controllers.files import load_controller
+from ftc_verify.model.files import load_system
+from ftc_verify.model.system import FTCSystem
 
 ROOT = Path(__file__).resolve().parents[1]
 
