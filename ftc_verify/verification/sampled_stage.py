@@ -9,12 +9,17 @@ certificates of the other stages are its :math:`h \\to 0` limit.
 
 from __future__ import annotations
 
+from typing import Any
+
+import numpy as np
+
 from ..analysis.sampled import SampledLoop, SampledResult, sampled_analysis
 from ..controllers.controller import Controller
+from ..errors import FTCError
 from ..model.system import FTCSystem
 from .verify import Check
 
-__all__ = ["SAMPLED_LIMIT", "sampled_stage"]
+__all__ = ["SAMPLED_LIMIT", "sampled_stage", "sampled_energy_stage"]
 
 #: Largest second-moment generator (rows, joint states times ``d (d + 1) / 2`` with
 #: ``d = n + n_u + n_c``) the stage analyses; its rigorous exponential is the cost.
@@ -42,3 +47,40 @@ def sampled_stage(system: FTCSystem, controller: Controller, step: float) -> tup
             "undecided": "UNDECIDED"}[res.verdict]
     return res, Check(name, res.stable, f"{word}: spectral radius of the one-period map {res.spectral_radius:.6g}; "
                                         f"{res.proof}; {bracket}")
+
+
+def sampled_energy_stage(system: FTCSystem, controller: Controller, step: float, g2: float,
+                         sampled: SampledResult | None, max_vertices: int) -> tuple[list[dict[str, Any]], Check]:
+    """The exact expected energy of the sampled loop at ``step`` for the paper's
+    disturbance (:func:`ftc_verify.verification.sampled_energy.sampled_energy`, infinite
+    horizon) at the rate vertices (up to ``max_vertices``) and the constant
+    ``Delta in {0, +E, -E}``, against ``g2`` (gamma^2 of the continuous certificate: the
+    loop that runs must keep it). Not run when the sampled loop was not analysed or not
+    proved stable (its check says why)."""
+    from ..simulation.delta import delta_shapes
+    from .sampled_energy import perturbed_system, sampled_energy
+
+    name = f"exact energy (sampled loop, h = {step:g})"
+    if sampled is None or not sampled.stable:
+        why = "not analysed" if sampled is None else f"not proved stable ({sampled.verdict})"
+        return [], Check(name, sampled is None, f"not computed: the sampled loop was {why}")
+    s1, s2 = delta_shapes(system)
+    cases: list[tuple[str, Any, Any]] = [("Delta=0", None, None)]
+    if system.uncertain:
+        cases += [(label, None if s1 is None else sign * np.eye(*s1), None if s2 is None else sign * np.eye(*s2))
+                  for sign, label in ((1.0, "Delta=+E"), (-1.0, "Delta=-E"))]
+    out: list[dict[str, Any]] = []
+    for label, d1, d2 in cases:
+        perturbed = perturbed_system(system, d1, d2)
+        for b in list(system.chain.vertices())[:max_vertices]:
+            try:
+                e = sampled_energy(perturbed, controller, step, beta=b)
+                ratio = e.ratio
+            except FTCError:  # the perturbed sampled loop is not stable at this vertex
+                ratio = float("inf")
+            out.append({"delta": label, "beta": b.tolist(), "ratio": ratio})
+    worst = max(out, key=lambda e: e["ratio"])
+    return out, Check(name, worst["ratio"] <= g2,
+                      f"max E||y||^2/||w||^2 = {worst['ratio']:.6g} ({worst['delta']}, "
+                      f"{system.chain.rate_text(worst['beta'])}) vs gamma^2 = {g2:.6g}, {len(out)} cases, "
+                      "infinite horizon, u and w held over each period")

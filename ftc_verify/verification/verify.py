@@ -11,7 +11,9 @@ all on the one closed loop :func:`~ftc_verify.analysis.closedloop.closed_loop` b
    mean-square stability over the rate box proved at the period, and ``h_max``);
 3. **exact expected energy** of the continuous-time loop for the paper's disturbance at
    every ``beta`` vertex (up to :data:`MAX_EXACT_VERTICES`) and for ``Delta`` in
-   ``{0, +E, -E}`` (``E`` the rectangular identity, norm 1) when the plant is uncertain;
+   ``{0, +E, -E}`` (``E`` the rectangular identity, norm 1) when the plant is uncertain,
+   and the same for the sampled loop at ``step`` (input and disturbance held,
+   :mod:`ftc_verify.verification.sampled_energy`);
 4. **worst-case disturbance** on a horizon at the worst of those vertices (a lower bound
    of the stochastic gain);
 5. **Monte Carlo co-simulation** of the FMU plant under Markov faults and delayed FDI
@@ -96,6 +98,7 @@ class VerifyReport:
     plant: dict[str, Any] | None = None
     plant_failure: PlantRunError | None = None  # the plant FMU crashed or returned fmi2Fatal
     sampled: Any = None  # SampledResult of the loop at the simulation step (verification.sampled_stage)
+    sampled_exact: tuple[dict[str, Any], ...] = ()  # its exact energies (sampled_stage.sampled_energy_stage)
 
     @property
     def verdict(self) -> str:
@@ -134,6 +137,7 @@ class VerifyReport:
                 "fmu": self.plant_failure.fmu, "path": self.plant_failure.path, "time": self.plant_failure.time,
                 "detail": self.plant_failure.detail},
             "sampled": None if self.sampled is None else self.sampled.to_dict(),
+            "sampled_exact": list(self.sampled_exact),
             "seed": self.seed,
             "options": self.options,
             "seconds": self.seconds,
@@ -434,6 +438,10 @@ def run_verify(
         return report(analysis=analysis, per_mode=per_mode)
     g2 = gamma_cert ** 2
     exact = timed("exact_energy", lambda: _exact_energies(system, loop, g2))
+    from .sampled_stage import sampled_energy_stage
+
+    extra["sampled_exact"] = timed("sampled_energy", lambda: sampled_energy_stage(
+        system, controller, step, g2, extra.get("sampled"), MAX_EXACT_VERTICES))
     worst = timed("worst_case", functools.partial(_worst_case, loop, exact, spec.horizon, gamma_cert))
     t = time.perf_counter()
     spec, options["delta"] = spec.resolve_delta(system, plant)
