@@ -335,7 +335,8 @@ def stability_intervals(loop: SampledLoop, hs: Matrix, rho: Matrix, rtol: float 
 
 
 def h_max_bracket(loop: SampledLoop, stable_h: float, unstable_h: float, *, rtol: float = H_MAX_RTOL,
-                  max_boxes: int = 16, max_seconds: float = 3.0) -> tuple[float | None, float | None, str]:
+                  max_boxes: int = 16, max_seconds: float = 3.0,
+                  deadline: float = math.inf) -> tuple[float | None, float | None, str]:
     """``(h_max, h_max_unstable, note)`` from a float64 bracket ``stable_h < unstable_h``
     of the crossing: a period proved mean-square stable over the whole rate box and a
     larger one proved unstable at some rate point.
@@ -344,7 +345,8 @@ def h_max_bracket(loop: SampledLoop, stable_h: float, unstable_h: float, *, rtol
     ``(1 - f) a`` for ``f`` in ``rtol / 4, 3 rtol / 4`` (the bracket within ``rtol``),
     then, if those proofs run out of their budget (``max_boxes`` sub-boxes,
     ``max_seconds`` each), further below (``f`` up to 10 %), and the note says the
-    bracket is wider than ``rtol``. ``None`` where no proof was found."""
+    bracket is wider than ``rtol``. No new proof is started after ``deadline``
+    (``time.perf_counter()``). ``None`` where no proof was found."""
     from .sampled_proof import box_verdict, prove_point_unstable
 
     pts = rate_points(loop.chain)
@@ -354,6 +356,8 @@ def h_max_bracket(loop: SampledLoop, stable_h: float, unstable_h: float, *, rtol
         b = min(unstable_h, b * (1 + rtol / 16))
     proved_b = None
     for f in (0.0, 0.0625, 0.125):  # with a's first margins, the gap stays below rtol
+        if time.perf_counter() > deadline:
+            break
         hb = b * (1 + f * rtol)
         rho, where = worst_radius(loop, hb, pts)
         if rho > 1.0 and prove_point_unstable(loop, hb, where):
@@ -361,13 +365,16 @@ def h_max_bracket(loop: SampledLoop, stable_h: float, unstable_h: float, *, rtol
             break
     proved_a = None
     for f in (0.25 * rtol, 0.75 * rtol, 1e-2, 0.1):
+        if time.perf_counter() > deadline:
+            break
         ha = a * (1 - f)
         if box_verdict(loop, ha, max_boxes=max_boxes, max_seconds=max_seconds).verdict == "stable":
             proved_a = ha
             break
     if proved_a is None or proved_b is None:
         missing = " and ".join(w for w, v in (("stability", proved_a), ("instability", proved_b)) if v is None)
-        return proved_a, proved_b, f"{missing} near the float64 crossing {a:.6g} not proved"
+        late = " (time budget spent)" if time.perf_counter() > deadline else ""
+        return proved_a, proved_b, f"{missing} near the float64 crossing {a:.6g} not proved{late}"
     gap = (proved_b - proved_a) / proved_b
     if gap > rtol:
         return proved_a, proved_b, (f"proved stable over the rate box at {proved_a:.6g}, unstable at a rate point at "
@@ -449,20 +456,22 @@ def scan_range(loop: SampledLoop, period: float | None = None) -> tuple[float, f
 
 
 def sampled_analysis(system: FTCSystem, controller: Controller, period: float, *, max_boxes: int = 64,
-                     h_max: bool = True) -> SampledResult:
+                     h_max: bool = True, max_seconds: float = 60.0) -> SampledResult:
     """Mean-square stability of the sampled loop at ``period`` over the rate box, and
     the proved ``h_max`` bracket after a scan of periods (module docstring).
 
     ``h_max`` is the end of the stability interval that starts at the smallest scanned
     period (the continuous loop's limit); ``None`` when the loop is unstable there or
-    stable over the whole scanned range (then ``h_max_note`` says which).
+    stable over the whole scanned range (then ``h_max_note`` says which). ``max_seconds``
+    bounds the proofs: the verdict at the period gets up to a third of it, the ``h_max``
+    bracket starts no proof after it has passed.
     """
     from .sampled_proof import box_verdict
 
     period = check_period(period, "period")
     t0 = time.perf_counter()
     loop = SampledLoop.build(system, controller)
-    verdict = box_verdict(loop, period, max_boxes=max_boxes)
+    verdict = box_verdict(loop, period, max_boxes=max_boxes, max_seconds=max_seconds / 3)
     rho, where = worst_radius(loop, period, rate_points(loop.chain))
     lo, hi = scan_range(loop, period)
     intervals: tuple[tuple[float, float], ...] = ()
@@ -477,6 +486,6 @@ def sampled_analysis(system: FTCSystem, controller: Controller, period: float, *
             note = f"stable at every scanned period up to {hs[-1]:.6g} (float64 scan); no h_max below it"
         else:
             k = int(np.searchsorted(hs, intervals[0][1], side="right"))
-            hm, hu, note = h_max_bracket(loop, float(hs[k - 1]), float(hs[k]))
+            hm, hu, note = h_max_bracket(loop, float(hs[k - 1]), float(hs[k]), deadline=t0 + max_seconds)
     return SampledResult(period, verdict.verdict, rho, where, verdict.detail, verdict.boxes, hm, hu, note,
                          intervals, (lo, hi), time.perf_counter() - t0)

@@ -484,9 +484,11 @@ def prove_point_unstable(loop: SampledLoop, h: float, rates: Matrix) -> bool:
     at the rate array ``rates`` (of the box)."""
     rates = np.asarray(rates, dtype=float)
     T_mid = one_period_map(loop, h, rates, scaled=True)
-    with precision(PRECISION_BITS):
-        T = ball_one_period_map(loop, h, rates, rates)
-        return prove_unstable(T, T_mid, loop.states, loop.r)
+    for bits in (64, PRECISION_BITS):  # the cheap precision first
+        with precision(bits):
+            if prove_unstable(ball_one_period_map(loop, h, rates, rates), T_mid, loop.states, loop.r):
+                return True
+    return False
 
 
 @dataclass(frozen=True, eq=False)
