@@ -13,6 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import scipy.linalg
+from hypothesis import HealthCheck, given, settings
+from hypothesis.errors import InvalidArgument
 
 from ftc_verify.analysis.closedloop import closed_loop
 from ftc_verify.analysis.rigorous import Ball, midpoint
@@ -27,6 +29,8 @@ from ftc_verify.errors import ProblemFileError, ValidationError
 from ftc_verify.model.chain import JointChain
 from ftc_verify.model.files import load_system
 from ftc_verify.model.system import FTCSystem
+from ftc_verify.testing.loops import DrawnLoop, stable_loops
+from ftc_verify.testing.strategies import periods
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "examples" / "paper.toml"
@@ -481,3 +485,35 @@ def test_sampled_energy_tends_to_the_continuous_one(paper: tuple[FTCSystem, Cont
     assert delta.modes[0].A[0, 0] == pytest.approx(1.01) and not delta.uncertain
     with pytest.raises(ValidationError, match="infinite horizon"):
         sampled_energy(system.nominal(), controller, 0.1, beta=b)
+
+
+# ------------------------------------------------------------------ drawn loops and periods
+@settings(max_examples=12, deadline=None, derandomize=True, suppress_health_check=list(HealthCheck))
+@given(drawn=stable_loops(n=2, m=2, margin=0.1), h=periods(low=1e-3, high=1.0))
+def test_box_verdict_agrees_with_the_float_radius(drawn: DrawnLoop, h: float) -> None:
+    """Drawn stable loops at drawn periods: "stable" only where the float64 radius is
+    below 1 at every rate vertex and at 8 random rates inside the box (a proof over the
+    box, not at its vertices), "not stable" only where it is at least 1 at the rate named
+    (the verdicts never contradict the float radius by more than rounding)."""
+    loop = SampledLoop.build(drawn.system, drawn.controller)
+    chain = drawn.system.chain
+    v = box_verdict(loop, h, max_boxes=8, max_seconds=5.0)
+    rng = np.random.default_rng(0)
+    inside = [chain.rate_min + rng.random(chain.rate_shape) * (chain.rate_max - chain.rate_min) for _ in range(8)]
+    radii = [spectral_radius(loop, h, p) for p in [*chain.vertices(), *inside]]
+    if v.verdict == "stable":
+        assert max(radii) < 1.0
+    if v.verdict == "not stable":
+        assert spectral_radius(loop, h, v.where) > 1.0 - 1e-9
+
+
+def test_periods_strategy_bounds() -> None:
+    with pytest.raises(InvalidArgument):
+        periods(low=0.2, high=0.1).example()
+
+    @settings(max_examples=30, derandomize=True)
+    @given(h=periods(low=1e-3, high=0.2))
+    def inside(h: float) -> None:
+        assert 1e-3 <= h <= 0.2
+
+    inside()
