@@ -44,10 +44,14 @@ def _resolve_step(args: argparse.Namespace, controller: Any) -> None:
     (:func:`~ftc_verify.cli.sampled_lines.resolve_step`), checked against ``--horizon``."""
     from .sampled_lines import resolve_step
 
-    option = "--period" if args.period is not None else "--step"
-    given = args.step is not None or args.period is not None
+    if args.period is not None or args.step is not None:
+        option = "--period" if args.period is not None else "--step"
+    elif controller is not None and controller.period is not None:
+        option = f"the period in {args.controller}"
+    else:
+        option = "the default step"
     args.step = resolve_step(args, controller)
-    _check_horizon(args.step, args.horizon, option if given else "the step")
+    _check_horizon(args.step, args.horizon, option)
 
 
 def _check_fmu_dims(system: Any, source: str) -> None:
