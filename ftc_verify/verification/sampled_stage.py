@@ -38,7 +38,7 @@ def sampled_stage(system: FTCSystem, controller: Controller, step: float) -> tup
     if rows > SAMPLED_LIMIT:
         return None, Check(name, True, f"NOT analysed: its moment generator has {rows} rows (limit {SAMPLED_LIMIT}); "
                                        "the certificates above are those of the continuous-time loop")
-    res = sampled_analysis(system, controller, step)
+    res = sampled_analysis(system, controller, step, max_seconds=30.0)
     if res.h_max is None or res.h_max_unstable is None:
         bracket = "h_max not found: " + res.h_max_note
     else:
