@@ -317,7 +317,7 @@ def test_cli_bad_periods_exit_2_naming_period(argv: list[str], capsys: pytest.Ca
 
 
 def test_chain_generator_ball_covers_the_box(paper: tuple[FTCSystem, Controller]) -> None:
-    from ftc_verify.analysis.sampled_proof import ball_generator
+    from ftc_verify.analysis.sampled_balls import ball_generator
 
     chain: JointChain = _erlang_false_alarm(paper[0]).chain
     B = ball_generator(chain, chain.rate_min, chain.rate_max)
@@ -335,7 +335,8 @@ def test_first_order_form_proves_where_the_direct_ball_cannot(paper: tuple[FTCSy
     with its quadratic remainder proves the whole box at once, and box_verdict says so
     with one sub-box."""
     from ftc_verify.analysis.rigorous import Ball, precision
-    from ftc_verify.analysis.sampled_proof import _first_order_stable, _MapParts, ball_generator, prove_stable
+    from ftc_verify.analysis.sampled_balls import ball_generator
+    from ftc_verify.analysis.sampled_proof import _first_order_stable, _MapParts, prove_stable
 
     system = paper[0]
     gains = Controller.state_feedback([[[2.9749, 9.5371], [-9.4142, 2.8536]], [[2.5399, 9.6565], [-9.5176, 2.3946]]])
@@ -355,7 +356,8 @@ def test_upper_envelope_dominates_every_rate_of_the_box(paper: tuple[FTCSystem, 
     false alarms): applied to random positive semidefinite stacks it gives positive
     semidefinite stacks (float64, to rounding)."""
     from ftc_verify.analysis.rigorous import midpoint, precision
-    from ftc_verify.analysis.sampled_proof import _MapParts, envelope_generator
+    from ftc_verify.analysis.sampled_balls import envelope_generator
+    from ftc_verify.analysis.sampled_proof import _MapParts
 
     system = _erlang_false_alarm(paper[0])
     loop, chain = SampledLoop.build(system, paper[1]), system.chain

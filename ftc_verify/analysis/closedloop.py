@@ -56,7 +56,7 @@ this is state feedback: :math:`A_s = A_i + B_i K_j`, channels :math:`(A1_i, A2_i
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -95,6 +95,11 @@ class ClosedLoop:
     n_plant : int or None
         Plant states ``x`` at the top of the state (the rest is the controller's ``x_c``);
         ``None`` means all states are plant states.
+    source : (FTCSystem, Controller) or None
+        The system and controller the loop was formed from (set by :func:`closed_loop`):
+        the proofs form the loop again from them in ball arithmetic
+        (:func:`~ftc_verify.analysis.exact.exact_loop`). ``None`` for a loop built by
+        hand or moved to other coordinates (its float matrices are then the data).
     """
 
     chain: JointChain
@@ -104,6 +109,7 @@ class ClosedLoop:
     channels: tuple[tuple[Channel, ...], ...]
     controller: str = "state feedback"
     n_plant: int | None = None
+    source: tuple[FTCSystem, Controller] | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         count = self.chain.n_states
@@ -152,6 +158,7 @@ class ClosedLoop:
         inv = 1.0 / d
         return replace(
             self,
+            source=None,
             A=tuple(inv[:, None] * A * d[None, :] for A in self.A),
             Bw=tuple(inv[:, None] * B for B in self.Bw),
             Cz=tuple(C * d[None, :] for C in self.Cz),
@@ -165,6 +172,7 @@ class ClosedLoop:
         (:mod:`ftc_verify.analysis.conditioning`)."""
         return replace(
             self,
+            source=None,
             A=tuple(T_inv @ A @ T for A in self.A),
             Bw=tuple(T_inv @ B for B in self.Bw),
             Cz=tuple(C @ T for C in self.Cz),
@@ -353,7 +361,8 @@ def closed_loop(system: FTCSystem, controller: Controller) -> ClosedLoop:
         k = controller.index(i, j, m)
         return controller.Ac[k], controller.Bc[k], controller.Cc[k], controller.Dc[k]
 
-    return _assemble(system, entry, controller.measurement, controller.n_c, controller.describe(m))
+    loop = _assemble(system, entry, controller.measurement, controller.n_c, controller.describe(m))
+    return replace(loop, source=(system, controller))
 
 
 def state_feedback_loop(system: FTCSystem, gains: Sequence[Matrix], *, controller: str | None = None) -> ClosedLoop:

@@ -60,11 +60,9 @@ vertices is never called proved.
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
 import math
 import time
-from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -73,10 +71,12 @@ import numpy as np
 from ..model.chain import JointChain
 from ..model.system import Matrix
 from .rigorous import PRECISION_BITS, Ball, ball, midpoint, precision, proven_positive_definite
+from .sampled_balls import (as_float, ball_block_diag, ball_generator, ball_kron, envelope_generator,
+                            generator_coefficients)
 from .sampled import SampledLoop, one_period_map, rate_points, spectral_radius, worst_radius
 from .stability import duplication_matrix, vech_order
 
-__all__ = ["FIRST_ORDER_LIMIT", "BoxVerdict", "generator_coefficients", "ball_generator", "envelope_generator", "ball_one_period_map", "prove_stable", "prove_unstable",
+__all__ = ["FIRST_ORDER_LIMIT", "BoxVerdict", "ball_one_period_map", "prove_stable", "prove_unstable",
            "prove_point_unstable", "box_verdict"]
 
 
@@ -84,126 +84,6 @@ def _flint() -> Any:
     import flint
 
     return flint
-
-
-def generator_coefficients(chain: JointChain) -> tuple[Matrix, tuple[tuple[tuple[int, ...], Matrix], ...]]:
-    """``(base, ((idx, coef), ...))``: :math:`Q(r) = base + \\sum_{idx} r_{idx}\\, coef_{idx}`
-    exactly (:mod:`ftc_verify.model.chain`: the generator is affine in every rate).
-
-    The coefficients are read from the generator of the same chain on the box ``[0, 1]``
-    (at 0 and at each unit rate): their off-diagonal entries are integers (the number of
-    phases, or 1), the diagonal minus their row sums -- exact in floating point. ``base``
-    holds the off-diagonal entries at rate 0 (the fault rates ``alpha`` as written) and
-    a zero diagonal (a ball row sum is formed where it is used)."""
-    m = chain.m
-    ones, zeros = np.ones((m, m)), np.zeros((m, m))
-    fa = (zeros, ones) if chain.has_false_alarms else (None, None)
-    wide = dataclasses.replace(chain, beta_min=zeros, beta_max=ones, false_alarm_min=fa[0], false_alarm_max=fa[1])
-    base = wide.generator(np.zeros(chain.rate_shape))
-    S = chain.n_states
-    off = ~np.eye(S, dtype=bool)
-    coefs = []
-    for idx in chain.rate_indices:
-        e = np.zeros(chain.rate_shape)
-        e[idx] = 1.0
-        coef = np.where(off, wide.generator(e) - base, 0.0)
-        if not np.array_equal(coef, np.round(coef)):  # pragma: no cover - structure of chain.py
-            raise AssertionError("generator coefficients are not integers")
-        coef[np.diag_indices(S)] = -coef.sum(axis=1)
-        coefs.append((idx, coef))
-    return np.where(off, base, 0.0), tuple(coefs)
-
-
-def ball_generator(chain: JointChain, lo: Matrix, hi: Matrix) -> Ball:
-    """The joint generator as a ball matrix containing :math:`Q(r)` for every rate array
-    ``r`` with ``lo <= r <= hi`` (:func:`generator_coefficients`; the diagonal is minus
-    the ball row sum, so every row sums to an enclosure of zero)."""
-    flint = _flint()
-    base, coefs = generator_coefficients(chain)
-    S = chain.n_states
-    Q = [[flint.arb(float(base[s, t])) for t in range(S)] for s in range(S)]
-    for idx, coef in coefs:
-        rate = flint.arb(float(lo[idx])).union(flint.arb(float(hi[idx])))
-        for s, t in zip(*np.nonzero(coef)):
-            if s != t:
-                Q[s][t] += int(coef[s, t]) * rate
-    out = flint.arb_mat(S, S)
-    for s in range(S):
-        total = flint.arb(0)
-        for t in range(S):
-            if t != s:
-                out[s, t] = Q[s][t]
-                total += Q[s][t]
-        out[s, s] = -total
-    return Ball(out)
-
-
-def envelope_generator(chain: JointChain, lo: Matrix, hi: Matrix) -> Ball:
-    """The upper envelope of the generator over ``[lo, hi]``: off-diagonal entries at
-    the rates ``hi``, the diagonal minus the row sums at ``lo`` (a ball matrix; rows sum
-    to at least 0). Used by ``_envelope_stable`` (module docstring)."""
-    flint = _flint()
-    base, coefs = generator_coefficients(chain)
-    S = chain.n_states
-    upper = [[flint.arb(float(base[s, t])) for t in range(S)] for s in range(S)]
-    lower = [[flint.arb(float(base[s, t])) for t in range(S)] for s in range(S)]
-    for idx, coef in coefs:
-        for s, t in zip(*np.nonzero(coef)):
-            if s != t:
-                upper[s][t] += int(coef[s, t]) * flint.arb(float(hi[idx]))
-                lower[s][t] += int(coef[s, t]) * flint.arb(float(lo[idx]))
-    out = flint.arb_mat(S, S)
-    for s in range(S):
-        total = flint.arb(0)
-        for t in range(S):
-            if t != s:
-                out[s, t] = upper[s][t]
-                total += lower[s][t]
-        out[s, s] = -total
-    return Ball(out)
-
-
-def _envelope_stable(loop: SampledLoop, parts: _MapParts, lo: Matrix, hi: Matrix) -> bool:
-    """The stable proof on a sub-box by the upper envelope (module docstring):
-    :math:`T(r) \\preceq T_{up}` for every rate of the sub-box, so :math:`Y \\succ 0`,
-    :math:`Y - T_{up}(Y) \\succ 0` proves :math:`\\rho(T(r)) < 1` for all of them."""
-    T_up = Ball(parts.map(envelope_generator(loop.chain, lo, hi).value))
-    return prove_stable(T_up, midpoint(T_up), loop.states, loop.r)
-
-
-def _float(a: Any) -> Matrix:
-    return np.asarray(a, dtype=float)
-
-
-def _kron(A: Ball, B: Ball) -> Ball:
-    """Kronecker product of two ball matrices."""
-    flint = _flint()
-    (p, q), (r, t) = A.shape, B.shape
-    a, b = A.value, B.value
-    out = flint.arb_mat(p * r, q * t)
-    for i in range(p):
-        for j in range(q):
-            aij = a[i, j]
-            for k in range(r):
-                for m in range(t):
-                    out[i * r + k, j * t + m] = aij * b[k, m]
-    return Ball(out)
-
-
-def _block_diag(blocks: Sequence[Ball]) -> Ball:
-    flint = _flint()
-    rows = sum(b.shape[0] for b in blocks)
-    cols = sum(b.shape[1] for b in blocks)
-    out = flint.arb_mat(rows, cols)
-    r0 = c0 = 0
-    for b in blocks:
-        v = b.value
-        for i in range(b.shape[0]):
-            for j in range(b.shape[1]):
-                out[r0 + i, c0 + j] = v[i, j]
-        r0 += b.shape[0]
-        c0 += b.shape[1]
-    return Ball(out)
 
 
 def _ball_resets(loop: SampledLoop, h: float) -> list[Ball]:
@@ -270,12 +150,12 @@ class _MapParts:
         Dd, Ld = duplication_matrix(loop.d)
         Dr, Lr = duplication_matrix(loop.r)
         eye = np.eye(loop.d)
-        blocks = [ball(Ld) @ (ball(_float(np.kron(eye, A))) + ball(_float(np.kron(A, eye)))) @ ball(Dd)
+        blocks = [ball(Ld) @ (ball(as_float(np.kron(eye, A))) + ball(as_float(np.kron(A, eye)))) @ ball(Dd)
                   for A in loop.flow]
         P = loop.restriction()
         restrict = ball(np.asarray(Lr @ np.kron(P, P) @ Dd, dtype=float))  # 0/1 products of 0/1 matrices: exact
-        lift = _block_diag([ball(Ld) @ _kron(R, R) @ ball(Dr) for R in _ball_resets(loop, h)])
-        return cls(_block_diag(blocks).value, _block_diag([restrict] * loop.states).value, lift.value,
+        lift = ball_block_diag([ball(Ld) @ ball_kron(R, R) @ ball(Dr) for R in _ball_resets(loop, h)])
+        return cls(ball_block_diag(blocks).value, ball_block_diag([restrict] * loop.states).value, lift.value,
                    flint.arb(float(h)), Dd.shape[1], loop.states)
 
     def generator(self, Q: Any) -> Any:
@@ -365,6 +245,14 @@ def prove_stable(T: Ball, T_mid: Matrix, states: int, r: int) -> bool:
     if not _stack_pd(Y.value, states, r):
         return False
     return _stack_pd((Y - T @ Y).value, states, r)
+
+
+def _envelope_stable(loop: SampledLoop, parts: _MapParts, lo: Matrix, hi: Matrix) -> bool:
+    """The stable proof on a sub-box by the upper envelope (module docstring):
+    :math:`T(r) \\preceq T_{up}` for every rate of the sub-box, so :math:`Y \\succ 0`,
+    :math:`Y - T_{up}(Y) \\succ 0` proves :math:`\\rho(T(r)) < 1` for all of them."""
+    T_up = Ball(parts.map(envelope_generator(loop.chain, lo, hi).value))
+    return prove_stable(T_up, midpoint(T_up), loop.states, loop.r)
 
 
 #: Largest Van Loan block (rows, twice the moment generator's) the first-order form

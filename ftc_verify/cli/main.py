@@ -50,7 +50,8 @@ class _Parser(argparse.ArgumentParser):
 def _print_analysis(rep: Any, fdi_model: str, *, lmi: bool = True) -> None:
     d = rep.to_dict()
     mss = d["mss"]
-    vert = f"worst of {mss['vertices_evaluated']} rate vertices" + ("" if mss["exhaustive"] else ", greedy search")
+    vert = (f"float estimate, worst of {mss['vertices_evaluated']} rate vertices"
+            + ("" if mss["exhaustive"] else ", greedy search") + (" and the witness" if mss["witness"] else ""))
     print(f"ftc-verify analyze: {rep.name} ({rep.controller})")
     print(f"  {fdi_model}")
     word = {"stable": "stable", "not stable": "NOT stable", "undecided": "UNDECIDED"}[mss["verdict"]]
@@ -65,6 +66,10 @@ def _print_analysis(rep: Any, fdi_model: str, *, lmi: bool = True) -> None:
         print(f"  {label:<24} {value}{status}")
         if not res.certified and res.message:
             print(f"      {res.message}")
+        low = None if label.startswith("Theorem") else d["hinf"][
+            "nominal_lower_bound" if label.startswith("nominal") else "robust_lower_bound"]
+        if low is not None:
+            print(f"      {_bracket_text(low)}")
     print("  per joint mode (true, fdi): frozen poles, H-inf norm, python-control")
     for m in rep.per_mode:
         poles = ", ".join(f"{p.real:.4g}{p.imag:+.4g}j" if abs(p.imag) > 1e-12 else f"{p.real:.4g}" for p in m.poles)
@@ -78,11 +83,21 @@ def _print_analysis(rep: Any, fdi_model: str, *, lmi: bool = True) -> None:
     elif rep.mss.stable:
         verdict = "stable by the exact spectral test, but NO LMI certificate found (not a proof either way)"
     elif rep.mss.undecided:
-        verdict = ("UNDECIDED: neither stability nor instability could be proved at some beta vertex "
-                   "(float64 and the higher-precision retries)")
+        verdict = ("UNDECIDED: neither stability nor instability could be proved over the whole rate box "
+                   f"({rep.mss.reason})")
     else:
-        verdict = "NOT stable (proved at some beta vertex)"
+        verdict = "NOT stable (proved at a rate vector of the box)"
     print(f"  verdict: {verdict}; certificates {'all passed' if rep.certificate_ok else 'NOT all passed'}")
+
+
+def _bracket_text(low: dict[str, Any]) -> str:
+    """One line: the proved lower bound beside a certified gamma."""
+    where = f"{low['delta']}, rates {low['rates']}, w = F x + e cos({low['frequency']:.4g} t)"
+    if low["value"] is None:
+        return f"lower bound: none proved ({low['method']}); float estimate {low['estimate']:.6g} at {where}"
+    ratio = "" if low["ratio"] is None else f"; certified / lower = {low['ratio']:.6g}"
+    flag = " (LOOSE: above 1.05)" if low["loose"] else ""
+    return f"proved lower bound {low['value']:.6g} at {where}{ratio}{flag}"
 
 
 def _cmd_analyze(args: argparse.Namespace) -> int:
@@ -164,6 +179,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_synthesis_command(sub)
     add_plant_commands(sub)
+    from .export_commands import add_export_commands
+
+    add_export_commands(sub)
     return p
 
 

@@ -18,8 +18,9 @@ from typing import TYPE_CHECKING, Any
 
 from ..errors import FTCError, PlantRunError
 from ..jsonable import dumps
+from .export_commands import add_controller_fmu_option, load_loop
 from .common import (EXIT_NEGATIVE, EXIT_OK, EXIT_UNCERTIFIED, EXIT_UNDECIDED, PLOT_SUFFIXES, bad, check_output_file,
-                     load, nonneg_int, positive, positive_int, seed_int, strict)
+                     nonneg_int, positive, positive_int, seed_int, strict)
 
 if TYPE_CHECKING:
     from ..simulation.paths import ChainPath
@@ -37,6 +38,19 @@ def _check_horizon(step: float, horizon: float, option: str = "--step") -> None:
     if horizon < MIN_STEPS * step:
         raise bad(f"--horizon {horizon:g}: must cover at least {MIN_STEPS} steps of {option} {step:g} "
                    f"(at least {MIN_STEPS * step:g})")
+
+
+def _load_with_step(args: argparse.Namespace) -> tuple[Any, Any]:
+    """:func:`~ftc_verify.cli.export_commands.load_loop`, then ``args.step`` resolved
+    (:func:`_resolve_step`); an exported controller FMU is checked against the step
+    given (``--period``, ``--step``, else the default)."""
+    if getattr(args, "controller_fmu", None) is not None and args.step is None:
+        from .sampled_lines import DEFAULT_STEP
+
+        args.step = args.period if args.period is not None else DEFAULT_STEP
+    system, controller = load_loop(args)
+    _resolve_step(args, controller)
+    return system, controller
 
 
 def _resolve_step(args: argparse.Namespace, controller: Any) -> None:
@@ -74,8 +88,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     if args.plot:
         check_output_file(args.plot, "--plot", PLOT_SUFFIXES)
     _check_cluster(args)
-    system, controller = load(args.system, args.controller)
-    _resolve_step(args, controller)
+    system, controller = _load_with_step(args)
     record = max(args.record, 1 if args.plot else 0)
     kept = args.paths if args.backend == "fmu" else min(record, args.paths)  # the reference backend streams
     spec = SimulationSpec(step=args.step, horizon=args.horizon, n_paths=args.paths, seed=args.seed,
@@ -150,6 +163,8 @@ def _print_simulation(d: dict[str, Any], res: Any, name: str, args: argparse.Nam
     if res.backend == "fmu":
         print(f"  FMU {d['fmu']} (model identifier {d['model_identifier']}); jump times moved by at most "
               f"{res.options['timing_error']:.3g} to the FMU's step grid")
+        if res.options.get("controller_fmu"):
+            print(f"  controller FMU {res.options['controller_fmu']} (u and x_c computed by the exported controller)")
     ok = [k for k, y in enumerate(d["y_norm"]) if y is not None]
     if d["divergence"]:
         print(f"  DIVERGED OR FAILED: {d['divergence']}")
@@ -206,8 +221,7 @@ def _cmd_verify(args: argparse.Namespace) -> int:
         _check_horizon(args.period or args.step, args.horizon, "--period" if args.period else "--step")
     check_out_dir(args.out)
     _check_cluster(args)
-    system, controller = load(args.system, args.controller)
-    _resolve_step(args, controller)
+    system, controller = _load_with_step(args)
     plant = _load_plant(args, system, controller)
     if plant is None:
         _check_fmu_dims(system, args.system)
@@ -243,7 +257,7 @@ def add_run_commands(sub: Any) -> None:
     """Register ``simulate`` and ``verify`` on the CLI's subparsers."""
     m = sub.add_parser("simulate", help="simulate the sampled-data loop under Markov faults and delayed FDI")
     m.add_argument("system", help="system TOML file")
-    m.add_argument("--controller", "--gains", dest="controller", required=True,
+    m.add_argument("--controller", "--gains", dest="controller", default=None,
                    help="controller TOML file (static gains or dynamic; --gains is an alias)")
     m.add_argument("--backend", default="fmu", choices=["fmu", "reference"])
     m.add_argument("--paths", type=positive_int, default=10)
@@ -267,6 +281,7 @@ def add_run_commands(sub: Any) -> None:
     m.add_argument("--json", action="store_true")
     m.add_argument("--plot", default=None, help="PNG file for the paper's Fig. 1 of the first path")
     _plant_options(m)
+    add_controller_fmu_option(m)
     m.set_defaults(func=_cmd_simulate)
 
     v = sub.add_parser("verify", help="the main job: synthesize, certify, cross-validate, co-simulate, report")
@@ -293,6 +308,7 @@ def add_run_commands(sub: Any) -> None:
                         "alone, y(w) - y(w = 0) on the same path (incremental: for plants whose faults move the "
                         "equilibrium)")
     _plant_options(v)
+    add_controller_fmu_option(v)
     _cluster_options(v)
     v.set_defaults(func=_cmd_verify)
 

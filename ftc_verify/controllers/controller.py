@@ -33,8 +33,8 @@ The closed loop is built from ``(system, controller)`` in one place,
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -92,6 +92,10 @@ class Controller:
     measures: str
     name: str = ""
     period: float | None = None
+    #: The numbers of the controller file as written (float read -> decimal texts), set
+    #: by :func:`~ftc_verify.controllers.files.load_controller`; ``None`` when the floats
+    #: are the data.
+    literals: Mapping[float, tuple[str, ...]] | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         if self.period is not None:

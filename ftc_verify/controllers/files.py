@@ -31,6 +31,8 @@ save -> load is exact; writes are atomic (:func:`ftc_verify.model.files.write_at
 
 from __future__ import annotations
 
+import dataclasses
+
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -117,11 +119,16 @@ def load_controller(path: str | os.PathLike[str]) -> Controller:
     """Read a controller file (module docstring); check it against a system with
     :meth:`Controller.check`."""
     p = Path(path)
-    doc = read_toml(p)
+    literals: dict[float, tuple[str, ...]] = {}
+    doc = read_toml(p, literals)
     unknown_keys(p, "top level", list(doc), _TOP_KEYS)
     name = doc.get("name", p.stem)
     if not isinstance(name, str):
         raise ProblemFileError(f"{p}: name: expected a string, got {name!r}")
+    return dataclasses.replace(_controller_tables(p, doc, name), literals=literals)
+
+
+def _controller_tables(p: Path, doc: dict[str, Any], name: str) -> Controller:
     if "gain" in doc and "controller" in doc:
         raise ProblemFileError(
             f"{p}: both [[gain]] and [[controller]] tables: a file holds one controller, "

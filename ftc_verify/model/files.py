@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import os
 import tempfile
+import math
 import tomllib
 from collections.abc import Sequence
 from pathlib import Path
@@ -52,10 +53,23 @@ _CHAIN_OPTIONAL = {"fault_during_delay", "delay_phases", "false_alarm_min", "fal
 _MODE_KEYS = ("A", "B", "C", "D", "Cy", "A1", "A2", "B1", "B2")
 
 
-def read_toml(path: Path) -> dict[str, Any]:
+def read_toml(path: Path, literals: dict[float, tuple[str, ...]] | None = None) -> dict[str, Any]:
+    """The parsed TOML document of ``path`` (errors name the file). With ``literals``
+    (a dict to fill), every number is also recorded as written: the float read maps to
+    the decimal texts that were read as it (:func:`ftc_verify.analysis.exact.written`
+    proves on those exact numbers)."""
+    def parse_float(text: str) -> float:
+        value = float(text)
+        if literals is not None and math.isfinite(value):
+            literals[value] = tuple(sorted({*literals.get(value, ()), text.replace("_", "")}))
+        return value
+
     try:
         with open(path, "rb") as fh:
-            return tomllib.load(fh)
+            doc = tomllib.load(fh, parse_float=parse_float)
+        if literals is not None:
+            _record_integers(doc, literals)
+        return doc
     except FileNotFoundError:
         raise ProblemFileError(f"{path}: no such file") from None
     except IsADirectoryError:
@@ -64,6 +78,19 @@ def read_toml(path: Path) -> dict[str, Any]:
         raise ProblemFileError(f"{path}: not valid TOML: {exc}") from None
     except OSError as exc:
         raise ProblemFileError(f"{path}: cannot be read: {exc.strerror}") from None
+
+
+def _record_integers(value: Any, literals: dict[float, tuple[str, ...]]) -> None:
+    """Add the integers of a parsed TOML value to ``literals`` (as their exact text)."""
+    if isinstance(value, dict):
+        for v in value.values():
+            _record_integers(v, literals)
+    elif isinstance(value, list):
+        for v in value:
+            _record_integers(v, literals)
+    elif isinstance(value, int) and not isinstance(value, bool) and abs(value) < 2 ** 1000:
+        f = float(value)
+        literals[f] = tuple(sorted({*literals.get(f, ()), str(value)}))
 
 
 def unknown_keys(path: Path, where: str, keys: Sequence[str], allowed: set[str] | Sequence[str]) -> None:
@@ -112,7 +139,8 @@ def parse_chain(p: Path, chain_doc: dict[str, Any]) -> JointChain:
 def load_system(path: str | os.PathLike[str]) -> FTCSystem:
     """Read and validate an FTC system file (format in the module docstring)."""
     p = Path(path)
-    doc = read_toml(p)
+    literals: dict[float, tuple[str, ...]] = {}
+    doc = read_toml(p, literals)
     unknown_keys(p, "top level", list(doc), _TOP_KEYS)
     name = doc.get("name", p.stem)
     if not isinstance(name, str):
@@ -129,7 +157,7 @@ def load_system(path: str | os.PathLike[str]) -> FTCSystem:
         except ValidationError as exc:
             raise ProblemFileError(f"{p}: {exc}") from None
     try:
-        return FTCSystem(name, tuple(modes), chain)
+        return FTCSystem(name, tuple(modes), chain, literals=literals)
     except ValidationError as exc:
         raise ProblemFileError(f"{p}: {exc}") from None
 

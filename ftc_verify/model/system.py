@@ -246,6 +246,9 @@ class FTCSystem:
     name: str
     modes: tuple[Mode, ...]
     chain: JointChain
+    #: The numbers of the system file as written (float read -> decimal texts), set by
+    #: :func:`~ftc_verify.model.files.load_system`; ``None`` when the floats are the data.
+    literals: Mapping[float, tuple[str, ...]] | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         modes = tuple(self.modes)

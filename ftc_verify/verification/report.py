@@ -26,7 +26,7 @@ from .verify import VerifyReport
 __all__ = ["REPORT_FILES", "check_out_dir", "write_report", "render_markdown"]
 
 #: Every file a report may hold; a folder with anything else is not replaced.
-REPORT_FILES = frozenset({"report.json", "report.md", "fig1_path.png", "ratio_distribution.png", "worst_case.png"})
+REPORT_FILES = frozenset({"report.json", "report.md", "fig1_path.png", "ratio_distribution.png", "gamma_bracket.png"})
 
 
 def _num(value: float | None, spec: str = ".6g") -> str:
@@ -56,9 +56,9 @@ def render_markdown(rep: VerifyReport) -> str:
     rows = [
         ("certified robust gamma (Lemma 4.1)", d["gamma_certified"]),
         ("certified nominal gamma (Theorem 3.2)", d["gamma_nominal_certified"]),
-        ("spectral abscissa (worst beta vertex)", d["spectral_abscissa"]),
+        ("spectral abscissa (float estimate, worst rate vertex or witness)", d["spectral_abscissa"]),
         ("exact E||y||^2/||w||^2, worst case over beta vertices and Delta", d["exact_energy_ratio"]),
-        ("worst-case disturbance gain (lower bound)", d["worst_case_gain"]),
+        ("proved lower bound of the robust gain", (d["gamma_lower_bound"] or {}).get("value")),
         ("Monte Carlo mean ratio (FMU)", mc.get("mean_ratio")),
         ("Monte Carlo one-sided upper bound (alpha 1e-6)", mc.get("upper_bound")),
         ("Monte Carlo paths", mc.get("paths")),
@@ -95,7 +95,8 @@ def render_markdown(rep: VerifyReport) -> str:
               + ", ".join(f"{k} {v:.2f}" for k, v in d["seconds"].items()), "",
               "Plots: `fig1_path.png` (one path: true modes, FDI modes, states, output and disturbance), "
               "`ratio_distribution.png` (||y||_2/||w||_2 over paths against gamma), "
-              "`worst_case.png` (the worst-case disturbance)."]
+              "`gamma_bracket.png` (each certified gamma and its proved lower bound, with the exact and "
+              "Monte Carlo attenuation)."]
     return "\n".join(lines) + "\n"
 
 
@@ -123,23 +124,40 @@ def _ratio_plot(rep: VerifyReport, path: Path) -> None:
     plt.close(fig)
 
 
-def _worst_plot(rep: VerifyReport, path: Path) -> None:
+def _bracket_plot(rep: VerifyReport, path: Path) -> bool:
+    """Each certified gamma and its proved lower bound as an interval, beside the square
+    roots of the exact energy ratio and of the Monte Carlo bound; ``False`` (nothing
+    drawn) without a proved bracket."""
+    an = rep.analysis
+    if an is None:
+        return False
+    bars = [(label, low.value, res.gamma) for label, res, low in (("nominal", an.nominal, an.nominal_lower),
+                                                                    ("robust", an.robust, an.robust_lower))
+            if res.certified and res.gamma is not None and low is not None and low.value is not None]
+    if not bars:
+        return False
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    assert rep.worst is not None
-    wc = rep.worst
-    fig, ax = plt.subplots(figsize=(6, 3.5))
-    for c in range(wc.w.shape[1]):
-        ax.step(wc.t, np.append(wc.w[:, c], wc.w[-1, c]), where="post", label=f"w[{c + 1}]")
-    ax.set_title(f"worst-case disturbance: gain {wc.gain:.4g} (certified {rep.gamma_certified:.4g})")
-    ax.set_xlabel("t")
-    ax.legend()
+    fig, ax = plt.subplots(figsize=(6, 2.8))
+    for k, (_, low, high) in enumerate(bars):
+        ax.plot([low, high], [k, k], lw=6, color="tab:blue", solid_capstyle="butt")
+        ax.plot([low], [k], "|", ms=18, color="k")
+        ax.plot([high], [k], "|", ms=18, color="tab:red")
+    if rep.exact_energy_ratio is not None:
+        ax.axvline(math.sqrt(rep.exact_energy_ratio), color="tab:green", ls=":", label="sqrt(exact energy ratio)")
+    if rep.mc is not None and rep.mc.upper_bound is not None and math.isfinite(rep.mc.upper_bound):
+        ax.axvline(math.sqrt(rep.mc.upper_bound), color="k", ls="--", label="sqrt(Monte Carlo upper bound)")
+    ax.set_yticks(range(len(bars)), [f"{name} gain" for name, _, _ in bars])
+    ax.set_ylim(-0.8, len(bars) - 0.2)
+    ax.set_xlabel("gain: proved lower bound (black) .. certified gamma (red)")
+    ax.legend(fontsize=7, loc="lower left")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+    return True
 
 
 def check_out_dir(out_dir: str | os.PathLike[str]) -> Path:
@@ -200,8 +218,8 @@ def write_report(rep: VerifyReport, out_dir: str | os.PathLike[str]) -> list[Pat
                       + (f" on {Path(plant['fmu']).name}" if plant else ""),
                       state_offset=plant.get("states_op"), state_names=plant.get("states"))
             _ratio_plot(rep, stage / "ratio_distribution.png")
-        if rep.worst is not None:
-            _worst_plot(rep, stage / "worst_case.png")
+        if rep.gamma_certified is not None:
+            _bracket_plot(rep, stage / "gamma_bracket.png")
         names = sorted(item.name for item in stage.iterdir())
         stage.chmod(0o777 & ~_umask())
         _swap_in(stage, out)

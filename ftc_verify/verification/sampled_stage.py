@@ -9,7 +9,8 @@ certificates of the other stages are its :math:`h \\to 0` limit.
 
 from __future__ import annotations
 
-from typing import Any
+import time
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -17,9 +18,11 @@ from ..analysis.sampled import SampledLoop, SampledResult, sampled_analysis
 from ..controllers.controller import Controller
 from ..errors import FTCError
 from ..model.system import FTCSystem
-from .verify import Check
 
-__all__ = ["SAMPLED_LIMIT", "sampled_stage", "sampled_energy_stage"]
+if TYPE_CHECKING:
+    from .verify import Check
+
+__all__ = ["SAMPLED_LIMIT", "sampled_stage", "sampled_energy_stage", "sampled_stages"]
 
 #: Largest second-moment generator (rows, joint states times ``d (d + 1) / 2`` with
 #: ``d = n + n_u + n_c``) the stage analyses; its rigorous exponential is the cost.
@@ -31,6 +34,8 @@ def sampled_stage(system: FTCSystem, controller: Controller, step: float) -> tup
     mean-square stability over the whole rate box is proved; a loop above
     :data:`SAMPLED_LIMIT` is not analysed (said in the check, which then passes as
     before this stage existed and names what it does not cover)."""
+    from .verify import Check
+
     loop = SampledLoop.build(system, controller)
     d = loop.d
     rows = loop.states * d * (d + 1) // 2
@@ -59,6 +64,7 @@ def sampled_energy_stage(system: FTCSystem, controller: Controller, step: float,
     proved stable (its check says why)."""
     from ..simulation.delta import delta_shapes
     from .sampled_energy import perturbed_system, sampled_energy
+    from .verify import Check
 
     name = f"exact energy (sampled loop, h = {step:g})"
     if sampled is None or not sampled.stable:
@@ -84,3 +90,23 @@ def sampled_energy_stage(system: FTCSystem, controller: Controller, step: float,
                       f"max E||y||^2/||w||^2 = {worst['ratio']:.6g} ({worst['delta']}, "
                       f"{system.chain.rate_text(worst['beta'])}) vs gamma^2 = {g2:.6g}, {len(out)} cases, "
                       "infinite horizon, u and w held over each period")
+
+
+def sampled_stages(system: FTCSystem, controller: Controller, step: float, g2: float, checks: list[Check],
+                   seconds: dict[str, float]) -> dict[str, Any]:
+    """Both stages of ``verify`` on the sampled loop (:func:`sampled_stage`, then
+    :func:`sampled_energy_stage` at the rate vertices up to
+    :data:`~ftc_verify.verification.verify.MAX_EXACT_VERTICES`): their checks appended
+    to ``checks``, their times to ``seconds`` (``sampled``, ``sampled_energy``); returns
+    the report's ``sampled`` and ``sampled_exact``."""
+    from .verify import MAX_EXACT_VERTICES
+
+    t = time.perf_counter()
+    res, check = sampled_stage(system, controller, step)
+    checks.append(check)
+    seconds["sampled"] = time.perf_counter() - t
+    t = time.perf_counter()
+    exact, check = sampled_energy_stage(system, controller, step, g2, res, MAX_EXACT_VERTICES)
+    checks.append(check)
+    seconds["sampled_energy"] = time.perf_counter() - t
+    return {"sampled": res, "sampled_exact": tuple(exact)}
