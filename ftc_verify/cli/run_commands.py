@@ -45,7 +45,7 @@ def _load_with_step(args: argparse.Namespace) -> tuple[Any, Any]:
     (:func:`_resolve_step`); an exported controller FMU is checked against the step
     given (``--period``, ``--step``, else the default)."""
     if getattr(args, "controller_fmu", None) is not None and args.step is None:
-        from .sampled_lines import DEFAULT_STEP
+        from .export_commands import DEFAULT_STEP
 
         args.step = args.period if args.period is not None else DEFAULT_STEP
     system, controller = load_loop(args)

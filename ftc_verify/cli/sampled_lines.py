@@ -11,12 +11,11 @@ import argparse
 from typing import Any
 
 from .common import EXIT_NEGATIVE, EXIT_OK, EXIT_UNCERTIFIED, EXIT_UNDECIDED, bad
+from .export_commands import DEFAULT_STEP  # the simulators' step when no period or step is given
 
-__all__ = ["DEFAULT_STEP", "check_period_option", "resolve_step", "sampled_exit", "print_sampled",
+__all__ = ["check_period_option", "resolve_step", "sampled_exit", "print_sampled",
            "print_period_design", "warn_short_h_max"]
 
-#: The simulators' step when neither ``--step``, ``--period`` nor the controller file gives one.
-DEFAULT_STEP = 0.01
 
 
 def check_period_option(args: argparse.Namespace) -> None:
@@ -35,7 +34,7 @@ def check_period_option(args: argparse.Namespace) -> None:
 
 def resolve_step(args: argparse.Namespace, controller: Any) -> float:
     """The simulation step: ``--period``, else ``--step``, else the controller file's
-    ``period`` (checked against ``--horizon``), else :data:`DEFAULT_STEP`."""
+    ``period`` (checked against ``--horizon``), else :data:`~ftc_verify.cli.export_commands.DEFAULT_STEP`."""
     if args.period is not None:
         return float(args.period)
     if args.step is not None:
@@ -93,7 +92,7 @@ def print_period_design(design: Any, period: float) -> None:
 
 def warn_short_h_max(system: Any, controller: Any) -> None:
     """Without ``--period``: a warning on stderr when the certified controller's sampled
-    loop is not stable at some period up to 10 times :data:`DEFAULT_STEP` (float64 scan
+    loop is not stable at some period up to 10 times :data:`~ftc_verify.cli.export_commands.DEFAULT_STEP` (float64 scan
     of the rate vertices and midpoint: its ``h_max`` is then below that; a warning, not a
     certificate -- ``analyze --period`` proves it)."""
     import sys
