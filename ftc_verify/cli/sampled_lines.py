@@ -34,7 +34,7 @@ def check_period_option(args: argparse.Namespace) -> None:
 
 def resolve_step(args: argparse.Namespace, controller: Any) -> float:
     """The simulation step: ``--period``, else ``--step``, else the controller file's
-    ``period`` (checked against ``--horizon``), else :data:`~ftc_verify.cli.export_commands.DEFAULT_STEP`."""
+    ``period`` (checked against ``--horizon``), else ``DEFAULT_STEP`` (0.01, ``cli.export_commands``)."""
     if args.period is not None:
         return float(args.period)
     if args.step is not None:
@@ -92,7 +92,7 @@ def print_period_design(design: Any, period: float) -> None:
 
 def warn_short_h_max(system: Any, controller: Any) -> None:
     """Without ``--period``: a warning on stderr when the certified controller's sampled
-    loop is not stable at some period up to 10 times :data:`~ftc_verify.cli.export_commands.DEFAULT_STEP` (float64 scan
+    loop is not stable at some period up to 10 times ``DEFAULT_STEP`` (0.01, ``cli.export_commands``) (float64 scan
     of the rate vertices and midpoint: its ``h_max`` is then below that; a warning, not a
     certificate -- ``analyze --period`` proves it)."""
     import sys
