@@ -33,7 +33,7 @@ from .. import __version__
 from ..errors import FTCError
 from ..jsonable import dumps
 from .common import (EXIT_BAD_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_NEGATIVE, EXIT_OK, EXIT_PIPE,
-                     EXIT_TERMINATED, EXIT_UNCERTIFIED, EXIT_UNDECIDED, load)
+                     EXIT_TERMINATED, EXIT_UNCERTIFIED, EXIT_UNDECIDED, load, positive)
 
 __all__ = ["main", "build_parser"]
 
@@ -50,20 +50,32 @@ class _Parser(argparse.ArgumentParser):
 def _cmd_analyze(args: argparse.Namespace) -> int:
     from ..analysis.analyze import analyze
     from ..analysis.closedloop import closed_loop
+    from .sampled_lines import print_sampled, sampled_exit
 
     system, controller = load(args.system, args.controller)
     rep = analyze(closed_loop(system, controller), solver=args.solver, name=system.name, lmi=not args.no_lmi)
+    period = args.period if args.period is not None else controller.period
+    sampled = None
+    if period is not None:  # the loop that runs: sampled every period, output held
+        from ..analysis.sampled import sampled_analysis
+
+        sampled = sampled_analysis(system, controller, period)
     if args.json:
-        print(dumps(rep.to_dict() | {"lmi_requested": not args.no_lmi, "fdi_model": system.chain.describe()}))
+        print(dumps(rep.to_dict() | {"lmi_requested": not args.no_lmi, "fdi_model": system.chain.describe(),
+                                     "sampled": None if sampled is None else sampled.to_dict()}))
     else:
         from ..analysis.summary import analysis_summary
 
         print(analysis_summary(rep, fdi_model=system.chain.describe()))
+        if sampled is not None:
+            print_sampled(sampled)
     if rep.certified_stable or (args.no_lmi and rep.mss.stable):
-        return EXIT_OK
-    if rep.mss.undecided:
-        return EXIT_UNDECIDED
-    return EXIT_UNCERTIFIED if rep.mss.stable else EXIT_NEGATIVE
+        code = EXIT_OK
+    elif rep.mss.undecided:
+        code = EXIT_UNDECIDED
+    else:
+        code = EXIT_UNCERTIFIED if rep.mss.stable else EXIT_NEGATIVE
+    return sampled_exit(code, sampled)
 
 
 def _cmd_build_fmus(args: argparse.Namespace) -> int:
@@ -99,6 +111,9 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--no-lmi", action="store_true",
                    help="only the exact spectral test and the per-mode cross-check (no LMI certificates): "
                         "for loops whose LMIs would not fit in memory or time")
+    a.add_argument("--period", type=positive, default=None,
+                   help="sampling period H of the digital controller (default: the controller file's period, "
+                        "else continuous time): proves the sampled loop's mean-square stability and h_max")
     a.set_defaults(func=_cmd_analyze)
 
     from .run_commands import add_run_commands

@@ -34,10 +34,38 @@ __all__ = ["add_run_commands"]
 MIN_STEPS = 10
 
 
-def _check_horizon(step: float, horizon: float) -> None:
+def _check_horizon(step: float, horizon: float, option: str = "--step") -> None:
     if horizon < MIN_STEPS * step:
-        raise bad(f"--horizon {horizon:g}: must cover at least {MIN_STEPS} steps of --step {step:g} "
+        raise bad(f"--horizon {horizon:g}: must cover at least {MIN_STEPS} steps of {option} {step:g} "
                    f"(at least {MIN_STEPS * step:g})")
+
+
+def _load_with_step(args: argparse.Namespace) -> tuple[Any, Any]:
+    """:func:`~ftc_verify.cli.export_commands.load_loop`, then ``args.step`` resolved
+    (:func:`_resolve_step`); an exported controller FMU is checked against the step
+    given (``--period``, ``--step``, else the default)."""
+    if getattr(args, "controller_fmu", None) is not None and args.step is None:
+        from .export_commands import DEFAULT_STEP
+
+        args.step = args.period if args.period is not None else DEFAULT_STEP
+    system, controller = load_loop(args)
+    _resolve_step(args, controller)
+    return system, controller
+
+
+def _resolve_step(args: argparse.Namespace, controller: Any) -> None:
+    """``args.step`` from ``--period``, ``--step`` or the controller file's period
+    (:func:`~ftc_verify.cli.sampled_lines.resolve_step`), checked against ``--horizon``."""
+    from .sampled_lines import resolve_step
+
+    if args.period is not None or args.step is not None:
+        option = "--period" if args.period is not None else "--step"
+    elif controller is not None and controller.period is not None:
+        option = f"the period in {args.controller}"
+    else:
+        option = "the default step"
+    args.step = resolve_step(args, controller)
+    _check_horizon(args.step, args.horizon, option)
 
 
 def _check_fmu_dims(system: Any, source: str) -> None:
@@ -52,12 +80,15 @@ def _check_fmu_dims(system: Any, source: str) -> None:
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from ..simulation.spec import SimulationSpec
+    from .sampled_lines import check_period_option
 
-    _check_horizon(args.step, args.horizon)
+    check_period_option(args)
+    if args.step is not None or args.period is not None:
+        _check_horizon(args.period or args.step, args.horizon, "--period" if args.period else "--step")
     if args.plot:
         check_output_file(args.plot, "--plot", PLOT_SUFFIXES)
     _check_cluster(args)
-    system, controller = load_loop(args)
+    system, controller = _load_with_step(args)
     record = max(args.record, 1 if args.plot else 0)
     kept = args.paths if args.backend == "fmu" else min(record, args.paths)  # the reference backend streams
     spec = SimulationSpec(step=args.step, horizon=args.horizon, n_paths=args.paths, seed=args.seed,
@@ -181,12 +212,16 @@ def _cmd_verify(args: argparse.Namespace) -> int:
     from ..verification.report import check_out_dir, write_report
     from ..verification.verify import run_verify
 
+    from .sampled_lines import check_period_option
+
     if args.paths < 2:
         raise bad(f"--paths {args.paths}: the Monte Carlo bound needs at least 2 paths")
-    _check_horizon(args.step, args.horizon)
+    check_period_option(args)
+    if args.step is not None or args.period is not None:
+        _check_horizon(args.period or args.step, args.horizon, "--period" if args.period else "--step")
     check_out_dir(args.out)
     _check_cluster(args)
-    system, controller = load_loop(args)
+    system, controller = _load_with_step(args)
     plant = _load_plant(args, system, controller)
     if plant is None:
         _check_fmu_dims(system, args.system)
@@ -224,7 +259,12 @@ def add_run_commands(sub: Any) -> None:
     m.add_argument("--paths", type=positive_int, default=10, help="Monte Carlo paths (default %(default)s)")
     m.add_argument("--horizon", type=positive, default=30.0,
                    help="simulated time per path, in the system's time unit (default %(default)s)")
-    m.add_argument("--step", type=positive, default=0.01, help="control period h (sample-and-hold), in the system's time unit (default %(default)s)")
+    m.add_argument("--step", type=positive, default=None,
+                   help="control period h (sample-and-hold), in the system's time unit (default: --period, the "
+                        "controller file's period, else 0.01)")
+    m.add_argument("--period", type=positive, default=None,
+                   help="the controller's sampling period H, in the system's time unit (sets --step; at most "
+                        "--horizon; default: the controller file's period)")
     m.add_argument("--seed", type=seed_int, default=None, help="seed of the numpy Generator (recorded in the output)")
     m.add_argument("--disturbance", default="paper", choices=["paper", "zero", "step", "pulse", "sine"],
                    help="w(t) on every input channel: paper = exp(-0.1 t) sin t (Section VI), zero, step = 1, "
@@ -258,9 +298,12 @@ def add_run_commands(sub: Any) -> None:
     v.add_argument("--k-max", type=positive, default=30.0, help="gain norm bound for synthesis (default 30)")
     v.add_argument("--no-gain-bound", action="store_true", help="synthesize without a gain bound")
     v.add_argument("--paths", type=positive_int, default=200, help="Monte Carlo paths on the FMU (default 200)")
-    v.add_argument("--step", type=positive, default=0.01,
-                   help="control period h of the Monte Carlo (sample-and-hold), in the system's time unit "
-                        "(default %(default)s)")
+    v.add_argument("--step", type=positive, default=None,
+                   help="control period h of the Monte Carlo (sample-and-hold), in the system's time unit, "
+                        "analysed as a sampled loop (default: --period, the controller file's period, else 0.01)")
+    v.add_argument("--period", type=positive, default=None,
+                   help="the controller's sampling period H, in the system's time unit (sets --step; at most "
+                        "--horizon; default: the controller file's period)")
     v.add_argument("--horizon", type=positive, default=30.0,
                    help="simulated time per Monte Carlo path, in the system's time unit (default %(default)s)")
     v.add_argument("--seed", type=seed_int, default=None,

@@ -1,5 +1,7 @@
 """``ftc-verify synthesize``: state-feedback or output-feedback synthesis, certified by the
-core analysis; the controller file is written only when certified. Exit codes: 0
+core analysis; the controller file is written only when certified (with ``--period H``:
+only when the sampled loop at ``H`` is also proved mean-square stable,
+:mod:`ftc_verify.synthesis.at_period`; the file then records ``period = H``). Exit codes: 0
 certified, 1 not found or not certified (with the diagnosis), 2 bad input (an output file
 that is the input system file included: never replaced)."""
 
@@ -63,29 +65,56 @@ def _cmd_synthesize(args: argparse.Namespace) -> int:
         raise bad(f"--order {args.order}: must be >= 0 (0 is static output feedback)")
     check_output_file(args.output, "-o/--output", inputs=(args.system,))
     system = load_system(args.system)
-    if args.output_feedback:
-        from ..synthesis.output_feedback import synthesize_output_feedback
 
+    def design(k_max: float | None) -> Any:
+        if args.output_feedback:
+            from ..synthesis.output_feedback import synthesize_output_feedback
+
+            return synthesize_output_feedback(system, method=args.method or "auto", gamma=args.gamma, k_max=k_max,
+                                              solver=args.solver, order=args.order, seed=args.seed)
+        return synthesize(system, method=args.method, gamma=args.gamma, k_max=k_max, solver=args.solver)
+
+    def controller_of(res: Any) -> Controller:
+        return res.controller if args.output_feedback else Controller.state_feedback(
+            res.gains, name=f"{system.name} {res.method}")
+
+    if args.output_feedback:
         n = system.dims[0]
         if args.order is not None and args.order != n and args.method not in (None, "auto", "descent"):
             raise bad(f"--order {args.order}: method {args.method} designs order n = {n} only; use --method descent")
-        res = synthesize_output_feedback(system, method=args.method or "auto", gamma=args.gamma, k_max=args.k_max,
-                                         solver=args.solver, order=args.order, seed=args.seed)
-    else:
-        res = synthesize(system, method=args.method, gamma=args.gamma, k_max=args.k_max, solver=args.solver)
-    if res.certified and res.controller is not None:
-        named = res.controller if args.output_feedback else Controller.state_feedback(
-            res.gains, name=f"{system.name} {res.method}")
-        write_atomic(args.output, dump_controller(named))
-    verdict = "certified" if res.certified else "NOT certified"
-    if args.json:
-        print(dumps(res.to_dict() | {"verdict": verdict}))
-    else:
-        _print_synthesis(res)
-        print(f"  controller {'written to ' + str(args.output) if res.certified else 'not written (not certified)'}")
-        print(f"  verdict: {verdict}")
-    return EXIT_OK if res.certified else EXIT_NEGATIVE
+    at_period = None
+    if args.period is not None:  # the loop that runs: proved stable at the period, or nothing written
+        from ..synthesis.at_period import synthesize_at_period
 
+        at_period = synthesize_at_period(system, args.period, design, controller_of, k_max=args.k_max)
+        res = at_period.result
+    else:
+        res = design(args.k_max)
+    certified = res.certified and (at_period is None or at_period.found)
+    if certified:
+        named = controller_of(res) if at_period is None or at_period.controller is None else at_period.controller
+        write_atomic(args.output, dump_controller(named))
+    if not args.json:
+        _print_synthesis(res)
+    if at_period is not None:
+        from .sampled_lines import print_period_design
+
+        if not args.json:
+            print_period_design(at_period, args.period)
+    elif res.certified:
+        from .sampled_lines import warn_short_h_max
+
+        warn_short_h_max(system, controller_of(res))
+    verdict = "certified" if certified else "NOT certified"
+    if args.json:
+        extra = {} if at_period is None else {
+            "period": args.period, "period_attempts": list(at_period.attempts),
+            "sampled": None if at_period.sampled is None else at_period.sampled.to_dict()}
+        print(dumps(res.to_dict() | extra | {"verdict": verdict}))
+    else:
+        print(f"  controller {'written to ' + str(args.output) if certified else 'not written (not certified)'}")
+        print(f"  verdict: {verdict}")
+    return EXIT_OK if certified else EXIT_NEGATIVE
 
 
 def add_synthesis_command(sub: Any) -> None:
@@ -112,5 +141,9 @@ def add_synthesis_command(sub: Any) -> None:
     y.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     y.add_argument("--solver", default="auto", choices=["auto", "clarabel", "sdpa", "scs"],
                    help="LMI solver (default: auto = clarabel at every size; sdpa and scs on request)")
+    y.add_argument("--period", type=positive, default=None,
+                   help="sampling period H of the digital controller, in the system's time unit: design until the "
+                        "sampled loop is proved mean-square stable at H (smaller gain bounds), write period = H "
+                        "into the controller file (default: none, continuous time)")
     y.set_defaults(func=_cmd_synthesize)
 

@@ -20,6 +20,11 @@ the measured output of the *true* mode :math:`i` (``measures="output"``,
   :meth:`Controller.dynamic` builds it. :math:`n_c = 0` with ``measures="output"`` is
   static output feedback :math:`u = D_{c,l} y_m`.
 
+A controller may carry its sampling **period** :math:`h` (``period``, seconds; ``None``
+for a continuous-time controller): it reads :math:`v(t_k)` and the FDI report
+:math:`l(t_k)` at :math:`t_k = k h` and holds :math:`u` until the next sample
+(:mod:`ftc_verify.analysis.sampled` certifies that loop).
+
 The closed loop is built from ``(system, controller)`` in one place,
 :func:`ftc_verify.analysis.closedloop.closed_loop`; the simulators use
 :meth:`Controller.discretise` for the exact update of :math:`x_c` between samples.
@@ -27,8 +32,9 @@ The closed loop is built from ``(system, controller)`` in one place,
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -38,10 +44,21 @@ from numpy.typing import ArrayLike
 from ..errors import ValidationError
 from ..model.system import FTCSystem, Matrix, Mode, as_matrix
 
-__all__ = ["MEASURES", "Controller"]
+__all__ = ["MEASURES", "Controller", "check_period"]
 
 #: What a controller reads: the plant state, or the measured output ``y_m = Cy x``.
 MEASURES = ("state", "output")
+
+
+def check_period(value: Any, name: str = "period") -> float:
+    """A sampling period: a finite number ``> 0`` (not a bool), else a
+    :class:`~ftc_verify.errors.ValidationError` naming ``name`` and the value."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValidationError(f"{name}: expected a positive number of seconds, got {value!r}")
+    h = float(value)
+    if not (math.isfinite(h) and h > 0):
+        raise ValidationError(f"{name}: must be a positive finite number of seconds, got {value!r}")
+    return h
 
 
 def _empty(rows: int, cols: int) -> Matrix:
@@ -63,6 +80,9 @@ class Controller:
         The controller input ``v``: the plant state ``x`` or the measured output ``y_m``.
     name : str
         A label for reports.
+    period : float or None
+        The sampling period ``h > 0`` of a digital implementation (module docstring);
+        ``None`` (default): continuous time.
     """
 
     Ac: tuple[Matrix, ...]
@@ -71,12 +91,15 @@ class Controller:
     Dc: tuple[Matrix, ...]
     measures: str
     name: str = ""
+    period: float | None = None
     #: The numbers of the controller file as written (float read -> decimal texts), set
     #: by :func:`~ftc_verify.controllers.files.load_controller`; ``None`` when the floats
     #: are the data.
     literals: Mapping[float, tuple[str, ...]] | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
+        if self.period is not None:
+            object.__setattr__(self, "period", check_period(self.period, "controller.period"))
         if self.measures not in MEASURES:
             raise ValidationError(f"controller.measures: expected one of {MEASURES}, got {self.measures!r}")
         count = len(self.Dc)
@@ -110,7 +133,7 @@ class Controller:
 
     # ---------------------------------------------------------------- constructors
     @classmethod
-    def state_feedback(cls, gains: Sequence[ArrayLike], *, name: str = "") -> Controller:
+    def state_feedback(cls, gains: Sequence[ArrayLike], *, name: str = "", period: float | None = None) -> Controller:
         """Static state feedback ``u = K[l] x`` (``m`` gains) or ``u = K[i m + l] x``
         (``m * m`` full-information gains)."""
         Ks = [as_matrix(K, f"gain[{k}].K") for k, K in enumerate(gains, start=1)]
@@ -119,7 +142,7 @@ class Controller:
         nu, n = Ks[0].shape
         return cls(
             tuple(_empty(0, 0) for _ in Ks), tuple(_empty(0, n) for _ in Ks),
-            tuple(_empty(nu, 0) for _ in Ks), tuple(Ks), "state", name,
+            tuple(_empty(nu, 0) for _ in Ks), tuple(Ks), "state", name, period,
         )
 
     @classmethod
@@ -131,9 +154,14 @@ class Controller:
         Dc: Sequence[ArrayLike],
         *,
         name: str = "",
+        period: float | None = None,
     ) -> Controller:
         """Dynamic output feedback on ``y_m``, one ``(Ac, Bc, Cc, Dc)`` per FDI mode."""
-        return cls(tuple(Ac), tuple(Bc), tuple(Cc), tuple(Dc), "output", name)  # type: ignore[arg-type]
+        return cls(tuple(Ac), tuple(Bc), tuple(Cc), tuple(Dc), "output", name, period)  # type: ignore[arg-type]
+
+    def with_period(self, period: float | None) -> Controller:
+        """The same controller with sampling period ``period`` (``None``: continuous time)."""
+        return replace(self, period=period)
 
     # ---------------------------------------------------------------- properties
     @property
@@ -252,7 +280,7 @@ class Controller:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready description (the matrices as nested lists)."""
         out: dict[str, Any] = {"kind": self.describe(), "measures": self.measures, "n_c": self.n_c,
-                               "name": self.name}
+                               "name": self.name, "period": self.period}
         if self.is_state_feedback:
             out["gains"] = [K.tolist() for K in self.Dc]
         else:
@@ -265,7 +293,7 @@ class Controller:
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, Controller):
             return NotImplemented
-        return self.measures == other.measures and all(
+        return self.measures == other.measures and self.period == other.period and all(
             len(getattr(self, k)) == len(getattr(other, k))
             and all(a.shape == b.shape and np.array_equal(a, b) for a, b in zip(getattr(self, k), getattr(other, k)))
             for k in ("Ac", "Bc", "Cc", "Dc")

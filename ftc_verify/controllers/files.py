@@ -21,6 +21,8 @@ Dynamic output feedback on ``y_m = Cy x``, one ``[[controller]]`` table per FDI 
     Dc = [[...]]    # nu x ny_m
 
 A ``[[controller]]`` table with ``Dc`` alone is static output feedback ``u = Dc y_m``.
+An optional top-level ``period = 0.05`` (seconds, ``> 0``) is the sampling period of a
+digital implementation (:attr:`Controller.period`; written by ``synthesize --period``).
 A file holds either ``[[gain]]`` or ``[[controller]]`` tables, never both; every table has
 the same keys and shapes. Errors name the file, the table (1-based) and the key, with the
 shape found against the one expected. Floats are written with ``repr`` so that load ->
@@ -42,7 +44,7 @@ import tomli_w
 from ..errors import ProblemFileError, ValidationError
 from ..model.files import CONTROLLER_FILE, check_kind, read_toml, tables, tolist, unknown_keys, write_atomic
 from ..model.system import FTCSystem, Matrix, as_matrix
-from .controller import Controller
+from .controller import Controller, check_period
 
 __all__ = [
     "load_controller",
@@ -54,7 +56,7 @@ __all__ = [
     "check_gains",
 ]
 
-_TOP_KEYS = {"name", "gain", "controller"}
+_TOP_KEYS = {"name", "period", "gain", "controller"}
 _DYNAMIC_KEYS = ("Ac", "Bc", "Cc", "Dc")
 
 
@@ -133,11 +135,17 @@ def _controller_tables(p: Path, doc: dict[str, Any], name: str) -> Controller:
             f"{p}: both [[gain]] and [[controller]] tables: a file holds one controller, "
             "either static gains or a dynamic controller"
         )
+    period = None
+    if "period" in doc:
+        try:
+            period = check_period(doc["period"], "period")
+        except ValidationError as exc:
+            raise ProblemFileError(f"{p}: {exc}") from None
     if "controller" in doc:
-        return _load_controller_tables(p, tables(p, doc, "controller"), name)
+        return _load_controller_tables(p, tables(p, doc, "controller"), name).with_period(period)
     if "gain" not in doc:
         raise ProblemFileError(f"{p}: no [[gain]] or [[controller]] tables (one per FDI mode is needed)")
-    return _load_gain_tables(p, tables(p, doc, "gain"), name)
+    return _load_gain_tables(p, tables(p, doc, "gain"), name).with_period(period)
 
 
 def dump_controller(controller: Controller) -> str:
@@ -145,6 +153,8 @@ def dump_controller(controller: Controller) -> str:
     doc: dict[str, Any] = {}
     if controller.name:
         doc["name"] = controller.name
+    if controller.period is not None:
+        doc["period"] = controller.period
     if controller.is_state_feedback:
         doc["gain"] = [{"K": tolist(K)} for K in controller.Dc]
     elif controller.static:

@@ -61,6 +61,7 @@ __all__ = [
     "controllers",
     "disturbances",
     "similarity_transforms",
+    "periods",
 ]
 
 Matrix = NDArray[np.float64]
@@ -446,6 +447,16 @@ def controllers(
         return draw(state_feedback(system, scale=scale, q=q, r=r, max_gain=max_gain))
     order = system.dims[0] + draw(_opt(extra_states)) if n_c is None else draw(_opt(n_c))
     return _observer(draw, system, order, draw(_opt(scale, floats=True)), q, r, max_gain)
+
+
+def periods(*, low: float = 1e-3, high: float = 0.2) -> st.SearchStrategy[float]:
+    """A controller's sampling period ``h`` in ``[low, high]``, log-uniform
+    (``10 ** u``, ``u`` uniform between the logarithms): short and long periods alike, for
+    :mod:`ftc_verify.analysis.sampled`."""
+    if not 0 < low <= high:
+        raise InvalidArgument(f"periods: need 0 < low <= high, got {low!r}, {high!r}")
+    lo, hi = float(np.log10(low)), float(np.log10(high))
+    return st.floats(lo, hi).map(lambda e: float(min(max(10.0 ** e, low), high)))
 
 
 def disturbances(*, exact: bool = False, decaying: bool = False, nonzero: bool = False) -> st.SearchStrategy[str]:

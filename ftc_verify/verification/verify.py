@@ -10,6 +10,10 @@ all on the one closed loop :func:`~ftc_verify.analysis.closedloop.closed_loop` b
 3. **exact expected energy** of the continuous-time loop for the paper's disturbance at
    every ``beta`` vertex (up to :data:`MAX_EXACT_VERTICES`) and for ``Delta`` in
    ``{0, +E, -E}`` (``E`` the rectangular identity, norm 1) when the plant is uncertain;
+   then the **sampled loop** at ``step``, the loop the Monte Carlo runs
+   (:mod:`ftc_verify.verification.sampled_stage`: mean-square stability proved over the
+   rate box at the period, ``h_max``, and its exact expected energy with the input and
+   the disturbance held, :mod:`ftc_verify.verification.sampled_energy`);
 4. **gamma bracket**: the proved lower bound of the analysis
    (:mod:`ftc_verify.analysis.lower_bound`) does not exceed the certified gamma, and
    their ratio says how far from the truth the certificate can be;
@@ -53,6 +57,7 @@ from ..simulation.spec import SimulationSpec, spec_from
 from ..synthesis.state_feedback import SynthesisResult, synthesize
 from .moments import exact_energy
 from .montecarlo import MCEstimate, estimate
+from .sampled_stage import sampled_stages
 
 __all__ = ["Check", "VerifyReport", "run_verify", "incremental_records", "AGREE_RTOL", "MAX_EXACT_VERTICES"]
 
@@ -93,6 +98,8 @@ class VerifyReport:
     seconds: dict[str, float] = field(default_factory=dict)
     plant: dict[str, Any] | None = None
     plant_failure: PlantRunError | None = None  # the plant FMU crashed or returned fmi2Fatal
+    sampled: Any = None  # SampledResult of the loop at the simulation step (verification.sampled_stage)
+    sampled_exact: tuple[dict[str, Any], ...] = ()  # its exact energies (sampled_stage.sampled_energy_stage)
 
     @property
     def verdict(self) -> str:
@@ -134,6 +141,8 @@ class VerifyReport:
             "plant_failure": None if self.plant_failure is None else {
                 "fmu": self.plant_failure.fmu, "path": self.plant_failure.path, "time": self.plant_failure.time,
                 "detail": self.plant_failure.detail},
+            "sampled": None if self.sampled is None else self.sampled.to_dict(),
+            "sampled_exact": list(self.sampled_exact),
             "seed": self.seed,
             "options": self.options,
             "seconds": self.seconds,
@@ -371,18 +380,15 @@ def run_verify(
 ) -> VerifyReport:
     """Run every stage of the module docstring and collect the checks.
 
-    ``controller=None`` synthesizes state feedback by ``method``; a given controller
-    (static or dynamic, :class:`~ftc_verify.controllers.Controller`) is verified as is.
-    ``spec``: the :class:`~ftc_verify.simulation.spec.SimulationSpec` of the Monte Carlo
-    (seed drawn when ``None``; ``Delta`` resolved on the plant; records' memory checked
-    first); the keywords ``paths``, ``step``, ``horizon``, ``seed`` are its shorthand.
-    ``plant``: a :class:`~ftc_verify.plants.plant_map.PlantMap` whose FMU replaces the
-    ``LinearJumpPlant`` in the Monte Carlo (``system`` is then its linearisation); the
-    report gains a ``plant`` object and the region check replaces the backend agreement.
-    ``measure``: ``"total"`` or ``"incremental"`` (:func:`incremental_records`; the fault
-    response's energy is reported). ``client``: a ``dask.distributed.Client`` whose workers
-    co-simulate the Monte Carlo batches (same numbers); else ``fmu_log`` gets the FMU's messages.
-    """
+    ``controller=None`` synthesizes state feedback by ``method``; a given controller (static or dynamic,
+    :class:`~ftc_verify.controllers.Controller`) is verified as is. ``spec``: the
+    :class:`~ftc_verify.simulation.spec.SimulationSpec` of the Monte Carlo (seed drawn when ``None``; ``Delta`` resolved
+    on the plant; records' memory checked first); the keywords ``paths``, ``step``, ``horizon``, ``seed`` are its
+    shorthand. ``plant``: a :class:`~ftc_verify.plants.plant_map.PlantMap` whose FMU replaces the ``LinearJumpPlant`` in
+    the Monte Carlo (``system`` is then its linearisation); the report gains a ``plant`` object and the region check
+    replaces the backend agreement. ``measure``: ``"total"`` or ``"incremental"`` (:func:`incremental_records`; the
+    fault response's energy is reported). ``client``: a ``dask.distributed.Client`` whose workers co-simulate the Monte
+    Carlo batches (same numbers); else ``fmu_log`` gets the FMU's messages."""
     if measure not in ("total", "incremental"):
         raise ValidationError(f"measure: {measure!r} is not 'total' or 'incremental'")
     spec = _verify_spec(spec, {"n_paths": paths, "step": step, "horizon": horizon, "seed": seed})
@@ -412,9 +418,11 @@ def run_verify(
         controller = synthesis.controller
     stage("synthesis", t)
 
+    extra: dict[str, Any] = {}  # the sampled loop's findings (verification.sampled_stage)
+
     def report(**found: Any) -> VerifyReport:
         parts: dict[str, Any] = {"gamma_certified": None, "analysis": None, "per_mode": (), "exact": (),
-                                 "mc": None, "records": ()} | found
+                                 "mc": None, "records": ()} | extra | found
         return VerifyReport(system, controller, synthesis=synthesis, checks=tuple(checks), seed=seed,
                             options=options, seconds=seconds, **parts)
 
@@ -433,6 +441,7 @@ def run_verify(
         return report(analysis=analysis, per_mode=per_mode)
     g2 = gamma_cert ** 2
     exact = timed("exact_energy", lambda: _exact_energies(system, loop, g2))
+    extra.update(sampled_stages(system, controller, float(spec.step), g2, checks, seconds))  # the loop that runs
     timed("gamma_bracket", functools.partial(_bracket, analysis, gamma_cert))
     t = time.perf_counter()
     spec, options["delta"] = spec.resolve_delta(system, plant)

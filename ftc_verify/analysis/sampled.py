@@ -1,0 +1,491 @@
+r"""The sampled-data loop: its exact one-period second-moment map, stability and ``h_max``.
+
+A digital controller with period :math:`h` reads :math:`v_k = M_i x(t_k)` and the FDI
+report :math:`l(t_k)` at :math:`t_k = k h` and holds its output until :math:`t_{k+1}`,
+while faults and detections keep happening between samples. With the controller entry
+:math:`e` of the joint state at the sample (:meth:`Controller.index`: the FDI mode) and
+the exact discretisation :math:`\Phi_c = e^{A_{c,e} h}`,
+:math:`\Gamma_c = \int_0^h e^{A_{c,e} s} ds\, B_{c,e}` of a dynamic controller
+(:meth:`Controller.discretise`, as in the simulators),
+
+.. math::
+
+    u_k = C_{c,e} x_{c,k} + D_{c,e} M_i x(t_k), \qquad
+    x_{c,k+1} = \Phi_c x_{c,k} + \Gamma_c M_i x(t_k), \qquad
+    \dot x = A_{\theta(t)} x + B_{\theta(t)} u_k \ \ (t_k \le t < t_{k+1}),
+
+with :math:`\theta` the joint chain (true mode, FDI mode, phase) of
+:mod:`ftc_verify.model.chain`, jumping freely inside the period.
+
+**One-period map** (derived here). Take the augmented state
+:math:`z = (x, u, x_c^+)` of dimension :math:`d = n + n_u + n_c`, constant in its last
+two parts inside a period: :math:`\dot z = \bar A_i z`,
+:math:`\bar A_i = \bigl[\begin{smallmatrix} A_i & B_i & 0 \\ 0 & 0 & 0 \\ 0 & 0 & 0
+\end{smallmatrix}\bigr]` in true mode :math:`i`. Its second moments per joint state,
+:math:`Z_s(t) = E[z z^T 1\{\theta_t = s\}]`, obey the moment equation of
+:mod:`ftc_verify.analysis.stability` with :math:`A_s = \bar A_i`,
+:math:`\dot{\operatorname{vech}} Z = \mathcal L\, \operatorname{vech} Z`, so over one
+period they move by :math:`e^{\mathcal L h}` -- every jump inside the period
+included exactly. At the sample the controller resets :math:`z` from the sampled
+:math:`\zeta = (x, x_c)` (dimension :math:`r = n + n_c`) of the same joint state:
+:math:`z = R_s \zeta`,
+
+.. math::
+
+    R_s = \begin{bmatrix} I_n & 0 \\ D_{c,e} M_i & C_{c,e} \\ \Gamma_c M_i & \Phi_c
+    \end{bmatrix}, \qquad \zeta_{k+1} = P z(t_{k+1}^-), \quad
+    P = \begin{bmatrix} I_n & 0 & 0 \\ 0 & 0 & I_{n_c} \end{bmatrix}.
+
+The chain does not jump at the sample instant (probability 0), so the moments
+:math:`Y_{s,k} = E[\zeta_k \zeta_k^T 1\{\theta_{t_k} = s\}]` obey
+:math:`\operatorname{vech} Y_{k+1} = T \operatorname{vech} Y_k` with
+
+.. math::
+
+    T = \mathcal P\, e^{\mathcal L h}\, \mathcal R, \quad
+    \mathcal R = \operatorname{blockdiag}_s\bigl(L_d (R_s \otimes R_s) D_r\bigr), \quad
+    \mathcal P = \operatorname{blockdiag}_s\bigl(L_r (P \otimes P) D_d\bigr),
+
+(:math:`D, L` the duplication and elimination matrices). :math:`T` maps positive
+semidefinite stacks to positive semidefinite stacks, and the loop (nominal,
+:math:`\Delta = 0`) is mean-square stable iff its spectral radius
+:math:`\rho(T) < 1`: between samples the moments are bounded by a constant times
+those at the last sample. The map of the post-reset moments,
+:math:`\mathcal R \mathcal P e^{\mathcal L h}`, has the same non-zero spectrum
+(:math:`\rho(AB) = \rho(BA)`). As :math:`h \to 0`, :math:`T \approx I + h \mathcal
+L_{cl}` with the continuous loop's generator, so :math:`\rho(T) < 1` for small
+:math:`h` when the continuous loop is mean-square stable.
+
+The proofs (ball arithmetic, over the rate box by sub-boxes) are in
+:mod:`ftc_verify.analysis.sampled_proof`; this module holds the float64 map, the scan
+over periods and :func:`sampled_analysis`, which reports the verdict at the period and
+``h_max``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import scipy.linalg
+
+from ..controllers.controller import Controller, check_period
+from ..model.chain import JointChain
+from ..model.system import FTCSystem, Matrix
+from .closedloop import closed_loop
+from .stability import duplication_matrix, second_moment_matrix, vech_order
+
+__all__ = ["SampledLoop", "SampledResult", "one_period_map", "spectral_radius", "rate_points",
+           "worst_radius", "scan_periods", "stability_intervals", "h_max_bracket", "sampled_analysis",
+           "H_MAX_RTOL", "SCAN_PER_OCTAVE"]
+
+#: Relative width of the proved ``h_max`` bracket (proved stable, proved unstable).
+H_MAX_RTOL = 1e-3
+
+
+@dataclass(frozen=True, eq=False)
+class SampledLoop:
+    """The sampled loop of the module docstring, before a period is chosen.
+
+    Attributes
+    ----------
+    chain : JointChain
+        The joint chain and its rate box.
+    flow : tuple of (d, d) arrays, one per joint state
+        :math:`\\bar A_i` of the state's true mode.
+    measurement : tuple of arrays, one per joint state
+        :math:`M_i` (``I`` or ``Cy`` of the true mode).
+    entry : tuple of int, one per joint state
+        The controller entry used at a sample in that state.
+    controller : Controller
+    n, nu : int
+        Plant states and inputs.
+    modes_part : array
+        The rate-independent part of :math:`\\mathcal L` (its block diagonal).
+    scale : (d,) array
+        Powers of two: ``flow``, :meth:`resets` and the maps with ``scaled=True`` are in
+        the balanced coordinates :math:`z = \\operatorname{diag}(scale)\\, \\tilde z`
+        (a similarity, exact in floating point; the spectrum is the same).
+    speed : float
+        The largest closed-loop rate (for the range of periods scanned).
+    """
+
+    chain: JointChain
+    flow: tuple[Matrix, ...]
+    measurement: tuple[Matrix, ...]
+    entry: tuple[int, ...]
+    controller: Controller
+    n: int
+    nu: int
+    modes_part: Matrix
+    scale: Matrix
+    speed: float
+
+    @classmethod
+    def build(cls, system: FTCSystem, controller: Controller) -> SampledLoop:
+        """The sampled loop of ``system`` under ``controller`` (checked against it)."""
+        controller.check(system)
+        n, nu, _, _ = system.dims
+        nc = controller.n_c
+        d = n + nu + nc
+        flows, meas, entries = [], [], []
+        pattern = np.zeros((d, d))  # |flow| + |reset pattern| over the states, to balance
+        for i, j in system.chain.joint_modes:
+            mode = system.modes[i]
+            Ab = np.zeros((d, d))
+            Ab[:n, :n] = mode.A
+            Ab[:n, n:n + nu] = mode.B
+            M = controller.measurement(mode)
+            e = controller.index(i, j, system.m)
+            flows.append(Ab)
+            meas.append(M)
+            entries.append(e)
+            pattern += np.abs(Ab)
+            pattern[n:n + nu, :n] += np.abs(controller.Dc[e] @ M)
+            pattern[n:n + nu, n + nu:] += np.abs(controller.Cc[e])
+            pattern[n + nu:, :n] += np.abs(controller.Bc[e] @ M)
+            pattern[n + nu:, n + nu:] += np.abs(controller.Ac[e])
+        scale = np.ones(d)
+        if np.all(np.isfinite(pattern)):
+            _, (found, _) = scipy.linalg.matrix_balance(pattern + np.eye(d), permute=False, separate=True)
+            scale = np.asarray(found, dtype=float)
+        flows = [Ab / scale[:, None] * scale[None, :] for Ab in flows]
+        S = system.chain.n_states
+        modes_part = second_moment_matrix(flows, np.zeros((S, S)))
+        loop = closed_loop(system, controller)
+        rates = [float(np.linalg.norm(A, 2)) for A in loop.A]
+        rates.append(float(np.max(np.abs(system.chain.generator(system.chain.rate_max)))))
+        return cls(system.chain, tuple(flows), tuple(meas), tuple(entries), controller, n, nu, modes_part, scale,
+                   max(*rates, 1e-9))
+
+    @property
+    def nc(self) -> int:
+        """Controller states."""
+        return self.controller.n_c
+
+    @property
+    def d(self) -> int:
+        """Dimension of the augmented state ``(x, u, x_c)`` inside a period."""
+        return self.n + self.nu + self.nc
+
+    @property
+    def r(self) -> int:
+        """Dimension of the sampled state ``(x, x_c)``."""
+        return self.n + self.nc
+
+    @property
+    def states(self) -> int:
+        """Joint states."""
+        return len(self.flow)
+
+    @property
+    def size(self) -> int:
+        """Rows of the one-period map :math:`T`: joint states times ``r (r + 1) / 2``."""
+        return self.states * self.r * (self.r + 1) // 2
+
+    def restriction(self) -> Matrix:
+        """:math:`P` (``r x d``), selecting ``(x, x_c)`` from ``(x, u, x_c)``."""
+        P = np.zeros((self.r, self.d))
+        P[:self.n, :self.n] = np.eye(self.n)
+        P[self.n:, self.n + self.nu:] = np.eye(self.nc)
+        return P
+
+    @property
+    def scale_r(self) -> Matrix:
+        """The scale of the sampled state ``(x, x_c)``."""
+        return np.concatenate([self.scale[:self.n], self.scale[self.n + self.nu:]])
+
+    def vech_weights(self) -> Matrix:
+        """``vech`` of :math:`\\operatorname{diag}(s) X \\operatorname{diag}(s)` is ``weights *
+        vech(X)`` (``s`` = :attr:`scale_r`), tiled over the joint states."""
+        rows, cols = vech_order(self.r)
+        c = self.scale_r
+        return np.tile(c[rows] * c[cols], self.states)
+
+    def resets(self, h: float) -> tuple[Matrix, ...]:
+        """:math:`R_s` (``d x r``) of every joint state at period ``h`` (float64), in the
+        balanced coordinates."""
+        n, nu, nc = self.n, self.nu, self.nc
+        out = []
+        for M, e in zip(self.measurement, self.entry):
+            R = np.zeros((self.d, self.r))
+            R[:n, :n] = np.eye(n)
+            R[n:n + nu, :n] = self.controller.Dc[e] @ M
+            if nc:
+                Phic, Gamc = self.controller.discretise(e, h)
+                R[n:n + nu, n:] = self.controller.Cc[e]
+                R[n + nu:, :n] = Gamc @ M
+                R[n + nu:, n:] = Phic
+            out.append(R / self.scale[:, None] * self.scale_r[None, :])
+        return tuple(out)
+
+
+def one_period_map(loop: SampledLoop, h: float, rates: Matrix, *, scaled: bool = False) -> Matrix:
+    """:math:`T` of the module docstring at period ``h`` and rate array ``rates`` (float64),
+    computed in the balanced coordinates (:attr:`SampledLoop.scale`) and returned in the
+    loop's own (``scaled=False``) or in those (``scaled=True``)."""
+    Q = loop.chain.generator(rates)
+    vd = loop.d * (loop.d + 1) // 2
+    F = scipy.linalg.expm((loop.modes_part + np.kron(Q.T, np.eye(vd))) * float(h))
+    T = _assemble(loop, F, h)
+    if scaled:
+        return T
+    w = loop.vech_weights()
+    return T * w[:, None] / w[None, :]
+
+
+def spectral_radius(loop: SampledLoop, h: float, rates: Matrix) -> float:
+    """:math:`\\rho(T)` at period ``h`` and ``rates`` (float64 eigenvalues)."""
+    T = one_period_map(loop, h, rates, scaled=True)
+    return float(np.max(np.abs(scipy.linalg.eigvals(T, check_finite=False))))
+
+
+def rate_points(chain: JointChain, limit: int = 16) -> tuple[Matrix, ...]:
+    """Rate arrays the float64 scan evaluates: every vertex of the box (up to ``limit``
+    of them, else the two corners) and the midpoint. The proofs cover the whole box."""
+    pts = list(chain.vertices()) if chain.vertex_count() <= limit else [chain.rate_min, chain.rate_max]
+    return tuple(pts) + (chain.midpoint(),)
+
+
+def worst_radius(loop: SampledLoop, h: float, points: Sequence[Matrix]) -> tuple[float, Matrix]:
+    """The largest float64 :math:`\\rho(T)` over ``points`` and where it is attained."""
+    best, where = -1.0, points[0]
+    for p in points:
+        rho = spectral_radius(loop, h, p)
+        if not math.isfinite(rho):
+            return math.inf, p
+        if rho > best:
+            best, where = rho, p
+    return best, where
+
+
+#: Periods per octave of the scan (:func:`scan_periods`).
+SCAN_PER_OCTAVE = 8
+
+
+def _assemble(loop: SampledLoop, F: Matrix, h: float) -> Matrix:
+    """:math:`T` in the balanced coordinates from the flow :math:`F = e^{\\mathcal L h}`."""
+    Dd, Ld = duplication_matrix(loop.d)
+    Dr, Lr = duplication_matrix(loop.r)
+    vd, vr, S = Dd.shape[1], Dr.shape[1], loop.states
+    P = loop.restriction()
+    restrict = Lr @ np.kron(P, P) @ Dd
+    lifts = np.stack([Ld @ np.kron(R, R) @ Dr for R in loop.resets(h)])
+    return np.einsum("ab,tbsc,scd->tasd", restrict, F.reshape(S, vd, S, vd), lifts, optimize=True).reshape(S * vr, -1)
+
+
+def scan_periods(loop: SampledLoop, lo: float, hi: float) -> tuple[Matrix, Matrix]:
+    """``(hs, rho)``: periods from ``lo`` to at least ``hi``, :data:`SCAN_PER_OCTAVE` per
+    octave (``h_k = lo 2^{k/8}``), and the worst float64 :math:`\\rho(T)` over
+    :func:`rate_points` at each. The flows of the first octave are exponentials; every
+    later one is the square of the one an octave before (:math:`e^{\\mathcal L 2h} =
+    (e^{\\mathcal L h})^2`), one product instead of an exponential."""
+    K = SCAN_PER_OCTAVE
+    count = max(K + 1, math.ceil(K * math.log2(hi / lo)) + 1)
+    hs = lo * 2.0 ** (np.arange(count) / K)
+    vd = loop.d * (loop.d + 1) // 2
+    rho = np.zeros(count)
+    for p in rate_points(loop.chain):
+        G = loop.modes_part + np.kron(loop.chain.generator(p).T, np.eye(vd))
+        flows: list[Matrix] = []
+        for k, h in enumerate(hs):
+            F = scipy.linalg.expm(G * float(h)) if k < K else flows[k - K] @ flows[k - K]
+            flows.append(F)
+            T = _assemble(loop, F, float(h))
+            r = float(np.max(np.abs(scipy.linalg.eigvals(T, check_finite=False)))) if np.all(np.isfinite(T)) else math.inf
+            rho[k] = max(rho[k], r)
+    return hs, rho
+
+
+def _crossing(loop: SampledLoop, a: float, b: float, stable_at_a: bool, rtol: float) -> float:
+    """Float64 bisection of the change of ``rho < 1`` between ``a`` and ``b``; returns the
+    end on the side of ``a``'s verdict, within ``rtol`` relative."""
+    pts = rate_points(loop.chain)
+    while (b - a) > rtol * max(abs(a), abs(b)):
+        mid = 0.5 * (a + b)
+        if (worst_radius(loop, mid, pts)[0] < 1.0) == stable_at_a:
+            a = mid
+        else:
+            b = mid
+    return a
+
+
+def stability_intervals(loop: SampledLoop, hs: Matrix, rho: Matrix, rtol: float = 1e-4) -> tuple[tuple[float, float], ...]:
+    """Maximal runs of the scan with :math:`\\rho < 1`, their inner ends refined by
+    float64 bisection (the scan's ends stay as they are)."""
+    stable = rho < 1.0
+    out = []
+    k = 0
+    while k < hs.size:
+        if not stable[k]:
+            k += 1
+            continue
+        start = k
+        while k + 1 < hs.size and stable[k + 1]:
+            k += 1
+        lo = float(hs[0]) if start == 0 else _crossing(loop, float(hs[start]), float(hs[start - 1]), True, rtol)
+        hi = float(hs[-1]) if k == hs.size - 1 else _crossing(loop, float(hs[k]), float(hs[k + 1]), True, rtol)
+        out.append((lo, hi))
+        k += 1
+    return tuple(out)
+
+
+def h_max_bracket(loop: SampledLoop, stable_h: float, unstable_h: float, *, rtol: float = H_MAX_RTOL,
+                  max_boxes: int = 16, max_seconds: float = 3.0,
+                  deadline: float = math.inf) -> tuple[float | None, float | None, str]:
+    """``(h_max, h_max_unstable, note)`` from a float64 bracket ``stable_h < unstable_h``
+    of the crossing: a period proved mean-square stable over the whole rate box and a
+    larger one proved unstable at some rate point.
+
+    The crossing is bisected in float64 to ``rtol / 16``; stability is then tried at
+    ``(1 - f) a`` for ``f`` in ``rtol / 4, 3 rtol / 4`` (the bracket within ``rtol``),
+    then, if those proofs run out of their budget (``max_boxes`` sub-boxes,
+    ``max_seconds`` each), further below (``f`` up to 10 %), and the note says the
+    bracket is wider than ``rtol``. No new proof is started after ``deadline``
+    (``time.perf_counter()``). ``None`` where no proof was found."""
+    from .sampled_proof import box_verdict, prove_point_unstable
+
+    pts = rate_points(loop.chain)
+    a = _crossing(loop, stable_h, unstable_h, True, rtol / 16)
+    b = a * (1 + rtol / 16)
+    while worst_radius(loop, b, pts)[0] < 1.0 and b < unstable_h:  # pragma: no cover - float ties
+        b = min(unstable_h, b * (1 + rtol / 16))
+    proved_b = None
+    for f in (0.0, 0.0625, 0.125):  # with a's first margins, the gap stays below rtol
+        if time.perf_counter() > deadline:
+            break
+        hb = b * (1 + f * rtol)
+        rho, where = worst_radius(loop, hb, pts)
+        if rho > 1.0 and prove_point_unstable(loop, hb, where):
+            proved_b = hb
+            break
+    proved_a = None
+    for f in (0.25 * rtol, 0.75 * rtol, 1e-2, 0.1):
+        if time.perf_counter() > deadline:
+            break
+        ha = a * (1 - f)
+        if box_verdict(loop, ha, max_boxes=max_boxes, max_seconds=max_seconds).verdict == "stable":
+            proved_a = ha
+            break
+    if proved_a is None or proved_b is None:
+        missing = " and ".join(w for w, v in (("stability", proved_a), ("instability", proved_b)) if v is None)
+        late = " (time budget spent)" if time.perf_counter() > deadline else ""
+        return proved_a, proved_b, f"{missing} near the float64 crossing {a:.6g} not proved{late}"
+    gap = (proved_b - proved_a) / proved_b
+    if gap > rtol:
+        return proved_a, proved_b, (f"proved stable over the rate box at {proved_a:.6g}, unstable at a rate point at "
+                                    f"{proved_b:.6g}: the bracket ({gap:.1e} relative) is WIDER than {rtol:g} "
+                                    f"(the sub-box budget ran out nearer the float64 crossing {a:.6g})")
+    return proved_a, proved_b, (f"proved stable over the rate box at {proved_a:.6g}, proved unstable at a rate "
+                                f"point at {proved_b:.6g} (relative gap {gap:.1e})")
+
+
+@dataclass(frozen=True, eq=False)
+class SampledResult:
+    """What :func:`sampled_analysis` found (JSON: :meth:`to_dict`, the ``sampled`` object).
+
+    Attributes
+    ----------
+    period : float
+    verdict : {"stable", "not stable", "undecided"}
+        Mean-square stability of the nominal sampled loop over the whole rate box at
+        ``period``, proved in ball arithmetic (:mod:`ftc_verify.analysis.sampled_proof`).
+    spectral_radius : float
+        The worst float64 :math:`\\rho(T)` over :func:`rate_points`, and ``worst_rates``
+        where.
+    proof : str
+        How the verdict was proved (or why it is undecided).
+    h_max, h_max_unstable : float or None
+        The proved bracket: stable over the box at ``h_max``, unstable at a rate point at
+        ``h_max_unstable``, within :data:`H_MAX_RTOL` relative (``None`` if not found).
+    stability_intervals : tuple of (float, float)
+        Runs of periods with float64 :math:`\\rho < 1` in the scanned range.
+    scan : (float, float)
+        The scanned range of periods.
+    """
+
+    period: float
+    verdict: str
+    spectral_radius: float
+    worst_rates: Matrix
+    proof: str
+    boxes: int
+    h_max: float | None
+    h_max_unstable: float | None
+    h_max_note: str
+    stability_intervals: tuple[tuple[float, float], ...]
+    scan: tuple[float, float]
+    seconds: float
+
+    @property
+    def stable(self) -> bool:
+        """Proved mean-square stable at the period over the whole rate box."""
+        return self.verdict == "stable"
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready (``sampled`` in the report schema)."""
+        return {
+            "period": self.period,
+            "verdict": self.verdict,
+            "spectral_radius": self.spectral_radius,
+            "worst_rates": np.asarray(self.worst_rates).tolist(),
+            "proof": self.proof,
+            "sub_boxes": self.boxes,
+            "h_max": self.h_max,
+            "h_max_unstable": self.h_max_unstable,
+            "h_max_note": self.h_max_note,
+            "stability_intervals": [list(iv) for iv in self.stability_intervals],
+            "scan": list(self.scan),
+            "seconds": self.seconds,
+        }
+
+
+def scan_range(loop: SampledLoop, period: float | None = None) -> tuple[float, float]:
+    """Periods scanned for ``h_max``: from ``1e-3 / c`` to ``20 / c`` with ``c`` the
+    largest closed-loop rate (:attr:`SampledLoop.speed`: the 2-norms of the continuous
+    loop's matrices and the largest generator entry), widened to contain ``period``."""
+    c = loop.speed
+    lo, hi = 1e-3 / c, 20.0 / c
+    if period is not None:
+        lo, hi = min(lo, period / 2), max(hi, period * 2)
+    return lo, hi
+
+
+def sampled_analysis(system: FTCSystem, controller: Controller, period: float, *, max_boxes: int = 64,
+                     h_max: bool = True, max_seconds: float = 60.0) -> SampledResult:
+    """Mean-square stability of the sampled loop at ``period`` over the rate box, and
+    the proved ``h_max`` bracket after a scan of periods (module docstring).
+
+    ``h_max`` is the end of the stability interval that starts at the smallest scanned
+    period (the continuous loop's limit); ``None`` when the loop is unstable there or
+    stable over the whole scanned range (then ``h_max_note`` says which). ``max_seconds``
+    bounds the proofs: the verdict at the period gets up to a third of it, the ``h_max``
+    bracket starts no proof after it has passed.
+    """
+    from .sampled_proof import box_verdict
+
+    period = check_period(period, "period")
+    t0 = time.perf_counter()
+    loop = SampledLoop.build(system, controller)
+    verdict = box_verdict(loop, period, max_boxes=max_boxes, max_seconds=max_seconds / 3)
+    rho, where = worst_radius(loop, period, rate_points(loop.chain))
+    lo, hi = scan_range(loop, period)
+    intervals: tuple[tuple[float, float], ...] = ()
+    hm = hu = None
+    note = "not requested"
+    if h_max:
+        hs, rhos = scan_periods(loop, lo, hi)
+        intervals = stability_intervals(loop, hs, rhos)
+        if not intervals or intervals[0][0] > hs[0]:
+            note = f"the sampled loop is not stable at the smallest scanned period {hs[0]:.3g} (float64)"
+        elif intervals[0][1] >= hs[-1]:
+            note = f"stable at every scanned period up to {hs[-1]:.6g} (float64 scan); no h_max below it"
+        else:
+            k = int(np.searchsorted(hs, intervals[0][1], side="right"))
+            hm, hu, note = h_max_bracket(loop, float(hs[k - 1]), float(hs[k]), deadline=t0 + max_seconds)
+    return SampledResult(period, verdict.verdict, rho, where, verdict.detail, verdict.boxes, hm, hu, note,
+                         intervals, (lo, hi), time.perf_counter() - t0)

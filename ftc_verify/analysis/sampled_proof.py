@@ -1,0 +1,456 @@
+r"""Proofs about the sampled loop's one-period map in ball arithmetic, over the rate box.
+
+The map :math:`T = \mathcal P e^{\mathcal L h} \mathcal R` of
+:mod:`ftc_verify.analysis.sampled` is formed in Arb's ball arithmetic
+(:mod:`ftc_verify.analysis.rigorous`): the system's numbers as written (exact balls),
+the rates of a sub-box of the rate box as balls covering it, the period as written,
+:math:`e^{\mathcal L h}` and a dynamic controller's :math:`(\Phi_c, \Gamma_c)` by
+Arb's rigorous matrix exponential (``arb_mat.exp``: a ball containing the exponential
+of every matrix in the ball). So one ball matrix :math:`\mathbf T` contains the map of
+every rate in the sub-box.
+
+**Stable** (derived here). :math:`T` maps the cone of positive semidefinite stacks to
+itself. If a stack :math:`Y \succ 0` has :math:`Y - T(Y) \succ 0`, then
+:math:`T(Y) \preceq c\,Y` for some :math:`c < 1` (both sides continuous, the set of
+unit stacks compact), hence :math:`T^k(Y) \preceq c^k Y \to 0`; every positive
+semidefinite :math:`X` lies below a multiple of :math:`Y`, so :math:`T^k(X) \to 0`,
+and the cone spans all symmetric stacks: :math:`\rho(T) < 1`. :math:`Y` is the float
+solution of :math:`Y - T_{mid}(Y) = I`; :math:`Y_s \succ 0` and
+:math:`Y_s - \mathbf T(Y)_s \succ 0` are proved by
+:func:`~ftc_verify.analysis.rigorous.proven_positive_definite` for every joint state,
+with :math:`\mathbf T(Y)` in ball arithmetic -- for every rate of the sub-box at once.
+
+**Unstable.** If :math:`X \succ 0` has :math:`T(X) - X \succ 0`, then
+:math:`T(X) \succeq (1 + \epsilon) X` for some :math:`\epsilon > 0`, so
+:math:`T^k(X) \succeq (1 + \epsilon)^k X` grows without bound: :math:`\rho(T) > 1`,
+the loop is not mean-square stable at that rate. :math:`X` is the float Perron
+eigenvector of :math:`T_{mid}` (a positive semidefinite stack), shifted by a small
+multiple of :math:`I` when singular. When that fails (a singular Perron stack), a
+sign change of :math:`\det(T - x I)` across the largest real eigenvalue, proved by
+Arb's determinant, shows an eigenvalue above 1 (``_real_eigenvalue_above_one``).
+
+**Upper envelope** (derived here). Split :math:`\mathcal L(r) = \mathcal D(r) +
+\mathcal O(r)`: :math:`\mathcal D` acts on each joint state alone,
+:math:`X_s \mapsto \bar A X_s + X_s \bar A^T + Q_{ss} X_s`, and :math:`\mathcal O`
+moves mass between states, :math:`X \mapsto (\sum_{s' \ne s} Q_{s's} X_{s'})_s`.
+:math:`e^{\mathcal D t}` and :math:`\mathcal O` are positive (they map positive
+semidefinite stacks to positive semidefinite stacks), so every term of the Dyson
+series of :math:`e^{(\mathcal D + \mathcal O) h}` is a product of positive maps, each
+monotone in the rates: :math:`e^{\mathcal D(r) t}` decreases (the diagonal
+:math:`Q_{ss}` falls as the rates grow), :math:`\mathcal O(r)` increases. Products of
+positive maps are monotone, hence for every :math:`r` in :math:`[lo, hi]`,
+:math:`T(r) \preceq T_{up} = \mathcal P e^{(\mathcal D(lo) + \mathcal O(hi)) h}
+\mathcal R` in the order of positive maps, and :math:`Y - T(r)(Y) \succeq Y -
+T_{up}(Y)` for :math:`Y \succeq 0`: one point computation, without the wrapping of
+a ball over the box (:func:`envelope_generator`). Its price is the mass it creates,
+about :math:`h` times the widths of the rates.
+
+**Over the box** (:func:`box_verdict`): the float64 radius at the vertices and the
+midpoint first; if some point has :math:`\rho \ge 1`, instability is proved there.
+Otherwise the stable proof is tried on the whole box, and a sub-box where it fails is
+halved along its widest rate (relative to the box), breadth first, until every
+sub-box is proved -- or a sub-box's midpoint is proved unstable, or the budget of
+sub-boxes (or seconds) runs out: then the verdict is ``undecided`` and names the
+sub-box. On each sub-box the upper envelope is tried first, then the direct ball of
+:math:`T`, then a
+first-order expansion at its midpoint whose remainder is quadratic in the width
+(``_first_order_stable``). A set of
+vertices is never called proved.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..model.chain import JointChain
+from ..model.system import Matrix
+from .rigorous import PRECISION_BITS, Ball, ball, midpoint, precision, proven_positive_definite
+from .sampled_balls import (as_float, ball_block_diag, ball_generator, ball_kron, envelope_generator,
+                            generator_coefficients)
+from .sampled import SampledLoop, one_period_map, rate_points, spectral_radius, worst_radius
+from .stability import duplication_matrix, vech_order
+
+__all__ = ["FIRST_ORDER_LIMIT", "BoxVerdict", "ball_one_period_map", "prove_stable", "prove_unstable",
+           "prove_point_unstable", "box_verdict"]
+
+
+def _flint() -> Any:
+    import flint
+
+    return flint
+
+
+def _ball_resets(loop: SampledLoop, h: float) -> list[Ball]:
+    """:math:`R_s` as ball matrices; a dynamic controller's :math:`(\\Phi_c, \\Gamma_c)`
+    from the rigorous exponential of :math:`[[A_c, B_c], [0, 0]] h` (Van Loan)."""
+    flint = _flint()
+    n, nu, nc = loop.n, loop.nu, loop.nc
+    c = loop.controller
+    zoh: dict[int, tuple[Any, Any]] = {}
+    out = []
+    for M, e in zip(loop.measurement, loop.entry):
+        R = flint.arb_mat(loop.d, loop.r)
+        for k in range(n):
+            R[k, k] = 1
+        DM = (ball(c.Dc[e]) @ M).value
+        for i in range(nu):
+            for j in range(n):
+                R[n + i, j] = DM[i, j]
+        if nc:
+            if e not in zoh:
+                nv = c.n_v
+                V = np.zeros((nc + nv, nc + nv))
+                V[:nc, :nc], V[:nc, nc:] = c.Ac[e], c.Bc[e]
+                E = (ball(V).value * flint.arb(float(h))).exp()
+                zoh[e] = (E, None)
+            E = zoh[e][0]
+            Phi = flint.arb_mat(nc, nc)
+            Gam = flint.arb_mat(nc, c.n_v)
+            for i in range(nc):
+                for j in range(nc):
+                    Phi[i, j] = E[i, j]
+                for j in range(c.n_v):
+                    Gam[i, j] = E[i, nc + j]
+            GM = (Ball(Gam) @ M).value
+            Cc = c.Cc[e]
+            for i in range(nu):
+                for j in range(nc):
+                    R[n + i, n + j] = float(Cc[i, j])
+            for i in range(nc):
+                for j in range(n):
+                    R[n + nu + i, j] = GM[i, j]
+                for j in range(nc):
+                    R[n + nu + i, n + j] = Phi[i, j]
+        # the balanced coordinates: powers of two, exact
+        out.append(ball(np.diag(1.0 / loop.scale)) @ Ball(R) @ ball(np.diag(loop.scale_r)))
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class _MapParts:
+    """The rate-independent balls of :math:`T` at one period: the block diagonal of
+    :math:`\\mathcal L`, :math:`\\mathcal P`, :math:`\\mathcal R`, the period."""
+
+    modes: Any
+    res: Any
+    lift: Any
+    h: Any
+    vd: int
+    states: int
+
+    @classmethod
+    def build(cls, loop: SampledLoop, h: float) -> _MapParts:
+        flint = _flint()
+        Dd, Ld = duplication_matrix(loop.d)
+        Dr, Lr = duplication_matrix(loop.r)
+        eye = np.eye(loop.d)
+        blocks = [ball(Ld) @ (ball(as_float(np.kron(eye, A))) + ball(as_float(np.kron(A, eye)))) @ ball(Dd)
+                  for A in loop.flow]
+        P = loop.restriction()
+        restrict = ball(np.asarray(Lr @ np.kron(P, P) @ Dd, dtype=float))  # 0/1 products of 0/1 matrices: exact
+        lift = ball_block_diag([ball(Ld) @ ball_kron(R, R) @ ball(Dr) for R in _ball_resets(loop, h)])
+        return cls(ball_block_diag(blocks).value, ball_block_diag([restrict] * loop.states).value, lift.value,
+                   flint.arb(float(h)), Dd.shape[1], loop.states)
+
+    def generator(self, Q: Any) -> Any:
+        """:math:`\\mathcal L = ` blocks :math:`+ Q^T \\otimes I` for a ball generator ``Q``."""
+        G = _flint().arb_mat(self.modes)
+        vd = self.vd
+        for s in range(self.states):
+            for t in range(self.states):
+                q = Q[t, s]
+                for k in range(vd):
+                    G[s * vd + k, t * vd + k] += q
+        return G
+
+    def map(self, Q: Any) -> Any:
+        """:math:`T = \\mathcal P e^{\\mathcal L h} \\mathcal R` (ball)."""
+        return self.res * (self.generator(Q) * self.h).exp() * self.lift
+
+    def derivative(self, Q: Any, coef: Matrix) -> Any:
+        """:math:`\\partial T / \\partial r` along a rate whose generator coefficient is
+        ``coef`` (:math:`\\partial Q / \\partial r`): the top-right block of
+        :math:`\\exp\\bigl(\\bigl[\\begin{smallmatrix} \\mathcal L & E \\\\ 0 & \\mathcal L
+        \\end{smallmatrix}\\bigr] h\\bigr)` with :math:`E = coef^T \\otimes I` (Van Loan:
+        the Frechet derivative of the exponential), between :math:`\\mathcal P` and
+        :math:`\\mathcal R`."""
+        flint = _flint()
+        G = self.generator(Q)
+        N, vd = G.nrows(), self.vd
+        V = flint.arb_mat(2 * N, 2 * N)
+        for i in range(N):
+            for j in range(N):
+                g = G[i, j]
+                V[i, j] = g
+                V[N + i, N + j] = g
+        for s in range(self.states):
+            for t in range(self.states):
+                c = float(coef[t, s])
+                if c:
+                    for k in range(vd):
+                        V[s * vd + k, N + t * vd + k] = c
+        E = (V * self.h).exp()
+        D = flint.arb_mat(N, N)
+        for i in range(N):
+            for j in range(N):
+                D[i, j] = E[i, N + j]
+        return self.res * D * self.lift
+
+
+def ball_one_period_map(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix) -> Ball:
+    """A ball matrix containing :math:`T` (:mod:`ftc_verify.analysis.sampled`) at period
+    ``h`` for every rate array in ``[lo, hi]``, in the balanced coordinates of
+    :attr:`SampledLoop.scale` (``one_period_map(..., scaled=True)``; same spectrum)."""
+    return Ball(_MapParts.build(loop, h).map(ball_generator(loop.chain, lo, hi).value))
+
+
+def _unvech_ball(col: Any, start: int, r: int) -> Ball:
+    """The symmetric ``r x r`` ball matrix whose ``vech`` starts at ``col[start]``."""
+    flint = _flint()
+    rows, cols = vech_order(r)
+    out = flint.arb_mat(r, r)
+    for k, (i, j) in enumerate(zip(rows, cols)):
+        out[int(i), int(j)] = col[start + k, 0]
+        out[int(j), int(i)] = col[start + k, 0]
+    return Ball(out)
+
+
+def _stack_pd(vec: Any, states: int, r: int) -> bool:
+    v = r * (r + 1) // 2
+    return all(proven_positive_definite(_unvech_ball(vec, s * v, r)) for s in range(states))
+
+
+def _identity_stack(states: int, r: int) -> Matrix:
+    rows, cols = vech_order(r)
+    return np.tile((rows == cols).astype(float), states)
+
+
+def prove_stable(T: Ball, T_mid: Matrix, states: int, r: int) -> bool:
+    """``True`` only if :math:`\\rho(T) < 1` for every map in the ball ``T`` (module
+    docstring); ``T_mid`` is a float map inside (or near) it."""
+    N = T_mid.shape[0]
+    try:
+        y = np.linalg.solve(np.eye(N) - T_mid, _identity_stack(states, r))
+    except np.linalg.LinAlgError:
+        return False
+    if not np.all(np.isfinite(y)):
+        return False
+    Y = ball(np.asarray(y[:, None], dtype=float))
+    if not _stack_pd(Y.value, states, r):
+        return False
+    return _stack_pd((Y - T @ Y).value, states, r)
+
+
+def _envelope_stable(loop: SampledLoop, parts: _MapParts, lo: Matrix, hi: Matrix) -> bool:
+    """The stable proof on a sub-box by the upper envelope (module docstring):
+    :math:`T(r) \\preceq T_{up}` for every rate of the sub-box, so :math:`Y \\succ 0`,
+    :math:`Y - T_{up}(Y) \\succ 0` proves :math:`\\rho(T(r)) < 1` for all of them."""
+    T_up = Ball(parts.map(envelope_generator(loop.chain, lo, hi).value))
+    return prove_stable(T_up, midpoint(T_up), loop.states, loop.r)
+
+
+#: Largest Van Loan block (rows, twice the moment generator's) the first-order form
+#: exponentiates in ball arithmetic; above it only the direct ball is tried (cost).
+FIRST_ORDER_LIMIT = 256
+
+
+def _first_order_stable(loop: SampledLoop, parts: _MapParts, lo: Matrix, hi: Matrix, T_mid: Matrix,
+                        deadline: float = math.inf) -> bool:
+    """The stable proof on a sub-box by a first-order expansion at its midpoint
+    :math:`r_0` (derived here): for every :math:`r` of the sub-box, with
+    :math:`\\delta = r - r_0` and :math:`J_a = \\partial T / \\partial r_a`,
+
+    .. math::
+
+        T(r) = T(r_0) + \\sum_a \\delta_a J_a(r_0) + \\sum_a \\delta_a
+        \\int_0^1 \\bigl(J_a(r_0 + t\\delta) - J_a(r_0)\\bigr) dt,
+
+    and the last sum lies in the ball :math:`\\mathbf E = \\sum_a [\\delta_a]
+    (\\mathbf J_a - J_a(r_0))` with :math:`\\mathbf J_a` the derivative's ball over
+    the sub-box -- a remainder quadratic in the sub-box's width, where the direct ball
+    of :math:`T` over the sub-box is only linear. :math:`Y - T(r)Y` is affine in
+    :math:`\\delta` up to :math:`\\mathbf E Y`; if it is proved positive definite at
+    every vertex of the :math:`\\delta` box for every element of :math:`\\mathbf E Y`,
+    it is at every :math:`r` (a convex combination of those matrices). ``False`` also when
+    the Van Loan block exceeds :data:`FIRST_ORDER_LIMIT` or ``deadline``
+    (``time.perf_counter()``) passes."""
+    flint = _flint()
+    if 2 * parts.modes.nrows() > FIRST_ORDER_LIMIT:
+        return False
+    N = T_mid.shape[0]
+    try:
+        y = np.linalg.solve(np.eye(N) - T_mid, _identity_stack(loop.states, loop.r))
+    except np.linalg.LinAlgError:
+        return False
+    if not np.all(np.isfinite(y)):
+        return False
+    Yf = np.asarray(y[:, None], dtype=float)
+    if not _stack_pd(ball(Yf).value, loop.states, loop.r):
+        return False
+    mid = 0.5 * (lo + hi)
+    Q0 = ball_generator(loop.chain, mid, mid).value
+    Qb = ball_generator(loop.chain, lo, hi).value
+    Y = ball(Yf).value
+    base = Y - parts.map(Q0) * Y
+    rem = flint.arb_mat(N, 1)
+    linear = []
+    for idx, coef in generator_coefficients(loop.chain)[1]:
+        if hi[idx] <= lo[idx]:
+            continue
+        if time.perf_counter() > deadline:
+            return False
+        J0Y = parts.derivative(Q0, coef) * Y
+        JbY = parts.derivative(Qb, coef) * Y
+        ends = (flint.arb(float(lo[idx])) - flint.arb(float(mid[idx])),
+                flint.arb(float(hi[idx])) - flint.arb(float(mid[idx])))
+        rem += ends[0].union(ends[1]) * (JbY - J0Y)
+        linear.append((ends, J0Y))
+    for corner in itertools.product((0, 1), repeat=len(linear)):
+        vec = base - rem
+        for k, (ends, J0Y) in zip(corner, linear):
+            vec -= ends[k] * J0Y
+        if not _stack_pd(vec, loop.states, loop.r):
+            return False
+    return True
+
+
+def prove_unstable(T: Ball, T_mid: Matrix, states: int, r: int) -> bool:
+    """``True`` only if :math:`\\rho(T) > 1` for every map in the ball ``T`` (module
+    docstring)."""
+    w, V = np.linalg.eig(T_mid)
+    k = int(np.argmax(np.abs(w)))
+    if abs(w[k].imag) > 1e-9 * abs(w[k]) or w[k].real <= 1.0:
+        return False
+    v = V[:, k].real
+    if v.sum() < 0:  # the trace-like sum of a PSD stack is positive
+        v = -v
+    v = v / np.max(np.abs(v))
+    eye = _identity_stack(states, r)
+    for eps in (0.0, 1e-9, 1e-6, 1e-4, 1e-2):
+        x = v + eps * eye
+        X = ball(x[:, None])
+        if _stack_pd(X.value, states, r) and _stack_pd((T @ X - X).value, states, r):
+            return True
+    return _real_eigenvalue_above_one(T, w)
+
+
+def _real_eigenvalue_above_one(T: Ball, w: Matrix) -> bool:
+    """``True`` only if every map in the ball ``T`` has a real eigenvalue above 1 (so
+    :math:`\\rho > 1`), when the Perron stack is singular and the cone proof cannot be
+    used: :math:`p(x) = \\det(T - x I)` is real and continuous in :math:`x`, and if
+    :math:`p(a)\\, p(b) < 0` (both signs proved by Arb's determinant) for some
+    :math:`1 < a < b`, :math:`p` has a root in :math:`(a, b)`. ``w`` are the float
+    eigenvalues; :math:`(a, b)` is placed around the largest real one, away from the
+    other real ones (complex pairs do not change the sign of :math:`p`)."""
+    flint = _flint()
+    real = np.sort(np.real(w[np.abs(np.imag(w)) <= 1e-12 * np.maximum(1.0, np.abs(w))]))
+    if real.size == 0 or real[-1] <= 1.0:
+        return False
+    lam = float(real[-1])
+    below = real[real < lam]
+    a = max(1.0 + 0.5 * (lam - 1.0), 0.5 * (lam + float(below[-1])) if below.size else -np.inf)
+    b = lam + 0.5 * (lam - a)
+    if not 1.0 < a < lam < b:
+        return False
+    N = T.shape[0]
+    eye = flint.arb_mat(N, N)
+    for i in range(N):
+        eye[i, i] = 1
+    pa = (T.value - eye * flint.arb(a)).det()
+    pb = (T.value - eye * flint.arb(b)).det()
+    return bool((pa > 0 and pb < 0) or (pa < 0 and pb > 0))
+
+
+def prove_point_unstable(loop: SampledLoop, h: float, rates: Matrix) -> bool:
+    """``True`` only if the sampled loop at period ``h`` is proved not mean-square stable
+    at the rate array ``rates`` (of the box)."""
+    rates = np.asarray(rates, dtype=float)
+    T_mid = one_period_map(loop, h, rates, scaled=True)
+    for bits in (64, PRECISION_BITS):  # the cheap precision first
+        with precision(bits):
+            if prove_unstable(ball_one_period_map(loop, h, rates, rates), T_mid, loop.states, loop.r):
+                return True
+    return False
+
+
+@dataclass(frozen=True, eq=False)
+class BoxVerdict:
+    """The verdict of :func:`box_verdict` and how it was reached.
+
+    ``verdict`` is ``"stable"`` (proved for every rate of the box), ``"not stable"``
+    (proved at the rate array ``where``) or ``"undecided"`` (``where`` is the sub-box
+    ``(lo, hi)`` or point left); ``boxes`` counts the sub-boxes evaluated."""
+
+    verdict: str
+    detail: str
+    boxes: int
+    where: Any = None
+
+
+def _widest(chain: JointChain, lo: Matrix, hi: Matrix) -> tuple[int, ...] | None:
+    full = chain.rate_max - chain.rate_min
+    best, where = 0.0, None
+    for idx in chain.rate_indices:
+        if full[idx] > 0:
+            rel = (hi[idx] - lo[idx]) / full[idx]
+            if rel > best:
+                best, where = rel, idx
+    return where
+
+
+def box_verdict(loop: SampledLoop, h: float, *, max_boxes: int = 64, max_seconds: float = 20.0) -> BoxVerdict:
+    """Mean-square stability of the sampled loop at period ``h`` over the whole rate box
+    (module docstring); at most ``max_boxes`` sub-boxes and about ``max_seconds`` seconds
+    before the verdict is ``undecided``."""
+    chain = loop.chain
+    rho, where = worst_radius(loop, h, rate_points(chain))
+    text = chain.rate_text
+    if not np.isfinite(rho) or rho >= 1.0:
+        if np.isfinite(rho) and prove_point_unstable(loop, h, where):
+            return BoxVerdict("not stable", f"spectral radius {rho:.6g} > 1 proved at {text(where)} "
+                              "(ball arithmetic)", 1, where)
+        return BoxVerdict("undecided", f"float64 spectral radius {rho:.6g} >= 1 at {text(where)}, but "
+                          "instability not proved there", 1, where)
+    queue = [(np.array(chain.rate_min, dtype=float), np.array(chain.rate_max, dtype=float))]
+    done, t0 = 0, time.perf_counter()
+    with precision(64):
+        parts = _MapParts.build(loop, h)
+    while queue:
+        lo, hi = queue.pop(0)
+        if done >= max_boxes or time.perf_counter() - t0 > max_seconds:
+            return BoxVerdict("undecided", f"budget ({max_boxes} sub-boxes, {max_seconds:g} s) spent after {done} "
+                              f"sub-boxes; not proved on [{text(lo)}] .. [{text(hi)}]", done, (lo, hi))
+        done += 1
+        mid = 0.5 * (lo + hi)
+        T_mid = one_period_map(loop, h, mid, scaled=True)
+        with precision(64):
+            proved = _envelope_stable(loop, parts, lo, hi)
+            if not proved:
+                T = Ball(parts.map(ball_generator(chain, lo, hi).value))
+                proved = prove_stable(T, T_mid, loop.states, loop.r)
+            if not proved and not np.array_equal(lo, hi):
+                proved = _first_order_stable(loop, parts, lo, hi, T_mid, t0 + max_seconds)
+        if not proved and np.array_equal(lo, hi):
+            with precision(PRECISION_BITS):
+                proved = prove_stable(ball_one_period_map(loop, h, lo, hi), T_mid, loop.states, loop.r)
+        if proved:
+            continue
+        if spectral_radius(loop, h, mid) >= 1.0:
+            if prove_point_unstable(loop, h, mid):
+                return BoxVerdict("not stable", f"spectral radius > 1 proved at {text(mid)} (ball arithmetic)",
+                                  done, mid)
+            return BoxVerdict("undecided", f"float64 spectral radius >= 1 at {text(mid)}, not proved", done, mid)
+        idx = _widest(chain, lo, hi)
+        if idx is None:
+            return BoxVerdict("undecided", f"stability not proved at the rate point {text(lo)}", done, lo)
+        left_hi, right_lo = hi.copy(), lo.copy()
+        left_hi[idx] = right_lo[idx] = mid[idx]
+        queue += [(lo, left_hi), (right_lo, hi)]
+    word = "the rate box" if done == 1 else f"{done} sub-boxes covering the rate box"
+    return BoxVerdict("stable", f"spectral radius < 1 proved on {word} (ball arithmetic)", done)

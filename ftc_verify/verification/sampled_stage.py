@@ -1,0 +1,112 @@
+"""The sampled-loop stage of ``verify``: the loop it simulates, analysed at its period.
+
+``verify --step h`` co-simulates the controller sampled every ``h`` with its output held
+(:mod:`ftc_verify.simulation.reference`); this stage proves (or refutes) mean-square
+stability of that sampled loop over the rate box at ``h`` and finds the proved ``h_max``
+bracket (:func:`ftc_verify.analysis.sampled.sampled_analysis`). The continuous-time
+certificates of the other stages are its :math:`h \\to 0` limit.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..analysis.sampled import SampledLoop, SampledResult, sampled_analysis
+from ..controllers.controller import Controller
+from ..errors import FTCError
+from ..model.system import FTCSystem
+
+if TYPE_CHECKING:
+    from .verify import Check
+
+__all__ = ["SAMPLED_LIMIT", "sampled_stage", "sampled_energy_stage", "sampled_stages"]
+
+#: Largest second-moment generator (rows, joint states times ``d (d + 1) / 2`` with
+#: ``d = n + n_u + n_c``) the stage analyses; its rigorous exponential is the cost.
+SAMPLED_LIMIT = 400
+
+
+def sampled_stage(system: FTCSystem, controller: Controller, step: float) -> tuple[SampledResult | None, Check]:
+    """``(result, check)`` of the sampled loop at period ``step``: the check passes when
+    mean-square stability over the whole rate box is proved; a loop above
+    :data:`SAMPLED_LIMIT` is not analysed (said in the check, which then passes as
+    before this stage existed and names what it does not cover)."""
+    from .verify import Check
+
+    loop = SampledLoop.build(system, controller)
+    d = loop.d
+    rows = loop.states * d * (d + 1) // 2
+    name = f"sampled loop (h = {step:g})"
+    if rows > SAMPLED_LIMIT:
+        return None, Check(name, True, f"NOT analysed: its moment generator has {rows} rows (limit {SAMPLED_LIMIT}); "
+                                       "the certificates above are those of the continuous-time loop")
+    res = sampled_analysis(system, controller, step, max_seconds=30.0)
+    if res.h_max is None or res.h_max_unstable is None:
+        bracket = "h_max not found: " + res.h_max_note
+    else:
+        bracket = f"h_max {res.h_max:.6g} (proved stable; unstable at {res.h_max_unstable:.6g})"
+    word = {"stable": "mean-square stable", "not stable": "NOT mean-square stable",
+            "undecided": "UNDECIDED"}[res.verdict]
+    return res, Check(name, res.stable, f"{word}: spectral radius of the one-period map {res.spectral_radius:.6g}; "
+                                        f"{res.proof}; {bracket}")
+
+
+def sampled_energy_stage(system: FTCSystem, controller: Controller, step: float, g2: float,
+                         sampled: SampledResult | None, max_vertices: int) -> tuple[list[dict[str, Any]], Check]:
+    """The exact expected energy of the sampled loop at ``step`` for the paper's
+    disturbance (:func:`ftc_verify.verification.sampled_energy.sampled_energy`, infinite
+    horizon) at the rate vertices (up to ``max_vertices``) and the constant
+    ``Delta in {0, +E, -E}``, against ``g2`` (gamma^2 of the continuous certificate: the
+    loop that runs must keep it). Not run when the sampled loop was not analysed or not
+    proved stable (its check says why)."""
+    from ..simulation.delta import delta_shapes
+    from .sampled_energy import perturbed_system, sampled_energy
+    from .verify import Check
+
+    name = f"exact energy (sampled loop, h = {step:g})"
+    if sampled is None or not sampled.stable:
+        why = "not analysed" if sampled is None else f"not proved stable ({sampled.verdict})"
+        return [], Check(name, sampled is None, f"not computed: the sampled loop was {why}")
+    s1, s2 = delta_shapes(system)
+    cases: list[tuple[str, Any, Any]] = [("Delta=0", None, None)]
+    if system.uncertain:
+        cases += [(label, None if s1 is None else sign * np.eye(*s1), None if s2 is None else sign * np.eye(*s2))
+                  for sign, label in ((1.0, "Delta=+E"), (-1.0, "Delta=-E"))]
+    out: list[dict[str, Any]] = []
+    for label, d1, d2 in cases:
+        perturbed = perturbed_system(system, d1, d2)
+        for b in list(system.chain.vertices())[:max_vertices]:
+            try:
+                e = sampled_energy(perturbed, controller, step, beta=b)
+                ratio = e.ratio
+            except FTCError:  # the perturbed sampled loop is not stable at this vertex
+                ratio = float("inf")
+            out.append({"delta": label, "beta": b.tolist(), "ratio": ratio})
+    worst = max(out, key=lambda e: e["ratio"])
+    return out, Check(name, worst["ratio"] <= g2,
+                      f"max E||y||^2/||w||^2 = {worst['ratio']:.6g} ({worst['delta']}, "
+                      f"{system.chain.rate_text(worst['beta'])}) vs gamma^2 = {g2:.6g}, {len(out)} cases, "
+                      "infinite horizon, u and w held over each period")
+
+
+def sampled_stages(system: FTCSystem, controller: Controller, step: float, g2: float, checks: list[Check],
+                   seconds: dict[str, float]) -> dict[str, Any]:
+    """Both stages of ``verify`` on the sampled loop (:func:`sampled_stage`, then
+    :func:`sampled_energy_stage` at the rate vertices up to
+    :data:`~ftc_verify.verification.verify.MAX_EXACT_VERTICES`): their checks appended
+    to ``checks``, their times to ``seconds`` (``sampled``, ``sampled_energy``); returns
+    the report's ``sampled`` and ``sampled_exact``."""
+    from .verify import MAX_EXACT_VERTICES
+
+    t = time.perf_counter()
+    res, check = sampled_stage(system, controller, step)
+    checks.append(check)
+    seconds["sampled"] = time.perf_counter() - t
+    t = time.perf_counter()
+    exact, check = sampled_energy_stage(system, controller, step, g2, res, MAX_EXACT_VERTICES)
+    checks.append(check)
+    seconds["sampled_energy"] = time.perf_counter() - t
+    return {"sampled": res, "sampled_exact": tuple(exact)}
