@@ -59,7 +59,7 @@ def _cmd_synthesize(args: argparse.Namespace) -> int:
     from ..model.files import load_system, write_atomic
     from ..synthesis.state_feedback import synthesize
 
-    of_methods = ("auto", "ccl", "observer", "vk", "descent")
+    of_methods = ("auto", "ccl", "observer", "vk", "descent", "hinf")
     if args.output_feedback and args.method not in (None, *of_methods):
         raise bad(f"--method {args.method}: with --output-feedback choose one of {list(of_methods)}")
     if not args.output_feedback and args.method in of_methods:
@@ -74,8 +74,9 @@ def _cmd_synthesize(args: argparse.Namespace) -> int:
         from ..synthesis.output_feedback import synthesize_output_feedback
 
         n = system.dims[0]
-        if args.order is not None and args.order != n and args.method not in (None, "auto", "descent"):
-            raise bad(f"--order {args.order}: method {args.method} designs order n = {n} only; use --method descent")
+        if args.order is not None and args.order != n and args.method not in (None, "auto", "descent", "hinf"):
+            raise bad(f"--order {args.order}: method {args.method} designs order n = {n} only; use --method descent "
+                      "or hinf")
         res = synthesize_output_feedback(system, method=args.method or "auto", gamma=args.gamma, k_max=args.k_max,
                                          solver=args.solver, order=args.order, seed=args.seed)
     else:
@@ -104,11 +105,12 @@ def add_synthesis_command(sub: Any) -> None:
     level.add_argument("--minimize", action="store_true", help="make gamma as small as possible (default)")
     y.add_argument("--method", default=None, choices=["best", "two-step", "iterative", "full-info", "common",
                                                        "common-fdi", "dilated", "auto", "ccl", "observer", "vk",
-                                                       "descent"],
+                                                       "descent", "hinf"],
                    help="state feedback: best (default: every route, the best certified), two-step, iterative, "
                         "full-info, common, common-fdi, dilated; with "
                         "--output-feedback: auto (default: every route, the best certified), ccl, observer, vk, "
-                        "descent (nonsmooth descent on the exact stability test, any order)")
+                        "descent (nonsmooth descent on the exact stability test, any order), hinf (BFGS on the "
+                        "bounded-real gamma from a stabilising controller, any order)")
     y.add_argument("--output-feedback", action="store_true",
                    help="a dynamic controller per FDI mode reading y_m = Cy x (Theorem 5.1)")
     y.add_argument("--order", type=int, default=None,
