@@ -192,11 +192,11 @@ def minimise_gamma(system: FTCSystem, order: int, starts: Sequence[tuple[str, Ma
 
 
 def hinf_route(system: FTCSystem, order: int, starts: Sequence[tuple[str, Controller]], calls: SolverCalls,
-               solver: str, *, k_max: float | None = None, seed: int = 0,
+               solver: str, *, k_max: float | None = None, seed: int = 0, budget_seconds: float = HINF_SECONDS,
                ) -> tuple[Controller | None, Any, list[float], str, list[dict[str, Any]]]:
     """The ``hinf`` route: :func:`minimise_gamma` from the certified controllers ``starts``
     (order ``order``, best first), then the core analysis of each answer, best first, until
-    one is certified. Returns ``(controller, report, history, message, rows)``; ``history``
+    one is certified (``budget_seconds``: :func:`minimise_gamma`'s). Returns ``(controller, report, history, message, rows)``; ``history``
     is ``[start's certified gamma, certified gamma]``."""
     from .descent import accepted_gamma
     from .output_feedback import controller_blocks
@@ -206,7 +206,7 @@ def hinf_route(system: FTCSystem, order: int, starts: Sequence[tuple[str, Contro
     usable = [(name, par.theta(controller_blocks(c))) for name, c in starts if c.n_c == order]
     if not usable:
         return None, None, [], f"hinf: no certified start of order {order}", []
-    found = minimise_gamma(system, order, usable, calls, k_max=k_max, seed=seed)
+    found = minimise_gamma(system, order, usable, calls, k_max=k_max, seed=seed, budget_seconds=budget_seconds)
     public = [{"name": f"hinf from {r['name']}", "gamma_certified": None, "spectral_abscissa": None,
                "note": f"order {order}, bounded-real level {r['start_gamma']:.6g} -> {r['gamma']:.6g}",
                "reason": "" if math.isfinite(r["gamma"]) else "start not feasible in the bounded-real program",
