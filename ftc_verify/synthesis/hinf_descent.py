@@ -65,12 +65,14 @@ from ..model.system import FTCSystem, Matrix
 from .descent import Parametrisation, bfgs
 from .results import SolverCalls
 
-__all__ = ["HINF_SECONDS", "PERTURBED_STARTS", "RESTART_RTOL", "NominalGamma", "minimise_gamma", "hinf_route"]
+__all__ = ["HINF_SECONDS", "PERTURBED_STARTS", "FIRST_SHARE", "RESTART_RTOL", "NominalGamma", "minimise_gamma", "hinf_route"]
 
 #: Seconds after which :func:`minimise_gamma` begins no new start.
 HINF_SECONDS = 40.0
 #: Seeded perturbations of the best start added to the starts.
 PERTURBED_STARTS = 2
+#: Share of the budget the first (best) start may use; the others split the rest.
+FIRST_SHARE = 0.6
 #: A BFGS restart that gains less than this (relative) ends the descent from a start.
 RESTART_RTOL = 1e-3
 
@@ -159,7 +161,8 @@ def minimise_gamma(system: FTCSystem, order: int, starts: Sequence[tuple[str, Ma
     :data:`PERTURBED_STARTS` perturbations (relative size 1e-3) of the first one drawn from
     ``numpy.random.default_rng(seed)``. From each start BFGS is restarted (a fresh
     inverse Hessian) where its line search ended, until a restart gains less than
-    :data:`RESTART_RTOL` relative; the whole run stops at ``budget_seconds`` (its best point
+    :data:`RESTART_RTOL` relative or its share of ``budget_seconds`` is spent (the first
+    start :data:`FIRST_SHARE`, each later one an equal part of what is left; its best point
     kept). Returns one row per start: ``name``, ``theta``, ``gamma`` (the program's value,
     not certified; ``inf`` when none), ``start_gamma``, ``seconds``; best first."""
     if not starts:
@@ -172,11 +175,12 @@ def minimise_gamma(system: FTCSystem, order: int, starts: Sequence[tuple[str, Ma
                              first * (1.0 + 1e-3 * rng.standard_normal(first.size))) for k in range(PERTURBED_STARTS)]
     rows: list[dict[str, Any]] = []
     deadline = time.perf_counter() + budget_seconds
-    for name, theta in every:
-        if rows and time.perf_counter() > deadline:
-            break
+    for k, (name, theta) in enumerate(every):
         t0 = time.perf_counter()
-        watched = _Watched(fun, deadline if rows else max(deadline, t0 + budget_seconds / 2))
+        if rows and t0 > deadline:
+            break
+        share = FIRST_SHARE if k == 0 and len(every) > 1 else 1.0 / (len(every) - k)
+        watched = _Watched(fun, t0 + share * (deadline - t0))
         x = _bounded(par, np.asarray(theta, dtype=float), k_max)
         f0, _ = watched(x)
         f = f0
@@ -220,6 +224,9 @@ def hinf_route(system: FTCSystem, order: int, starts: Sequence[tuple[str, Contro
         gamma = accepted_gamma(report, True)
         row["gamma_certified"], row["spectral_abscissa"] = gamma, report.mss.spectral_abscissa
         if gamma is not None:
+            for later in public:
+                if later is not row and not later["reason"]:
+                    later["reason"] = "not sent to the core analysis (a lower level was certified)"
             return ctrl, report, [r["start_gamma"], gamma], (
                 f"hinf (order {order}): BFGS on the bounded-real level from {r['name']}, "
                 f"{r['start_gamma']:.6g} -> {r['gamma']:.6g}; certified "

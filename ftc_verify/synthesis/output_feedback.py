@@ -42,7 +42,8 @@ Methods:
     Nonsmooth BFGS on the certified quantity itself, the bounded-real level of the loop
     over the rate box (:mod:`ftc_verify.synthesis.hinf_descent`), from the certified
     controllers of the other routes (alone: from the ``descent`` route's, the route to a
-    first stabilising controller); its answer certified by the core. ``auto`` runs it last.
+    first stabilising controller); its answer certified by the core. ``auto`` runs it last,
+    and runs the ``descent`` before it only when no LMI route certified a controller.
 """
 
 from __future__ import annotations
@@ -416,8 +417,8 @@ def synthesize_output_feedback(
     level CCL works at, and for every method a requirement on the certified gamma.
     ``order``: the controller order (default ``n``; other orders only by ``descent``, 0 is
     static output feedback). ``method="auto"`` runs every route (observer, V-K, CCL at full
-    order, and the descent) and keeps the best certified controller, each route's outcome
-    in ``starts``. A controller counts as certified when the core proves it stable and
+    order, the descent when none of them certified, then ``hinf`` from the certified ones) and
+    keeps the best certified controller, each route's outcome in ``starts``. A controller counts as certified when the core proves it stable and
     certifies Lemma 4.1's robust gamma -- or, for the descent, Theorem 3.2's nominal gamma
     when Lemma 4.1 finds no certificate (the result says which)."""
     from ..analysis.solvers import choose_solver
@@ -447,18 +448,25 @@ def synthesize_output_feedback(
         routes.append("descent")
     outcomes: list[_Outcome] = []
     descent_rows: list[dict[str, Any]] = []
+    took: dict[str, float] = {}
     for route in routes:
+        t_route = time.perf_counter()
+        if route == "descent" and method == "auto" and any(o.gamma is not None for o in outcomes):
+            continue  # at full order the LMI routes certified: the descent is the route to a first stabilising one
         if route == "descent":
             ctrl, report, history, msg, descent_rows = descent_route(system, order, rows, k_max, name, calls, seed)
             outcomes.append(_Outcome(route, ctrl, report, history[-1] if history else None, history, [], msg))
         else:
             outcomes.append(_Outcome(route, *_run_route(route, system, rows, gamma, k_max, name, calls, max_iter, tol)))
+        took[route] = time.perf_counter() - t_route
     if method in ("hinf", "auto"):
+        t_route = time.perf_counter()
         ranked = [(o.route, o.controller) for o in sorted(outcomes, key=lambda o: o.rank)
                   if o.gamma is not None and o.controller is not None]
         ctrl, report, history, msg, hinf_rows = hinf_route(system, order, ranked, calls, name, k_max=k_max, seed=seed)
         outcomes.append(_Outcome("hinf", ctrl, report, history[-1] if history else None, history, [], msg))
         descent_rows += hinf_rows
+        took["hinf"] = time.perf_counter() - t_route
     if gamma is not None:  # --gamma is a requirement for every method
         outcomes = [o if o.gamma is None or o.gamma <= gamma * (1 + 1e-9) else
                     _Outcome(o.route, None, None, o.synthesis_gamma, o.history, o.ccl_history,
@@ -484,7 +492,8 @@ def synthesize_output_feedback(
     if method == "auto":
         public += tuple({"name": f"route {o.route}", "gamma_certified": o.gamma,
                          "spectral_abscissa": None if o.report is None else o.report.mss.spectral_abscissa,
-                         "note": "", "reason": "" if o.gamma is not None else o.message} for o in outcomes)
+                         "note": "", "reason": "" if o.gamma is not None else o.message,
+                         "seconds": took.get(o.route)} for o in outcomes)
     blocks = [] if ctrl is None else controller_blocks(ctrl)
     return SynthesisResult(chosen.route if method == "auto" else method, ctrl is not None, tuple(blocks),
                            chosen.synthesis_gamma, name, calls.seconds, time.perf_counter() - t0, calls.count, report,
