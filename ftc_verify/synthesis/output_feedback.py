@@ -443,30 +443,8 @@ def synthesize_output_feedback(
     calls = SolverCalls(name)
     full = order == n0
     rows = _observer_rows(system, k_max, name, calls) if full else []
-    routes = [r for r in (("observer", "vk", "ccl") if full else ()) if method in (r, "auto")]
-    if method in ("descent", "hinf", "auto"):
-        routes.append("descent")
-    outcomes: list[_Outcome] = []
-    descent_rows: list[dict[str, Any]] = []
-    took: dict[str, float] = {}
-    for route in routes:
-        t_route = time.perf_counter()
-        if route == "descent" and method == "auto" and any(o.gamma is not None for o in outcomes):
-            continue  # at full order the LMI routes certified: the descent is the route to a first stabilising one
-        if route == "descent":
-            ctrl, report, history, msg, descent_rows = descent_route(system, order, rows, k_max, name, calls, seed)
-            outcomes.append(_Outcome(route, ctrl, report, history[-1] if history else None, history, [], msg))
-        else:
-            outcomes.append(_Outcome(route, *_run_route(route, system, rows, gamma, k_max, name, calls, max_iter, tol)))
-        took[route] = time.perf_counter() - t_route
-    if method in ("hinf", "auto"):
-        t_route = time.perf_counter()
-        ranked = [(o.route, o.controller) for o in sorted(outcomes, key=lambda o: o.rank)
-                  if o.gamma is not None and o.controller is not None]
-        ctrl, report, history, msg, hinf_rows = hinf_route(system, order, ranked, calls, name, k_max=k_max, seed=seed)
-        outcomes.append(_Outcome("hinf", ctrl, report, history[-1] if history else None, history, [], msg))
-        descent_rows += hinf_rows
-        took["hinf"] = time.perf_counter() - t_route
+    outcomes, descent_rows, took = _routes(system, method, order, rows, gamma, k_max, name, calls, max_iter, tol,
+                                           seed)
     if gamma is not None:  # --gamma is a requirement for every method
         outcomes = [o if o.gamma is None or o.gamma <= gamma * (1 + 1e-9) else
                     _Outcome(o.route, None, None, o.synthesis_gamma, o.history, o.ccl_history,
@@ -500,6 +478,40 @@ def synthesize_output_feedback(
                            msg, k_max, tuple(chosen.history), (_best_row(rows) or {}).get("name"), public, diagnosis, ctrl,
                            tuple(chosen.ccl_history), nominal_accepted=chosen.route in ("descent", "hinf"),
                            iterations=len(chosen.ccl_history) if chosen.route == "ccl" else None)
+
+
+def _routes(system: FTCSystem, method: str, order: int, rows: list[dict[str, Any]], gamma: float | None,
+            k_max: float | None, name: str, calls: SolverCalls, max_iter: int, tol: float, seed: int,
+            ) -> tuple[list[_Outcome], list[dict[str, Any]], dict[str, float]]:
+    """Run the routes of ``method`` in order (the LMI routes at full order, the descent,
+    then ``hinf`` from the certified ones; module docstring): their outcomes, the rows of
+    the descent and ``hinf``, and each route's seconds."""
+    full = order == system.dims[0]
+    routes = [r for r in (("observer", "vk", "ccl") if full else ()) if method in (r, "auto")]
+    if method in ("descent", "hinf", "auto"):
+        routes.append("descent")
+    outcomes: list[_Outcome] = []
+    descent_rows: list[dict[str, Any]] = []
+    took: dict[str, float] = {}
+    for route in routes:
+        t_route = time.perf_counter()
+        if route == "descent" and method == "auto" and any(o.gamma is not None for o in outcomes):
+            continue  # at full order the LMI routes certified: the descent is the route to a first stabilising one
+        if route == "descent":
+            ctrl, report, history, msg, descent_rows = descent_route(system, order, rows, k_max, name, calls, seed)
+            outcomes.append(_Outcome(route, ctrl, report, history[-1] if history else None, history, [], msg))
+        else:
+            outcomes.append(_Outcome(route, *_run_route(route, system, rows, gamma, k_max, name, calls, max_iter, tol)))
+        took[route] = time.perf_counter() - t_route
+    if method in ("hinf", "auto"):
+        t_route = time.perf_counter()
+        ranked = [(o.route, o.controller) for o in sorted(outcomes, key=lambda o: o.rank)
+                  if o.gamma is not None and o.controller is not None]
+        ctrl, report, history, msg, hinf_rows = hinf_route(system, order, ranked, calls, name, k_max=k_max, seed=seed)
+        outcomes.append(_Outcome("hinf", ctrl, report, history[-1] if history else None, history, [], msg))
+        descent_rows += hinf_rows
+        took["hinf"] = time.perf_counter() - t_route
+    return outcomes, descent_rows, took
 
 
 def _best_row(rows: list[dict[str, Any]]) -> dict[str, Any] | None:
