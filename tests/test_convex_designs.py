@@ -120,3 +120,16 @@ def test_cli_default_is_best(tmp_path, paper_path) -> None:  # type: ignore[no-u
     d = json.loads(proc.stdout)
     assert d["method"] == "best" and d["certified"] and out.exists()
     assert d["reference"]["gamma_certified"] is None or d["reference"]["gamma_certified"] > 0
+
+
+def test_best_on_an_unstabilisable_plant_is_diagnosed() -> None:
+    """No route can certify (mode 1's unstable eigenvalue 1 is uncontrollable in both
+    modes): not certified, every route a row, the diagnosis names the PBH failure."""
+    chain = dict(alpha=[[-0.5, 0.5], [1.0, -1.0]], beta_min=[[0.0, 2.0], [2.5, 0.0]],
+                 beta_max=[[0.0, 3.0], [3.5, 0.0]])
+    modes = [dict(A=[[1.0, 0.0], [0.0, -1.0]], B=[[0.0], [k]], C=[[1.0, 1.0]], D=[[1.0], [0.0]]) for k in (1.0, 0.5)]
+    res = synthesize(FTCSystem.from_arrays(name="unstab", modes=modes, **chain), solver="clarabel")
+    assert not res.certified and res.diagnosis is not None
+    assert res.diagnosis["reason"] == "not stabilisable"
+    assert {"common-fdi", "dilated", "two-step"} <= {r["name"] for r in res.starts}
+    assert all(r["gamma_certified"] is None for r in res.starts)
