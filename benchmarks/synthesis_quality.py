@@ -29,7 +29,8 @@ system only when the core analysis certifies it: exact spectral test stable and 
 gamma of Lemma 4.1 certified, certificate re-checked with numpy):
 
 * ``lqr``: the baseline a user writes: per-mode LQR ``Q = 10 I, R = I`` (scipy's
-  ``solve_continuous_are``), certified by ``hinf_gamma(robust=True)`` after the spectral test;
+  ``solve_continuous_are``; under ``--k-max`` a gain above the bound scaled onto it),
+  certified by ``hinf_gamma(robust=True)`` after the spectral test;
 * ``two-step`` (minimised), ``common``, ``common-fdi`` (one ``X`` per FDI mode) and
   ``dilated`` (the S-variable LMI, one slack per FDI mode): the peers from the
   literature, their certified gammas as computed inside the ``best`` run (the same calls a
@@ -178,14 +179,16 @@ def planted_rows(seed: int, k: int) -> dict:
             "route": res.method, "seconds": secs, "message": res.message[:200]}
 
 
-def lqr_baseline(system: FTCSystem) -> tuple[float | None, str]:
-    """Certified robust gamma of the textbook per-mode LQR, or why none."""
+def lqr_baseline(system: FTCSystem, k_max: float | None = None) -> tuple[float | None, str]:
+    """Certified robust gamma of the textbook per-mode LQR, or why none; under ``k_max``
+    each gain above the bound is scaled onto it (as the ``lqr`` start is)."""
     gains = []
     for j, md in enumerate(system.modes):
         K = lqr_gain(md.A, md.B, 10.0 * np.eye(md.A.shape[0]), np.eye(md.B.shape[1]))
         if K is None:
             return None, f"no stabilising Riccati solution in mode {j + 1}"
-        gains.append(K)
+        norm = float(np.linalg.norm(K, 2))
+        gains.append(K * (k_max / norm) if k_max is not None and norm > k_max else K)
     loop = state_feedback_loop(system, gains)
     mss = mean_square_stability(loop)
     if not mss.stable:
@@ -198,7 +201,7 @@ def system_rows(seed: int, k: int, k_max: float | None) -> list[dict]:
     """System ``k``: the CSV rows of every route (a Dask task with ``--workers``)."""
     system, kind, rs = random_system(seed, k)
     t = time.perf_counter()
-    base, why = lqr_baseline(system)
+    base, why = lqr_baseline(system, k_max)
     t_lqr = time.perf_counter() - t
     t = time.perf_counter()
     res = synthesize(system, k_max=k_max, solver="clarabel")
