@@ -65,7 +65,8 @@ from ..model.system import FTCSystem, Matrix
 from .descent import Parametrisation, bfgs
 from .results import SolverCalls
 
-__all__ = ["HINF_SECONDS", "PERTURBED_STARTS", "FIRST_SHARE", "RESTART_RTOL", "NominalGamma", "minimise_gamma", "hinf_route"]
+__all__ = ["HINF_SECONDS", "PERTURBED_STARTS", "FIRST_SHARE", "RESTART_RTOL", "NominalGamma", "minimise_gamma", "hinf_route",
+           "within_bound"]
 
 #: Seconds after which :func:`minimise_gamma` begins no new start.
 HINF_SECONDS = 40.0
@@ -123,6 +124,15 @@ class NominalGamma:
             gA = 2.0 * np.asarray(P) @ np.asarray(Z)[:self.n, :self.n]
             grad[spec.fdi] += self.par.B0[spec.true].T @ gA @ self.par.Cbar[spec.true].T
         return f, grad.ravel() / (2.0 * f)
+
+
+def within_bound(controller: Controller, k_max: float | None) -> bool:
+    """Every block ``[[Ac_j, Bc_j], [Cc_j, Dc_j]]`` of ``controller`` has spectral norm at
+    most ``k_max`` (a start the descent can use as it is; always true without a bound)."""
+    if k_max is None:
+        return True
+    return all(float(np.linalg.norm(np.block([[a, b], [c, d]]), 2)) <= k_max
+               for a, b, c, d in zip(controller.Ac, controller.Bc, controller.Cc, controller.Dc))
 
 
 def _bounded(par: Parametrisation, theta: Matrix, k_max: float | None) -> Matrix:

@@ -43,7 +43,8 @@ Methods:
     over the rate box (:mod:`ftc_verify.synthesis.hinf_descent`), from the certified
     controllers of the other routes (alone: from the ``descent`` route's, the route to a
     first stabilising controller); its answer certified by the core. ``auto`` runs it last,
-    and runs the ``descent`` before it only when no LMI route certified a controller.
+    and runs the ``descent`` before it only when no LMI route certified a controller
+    within the gain bound (the observer route bounds only its state-feedback gains).
 """
 
 from __future__ import annotations
@@ -62,7 +63,7 @@ from ..controllers.controller import Controller
 from ..errors import SolverError, ValidationError
 from ..model.system import FTCSystem, Matrix, Mode
 from .descent import accepted_gamma, descent_route
-from .hinf_descent import hinf_route
+from .hinf_descent import hinf_route, within_bound
 from .starts import certify_start, lqr_gain
 from .results import SolverCalls, SynthesisResult, verify_controller
 from .state_feedback import descend, gain_step, synthesize
@@ -417,7 +418,8 @@ def synthesize_output_feedback(
     level CCL works at, and for every method a requirement on the certified gamma.
     ``order``: the controller order (default ``n``; other orders only by ``descent``, 0 is
     static output feedback). ``method="auto"`` runs every route (observer, V-K, CCL at full
-    order, the descent when none of them certified, then ``hinf`` from the certified ones) and
+    order, the descent when none of them certified one within ``k_max``, then ``hinf`` from the
+    certified ones) and
     keeps the best certified controller, each route's outcome in ``starts``. A controller counts as certified when the core proves it stable and
     certifies Lemma 4.1's robust gamma -- or, for the descent, Theorem 3.2's nominal gamma
     when Lemma 4.1 finds no certificate (the result says which)."""
@@ -495,8 +497,9 @@ def _routes(system: FTCSystem, method: str, order: int, rows: list[dict[str, Any
     took: dict[str, float] = {}
     for route in routes:
         t_route = time.perf_counter()
-        if route == "descent" and method == "auto" and any(o.gamma is not None for o in outcomes):
-            continue  # at full order the LMI routes certified: the descent is the route to a first stabilising one
+        if route == "descent" and method == "auto" and any(
+                o.gamma is not None and o.controller is not None and within_bound(o.controller, k_max) for o in outcomes):
+            continue  # an LMI route certified a start for hinf: the descent is the route to a first stabilising one
         if route == "descent":
             ctrl, report, history, msg, descent_rows = descent_route(system, order, rows, k_max, name, calls, seed)
             outcomes.append(_Outcome(route, ctrl, report, history[-1] if history else None, history, [], msg))
