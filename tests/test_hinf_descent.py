@@ -87,3 +87,27 @@ def test_route_beats_the_planted_controller() -> None:
     assert gamma is not None and gamma <= planted_gamma * (1 + 1e-3)
     assert history[-1] == gamma and rows[0]["gamma_certified"] == gamma
     assert max(float(np.linalg.norm(K, 2)) for K in controller_blocks(found)) <= bound * (1 + 1e-9)
+
+
+def test_tangent_removes_the_outward_part_on_the_bound() -> None:
+    """On the bound, a gradient whose negative points outward loses its part along the
+    normal ``u1 v1'``; one pointing inward, and any gradient off the bound, is unchanged."""
+    from ftc_verify.synthesis.hinf_descent import _tangent
+
+    system, _ = planted(0)
+    par = NominalGamma(system, 1, SolverCalls("clarabel")).par
+    rng = np.random.default_rng(3)
+    blocks = [rng.normal(size=par.shape) for _ in range(system.m)]
+    k_max = float(np.linalg.norm(blocks[0], 2))  # block 1 on the bound, block 2 scaled inside
+    blocks[1] *= 0.5 * k_max / float(np.linalg.norm(blocks[1], 2))
+    U, _, Vt = np.linalg.svd(blocks[0])
+    normal = np.outer(U[:, 0], Vt[0])
+    for sign in (-1.0, 1.0):
+        grads = [sign * normal + 0.1 * rng.normal(size=par.shape), rng.normal(size=par.shape)]
+        _, out = _tangent(par, par.theta(blocks), (1.0, par.theta(grads)), k_max)
+        got = par.blocks(out)
+        if float(np.sum(grads[0] * normal)) < 0:
+            assert float(np.sum(got[0] * normal)) == pytest.approx(0.0, abs=1e-12)
+        else:
+            np.testing.assert_array_equal(got[0], grads[0])
+        np.testing.assert_array_equal(got[1], grads[1])

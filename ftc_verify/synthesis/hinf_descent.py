@@ -50,6 +50,7 @@ Nothing here certifies: the caller hands the answer to the core analysis.
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from collections.abc import Sequence
@@ -135,6 +136,34 @@ def within_bound(controller: Controller, k_max: float | None) -> bool:
                for a, b, c, d in zip(controller.Ac, controller.Bc, controller.Cc, controller.Dc))
 
 
+def _tangent(par: Parametrisation, theta: Matrix, fg: tuple[float, Matrix], k_max: float | None,
+             ) -> tuple[float, Matrix]:
+    r"""``(f, g)`` with, for every block on the gain bound, the part of ``g`` along the
+    bound's outward normal removed when ``-g`` points outward: the normal of
+    :math:`\|K\|_2` at a simple top singular value is :math:`u_1 v_1^T`, and
+    :math:`\langle g_j, u_1 v_1^T\rangle < 0` means a descent step leaves the ball (then
+    undone by the projection, so the search would stall on the bound)."""
+    f, g = fg
+    if k_max is None or not math.isfinite(f):
+        return f, g
+    blocks, grads = par.blocks(theta), par.blocks(g)
+    out = []
+    for K, G in zip(blocks, grads):
+        U, sv, Vt = np.linalg.svd(K)
+        if sv[0] >= k_max * (1.0 - 1e-9):
+            normal = np.outer(U[:, 0], Vt[0])
+            slope = float(np.sum(G * normal))
+            if slope < 0:
+                G = G - slope * normal
+        out.append(G)
+    return f, par.theta(out)
+
+
+def _tangent_of(par: Parametrisation, fun: _Watched, k_max: float | None, theta: Matrix) -> tuple[float, Matrix]:
+    """:func:`_tangent` of ``fun(theta)``."""
+    return _tangent(par, theta, fun(theta), k_max)
+
+
 def _bounded(par: Parametrisation, theta: Matrix, k_max: float | None) -> Matrix:
     """Each block scaled back onto ``||K_j||_2 <= k_max``."""
     if k_max is None:
@@ -195,7 +224,8 @@ def minimise_gamma(system: FTCSystem, order: int, starts: Sequence[tuple[str, Ma
         f0, _ = watched(x)
         f = f0
         while math.isfinite(f):
-            x, _, _ = bfgs(watched, x, target=-math.inf, max_iter=max_iter, project=lambda z: _bounded(par, z, k_max))
+            x, _, _ = bfgs(functools.partial(_tangent_of, par, watched, k_max), x, target=-math.inf,
+                           max_iter=max_iter, project=lambda z: _bounded(par, z, k_max))
             x = watched.best[1]
             if watched.best[0] > f * (1.0 - RESTART_RTOL):
                 break
