@@ -20,7 +20,7 @@ Part 1 -- ``verify`` wall time by stage (``part = verify``)
   printed verdict are checked (status ``fail`` otherwise).
 * per stage: in-process ``run_verify(load_system("examples/paper.toml"), seed=S)``, same
   number of runs, the median of each entry of ``VerifyReport.seconds`` (synthesis,
-  analysis, cross_validation, exact_energy, worst_case, monte_carlo, reference);
+  analysis, cross_validation, exact_energy, gamma_bracket, monte_carlo, reference);
   ``run_verify total`` is the median wall time of the call, ``(not in .seconds)`` the
   median of wall minus the stage sum; ``write_report`` times
   :func:`ftc_verify.verification.report.write_report` of each run's report into a temporary folder
@@ -107,7 +107,7 @@ PAPER = REPO / "examples" / "paper.toml"
 PAPER_GAINS = REPO / "examples" / "paper_gains.toml"
 DEFAULT_OUT = REPO / "benchmarks" / "results" / "verify.csv"
 CLI_GOAL_S = 60.0
-STAGES = ("synthesis", "analysis", "cross_validation", "exact_energy", "worst_case", "monte_carlo", "reference")
+STAGES = ("synthesis", "analysis", "cross_validation", "exact_energy", "gamma_bracket", "monte_carlo", "reference")
 HORIZON = 15.0
 STEP = 0.01
 ALPHA = 1e-6  # two-sided: q = t_{1 - alpha/2}

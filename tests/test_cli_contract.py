@@ -145,14 +145,14 @@ def test_stale_files_are_replaced_by_the_new_run(tmp_path: Path) -> None:
     ok = run_cli(["verify", PAPER, "--gains", GAINS, "--paths", "20", "--horizon", "3", "--seed", "1",
                   "--out", "rep"], tmp_path)
     assert ok.returncode == 0, ok.stdout + ok.stderr
-    assert (out / "worst_case.png").is_file()
+    assert (out / "gamma_bracket.png").is_file()
     unstable = tmp_path / "unstable.toml"
     unstable.write_text("[[gain]]\nK = [[0.0, 0.0], [0.0, 0.0]]\n[[gain]]\nK = [[0.0, 0.0], [0.0, 0.0]]\n")
     bad = run_cli(["verify", PAPER, "--gains", str(unstable), "--paths", "5", "--horizon", "3", "--out", "rep"],
                   tmp_path)
     assert bad.returncode == 1, bad.stderr
     assert strict_json((out / "report.json").read_text())["verdict"] == "fail"
-    assert not (out / "worst_case.png").exists()  # the earlier run's plot is gone
+    assert not (out / "gamma_bracket.png").exists()  # the earlier run's plot is gone
     assert files_under(tmp_path) - files_under(out.parent) == set()
     assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".") and p.name != ".tmp") == []
 

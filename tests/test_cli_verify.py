@@ -62,15 +62,16 @@ def test_verify_given_gains_writes_report(tmp_path: Path) -> None:
     assert d["verdict"] == "pass"
     assert d["gamma_certified"] == pytest.approx(0.4983, abs=2e-3)
     assert d["exact_energy_ratio"] <= d["gamma_certified"] ** 2
-    assert d["worst_case_gain"] <= d["gamma_certified"]
+    low = d["gamma_lower_bound"]
+    assert low["proved"] and low["value"] <= d["gamma_certified"] <= 1.05 * low["value"]  # the bracket is tight
     assert d["mc"]["paths"] == 30 and d["mc"]["mean_ratio"] <= d["mc"]["upper_bound"] <= d["gamma_certified"] ** 2
     names = {c["name"] for c in d["checks"]}
-    assert {"certified", "python-control per mode", "exact energy", "worst-case disturbance",
+    assert {"certified", "python-control per mode", "exact energy", "gamma bracket",
             "Monte Carlo (FMU)", "FMU vs reference"} <= names
     assert all(c["ok"] for c in d["checks"]) and d["seed"] == 3
     md = (out / "report.md").read_text()
     assert "Verdict: PASS" in md
-    for png in ("fig1_path.png", "ratio_distribution.png", "worst_case.png"):
+    for png in ("fig1_path.png", "ratio_distribution.png", "gamma_bracket.png"):
         assert (out / png).read_bytes()[:8] == PNG
     assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no staging leftovers
 

@@ -49,7 +49,11 @@ def test_stable_loop_that_float64_calls_unstable_is_proved_stable() -> None:
     r = mean_square_stability(p.loop)
     assert r.verdict == "stable" and r.stable
     assert r.spectral_abscissa == pytest.approx(p.abscissa, rel=1e-3)  # estimated in conditioned coordinates
-    assert all(v.verdict == "stable" for v in r.vertex_verdicts) and len(r.vertex_verdicts) == 4
+    assert all(v.verdict == "stable" for v in r.vertex_verdicts)
+    lo = np.minimum.reduce([v.rate_min for v in r.vertex_verdicts])
+    hi = np.maximum.reduce([v.rate_max for v in r.vertex_verdicts])
+    chain = p.loop.chain
+    assert np.all(lo <= chain.rate_min) and np.all(hi >= chain.rate_max)  # the regions cover the box
 
 
 def test_unstable_loop_that_float64_calls_stable_is_proved_not_stable() -> None:
@@ -166,7 +170,8 @@ def test_sigterm_during_the_ball_arithmetic_retry_exits_143(tmp_path: Path) -> N
 
 @pytest.mark.parametrize("corner", [-1e-60, 1e-60, -1e-20])
 def test_higher_precision_decides_what_float64_cannot(tmp_path: Path, corner: float) -> None:
-    """Abscissa +-2e-60: float64 and 128 bits cannot tell the sign, 256 bits can."""
+    """Abscissa +-2e-60: float64 and 128 bits cannot tell the sign, 256 or 512 bits can
+    (the box proof needs the candidate's scales, 1e60 apart, at 512 bits)."""
     from ftc_verify.analysis.closedloop import closed_loop
     from ftc_verify.controllers.files import load_controller
     from ftc_verify.model.files import load_system
@@ -174,5 +179,7 @@ def test_higher_precision_decides_what_float64_cannot(tmp_path: Path, corner: fl
     system = load_system(_marginal_system(tmp_path, 4, corner))
     r = mean_square_stability(closed_loop(system, load_controller(tmp_path / "zero.toml")))
     assert r.verdict == ("stable" if corner < 0 else "not stable")
-    deciding = r.vertex_verdicts[0]
-    assert deciding.precision_bits == (256 if abs(corner) < 1e-40 else 128), deciding.method
+    deciding = r.vertex_verdicts[-1]
+    assert deciding.precision_bits >= 128
+    if abs(corner) < 1e-40:
+        assert deciding.precision_bits > 128, deciding.method

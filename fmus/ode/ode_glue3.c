@@ -107,7 +107,14 @@
 #define fmi2SetString ode2_fmi2SetString
 #undef fmi2SetTime
 #define fmi2SetTime ode2_fmi2SetTime
-#include "ode_glue.c"
+/* Another FMI 2.0 glue may be wrapped (the exported controllers' fmus/controller/ctrl_glue3.c
+ * defines GLUE3_INNER, GLUE3_MODEL_NAME, GLUE3_NX and GLUE3_INT32_AS_FMI2_INTEGER first). */
+#ifndef GLUE3_INNER
+#define GLUE3_INNER "ode_glue.c"
+#define GLUE3_MODEL_NAME ODE_SPEC_MODEL_NAME
+#define GLUE3_NX NX
+#endif
+#include GLUE3_INNER
 
 #include "fmi3Functions.h"
 
@@ -232,7 +239,7 @@ fmi3Instance fmi3InstantiateCoSimulation(
     c->cb2.allocateMemory = bridge_alloc;
     c->cb2.freeMemory = bridge_free;
     c->cb2.componentEnvironment = c;
-    snprintf(c->name, sizeof c->name, "%s", instanceName ? instanceName : ODE_SPEC_MODEL_NAME);
+    snprintf(c->name, sizeof c->name, "%s", instanceName ? instanceName : GLUE3_MODEL_NAME);
     c->inner = ode2_fmi2Instantiate(c->name, fmi2CoSimulation, instantiationToken,
                                     resourcePath ? resourcePath : "", &c->cb2,
                                     visible ? fmi2True : fmi2False, loggingOn ? fmi2True : fmi2False);
@@ -357,7 +364,25 @@ NO_TYPE(Int8, fmi3Int8)
 NO_TYPE(UInt8, fmi3UInt8)
 NO_TYPE(Int16, fmi3Int16)
 NO_TYPE(UInt16, fmi3UInt16)
+#ifdef GLUE3_INT32_AS_FMI2_INTEGER
+fmi3Status fmi3GetInt32(fmi3Instance instance, const fmi3ValueReference vr[], size_t nvr,
+                        fmi3Int32 values[], size_t nValues) {
+    CHECK3(instance);
+    if (nValues != nvr)
+        return fail3((Instance3 *)instance, "fmi3GetInt32: nValues = %zu for %zu scalar variables", nValues, nvr);
+    return (fmi3Status)ode2_fmi2GetInteger(INNER(instance), vr, nvr, (fmi2Integer *)values);
+}
+
+fmi3Status fmi3SetInt32(fmi3Instance instance, const fmi3ValueReference vr[], size_t nvr,
+                        const fmi3Int32 values[], size_t nValues) {
+    CHECK3(instance);
+    if (nValues != nvr)
+        return fail3((Instance3 *)instance, "fmi3SetInt32: nValues = %zu for %zu scalar variables", nValues, nvr);
+    return (fmi3Status)ode2_fmi2SetInteger(INNER(instance), vr, nvr, (const fmi2Integer *)values);
+}
+#else
 NO_TYPE(Int32, fmi3Int32)
+#endif
 NO_TYPE(UInt32, fmi3UInt32)
 NO_TYPE(Int64, fmi3Int64)
 NO_TYPE(UInt64, fmi3UInt64)
@@ -617,7 +642,7 @@ fmi3Status fmi3GetNumberOfEventIndicators(fmi3Instance instance, size_t *nEventI
 fmi3Status fmi3GetNumberOfContinuousStates(fmi3Instance instance, size_t *nContinuousStates) {
     CHECK3(instance);
     if (!nContinuousStates) return fail3((Instance3 *)instance, "fmi3GetNumberOfContinuousStates: NULL");
-    *nContinuousStates = (size_t)NX;
+    *nContinuousStates = (size_t)GLUE3_NX;
     return fmi3OK;
 }
 

@@ -9,12 +9,14 @@
    gains fixed), both over the rate box;
 3. Theorem 3.1 over the rate box, certified (:func:`~ftc_verify.analysis.lmi_analysis.mes_lmi`),
    first with the ``P`` of step 2 (no solve), solved only when that check fails;
-4. per-mode cross-validation with python-control (:mod:`ftc_verify.analysis.crossval`).
+4. beside each certified gamma, a proved lower bound of the same worst-case gain
+   (:mod:`ftc_verify.analysis.lower_bound`): the bracket ``lower <= gain <= gamma``;
+5. per-mode cross-validation with python-control (:mod:`ftc_verify.analysis.crossval`).
 
-"Certified stable" means the spectral test says stable at every vertex *and* the
-Theorem 3.1 certificate passed (which covers the whole box). At a missed-detection
-vertex (a ``beta_min`` of 0) both speak about an FDI that never detects that fault
-(:mod:`ftc_verify.analysis.lmi`).
+"Certified stable" means the verdict of stage 1 is "stable" over the whole box *and* the
+Theorem 3.1 certificate passed (which covers the whole box, and time-varying rates in
+it). At a missed-detection vertex (a ``beta_min`` of 0) both speak about an FDI that
+never detects that fault (:mod:`ftc_verify.analysis.lmi`).
 """
 
 from __future__ import annotations
@@ -28,10 +30,11 @@ from ..analysis.closedloop import ClosedLoop
 from ..jsonable import jsonable
 from ..analysis.crossval import ModeCheck, cross_validate
 from .lmi_analysis import LMIResult, check_lmi_memory, hinf_gamma, mes_lmi
+from .lower_bound import GainLowerBound, gain_lower_bound, worst_constant_delta
 from .solvers import ForkedCall
 from ..analysis.stability import MSSResult, mean_square_stability
 
-__all__ = ["AnalysisReport", "analyze", "json_ready"]
+__all__ = ["AnalysisReport", "analyze", "json_ready", "bracket", "LOOSE_RATIO"]
 
 
 def json_ready(value: Any) -> Any:
@@ -51,6 +54,8 @@ class AnalysisReport:
     robust: LMIResult
     per_mode: tuple[ModeCheck, ...]
     seconds: dict[str, float]
+    nominal_lower: GainLowerBound | None = None
+    robust_lower: GainLowerBound | None = None
 
     @property
     def certificate_ok(self) -> bool:
@@ -59,13 +64,19 @@ class AnalysisReport:
 
     @property
     def certified_stable(self) -> bool:
-        """Spectral test stable at every vertex and Theorem 3.1 certified."""
+        """Proved stable over the whole rate box and Theorem 3.1 certified."""
         return self.mss.stable and self.mes_lmi.certified
 
     @property
     def cross_validation_ok(self) -> bool:
         """python-control agreed on every joint mode."""
         return all(m.agree for m in self.per_mode)
+
+    def __str__(self) -> str:
+        """The summary ``ftc-verify analyze`` prints (:func:`~ftc_verify.analysis.summary.analysis_summary`)."""
+        from .summary import analysis_summary
+
+        return analysis_summary(self)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready report (the schema of :doc:`/reference/report-schema`)."""
@@ -77,6 +88,8 @@ class AnalysisReport:
             "hinf": {
                 "nominal_gamma": self.nominal.gamma if self.nominal.certified else None,
                 "robust_gamma": self.robust.gamma if self.robust.certified else None,
+                "nominal_lower_bound": bracket(self.nominal, self.nominal_lower),
+                "robust_lower_bound": bracket(self.robust, self.robust_lower),
                 "nominal": self.nominal.to_dict(),
                 "robust": self.robust.to_dict(),
             },
@@ -93,8 +106,22 @@ class AnalysisReport:
         })
 
 
+#: A certified gamma more than this factor above its proved lower bound is flagged ``loose``.
+LOOSE_RATIO = 1.05
+
+
+def bracket(certified: LMIResult, lower: GainLowerBound | None) -> dict[str, Any] | None:
+    """The JSON of a lower bound beside its certified gamma: the bound, the ratio
+    certified / lower, ``loose`` above :data:`LOOSE_RATIO`, and what attains it."""
+    if lower is None:
+        return None
+    ratio = (certified.gamma / lower.value if certified.certified and certified.gamma is not None
+             and lower.value is not None and lower.value > 0 else None)
+    return lower.to_dict() | {"ratio": ratio, "loose": ratio is not None and ratio > LOOSE_RATIO}
+
+
 def analyze(loop: ClosedLoop, *, solver: str | None = None, name: str = "", cross_validation: bool = True,
-            lmi: bool = True) -> AnalysisReport:
+            lmi: bool = True, lower_bounds: bool = True) -> AnalysisReport:
     """Run every analysis of the module docstring on ``loop``.
 
     ``solver`` is ``None``/``"auto"`` (by size), ``"clarabel"``, ``"sdpa"`` or ``"scs"``.
@@ -103,7 +130,8 @@ def analyze(loop: ClosedLoop, *, solver: str | None = None, name: str = "", cros
     stage 4 (synthesis loops, where python-control's start-up cost would dominate).
     ``lmi=False`` runs only the exact spectral test and the cross-check (large loops);
     otherwise the LMI stage's memory is checked first, before any work
-    (:func:`~ftc_verify.analysis.lmi_analysis.check_lmi_memory`).
+    (:func:`~ftc_verify.analysis.lmi_analysis.check_lmi_memory`). ``lower_bounds=False``
+    skips stage 4 (synthesis loops).
     """
     if lmi:
         check_lmi_memory(loop)
@@ -116,12 +144,48 @@ def analyze(loop: ClosedLoop, *, solver: str | None = None, name: str = "", cros
         t = time.perf_counter()
         mes = mes_lmi(loop, solver=solver, known=(nominal, robust))
         seconds["theorem_3_1"] = time.perf_counter() - t
+        if mss.undecided and mes.certified:
+            mss = mss.proved_by("the certified Theorem 3.1 LMI over the whole box (one P for every rate)", loop.chain)
     else:
         mes, nominal, robust = (_not_requested(c) for c in ("Theorem 3.1", "Theorem 3.2", "Lemma 4.1"))
+    nominal_lower = robust_lower = None
+    t = time.perf_counter()
+    if lmi and lower_bounds and not mss.unstable:
+        if cross_validation and hasattr(os, "fork"):  # beside python-control's import and checks, on two cores
+            forked = ForkedCall(lambda: _lower_bounds(loop, mss, nominal, robust), "the lower bounds")
+            try:
+                per_mode = cross_validate(loop)
+                seconds["cross_validation"] = time.perf_counter() - t
+                nominal_lower, robust_lower = forked.result()
+            finally:
+                forked.cancel()
+            seconds["lower_bounds"] = time.perf_counter() - t
+            return AnalysisReport(name, loop.controller, mss, mes, nominal, robust, per_mode, seconds,
+                                  nominal_lower, robust_lower)
+        nominal_lower, robust_lower = _lower_bounds(loop, mss, nominal, robust)
+        seconds["lower_bounds"] = time.perf_counter() - t
     t = time.perf_counter()
     per_mode = cross_validate(loop) if cross_validation else ()
     seconds["cross_validation"] = time.perf_counter() - t
-    return AnalysisReport(name, loop.controller, mss, mes, nominal, robust, per_mode, seconds)
+    return AnalysisReport(name, loop.controller, mss, mes, nominal, robust, per_mode, seconds, nominal_lower,
+                          robust_lower)
+
+
+def _lower_bounds(loop: ClosedLoop, mss: MSSResult, nominal: LMIResult,
+                  robust: LMIResult) -> tuple[GainLowerBound | None, GainLowerBound | None]:
+    """The nominal lower bound and the robust one (the best of the nominal and the
+    constant ``Delta`` of :func:`~ftc_verify.analysis.lower_bound.worst_constant_delta`
+    at the nominal bound's rates)."""
+    upper = nominal.gamma if nominal.certified else None
+    low = gain_lower_bound(loop, worst_rates=mss.worst_beta, upper=upper)
+    if not loop.uncertain or low is None:
+        return low, low
+    top = robust.gamma if robust.certified else None
+    delta = worst_constant_delta(loop, low.rates, upper=top)
+    high = gain_lower_bound(loop, deltas=[delta], worst_rates=mss.worst_beta, upper=top)
+    candidates = [b for b in (low, high) if b is not None]
+    best = max(candidates, key=lambda b: (b.value is not None, b.value or b.estimate), default=None)
+    return low, best
 
 
 def _gammas(loop: ClosedLoop, solver: str | None, seconds: dict[str, float]) -> tuple[LMIResult, LMIResult]:

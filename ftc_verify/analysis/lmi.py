@@ -153,12 +153,25 @@ def _bordered(first: list[Any], diag: list[Any], cols: list[int], bmat: Bmat) ->
     return bmat(rows)
 
 
-def _coupling(q_row: Matrix, P: Sequence[Any], s: int) -> Any:
+def _coupling(loop: ClosedLoop, spec: BlockSpec, P: Sequence[Any]) -> Any:
     r""":math:`\sum_t q_{st} P_t = \sum_{t \ne s} q_{st} (P_t - P_s)`: a generator row sums
-    to zero, so this form uses the off-diagonal rates only, each exactly as given (the
-    float diagonal, their rounded negated sum, never enters the certificate)."""
+    to zero, so this form uses the off-diagonal rates only (the float diagonal, their
+    rounded negated sum, never enters the certificate). On ball matrices (the proof) the
+    rates are the enclosures of :func:`~ftc_verify.analysis.exact.ball_generator`: the
+    rates as the user wrote them."""
+    from .rigorous import Ball
+
+    s = spec.s
     total = 0 * P[s]
-    for t, q in enumerate(q_row):
+    if isinstance(P[s], Ball):
+        from .exact import ball_generator, literals_of
+
+        row = ball_generator(loop.chain, spec.beta, literals_of(loop))[s]
+        for t, q in enumerate(spec.q_row):
+            if t != s and q != 0.0:
+                total = total + (P[t] - P[s]) * row[t]
+        return total
+    for t, q in enumerate(spec.q_row):
         if t != s and q != 0.0:
             total = total + float(q) * (P[t] - P[s])
     return total
@@ -187,7 +200,7 @@ def lyapunov_block(
     """
     s = spec.s
     A, Ps = loop.A[s], P[s]
-    pi = A.T @ Ps + Ps @ A + _coupling(spec.q_row, P, s)
+    pi = A.T @ Ps + Ps @ A + _coupling(loop, spec, P)
     if g is None:
         return pi
     chans = loop.channels[s] if lam is not None else ()
@@ -461,22 +474,6 @@ def _jacobi_max_eig(M: Matrix) -> float:
     return float(np.linalg.eigvalsh(S)[-1])
 
 
-def _ball_loop(loop: ClosedLoop) -> ClosedLoop:
-    """``loop`` with every matrix a :class:`~ftc_verify.analysis.rigorous.Ball` (exact)."""
-    from dataclasses import replace
-
-    from .closedloop import Channel
-    from .rigorous import ball
-
-    def exact(M: Matrix) -> Any:
-        return ball(M)
-
-    return replace(loop, A=tuple(exact(A) for A in loop.A), Bw=tuple(exact(B) for B in loop.Bw),
-                   Cz=tuple(exact(C) for C in loop.Cz),
-                   channels=tuple(tuple(Channel(exact(ch.E), exact(ch.F), ch.name) for ch in chans)
-                                  for chans in loop.channels))
-
-
 def check_certificate(
     loop: ClosedLoop,
     condition: str,
@@ -499,11 +496,13 @@ def check_certificate(
        negative largest eigenvalue and every ``P_s`` a positive smallest one.
     2. Proof, in the original coordinates: every block :math:`M(P^{orig})` rebuilt by
        :func:`lyapunov_block` on ball matrices, and :math:`-M` and every
-       :math:`P^{orig}_s` proved positive definite
+       :math:`P^{orig}_s` proved positive definite, on the loop formed in ball arithmetic
+       from the numbers the user wrote (:func:`~ftc_verify.analysis.exact.exact_loop`)
        (:func:`~ftc_verify.analysis.rigorous.proven_positive_definite`, preconditioned by
        :math:`T` on the state rows). The coupling uses the off-diagonal rates of
        :meth:`~ftc_verify.model.chain.JointChain.row_generator` only (``_coupling``).
     """
+    from .exact import exact_loop
     from .rigorous import ball, ball_bmat, precision, proven_positive_definite
 
     T = np.eye(loop.n) if similarity is None else similarity.T
@@ -525,7 +524,7 @@ def check_certificate(
     note = "float screen failed: not proved"
     if p_min > 0 and all(e < 0 for e in screen):
         with precision():
-            original = _ball_loop(loop)
+            original = exact_loop(loop)
             S = ball(T_inv)
             Pb = [S.T @ ball(p) @ S for p in Pn]
             p_ok = all(proven_positive_definite(p, T) for p in Pb)

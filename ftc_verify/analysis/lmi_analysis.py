@@ -301,7 +301,8 @@ def _conclude(condition: str, attempts: list[SolveOutcome], best: LMIResult | No
     return LMIResult(condition, "error", None, last.solver, last.status, t_build, seconds, None, message=msg, attempts=tuple(attempts))
 
 
-def mes_lmi(loop: ClosedLoop, *, solver: str | None = None, known: Sequence[LMIResult] = ()) -> LMIResult:
+def mes_lmi(loop: ClosedLoop, *, solver: str | None = None, known: Sequence[LMIResult] = (),
+            second_opinion: bool = True) -> LMIResult:
     r"""Theorem 3.1 (eq. (4)) on the nominal loop over the rate box, certified, on
     the balanced loop (module docstring).
 
@@ -311,7 +312,9 @@ def mes_lmi(loop: ClosedLoop, *, solver: str | None = None, known: Sequence[LMIR
     F_k` (with :math:`\lambda_k \ge 0`) that of Lemma 4.1's, so by eigenvalue
     interlacing :math:`\Pi_s` is negative definite with at least the same margin. The
     numpy check of Theorem 3.1 is still run on that :math:`P`; only if it fails (or no
-    result is certified) is the LMI solved.
+    result is certified) is the LMI solved. ``second_opinion=False`` skips the second
+    solver that confirms an infeasibility (the branch and bound of
+    :mod:`ftc_verify.analysis.box` needs a certificate or nothing).
     """
     for result in known:
         if result.certified and result.P is not None:
@@ -324,10 +327,11 @@ def mes_lmi(loop: ClosedLoop, *, solver: str | None = None, known: Sequence[LMIR
                                  P_conditioned=result.P_conditioned)
     _check_size(loop, False, "Theorem 3.1")
     nominal, sim = _conditioned(loop.nominal())
-    return _map_back(_mes_lmi(loop.nominal(), nominal, sim, solver), sim)
+    return _map_back(_mes_lmi(loop.nominal(), nominal, sim, solver, second_opinion), sim)
 
 
-def _mes_lmi(original: ClosedLoop, nominal: ClosedLoop, sim: Similarity, solver: str | None) -> LMIResult:
+def _mes_lmi(original: ClosedLoop, nominal: ClosedLoop, sim: Similarity, solver: str | None,
+             second_opinion: bool = True) -> LMIResult:
     """Theorem 3.1 solved on the conditioned ``nominal``, certified on ``original``."""
     condition = "theorem-3.1"
     t0 = time.perf_counter()
@@ -340,7 +344,7 @@ def _mes_lmi(original: ClosedLoop, nominal: ClosedLoop, sim: Similarity, solver:
     t_build = time.perf_counter() - t0
     attempts: list[SolveOutcome] = []
     best: LMIResult | None = None
-    for name in _solver_order(nominal, solver, robust=False):
+    for name in _solver_order(nominal, solver, robust=False)[:None if second_opinion else 1]:
         out, x = solve_conic(problem, name)
         attempts.append(out)
         if x is None:

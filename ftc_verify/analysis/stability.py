@@ -23,11 +23,11 @@ is attained at a positive semidefinite eigenvector.
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
-import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -35,7 +35,7 @@ import scipy.linalg
 
 from .closedloop import ClosedLoop
 from .conditioning import Similarity, conditioning_transform
-from .verdict import BUDGET_SECONDS, StabilityProver, VertexVerdict, combine, describe
+from .box import BOX_BUDGET_SECONDS, RegionVerdict, box_stability
 from ..model.system import Matrix
 
 __all__ = [
@@ -88,10 +88,41 @@ def second_moment_matrix(A: Sequence[Matrix], Q: Matrix) -> Matrix:
     """:math:`\\mathcal{L}` of the module docstring for the joint-mode matrices ``A`` and
     the joint generator ``Q``."""
     n = A[0].shape[0]
-    D, L = duplication_matrix(n)
-    eye = np.eye(n)
-    blocks = [L @ (np.kron(eye, a) + np.kron(a, eye)) @ D for a in A]
-    return scipy.linalg.block_diag(*blocks) + np.kron(Q.T, np.eye(D.shape[1]))
+    h = n * (n + 1) // 2
+    out: Matrix = np.kron(np.asarray(Q, dtype=float).T, np.eye(h))
+    for s, a in enumerate(A):
+        out[s * h:(s + 1) * h, s * h:(s + 1) * h] += lyapunov_vech(a)
+    return out
+
+
+@functools.lru_cache(maxsize=64)
+def _vech_index(n: int) -> tuple[np.ndarray, ...]:
+    """Index arrays of :func:`lyapunov_vech`: row ``(r, c)`` of ``vech(A X + X A')``
+    takes ``A[r, p]`` at ``X[p, c]`` and ``A[c, p]`` at ``X[r, p]`` (``X`` symmetric).
+    Memoised (a pure function of ``n``; the arrays are read-only)."""
+    rows, cols = vech_order(n)
+    index = np.zeros((n, n), dtype=int)
+    index[rows, cols] = np.arange(rows.size)
+    index[cols, rows] = np.arange(rows.size)
+    k = np.repeat(np.arange(rows.size), n)
+    r = np.repeat(rows, n)
+    c = np.repeat(cols, n)
+    p = np.tile(np.arange(n), rows.size)
+    out = (k, index[p, c], r, p, index[r, p], c)
+    for arr in out:
+        arr.flags.writeable = False
+    return out
+
+
+def lyapunov_vech(A: Matrix) -> Matrix:
+    r"""The matrix of :math:`X \mapsto A X + X A^T` on ``vech`` coordinates
+    (:math:`L_n (I \otimes A + A \otimes I) D_n`), assembled from index arrays."""
+    n = A.shape[0]
+    k, j1, r, p, j2, c = _vech_index(n)
+    out = np.zeros((n * (n + 1) // 2,) * 2)
+    np.add.at(out, (k, j1), A[r, p])
+    np.add.at(out, (k, j2), A[c, p])
+    return out
 
 
 def unvech_stack(v: Matrix, modes: int, n: int) -> Matrix:
@@ -258,16 +289,22 @@ def vech_order(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 @dataclass(frozen=True, eq=False)
 class MSSResult:
-    """Worst spectral abscissa over the rate vertices evaluated, and the verified verdict.
+    """The verified verdict over the whole rate box and the float estimate of the worst
+    constant-rate spectral abscissa.
 
-    ``spectral_abscissa`` is the float64 estimate, computed in the coordinates of
-    :func:`~ftc_verify.analysis.conditioning.conditioning_transform`; ``verdict`` is
-    "stable", "not stable" or "undecided" and is proved at every vertex evaluated
-    (:mod:`ftc_verify.analysis.verdict`; ``vertex_verdicts`` says how). ``exhaustive``
-    tells whether every vertex was evaluated; otherwise a greedy ascent over vertices
-    (single-rate flips from the all-min and all-max vertices) was used and the value is
-    a lower bound of the vertex maximum. ``worst_beta`` is the worst vertex as a rate
-    array (:attr:`JointChain.rate_shape`: ``beta``, or ``[beta, false_alarm]``).
+    ``verdict`` is "stable", "not stable" or "undecided" over *every* rate vector of the
+    box (:mod:`ftc_verify.analysis.box`); ``vertex_verdicts`` names what was proved over
+    which region (:class:`~ftc_verify.analysis.box.RegionVerdict`: the proved sub-boxes,
+    the witness of instability, or, last, the sub-box where the proof gave up);
+    ``time_varying`` says that one Lyapunov stack covers the whole box, so the verdict
+    "stable" holds for rates that vary in time inside it too.
+
+    ``spectral_abscissa`` is a float64 estimate (coordinates of
+    :func:`~ftc_verify.analysis.conditioning.conditioning_transform`): the largest
+    abscissa found over the rate vertices evaluated and the point where instability was
+    proved, found at ``worst_beta`` (a rate array, :attr:`JointChain.rate_shape`).
+    ``exhaustive`` tells whether every vertex was evaluated (otherwise a greedy vertex
+    ascent was used). It is an estimate, not a bound: the verdict is the proof.
     """
 
     spectral_abscissa: float
@@ -276,31 +313,54 @@ class MSSResult:
     exhaustive: bool
     exact_evaluations: int = 0
     verdict: str = "undecided"
-    vertex_verdicts: tuple[VertexVerdict, ...] = ()
+    vertex_verdicts: tuple[RegionVerdict, ...] = ()
     conditioning: Similarity | None = None
+    time_varying: bool = False
+    boxes: int = 0
+    reason: str = ""
 
     @property
     def stable(self) -> bool:
-        """Proved mean-square stable at every vertex evaluated."""
+        """Proved mean-square stable for every constant rate vector of the box."""
         return self.verdict == "stable"
 
     @property
     def unstable(self) -> bool:
-        """Proved not mean-square stable at some vertex."""
+        """Proved not mean-square stable at some rate vector of the box."""
         return self.verdict == "not stable"
 
     @property
     def undecided(self) -> bool:
-        """Neither proved (float64 and the higher-precision retries could not decide)."""
+        """Neither proved (the branch and bound ran out of budget or precision)."""
         return self.verdict == "undecided"
+
+    @property
+    def witness(self) -> RegionVerdict | None:
+        """The rate vector where instability was proved (``None`` unless "not stable")."""
+        return self.vertex_verdicts[-1] if self.unstable and self.vertex_verdicts else None
+
+    def proved_by(self, certificate: str, chain: Any) -> MSSResult:
+        """This result, "undecided" by the branch and bound, decided "stable" by another
+        proof over the whole box (a certified Theorem 3.1 LMI: one Lyapunov stack for
+        every rate of the box, time-varying included)."""
+        region = RegionVerdict(chain.rate_min.copy(), chain.rate_max.copy(), "stable", certificate, 128, 0.0)
+        return replace(self, verdict="stable", vertex_verdicts=(region,), time_varying=True,
+                       reason=f"the branch and bound was undecided ({self.reason}); {certificate}")
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary."""
+        witness = self.witness
         return {
             "spectral_abscissa": self.spectral_abscissa,
             "stable": self.stable,
             "verdict": self.verdict,
-            "verified_by": describe(self.vertex_verdicts),
+            "verified_by": describe_regions(self.verdict, self.vertex_verdicts, self.time_varying, self.boxes),
+            "time_varying": self.time_varying,
+            "sub_boxes": self.boxes,
+            "reason": self.reason,
+            "witness": None if witness is None else {
+                "rates": witness.rate_min.tolist(), "float_abscissa": witness.estimate,
+                "abscissa_enclosure": None if witness.enclosure is None else list(witness.enclosure)},
             "vertex_verdicts": [v.to_dict() for v in self.vertex_verdicts],
             "conditioning": None if self.conditioning is None else self.conditioning.to_dict(),
             "worst_beta": self.worst_beta.tolist(),
@@ -310,26 +370,31 @@ class MSSResult:
         }
 
 
-def _verified(loop: ClosedLoop, sim: Similarity, vertices: list[Matrix], estimates: list[float | None],
-              budget_seconds: float) -> tuple[str, tuple[VertexVerdict, ...]]:
-    """Verdicts at ``vertices`` (the worst first), stopping at the first "not stable";
-    ``budget_seconds`` is shared by all the vertices' higher-precision retries."""
-    found = []
-    prover = StabilityProver.build(loop, sim)
-    deadline = time.perf_counter() + budget_seconds
-    for beta, est in zip(vertices, estimates):
-        v = prover.certify(beta, estimate=est, budget_seconds=max(0.0, deadline - time.perf_counter()))
-        found.append(v)
-        if v.verdict == "not stable":
-            break
-    return combine(found), tuple(found)
+def describe_regions(verdict: str, regions: Sequence[RegionVerdict], time_varying: bool, boxes: int) -> str:
+    """One line: what the verdict rests on."""
+    if verdict == "stable":
+        if time_varying:
+            return (f"the whole rate box with one Lyapunov stack ({regions[0].method}); "
+                    "holds for time-varying rates too")
+        if len(regions) == 1:
+            return f"every constant rate vector of the box: {regions[0].method}"
+        return f"every constant rate vector of the box: {len(regions)} sub-boxes proved ({boxes} examined)"
+    if verdict == "not stable" and regions:
+        w = regions[-1]
+        enc = "" if w.enclosure is None else f", abscissa in [{w.enclosure[0]:.6g}, {w.enclosure[1]:.6g}]"
+        return f"rates {w.rate_min.tolist()}: {w.method}{enc}"
+    if regions:
+        w = regions[-1]
+        return (f"gave up on the sub-box {w.rate_min.tolist()} .. {w.rate_max.tolist()}: {w.method} "
+                f"({len(regions) - 1} sub-boxes proved stable)")
+    return "nothing proved"
 
 
 def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256,
-                          budget_seconds: float = BUDGET_SECONDS) -> MSSResult:
-    """Worst spectral abscissa over the vertices of the rate box (:meth:`JointChain.vertices`:
-    ``beta``, and the false-alarm rates when given), and the verified verdict at every
-    vertex evaluated.
+                          budget_seconds: float = BOX_BUDGET_SECONDS) -> MSSResult:
+    """The verified verdict over the whole rate box (``beta``, and the false-alarm rates
+    when given; :func:`~ftc_verify.analysis.box.box_stability`) and the float estimate of
+    the worst spectral abscissa over its vertices.
 
     A vertex with a detection rate 0 is a missed detection: the detection states of that
     pair are absorbing there (without ``fault_during_delay``), the second-moment generator
@@ -343,11 +408,9 @@ def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256,
     is run with the same budget (``exhaustive=False``). A vertex that
     :func:`abscissa_below` shows below the worst value found so far needs no
     eigenvalues; the others get :func:`abscissa_near` (dense :func:`spectral_abscissa`
-    at the first vertex, and when that fails). Then
-    :meth:`~ftc_verify.analysis.verdict.StabilityProver.certify` proves the verdict at
-    the worst vertex and at every other vertex evaluated, stopping at the first "not
-    stable" (``budget_seconds`` bounds the higher-precision retries of all of them
-    together).
+    at the first vertex, and when that fails). The verdict is then proved over the whole
+    box by :func:`~ftc_verify.analysis.box.box_stability` (``budget_seconds`` bounds it);
+    an instability it proves inside the box raises the estimate to the abscissa there.
     """
     sim = conditioning_transform(loop.nominal())
     nominal = sim.apply(loop.nominal())
@@ -383,11 +446,14 @@ def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256,
         return value(bits, near=level) > level
 
     def result(worst: tuple[bool, ...], evaluated: list[tuple[bool, ...]], exhaustive: bool) -> MSSResult:
-        """The worst estimate and the verdicts proved at every vertex evaluated (the worst first)."""
-        rest = [b for b in evaluated if b != worst]
-        verdict, proofs = _verified(loop, sim, [vertex(worst)] + [vertex(b) for b in rest],
-                                    [exact[worst], *(exact.get(b) for b in rest)], budget_seconds)
-        return MSSResult(exact[worst], vertex(worst), len(evaluated), exhaustive, len(exact), verdict, proofs, sim)
+        """The float estimate over the vertices evaluated and the verdict over the box."""
+        box = box_stability(loop, sim, budget_seconds=budget_seconds)
+        estimate, where = exact[worst], vertex(worst)
+        witness = box.witness
+        if witness is not None and witness.estimate is not None and witness.estimate > estimate:
+            estimate, where = witness.estimate, witness.rate_min
+        return MSSResult(estimate, where, len(evaluated), exhaustive, len(exact), box.verdict, box.regions, sim,
+                         box.time_varying, box.boxes, box.reason)
 
     if chain.vertex_count() <= max_vertices:
         ends = [(False, True) if lo[idx] != hi[idx] else (False,) for idx in pairs]

@@ -6,7 +6,7 @@ ill-conditioned loop can move it across zero. Here every verdict at a vertex of 
 rate box (a rate array of :mod:`ftc_verify.model.chain`: ``beta``, or ``[beta,
 false_alarm]``) comes with a certificate checked in ball arithmetic
 (:mod:`ftc_verify.analysis.rigorous`) in the loop's *original* coordinates, from the
-float data taken as exact.
+data as the user wrote them (:mod:`ftc_verify.analysis.exact`).
 
 With :math:`\mathcal L(X)_s = A_s X_s + X_s A_s^T + \sum_{t} Q_{ts} X_t` (resolvent
 positive: :math:`e^{\mathcal L t}` maps positive semidefinite stacks to positive
@@ -43,8 +43,8 @@ from __future__ import annotations
 
 import time
 import warnings
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -54,10 +54,11 @@ from ..jsonable import fields_dict, renamed
 from ..model.system import Matrix
 from .closedloop import ClosedLoop
 from .conditioning import Similarity
+from .exact import ball_generator, ball_matrices, exact_loop, literals_of
 from .rigorous import Ball, ball, precision, proven_not_psd, proven_positive_definite
 
 __all__ = ["VERDICTS", "SOLVE_LIMIT", "BUDGET_SECONDS", "FALLBACK_BITS", "VertexVerdict", "StabilityProver",
-           "certify_vertex", "combine", "describe"]
+           "certify_vertex", "combine", "describe", "ball_lyapunov_solution"]
 
 #: The three answers a stability verdict can give.
 VERDICTS = ("stable", "not stable", "undecided")
@@ -88,28 +89,14 @@ class VertexVerdict:
         return fields_dict(self)
 
 
-def _exact_generator(Q: Matrix) -> list[list[Any]]:
-    """The generator ``Q`` as exact balls (``arb``), its diagonal the exact negated row
-    sums of the float off-diagonal rates."""
-    import flint
-
-    m = Q.shape[0]
-    out = []
-    for s in range(m):
-        row = [flint.arb(float(Q[s, t])) if t != s else flint.arb(0) for t in range(m)]
-        row[s] = -sum((row[t] for t in range(m) if t != s), flint.arb(0))
-        out.append(row)
-    return out
-
-
-def _lyapunov_operator(A: Sequence[Ball], Q: Matrix, X: Sequence[Ball]) -> list[Ball]:
-    r""":math:`\mathcal L(X)_s` in ball arithmetic from the exact ``A_s`` (module docstring)."""
-    q = _exact_generator(Q)
+def _lyapunov_operator(A: Sequence[Ball], q: list[list[Any]], X: Sequence[Ball]) -> list[Ball]:
+    r""":math:`\mathcal L(X)_s` in ball arithmetic from the enclosures ``A_s`` and the
+    ball generator ``q`` (module docstring)."""
     out = []
     for s, Ab in enumerate(A):
         Y = Ab @ X[s] + X[s] @ Ab.T
         for t in range(len(X)):
-            if t == s or Q[t, s] != 0.0:
+            if t == s or q[t][s] != 0:
                 Y = Y + Ball(q[t][s] * X[t].value)
         out.append(Y)
     return out
@@ -161,25 +148,26 @@ def _decide(X: Sequence[Ball], precond: Ball) -> str | None:
     return None
 
 
-def _ball_generator(loop: ClosedLoop, Q: Matrix) -> Any:
-    """The generator in vech coordinates as an exact ball matrix (``arb_mat``)."""
+def _ball_generator(A: Sequence[Ball], q: list[list[Any]]) -> Any:
+    """The generator in vech coordinates as a ball matrix (``arb_mat``) from the ball
+    matrices ``A_s``: row ``(r, c)`` of :math:`A X + X A^T` takes :math:`A_{rp}` at
+    :math:`X_{pc}` and :math:`A_{cp}` at :math:`X_{rp}` (``X`` symmetric)."""
     import flint
 
-    from .stability import duplication_matrix
+    from .stability import vech_order
 
-    n, modes = loop.n, len(loop.A)
-    D, L = duplication_matrix(n)
-    h = D.shape[1]
-    eye = np.eye(n)
-    size = modes * h
-    G = flint.arb_mat(size, size)
-    q = _exact_generator(Q)
-    for s, A in enumerate(loop.A):
-        part = (ball(L @ np.kron(eye, A) @ D) + ball(L @ np.kron(A, eye) @ D)).value  # each product exact
-        for r in range(h):
-            for c in range(h):
-                if part[r, c] != 0:
-                    G[s * h + r, s * h + c] = part[r, c]
+    n, modes = A[0].shape[0], len(A)
+    rows, cols = vech_order(n)
+    index = {(int(r), int(c)): k for k, (r, c) in enumerate(zip(rows, cols))}
+    h = len(rows)
+    G = flint.arb_mat(modes * h, modes * h)
+    for s, Ab in enumerate(A):
+        a = Ab.value
+        for k, (r, c) in enumerate(zip(rows, cols)):
+            r, c = int(r), int(c)
+            for p in range(n):
+                G[s * h + k, s * h + index[max(p, c), min(p, c)]] += a[r, p]
+                G[s * h + k, s * h + index[max(r, p), min(r, p)]] += a[c, p]
     for s in range(modes):
         for t in range(modes):
             value = q[t][s]  # block (s, t) of Q' kron I is Q[t, s] I
@@ -189,22 +177,30 @@ def _ball_generator(loop: ClosedLoop, Q: Matrix) -> Any:
     return G
 
 
-def _ball_solution(loop: ClosedLoop, Q: Matrix, bits: int) -> list[Ball] | None:
-    """An enclosure of the exact solution of ``L(X) = -I`` at ``bits`` (``None`` when
-    FLINT cannot prove the system nonsingular at that precision)."""
+def ball_lyapunov_solution(A: Sequence[Ball], q: list[list[Any]], bits: int,
+                           rhs: Sequence[Ball] | None = None) -> list[Ball] | None:
+    """An enclosure of the exact solution of ``L(X) = -I`` (or ``L(X) = -R`` for the
+    symmetric ball matrices ``rhs``) at ``bits`` (``None`` when FLINT cannot prove the
+    system nonsingular at that precision)."""
     import flint
 
     from .stability import vech_order
 
-    n, modes = loop.n, len(loop.A)
+    n, modes = A[0].shape[0], len(A)
     rows, cols = vech_order(n)
     h = len(rows)
     with precision(bits):
-        G = _ball_generator(loop, Q)
-        rhs = flint.arb_mat([[-1.0 if r == c else 0.0] for _ in range(modes) for r, c in zip(rows, cols)])
+        G = _ball_generator(A, q)
+        if rhs is None:
+            b = flint.arb_mat([[-1.0 if r == c else 0.0] for _ in range(modes) for r, c in zip(rows, cols)])
+        else:
+            b = flint.arb_mat(modes * h, 1)
+            for s in range(modes):
+                for k, (r, c) in enumerate(zip(rows, cols)):
+                    b[s * h + k, 0] = -rhs[s].value[int(r), int(c)]
         try:
             with deferred_signals():  # a signal handled inside solve() came out as a ZeroDivisionError
-                v = G.solve(rhs)
+                v = G.solve(b)
         except (ZeroDivisionError, ValueError):
             return None
         out = []
@@ -228,32 +224,58 @@ class StabilityProver:
     A: tuple[Ball, ...]
     T: Ball
     precond: Ball
+    enclosures: Callable[[], tuple[Ball, ...]] | None = None
 
     @classmethod
     def build(cls, loop: ClosedLoop, sim: Similarity) -> StabilityProver:
         """For the nominal part of ``loop`` and the conditioning ``sim``."""
         nominal = loop.nominal()
         with precision():
-            return cls(nominal, sim, sim.apply(nominal), tuple(ball(A) for A in nominal.A), ball(sim.T),
+            return cls(nominal, sim, sim.apply(nominal), ball_matrices(exact_loop(nominal).A), ball(sim.T),
                        ball(sim.T_inv.T))  # C' (T X~ T') C = X~
 
+    @classmethod
+    def for_matrices(cls, loop: ClosedLoop, sim: Similarity, enclosures: Callable[[], tuple[Ball, ...]]) -> StabilityProver:
+        """For the state matrices that ``enclosures()`` encloses at the working precision
+        (a loop modified in ball arithmetic, such as a worst-case feedback loop), with
+        ``loop`` their float version (the chain, and the float candidates)."""
+        nominal = replace(loop.nominal(), source=None)
+        with precision():
+            return cls(nominal, sim, sim.apply(nominal), enclosures(), ball(sim.T), ball(sim.T_inv.T), enclosures)
+
+    def _enclosures(self) -> tuple[Ball, ...]:
+        return self.enclosures() if self.enclosures is not None else ball_matrices(exact_loop(self.nominal).A)
+
     def certify(self, beta: Matrix, *, estimate: float | None = None,
-                budget_seconds: float = BUDGET_SECONDS) -> VertexVerdict:
-        """The verified verdict at ``beta`` (module docstring). ``estimate`` (the float
+                budget_seconds: float = BUDGET_SECONDS, shift: float = 0.0) -> VertexVerdict:
+        r"""The verified verdict at ``beta`` (module docstring). ``estimate`` (the float
         abscissa at ``beta``, if known) is recorded in the result only; the verdict
-        never depends on it."""
+        never depends on it.
+
+        ``shift`` (a float ``sigma``) decides the sign of :math:`\mu - \sigma` instead,
+        on the operator :math:`\mathcal L - \sigma I`, i.e. with every :math:`A_s`
+        replaced by :math:`A_s - (\sigma/2) I` (exactly, in the balls): "stable" then
+        proves :math:`\mu < \sigma`, "not stable" :math:`\mu \ge \sigma`
+        (the enclosure of an abscissa, :func:`abscissa_enclosure`)."""
         start = time.perf_counter()
-        Q = self.nominal.chain.generator(beta)
+        half = 0.5 * float(shift)
 
         def done(verdict: str, method: str, bits: int) -> VertexVerdict:
             return VertexVerdict(np.asarray(beta, dtype=float), verdict, method, bits,
                                  time.perf_counter() - start, estimate)
 
-        Xt = _float_candidate(self.conditioned, beta)
+        def shifted(A: Sequence[Ball]) -> tuple[Ball, ...]:
+            return tuple(a if half == 0.0 else a - half * np.eye(a.shape[0]) for a in A)
+
+        conditioned = self.conditioned
+        if half != 0.0:
+            conditioned = replace(conditioned, A=tuple(a - half * np.eye(a.shape[0]) for a in conditioned.A))
+        Xt = _float_candidate(conditioned, beta)
         if Xt is not None:
             with precision():
                 X = [self.T @ ball(0.5 * (x + x.T)) @ self.T.T for x in Xt]
-                if all(_positive_definite(-y, self.precond) for y in _lyapunov_operator(self.A, Q, X)):
+                q = ball_generator(self.nominal.chain, beta, literals_of(self.nominal))
+                if all(_positive_definite(-y, self.precond) for y in _lyapunov_operator(shifted(self.A), q, X)):
                     verdict = _decide(X, self.precond)
                     if verdict is not None:
                         what = "X > 0" if verdict == "stable" else "some X_s indefinite"
@@ -266,7 +288,10 @@ class StabilityProver:
         for bits in FALLBACK_BITS:
             if time.perf_counter() - start > budget_seconds:
                 return done("undecided", f"time budget of {budget_seconds:g} s spent before {bits} bits", bits)
-            solution = _ball_solution(self.nominal, Q, bits)
+            with precision(bits):
+                A = shifted(self._enclosures())  # the enclosures at this precision
+                q = ball_generator(self.nominal.chain, beta, literals_of(self.nominal))
+            solution = ball_lyapunov_solution(A, q, bits)
             if solution is None:
                 continue
             with precision(bits):
@@ -275,6 +300,22 @@ class StabilityProver:
                 return done(verdict, f"exact solution of L(X) = -I enclosed at {bits} bits, "
                                      + ("every X_s > 0" if verdict == "stable" else "some X_s indefinite"), bits)
         return done("undecided", f"no certificate either way up to {FALLBACK_BITS[-1]} bits", FALLBACK_BITS[-1])
+
+    def abscissa_enclosure(self, beta: Matrix, estimate: float, *,
+                           budget_seconds: float = BUDGET_SECONDS) -> tuple[float, float] | None:
+        """A proved enclosure ``[lo, hi)`` of the spectral abscissa at ``beta`` around the
+        float ``estimate``: :meth:`certify` with ``shift = lo`` says "not stable" and
+        with ``shift = hi`` "stable"; widths ``1e-9 .. 1e-3`` of ``1 + |estimate|`` are
+        tried. ``None`` when none is proved."""
+        deadline = time.perf_counter() + budget_seconds
+        for width in (1e-9, 1e-6, 1e-3):
+            d = width * (1.0 + abs(estimate))
+            lo, hi = estimate - d, estimate + d
+            left = max(0.0, deadline - time.perf_counter())
+            if (self.certify(beta, shift=lo, budget_seconds=left).verdict == "not stable"
+                    and self.certify(beta, shift=hi, budget_seconds=left).verdict == "stable"):
+                return lo, hi
+        return None
 
 
 def certify_vertex(loop: ClosedLoop, beta: Matrix, sim: Similarity, *, estimate: float | None = None,

@@ -27,8 +27,8 @@ The closed loop is built from ``(system, controller)`` in one place,
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -71,6 +71,10 @@ class Controller:
     Dc: tuple[Matrix, ...]
     measures: str
     name: str = ""
+    #: The numbers of the controller file as written (float read -> decimal texts), set
+    #: by :func:`~ftc_verify.controllers.files.load_controller`; ``None`` when the floats
+    #: are the data.
+    literals: Mapping[float, tuple[str, ...]] | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         if self.measures not in MEASURES:

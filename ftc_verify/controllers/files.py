@@ -29,6 +29,8 @@ save -> load is exact; writes are atomic (:func:`ftc_verify.model.files.write_at
 
 from __future__ import annotations
 
+import dataclasses
+
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -38,7 +40,7 @@ import numpy as np
 import tomli_w
 
 from ..errors import ProblemFileError, ValidationError
-from ..model.files import read_toml, tables, tolist, unknown_keys, write_atomic
+from ..model.files import CONTROLLER_FILE, check_kind, read_toml, tables, tolist, unknown_keys, write_atomic
 from ..model.system import FTCSystem, Matrix, as_matrix
 from .controller import Controller
 
@@ -115,11 +117,17 @@ def load_controller(path: str | os.PathLike[str]) -> Controller:
     """Read a controller file (module docstring); check it against a system with
     :meth:`Controller.check`."""
     p = Path(path)
-    doc = read_toml(p)
+    literals: dict[float, tuple[str, ...]] = {}
+    doc = read_toml(p, literals)
+    check_kind(p, doc, CONTROLLER_FILE)
     unknown_keys(p, "top level", list(doc), _TOP_KEYS)
     name = doc.get("name", p.stem)
     if not isinstance(name, str):
         raise ProblemFileError(f"{p}: name: expected a string, got {name!r}")
+    return dataclasses.replace(_controller_tables(p, doc, name), literals=literals)
+
+
+def _controller_tables(p: Path, doc: dict[str, Any], name: str) -> Controller:
     if "gain" in doc and "controller" in doc:
         raise ProblemFileError(
             f"{p}: both [[gain]] and [[controller]] tables: a file holds one controller, "

@@ -267,24 +267,40 @@ class JointChain:
         :math:`1_{i=j}\sum_k \alpha_{ik} P_{kj} + 1_{i\ne j}\beta_{ji}(P_{ii}-P_{ij})`,
         equals :math:`\sum_{s'} Q[s, s'] P_{s'}`.
         """
-        b, fa = self.split(self.check_beta(beta))
-        m, k, idx = self.m, self.delay_phases, self.state_index
+        point = self.check_beta(beta)
         q = np.zeros((self.n_states, self.n_states))
+        for s, t, coef, kind, index in self.generator_terms():
+            q[s, t] += coef * (self.alpha[index] if kind == "alpha" else point[index])
+        for s in range(self.n_states):
+            q[s, s] = -q[s].sum()
+        return q
+
+    def generator_terms(self) -> tuple[tuple[int, int, int, str, tuple[int, ...]], ...]:
+        """The off-diagonal entries of :meth:`generator` as a sum of terms
+        ``(s, t, coef, kind, index)``: ``Q[s, t] += coef * alpha[index]`` (``kind ==
+        "alpha"``) or ``coef * rates[index]`` (``kind == "rate"``, an index into a rate
+        array); ``coef`` is ``1`` or the number of phases ``k``. The diagonal is the
+        negated row sum. One place for the chain's structure: the float generator and
+        its ball enclosure (:func:`ftc_verify.analysis.exact.ball_generator`) are both
+        built from it."""
+        m, k, idx = self.m, self.delay_phases, self.state_index
+        fa_index = self.has_false_alarms
+        terms: list[tuple[int, int, int, str, tuple[int, ...]]] = []
         for s, (i, j, p) in enumerate(self.states):
             if i == j:
                 for t in range(m):
                     if t != i:
-                        q[s, idx(t, i)] += self.alpha[i, t]
-                        if fa is not None:
-                            q[s, idx(i, t)] += fa[i, t]
+                        terms.append((s, idx(t, i), 1, "alpha", (i, t)))
+                        if fa_index:
+                            terms.append((s, idx(i, t), 1, "rate", (1, i, t)))
             else:
-                q[s, idx(i, j, p + 1) if p + 1 < k else idx(i, i)] += k * b[j, i]
+                target = idx(i, j, p + 1) if p + 1 < k else idx(i, i)
+                terms.append((s, target, k, "rate", (0, j, i) if fa_index else (j, i)))
                 if self.fault_during_delay:
                     for t in range(m):
                         if t != i:
-                            q[s, idx(t, j)] += self.alpha[i, t]
-            q[s, s] = -q[s].sum()
-        return q
+                            terms.append((s, idx(t, j), 1, "alpha", (i, t)))
+        return tuple(terms)
 
     def vertices(self) -> Iterator[Matrix]:
         """All vertices of the rate box (``2**len(rate_indices)`` of them, degenerate

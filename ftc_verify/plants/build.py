@@ -31,7 +31,7 @@ from pathlib import Path
 
 from ..errors import FMUError
 
-__all__ = ["FMI2_HEADERS", "CFLAGS", "ZIP_DATE", "fmi2_include_dir", "cache_dir", "binary_platform", "find_gcc",
+__all__ = ["FMI2_HEADERS", "CFLAGS", "ZIP_DATE", "fmi2_include_dir", "cache_dir", "binary_platform", "fmi3_platform_tuple", "find_gcc",
            "run_compiler", "compiler_identity", "link_flags", "build_lock", "file_hash", "hash_record_path",
            "recorded_hash", "record_hash", "is_cached", "write_zip"]
 
@@ -118,6 +118,13 @@ def binary_platform() -> tuple[str, str]:
     if sys.platform.startswith("win"):
         raise FMUError("building the LinearJumpPlant FMU with gcc is not supported on Windows")
     return fmpy.platform, fmpy.sharedLibraryExtension
+
+
+def fmi3_platform_tuple() -> str:
+    """The FMI 3.0 ``binaries`` folder of this machine as fmpy names it (e.g. ``x86_64-linux``)."""
+    import fmpy
+
+    return str(fmpy.platform_tuple)
 
 
 # ------------------------------------------------------------------------------------------

@@ -1,6 +1,8 @@
 """The ``modelDescription.xml`` of the ``LinearJumpPlant`` FMU.
 
-This module implements the FMU's variable list (:func:`variable_names`, value references
+This module also holds :func:`add_description_elements`, the ``<UnitDefinitions>``,
+``<LogCategories>`` and ``<DefaultExperiment>`` the ODE FMUs and the exported controller
+FMUs write. For the ``LinearJumpPlant`` it implements the FMU's variable list (:func:`variable_names`, value references
 1, 2, ... in the order of ``ljp_layout`` in ``fmus/LinearJumpPlant/model.c``) and the
 model description generated per system (:func:`model_description`): the variables with
 their causality, the ``<ModelStructure>`` (outputs ``x``, ``y``, ``ym``; ``y[i]`` and
@@ -10,6 +12,7 @@ modes) and the co-simulation capabilities.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from xml.etree import ElementTree as ET
 
 import numpy as np
@@ -18,7 +21,7 @@ from .. import __version__
 from ..model.system import FTCSystem
 from .system_text import MODEL_IDENTIFIER, FMUDims, fmu_dims
 
-__all__ = ["SOURCE_FILES", "variable_names", "model_description"]
+__all__ = ["SOURCE_FILES", "variable_names", "model_description", "add_description_elements"]
 
 #: C sources of the FMU (in :func:`ftc_verify.plants.linear_jump.source_dir`).
 SOURCE_FILES = ("model.h", "model.c", "fmi2_glue.c")
@@ -157,3 +160,25 @@ def model_description(system: FTCSystem, guid: str) -> str:
 
     ET.indent(root, space="  ")
     return '<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
+
+
+def add_description_elements(root: ET.Element, units: Iterable[str], events: str, *, stop_time: float,
+                             tolerance: float | None, step_size: float) -> None:
+    """``<UnitDefinitions>`` (the ``units``, sorted; none when empty), ``<LogCategories>``
+    (``logEvents`` described by ``events``, warnings, errors, all) and
+    ``<DefaultExperiment>`` (start 0, ``stop_time``, ``tolerance`` when given, ``step_size``):
+    the elements every FMU of the package writes, for FMI 2.0 and 3.0 alike."""
+    names = sorted(set(units))
+    if names:
+        defs = ET.SubElement(root, "UnitDefinitions")
+        for name in names:
+            ET.SubElement(defs, "Unit", {"name": name})
+    cats = ET.SubElement(root, "LogCategories")
+    for name, text in (("logEvents", events),
+                       ("logStatusWarning", "warnings"), ("logStatusError", "errors (always reported)"),
+                       ("logAll", "all of the above")):
+        ET.SubElement(cats, "Category", {"name": name, "description": text})
+    experiment = {"startTime": "0.0", "stopTime": repr(stop_time)}
+    if tolerance is not None:
+        experiment["tolerance"] = repr(tolerance)
+    ET.SubElement(root, "DefaultExperiment", experiment | {"stepSize": repr(step_size)})

@@ -52,6 +52,7 @@ from xml.etree import ElementTree as ET
 
 from .. import __version__
 from ..errors import FMUError, ValidationError
+from .model_description import add_description_elements
 from .build import (CFLAGS, FMI2_HEADERS, binary_platform, build_lock, cache_dir, compiler_identity, file_hash,
                     find_gcc, fmi2_include_dir, is_cached, link_flags, record_hash, run_compiler, write_zip)
 
@@ -287,18 +288,9 @@ def add_description_basics(root: ET.Element, spec: OdeFmuSpec, step_call: str) -
     """The ``UnitDefinitions``, ``LogCategories`` and ``DefaultExperiment`` elements of
     ``spec``'s model description, the same for both FMI versions but for the name of the
     step function (``step_call``) in the ``logEvents`` description."""
-    units = sorted({v.unit for g in VARIABLE_GROUPS for v in getattr(spec, g) if v.unit})
-    if units:
-        defs = ET.SubElement(root, "UnitDefinitions")
-        for name in units:
-            ET.SubElement(defs, "Unit", {"name": name})
-    cats = ET.SubElement(root, "LogCategories")
-    for name, text in (("logEvents", f"information: instantiation, internal steps per {step_call}"),
-                       ("logStatusWarning", "warnings"), ("logStatusError", "errors (always reported)"),
-                       ("logAll", "all of the above")):
-        ET.SubElement(cats, "Category", {"name": name, "description": text})
-    ET.SubElement(root, "DefaultExperiment", {"startTime": "0.0", "stopTime": repr(spec.stop_time),
-                                              "tolerance": repr(spec.tolerance), "stepSize": repr(spec.step_size)})
+    units = {v.unit for g in VARIABLE_GROUPS for v in getattr(spec, g) if v.unit}
+    add_description_elements(root, units, f"information: instantiation, internal steps per {step_call}",
+                             stop_time=spec.stop_time, tolerance=spec.tolerance, step_size=spec.step_size)
 
 
 def _model_structure(parent: ET.Element, spec: OdeFmuSpec) -> None:

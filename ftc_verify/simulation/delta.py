@@ -144,5 +144,5 @@ def constant_delta_loops(system: FTCSystem, loop: ClosedLoop) -> list[tuple[str,
         if s2 is not None:
             deltas["Delta2 (B)"] = sign * np.eye(*s2)
         A = loop.perturbed(deltas)
-        out.append((label, replace(loop.nominal(), A=A)))
+        out.append((label, replace(loop.nominal(), A=A, source=None)))
     return out

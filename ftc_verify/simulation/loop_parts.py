@@ -52,6 +52,7 @@ class LoopLaw:
     Cc: tuple[np.ndarray, ...]
     Dc: tuple[np.ndarray, ...]
     full_steps: tuple[tuple[np.ndarray, np.ndarray], ...]  # (Phi_c, Gamma_c) per entry, h = step
+    external: Any = None  # a ControllerFMU computing u and xc instead of the matrices (--controller-fmu)
 
     def entry(self, true: int, fdi: int) -> int:
         return true * self.m + fdi if self.full_info else fdi  # type: ignore[operator]
@@ -195,6 +196,9 @@ class PathController:
         self.state = np.zeros(law.controller.n_c)
         self.v = slice(n, n + law.controller.n_v) if law.measured else slice(0, n)
         self._full, self._steps = plan.full, np.diff(plan.t).tolist()
+        self._times, self.external = plan.t.tolist(), law.external
+        if self.external is not None:
+            self.external.reset()  # xc = 0 at the start of every path
         self.select(entry)
 
     def select(self, entry: int) -> None:
@@ -203,6 +207,9 @@ class PathController:
 
     def output(self, row: np.ndarray) -> np.ndarray:
         """``u_k`` from the row read at ``t_k`` (:meth:`PathRecorder.sample_before`), written into ``u``."""
+        if self.external is not None:  # the exported FMU: v and the FDI mode (1-based) in, u out
+            self.u[:] = self.external.output(self.entry + 1, row[self.v])
+            return self.u
         np.dot(self._gain, row[self.v], out=self.u)
         if self.dynamic:
             self.u += np.dot(self.law.Cc[self.entry], self.state)
@@ -210,6 +217,9 @@ class PathController:
 
     def advance(self, k: int, row: np.ndarray) -> np.ndarray:
         """``xc_{k+1} = Phi_c xc_k + Gamma_c v_k`` over the interval ``k`` (``v_k`` held)."""
+        if self.external is not None:  # doStep over the interval (v, FDI mode held), xc read back
+            self.state = self.external.step(self._times[k], self._steps[k])
+            return self.state
         phi, gamma = self.law.update(self.entry, self._full[k], self._steps[k])
         self.state = np.dot(phi, self.state) + np.dot(gamma, row[self.v])
         return self.state

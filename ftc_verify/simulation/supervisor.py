@@ -54,6 +54,7 @@ from ..errors import FMUError, PlantRunError, ValidationError
 from ..model.system import FTCSystem
 from .delta import DeltaSchedule, delta_segments, delta_shapes
 from ..plants.fault_map import FaultInjectionMap
+from ..plants.controller_session import ControllerFMU, ExportedController, check_period
 from ..plants.fmu_session import FMICallError, FMUSession
 from .paths import ChainPath, communication_grid, disturbance as disturbance_fn, snap_to_grid
 from .loop_parts import LoopLaw, Offsets, PathController, PathInputs, PathPlan, PathRecorder, full_intervals
@@ -95,7 +96,10 @@ class Supervisor:
     records hold ``x - x_op``, ``u - u_op``, ``w - w_op``, ``y - y_op``, ``y_m - y_m,op``.
     FMUs that cannot vary their communication step get paths whose jump times are moved
     to the grid of ``step`` (:func:`~ftc_verify.simulation.paths.snap_to_grid`); the result
-    options give the largest shift (``timing_error``).
+    options give the largest shift (``timing_error``). So do runs with an exported
+    controller FMU (:class:`~ftc_verify.plants.controller_session.ExportedController`, whose
+    ``fmu`` computes ``u`` and steps ``xc``): its update is exact for its sampling period
+    only, which must be ``step``.
 
     The archive is checked, extracted and loaded, and one instance is created, when the
     supervisor is constructed (:class:`~ftc_verify.plants.fmu_session.FMUSession`);
@@ -122,6 +126,7 @@ class Supervisor:
         self.session = FMUSession(self.path, mapping, instance_name=self.instance_name, tolerance=tolerance, log=log,
                                   workdir=workdir)
         self._op_outputs: tuple[np.ndarray, np.ndarray] | None = None
+        self._controller_fmus: dict[str, ControllerFMU] = {}
 
     # -------------------------------------------------------------------- context manager
     def __enter__(self) -> Supervisor:
@@ -131,8 +136,11 @@ class Supervisor:
         self.close()
 
     def close(self) -> None:
-        """Terminate and free the instance, unload the library, remove the extracted files."""
+        """Terminate and free the instance, unload the library, remove the extracted files
+        (of the plant and of any exported controller FMU)."""
         self.session.close()
+        while self._controller_fmus:
+            self._controller_fmus.popitem()[1].close()
 
     # the session's state, read-only (as attributes of the supervisor before the split)
     slave = _delegate("slave", "The loaded FMU of this supervisor's session (``session.slave``; "
@@ -186,7 +194,19 @@ class Supervisor:
         full_steps = tuple(controller.discretise(e, step) for e in range(controller.entries)) if controller.n_c else ()
         return LoopLaw(controller, m is not None and controller.full_information(m), m, measured,
                     tuple(np.ascontiguousarray(c, dtype=np.float64) for c in controller.Cc),
-                    tuple(np.ascontiguousarray(d, dtype=np.float64) for d in controller.Dc), full_steps)
+                    tuple(np.ascontiguousarray(d, dtype=np.float64) for d in controller.Dc), full_steps,
+                    self._controller_fmu(controller, step))
+
+    def _controller_fmu(self, controller: Controller, step: float) -> ControllerFMU | None:
+        """The exported FMU of an :class:`ExportedController` (opened once per supervisor,
+        closed with it; its period must be ``step``), else None."""
+        if not isinstance(controller, ExportedController):
+            return None
+        if controller.fmu not in self._controller_fmus:
+            self._controller_fmus[controller.fmu] = ControllerFMU(controller.fmu, workdir=self.session.workdir)
+        fmu = self._controller_fmus[controller.fmu]
+        check_period(fmu, step)
+        return fmu
 
     def _offsets(self, law: LoopLaw) -> Offsets | None:
         """The operating point as offsets of the read and written vectors (None: origin)."""
@@ -306,7 +326,7 @@ class Supervisor:
         off = self._offsets(law)
         x0_arr, x0_c = self._initial_state(spec.x0, off)
         shift = 0.0
-        if not self.can_vary_step:
+        if not self.can_vary_step or law.external is not None:  # an exported controller steps by its period
             snapped = [snap_to_grid(p, step) for p in paths]
             paths, shift = [p for p, _ in snapped], max(sh for _, sh in snapped)
         rng = spec.generator(rng)
@@ -331,6 +351,8 @@ class Supervisor:
             "timing_error": shift,
             "operating_point": off is not None,
         }
+        if law.external is not None:
+            options["controller_fmu"] = str(law.external.path)
         if self.system is not None:
             options["fault_during_delay"] = bool(self.system.chain.fault_during_delay)
         return SimulationResult(backend="fmu", seed=spec.seed, step=step,

@@ -128,6 +128,6 @@ def peer_loops(draw: st.DrawFn, *, max_n: int = 6, max_norm: float = 800.0, max_
     A0 = p.original.A[0] + 0.5 * (abscissa - p.abscissa) * np.eye(n)
     S_inv = np.linalg.inv(p.S)
     count = len(p.loop.A)
-    original = replace(p.original, A=(A0,) * count)
-    moved = replace(p.loop, A=(p.S @ A0 @ S_inv,) * count)
+    original = replace(p.original, A=(A0,) * count, source=None)
+    moved = replace(p.loop, A=(p.S @ A0 @ S_inv,) * count, source=None)
     return PeerLoop(moved, original, p.S, seed, dc, tc)

@@ -16,6 +16,7 @@ import os
 import shutil
 import tempfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -23,15 +24,42 @@ from ..errors import ProblemFileError
 from ..jsonable import dumps
 from .verify import VerifyReport
 
-__all__ = ["REPORT_FILES", "check_out_dir", "write_report", "render_markdown"]
+__all__ = ["REPORT_FILES", "check_out_dir", "write_report", "render_markdown", "table_row"]
 
 #: Every file a report may hold; a folder with anything else is not replaced.
-REPORT_FILES = frozenset({"report.json", "report.md", "fig1_path.png", "ratio_distribution.png", "worst_case.png"})
+REPORT_FILES = frozenset({"report.json", "report.md", "fig1_path.png", "ratio_distribution.png", "gamma_bracket.png"})
 
 
 def _num(value: float | None, spec: str = ".6g") -> str:
     """A number for the report, or "-" where JSON has null (infinite, diverged, not computed)."""
     return "-" if value is None else format(value, spec)
+
+
+def _nums(values: Any, spec: str = ".4g") -> str:
+    """A (nested) list of numbers as written in the report, ``-`` for none or null.
+
+    >>> _nums([[0.1234567891, 2.0], [None, 1e-9]])
+    '[[0.1235, 2], [-, 1e-09]]'
+    """
+    if values is None:
+        return "-"
+    if isinstance(values, (list, tuple)):
+        return "[" + ", ".join(_nums(v, spec) for v in values) + "]"
+    return format(values, spec)
+
+
+def table_row(*cells: object) -> str:
+    r"""One row of a markdown table, every ``|`` inside a cell escaped.
+
+    A ``|`` in a cell (``E||y||^2``) would otherwise end the cell when the table renders
+    (GitHub-flavoured markdown, markdown-it), and the number after it would vanish; ``\|``
+    renders as ``|``, in code spans too. A line break inside a cell would end the row, so
+    it becomes a space.
+
+    >>> print(table_row("max E||y||^2", 0.5))
+    | max E\|\|y\|\|^2 | 0.5 |
+    """
+    return "| " + " | ".join(" ".join(str(c).splitlines()).replace("|", "\\|") for c in cells) + " |"
 
 
 def render_markdown(rep: VerifyReport) -> str:
@@ -48,7 +76,7 @@ def render_markdown(rep: VerifyReport) -> str:
         "| check | result | detail |",
         "|---|---|---|",
     ]
-    lines += [f"| {c['name']} | {'pass' if c['ok'] else 'FAIL'} | {c['detail']} |" for c in d["checks"]]
+    lines += [table_row(c["name"], "pass" if c["ok"] else "FAIL", c["detail"]) for c in d["checks"]]
     if d["options"].get("delta"):
         lines += ["", f"Delta in the Monte Carlo: {d['options']['delta']}."]
     lines += ["", "## Numbers", ""]
@@ -56,15 +84,15 @@ def render_markdown(rep: VerifyReport) -> str:
     rows = [
         ("certified robust gamma (Lemma 4.1)", d["gamma_certified"]),
         ("certified nominal gamma (Theorem 3.2)", d["gamma_nominal_certified"]),
-        ("spectral abscissa (worst beta vertex)", d["spectral_abscissa"]),
+        ("spectral abscissa (float estimate, worst rate vertex or witness)", d["spectral_abscissa"]),
         ("exact E||y||^2/||w||^2, worst case over beta vertices and Delta", d["exact_energy_ratio"]),
-        ("worst-case disturbance gain (lower bound)", d["worst_case_gain"]),
+        ("proved lower bound of the robust gain", (d["gamma_lower_bound"] or {}).get("value")),
         ("Monte Carlo mean ratio (FMU)", mc.get("mean_ratio")),
         ("Monte Carlo one-sided upper bound (alpha 1e-6)", mc.get("upper_bound")),
         ("Monte Carlo paths", mc.get("paths")),
     ]
     lines += ["| quantity | value |", "|---|---|"]
-    lines += [f"| {k} | {_num(v)} |" for k, v in rows]
+    lines += [table_row(k, _num(v)) for k, v in rows]
     failure = d.get("plant_failure")
     if failure:
         lines += ["", "## The plant FMU failed", "",
@@ -76,18 +104,20 @@ def render_markdown(rep: VerifyReport) -> str:
     if plant:
         lines += ["", f"## Plant: {plant['fmu']} (model identifier {plant['model_identifier']})", "",
                   "| quantity | value |", "|---|---|",
-                  f"| measure | {plant['measure']} |",
-                  f"| attenuation on the plant: mean E||y - y_op||^2/||w||^2"
-                  f"{' of y(w) - y(w = 0)' if plant['measure'] == 'incremental' else ''} | {_num(plant['mean_ratio'])} |",
-                  f"| its one-sided upper bound (alpha 1e-6) | {_num(plant['upper_bound'])} |",
-                  f"| largest excursion from the operating point, per state | {plant['max_excursion'] or '-'} |",
-                  f"| linearisation error (FMU vs linear reference, relative) | "
-                  f"{_num(plant['linearisation_error'], '.3g')} |",
-                  f"| inputs: smallest and largest value, per input (absolute) | {plant['input_range'] or '-'} |",
-                  f"| paths that left [region] (states or input limits) | {plant['left_region']} of {plant['paths']} |"]
+                  table_row("measure", plant["measure"]),
+                  table_row("attenuation on the plant: mean E||y - y_op||^2/||w||^2"
+                            + (" of y(w) - y(w = 0)" if plant["measure"] == "incremental" else ""),
+                            _num(plant["mean_ratio"])),
+                  table_row("its one-sided upper bound (alpha 1e-6)", _num(plant["upper_bound"])),
+                  table_row("largest excursion from the operating point, per state", _nums(plant["max_excursion"])),
+                  table_row("linearisation error (FMU vs linear reference, relative)",
+                            _num(plant["linearisation_error"], ".3g")),
+                  table_row("inputs: smallest and largest value, per input (absolute)", _nums(plant["input_range"])),
+                  table_row("paths that left [region] (states or input limits)",
+                            f"{plant['left_region']} of {plant['paths']}")]
         if plant["fault_response_energy"] is not None:
-            lines.append(f"| fault response: mean ||y(w = 0) - y_op||^2 (not bounded by gamma) | "
-                         f"{_num(plant['fault_response_energy'])} |")
+            lines.append(table_row("fault response: mean ||y(w = 0) - y_op||^2 (not bounded by gamma)",
+                                   _num(plant["fault_response_energy"])))
     ctrl = d["controller"] or {}
     matrices = ctrl.get("gains", ctrl.get("entries"))
     lines += ["", f"Controller: {ctrl.get('kind', 'none found')}: {matrices}", "",
@@ -95,7 +125,8 @@ def render_markdown(rep: VerifyReport) -> str:
               + ", ".join(f"{k} {v:.2f}" for k, v in d["seconds"].items()), "",
               "Plots: `fig1_path.png` (one path: true modes, FDI modes, states, output and disturbance), "
               "`ratio_distribution.png` (||y||_2/||w||_2 over paths against gamma), "
-              "`worst_case.png` (the worst-case disturbance)."]
+              "`gamma_bracket.png` (each certified gamma and its proved lower bound, with the exact and "
+              "Monte Carlo attenuation)."]
     return "\n".join(lines) + "\n"
 
 
@@ -123,23 +154,40 @@ def _ratio_plot(rep: VerifyReport, path: Path) -> None:
     plt.close(fig)
 
 
-def _worst_plot(rep: VerifyReport, path: Path) -> None:
+def _bracket_plot(rep: VerifyReport, path: Path) -> bool:
+    """Each certified gamma and its proved lower bound as an interval, beside the square
+    roots of the exact energy ratio and of the Monte Carlo bound; ``False`` (nothing
+    drawn) without a proved bracket."""
+    an = rep.analysis
+    if an is None:
+        return False
+    bars = [(label, low.value, res.gamma) for label, res, low in (("nominal", an.nominal, an.nominal_lower),
+                                                                    ("robust", an.robust, an.robust_lower))
+            if res.certified and res.gamma is not None and low is not None and low.value is not None]
+    if not bars:
+        return False
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    assert rep.worst is not None
-    wc = rep.worst
-    fig, ax = plt.subplots(figsize=(6, 3.5))
-    for c in range(wc.w.shape[1]):
-        ax.step(wc.t, np.append(wc.w[:, c], wc.w[-1, c]), where="post", label=f"w[{c + 1}]")
-    ax.set_title(f"worst-case disturbance: gain {wc.gain:.4g} (certified {rep.gamma_certified:.4g})")
-    ax.set_xlabel("t")
-    ax.legend()
+    fig, ax = plt.subplots(figsize=(6, 2.8))
+    for k, (_, low, high) in enumerate(bars):
+        ax.plot([low, high], [k, k], lw=6, color="tab:blue", solid_capstyle="butt")
+        ax.plot([low], [k], "|", ms=18, color="k")
+        ax.plot([high], [k], "|", ms=18, color="tab:red")
+    if rep.exact_energy_ratio is not None:
+        ax.axvline(math.sqrt(rep.exact_energy_ratio), color="tab:green", ls=":", label="sqrt(exact energy ratio)")
+    if rep.mc is not None and rep.mc.upper_bound is not None and math.isfinite(rep.mc.upper_bound):
+        ax.axvline(math.sqrt(rep.mc.upper_bound), color="k", ls="--", label="sqrt(Monte Carlo upper bound)")
+    ax.set_yticks(range(len(bars)), [f"{name} gain" for name, _, _ in bars])
+    ax.set_ylim(-0.8, len(bars) - 0.2)
+    ax.set_xlabel("gain: proved lower bound (black) .. certified gamma (red)")
+    ax.legend(fontsize=7, loc="lower left")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+    return True
 
 
 def check_out_dir(out_dir: str | os.PathLike[str]) -> Path:
@@ -200,8 +248,8 @@ def write_report(rep: VerifyReport, out_dir: str | os.PathLike[str]) -> list[Pat
                       + (f" on {Path(plant['fmu']).name}" if plant else ""),
                       state_offset=plant.get("states_op"), state_names=plant.get("states"))
             _ratio_plot(rep, stage / "ratio_distribution.png")
-        if rep.worst is not None:
-            _worst_plot(rep, stage / "worst_case.png")
+        if rep.gamma_certified is not None:
+            _bracket_plot(rep, stage / "gamma_bracket.png")
         names = sorted(item.name for item in stage.iterdir())
         stage.chmod(0o777 & ~_umask())
         _swap_in(stage, out)

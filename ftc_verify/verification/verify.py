@@ -4,14 +4,15 @@
 all on the one closed loop :func:`~ftc_verify.analysis.closedloop.closed_loop` builds:
 
 1. **synthesis** (:func:`ftc_verify.synthesis.synthesize`) unless a controller is given,
-   then the core analysis: exact spectral test, certified Theorem 3.1 and robust gamma
-   (Lemma 4.1);
+   then the core analysis: stability proved over the whole rate box, certified Theorem
+   3.1 and robust gamma (Lemma 4.1), and a proved lower bound of the robust gain;
 2. **cross-validation** of every frozen joint mode with python-control;
 3. **exact expected energy** of the continuous-time loop for the paper's disturbance at
    every ``beta`` vertex (up to :data:`MAX_EXACT_VERTICES`) and for ``Delta`` in
    ``{0, +E, -E}`` (``E`` the rectangular identity, norm 1) when the plant is uncertain;
-4. **worst-case disturbance** on a horizon at the worst of those vertices (a lower bound
-   of the stochastic gain);
+4. **gamma bracket**: the proved lower bound of the analysis
+   (:mod:`ftc_verify.analysis.lower_bound`) does not exceed the certified gamma, and
+   their ratio says how far from the truth the certificate can be;
 5. **Monte Carlo co-simulation** of the FMU plant under Markov faults and delayed FDI
    switching (sample-and-hold at ``step``), ``beta`` drawn per path from its box, a random
    ``Delta`` per chain segment when uncertain; the mean ratio's one-sided upper bound
@@ -38,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from ..analysis.analyze import AnalysisReport, analyze, json_ready
+from ..analysis.analyze import AnalysisReport, analyze, bracket, json_ready
 from ..analysis.closedloop import ClosedLoop, closed_loop
 from ..analysis.crossval import ModeCheck, cross_validate
 from ..controllers.controller import Controller
@@ -50,7 +51,7 @@ from ..simulation.paths import ChainPath
 from ..simulation.records import PathRecord, divergence_note
 from ..simulation.spec import SimulationSpec, spec_from
 from ..synthesis.state_feedback import SynthesisResult, synthesize
-from .moments import WorstCase, exact_energy, worst_case_disturbance
+from .moments import exact_energy
 from .montecarlo import MCEstimate, estimate
 
 __all__ = ["Check", "VerifyReport", "run_verify", "incremental_records", "AGREE_RTOL", "MAX_EXACT_VERTICES"]
@@ -84,7 +85,6 @@ class VerifyReport:
     synthesis: SynthesisResult | None
     per_mode: tuple[ModeCheck, ...]
     exact: tuple[dict[str, Any], ...]
-    worst: WorstCase | None
     mc: MCEstimate | None
     records: tuple[PathRecord, ...]
     checks: tuple[Check, ...]
@@ -104,6 +104,12 @@ class VerifyReport:
         """Largest exact ``E||y||^2 / ||w||^2`` over the vertices and Deltas evaluated."""
         return max((e["ratio"] for e in self.exact), default=None)
 
+    def __str__(self) -> str:
+        """The summary ``ftc-verify verify`` prints (:func:`~ftc_verify.verification.summary.verify_summary`)."""
+        from .summary import verify_summary
+
+        return verify_summary(self)
+
     def to_dict(self) -> dict[str, Any]:
         """The ``report.json`` content."""
         an = self.analysis
@@ -117,9 +123,7 @@ class VerifyReport:
             "exact_energy_ratio": self.exact_energy_ratio,
             "exact": list(self.exact),
             "mc": None if self.mc is None else self.mc.to_dict(),
-            "worst_case_gain": None if self.worst is None else self.worst.gain,
-            "worst_case": None if self.worst is None else {
-                "ratio": self.worst.ratio, "horizon": self.worst.horizon, "pieces": self.worst.pieces},
+            "gamma_lower_bound": None if an is None else bracket(an.robust, an.robust_lower),
             "checks": [fields_dict(c) for c in self.checks],
             "controller": None if ctrl is None else ctrl.to_dict(),
             "gains": [K.tolist() for K in ctrl.gains] if ctrl is not None and ctrl.is_state_feedback else None,
@@ -189,7 +193,8 @@ def _fmu_monte_carlo(system: FTCSystem, controller: Controller, chain_paths: lis
     finally:
         if bar is not None:
             bar.close()
-    return list(res.records), {"fmu": res.options["fmu"], "model_identifier": res.options["model_identifier"]}
+    extra = {"controller_fmu": res.options["controller_fmu"]} if "controller_fmu" in res.options else {}
+    return list(res.records), {"fmu": res.options["fmu"], "model_identifier": res.options["model_identifier"], **extra}
 
 
 def incremental_records(with_w: list[PathRecord], without_w: list[PathRecord]) -> list[PathRecord]:
@@ -275,7 +280,8 @@ def _backend_agreement(system: FTCSystem, controller: Controller, chain_paths: l
     """The first paths again on the numpy reference, with the same Delta draws."""
     from ..simulation.reference import simulate_reference
 
-    ref = simulate_reference(system, controller, chain_paths[:AGREE_PATHS], spec=spec)
+    # the paths the FMU ran (jump times on its step grid when it or the controller FMU has a fixed step)
+    ref = simulate_reference(system, controller, [r.path for r in records[:AGREE_PATHS]], spec=spec)
     worst = 0.0
     for k, (a, b) in enumerate(zip(records[:AGREE_PATHS], ref.records), start=1):
         if a.diverged_at != b.diverged_at:
@@ -315,14 +321,17 @@ def _mc_check(records: list[PathRecord], gamma_cert: float, seed: int, step: flo
                      + ("; incremental: y(w) - y(w = 0) on the same paths" if incremental else ""))
 
 
-def _worst_case(loop: ClosedLoop, exact: list[dict[str, Any]], horizon: float,
-                gamma_cert: float) -> tuple[WorstCase, Check]:
-    """The worst-case disturbance at the beta vertex of the largest exact energy ratio."""
-    worst_beta = np.array(max(exact, key=lambda e: e["ratio"])["beta"])
-    worst = worst_case_disturbance(loop.nominal(), beta=worst_beta, horizon=min(horizon, 30.0), pieces=40)
-    return worst, Check("worst-case disturbance", worst.gain <= gamma_cert,
-                        f"lower bound of the stochastic gain {worst.gain:.6g} <= certified {gamma_cert:.6g} "
-                        f"(gap {gamma_cert - worst.gain:.3g} = conservatism of the certificate)")
+def _bracket(analysis: AnalysisReport, gamma_cert: float) -> tuple[None, Check]:
+    """The proved lower bound beside the certified robust gamma (computed by the
+    analysis): it must not exceed the certificate."""
+    low = bracket(analysis.robust, analysis.robust_lower)
+    if low is None or low["value"] is None:
+        why = "no candidate loop was stable" if low is None else low["method"]
+        return None, Check("gamma bracket", True, f"certified {gamma_cert:.6g}; no lower bound proved ({why})")
+    return None, Check("gamma bracket", low["value"] <= gamma_cert,
+                       f"proved lower bound {low['value']:.6g} <= certified {gamma_cert:.6g} (ratio "
+                       f"{gamma_cert / low['value']:.6g}{', LOOSE' if low['loose'] else ''}; {low['delta']}, "
+                       f"rates {low['rates']}, w = F x + e cos({low['frequency']:.4g} t))")
 
 
 def _monte_carlo_stage(system: FTCSystem, controller: Controller, spec: SimulationSpec, plant: Any, fmu_log: Any,
@@ -405,7 +414,7 @@ def run_verify(
 
     def report(**found: Any) -> VerifyReport:
         parts: dict[str, Any] = {"gamma_certified": None, "analysis": None, "per_mode": (), "exact": (),
-                                 "worst": None, "mc": None, "records": ()} | found
+                                 "mc": None, "records": ()} | found
         return VerifyReport(system, controller, synthesis=synthesis, checks=tuple(checks), seed=seed,
                             options=options, seconds=seconds, **parts)
 
@@ -424,7 +433,7 @@ def run_verify(
         return report(analysis=analysis, per_mode=per_mode)
     g2 = gamma_cert ** 2
     exact = timed("exact_energy", lambda: _exact_energies(system, loop, g2))
-    worst = timed("worst_case", functools.partial(_worst_case, loop, exact, spec.horizon, gamma_cert))
+    timed("gamma_bracket", functools.partial(_bracket, analysis, gamma_cert))
     t = time.perf_counter()
     spec, options["delta"] = spec.resolve_delta(system, plant)
     try:
@@ -434,12 +443,12 @@ def run_verify(
         checks.append(Check("Monte Carlo (FMU)", False, str(exc)))
         stage("monte_carlo", t)
         return report(gamma_certified=gamma_cert, analysis=analysis, per_mode=per_mode, exact=tuple(exact),
-                      worst=worst, plant_failure=exc)
+                      plant_failure=exc)
     options.update(fmu)
     mc, check = _mc_check(measured, gamma_cert, seed, spec.step, spec.horizon, incremental=measure == "incremental")
     checks.append(check)
     stage("monte_carlo", t)
     found_plant = timed("reference", lambda: _against_reference(system, controller, chain_paths, records, spec,
                                                                  plant, mc, fmu, measured, fault_only))
-    return report(gamma_certified=gamma_cert, analysis=analysis, per_mode=per_mode, exact=tuple(exact), worst=worst,
+    return report(gamma_certified=gamma_cert, analysis=analysis, per_mode=per_mode, exact=tuple(exact),
                   mc=mc, records=tuple(records), plant=found_plant)

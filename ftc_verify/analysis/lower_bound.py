@@ -1,0 +1,459 @@
+r"""Proved lower bounds of the worst-case gain: the other side of every certified gamma.
+
+The certified :math:`\gamma` of Theorem 3.2 / Lemma 4.1 bounds from above the
+stochastic :math:`L_2` gain :math:`\sup_w (E\|z\|^2 / E\|w\|^2)^{1/2}` over adapted
+disturbances :math:`w` (zero initial state, any initial joint state), every rate vector
+of the box and every :math:`\|\Delta\| \le 1`. A lower bound needs one admissible
+disturbance, one rate vector :math:`\rho` of the box and one :math:`\Delta`, and the
+exact value of their ratio. Derived here:
+
+**The disturbance.** :math:`w = F_{\theta_t} \xi + v(t)` with :math:`v(t) = e\cos\omega t`
+(adapted: it uses the state and the joint state; :math:`e` real). The loop
+:math:`\dot\xi = \tilde A_s \xi + B_{w,s} v`, :math:`\tilde A_s = A_s + B_{w,s} F_s`, is
+linear in :math:`v`. Start at :math:`\xi_0 = 0` with the joint state distributed as a
+stationary distribution :math:`\pi` of :math:`Q(\rho)` (a mixture of initial states:
+its ratio is at most the largest ratio of a single initial state). With :math:`m_s =
+E[\xi 1\{\theta = s\}]` and :math:`X_s = E[\xi\xi^T 1\{\theta = s\}]`, Dynkin's formula
+gives
+
+.. math::
+
+    \dot m_s = \tilde A_s m_s + \sum_t Q_{ts} m_t + \pi_s B_{w,s} v, \qquad
+    \dot X_s = \tilde{\mathcal L}(X)_s + B_{w,s} v m_s^T + m_s v^T B_{w,s}^T .
+
+If :math:`\tilde{\mathcal L}` is mean-square stable (proved), both converge to a periodic
+steady state: :math:`m_s = \mathrm{Re}(M_s e^{i\omega t})` with
+:math:`(i\omega - \tilde{\mathcal A}) M = (\pi_s B_{w,s} e)_s` (:math:`\tilde{\mathcal A}`
+the first-moment operator), and the period average :math:`\bar X` of :math:`X` solves
+:math:`\tilde{\mathcal L}(\bar X)_s = -c\,(B_{w,s} e\, M_{r,s}^T + M_{r,s} e^T B_{w,s}^T)`
+with :math:`M_r = \mathrm{Re}\,M` and :math:`c = 1/2` (:math:`c = 1` at
+:math:`\omega = 0`), since the average of :math:`\cos\omega t\,\mathrm{Re}(M e^{i\omega
+t})^T` is :math:`c\,M_r^T`. The energies grow linearly in the horizon at the rates
+
+.. math::
+
+    N = \sum_s \operatorname{tr}(C_{z,s}\bar X_s C_{z,s}^T), \qquad
+    D = \sum_s \bigl(\operatorname{tr}(F_s \bar X_s F_s^T) + 2c\, e^T F_s M_{r,s}\bigr) + c\,|e|^2 ,
+
+so the ratio over :math:`[0, T]` of the truncated disturbance (which is in :math:`L_2`)
+tends to :math:`N/D`: the gain is at least :math:`\sqrt{N/D}`. With :math:`\Delta`
+constant per joint state (an admissible time-varying uncertainty) the same holds for the
+perturbed loop, a lower bound of the robust gain.
+
+**The choice.** :math:`F_s = \gamma_F^{-2} B_{w,s}^T P_s` from the coupled bounded-real
+Riccati equations at :math:`\rho`,
+:math:`\tilde A_s^T P_s + P_s \tilde A_s + \sum_t q_{st} P_t + C_{z,s}^T C_{z,s} - \gamma_F^2
+F_s^T F_s = 0`, solved by policy iteration (each step a coupled Lyapunov equation, the
+maximising player's Newton step) at the smallest :math:`\gamma_F` found feasible by
+bisection: the worst-case feedback, which makes the loop nearly marginal, so that a
+small :math:`v` near resonance gives a ratio close to :math:`\gamma_F^2`. The frequency
+is the best of :math:`\omega = 0` and the imaginary parts of the rightmost eigenvalues of
+:math:`\tilde{\mathcal A}`; :math:`e` is the top generalised eigenvector of the two
+quadratic forms :math:`N(e)`, :math:`D(e)`. The rate vector is the best of the box's
+centre, its lowest and highest rates and the worst spectral-abscissa vertex.
+
+**The proof.** :math:`F`, :math:`e`, :math:`\omega`, :math:`\rho` are floats taken as
+exact; the loop is :func:`~ftc_verify.analysis.exact.exact_loop` (the numbers the user
+wrote) plus :math:`B_{w,s}F_s` in ball arithmetic; :math:`\tilde{\mathcal L}` is proved
+stable (:class:`~ftc_verify.analysis.verdict.StabilityProver`); :math:`\pi`, :math:`M`
+and :math:`\bar X` are enclosed by FLINT's certified linear solves; the bound is the
+lower end of the enclosure of :math:`\sqrt{N/D}`. Above
+:data:`~ftc_verify.analysis.verdict.SOLVE_LIMIT` rows the float value is reported as an
+estimate, not as a bound.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+import scipy.linalg
+
+from ..jsonable import fields_dict
+from ..model.system import Matrix
+from .closedloop import ClosedLoop
+from .conditioning import Similarity, conditioning_transform
+from .exact import ball_generator, ball_matrices, exact_loop, literals_of, written_box
+from ..interrupts import deferred_signals
+from .rigorous import Ball, ball, midpoint, precision
+from .stability import second_moment_matrix, unvech_stack, vech_order
+from .verdict import SOLVE_LIMIT, StabilityProver, ball_lyapunov_solution
+
+__all__ = ["GainLowerBound", "gain_lower_bound", "float_gain", "worst_case_feedback", "worst_constant_delta",
+           "BISECTION_RTOL"]
+
+#: Relative width of the float bisection on the gain.
+BISECTION_RTOL = 1e-7
+#: Policy iterations at most per gamma.
+MAX_POLICY_STEPS = 60
+
+
+@dataclass(frozen=True)
+class GainLowerBound:
+    """A lower bound of the worst-case gain and what attains it (module docstring).
+
+    ``value`` is the proved lower bound (``None`` when the proof could not be made:
+    ``method`` says why; ``estimate`` is then the float value of the same construction);
+    ``float_gain`` the float worst-case gain at ``rates`` by bisection (not proved);
+    ``delta`` names the constant uncertainty; ``frequency`` and ``direction`` give
+    :math:`v(t) = e\\cos\\omega t`; ``feedback`` the gains :math:`F_s`, one per joint state."""
+
+    value: float | None
+    estimate: float
+    float_gain: float
+    rates: Matrix
+    delta: str
+    frequency: float
+    direction: Matrix
+    feedback: tuple[Matrix, ...]
+    method: str
+    seconds: float
+
+    @property
+    def proved(self) -> bool:
+        """The bound was proved in ball arithmetic."""
+        return self.value is not None
+
+    def to_dict(self) -> dict[str, object]:
+        """JSON-ready summary (the feedback gains omitted)."""
+        d = fields_dict(self)
+        d.pop("feedback", None)
+        d["proved"] = self.proved
+        return d
+
+
+def _adjoint_solve(At: Sequence[Matrix], Q: Matrix, R: Sequence[Matrix]) -> np.ndarray | None:
+    """The stack ``P`` with ``A_s' P_s + P_s A_s + sum_t Q_st P_t = -R_s`` (float)."""
+    n, modes = At[0].shape[0], len(At)
+    rows, cols = vech_order(n)
+    rhs = -np.concatenate([np.asarray(r)[rows, cols] for r in R])
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", scipy.linalg.LinAlgWarning)
+            v = scipy.linalg.solve(second_moment_matrix([a.T for a in At], Q.T), rhs, check_finite=False)
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+    return unvech_stack(v, modes, n) if np.all(np.isfinite(v)) else None
+
+
+def _abscissa(A: Sequence[Matrix], Q: Matrix) -> float:
+    return float(np.max(scipy.linalg.eigvals(second_moment_matrix(A, Q), check_finite=False).real))
+
+
+def worst_case_feedback(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], Q: Matrix,
+                        gamma: float, start: Sequence[Matrix] | None = None) -> tuple[Matrix, ...] | None:
+    r"""The worst-case disturbance feedback :math:`F_s = \gamma^{-2} B_{w,s}^T P_s` of the
+    coupled bounded-real Riccati equations at ``gamma`` (module docstring), by policy
+    iteration from ``start`` (a feedback that makes the loop mean-square stable; default
+    :math:`F = 0`); ``None`` when it fails (``P`` not positive semidefinite, not finite,
+    or no convergence): then ``gamma`` is, in float64, at or below the gain. A float
+    search only: what it returns is proved afterwards or not used."""
+    F = [np.zeros((B.shape[1], B.shape[0])) for B in Bw] if start is None else list(start)
+    P_old: np.ndarray | None = None
+    g2 = gamma * gamma
+    for _ in range(MAX_POLICY_STEPS):
+        At = [a + b @ f for a, b, f in zip(A, Bw, F)]
+        P = _adjoint_solve(At, Q, [c.T @ c - g2 * f.T @ f for c, f in zip(Cz, F)])
+        if P is None:
+            return None
+        scale = max(1.0, float(np.abs(P).max()))
+        if min(float(np.linalg.eigvalsh(0.5 * (p + p.T))[0]) for p in P) < -1e-9 * scale:
+            return None
+        F = [b.T @ p / g2 for b, p in zip(Bw, P)]
+        if P_old is not None and np.abs(P - P_old).max() <= 1e-12 * scale:
+            return tuple(F)
+        P_old = P
+    return None
+
+
+def float_gain(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], Q: Matrix, *,
+               upper: float | None = None, rtol: float = BISECTION_RTOL) -> tuple[float, tuple[Matrix, ...]] | None:
+    """The float worst-case gain at one rate vector by bisection on
+    :func:`worst_case_feedback` (started at ``upper``, each step warm-started from the
+    last feasible feedback), and the feedback at the smallest feasible gamma found
+    (``None`` when the loop is not mean-square stable)."""
+    if _abscissa(A, Q) >= 0:
+        return None
+    hi = upper if upper is not None and upper > 0 else 1.0
+    F = worst_case_feedback(A, Bw, Cz, Q, hi)
+    while F is None:
+        hi *= 2.0
+        if hi > 1e300:
+            return None
+        F = worst_case_feedback(A, Bw, Cz, Q, hi)
+    lo, step = 0.0, 1e-3
+    while lo == 0.0 and hi > 1e-300:
+        trial = hi * (1.0 - step)
+        found = worst_case_feedback(A, Bw, Cz, Q, trial, F)
+        if found is None:
+            lo = trial
+        else:
+            hi, F, step = trial, found, min(0.5, 8 * step)
+    while hi - lo > rtol * hi:
+        mid = math.sqrt(lo * hi) if lo > 0 else 0.5 * hi
+        found = worst_case_feedback(A, Bw, Cz, Q, mid, F)
+        if found is None:
+            lo = mid
+        else:
+            hi, F = mid, found
+    return hi, F
+
+
+def _forms(At: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], F: Sequence[Matrix], Q: Matrix,
+           pi: Matrix, omega: float) -> tuple[Matrix, Matrix]:
+    """The quadratic forms ``N(e) = e' HN e`` and ``D(e) = e' HD e`` (module docstring), float."""
+    n, S, nw = At[0].shape[0], len(At), Bw[0].shape[1]
+    first = scipy.linalg.block_diag(*At) + np.kron(Q.T, np.eye(n))
+    c = 1.0 if omega == 0.0 else 0.5
+    lu_first = scipy.linalg.lu_factor(1j * omega * np.eye(S * n) - first)
+    lu_second = scipy.linalg.lu_factor(second_moment_matrix(At, Q))
+    rows, cols = vech_order(n)
+
+    def rates(e: Matrix) -> tuple[float, float]:
+        M = scipy.linalg.lu_solve(lu_first, np.concatenate([pi[s] * Bw[s] @ e for s in range(S)])).reshape(S, n)
+        Mr = M.real
+        G = [c * (np.outer(Bw[s] @ e, Mr[s]) + np.outer(Mr[s], Bw[s] @ e)) for s in range(S)]
+        X = unvech_stack(scipy.linalg.lu_solve(lu_second, -np.concatenate([g[rows, cols] for g in G])), S, n)
+        N = sum(float(np.trace(Cz[s] @ X[s] @ Cz[s].T)) for s in range(S))
+        D = sum(float(np.trace(F[s] @ X[s] @ F[s].T)) + 2 * c * float(e @ F[s] @ Mr[s]) for s in range(S))
+        return N, D + c * float(e @ e)
+
+    HN, HD = np.zeros((nw, nw)), np.zeros((nw, nw))
+    eye = np.eye(nw)
+    for i in range(nw):
+        HN[i, i], HD[i, i] = rates(eye[i])
+    for i in range(nw):
+        for j in range(i + 1, nw):
+            N, D = rates(eye[i] + eye[j])
+            HN[i, j] = HN[j, i] = 0.5 * (N - HN[i, i] - HN[j, j])
+            HD[i, j] = HD[j, i] = 0.5 * (D - HD[i, i] - HD[j, j])
+    return HN, HD
+
+
+def _stationary(Q: Matrix) -> Matrix | None:
+    S = Q.shape[0]
+    M = np.vstack([Q.T, np.ones((1, S))])
+    pi, *_ = np.linalg.lstsq(M, np.concatenate([np.zeros(S), [1.0]]), rcond=None)
+    return pi if np.all(np.isfinite(pi)) and np.abs(Q.T @ pi).max() < 1e-9 * max(1.0, np.abs(Q).max()) else None
+
+
+def _best_excitation(At: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], F: Sequence[Matrix],
+                     Q: Matrix, pi: Matrix) -> tuple[float, float, Matrix]:
+    """``(ratio, omega, e)``: the best frequency of the candidates and its best direction."""
+    n = At[0].shape[0]
+    first = scipy.linalg.block_diag(*At) + np.kron(Q.T, np.eye(n))
+    ev = np.linalg.eigvals(first)
+    order = np.argsort(-ev.real)[:6]
+    omegas = sorted({0.0, *(abs(float(ev[k].imag)) for k in order)})
+    best = (-math.inf, 0.0, np.zeros(Bw[0].shape[1]))
+    for omega in omegas:
+        try:
+            HN, HD = _forms(At, Bw, Cz, F, Q, pi, omega)
+            w, V = scipy.linalg.eigh(0.5 * (HN + HN.T), 0.5 * (HD + HD.T))
+        except (ValueError, np.linalg.LinAlgError, scipy.linalg.LinAlgError):
+            continue
+        if np.isfinite(w[-1]) and w[-1] > best[0]:
+            e = V[:, -1] / np.abs(V[:, -1]).max()
+            best = (float(w[-1]), omega, e)
+    return best
+
+
+def _proved_ratio(loop: ClosedLoop, deltas: dict[str, Matrix], sim: Similarity, F: Sequence[Matrix], rates: Matrix,
+                  omega: float, e: Matrix, bits: int = 128) -> tuple[float | None, str]:
+    """The lower end of the enclosure of ``sqrt(N/D)`` (module docstring, the proof)."""
+    import flint
+
+    n, S = loop.n, len(loop.A)
+    size = S * n * (n + 1) // 2
+    if size > SOLVE_LIMIT or 2 * S * n > SOLVE_LIMIT:
+        return None, f"not proved: the moment equations ({size} rows) exceed the ball-arithmetic limit ({SOLVE_LIMIT})"
+    literals = literals_of(loop)
+    def enclosures() -> tuple[Ball, ...]:
+        """The feedback loop's state matrices at the working precision."""
+        exact = exact_loop(loop)
+        A = ball_matrices(exact.A)
+        if deltas:
+            A = tuple(a + _perturbation(chans, deltas, a) for a, chans in zip(A, exact.channels))
+        return tuple(a + b @ ball(f) for a, b, f in zip(A, ball_matrices(exact.Bw), F))
+
+    with precision(bits):
+        At = enclosures()
+        exact = exact_loop(loop)
+        Bw = ball_matrices(exact.Bw)
+        Cz = ball_matrices(exact.Cz)
+        q = ball_generator(loop.chain, rates, literals)
+    float_loop = replace(loop.nominal(), A=tuple(midpoint(a) for a in At), source=None)
+    prover = StabilityProver.for_matrices(float_loop, sim, enclosures)
+    verdict = prover.certify(rates)
+    if verdict.verdict != "stable":
+        return None, f"not proved: the worst-case feedback loop was not proved stable ({verdict.method})"
+    with precision(bits):
+        # pi' Q = 0 and sum(pi) = 1: S - 1 balance equations and the normalisation (the
+        # balance equations of a generator sum to zero, so the one left out holds too)
+        sq = flint.arb_mat(S, S)
+        rhs = flint.arb_mat(S, 1)
+        for s in range(S - 1):
+            for t in range(S):
+                sq[s, t] = q[t][s]
+        for t in range(S):
+            sq[S - 1, t] = 1
+        rhs[S - 1, 0] = 1
+        try:
+            with deferred_signals():
+                pi = sq.solve(rhs)
+        except (ZeroDivisionError, ValueError):
+            return None, "not proved: the stationary distribution could not be enclosed"
+        eb = ball(np.asarray(e, dtype=float).reshape(-1, 1))
+        # first moments: [[-Ac, -w I], [w I, -Ac]] [Mr; Mi] = [b; 0], (Ac m)_s = At_s m_s + sum_t q_ts m_t
+        K = 2 * S * n
+        G1 = flint.arb_mat(K, K)
+        for s in range(S):
+            a = At[s].value
+            for r in range(n):
+                for c in range(n):
+                    G1[s * n + r, s * n + c] = -a[r, c]
+                    G1[S * n + s * n + r, S * n + s * n + c] = -a[r, c]
+            for t in range(S):
+                if q[t][s] != 0:
+                    for r in range(n):
+                        G1[s * n + r, t * n + r] -= q[t][s]
+                        G1[S * n + s * n + r, S * n + t * n + r] -= q[t][s]
+            for r in range(n):
+                G1[s * n + r, S * n + s * n + r] = -omega
+                G1[S * n + s * n + r, s * n + r] = omega
+        b1 = flint.arb_mat(K, 1)
+        for s in range(S):
+            Be = (Bw[s] @ eb).value
+            for r in range(n):
+                b1[s * n + r, 0] = pi[s, 0] * Be[r, 0]
+        try:
+            with deferred_signals():
+                m = G1.solve(b1)
+        except (ZeroDivisionError, ValueError):
+            return None, "not proved: the first moments could not be enclosed"
+        weight = flint.arb(1) if omega == 0.0 else flint.arb(0.5)
+        Mr = [Ball(flint.arb_mat([[m[s * n + r, 0]] for r in range(n)])) for s in range(S)]
+        G = [(Bw[s] @ eb @ Mr[s].T + Mr[s] @ eb.T @ Bw[s].T) * weight for s in range(S)]
+        X = ball_lyapunov_solution(At, q, bits, G)
+        if X is None:
+            return None, "not proved: the averaged second moments could not be enclosed"
+        N = flint.arb(0)
+        D = weight * (eb.T @ eb).value[0, 0]
+        for s in range(S):
+            N += sum((Cz[s] @ X[s] @ Cz[s].T).value[k, k] for k in range(Cz[s].shape[0]))
+            Fb = ball(F[s])
+            D += sum((Fb @ X[s] @ Fb.T).value[k, k] for k in range(Fb.shape[0]))
+            D += 2 * weight * (eb.T @ Fb @ Mr[s]).value[0, 0]
+        if not (D > 0 and N >= 0):
+            return None, "not proved: the energy rates could not be enclosed"
+        ratio = (N / D).sqrt()
+        return float(ratio.lower()), (f"w = F x + e cos({omega:.6g} t): its stationary energy ratio enclosed in "
+                                      f"{bits}-bit balls, the feedback loop proved mean-square stable")
+
+
+def worst_constant_delta(loop: ClosedLoop, rates: Matrix, *, upper: float | None = None,
+                         passes: int = 2) -> tuple[str, dict[str, Matrix]]:
+    """A constant uncertainty of norm 1 that makes the float gain at ``rates`` large: on
+    every channel a rectangular diagonal of signs (an extreme point of the unit ball),
+    the same in every joint state, found by flipping one sign at a time while the coarse
+    float gain grows (at most ``passes`` sweeps). A search: the bound it leads to is
+    proved afterwards. Returns a label and ``{channel name: Delta}``."""
+    shapes = {ch.name: (ch.E.shape[1], ch.F.shape[0]) for chans in loop.channels for ch in chans}
+    signs = {name: np.ones(min(shape)) for name, shape in shapes.items()}
+    Q = loop.chain.generator(rates)
+
+    def deltas(sg: dict[str, np.ndarray]) -> dict[str, Matrix]:
+        out = {}
+        for name, (p, q) in shapes.items():
+            D = np.zeros((p, q))
+            D[np.arange(len(sg[name])), np.arange(len(sg[name]))] = sg[name]
+            out[name] = D
+        return out
+
+    def gain(sg: dict[str, np.ndarray]) -> float:
+        found = float_gain(loop.perturbed(deltas(sg)), loop.Bw, loop.Cz, Q, upper=upper, rtol=1e-3)
+        return -math.inf if found is None else found[0]
+
+    best = gain(signs)
+    for _ in range(passes):
+        improved = False
+        for name in signs:
+            for k in range(len(signs[name])):
+                trial = {key: v.copy() for key, v in signs.items()}
+                trial[name][k] = -trial[name][k]
+                g = gain(trial)
+                if g > best:
+                    best, signs, improved = g, trial, True
+        if not improved:
+            break
+    label = "Delta = " + ", ".join(f"{name}: diag{[int(v) for v in sg]}" for name, sg in signs.items())
+    return label, deltas(signs)
+
+
+def _perturbation(chans: Sequence[Any], deltas: dict[str, Matrix], like: Ball) -> Ball:
+    """``sum_k E_k Delta_k F_k`` over the channels named in ``deltas`` (balls)."""
+    out = 0 * like
+    for ch in chans:
+        if ch.name in deltas:
+            out = out + ch.E @ ball(deltas[ch.name]) @ ch.F
+    return out
+
+
+def _candidate_rates(loop: ClosedLoop, worst: Matrix | None) -> list[Matrix]:
+    chain = loop.chain
+    lo, hi = written_box(chain.rate_min, chain.rate_max)
+    inner_lo = np.where(lo < hi, np.nextafter(lo, np.inf), lo)  # strictly inside the box as written
+    inner_hi = np.where(lo < hi, np.nextafter(hi, -np.inf), hi)
+    points = [inner_lo, 0.5 * (lo + hi), inner_hi]
+    if worst is not None:
+        points.append(np.clip(np.asarray(worst, dtype=float), inner_lo, inner_hi))
+    out: list[Matrix] = []
+    for p in points:
+        if not any(np.array_equal(p, o) for o in out):
+            out.append(p)
+    return out
+
+
+def gain_lower_bound(loop: ClosedLoop, *, deltas: Sequence[tuple[str, dict[str, Matrix]]] = (("Delta=0", {}),),
+                     worst_rates: Matrix | None = None, upper: float | None = None) -> GainLowerBound | None:
+    """The proved lower bound of the worst-case gain of ``loop`` (module docstring): the
+    best float construction over the candidate rate vectors and the constant
+    uncertainties ``deltas`` (a label and ``{channel name: Delta}``; ``Delta=0`` for the
+    nominal gain), then proved. ``upper`` (a certified gamma) starts the bisection.
+    ``None`` when no candidate loop is mean-square stable."""
+    start = time.perf_counter()
+    nominal = loop.nominal()
+    best: tuple[float, float, Matrix, str, dict[str, Matrix], tuple[Matrix, ...], float, Matrix] | None = None
+    for label, delta in deltas:
+        A = loop.perturbed(delta) if delta else nominal.A
+        for rates in _candidate_rates(loop, worst_rates):
+            Q = loop.chain.generator(rates)
+            pi = _stationary(Q)
+            if pi is None:
+                continue
+            found = float_gain(A, loop.Bw, loop.Cz, Q, upper=upper, rtol=1e-2)
+            if found is None:
+                continue
+            g, _ = found
+            if best is None or g > best[0]:
+                best = (g, 0.0, rates, label, delta, (), 0.0, pi)
+    if best is None:
+        return None
+    _, _, rates, label, delta, _, _, pi = best
+    A = loop.perturbed(delta) if delta else nominal.A
+    Q = loop.chain.generator(rates)
+    found = float_gain(A, loop.Bw, loop.Cz, Q, upper=best[0] * (1 + 1e-3))
+    if found is None:
+        return None
+    g, F = found
+    At = [a + b @ f for a, b, f in zip(A, loop.Bw, F)]
+    ratio, omega, e = _best_excitation(At, loop.Bw, loop.Cz, F, Q, pi)
+    estimate = math.sqrt(max(ratio, 0.0))
+    sim = conditioning_transform(replace(nominal, A=tuple(At), source=None))
+    value, method = _proved_ratio(loop, delta, sim, F, rates, omega, e)
+    return GainLowerBound(value, estimate, g, rates, label, omega, e, tuple(F), method, time.perf_counter() - start)
