@@ -90,6 +90,7 @@ __all__ = [
     "block_specs",
     "lyapunov_block",
     "xy_block",
+    "dilated_block",
     "null_basis",
     "projection",
     "BlockCheck",
@@ -282,6 +283,73 @@ def xy_block(
         first.append(np.sqrt(q) * Xs)
         diag.append(-Xt)
     return _bordered(first, diag, [d.shape[0] for d in diag], bmat)
+
+
+def dilated_block(mode: Mode, X: Sequence[Any], G: Any, s: int, Y: Any, eps: Any, delta: Any, g: Any,
+                  q_row: Matrix, tau: Any, bmat: Bmat) -> Any:
+    r""":func:`xy_block` dilated by a slack :math:`G` (S-variable form), gain :math:`K = Y G^{-1}`.
+
+    :func:`xy_block` is :math:`R^T \Theta R < 0` with :math:`R = [[I, 0], [A_{cl}^T, H_K^T],
+    [0, I]]`, :math:`\Theta = [[N, X, \ast], [X, 0, 0], [\ast, 0, -W]]` (``N``: the
+    :math:`A_{cl}`-free part of :math:`\Phi`; :math:`H_K = B_2 K` the gain-dependent row,
+    the other rows kept as in :func:`xy_block`). The columns of :math:`R` span
+    :math:`\ker [A_{cl}^T, -I, H_K^T]`, so by Finsler's lemma it holds iff
+    :math:`\Theta + \operatorname{He}(\mathcal G [A_{cl}^T, -I, H_K^T]) < 0` for some
+    :math:`\mathcal G`; restricting :math:`\mathcal G = [G^T; \tau G^T; 0]` (sufficient;
+    :math:`G = X` and a small :math:`\tau` recover the original) gives, rows
+    ``x | x' | A2 | C | B2 | D | s'``,
+
+    .. math::
+
+        \begin{bmatrix}
+        \Phi_G & X - G^T + \tau (A G + B Y) & X A_2^T & X C^T & Y^T B_2^T & D & \sqrt{q_{ss'}} X \\
+        \cdot & -\tau (G + G^T) & 0 & 0 & \tau Y^T B_2^T & 0 & 0 \\
+        \cdot & \cdot & -\varepsilon I &&&& \\ &&& -I &&& \\ &&&& -\delta I && \\
+        &&&&& -g I & \\ &&&&&& -X_{s'}
+        \end{bmatrix} < 0,
+
+    :math:`\Phi_G = A G + G^T A^T + B Y + Y^T B^T + q_{ss} X + \varepsilon A_1 A_1^T +
+    \delta B_1 B_1^T`, linear in :math:`(X, G, Y, \varepsilon, \delta, g)` for fixed
+    :math:`\tau`. :math:`G, Y` may be shared by joint states (one per FDI mode) while
+    every state keeps its own :math:`X_s` (de Oliveira--Skelton, Shaked dilations).
+    """
+    Xs, n = X[s], mode.n
+    AG = mode.A @ G + mode.B @ Y
+    phi = AG + AG.T + float(q_row[s]) * Xs
+    if mode.A1 is not None:
+        phi = phi + eps * (mode.A1 @ mode.A1.T)
+    if mode.B1 is not None:
+        phi = phi + delta * (mode.B1 @ mode.B1.T)
+    top: list[Any] = [phi, Xs - G.T + tau * AG]
+    mid: list[Any] = [None, -tau * (G + G.T)]
+    diag: list[Any] = []
+    if mode.A1 is not None and mode.A2 is not None:
+        top.append(Xs @ mode.A2.T)
+        mid.append(np.zeros((n, mode.A2.shape[0])))
+        diag.append(-eps * np.eye(mode.A2.shape[0]))
+    top.append(Xs @ mode.C.T)
+    mid.append(np.zeros((n, mode.C.shape[0])))
+    diag.append(-np.eye(mode.C.shape[0]))
+    if mode.B2 is not None:
+        top.append(Y.T @ mode.B2.T)
+        mid.append(tau * (Y.T @ mode.B2.T))
+        diag.append(-delta * np.eye(mode.B2.shape[0]))
+    top.append(mode.D)
+    mid.append(np.zeros((n, mode.D.shape[1])))
+    diag.append(-g * np.eye(mode.D.shape[1]))
+    for t, q in enumerate(q_row):
+        if t != s and q > 0:
+            top.append(np.sqrt(float(q)) * Xs)
+            mid.append(np.zeros((n, n)))
+            diag.append(-X[t])
+    mid[0] = top[1].T
+    sizes = [n, n] + [d.shape[0] for d in diag]
+    rows: list[list[Any]] = [top, mid]
+    for r, d in enumerate(diag):
+        row: list[Any] = [top[r + 2].T, mid[r + 2].T]
+        row += [d if q == r else np.zeros((sizes[r + 2], sizes[q + 2])) for q in range(len(diag))]
+        rows.append(row)
+    return bmat(rows)
 
 
 def null_basis(mode: Mode) -> tuple[Matrix, Matrix | None]:

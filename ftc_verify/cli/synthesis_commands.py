@@ -25,7 +25,15 @@ def _print_synthesis(res: Any) -> None:
         found = (f"certified gamma {row['gamma_certified']:.6g}" if row["gamma_certified"] is not None
                  else f"not counted: {row['reason']}")
         mark = "*" if row["name"] == res.start else " "
-        print(f"  {mark} start {row['name']:22s} {found}" + (f" ({row['note']})" if row["note"] else ""))
+        took = f" [{row['seconds']:.2f} s]" if row.get("seconds") is not None else ""
+        kind = "route" if res.method == "best" else "start"
+        print(f"  {mark} {kind} {row['name']:22s} {found}{took}" + (f" ({row['note']})" if row["note"] else ""))
+    ref = d.get("reference")
+    if ref:
+        found = (f"LMI gamma {fmt(ref['lmi_gamma'])} without a gain bound, its gains certified gamma "
+                 f"{fmt(ref['gamma_certified'])}" + (f" ({ref['reason']})" if ref["reason"] else "")
+                 + (f", max gain norm {ref['max_gain_norm']:.4g}" if ref.get("max_gain_norm") else ""))
+        print(f"  reference: {ref['name']}: {found}")
     if res.diagnosis:
         print(f"  diagnosis: {res.diagnosis['reason']}")
         if "descent" in res.diagnosis:
@@ -53,12 +61,11 @@ def _cmd_synthesize(args: argparse.Namespace) -> int:
     from ..model.files import load_system, write_atomic
     from ..synthesis.state_feedback import synthesize
 
-    of_methods = ("auto", "ccl", "observer", "vk", "descent")
+    of_methods = ("auto", "ccl", "observer", "vk", "descent", "hinf")
     if args.output_feedback and args.method not in (None, *of_methods):
         raise bad(f"--method {args.method}: with --output-feedback choose one of {list(of_methods)}")
-    if not args.output_feedback and args.method in (None, *of_methods):
-        raise bad(f"--method {args.method}: needs --output-feedback" if args.method else
-                   "--method: required for state feedback (two-step, iterative, full-info, common)")
+    if not args.output_feedback and args.method in of_methods:
+        raise bad(f"--method {args.method}: needs --output-feedback")
     if args.order is not None and not args.output_feedback:
         raise bad(f"--order {args.order}: needs --output-feedback")
     if args.order is not None and args.order < 0:
@@ -72,7 +79,7 @@ def _cmd_synthesize(args: argparse.Namespace) -> int:
 
             return synthesize_output_feedback(system, method=args.method or "auto", gamma=args.gamma, k_max=k_max,
                                               solver=args.solver, order=args.order, seed=args.seed)
-        return synthesize(system, method=args.method, gamma=args.gamma, k_max=k_max, solver=args.solver)
+        return synthesize(system, method=args.method or "best", gamma=args.gamma, k_max=k_max, solver=args.solver)
 
     def controller_of(res: Any) -> Controller:
         return res.controller if args.output_feedback else Controller.state_feedback(
@@ -80,8 +87,9 @@ def _cmd_synthesize(args: argparse.Namespace) -> int:
 
     if args.output_feedback:
         n = system.dims[0]
-        if args.order is not None and args.order != n and args.method not in (None, "auto", "descent"):
-            raise bad(f"--order {args.order}: method {args.method} designs order n = {n} only; use --method descent")
+        if args.order is not None and args.order != n and args.method not in (None, "auto", "descent", "hinf"):
+            raise bad(f"--order {args.order}: method {args.method} designs order n = {n} only; use --method descent "
+                      "or hinf")
     at_period = None
     if args.period is not None:  # the loop that runs: proved stable at the period, or nothing written
         from ..synthesis.at_period import synthesize_at_period
@@ -124,11 +132,14 @@ def add_synthesis_command(sub: Any) -> None:
     level = y.add_mutually_exclusive_group()
     level.add_argument("--gamma", type=positive, help="attenuation level to achieve (feasibility)")
     level.add_argument("--minimize", action="store_true", help="make gamma as small as possible (default)")
-    y.add_argument("--method", default=None, choices=["two-step", "iterative", "full-info", "common",
-                                                       "auto", "ccl", "observer", "vk", "descent"],
-                   help="state feedback: two-step, iterative, full-info, common (required); with "
+    y.add_argument("--method", default=None, choices=["best", "two-step", "iterative", "full-info", "common",
+                                                       "common-fdi", "dilated", "auto", "ccl", "observer", "vk",
+                                                       "descent", "hinf"],
+                   help="state feedback: best (default: every route, the best certified), two-step, iterative, "
+                        "full-info, common, common-fdi, dilated; with "
                         "--output-feedback: auto (default: every route, the best certified), ccl, observer, vk, "
-                        "descent (nonsmooth descent on the exact stability test, any order)")
+                        "descent (nonsmooth descent on the exact stability test, any order), hinf (BFGS on the "
+                        "bounded-real gamma from a stabilising controller, any order)")
     y.add_argument("--output-feedback", action="store_true",
                    help="a dynamic controller per FDI mode reading y_m = Cy x (Theorem 5.1)")
     y.add_argument("--order", type=int, default=None,

@@ -2,8 +2,10 @@
 
 :mod:`.results` (the result every method returns and the log of its solver calls),
 :mod:`.state_feedback` (``u = K_l x``), :mod:`.starts` (the starts of its iterative
-method and the diagnosis when nothing is certified), :mod:`.output_feedback` (dynamic
-controllers on ``y_m = Cy x``: CCL of Theorem 5.1, observer baseline, V-K iteration).
+method and the diagnosis when nothing is certified), :mod:`.convex_designs` (the dilated
+design and the true-mode reference), :mod:`.output_feedback` (dynamic controllers on
+``y_m = Cy x``: CCL of Theorem 5.1, observer baseline, V-K iteration), :mod:`.descent`
+(the abscissa descent) and :mod:`.hinf_descent` (BFGS on the bounded-real gamma).
 """
 
 from __future__ import annotations

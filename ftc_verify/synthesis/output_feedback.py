@@ -38,6 +38,13 @@ Methods:
     certified robust gamma with the controller fixed (the V-step, giving ``P`` and the
     multipliers) and the controller step with them fixed (the K-step); every iterate is
     certified and the best kept (:func:`~ftc_verify.synthesis.state_feedback.descend`).
+``hinf`` (beyond the paper; any order)
+    Nonsmooth BFGS on the certified quantity itself, the bounded-real level of the loop
+    over the rate box (:mod:`ftc_verify.synthesis.hinf_descent`), from the certified
+    controllers of the other routes (alone: from the ``descent`` route's, the route to a
+    first stabilising controller); its answer certified by the core. ``auto`` runs it last,
+    and runs the ``descent`` before it only when no LMI route certified a controller
+    within the gain bound (the observer route bounds only its state-feedback gains).
 """
 
 from __future__ import annotations
@@ -56,6 +63,7 @@ from ..controllers.controller import Controller
 from ..errors import SolverError, ValidationError
 from ..model.system import FTCSystem, Matrix, Mode
 from .descent import accepted_gamma, descent_route
+from .hinf_descent import hinf_route, within_bound
 from .starts import certify_start, lqr_gain
 from .results import SolverCalls, SynthesisResult, verify_controller
 from .state_feedback import descend, gain_step, synthesize
@@ -63,7 +71,7 @@ from .state_feedback import descend, gain_step, synthesize
 __all__ = ["OF_METHODS", "augmented_system", "controller_from_blocks", "controller_blocks", "observer_designs",
            "ccl_constraints", "ccl", "synthesize_output_feedback", "CCL_MAX_ITER", "CCL_TOL"]
 
-OF_METHODS = ("ccl", "observer", "vk", "descent")
+OF_METHODS = ("ccl", "observer", "vk", "descent", "hinf")
 #: Iteration limit of the cone complementarity linearisation.
 CCL_MAX_ITER = 30
 #: CCL stops when ``sum(trace(P X)) - n_total + sum(lam eps - 1)`` is below this times
@@ -382,7 +390,7 @@ class _Outcome:
 
     @property
     def gamma(self) -> float | None:
-        return accepted_gamma(self.report, self.route == "descent")
+        return accepted_gamma(self.report, self.route in ("descent", "hinf"))
 
     @property
     def rank(self) -> tuple[int, float]:
@@ -410,8 +418,9 @@ def synthesize_output_feedback(
     level CCL works at, and for every method a requirement on the certified gamma.
     ``order``: the controller order (default ``n``; other orders only by ``descent``, 0 is
     static output feedback). ``method="auto"`` runs every route (observer, V-K, CCL at full
-    order, and the descent) and keeps the best certified controller, each route's outcome
-    in ``starts``. A controller counts as certified when the core proves it stable and
+    order, the descent when none of them certified one within ``k_max``, then ``hinf`` from the
+    certified ones) and
+    keeps the best certified controller, each route's outcome in ``starts``. A controller counts as certified when the core proves it stable and
     certifies Lemma 4.1's robust gamma -- or, for the descent, Theorem 3.2's nominal gamma
     when Lemma 4.1 finds no certificate (the result says which)."""
     from ..analysis.solvers import choose_solver
@@ -427,8 +436,8 @@ def synthesize_output_feedback(
     order = n0 if order is None else order
     if not isinstance(order, int) or order < 0:
         raise ValidationError(f"order: must be a whole number >= 0, got {order!r}")
-    if order != n0 and method not in ("descent", "auto"):
-        raise ValidationError(f"order: {order} needs the descent (method descent or auto); {method} designs order "
+    if order != n0 and method not in ("descent", "hinf", "auto"):
+        raise ValidationError(f"order: {order} needs the descent (method descent, hinf or auto); {method} designs order "
                               f"n = {n0} only")
     t0 = time.perf_counter()
     n = n0 + order
@@ -436,17 +445,8 @@ def synthesize_output_feedback(
     calls = SolverCalls(name)
     full = order == n0
     rows = _observer_rows(system, k_max, name, calls) if full else []
-    routes = [r for r in (("observer", "vk", "ccl") if full else ()) if method in (r, "auto")]
-    if method in ("descent", "auto"):
-        routes.append("descent")
-    outcomes: list[_Outcome] = []
-    descent_rows: list[dict[str, Any]] = []
-    for route in routes:
-        if route == "descent":
-            ctrl, report, history, msg, descent_rows = descent_route(system, order, rows, k_max, name, calls, seed)
-            outcomes.append(_Outcome(route, ctrl, report, history[-1] if history else None, history, [], msg))
-        else:
-            outcomes.append(_Outcome(route, *_run_route(route, system, rows, gamma, k_max, name, calls, max_iter, tol)))
+    outcomes, descent_rows, took = _routes(system, method, order, rows, gamma, k_max, name, calls, max_iter, tol,
+                                           seed)
     if gamma is not None:  # --gamma is a requirement for every method
         outcomes = [o if o.gamma is None or o.gamma <= gamma * (1 + 1e-9) else
                     _Outcome(o.route, None, None, o.synthesis_gamma, o.history, o.ccl_history,
@@ -467,18 +467,54 @@ def synthesize_output_feedback(
         if scan is not None:
             diagnosis = diagnosis | {"descent": {k: v for k, v in scan.items() if k != "name"}}
         msg = f"{msg}; {diagnosis['message']}"
-    public = tuple({k: r.get(k) for k in ("name", "gamma_certified", "spectral_abscissa", "note", "reason")}
+    public = tuple({k: r.get(k) for k in ("name", "gamma_certified", "spectral_abscissa", "note", "reason", "seconds")}
                    for r in rows + descent_rows if r["name"] != "descent gain scan")
     if method == "auto":
         public += tuple({"name": f"route {o.route}", "gamma_certified": o.gamma,
                          "spectral_abscissa": None if o.report is None else o.report.mss.spectral_abscissa,
-                         "note": "", "reason": "" if o.gamma is not None else o.message} for o in outcomes)
+                         "note": "", "reason": "" if o.gamma is not None else o.message,
+                         "seconds": took.get(o.route)} for o in outcomes)
     blocks = [] if ctrl is None else controller_blocks(ctrl)
     return SynthesisResult(chosen.route if method == "auto" else method, ctrl is not None, tuple(blocks),
                            chosen.synthesis_gamma, name, calls.seconds, time.perf_counter() - t0, calls.count, report,
                            msg, k_max, tuple(chosen.history), (_best_row(rows) or {}).get("name"), public, diagnosis, ctrl,
-                           tuple(chosen.ccl_history), nominal_accepted=chosen.route == "descent",
+                           tuple(chosen.ccl_history), nominal_accepted=chosen.route in ("descent", "hinf"),
                            iterations=len(chosen.ccl_history) if chosen.route == "ccl" else None)
+
+
+def _routes(system: FTCSystem, method: str, order: int, rows: list[dict[str, Any]], gamma: float | None,
+            k_max: float | None, name: str, calls: SolverCalls, max_iter: int, tol: float, seed: int,
+            ) -> tuple[list[_Outcome], list[dict[str, Any]], dict[str, float]]:
+    """Run the routes of ``method`` in order (the LMI routes at full order, the descent,
+    then ``hinf`` from the certified ones; module docstring): their outcomes, the rows of
+    the descent and ``hinf``, and each route's seconds."""
+    full = order == system.dims[0]
+    routes = [r for r in (("observer", "vk", "ccl") if full else ()) if method in (r, "auto")]
+    if method in ("descent", "hinf", "auto"):
+        routes.append("descent")
+    outcomes: list[_Outcome] = []
+    descent_rows: list[dict[str, Any]] = []
+    took: dict[str, float] = {}
+    for route in routes:
+        t_route = time.perf_counter()
+        if route == "descent" and method == "auto" and any(
+                o.gamma is not None and o.controller is not None and within_bound(o.controller, k_max) for o in outcomes):
+            continue  # an LMI route certified a start for hinf: the descent is the route to a first stabilising one
+        if route == "descent":
+            ctrl, report, history, msg, descent_rows = descent_route(system, order, rows, k_max, name, calls, seed)
+            outcomes.append(_Outcome(route, ctrl, report, history[-1] if history else None, history, [], msg))
+        else:
+            outcomes.append(_Outcome(route, *_run_route(route, system, rows, gamma, k_max, name, calls, max_iter, tol)))
+        took[route] = time.perf_counter() - t_route
+    if method in ("hinf", "auto"):
+        t_route = time.perf_counter()
+        ranked = [(o.route, o.controller) for o in sorted(outcomes, key=lambda o: o.rank)
+                  if o.gamma is not None and o.controller is not None]
+        ctrl, report, history, msg, hinf_rows = hinf_route(system, order, ranked, calls, name, k_max=k_max, seed=seed)
+        outcomes.append(_Outcome("hinf", ctrl, report, history[-1] if history else None, history, [], msg))
+        descent_rows += hinf_rows
+        took["hinf"] = time.perf_counter() - t_route
+    return outcomes, descent_rows, took
 
 
 def _best_row(rows: list[dict[str, Any]]) -> dict[str, Any] | None:

@@ -60,6 +60,11 @@ class SynthesisResult:
     iterations : int or None
         The iterations of the method when it counts them itself (CCL: its points); ``None``
         counts one per accepted iterate after the start, ``len(history) - 1``.
+    reference : dict or None
+        The ``best`` method's reference line: the gamma of the classical mode-dependent
+        design whose gains see the true mode (``lmi_gamma``, no gain bound) and the core's
+        certified robust gamma of those gains on the joint chain (``gamma_certified``);
+        a reference, not a bound (:mod:`~ftc_verify.synthesis.convex_designs`).
     """
 
     method: str
@@ -81,6 +86,7 @@ class SynthesisResult:
     ccl_history: tuple[float, ...] = ()
     nominal_accepted: bool = False
     iterations: int | None = None
+    reference: dict[str, Any] | None = None
 
     @property
     def controller(self) -> Controller | None:
@@ -140,6 +146,7 @@ class SynthesisResult:
             "start": self.start,
             "starts": list(self.starts),
             "diagnosis": self.diagnosis,
+            "reference": self.reference,
             "message": self.message,
             "analysis": None if rep is None else rep.to_dict(),
         })

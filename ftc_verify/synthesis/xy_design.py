@@ -48,10 +48,16 @@ def _variable_groups(system: FTCSystem, kind: str) -> list[int]:
     all (``common``); one per pair ``(true, fdi)``, index ``true * m + fdi``, shared by the
     pair's detection phases (``full-info``: the gain :math:`K = Y X^{-1}` of a pair is then
     one matrix, as a full-information controller needs); one per state (``projected``:
-    step 2 takes :math:`P_s = X_s^{-1}` per state)."""
+    step 2 takes :math:`P_s = X_s^{-1}` per state); one per FDI mode (``common-fdi``:
+    :math:`X_{(i, j)} = X_j`, :math:`Y_j = K_j X_j`, so :math:`K_j = Y_j X_j^{-1}` is an
+    FDI-mode gain exactly; the coupling between states of one FDI mode becomes
+    :math:`q_{ss'} X_j X_j^{-1} X_j = q_{ss'} X_j`, still written by :func:`xy_block`'s
+    Schur column)."""
     chain = system.chain
     if kind == "common":
         return [0] * chain.n_states
+    if kind == "common-fdi":
+        return [j for _, j in chain.joint_modes]
     if kind == "full-info":
         return [i * system.m + j for i, j in chain.joint_modes]
     return list(range(chain.n_states))
@@ -74,7 +80,7 @@ def xy_solve(system: FTCSystem, kind: str, gamma: float | None, calls: Any, k_ma
 
     ``kind``: ``"projected"`` (step 1 of Theorem 4.1, no ``Y``; one ``X`` per joint
     state), ``"full-info"`` (one ``X, Y`` per pair ``(true, fdi)``, shared by its phases:
-    ``_variable_groups``) or ``"common"`` (one ``X, Y``, no coupling). The blocks are
+    ``_variable_groups``), ``"common-fdi"`` (one ``X, Y`` per FDI mode) or ``"common"`` (one ``X, Y``). The blocks are
     one per joint state and vertex of its row's rates (:func:`~ftc_verify.analysis.lmi.block_specs`); ``X``,
     ``Y`` and the multipliers are returned per joint state. With ``gamma``
     given the margin ``t`` is maximised at ``g = gamma**2``; with ``gamma=None`` gamma is
