@@ -9,8 +9,11 @@ full disk or without permission, and the unclear messages of item 5.
 from __future__ import annotations
 
 import errno
+import importlib
+import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import control
@@ -65,3 +68,93 @@ def test_good_deltas_still_perturb() -> None:
     ch = loop.channels[0][0]
     assert ch.name == "Delta1 (A)"
     assert np.array_equal(got[0], loop.A[0] + ch.E @ ch.F)
+
+
+# ------------------------------------------------------------------ items 2 and 3: sizes, seeds, the disk
+
+def _cli(args: list[str], tmp_path: Path, env: dict[str, str] | None = None,
+         timeout: float = 120) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "ftc_verify", *args], capture_output=True, text=True,
+                          timeout=timeout, cwd=tmp_path, env=os.environ | (env or {}))
+
+
+@pytest.mark.parametrize("order, limit", [("200", None), ("1000", None), ("100000000000", None), ("20", "50M")])
+def test_descent_order_is_refused_up_front_against_the_memory_limit(tmp_path: Path, order: str,
+                                                                    limit: str | None) -> None:
+    env = {} if limit is None else {"FTC_VERIFY_MEMORY_LIMIT": limit}
+    t0 = time.monotonic()
+    res = _cli(["synthesize", str(EXAMPLES / "paper.toml"), "--output-feedback", "--method", "descent",
+                "--order", order, "-o", "c.toml"], tmp_path, env)
+    assert res.returncode == 2, res.stderr
+    assert time.monotonic() - t0 < 60  # refused before any work (the run itself took 195 s and 23.8 GB)
+    line = res.stderr.strip()
+    assert "\n" not in line and "Traceback" not in line
+    assert f"--order {order}:" in line and "above the limit of" in line
+    assert ("FTC_VERIFY_MEMORY_LIMIT)" if limit else "80 % of available memory") in line
+    assert not (tmp_path / "c.toml").exists()
+
+
+def test_api_order_is_refused_against_the_memory_limit(monkeypatch: pytest.MonkeyPatch) -> None:
+    from ftc_verify.errors import MemoryLimitError
+    from ftc_verify.synthesis.output_feedback import synthesize_output_feedback
+
+    monkeypatch.setenv("FTC_VERIFY_MEMORY_LIMIT", "50M")
+    with pytest.raises(MemoryLimitError, match=r"order 20: .* above the limit of 50 MB"):
+        synthesize_output_feedback(load_system(EXAMPLES / "paper.toml"), method="descent", order=20)
+
+
+@pytest.mark.parametrize("option, value, says", [("--seed", "-1", "seeds are non-negative, got '-1'"),
+                                                 ("--order", "-1", "must be 0 or more, got '-1'"),
+                                                 ("--order", "x", "not an integer: 'x'")])
+def test_bad_synthesize_options_exit_2_naming_the_option(tmp_path: Path, option: str, value: str,
+                                                         says: str) -> None:
+    res = _cli(["synthesize", str(EXAMPLES / "paper.toml"), "--output-feedback", "--method", "descent",
+                option, value, "-o", "c.toml"], tmp_path)
+    assert res.returncode == 2
+    assert f"argument {option}: {says}" in res.stderr and "internal error" not in res.stderr
+
+
+@pytest.mark.parametrize("code", [errno.ENOSPC, errno.EACCES, errno.EDQUOT])
+def test_output_refused_by_the_environment_exits_2_with_the_path(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                                  capsys: pytest.CaptureFixture[str],
+                                                                  code: int) -> None:
+    """A full disk (or a permission lost after the checks) while ``-o`` is written: exit 2
+    naming the path and the OS error (it was exit 4, an internal error), nothing left."""
+    from ftc_verify.cli.main import main
+
+    monkeypatch.chdir(tmp_path)
+    real_replace = os.replace
+
+    def full(src: str, dst: str) -> None:
+        if str(dst).endswith("c.toml"):
+            raise OSError(code, os.strerror(code))
+        real_replace(src, dst)
+
+    monkeypatch.setattr(os, "replace", full)
+    rc = main(["synthesize", str(EXAMPLES / "paper.toml"), "--method", "two-step", "-o", "c.toml"])
+    err = capsys.readouterr().err
+    assert rc == 2, err
+    assert f"c.toml: cannot write: {os.strerror(code)} ({errno.errorcode[code]})" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == []  # no output, no temporary file
+
+
+def test_environment_oserror_anywhere_is_exit_2_not_internal(monkeypatch: pytest.MonkeyPatch,
+                                                              capsys: pytest.CaptureFixture[str]) -> None:
+    """An OS error of the environment raised outside the atomic writer (a plot, a report
+    folder): exit 2 with the file and the error; any other OSError stays an internal error."""
+    cli_main = importlib.import_module("ftc_verify.cli.main")
+
+    for exc, want in ((OSError(errno.ENOSPC, "No space left on device", "out/report.md"), 2),
+                      (OSError(errno.EBADF, "Bad file descriptor"), 4)):
+        def boom(args: object, exc: OSError = exc) -> int:
+            raise exc
+        parser = cli_main.build_parser()
+        monkeypatch.setattr(cli_main, "build_parser", lambda parser=parser: parser)
+        parser._subparsers._group_actions[0].choices["analyze"].set_defaults(func=boom)  # type: ignore[union-attr]
+        rc = cli_main.main(["analyze", str(EXAMPLES / "paper.toml"), "--gains", str(EXAMPLES / "paper_gains.toml")])
+        err = capsys.readouterr().err
+        assert rc == want, err
+        if want == 2:
+            assert "out/report.md: No space left on device (ENOSPC" in err
+        else:
+            assert "internal error" in err

@@ -20,6 +20,7 @@ Every command checks its output paths and options before any work starts.
 from __future__ import annotations
 
 import argparse
+import errno
 import os
 import signal
 import sys
@@ -36,6 +37,12 @@ from .common import (EXIT_BAD_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_NEGAT
                      EXIT_TERMINATED, EXIT_UNCERTIFIED, EXIT_UNDECIDED, fmt, load)
 
 __all__ = ["main", "build_parser"]
+
+
+#: OS errors that are the environment's, not a bug (exit 2 with the path and the error,
+#: :doc:`/reference/exit-codes`): a full disk, a quota, a permission lost or refused, a
+#: read-only file system.
+_ENVIRONMENT_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EACCES, errno.EPERM, errno.EROFS, errno.EFBIG})
 
 
 class _Terminated(BaseException):
@@ -229,12 +236,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     except _Terminated:
         print("ftc-verify: terminated", file=sys.stderr)
         return EXIT_TERMINATED
+    except OSError as exc:
+        if exc.errno not in _ENVIRONMENT_ERRNOS:
+            return _internal(exc)
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"ftc-verify: error: {where}{exc.strerror or exc} ({errno.errorcode.get(exc.errno, 'OSError')}; "
+              "the environment refused an output: nothing was written)", file=sys.stderr)
+        return EXIT_BAD_INPUT
     except MemoryError:
         print("ftc-verify: error: out of memory (the problem is too large for this machine)", file=sys.stderr)
         return EXIT_BAD_INPUT
     except Exception as exc:  # a bug: one line, never a traceback, never exit 0 or 1
-        print(f"ftc-verify: internal error: {type(exc).__name__}: {exc} (please report)", file=sys.stderr)
-        return EXIT_INTERNAL
+        return _internal(exc)
+
+
+def _internal(exc: BaseException) -> int:
+    print(f"ftc-verify: internal error: {type(exc).__name__}: {exc} (please report)", file=sys.stderr)
+    return EXIT_INTERNAL
 
 
 if __name__ == "__main__":  # pragma: no cover

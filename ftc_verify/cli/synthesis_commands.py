@@ -9,7 +9,7 @@ import argparse
 from typing import Any
 
 from ..jsonable import dumps
-from .common import EXIT_NEGATIVE, EXIT_OK, bad, check_output_file, fmt, positive
+from .common import EXIT_NEGATIVE, EXIT_OK, bad, check_output_file, fmt, nonneg_int, positive, seed_int
 
 __all__ = ["add_synthesis_command"]
 
@@ -59,8 +59,6 @@ def _cmd_synthesize(args: argparse.Namespace) -> int:
                    "--method: required for state feedback (two-step, iterative, full-info, common)")
     if args.order is not None and not args.output_feedback:
         raise bad(f"--order {args.order}: needs --output-feedback")
-    if args.order is not None and args.order < 0:
-        raise bad(f"--order {args.order}: must be >= 0 (0 is static output feedback)")
     check_output_file(args.output, "-o/--output", inputs=(args.system,))
     system = load_system(args.system)
     if args.output_feedback:
@@ -69,6 +67,7 @@ def _cmd_synthesize(args: argparse.Namespace) -> int:
         n = system.dims[0]
         if args.order is not None and args.order != n and args.method not in (None, "auto", "descent"):
             raise bad(f"--order {args.order}: method {args.method} designs order n = {n} only; use --method descent")
+        _check_order_memory(system, n if args.order is None else args.order, args.order is None)
         res = synthesize_output_feedback(system, method=args.method or "auto", gamma=args.gamma, k_max=args.k_max,
                                          solver=args.solver, order=args.order, seed=args.seed)
     else:
@@ -88,6 +87,21 @@ def _cmd_synthesize(args: argparse.Namespace) -> int:
 
 
 
+def _check_order_memory(system: Any, order: int, default: bool) -> None:
+    """Refuse, before any work, an output-feedback problem whose dense second-moment
+    generator (the descent's objective and the exact spectral test of every candidate,
+    on the loop of order ``n + order``) would not fit under the memory limit
+    (:func:`ftc_verify.limits.dense_generator_estimate`)."""
+    from ..limits import check_memory, dense_generator_estimate
+
+    n_loop = system.dims[0] + order
+    option = f"--order {order}" + (" (the default, n)" if default else "")
+    check_memory(dense_generator_estimate(n_loop, system.chain.n_states),
+                 f"{option}: the second-moment generator of the closed loop of order {n_loop} on "
+                 f"{system.chain.n_states} joint states",
+                 hint="choose a smaller --order")
+
+
 def add_synthesis_command(sub: Any) -> None:
     """Register ``synthesize`` on the subparsers ``sub``."""
     y = sub.add_parser("synthesize", help="synthesize a controller (state or output feedback) and certify it")
@@ -102,10 +116,10 @@ def add_synthesis_command(sub: Any) -> None:
                         "descent (nonsmooth descent on the exact stability test, any order)")
     y.add_argument("--output-feedback", action="store_true",
                    help="a dynamic controller per FDI mode reading y_m = Cy x (Theorem 5.1)")
-    y.add_argument("--order", type=int, default=None,
+    y.add_argument("--order", type=nonneg_int, default=None,
                    help="output feedback: controller order (default n; 0 = static output feedback u = Dc y_m; "
                         "orders below n only by the descent)")
-    y.add_argument("--seed", type=int, default=0, help="seed of the descent's random starts (default 0)")
+    y.add_argument("--seed", type=seed_int, default=0, help="seed of the descent's random starts (default 0)")
     y.add_argument("--k-max", type=positive, default=None,
                    help="bound on the spectral norm of every gain (output feedback: of every controller block)")
     y.add_argument("-o", "--output", required=True, help="controller TOML file to write (only when certified; not the system file)")
