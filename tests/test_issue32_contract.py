@@ -158,3 +158,71 @@ def test_environment_oserror_anywhere_is_exit_2_not_internal(monkeypatch: pytest
             assert "out/report.md: No space left on device (ENOSPC" in err
         else:
             assert "internal error" in err
+
+
+# ------------------------------------------------------------------ items 2 and 4: signals do not wait for native code
+
+def _children(pid: int) -> set[int]:
+    out = set()
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            out.add(int(stat.parent.name))
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="reads /proc for the child processes")
+def test_sigterm_stops_a_descent_inside_lapack_at_once(tmp_path: Path) -> None:
+    """``--order 30``: every objective evaluation is a dense eigenproblem of 2112 rows that
+    holds the interpreter for seconds (scipy's LAPACK binding keeps the GIL). SIGTERM 6 s
+    in: exit 143 within 3 s, the ``terminated`` line, no controller file, no process left."""
+    proc = subprocess.Popen([sys.executable, "-m", "ftc_verify", "synthesize", str(EXAMPLES / "paper.toml"),
+                             "--output-feedback", "--method", "descent", "--order", "30", "-o", "c.toml"],
+                            cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(6)
+    children = _children(proc.pid)
+    assert children, "the synthesis runs in a child process"
+    t0 = time.monotonic()
+    proc.terminate()
+    _, err = proc.communicate(timeout=30)
+    assert time.monotonic() - t0 < 3, err
+    assert proc.returncode == 143 and err.strip().endswith("ftc-verify: terminated"), err
+    assert not (tmp_path / "c.toml").exists()
+    time.sleep(0.5)
+    assert not any(_alive(c) for c in children)
+
+
+def test_interruptible_raises_the_childs_error_and_returns_its_value() -> None:
+    from ftc_verify.analysis.solvers import interruptible
+
+    assert interruptible(lambda: {"x": np.arange(3)}, "a sum")["x"].tolist() == [0, 1, 2]
+    with pytest.raises(ValidationError, match="from the child"):
+        interruptible(lambda: (_ for _ in ()).throw(ValidationError("from the child")), "a failure")
+
+
+def test_a_loop_proved_unstable_gets_no_lmi_solve(monkeypatch: pytest.MonkeyPatch) -> None:
+    analyze_module = importlib.import_module("ftc_verify.analysis.analyze")
+    from ftc_verify.controllers import Controller
+
+    def no_solve(*args: object, **kwargs: object) -> None:
+        raise AssertionError("an LMI was solved for a loop proved unstable")
+
+    monkeypatch.setattr(analyze_module, "mes_lmi", no_solve)
+    monkeypatch.setattr(analyze_module, "hinf_gamma", no_solve)
+    system = load_system(EXAMPLES / "paper.toml")
+    loop = closed_loop(system, Controller.state_feedback([np.zeros((2, 2))] * 2))
+    rep = analyze_module.analyze(loop, cross_validation=False)
+    assert rep.mss.unstable
+    assert {r.outcome for r in (rep.mes_lmi, rep.nominal, rep.robust)} == {"skipped"}
+    assert "proved NOT mean-square stable" in rep.mes_lmi.message

@@ -111,8 +111,12 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
     from ..analysis.analyze import analyze
     from ..analysis.closedloop import closed_loop
 
+    from ..analysis.solvers import interruptible
+
     system, controller = load(args.system, args.controller)
-    rep = analyze(closed_loop(system, controller), solver=args.solver, name=system.name, lmi=not args.no_lmi)
+    loop = closed_loop(system, controller)
+    rep = interruptible(lambda: analyze(loop, solver=args.solver, name=system.name, lmi=not args.no_lmi),
+                        "the analysis")
     if args.json:
         print(dumps(rep.to_dict() | {"lmi_requested": not args.no_lmi, "fdi_model": system.chain.describe()}))
     else:

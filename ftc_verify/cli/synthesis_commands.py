@@ -48,6 +48,7 @@ def _print_synthesis(res: Any) -> None:
 def _cmd_synthesize(args: argparse.Namespace) -> int:
     from ..controllers.controller import Controller
     from ..controllers.files import dump_controller
+    from ..analysis.solvers import interruptible
     from ..model.files import load_system, write_atomic
     from ..synthesis.state_feedback import synthesize
 
@@ -68,10 +69,12 @@ def _cmd_synthesize(args: argparse.Namespace) -> int:
         if args.order is not None and args.order != n and args.method not in (None, "auto", "descent"):
             raise bad(f"--order {args.order}: method {args.method} designs order n = {n} only; use --method descent")
         _check_order_memory(system, n if args.order is None else args.order, args.order is None)
-        res = synthesize_output_feedback(system, method=args.method or "auto", gamma=args.gamma, k_max=args.k_max,
-                                         solver=args.solver, order=args.order, seed=args.seed)
+        res = interruptible(lambda: synthesize_output_feedback(
+            system, method=args.method or "auto", gamma=args.gamma, k_max=args.k_max, solver=args.solver,
+            order=args.order, seed=args.seed), "the output-feedback synthesis")
     else:
-        res = synthesize(system, method=args.method, gamma=args.gamma, k_max=args.k_max, solver=args.solver)
+        res = interruptible(lambda: synthesize(system, method=args.method, gamma=args.gamma, k_max=args.k_max,
+                                               solver=args.solver), "the synthesis")
     if res.certified and res.controller is not None:
         named = res.controller if args.output_feedback else Controller.state_feedback(
             res.gains, name=f"{system.name} {res.method}")
