@@ -226,3 +226,118 @@ def test_a_loop_proved_unstable_gets_no_lmi_solve(monkeypatch: pytest.MonkeyPatc
     assert rep.mss.unstable
     assert {r.outcome for r in (rep.mes_lmi, rep.nominal, rep.robust)} == {"skipped"}
     assert "proved NOT mean-square stable" in rep.mes_lmi.message
+
+
+# ------------------------------------------------------------------ item 5: unclear or inconsistent
+
+def test_signals_that_are_not_labels_are_refused_naming_the_argument() -> None:
+    paper = load_system(EXAMPLES / "paper.toml")
+    modes = [control.ss(md.A, np.hstack([md.B, md.D]), md.C, 0, inputs=["u[0]", "u[1]", "w"], outputs=["y"])
+             for md in paper.modes]
+    with pytest.raises(ValidationError, match=r"disturbances: expected input labels or 0-based indices .* got 2\.0"):
+        FTCSystem.from_statespace(modes=modes, chain=paper.chain, inputs="u", disturbances=2.0, performance="y")
+
+
+@pytest.mark.parametrize("beta, says", [("x", "beta: not an array of rates"), ([[0, -1], [1, 0]], "beta: rates must"),
+                                        ([[0, np.nan], [1, 0]], "beta: rates must be finite")])
+def test_simulation_spec_beta_is_checked_naming_the_field(beta: object, says: str) -> None:
+    from ftc_verify.simulation.spec import SimulationSpec
+
+    with pytest.raises(ValidationError, match=says):
+        SimulationSpec(beta=beta)  # type: ignore[arg-type]
+
+
+def test_sample_paths_ranges_and_chains_are_named() -> None:
+    from ftc_verify.simulation.paths import sample_paths
+    from ftc_verify.simulation.spec import SimulationSpec
+
+    system = load_system(EXAMPLES / "paper.toml")
+    spec = SimulationSpec(seed=1, n_paths=6)
+    with pytest.raises(ValidationError, match=r"first, stop: path range 5 \.\. 2 - 1 is empty"):
+        spec.sample_paths(system.chain, 5, 2)
+    with pytest.raises(ValidationError, match=r"chain: expected a JointChain, got FTCSystem \(a system's chain"):
+        spec.sample_paths(system)  # type: ignore[arg-type]
+    with pytest.raises(ValidationError, match=r"chain: expected a JointChain, got FTCSystem"):
+        sample_paths(system, 5.0, 2, 0)  # type: ignore[arg-type]
+    assert len(spec.sample_paths(system.chain, 4)) == 2
+
+
+@pytest.mark.parametrize("key", ["beta_min", "false_alarm_min"])
+def test_negative_diagonal_rates_are_refused(key: str) -> None:
+    from ftc_verify.model.system import JointChain
+
+    rates = {"beta_min": [[0.0, 2.0], [2.5, 0.0]], "beta_max": [[0.0, 3.0], [3.5, 0.0]],
+             "false_alarm_min": [[0.0, 0.1], [0.1, 0.0]], "false_alarm_max": [[0.0, 0.2], [0.2, 0.0]]}
+    rates[key] = [[-2.0, rates[key][0][1]], [rates[key][1][0], 0.0]]
+    with pytest.raises(ValidationError, match=rf"chain\.{key}\[1\]\[1\]: rates must be >= 0, got -2\.0 .*not a generator"):
+        JointChain([[-0.5, 0.5], [1.0, -1.0]], **rates)  # type: ignore[arg-type]
+
+
+def test_empty_output_name_is_not_called_a_folder(tmp_path: Path) -> None:
+    res = _cli(["synthesize", str(EXAMPLES / "paper.toml"), "--method", "two-step", "-o", ""], tmp_path)
+    assert res.returncode == 2 and "-o/--output '': empty file name" in res.stderr
+    res = _cli(["verify", str(EXAMPLES / "paper.toml"), "--gains", str(EXAMPLES / "paper_gains.toml"),
+                "--out", ""], tmp_path)
+    assert res.returncode == 2 and "--out '': empty folder name" in res.stderr, res.stderr
+
+
+# ------------------------------------------------------------------ item 6: strategies for the FDI models
+
+def test_strategies_draw_the_fdi_models_and_refuse_bad_arguments() -> None:
+    from hypothesis import given, settings
+    from hypothesis.errors import InvalidArgument
+
+    from ftc_verify.testing import chains, systems
+
+    seen: set[tuple[int, bool, bool]] = set()
+
+    @settings(max_examples=40, deadline=None, derandomize=True)
+    @given(chains(m=2, delay_phases=(1, 3), false_alarms=None, missed_detection=None))
+    def draw(chain: object) -> None:
+        off = ~np.eye(2, dtype=bool)
+        seen.add((chain.delay_phases, chain.has_false_alarms,  # type: ignore[attr-defined]
+                  bool(np.any(chain.beta_min[off] == 0))))  # type: ignore[attr-defined]
+
+    draw()
+    assert {k for k, _, _ in seen} == {1, 2, 3}
+    assert {fa for _, fa, _ in seen} == {True, False} and {md for _, _, md in seen} == {True, False}
+
+    @settings(max_examples=3, deadline=None, derandomize=True)
+    @given(systems(n=2, chains={"delay_phases": 4, "false_alarms": True}))
+    def system_keeps_its_chain(system: FTCSystem) -> None:
+        assert system.chain.delay_phases == 4 and system.chain.has_false_alarms
+
+    system_keeps_its_chain()
+    for strategy in (systems(n=0), chains(delay_phases=0), chains(delay_phases=65), chains(false_alarm_max=-1.0)):
+        @settings(max_examples=1, deadline=None)
+        @given(strategy)
+        def bad(value: object) -> None:
+            pass
+
+        with pytest.raises(InvalidArgument):
+            bad()
+
+
+def _md3(version: str, refs: tuple[int, int]) -> bytes:
+    return (f'<fmiModelDescription fmiVersion="{version}" modelName="m" instantiationToken="t"><CoSimulation '
+            'modelIdentifier="m"/><ModelVariables>'
+            f'<Float64 name="x" valueReference="{refs[0]}" causality="output"/>'
+            f'<Float64 name="u" valueReference="{refs[1]}" causality="input" start="0"/>'
+            '</ModelVariables></fmiModelDescription>').encode()
+
+
+@pytest.mark.parametrize("version", ["3.1", "4.0", "2.1", "3"])
+def test_only_fmi_2_0_and_3_0_are_accepted(tmp_path: Path, version: str) -> None:
+    from ftc_verify.errors import FMUError
+    from ftc_verify.plants.fmu_archive import read_model_description
+
+    with pytest.raises(FMUError, match=rf"declares fmiVersion '{version}'; the supervisor needs an FMI 2\.0 or 3\.0"):
+        read_model_description(tmp_path / "m.fmu", _md3(version, (1, 2)), FMUError)
+
+
+def test_a_duplicate_fmi3_value_reference_is_named(tmp_path: Path) -> None:
+    from ftc_verify.errors import FMUError
+    from ftc_verify.plants.fmu_archive import read_model_description
+
+    with pytest.raises(FMUError, match=r"valueReference 6 is used by both 'x' and 'u'"):
+        read_model_description(tmp_path / "m.fmu", _md3("3.0", (6, 6)), FMUError)

@@ -139,7 +139,13 @@ _UNCERTAINTY_KEYS = ("A1", "A2", "B1", "B2")
 def _signals(labels: Sequence[str], wanted: Signal | Sequence[Signal] | None, role: str, kind: str) -> list[int]:
     """0-based indices of the signals ``wanted`` (labels, base names or indices) among
     ``labels`` (mode 1's input or output labels), in the order given."""
-    items = [wanted] if isinstance(wanted, (str, int, np.integer)) else list(wanted or ())
+    if isinstance(wanted, (str, int, np.integer)):
+        items = [wanted]
+    elif wanted is None or (isinstance(wanted, Sequence) and not isinstance(wanted, bytes)):
+        items = list(wanted or ())
+    else:
+        raise ValidationError(f"{role}: expected {kind} labels or 0-based indices (one or a sequence), "
+                              f"got {wanted!r:.80}")
     out: list[int] = []
     for item in items:
         if isinstance(item, (bool, np.bool_)) or not isinstance(item, (str, int, np.integer)):
