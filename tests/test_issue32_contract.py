@@ -341,3 +341,45 @@ def test_a_duplicate_fmi3_value_reference_is_named(tmp_path: Path) -> None:
 
     with pytest.raises(FMUError, match=r"valueReference 6 is used by both 'x' and 'u'"):
         read_model_description(tmp_path / "m.fmu", _md3("3.0", (6, 6)), FMUError)
+
+
+def _big_system(path: Path, m: int, n: int, phases: int) -> Path:
+    """A plant with ``m`` modes, ``n`` states, Erlang-``phases`` delays and zero gains
+    (seeded): its analysis runs for minutes (the dense spectral tests of many vertices)."""
+    import tomli_w
+
+    rng = np.random.default_rng(32)
+    alpha = rng.uniform(0.1, 0.5, (m, m))
+    np.fill_diagonal(alpha, 0.0)
+    np.fill_diagonal(alpha, -alpha.sum(axis=1))
+    bmin = rng.uniform(2.0, 3.0, (m, m))
+    np.fill_diagonal(bmin, 0.0)
+    bmax = bmin + 0.5
+    np.fill_diagonal(bmax, 0.0)
+    modes = [{"A": (0.3 * rng.standard_normal((n, n)) - 2 * np.eye(n)).tolist(), "B": rng.standard_normal((n, 1)).tolist(),
+              "C": rng.standard_normal((1, n)).tolist(), "D": rng.standard_normal((n, 1)).tolist()} for _ in range(m)]
+    doc = {"name": "big", "chain": {"alpha": alpha.tolist(), "beta_min": bmin.tolist(), "beta_max": bmax.tolist(),
+                                    "delay_phases": phases}, "mode": modes}
+    path.write_text(tomli_w.dumps(doc))
+    gains = path.with_name("gains.toml")
+    gains.write_text(tomli_w.dumps({"gain": [{"K": np.zeros((1, n)).tolist()} for _ in range(m)]}))
+    return gains
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="reads /proc for the child processes")
+def test_sigterm_stops_a_long_analysis_at_once(tmp_path: Path) -> None:
+    """m = 6, Erlang-8 delays (246 joint states): SIGTERM 6 s into ``analyze`` exits 143
+    within 3 s and leaves no process (it waited for the solve in progress, 29-87 s)."""
+    gains = _big_system(tmp_path / "big.toml", 6, 3, 8)
+    proc = subprocess.Popen([sys.executable, "-m", "ftc_verify", "analyze", "big.toml", "--gains", str(gains), "--json"],
+                            cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(6)
+    children = _children(proc.pid)
+    assert children and proc.poll() is None
+    t0 = time.monotonic()
+    proc.terminate()
+    out, err = proc.communicate(timeout=30)
+    assert time.monotonic() - t0 < 3, err
+    assert proc.returncode == 143 and err.strip().endswith("ftc-verify: terminated") and out == "", err
+    time.sleep(0.5)
+    assert not any(_alive(c) for c in children)
