@@ -383,3 +383,18 @@ def test_sigterm_stops_a_long_analysis_at_once(tmp_path: Path) -> None:
     assert proc.returncode == 143 and err.strip().endswith("ftc-verify: terminated") and out == "", err
     time.sleep(0.5)
     assert not any(_alive(c) for c in children)
+
+
+def test_the_lower_bounds_dense_generator_is_checked_before_any_work(monkeypatch: pytest.MonkeyPatch) -> None:
+    from ftc_verify.errors import MemoryLimitError
+    from ftc_verify.limits import dense_generator_estimate
+
+    analyze_module = importlib.import_module("ftc_verify.analysis.analyze")
+    loop = _paper_loop()
+    estimate = dense_generator_estimate(loop.n, len(loop.A))
+    assert estimate == 8 * (8 * (4 * 3) ** 2 + 4 * 4 * 3)  # n = 2: h = 3, 4 joint states, 12 rows
+    monkeypatch.setattr(analyze_module, "check_lmi_memory", lambda loop: None)
+    monkeypatch.setattr(analyze_module, "mean_square_stability", lambda loop: pytest.fail("work before the check"))
+    monkeypatch.setenv("FTC_VERIFY_MEMORY_LIMIT", "1K")
+    with pytest.raises(MemoryLimitError, match=r"the gamma lower bounds of a loop with n = 2 and 4 joint states"):
+        analyze_module.analyze(loop)

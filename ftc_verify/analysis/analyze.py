@@ -29,6 +29,7 @@ from typing import Any
 from ..analysis.closedloop import ClosedLoop
 from ..jsonable import jsonable
 from ..analysis.crossval import ModeCheck, cross_validate
+from ..limits import check_memory, dense_generator_estimate
 from .lmi_analysis import LMIResult, check_lmi_memory, hinf_gamma, mes_lmi
 from .lower_bound import GainLowerBound, gain_lower_bound, worst_constant_delta
 from .solvers import ForkedCall
@@ -124,13 +125,19 @@ def analyze(loop: ClosedLoop, *, solver: str | None = None, name: str = "", cros
     stage 4 (synthesis loops, where python-control's start-up cost would dominate).
     ``lmi=False`` runs only the exact spectral test and the cross-check (large loops);
     otherwise the LMI stage's memory is checked first, before any work
-    (:func:`~ftc_verify.analysis.lmi_analysis.check_lmi_memory`). ``lower_bounds=False``
+    (:func:`~ftc_verify.analysis.lmi_analysis.check_lmi_memory`), and so is the lower
+    bounds' dense second-moment generator
+    (:func:`~ftc_verify.limits.dense_generator_estimate`). ``lower_bounds=False``
     skips stage 4 (synthesis loops). A loop the spectral test proves NOT stable gets no
     LMI solve (outcome ``"skipped"``: no certificate of stability or of a finite gamma
     exists for it).
     """
     if lmi:
         check_lmi_memory(loop)
+    if lmi and lower_bounds:  # dense second-moment solves and eigenvalues (analysis.lower_bound)
+        check_memory(dense_generator_estimate(loop.n, len(loop.A)),
+                     f"the gamma lower bounds of a loop with n = {loop.n} and {len(loop.A)} joint states",
+                     hint="reduce the problem, or run the exact spectral test alone (analyze --no-lmi)")
     seconds: dict[str, float] = {}
     t = time.perf_counter()
     mss = mean_square_stability(loop)
