@@ -28,6 +28,7 @@ extensions = [
     "myst_parser",
     "sphinx.ext.autodoc",
     "sphinx.ext.mathjax",
+    "offline_math",  # MathJax from the docs extra, copied into the site: no CDN (docs/_ext/offline_math.py)
     "sphinx.ext.viewcode",
     "numpydoc",
     "sphinxarg.ext",

@@ -158,9 +158,10 @@ def loops():
 def test_frozen_loops_match_our_eigenvalues_and_crossval_norms(name: str) -> None:
     loop = loops()[name]
     frozen = loop.to_statespace()
-    assert list(frozen) == list(dict.fromkeys(loop.modes))  # distinct pairs, 0-based, first-seen order
-    for s, pair in enumerate(loop.modes):
-        G = frozen[pair]
+    # distinct pairs, 1-based (as per_mode, the CLI and the reports), first-seen order
+    assert list(frozen) == [(i + 1, j + 1) for i, j in dict.fromkeys(loop.modes)]
+    for s, (i, j) in enumerate(loop.modes):
+        G = frozen[(i + 1, j + 1)]
         assert G.dt == 0 and G.nstates == loop.n and np.array_equal(G.A, loop.A[s])
         assert np.array_equal(G.B, loop.Bw[s]) and np.array_equal(G.C, loop.Cz[s]) and not np.any(G.D)
         ours = np.sort_complex(np.linalg.eigvals(loop.A[s]))
@@ -171,9 +172,9 @@ def test_frozen_loops_match_our_eigenvalues_and_crossval_norms(name: str) -> Non
     assert G.state_labels == [f"x[{k}]" for k in range(loop.n - n_c)] + [f"xc[{k}]" for k in range(n_c)]
     assert G.input_labels == ["w[0]"] and G.output_labels == ["z[0]"]
     checks = cross_validate(loop)
-    assert {(c.true_mode - 1, c.fdi_mode - 1) for c in checks} == set(frozen)
+    assert {(c.true_mode, c.fdi_mode) for c in checks} == set(frozen)
     for c in checks:
-        G = frozen[(c.true_mode - 1, c.fdi_mode - 1)]
+        G = frozen[(c.true_mode, c.fdi_mode)]
         norm = float(control.linfnorm(G, tol=1e-10)[0])
         assert math.isclose(norm, c.linf_norm, rel_tol=1e-6), (c.true_mode, c.fdi_mode, norm, c.linf_norm)
 
@@ -182,9 +183,9 @@ def test_deltas_perturb_the_frozen_loops() -> None:
     loop = loops()["state feedback"]
     deltas = {"Delta1 (A)": np.eye(2), "Delta2 (B)": -np.eye(2)}
     frozen = loop.to_statespace(deltas=deltas)
-    for s, pair in enumerate(loop.modes):
-        assert np.array_equal(frozen[pair].A, loop.perturbed(deltas)[s])
-        assert not np.array_equal(frozen[pair].A, loop.A[s])
+    for s, (i, j) in enumerate(loop.modes):
+        assert np.array_equal(frozen[(i + 1, j + 1)].A, loop.perturbed(deltas)[s])
+        assert not np.array_equal(frozen[(i + 1, j + 1)].A, loop.A[s])
 
 
 def test_phases_with_different_matrices_are_refused() -> None:
@@ -194,7 +195,7 @@ def test_phases_with_different_matrices_are_refused() -> None:
     s = [k for k, pair in enumerate(loop.modes) if pair == (1, 0)][1]
     A = list(loop.A)
     A[s] = A[s] + 1.0
-    with pytest.raises(ValidationError, match=r"joint states \d+ and \d+ of the pair \(1, 0\)"):
+    with pytest.raises(ValidationError, match=r"joint states \d+ and \d+ of the pair \(true, fdi\) = \(2, 1\)"):
         replace(loop, A=tuple(A)).to_statespace()
 
 
@@ -204,7 +205,7 @@ def test_round_trip_through_a_static_controller() -> None:
     system = FTCSystem.from_statespace(modes=as_statespace(paper, measured=False), chain=paper.chain,
                                        inputs="u", disturbances="w", performance="y")
     K = [np.array([[-1.0, 0.5], [-2.0, -3.0]])] * 2
-    G = closed_loop(system, Controller.state_feedback(K)).to_statespace()[(1, 1)]
+    G = closed_loop(system, Controller.state_feedback(K)).to_statespace()[(2, 2)]
     np.testing.assert_array_equal(G.A, paper.modes[1].A + paper.modes[1].B @ K[1])
 
 
@@ -226,4 +227,60 @@ def test_readme_example_runs(tmp_path: Path) -> None:
     assert out.returncode == 0, out.stderr
     lines = out.stdout.splitlines()
     assert [line.split(":")[0] for line in lines] == [
-        "true 0, FDI 0", "true 0, FDI 1", "true 1, FDI 0", "true 1, FDI 1"]
+        "(1, 1) true normal, FDI normal", "(1, 2) true normal, FDI faulty",
+        "(2, 1) true faulty, FDI normal", "(2, 2) true faulty, FDI faulty"]
+
+
+# ------------------------------------------------------------------ names round-trip
+
+def named_plants() -> list:
+    """The paper's plant with the user's names: modes, states, inputs and outputs."""
+    paper = load_system(EXAMPLES / "paper.toml")
+    return [control.ss(md.A, np.hstack([md.B, md.D]), np.vstack([md.C, [[1.0, 0.0]]]), 0, name=name,
+                       states=["pos", "vel"], inputs=["thrust", "brake", "gust"], outputs=["pos_err", "pos_meas"])
+            for md, name in zip(paper.modes, ("nominal", "faulty"))]
+
+
+def test_names_round_trip_through_the_system_and_the_closed_loop() -> None:
+    paper = load_system(EXAMPLES / "paper.toml")
+    system = FTCSystem.from_statespace(modes=named_plants(), chain=paper.chain, inputs=["thrust", "brake"],
+                                       disturbances="gust", performance="pos_err", measured="pos_meas")
+    names = system.names
+    assert names is not None and names.modes == ("nominal", "faulty") and names.states == ("pos", "vel")
+    assert names.inputs == ("thrust", "brake") and names.disturbances == ("gust",)
+    assert names.performance == ("pos_err",) and names.measured == ("pos_meas",)
+    assert system.nominal().names == names  # kept where the system is rebuilt
+    gains = load_controller(EXAMPLES / "paper_gains.toml")
+    frozen = closed_loop(system, gains).to_statespace()
+    assert list(frozen) == [(1, 1), (1, 2), (2, 1), (2, 2)]
+    assert frozen[(2, 1)].name == "true faulty, FDI nominal"
+    for G in frozen.values():
+        assert G.state_labels == ["pos", "vel"] and G.input_labels == ["gust"] and G.output_labels == ["pos_err"]
+    observer = closed_loop(system, load_controller(EXAMPLES / "paper_observer.toml")).to_statespace()
+    G = observer[(1, 1)]
+    assert G.state_labels[:2] == ["pos", "vel"] and G.state_labels[2:] == [f"xc[{k}]" for k in range(G.nstates - 2)]
+    # the per-mode check of analyze is keyed as the frozen loops are
+    assert {(c.true_mode, c.fdi_mode) for c in cross_validate(closed_loop(system, gains))} == set(frozen)
+
+
+def test_automatic_names_and_files_get_the_defaults() -> None:
+    paper = load_system(EXAMPLES / "paper.toml")
+    plants = [control.ss(md.A, np.hstack([md.B, md.D]), md.C, 0) for md in paper.modes]  # sys[N], u[k], y[0]
+    system = FTCSystem.from_statespace(modes=plants, chain=paper.chain, inputs=[0, 1], disturbances=2,
+                                       performance=0)
+    assert system.names is not None and system.names.modes == ("mode 1", "mode 2")
+    assert paper.names is None and paper.signal_names.states == ("x[0]", "x[1]")
+    G = closed_loop(paper, load_controller(EXAMPLES / "paper_gains.toml")).to_statespace()[(2, 1)]
+    assert G.name == "true mode 2, FDI mode 1" and G.input_labels == ["w[0]"] and G.output_labels == ["z[0]"]
+
+
+def test_names_of_the_wrong_length_are_refused() -> None:
+    from dataclasses import replace
+
+    from ftc_verify.model.names import SignalNames
+
+    paper = load_system(EXAMPLES / "paper.toml")
+    bad = replace(paper.signal_names, states=("only-one",))
+    with pytest.raises(ValidationError, match=r"names\.states: 1 names \['only-one'\] for 2 states"):
+        FTCSystem(paper.name, paper.modes, paper.chain, names=bad)
+    assert isinstance(bad, SignalNames)

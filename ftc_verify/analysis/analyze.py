@@ -73,6 +73,12 @@ class AnalysisReport:
         """python-control agreed on every joint mode."""
         return all(m.agree for m in self.per_mode)
 
+    def __str__(self) -> str:
+        """The summary ``ftc-verify analyze`` prints (:func:`~ftc_verify.analysis.summary.analysis_summary`)."""
+        from .summary import analysis_summary
+
+        return analysis_summary(self)
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready report (the schema of :doc:`/reference/report-schema`)."""
         return json_ready({

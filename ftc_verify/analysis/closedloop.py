@@ -63,6 +63,7 @@ import numpy as np
 
 from ..controllers.controller import Controller
 from ..errors import ValidationError
+from ..model.names import SignalNames
 from ..model.system import FTCSystem, JointChain, Matrix, Mode
 
 __all__ = ["Channel", "ClosedLoop", "Barred", "barred", "closed_loop", "state_feedback_loop", "gain_loop"]
@@ -95,6 +96,10 @@ class ClosedLoop:
     n_plant : int or None
         Plant states ``x`` at the top of the state (the rest is the controller's ``x_c``);
         ``None`` means all states are plant states.
+    names : SignalNames or None
+        The plant's mode and signal names (:attr:`FTCSystem.names
+        <ftc_verify.model.system.FTCSystem>`), used only to label :meth:`to_statespace`;
+        ``None``: the defaults.
     source : (FTCSystem, Controller) or None
         The system and controller the loop was formed from (set by :func:`closed_loop`):
         the proofs form the loop again from them in ball arithmetic
@@ -109,6 +114,7 @@ class ClosedLoop:
     channels: tuple[tuple[Channel, ...], ...]
     controller: str = "state feedback"
     n_plant: int | None = None
+    names: SignalNames | None = None
     source: tuple[FTCSystem, Controller] | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
@@ -178,6 +184,8 @@ class ClosedLoop:
             Cz=tuple(C @ T for C in self.Cz),
             channels=tuple(tuple(Channel(T_inv @ ch.E, ch.F @ T, ch.name) for ch in chans)
                            for chans in self.channels),
+            names=None if self.names is None else replace(  # new coordinates: no state is the user's
+                self.names, states=tuple(f"x~[{k}]" for k in range(len(self.names.states)))),
         )
 
     def perturbed(self, deltas: Mapping[str, Matrix]) -> tuple[Matrix, ...]:
@@ -252,12 +260,17 @@ class ClosedLoop:
         Returns
         -------
         dict
-            ``{(true, fdi): control.StateSpace}``, the pairs 0-based as in :attr:`modes`,
-            in the order they first occur there; the detection phases of a pair share its
-            matrices (module docstring) and give one entry. State labels are
-            ``x[k]`` for the plant states and ``xc[k]`` for a dynamic controller's (in the
-            loop's own coordinates), inputs ``w[k]``, outputs ``z[k]``; the name is
-            ``"(true, fdi) = (i, j)"``.
+            ``{(true, fdi): control.StateSpace}``, the modes 1-based as in
+            :attr:`AnalysisReport.per_mode <ftc_verify.analysis.analyze.AnalysisReport>`,
+            the CLI and the reports (:attr:`modes` is 0-based), in the order the pairs first
+            occur in :attr:`modes`; the detection phases of a pair share its matrices
+            (module docstring) and give one entry. Labels are the user's (``names``,
+            from :meth:`FTCSystem.from_statespace
+            <ftc_verify.model.system.FTCSystem.from_statespace>`): the plant's state labels,
+            then ``xc[k]`` for a dynamic controller's states, the disturbance labels as
+            inputs and the performance-output labels as outputs, and the name
+            ``"true nominal, FDI faulty"`` from the modes' names. Without names:
+            ``x[k]``, ``xc[k]``, ``w[k]``, ``z[k]`` and ``"true mode 2, FDI mode 1"``.
 
         Raises
         ------
@@ -268,29 +281,35 @@ class ClosedLoop:
 
         Examples
         --------
-        Build with :func:`closed_loop`; ``control.poles(loop.to_statespace()[(1, 0)])``
-        are the poles while the FDI still shows mode 0 after a fault to mode 1.
+        Build with :func:`closed_loop`; ``control.poles(loop.to_statespace()[(2, 1)])``
+        are the poles while the FDI still shows mode 1 after a fault to mode 2.
         python-control is imported when this is called, not with the package.
         """
         import control
 
         A_all = self.A if deltas is None else self.perturbed(deltas)
         n_plant = self.n if self.n_plant is None else self.n_plant
-        states = [f"x[{k}]" for k in range(n_plant)] + [f"xc[{k}]" for k in range(self.n - n_plant)]
+        names = self.names
+        plant_states = list(names.states) if names is not None else [f"x[{k}]" for k in range(n_plant)]
+        states = plant_states + [f"xc[{k}]" for k in range(self.n - n_plant)]
+        modes = names.modes if names is not None else tuple(f"mode {k}" for k in range(1, self.chain.m + 1))
         out: dict[tuple[int, int], Any] = {}
         first: dict[tuple[int, int], int] = {}
         for s, pair in enumerate(self.modes):
             f = first.setdefault(pair, s)
             if f != s:
                 if not all(np.array_equal(M[f], M[s]) for M in (A_all, self.Bw, self.Cz)):
-                    raise ValidationError(f"to_statespace: joint states {f} and {s} of the pair {pair} have "
+                    raise ValidationError(f"to_statespace: joint states {f} and {s} of the pair (true, fdi) = "
+                                          f"{(pair[0] + 1, pair[1] + 1)} (1-based) have "
                                           "different matrices; one frozen loop per pair is undefined")
                 continue
             B, C = self.Bw[s], self.Cz[s]
-            out[pair] = control.ss(
+            true, fdi = pair
+            out[(true + 1, fdi + 1)] = control.ss(
                 A_all[s], B, C, np.zeros((C.shape[0], B.shape[1])), states=states,
-                inputs=[f"w[{k}]" for k in range(B.shape[1])], outputs=[f"z[{k}]" for k in range(C.shape[0])],
-                name=f"(true, fdi) = {pair}")
+                inputs=list(names.disturbances) if names else [f"w[{k}]" for k in range(B.shape[1])],
+                outputs=list(names.performance) if names else [f"z[{k}]" for k in range(C.shape[0])],
+                name=f"true {modes[true]}, FDI {modes[fdi]}")
         return out
 
 
@@ -383,7 +402,7 @@ def _assemble(system: FTCSystem, entry: Callable[[int, int], tuple[Any, Any, Any
                 c.append(Channel(bar.A1bar[:, k:], F[F.shape[0] - md.B2.shape[0]:], "Delta2 (B)"))
         chans.append(tuple(c))
     n_plant = None if n_c == 0 else system.dims[0]
-    return ClosedLoop(system.chain, tuple(A), tuple(Bw), tuple(Cz), tuple(chans), label, n_plant)
+    return ClosedLoop(system.chain, tuple(A), tuple(Bw), tuple(Cz), tuple(chans), label, n_plant, system.names)
 
 
 def closed_loop(system: FTCSystem, controller: Controller) -> ClosedLoop:

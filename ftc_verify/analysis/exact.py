@@ -22,7 +22,7 @@ wrote. A loop that :func:`~ftc_verify.analysis.closedloop.closed_loop` did not b
 a system and a controller (a loop assembled by hand, or moved to other coordinates) has
 no written source; its float matrices are then the data, and their balls are exact.
 
-Rates: :func:`written_rate` encloses a rate the same way, and :func:`written_box`
+Rates: :func:`enclose` encloses a rate the same way, and :func:`written_box`
 rounds the ends of the rate box outward by one unit in the last place, so that a box of
 floats contains the box the user wrote.
 """

@@ -33,6 +33,7 @@ import os
 import pickle
 import sys
 import time
+import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
@@ -56,6 +57,7 @@ __all__ = [
     "solve_conic",
     "solve_conic_dual",
     "ISOLATED",
+    "INACCURATE_WARNING",
 ]
 
 #: Solver names accepted by the API and ``--solver`` (lower case) -> cvxpy names.
@@ -149,12 +151,23 @@ def _quiet_stdout() -> Iterator[None]:
         os.close(saved)
 
 
+#: cvxpy's warning for an ``*_inaccurate`` status, which the returned status already says.
+INACCURATE_WARNING = "Solution may be inaccurate"
+
+
 def _solve_here(problem: Any, solver: str) -> tuple[str, str]:
-    """Solve in this process; ``(status, message)``, exceptions turned into ``"error"``."""
+    """Solve in this process; ``(status, message)``, exceptions turned into ``"error"``.
+
+    cvxpy's :data:`INACCURATE_WARNING` is not passed on: the status it repeats
+    (``optimal_inaccurate``, ``infeasible_inaccurate``) is returned and recorded in the
+    :class:`SolveOutcome`, and no claim rests on it (certificates are checked in ball
+    arithmetic). Every other warning passes.
+    """
     import cvxpy as cp
 
     try:
-        with _quiet_stdout():
+        with _quiet_stdout(), warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message=INACCURATE_WARNING, category=UserWarning)
             problem.solve(solver=SOLVERS[solver], **SETTINGS[solver])
         return str(problem.status), ""
     except cp.error.SolverError as exc:

@@ -183,7 +183,9 @@ def _common_options(parser: argparse.ArgumentParser, suffix: str) -> None:
     parser.add_argument("--force", action="store_true", help="replace an existing output file")
     parser.add_argument("--allow-uncertified", action="store_true",
                         help="export a controller the analysis does not certify (the record says so)")
-    parser.add_argument("--solver", default="auto", choices=["auto", "clarabel", "sdpa", "scs"], help="LMI solver")
+    parser.add_argument("--solver", default="auto", choices=["auto", "clarabel", "sdpa", "scs"],
+                        help="LMI solver of the certificate (default: auto = clarabel at every size; sdpa and scs "
+                             "on request)")
 
 
 def add_export_commands(sub: Any) -> None:

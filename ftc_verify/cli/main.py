@@ -34,7 +34,7 @@ from .. import __version__
 from ..errors import FTCError
 from ..jsonable import dumps
 from .common import (EXIT_BAD_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_NEGATIVE, EXIT_OK, EXIT_PIPE,
-                     EXIT_TERMINATED, EXIT_UNCERTIFIED, EXIT_UNDECIDED, fmt, load)
+                     EXIT_TERMINATED, EXIT_UNCERTIFIED, EXIT_UNDECIDED, load)
 
 __all__ = ["main", "build_parser"]
 
@@ -54,59 +54,6 @@ class _Parser(argparse.ArgumentParser):
         self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message}\n")
 
 
-def _print_analysis(rep: Any, fdi_model: str, *, lmi: bool = True) -> None:
-    d = rep.to_dict()
-    mss = d["mss"]
-    vert = (f"float estimate, worst of {mss['vertices_evaluated']} rate vertices"
-            + ("" if mss["exhaustive"] else ", greedy search") + (" and the witness" if mss["witness"] else ""))
-    print(f"ftc-verify analyze: {rep.name} ({rep.controller})")
-    print(f"  {fdi_model}")
-    word = {"stable": "stable", "not stable": "NOT stable", "undecided": "UNDECIDED"}[mss["verdict"]]
-    print(f"  mean-square stability    spectral abscissa {fmt(mss['spectral_abscissa'])} ({vert}): {word}")
-    print(f"      proved: {mss['verified_by']}")
-    if not lmi:
-        print("  LMI certificates         not requested (--no-lmi)")
-    for label, res in (("Theorem 3.1 LMI", rep.mes_lmi), ("nominal gamma (Th. 3.2)", rep.nominal),
-                       ("robust gamma (Lem. 4.1)", rep.robust)) if lmi else ():
-        value = "" if res.gamma is None or label.startswith("Theorem") else f"{res.gamma:.6g}  "
-        status = res.outcome + (f" ({res.solver}, status {res.solver_status})" if res.solver else "")
-        print(f"  {label:<24} {value}{status}")
-        if not res.certified and res.message:
-            print(f"      {res.message}")
-        low = None if label.startswith("Theorem") else d["hinf"][
-            "nominal_lower_bound" if label.startswith("nominal") else "robust_lower_bound"]
-        if low is not None:
-            print(f"      {_bracket_text(low)}")
-    print("  per joint mode (true, fdi): frozen poles, H-inf norm, python-control")
-    for m in rep.per_mode:
-        poles = ", ".join(f"{p.real:.4g}{p.imag:+.4g}j" if abs(p.imag) > 1e-12 else f"{p.real:.4g}" for p in m.poles)
-        norm = "inf (unstable)" if m.hinf_norm == float("inf") else f"{m.hinf_norm:.6g}"
-        print(f"    ({m.true_mode}, {m.fdi_mode})  poles [{poles}]  norm {norm}  {m.detail}")
-    if rep.certified_stable:
-        verdict = "certified stable"
-    elif rep.mss.stable and not lmi:
-        print("  verdict: stable by the exact spectral test (LMI certificates not requested: --no-lmi)")
-        return
-    elif rep.mss.stable:
-        verdict = "stable by the exact spectral test, but NO LMI certificate found (not a proof either way)"
-    elif rep.mss.undecided:
-        verdict = ("UNDECIDED: neither stability nor instability could be proved over the whole rate box "
-                   f"({rep.mss.reason})")
-    else:
-        verdict = "NOT stable (proved at a rate vector of the box)"
-    print(f"  verdict: {verdict}; certificates {'all passed' if rep.certificate_ok else 'NOT all passed'}")
-
-
-def _bracket_text(low: dict[str, Any]) -> str:
-    """One line: the proved lower bound beside a certified gamma."""
-    where = f"{low['delta']}, rates {low['rates']}, w = F x + e cos({low['frequency']:.4g} t)"
-    if low["value"] is None:
-        return f"lower bound: none proved ({low['method']}); float estimate {low['estimate']:.6g} at {where}"
-    ratio = "" if low["ratio"] is None else f"; certified / lower = {low['ratio']:.6g}"
-    flag = " (LOOSE: above 1.05)" if low["loose"] else ""
-    return f"proved lower bound {low['value']:.6g} at {where}{ratio}{flag}"
-
-
 def _cmd_analyze(args: argparse.Namespace) -> int:
     from ..analysis.analyze import analyze
     from ..analysis.closedloop import closed_loop
@@ -120,7 +67,9 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
     if args.json:
         print(dumps(rep.to_dict() | {"lmi_requested": not args.no_lmi, "fdi_model": system.chain.describe()}))
     else:
-        _print_analysis(rep, system.chain.describe(), lmi=not args.no_lmi)
+        from ..analysis.summary import analysis_summary
+
+        print(analysis_summary(rep, fdi_model=system.chain.describe()))
     if rep.certified_stable or (args.no_lmi and rep.mss.stable):
         return EXIT_OK
     if rep.mss.undecided:
@@ -178,7 +127,19 @@ def build_parser() -> argparse.ArgumentParser:
     from .export_commands import add_export_commands
 
     add_export_commands(sub)
+    _no_abbreviations(p)
     return p
+
+
+def _no_abbreviations(parser: argparse.ArgumentParser) -> None:
+    """No abbreviated options on ``parser`` and every subcommand's parser: ``--path 10`` is
+    an error, not ``--paths`` (a prefix that matches one option today could match another
+    tomorrow, and a typo should not silently become a different option)."""
+    parser.allow_abbrev = False
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                _no_abbreviations(sub)
 
 
 @contextmanager

@@ -268,7 +268,7 @@ def add_plant_commands(sub: Any) -> None:
     p.add_argument("--check", action="store_true", help="one short step in every fault mode; a fault that changes nothing, or an FMU "
                         "call that fails (e.g. fmi2DoStep returning fmi2Error), fails the check (exit 1)")
     p.add_argument("--step", type=positive, default=0.1, help="step length of --check (default 0.1)")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     p.set_defaults(func=_cmd_plant)
 
     lz = sub.add_parser("linearize", help="linearise a plant map's FMU per fault mode into a system file")
@@ -279,5 +279,5 @@ def add_plant_commands(sub: Any) -> None:
     lz.add_argument("--accept-inaccurate", action="store_true",
                     help=f"write -o even when a matrix's error estimate exceeds {LINEARIZE_ACCURACY:g} of its largest "
                          "entry (without it such a linearisation is reported, exit 1, and not written)")
-    lz.add_argument("--json", action="store_true")
+    lz.add_argument("--json", action="store_true", help="print one JSON object instead of a summary")
     lz.set_defaults(func=_cmd_linearize)

@@ -200,15 +200,9 @@ def _cmd_verify(args: argparse.Namespace) -> int:
                          spec=spec, solver=args.solver, progress=sys.stderr.isatty(), plant=plant,
                          fmu_log=_fmu_logger(args), measure=args.measure, client=client)
     written = write_report(rep, args.out)
-    d = rep.to_dict()
-    print(f"ftc-verify verify: {system.name}")
-    print(f"  {system.chain.describe()}")
-    for c in d["checks"]:
-        print(f"  [{'pass' if c['ok'] else 'FAIL'}] {c['name']}: {c['detail']}")
-    if d["options"].get("delta"):
-        print(f"  Delta in the Monte Carlo: {d['options']['delta']}")
-    print(f"  report: {', '.join(str(p) for p in written)}")
-    print(f"  verdict: {d['verdict']}")
+    from ..verification.summary import verify_summary
+
+    print(verify_summary(rep, written=written))
     if rep.verdict == "pass":
         return EXIT_OK
     if rep.analysis is not None and rep.analysis.mss.undecided:
@@ -224,23 +218,29 @@ def add_run_commands(sub: Any) -> None:
     m.add_argument("system", help="system TOML file")
     m.add_argument("--controller", "--gains", dest="controller", default=None,
                    help="controller TOML file (static gains or dynamic; --gains is an alias)")
-    m.add_argument("--backend", default="fmu", choices=["fmu", "reference"])
-    m.add_argument("--paths", type=positive_int, default=10)
-    m.add_argument("--horizon", type=positive, default=30.0)
-    m.add_argument("--step", type=positive, default=0.01, help="control period h (sample-and-hold)")
+    m.add_argument("--backend", default="fmu", choices=["fmu", "reference"],
+                   help="fmu: co-simulate the LinearJumpPlant FMU (or --plant's FMU); reference: the same "
+                        "sampled-data loop in numpy (default %(default)s)")
+    m.add_argument("--paths", type=positive_int, default=10, help="Monte Carlo paths (default %(default)s)")
+    m.add_argument("--horizon", type=positive, default=30.0,
+                   help="simulated time per path, in the system's time unit (default %(default)s)")
+    m.add_argument("--step", type=positive, default=0.01, help="control period h (sample-and-hold), in the system's time unit (default %(default)s)")
     m.add_argument("--seed", type=seed_int, default=None, help="seed of the numpy Generator (recorded in the output)")
-    m.add_argument("--disturbance", default="paper", choices=["paper", "zero", "step", "pulse", "sine"])
+    m.add_argument("--disturbance", default="paper", choices=["paper", "zero", "step", "pulse", "sine"],
+                   help="w(t) on every input channel: paper = exp(-0.1 t) sin t (Section VI), zero, step = 1, "
+                        "pulse = 1 for t < 1, sine = sin t (default %(default)s)")
     m.add_argument("--record", type=nonneg_int, default=0,
                    help="reference backend: keep full trajectories of the first N paths (default 0, 1 with --plot); "
                         "every path's norms are computed either way, vectorised and in batches")
     _cluster_options(m)
     m.add_argument("--beta", default="random", choices=["random", "min", "max", "mid"],
-                   help="detection rates: drawn per path in their box (default) or fixed")
+                   help="detection rates: drawn per path in their box (random, the default) or fixed at its "
+                        "lower corner, upper corner or midpoint")
     m.add_argument("--delta", default="zero", choices=["zero", "random", "sign", "constant"],
-                   help="time-varying uncertainty (random: a new Delta per chain segment)")
+                   help="time-varying uncertainty (random: a new Delta per chain segment; default %(default)s)")
     m.add_argument("--fault-during-delay", action="store_true",
                    help="named variant: faults keep occurring during a detection delay (not the paper's model)")
-    m.add_argument("--json", action="store_true")
+    m.add_argument("--json", action="store_true", help="print one JSON object instead of a summary")
     m.add_argument("--plot", default=None, help="PNG file for the paper's Fig. 1 of the first path")
     _plant_options(m)
     add_controller_fmu_option(m)
@@ -249,18 +249,26 @@ def add_run_commands(sub: Any) -> None:
     v = sub.add_parser("verify", help="the main job: synthesize, certify, cross-validate, co-simulate, report")
     v.add_argument("system", help="system TOML file")
     v.add_argument("--gamma", type=positive, default=None, help="attenuation level (default: minimise)")
-    v.add_argument("--method", default="iterative", choices=["two-step", "iterative", "full-info", "common"])
+    v.add_argument("--method", default="iterative", choices=["two-step", "iterative", "full-info", "common"],
+                   help="state-feedback synthesis method (synthesize --method; default %(default)s); "
+                        "ignored with --controller")
     v.add_argument("--controller", "--gains", dest="controller", default=None,
                    help="verify this controller file (static gains or dynamic) instead of synthesizing; "
                         "--gains is an alias")
     v.add_argument("--k-max", type=positive, default=30.0, help="gain norm bound for synthesis (default 30)")
     v.add_argument("--no-gain-bound", action="store_true", help="synthesize without a gain bound")
     v.add_argument("--paths", type=positive_int, default=200, help="Monte Carlo paths on the FMU (default 200)")
-    v.add_argument("--step", type=positive, default=0.01)
-    v.add_argument("--horizon", type=positive, default=30.0)
-    v.add_argument("--seed", type=seed_int, default=None)
+    v.add_argument("--step", type=positive, default=0.01,
+                   help="control period h of the Monte Carlo (sample-and-hold), in the system's time unit "
+                        "(default %(default)s)")
+    v.add_argument("--horizon", type=positive, default=30.0,
+                   help="simulated time per Monte Carlo path, in the system's time unit (default %(default)s)")
+    v.add_argument("--seed", type=seed_int, default=None,
+                   help="seed of every random draw (default: fresh entropy; the seed used is in the report)")
     v.add_argument("--out", default="ftc-verify-report", help="output folder (default ./ftc-verify-report)")
-    v.add_argument("--solver", default="auto", choices=["auto", "clarabel", "sdpa", "scs"])
+    v.add_argument("--solver", default="auto", choices=["auto", "clarabel", "sdpa", "scs"],
+                   help="LMI solver of synthesis and certificates (default: auto = clarabel at every size; "
+                        "sdpa and scs on request)")
     v.add_argument("--measure", default="total", choices=["total", "incremental"],
                    help="Monte Carlo ratio of the real paths (total, default) or of each path's response to w "
                         "alone, y(w) - y(w = 0) on the same path (incremental: for plants whose faults move the "

@@ -127,6 +127,7 @@ def add_synthesis_command(sub: Any) -> None:
                    help="bound on the spectral norm of every gain (output feedback: of every controller block)")
     y.add_argument("-o", "--output", required=True, help="controller TOML file to write (only when certified; not the system file)")
     y.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
-    y.add_argument("--solver", default="auto", choices=["auto", "clarabel", "sdpa", "scs"])
+    y.add_argument("--solver", default="auto", choices=["auto", "clarabel", "sdpa", "scs"],
+                   help="LMI solver (default: auto = clarabel at every size; sdpa and scs on request)")
     y.set_defaults(func=_cmd_synthesize)
 

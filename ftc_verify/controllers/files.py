@@ -40,7 +40,7 @@ import numpy as np
 import tomli_w
 
 from ..errors import ProblemFileError, ValidationError
-from ..model.files import read_toml, tables, tolist, unknown_keys, write_atomic
+from ..model.files import CONTROLLER_FILE, check_kind, read_toml, tables, tolist, unknown_keys, write_atomic
 from ..model.system import FTCSystem, Matrix, as_matrix
 from .controller import Controller
 
@@ -119,6 +119,7 @@ def load_controller(path: str | os.PathLike[str]) -> Controller:
     p = Path(path)
     literals: dict[float, tuple[str, ...]] = {}
     doc = read_toml(p, literals)
+    check_kind(p, doc, CONTROLLER_FILE)
     unknown_keys(p, "top level", list(doc), _TOP_KEYS)
     name = doc.get("name", p.stem)
     if not isinstance(name, str):

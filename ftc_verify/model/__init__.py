@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from .files import dump_system, load_system, save_system, write_atomic
+from .names import SignalNames
 from .system import GENERATOR_RTOL, Mode, JointChain, FTCSystem, as_matrix
 
 __all__ = [
@@ -14,5 +15,6 @@ __all__ = [
     "Mode",
     "JointChain",
     "FTCSystem",
+    "SignalNames",
     "as_matrix",
 ]

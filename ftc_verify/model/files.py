@@ -25,6 +25,7 @@ same folder, then :func:`os.replace`). Every error names the file, the table ind
 
 from __future__ import annotations
 
+import difflib
 import errno
 import os
 import tempfile
@@ -46,6 +47,12 @@ __all__ = [
     "save_system",
     "write_atomic",
     "parse_chain",
+    "read_toml",
+    "unknown_keys",
+    "check_kind",
+    "SYSTEM_FILE",
+    "CONTROLLER_FILE",
+    "PLANT_MAP",
 ]
 
 _TOP_KEYS = {"name", "chain", "mode"}
@@ -95,11 +102,42 @@ def _record_integers(value: Any, literals: dict[float, tuple[str, ...]]) -> None
 
 
 def unknown_keys(path: Path, where: str, keys: Sequence[str], allowed: set[str] | Sequence[str]) -> None:
+    """Refuse keys outside ``allowed``, with the closest allowed key for each (a typo)."""
     extra = sorted(set(keys) - set(allowed))
     if extra:
+        pairs = [(key, close) for key in extra for close in _closest(key, allowed)]
+        guesses = [f"{close!r}" + (f" for {key!r}" if len(extra) > 1 else "") for key, close in pairs]
+        hint = f" (did you mean {', '.join(guesses)}?)" if guesses else ""
         raise ProblemFileError(
-            f"{path}: {where}: unknown key(s) {extra}; allowed: {sorted(allowed)}"
+            f"{path}: {where}: unknown key(s) {extra}{hint}; allowed: {sorted(allowed)}"
         )
+
+
+def _closest(key: str, allowed: set[str] | Sequence[str]) -> list[str]:
+    """The allowed key ``key`` most likely misspells: the same but for case, else the closest
+    by :func:`difflib.get_close_matches` (ratio >= 0.6), else none."""
+    same_case = [a for a in allowed if a.lower() == key.lower()]
+    return same_case[:1] or difflib.get_close_matches(key, list(allowed), n=1, cutoff=0.6)
+
+
+#: A system file, told by its ``[chain]`` and ``[[mode]]`` tables (:func:`check_kind`).
+SYSTEM_FILE = "a system file ([chain] and [[mode]] tables)"
+#: A controller file, told by its ``[[gain]]`` or ``[[controller]]`` tables.
+CONTROLLER_FILE = "a controller file ([[gain]] or [[controller]] tables)"
+#: A plant map, told by its ``fmu`` key and ``[variables]`` table.
+PLANT_MAP = "a plant map (fmu and [variables])"
+_KINDS = ((SYSTEM_FILE, ("chain", "mode")), (CONTROLLER_FILE, ("gain",)), (CONTROLLER_FILE, ("controller",)),
+          (PLANT_MAP, ("fmu", "variables")))
+
+
+def check_kind(path: Path, doc: dict[str, Any], expected: str) -> None:
+    """Refuse a file of another kind than ``expected`` (:data:`SYSTEM_FILE`,
+    :data:`CONTROLLER_FILE`, :data:`PLANT_MAP`) with one line saying what it is, e.g. a
+    system file given as ``--controller``; a file of no known kind is left to the
+    loader's own checks."""
+    found = next((kind for kind, keys in _KINDS if all(key in doc for key in keys)), None)
+    if found is not None and found != expected:
+        raise ProblemFileError(f"{path}: this is {found}, not {expected}")
 
 
 def _table(path: Path, doc: dict[str, Any], key: str) -> dict[str, Any]:
@@ -142,6 +180,7 @@ def load_system(path: str | os.PathLike[str]) -> FTCSystem:
     p = Path(path)
     literals: dict[float, tuple[str, ...]] = {}
     doc = read_toml(p, literals)
+    check_kind(p, doc, SYSTEM_FILE)
     unknown_keys(p, "top level", list(doc), _TOP_KEYS)
     name = doc.get("name", p.stem)
     if not isinstance(name, str):

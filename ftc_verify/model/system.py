@@ -20,7 +20,7 @@ model its states are the pairs ``(true, fdi)``, numbered ``s = true * m + fdi``.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -28,6 +28,7 @@ from numpy.typing import ArrayLike
 
 from ..errors import ValidationError
 from .chain import JointChain
+from .names import SignalNames, mode_name
 from .matrices import GENERATOR_RTOL, MAX_ENTRY, Matrix, arrays_equal as _arrays_equal, as_matrix
 
 if TYPE_CHECKING:  # python-control is imported only where it is used (start-up time)
@@ -253,6 +254,9 @@ class FTCSystem:
     """An FTC plant: one :class:`Mode` per fault mode and the :class:`JointChain`.
 
     All modes share ``n, nu, ny, nw``; there are as many modes as rows of ``alpha``.
+    ``names`` are the user's names of the modes and signals (:class:`SignalNames`; set by
+    :meth:`from_statespace`, ``None`` for a system file): they never enter a computation
+    or the equality of two systems; :attr:`signal_names` gives them or the defaults.
     """
 
     name: str
@@ -261,6 +265,7 @@ class FTCSystem:
     #: The numbers of the system file as written (float read -> decimal texts), set by
     #: :func:`~ftc_verify.model.files.load_system`; ``None`` when the floats are the data.
     literals: Mapping[float, tuple[str, ...]] | None = field(default=None, compare=False, repr=False)
+    names: SignalNames | None = None
 
     def __post_init__(self) -> None:
         modes = tuple(self.modes)
@@ -280,6 +285,13 @@ class FTCSystem:
                     f"mode {k}: {mode.ny_measured} measured outputs (rows of Cy) differ from "
                     f"mode 1 ({modes[0].ny_measured})"
                 )
+        if self.names is not None:
+            want = SignalNames.default(len(modes), dims0, modes[0].ny_measured)
+            for key in ("modes", "states", "inputs", "disturbances", "performance", "measured"):
+                got = getattr(self.names, key)
+                if len(got) != len(getattr(want, key)):
+                    raise ValidationError(f"names.{key}: {len(got)} names {list(got)} for "
+                                          f"{len(getattr(want, key))} {key}")
 
     @classmethod
     def from_arrays(
@@ -393,12 +405,21 @@ class FTCSystem:
         weights = _uncertainty(uncertainty, len(modes))
         built = tuple(_from_statespace(k, sys, (u, w), (y, ym), weights[k - 1])
                       for k, sys in enumerate(modes, start=1))
-        return cls(name=name, modes=built, chain=chain)
+        ins = list(modes[0].input_labels)
+        names = SignalNames(tuple(mode_name(sys.name, k) for k, sys in enumerate(modes, start=1)),
+                            tuple(modes[0].state_labels), tuple(ins[c] for c in u), tuple(ins[c] for c in w),
+                            tuple(outs[r] for r in y), tuple(outs[r] for r in (y if ym is None else ym)))
+        return cls(name=name, modes=built, chain=chain, names=names)
 
     @property
     def m(self) -> int:
         """Number of fault modes."""
         return self.chain.m
+
+    @property
+    def signal_names(self) -> SignalNames:
+        """``names``, or the defaults of :meth:`SignalNames.default` when there are none."""
+        return self.names or SignalNames.default(self.m, self.dims, self.ny_measured)
 
     @property
     def dims(self) -> tuple[int, int, int, int]:
@@ -423,7 +444,7 @@ class FTCSystem:
     def nominal(self) -> FTCSystem:
         """The same system without uncertainty weights."""
         modes = tuple(Mode(md.A, md.B, md.C, md.D, Cy=md.Cy, label=md.label) for md in self.modes)
-        return FTCSystem(self.name, modes, self.chain)
+        return FTCSystem(self.name, modes, self.chain, names=self.names)
 
     def with_measured_output(self, Cy: ArrayLike | Sequence[ArrayLike]) -> FTCSystem:
         """The same plant measured through ``y_m = Cy x``: one matrix for every mode, or one
@@ -435,7 +456,9 @@ class FTCSystem:
             raise ValidationError(f"Cy: {len(cys)} matrices given for {self.m} modes")
         modes = tuple(Mode(md.A, md.B, md.C, md.D, md.A1, md.A2, md.B1, md.B2, Cy=c, label=md.label)
                       for md, c in zip(self.modes, cys))
-        return FTCSystem(self.name, modes, self.chain)
+        names = None if self.names is None else replace(  # new measured outputs: the default names
+            self.names, measured=tuple(f"y_m[{k}]" for k in range(modes[0].ny_measured)))
+        return FTCSystem(self.name, modes, self.chain, names=names)
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, FTCSystem):

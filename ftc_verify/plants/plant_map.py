@@ -57,7 +57,7 @@ import numpy as np
 import tomli_w
 
 from ..errors import ProblemFileError, ValidationError
-from ..model.files import parse_chain, read_toml, tables, unknown_keys, write_atomic
+from ..model.files import PLANT_MAP, check_kind, parse_chain, read_toml, tables, unknown_keys, write_atomic
 from ..model.system import FTCSystem, JointChain
 from .fault_map import FaultInjectionMap, OperatingPoint
 
@@ -292,17 +292,35 @@ def _chain(p: Path, doc: dict[str, Any], m: int) -> JointChain | None:
     return chain
 
 
+def _build_hint(p: Path, fmu_path: Path) -> str:
+    """How to make the missing FMU: ``build-fmu`` of the Modelica model of the same name
+    beside it, else the build command the map's comments give, else where to read."""
+    model = fmu_path.with_suffix(".mo")
+    if model.is_file():
+        return f"build it first: ftc-verify build-fmu {model} -o {fmu_path}"
+    try:
+        comments = [line.lstrip("# ").strip() for line in p.read_text(encoding="utf-8").splitlines()
+                    if line.startswith("#")]
+    except (OSError, UnicodeDecodeError):
+        comments = []
+    commands = [line for line in comments if line.startswith(("python ", "ftc-verify build-fmu"))]
+    if commands:
+        return f"build it first (the map's comment): {commands[0]}"
+    return "build it first (ftc-verify build-fmu for a Modelica model) or correct the fmu key"
+
+
 def load_plant_map(path: str | os.PathLike[str]) -> PlantMap:
     """Read and check a plant map file (format in the module docstring)."""
     p = Path(path)
     doc = read_toml(p)
+    check_kind(p, doc, PLANT_MAP)
     unknown_keys(p, "top level", list(doc), _TOP)
     fmu = doc.get("fmu")
     if not isinstance(fmu, str) or not fmu:
         raise ProblemFileError(f"{p}: fmu: expected the FMU's file name (relative to the map), got {fmu!r}")
     fmu_path = (p.parent / fmu).resolve()
     if not fmu_path.is_file():
-        raise ProblemFileError(f"{p}: fmu: no such file {str(fmu_path)!r}")
+        raise ProblemFileError(f"{p}: fmu: no such file {str(fmu_path)!r}; {_build_hint(p, fmu_path)}")
     name = doc.get("name", p.stem)
     if not isinstance(name, str) or not name:
         raise ProblemFileError(f"{p}: name: expected a non-empty string, got {name!r}")

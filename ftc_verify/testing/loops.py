@@ -40,7 +40,8 @@ def _plain(value: Any) -> Any:
 
 @dataclass(frozen=True, eq=False)
 class DrawnLoop:
-    """A plant and a controller; the closed loop and its stability test are built lazily.
+    """A plant and a controller; the closed loop (:attr:`loop`) and its stability test
+    (:attr:`mss`) are built on first use and kept.
 
     Attributes
     ----------

@@ -16,6 +16,7 @@ import os
 import shutil
 import tempfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -23,7 +24,7 @@ from ..errors import ProblemFileError
 from ..jsonable import dumps
 from .verify import VerifyReport
 
-__all__ = ["REPORT_FILES", "check_out_dir", "write_report", "render_markdown"]
+__all__ = ["REPORT_FILES", "check_out_dir", "write_report", "render_markdown", "table_row"]
 
 #: Every file a report may hold; a folder with anything else is not replaced.
 REPORT_FILES = frozenset({"report.json", "report.md", "fig1_path.png", "ratio_distribution.png", "gamma_bracket.png"})
@@ -32,6 +33,33 @@ REPORT_FILES = frozenset({"report.json", "report.md", "fig1_path.png", "ratio_di
 def _num(value: float | None, spec: str = ".6g") -> str:
     """A number for the report, or "-" where JSON has null (infinite, diverged, not computed)."""
     return "-" if value is None else format(value, spec)
+
+
+def _nums(values: Any, spec: str = ".4g") -> str:
+    """A (nested) list of numbers as written in the report, ``-`` for none or null.
+
+    >>> _nums([[0.1234567891, 2.0], [None, 1e-9]])
+    '[[0.1235, 2], [-, 1e-09]]'
+    """
+    if values is None:
+        return "-"
+    if isinstance(values, (list, tuple)):
+        return "[" + ", ".join(_nums(v, spec) for v in values) + "]"
+    return format(values, spec)
+
+
+def table_row(*cells: object) -> str:
+    r"""One row of a markdown table, every ``|`` inside a cell escaped.
+
+    A ``|`` in a cell (``E||y||^2``) would otherwise end the cell when the table renders
+    (GitHub-flavoured markdown, markdown-it), and the number after it would vanish; ``\|``
+    renders as ``|``, in code spans too. A line break inside a cell would end the row, so
+    it becomes a space.
+
+    >>> print(table_row("max E||y||^2", 0.5))
+    | max E\|\|y\|\|^2 | 0.5 |
+    """
+    return "| " + " | ".join(" ".join(str(c).splitlines()).replace("|", "\\|") for c in cells) + " |"
 
 
 def render_markdown(rep: VerifyReport) -> str:
@@ -48,7 +76,7 @@ def render_markdown(rep: VerifyReport) -> str:
         "| check | result | detail |",
         "|---|---|---|",
     ]
-    lines += [f"| {c['name']} | {'pass' if c['ok'] else 'FAIL'} | {c['detail']} |" for c in d["checks"]]
+    lines += [table_row(c["name"], "pass" if c["ok"] else "FAIL", c["detail"]) for c in d["checks"]]
     if d["options"].get("delta"):
         lines += ["", f"Delta in the Monte Carlo: {d['options']['delta']}."]
     lines += ["", "## Numbers", ""]
@@ -64,7 +92,7 @@ def render_markdown(rep: VerifyReport) -> str:
         ("Monte Carlo paths", mc.get("paths")),
     ]
     lines += ["| quantity | value |", "|---|---|"]
-    lines += [f"| {k} | {_num(v)} |" for k, v in rows]
+    lines += [table_row(k, _num(v)) for k, v in rows]
     failure = d.get("plant_failure")
     if failure:
         lines += ["", "## The plant FMU failed", "",
@@ -76,18 +104,20 @@ def render_markdown(rep: VerifyReport) -> str:
     if plant:
         lines += ["", f"## Plant: {plant['fmu']} (model identifier {plant['model_identifier']})", "",
                   "| quantity | value |", "|---|---|",
-                  f"| measure | {plant['measure']} |",
-                  f"| attenuation on the plant: mean E||y - y_op||^2/||w||^2"
-                  f"{' of y(w) - y(w = 0)' if plant['measure'] == 'incremental' else ''} | {_num(plant['mean_ratio'])} |",
-                  f"| its one-sided upper bound (alpha 1e-6) | {_num(plant['upper_bound'])} |",
-                  f"| largest excursion from the operating point, per state | {plant['max_excursion'] or '-'} |",
-                  f"| linearisation error (FMU vs linear reference, relative) | "
-                  f"{_num(plant['linearisation_error'], '.3g')} |",
-                  f"| inputs: smallest and largest value, per input (absolute) | {plant['input_range'] or '-'} |",
-                  f"| paths that left [region] (states or input limits) | {plant['left_region']} of {plant['paths']} |"]
+                  table_row("measure", plant["measure"]),
+                  table_row("attenuation on the plant: mean E||y - y_op||^2/||w||^2"
+                            + (" of y(w) - y(w = 0)" if plant["measure"] == "incremental" else ""),
+                            _num(plant["mean_ratio"])),
+                  table_row("its one-sided upper bound (alpha 1e-6)", _num(plant["upper_bound"])),
+                  table_row("largest excursion from the operating point, per state", _nums(plant["max_excursion"])),
+                  table_row("linearisation error (FMU vs linear reference, relative)",
+                            _num(plant["linearisation_error"], ".3g")),
+                  table_row("inputs: smallest and largest value, per input (absolute)", _nums(plant["input_range"])),
+                  table_row("paths that left [region] (states or input limits)",
+                            f"{plant['left_region']} of {plant['paths']}")]
         if plant["fault_response_energy"] is not None:
-            lines.append(f"| fault response: mean ||y(w = 0) - y_op||^2 (not bounded by gamma) | "
-                         f"{_num(plant['fault_response_energy'])} |")
+            lines.append(table_row("fault response: mean ||y(w = 0) - y_op||^2 (not bounded by gamma)",
+                                   _num(plant["fault_response_energy"])))
     ctrl = d["controller"] or {}
     matrices = ctrl.get("gains", ctrl.get("entries"))
     lines += ["", f"Controller: {ctrl.get('kind', 'none found')}: {matrices}", "",

@@ -104,6 +104,12 @@ class VerifyReport:
         """Largest exact ``E||y||^2 / ||w||^2`` over the vertices and Deltas evaluated."""
         return max((e["ratio"] for e in self.exact), default=None)
 
+    def __str__(self) -> str:
+        """The summary ``ftc-verify verify`` prints (:func:`~ftc_verify.verification.summary.verify_summary`)."""
+        from .summary import verify_summary
+
+        return verify_summary(self)
+
     def to_dict(self) -> dict[str, Any]:
         """The ``report.json`` content."""
         an = self.analysis
