@@ -398,3 +398,18 @@ def test_the_lower_bounds_dense_generator_is_checked_before_any_work(monkeypatch
     monkeypatch.setenv("FTC_VERIFY_MEMORY_LIMIT", "1K")
     with pytest.raises(MemoryLimitError, match=r"the gamma lower bounds of a loop with n = 2 and 4 joint states"):
         analyze_module.analyze(loop)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
+def test_the_child_dies_with_a_parent_killed_outright(tmp_path: Path) -> None:
+    """SIGKILL (no handler runs) to ``synthesize``: its child does not compute on."""
+    proc = subprocess.Popen([sys.executable, "-m", "ftc_verify", "synthesize", str(EXAMPLES / "paper.toml"),
+                             "--output-feedback", "--method", "descent", "--order", "30", "-o", "c.toml"],
+                            cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    time.sleep(5)
+    children = _children(proc.pid)
+    assert children
+    proc.kill()
+    proc.wait(timeout=30)
+    time.sleep(1.0)
+    assert not any(_alive(c) for c in children)

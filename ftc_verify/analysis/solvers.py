@@ -295,6 +295,7 @@ class ForkedCall:
             try:
                 if group:
                     os.setpgid(0, 0)
+                    _die_with_parent()
                 signal.signal(signal.SIGINT, signal.SIG_IGN)
                 signal.signal(signal.SIGTERM, signal.SIG_DFL)
                 os.close(read_fd)
@@ -343,13 +344,27 @@ class ForkedCall:
             self._read_fd = None
 
 
+def _die_with_parent() -> None:
+    """Linux: this process gets SIGKILL when its parent dies (``prctl(PR_SET_PDEATHSIG)``),
+    so a child of :func:`interruptible` never computes on for a parent killed outright
+    (SIGKILL, the kernel's out-of-memory killer). Elsewhere nothing."""
+    import ctypes
+    import signal
+
+    if not sys.platform.startswith("linux"):
+        return
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL), 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
+
+
 def interruptible(fn: Any, what: str) -> Any:
     """``fn()`` in a :class:`ForkedCall` child leading its own process group; this process
     only waits for the answer. A solve or a dense eigenproblem holds the interpreter until
     it returns, so a SIGTERM or Ctrl-C arriving meanwhile would wait for it (29-87 s were
     measured with Clarabel, issue 32); here the wait is a ``read`` that the signal
-    interrupts at once, and the ``finally`` kills the child's whole group. Where ``fork``
-    is missing, ``fn()`` runs here. The child's exceptions are raised again here."""
+    interrupts at once, and the ``finally`` kills the child's whole group (on Linux the
+    child also dies with this process if it is killed outright). Where ``fork`` is
+    missing, ``fn()`` runs here. The child's exceptions are raised again here."""
     if not hasattr(os, "fork"):
         return fn()
     forked = ForkedCall(fn, what, group=True)
