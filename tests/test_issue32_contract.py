@@ -413,3 +413,12 @@ def test_the_child_dies_with_a_parent_killed_outright(tmp_path: Path) -> None:
     proc.wait(timeout=30)
     time.sleep(1.0)
     assert not any(_alive(c) for c in children)
+
+
+def test_an_answer_that_cannot_be_sent_back_is_named() -> None:
+    import threading
+
+    from ftc_verify.analysis.solvers import interruptible
+
+    with pytest.raises(RuntimeError, match=r"a lock: its answer could not be sent back .*cannot pickle"):
+        interruptible(lambda: threading.Lock(), "a lock")

@@ -303,8 +303,13 @@ class ForkedCall:
                     payload: tuple[str, Any] = ("ok", fn())
                 except Exception as exc:
                     payload = ("error", exc)
+                try:
+                    data = pickle.dumps(payload)
+                except Exception as exc:  # an answer that cannot be sent (a bug): say so, never a torn pickle
+                    data = pickle.dumps(("error", RuntimeError(f"{what}: its answer could not be sent back from the "
+                                                               f"child process ({type(exc).__name__}: {exc})")))
                 with os.fdopen(write_fd, "wb") as out:
-                    pickle.dump(payload, out)
+                    out.write(data)
             finally:
                 os._exit(0)
         os.close(write_fd)
