@@ -205,8 +205,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if exc.errno not in _ENVIRONMENT_ERRNOS:
             return _internal(exc)
         where = f"{exc.filename}: " if exc.filename else ""
-        print(f"ftc-verify: error: {where}{exc.strerror or exc} ({errno.errorcode.get(exc.errno, 'OSError')}; "
-              "the environment refused an output: nothing was written)", file=sys.stderr)
+        print(f"ftc-verify: error: {where}{exc.strerror or exc} ({errno.errorcode.get(exc.errno, 'OSError')}: "
+              "refused by the operating system; nothing was written)", file=sys.stderr)
         return EXIT_BAD_INPUT
     except MemoryError:
         print("ftc-verify: error: out of memory (the problem is too large for this machine)", file=sys.stderr)
