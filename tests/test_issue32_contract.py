@@ -422,3 +422,19 @@ def test_an_answer_that_cannot_be_sent_back_is_named() -> None:
 
     with pytest.raises(RuntimeError, match=r"a lock: its answer could not be sent back .*cannot pickle"):
         interruptible(lambda: threading.Lock(), "a lock")
+
+
+def test_out_of_memory_names_the_limit(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """A MemoryError no estimate foresaw: exit 2, and the line says the limit in force."""
+    cli_main = importlib.import_module("ftc_verify.cli.main")
+    parser = cli_main.build_parser()
+    monkeypatch.setattr(cli_main, "build_parser", lambda: parser)
+
+    def boom(args: object) -> int:
+        raise MemoryError()
+
+    parser._subparsers._group_actions[0].choices["analyze"].set_defaults(func=boom)  # type: ignore[union-attr]
+    monkeypatch.setenv("FTC_VERIFY_MEMORY_LIMIT", "3G")
+    rc = cli_main.main(["analyze", str(EXAMPLES / "paper.toml"), "--gains", str(EXAMPLES / "paper_gains.toml")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "out of memory" in err and "the memory limit is 3 GB; FTC_VERIFY_MEMORY_LIMIT sets it" in err

@@ -209,10 +209,21 @@ def main(argv: Sequence[str] | None = None) -> int:
               "refused by the operating system; nothing was written)", file=sys.stderr)
         return EXIT_BAD_INPUT
     except MemoryError:
-        print("ftc-verify: error: out of memory (the problem is too large for this machine)", file=sys.stderr)
+        print(f"ftc-verify: error: out of memory (the problem is too large for this machine; {_limit_text()})",
+              file=sys.stderr)
         return EXIT_BAD_INPUT
     except Exception as exc:  # a bug: one line, never a traceback, never exit 0 or 1
         return _internal(exc)
+
+
+def _limit_text() -> str:
+    """The memory limit the estimates are checked against, for the out-of-memory line."""
+    from ..limits import format_bytes, memory_limit
+
+    try:
+        return f"the memory limit is {format_bytes(memory_limit())}; FTC_VERIFY_MEMORY_LIMIT sets it"
+    except FTCError as exc:
+        return str(exc)
 
 
 def _internal(exc: BaseException) -> int:
