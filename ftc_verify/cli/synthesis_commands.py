@@ -9,7 +9,7 @@ import argparse
 from typing import Any
 
 from ..jsonable import dumps
-from .common import EXIT_NEGATIVE, EXIT_OK, bad, check_output_file, fmt, nonneg_int, positive, seed_int
+from .common import EXIT_NEGATIVE, EXIT_OK, bad, check_output_file, fmt, positive, seed_int
 
 __all__ = ["add_synthesis_command"]
 
@@ -60,6 +60,8 @@ def _cmd_synthesize(args: argparse.Namespace) -> int:
                    "--method: required for state feedback (two-step, iterative, full-info, common)")
     if args.order is not None and not args.output_feedback:
         raise bad(f"--order {args.order}: needs --output-feedback")
+    if args.order is not None and args.order < 0:
+        raise bad(f"--order {args.order}: must be >= 0 (0 is static output feedback)")
     check_output_file(args.output, "-o/--output", inputs=(args.system,))
     system = load_system(args.system)
     if args.output_feedback:
@@ -119,7 +121,7 @@ def add_synthesis_command(sub: Any) -> None:
                         "descent (nonsmooth descent on the exact stability test, any order)")
     y.add_argument("--output-feedback", action="store_true",
                    help="a dynamic controller per FDI mode reading y_m = Cy x (Theorem 5.1)")
-    y.add_argument("--order", type=nonneg_int, default=None,
+    y.add_argument("--order", type=int, default=None,
                    help="output feedback: controller order (default n; 0 = static output feedback u = Dc y_m; "
                         "orders below n only by the descent)")
     y.add_argument("--seed", type=seed_int, default=0, help="seed of the descent's random starts (default 0)")
