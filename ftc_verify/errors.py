@@ -18,6 +18,7 @@ __all__ = [
     "FMUError",
     "MemoryLimitError",
     "PlantRunError",
+    "OutputError",
 ]
 
 
@@ -46,6 +47,12 @@ class FMUError(FTCError, RuntimeError):
 
 class MemoryLimitError(FTCError, MemoryError):
     """A problem would need more memory than allowed (names the estimate and the limit)."""
+
+
+class OutputError(FTCError, OSError):
+    """The operating system refused to write an output (a full disk, a quota, a lost
+    permission, a read-only file system): names the path and the OS error. The command
+    line answers it like bad input (exit 2); nothing is left half-written."""
 
 
 class PlantRunError(FMUError):

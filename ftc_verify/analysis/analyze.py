@@ -29,6 +29,7 @@ from typing import Any
 from ..analysis.closedloop import ClosedLoop
 from ..jsonable import jsonable
 from ..analysis.crossval import ModeCheck, cross_validate
+from ..limits import check_memory, dense_generator_estimate
 from .lmi_analysis import LMIResult, check_lmi_memory, hinf_gamma, mes_lmi
 from .lower_bound import GainLowerBound, gain_lower_bound, worst_constant_delta
 from .solvers import ForkedCall
@@ -130,16 +131,27 @@ def analyze(loop: ClosedLoop, *, solver: str | None = None, name: str = "", cros
     stage 4 (synthesis loops, where python-control's start-up cost would dominate).
     ``lmi=False`` runs only the exact spectral test and the cross-check (large loops);
     otherwise the LMI stage's memory is checked first, before any work
-    (:func:`~ftc_verify.analysis.lmi_analysis.check_lmi_memory`). ``lower_bounds=False``
-    skips stage 4 (synthesis loops).
+    (:func:`~ftc_verify.analysis.lmi_analysis.check_lmi_memory`), and so is the lower
+    bounds' dense second-moment generator
+    (:func:`~ftc_verify.limits.dense_generator_estimate`). ``lower_bounds=False``
+    skips stage 4 (synthesis loops). A loop the spectral test proves NOT stable gets no
+    LMI solve (outcome ``"skipped"``: no certificate of stability or of a finite gamma
+    exists for it).
     """
     if lmi:
         check_lmi_memory(loop)
+    if lmi and lower_bounds:  # dense second-moment solves and eigenvalues (analysis.lower_bound)
+        check_memory(dense_generator_estimate(loop.n, len(loop.A)),
+                     f"the gamma lower bounds of a loop with n = {loop.n} and {len(loop.A)} joint states",
+                     hint="reduce the problem, or run the exact spectral test alone (analyze --no-lmi)")
     seconds: dict[str, float] = {}
     t = time.perf_counter()
     mss = mean_square_stability(loop)
     seconds["spectral"] = time.perf_counter() - t
-    if lmi:
+    if lmi and mss.unstable:  # proved not stable: no certificate can exist, no solve is spent on one
+        mes, nominal, robust = (_not_requested(c, "not solved: the loop is proved NOT mean-square stable, so no "
+                                               "certificate exists") for c in ("Theorem 3.1", "Theorem 3.2", "Lemma 4.1"))
+    elif lmi:
         nominal, robust = _gammas(loop, solver, seconds)
         t = time.perf_counter()
         mes = mes_lmi(loop, solver=solver, known=(nominal, robust))
@@ -218,7 +230,10 @@ def _gammas(loop: ClosedLoop, solver: str | None, seconds: dict[str, float]) -> 
     return nominal, robust
 
 
-def _not_requested(condition: str) -> LMIResult:
-    """The placeholder of an LMI analysis that was not run (``lmi=False``)."""
+def _not_requested(condition: str, why: str = "") -> LMIResult:
+    """The placeholder of an LMI analysis that was not run: ``lmi=False`` (outcome
+    ``"not requested"``), or ``why`` it was skipped (outcome ``"skipped"``)."""
+    if why:
+        return LMIResult(condition, "skipped", None, "", "", 0.0, 0.0, None, message=why)
     return LMIResult(condition, "not requested", None, "", "", 0.0, 0.0, None,
                      message="LMIs not requested (exact spectral test only)")

@@ -190,15 +190,48 @@ class ClosedLoop:
 
     def perturbed(self, deltas: Mapping[str, Matrix]) -> tuple[Matrix, ...]:
         """State matrices ``A_s + sum_k E_k Delta_k F_k`` for given ``Delta`` per channel
-        name (a channel missing from ``deltas`` stays at ``Delta = 0``)."""
+        name (a channel missing from ``deltas`` stays at ``Delta = 0``).
+
+        Raises
+        ------
+        ValidationError
+            Naming the channel: a name that is no channel of the loop (with the names
+            there are), a ``Delta`` that is not a finite real matrix, or one whose shape
+            is not ``(columns of E, rows of F)``.
+        """
+        checked = self._checked_deltas(deltas)
         out = []
         for A, chans in zip(self.A, self.channels):
             M = A.copy()
             for ch in chans:
-                if ch.name in deltas:
-                    M = M + ch.E @ np.asarray(deltas[ch.name]) @ ch.F
+                if ch.name in checked:
+                    M = M + ch.E @ checked[ch.name] @ ch.F
             out.append(M)
         return tuple(out)
+
+    def _checked_deltas(self, deltas: Mapping[str, Matrix]) -> dict[str, Matrix]:
+        """``deltas`` as finite real matrices of each channel's shape (:meth:`perturbed`)."""
+        from ..model.matrices import as_matrix
+
+        if not isinstance(deltas, Mapping):
+            raise ValidationError(f"deltas: expected a mapping of channel name to matrix, got {type(deltas).__name__}")
+        shapes: dict[str, tuple[int, int]] = {}
+        for chans in self.channels:
+            for ch in chans:
+                shapes.setdefault(ch.name, (int(ch.E.shape[1]), int(ch.F.shape[0])))
+        out: dict[str, Matrix] = {}
+        for name, value in deltas.items():
+            if name not in shapes:
+                known = sorted(shapes) if shapes else "none: the loop is nominal"
+                raise ValidationError(f"deltas: unknown uncertainty channel {name!r} (channels: {known})")
+            if np.iscomplexobj(value):
+                raise ValidationError(f"deltas[{name!r}]: Delta must be real, got a complex matrix")
+            delta = as_matrix(value, f"deltas[{name!r}]")
+            if delta.shape != shapes[name]:
+                raise ValidationError(f"deltas[{name!r}]: Delta has shape {delta.shape}, channel {name!r} needs "
+                                      f"{shapes[name]} (columns of E, rows of F)")
+            out[name] = delta
+        return out
 
     def to_statespace(self, *, deltas: Mapping[str, Matrix] | None = None) -> dict[tuple[int, int], Any]:
         r"""The frozen closed loop of every pair ``(true, fdi)`` as a ``control.StateSpace``.
@@ -242,7 +275,9 @@ class ClosedLoop:
         Raises
         ------
         ValidationError
-            When two phases of one pair have different matrices (a loop built by hand).
+            When two phases of one pair have different matrices (a loop built by hand),
+            or a ``Delta`` is refused by :meth:`perturbed` (unknown channel, not a
+            finite real matrix, wrong shape).
 
         Examples
         --------

@@ -54,6 +54,8 @@ def check_output_file(path: str, option: str, suffixes: tuple[str, ...] | None =
                       inputs: tuple[str, ...] = ()) -> None:
     """A file the command will write: not a folder, not one of the command's ``inputs``,
     in a writable folder, right suffix."""
+    if not str(path).strip():
+        raise bad(f"{option} {path!r}: empty file name; give a file name")
     p = Path(path)
     for given in inputs:
         if p.resolve() == Path(given).resolve():

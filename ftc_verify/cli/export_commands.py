@@ -38,7 +38,10 @@ def _certify(args: argparse.Namespace, system: Any, controller: Any, command: st
     the code is 0 unless the controller is refused (not certified, no ``--allow-uncertified``)."""
     from ..export.certificate import export_certificate
 
-    cert, rep = export_certificate(system, controller, float(args.step), solver=args.solver)
+    from ..analysis.solvers import interruptible
+
+    cert, rep = interruptible(lambda: export_certificate(system, controller, float(args.step), solver=args.solver),
+                              "the analysis")
     print(f"ftc-verify {command}: {system.name} ({controller.describe(system.m)})")
     gammas = f"nominal gamma {fmt(cert.nominal_gamma)}, robust gamma {fmt(cert.robust_gamma)}" if cert.certified else ""
     print(f"  analysis: {cert.verdict}{'; ' + gammas if gammas else ''}")

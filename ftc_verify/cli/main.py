@@ -20,6 +20,7 @@ Every command checks its output paths and options before any work starts.
 from __future__ import annotations
 
 import argparse
+import errno
 import os
 import signal
 import sys
@@ -38,6 +39,12 @@ from .common import (EXIT_BAD_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_NEGAT
 __all__ = ["main", "build_parser"]
 
 
+#: OS errors that are the environment's, not a bug (exit 2 with the path and the error,
+#: :doc:`/reference/exit-codes`): a full disk, a quota, a permission lost or refused, a
+#: read-only file system.
+_ENVIRONMENT_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EACCES, errno.EPERM, errno.EROFS, errno.EFBIG})
+
+
 class _Terminated(BaseException):
     """Raised in the main thread by SIGTERM so that every ``finally`` cleans up."""
 
@@ -52,14 +59,18 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
     from ..analysis.closedloop import closed_loop
     from .sampled_lines import print_sampled, sampled_exit
 
+    from ..analysis.solvers import interruptible
+
     system, controller = load(args.system, args.controller)
-    rep = analyze(closed_loop(system, controller), solver=args.solver, name=system.name, lmi=not args.no_lmi)
+    loop = closed_loop(system, controller)
+    rep = interruptible(lambda: analyze(loop, solver=args.solver, name=system.name, lmi=not args.no_lmi),
+                        "the analysis")
     period = args.period if args.period is not None else controller.period
     sampled = None
     if period is not None:  # the loop that runs: sampled every period, output held
         from ..analysis.sampled import sampled_analysis
 
-        sampled = sampled_analysis(system, controller, period)
+        sampled = interruptible(lambda: sampled_analysis(system, controller, period), "the sampled-data analysis")
     if args.json:
         print(dumps(rep.to_dict() | {"lmi_requested": not args.no_lmi, "fdi_model": system.chain.describe(),
                                      "sampled": None if sampled is None else sampled.to_dict()}))
@@ -205,12 +216,34 @@ def main(argv: Sequence[str] | None = None) -> int:
     except _Terminated:
         print("ftc-verify: terminated", file=sys.stderr)
         return EXIT_TERMINATED
+    except OSError as exc:
+        if exc.errno not in _ENVIRONMENT_ERRNOS:
+            return _internal(exc)
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"ftc-verify: error: {where}{exc.strerror or exc} ({errno.errorcode.get(exc.errno, 'OSError')}: "
+              "refused by the operating system; nothing was written)", file=sys.stderr)
+        return EXIT_BAD_INPUT
     except MemoryError:
-        print("ftc-verify: error: out of memory (the problem is too large for this machine)", file=sys.stderr)
+        print(f"ftc-verify: error: out of memory (the problem is too large for this machine; {_limit_text()})",
+              file=sys.stderr)
         return EXIT_BAD_INPUT
     except Exception as exc:  # a bug: one line, never a traceback, never exit 0 or 1
-        print(f"ftc-verify: internal error: {type(exc).__name__}: {exc} (please report)", file=sys.stderr)
-        return EXIT_INTERNAL
+        return _internal(exc)
+
+
+def _limit_text() -> str:
+    """The memory limit the estimates are checked against, for the out-of-memory line."""
+    from ..limits import format_bytes, memory_limit
+
+    try:
+        return f"the memory limit is {format_bytes(memory_limit())}; FTC_VERIFY_MEMORY_LIMIT sets it"
+    except FTCError as exc:
+        return str(exc)
+
+
+def _internal(exc: BaseException) -> int:
+    print(f"ftc-verify: internal error: {type(exc).__name__}: {exc} (please report)", file=sys.stderr)
+    return EXIT_INTERNAL
 
 
 if __name__ == "__main__":  # pragma: no cover

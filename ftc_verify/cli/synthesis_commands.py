@@ -11,7 +11,7 @@ import argparse
 from typing import Any
 
 from ..jsonable import dumps
-from .common import EXIT_NEGATIVE, EXIT_OK, bad, check_output_file, fmt, positive
+from .common import EXIT_NEGATIVE, EXIT_OK, bad, check_output_file, fmt, positive, seed_int
 
 __all__ = ["add_synthesis_command"]
 
@@ -58,6 +58,7 @@ def _print_synthesis(res: Any) -> None:
 def _cmd_synthesize(args: argparse.Namespace) -> int:
     from ..controllers.controller import Controller
     from ..controllers.files import dump_controller
+    from ..analysis.solvers import interruptible
     from ..model.files import load_system, write_atomic
     from ..synthesis.state_feedback import synthesize
 
@@ -77,9 +78,11 @@ def _cmd_synthesize(args: argparse.Namespace) -> int:
         if args.output_feedback:
             from ..synthesis.output_feedback import synthesize_output_feedback
 
-            return synthesize_output_feedback(system, method=args.method or "auto", gamma=args.gamma, k_max=k_max,
-                                              solver=args.solver, order=args.order, seed=args.seed)
-        return synthesize(system, method=args.method or "best", gamma=args.gamma, k_max=k_max, solver=args.solver)
+            return interruptible(lambda: synthesize_output_feedback(
+                system, method=args.method or "auto", gamma=args.gamma, k_max=k_max, solver=args.solver,
+                order=args.order, seed=args.seed), "the output-feedback synthesis")
+        return interruptible(lambda: synthesize(system, method=args.method or "best", gamma=args.gamma, k_max=k_max,
+                                                solver=args.solver), "the synthesis")
 
     def controller_of(res: Any) -> Controller:
         return res.controller if args.output_feedback else Controller.state_feedback(
@@ -90,6 +93,7 @@ def _cmd_synthesize(args: argparse.Namespace) -> int:
         if args.order is not None and args.order != n and args.method not in (None, "auto", "descent", "hinf"):
             raise bad(f"--order {args.order}: method {args.method} designs order n = {n} only; use --method descent "
                       "or hinf")
+        _check_order_memory(system, n if args.order is None else args.order, args.order is None)
     at_period = None
     if args.period is not None:  # the loop that runs: proved stable at the period, or nothing written
         from ..synthesis.at_period import synthesize_at_period
@@ -125,6 +129,21 @@ def _cmd_synthesize(args: argparse.Namespace) -> int:
     return EXIT_OK if certified else EXIT_NEGATIVE
 
 
+def _check_order_memory(system: Any, order: int, default: bool) -> None:
+    """Refuse, before any work, an output-feedback problem whose dense second-moment
+    generator (the descent's objective and the exact spectral test of every candidate,
+    on the loop of order ``n + order``) would not fit under the memory limit
+    (:func:`ftc_verify.limits.dense_generator_estimate`)."""
+    from ..limits import check_memory, dense_generator_estimate
+
+    n_loop = system.dims[0] + order
+    option = f"--order {order}" + (" (the default, n)" if default else "")
+    check_memory(dense_generator_estimate(n_loop, system.chain.n_states),
+                 f"{option}: the second-moment generator of the closed loop of order {n_loop} on "
+                 f"{system.chain.n_states} joint states",
+                 hint="choose a smaller --order")
+
+
 def add_synthesis_command(sub: Any) -> None:
     """Register ``synthesize`` on the subparsers ``sub``."""
     y = sub.add_parser("synthesize", help="synthesize a controller (state or output feedback) and certify it")
@@ -145,7 +164,7 @@ def add_synthesis_command(sub: Any) -> None:
     y.add_argument("--order", type=int, default=None,
                    help="output feedback: controller order (default n; 0 = static output feedback u = Dc y_m; "
                         "orders below n only by the descent)")
-    y.add_argument("--seed", type=int, default=0, help="seed of the descent's random starts (default 0)")
+    y.add_argument("--seed", type=seed_int, default=0, help="seed of the descent's random starts (default 0)")
     y.add_argument("--k-max", type=positive, default=None,
                    help="bound on the spectral norm of every gain (output feedback: of every controller block)")
     y.add_argument("-o", "--output", required=True, help="controller TOML file to write (only when certified; not the system file)")

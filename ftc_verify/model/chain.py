@@ -60,7 +60,8 @@ MAX_DELAY_PHASES = 64
 
 
 def _rates(value: ArrayLike, m: int, name: str) -> Matrix:
-    """A rate matrix ``(m, m)``, off-diagonal entries ``>= 0`` (the diagonal is ignored)."""
+    """A rate matrix ``(m, m)``, entries ``>= 0`` (the diagonal is not used, but a
+    negative one, a generator's diagonal written by mistake, is refused)."""
     b = as_matrix(value, name)
     if b.shape != (m, m):
         raise ValidationError(f"{name}: expected shape {(m, m)} (as alpha), got {b.shape}")
@@ -68,6 +69,10 @@ def _rates(value: ArrayLike, m: int, name: str) -> Matrix:
     if np.any(b[off] < 0):
         r, c = (int(v) for v in np.argwhere((b < 0) & off)[0])
         raise ValidationError(f"{name}[{r + 1}][{c + 1}]: rates must be >= 0, got {b[r, c]}")
+    if np.any(np.diag(b) < 0):  # a generator's diagonal written by mistake: refused, never ignored silently
+        r = int(np.argmax(np.diag(b) < 0))
+        raise ValidationError(f"{name}[{r + 1}][{r + 1}]: rates must be >= 0, got {b[r, r]} (this is a matrix "
+                              "of rates, not a generator: its diagonal is not used; write 0)")
     return b
 
 

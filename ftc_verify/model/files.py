@@ -26,6 +26,7 @@ same folder, then :func:`os.replace`). Every error names the file, the table ind
 from __future__ import annotations
 
 import difflib
+import errno
 import os
 import tempfile
 import math
@@ -37,7 +38,7 @@ from typing import Any
 import numpy as np
 import tomli_w
 
-from ..errors import ProblemFileError, ValidationError
+from ..errors import OutputError, ProblemFileError, ValidationError
 from .system import FTCSystem, JointChain, Matrix, Mode
 
 __all__ = [
@@ -229,7 +230,16 @@ def dump_system(system: FTCSystem) -> str:
 
 def write_atomic(path: str | os.PathLike[str], text: str) -> None:
     """Write ``text`` to ``path`` via a temporary file in the same folder and a rename,
-    so that a failure never leaves a half-written file."""
+    so that a failure never leaves a half-written file.
+
+    Raises
+    ------
+    ProblemFileError
+        The folder refuses the temporary file (names the path and the OS error).
+    OutputError
+        Writing or renaming failed (a full disk, a quota, a permission lost): names
+        the path and the OS error; the temporary file is removed.
+    """
     p = Path(path)
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent or ".")
@@ -242,6 +252,10 @@ def write_atomic(path: str | os.PathLike[str], text: str) -> None:
         with os.fdopen(fd, "w", encoding="utf-8") as fh:
             fh.write(text)
         os.replace(tmp, p)
+    except OSError as exc:  # a full disk, a quota, a permission lost since the checks
+        Path(tmp).unlink(missing_ok=True)
+        raise OutputError(f"{p}: cannot write: {exc.strerror or exc} ({errno.errorcode.get(exc.errno or 0, 'OSError')})"
+                          ) from None
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise

@@ -140,7 +140,13 @@ _UNCERTAINTY_KEYS = ("A1", "A2", "B1", "B2")
 def _signals(labels: Sequence[str], wanted: Signal | Sequence[Signal] | None, role: str, kind: str) -> list[int]:
     """0-based indices of the signals ``wanted`` (labels, base names or indices) among
     ``labels`` (mode 1's input or output labels), in the order given."""
-    items = [wanted] if isinstance(wanted, (str, int, np.integer)) else list(wanted or ())
+    if isinstance(wanted, (str, int, np.integer)):
+        items = [wanted]
+    elif wanted is None or (isinstance(wanted, Sequence) and not isinstance(wanted, bytes)):
+        items = list(wanted or ())
+    else:
+        raise ValidationError(f"{role}: expected {kind} labels or 0-based indices (one or a sequence), "
+                              f"got {wanted!r:.80}")
     out: list[int] = []
     for item in items:
         if isinstance(item, (bool, np.bool_)) or not isinstance(item, (str, int, np.integer)):
@@ -222,7 +228,13 @@ def _from_statespace(k: int, sys: Any, cols: Sequence[list[int]], rows: Sequence
                      weights: Mapping[str, ArrayLike]) -> Mode:
     """The :class:`Mode` of ``sys`` (mode ``k``, 1-based) from the selected input columns
     ``(u, w)`` and output rows ``(y, y_m or None)``; refuses a feedthrough among them."""
-    A, B, C, D = (np.asarray(getattr(sys, key), dtype=float) for key in ("A", "B", "C", "D"))
+    mats = {key: np.asarray(getattr(sys, key)) for key in ("A", "B", "C", "D")}
+    for key, value in mats.items():
+        if np.iscomplexobj(value) and np.any(value.imag != 0):
+            r, c = (int(i) for i in np.argwhere(value.imag != 0)[0])
+            raise ValidationError(f"mode {k}: {key}[{r + 1}][{c + 1}] = {complex(value[r, c])!r} of {sys.name!r} "
+                                  "is complex; the FTC model is real")
+    A, B, C, D = (np.real(mats[key]).astype(float) for key in ("A", "B", "C", "D"))
     used_out = sorted({r for sel in rows if sel is not None for r in sel})
     used_in = sorted({c for sel in cols for c in sel})
     for r in used_out:
@@ -375,7 +387,7 @@ class FTCSystem:
             StateSpace, discrete-time (with its ``dt``), different states or signals
             from mode 1, an unknown label or out-of-range index, a signal named twice
             or both as control input and disturbance, an input named in neither, a
-            nonzero feedthrough (with its output and input), or any check of
+            nonzero feedthrough (with its output and input), a complex entry, or any check of
             :class:`Mode` and :class:`FTCSystem`.
         """
         import control

@@ -120,7 +120,7 @@ def read_model_description(path: Path, xml: bytes, err: Callable[[str], FMUError
     if root.tag != "fmiModelDescription":
         raise err(f"modelDescription.xml: root element is <{root.tag}>, not <fmiModelDescription>")
     version = root.get("fmiVersion")
-    if version != "2.0" and not str(version).startswith("3."):
+    if version not in ("2.0", "3.0"):
         raise err(
             f"modelDescription.xml declares fmiVersion {version!r}; the supervisor needs an "
             "FMI 2.0 or 3.0 co-simulation FMU (fmiVersion \"2.0\" or \"3.0\")"
@@ -128,10 +128,13 @@ def read_model_description(path: Path, xml: bytes, err: Callable[[str], FMUError
     if version != "2.0" and (root.get("guid") is not None or root.find("ModelVariables/ScalarVariable") is not None):
         raise err(f"modelDescription.xml declares fmiVersion {version!r} but is laid out as FMI 2.0 (guid, "
                   "ScalarVariable): declare fmiVersion \"2.0\", or export the model as FMI 3.0")
+    if version == "3.0":
+        _unique_value_references(root, err)
     try:
         md = fmpy_read(str(path), validate=True)
     except Exception as exc:  # fmpy raises plain Exceptions with the schema problems
-        raise err(f"invalid modelDescription.xml: {exc}") from None
+        what = str(exc) if type(exc) is Exception else f"{type(exc).__name__}: {exc}"
+        raise err(f"invalid modelDescription.xml: {what}") from None
     if md.coSimulation is None:
         raise err("modelDescription.xml has no <CoSimulation> element (Model Exchange only?)")
     fmi_version = "3.0" if is_fmi3(md) else "2.0"
@@ -141,6 +144,22 @@ def read_model_description(path: Path, xml: bytes, err: Callable[[str], FMUError
             raise err("modelDescription.xml has no <CoSimulation> element (Model Exchange only?)")
         md.coSimulation.providesDirectionalDerivative = cs.get("providesDirectionalDerivatives") in ("true", "1")
     return md, fmi_version
+
+
+def _unique_value_references(root: ET.Element, err: Callable[[str], FMUError]) -> None:
+    """FMI 3.0: every variable has a valueReference of its own (aliases are ``<Alias>``
+    elements, not shared references as in FMI 2.0); a reference used twice is named with
+    both variables."""
+    variables = root.find("ModelVariables")
+    seen: dict[str, str] = {}
+    for var in () if variables is None else variables:
+        ref, name = var.get("valueReference"), str(var.get("name"))
+        if ref is None:
+            continue
+        if ref in seen:
+            raise err(f"modelDescription.xml: valueReference {ref} is used by both {seen[ref]!r} and {name!r} "
+                      "(FMI 3.0 references are unique)")
+        seen[ref] = name
 
 
 def require_binary(names: set[str], model_identifier: str, fmi_version: str, err: Callable[[str], FMUError]) -> None:

@@ -30,7 +30,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
-from typing import overload
+from typing import Any, overload
 
 import numpy as np
 
@@ -214,10 +214,17 @@ def sample_paths(
     (:attr:`JointChain.states`) and consecutive equal modes are merged (a phase of a
     detection is not a mode switch).
     """
+    _check_chain(chain)
     horizon = _check_horizon(horizon)
     count = _check_count(count)
     s_start = chain.start_state(start)
     return _sample(chain, horizon, seed_sequence(seed).spawn(count), beta, s_start)
+
+
+def _check_chain(chain: Any) -> None:
+    if not isinstance(chain, JointChain):
+        hint = " (a system's chain is its .chain)" if hasattr(chain, "chain") else ""
+        raise ValidationError(f"chain: expected a JointChain, got {type(chain).__name__}{hint}")
 
 
 def _check_count(count: int) -> int:
@@ -241,8 +248,10 @@ def sample_path_range(
     for any ``count >= stop`` (every path draws only from its stream,
     :func:`~ftc_verify.simulation.spec.path_streams`),
     so that a Dask worker can sample its batch itself. ``seed`` is not advanced."""
+    _check_chain(chain)
     horizon = _check_horizon(horizon)
-    _check_count(stop - first)
+    if stop <= first:
+        raise ValidationError(f"first, stop: path range {first} .. {stop} - 1 is empty (stop must exceed first)")
     return _sample(chain, horizon, path_streams(seed, first, stop), beta, chain.start_state(start))
 
 

@@ -225,7 +225,15 @@ class SimulationSpec:
                 raise ValidationError(f"seed: expected a non-negative integer or None, got {self.seed!r}")
             put(self, "seed", int(self.seed))
         if self.beta is not None:
-            put(self, "beta", np.array(self.beta, dtype=float))
+            if np.iscomplexobj(self.beta):
+                raise ValidationError(f"beta: detection rates must be real, got {self.beta!r:.80}")
+            try:
+                beta = np.array(self.beta, dtype=float)
+            except (TypeError, ValueError) as exc:
+                raise ValidationError(f"beta: not an array of rates ({self.beta!r:.80}): {exc}") from None
+            if not np.all(np.isfinite(beta)) or np.any(beta < 0):
+                raise ValidationError(f"beta: rates must be finite and >= 0, got {self.beta!r:.80}")
+            put(self, "beta", beta)
         if not isinstance(self.disturbance, str) or self.disturbance not in DISTURBANCES:
             raise ValidationError(f"disturbance: unknown kind {self.disturbance!r}; choose from {sorted(DISTURBANCES)}")
         put(self, "delta", schedule_of(self.delta))
@@ -268,7 +276,13 @@ class SimulationSpec:
         (:func:`~ftc_verify.simulation.paths.sample_path_range`)."""
         from .paths import sample_path_range
 
+        for name, value in (("first", first), ("stop", stop)):
+            if value is not None and (isinstance(value, bool) or not isinstance(value, (int, np.integer))
+                                      or value < 0):
+                raise ValidationError(f"{name}: expected a path index >= 0, got {value!r}")
         stop = self.n_paths if stop is None else int(stop)
+        if stop <= first:
+            raise ValidationError(f"first, stop: path range {first} .. {stop} - 1 is empty (stop must exceed first)")
         return sample_path_range(chain, self.horizon, self._seed_or_refuse(), first, stop, beta=self.beta,
                                  start=start)
 

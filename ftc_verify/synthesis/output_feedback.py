@@ -61,6 +61,7 @@ from ..analysis.lmi import block_specs, lyapunov_block, projection, xy_block
 from ..analysis.lmi_analysis import hinf_gamma
 from ..controllers.controller import Controller
 from ..errors import SolverError, ValidationError
+from ..limits import check_memory, dense_generator_estimate
 from ..model.system import FTCSystem, Matrix, Mode
 from .descent import accepted_gamma, descent_route
 from .hinf_descent import hinf_route, within_bound
@@ -441,6 +442,9 @@ def synthesize_output_feedback(
                               f"n = {n0} only")
     t0 = time.perf_counter()
     n = n0 + order
+    check_memory(dense_generator_estimate(n, system.chain.n_states),
+                 f"order {order}: the second-moment generator of the closed loop of order {n}",
+                 hint="choose a smaller order")
     name = choose_solver(solver, system.chain.n_states * (n * (n + 1) + 1))
     calls = SolverCalls(name)
     full = order == n0

@@ -21,7 +21,9 @@ Drawn plants are small and well scaled, so that every LMI solve stays around 0.1
   :math:`c \ge 0` the least making every nominal :math:`A_i` Hurwitz with
   :math:`\max\operatorname{Re}\lambda(A_i) \le -a`;
 * fault rates ``alpha[i][k]`` and detection rates ``beta_min[j][i]`` in ``[0.2, 3]``,
-  ``beta_max = beta_min + width`` with width in ``[0, 2]`` (:func:`chains`);
+  ``beta_max = beta_min + width`` with width in ``[0, 2]`` (:func:`chains`); on request
+  Erlang-``k`` delays (``delay_phases``), false-alarm rates in ``[0, 0.5]`` with widths in
+  ``[0, 0.5]`` (``false_alarms``) and ``beta_min = 0`` entries (``missed_detection``);
 * uncertainty weights (optional) ``A1, A2`` (``n x n``), ``B1`` (``n x nu``), ``B2``
   (``nu x nu``) with entries in ``[-0.3, 0.3]``, or exact zero matrices.
 
@@ -48,6 +50,7 @@ from hypothesis.extra.numpy import arrays
 from numpy.typing import NDArray
 
 from ..controllers.controller import Controller
+from ..model.chain import MAX_DELAY_PHASES
 from ..model.system import FTCSystem, JointChain
 
 __all__ = [
@@ -76,6 +79,8 @@ B_SINGULAR = (0.5, 1.5)
 CD_BOUND, CD_FLOOR = 1.0, 0.5
 RATE_RANGE = (0.2, 3.0)
 WIDTH_MAX = 2.0
+#: Largest lower false-alarm rate and largest false-alarm width of :func:`chains`.
+FALSE_ALARM_MAX = 0.5
 WEIGHT_BOUND = 0.3
 #: Largest accepted gain entry. Nearly uncontrollable draws (an unstable mode reached
 #: through a 1e-8 coupling) give LQR gains ~1e8 and Lyapunov matrices with condition
@@ -132,8 +137,15 @@ def chains(
     beta_max: float = RATE_RANGE[1],
     beta_width: Opt[float] = WIDTH_MAX,
     fault_during_delay: bool | st.SearchStrategy[bool] | None = False,
+    delay_phases: Opt[int] = 1,
+    false_alarms: bool | st.SearchStrategy[bool] | None = False,
+    false_alarm_max: float = FALSE_ALARM_MAX,
+    false_alarm_width: Opt[float] = FALSE_ALARM_MAX,
+    missed_detection: bool | st.SearchStrategy[bool] | None = False,
 ) -> JointChain:
-    """Joint (true, FDI) chains: a valid fault generator and a box of detection rates.
+    """Joint (true, FDI) chains: a valid fault generator and a box of detection rates,
+    optionally with the FDI models of :mod:`ftc_verify.model.chain` (Erlang delays,
+    false alarms, missed detection).
 
     Parameters
     ----------
@@ -150,6 +162,25 @@ def chains(
         ``[0, beta_width]``. ``0`` gives exact rates (``beta_min == beta_max``).
     fault_during_delay : bool, None or strategy
         The chain variant; ``None`` draws either.
+    delay_phases : int, (low, high) or strategy
+        Erlang phases ``k`` of the detection delay (1 to
+        :data:`~ftc_verify.model.chain.MAX_DELAY_PHASES`; 1 is the paper's exponential).
+    false_alarms : bool, None or strategy
+        Add a box of false-alarm rates: ``false_alarm_min[i][j]`` in
+        ``[0, false_alarm_max]``, width in ``[0, false_alarm_width]``; ``None`` draws either.
+    false_alarm_max : float
+        Largest lower false-alarm rate (``>= 0``).
+    false_alarm_width : float, (low, high) or strategy
+        Largest false-alarm interval width; ``0`` gives exact false-alarm rates.
+    missed_detection : bool, None or strategy
+        Set ``beta_min`` to 0 on a drawn, non-empty set of off-diagonal entries (the
+        detection may never come); ``None`` draws either.
+
+    Raises
+    ------
+    hypothesis.errors.InvalidArgument
+        For ``m < 2``, ``delay_phases`` outside ``1 .. MAX_DELAY_PHASES``, a negative
+        ``false_alarm_max`` (hypothesis's error for a strategy's bad argument).
 
     Examples
     --------
@@ -166,10 +197,27 @@ def chains(
     off = ~np.eye(m_, dtype=bool)
     alpha = np.where(off, draw(_rates(m_, rate_min, alpha_max)), 0.0)
     alpha -= np.diag(alpha.sum(axis=1))
+    k = draw(_opt(delay_phases))
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 1 <= k <= MAX_DELAY_PHASES:
+        raise InvalidArgument(f"chains: delay_phases must be an integer from 1 to {MAX_DELAY_PHASES}, got {k!r}")
+    if not (0.0 <= false_alarm_max < np.inf):
+        raise InvalidArgument(f"chains: false_alarm_max must be finite and >= 0, got {false_alarm_max!r}")
     beta_min = np.where(off, draw(_rates(m_, rate_min, beta_max)), 0.0)
     width_max = draw(_opt(beta_width, floats=True))
     width = np.where(off, draw(_rates(m_, 0.0, width_max)), 0.0) if width_max > 0 else np.zeros((m_, m_))
-    return JointChain(alpha, beta_min, beta_min + width, draw(_flag(fault_during_delay)))
+    beta_top = beta_min + width
+    if draw(_flag(missed_detection)):
+        missed = off & draw(arrays(np.bool_, (m_, m_)))
+        if not missed.any():
+            missed[0, 1] = True
+        beta_min = np.where(missed, 0.0, beta_min)
+    fa_min = fa_max = None
+    if draw(_flag(false_alarms)):
+        fa_min = np.where(off, draw(_rates(m_, 0.0, false_alarm_max)), 0.0)
+        fa_width = draw(_opt(false_alarm_width, floats=True))
+        fa_max = fa_min + (np.where(off, draw(_rates(m_, 0.0, fa_width)), 0.0) if fa_width > 0 else 0.0)
+    return JointChain(alpha, beta_min, beta_top, draw(_flag(fault_during_delay)), delay_phases=int(k),
+                      false_alarm_min=fa_min, false_alarm_max=fa_max)
 
 
 _chains = chains
@@ -247,8 +295,14 @@ def systems(
     """
     chain = _chain_of(draw, chains, m)
     n_, nu_, ny_, nw_ = (draw(_opt(v)) for v in (n, nu, ny, nw))
+    for label, value in (("n", n_), ("nu", nu_), ("ny", ny_), ("nw", nw_)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+            raise InvalidArgument(f"systems: {label} must be an integer of at least 1, got {value!r}")
     unc, zero = draw(_flag(uncertain)), draw(_flag(zero_weights))
     ny_m = None if measured_outputs is None else draw(_opt(measured_outputs))
+    if ny_m is not None and (isinstance(ny_m, bool) or not isinstance(ny_m, (int, np.integer)) or ny_m < 1):
+        raise InvalidArgument(f"systems: measured_outputs must be an integer of at least 1, got {ny_m!r}")
+    ny_m = None if ny_m is None else int(ny_m)
     s = draw(_opt(spread, floats=True))
     nu_ = min(nu_, n_)
     A0 = draw(matrices(n_, n_, bound=A_BOUND)) - A_SHIFT * np.eye(n_)
@@ -273,8 +327,9 @@ def systems(
                 mode[key] = np.zeros(shape) if zero else draw(matrices(*shape, bound=WEIGHT_BOUND))
         modes.append(mode)
     _shift_to_margin(modes, None if stability_margin is None else draw(_opt(stability_margin, floats=True)))
-    return FTCSystem.from_arrays(name=name, modes=modes, alpha=chain.alpha, beta_min=chain.beta_min,
-                                 beta_max=chain.beta_max, fault_during_delay=chain.fault_during_delay)
+    built = FTCSystem.from_arrays(name=name, modes=modes, alpha=chain.alpha, beta_min=chain.beta_min,
+                                  beta_max=chain.beta_max, fault_during_delay=chain.fault_during_delay)
+    return FTCSystem(name=name, modes=built.modes, chain=chain)  # the drawn chain whole (phases, false alarms)
 
 
 def _care(A: Matrix, B: Matrix, q: float, r: float) -> Matrix | None:

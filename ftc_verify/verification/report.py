@@ -192,6 +192,8 @@ def _bracket_plot(rep: VerifyReport, path: Path) -> bool:
 
 def check_out_dir(out_dir: str | os.PathLike[str]) -> Path:
     """Check before any work that ``out_dir`` can receive a report (module docstring)."""
+    if not str(out_dir).strip():
+        raise ProblemFileError(f"--out {str(out_dir)!r}: empty folder name; give a folder name")
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise ProblemFileError(f"--out {out}: exists and is not a folder")

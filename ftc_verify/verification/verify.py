@@ -54,6 +54,7 @@ from ..simulation.delta import constant_delta_loops
 from ..simulation.paths import ChainPath
 from ..simulation.records import PathRecord, divergence_note
 from ..simulation.spec import SimulationSpec, spec_from
+from ..analysis.solvers import interruptible
 from ..synthesis.state_feedback import SynthesisResult, synthesize
 from .moments import exact_energy
 from .montecarlo import MCEstimate, estimate
@@ -413,7 +414,8 @@ def run_verify(
     t = time.perf_counter()
     synthesis = None
     if controller is None:
-        synthesis = synthesize(system, method=method, gamma=gamma, k_max=k_max, solver=solver)
+        synthesis = interruptible(lambda: synthesize(system, method=method, gamma=gamma, k_max=k_max,
+                                                     solver=solver), "the synthesis")
         checks.append(Check("synthesis", synthesis.feasible, synthesis.message))
         controller = synthesis.controller
     stage("synthesis", t)
@@ -431,8 +433,8 @@ def run_verify(
     loop = closed_loop(system, controller.check(system))
     spec.check_memory(system, controller, spec.n_paths)
     t = time.perf_counter()
-    analysis = synthesis.report if synthesis is not None and synthesis.report is not None else analyze(
-        loop, solver=solver, name=system.name, cross_validation=False)
+    analysis = synthesis.report if synthesis is not None and synthesis.report is not None else interruptible(
+        lambda: analyze(loop, solver=solver, name=system.name, cross_validation=False), "the analysis")
     gamma_cert, found = _certify(analysis, gamma)
     checks.extend(found)
     stage("analysis", t)
