@@ -308,3 +308,22 @@ def test_the_default_period_is_the_simulators_default_step() -> None:
     from ftc_verify.simulation.spec import SimulationSpec
 
     assert DEFAULT_STEP == SimulationSpec.__dataclass_fields__["step"].default
+
+
+def test_the_certificate_is_the_sampled_loops(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The paper's gains: exported at 10 Hz their sampled loop is proved unstable, so the
+    export is refused (exit 1); at 100 Hz the record carries the proved h_max (about
+    0.0842 s); a --step that differs from a controller file's period is refused."""
+    out = tmp_path / "K.fmu"
+    assert export(GAINS, "--system", PAPER, "--fmi", "2.0", "--step", "0.1", "-o", str(out)) == 1
+    assert "refused" in capsys.readouterr().out and not out.exists()
+    assert export(GAINS, "--system", PAPER, "--fmi", "2.0", "-o", str(out)) == 0
+    with zipfile.ZipFile(out) as zf:
+        cert = ET.fromstring(zf.read("modelDescription.xml")).find(".//Certificate")
+    assert cert is not None and cert.get("sampledVerdict") == "stable" and cert.get("certified") == "true"
+    assert 0.083 < float(cert.get("hMax", "nan")) < 0.0843
+    periodic = tmp_path / "periodic.toml"
+    periodic.write_text("period = 0.02\n" + Path(GAINS).read_text())
+    assert export(str(periodic), "--system", PAPER, "--fmi", "2.0", "--step", "0.01", "-o",
+                  str(tmp_path / "P.fmu")) == 2
+    assert "--step 0.01: differs from the controller's period 0.02" in capsys.readouterr().err

@@ -27,6 +27,17 @@ __all__ = ["add_export_commands"]
 DEFAULT_STEP = 0.01
 
 
+def _period(args: argparse.Namespace, controller: Any) -> float:
+    """The export's sampling period: ``--step``, else the controller file's ``period``,
+    else :data:`DEFAULT_STEP`; a ``--step`` that differs from the file's period is refused."""
+    if controller.period is None:
+        return float(DEFAULT_STEP if args.step is None else args.step)
+    if args.step is not None and float(args.step) != float(controller.period):
+        raise bad(f"--step {args.step}: differs from the controller's period {controller.period} "
+                  f"({args.controller}); the export runs at the period the controller was certified for")
+    return float(controller.period)
+
+
 def _check_output(args: argparse.Namespace, suffix: str) -> None:
     check_output_file(args.output, "-o", (suffix,), inputs=(args.controller, args.system))
     if Path(args.output).exists() and not args.force:
@@ -52,8 +63,10 @@ def _certify(args: argparse.Namespace, system: Any, controller: Any, command: st
         return EXIT_OK, attrs, title
     print("  verdict: refused (the controller is not certified; --allow-uncertified exports it anyway, "
           "recording that it is not)")
-    if rep.mss.undecided:
+    if rep.mss.undecided or cert.sampled_verdict == "undecided":
         return EXIT_UNDECIDED, attrs, title
+    if cert.sampled_verdict == "not stable":
+        return EXIT_NEGATIVE, attrs, title  # the loop as exported is proved unstable at its period
     return (EXIT_UNCERTIFIED if rep.mss.stable else EXIT_NEGATIVE), attrs, title
 
 
@@ -72,6 +85,7 @@ def _cmd_export_controller(args: argparse.Namespace) -> int:
         raise bad("export-controller: give exactly one of --fmi 2.0|3.0 (an FMU) and --c (a C99 file)")
     _check_output(args, ".c" if args.c else ".fmu")
     system, controller = load(args.system, args.controller)
+    args.step = _period(args, controller)
     tables = controller_tables(controller, float(args.step), system.m)
     if not args.c:
         _require_gcc()
@@ -142,6 +156,7 @@ def _cmd_export_loop(args: argparse.Namespace) -> int:
 
     _check_output(args, ".ssp")
     system, controller = load(args.system, args.controller)
+    args.step = _period(args, controller)
     _modes(args, system.m)
     tables = controller_tables(controller, float(args.step), system.m)
     plant = None if args.plant is None else load_plant_map(args.plant)
@@ -180,9 +195,10 @@ def _floats(text: str) -> list[float]:
 
 def _common_options(parser: argparse.ArgumentParser, suffix: str) -> None:
     parser.add_argument("-o", "--output", required=True, help=f"the file to write ({suffix})")
-    parser.add_argument("--step", type=positive, default=DEFAULT_STEP,
-                        help="sampling period h in s (default 0.01, the simulators' default --step); the exported "
-                             "update is exact for this period and refuses any other step")
+    parser.add_argument("--step", type=positive, default=None,
+                        help="sampling period h in s (default: the controller file's period, else 0.01, the "
+                             "simulators' default --step); the exported update is exact for this period and "
+                             "refuses any other step; a --step that differs from the file's period is refused")
     parser.add_argument("--force", action="store_true", help="replace an existing output file")
     parser.add_argument("--allow-uncertified", action="store_true",
                         help="export a controller the analysis does not certify (the record says so)")

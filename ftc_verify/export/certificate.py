@@ -3,13 +3,14 @@ r"""What an exported controller carries about its certificate, and the refusal o
 :func:`export_certificate` runs the package's own analysis
 (:func:`~ftc_verify.analysis.analyze.analyze` on
 :func:`~ftc_verify.analysis.closedloop.closed_loop`) of ``(system, controller)``: the
-controller is *certified* when the exact spectral test proves mean-square stability at every
-rate vertex and the Theorem 3.1 certificate passed (``certified_stable``); the
-nominal (Theorem 3.2) and robust (Lemma 4.1) :math:`\gamma` are recorded when certified.
-The analysis is of the continuous-time loop; the export samples the controller with period
-:math:`h` (:mod:`ftc_verify.export.ccode`), the loop the simulators run. No certificate
-for the sampled loop exists yet (the sampled-data analysis, ``h_max``, is future work): the
-record says so (``h_max = "not computed"``).
+controller is *certified* when mean-square stability is proved over the whole rate box and
+the Theorem 3.1 certificate passed (``certified_stable``) *and* the loop as exported -- the
+controller sampled with period :math:`h` (:mod:`ftc_verify.export.ccode`), its output held
+-- is proved mean-square stable over the box at that period
+(:func:`~ftc_verify.analysis.sampled.sampled_analysis`); the nominal (Theorem 3.2) and
+robust (Lemma 4.1) :math:`\gamma` of the continuous loop (the :math:`h \to 0` limit) are
+recorded when certified, with the sampled verdict and the proved ``h_max`` (the largest
+period proved stable; ``none`` when no bracket was proved).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from dataclasses import dataclass
 from .. import __version__
 from ..analysis.analyze import AnalysisReport, analyze
 from ..analysis.closedloop import closed_loop
+from ..analysis.sampled import SampledResult, sampled_analysis
 from ..controllers.controller import Controller
 from ..controllers.files import dump_controller
 from ..model.files import dump_system
@@ -42,6 +44,10 @@ class ExportCertificate:
         The certified levels (None when not certified).
     period : float
         The sampling period of the export.
+    sampled_verdict : str
+        Mean-square stability of the sampled loop at ``period`` over the rate box.
+    h_max : float or None
+        The largest period proved stable (the sampled-data analysis), or None.
     system_name, system_sha256, controller_name, controller_sha256 : str
         What was certified: names and the SHA-256 of the canonical TOML texts
         (:func:`~ftc_verify.model.files.dump_system`,
@@ -53,6 +59,8 @@ class ExportCertificate:
     nominal_gamma: float | None
     robust_gamma: float | None
     period: float
+    sampled_verdict: str
+    h_max: float | None
     system_name: str
     system_sha256: str
     controller_name: str
@@ -65,14 +73,15 @@ class ExportCertificate:
 
         return {"verdict": self.verdict, "certified": "true" if self.certified else "false",
                 "nominalGamma": num(self.nominal_gamma), "robustGamma": num(self.robust_gamma),
-                "period": repr(self.period), "hMax": "not computed", "systemName": self.system_name,
+                "period": repr(self.period), "sampledVerdict": self.sampled_verdict, "hMax": num(self.h_max),
+                "systemName": self.system_name,
                 "systemSha256": self.system_sha256, "controllerName": self.controller_name,
                 "controllerSha256": self.controller_sha256, "tool": f"ftc-verify {__version__}"}
 
 
-def _verdict(rep: AnalysisReport) -> str:
+def _verdict(rep: AnalysisReport, sampled: SampledResult) -> str:
     if rep.certified_stable:
-        return "certified"
+        return "certified" if sampled.stable else f"certified in continuous time, {sampled.verdict} at the period"
     if rep.mss.undecided:
         return "undecided"
     return "stable, not certified" if rep.mss.stable else "not stable"
@@ -83,12 +92,13 @@ def export_certificate(system: FTCSystem, controller: Controller, period: float,
     """Analyse ``(system, controller)`` and return the record of an export with ``period``
     and the analysis report (module docstring)."""
     rep = analyze(closed_loop(system, controller), solver=solver, name=system.name)
-    ok = rep.certified_stable
+    sampled = sampled_analysis(system, controller, float(period), max_seconds=30.0)
+    ok = rep.certified_stable and sampled.stable
     cert = ExportCertificate(
-        verdict=_verdict(rep), certified=ok,
+        verdict=_verdict(rep, sampled), certified=ok,
         nominal_gamma=rep.nominal.gamma if ok and rep.nominal.certified else None,
         robust_gamma=rep.robust.gamma if ok and rep.robust.certified else None,
-        period=float(period), system_name=system.name,
+        period=float(period), sampled_verdict=sampled.verdict, h_max=sampled.h_max, system_name=system.name,
         system_sha256=hashlib.sha256(dump_system(system).encode()).hexdigest(),
         controller_name=controller.name,
         controller_sha256=hashlib.sha256(dump_controller(controller).encode()).hexdigest())
