@@ -419,7 +419,6 @@ def run_verify(
         checks.append(Check("synthesis", synthesis.feasible, synthesis.message))
         controller = synthesis.controller
     stage("synthesis", t)
-
     extra: dict[str, Any] = {}  # the sampled loop's findings (verification.sampled_stage)
 
     def report(**found: Any) -> VerifyReport:
