@@ -461,7 +461,7 @@ def gain_lower_bound(loop: ClosedLoop, *, deltas: Sequence[tuple[str, dict[str, 
     feedback at ``upper * ABOVE_CERTIFIED`` (``upper`` a certified gamma, an upper bound of
     every candidate's gain) and its best excitation; the candidate of the largest float
     ratio is kept, its feedback refined by bisection on the gain (loops of at most
-    :data:`REFINE_ROWS` moment rows), and its ratio proved. Without ``upper``, each candidate's
+    ``REFINE_ROWS`` moment rows), and its ratio proved. Without ``upper``, each candidate's
     gain is found by bisection. ``None`` when no candidate loop is mean-square stable, or
     when the moment equations are above :data:`~ftc_verify.analysis.verdict.SOLVE_LIMIT`
     rows (no proof would fit: nothing is computed)."""
