@@ -56,7 +56,7 @@ from __future__ import annotations
 import math
 import time
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -140,38 +140,21 @@ def _split_value(lo: float, hi: float) -> float:
     return 0.5 * (lo + hi)
 
 
-def _adjoint_candidate(conditioned: ClosedLoop, Q: Matrix) -> np.ndarray | None:
-    r"""The float solution of :math:`\mathcal L^*(P) = -I` (:math:`\mathcal L^*` is the
-    generator of :mod:`ftc_verify.analysis.stability` with every :math:`A_s` transposed
-    and :math:`Q` transposed), as a stack of symmetric matrices; ``None`` if not finite."""
-    import warnings
+def _corners(centre: Matrix, lo: Matrix, hi: Matrix, rates: Sequence[tuple[int, ...]]) -> Iterator[Matrix]:
+    """The rate arrays at every vertex of the sub-box's ``rates``, the other rates at ``centre``."""
+    for corner in range(1 << len(rates)):
+        point = centre.copy()
+        for k, r in enumerate(rates):
+            point[r] = hi[r] if corner >> k & 1 else lo[r]
+        yield point
 
-    import scipy.linalg
-    import scipy.sparse as sp
-    from scipy.sparse.linalg import splu
 
-    from .stability import DENSE_LIMIT, duplication_matrix, second_moment_matrix, unvech_stack, vech_order
-
-    n, modes = conditioned.n, len(conditioned.A)
-    rows, cols = vech_order(n)
-    rhs = np.tile(-(rows == cols).astype(float), modes)
-    At = [a.T for a in conditioned.A]
-    try:
-        if modes * len(rows) > DENSE_LIMIT:
-            D, L = duplication_matrix(n)
-            eye = np.eye(n)
-            blocks = sp.block_diag([sp.csr_matrix(L @ (np.kron(eye, a) + np.kron(a, eye)) @ D) for a in At])
-            G = (blocks + sp.kron(Q, sp.identity(len(rows)))).tocsc()
-            v = splu(G).solve(rhs)
-        else:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", scipy.linalg.LinAlgWarning)
-                v = scipy.linalg.solve(second_moment_matrix(At, Q.T), rhs, check_finite=False)
-    except (RuntimeError, ValueError, np.linalg.LinAlgError):
-        return None
-    if not np.all(np.isfinite(v)):
-        return None
-    return unvech_stack(v, modes, n)
+def _generator_at(chain: Any, point: Matrix, literals: Any, cache: dict[bytes, list[list[Any]]]) -> list[list[Any]]:
+    """:func:`~ftc_verify.analysis.exact.ball_generator` at ``point``, made once per point."""
+    key = point.tobytes()
+    if key not in cache:
+        cache[key] = ball_generator(chain, point, literals)
+    return cache[key]
 
 
 def _positive_definite(M: Ball, T: Matrix) -> bool:
@@ -227,7 +210,10 @@ class _Checker:
         ``("failed", rates)`` with the rates of the rows that failed (empty when a row
         without uncertain rates failed or ``P`` was not proved positive definite)."""
         c = _centre(lo, hi)
-        Pt = _adjoint_candidate(self.conditioned, self.loop.chain.generator(c))
+        from .stability import lyapunov_stack_solution  # stability imports this module
+
+        # the adjoint L*_c(P) = -I: the second-moment operator with A_s and Q transposed
+        Pt = lyapunov_stack_solution([a.T for a in self.conditioned.A], self.loop.chain.generator(c).T)
         if Pt is None or not _float_positive(Pt):
             return "unstable-centre", set()
         with precision():
@@ -247,14 +233,8 @@ class _Checker:
         generators: dict[bytes, list[list[Any]]] = {}
         for s, As in enumerate(self.A if A is None else A):
             rates = self.row_rates[s]
-            for corner in range(1 << len(rates)):
-                point = c.copy()
-                for k, r in enumerate(rates):
-                    point[r] = hi[r] if corner >> k & 1 else lo[r]
-                key = point.tobytes()
-                if key not in generators:
-                    generators[key] = ball_generator(chain, point, self.literals)
-                q = generators[key][s]
+            for point in _corners(c, lo, hi, rates):
+                q = _generator_at(chain, point, self.literals, generators)[s]
                 block = As.T @ P[s] + P[s] @ As
                 for t in range(len(P)):
                     if t != s and q[t] != 0:
@@ -304,15 +284,8 @@ class _Checker:
             return False
         generators: dict[bytes, list[list[Any]]] = {}
         for s, As in enumerate(A):
-            rates = self.column_rates[s]
-            for corner in range(1 << len(rates)):
-                point = c.copy()
-                for k, r in enumerate(rates):
-                    point[r] = hi[r] if corner >> k & 1 else lo[r]
-                key = point.tobytes()
-                if key not in generators:
-                    generators[key] = ball_generator(chain, point, self.literals)
-                q = generators[key]
+            for point in _corners(c, lo, hi, self.column_rates[s]):
+                q = _generator_at(chain, point, self.literals, generators)
                 block = As @ X[s] + X[s] @ As.T
                 for t in range(len(X)):
                     if q[t][s] != 0:

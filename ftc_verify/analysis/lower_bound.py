@@ -58,15 +58,14 @@ wrote) plus :math:`B_{w,s}F_s` in ball arithmetic; :math:`\tilde{\mathcal L}` is
 stable (:class:`~ftc_verify.analysis.verdict.StabilityProver`); :math:`\pi`, :math:`M`
 and :math:`\bar X` are enclosed by FLINT's certified linear solves; the bound is the
 lower end of the enclosure of :math:`\sqrt{N/D}`. Above
-:data:`~ftc_verify.analysis.verdict.SOLVE_LIMIT` rows the float value is reported as an
-estimate, not as a bound.
+:data:`~ftc_verify.analysis.verdict.SOLVE_LIMIT` rows no bound is computed (none could be
+proved).
 """
 
 from __future__ import annotations
 
 import math
 import time
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Any
@@ -77,11 +76,11 @@ import scipy.linalg
 from ..jsonable import fields_dict
 from ..model.system import Matrix
 from .closedloop import ClosedLoop
-from .conditioning import Similarity, conditioning_transform
+from .conditioning import Similarity, conditioning_transform, stationary_distribution
 from .exact import ball_generator, ball_matrices, exact_loop, literals_of, written_box
 from ..interrupts import deferred_signals
 from .rigorous import Ball, ball, midpoint, precision
-from .stability import second_moment_matrix, unvech_stack, vech_order
+from .stability import lyapunov_stack_solution, second_moment_matrix, unvech_stack, vech_order
 from .verdict import SOLVE_LIMIT, StabilityProver, ball_lyapunov_solution
 
 __all__ = ["GainLowerBound", "gain_lower_bound", "float_gain", "worst_case_feedback", "worst_constant_delta",
@@ -127,20 +126,6 @@ class GainLowerBound:
         return d
 
 
-def _adjoint_solve(At: Sequence[Matrix], Q: Matrix, R: Sequence[Matrix]) -> np.ndarray | None:
-    """The stack ``P`` with ``A_s' P_s + P_s A_s + sum_t Q_st P_t = -R_s`` (float)."""
-    n, modes = At[0].shape[0], len(At)
-    rows, cols = vech_order(n)
-    rhs = -np.concatenate([np.asarray(r)[rows, cols] for r in R])
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", scipy.linalg.LinAlgWarning)
-            v = scipy.linalg.solve(second_moment_matrix([a.T for a in At], Q.T), rhs, check_finite=False)
-    except (ValueError, np.linalg.LinAlgError):
-        return None
-    return unvech_stack(v, modes, n) if np.all(np.isfinite(v)) else None
-
-
 def _abscissa(A: Sequence[Matrix], Q: Matrix) -> float:
     return float(np.max(scipy.linalg.eigvals(second_moment_matrix(A, Q), check_finite=False).real))
 
@@ -158,7 +143,7 @@ def worst_case_feedback(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[
     g2 = gamma * gamma
     for _ in range(MAX_POLICY_STEPS):
         At = [a + b @ f for a, b, f in zip(A, Bw, F)]
-        P = _adjoint_solve(At, Q, [c.T @ c - g2 * f.T @ f for c, f in zip(Cz, F)])
+        P = lyapunov_stack_solution([a.T for a in At], Q.T, [c.T @ c - g2 * f.T @ f for c, f in zip(Cz, F)])
         if P is None:
             return None
         scale = max(1.0, float(np.abs(P).max()))
@@ -236,9 +221,9 @@ def _forms(At: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], F: 
 
 
 def _stationary(Q: Matrix) -> Matrix | None:
-    S = Q.shape[0]
-    M = np.vstack([Q.T, np.ones((1, S))])
-    pi, *_ = np.linalg.lstsq(M, np.concatenate([np.zeros(S), [1.0]]), rcond=None)
+    """:func:`~ftc_verify.analysis.conditioning.stationary_distribution` when it is one
+    (the balance equations hold), else ``None``."""
+    pi = stationary_distribution(Q)
     return pi if np.all(np.isfinite(pi)) and np.abs(Q.T @ pi).max() < 1e-9 * max(1.0, np.abs(Q).max()) else None
 
 

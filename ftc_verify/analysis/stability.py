@@ -44,6 +44,7 @@ __all__ = [
     "second_moment_generator",
     "second_moment_matrix",
     "unvech_stack",
+    "lyapunov_stack_solution",
     "vech_order",
     "sparse_mode_blocks",
     "spectral_abscissa",
@@ -123,6 +124,39 @@ def lyapunov_vech(A: Matrix) -> Matrix:
     np.add.at(out, (k, j1), A[r, p])
     np.add.at(out, (k, j2), A[c, p])
     return out
+
+
+def lyapunov_stack_solution(A: Sequence[Matrix], Q: Matrix, R: Sequence[Matrix] | None = None) -> np.ndarray | None:
+    r"""The float stack :math:`X` with :math:`A_s X_s + X_s A_s^T + \sum_t Q_{ts} X_t = -R_s`
+    for every joint state (:math:`\mathcal L(X) = -R` of the module docstring; ``R = I``
+    by default), as symmetric matrices: dense up to :data:`DENSE_LIMIT` rows, sparse LU
+    above. The adjoint :math:`\mathcal L^*(P) = -R` is this with every :math:`A_s` and
+    :math:`Q` transposed. ``None`` when the solve fails or is not finite."""
+    import warnings
+
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import splu
+
+    n, modes = A[0].shape[0], len(A)
+    rows, cols = vech_order(n)
+    if R is None:
+        rhs = np.tile(-(rows == cols).astype(float), modes)
+    else:
+        rhs = -np.concatenate([np.asarray(r)[rows, cols] for r in R])
+    try:
+        if modes * len(rows) > DENSE_LIMIT:
+            G = sp.block_diag([sp.csr_matrix(lyapunov_vech(a)) for a in A]) + sp.kron(
+                np.asarray(Q).T, sp.identity(len(rows)))
+            v = splu(G.tocsc()).solve(rhs)
+        else:
+            with warnings.catch_warnings():  # an ill-conditioned solve is expected near mu = 0; callers judge it
+                warnings.simplefilter("ignore", scipy.linalg.LinAlgWarning)
+                v = scipy.linalg.solve(second_moment_matrix(A, Q), rhs, check_finite=False)
+    except (RuntimeError, ValueError, np.linalg.LinAlgError, scipy.linalg.LinAlgError):
+        return None
+    if not np.all(np.isfinite(v)):
+        return None
+    return unvech_stack(v, modes, n)
 
 
 def unvech_stack(v: Matrix, modes: int, n: int) -> Matrix:

@@ -42,7 +42,6 @@ within :data:`SOLVE_LIMIT` rows and a time budget; what is still open is "undeci
 from __future__ import annotations
 
 import time
-import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -105,29 +104,9 @@ def _lyapunov_operator(A: Sequence[Ball], q: list[list[Any]], X: Sequence[Ball])
 def _float_candidate(conditioned: ClosedLoop, beta: Matrix) -> np.ndarray | None:
     """The float solution ``X~`` of ``L~(X~) = -I`` for the conditioned loop, as a stack of
     symmetric matrices (``None`` when the solve fails or is not finite)."""
-    import scipy.linalg
-    import scipy.sparse as sp
-    from scipy.sparse.linalg import splu
+    from .stability import lyapunov_stack_solution
 
-    from .stability import DENSE_LIMIT, sparse_mode_blocks, vech_order, generator_size, second_moment_generator, unvech_stack
-
-    n, modes = conditioned.n, len(conditioned.A)
-    rows, cols = vech_order(n)
-    rhs = np.tile(-(rows == cols).astype(float), modes)
-    try:
-        if generator_size(conditioned) > DENSE_LIMIT:
-            G = sparse_mode_blocks(conditioned) + sp.kron(conditioned.chain.generator(beta).T,
-                                                           sp.identity(len(rows)), format="csc")
-            v = splu(G.tocsc()).solve(rhs)
-        else:
-            with warnings.catch_warnings():  # an ill-conditioned solve is expected near mu = 0; the balls judge it
-                warnings.simplefilter("ignore", scipy.linalg.LinAlgWarning)
-                v = scipy.linalg.solve(second_moment_generator(conditioned, beta), rhs, check_finite=False)
-    except (RuntimeError, ValueError, np.linalg.LinAlgError, scipy.linalg.LinAlgError):
-        return None
-    if not np.all(np.isfinite(v)):
-        return None
-    return unvech_stack(v, modes, n)
+    return lyapunov_stack_solution(conditioned.A, conditioned.chain.generator(beta))
 
 
 def _positive_definite(M: Ball, precond: Ball) -> bool:
