@@ -69,7 +69,7 @@ COLUMNS = [
 ]
 
 PRELOAD = ["numpy", "scipy.linalg", "cvxpy", "control", "clarabel", "sdpap",
-           "ftc_verify.analysis.analyze", "ftc_verify.analysis.lmi_analysis", "ftc_verify.analysis.stability",
+           "ftc_verify.analysis.analyze", "ftc_verify.analysis.lmi_analysis", "ftc_verify.analysis.moments.stability",
            "ftc_verify.analysis.crossval", "ftc_verify.analysis.closedloop", "ftc_verify.model.system"]
 
 
@@ -153,7 +153,7 @@ def _instrument(conn: Any, events: dict[str, Any]) -> None:
     # ``analyze`` that shadows the submodule attribute
     fa = importlib.import_module("ftc_verify.analysis.analyze")
     la = importlib.import_module("ftc_verify.analysis.lmi_analysis")
-    st = importlib.import_module("ftc_verify.analysis.stability")
+    st = importlib.import_module("ftc_verify.analysis.moments.stability")
 
     if hasattr(la, "solve_conic"):  # the native conic path: solve_conic(problem, name) -> (outcome, x)
         orig_conic = la.solve_conic

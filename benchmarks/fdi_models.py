@@ -39,7 +39,7 @@ from ftc_verify.controllers import load_controller
 from ftc_verify.model.files import load_system
 from ftc_verify.model.system import FTCSystem, JointChain
 from ftc_verify.synthesis.state_feedback import synthesize
-from ftc_verify.verification.moments import exact_energy
+from ftc_verify.analysis.moments.energy import exact_energy
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Benchmark of the sampled-loop analysis (:func:`ftc_verify.analysis.sampled.sampled_analysis`).
+"""Benchmark of the sampled-loop analysis (:func:`ftc_verify.analysis.moments.sampled.sampled_analysis`).
 
 Cases: the paper's example with its gains at h = 0.1 (goal, issue 31: within 3 s), and
 random systems with ``n`` states, ``m`` modes and two inputs (``n = 4, m = 3``: the
@@ -27,7 +27,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np
 import scipy.linalg
 
-from ftc_verify.analysis.sampled import SampledLoop, sampled_analysis
+from ftc_verify.analysis.moments.sampled import SampledLoop, sampled_analysis
 from ftc_verify.controllers.controller import Controller
 from ftc_verify.controllers.files import load_controller
 from ftc_verify.model.files import load_system

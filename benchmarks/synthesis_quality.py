@@ -70,7 +70,7 @@ sys.path.insert(0, str(ROOT))
 
 from ftc_verify.analysis.closedloop import state_feedback_loop
 from ftc_verify.analysis.lmi_analysis import hinf_gamma
-from ftc_verify.analysis.stability import mean_square_stability
+from ftc_verify.analysis.moments.stability import mean_square_stability
 from ftc_verify.controllers.controller import Controller
 from ftc_verify.model.system import FTCSystem
 from ftc_verify.simulation.cluster import open_client

@@ -282,7 +282,7 @@ def extrapolate(rel_sd: float, per_path_s: float) -> dict[str, Any]:
 
 def part_moments(seed: int, quick: bool, log: Any) -> list[dict[str, Any]]:
     from ftc_verify.analysis.closedloop import state_feedback_loop
-    from ftc_verify.verification.moments import exact_energy
+    from ftc_verify.analysis.moments.energy import exact_energy
     from ftc_verify.simulation.paths import sample_paths
     from ftc_verify.model.files import load_system
     from ftc_verify.controllers.files import load_controller

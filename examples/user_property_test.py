@@ -2,7 +2,7 @@ from hypothesis import given
 from ftc_verify.analysis import analyze, closed_loop
 from ftc_verify.synthesis import synthesize
 from ftc_verify.testing import profile, systems
-from ftc_verify.verification.moments import exact_energy
+from ftc_verify.analysis.moments.energy import exact_energy
 
 def my_design(system):  # your design function; here the "common" LMI synthesis
     return synthesize(system, method="common", k_max=20.0).controller

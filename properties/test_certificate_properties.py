@@ -20,7 +20,7 @@ from hypothesis import given, note
 from hypothesis import strategies as st
 
 from ftc_verify.analysis.analyze import analyze
-from ftc_verify.analysis.stability import mean_square_stability
+from ftc_verify.analysis.moments.stability import mean_square_stability
 from ftc_verify.testing.illconditioned import PeerLoop, peer_loops
 
 pytest.importorskip("slycot")

@@ -35,7 +35,7 @@ from hypothesis import strategies as st
 
 from ftc_verify.analysis.lmi_analysis import GAMMA_LADDER, LMIResult, hinf_gamma, mes_lmi
 from ftc_verify.analysis.rigorous import ball, precision, proven_positive_definite
-from ftc_verify.analysis.stability import second_moment_generator, spectral_abscissa
+from ftc_verify.analysis.moments.stability import second_moment_generator, spectral_abscissa
 from ftc_verify.model.system import Matrix
 from ftc_verify.testing import (
     DrawnLoop,

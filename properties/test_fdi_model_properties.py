@@ -18,7 +18,7 @@ from hypothesis import event, given, settings
 from hypothesis import strategies as st
 
 from ftc_verify.analysis.lmi_analysis import mes_lmi
-from ftc_verify.analysis.stability import mean_square_stability, spectral_abscissa
+from ftc_verify.analysis.moments.stability import mean_square_stability, spectral_abscissa
 from ftc_verify.testing import DrawnLoop, closed_loops, stable_loops, unstable_loops
 
 MARGIN = 0.05

@@ -23,7 +23,7 @@ from ftc_verify.simulation.reference import simulate_reference
 from ftc_verify.simulation.supervisor import simulate_fmu
 from ftc_verify.synthesis.output_feedback import synthesize_output_feedback
 from ftc_verify.testing import systems
-from ftc_verify.verification.moments import exact_energy
+from ftc_verify.analysis.moments.energy import exact_energy
 
 from .replay import replay_on_failure
 

@@ -167,7 +167,7 @@ def test_iterative_never_loses_to_textbook_lqr(system: FTCSystem) -> None:
     gains whose robust gamma is at most the LQR's (1e-3 relative: two certified gammas)."""
     from ftc_verify.analysis.closedloop import state_feedback_loop
     from ftc_verify.analysis.lmi_analysis import hinf_gamma
-    from ftc_verify.analysis.stability import mean_square_stability
+    from ftc_verify.analysis.moments.stability import mean_square_stability
 
     lqr = textbook_lqr(system)
     assume(lqr is not None)

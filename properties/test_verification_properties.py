@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from ftc_verify.analysis.crossval import cross_validate
 from ftc_verify.analysis.lmi_analysis import hinf_gamma
 from ftc_verify.verification.montecarlo import estimate
-from ftc_verify.verification.moments import exact_energy, worst_case_disturbance
+from ftc_verify.analysis.moments.energy import exact_energy, worst_case_disturbance
 from ftc_verify.simulation.paths import sample_paths
 from ftc_verify.simulation.reference import energies_reference
 from ftc_verify.simulation.delta import constant_delta_loops

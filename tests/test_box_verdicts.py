@@ -20,7 +20,7 @@ from ftc_verify.analysis.exact import exact_loop
 from ftc_verify.analysis.lmi_analysis import hinf_gamma
 from ftc_verify.analysis.lower_bound import gain_lower_bound
 from ftc_verify.analysis.rigorous import precision
-from ftc_verify.analysis.stability import mean_square_stability, spectral_abscissa
+from ftc_verify.analysis.moments.stability import mean_square_stability, spectral_abscissa
 from ftc_verify.controllers.files import load_controller
 from ftc_verify.model.files import load_system
 

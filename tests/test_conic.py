@@ -14,7 +14,7 @@ from ftc_verify.analysis.conic import Affine, Rows, affine_bmat, scalar_variable
 from ftc_verify.analysis.lmi import block_specs, lyapunov_block
 from ftc_verify.analysis.lmi_analysis import hinf_gamma, mes_lmi
 from ftc_verify.analysis.solvers import SETTINGS
-from ftc_verify.analysis.stability import abscissa_below, abscissa_near, mean_square_stability, spectral_abscissa
+from ftc_verify.analysis.moments.stability import abscissa_below, abscissa_near, mean_square_stability, spectral_abscissa
 from ftc_verify.model.system import FTCSystem
 
 

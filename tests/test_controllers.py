@@ -16,11 +16,11 @@ import pytest
 import scipy.linalg
 
 from ftc_verify.analysis import analyze, closed_loop, mean_square_stability, state_feedback_loop
-from ftc_verify.analysis.stability import spectral_abscissa
+from ftc_verify.analysis.moments.stability import spectral_abscissa
 from ftc_verify.controllers import Controller, dump_controller, load_controller, save_controller
 from ftc_verify.errors import ProblemFileError, ValidationError
 from ftc_verify.model import FTCSystem, Mode, dump_system, load_system
-from ftc_verify.verification.moments import exact_energy
+from ftc_verify.analysis.moments.energy import exact_energy
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "examples" / "paper.toml"

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from ftc_verify.analysis.closedloop import closed_loop
-from ftc_verify.analysis.stability import mean_square_stability
+from ftc_verify.analysis.moments.stability import mean_square_stability
 from ftc_verify.model.files import load_system
 from ftc_verify.model.system import FTCSystem, JointChain
 from ftc_verify.synthesis.descent import Parametrisation, stabilise, worst_abscissa

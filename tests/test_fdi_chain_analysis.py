@@ -24,7 +24,7 @@ from ftc_verify.analysis.analyze import analyze
 from ftc_verify.analysis.closedloop import closed_loop, gain_loop, state_feedback_loop
 from ftc_verify.analysis.crossval import cross_validate
 from ftc_verify.analysis.lmi import block_specs, check_certificate
-from ftc_verify.analysis.stability import mean_square_stability, spectral_abscissa
+from ftc_verify.analysis.moments.stability import mean_square_stability, spectral_abscissa
 from ftc_verify.controllers.controller import Controller
 from ftc_verify.controllers.files import load_controller
 from ftc_verify.errors import ValidationError

@@ -31,7 +31,7 @@ from ftc_verify.model.files import load_system
 from ftc_verify.model.system import FTCSystem, JointChain
 from ftc_verify.simulation.paths import DRAW_BLOCK, ChainPath, sample_paths
 from ftc_verify.simulation.reference import energies_reference, simulate_continuous
-from ftc_verify.verification.moments import exact_energy, worst_case_disturbance
+from ftc_verify.analysis.moments.energy import exact_energy, worst_case_disturbance
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = load_system(ROOT / "examples" / "paper.toml")

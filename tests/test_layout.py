@@ -84,7 +84,7 @@ def test_modules_and_functions_stay_small(path: Path) -> None:
 
 def _private_imports(path: Path) -> list[str]:
     """``from X import _name`` in ``path`` with ``X`` in ftc_verify, except a private module
-    of the importing module's own subpackage (``from . import _energy_grid``) and dunder
+    of the importing module's own subpackage (``from . import _vectorised_grid``) and dunder
     names (``__version__``)."""
     here = list(path.relative_to(PACKAGE.parent).with_suffix("").parts)
     out = []

@@ -12,7 +12,7 @@ from ftc_verify.analysis.lmi import check_certificate
 from ftc_verify.analysis.lmi_analysis import hinf_gamma, mes_lmi
 from ftc_verify.model.system import FTCSystem
 from ftc_verify.analysis.solvers import SOLVERS, choose_solver
-from ftc_verify.analysis.stability import mean_square_stability
+from ftc_verify.analysis.moments.stability import mean_square_stability
 
 
 # ============================================================================ paper example

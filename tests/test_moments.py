@@ -15,7 +15,7 @@ from ftc_verify.analysis.closedloop import state_feedback_loop
 from ftc_verify.errors import ValidationError
 from ftc_verify.analysis.lmi_analysis import hinf_gamma
 from ftc_verify.model.system import FTCSystem
-from ftc_verify.verification.moments import exact_energy, worst_case_disturbance
+from ftc_verify.analysis.moments.energy import exact_energy, worst_case_disturbance
 from ftc_verify.model.files import load_system
 from ftc_verify.controllers.files import load_controller, load_gains
 
@@ -166,7 +166,7 @@ def test_exact_energy_of_a_dynamic_controller_against_monte_carlo() -> None:
     The exact energy of the augmented loop lies in the Monte Carlo interval (false-failure
     probability about 2e-6 under the CLT; fixed seed), and the interval is informative."""
     from ftc_verify.controllers import Controller
-    from ftc_verify.analysis.stability import mean_square_stability
+    from ftc_verify.analysis.moments.stability import mean_square_stability
     from ftc_verify.analysis.closedloop import closed_loop
 
     gains = load_controller(ROOT / "examples" / "paper_gains.toml").gains

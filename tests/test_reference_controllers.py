@@ -19,14 +19,14 @@ import pytest
 import scipy.linalg
 import scipy.signal
 
-import ftc_verify.simulation.energies as energies_mod
+import ftc_verify.simulation.vectorised as energies_mod
 from ftc_verify.controllers import Controller, load_controller
 from ftc_verify.errors import ValidationError
 from ftc_verify.model.files import load_system
 from ftc_verify.model.system import FTCSystem
 from ftc_verify.simulation.continuous import simulate_continuous
 from ftc_verify.simulation.delta import DeltaSchedule, delta_segments, delta_shapes
-from ftc_verify.simulation.energies import energies_reference
+from ftc_verify.simulation.vectorised import energies_reference
 from ftc_verify.simulation.paths import ChainPath, communication_grid, disturbance, sample_paths
 from ftc_verify.simulation.reference import simulate_reference
 from ftc_verify.simulation.records import DIVERGENCE_BOUND

@@ -6,7 +6,7 @@ Fig. 1 plot.
 Independent checks: a closed-form scalar recursion, a hand-rolled per-interval
 ``scipy.linalg.expm`` loop, the trapezoidal norms of the records, first-order
 convergence of the sampled loop to the continuous one, a Monte Carlo second moment
-against the exact second-moment equation of ``ftc_verify.analysis.stability``, and the perturbed
+against the exact second-moment equation of ``ftc_verify.analysis.moments.stability``, and the perturbed
 closed loop of ``ftc_verify.analysis.closedloop`` for a constant ``Delta``.
 """
 
@@ -20,7 +20,7 @@ import scipy.linalg
 
 import ftc_verify.simulation.continuous as continuous_mod
 import ftc_verify.simulation.discretise as discretise_mod
-import ftc_verify.simulation.energies as energies_mod
+import ftc_verify.simulation.vectorised as energies_mod
 from ftc_verify.analysis.closedloop import state_feedback_loop
 from ftc_verify.controllers import Controller
 from ftc_verify.errors import ValidationError
@@ -35,7 +35,7 @@ from ftc_verify.simulation.reference import (
     zoh_matrices,
 )
 from ftc_verify.simulation.records import l2_norm
-from ftc_verify.analysis.stability import duplication_matrix, second_moment_generator
+from ftc_verify.analysis.moments.stability import duplication_matrix, second_moment_generator
 from ftc_verify.simulation.delta import DeltaSchedule, delta_segments, delta_shapes
 
 sf = Controller.state_feedback  # static state feedback u = K x from a list of gains

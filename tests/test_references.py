@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from ftc_verify.analysis.analyze import analyze
-from ftc_verify.analysis.stability import spectral_abscissa
+from ftc_verify.analysis.moments.stability import spectral_abscissa
 from ftc_verify.testing.illconditioned import identical_mode_loop
 from ftc_verify.testing.references import (
     coupled_riccati,

@@ -1,4 +1,4 @@
-"""The sampled-data loop (:mod:`ftc_verify.analysis.sampled`, ``sampled_proof``): the
+"""The sampled-data loop (:mod:`ftc_verify.analysis.moments.sampled`, ``sampled_proof``): the
 one-period map against an independent Monte Carlo, its h -> 0 limit, the proofs over the
 rate box, the paper example's h_max, the controller's period and the CLI's --period."""
 
@@ -18,10 +18,10 @@ from hypothesis.errors import InvalidArgument
 
 from ftc_verify.analysis.closedloop import closed_loop
 from ftc_verify.analysis.rigorous import Ball, midpoint
-from ftc_verify.analysis.sampled import (SampledLoop, h_max_bracket, one_period_map, sampled_analysis,
+from ftc_verify.analysis.moments.sampled import (SampledLoop, h_max_bracket, one_period_map, sampled_analysis,
                                          spectral_radius)
-from ftc_verify.analysis.sampled_proof import ball_one_period_map, box_verdict, prove_point_unstable
-from ftc_verify.analysis.stability import spectral_abscissa, unvech_stack
+from ftc_verify.analysis.moments.sampled_proof import ball_one_period_map, box_verdict, prove_point_unstable
+from ftc_verify.analysis.moments.stability import spectral_abscissa, unvech_stack
 from ftc_verify.cli.main import main
 from ftc_verify.controllers.controller import Controller
 from ftc_verify.controllers.files import dump_controller, load_controller
@@ -317,7 +317,7 @@ def test_cli_bad_periods_exit_2_naming_period(argv: list[str], capsys: pytest.Ca
 
 
 def test_chain_generator_ball_covers_the_box(paper: tuple[FTCSystem, Controller]) -> None:
-    from ftc_verify.analysis.sampled_balls import ball_generator
+    from ftc_verify.analysis.moments.sampled_balls import ball_generator
 
     chain: JointChain = _erlang_false_alarm(paper[0]).chain
     B = ball_generator(chain, chain.rate_min, chain.rate_max)
@@ -335,8 +335,8 @@ def test_first_order_form_proves_where_the_direct_ball_cannot(paper: tuple[FTCSy
     with its quadratic remainder proves the whole box at once, and box_verdict says so
     with one sub-box."""
     from ftc_verify.analysis.rigorous import Ball, precision
-    from ftc_verify.analysis.sampled_balls import ball_generator
-    from ftc_verify.analysis.sampled_proof import _first_order_stable, _MapParts, prove_stable
+    from ftc_verify.analysis.moments.sampled_balls import ball_generator
+    from ftc_verify.analysis.moments.sampled_proof import _first_order_stable, _MapParts, prove_stable
 
     system = paper[0]
     gains = Controller.state_feedback([[[2.9749, 9.5371], [-9.4142, 2.8536]], [[2.5399, 9.6565], [-9.5176, 2.3946]]])
@@ -356,8 +356,8 @@ def test_upper_envelope_dominates_every_rate_of_the_box(paper: tuple[FTCSystem, 
     false alarms): applied to random positive semidefinite stacks it gives positive
     semidefinite stacks (float64, to rounding)."""
     from ftc_verify.analysis.rigorous import midpoint, precision
-    from ftc_verify.analysis.sampled_balls import envelope_generator
-    from ftc_verify.analysis.sampled_proof import _MapParts
+    from ftc_verify.analysis.moments.sampled_balls import envelope_generator
+    from ftc_verify.analysis.moments.sampled_proof import _MapParts
 
     system = _erlang_false_alarm(paper[0])
     loop, chain = SampledLoop.build(system, paper[1]), system.chain
@@ -380,7 +380,7 @@ def test_upper_envelope_dominates_every_rate_of_the_box(paper: tuple[FTCSystem, 
 def test_real_eigenvalue_fallback() -> None:
     """The determinant sign change proves a real eigenvalue above 1, and only then."""
     from ftc_verify.analysis.rigorous import ball
-    from ftc_verify.analysis.sampled_proof import _real_eigenvalue_above_one
+    from ftc_verify.analysis.moments.sampled_proof import _real_eigenvalue_above_one
 
     for M, expected in ((np.diag([1.5, 0.5, 0.2]), True), (np.diag([0.9, 0.5, 0.2]), False),
                         (np.array([[0.9, 0.8, 0.0], [-0.8, 0.9, 0.0], [0.0, 0.0, 0.5]]), False),  # |complex| > 1
@@ -456,7 +456,7 @@ def test_sampled_energy_against_independent_monte_carlo(paper: tuple[FTCSystem, 
     """E int_0^1.6 |y|^2 of the sampled loop (h = 0.08, nominal) against 300 simulated
     paths (seed 310): within 5 standard errors of the mean (false failure about 6e-7 by
     the central limit theorem; the trapezoid's bias, about 1e-3 relative, is far below)."""
-    from ftc_verify.verification.sampled_energy import sampled_energy
+    from ftc_verify.analysis.moments.sampled_energy import sampled_energy
 
     system, controller = paper[0].nominal(), paper[1]
     rates = system.chain.midpoint()
@@ -470,8 +470,8 @@ def test_sampled_energy_against_independent_monte_carlo(paper: tuple[FTCSystem, 
 def test_sampled_energy_tends_to_the_continuous_one(paper: tuple[FTCSystem, Controller]) -> None:
     """h = 1e-3: the sampled loop's exact energy ratio is the continuous one within 1e-3
     relative (infinite horizon and horizon 30), and it grows with h on the paper gains."""
-    from ftc_verify.verification.moments import exact_energy
-    from ftc_verify.verification.sampled_energy import perturbed_system, sampled_energy
+    from ftc_verify.analysis.moments.energy import exact_energy
+    from ftc_verify.analysis.moments.sampled_energy import perturbed_system, sampled_energy
 
     system, controller = paper
     loop = closed_loop(system, controller)

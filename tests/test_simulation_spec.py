@@ -14,7 +14,7 @@ from ftc_verify.errors import MemoryLimitError, ValidationError
 from ftc_verify.model.files import load_system
 from ftc_verify.simulation import SimulationSpec
 from ftc_verify.simulation.delta import DeltaSchedule
-from ftc_verify.simulation.energies import energies_reference
+from ftc_verify.simulation.vectorised import energies_reference
 from ftc_verify.simulation.paths import ChainPath, PathSpec, communication_grid, sample_paths
 from ftc_verify.simulation.reference import simulate_reference
 from ftc_verify.simulation.spec import GRID_SNAP_RTOL, grid_snap_tolerance, path_streams, spec_from

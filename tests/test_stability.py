@@ -1,4 +1,4 @@
-"""Unit tests of ftc_verify.analysis.stability: second-moment generator and mean-square stability."""
+"""Unit tests of ftc_verify.analysis.moments.stability: second-moment generator and mean-square stability."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import scipy.linalg
 
 from ftc_verify.analysis.closedloop import state_feedback_loop
 from ftc_verify.model.system import FTCSystem, JointChain
-from ftc_verify.analysis.stability import (
+from ftc_verify.analysis.moments.stability import (
     duplication_matrix,
     mean_square_stability,
     second_moment_generator,

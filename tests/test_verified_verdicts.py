@@ -24,7 +24,7 @@ from ftc_verify.analysis.conditioning import conditioning_transform
 from ftc_verify.analysis.lmi import check_certificate
 from ftc_verify.analysis.lmi_analysis import hinf_gamma
 from ftc_verify.analysis.rigorous import ball, precision, proven_not_psd, proven_positive_definite
-from ftc_verify.analysis.stability import mean_square_stability, spectral_abscissa
+from ftc_verify.analysis.moments.stability import mean_square_stability, spectral_abscissa
 from ftc_verify.analysis.verdict import certify_vertex
 from ftc_verify.testing.illconditioned import identical_mode_loop
 

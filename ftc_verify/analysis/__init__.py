@@ -15,7 +15,7 @@ from .solvers import SOLVERS, SETTINGS, SolveOutcome, choose_solver, second_solv
 from .box import BoxVerdict, RegionVerdict, box_stability
 from .exact import exact_loop
 from .lower_bound import GainLowerBound, gain_lower_bound
-from .stability import MSSResult, duplication_matrix, second_moment_generator, spectral_abscissa, mean_square_stability, abscissa_below, abscissa_near
+from .moments.stability import MSSResult, duplication_matrix, second_moment_generator, spectral_abscissa, mean_square_stability, abscissa_below, abscissa_near
 
 __all__ = [
     "AnalysisReport",

@@ -2,7 +2,7 @@
 
 :func:`analyze` runs, on any :class:`~ftc_verify.analysis.closedloop.ClosedLoop`:
 
-1. the exact mean-square stability test (:mod:`ftc_verify.analysis.stability`), worst over the
+1. the exact mean-square stability test (:mod:`ftc_verify.analysis.moments.stability`), worst over the
    vertices of the rate box (detection rates ``beta`` and, when given, false-alarm
    rates, :mod:`ftc_verify.model.chain`);
 2. the smallest certified nominal gamma (Theorem 3.2) and robust gamma (Lemma 4.1,
@@ -26,14 +26,14 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from ..analysis.closedloop import ClosedLoop
+from .closedloop import ClosedLoop
 from ..jsonable import jsonable
-from ..analysis.crossval import ModeCheck, cross_validate
+from .crossval import ModeCheck, cross_validate
 from ..limits import check_memory, dense_generator_estimate
 from .lmi_analysis import LMIResult, check_lmi_memory, hinf_gamma, mes_lmi
 from .lower_bound import GainLowerBound, gain_lower_bound, worst_constant_delta
 from .solvers import ForkedCall
-from ..analysis.stability import MSSResult, mean_square_stability
+from .moments.stability import MSSResult, mean_square_stability
 
 __all__ = ["AnalysisReport", "analyze", "json_ready", "bracket", "LOOSE_RATIO"]
 

@@ -210,7 +210,7 @@ class _Checker:
         ``("failed", rates)`` with the rates of the rows that failed (empty when a row
         without uncertain rates failed or ``P`` was not proved positive definite)."""
         c = _centre(lo, hi)
-        from .stability import lyapunov_stack_solution  # stability imports this module
+        from .moments.stability import lyapunov_stack_solution  # stability imports this module
 
         # the adjoint L*_c(P) = -I: the second-moment operator with A_s and Q transposed
         Pt = lyapunov_stack_solution([a.T for a in self.conditioned.A], self.loop.chain.generator(c).T)
@@ -374,7 +374,7 @@ def box_stability(loop: ClosedLoop, sim: Similarity, *, budget_seconds: float = 
         if status == "unstable-centre" or not splittable:
             if prover is None:
                 prover = StabilityProver.build(loop, sim)
-            from .stability import spectral_abscissa
+            from .moments.stability import spectral_abscissa
 
             estimate = spectral_abscissa(checker.conditioned, centre)
             left = max(0.0, deadline - time.perf_counter())

@@ -82,7 +82,7 @@ import numpy as np
 
 import scipy.linalg
 
-from ..analysis.closedloop import ClosedLoop
+from .closedloop import ClosedLoop
 from ..model.system import Matrix, Mode
 
 __all__ = [

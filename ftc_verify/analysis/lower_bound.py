@@ -80,7 +80,7 @@ from .conditioning import Similarity, conditioning_transform, stationary_distrib
 from .exact import ball_generator, ball_matrices, exact_loop, literals_of, written_box
 from ..interrupts import deferred_signals
 from .rigorous import Ball, ball, midpoint, precision
-from .stability import lyapunov_stack_solution, second_moment_matrix, unvech_stack, vech_order
+from .moments.stability import lyapunov_stack_solution, second_moment_matrix, unvech_stack, vech_order
 from .verdict import SOLVE_LIMIT, StabilityProver, ball_lyapunov_solution
 
 __all__ = ["GainLowerBound", "gain_lower_bound", "float_gain", "worst_case_feedback", "worst_constant_delta",

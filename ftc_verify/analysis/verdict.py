@@ -1,6 +1,6 @@
 r"""Verified mean-square stability verdicts: "stable", "not stable" or "undecided", never wrong.
 
-The exact test of :mod:`ftc_verify.analysis.stability` computes the spectral abscissa
+The exact test of :mod:`ftc_verify.analysis.moments.stability` computes the spectral abscissa
 :math:`\mu` of the second-moment generator :math:`\mathcal L` in float64; an
 ill-conditioned loop can move it across zero. Here every verdict at a vertex of the
 rate box (a rate array of :mod:`ftc_verify.model.chain`: ``beta``, or ``[beta,
@@ -66,7 +66,7 @@ VERDICTS = ("stable", "not stable", "undecided")
 #: (cubic in the rows), so Ctrl-C and SIGTERM are honoured within seconds.
 SOLVE_LIMIT = 400
 #: Time budget (seconds) of the ball-arithmetic fallback (of one vertex, or of the whole
-#: box in :func:`~ftc_verify.analysis.stability.mean_square_stability`).
+#: box in :func:`~ftc_verify.analysis.moments.stability.mean_square_stability`).
 BUDGET_SECONDS = 60.0
 #: Precisions (bits) of the ball-arithmetic fallback, in order.
 FALLBACK_BITS = (128, 256, 512)
@@ -104,7 +104,7 @@ def _lyapunov_operator(A: Sequence[Ball], q: list[list[Any]], X: Sequence[Ball])
 def _float_candidate(conditioned: ClosedLoop, beta: Matrix) -> np.ndarray | None:
     """The float solution ``X~`` of ``L~(X~) = -I`` for the conditioned loop, as a stack of
     symmetric matrices (``None`` when the solve fails or is not finite)."""
-    from .stability import lyapunov_stack_solution
+    from .moments.stability import lyapunov_stack_solution
 
     return lyapunov_stack_solution(conditioned.A, conditioned.chain.generator(beta))
 
@@ -133,7 +133,7 @@ def _ball_generator(A: Sequence[Ball], q: list[list[Any]]) -> Any:
     :math:`X_{pc}` and :math:`A_{cp}` at :math:`X_{rp}` (``X`` symmetric)."""
     import flint
 
-    from .stability import vech_order
+    from .moments.stability import vech_order
 
     n, modes = A[0].shape[0], len(A)
     rows, cols = vech_order(n)
@@ -163,7 +163,7 @@ def ball_lyapunov_solution(A: Sequence[Ball], q: list[list[Any]], bits: int,
     system nonsingular at that precision)."""
     import flint
 
-    from .stability import vech_order
+    from .moments.stability import vech_order
 
     n, modes = A[0].shape[0], len(A)
     rows, cols = vech_order(n)

@@ -68,7 +68,7 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
     period = args.period if args.period is not None else controller.period
     sampled = None
     if period is not None:  # the loop that runs: sampled every period, output held
-        from ..analysis.sampled import sampled_analysis
+        from ..analysis.moments.sampled import sampled_analysis
 
         sampled = interruptible(lambda: sampled_analysis(system, controller, period), "the sampled-data analysis")
     if args.json:

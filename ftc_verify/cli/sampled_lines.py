@@ -1,6 +1,6 @@
 """The CLI's handling of a sampling period: ``--period`` against ``--step`` and
 ``--horizon``, and the lines that report the sampled loop
-(:func:`ftc_verify.analysis.sampled.sampled_analysis`).
+(:func:`ftc_verify.analysis.moments.sampled.sampled_analysis`).
 
 Nothing here imports numpy at import time (the parser is built without it).
 """
@@ -99,7 +99,7 @@ def warn_short_h_max(system: Any, controller: Any) -> None:
 
     import numpy as np
 
-    from ..analysis.sampled import SampledLoop, rate_points, worst_radius
+    from ..analysis.moments.sampled import SampledLoop, rate_points, worst_radius
 
     limit = 10 * DEFAULT_STEP
     loop = SampledLoop.build(system, controller)

@@ -23,7 +23,7 @@ the measured output of the *true* mode :math:`i` (``measures="output"``,
 A controller may carry its sampling **period** :math:`h` (``period``, seconds; ``None``
 for a continuous-time controller): it reads :math:`v(t_k)` and the FDI report
 :math:`l(t_k)` at :math:`t_k = k h` and holds :math:`u` until the next sample
-(:mod:`ftc_verify.analysis.sampled` certifies that loop).
+(:mod:`ftc_verify.analysis.moments.sampled` certifies that loop).
 
 The closed loop is built from ``(system, controller)`` in one place,
 :func:`ftc_verify.analysis.closedloop.closed_loop`; the simulators use

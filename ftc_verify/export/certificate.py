@@ -7,7 +7,7 @@ controller is *certified* when mean-square stability is proved over the whole ra
 the Theorem 3.1 certificate passed (``certified_stable``) *and* the loop as exported -- the
 controller sampled with period :math:`h` (:mod:`ftc_verify.export.ccode`), its output held
 -- is proved mean-square stable over the box at that period
-(:func:`~ftc_verify.analysis.sampled.sampled_analysis`); the nominal (Theorem 3.2) and
+(:func:`~ftc_verify.analysis.moments.sampled.sampled_analysis`); the nominal (Theorem 3.2) and
 robust (Lemma 4.1) :math:`\gamma` of the continuous loop (the :math:`h \to 0` limit) are
 recorded when certified, with the sampled verdict and the proved ``h_max`` (the largest
 period proved stable; ``none`` when no bracket was proved).
@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from .. import __version__
 from ..analysis.analyze import AnalysisReport, analyze
 from ..analysis.closedloop import closed_loop
-from ..analysis.sampled import SampledResult, sampled_analysis
+from ..analysis.moments.sampled import SampledResult, sampled_analysis
 from ..controllers.controller import Controller
 from ..controllers.files import dump_controller
 from ..model.files import dump_system

@@ -9,7 +9,7 @@ from .records import PathRecord, SimulationResult, l2_norm
 from .spec import SimulationSpec
 from .continuous import simulate_continuous
 from .discretise import phi_gamma, zoh_matrices
-from .energies import energies_reference
+from .vectorised import energies_reference
 from .reference import simulate_reference
 from .supervisor import FMUError, FaultInjectionMap, Supervisor, simulate_fmu
 

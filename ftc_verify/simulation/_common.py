@@ -1,6 +1,6 @@
 r"""Shared private helpers of the numpy simulators (validation and per-mode matrices).
 
-Used by :mod:`~ftc_verify.simulation.reference`, :mod:`~ftc_verify.simulation.energies`
+Used by :mod:`~ftc_verify.simulation.reference`, :mod:`~ftc_verify.simulation.vectorised`
 and :mod:`~ftc_verify.simulation.continuous`. The plant of the true mode :math:`i` with
 the norm-bounded uncertainty of the chain segment (paper eq. (13)) is
 

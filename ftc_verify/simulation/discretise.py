@@ -42,7 +42,7 @@ _THETA = 0.5
 _TAYLOR_TOL = 1e-18
 #: At most this many distinct matrices are handled group by group (one BLAS product per
 #: group); beyond, per item (Horner with batched products). Read at call time, also by
-#: ``ftc_verify.simulation._energy_maps``, so a test may lower it in this module.
+#: ``ftc_verify.simulation._vectorised_maps``, so a test may lower it in this module.
 _GROUP_LIMIT = 64
 
 

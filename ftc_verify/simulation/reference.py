@@ -46,7 +46,7 @@ interval) get their own exponentials with ``h = t_{k+1} - t_k``.
 
 The other entry points, re-exported here
 ----------------------------------------
-* :func:`~ftc_verify.simulation.energies.energies_reference` -- per path
+* :func:`~ftc_verify.simulation.vectorised.energies_reference` -- per path
   :math:`\int |y|^2` and :math:`\int |w|^2` of the same loop, all paths advanced together;
 * :func:`~ftc_verify.simulation.continuous.simulate_continuous` -- the continuous-time
   loop (no sample-and-hold);
@@ -83,7 +83,7 @@ from ._common import (
 from .continuous import simulate_continuous
 from .delta import DeltaSchedule, delta_segments
 from .discretise import phi_gamma, zoh_matrices
-from .energies import energies_reference
+from .vectorised import energies_reference
 from .paths import ChainPath, communication_grid, disturbance as disturbance_fn
 from .records import PathRecord, SimulationResult, diverged
 from .spec import SimulationSpec, spec_from

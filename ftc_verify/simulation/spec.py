@@ -70,7 +70,7 @@ RECORD_BYTES_PER_NUMBER = 16
 def grid_snap_tolerance(step: float) -> float:
     """The distance below which a grid point of period ``step`` merges into a jump time:
     ``GRID_SNAP_RTOL * step`` (:func:`~ftc_verify.simulation.paths.communication_grid` and
-    ``ftc_verify.simulation._energy_grid`` both use it)."""
+    ``ftc_verify.simulation._vectorised_grid`` both use it)."""
     return GRID_SNAP_RTOL * step
 
 

@@ -3,7 +3,7 @@ r"""Streaming Monte Carlo on the reference backend: every path's energies, few t
 :func:`simulate_streaming` gives what ``simulate --backend reference`` reports -- per path
 :math:`\|y\|_2`, :math:`\|w\|_2`, switch counts, ``beta`` and divergences -- without keeping
 trajectories: the energies come from the vectorised engine
-:func:`~ftc_verify.simulation.energies.energies_reference` (all paths of a batch advance
+:func:`~ftc_verify.simulation.vectorised.energies_reference` (all paths of a batch advance
 together), in batches of ``batch`` paths so that memory is bounded by the batch, not by
 paths x steps. Full trajectories (:class:`~ftc_verify.simulation.records.PathRecord`) are
 computed only for the first ``record`` paths, by
@@ -46,7 +46,7 @@ from ..controllers.controller import Controller
 from ..errors import ValidationError
 from ..model.system import FTCSystem
 from .delta import DeltaSchedule, delta_segments
-from .energies import energies_reference
+from .vectorised import energies_reference
 from .paths import ChainPath, PathSpec
 from .records import PathRecord, divergence_line
 from .reference import simulate_reference

@@ -8,7 +8,7 @@ a period of 0.1 s cannot follow them). :func:`synthesize_at_period` designs with
 sequence of gain bounds, largest first, and returns the first design that is certified
 (continuous time: robust gamma, stability) **and** whose sampled loop at the period is
 proved mean-square stable over the whole rate box
-(:func:`ftc_verify.analysis.sampled.sampled_analysis`). A smaller gain bound trades
+(:func:`ftc_verify.analysis.moments.sampled.sampled_analysis`). A smaller gain bound trades
 continuous-time gamma for a longer ``h_max``. It never returns a controller whose sampled
 loop was not proved stable: if no bound gives one, the result says so and carries the
 attempts.
@@ -20,7 +20,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from ..analysis.sampled import SampledResult, sampled_analysis
+from ..analysis.moments.sampled import SampledResult, sampled_analysis
 from ..controllers.controller import Controller
 from ..model.system import FTCSystem
 

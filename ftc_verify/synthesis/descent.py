@@ -59,7 +59,7 @@ import numpy as np
 import scipy.linalg
 
 from ..analysis.closedloop import barred
-from ..analysis.stability import duplication_matrix, second_moment_matrix
+from ..analysis.moments.stability import duplication_matrix, second_moment_matrix
 from ..controllers.controller import Controller
 from ..errors import ValidationError
 from ..jsonable import OMIT, fields_dict

@@ -185,7 +185,7 @@ def certify_start(system: FTCSystem, name: str, gains: tuple[Matrix, ...] | list
     ``loop``: the closed loop when the gains are not state feedback (output feedback)."""
     from ..analysis.closedloop import state_feedback_loop
     from ..analysis.lmi_analysis import hinf_gamma
-    from ..analysis.stability import mean_square_stability
+    from ..analysis.moments.stability import mean_square_stability
 
     loop = state_feedback_loop(system, list(gains)) if loop is None else loop
     mss = mean_square_stability(loop)

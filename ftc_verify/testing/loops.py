@@ -20,7 +20,7 @@ from hypothesis import assume
 from hypothesis import strategies as st
 
 from ..analysis.closedloop import ClosedLoop, closed_loop
-from ..analysis.stability import MSSResult, mean_square_stability
+from ..analysis.moments.stability import MSSResult, mean_square_stability
 from ..controllers.controller import Controller
 from ..model.system import FTCSystem, Matrix
 from . import strategies

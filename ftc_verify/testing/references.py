@@ -34,7 +34,7 @@ The Schur complement of the inequality :math:`F_s(P) \prec 0` is the LMI of Theo
 
 It is the adjoint, for :math:`\langle X, Y\rangle = \sum_s \operatorname{tr}(X_s Y_s)`, of
 the second-moment generator :math:`X_s \mapsto M_s X_s + X_s M_s^T + \sum_t Q_{ts} X_t`
-(:mod:`ftc_verify.analysis.stability`), so it has the same spectrum; the loop with state
+(:mod:`ftc_verify.analysis.moments.stability`), so it has the same spectrum; the loop with state
 matrices :math:`M_s` is mean-square stable iff its abscissa is negative
 (:func:`mjls_abscissa`). It is resolvent positive (a Lyapunov operator plus
 non-negative off-diagonal coupling), so when it is Hurwitz, :math:`-\mathcal L_M^{-1}`

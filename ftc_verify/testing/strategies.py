@@ -442,7 +442,7 @@ def controllers(
 def periods(*, low: float = 1e-3, high: float = 0.2) -> st.SearchStrategy[float]:
     """A controller's sampling period ``h`` in ``[low, high]``, log-uniform
     (``10 ** u``, ``u`` uniform between the logarithms): short and long periods alike, for
-    :mod:`ftc_verify.analysis.sampled`."""
+    :mod:`ftc_verify.analysis.moments.sampled`."""
     if not 0 < low <= high:
         raise InvalidArgument(f"periods: need 0 < low <= high, got {low!r}, {high!r}")
     lo, hi = float(np.log10(low)), float(np.log10(high))
@@ -455,7 +455,7 @@ def disturbances(*, exact: bool = False, decaying: bool = False, nonzero: bool =
     Parameters
     ----------
     exact : bool
-        Only shapes with an exact moment model (:func:`ftc_verify.verification.moments.exact_energy`).
+        Only shapes with an exact moment model (:func:`ftc_verify.analysis.moments.energy.exact_energy`).
     decaying : bool
         Only shapes of finite energy on ``[0, inf)`` (implies ``exact``; what an
         infinite-horizon ``exact_energy`` needs).
@@ -471,7 +471,7 @@ def disturbances(*, exact: bool = False, decaying: bool = False, nonzero: bool =
     >>> test_name()
     """
     from ..simulation.paths import DISTURBANCES  # imported here: the simulators are heavy to import
-    from ..verification.moments import EXOSYSTEMS
+    from ..analysis.moments.energy import EXOSYSTEMS
 
     names = sorted(DISTURBANCES)
     if exact or decaying:

@@ -3,7 +3,7 @@
 ``verify --step h`` co-simulates the controller sampled every ``h`` with its output held
 (:mod:`ftc_verify.simulation.reference`); this stage proves (or refutes) mean-square
 stability of that sampled loop over the rate box at ``h`` and finds the proved ``h_max``
-bracket (:func:`ftc_verify.analysis.sampled.sampled_analysis`). The continuous-time
+bracket (:func:`ftc_verify.analysis.moments.sampled.sampled_analysis`). The continuous-time
 certificates of the other stages are its :math:`h \\to 0` limit.
 """
 
@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..analysis.sampled import SampledLoop, SampledResult, sampled_analysis
+from ..analysis.moments.sampled import SampledLoop, SampledResult, sampled_analysis
 from ..controllers.controller import Controller
 from ..errors import FTCError
 from ..model.system import FTCSystem
@@ -57,13 +57,13 @@ def sampled_stage(system: FTCSystem, controller: Controller, step: float) -> tup
 def sampled_energy_stage(system: FTCSystem, controller: Controller, step: float, g2: float,
                          sampled: SampledResult | None, max_vertices: int) -> tuple[list[dict[str, Any]], Check]:
     """The exact expected energy of the sampled loop at ``step`` for the paper's
-    disturbance (:func:`ftc_verify.verification.sampled_energy.sampled_energy`, infinite
+    disturbance (:func:`ftc_verify.analysis.moments.sampled_energy.sampled_energy`, infinite
     horizon) at the rate vertices (up to ``max_vertices``) and the constant
     ``Delta in {0, +E, -E}``, against ``g2`` (gamma^2 of the continuous certificate: the
     loop that runs must keep it). Not run when the sampled loop was not analysed or not
     proved stable (its check says why)."""
     from ..simulation.delta import delta_shapes
-    from .sampled_energy import perturbed_system, sampled_energy
+    from ..analysis.moments.sampled_energy import perturbed_system, sampled_energy
     from .verify import Check
 
     name = f"exact energy (sampled loop, h = {step:g})"

@@ -13,7 +13,7 @@ all on the one closed loop :func:`~ftc_verify.analysis.closedloop.closed_loop` b
    then the **sampled loop** at ``step``, the loop the Monte Carlo runs
    (:mod:`ftc_verify.verification.sampled_stage`: mean-square stability proved over the
    rate box at the period, ``h_max``, and its exact expected energy with the input and
-   the disturbance held, :mod:`ftc_verify.verification.sampled_energy`);
+   the disturbance held, :mod:`ftc_verify.analysis.moments.sampled_energy`);
 4. **gamma bracket**: the proved lower bound of the analysis
    (:mod:`ftc_verify.analysis.lower_bound`) does not exceed the certified gamma, and
    their ratio says how far from the truth the certificate can be;
@@ -56,7 +56,7 @@ from ..simulation.records import PathRecord, divergence_note
 from ..simulation.spec import SimulationSpec, spec_from
 from ..analysis.solvers import interruptible
 from ..synthesis.state_feedback import SynthesisResult, synthesize
-from .moments import exact_energy
+from ..analysis.moments.energy import exact_energy
 from .montecarlo import MCEstimate, estimate
 from .sampled_stage import sampled_stages
 

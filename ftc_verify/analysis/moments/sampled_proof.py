@@ -1,7 +1,7 @@
 r"""Proofs about the sampled loop's one-period map in ball arithmetic, over the rate box.
 
 The map :math:`T = \mathcal P e^{\mathcal L h} \mathcal R` of
-:mod:`ftc_verify.analysis.sampled` is formed in Arb's ball arithmetic
+:mod:`ftc_verify.analysis.moments.sampled` is formed in Arb's ball arithmetic
 (:mod:`ftc_verify.analysis.rigorous`): the system's numbers as written (exact balls),
 the rates of a sub-box of the rate box as balls covering it, the period as written,
 :math:`e^{\mathcal L h}` and a dynamic controller's :math:`(\Phi_c, \Gamma_c)` by
@@ -68,9 +68,9 @@ from typing import Any
 
 import numpy as np
 
-from ..model.chain import JointChain
-from ..model.system import Matrix
-from .rigorous import PRECISION_BITS, Ball, ball, midpoint, precision, proven_positive_definite
+from ...model.chain import JointChain
+from ...model.system import Matrix
+from ..rigorous import PRECISION_BITS, Ball, ball, midpoint, precision, proven_positive_definite
 from .sampled_balls import (as_float, ball_block_diag, ball_generator, ball_kron, envelope_generator,
                             generator_coefficients)
 from .sampled import SampledLoop, one_period_map, rate_points, spectral_radius, worst_radius
@@ -204,7 +204,7 @@ class _MapParts:
 
 
 def ball_one_period_map(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix) -> Ball:
-    """A ball matrix containing :math:`T` (:mod:`ftc_verify.analysis.sampled`) at period
+    """A ball matrix containing :math:`T` (:mod:`ftc_verify.analysis.moments.sampled`) at period
     ``h`` for every rate array in ``[lo, hi]``, in the balanced coordinates of
     :attr:`SampledLoop.scale` (``one_period_map(..., scaled=True)``; same spectrum)."""
     return Ball(_MapParts.build(loop, h).map(ball_generator(loop.chain, lo, hi).value))

@@ -15,7 +15,7 @@ every grid interval of length :math:`h` in dynamics id :math:`d` (joint mode
     G_d = \begin{bmatrix} \Gamma D_i \\ 0 \end{bmatrix}, \qquad
     y_k = [C_i\ \ 0]\, z_k,
 
-(``ftc_verify.simulation._energy_maps``), which for static state feedback
+(``ftc_verify.simulation._vectorised_maps``), which for static state feedback
 (:math:`n_c = 0`) is :math:`x_{k+1} = (\Phi + \Gamma B K_j) x_k + \Gamma D_i w_k`, and
 
 .. math::
@@ -24,7 +24,7 @@ every grid interval of length :math:`h` in dynamics id :math:`d` (joint mode
     \ \text{(halved ends)}.
 
 All paths advance together over the regular points ``k step``
-(``ftc_verify.simulation._energy_grid`` for the bookkeeping):
+(``ftc_verify.simulation._vectorised_grid`` for the bookkeeping):
 
 * an interval ``[k step, (k+1) step]`` without a jump is one map :math:`F_d, G_d` at
   ``h = step``, one table entry per dynamics id. With few ids, all paths take one matrix
@@ -53,7 +53,7 @@ from numpy.typing import ArrayLike
 
 from ..controllers.controller import Controller
 from ..model.system import FTCSystem, Matrix
-from . import _energy_grid as eg
+from . import _vectorised_grid as eg
 from ._common import (
     PathArrays,
     check_controller,
@@ -62,7 +62,7 @@ from ._common import (
     path_arrays,
     path_list,
 )
-from ._energy_maps import Tables, full_maps, loop_matrices, tables
+from ._vectorised_maps import Tables, full_maps, loop_matrices, tables
 from .delta import DeltaSchedule, delta_segments, delta_shapes
 from .paths import ChainPath, disturbance as disturbance_fn
 from .records import DIVERGENCE_BOUND
@@ -167,7 +167,7 @@ def _same_horizon(system: FTCSystem, tab: Tables, pa: PathArrays, seg_d: np.ndar
                   step: float, wfun: Callable[[np.ndarray], np.ndarray],
                   z0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The engine for paths sharing one horizon (vocabulary of
-    ``ftc_verify.simulation._energy_grid``); returns ``(Ey, Ew)``."""
+    ``ftc_verify.simulation._vectorised_grid``); returns ``(Ey, Ew)``."""
     grid = eg.regular_grid(system.m, horizon, step, wfun)
     Ew = np.full(pa.count.size, float(np.sum(grid.wt_std * grid.w2reg)))
     jmp = eg.jumps(pa, seg_d, grid, step)

@@ -23,7 +23,7 @@ two parts inside a period: :math:`\dot z = \bar A_i z`,
 :math:`\bar A_i = \bigl[\begin{smallmatrix} A_i & B_i & 0 \\ 0 & 0 & 0 \\ 0 & 0 & 0
 \end{smallmatrix}\bigr]` in true mode :math:`i`. Its second moments per joint state,
 :math:`Z_s(t) = E[z z^T 1\{\theta_t = s\}]`, obey the moment equation of
-:mod:`ftc_verify.analysis.stability` with :math:`A_s = \bar A_i`,
+:mod:`ftc_verify.analysis.moments.stability` with :math:`A_s = \bar A_i`,
 :math:`\dot{\operatorname{vech}} Z = \mathcal L\, \operatorname{vech} Z`, so over one
 period they move by :math:`e^{\mathcal L h}` -- every jump inside the period
 included exactly. At the sample the controller resets :math:`z` from the sampled
@@ -57,7 +57,7 @@ L_{cl}` with the continuous loop's generator, so :math:`\rho(T) < 1` for small
 :math:`h` when the continuous loop is mean-square stable.
 
 The proofs (ball arithmetic, over the rate box by sub-boxes) are in
-:mod:`ftc_verify.analysis.sampled_proof`; this module holds the float64 map, the scan
+:mod:`ftc_verify.analysis.moments.sampled_proof`; this module holds the float64 map, the scan
 over periods and :func:`sampled_analysis`, which reports the verdict at the period and
 ``h_max``.
 """
@@ -73,10 +73,10 @@ from typing import Any
 import numpy as np
 import scipy.linalg
 
-from ..controllers.controller import Controller, check_period
-from ..model.chain import JointChain
-from ..model.system import FTCSystem, Matrix
-from .closedloop import closed_loop
+from ...controllers.controller import Controller, check_period
+from ...model.chain import JointChain
+from ...model.system import FTCSystem, Matrix
+from ..closedloop import closed_loop
 from .stability import duplication_matrix, second_moment_matrix, vech_order
 
 __all__ = ["SampledLoop", "SampledResult", "one_period_map", "spectral_radius", "rate_points",
@@ -393,7 +393,7 @@ class SampledResult:
     period : float
     verdict : {"stable", "not stable", "undecided"}
         Mean-square stability of the nominal sampled loop over the whole rate box at
-        ``period``, proved in ball arithmetic (:mod:`ftc_verify.analysis.sampled_proof`).
+        ``period``, proved in ball arithmetic (:mod:`ftc_verify.analysis.moments.sampled_proof`).
     spectral_radius : float
         The worst float64 :math:`\\rho(T)` over :func:`rate_points`, and ``worst_rates``
         where.

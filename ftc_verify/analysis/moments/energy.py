@@ -15,7 +15,7 @@ of them; :math:`Q` = :meth:`JointChain.generator` at the rate array ``beta``; th
 a detection share their loop matrices), and
 :math:`E\int |z|^2 = \int \sum_s \operatorname{tr}(C_s X_s C_s^T)\,dt`. Both are folded into
 *one* homogeneous jump-linear system by augmenting the state, so that the second-moment
-generator of :mod:`ftc_verify.analysis.stability` applies unchanged:
+generator of :mod:`ftc_verify.analysis.moments.stability` applies unchanged:
 
 * a disturbance produced by an exosystem :math:`\dot\zeta = S\zeta`, :math:`w = c^T\zeta`
   (the paper's :math:`e^{-0.1t}\sin t`, steps, sines) gives
@@ -37,10 +37,10 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from ..analysis.closedloop import ClosedLoop
-from ..errors import ValidationError
-from ..model.system import Matrix
-from ..analysis.stability import duplication_matrix, second_moment_generator
+from ..closedloop import ClosedLoop
+from ...errors import ValidationError
+from ...model.system import Matrix
+from .stability import duplication_matrix, second_moment_generator
 
 __all__ = [
     "EXOSYSTEMS",

@@ -3,7 +3,7 @@
 :func:`generator_coefficients` writes the generator of :mod:`ftc_verify.model.chain` as
 ``base + sum_r rate_r coef_r`` exactly; :func:`ball_generator` encloses it over a box of
 rates, :func:`envelope_generator` is its upper envelope (off-diagonal entries at the top
-of the box, the diagonal from the bottom: :mod:`ftc_verify.analysis.sampled_proof`);
+of the box, the diagonal from the bottom: :mod:`ftc_verify.analysis.moments.sampled_proof`);
 :func:`ball_kron` and :func:`ball_block_diag` assemble ball matrices.
 """
 
@@ -15,9 +15,9 @@ from typing import Any
 
 import numpy as np
 
-from ..model.chain import JointChain
-from ..model.system import Matrix
-from .rigorous import Ball
+from ...model.chain import JointChain
+from ...model.system import Matrix
+from ..rigorous import Ball
 
 __all__ = ["generator_coefficients", "ball_generator", "envelope_generator", "ball_kron", "ball_block_diag",
            "as_float"]

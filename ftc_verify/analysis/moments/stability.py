@@ -33,10 +33,10 @@ from typing import Any
 import numpy as np
 import scipy.linalg
 
-from .closedloop import ClosedLoop
-from .conditioning import Similarity, conditioning_transform
-from .box import BOX_BUDGET_SECONDS, RegionVerdict, box_stability
-from ..model.system import Matrix
+from ..closedloop import ClosedLoop
+from ..conditioning import Similarity, conditioning_transform
+from ..box import BOX_BUDGET_SECONDS, RegionVerdict, box_stability
+from ...model.system import Matrix
 
 __all__ = [
     "MSSResult",
@@ -173,7 +173,7 @@ def spectral_abscissa(loop: ClosedLoop, beta: Matrix) -> float:
     """Largest real part of the eigenvalues of the second-moment generator at ``beta``.
 
     Dense eigenvalues up to :data:`DENSE_LIMIT` rows; above, the checked matrix-free
-    test of :mod:`ftc_verify.analysis.moment_operator` (whose sign is proved by a
+    test of :mod:`ftc_verify.analysis.moments.matrix_free` (whose sign is proved by a
     Lyapunov certificate; its value is ARPACK's).
 
     A shift-invert Arnoldi variant (shift at a Collatz-Wielandt bound) was tried and
@@ -182,7 +182,7 @@ def spectral_abscissa(loop: ClosedLoop, beta: Matrix) -> float:
     ``benchmarks/synthesis.py``) -- wrong in the unsafe direction.
     """
     if generator_size(loop) > DENSE_LIMIT:
-        from .moment_operator import matrix_free_abscissa
+        from .matrix_free import matrix_free_abscissa
 
         return matrix_free_abscissa(loop, beta)
     return float(np.max(scipy.linalg.eigvals(second_moment_generator(loop, beta), check_finite=False).real))

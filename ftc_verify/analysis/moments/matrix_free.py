@@ -1,6 +1,6 @@
 r"""The second-moment generator without forming it: a checked matrix-free spectral test.
 
-The generator of :mod:`ftc_verify.analysis.stability` acts on one symmetric matrix per
+The generator of :mod:`ftc_verify.analysis.moments.stability` acts on one symmetric matrix per
 joint mode,
 
 .. math::
@@ -35,9 +35,9 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import SolverError
-from .closedloop import ClosedLoop
-from ..model.system import Matrix
+from ...errors import SolverError
+from ..closedloop import ClosedLoop
+from ...model.system import Matrix
 
 __all__ = ["RESIDUAL_RTOL", "MomentOperator", "matrix_free_abscissa"]
 

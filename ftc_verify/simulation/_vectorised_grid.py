@@ -17,7 +17,7 @@ their *pieces* (split at the interior jumps) and *special points* (ends of speci
 intervals, whose weight or mode may differ from the standard one). Everything here is
 index arithmetic on sorted integer keys ``I * P + p``; the :math:`E_w` terms of the jump
 points and special points are added here, the :math:`E_y` terms while stepping
-(:mod:`ftc_verify.simulation.energies`).
+(:mod:`ftc_verify.simulation.vectorised`).
 """
 
 from __future__ import annotations
