@@ -1,0 +1,7 @@
+"""Stage 6: the probability of leaving the safe envelope (issue 35): a proved upper bound
+from the certificates (:mod:`ftc_verify.risk.bound`) and the FDI timing view
+(:mod:`ftc_verify.risk.timing`)."""
+
+from __future__ import annotations
+
+__all__: list[str] = []
