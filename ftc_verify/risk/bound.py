@@ -52,10 +52,16 @@ implies :math:`V > L_k^2 / \mu_{s,k}`. The smallest such :math:`\mu` is
 The bound does not change when :math:`(P, g)` is scaled, and is invariant under a
 change of state coordinates (with :math:`H` and :math:`x_0` transformed alike).
 
-**Which P.** The certificate the analysis proves (:func:`~ftc_verify.analysis.lmi_analysis.hinf_gamma`,
+**Which P.** Two candidates, the smaller proved bound is kept: the certificate the
+analysis proves (:func:`~ftc_verify.analysis.lmi_analysis.hinf_gamma`,
 :func:`~ftc_verify.analysis.lmi_analysis.mes_lmi`: the smallest certified :math:`\gamma`,
-resp. a mean-square certificate), or one passed in; it is not re-optimised for the
-bound (an SDP maximising the level for the given :math:`x_0` would tighten it).
+resp. a mean-square certificate, or one passed in), and the answer of a semidefinite
+program over the same LMI blocks that minimises the bound itself (``_optimised``): with
+the level normalised, :math:`[[P_s, H^T], [H, \kappa L^2 I]] \succeq 0` (so
+:math:`c \ge 1/\kappa`), minimise :math:`\sum_s p_{0,s} x_0^T P_s x_0 + g E`, linear in
+:math:`(P, \lambda, g)`. The :math:`|z|^2` term of the :math:`H_\infty` block is not
+needed by the argument; the small :math:`\kappa` makes :math:`P` large, so it costs
+little. The loop must be certified by the analysis first.
 
 **The proof.** The certificate is proved again on ``loop`` by
 :func:`~ftc_verify.analysis.lmi.check_certificate` (every block at every vertex of the
@@ -80,8 +86,11 @@ from typing import Any
 import numpy as np
 
 from ..analysis.closedloop import ClosedLoop
-from ..analysis.lmi import check_certificate
+from ..analysis.conditioning import conditioning_transform
+from ..analysis.conic import Rows, affine_bmat, scalar_variable, svec_index, sym_variable
+from ..analysis.lmi import block_specs, check_certificate, lyapunov_block
 from ..analysis.lmi_analysis import LMIResult, hinf_gamma, mes_lmi
+from ..analysis.solvers import solve_conic
 from ..analysis.rigorous import ball, precision, proven_positive_definite
 from ..errors import FTCError, ValidationError
 from ..model.system import Matrix
@@ -90,6 +99,12 @@ __all__ = ["UpperBound", "envelope_upper_bound"]
 
 #: Relative steps by which a float :math:`\lambda_{max}` is raised until the level is proved.
 LEVEL_STEPS = (1e-10, 1e-6, 1e-3, 1e-1)
+#: Normalisation of the level in the bound-minimising program (``_optimised``).
+OPTIMISE_KAPPA = 1e-4
+#: Margin of its blocks (in the conditioned coordinates, with ``P`` of order ``1/kappa``).
+OPTIMISE_MARGIN = 1e-6
+#: Largest program (variables x blocks x block entries) the bound is optimised on.
+OPTIMISE_ENTRIES = 5e7
 
 
 @dataclass(frozen=True)
@@ -110,8 +125,10 @@ class UpperBound:
     start : float or None
         A proved upper end of :math:`E[V(x_0, s_0)]`.
     gamma : float or None
-        The certified :math:`\\gamma` (:math:`g = \\gamma^2` multiplies the energy);
-        ``None`` for a Theorem 3.1 certificate.
+        The :math:`\\gamma` of the certificate used (:math:`g = \\gamma^2` multiplies the
+        energy); ``None`` for a Theorem 3.1 certificate. When :math:`P` was chosen to
+        minimise the bound, :math:`(P, \\gamma^2)` carry the program's scale (module
+        docstring), so this is not the loop's attenuation level.
     disturbance_energy : float
         :math:`E`, the bound on :math:`\\int |w|^2`.
     condition : str
@@ -213,6 +230,66 @@ def _certificate(loop: ClosedLoop, energy: float, given: LMIResult | None,
     if energy > 0:
         return hinf_gamma(loop, robust=False, solver=solver)
     return mes_lmi(loop, solver=solver)
+
+
+def _optimised(loop: ClosedLoop, checked: list[tuple[list[Matrix], float]], x: Matrix, energy: float,
+               p0: Matrix, condition: str) -> LMIResult | None:
+    r"""A candidate certificate of ``condition`` chosen to minimise the bound (module
+    docstring, "Which P"): on the conditioned loop, the blocks of
+    :func:`~ftc_verify.analysis.lmi.lyapunov_block` (on the conic variables of
+    :mod:`~ftc_verify.analysis.conic`) with a margin, :math:`P_s \succeq` margin,
+    :math:`\lambda, g \ge 0` and the level normalised, :math:`[[P_s, H^T], [H, \kappa L^2
+    I]] \succeq 0` (so :math:`L^2/\lambda_{max}(H P_s^{-1} H^T) \ge 1/\kappa`), minimising
+    :math:`\sum_s p_{0,s} x_0^T P_s x_0 + g E`. :math:`\kappa = 10^{-4}` makes
+    :math:`P` large, so the :math:`|z|^2` term of the :math:`H_\infty` block (not needed
+    by the supermartingale) costs little. ``None`` when the program is too large or not
+    solved; the answer is proved like any other (:func:`_proved`)."""
+    robust = condition == "lemma-4.1"
+    target = loop if robust else loop.nominal()
+    sim = conditioning_transform(target)
+    cl = sim.apply(target)
+    n, S = cl.n, cl.chain.n_states
+    per_p = n * (n + 1) // 2
+    lam_at = np.cumsum([0] + [len(c) if robust else 0 for c in cl.channels]) + S * per_p
+    gi = int(lam_at[-1])
+    K = gi + (0 if condition == "theorem-3.1" else 1)
+    specs = block_specs(cl)
+    if K * max(len(specs), 1) * (n + 8) ** 2 > OPTIMISE_ENTRIES:
+        return None
+    P = [sym_variable(n, s * per_p, K) for s in range(S)]
+    lam = [[scalar_variable(int(lam_at[s]) + k, K) for k in range(int(lam_at[s + 1] - lam_at[s]))] for s in range(S)]
+    g = None if condition == "theorem-3.1" else scalar_variable(gi, K)
+    rows, every = Rows(K), np.arange(K).astype(int)
+    for spec in specs:
+        M = lyapunov_block(cl, spec, P, lam[spec.s] if robust else None, g, affine_bmat)
+        rows.lmi(M + OPTIMISE_MARGIN * np.eye(M.shape[0]), every)
+    for s in range(S):
+        rows.lmi(-P[s] + OPTIMISE_MARGIN * np.eye(n), every)
+    for Hs, limit in checked:
+        for s, H in enumerate(Hs):
+            if np.any(H):
+                Ht = H @ sim.T
+                rows.lmi(-affine_bmat([[P[s], Ht.T], [Ht, OPTIMISE_KAPPA * limit ** 2 * np.eye(H.shape[0])]]), every)
+    if gi < K or robust:
+        rows.nonneg(-np.eye(K)[S * per_p:], np.zeros(K - S * per_p))
+    xc = (sim.T_inv @ x)[None, :]
+    cost = sum(float(p) * (xc @ P[s] @ xc.T).lin[0, 0] for s, p in enumerate(p0) if p > 0)
+    c = np.asarray(cost, dtype=float) + (energy * np.eye(K)[gi] if gi < K else 0.0)
+    outcome, sol = solve_conic(rows.problem(c), "clarabel")
+    if sol is None:
+        return None
+    r, cidx, w = svec_index(n)
+    Pv = []
+    for s in range(S):
+        M = np.zeros((n, n))
+        M[r, cidx] = sol[s * per_p:(s + 1) * per_p] / w
+        M[cidx, r] = M[r, cidx]
+        Pv.append(M)
+    lv = tuple(tuple(float(v) for v in sol[int(lam_at[s]):int(lam_at[s + 1])]) for s in range(S)) if robust else None
+    gamma = None if gi >= K else math.sqrt(max(float(sol[gi]), 0.0))
+    return LMIResult(condition, "candidate", gamma, "clarabel", outcome.status, 0.0, outcome.seconds, None,
+                     tuple(sim.lyapunov_back(p) for p in Pv), lv, "P chosen to minimise the bound",
+                     similarity=sim, P_conditioned=tuple(Pv))
 
 
 def _proved(loop: ClosedLoop, result: LMIResult) -> tuple[bool, str, list[Matrix], Any, float | None]:
@@ -323,6 +400,24 @@ def envelope_upper_bound(
         result = _certificate(loop, energy, certificate, solver)
     except FTCError as exc:
         return _fail(f"the analysis produced no certificate: {exc}", energy)
+    first = _attempt(loop, checked, x, energy, p0, result)
+    if first.value is None and first.reason.startswith("the loop is not certified"):
+        return first
+    try:
+        candidate = _optimised(loop, checked, x, energy, p0, result.condition)
+    except FTCError:
+        candidate = None
+    if candidate is None:
+        return first
+    second = _attempt(loop, checked, x, energy, p0, candidate)
+    if second.value is not None and (first.value is None or second.value < first.value):
+        return second
+    return first
+
+
+def _attempt(loop: ClosedLoop, checked: list[tuple[list[Matrix], float]], x: Matrix, energy: float, p0: Matrix,
+             result: LMIResult) -> UpperBound:
+    """The bound from one candidate certificate, after proving it (:func:`_proved`)."""
     ok, note, Pc, sim, g = _proved(loop, result)
     if not ok:
         return _fail(f"the loop is not certified ({result.condition}: {note}); no bound is claimed", energy, result)
@@ -367,6 +462,7 @@ def _bound(loop: ClosedLoop, checked: list[tuple[list[Matrix], float]], x: Matri
     if not value < 1.0:
         return UpperBound(None, f"the bound {value:.6g} is not below 1 (start value {v_up:.6g}, level {c_low:.6g}):"
                           " no information", c_low, v_up, gamma, energy, result.condition, result.solver, width, note)
+    how = "P chosen to minimise the bound" if result.outcome == "candidate" else "the analysis' P"
     basis = ("Ville's inequality on V + gamma^2 (remaining energy), V of the certified "
-             f"{result.condition} answer, over the rate box")
+             f"{result.condition} answer ({how}), over the rate box")
     return UpperBound(value, basis, c_low, v_up, gamma, energy, result.condition, result.solver, width, note)
