@@ -62,7 +62,7 @@ from ._common import (
     path_arrays,
     path_list,
 )
-from ._vectorised_maps import Tables, full_maps, loop_matrices, tables
+from ._vectorised_maps import Tables, full_maps, held_maps, tables
 from .delta import DeltaSchedule, delta_segments, delta_shapes
 from .paths import ChainPath, disturbance as disturbance_fn
 from .records import DIVERGENCE_BOUND
@@ -182,10 +182,13 @@ def _same_horizon(system: FTCSystem, tab: Tables, pa: PathArrays, seg_d: np.ndar
 
 @dataclass(frozen=True)
 class _ChunkMaps:
-    """Maps of the pieces of a chunk's special intervals (pieces ``s0..``) and their
-    compositions over each interval (``z(start) -> Ftot z + gtot``)."""
+    """Maps of the pieces of a chunk's special intervals (pieces ``s0..``,
+    ``z -> Fa z + Fb z_0 + g`` with ``z_0`` the state at the interval's sample:
+    :func:`~ftc_verify.simulation._vectorised_maps.held_maps`) and their compositions over
+    each interval (``z(start) -> Ftot z + gtot``)."""
 
-    Fs: np.ndarray
+    Fa: np.ndarray
+    Fb: np.ndarray
     gs: np.ndarray
     Ftot: np.ndarray
     gtot: np.ndarray
@@ -293,16 +296,17 @@ class _Stepper:
         it, pc = self.it, self.pc
         pc.d[pc.off[i0:i1]] = np.where(it.rep[i0:i1], it.repd[i0:i1], self.dtab[it.I[i0:i1] - c0, it.p[i0:i1]])
         s0, s1 = int(pc.off[i0]), int(pc.last[i1 - 1] + 1)
-        Fs, gs = loop_matrices(self.tab, pc.d[s0:s1], pc.dt[s0:s1], pc.w[s0:s1])
+        d0 = pc.d[pc.off[pc.item[s0:s1]]]  # the id at each piece's sample
+        Fa, Fb, gs = held_maps(self.tab, pc.d[s0:s1], d0, pc.dt[s0:s1], pc.w[s0:s1])
         cnt = pc.count[i0:i1]
-        Ftot = Fs[pc.off[i0:i1] - s0]
+        Ftot = Fa[pc.off[i0:i1] - s0] + Fb[pc.off[i0:i1] - s0]
         gtot = gs[pc.off[i0:i1] - s0]
         for r in range(1, int(cnt.max())):
             a = np.flatnonzero(cnt > r)
             si = pc.off[i0 + a] + r - s0
-            Ftot[a] = Fs[si] @ Ftot[a]
-            gtot[a] = np.einsum("pij,pj->pi", Fs[si], gtot[a]) + gs[si]
-        return _ChunkMaps(Fs, gs, Ftot, gtot, cnt, s0)
+            Ftot[a] = Fa[si] @ Ftot[a] + Fb[si]
+            gtot[a] = np.einsum("pij,pj->pi", Fa[si], gtot[a]) + gs[si]
+        return _ChunkMaps(Fa, Fb, gs, Ftot, gtot, cnt, s0)
 
     def _steps(self, c0: int, c1: int, i0: int, maps: _ChunkMaps | None) -> None:
         """The regular steps ``c0 .. c1-1``: ``Ey`` terms of the standard points, states
@@ -355,13 +359,15 @@ class _Stepper:
     def _interior(self, i0: int, i1: int, maps: _ChunkMaps) -> None:
         """``Ey`` terms of the interior jump points of the special intervals ``i0:i1``,
         from the stored state at each interval's start."""
-        Fs, gs, cnt, s0 = maps.Fs, maps.gs, maps.cnt, maps.s0
+        Fa, Fb, gs, cnt, s0 = maps.Fa, maps.Fb, maps.gs, maps.cnt, maps.s0
         pc, Cz, d_true = self.pc, self.tab.Cz, self.tab.d_true
-        xi = self.it_x[i0:i1].copy()
+        z0 = self.it_x[i0:i1]
+        xi = z0.copy()
         for r in range(1, int(cnt.max())):
             a = np.flatnonzero(cnt > r)
             si = pc.off[i0 + a] + r  # the piece starting at the point
-            xi[a] = np.einsum("pij,pj->pi", Fs[si - 1 - s0], xi[a]) + gs[si - 1 - s0]
+            q = si - 1 - s0
+            xi[a] = np.einsum("pij,pj->pi", Fa[q], xi[a]) + np.einsum("pij,pj->pi", Fb[q], z0[a]) + gs[q]
             np.maximum.at(self.zmax, self.it.p[i0 + a], np.einsum("pi,pi->p", xi[a], xi[a]))  # jump points
             qi = np.square(np.einsum("pij,pj->pi", Cz[d_true[pc.d[si]]], xi[a])).sum(axis=1)
             self.Ey += np.bincount(self.it.p[i0 + a], pc.wt[si] * qi, minlength=self.P)
