@@ -67,6 +67,7 @@ from .delta import DeltaSchedule, delta_segments, delta_shapes
 from .paths import ChainPath, disturbance as disturbance_fn
 from .records import DIVERGENCE_BOUND
 from .spec import SimulationSpec, spec_from
+from ..errors import ValidationError
 
 __all__ = ["energies_reference"]
 
@@ -87,6 +88,7 @@ def energies_reference(
     delta: DeltaSchedule | str | None = None,
     x0: ArrayLike | None = None,
     rng: np.random.Generator | None = None,
+    quadrature: str = "grid",
 ) -> tuple[np.ndarray, np.ndarray]:
     r"""Per path :math:`\int_0^T |y|^2 dt` and :math:`\int_0^T |w|^2 dt` of the sampled loop.
 
@@ -100,6 +102,12 @@ def energies_reference(
     paths may have different horizons. A regular point within
     :func:`~ftc_verify.simulation.spec.grid_snap_tolerance` of a jump is replaced by the
     jump, as in :func:`~ftc_verify.simulation.paths.communication_grid`.
+    ``quadrature="samples"``: ``Ey`` is the trapezoidal sum over the control samples
+    ``k step`` only (:func:`~ftc_verify.simulation.paths.sample_points`; the horizon is
+    the last point), :math:`\sum_k \omega_k |y(t_k)|^2` with the regular weights -- the
+    quantity whose expectation
+    :func:`~ftc_verify.analysis.moments.sampled_energy.sample_trapezoid` gives exactly;
+    ``Ew`` is unchanged.
 
     Returns
     -------
@@ -108,6 +116,8 @@ def energies_reference(
         ball of radius ``DIVERGENCE_BOUND`` (or was not finite) at a grid point, the test
         ``simulate_reference`` stops a path on.
     """
+    if quadrature not in ("grid", "samples"):
+        raise ValidationError(f"quadrature: {quadrature!r} is not 'grid' or 'samples'")
     spec = spec_from(spec, {"step": step, "disturbance": disturbance, "delta": delta, "x0": x0})
     step = spec.step
     controller = check_controller(system, controller)
@@ -129,7 +139,8 @@ def energies_reference(
                 sub_pa, sub_seg_d = pa, seg_d
             else:
                 sub_pa, sub_seg_d = pa.select(sel), seg_d[pa.segments(sel)]
-            Ey[sel], Ew[sel] = _same_horizon(system, tab, sub_pa, sub_seg_d, float(hz), step, wfun, z0)
+            Ey[sel], Ew[sel] = _same_horizon(system, tab, sub_pa, sub_seg_d, float(hz), step, wfun, z0,
+                                             quadrature == "samples")
     return Ey, Ew
 
 
@@ -165,7 +176,7 @@ def _dynamics_ids(system: FTCSystem, controller: Controller, plist: list[ChainPa
 
 def _same_horizon(system: FTCSystem, tab: Tables, pa: PathArrays, seg_d: np.ndarray, horizon: float,
                   step: float, wfun: Callable[[np.ndarray], np.ndarray],
-                  z0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                  z0: np.ndarray, samples_only: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """The engine for paths sharing one horizon (vocabulary of
     ``ftc_verify.simulation._vectorised_grid``); returns ``(Ey, Ew)``."""
     grid = eg.regular_grid(system.m, horizon, step, wfun)
@@ -175,6 +186,7 @@ def _same_horizon(system: FTCSystem, tab: Tables, pa: PathArrays, seg_d: np.ndar
     pc = eg.pieces(jmp, it, wfun, Ew)
     pt = eg.points(jmp, it, pc, grid, wfun, Ew)
     stepper = _Stepper(tab, pa, seg_d, grid, jmp, it, pc, pt, step, z0)
+    stepper.samples_only = samples_only
     Ey = stepper.run()
     Ey[~(stepper.zmax <= DIVERGENCE_BOUND ** 2)] = np.inf  # diverged (or NaN): records would stop there
     return Ey, Ew
@@ -226,6 +238,7 @@ class _Stepper:
         self.Ba[self.nw:self.nw + nz] = z0[:, None]
         self.Bb = np.empty_like(self.Ba)
         self.Ey = np.zeros(P)
+        self.samples_only = False  # Ey over the control samples only (energies_reference's quadrature)
         self.zmax = np.zeros(P)  # largest |z|^2 at the regular points (divergence test)
         self.dtab = np.empty((self.L + 1, P), dtype=np.int64)
         self.idx = np.empty((self.L, self.rows, P), dtype=np.int64) if self.select else None
@@ -369,6 +382,8 @@ class _Stepper:
             q = si - 1 - s0
             xi[a] = np.einsum("pij,pj->pi", Fa[q], xi[a]) + np.einsum("pij,pj->pi", Fb[q], z0[a]) + gs[q]
             np.maximum.at(self.zmax, self.it.p[i0 + a], np.einsum("pi,pi->p", xi[a], xi[a]))  # jump points
+            if self.samples_only:  # interior jump points are no samples
+                continue
             qi = np.square(np.einsum("pij,pj->pi", Cz[d_true[pc.d[si]]], xi[a])).sum(axis=1)
             self.Ey += np.bincount(self.it.p[i0 + a], pc.wt[si] * qi, minlength=self.P)
 
@@ -384,4 +399,5 @@ class _Stepper:
             qK[pt.p[b0:b1]] = 0.0
         self.Ey += self.grid.wt_std[self.K] * qK
         q = np.square(np.einsum("pij,pj->pi", Cz[d_true[self.spt_d]], self.spt_x)).sum(axis=1)
-        self.Ey += np.bincount(pt.p, pt.weight * q, minlength=self.P)
+        weight = self.grid.wt_std[pt.k] if self.samples_only else pt.weight
+        self.Ey += np.bincount(pt.p, weight * q, minlength=self.P)
