@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..analysis.moments.sampled import SampledLoop, SampledResult, sampled_analysis
+from ..analysis.solvers import interruptible
 from ..controllers.controller import Controller
 from ..errors import FTCError
 from ..model.system import FTCSystem
@@ -48,7 +49,8 @@ def sampled_stage(system: FTCSystem, controller: Controller, step: float) -> tup
     if rows > SAMPLED_LIMIT:
         return None, Check(name, True, f"NOT analysed: its moment generator has {rows} rows (limit {SAMPLED_LIMIT}); "
                                        "the certificates above are those of the continuous-time loop")
-    res = sampled_analysis(system, controller, step, max_seconds=30.0)
+    res = interruptible(lambda: sampled_analysis(system, controller, step, max_seconds=30.0),
+                        "the sampled-data analysis")
     if res.h_max is None or res.h_max_unstable is None:
         bracket = "h_max not found: " + res.h_max_note
     else:

@@ -74,6 +74,7 @@ import numpy as np
 import scipy.linalg
 
 from ...controllers.controller import Controller, check_period
+from ...limits import check_memory, dense_generator_estimate
 from ...model.chain import JointChain
 from ...model.system import FTCSystem, Matrix
 from ..closedloop import closed_loop
@@ -132,6 +133,11 @@ class SampledLoop:
         n, nu, _, _ = system.dims
         nc = controller.n_c
         d = n + nu + nc
+        S = system.chain.n_states
+        check_memory(dense_generator_estimate(d, S),
+                     f"the sampled-data analysis (one-period map on {S} joint states x {d * (d + 1) // 2} "
+                     f"second moments of (x, u, x_c), d = {d})",
+                     hint="analyse without --period, or a smaller loop")
         flows, meas, entries = [], [], []
         pattern = np.zeros((d, d))  # |flow| + |reset pattern| over the states, to balance
         for i, j in system.chain.joint_modes:
@@ -154,7 +160,6 @@ class SampledLoop:
             _, (found, _) = scipy.linalg.matrix_balance(pattern + np.eye(d), permute=False, separate=True)
             scale = np.asarray(found, dtype=float)
         flows = [Ab / scale[:, None] * scale[None, :] for Ab in flows]
-        S = system.chain.n_states
         modes_part = second_moment_matrix(flows, np.zeros((S, S)))
         loop = closed_loop(system, controller)
         rates = [float(np.linalg.norm(A, 2)) for A in loop.A]

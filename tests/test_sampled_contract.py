@@ -1,0 +1,84 @@
+"""Issue 32's contract on the sampled-data stages (issue 31): the one-period map's memory is
+checked before any work, and every sampled-data analysis outside ``analyze`` runs in a
+killable child (:func:`ftc_verify.analysis.solvers.interruptible`) so that a SIGTERM
+during a long ``h_max`` scan does not wait for it."""
+
+from __future__ import annotations
+
+import importlib
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from ftc_verify.analysis.moments.sampled import SampledLoop, sampled_analysis
+from ftc_verify.controllers.files import load_controller
+from ftc_verify.errors import MemoryLimitError
+from ftc_verify.limits import dense_generator_estimate
+from ftc_verify.model.files import load_system
+
+ROOT = Path(__file__).resolve().parents[1]
+PAPER = ROOT / "examples" / "paper.toml"
+GAINS = ROOT / "examples" / "paper_gains.toml"
+
+
+def test_the_one_period_maps_memory_is_checked_before_any_work(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Paper loop: d = n + n_u = 4, 4 joint states, 40 rows of the moment generator; the
+    estimate is that of a dense generator of that size, refused under a 60 KB limit
+    (the continuous loop's 12 rows pass) naming the sampled-data analysis."""
+    system, controller = load_system(PAPER), load_controller(GAINS)
+    estimate = dense_generator_estimate(4, 4)
+    assert estimate == 8 * (8 * 40 ** 2 + 4 * 16 * 10)
+    monkeypatch.setenv("FTC_VERIFY_MEMORY_LIMIT", "60K")
+    with pytest.raises(MemoryLimitError, match=r"the sampled-data analysis \(one-period map on 4 joint states"):
+        SampledLoop.build(system, controller)
+    with pytest.raises(MemoryLimitError, match="FTC_VERIFY_MEMORY_LIMIT"):
+        sampled_analysis(system, controller, 0.05)
+
+
+def test_cli_period_over_the_memory_limit_exits_2_naming_it(tmp_path: Path) -> None:
+    proc = subprocess.run([sys.executable, "-m", "ftc_verify", "analyze", str(PAPER), "--controller", str(GAINS),
+                           "--period", "0.05", "--no-lmi"], capture_output=True, text=True, timeout=300, cwd=tmp_path,
+                          env={"FTC_VERIFY_MEMORY_LIMIT": "60K", "PATH": "/usr/bin:/bin"})
+    assert proc.returncode == 2, proc.stderr
+    err = proc.stderr.strip()
+    assert "sampled-data analysis" in err and "FTC_VERIFY_MEMORY_LIMIT" in err and len(err.splitlines()) == 1, err
+    assert "Traceback" not in err
+
+
+@pytest.mark.parametrize("module, call", [
+    ("ftc_verify.verification.sampled_stage",
+     lambda m, s, c: m.sampled_stage(s, c, 0.05)),
+    ("ftc_verify.synthesis.at_period",
+     lambda m, s, c: m.synthesize_at_period(s, 0.05, lambda bound: _Certified(c), lambda res: res.controller,
+                                        k_max=None, bounds=())),
+    ("ftc_verify.export.certificate",
+     lambda m, s, c: m.export_certificate(s, c, 0.05)),
+])
+def test_sampled_analyses_run_in_a_killable_child(module: str, call: Any, monkeypatch: pytest.MonkeyPatch) -> None:
+    """verify's sampled stage, ``synthesize --period`` and ``export`` run the sampled-data
+    analysis through ``interruptible`` (before issue 32's audit they called it directly:
+    a SIGTERM waited for the whole scan)."""
+    mod = importlib.import_module(module)
+    seen: list[str] = []
+    real = mod.interruptible
+
+    def spy(fn: Any, what: str) -> Any:
+        seen.append(what)
+        return real(fn, what)
+
+    monkeypatch.setattr(mod, "interruptible", spy)
+    call(mod, load_system(PAPER), load_controller(GAINS))
+    assert "the sampled-data analysis" in seen
+
+
+class _Certified:
+    """A synthesis result stand-in for ``design_at_period``: certified, with a controller."""
+
+    certified = True
+    gamma_certified = 0.5
+
+    def __init__(self, controller: Any) -> None:
+        self.controller = controller
