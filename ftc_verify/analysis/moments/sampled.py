@@ -64,6 +64,7 @@ over periods and :func:`sampled_analysis`, which reports the verdict at the peri
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from collections.abc import Sequence
@@ -211,6 +212,28 @@ class SampledLoop:
         c = self.scale_r
         return np.tile(c[rows] * c[cols], self.states)
 
+    @functools.cached_property
+    def restrict_map(self) -> Matrix:
+        """:math:`L_r (P \\otimes P) D_d` (``vr x vd``), the same in every joint state."""
+        Dd, _ = duplication_matrix(self.d)
+        _, Lr = duplication_matrix(self.r)
+        P = self.restriction()
+        return np.asarray(Lr @ np.kron(P, P) @ Dd)
+
+    @functools.cached_property
+    def _static_lifts(self) -> Matrix:
+        return self._lifts(0.0)
+
+    def _lifts(self, h: float) -> Matrix:
+        _, Ld = duplication_matrix(self.d)
+        Dr, _ = duplication_matrix(self.r)
+        return np.stack([Ld @ np.kron(R, R) @ Dr for R in self.resets(h)])
+
+    def lifts(self, h: float) -> Matrix:
+        """:math:`L_d (R_s \\otimes R_s) D_r` per joint state (``(S, vd, vr)``); computed
+        once for a static controller (its resets do not depend on ``h``)."""
+        return self._static_lifts if self.nc == 0 else self._lifts(h)
+
     def resets(self, h: float) -> tuple[Matrix, ...]:
         """:math:`R_s` (``d x r``) of every joint state at period ``h`` (float64), in the
         balanced coordinates."""
@@ -273,14 +296,15 @@ SCAN_PER_OCTAVE = 8
 
 
 def _assemble(loop: SampledLoop, F: Matrix, h: float) -> Matrix:
-    """:math:`T` in the balanced coordinates from the flow :math:`F = e^{\\mathcal L h}`."""
-    Dd, Ld = duplication_matrix(loop.d)
-    Dr, Lr = duplication_matrix(loop.r)
-    vd, vr, S = Dd.shape[1], Dr.shape[1], loop.states
-    P = loop.restriction()
-    restrict = Lr @ np.kron(P, P) @ Dd
-    lifts = np.stack([Ld @ np.kron(R, R) @ Dr for R in loop.resets(h)])
-    return np.einsum("ab,tbsc,scd->tasd", restrict, F.reshape(S, vd, S, vd), lifts, optimize=True).reshape(S * vr, -1)
+    """:math:`T` in the balanced coordinates from the flow :math:`F = e^{\\mathcal L h}`:
+    block :math:`(t, s)` is :math:`\\mathcal P_0 F_{ts} \\mathcal R_s`, two batched
+    products (the restriction and, for a static controller, the lifts computed once per
+    loop, :meth:`SampledLoop.lifts`)."""
+    restrict, lifts = loop.restrict_map, loop.lifts(h)
+    S, vd, vr = loop.states, restrict.shape[1], restrict.shape[0]
+    FL = np.matmul(F.reshape(S * vd, S, vd).transpose(1, 0, 2), lifts)  # (s, t vd + b, vr): F_ts R_s
+    X = FL.transpose(1, 0, 2).reshape(S, vd, S * vr)  # (t, b, s vr + d)
+    return np.matmul(restrict, X).reshape(S * vr, S * vr)
 
 
 def scan_periods(loop: SampledLoop, lo: float, hi: float) -> tuple[Matrix, Matrix]:
