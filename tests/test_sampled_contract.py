@@ -5,6 +5,7 @@ during a long ``h_max`` scan does not wait for it."""
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import subprocess
 import sys
@@ -82,3 +83,41 @@ class _Certified:
 
     def __init__(self, controller: Any) -> None:
         self.controller = controller
+
+
+# ------------------------------------------------------------------ issue 31 item 4: data as written
+def test_sampled_proofs_enclose_the_files_decimals(tmp_path: Path) -> None:
+    """From files, the balls of the sampled proofs contain the decimals as written (0.8 of
+    A, the gain 2.4563, a written period "0.1" from the controller file) and not only
+    their floats; a period the analysis chooses stays exact; without files the floats are
+    the data (exact balls)."""
+    import flint
+
+    from ftc_verify.analysis.moments.sampled_proof import _MapParts, _ball_resets
+    from ftc_verify.controllers import Controller
+
+    from ftc_verify.analysis.rigorous import precision
+
+    gains = tmp_path / "g.toml"
+    gains.write_text("period = 0.1\n" + GAINS.read_text())
+    system, controller = load_system(PAPER), load_controller(gains)
+    loop = SampledLoop.build(system, controller)
+    assert loop.literals is not None and "0.8" in loop.literals[0.8] and "0.1" in loop.literals[0.1]
+    written = dataclasses.replace(loop, written=(0.1,))
+    with precision(128):  # the decimals' balls are far narrower than the floats' distance to them
+        h = written.period_ball(0.1)
+        assert h.contains(flint.arb("0.1")) and not h.contains(flint.arb(0.1))
+        assert written.period_ball(0.0842) == flint.arb(0.0842) and loop.period_ball(0.1).rad() == 0
+        parts = _MapParts.build(written, 0.1)
+        assert parts.h.contains(flint.arb("0.1"))
+        s = loop.scale
+        a22 = parts.modes[4, 4]  # vech entry (x2, x2) (column-major lower triangle, d = 4): 2 A_22
+        assert (a22 / 2).contains(flint.arb("0.8")) and not (a22 / 2).contains(flint.arb(0.8))
+        R = _ball_resets(loop, 0.1)[0].value  # joint state (1, 1): D_c = K_1, balanced
+        k11 = R[2, 0] * float(s[2] / s[0])
+        assert k11.contains(flint.arb("2.4563")) and not k11.contains(flint.arb(2.4563))
+        plain = SampledLoop.build(_floats(system), Controller.state_feedback(list(controller.gains)))
+        assert plain.literals is None and _ball_resets(plain, 0.1)[0].value[2, 0].rad() == 0
+
+def _floats(system: Any) -> Any:
+    return dataclasses.replace(system, literals=None)

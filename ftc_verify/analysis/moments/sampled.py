@@ -64,10 +64,11 @@ over periods and :func:`sampled_analysis`, which reports the verdict at the peri
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -114,6 +115,16 @@ class SampledLoop:
         (a similarity, exact in floating point; the spectrum is the same).
     speed : float
         The largest closed-loop rate (for the range of periods scanned).
+    literals : mapping or None
+        The numbers of the system and controller files as written (float -> decimal
+        texts, :func:`ftc_verify.model.files.read_toml`); the proofs enclose those
+        decimals (:func:`ftc_verify.analysis.exact.enclose`). ``None``: the floats are the
+        data.
+    written : tuple of float
+        Periods the user wrote (:func:`sampled_analysis`'s ``period``): the proofs take
+        such a period as its decimal text when the controller file has it, else as the
+        ball of every decimal read as that float; the periods the analysis chooses (the
+        scan, the ``h_max`` bracket) are exact.
     """
 
     chain: JointChain
@@ -126,6 +137,8 @@ class SampledLoop:
     modes_part: Matrix
     scale: Matrix
     speed: float
+    literals: Mapping[float, tuple[str, ...]] | None = None
+    written: tuple[float, ...] = ()
 
     @classmethod
     def build(cls, system: FTCSystem, controller: Controller) -> SampledLoop:
@@ -165,8 +178,25 @@ class SampledLoop:
         loop = closed_loop(system, controller)
         rates = [float(np.linalg.norm(A, 2)) for A in loop.A]
         rates.append(float(np.max(np.abs(system.chain.generator(system.chain.rate_max)))))
+        literals: dict[float, tuple[str, ...]] | None = None
+        if system.literals is not None or controller.literals is not None:
+            literals = {}
+            for source in (system.literals or {}, controller.literals or {}):
+                for value, texts in source.items():
+                    literals[value] = literals.get(value, ()) + tuple(texts)
         return cls(system.chain, tuple(flows), tuple(meas), tuple(entries), controller, n, nu, modes_part, scale,
-                   max(*rates, 1e-9))
+                   max(*rates, 1e-9), literals)
+
+    def period_ball(self, h: float) -> Any:
+        """The period ``h`` as a ball (``flint.arb``): exact for a period the analysis
+        chose; for one the user wrote (:attr:`written`) its decimal text from the
+        controller file, else every decimal read as ``h`` (:func:`ftc_verify.analysis.exact.enclose`)."""
+        import flint
+
+        from ..exact import enclose
+
+        h = float(h)
+        return enclose(h, self.literals or {}) if h in self.written else flint.arb(h)
 
     @property
     def nc(self) -> int:
@@ -499,7 +529,7 @@ def sampled_analysis(system: FTCSystem, controller: Controller, period: float, *
 
     period = check_period(period, "period")
     t0 = time.perf_counter()
-    loop = SampledLoop.build(system, controller)
+    loop = dataclasses.replace(SampledLoop.build(system, controller), written=(float(period),))
     verdict = box_verdict(loop, period, max_boxes=max_boxes, max_seconds=max_seconds / 3)
     rho, where = worst_radius(loop, period, rate_points(loop.chain))
     lo, hi = scan_range(loop, period)
