@@ -446,8 +446,7 @@ def run_verify(
         return report(analysis=analysis, per_mode=per_mode)
     g2 = gamma_cert ** 2
     exact = timed("exact_energy", lambda: _exact_energies(system, loop, g2))
-    extra.update(sampled_stages(system, controller, float(spec.step), g2, checks, seconds,  # the loop that runs
-                                (float(spec.horizon), int(spec.n_paths), seed)))
+    extra.update(sampled_stages(system, controller, spec.step, g2, checks, seconds, (spec.horizon, spec.n_paths, seed)))
     timed("gamma_bracket", functools.partial(_bracket, analysis, gamma_cert))
     t = time.perf_counter()
     spec, options["delta"] = spec.resolve_delta(system, plant)

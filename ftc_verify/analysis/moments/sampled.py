@@ -82,7 +82,7 @@ from ...model.system import FTCSystem, Matrix
 from ..closedloop import closed_loop
 from .stability import duplication_matrix, second_moment_matrix, vech_order
 
-__all__ = ["SampledLoop", "SampledResult", "one_period_map", "spectral_radius", "rate_points",
+__all__ = ["SampledLoop", "SampledResult", "one_period_map", "assemble_map", "spectral_radius", "rate_points",
            "worst_radius", "scan_periods", "stability_intervals", "h_max_bracket", "sampled_analysis",
            "H_MAX_RTOL", "SCAN_PER_OCTAVE"]
 
@@ -289,7 +289,7 @@ def one_period_map(loop: SampledLoop, h: float, rates: Matrix, *, scaled: bool =
     Q = loop.chain.generator(rates)
     vd = loop.d * (loop.d + 1) // 2
     F = scipy.linalg.expm((loop.modes_part + np.kron(Q.T, np.eye(vd))) * float(h))
-    T = _assemble(loop, F, h)
+    T = assemble_map(loop, F, h)
     if scaled:
         return T
     w = loop.vech_weights()
@@ -325,7 +325,7 @@ def worst_radius(loop: SampledLoop, h: float, points: Sequence[Matrix]) -> tuple
 SCAN_PER_OCTAVE = 8
 
 
-def _assemble(loop: SampledLoop, F: Matrix, h: float) -> Matrix:
+def assemble_map(loop: SampledLoop, F: Matrix, h: float) -> Matrix:
     """:math:`T` in the balanced coordinates from the flow :math:`F = e^{\\mathcal L h}`:
     block :math:`(t, s)` is :math:`\\mathcal P_0 F_{ts} \\mathcal R_s`, two batched
     products (the restriction and, for a static controller, the lifts computed once per
@@ -354,7 +354,7 @@ def scan_periods(loop: SampledLoop, lo: float, hi: float) -> tuple[Matrix, Matri
         for k, h in enumerate(hs):
             F = scipy.linalg.expm(G * float(h)) if k < K else flows[k - K] @ flows[k - K]
             flows.append(F)
-            T = _assemble(loop, F, float(h))
+            T = assemble_map(loop, F, float(h))
             r = float(np.max(np.abs(scipy.linalg.eigvals(T, check_finite=False)))) if np.all(np.isfinite(T)) else math.inf
             rho[k] = max(rho[k], r)
     return hs, rho
