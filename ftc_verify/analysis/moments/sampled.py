@@ -189,7 +189,7 @@ class SampledLoop:
 
     def period_ball(self, h: float) -> Any:
         """The period ``h`` as a ball (``flint.arb``): exact for a period the analysis
-        chose; for one the user wrote (:attr:`written`) its decimal text from the
+        chose; for one the user wrote (``written``) its decimal text from the
         controller file, else every decimal read as ``h`` (:func:`ftc_verify.analysis.exact.enclose`)."""
         import flint
 

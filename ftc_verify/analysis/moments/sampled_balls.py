@@ -102,7 +102,7 @@ def ball_generator(chain: JointChain, lo: Matrix, hi: Matrix, literals: Literals
     ``r`` with ``lo <= r <= hi`` (every entry is affine and non-decreasing in each rate:
     the union of its balls at both ends; the diagonal is minus the ball row sum, so every
     row sums to an enclosure of zero). ``literals``: the system file's numbers as
-    written (:func:`_terms`)."""
+    written (``_terms``)."""
     low, up = _terms(chain, lo, hi, literals)
     S = chain.n_states
     both = [[low[s][t].union(up[s][t]) for t in range(S)] for s in range(S)]
