@@ -17,6 +17,8 @@ The tables keep :math:`BK = [B D_{c,e} M_i,\; B C_{c,e}]` (``n x n_z``), so that
 block row is :math:`[\Phi, 0] + \Gamma\, BK`; the performance output is
 :math:`y = [C_i,\ 0]\, z`. For static state feedback (:math:`n_c = 0`, :math:`M_i = I`)
 this is :math:`F = \Phi + \Gamma B K_j`, :math:`G = \Gamma D_i`, computed as before.
+These maps are those of a whole interval that starts at a control sample; the pieces of a
+period cut by jumps, with the controller's output held, are :func:`held_maps`.
 """
 
 from __future__ import annotations

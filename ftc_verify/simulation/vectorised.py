@@ -32,9 +32,12 @@ All paths advance together over the regular points ``k step``
   rows (next state and present output at once); with many ids (``Delta`` kind
   ``random``) a gathered batched product;
 * an interval cut by jumps (or a shorter last interval) is the composition of the maps of
-  its pieces, whose exponentials are made in batches per chunk of steps (the Taylor series
-  of :func:`~ftc_verify.simulation.discretise.phi_gamma`; the full-step tables come from
-  it too, so this path never calls :func:`scipy.linalg.expm`, agreeing with it to
+  its pieces, the plant switching at the jumps while the controller's output, entry and
+  input and the disturbance stay those of the interval's start, the sample
+  (``held_maps`` of ``ftc_verify.simulation._vectorised_maps``:
+  :math:`z^+ = F_a z + F_b z_0 + g`); their exponentials are made in batches per chunk of
+  steps (:func:`~ftc_verify.simulation.discretise.phi_gamma`; the full-step tables come
+  from it too, so this path never calls :func:`scipy.linalg.expm`, agreeing with it to
   rounding); the states at the jump points, needed for their trapezoid terms, are
   recomputed from the stored state at the interval's start;
 * the trapezoid terms of the grid points whose weight or mode differs from the regular
