@@ -363,7 +363,7 @@ def barred(mode: Mode, measurement: Matrix, n_c: int) -> Barred:
     return Barred(A0, B0, Cb, Db, C1, A1, A2, B2, pa)
 
 
-def assemble_map(system: FTCSystem, entry: Callable[[int, int], tuple[Any, Any, Any, Any]],
+def _assemble(system: FTCSystem, entry: Callable[[int, int], tuple[Any, Any, Any, Any]],
               measurement: Callable[[Mode], Matrix], n_c: int, label: str) -> ClosedLoop:
     """The loop of the module docstring from ``entry(i, j) = (Ac, Bc, Cc, Dc)``, one
     entry per joint state (``entry`` is called with the state's pair).
@@ -415,7 +415,7 @@ def closed_loop(system: FTCSystem, controller: Controller) -> ClosedLoop:
         k = controller.index(i, j, m)
         return controller.Ac[k], controller.Bc[k], controller.Cc[k], controller.Dc[k]
 
-    loop = assemble_map(system, entry, controller.measurement, controller.n_c, controller.describe(m))
+    loop = _assemble(system, entry, controller.measurement, controller.n_c, controller.describe(m))
     return replace(loop, source=(system, controller))
 
 
@@ -439,4 +439,4 @@ def gain_loop(system: FTCSystem, gains: Sequence[Any], controller: str) -> Close
     def entry(i: int, j: int) -> tuple[Any, Any, Any, Any]:
         return None, None, None, gains[i * m + j] if full_info else gains[j]
 
-    return assemble_map(system, entry, lambda md: np.eye(md.n), 0, controller)
+    return _assemble(system, entry, lambda md: np.eye(md.n), 0, controller)
