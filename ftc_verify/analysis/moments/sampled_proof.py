@@ -81,6 +81,7 @@ from ...model.chain import JointChain
 from ...model.system import Matrix
 from ..exact import enclose, written
 from ..rigorous import PRECISION_BITS, Ball, ball, midpoint, precision, proven_positive_definite
+from .fast_balls import arb_expm
 from .sampled_balls import (ball_block_diag, ball_generator, ball_kron, envelope_generator,
                             generator_coefficients)
 from .sampled import SampledLoop, assemble_map, one_period_map, rate_points, spectral_radius, worst_radius
@@ -198,7 +199,7 @@ class _MapParts:
 
     def map(self, Q: Any) -> Any:
         """:math:`T = \\mathcal P e^{\\mathcal L h} \\mathcal R` (ball)."""
-        return self.res * (self.generator(Q) * self.h).exp() * self.lift
+        return self.res * arb_expm(self.generator(Q) * self.h) * self.lift
 
     def derivative(self, Q: Any, coef: Matrix) -> Any:
         """:math:`\\partial T / \\partial r` along a rate whose generator coefficient is
@@ -222,7 +223,7 @@ class _MapParts:
                 if c:
                     for k in range(vd):
                         V[s * vd + k, N + t * vd + k] = c
-        E = (V * self.h).exp()
+        E = arb_expm(V * self.h)
         D = flint.arb_mat(N, N)
         for i in range(N):
             for j in range(N):
