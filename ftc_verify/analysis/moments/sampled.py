@@ -340,7 +340,9 @@ def assemble_map(loop: SampledLoop, F: Matrix, h: float) -> Matrix:
 def scan_periods(loop: SampledLoop, lo: float, hi: float) -> tuple[Matrix, Matrix]:
     """``(hs, rho)``: periods from ``lo`` to at least ``hi``, :data:`SCAN_PER_OCTAVE` per
     octave (``h_k = lo 2^{k/8}``), and the worst float64 :math:`\\rho(T)` over
-    :func:`rate_points` at each. The flows of the first octave are exponentials; every
+    :func:`rate_points` at each (once some point has :math:`\\rho \\ge 1` at a period,
+    the others are not evaluated there: ``rho`` is then a value ``>= 1`` of some point,
+    which is all :func:`stability_intervals` reads). The flows of the first octave are exponentials; every
     later one is the square of the one an octave before (:math:`e^{\\mathcal L 2h} =
     (e^{\\mathcal L h})^2`), one product instead of an exponential."""
     K = SCAN_PER_OCTAVE
@@ -348,12 +350,18 @@ def scan_periods(loop: SampledLoop, lo: float, hi: float) -> tuple[Matrix, Matri
     hs = lo * 2.0 ** (np.arange(count) / K)
     vd = loop.d * (loop.d + 1) // 2
     rho = np.zeros(count)
-    for p in rate_points(loop.chain):
-        G = loop.modes_part + np.kron(loop.chain.generator(p).T, np.eye(vd))
-        flows: list[Matrix] = []
-        for k, h in enumerate(hs):
-            F = scipy.linalg.expm(G * float(h)) if k < K else flows[k - K] @ flows[k - K]
-            flows.append(F)
+    gens = [loop.modes_part + np.kron(loop.chain.generator(p).T, np.eye(vd)) for p in rate_points(loop.chain)]
+    rings: list[list[Matrix]] = [[] for _ in gens]  # the last octave's flows, flow k at k % K
+    for k, h in enumerate(hs):
+        for G, ring in zip(gens, rings):
+            if k < K:
+                F = scipy.linalg.expm(G * float(h))
+                ring.append(F)
+            else:
+                F = ring[k % K] @ ring[k % K]
+                ring[k % K] = F
+            if rho[k] >= 1.0:
+                continue  # unstable at this period already: the other points cannot change that
             T = assemble_map(loop, F, float(h))
             r = float(np.max(np.abs(scipy.linalg.eigvals(T, check_finite=False)))) if np.all(np.isfinite(T)) else math.inf
             rho[k] = max(rho[k], r)
@@ -401,12 +409,12 @@ def h_max_bracket(loop: SampledLoop, stable_h: float, unstable_h: float, *, rtol
     larger one proved unstable at some rate point.
 
     The crossing is bisected in float64 to ``rtol / 16``; stability is then tried at
-    ``(1 - f) a`` for ``f`` in ``rtol / 4, 3 rtol / 4`` (the bracket within ``rtol``),
-    then, if those proofs run out of their budget (``max_boxes`` sub-boxes,
-    ``max_seconds`` each), further below (``f`` up to 10 %), and the note says the
-    bracket is wider than ``rtol``. No new proof is started after ``deadline``
+    ``(1 - f) a`` for ``f = rtol / 4`` (the bracket within ``rtol``), then, if that proof
+    runs out of its budget (``max_boxes`` sub-boxes, ``max_seconds / 3``), from further
+    below (``f`` = 10 %, 1 %, ``3 rtol / 4``, ``max_seconds`` each) upwards until one fails
+    (``_prove_below``), and the note says the bracket is wider than ``rtol``. No new proof is started after ``deadline``
     (``time.perf_counter()``). ``None`` where no proof was found."""
-    from .sampled_proof import box_verdict, prove_point_unstable
+    from .sampled_proof import prove_point_unstable
 
     pts = rate_points(loop.chain)
     a = _crossing(loop, stable_h, unstable_h, True, rtol / 16)
@@ -422,14 +430,7 @@ def h_max_bracket(loop: SampledLoop, stable_h: float, unstable_h: float, *, rtol
         if rho > 1.0 and prove_point_unstable(loop, hb, where):
             proved_b = hb
             break
-    proved_a = None
-    for f in (0.25 * rtol, 0.75 * rtol, 1e-2, 0.1):
-        if time.perf_counter() > deadline:
-            break
-        ha = a * (1 - f)
-        if box_verdict(loop, ha, max_boxes=max_boxes, max_seconds=max_seconds).verdict == "stable":
-            proved_a = ha
-            break
+    proved_a = _prove_below(loop, a, rtol, max_boxes, max_seconds, deadline)
     if proved_a is None or proved_b is None:
         missing = " and ".join(w for w, v in (("stability", proved_a), ("instability", proved_b)) if v is None)
         late = " (time budget spent)" if time.perf_counter() > deadline else ""
@@ -441,6 +442,30 @@ def h_max_bracket(loop: SampledLoop, stable_h: float, unstable_h: float, *, rtol
                                     f"(the sub-box budget ran out nearer the float64 crossing {a:.6g})")
     return proved_a, proved_b, (f"proved stable over the rate box at {proved_a:.6g}, proved unstable at a rate "
                                 f"point at {proved_b:.6g} (relative gap {gap:.1e})")
+
+
+def _prove_below(loop: SampledLoop, a: float, rtol: float, max_boxes: int, max_seconds: float,
+                 deadline: float) -> float | None:
+    """The largest period ``a (1 - f)`` proved stable over the rate box (``None`` if
+    none): first ``f = rtol / 4`` with a third of the budget (the bracket within
+    ``rtol`` at once); if that fails, easy first -- ``f = 0.1, 10^{-2}, 3 rtol / 4`` with
+    the full budget each, stopping at the first failure (a smaller margin is harder:
+    its proof would rarely succeed and would spend its whole budget)."""
+    from .sampled_proof import box_verdict
+
+    def proved(f: float, seconds: float) -> bool:
+        return box_verdict(loop, a * (1 - f), max_boxes=max_boxes, max_seconds=seconds).verdict == "stable"
+
+    if time.perf_counter() > deadline:
+        return None
+    if proved(0.25 * rtol, max_seconds / 3):
+        return a * (1 - 0.25 * rtol)
+    best = None
+    for f in (0.1, 1e-2, 0.75 * rtol):
+        if time.perf_counter() > deadline or not proved(f, max_seconds):
+            break
+        best = a * (1 - f)
+    return best
 
 
 @dataclass(frozen=True, eq=False)
