@@ -61,13 +61,14 @@ def random_case(n: int, m: int, rng: np.random.Generator) -> tuple[FTCSystem, Co
 def exponential(kind: str) -> Iterator[None]:
     """The proofs' ball exponential: ``float64-balls`` (as the code is) or ``arb``
     (``arb_mat.exp``, patched in for the comparison and restored after)."""
-    saved = sampled_proof.arb_expm
+    saved = sampled_proof.arb_expm, sampled_proof.map_ball
     if kind == "arb":
         sampled_proof.arb_expm = lambda m: m.exp()  # type: ignore[assignment]
+        sampled_proof.map_ball = lambda *a: None  # type: ignore[assignment]
     try:
         yield
     finally:
-        sampled_proof.arb_expm = saved  # type: ignore[assignment]
+        sampled_proof.arb_expm, sampled_proof.map_ball = saved  # type: ignore[assignment]
 
 
 def table(rows: list[dict[str, Any]]) -> str:

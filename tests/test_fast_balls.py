@@ -76,3 +76,32 @@ def test_round_trip_encloses() -> None:
         M = flint.arb_mat(1, 1, [x])
         back = to_arb(from_arb(M))
         assert back[0, 0].contains(x)
+
+
+def test_one_period_map_ball_contains_arbs() -> None:
+    """The sampled proofs' map ball (float64 midpoint-radius) against the same map in
+    Arb (``arb_mat.exp`` and Arb products), on the paper's loop over its whole rate box
+    and at a point: it contains Arb's midpoints and is not much wider."""
+    from pathlib import Path
+
+    from ftc_verify.analysis.moments.sampled import SampledLoop
+    from ftc_verify.analysis.moments.sampled_balls import ball_generator
+    from ftc_verify.analysis.moments.sampled_proof import _MapParts
+    from ftc_verify.analysis.rigorous import precision
+    from ftc_verify.controllers.files import load_controller
+    from ftc_verify.model.files import load_system
+
+    root = Path(__file__).resolve().parents[1]
+    loop = SampledLoop.build(load_system(root / "examples" / "paper.toml"),
+                             load_controller(root / "examples" / "paper_gains.toml"))
+    chain = loop.chain
+    with precision(64):
+        parts = _MapParts.build(loop, 0.08)
+        for lo, hi in ((chain.rate_min, chain.rate_max), (chain.midpoint(), chain.midpoint())):
+            Q = ball_generator(chain, lo, hi, loop.literals).value
+            fast = parts.map(Q)
+            arb = parts.res * (parts.generator(Q) * parts.h).exp() * parts.lift
+            n = arb.nrows()
+            assert all(fast[i, j].contains(arb[i, j].mid()) for i in range(n) for j in range(n))
+            fr, ar = from_arb(fast)[1], from_arb(arb)[1]
+            assert fr.max() <= 2 * ar.max() + 1e-12

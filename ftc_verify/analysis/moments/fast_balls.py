@@ -64,7 +64,7 @@ import numpy as np
 
 from ...model.system import Matrix
 
-__all__ = ["MidRad", "ball_expm", "arb_expm", "from_arb", "to_arb", "TAYLOR_TERMS"]
+__all__ = ["MidRad", "ball_expm", "arb_expm", "map_ball", "from_arb", "to_arb", "TAYLOR_TERMS"]
 
 _U = 2.0 ** -53
 _ETA = 2.0 ** -1022
@@ -170,3 +170,30 @@ def arb_expm(m: Any) -> Any:
     finite, Arb's ``arb_mat.exp`` otherwise."""
     out = ball_expm(from_arb(m))
     return m.exp() if out is None else to_arb(out)
+
+
+def _add(a: MidRad, b: MidRad) -> MidRad:
+    (ac, ar), (bc, br) = a, b
+    cc = ac + bc
+    return cc, _up(ar + br + _U * np.abs(cc), 3)
+
+
+def map_ball(res: MidRad, modes: MidRad, q: Any, h: MidRad, lift: MidRad) -> Any:
+    """:math:`\\mathcal P e^{(M + Q^T \\otimes I) h} \\mathcal R` as an Arb ball matrix,
+    with ``res`` :math:`= \\mathcal P`, ``modes`` :math:`= M`, ``lift``
+    :math:`= \\mathcal R`, ``h`` a ``1 x 1`` ball and ``q`` an Arb ball generator
+    :math:`Q`: every operation in midpoint-radius arithmetic (module docstring), one
+    conversion to Arb at the end; ``None`` when a number overflows (the caller then
+    uses Arb). The identity's size is ``modes``'s rows over ``q``'s."""
+    qc, qr = from_arb(q)
+    eye = np.eye(modes[0].shape[0] // qc.shape[0])
+    with np.errstate(over="ignore", invalid="ignore"):
+        # the Kronecker product with the identity places entries (exact)
+        g = _add(modes, (np.asarray(np.kron(qc.T, eye), dtype=np.float64), np.asarray(np.kron(qr.T, eye), dtype=np.float64)))
+        e = _ball_expm(_scale(g, float(h[0][0, 0]), float(h[1][0, 0])), TAYLOR_TERMS)
+        if e is None:
+            return None
+        t = _mul(_mul(res, e), lift)
+    if not (np.all(np.isfinite(t[0])) and np.all(np.isfinite(t[1]))):
+        return None
+    return to_arb(t)

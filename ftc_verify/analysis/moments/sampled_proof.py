@@ -81,7 +81,7 @@ from ...model.chain import JointChain
 from ...model.system import Matrix
 from ..exact import enclose, written
 from ..rigorous import PRECISION_BITS, Ball, ball, midpoint, precision, proven_positive_definite
-from .fast_balls import arb_expm
+from .fast_balls import MidRad, arb_expm, from_arb, map_ball
 from .sampled_balls import (ball_block_diag, ball_generator, ball_kron, envelope_generator,
                             generator_coefficients)
 from .sampled import SampledLoop, assemble_map, one_period_map, rate_points, spectral_radius, worst_radius
@@ -170,6 +170,7 @@ class _MapParts:
     vd: int
     states: int
     literals: Any = None
+    floats: tuple[MidRad, ...] = ()  # (res, modes, lift, h) as float64 balls (fast_balls)
 
     @classmethod
     def build(cls, loop: SampledLoop, h: float) -> _MapParts:
@@ -183,8 +184,9 @@ class _MapParts:
         P = loop.restriction()
         restrict = ball(np.asarray(Lr @ np.kron(P, P) @ Dd, dtype=float))  # 0/1 products of 0/1 matrices: exact
         lift = ball_block_diag([ball(Ld) @ ball_kron(R, R) @ ball(Dr) for R in _ball_resets(loop, h)])
-        return cls(ball_block_diag(blocks).value, ball_block_diag([restrict] * loop.states).value, lift.value,
-                   loop.period_ball(h), Dd.shape[1], loop.states, loop.literals)
+        modes, res, hb = ball_block_diag(blocks).value, ball_block_diag([restrict] * loop.states).value, loop.period_ball(h)
+        floats = tuple(from_arb(x) for x in (res, modes, lift.value, _flint().arb_mat(1, 1, [hb])))
+        return cls(modes, res, lift.value, hb, Dd.shape[1], loop.states, loop.literals, floats)
 
     def generator(self, Q: Any) -> Any:
         """:math:`\\mathcal L = ` blocks :math:`+ Q^T \\otimes I` for a ball generator ``Q``."""
@@ -198,7 +200,13 @@ class _MapParts:
         return G
 
     def map(self, Q: Any) -> Any:
-        """:math:`T = \\mathcal P e^{\\mathcal L h} \\mathcal R` (ball)."""
+        """:math:`T = \\mathcal P e^{\\mathcal L h} \\mathcal R` (ball): in float64
+        midpoint-radius arithmetic (:func:`~ftc_verify.analysis.moments.fast_balls.map_ball`),
+        in Arb when a number overflows there."""
+        res, modes, lift, h = self.floats
+        out = map_ball(res, modes, Q, h, lift)
+        if out is not None:
+            return out
         return self.res * arb_expm(self.generator(Q) * self.h) * self.lift
 
     def derivative(self, Q: Any, coef: Matrix) -> Any:
