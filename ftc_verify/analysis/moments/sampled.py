@@ -412,8 +412,9 @@ def h_max_bracket(loop: SampledLoop, stable_h: float, unstable_h: float, *, rtol
     ``(1 - f) a`` for ``f = rtol / 4`` (the bracket within ``rtol``), then, if that proof
     runs out of its budget (``max_boxes`` sub-boxes, ``max_seconds / 3``), from further
     below (``f`` = 10 %, 1 %, ``3 rtol / 4``, ``max_seconds`` each) upwards until one fails
-    (``_prove_below``), and the note says the bracket is wider than ``rtol``. No new proof is started after ``deadline``
+    (:func:`~ftc_verify.analysis.moments.sampled_bracket.prove_below`), and the note says the bracket is wider than ``rtol``. No new proof is started after ``deadline``
     (``time.perf_counter()``). ``None`` where no proof was found."""
+    from .sampled_bracket import prove_below
     from .sampled_proof import prove_point_unstable
 
     pts = rate_points(loop.chain)
@@ -430,7 +431,7 @@ def h_max_bracket(loop: SampledLoop, stable_h: float, unstable_h: float, *, rtol
         if rho > 1.0 and prove_point_unstable(loop, hb, where):
             proved_b = hb
             break
-    proved_a = _prove_below(loop, a, rtol, max_boxes, max_seconds, deadline)
+    proved_a = prove_below(loop, a, rtol, max_boxes, max_seconds, deadline)
     if proved_a is None or proved_b is None:
         missing = " and ".join(w for w, v in (("stability", proved_a), ("instability", proved_b)) if v is None)
         late = " (time budget spent)" if time.perf_counter() > deadline else ""
@@ -442,30 +443,6 @@ def h_max_bracket(loop: SampledLoop, stable_h: float, unstable_h: float, *, rtol
                                     f"(the sub-box budget ran out nearer the float64 crossing {a:.6g})")
     return proved_a, proved_b, (f"proved stable over the rate box at {proved_a:.6g}, proved unstable at a rate "
                                 f"point at {proved_b:.6g} (relative gap {gap:.1e})")
-
-
-def _prove_below(loop: SampledLoop, a: float, rtol: float, max_boxes: int, max_seconds: float,
-                 deadline: float) -> float | None:
-    """The largest period ``a (1 - f)`` proved stable over the rate box (``None`` if
-    none): first ``f = rtol / 4`` with a third of the budget (the bracket within
-    ``rtol`` at once); if that fails, easy first -- ``f = 0.1, 10^{-2}, 3 rtol / 4`` with
-    the full budget each, stopping at the first failure (a smaller margin is harder:
-    its proof would rarely succeed and would spend its whole budget)."""
-    from .sampled_proof import box_verdict
-
-    def proved(f: float, seconds: float) -> bool:
-        return box_verdict(loop, a * (1 - f), max_boxes=max_boxes, max_seconds=seconds).verdict == "stable"
-
-    if time.perf_counter() > deadline:
-        return None
-    if proved(0.25 * rtol, max_seconds / 3):
-        return a * (1 - 0.25 * rtol)
-    best = None
-    for f in (0.1, 1e-2, 0.75 * rtol):
-        if time.perf_counter() > deadline or not proved(f, max_seconds):
-            break
-        best = a * (1 - f)
-    return best
 
 
 @dataclass(frozen=True, eq=False)

@@ -4,10 +4,13 @@ The map :math:`T = \mathcal P e^{\mathcal L h} \mathcal R` of
 :mod:`ftc_verify.analysis.moments.sampled` is formed in Arb's ball arithmetic
 (:mod:`ftc_verify.analysis.rigorous`): the system's numbers as written (exact balls),
 the rates of a sub-box of the rate box as balls covering it, the period as written,
-:math:`e^{\mathcal L h}` and a dynamic controller's :math:`(\Phi_c, \Gamma_c)` by
-Arb's rigorous matrix exponential (``arb_mat.exp``: a ball containing the exponential
-of every matrix in the ball). So one ball matrix :math:`\mathbf T` contains the map of
-every rate in the sub-box.
+:math:`e^{\mathcal L h}` by the float64 midpoint-radius ball exponential of
+:mod:`ftc_verify.analysis.moments.fast_balls` (a ball containing the exponential of
+every matrix in the ball, with its error analysis; the whole map
+:math:`\mathcal P e^{\mathcal L h} \mathcal R` in that arithmetic, Arb's
+``arb_mat.exp`` and products when a float overflows) and a dynamic controller's
+:math:`(\Phi_c, \Gamma_c)` by Arb's rigorous matrix exponential. So one ball matrix
+:math:`\mathbf T` contains the map of every rate in the sub-box.
 
 **Stable** (derived here). :math:`T` maps the cone of positive semidefinite stacks to
 itself. If a stack :math:`Y \succ 0` has :math:`Y - T(Y) \succ 0`, then
@@ -56,7 +59,7 @@ sub-box. On each sub-box the upper envelope is tried first, then the direct ball
 first-order expansion at its midpoint whose remainder is quadratic in the width
 (``_first_order_stable``). A set of
 vertices is never called proved. The ball exponential of :math:`\mathcal L` is the
-cost (seconds at 189 rows), so the envelope and the direct ball are attempted only when
+cost (a few tenths of a second at 189 rows in float64 balls, seconds in Arb), so the envelope and the direct ball are attempted only when
 their criterion holds in float64 first (``_float_stable``: the envelope's map;
 ``_float_vertices_hold``: :math:`Y - T(r) Y \succ 0` at the sub-box's vertices, which the
 ball contains) -- a necessary condition checked with float exponentials; skipping an
