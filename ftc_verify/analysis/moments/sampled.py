@@ -411,9 +411,10 @@ def h_max_bracket(loop: SampledLoop, stable_h: float, unstable_h: float, *, rtol
     The crossing is bisected in float64 to ``rtol / 16``; stability is then tried at
     ``(1 - f) a`` for ``f = rtol / 4`` (the bracket within ``rtol``), then, if that proof
     runs out of its budget (``max_boxes`` sub-boxes, ``max_seconds / 3``), from further
-    below (``f`` = 10 %, 1 %, ``3 rtol / 4``, ``max_seconds`` each) upwards until one fails
-    (:func:`~ftc_verify.analysis.moments.sampled_bracket.prove_below`), and the note says the bracket is wider than ``rtol``. No new proof is started after ``deadline``
-    (``time.perf_counter()``). ``None`` where no proof was found."""
+    below (``f`` = 10 % with ``max_seconds``, 1 % and ``3 rtol / 4`` with a third)
+    upwards until one fails (:func:`~ftc_verify.analysis.moments.sampled_bracket.prove_below`),
+    and the note says the bracket is wider than ``rtol``. No new proof is started after
+    ``deadline`` (``time.perf_counter()``). ``None`` where no proof was found."""
     from .sampled_bracket import prove_below
     from .sampled_proof import prove_point_unstable
 

@@ -22,9 +22,10 @@ def prove_below(loop: SampledLoop, a: float, rtol: float, max_boxes: int, max_se
     """A period ``a (1 - f)`` below the float64 crossing ``a`` proved mean-square stable
     over the whole rate box, the closest to ``a`` of those tried (``None`` if none; no
     attempt starts after ``deadline``, ``time.perf_counter()``): first ``f = rtol / 4`` with a third of the budget (the bracket within
-    ``rtol`` at once); if that fails, easy first -- ``f = 0.1, 10^{-2}, 3 rtol / 4`` with
-    the full budget each, stopping at the first failure (a smaller margin is harder:
-    its proof would rarely succeed and would spend its whole budget)."""
+    ``rtol`` at once); if that fails, easy first -- ``f = 0.1`` with the full budget,
+    then ``10^{-2}`` and ``3 rtol / 4`` with a third each -- stopping at the first
+    failure (a smaller margin is harder: its proof would rarely succeed and would spend
+    its whole budget)."""
 
     def proved(f: float, seconds: float) -> bool:
         return box_verdict(loop, a * (1 - f), max_boxes=max_boxes, max_seconds=seconds).verdict == "stable"
@@ -34,8 +35,8 @@ def prove_below(loop: SampledLoop, a: float, rtol: float, max_boxes: int, max_se
     if proved(0.25 * rtol, max_seconds / 3):
         return a * (1 - 0.25 * rtol)
     best = None
-    for f in (0.1, 1e-2, 0.75 * rtol):
-        if time.perf_counter() > deadline or not proved(f, max_seconds):
+    for f, seconds in ((0.1, max_seconds), (1e-2, max_seconds / 3), (0.75 * rtol, max_seconds / 3)):
+        if time.perf_counter() > deadline or not proved(f, seconds):
             break
         best = a * (1 - f)
     return best
