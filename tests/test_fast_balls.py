@@ -105,3 +105,17 @@ def test_one_period_map_ball_contains_arbs() -> None:
             assert all(fast[i, j].contains(arb[i, j].mid()) for i in range(n) for j in range(n))
             fr, ar = from_arb(fast)[1], from_arb(arb)[1]
             assert fr.max() <= 2 * ar.max() + 1e-12
+
+
+def test_higher_precision_uses_arb() -> None:
+    """Above 64 bits :func:`arb_expm` is Arb's exponential (narrower balls for the
+    proofs' precise retries); at 64 bits the float64 one (wider than Arb's)."""
+    A = np.array([[0.3, -1.0], [0.5, -0.2]])
+
+    def widest(m: flint.arb_mat) -> float:
+        return max(float(x.rad()) for x in m.entries())
+
+    with flint.ctx.workprec(128):
+        assert widest(arb_expm(_arb(A))) < 1e-30
+    with flint.ctx.workprec(64):
+        assert widest(arb_expm(_arb(A))) > 1e-17

@@ -167,7 +167,10 @@ def to_arb(a: MidRad) -> Any:
 def arb_expm(m: Any) -> Any:
     """:math:`e^{M}` for an Arb ball matrix ``m`` as an Arb ball matrix containing the
     exponential of every matrix in ``m``: :func:`ball_expm` when its numbers stay
-    finite, Arb's ``arb_mat.exp`` otherwise."""
+    finite and Arb's working precision is at most 64 bits, Arb's ``arb_mat.exp``
+    otherwise (a caller that raised the precision wants Arb's narrower balls)."""
+    if _flint().ctx.prec > 64:
+        return m.exp()
     out = ball_expm(from_arb(m))
     return m.exp() if out is None else to_arb(out)
 

@@ -8,7 +8,8 @@ the rates of a sub-box of the rate box as balls covering it, the period as writt
 :mod:`ftc_verify.analysis.moments.fast_balls` (a ball containing the exponential of
 every matrix in the ball, with its error analysis; the whole map
 :math:`\mathcal P e^{\mathcal L h} \mathcal R` in that arithmetic, Arb's
-``arb_mat.exp`` and products when a float overflows) and a dynamic controller's
+``arb_mat.exp`` and products when a float overflows or at a working precision above
+64 bits: the precise retries) and a dynamic controller's
 :math:`(\Phi_c, \Gamma_c)` by Arb's rigorous matrix exponential. So one ball matrix
 :math:`\mathbf T` contains the map of every rate in the sub-box.
 
@@ -204,12 +205,14 @@ class _MapParts:
 
     def map(self, Q: Any) -> Any:
         """:math:`T = \\mathcal P e^{\\mathcal L h} \\mathcal R` (ball): in float64
-        midpoint-radius arithmetic (:func:`~ftc_verify.analysis.moments.fast_balls.map_ball`),
-        in Arb when a number overflows there."""
-        res, modes, lift, h = self.floats
-        out = map_ball(res, modes, Q, h, lift)
-        if out is not None:
-            return out
+        midpoint-radius arithmetic (:func:`~ftc_verify.analysis.moments.fast_balls.map_ball`)
+        at Arb's working precision up to 64 bits; in Arb when a number overflows there,
+        and at a higher working precision (the proofs' precise retries)."""
+        if _flint().ctx.prec <= 64:
+            res, modes, lift, h = self.floats
+            out = map_ball(res, modes, Q, h, lift)
+            if out is not None:
+                return out
         return self.res * arb_expm(self.generator(Q) * self.h) * self.lift
 
     def derivative(self, Q: Any, coef: Matrix) -> Any:
