@@ -69,19 +69,22 @@ def _vech_weights(W: Matrix) -> Matrix:
 
 def sampled_energy(system: FTCSystem, controller: Controller, period: float, *, beta: Matrix,
                    disturbance: str = "paper", horizon: float = math.inf, x0: Matrix | None = None,
-                   start: tuple[int, int] = (0, 0)) -> ExactEnergy:
+                   start: tuple[int, int] = (0, 0),
+                   exosystem: tuple[Matrix, Matrix, Matrix] | None = None) -> ExactEnergy:
     """Exact :math:`E\\|y\\|^2` and :math:`\\|w\\|^2` of the sampled loop (module
     docstring) at the rate array ``beta``, from ``x0`` (default 0) in the joint state
     ``start``. Build a constant :math:`\\Delta` in with :func:`perturbed_system`.
-    ``horizon=inf`` needs a stable one-period map (else :class:`ValidationError`)."""
-    if disturbance not in EXOSYSTEMS:
+    ``horizon=inf`` needs a stable one-period map (else :class:`ValidationError`).
+    ``exosystem = (S, c, zeta0)`` replaces the named one (``disturbance`` is then only
+    its label)."""
+    if exosystem is None and disturbance not in EXOSYSTEMS:
         raise ValidationError(f"disturbance: no exact model for {disturbance!r}; choose from {sorted(EXOSYSTEMS)}")
     if not (horizon > 0) or not (period > 0) or not math.isfinite(period):
         raise ValidationError(f"sampled_energy: period and horizon must be positive, got {period!r}, {horizon!r}")
     controller.check(system)
     chain = system.chain
     beta = chain.check_beta(beta)
-    S_exo, c, zeta0 = EXOSYSTEMS[disturbance]
+    S_exo, c, zeta0 = EXOSYSTEMS[disturbance] if exosystem is None else exosystem
     q = S_exo.shape[0]
     n, nu, _, nw = system.dims
     nc = controller.n_c
