@@ -174,7 +174,7 @@ def closed_loops(
     period : float, (low, high) or strategy, optional (keyword only)
         A sampling period for the controller (``Controller.period``; the sampled loop of
         :mod:`ftc_verify.analysis.moments.sampled`), a range drawn log-uniformly
-        (:func:`~ftc_verify.testing.periods`); ``None``: no period.
+        (:func:`~ftc_verify.testing.strategies.periods`); ``None``: no period.
     **system_options
         Options of :func:`~ftc_verify.testing.systems` (not together with ``systems``).
 

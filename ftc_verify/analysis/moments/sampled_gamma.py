@@ -177,10 +177,10 @@ def _jumps(loop: SampledLoop, h: float, *, balls: bool = False, literals: Any = 
         return [R @ P for R in loop.resets(h)]
     from ..exact import written
     from ..rigorous import ball, ball_bmat
-    from .sampled_proof import _ball_resets
+    from .sampled_proof import ball_resets
 
     if loop.nc:
-        return [R @ ball(P) for R in _ball_resets(loop, h)]
+        return [R @ ball(P) for R in ball_resets(loop, h)]
     c = loop.controller
     out = []
     for M, e in zip(loop.measurement, loop.entry):
@@ -423,14 +423,15 @@ def gain_lower_estimate(system: FTCSystem, controller: Controller, period: float
     loop over the disturbances, rate points and (``robust``) constant ``Delta`` of the
     module docstring, in float64; ``None`` when the loop is not stable at some case
     (then no finite gain: ``where`` names it)."""
-    from ...simulation.delta import delta_shapes
     from .sampled import rate_points
     from .sampled_energy import perturbed_system, sampled_energy
 
     nw = system.dims[3]
     cases: list[tuple[str, Any, Any]] = [("Delta=0", None, None)]
     if robust and system.uncertain:
-        s1, s2 = delta_shapes(system)
+        md = next(m for m in system.modes if m.A1 is not None or m.B1 is not None)
+        s1 = None if md.A1 is None or md.A2 is None else (md.A1.shape[1], md.A2.shape[0])
+        s2 = None if md.B1 is None or md.B2 is None else (md.B1.shape[1], md.B2.shape[0])
         cases += [(lab, None if s1 is None else sg * np.eye(*s1), None if s2 is None else sg * np.eye(*s2))
                   for sg, lab in ((1.0, "Delta=+E"), (-1.0, "Delta=-E"))]
     best, where = -1.0, ""
@@ -493,7 +494,7 @@ def sampled_performance(system: FTCSystem, controller: Controller, period: float
 
 def attach_performance(result: Any, system: FTCSystem, controller: Controller) -> Any:
     """``result`` (a :class:`~ftc_verify.analysis.moments.sampled.SampledResult`) with its
-    :attr:`performance` at ``result.period``. A loop proved not mean-square stable there
+    ``performance`` at ``result.period``. A loop proved not mean-square stable there
     has no finite gain: no program is solved and the notes say so."""
     h = result.period
     if result.verdict == "not stable":

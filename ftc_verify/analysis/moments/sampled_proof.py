@@ -76,7 +76,7 @@ from .sampled_balls import (as_float, ball_block_diag, ball_generator, ball_kron
 from .sampled import SampledLoop, one_period_map, rate_points, spectral_radius, worst_radius
 from .stability import duplication_matrix, vech_order
 
-__all__ = ["FIRST_ORDER_LIMIT", "BoxVerdict", "ball_one_period_map", "prove_stable", "prove_unstable",
+__all__ = ["FIRST_ORDER_LIMIT", "BoxVerdict", "ball_resets", "ball_one_period_map", "prove_stable", "prove_unstable",
            "prove_point_unstable", "box_verdict"]
 
 
@@ -86,7 +86,7 @@ def _flint() -> Any:
     return flint
 
 
-def _ball_resets(loop: SampledLoop, h: float) -> list[Ball]:
+def ball_resets(loop: SampledLoop, h: float) -> list[Ball]:
     """:math:`R_s` as ball matrices; a dynamic controller's :math:`(\\Phi_c, \\Gamma_c)`
     from the rigorous exponential of :math:`[[A_c, B_c], [0, 0]] h` (Van Loan)."""
     flint = _flint()
@@ -154,7 +154,7 @@ class _MapParts:
                   for A in loop.flow]
         P = loop.restriction()
         restrict = ball(np.asarray(Lr @ np.kron(P, P) @ Dd, dtype=float))  # 0/1 products of 0/1 matrices: exact
-        lift = ball_block_diag([ball(Ld) @ ball_kron(R, R) @ ball(Dr) for R in _ball_resets(loop, h)])
+        lift = ball_block_diag([ball(Ld) @ ball_kron(R, R) @ ball(Dr) for R in ball_resets(loop, h)])
         return cls(ball_block_diag(blocks).value, ball_block_diag([restrict] * loop.states).value, lift.value,
                    flint.arb(float(h)), Dd.shape[1], loop.states)
 
