@@ -71,8 +71,9 @@ bits): every instance, every jump condition and every :math:`P_s^k`, rebuilt wit
 :func:`~ftc_verify.analysis.lmi.lyapunov_block` on ball matrices -- the plant's
 numbers as written (:func:`~ftc_verify.analysis.exact.written`), the rates as written
 (:func:`~ftc_verify.analysis.exact.ball_generator`), a static gain as written, a dynamic
-controller's :math:`(\Phi_c, \Gamma_c)` by Arb's rigorous exponential (as
-:mod:`ftc_verify.analysis.moments.sampled_proof`), the period as the float given. The
+controller's :math:`(\Phi_c, \Gamma_c)` by Arb's rigorous exponential with its
+matrices taken as the floats read (as :mod:`ftc_verify.analysis.moments.sampled_proof`
+does), the period as the float given. The
 state is in :class:`SampledLoop`'s balanced coordinates (powers of two: exact).
 
 **Beside it, a lower estimate** (:func:`gain_lower_estimate`). Any disturbance gives
