@@ -71,6 +71,11 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
         from ..analysis.moments.sampled import sampled_analysis
 
         sampled = interruptible(lambda: sampled_analysis(system, controller, period), "the sampled-data analysis")
+        if not args.no_lmi:  # its proved gains (issue 31 item 3)
+            from ..analysis.moments.sampled_gamma import attach_performance
+
+            found = sampled
+            sampled = interruptible(lambda: attach_performance(found, system, controller), "the sampled-loop gains")
     if args.json:
         print(dumps(rep.to_dict() | {"lmi_requested": not args.no_lmi, "fdi_model": system.chain.describe(),
                                      "sampled": None if sampled is None else sampled.to_dict()}))
