@@ -16,26 +16,50 @@ have a stabilising solution (here with :math:`\varepsilon = 0`). With
 unperturbed data with margin :math:`\varepsilon I`, and :math:`P_s \succ 0`; by the
 Schur complement on the :math:`-\gamma^2 I` and :math:`-I` rows it is the strict LMI of
 Theorem 3.2 (:func:`~ftc_verify.analysis.lmi.lyapunov_block`, :math:`g = \gamma^2`) at
-that rate vector. That is a *candidate* for the whole box: the blocks at the other
-vertices of each generator row differ by :math:`\sum_t (q'_{st} - q_{st})(P_t - P_s)`,
-which is negative semidefinite for the usual ordering (detection lowers the cost:
-:math:`P_{ii} \preceq P_{ij}`) when the rates are taken at the box's lower corner, and
-:func:`~ftc_verify.analysis.lmi.check_certificate` proves or rejects it at every vertex
-in ball arithmetic. Nothing here is trusted: a rejected candidate sends the caller to the
-SDP (:func:`~ftc_verify.analysis.lmi_analysis.hinf_gamma`).
+that rate vector.
 
-**Solving (1).** Policy iteration (the maximising player's Newton step, the iteration
-of :func:`~ftc_verify.analysis.lower_bound.worst_case_feedback`): from :math:`F = 0`,
-solve the coupled Lyapunov equation
+**The box.** Theorem 3.2's blocks must hold with the same :math:`P` at every vertex of
+the rates of each generator row. Row :math:`s` is affine in its rates
+(:meth:`~ftc_verify.model.chain.JointChain.row_rates`): over the box it is
+:math:`\bar q_s + \sum_r \sigma_r d_{s,r}`, :math:`|\sigma_r| \le 1` (midpoint and half
+ranges, :class:`RateEnvelope`), so its coupling is
+:math:`\sum_t \bar q_{st} P_t + \sum_r \sigma_r G_{s,r}`,
+:math:`G_{s,r} = \sum_{t \ne s} d_{s,r,t}(P_t - P_s)`. With a pinned vertex
+:math:`\hat\sigma` and the matrix absolute value :math:`|G|`,
+:math:`\sigma G \preceq \hat\sigma G + (|G| - \hat\sigma G)` for every
+:math:`|\sigma| \le 1`; hence a solution of
 
 .. math::
 
-    \tilde A_s^T P_s + P_s \tilde A_s + \sum_t q_{st} P_t = -(C_{z,s}^T C_{z,s} + \varepsilon I
+    A_s^T P_s + P_s A_s + \sum_t \hat q_{st} P_t + E_s(P) + C_{z,s}^T C_{z,s} + \varepsilon I
+    + \gamma^{-2} P_s B_{w,s} B_{w,s}^T P_s = 0, \quad
+    E_s(P) = \sum_r (|G_{s,r}| - \hat\sigma_r G_{s,r}) \succeq 0 , \tag{3}
+
+(:math:`\hat q` the generator at the pinned vertex) satisfies the Riccati inequality
+with margin :math:`\varepsilon I` at *every* vertex: a candidate for the whole box.
+:math:`E_s = 0` where :math:`G_{s,r}` is definite and :math:`\hat\sigma_r` its sign
+(then (3) is (1) at the worst vertex); :meth:`RateEnvelope.pinned` takes
+:math:`\hat\sigma_r = \operatorname{sign}\operatorname{tr} G_{s,r}`. The construction
+is conservative where :math:`G` is indefinite (measured: the certified level 0.07-0.6 %
+above the SDP's on random loops). :func:`~ftc_verify.analysis.lmi.check_certificate`
+proves or rejects the candidate at every vertex in ball arithmetic (on the loop as the
+user wrote it, through the conditioning similarity). Nothing here is trusted: a rejected
+candidate sends the caller to the SDP (:func:`~ftc_verify.analysis.lmi_analysis.hinf_gamma`).
+
+**Solving (3).** Policy iteration (the maximising player's Newton step, the iteration
+of :func:`~ftc_verify.analysis.lower_bound.worst_case_feedback`, with a linear solver of
+the right complexity): from :math:`F = 0`, :math:`E = 0`, solve the coupled Lyapunov
+equation
+
+.. math::
+
+    \tilde A_s^T P_s + P_s \tilde A_s + \sum_t \hat q_{st} P_t = -(C_{z,s}^T C_{z,s} + \varepsilon I + E_s
     - \gamma^2 F_s^T F_s), \qquad \tilde A_s = A_s + B_{w,s} F_s , \tag{2}
 
-then :math:`F_s = \gamma^{-2} B_{w,s}^T P_s`; at a fixed point (2) is (1). It fails (no
-stabilising solution, :math:`\gamma` at or below the gain in float64) when a solve of (2)
-fails, an iterate is not positive semidefinite, or it does not converge.
+then :math:`F_s = \gamma^{-2} B_{w,s}^T P_s`, :math:`E_s = E_s(P)`; at a fixed point
+(2) is (3). It fails (:math:`\gamma` too low, in float64, for this construction) when a
+solve of (2) fails, an iterate after the first is not positive semidefinite, or the
+iteration stops contracting or converging.
 
 **Solving (2) in** :math:`O(m^2 n^3)` **per iteration** (:func:`coupled_lyapunov`), not by the
 :math:`(m^2 n^2)^3` dense Kronecker system. Split the operator
@@ -47,12 +71,15 @@ one real Schur form per state, LAPACK ``trsyl``) and the coupling :math:`\mathca
 stable), :math:`\mathcal L = \mathcal D + \mathcal N` is a regular splitting, so
 :math:`\rho(\mathcal D^{-1}\mathcal N) < 1` and the preconditioned equation
 :math:`(I + \mathcal D^{-1}\mathcal N) P = -\mathcal D^{-1} R` is solved by GMRES, each
-product :math:`m^2` Schur-based Sylvester solves and a coupling sum.
+product :math:`m^2` Schur-based Sylvester solves and a coupling sum. Stacks of at most
+:data:`DENSE_ROWS` ``vech`` rows are solved densely instead
+(:func:`~ftc_verify.analysis.stability.lyapunov_stack_solution`, faster there).
 
 **Gamma.** Bisection on :math:`\gamma` (geometric) between a failing and a succeeding
-level of the iteration with :math:`\varepsilon = 0`, warm-started from the last
+level of the iteration with :math:`\varepsilon = 0` (the envelope pinned at the first
+feasible level), warm-started from the last
 feasible feedback, to :data:`BISECTION_RTOL`; the candidate is then solved at
-:math:`\gamma(1 + \rho)` with :math:`\varepsilon = \rho \max_s \|C_{z,s}\|^2` for
+:math:`\gamma(1 + 2\rho)` with :math:`\varepsilon = \rho \max_s \|C_{z,s}\|^2` for
 :math:`\rho` in :data:`CANDIDATE_LADDER` until a certificate passes.
 """
 
@@ -247,8 +274,12 @@ def bounded_real_solution(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequenc
     E = [np.zeros((n, n)) for _ in A]
     last = math.inf
     for k in range(MAX_POLICY_STEPS):
-        At = [a + b @ f for a, b, f in zip(A, Bw, F)]
-        P = coupled_lyapunov(At, box.Q, [r + e - g2 * f.T @ f for r, e, f in zip(base, E, F)], P_old)
+        with np.errstate(all="ignore"):
+            At = [a + b @ f for a, b, f in zip(A, Bw, F)]
+            R = [r + e - g2 * f.T @ f for r, e, f in zip(base, E, F)]
+        if not all(np.all(np.isfinite(x)) for x in (*At, *R)):
+            return None
+        P = coupled_lyapunov(At, box.Q, R, P_old)
         if P is None:
             return None
         scale = max(np.finfo(float).tiny, *(float(np.abs(p).max()) for p in P))
