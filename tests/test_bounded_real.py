@@ -120,3 +120,34 @@ def test_failed_candidate_falls_back_to_the_sdp(paper_loop, monkeypatch: pytest.
 def test_unknown_route_is_refused(paper_loop) -> None:
     with pytest.raises(ValueError, match="route"):
         hinf_gamma(paper_loop, robust=False, route="fast")
+
+
+def test_large_stacks_of_the_verdicts_go_through_gmres(monkeypatch: pytest.MonkeyPatch) -> None:
+    """verdict.float_stack_solution above the dense limit (forced to 0 here): the same
+    stack as the direct solve of stability.lyapunov_stack_solution."""
+    from ftc_verify.analysis import stability
+    from ftc_verify.analysis.verdict import float_stack_solution
+
+    rng = np.random.default_rng(8)
+    A, Q = _stable_stack(rng, 6, 4)
+    direct = lyapunov_stack_solution(A, Q)
+    monkeypatch.setattr(stability, "DENSE_LIMIT", 0)
+    monkeypatch.setattr(bounded_real, "DENSE_ROWS", 0)
+    iterative = float_stack_solution(A, Q)
+    assert direct is not None and iterative is not None
+    assert np.allclose(iterative, direct, rtol=1e-8, atol=1e-11)
+
+
+def test_shifted_stack_solution_solves_the_shifted_equation(monkeypatch: pytest.MonkeyPatch) -> None:
+    from ftc_verify.analysis import stability
+    from ftc_verify.analysis.verdict import float_stack_solution
+
+    rng = np.random.default_rng(9)
+    A, Q = _stable_stack(rng, 5, 3)
+    monkeypatch.setattr(stability, "DENSE_LIMIT", 0)
+    monkeypatch.setattr(bounded_real, "DENSE_ROWS", 0)
+    X = float_stack_solution(A, Q, shift=-0.7)
+    assert X is not None
+    for s in range(3):
+        residual = A[s] @ X[s] + X[s] @ A[s].T + sum(Q[t, s] * X[t] for t in range(3)) + 0.7 * X[s] + np.eye(5)
+        assert np.abs(residual).max() < 1e-9

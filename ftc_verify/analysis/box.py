@@ -69,7 +69,7 @@ from .closedloop import ClosedLoop
 from .conditioning import Similarity
 from .exact import ball_generator, ball_matrices, exact_loop, literals_of, written_box
 from .rigorous import Ball, ball, precision, proven_positive_definite, proven_positive_definite_cholesky
-from .verdict import SOLVE_LIMIT, StabilityProver, ball_lyapunov_solution
+from .verdict import SOLVE_LIMIT, StabilityProver, ball_lyapunov_solution, float_stack_solution
 
 __all__ = ["BOX_BUDGET_SECONDS", "MAX_BOXES", "MIN_RELATIVE_WIDTH", "RegionVerdict", "BoxVerdict",
            "box_stability"]
@@ -210,10 +210,8 @@ class _Checker:
         ``("failed", rates)`` with the rates of the rows that failed (empty when a row
         without uncertain rates failed or ``P`` was not proved positive definite)."""
         c = _centre(lo, hi)
-        from .stability import lyapunov_stack_solution  # stability imports this module
-
         # the adjoint L*_c(P) = -I: the second-moment operator with A_s and Q transposed
-        Pt = lyapunov_stack_solution([a.T for a in self.conditioned.A], self.loop.chain.generator(c).T)
+        Pt = float_stack_solution([a.T for a in self.conditioned.A], self.loop.chain.generator(c).T)
         if Pt is None or not _float_positive(Pt):
             return "unstable-centre", set()
         with precision():
