@@ -100,7 +100,7 @@ from .closedloop import ClosedLoop
 from .conditioning import Similarity
 from .lmi import Certificate, check_certificate
 
-__all__ = ["BISECTION_RTOL", "DENSE_ROWS", "CANDIDATE_LADDER", "MAX_POLICY_STEPS", "coupled_lyapunov",
+__all__ = ["BISECTION_RTOL", "DENSE_ROWS", "POLICY_RTOL", "SEARCH_RTOL", "CANDIDATE_LADDER", "MAX_POLICY_STEPS", "coupled_lyapunov",
            "RateEnvelope", "bounded_real_solution", "float_hinf_norm", "RiccatiCandidate", "riccati_candidate"]
 
 #: Relative width of the final bisection bracket of :func:`float_hinf_norm`.
@@ -109,8 +109,10 @@ BISECTION_RTOL = 1e-4
 CANDIDATE_LADDER = (1e-4, 1e-3, 1e-2)
 #: Policy-iteration steps before :func:`bounded_real_solution` gives up.
 MAX_POLICY_STEPS = 60
-#: Relative change of ``P`` at which the policy iteration has converged.
+#: Relative change of ``P`` at which the policy iteration has converged (the candidate).
 POLICY_RTOL = 1e-10
+#: The same for the feasibility tests of the bisection (a level is decided long before).
+SEARCH_RTOL = 1e-6
 #: From this step on, an iteration whose step does not halve is stopped (not contracting).
 STALL_STEPS = 12
 #: Re-pinnings of the envelope at the first feasible level (:func:`float_hinf_norm`).
@@ -257,15 +259,16 @@ class RateEnvelope:
 
 
 def bounded_real_solution(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], box: RateEnvelope,
-                          gamma: float, epsilon: float = 0.0,
-                          start: Sequence[Matrix] | None = None) -> tuple[list[Matrix], list[Matrix]] | None:
+                          gamma: float, epsilon: float = 0.0, start: Sequence[Matrix] | None = None,
+                          rtol: float = POLICY_RTOL) -> tuple[list[Matrix], list[Matrix]] | None:
     r"""The stabilising solution ``P`` of eq. (3) (eq. (1) over the box) at ``gamma`` and
     ``epsilon`` and its feedback ``F`` (``(P, F)``), by policy iteration from the
     feedback ``start`` (default ``F = 0``; it must make the loop mean-square stable),
     the envelope term taken at the previous iterate; ``None`` when it fails (an iterate
     after the first not positive semidefinite, a failed solve, no convergence): then
     ``gamma`` is, in float64, too low for this construction. A float search: what it
-    returns is proved or not used."""
+    returns is proved or not used. ``rtol``: the relative change of ``P`` at which the
+    iteration has converged."""
     n = A[0].shape[0]
     g2 = gamma * gamma
     F = [np.zeros((B.shape[1], n)) for B in Bw] if start is None else [np.asarray(f, dtype=float) for f in start]
@@ -289,7 +292,7 @@ def bounded_real_solution(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequenc
         E = box.correction(P)
         if P_old is not None:
             step = max(float(np.abs(p - q).max()) for p, q in zip(P, P_old)) / scale
-            if step <= POLICY_RTOL:
+            if step <= rtol:
                 return P, F
             if k >= STALL_STEPS and step > 0.5 * last:  # not contracting: treated as infeasible
                 return None
@@ -316,22 +319,22 @@ def float_hinf_norm(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matr
             continue
     hi = max([x for x in gains if math.isfinite(x) and x > 0], default=1.0)
     lo = 0.0
-    found = bounded_real_solution(A, Bw, Cz, box, hi)
+    found = bounded_real_solution(A, Bw, Cz, box, hi, rtol=SEARCH_RTOL)
     while found is None:
         lo, hi = hi, 4.0 * hi
         if hi > 1e300:
             return None
-        found = bounded_real_solution(A, Bw, Cz, box, hi)
+        found = bounded_real_solution(A, Bw, Cz, box, hi, rtol=SEARCH_RTOL)
     for _ in range(PIN_ROUNDS):  # pin every row at the vertex its coupling prefers
         again = box.pinned(found[0])
         if again.signs == box.signs:
             break
         box = again
-        found = bounded_real_solution(A, Bw, Cz, box, hi, start=found[1]) or found
+        found = bounded_real_solution(A, Bw, Cz, box, hi, start=found[1], rtol=SEARCH_RTOL) or found
     F = found[1]
     while lo == 0.0:
         trial = 0.5 * hi
-        nxt = bounded_real_solution(A, Bw, Cz, box, trial, start=F)
+        nxt = bounded_real_solution(A, Bw, Cz, box, trial, start=F, rtol=SEARCH_RTOL)
         if nxt is None:
             lo = trial
         else:
@@ -340,7 +343,7 @@ def float_hinf_norm(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matr
                 return hi, F, box
     while hi - lo > rtol * hi:
         mid = math.sqrt(lo * hi)
-        nxt = bounded_real_solution(A, Bw, Cz, box, mid, start=F)
+        nxt = bounded_real_solution(A, Bw, Cz, box, mid, start=F, rtol=SEARCH_RTOL)
         if nxt is None:
             lo = mid
         else:
