@@ -7,7 +7,8 @@ adds the 0.05 I uncertainty channels), written to a system file and a gains file
 temporary directory (``ftc_verify.model.files.save_system``,
 ``ftc_verify.controllers.files.save_gains``) and analysed by the command a user runs,
 ``python -m ftc_verify analyze SYSTEM --gains GAINS --json`` (``OPENBLAS_NUM_THREADS=1``),
-one child process per run; the wall time and the child's peak RSS (``wait4``) are
+one child process per run; the wall time, the CPU time of the child and of the
+processes it waited for, the load average before the run and the peak RSS (``wait4``) are
 recorded with the report's stage times, certified gamma and the route that certified it.
 
 ``--against DIR`` runs every case also with ``PYTHONPATH=DIR`` (another checkout, e.g. the
@@ -49,7 +50,7 @@ ROOT = HERE.parent
 DEFAULT_CASES = "8x2,16x2,24x2,32x2,48x2,48x3"
 #: Goals (issue 37): wall seconds, and peak MB where given.
 GOALS: dict[str, tuple[float, float | None]] = {"32x2": (20.0, None), "48x3": (120.0, 4096.0), "12x4u": (12.0, None)}
-COLUMNS = ["case", "n", "m", "uncertain", "seed", "tree", "repeat", "wall_s", "peak_mb", "exit", "certified_stable",
+COLUMNS = ["case", "n", "m", "uncertain", "seed", "tree", "repeat", "wall_s", "cpu_s", "load", "peak_mb", "exit", "certified_stable",
            "nominal_gamma", "robust_gamma", "nominal_route", "spectral_s", "theorem_3_2_s", "lemma_4_1_s",
            "theorem_3_1_s", "lower_bounds_s", "cross_validation_s"]
 
@@ -87,6 +88,7 @@ def run_cli(system: Path, gains: Path, tree: Path | None, timeout: float) -> dic
     if tree is not None:
         env["PYTHONPATH"] = str(tree)
     cmd = [sys.executable, "-m", "ftc_verify", "analyze", str(system), "--gains", str(gains), "--json"]
+    load = os.getloadavg()[0]
     t0 = time.perf_counter()
     with tempfile.TemporaryFile() as out:
         proc = subprocess.Popen(cmd, stdout=out, stderr=subprocess.DEVNULL, env=env, cwd=tempfile.gettempdir())
@@ -109,7 +111,8 @@ def run_cli(system: Path, gains: Path, tree: Path | None, timeout: float) -> dic
         report = json.loads(text)
     except json.JSONDecodeError:
         report = None
-    return {"wall_s": wall, "peak_mb": usage.ru_maxrss / 1024.0 if usage else math.nan,
+    return {"wall_s": wall, "peak_mb": usage.ru_maxrss / 1024.0 if usage else math.nan, "load": load,
+            "cpu_s": usage.ru_utime + usage.ru_stime if usage else math.nan,
             "exit": proc.returncode if wall <= timeout else "timeout", "report": report}
 
 
@@ -118,20 +121,21 @@ def row_of(case: str, n: int, m: int, uncertain: bool, seed: int, tree: str, rep
     seconds = rep_json.get("seconds", {})
     hinf = rep_json.get("hinf", {})
     return {"case": case, "n": n, "m": m, "uncertain": uncertain, "seed": seed, "tree": tree, "repeat": rep,
-            "wall_s": round(run["wall_s"], 3), "peak_mb": round(run["peak_mb"], 1), "exit": run["exit"],
+            "wall_s": round(run["wall_s"], 3), "cpu_s": round(run["cpu_s"], 3), "load": round(run["load"], 1),
+            "peak_mb": round(run["peak_mb"], 1), "exit": run["exit"],
             "certified_stable": rep_json.get("certified_stable"), "nominal_gamma": hinf.get("nominal_gamma"),
             "robust_gamma": hinf.get("robust_gamma"), "nominal_route": (hinf.get("nominal") or {}).get("solver"),
             **{f"{k}_s": round(seconds[k], 3) if k in seconds else None
                for k in ("spectral", "theorem_3_2", "lemma_4_1", "theorem_3_1", "lower_bounds", "cross_validation")}}
 
 
-def growth(rows: list[dict[str, Any]]) -> tuple[float | None, list[tuple[int, int, float]]]:
-    """Least-squares slope of log(median wall) on log(n) over the m = 2 cases of this
+def growth(rows: list[dict[str, Any]], key: str = "wall_s") -> tuple[float | None, list[tuple[int, int, float]]]:
+    """Least-squares slope of log(median ``key``) on log(n) over the m = 2 cases of this
     tree, and the slopes between neighbouring sizes."""
     by_n: dict[int, list[float]] = {}
     for r in rows:
         if r["tree"] == "this" and r["m"] == 2 and not r["uncertain"] and r["exit"] == 0:
-            by_n.setdefault(r["n"], []).append(r["wall_s"])
+            by_n.setdefault(r["n"], []).append(r[key])
     ns = sorted(by_n)
     if len(ns) < 2:
         return None, []
@@ -162,7 +166,8 @@ def main() -> int:
                     run = run_cli(system, gains, tree, args.timeout)
                     row = row_of(case, n, m, uncertain, seed, name, rep, run)
                     rows.append(row)
-                    print(f"{case} {name} rep {rep}: {row['wall_s']:.2f} s, {row['peak_mb']:.0f} MB, exit {row['exit']}, "
+                    print(f"{case} {name} rep {rep}: {row['wall_s']:.2f} s wall, {row['cpu_s']:.2f} s CPU "
+                          f"(load {row['load']}), {row['peak_mb']:.0f} MB, exit {row['exit']}, "
                           f"certified {row['certified_stable']}, gamma {row['nominal_gamma']} ({row['nominal_route']})",
                           flush=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
@@ -170,8 +175,8 @@ def main() -> int:
         writer = csv.DictWriter(fh, fieldnames=COLUMNS)
         writer.writeheader()
         writer.writerows(rows)
-    print("\n| case | wall (median) | peak MB | goal | ratio against |")
-    print("|---|---|---|---|---|")
+    print("\n| case | wall (median) | CPU (median) | peak MB | goal | wall ratio against | CPU ratio against |")
+    print("|---|---|---|---|---|---|---|")
     for case in dict.fromkeys(r["case"] for r in rows):
         mine = [r for r in rows if r["case"] == case and r["tree"] == "this"]
         other = [r for r in rows if r["case"] == case and r["tree"] == "against"]
@@ -179,12 +184,15 @@ def main() -> int:
         peak = max(r["peak_mb"] for r in mine)
         goal = GOALS.get(case)
         met = "" if goal is None else ("met" if wall < goal[0] and (goal[1] is None or peak < goal[1]) else "missed")
+        cpu = statistics.median(r["cpu_s"] for r in mine)
         ratio = f"{statistics.median(r['wall_s'] for r in other) / wall:.2f}x" if other else ""
-        print(f"| {case} | {wall:.2f} s | {peak:.0f} | {goal[0] if goal else ''} {met} | {ratio} |")
-    slope, pairs = growth(rows)
-    if slope is not None:
-        print(f"\ngrowth (m = 2): wall ~ n^{slope:.2f} (least squares); "
-              + ", ".join(f"n {a}->{b}: {e:.2f}" for a, b, e in pairs))
+        cpu_ratio = f"{statistics.median(r['cpu_s'] for r in other) / cpu:.2f}x" if other else ""
+        print(f"| {case} | {wall:.2f} s | {cpu:.2f} s | {peak:.0f} | {goal[0] if goal else ''} {met} | {ratio} | {cpu_ratio} |")
+    for key in ("wall_s", "cpu_s"):
+        slope, pairs = growth(rows, key)
+        if slope is not None:
+            print(f"growth (m = 2): {key[:-2]} ~ n^{slope:.2f} (least squares); "
+                  + ", ".join(f"n {a}->{b}: {e:.2f}" for a, b, e in pairs))
     print(f"wrote {args.out}")
     return 0
 
