@@ -151,3 +151,18 @@ def test_shifted_stack_solution_solves_the_shifted_equation(monkeypatch: pytest.
     for s in range(3):
         residual = A[s] @ X[s] + X[s] @ A[s].T + sum(Q[t, s] * X[t] for t in range(3)) + 0.7 * X[s] + np.eye(5)
         assert np.abs(residual).max() < 1e-9
+
+
+@settings(max_examples=4, deadline=None)
+@given(stable_loops(n=2, m=2, margin=0.1, chains={"false_alarms": True, "delay_phases": 2, "missed_detection": True}))
+def test_riccati_route_with_the_fdi_models(drawn) -> None:
+    """False alarms, Erlang delays and missed detections (rows with several rates, rates
+    of 0): whatever the candidate gives is a proved certificate, never below the SDP's
+    certified level (up to the SDP's margin)."""
+    loop = drawn.loop.nominal()
+    riccati = hinf_gamma(loop, robust=False, route="riccati")
+    if riccati.certified:
+        sdp = hinf_gamma(loop, robust=False, route="sdp")
+        assert riccati.certificate is not None and riccati.certificate.ok
+        if sdp.certified:
+            assert riccati.gamma >= sdp.gamma * (1 - 1e-3)
