@@ -92,10 +92,8 @@ REFINE_STEPS = 3
 MARGIN_TAU = 1e-6
 #: Routes of :func:`hinf_gamma`.
 ROUTES = ("auto", "sdp", "riccati")
-#: With ``route="auto"``, programs of more decision variables try the Riccati candidate
-#: before the SDP (measured: n = 8, m = 3 (325 variables) SDP 0.3-0.45 s, candidate 0.52 s CPU;
-#: n = 16, m = 2 (545) 1.1 s against 1.35 s; n = 32, m = 2 (2113) about 300 s against 3.4 s;
-#: below, the SDP's level is also up to 0.6 % tighter).
+#: ``route="auto"``: above this many decision variables the Riccati candidate comes first
+#: (:doc:`/performance`: n = 16, m = 2, 545: SDP 1.1 s, candidate 1.35 s; n = 32, m = 2: 300 s, 3.4 s).
 RICCATI_FIRST_SIZE = 800
 #: The one-solve path re-solves when its gamma is more than this above the dual bound.
 MARGIN_GAP = 1e-4
@@ -379,28 +377,24 @@ def hinf_gamma(loop: ClosedLoop, *, robust: bool, solver: str | None = None,
     nominal gamma for Lemma 4.1, whose blocks contain Theorem 3.2's as leading blocks);
     it only scales the one-solve program (``_margin_gamma``), never the answer.
 
-    ``route``: ``"auto"`` tries, above :data:`RICCATI_FIRST_SIZE` decision variables,
-    the coupled-Riccati candidate first
-    (:func:`~ftc_verify.analysis.bounded_real.riccati_candidate`: no SDP, proved at every
-    vertex of the box by the same ball-arithmetic check) where it applies (Theorem 3.2,
-    or Lemma 4.1 of a loop without uncertainty channels), and the SDP when no candidate
-    passes (smaller programs: the SDP alone, faster there and up to 0.2 % tighter); ``"sdp"`` only the SDP; ``"riccati"`` only the candidate (outcome ``error``
-    when none passes)."""
+    ``route``: ``"auto"`` tries, above :data:`RICCATI_FIRST_SIZE` decision variables, the
+    coupled-Riccati candidate (:func:`~ftc_verify.analysis.bounded_real.riccati_candidate`:
+    no SDP, proved at every vertex like an SDP answer) first where it applies (Theorem
+    3.2, or Lemma 4.1 without uncertainty channels), the SDP when none passes (below: the
+    SDP alone, faster and up to 0.6 % tighter); ``"sdp"``, ``"riccati"``: only that one."""
     if route not in ROUTES:
         raise ValueError(f"route must be one of {', '.join(ROUTES)}, got {route!r}")
     original = loop if robust else loop.nominal()
     conditioned, sim = _conditioned(original)
-    fallback = ""
+    fallback, t0 = "", time.perf_counter()
     first = route == "riccati" or (route == "auto" and decision_size(original, robust=False) > RICCATI_FIRST_SIZE)
     if first and not (robust and loop.uncertain):
-        t0 = time.perf_counter()
         found = riccati_candidate(original, conditioned, sim)
-        seconds = time.perf_counter() - t0
         if found.certificate is not None or route == "riccati":
-            condition = "lemma-4.1" if robust else "theorem-3.2"
-            outcome = "certified" if found.certificate is not None else "error"
-            return _map_back(LMIResult(condition, outcome, found.gamma, "riccati", "optimal" if found.gamma else "failed",
-                                       0.0, seconds, found.certificate, found.P, None, found.message), sim)
+            return _map_back(LMIResult("lemma-4.1" if robust else "theorem-3.2",
+                                       "certified" if found.certificate is not None else "error", found.gamma, "riccati",
+                                       "optimal" if found.gamma else "failed", 0.0, time.perf_counter() - t0,
+                                       found.certificate, found.P, None, found.message), sim)
         fallback = f"; the Riccati candidate was not used ({found.message}), SDP fallback"
     _check_size(loop, robust, "Lemma 4.1" if robust else "Theorem 3.2")
     result = _hinf_gamma(original, conditioned, sim, robust, solver, gamma_hint)
