@@ -26,6 +26,7 @@ often.
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -46,7 +47,8 @@ from ..simulation.vectorised import output_peaks_reference
 from .envelope import Envelope
 from .estimate import Estimate, Settings, estimate_probability
 
-__all__ = ["BoundStage", "TimingStage", "RiskResult", "disturbance_energy", "path_scores", "run_risk"]
+__all__ = ["BoundStage", "TimingStage", "RiskResult", "available_stages", "disturbance_energy", "path_scores",
+           "run_risk"]
 
 #: Paths simulated per call of the reference simulator (their records are kept meanwhile).
 SIM_BATCH = 250
@@ -95,6 +97,25 @@ class RiskResult:
         est = d.pop("estimate")
         return {**{k: d[k] for k in ("system", "envelope", "horizon", "step", "backend", "disturbance")}, **est,
                 **{k: d[k] for k in ("x0", "beta", "failed_paths", "evaluated", "upper_bound", "timing")}}
+
+
+def _stage(module: str, name: str) -> Any:
+    """``name`` of ``ftc_verify.risk.<module>``, or ``None`` when that module is not installed
+    (any other import error propagates)."""
+    full = f"{__package__}.{module}"
+    try:
+        return getattr(importlib.import_module(full), name)
+    except ModuleNotFoundError as exc:
+        if exc.name != full:
+            raise
+        return None
+
+
+def available_stages() -> tuple[BoundStage | None, TimingStage | None]:
+    """The optional stages of :func:`run_risk` this installation has: the upper bound
+    (``ftc_verify.risk.bound.envelope_upper_bound``) and the FDI timing view
+    (``ftc_verify.risk.timing.delay_exceedance``), each ``None`` when its module is absent."""
+    return _stage("bound", "envelope_upper_bound"), _stage("timing", "delay_exceedance")
 
 
 def disturbance_energy(kind: str, nw: int, horizon: float) -> float:
