@@ -84,6 +84,21 @@ def _check(args: argparse.Namespace, system: Any, controller: Any) -> None:
         raise bad(f"--ftti {args.ftti}: must be positive")
 
 
+def _plant(args: argparse.Namespace, system: Any, controller: Any) -> Any:
+    """The ``--plant`` map (``None`` without it), checked against the system and controller."""
+    if args.plant is None:
+        return None
+    if args.backend != "fmu":
+        raise bad(f"--plant {args.plant}: a plant map is co-simulated; it needs --backend fmu")
+    from ..plants.plant_map import check_against_system, check_controller, load_plant_map
+
+    plant = load_plant_map(args.plant)
+    check_against_system(plant, system)
+    check_controller(plant, controller, args.controller)
+    plant.require_states_op("co-simulation")
+    return plant
+
+
 def _cmd_risk(args: argparse.Namespace) -> int:
     from ..risk.estimate import Settings
     from ..risk.run import available_stages, run_risk
@@ -91,6 +106,7 @@ def _cmd_risk(args: argparse.Namespace) -> int:
     system, controller = load(args.system, args.controller)
     _check(args, system, controller)
     envelope = _envelope(args, system)
+    plant = _plant(args, system, controller)
     beta = {"min": system.chain.rate_min, "max": system.chain.rate_max, "mid": system.chain.midpoint()}[args.beta]
     settings = Settings(method=args.method, relative_error=args.relative_error, confidence=args.confidence,
                         max_paths=args.max_paths, seed=args.seed)
@@ -98,7 +114,7 @@ def _cmd_risk(args: argparse.Namespace) -> int:
     try:
         res = run_risk(system, controller, envelope, horizon=args.horizon, step=args.step, settings=settings,
                        x0=args.x0, disturbance=args.disturbance, beta=beta, backend=args.backend,
-                       bound=bound, timing=timing, interval=args.ftti)
+                       plant=plant, bound=bound, timing=timing, interval=args.ftti)
     except PlantRunError as exc:
         print(f"ftc-verify risk: the plant FMU failed: {exc}")
         print("verdict: fail (the plant FMU crashed; no estimate)")
@@ -154,6 +170,8 @@ def add_risk_command(sub: Any) -> None:
     r.add_argument("--backend", default="reference", choices=["reference", "fmu"],
                    help="reference: the numpy sampled-data loop (vectorised); fmu: the LinearJumpPlant FMU, "
                         "isolated as in simulate (default %(default)s)")
+    r.add_argument("--plant", default=None, metavar="MAP",
+                   help="with --backend fmu: co-simulate this plant map's FMU instead of the LinearJumpPlant")
     r.add_argument("--beta", default="mid", choices=["min", "max", "mid"],
                    help="the rate array of the chain: lower corner, upper corner or midpoint of its box "
                         "(default %(default)s)")
