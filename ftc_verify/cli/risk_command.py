@@ -14,7 +14,8 @@ from typing import Any
 
 from ..errors import PlantRunError
 from ..jsonable import dumps
-from .common import EXIT_NEGATIVE, EXIT_OK, EXIT_UNDECIDED, bad, fmt, load, positive, positive_int, seed_int, strict
+from .common import (EXIT_NEGATIVE, EXIT_OK, EXIT_UNDECIDED, PLOT_SUFFIXES, bad, check_output_file, fmt, load, positive,
+                     positive_int, seed_int, strict)
 
 __all__ = ["add_risk_command"]
 
@@ -80,8 +81,8 @@ def _check(args: argparse.Namespace, system: Any, controller: Any) -> None:
     n = system.dims[0]
     if args.x0 is not None and len(args.x0) != n:
         raise bad(f"--x0 {','.join(f'{v:g}' for v in args.x0)}: {len(args.x0)} numbers for the {n} plant states")
-    if args.ftti is not None and args.ftti <= 0:
-        raise bad(f"--ftti {args.ftti}: must be positive")
+    if args.plot is not None:
+        check_output_file(args.plot, "--plot", PLOT_SUFFIXES, inputs=(args.system, args.controller))
 
 
 def _plant(args: argparse.Namespace, system: Any, controller: Any) -> Any:
@@ -119,6 +120,8 @@ def _cmd_risk(args: argparse.Namespace) -> int:
         print(f"ftc-verify risk: the plant FMU failed: {exc}")
         print("verdict: fail (the plant FMU crashed; no estimate)")
         return EXIT_NEGATIVE
+    if args.plot is not None:
+        _plot(args, system, controller, envelope, settings, plant, res.estimate)
     d = strict(res.to_dict())
     converged = res.estimate.converged
     verdict = "estimated" if converged else "imprecise (path budget spent before --relative-error)"
@@ -128,6 +131,18 @@ def _cmd_risk(args: argparse.Namespace) -> int:
         _print(d, args)
         print(f"  verdict: {verdict}")
     return EXIT_OK if converged else EXIT_UNDECIDED
+
+
+def _plot(args: argparse.Namespace, system: Any, controller: Any, envelope: Any, settings: Any, plant: Any,
+          last: Any) -> None:
+    """``--plot``: the estimate at the horizons ``k T / 5`` (those covering 10 steps) and at ``T``."""
+    from ..risk.horizon import plot_risk_by_horizon, risk_by_horizon
+
+    horizons = [k * args.horizon / 5 for k in range(1, 5) if k * args.horizon / 5 >= MIN_STEPS * args.step]
+    estimates = risk_by_horizon(system, controller, envelope, horizons, step=args.step, settings=settings,
+                                x0=args.x0, disturbance=args.disturbance, backend=args.backend, plant=plant)
+    plot_risk_by_horizon([*horizons, args.horizon], [*estimates, last], args.plot,
+                         title=f"{system.name}: {envelope.description} ({last.method}, seed {last.seed})")
 
 
 def _print(d: dict[str, Any], args: argparse.Namespace) -> None:
@@ -185,6 +200,8 @@ def add_risk_command(sub: Any) -> None:
                    help="path budget of the estimate, pilot not included (default %(default)s)")
     r.add_argument("--ftti", type=positive, default=None,
                    help="fault-tolerant time interval: adds the probability that a detection delay exceeds it")
+    r.add_argument("--plot", default=None, metavar="FILE",
+                   help="also draw the estimate against the horizon (T/5 .. T) into FILE (.png, .pdf, .svg)")
     r.add_argument("--seed", type=seed_int, default=0, help="root seed of every stream (default %(default)s)")
     r.add_argument("--json", action="store_true", help="print one JSON object instead of a summary")
     r.set_defaults(func=_cmd_risk)

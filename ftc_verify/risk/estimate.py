@@ -103,7 +103,8 @@ def interval(method: str, values: np.ndarray, confidence: float) -> tuple[float,
     if method == "crude":
         centre = (p + z * z / (2 * n)) / (1 + z * z / n)
         half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-        return p, max(0.0, centre - half), min(1.0, centre + half), se
+        lo = 0.0 if p == 0.0 else max(0.0, centre - half)  # no hit: exactly 0 (not a rounding residue)
+        return p, lo, min(1.0, centre + half), se
     return p, max(0.0, p - z * se), p + z * se, se
 
 
