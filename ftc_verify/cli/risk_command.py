@@ -172,8 +172,8 @@ def add_risk_command(sub: Any) -> None:
     r.add_argument("--controller", "--gains", dest="controller", required=True,
                    help="controller TOML file (static gains or dynamic; --gains is an alias)")
     r.add_argument("--limit", type=positive, default=None, help="the envelope's limit L (with --output or --state)")
-    r.add_argument("--output", action="store_true", help="envelope |z| < L on the performance output (default)")
-    r.add_argument("--state", type=positive_int, default=None, help="envelope |x_I| < L on plant state I (1-based)")
+    r.add_argument("--output", action="store_true", help="envelope: the norm of the performance output z below L (the default)")
+    r.add_argument("--state", type=positive_int, default=None, help="envelope: the absolute value of plant state I (1-based) below L")
     r.add_argument("--region", default=None, metavar="MAP",
                    help="envelope: the [region] box of this plant map around its operating point")
     r.add_argument("--horizon", type=positive, required=True, help="T: the envelope is watched on [0, T]")
