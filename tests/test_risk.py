@@ -187,3 +187,47 @@ def test_cli_budget_spent_is_exit_5(files: tuple[Path, Path]) -> None:
              "--disturbance", "step", "--method", "crude", "--max-paths", "500")
     assert r.returncode == 5, r.stderr
     assert "imprecise" in r.stdout and "estimate:" in r.stdout
+
+
+def test_fmu_backend_scores_the_same_paths(loop: tuple) -> None:
+    """The FMU Monte Carlo (LinearJumpPlant, isolated child) gives the scores of the numpy
+    reference on the same chain paths (the FMU integrates the same sampled loop)."""
+    system, controller = loop
+    paths = sample_paths(system.chain, T, 12, 3, beta=system.chain.midpoint())
+    spec = SimulationSpec(step=0.1, horizon=T, seed=3, disturbance="step")
+    env = output_envelope(1.0)
+    ref = path_scores(system, controller, env, spec, "reference")(paths)
+    fmu = path_scores(system, controller, env, spec, "fmu")(paths)
+    assert np.max(np.abs(ref - fmu)) < 1e-6
+    assert np.any(ref >= 1.0) and np.any(ref < 1.0)
+
+
+def test_optional_stages_receive_the_envelope_constraints(loop: tuple) -> None:
+    """The bound stage gets the closed loop, one H per joint state and the limit, x0 and the
+    disturbance energy (step: T); the timing stage the chain and the interval; both
+    results land in the JSON."""
+    from dataclasses import dataclass
+
+    from ftc_verify.analysis.closedloop import ClosedLoop
+
+    @dataclass(frozen=True)
+    class Fake:
+        value: float
+        reason: str
+
+    seen: dict = {}
+
+    def bound(loop: ClosedLoop, constraints: list, *, x0: np.ndarray, disturbance_energy: float) -> Fake:
+        seen.update(n=loop.n, constraints=constraints, x0=x0, energy=disturbance_energy)
+        return Fake(0.5, "fake")
+
+    system, controller = loop
+    res = run_risk(system, controller, output_envelope(2.0), horizon=T, step=0.1, disturbance="step",
+                   settings=Settings(method="crude", max_paths=500), bound=bound,
+                   timing=lambda chain, interval: Fake(interval, chain.describe()), interval=3.0)
+    (hs, level), = seen["constraints"]
+    assert level == 2.0 and len(hs) == system.chain.n_states and all(h.shape == (1, seen["n"]) for h in hs)
+    assert seen["energy"] == T and seen["x0"].shape == (seen["n"],)
+    d = res.to_dict()
+    assert d["upper_bound"] == {"value": 0.5, "reason": "fake"} and d["timing"]["value"] == 3.0
+    assert len(d["ci"]) == 2 and d["method"] == "crude"
