@@ -231,3 +231,12 @@ def test_optional_stages_receive_the_envelope_constraints(loop: tuple) -> None:
     d = res.to_dict()
     assert d["upper_bound"] == {"value": 0.5, "reason": "fake"} and d["timing"]["value"] == 3.0
     assert len(d["ci"]) == 2 and d["method"] == "crude"
+
+
+@pytest.mark.parametrize("bad", [{"method": "smc"}, {"relative_error": 0.0}, {"confidence": 1.0},
+                                 {"max_paths": 1}, {"seed": -1}])
+def test_settings_refuse_bad_values(bad: dict) -> None:
+    from ftc_verify.errors import ValidationError
+
+    with pytest.raises(ValidationError, match=next(iter(bad)).split("_")[0]):
+        Settings(**bad)

@@ -35,6 +35,7 @@ from statistics import NormalDist
 
 import numpy as np
 
+from ..errors import ValidationError
 from ..model.system import JointChain, Matrix
 from ..simulation.paths import ChainPath
 from .importance import TILT_MAX, RateKeys, cross_entropy_tilt, rate_keys, sample_tilted
@@ -67,6 +68,22 @@ class Settings:
     pilot_iterations: int = 12
     elite: float = 0.1
     seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.method not in ("importance", "crude"):
+            raise ValidationError(f"method: {self.method!r} is not one of importance, crude")
+        for name in ("relative_error", "confidence", "elite"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and value > 0 and math.isfinite(value)):
+                raise ValidationError(f"{name}: must be a positive number, got {value!r}")
+        if not (self.confidence < 1 and self.elite < 1):
+            raise ValidationError(f"confidence, elite: must be below 1, got {self.confidence!r}, {self.elite!r}")
+        for name in ("max_paths", "batch", "pilot_paths", "pilot_iterations"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < (2 if name != "pilot_iterations" else 1):
+                raise ValidationError(f"{name}: must be an integer of at least 2, got {value!r}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise ValidationError(f"seed: must be a non-negative integer, got {self.seed!r}")
 
 
 @dataclass(frozen=True)

@@ -36,6 +36,7 @@ import numpy as np
 
 from ..analysis.closedloop import closed_loop
 from ..controllers.controller import Controller
+from ..errors import ValidationError
 from ..jsonable import fields_dict
 from ..model.system import FTCSystem, JointChain, Matrix
 from ..simulation.batches import fmu_monte_carlo
@@ -170,6 +171,8 @@ def run_risk(system: FTCSystem, controller: Controller, envelope: Envelope, *, h
     """The risk run of the module docstring. ``beta``: the rate array (default: the centre
     of the box, :meth:`JointChain.midpoint`); the paths start in the joint mode ``(0, 0)``
     (no fault, FDI agrees); ``x0`` default 0."""
+    if backend not in ("reference", "records", "fmu"):
+        raise ValidationError(f"backend: {backend!r} is not one of reference, records, fmu")
     chain = system.chain
     rates = chain.midpoint() if beta is None else chain.check_beta(beta)
     n = system.dims[0]
