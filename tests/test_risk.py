@@ -1,6 +1,6 @@
 """The envelope probability (ftc_verify.risk, ``ftc-verify risk``).
 
-The closed-form loop: scalar plant, mode 1 ``x' = u``, mode 2 (the fault, rate ``lam``,
+The closed-form loop (``examples/envelope_delay.toml`` with ``envelope_delay_gains.toml``): scalar plant, mode 1 ``x' = u``, mode 2 (the fault, rate ``lam``,
 never repaired) ``x' = u + w`` with ``w = 1``; the controller holds ``u = 0`` in FDI mode
 1 and ``u = -2 x`` in FDI mode 2. Undetected, ``x`` grows at slope 1 from the fault time
 ``tau``; detected after a delay ``d`` (exponential, rate ``beta``) it is pulled back
@@ -35,28 +35,8 @@ from ftc_verify.simulation.spec import SimulationSpec
 ROOT = Path(__file__).resolve().parents[1]
 LAM, BETA, T = 0.1, 3.0, 10.0
 
-SYSTEM = f"""name = "closed-form-risk"
-[chain]
-alpha    = [[-{LAM}, {LAM}], [0.0, 0.0]]
-beta_min = [[0.0, {BETA}], [1.0, 0.0]]
-beta_max = [[0.0, {BETA}], [1.0, 0.0]]
-[[mode]]
-A = [[0.0]]
-B = [[1.0]]
-C = [[1.0]]
-D = [[0.0]]
-[[mode]]
-A = [[0.0]]
-B = [[1.0]]
-C = [[1.0]]
-D = [[1.0]]
-"""
-GAINS = """name = "wait, then pull back"
-[[gain]]
-K = [[0.0]]
-[[gain]]
-K = [[-2.0]]
-"""
+SYSTEM = ROOT / "examples/envelope_delay.toml"
+GAINS = ROOT / "examples/envelope_delay_gains.toml"
 
 
 def truth(limit: float) -> float:
@@ -64,11 +44,8 @@ def truth(limit: float) -> float:
 
 
 @pytest.fixture(scope="module")
-def files(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
-    d = tmp_path_factory.mktemp("risk")
-    (d / "cf.toml").write_text(SYSTEM)
-    (d / "cfk.toml").write_text(GAINS)
-    return d / "cf.toml", d / "cfk.toml"
+def files() -> tuple[Path, Path]:
+    return SYSTEM, GAINS
 
 
 @pytest.fixture(scope="module")
