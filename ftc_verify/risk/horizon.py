@@ -40,7 +40,7 @@ def risk_by_horizon(system: FTCSystem, controller: Controller, envelope: Envelop
 def plot_risk_by_horizon(horizons: Sequence[float], estimates: Sequence[Estimate], path: str | os.PathLike[str], *,
                          title: str = "") -> None:
     """Draw the estimates against the horizon with their intervals (log axis; a zero
-    estimate is drawn at the bottom of the axis) and write the figure to ``path``
+    estimate is a grey triangle at the bottom of the axis, not on the line) and write the figure to ``path``
     (``.png``, ``.pdf`` or ``.svg``) atomically."""
     out = Path(path)
     fmt = out.suffix.lower().lstrip(".")
@@ -54,9 +54,12 @@ def plot_risk_by_horizon(horizons: Sequence[float], estimates: Sequence[Estimate
     fig = Figure(figsize=(6.0, 4.0))
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
-    shown = np.maximum(p, floor)
-    ax.errorbar(horizons, shown, yerr=[shown - np.maximum(lo, floor), np.maximum(hi, floor) - shown], fmt="o-",
-                capsize=3, label=f"estimate, {int(100 * estimates[0].confidence)} % interval")
+    h = np.asarray(horizons, dtype=float)
+    hit = p > 0
+    ax.errorbar(h[hit], p[hit], yerr=[p[hit] - np.maximum(lo[hit], floor), hi[hit] - p[hit]], fmt="o-", capsize=3,
+                label=f"estimate, {int(100 * estimates[0].confidence)} % interval")
+    if not hit.all():
+        ax.plot(h[~hit], np.full(int((~hit).sum()), floor), "v", color="gray", label="estimate 0 (no path left)")
     ax.set_yscale("log")
     ax.set_xlabel("horizon T")
     ax.set_ylabel("P(leave the envelope within [0, T])")
