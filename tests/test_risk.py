@@ -149,6 +149,8 @@ def test_cli_json(files: tuple[Path, Path]) -> None:
     (["--limit", "2", "--confidence", "1.5"], "--confidence"),
     (["--limit", "-1"], "--limit"),
     (["--limit", "2", "--step", "5"], "--horizon"),
+    (["--limit", "2", "--workers", "2"], "--workers"),
+    (["--limit", "2", "--plant", "x.plant.toml"], "--plant"),
 ])
 def test_cli_bad_input(files: tuple[Path, Path], extra: list[str], named: str) -> None:
     system, gains = files

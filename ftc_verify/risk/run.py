@@ -138,10 +138,11 @@ def _record_score(envelope: Envelope, rec: PathRecord) -> float:
 
 
 def path_scores(system: FTCSystem, controller: Controller, envelope: Envelope, spec: SimulationSpec,
-                backend: str, plant: Any = None) -> Callable[[Sequence[ChainPath]], np.ndarray]:
+                backend: str, plant: Any = None, client: Any = None) -> Callable[[Sequence[ChainPath]], np.ndarray]:
     """The scorer of the estimator: simulate the paths on ``backend`` and return every
     path's largest envelope score. ``fmu``: one FMU Monte Carlo over them, the plant of the
-    plant map ``plant`` or the system's ``LinearJumpPlant``. ``reference`` takes the output peaks of the vectorised
+    plant map ``plant`` or the system's ``LinearJumpPlant``, on the Dask ``client`` when
+    given (:func:`~ftc_verify.simulation.batches.fmu_monte_carlo`). ``reference`` takes the output peaks of the vectorised
     reference (:func:`~ftc_verify.simulation.vectorised.output_peaks_reference` on
     :meth:`Envelope.score_system`); ``records`` scores the records of
     :func:`~ftc_verify.simulation.reference.simulate_reference` (the same numbers, one path
@@ -154,7 +155,8 @@ def path_scores(system: FTCSystem, controller: Controller, envelope: Envelope, s
             for b in range(0, len(paths), SIM_BATCH):
                 records.extend(simulate_reference(system, controller, list(paths[b:b + SIM_BATCH]), spec=spec).records)
         elif backend == "fmu":
-            records.extend(fmu_monte_carlo(system, controller, list(paths), spec=spec, plant=plant).records)
+            records.extend(fmu_monte_carlo(system, controller, list(paths), spec=spec, plant=plant,
+                                           client=client).records)
         else:
             peak_sq, peak = output_peaks_reference(scored, controller, paths, spec=spec)
             return envelope.peak_score(peak_sq, peak)
@@ -167,10 +169,13 @@ def run_risk(system: FTCSystem, controller: Controller, envelope: Envelope, *, h
              settings: Settings, x0: Sequence[float] | None = None, disturbance: str = "paper",
              beta: Matrix | None = None, backend: str = "reference", plant: Any = None,
              bound: BoundStage | None = None, timing: TimingStage | None = None,
-             interval: float | None = None, done: Callable[[int], object] | None = None) -> RiskResult:
+             interval: float | None = None, done: Callable[[int], object] | None = None,
+             workers: int | None = None) -> RiskResult:
     """The risk run of the module docstring. ``beta``: the rate array (default: the centre
     of the box, :meth:`JointChain.midpoint`); the paths start in the joint mode ``(0, 0)``
-    (no fault, FDI agrees); ``x0`` default 0."""
+    (no fault, FDI agrees); ``x0`` default 0; ``workers``: the FMU backend's batches on a
+    local Dask cluster of that many processes (:meth:`SimulationSpec.client
+    <ftc_verify.simulation.spec.SimulationSpec.client>`, opened once for the run)."""
     if backend not in ("reference", "records", "fmu"):
         raise ValidationError(f"backend: {backend!r} is not one of reference, records, fmu")
     chain = system.chain
@@ -178,16 +183,18 @@ def run_risk(system: FTCSystem, controller: Controller, envelope: Envelope, *, h
     n = system.dims[0]
     x0v = np.zeros(n) if x0 is None else np.asarray(x0, dtype=float)
     spec = SimulationSpec(step=step, horizon=horizon, seed=settings.seed, beta=rates, disturbance=disturbance,
-                          x0=tuple(float(v) for v in x0v))
-    scorer = path_scores(system, controller, envelope, spec, backend, plant)
+                          x0=tuple(float(v) for v in x0v), workers=workers if backend == "fmu" else None)
     failed = [0]
+    with spec.client() as client:
+        scorer = path_scores(system, controller, envelope, spec, backend, plant, client)
 
-    def counted(paths: Sequence[ChainPath]) -> np.ndarray:
-        s = scorer(paths)
-        failed[0] += int(np.count_nonzero(np.isinf(s)))
-        return s
+        def counted(paths: Sequence[ChainPath]) -> np.ndarray:
+            s = scorer(paths)
+            failed[0] += int(np.count_nonzero(np.isinf(s)))
+            return s
 
-    est = estimate_probability(chain, rates, horizon, counted, settings, start=chain.start_state((0, 0)), done=done)
+        est = estimate_probability(chain, rates, horizon, counted, settings, start=chain.start_state((0, 0)),
+                                   done=done)
     upper = None
     if bound is not None:
         loop = closed_loop(system, controller)
