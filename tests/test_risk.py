@@ -90,6 +90,20 @@ def test_likelihood_ratio_has_mean_one(loop: tuple) -> None:
     assert np.all(untilted.log_weight == 0.0)
 
 
+def test_likelihood_ratio_with_erlang_delays_and_false_alarms() -> None:
+    """E[W] = 1 also for a chain with 4-phase detection delays and false alarms (every
+    rate key tilted differently); 4.5 standard errors (false failure < 1e-5)."""
+    chain = load_system(ROOT / "examples/paper_phase_type.toml").chain
+    beta = chain.midpoint()
+    keys = rate_keys(chain, beta)
+    assert {k.split("[")[0] for k in keys.labels} == {"alpha", "beta", "false_alarm"}
+    tilt = np.linspace(0.4, 2.5, len(keys.labels))
+    sample = sample_tilted(chain, keys, tilt, beta, 5.0, 12, 0, 4000)
+    w = np.exp(sample.log_weight)
+    assert abs(w.mean() - 1.0) < 4.5 * w.std(ddof=1) / math.sqrt(w.size)
+    assert {p.true.size for p in sample.paths} != {1}  # the paths jump
+
+
 def test_a_1e7_event_to_20_percent_within_1e5_paths(loop: tuple) -> None:
     """The goal: a 1.2e-7 event estimated to +-20 % at 95 % with at most 1e5 paths."""
     est = _estimate(loop, 5.0, seed=1)
