@@ -172,4 +172,4 @@ def region_envelope(states_min: np.ndarray | None, states_max: np.ndarray | None
         k = int(bad[0])
         raise ValidationError(f"--region {source}: operating point state {k + 1} = {xop[k]:g} is not inside "
                               f"[{states_min[k]:g}, {states_max[k]:g}]")
-    return Envelope("region", f"x_op + x inside the [region] of {source}", upper, lower, float("nan"), -1)
+    return Envelope("region", f"the [region] of {source} (x_op + x)", upper, lower, float("nan"), -1)
