@@ -22,8 +22,10 @@ agree. The interval at confidence :math:`1 - a`:
 The relative error is the half width over the estimate, :math:`z\hat\sigma/(\sqrt n \hat
 p)`. Paths are drawn in batches until it is at most the target with at least
 :data:`MIN_HITS` hits, or the path budget is spent; checking after every batch makes the
-sample size random (the coverage stays near nominal when many hits are needed, which
-:data:`MIN_HITS` enforces).
+sample size random: the rule tends to stop when the variance happens to be estimated
+low, so the coverage falls a little below nominal (measured: 33 of 36 intervals at 95 %
+held the closed form of ``tests/test_risk.py`` at 1.4e-3, 1.3e-5 and 1.2e-7, mean
+estimates within 2.5 % of the truth); :data:`MIN_HITS` keeps the effect small.
 """
 
 from __future__ import annotations
