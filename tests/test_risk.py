@@ -164,6 +164,8 @@ def test_cli_json(files: tuple[Path, Path]) -> None:
     (["--limit", "-1"], "--limit"),
     (["--limit", "2", "--step", "5"], "--horizon"),
     (["--limit", "2", "--workers", "2"], "--workers"),
+    (["--limit", "2", "--pilot-paths", "1"], "--pilot-paths"),
+    (["--limit", "2", "--max-paths", "1"], "--max-paths"),
     (["--limit", "2", "--plant", "x.plant.toml"], "--plant"),
 ])
 def test_cli_bad_input(files: tuple[Path, Path], extra: list[str], named: str) -> None:

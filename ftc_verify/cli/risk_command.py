@@ -45,6 +45,14 @@ def _fraction(text: str) -> float:
     return value
 
 
+def _at_least_two(text: str) -> int:
+    """Argument type: an integer, at least 2."""
+    value = positive_int(text)
+    if value < 2:
+        raise argparse.ArgumentTypeError(f"must be at least 2, got {text!r}")
+    return value
+
+
 def _envelope(args: argparse.Namespace, system: Any) -> Any:
     """The envelope of ``--output`` / ``--state`` / ``--region`` with ``--limit``."""
     from ..risk.envelope import output_envelope, region_envelope, state_envelope
@@ -116,7 +124,7 @@ def _cmd_risk(args: argparse.Namespace) -> int:
     plant = _plant(args, system, controller)
     beta = {"min": system.chain.rate_min, "max": system.chain.rate_max, "mid": system.chain.midpoint()}[args.beta]
     settings = Settings(method=args.method, relative_error=args.relative_error, confidence=args.confidence,
-                        max_paths=args.max_paths, seed=args.seed)
+                        max_paths=args.max_paths, pilot_paths=args.pilot_paths, seed=args.seed)
     bound, timing = available_stages()
     try:
         res = run_risk(system, controller, envelope, horizon=args.horizon, step=args.step, settings=settings,
@@ -204,8 +212,11 @@ def add_risk_command(sub: Any) -> None:
                    help="stop when the interval's half width is at most this fraction of the estimate "
                         "(default %(default)s)")
     r.add_argument("--confidence", type=_fraction, default=0.95, help="of the interval (default %(default)s)")
-    r.add_argument("--max-paths", type=positive_int, default=100_000,
+    r.add_argument("--max-paths", type=_at_least_two, default=100_000,
                    help="path budget of the estimate, pilot not included (default %(default)s)")
+    r.add_argument("--pilot-paths", type=_at_least_two, default=500,
+                   help="paths per cross-entropy round of the importance-sampling pilot, at least 2 "
+                        "(default %(default)s; fewer for a slow FMU)")
     r.add_argument("--ftti", type=positive, default=None,
                    help="fault-tolerant time interval: adds the probability that a detection delay exceeds it")
     r.add_argument("--plot", default=None, metavar="FILE",
