@@ -14,7 +14,9 @@ Stages, in order (:func:`run_risk`):
 2. optionally an upper bound (a callable ``bound(loop, constraints, x0=...,
    disturbance_energy=...)`` returning a frozen dataclass with ``value``, ``reason``, ...:
    :class:`BoundStage`), on the closed loop :func:`~ftc_verify.analysis.closedloop.closed_loop`
-   with the envelope's constraints (:meth:`Envelope.constraints`);
+   with the envelope's constraints (:meth:`Envelope.constraints`): a bound of the
+   *continuous-time* loop (none is claimed when the controller declares a sampling
+   period), by the energy of ``w`` up to ``T`` (:func:`disturbance_energy`);
 3. optionally the FDI timing view (a callable ``timing(chain, interval)``:
    :class:`TimingStage`) for a fault-tolerant time interval.
 
@@ -125,7 +127,8 @@ def disturbance_energy(kind: str, nw: int, horizon: float) -> float:
     ``paper`` (:math:`e^{-0.1t}\sin t`) :math:`\int_0^\infty e^{-0.2t}\sin^2 t\,dt =
     \tfrac12(1/0.2 - 0.2/(0.2^2 + 4))` (an upper bound of the integral to ``T``), ``zero``
     0, ``step`` :math:`T`, ``pulse`` :math:`\min(T, 1)`, ``sine`` :math:`T/2 - \sin(2T)/4`;
-    times ``nw``."""
+    times ``nw``. The energy up to ``T`` suffices for leaving within ``[0, T]``: the path on
+    ``[0, T]`` is the same under ``w`` cut off at ``T``, whose whole energy this is."""
     per = {"paper": 0.5 * (1 / 0.2 - 0.2 / (0.04 + 4.0)), "zero": 0.0, "step": horizon, "pulse": min(horizon, 1.0),
            "sine": horizon / 2 - math.sin(2 * horizon) / 4}[kind]
     return nw * per
