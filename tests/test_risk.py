@@ -148,9 +148,11 @@ def _cli(*args: str) -> subprocess.CompletedProcess[str]:
 def test_cli_json(files: tuple[Path, Path]) -> None:
     system, gains = files
     r = _cli(str(system), "--controller", str(gains), "--limit", "3.5", "--horizon", "10", "--step", "0.1",
-             "--disturbance", "step", "--seed", "4", "--json")
+             "--disturbance", "step", "--seed", "4", "--ftti", "1", "--json")
     assert r.returncode == 0, r.stderr
     d = json.loads(r.stdout)
+    assert d["timing"]["worst"] == pytest.approx(math.exp(-BETA), rel=1e-12)  # P(exponential delay > 1)
+    assert d["upper_bound"]["reason"] and (d["upper_bound"]["value"] is None or d["upper_bound"]["value"] >= truth(3.5))
     assert d["method"] == "importance" and d["seed"] == 4 and d["verdict"] == "estimated"
     assert len(d["ci"]) == 2 and d["ci"][0] <= truth(3.5) <= d["ci"][1]
     assert d["relative_error"] <= 0.2 and d["paths"] >= 1 and d["tilt"]["beta[1,2]"] < 1.0

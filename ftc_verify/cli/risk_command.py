@@ -175,7 +175,10 @@ def _print(d: dict[str, Any], args: argparse.Namespace) -> None:
     if d["upper_bound"] is not None:
         print(f"  upper bound: {fmt(d['upper_bound'].get('value'), 4)} ({d['upper_bound'].get('reason', '')})")
     if d["timing"] is not None:
-        print(f"  FDI timing (--ftti {fmt(args.ftti)}): {d['timing']}")
+        t = d["timing"]
+        events = ", ".join(f"{e.get('label')} {fmt(e.get('probability'), 4)}" for e in t.get("events", []))
+        print(f"  FDI timing (--ftti {fmt(args.ftti)}): P(detection later than the interval) worst "
+              f"{fmt(t.get('worst'), 4)} ({t.get('worst_event')}); {events}")
 
 
 def add_risk_command(sub: Any) -> None:
