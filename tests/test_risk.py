@@ -237,3 +237,12 @@ def test_settings_refuse_bad_values(bad: dict) -> None:
 
     with pytest.raises(ValidationError, match=next(iter(bad)).split("_")[0]):
         Settings(**bad)
+
+
+def test_cli_says_when_the_pilot_never_reached_the_limit(files: tuple[Path, Path]) -> None:
+    """A limit no path can reach (|x| <= T - tau < 20): estimate 0, exit 5, and the note."""
+    system, gains = files
+    r = _cli(str(system), "--controller", str(gains), "--limit", "20", "--horizon", "10", "--step", "0.1",
+             "--disturbance", "step", "--max-paths", "500", "--pilot-paths", "100")
+    assert r.returncode == 5, r.stderr
+    assert "estimate: 0 " in r.stdout and "no pilot round reached the limit" in r.stdout

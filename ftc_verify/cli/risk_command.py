@@ -169,6 +169,10 @@ def _print(d: dict[str, Any], args: argparse.Namespace) -> None:
           f"{d['pilot_paths']} pilot paths, seed {d['seed']}")
     if d["method"] == "importance":
         print("  tilt: " + ", ".join(f"{k} x{fmt(v, 3)}" for k, v in d["tilt"].items()))
+        top = max(d["levels"], default=0.0)
+        if top < 1.0:
+            print(f"  note: no pilot round reached the limit (highest elite level {fmt(top, 3)} of 1): the tilt "
+                  "was learned from paths that stay inside, the estimate may need far more paths")
     print(f"  backend {d['backend']}, step {fmt(d['step'])}, disturbance {d['disturbance']}; checked {d['evaluated']}")
     if d["failed_paths"]:
         print(f"  {d['failed_paths']} paths diverged or their plant failed (counted as leaving)")
