@@ -30,6 +30,7 @@ from ftc_verify.simulation.vectorised import energies_reference
 from ftc_verify.simulation.paths import ChainPath, communication_grid, disturbance, sample_paths
 from ftc_verify.simulation.reference import simulate_reference
 from ftc_verify.simulation.records import DIVERGENCE_BOUND
+from ftc_verify.simulation.spec import GRID_SNAP_RTOL
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
@@ -181,7 +182,10 @@ def observer(paper):
 
 def hand_loop(system, ctrl, path, *, step, sched, x0, rng, kind="paper"):
     """Per grid interval one expm of [[A, B, D], [0, 0, 0]] h for the plant and one of
-    [[Ac, Bc], [0, 0]] h for the controller (no caching); returns t, x, xc, u, v, y."""
+    [[Ac, Bc], [0, 0]] h for the controller (no caching); the controller reads ``y_m``
+    and the FDI mode at the first grid point of each period ``floor((t + tol) / step)``
+    (and at the end) and holds them, ``u`` and ``w`` across the jumps inside it; returns
+    t, x, xc, u, v (``y_m`` at every point), y."""
     n, nu, _, nw = system.dims
     nc = ctrl.n_c
     segs = delta_segments(system, path, sched, rng)
@@ -190,12 +194,14 @@ def hand_loop(system, ctrl, path, *, step, sched, x0, rng, kind="paper"):
     W = disturbance(kind, nw)(t)
     x, xc = np.asarray(x0, dtype=float), np.zeros(nc)
     out = {key: [] for key in ("x", "xc", "u", "v", "y")}
+    period = np.floor((t + GRID_SNAP_RTOL * step) / step)
     for k in range(len(t)):
-        r, l = (true[k], fdi[k]) if k < len(t) - 1 else (true[-1], fdi[-1])
+        r, fdi_k = (true[k], fdi[k]) if k < len(t) - 1 else (true[-1], fdi[-1])
         md = system.modes[r]
-        v = md.Cy @ x
-        u = ctrl.Cc[l] @ xc + ctrl.Dc[l] @ v
-        for key, val in (("x", x), ("xc", xc), ("u", u), ("v", v), ("y", md.C @ x)):
+        if k in (0, len(t) - 1) or period[k] > period[k - 1]:
+            l, v, w = fdi_k, md.Cy @ x, W[k]
+            u = ctrl.Cc[l] @ xc + ctrl.Dc[l] @ v
+        for key, val in (("x", x), ("xc", xc), ("u", u), ("v", md.Cy @ x), ("y", md.C @ x)):
             out[key].append(val)
         if k == len(t) - 1:
             break
@@ -210,7 +216,7 @@ def hand_loop(system, ctrl, path, *, step, sched, x0, rng, kind="paper"):
         Mc[:nc, :nc], Mc[:nc, nc:] = ctrl.Ac[l], ctrl.Bc[l]
         Ec = scipy.linalg.expm(Mc * h)
         xc = Ec[:nc, :nc] @ xc + Ec[:nc, nc:] @ v
-        x = E[:n, :n] @ x + E[:n, n:] @ np.concatenate([u, W[k]])
+        x = E[:n, :n] @ x + E[:n, n:] @ np.concatenate([u, w])
     return t, {key: np.array(val) for key, val in out.items()}
 
 

@@ -37,6 +37,7 @@ from ftc_verify.simulation.reference import (
 from ftc_verify.simulation.records import l2_norm
 from ftc_verify.analysis.moments.stability import duplication_matrix, second_moment_generator
 from ftc_verify.simulation.delta import DeltaSchedule, delta_segments, delta_shapes
+from ftc_verify.simulation.spec import GRID_SNAP_RTOL
 
 sf = Controller.state_feedback  # static state feedback u = K x from a list of gains
 
@@ -46,7 +47,9 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 # ----------------------------------------------------------------------------- helpers
 def hand_rolled(system, gains, path, *, step, kind="paper", delta=None, x0=None, rng=None):
     """Per grid interval one ``scipy.linalg.expm`` of ``[[A, B, D], [0, 0, 0]] h`` with
-    ``h = t[k+1] - t[k]`` (no caching, no special cases); returns ``(t, x, u, w, y)``."""
+    ``h = t[k+1] - t[k]`` (no caching, no special cases); ``u`` and ``w`` are taken at the
+    first grid point of every period ``floor((t + tol) / step)`` (and at the end) and held
+    across the jumps inside it; returns ``(t, x, u, w, y)``."""
     n, nu, _ny, nw = system.dims
     m = system.m
     sched = delta or DeltaSchedule("zero")
@@ -56,11 +59,14 @@ def hand_rolled(system, gains, path, *, step, kind="paper", delta=None, x0=None,
     W = disturbance(kind, nw)(t)
     x = np.zeros(n) if x0 is None else np.asarray(x0, dtype=float)
     X, U, Y = [], [], []
+    period = np.floor((t + GRID_SNAP_RTOL * step) / step)
     for k in range(len(t)):
         r, l = (true[k], fdi[k]) if k < len(t) - 1 else (true[-1], fdi[-1])
         md = system.modes[r]
-        K = gains[r * m + l] if len(gains) == m * m else gains[l]
-        X.append(x), U.append(K @ x), Y.append(md.C @ x)
+        if k == 0 or k == len(t) - 1 or period[k] > period[k - 1]:
+            K = gains[r * m + l] if len(gains) == m * m else gains[l]
+            u, w = K @ x, W[k]
+        X.append(x), U.append(u), Y.append(md.C @ x)
         if k == len(t) - 1:
             break
         d1, d2 = segs[seg[k]]
@@ -69,7 +75,7 @@ def hand_rolled(system, gains, path, *, step, kind="paper", delta=None, x0=None,
         M = np.zeros((n + nu + nw, n + nu + nw))
         M[:n, :n], M[:n, n:n + nu], M[:n, n + nu:] = A, B, md.D
         E = scipy.linalg.expm(M * (t[k + 1] - t[k]))
-        x = E[:n, :n] @ x + E[:n, n:] @ np.concatenate([U[-1], W[k]])
+        x = E[:n, :n] @ x + E[:n, n:] @ np.concatenate([u, w])
     return t, np.array(X), np.array(U), W, np.array(Y)
 
 

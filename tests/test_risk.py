@@ -3,12 +3,12 @@
 The closed-form loop (``examples/envelope_delay.toml`` with ``envelope_delay_gains.toml``): scalar plant, mode 1 ``x' = u``, mode 2 (the fault, rate ``lam``,
 never repaired) ``x' = u + w`` with ``w = 1``; the controller holds ``u = 0`` in FDI mode
 1 and ``u = -2 x`` in FDI mode 2. Undetected, ``x`` grows at slope 1 from the fault time
-``tau``; detected after a delay ``d`` (exponential, rate ``beta``) it is pulled back
-towards ``0.5`` without overshoot (``x_{k+1} - 0.5 = 0.8 (x_k - 0.5)`` at step 0.1). The
-grid holds the jump times, so for a limit ``L > 0.5`` the largest grid value is
-``min(d, T - tau)`` and
-
-    P(max |x| >= L) = P(tau <= T - L, d >= L) = (1 - exp(-lam (T - L))) exp(-beta L).
+``tau``; detected after a delay ``d`` (exponential, rate ``beta``) the report is read at
+the next sample ``s`` and ``x`` is pulled back towards ``0.5`` without overshoot
+(``x_{k+1} - 0.5 = 0.8 (x_k - 0.5)`` at step 0.1). For a limit ``L > 0.5`` the largest
+grid value is ``min(s, T) - tau``, so the probability is an integral over ``tau`` that
+:func:`truth` sums exactly; as the step goes to 0 it tends to
+``(1 - exp(-lam (T - L))) exp(-beta L)``.
 """
 
 from __future__ import annotations
@@ -39,8 +39,23 @@ SYSTEM = ROOT / "examples/envelope_delay.toml"
 GAINS = ROOT / "examples/envelope_delay_gains.toml"
 
 
-def truth(limit: float) -> float:
-    return (1 - math.exp(-LAM * (T - limit))) * math.exp(-BETA * limit)
+def truth(limit: float, h: float = 0.1) -> float:
+    """P(max |x| >= limit on the grid within [0, T]) for the loop at step ``h`` (module
+    docstring): the FDI report is read at the samples, so the pull-back starts at
+    ``s = ceil((tau + d) / h) h`` and the envelope is left iff ``tau <= T - L`` and
+    ``s >= tau + L``, i.e. ``d > (k - 1) h - tau`` with ``k = ceil((tau + L) / h)``.
+    Integrated exactly piece by piece in ``tau`` (``k`` constant on each piece):
+    ``lam exp(-beta (k - 1) h) [exp((beta - lam) tau) / (beta - lam)]_a^b``."""
+    total = 0.0
+    k = math.ceil(limit / h)  # the piece of tau = 0 (limit is no multiple of h)
+    while True:
+        a, b = max(0.0, (k - 1) * h - limit), min(T - limit, k * h - limit)
+        if a >= T - limit:
+            return total
+        if b > a:
+            total += (LAM * math.exp(-BETA * (k - 1) * h)
+                      * (math.exp((BETA - LAM) * b) - math.exp((BETA - LAM) * a)) / (BETA - LAM))
+        k += 1
 
 
 @pytest.fixture(scope="module")

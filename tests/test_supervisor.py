@@ -40,6 +40,8 @@ fmpy = pytest.importorskip("fmpy")
 if shutil.which("gcc") is None:  # pragma: no cover
     pytest.skip("gcc is needed to compile the FMU", allow_module_level=True)
 
+from ftc_verify.simulation.paths import sample_points
+from ftc_verify.simulation.spec import GRID_SNAP_RTOL
 from ftc_verify.controllers import Controller, load_controller
 from ftc_verify.errors import ValidationError
 from ftc_verify.plants.linear_jump import build_fmu
@@ -69,8 +71,10 @@ def _isolated_cache(tmp_path_factory: pytest.TempPathFactory):
 def local_reference(system, controller, paths, *, step, disturbance_kind="paper", delta=None, x0=None, seed=None):
     """Static state feedback ``controller`` (its gains); per path: grid, ``Delta`` per chain segment (drawn in path order from
     ``default_rng(seed)``), ``u_k = K[l_k] x_k`` (``K[r m + l]`` for ``m^2`` gains), ``w_k``,
-    ``y_k = C[r_k] x_k``, one exact ZOH step per interval by scipy's ``expm``; at ``t_N`` the
-    last interval's modes. Returns ``[(t, true, fdi, x, u, w, y)]``."""
+    ``y_k = C[r_k] x_k``, one exact ZOH step per interval by scipy's ``expm``; ``u`` and
+    ``w`` taken at the first grid point of each period ``floor((t + tol) / step)`` and held
+    across the jumps inside it; at ``t_N`` the last interval's modes. Returns
+    ``[(t, true, fdi, x, u, w, y)]``."""
     n, nu, ny, nw = system.dims
     m = system.m
     sched = DeltaSchedule("zero") if delta is None else (DeltaSchedule(delta) if isinstance(delta, str) else delta)
@@ -87,11 +91,14 @@ def local_reference(system, controller, paths, *, step, disturbance_kind="paper"
         cache: dict = {}  # exact per (mode, segment, step size)
         x = np.zeros(n) if x0 is None else np.asarray(x0, dtype=float)
         X, U, Y = np.zeros((N + 1, n)), np.zeros((N + 1, nu)), np.zeros((N + 1, ny))
+        period = np.floor((t + GRID_SNAP_RTOL * step) / step)
         for k in range(N + 1):
             r, l = true[min(k, N - 1)], fdi[min(k, N - 1)]
             md = system.modes[r]
             X[k], Y[k] = x, md.C @ x
-            U[k] = (gains[r * m + l] if full else gains[l]) @ x
+            if k in (0, N) or period[k] > period[k - 1]:
+                u, w = (gains[r * m + l] if full else gains[l]) @ x, W[k]
+            U[k] = u
             if k == N:
                 break
             key = (r, seg[k], t[k + 1] - t[k])
@@ -103,7 +110,7 @@ def local_reference(system, controller, paths, *, step, disturbance_kind="paper"
                 M = np.zeros((n + nu + nw, n + nu + nw))
                 M[:n, :n], M[:n, n:n + nu], M[:n, n + nu:] = A, B, md.D
                 E = cache[key] = scipy.linalg.expm(M * key[2])
-            x = E[:n, :n] @ x + E[:n, n:] @ np.concatenate([U[k], W[k]])
+            x = E[:n, :n] @ x + E[:n, n:] @ np.concatenate([u, w])
         out.append((t, true, fdi, X, U, W, Y))
     return out
 
@@ -385,9 +392,13 @@ def test_switches_norms_and_grid_are_recorded(request) -> None:
         assert rec.w.shape == rec.y.shape == (len(rec.t), 1)
         assert yn == l2_norm(rec.t, rec.y) and wn == l2_norm(rec.t, rec.w)
         assert np.all(np.isfinite(rec.x)) and rec.x[0] == pytest.approx([0.5, -0.5])
-        # u is the held control: K[fdi] x at each grid point (last point: last FDI mode)
+        # u is the held control: K[fdi] x at each sample k step (last point: last FDI mode),
+        # the same value at the jump times inside the period
         l_at = np.append(rec.fdi, rec.fdi[-1])
-        assert np.allclose(rec.u, np.einsum("kij,kj->ki", np.stack(controller.gains)[l_at], rec.x), rtol=1e-13, atol=1e-15)
+        fresh = np.einsum("kij,kj->ki", np.stack(controller.gains)[l_at], rec.x)
+        last = np.maximum.accumulate(np.where(sample_points(path, 0.01, rec.t), np.arange(len(rec.t)), 0))
+        assert np.allclose(rec.u, fresh[last], rtol=1e-13, atol=1e-15)
+        assert np.any(last != np.arange(len(rec.t)))  # some jump falls inside a period
     # the paper's ||w||_2 on [0, 10] for w = exp(-0.1 t) sin t (READING-NOTES: 1.5733 on [0, inf))
     assert 1.40 < summary["w_norm"][0] < 1.5733
 
@@ -533,17 +544,19 @@ def test_observer_based_controller_xc_recursion(paper_from_files) -> None:
         assert rec.ym.shape == (N + 1, 1) and rec.xc.shape == (N + 1, nc)
         assert np.allclose(rec.ym, rec.x @ Cy.T, rtol=1e-13, atol=1e-14)
         xc = np.zeros(nc)
+        sample = sample_points(rec.path, 0.01, rec.t)  # entry, ym and u held between samples
         for k in range(N + 1):
-            e = int(rec.fdi[min(k, N - 1)])
+            if sample[k]:
+                e, v = int(rec.fdi[min(k, N - 1)]), rec.ym[k]
+                u = ctrl.Cc[e] @ xc + ctrl.Dc[e] @ v
             assert rel_err(rec.xc[k], xc) <= 1e-9 or np.max(np.abs(rec.xc[k] - xc)) <= 1e-12, k
-            u = ctrl.Cc[e] @ xc + ctrl.Dc[e] @ rec.ym[k]
             assert np.allclose(rec.u[k], u, rtol=1e-9, atol=1e-12), k
             if k == N:
                 break
             M = np.zeros((nc + 1, nc + 1))
             M[:nc, :nc], M[:nc, nc:] = ctrl.Ac[e], ctrl.Bc[e]
             E = scipy.linalg.expm(M * (rec.t[k + 1] - rec.t[k]))
-            xc = E[:nc, :nc] @ xc + E[:nc, nc:] @ rec.ym[k]
+            xc = E[:nc, :nc] @ xc + E[:nc, nc:] @ v
         assert np.max(np.abs(rec.xc)) > 1e-3  # the observer state moves
     ref = simulate_reference(system, ctrl, paths, step=0.01, delta="sign", x0=[0.5, -0.3], seed=3)
     for a, b in zip(res.records, ref.records):

@@ -22,6 +22,7 @@ from .. import __version__
 from ..analysis.analyze import AnalysisReport, analyze
 from ..analysis.closedloop import closed_loop
 from ..analysis.moments.sampled import SampledResult, sampled_analysis
+from ..analysis.solvers import interruptible
 from ..controllers.controller import Controller
 from ..controllers.files import dump_controller
 from ..model.files import dump_system
@@ -92,7 +93,8 @@ def export_certificate(system: FTCSystem, controller: Controller, period: float,
     """Analyse ``(system, controller)`` and return the record of an export with ``period``
     and the analysis report (module docstring)."""
     rep = analyze(closed_loop(system, controller), solver=solver, name=system.name)
-    sampled = sampled_analysis(system, controller, float(period), max_seconds=30.0)
+    sampled = interruptible(lambda: sampled_analysis(system, controller, float(period), max_seconds=30.0),
+                            "the sampled-data analysis")
     ok = rep.certified_stable and sampled.stable
     cert = ExportCertificate(
         verdict=_verdict(rep, sampled), certified=ok,

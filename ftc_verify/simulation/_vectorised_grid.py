@@ -176,13 +176,15 @@ class Pieces:
     in_pos: np.ndarray  # piece of each interior jump
     d: np.ndarray  # (nsub,) dynamics id (mutable: start pieces set per chunk)
     dt: np.ndarray  # (nsub,) lengths
-    w: np.ndarray  # (nsub, nw) w at the piece starts
+    w: np.ndarray  # (nsub, nw) w held over the piece: its value at the period's sample
     wt: np.ndarray  # (nsub,) trapezoid weights of the interior jump points
+    item: np.ndarray  # (nsub,) special interval of each piece
 
 
 def pieces(jmp: Jumps, it: Items, wfun: Callable[[np.ndarray], np.ndarray], Ew: np.ndarray) -> Pieces:
     """Split the special intervals at their interior jumps (consecutive in the jump
-    order) and add the interior jump points' :math:`E_w` terms to ``Ew``."""
+    order) and add the interior jump points' :math:`E_w` terms to ``Ew``. Every piece
+    holds the disturbance of its interval's start (the sample)."""
     in_key = jmp.j_interval[jmp.interior] * jmp.P + jmp.jp[jmp.interior]
     in_item, found = lookup(it.key, in_key)
     if not np.all(found):  # pragma: no cover - a bookkeeping error, not an input error
@@ -204,11 +206,13 @@ def pieces(jmp: Jumps, it: Items, wfun: Callable[[np.ndarray], np.ndarray], Ew: 
     t1[:-1] = t0[1:]
     t1[last] = it.t1
     dt = t1 - t0
-    w = wfun(t0)
+    item = np.repeat(np.arange(it.key.size), count)
+    w = wfun(t0[off])[item] if nsub else wfun(t0)
     wt = np.zeros(nsub)
     wt[in_pos] = 0.5 * (dt[in_pos - 1] + dt[in_pos])
-    Ew += np.bincount(jmp.jp[jmp.interior], wt[in_pos] * np.sum(w[in_pos] ** 2, axis=1), minlength=jmp.P)
-    return Pieces(count, off, last, in_pos, d, dt, w, wt)
+    w_in = wfun(t0[in_pos])  # the physical w at the interior jump points, for E_w
+    Ew += np.bincount(jmp.jp[jmp.interior], wt[in_pos] * np.sum(w_in ** 2, axis=1), minlength=jmp.P)
+    return Pieces(count, off, last, in_pos, d, dt, w, wt, item)
 
 
 @dataclass(frozen=True)

@@ -17,6 +17,8 @@ The tables keep :math:`BK = [B D_{c,e} M_i,\; B C_{c,e}]` (``n x n_z``), so that
 block row is :math:`[\Phi, 0] + \Gamma\, BK`; the performance output is
 :math:`y = [C_i,\ 0]\, z`. For static state feedback (:math:`n_c = 0`, :math:`M_i = I`)
 this is :math:`F = \Phi + \Gamma B K_j`, :math:`G = \Gamma D_i`, computed as before.
+These maps are those of a whole interval that starts at a control sample; the pieces of a
+period cut by jumps, with the controller's output held, are :func:`held_maps`.
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ from . import discretise
 from .delta import delta_shapes
 from .discretise import controller_zoh, one_norms, phi_gamma, taylor_series
 
-__all__ = ["Tables", "tables", "loop_matrices", "full_maps"]
+__all__ = ["Tables", "tables", "loop_matrices", "held_maps", "full_maps"]
 
 
 @dataclass(frozen=True)
@@ -44,6 +46,8 @@ class Tables:
     d_true: np.ndarray  # (Dn,) true mode of each dynamics id
     d_entry: np.ndarray  # (Dn,) controller entry of each dynamics id
     BK: np.ndarray  # (Dn, n, nz) perturbed B times [Dc M, Cc]
+    Bd: np.ndarray  # (Dn, n, nu) perturbed B
+    K: np.ndarray  # (Dn, nu, nz) [Dc M, Cc] of the id's controller entry
     Dm: np.ndarray  # (Dn, n, nw)
     Cz: np.ndarray  # (m, ny, nz) performance output [C_i, 0]
     M: np.ndarray  # (m, nv, n) measurement of each true mode
@@ -78,18 +82,17 @@ def _stacked_channels(system: FTCSystem) -> tuple[np.ndarray | None, ...]:
     return tuple(out)
 
 
-def _input_maps(system: FTCSystem, controller: Controller, B: np.ndarray, d_true: np.ndarray,
-                d_fdi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(BK, entry, M)``: ``BK = B [Dc M, Cc]`` per dynamics id, its controller entry and
+def _input_maps(system: FTCSystem, controller: Controller, d_true: np.ndarray, d_fdi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(K, entry, M)``: ``K = [Dc M, Cc]`` per dynamics id, its controller entry and
     the stacked measurements."""
     m = system.m
     entry = d_true * m + d_fdi if controller.full_information(m) else d_fdi
     M = np.stack([controller.measurement(md) for md in system.modes])
     Dc = np.stack(controller.Dc)[entry]
-    BK = B @ Dc if controller.measures == "state" else B @ Dc @ M[d_true]
+    K = Dc if controller.measures == "state" else Dc @ M[d_true]
     if controller.n_c:
-        BK = np.concatenate((BK, B @ np.stack(controller.Cc)[entry]), axis=2)
-    return BK, entry, M
+        K = np.concatenate((K, np.stack(controller.Cc)[entry]), axis=2)
+    return K, entry, M
 
 
 def tables(system: FTCSystem, controller: Controller, a_true: np.ndarray, a_d1: np.ndarray | None,
@@ -106,11 +109,11 @@ def tables(system: FTCSystem, controller: Controller, a_true: np.ndarray, a_d1: 
     B = Bm[d_true].copy()
     if B1 is not None and B2 is not None and d_d2 is not None:
         B += B1[d_true] @ d_d2 @ B2[d_true]
-    BK, entry, M = _input_maps(system, controller, B, d_true, d_fdi)
+    K, entry, M = _input_maps(system, controller, d_true, d_fdi)
     Cz = np.stack([md.C for md in system.modes])
     if controller.n_c:
         Cz = np.concatenate((Cz, np.zeros(Cz.shape[:2] + (controller.n_c,))), axis=2)
-    return Tables(A, d_a, d_true, entry, BK, Dm[d_true], Cz, M, controller)
+    return Tables(A, d_a, d_true, entry, B @ K, B, K, Dm[d_true], Cz, M, controller)
 
 
 def _controller_rows(tab: Tables, d: np.ndarray, h: np.ndarray, F: np.ndarray) -> None:
@@ -181,6 +184,44 @@ def loop_matrices(tab: Tables, d: np.ndarray, h: np.ndarray, wvals: np.ndarray) 
         _grouped_plant(tab, d, h, wvals, used, F, g)
     _controller_rows(tab, d, h, F)
     return F, g
+
+
+def held_maps(tab: Tables, d: np.ndarray, d0: np.ndarray, h: np.ndarray,
+              wvals: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    r"""Maps of pieces of a period cut by jumps, with the controller's output held.
+
+    A piece of length :math:`h` in dynamics id :math:`d` (the plant's true mode and
+    :math:`\Delta` now) inside a period whose sample was taken in id :math:`d_0` (the
+    entry :math:`e_0`, measurement :math:`M_0` and held :math:`u_0 = K_{d_0} z_0`,
+    :math:`w_0`, :math:`v_0 = M_0 x_0` of the sample state :math:`z_0`) moves
+    :math:`z = (x, x_c)` by
+
+    .. math::
+
+        z^+ = F_a z + F_b z_0 + g, \qquad
+        F_a = \begin{bmatrix} \Phi & 0 \\ 0 & \Phi_{c,e_0} \end{bmatrix}, \quad
+        F_b = \begin{bmatrix} \Gamma B_d K_{d_0} \\ [\Gamma_{c,e_0} M_0\ \ 0]
+        \end{bmatrix}, \quad g = \begin{bmatrix} \Gamma D_d w_0 \\ 0 \end{bmatrix},
+
+    with :math:`\Phi, \Gamma` of the perturbed :math:`A` of id :math:`d` at :math:`h`
+    and :math:`\Phi_c, \Gamma_c` of entry :math:`e_0` at :math:`h` (their composition over
+    the pieces is the controller's update over the whole period: :math:`v_0` is held).
+    For :math:`d = d_0`, :math:`F_a + F_b` is the :func:`loop_matrices` map.
+    Returns ``(Fa, Fb, g)``: ``(N, nz, nz)``, ``(N, nz, nz)``, ``(N, nz)``."""
+    n, nz = tab.n, tab.nz
+    N = d.size
+    Phi, Gam = phi_gamma(tab.A, h, tab.d_a[d])
+    Fa = np.zeros((N, nz, nz))
+    Fb = np.zeros((N, nz, nz))
+    g = np.zeros((N, nz))
+    Fa[:, :n, :n] = Phi
+    Fb[:, :n] = Gam @ tab.Bd[d] @ tab.K[d0]
+    g[:, :n] = np.einsum("pij,pj->pi", Gam, np.einsum("pij,pj->pi", tab.Dm[d], wvals))
+    if nz > n:
+        Phic, Gamc = controller_zoh(tab.controller, tab.d_entry[d0], h)
+        Fa[:, n:, n:] = Phic
+        Fb[:, n:, :n] = Gamc @ tab.M[tab.d_true[d0]]
+    return Fa, Fb, g
 
 
 def full_maps(tab: Tables, step: float) -> tuple[np.ndarray, np.ndarray]:

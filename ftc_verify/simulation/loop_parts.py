@@ -10,9 +10,11 @@ controller between them; :meth:`~ftc_verify.simulation.supervisor.Supervisor.run
 the grid with them:
 
 * :class:`PathInputs` writes into the FMU: the true fault mode and the ``Delta`` segment
-  at the plan's events, and ``u``, ``w(t_k)`` at every grid point;
-* :class:`PathController` chooses the controller entry of the modes, computes
-  ``u_k = Cc[e] xc_k + Dc[e] v_k`` and advances ``xc`` exactly over a step;
+  at the plan's events, and ``u``, ``w(t_k)`` at every control sample (the FMU holds
+  them across the jumps inside a period);
+* :class:`PathController` chooses the controller entry of the modes at a sample, computes
+  ``u_k = Cc[e] xc_k + Dc[e] v_k`` there (held until the next sample) and advances ``xc``
+  exactly over a step with ``v_k`` held;
 * :class:`PathRecorder` reads the FMU's values at every grid point (before ``u, w`` are
   written and, with feedthrough, after) and keeps the rows of the record.
 """
@@ -86,6 +88,7 @@ class PathPlan:
     seg: list[int]
     full: list[bool]
     delta_c: list[Any] | None
+    sample: list[bool]  # control samples (:func:`~ftc_verify.simulation.paths.sample_points`)
 
 
 def record_from_rows(plan: PathPlan, law: LoopLaw, n: int, XR: np.ndarray, U: np.ndarray, Y: np.ndarray | None,
@@ -199,29 +202,38 @@ class PathController:
         self._times, self.external = plan.t.tolist(), law.external
         if self.external is not None:
             self.external.reset()  # xc = 0 at the start of every path
+        self._v, self._held = np.zeros(law.controller.n_v), np.zeros(u.size)
         self.select(entry)
 
     def select(self, entry: int) -> None:
         """Use the controller entry ``entry`` from now on."""
         self.entry, self._gain = entry, self.law.Dc[entry]
 
-    def output(self, row: np.ndarray) -> np.ndarray:
-        """``u_k`` from the row read at ``t_k`` (:meth:`PathRecorder.sample_before`), written into ``u``."""
+    def output(self, row: np.ndarray, sample: bool = True) -> np.ndarray:
+        """At a sample: ``u_k`` from the row read at ``t_k``
+        (:meth:`PathRecorder.sample_before`), written into ``u``, and ``v_k`` kept; at a
+        grid point inside a period (a jump): the held ``u`` of the last sample (a copy;
+        nothing is written)."""
+        if not sample:
+            return self._held
+        self._v = row[self.v].copy()
         if self.external is not None:  # the exported FMU: v and the FDI mode (1-based) in, u out
-            self.u[:] = self.external.output(self.entry + 1, row[self.v])
-            return self.u
-        np.dot(self._gain, row[self.v], out=self.u)
-        if self.dynamic:
-            self.u += np.dot(self.law.Cc[self.entry], self.state)
+            self.u[:] = self.external.output(self.entry + 1, self._v)
+        else:
+            np.dot(self._gain, self._v, out=self.u)
+            if self.dynamic:
+                self.u += np.dot(self.law.Cc[self.entry], self.state)
+        self._held = self.u.copy()
         return self.u
 
     def advance(self, k: int, row: np.ndarray) -> np.ndarray:
-        """``xc_{k+1} = Phi_c xc_k + Gamma_c v_k`` over the interval ``k`` (``v_k`` held)."""
+        """``xc_{k+1} = Phi_c xc_k + Gamma_c v`` over the interval ``k``, ``v`` (and the
+        entry) of the last sample held."""
         if self.external is not None:  # doStep over the interval (v, FDI mode held), xc read back
             self.state = self.external.step(self._times[k], self._steps[k])
             return self.state
         phi, gamma = self.law.update(self.entry, self._full[k], self._steps[k])
-        self.state = np.dot(phi, self.state) + np.dot(gamma, row[self.v])
+        self.state = np.dot(phi, self.state) + np.dot(gamma, self._v)
         return self.state
 
 

@@ -18,8 +18,10 @@ paths they integrate exactly the same sampled-data loop:
   (:func:`sample_paths`), for its chain and its ``Delta`` draws: a path is the same
   whatever else is drawn or simulated with it, serially or on a cluster;
 * the communication grid is the union of the control instants ``k h`` and the jump
-  times; on each interval ``[t_k, t_{k+1})`` the joint mode is constant and the loop holds
-  ``u = K[l] x(t_k)``, ``w(t_k)`` and ``Delta(t_k)`` (sample-and-hold, zero-order hold).
+  times; on each interval ``[t_k, t_{k+1})`` the joint mode and ``Delta`` are constant;
+  the controller reads ``x`` (``y_m``) and the FDI report only at the samples
+  (:func:`sample_points`) and holds ``u`` (and the disturbance value) until the next
+  one, across the jumps inside the period (sample-and-hold, zero-order hold).
 
 Randomness only through ``numpy.random.SeedSequence`` streams and the generators made
 from them.
@@ -51,6 +53,7 @@ __all__ = [
     "sample_path_range",
     "PathSpec",
     "communication_grid",
+    "sample_points",
     "Disturbance",
     "disturbance",
     "DISTURBANCES",
@@ -407,6 +410,35 @@ def communication_grid(path: ChainPath, step: float) -> tuple[np.ndarray, np.nda
     t = np.union1d(regular, jumps)
     k = np.searchsorted(path.times, t[:-1], side="right") - 1
     return t, path.true[k], path.fdi[k]
+
+
+def sample_points(path: ChainPath, step: float, t: np.ndarray) -> np.ndarray:
+    """Which points of the grid ``t`` (:func:`communication_grid` of ``path``) are control
+    samples: where the controller reads ``x`` (or ``y_m``) and the FDI report and computes a
+    new held ``u`` (and takes ``w``). Boolean, ``(N+1,)``.
+
+    The samples are the multiples ``k step`` (with ``t_0 = 0``) and the last point ``t_N``;
+    a multiple replaced by a jump within
+    :func:`~ftc_verify.simulation.spec.grid_snap_tolerance` (the first such jump) is a
+    sample at that jump time. Every other jump time is a grid point *inside* a period: the
+    plant's mode (and ``Delta``) changes there, the controller's output, entry and the
+    disturbance value it holds do not -- the purely periodic loop of
+    :mod:`ftc_verify.analysis.moments.sampled`.
+    """
+    count = math.floor(path.horizon / step + 1e-9)
+    regular = np.arange(count + 1) * step
+    sample = np.isin(t, regular)
+    sample[0] = sample[-1] = True
+    jumps = path.times[1:]
+    inner = regular[1:-1] if regular[-1] >= path.horizon * (1 - 1e-12) else regular[1:]
+    if jumps.size and inner.size:
+        tol = grid_snap_tolerance(step)
+        first = np.searchsorted(jumps, inner - tol, side="left")
+        ok = first < jumps.size
+        cand = jumps[np.minimum(first, jumps.size - 1)]
+        ok &= np.abs(cand - inner) <= tol
+        sample |= np.isin(t, cand[ok])
+    return sample
 
 
 Disturbance = Callable[[np.ndarray], np.ndarray]

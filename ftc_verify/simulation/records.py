@@ -2,10 +2,13 @@
 
 A :class:`PathRecord` holds one simulated path on its communication grid
 (:func:`ftc_verify.simulation.paths.communication_grid`): ``t`` (N+1 points), the joint mode on each
-interval, and ``x, u, w, y`` sampled at the grid points (``u`` and ``w`` are the values
-held on the interval that starts there), plus the controller state ``xc`` (``(N+1, n_c)``,
-zero columns for a static controller) and the measured output ``ym`` that the controller
-read (``(N+1, n_v)``: ``x`` itself for state feedback). Norms over the horizon use the trapezoidal
+interval, and ``x, u, w, y`` at the grid points (``u`` is the value held on the
+interval that starts there, computed at the last control sample,
+:func:`ftc_verify.simulation.paths.sample_points`; ``w`` is the disturbance's value at
+the point, the plant receiving the value of the last sample), plus the controller state
+``xc`` (``(N+1, n_c)``, zero columns for a static controller) and the measured output
+``ym`` at the point (``(N+1, n_v)``: ``x`` itself for state feedback; the controller
+reads it at the samples). Norms over the horizon use the trapezoidal
 rule on the grid (error O(h^2) for smooth signals; the same rule on both backends, so
 they compare exactly).
 

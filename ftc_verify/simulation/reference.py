@@ -5,39 +5,49 @@ Sampled-data loop (shared with the FMU backend, see :mod:`ftc_verify.simulation.
 On a path of the joint (true, FDI) chain the communication grid
 :func:`~ftc_verify.simulation.paths.communication_grid` gives ``t_0 < t_1 < ... < t_N``
 (the multiples of ``step`` and the jump times) and the joint mode ``(i, j)`` on each
-interval ``[t_k, t_{k+1})``. On that interval the plant of the true mode ``i`` (paper
-eq. (1) with the uncertainty of eq. (13)) evolves with the control and the disturbance
-held at their values at ``t_k``, and the controller entry :math:`e` (``controller.index(i,
-j, m)``: the FDI mode, or ``i m + j`` for full-information gains) integrates the held
-measurement exactly:
+interval ``[t_k, t_{k+1})``. The controller is purely periodic: at the *samples*
+(:func:`~ftc_verify.simulation.paths.sample_points`: the multiples of ``step``, a
+multiple merged into a jump at that jump, and ``t_N``) it reads the measurement and the
+FDI report, takes the disturbance value and computes its output; all three are held until
+the next sample, across the jumps inside the period. With :math:`s(k)` the last sample at
+or before :math:`t_k` and the controller entry :math:`e` (``controller.index(i, j, m)``
+of the modes at :math:`t_{s(k)}`: the FDI mode, or ``i m + j`` for full-information
+gains):
 
 .. math::
 
-    v_k = M_i x_k, \qquad u_k = C_{c,e}\, x_{c,k} + D_{c,e}\, v_k, \qquad w_k = w(t_k),
+    v_s = M_{i_s} x_s, \qquad u_s = C_{c,e}\, x_{c,s} + D_{c,e}\, v_s, \qquad w_s = w(t_s),
 
     A = A_i + A1_i \Delta_1 A2_i, \qquad B = B_i + B1_i \Delta_2 B2_i,
     \qquad h = t_{k+1} - t_k,
 
-    x_{k+1} = \Phi(h) x_k + \Gamma(h) (B u_k + D_i w_k), \qquad
-    x_{c,k+1} = \Phi_c(h)\, x_{c,k} + \Gamma_c(h)\, v_k,
+    x_{k+1} = \Phi(h) x_k + \Gamma(h) (B u_{s(k)} + D_i w_{s(k)}), \qquad
+    x_{c,k+1} = \Phi_c(h)\, x_{c,k} + \Gamma_c(h)\, v_{s(k)},
 
     \Phi(h) = e^{A h}, \quad \Gamma(h) = \int_0^h e^{A s}\, ds, \quad
     \Phi_c(h) = e^{A_{c,e} h}, \quad \Gamma_c(h) = \int_0^h e^{A_{c,e} s}\, ds\, B_{c,e},
 
-with :math:`M_i` = ``controller.measurement(mode_i)`` (:math:`I` for state feedback,
-:math:`C_{y,i}` for output feedback) and :math:`(\Delta_1, \Delta_2)` of the chain
-segment containing ``t_k`` (:func:`~ftc_verify.simulation.delta.delta_segments`;
-``delta=None`` means zero). For static state feedback (:math:`n_c = 0`, :math:`M_i = I`)
-this is :math:`u_k = K_j x_k`. This is the exact zero-order-hold discretisation:
-:math:`\Phi, \Gamma B, \Gamma D` are the blocks of :math:`\exp\bigl(\begin{smallmatrix}
+with the plant's true mode :math:`i` and :math:`(\Delta_1, \Delta_2)` of the interval
+(of the chain segment containing ``t_k``,
+:func:`~ftc_verify.simulation.delta.delta_segments`; ``delta=None`` means zero: they
+change at the jumps, they are the plant), :math:`M_i` =
+``controller.measurement(mode_i)`` (:math:`I` for state feedback, :math:`C_{y,i}` for
+output feedback). The
+controller's pieces compose to its exact update over the whole period
+(:math:`v_s` and :math:`e` held). This is the loop whose second moments
+:mod:`ftc_verify.analysis.moments.sampled` maps over one period and whose exact energy
+:mod:`ftc_verify.analysis.moments.sampled_energy` computes. For static state feedback
+(:math:`n_c = 0`, :math:`M_i = I`) :math:`u_s = K_{j_s} x_s`. The blocks
+:math:`\Phi, \Gamma B, \Gamma D` are those of :math:`\exp\bigl(\begin{smallmatrix}
 A & B & D \\ 0 & 0 & 0 \\ 0 & 0 & 0 \end{smallmatrix}\bigr) h`
 (:func:`~ftc_verify.simulation.discretise.zoh_matrices`), :math:`\Phi_c, \Gamma_c` of
-:meth:`Controller.discretise`. The output is :math:`y_k = C_i x_k` with ``C`` of the
-*true* mode on the interval that starts at ``t_k`` (at ``t_N``: the last interval's
-mode); ``u``, ``v`` and ``w`` are recorded as the values held on the interval that starts
-there (at ``t_N``: :math:`v_N = M_{i} x_N`, :math:`u_N = C_{c,e} x_{c,N} + D_{c,e} v_N`
-with the last interval's modes, and ``w(t_N)``). Every path starts at ``x0`` (default 0)
-and :math:`x_c(0) = 0`.
+:meth:`Controller.discretise`. Recorded at every grid point: ``x``, the output
+:math:`y_k = C_i x_k` with ``C`` of the *true* mode on the interval that starts at
+``t_k`` (at ``t_N``: the last interval's mode), the held ``u``, the measurement
+:math:`M_i x_k` read there (``ym``), ``x_c`` and the disturbance's value :math:`w(t_k)`
+(for :math:`\|w\|_2`); at ``t_N`` (a sample) :math:`v_N = M_{i} x_N`,
+:math:`u_N = C_{c,e} x_{c,N} + D_{c,e} v_N` with the last interval's modes. Every path
+starts at ``x0`` (default 0) and :math:`x_c(0) = 0`.
 
 Full-length intervals ``[k h, (k+1) h]`` (both ends multiples of ``step``, no jump
 inside) use :math:`h = ` ``step`` exactly and a cached discretisation per
@@ -84,7 +94,7 @@ from .continuous import simulate_continuous
 from .delta import DeltaSchedule, delta_segments
 from .discretise import phi_gamma, zoh_matrices
 from .vectorised import energies_reference
-from .paths import ChainPath, communication_grid, disturbance as disturbance_fn
+from .paths import ChainPath, communication_grid, disturbance as disturbance_fn, sample_points
 from .records import PathRecord, SimulationResult, diverged
 from .spec import SimulationSpec, spec_from
 
@@ -135,6 +145,7 @@ def _simulate_path(system: FTCSystem, controller: Controller, path: ChainPath, s
     full_info, static = controller.full_information(m), controller.static
     Cc, Dc = controller.Cc, controller.Dc
     t, true, fdi = communication_grid(path, step)
+    sample = sample_points(path, step, t)
     N = t.size - 1
     W = wfun(t)
     seg = np.searchsorted(path.times, t[:-1], side="right") - 1
@@ -143,20 +154,23 @@ def _simulate_path(system: FTCSystem, controller: Controller, path: ChainPath, s
     X, U, Y = np.empty((N + 1, n)), np.empty((N + 1, nu)), np.empty((N + 1, ny))
     XC, V = np.empty((N + 1, nc)), np.empty((N + 1, nv))
     x, xc = x0.copy(), np.zeros(nc)
+    e, v, u, w = 0, np.zeros(nv), np.zeros(nu), W[0]
     for k in range(N):
         if k and diverged(x, xc):
             return PathRecord(path, t, true, fdi, X, U, W, Y, XC, V).truncated(k)
         i, j, g = int(true[k]), int(fdi[k]), int(seg[k])
-        e = i * m + j if full_info else j
-        v = x if reads_state else Ms[i] @ x
-        u = Dc[e] @ v if static else Cc[e] @ xc + Dc[e] @ v
-        X[k], U[k], Y[k], XC[k], V[k] = x, u, system.modes[i].C @ x, xc, v
+        if sample[k]:  # the controller reads x (y_m) and the FDI report, and holds u and w
+            e = i * m + j if full_info else j
+            v = x if reads_state else Ms[i] @ x
+            u = Dc[e] @ v if static else Cc[e] @ xc + Dc[e] @ v
+            w = W[k]
+        X[k], U[k], Y[k], XC[k], V[k] = x, u, system.modes[i].C @ x, xc, x if reads_state else Ms[i] @ x
         h = step if full[k] else t[k + 1] - t[k]
         Phi, GB, GD = _plant_zoh(system, i, segs[g], keys[g], h, bool(full[k]), cache)
         if not static:
             Phic, Gamc = _controller_zoh(controller, e, h, bool(full[k]), cache)
             xc = Phic @ xc + Gamc @ v
-        x = Phi @ x + GB @ u + GD @ W[k]
+        x = Phi @ x + GB @ u + GD @ w
     if diverged(x, xc):
         return PathRecord(path, t, true, fdi, X, U, W, Y, XC, V).truncated(N)
     i, j = int(true[-1]), int(fdi[-1])

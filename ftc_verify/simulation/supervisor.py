@@ -4,19 +4,23 @@ The FMU is the plant; the supervisor is the rest of the loop of the reference pa
 :class:`~ftc_verify.controllers.Controller` (static state feedback ``u = K[l] x``, or a
 static or dynamic controller on the measured output ``y_m``). On each path of the joint
 (fault, FDI) chain it walks the grid :func:`~ftc_verify.simulation.paths.communication_grid`
-``t_0 < ... < t_N`` (multiples of ``step`` and the jump times). On ``[t_k, t_{k+1})`` with
-joint mode ``(i, j)`` and entry ``e = controller.index(i, j, m)`` it
+``t_0 < ... < t_N`` (multiples of ``step`` and the jump times). The controller is
+purely periodic: it reads and writes only at the samples
+(:func:`~ftc_verify.simulation.paths.sample_points`; the jump times inside a period are
+grid points for the plant only). On ``[t_k, t_{k+1})`` with joint mode ``(i, j)`` it
 
 1. writes the fault mode ``i`` (when it changed) and ``Delta1, Delta2`` of the chain
    segment (:func:`~ftc_verify.simulation.delta.delta_segments`, when it changed) into the
    FMU, before reading anything at ``t_k``;
-2. reads ``x_k`` and the controller input ``v_k``: ``x_k`` for state feedback, else the
-   FMU's measured outputs ``y_m(t_k) = C_{y,i} x_k`` (the map's ``measured`` role);
-3. writes ``u_k = Cc[e] xc_k + Dc[e] v_k`` and ``w(t_k)``, then reads ``y_k``;
+2. reads ``x_k`` and, at a sample, takes the controller input ``v_k``: ``x_k`` for state
+   feedback, else the FMU's measured outputs ``y_m(t_k) = C_{y,i} x_k`` (the map's
+   ``measured`` role), and the entry ``e = controller.index(i, j, m)``;
+3. at a sample writes ``u_k = Cc[e] xc_k + Dc[e] v_k`` and ``w(t_k)`` (the FMU holds them
+   until the next sample), then reads ``y_k``;
 4. calls ``fmi2DoStep(t_k, t_{k+1} - t_k)`` (inputs, ``Delta`` and mode held) and advances
-   ``xc_{k+1} = Phi_c xc_k + Gamma_c v_k`` exactly for ``v_k`` held
-   (:meth:`~ftc_verify.controllers.Controller.discretise`, cached per entry for full steps
-   ``[k step, (k+1) step]``), ``xc_0 = 0``.
+   ``xc_{k+1} = Phi_c xc_k + Gamma_c v`` exactly with ``v`` and ``e`` of the last sample
+   held (:meth:`~ftc_verify.controllers.Controller.discretise`, cached per entry for full
+   steps ``[k step, (k+1) step]``), ``xc_0 = 0``.
 
 At ``t_N`` it records ``x_N, y_N, xc_N, v_N``, ``u_N = Cc[e] xc_N + Dc[e] v_N`` with the last
 interval's modes and ``w(t_N)``; every :class:`~ftc_verify.simulation.records.PathRecord`
@@ -56,7 +60,7 @@ from .delta import DeltaSchedule, delta_segments, delta_shapes
 from ..plants.fault_map import FaultInjectionMap
 from ..plants.controller_session import ControllerFMU, ExportedController, check_period
 from ..plants.fmu_session import FMICallError, FMUSession
-from .paths import ChainPath, communication_grid, disturbance as disturbance_fn, snap_to_grid
+from .paths import ChainPath, communication_grid, disturbance as disturbance_fn, sample_points, snap_to_grid
 from .loop_parts import LoopLaw, Offsets, PathController, PathInputs, PathPlan, PathRecorder, full_intervals
 from .records import PathRecord, SimulationResult, diverged
 from .spec import SimulationSpec, spec_from
@@ -380,7 +384,8 @@ class Supervisor:
             change[1:] = (true[1:] != true[:-1]) | (fdi[1:] != fdi[:-1]) | (seg[1:] != seg[:-1])
         events = np.flatnonzero(change).tolist()
         events.append(-1)
-        return PathPlan(path, t, true, fdi, wfun(t), events, seg.tolist(), full_intervals(t, step).tolist(), delta_c)
+        return PathPlan(path, t, true, fdi, wfun(t), events, seg.tolist(), full_intervals(t, step).tolist(), delta_c,
+                        sample_points(path, step, t).tolist())
 
     def _run_path(self, index: int, plan: PathPlan, law: LoopLaw, x0: Any, off: Offsets | None,
                   monitor: np.ndarray | None) -> PathRecord:
@@ -392,21 +397,25 @@ class Supervisor:
         inputs.start(x0)
         controller = PathController(law, plan, inputs.u, inputs.entry, s.n)
         recorder = PathRecorder(s, plan, law, off)
-        times, steps = plan.t.tolist(), np.diff(plan.t).tolist()
+        times, steps, samples = plan.t.tolist(), np.diff(plan.t).tolist(), plan.sample
         last, n = len(times) - 1, s.n
         k, stage, stop = 0, "", 0
         try:
             for k in range(last + 1):
                 if k == inputs.next_event:
-                    controller.select(inputs.switch(k))
+                    inputs.switch(k)
+                sample = samples[k]
+                if sample:
+                    controller.select(inputs.entry)
                 stage = "x"
                 row = recorder.sample_before(k)
                 if k and diverged(row[:n], controller.state):
                     stop = k
                     break
-                recorder.U[k] = controller.output(row)
+                recorder.U[k] = controller.output(row, sample)
                 stage = "uw"
-                inputs.write(k)
+                if sample:
+                    inputs.write(k)
                 if recorder.feedthrough:
                     stage = "y"
                     recorder.sample_after(k)

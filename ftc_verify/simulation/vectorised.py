@@ -32,9 +32,12 @@ All paths advance together over the regular points ``k step``
   rows (next state and present output at once); with many ids (``Delta`` kind
   ``random``) a gathered batched product;
 * an interval cut by jumps (or a shorter last interval) is the composition of the maps of
-  its pieces, whose exponentials are made in batches per chunk of steps (the Taylor series
-  of :func:`~ftc_verify.simulation.discretise.phi_gamma`; the full-step tables come from
-  it too, so this path never calls :func:`scipy.linalg.expm`, agreeing with it to
+  its pieces, the plant switching at the jumps while the controller's output, entry and
+  input and the disturbance stay those of the interval's start, the sample
+  (``held_maps`` of ``ftc_verify.simulation._vectorised_maps``:
+  :math:`z^+ = F_a z + F_b z_0 + g`); their exponentials are made in batches per chunk of
+  steps (:func:`~ftc_verify.simulation.discretise.phi_gamma`; the full-step tables come
+  from it too, so this path never calls :func:`scipy.linalg.expm`, agreeing with it to
   rounding); the states at the jump points, needed for their trapezoid terms, are
   recomputed from the stored state at the interval's start;
 * the trapezoid terms of the grid points whose weight or mode differs from the regular
@@ -62,11 +65,12 @@ from ._common import (
     path_arrays,
     path_list,
 )
-from ._vectorised_maps import Tables, full_maps, loop_matrices, tables
+from ._vectorised_maps import Tables, full_maps, held_maps, tables
 from .delta import DeltaSchedule, delta_segments, delta_shapes
 from .paths import ChainPath, disturbance as disturbance_fn
 from .records import DIVERGENCE_BOUND
 from .spec import SimulationSpec, spec_from
+from ..errors import ValidationError
 
 __all__ = ["energies_reference", "output_peaks_reference"]
 
@@ -87,6 +91,7 @@ def energies_reference(
     delta: DeltaSchedule | str | None = None,
     x0: ArrayLike | None = None,
     rng: np.random.Generator | None = None,
+    quadrature: str = "grid",
 ) -> tuple[np.ndarray, np.ndarray]:
     r"""Per path :math:`\int_0^T |y|^2 dt` and :math:`\int_0^T |w|^2 dt` of the sampled loop.
 
@@ -100,6 +105,12 @@ def energies_reference(
     paths may have different horizons. A regular point within
     :func:`~ftc_verify.simulation.spec.grid_snap_tolerance` of a jump is replaced by the
     jump, as in :func:`~ftc_verify.simulation.paths.communication_grid`.
+    ``quadrature="samples"``: ``Ey`` is the trapezoidal sum over the control samples
+    ``k step`` only (:func:`~ftc_verify.simulation.paths.sample_points`; the horizon is
+    the last point), :math:`\sum_k \omega_k |y(t_k)|^2` with the regular weights -- the
+    quantity whose expectation
+    :func:`~ftc_verify.analysis.moments.sampled_energy.sample_trapezoid` gives exactly;
+    ``Ew`` is unchanged.
 
     Returns
     -------
@@ -108,8 +119,10 @@ def energies_reference(
         ball of radius ``DIVERGENCE_BOUND`` (or was not finite) at a grid point, the test
         ``simulate_reference`` stops a path on.
     """
+    if quadrature not in ("grid", "samples"):
+        raise ValidationError(f"quadrature: {quadrature!r} is not 'grid' or 'samples'")
     spec = spec_from(spec, {"step": step, "disturbance": disturbance, "delta": delta, "x0": x0})
-    Ey, Ew, _, _ = _engine(system, controller, paths, spec, rng, peaks=False)
+    Ey, Ew, _, _ = _engine(system, controller, paths, spec, rng, peaks=False, samples_only=quadrature == "samples")
     return Ey, Ew
 
 
@@ -142,7 +155,7 @@ def output_peaks_reference(
 
 
 def _engine(system: FTCSystem, controller: Controller, paths: ChainPath | Sequence[ChainPath],
-            spec: SimulationSpec, rng: np.random.Generator | None, peaks: bool
+            spec: SimulationSpec, rng: np.random.Generator | None, peaks: bool, samples_only: bool = False
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``(Ey, Ew, peak_sq, peak)`` of :func:`energies_reference` and
     :func:`output_peaks_reference` (the peaks are tracked only with ``peaks``)."""
@@ -169,7 +182,7 @@ def _engine(system: FTCSystem, controller: Controller, paths: ChainPath | Sequen
             else:
                 sub_pa, sub_seg_d = pa.select(sel), seg_d[pa.segments(sel)]
             Ey[sel], Ew[sel], ps, pk = _same_horizon(system, tab, sub_pa, sub_seg_d, float(hz), step, wfun, z0,
-                                                     peaks)
+                                                     samples_only, peaks)
             if ps is not None and pk is not None:
                 peak_sq[sel], peak[:, sel] = ps, pk
     return Ey, Ew, peak_sq, peak
@@ -207,7 +220,7 @@ def _dynamics_ids(system: FTCSystem, controller: Controller, plist: list[ChainPa
 
 def _same_horizon(system: FTCSystem, tab: Tables, pa: PathArrays, seg_d: np.ndarray, horizon: float,
                   step: float, wfun: Callable[[np.ndarray], np.ndarray],
-                  z0: np.ndarray, peaks: bool = False
+                  z0: np.ndarray, samples_only: bool = False, peaks: bool = False
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
     """The engine for paths sharing one horizon (vocabulary of
     ``ftc_verify.simulation._vectorised_grid``); returns ``(Ey, Ew, peak_sq, peak)``
@@ -219,6 +232,7 @@ def _same_horizon(system: FTCSystem, tab: Tables, pa: PathArrays, seg_d: np.ndar
     pc = eg.pieces(jmp, it, wfun, Ew)
     pt = eg.points(jmp, it, pc, grid, wfun, Ew)
     stepper = _Stepper(tab, pa, seg_d, grid, jmp, it, pc, pt, step, z0)
+    stepper.samples_only = samples_only
     stepper.peaks = _Peaks(tab.Cz.shape[1], jmp.P) if peaks else None
     Ey = stepper.run()
     gone = ~(stepper.zmax <= DIVERGENCE_BOUND ** 2)
@@ -251,10 +265,13 @@ class _Peaks:
 
 @dataclass(frozen=True)
 class _ChunkMaps:
-    """Maps of the pieces of a chunk's special intervals (pieces ``s0..``) and their
-    compositions over each interval (``z(start) -> Ftot z + gtot``)."""
+    """Maps of the pieces of a chunk's special intervals (pieces ``s0..``,
+    ``z -> Fa z + Fb z_0 + g`` with ``z_0`` the state at the interval's sample:
+    :func:`~ftc_verify.simulation._vectorised_maps.held_maps`) and their compositions over
+    each interval (``z(start) -> Ftot z + gtot``)."""
 
-    Fs: np.ndarray
+    Fa: np.ndarray
+    Fb: np.ndarray
     gs: np.ndarray
     Ftot: np.ndarray
     gtot: np.ndarray
@@ -292,6 +309,7 @@ class _Stepper:
         self.Ba[self.nw:self.nw + nz] = z0[:, None]
         self.Bb = np.empty_like(self.Ba)
         self.Ey = np.zeros(P)
+        self.samples_only = False  # Ey over the control samples only (energies_reference's quadrature)
         self.peaks: _Peaks | None = None
         self.zmax = np.zeros(P)  # largest |z|^2 at the regular points (divergence test)
         self.dtab = np.empty((self.L + 1, P), dtype=np.int64)
@@ -363,16 +381,17 @@ class _Stepper:
         it, pc = self.it, self.pc
         pc.d[pc.off[i0:i1]] = np.where(it.rep[i0:i1], it.repd[i0:i1], self.dtab[it.I[i0:i1] - c0, it.p[i0:i1]])
         s0, s1 = int(pc.off[i0]), int(pc.last[i1 - 1] + 1)
-        Fs, gs = loop_matrices(self.tab, pc.d[s0:s1], pc.dt[s0:s1], pc.w[s0:s1])
+        d0 = pc.d[pc.off[pc.item[s0:s1]]]  # the id at each piece's sample
+        Fa, Fb, gs = held_maps(self.tab, pc.d[s0:s1], d0, pc.dt[s0:s1], pc.w[s0:s1])
         cnt = pc.count[i0:i1]
-        Ftot = Fs[pc.off[i0:i1] - s0]
+        Ftot = Fa[pc.off[i0:i1] - s0] + Fb[pc.off[i0:i1] - s0]
         gtot = gs[pc.off[i0:i1] - s0]
         for r in range(1, int(cnt.max())):
             a = np.flatnonzero(cnt > r)
             si = pc.off[i0 + a] + r - s0
-            Ftot[a] = Fs[si] @ Ftot[a]
-            gtot[a] = np.einsum("pij,pj->pi", Fs[si], gtot[a]) + gs[si]
-        return _ChunkMaps(Fs, gs, Ftot, gtot, cnt, s0)
+            Ftot[a] = Fa[si] @ Ftot[a] + Fb[si]
+            gtot[a] = np.einsum("pij,pj->pi", Fa[si], gtot[a]) + gs[si]
+        return _ChunkMaps(Fa, Fb, gs, Ftot, gtot, cnt, s0)
 
     def _steps(self, c0: int, c1: int, i0: int, maps: _ChunkMaps | None) -> None:
         """The regular steps ``c0 .. c1-1``: ``Ey`` terms of the standard points, states
@@ -438,17 +457,21 @@ class _Stepper:
     def _interior(self, i0: int, i1: int, maps: _ChunkMaps) -> None:
         """``Ey`` terms of the interior jump points of the special intervals ``i0:i1``,
         from the stored state at each interval's start."""
-        Fs, gs, cnt, s0 = maps.Fs, maps.gs, maps.cnt, maps.s0
+        Fa, Fb, gs, cnt, s0 = maps.Fa, maps.Fb, maps.gs, maps.cnt, maps.s0
         pc, Cz, d_true = self.pc, self.tab.Cz, self.tab.d_true
-        xi = self.it_x[i0:i1].copy()
+        z0 = self.it_x[i0:i1]
+        xi = z0.copy()
         for r in range(1, int(cnt.max())):
             a = np.flatnonzero(cnt > r)
             si = pc.off[i0 + a] + r  # the piece starting at the point
-            xi[a] = np.einsum("pij,pj->pi", Fs[si - 1 - s0], xi[a]) + gs[si - 1 - s0]
+            q = si - 1 - s0
+            xi[a] = np.einsum("pij,pj->pi", Fa[q], xi[a]) + np.einsum("pij,pj->pi", Fb[q], z0[a]) + gs[q]
             np.maximum.at(self.zmax, self.it.p[i0 + a], np.einsum("pi,pi->p", xi[a], xi[a]))  # jump points
             yi = np.einsum("pij,pj->pi", Cz[d_true[pc.d[si]]], xi[a])
             if self.peaks is not None:
                 self.peaks.take(yi.T, self.it.p[i0 + a])
+            if self.samples_only:  # interior jump points are no samples
+                continue
             qi = np.square(yi).sum(axis=1)
             self.Ey += np.bincount(self.it.p[i0 + a], pc.wt[si] * qi, minlength=self.P)
 
@@ -470,4 +493,5 @@ class _Stepper:
         if self.peaks is not None and ys.size:
             self.peaks.take(ys.T, pt.p)
         q = np.square(ys).sum(axis=1)
-        self.Ey += np.bincount(pt.p, pt.weight * q, minlength=self.P)
+        weight = self.grid.wt_std[pt.k] if self.samples_only else pt.weight
+        self.Ey += np.bincount(pt.p, weight * q, minlength=self.P)

@@ -16,11 +16,13 @@ attempts.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 from ..analysis.moments.sampled import SampledResult, sampled_analysis
+from ..analysis.solvers import interruptible
 from ..controllers.controller import Controller
 from ..model.system import FTCSystem
 
@@ -72,7 +74,8 @@ def synthesize_at_period(system: FTCSystem, period: float, design: Callable[[flo
         if not res.certified:
             continue
         controller = controller_of(res)
-        sampled = sampled_analysis(system, controller, period)
+        sampled = interruptible(functools.partial(sampled_analysis, system, controller, period),
+                                "the sampled-data analysis")
         row["sampled_verdict"], row["h_max"] = sampled.verdict, sampled.h_max
         if sampled.stable:
             return PeriodDesign(res, controller.with_period(period), sampled, tuple(attempts))

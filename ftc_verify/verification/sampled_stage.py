@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..analysis.moments.sampled import SampledLoop, SampledResult, sampled_analysis
+from ..analysis.solvers import interruptible
 from ..controllers.controller import Controller
 from ..errors import FTCError
 from ..model.system import FTCSystem
@@ -22,11 +23,16 @@ from ..model.system import FTCSystem
 if TYPE_CHECKING:
     from .verify import Check
 
-__all__ = ["SAMPLED_LIMIT", "sampled_stage", "sampled_energy_stage", "sampled_stages"]
+__all__ = ["SAMPLED_LIMIT", "MC_ALPHA", "MC_PERIODS", "sampled_stage", "sampled_energy_stage", "sampled_mc_stage",
+           "sampled_stages"]
 
 #: Largest second-moment generator (rows, joint states times ``d (d + 1) / 2`` with
 #: ``d = n + n_u + n_c``) the stage analyses; its rigorous exponential is the cost.
 SAMPLED_LIMIT = 400
+#: Two-sided level of the interval of :func:`sampled_mc_stage` (its false-failure probability).
+MC_ALPHA = 1e-6
+#: Periods simulated by :func:`sampled_mc_stage` (at most; the verify horizon when shorter).
+MC_PERIODS = 400
 
 
 def sampled_stage(system: FTCSystem, controller: Controller, step: float) -> tuple[SampledResult | None, Check]:
@@ -43,7 +49,8 @@ def sampled_stage(system: FTCSystem, controller: Controller, step: float) -> tup
     if rows > SAMPLED_LIMIT:
         return None, Check(name, True, f"NOT analysed: its moment generator has {rows} rows (limit {SAMPLED_LIMIT}); "
                                        "the certificates above are those of the continuous-time loop")
-    res = sampled_analysis(system, controller, step, max_seconds=30.0)
+    res = interruptible(lambda: sampled_analysis(system, controller, step, max_seconds=30.0),
+                        "the sampled-data analysis")
     if res.h_max is None or res.h_max_unstable is None:
         bracket = "h_max not found: " + res.h_max_note
     else:
@@ -92,13 +99,60 @@ def sampled_energy_stage(system: FTCSystem, controller: Controller, step: float,
                       "infinite horizon, u and w held over each period")
 
 
+def sampled_mc_stage(system: FTCSystem, controller: Controller, step: float, horizon: float, n_paths: int,
+                     seed: int, sampled: SampledResult | None) -> tuple[dict[str, Any] | None, Check]:
+    r"""The simulated loop against the exact expectation of the sampled loop, two-sided.
+
+    ``n_paths`` paths of the numpy loop (:func:`ftc_verify.simulation.vectorised.energies_reference`,
+    the loop the FMU Monte Carlo runs, purely periodic at ``step``) of the nominal plant
+    (:math:`\Delta = 0`) at the rate box's midpoint, from :math:`x = 0` with the paper's
+    disturbance, over :math:`H = \min(\text{horizon}, \text{MC\_PERIODS}\cdot h)`; their
+    streams are children of ``SeedSequence([seed, 31])``. Per path the trapezoidal sum of
+    :math:`|y|^2` over its samples (``quadrature="samples"``);
+    its exact expectation is :func:`~ftc_verify.analysis.moments.sampled_energy.sample_trapezoid`
+    (the same quadrature, so no quadrature bias). The check passes when the exact value lies
+    in the Student-t interval :math:`\bar Y \pm t_{1-\alpha/2, n-1} s/\sqrt n`
+    (``alpha`` = :data:`MC_ALPHA`; by the central limit theorem a correct simulator fails it
+    with probability about ``alpha``), widened by ``1e-9`` relative for rounding. Not run
+    when the sampled loop was not analysed."""
+    import scipy.stats
+
+    from ..analysis.moments.sampled_energy import sample_trapezoid
+    from ..simulation.paths import sample_paths
+    from ..simulation.vectorised import energies_reference
+    from .verify import Check
+
+    name = f"Monte Carlo vs exact (sampled loop, h = {step:g})"
+    if sampled is None:
+        return None, Check(name, True, "not compared: the sampled loop was not analysed")
+    H = min(horizon, MC_PERIODS * step)
+    nominal = system.nominal()
+    rates = system.chain.midpoint()
+    paths = sample_paths(system.chain, H, n_paths, np.random.SeedSequence([seed, 31]), beta=rates)
+    Y, _ = energies_reference(nominal, controller, paths, step=step, disturbance="paper", quadrature="samples")
+    if not np.all(np.isfinite(Y)):
+        return None, Check(name, False, f"{int(np.sum(~np.isfinite(Y)))} simulated paths diverged: no mean")
+    exact = sample_trapezoid(nominal, controller, step, beta=rates, horizon=H)
+    n = Y.size
+    half = (float(scipy.stats.t.ppf(1 - MC_ALPHA / 2, n - 1)) * float(Y.std(ddof=1)) / np.sqrt(n) if n > 1 else np.inf)
+    half += 1e-9 * abs(exact)
+    mean = float(Y.mean())
+    found = {"paths": n, "horizon": H, "rates": rates.tolist(), "seed": [seed, 31], "mean": mean,
+             "interval": [mean - half, mean + half], "exact": exact, "alpha": MC_ALPHA}
+    return found, Check(name, abs(mean - exact) <= half,
+                        f"E sum_k w_k |y(t_k)|^2 over the samples: exact {exact:.6g}, Monte Carlo {mean:.6g} "
+                        f"+- {half:.3g} ({n} paths, nominal, rates at the box midpoint, horizon {H:g}, "
+                        f"two-sided, false failure {MC_ALPHA:g})")
+
+
 def sampled_stages(system: FTCSystem, controller: Controller, step: float, g2: float, checks: list[Check],
-                   seconds: dict[str, float]) -> dict[str, Any]:
+                   seconds: dict[str, float], mc: tuple[float, int, int] | None = None) -> dict[str, Any]:
     """Both stages of ``verify`` on the sampled loop (:func:`sampled_stage`, then
     :func:`sampled_energy_stage` at the rate vertices up to
     :data:`~ftc_verify.verification.verify.MAX_EXACT_VERTICES`): their checks appended
-    to ``checks``, their times to ``seconds`` (``sampled``, ``sampled_energy``); returns
-    the report's ``sampled`` and ``sampled_exact``."""
+    to ``checks``, their times to ``seconds`` (``sampled``, ``sampled_energy``); with
+    ``mc = (horizon, paths, seed)`` also :func:`sampled_mc_stage` (``sampled_mc``). Returns
+    the report's ``sampled``, ``sampled_exact`` (and ``sampled_mc``)."""
     from .verify import MAX_EXACT_VERTICES
 
     t = time.perf_counter()
@@ -109,4 +163,10 @@ def sampled_stages(system: FTCSystem, controller: Controller, step: float, g2: f
     exact, check = sampled_energy_stage(system, controller, step, g2, res, MAX_EXACT_VERTICES)
     checks.append(check)
     seconds["sampled_energy"] = time.perf_counter() - t
-    return {"sampled": res, "sampled_exact": tuple(exact)}
+    found: dict[str, Any] = {"sampled": res, "sampled_exact": tuple(exact)}
+    if mc is not None:
+        t = time.perf_counter()
+        found["sampled_mc"], check = sampled_mc_stage(system, controller, step, mc[0], mc[1], mc[2], res)
+        checks.append(check)
+        seconds["sampled_mc"] = time.perf_counter() - t
+    return found

@@ -13,7 +13,9 @@ all on the one closed loop :func:`~ftc_verify.analysis.closedloop.closed_loop` b
    then the **sampled loop** at ``step``, the loop the Monte Carlo runs
    (:mod:`ftc_verify.verification.sampled_stage`: mean-square stability proved over the
    rate box at the period, ``h_max``, and its exact expected energy with the input and
-   the disturbance held, :mod:`ftc_verify.analysis.moments.sampled_energy`);
+   the disturbance held, :mod:`ftc_verify.analysis.moments.sampled_energy`; the simulated
+   loop's mean against its exact expectation, two-sided,
+   :func:`~ftc_verify.verification.sampled_stage.sampled_mc_stage`);
 4. **gamma bracket**: the proved lower bound of the analysis
    (:mod:`ftc_verify.analysis.lower_bound`) does not exceed the certified gamma, and
    their ratio says how far from the truth the certificate can be;
@@ -101,6 +103,7 @@ class VerifyReport:
     plant_failure: PlantRunError | None = None  # the plant FMU crashed or returned fmi2Fatal
     sampled: Any = None  # SampledResult of the loop at the simulation step (verification.sampled_stage)
     sampled_exact: tuple[dict[str, Any], ...] = ()  # its exact energies (sampled_stage.sampled_energy_stage)
+    sampled_mc: dict[str, Any] | None = None  # simulated vs exact, two-sided (sampled_stage.sampled_mc_stage)
 
     @property
     def verdict(self) -> str:
@@ -144,6 +147,7 @@ class VerifyReport:
                 "detail": self.plant_failure.detail},
             "sampled": None if self.sampled is None else self.sampled.to_dict(),
             "sampled_exact": list(self.sampled_exact),
+            "sampled_mc": self.sampled_mc,
             "seed": self.seed,
             "options": self.options,
             "seconds": self.seconds,
@@ -442,7 +446,7 @@ def run_verify(
         return report(analysis=analysis, per_mode=per_mode)
     g2 = gamma_cert ** 2
     exact = timed("exact_energy", lambda: _exact_energies(system, loop, g2))
-    extra.update(sampled_stages(system, controller, float(spec.step), g2, checks, seconds))  # the loop that runs
+    extra.update(sampled_stages(system, controller, spec.step, g2, checks, seconds, (spec.horizon, spec.n_paths, seed)))
     timed("gamma_bracket", functools.partial(_bracket, analysis, gamma_cert))
     t = time.perf_counter()
     spec, options["delta"] = spec.resolve_delta(system, plant)

@@ -64,9 +64,11 @@ over periods and :func:`sampled_analysis`, which reports the verdict at the peri
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -74,12 +76,13 @@ import numpy as np
 import scipy.linalg
 
 from ...controllers.controller import Controller, check_period
+from ...limits import check_memory, dense_generator_estimate
 from ...model.chain import JointChain
 from ...model.system import FTCSystem, Matrix
 from ..closedloop import closed_loop
 from .stability import duplication_matrix, second_moment_matrix, vech_order
 
-__all__ = ["SampledLoop", "SampledResult", "one_period_map", "spectral_radius", "rate_points",
+__all__ = ["SampledLoop", "SampledResult", "one_period_map", "assemble_map", "spectral_radius", "rate_points",
            "worst_radius", "scan_periods", "stability_intervals", "h_max_bracket", "sampled_analysis",
            "H_MAX_RTOL", "SCAN_PER_OCTAVE"]
 
@@ -112,6 +115,16 @@ class SampledLoop:
         (a similarity, exact in floating point; the spectrum is the same).
     speed : float
         The largest closed-loop rate (for the range of periods scanned).
+    literals : mapping or None
+        The numbers of the system and controller files as written (float -> decimal
+        texts, :func:`ftc_verify.model.files.read_toml`); the proofs enclose those
+        decimals (:func:`ftc_verify.analysis.exact.enclose`). ``None``: the floats are the
+        data.
+    written : tuple of float
+        Periods the user wrote (:func:`sampled_analysis`'s ``period``): the proofs take
+        such a period as its decimal text when the controller file has it, else as the
+        ball of every decimal read as that float; the periods the analysis chooses (the
+        scan, the ``h_max`` bracket) are exact.
     """
 
     chain: JointChain
@@ -124,6 +137,8 @@ class SampledLoop:
     modes_part: Matrix
     scale: Matrix
     speed: float
+    literals: Mapping[float, tuple[str, ...]] | None = None
+    written: tuple[float, ...] = ()
 
     @classmethod
     def build(cls, system: FTCSystem, controller: Controller) -> SampledLoop:
@@ -132,6 +147,11 @@ class SampledLoop:
         n, nu, _, _ = system.dims
         nc = controller.n_c
         d = n + nu + nc
+        S = system.chain.n_states
+        check_memory(dense_generator_estimate(d, S),
+                     f"the sampled-data analysis (one-period map on {S} joint states x {d * (d + 1) // 2} "
+                     f"second moments of (x, u, x_c), d = {d})",
+                     hint="analyse without --period, or a smaller loop")
         flows, meas, entries = [], [], []
         pattern = np.zeros((d, d))  # |flow| + |reset pattern| over the states, to balance
         for i, j in system.chain.joint_modes:
@@ -154,13 +174,29 @@ class SampledLoop:
             _, (found, _) = scipy.linalg.matrix_balance(pattern + np.eye(d), permute=False, separate=True)
             scale = np.asarray(found, dtype=float)
         flows = [Ab / scale[:, None] * scale[None, :] for Ab in flows]
-        S = system.chain.n_states
         modes_part = second_moment_matrix(flows, np.zeros((S, S)))
         loop = closed_loop(system, controller)
         rates = [float(np.linalg.norm(A, 2)) for A in loop.A]
         rates.append(float(np.max(np.abs(system.chain.generator(system.chain.rate_max)))))
+        literals: dict[float, tuple[str, ...]] | None = None
+        if system.literals is not None or controller.literals is not None:
+            literals = {}
+            for source in (system.literals or {}, controller.literals or {}):
+                for value, texts in source.items():
+                    literals[value] = literals.get(value, ()) + tuple(texts)
         return cls(system.chain, tuple(flows), tuple(meas), tuple(entries), controller, n, nu, modes_part, scale,
-                   max(*rates, 1e-9))
+                   max(*rates, 1e-9), literals)
+
+    def period_ball(self, h: float) -> Any:
+        """The period ``h`` as a ball (``flint.arb``): exact for a period the analysis
+        chose; for one the user wrote (``written``) its decimal text from the
+        controller file, else every decimal read as ``h`` (:func:`ftc_verify.analysis.exact.enclose`)."""
+        import flint
+
+        from ..exact import enclose
+
+        h = float(h)
+        return enclose(h, self.literals or {}) if h in self.written else flint.arb(h)
 
     @property
     def nc(self) -> int:
@@ -206,6 +242,28 @@ class SampledLoop:
         c = self.scale_r
         return np.tile(c[rows] * c[cols], self.states)
 
+    @functools.cached_property
+    def restrict_map(self) -> Matrix:
+        """:math:`L_r (P \\otimes P) D_d` (``vr x vd``), the same in every joint state."""
+        Dd, _ = duplication_matrix(self.d)
+        _, Lr = duplication_matrix(self.r)
+        P = self.restriction()
+        return np.asarray(Lr @ np.kron(P, P) @ Dd)
+
+    @functools.cached_property
+    def _static_lifts(self) -> Matrix:
+        return self._lifts(0.0)
+
+    def _lifts(self, h: float) -> Matrix:
+        _, Ld = duplication_matrix(self.d)
+        Dr, _ = duplication_matrix(self.r)
+        return np.stack([Ld @ np.kron(R, R) @ Dr for R in self.resets(h)])
+
+    def lifts(self, h: float) -> Matrix:
+        """:math:`L_d (R_s \\otimes R_s) D_r` per joint state (``(S, vd, vr)``); computed
+        once for a static controller (its resets do not depend on ``h``)."""
+        return self._static_lifts if self.nc == 0 else self._lifts(h)
+
     def resets(self, h: float) -> tuple[Matrix, ...]:
         """:math:`R_s` (``d x r``) of every joint state at period ``h`` (float64), in the
         balanced coordinates."""
@@ -231,7 +289,7 @@ def one_period_map(loop: SampledLoop, h: float, rates: Matrix, *, scaled: bool =
     Q = loop.chain.generator(rates)
     vd = loop.d * (loop.d + 1) // 2
     F = scipy.linalg.expm((loop.modes_part + np.kron(Q.T, np.eye(vd))) * float(h))
-    T = _assemble(loop, F, h)
+    T = assemble_map(loop, F, h)
     if scaled:
         return T
     w = loop.vech_weights()
@@ -267,15 +325,16 @@ def worst_radius(loop: SampledLoop, h: float, points: Sequence[Matrix]) -> tuple
 SCAN_PER_OCTAVE = 8
 
 
-def _assemble(loop: SampledLoop, F: Matrix, h: float) -> Matrix:
-    """:math:`T` in the balanced coordinates from the flow :math:`F = e^{\\mathcal L h}`."""
-    Dd, Ld = duplication_matrix(loop.d)
-    Dr, Lr = duplication_matrix(loop.r)
-    vd, vr, S = Dd.shape[1], Dr.shape[1], loop.states
-    P = loop.restriction()
-    restrict = Lr @ np.kron(P, P) @ Dd
-    lifts = np.stack([Ld @ np.kron(R, R) @ Dr for R in loop.resets(h)])
-    return np.einsum("ab,tbsc,scd->tasd", restrict, F.reshape(S, vd, S, vd), lifts, optimize=True).reshape(S * vr, -1)
+def assemble_map(loop: SampledLoop, F: Matrix, h: float) -> Matrix:
+    """:math:`T` in the balanced coordinates from the flow :math:`F = e^{\\mathcal L h}`:
+    block :math:`(t, s)` is :math:`\\mathcal P_0 F_{ts} \\mathcal R_s`, two batched
+    products (the restriction and, for a static controller, the lifts computed once per
+    loop, :meth:`SampledLoop.lifts`)."""
+    restrict, lifts = loop.restrict_map, loop.lifts(h)
+    S, vd, vr = loop.states, restrict.shape[1], restrict.shape[0]
+    FL = np.matmul(F.reshape(S * vd, S, vd).transpose(1, 0, 2), lifts)  # (s, t vd + b, vr): F_ts R_s
+    X = FL.transpose(1, 0, 2).reshape(S, vd, S * vr)  # (t, b, s vr + d)
+    return np.matmul(restrict, X).reshape(S * vr, S * vr)
 
 
 def scan_periods(loop: SampledLoop, lo: float, hi: float) -> tuple[Matrix, Matrix]:
@@ -295,7 +354,7 @@ def scan_periods(loop: SampledLoop, lo: float, hi: float) -> tuple[Matrix, Matri
         for k, h in enumerate(hs):
             F = scipy.linalg.expm(G * float(h)) if k < K else flows[k - K] @ flows[k - K]
             flows.append(F)
-            T = _assemble(loop, F, float(h))
+            T = assemble_map(loop, F, float(h))
             r = float(np.max(np.abs(scipy.linalg.eigvals(T, check_finite=False)))) if np.all(np.isfinite(T)) else math.inf
             rho[k] = max(rho[k], r)
     return hs, rho
@@ -470,7 +529,7 @@ def sampled_analysis(system: FTCSystem, controller: Controller, period: float, *
 
     period = check_period(period, "period")
     t0 = time.perf_counter()
-    loop = SampledLoop.build(system, controller)
+    loop = dataclasses.replace(SampledLoop.build(system, controller), written=(float(period),))
     verdict = box_verdict(loop, period, max_boxes=max_boxes, max_seconds=max_seconds / 3)
     rho, where = worst_radius(loop, period, rate_points(loop.chain))
     lo, hi = scan_range(loop, period)

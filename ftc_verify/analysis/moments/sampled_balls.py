@@ -17,6 +17,7 @@ import numpy as np
 
 from ...model.chain import JointChain
 from ...model.system import Matrix
+from ..exact import Literals
 from ..rigorous import Ball
 
 __all__ = ["generator_coefficients", "ball_generator", "envelope_generator", "ball_kron", "ball_block_diag",
@@ -57,53 +58,63 @@ def generator_coefficients(chain: JointChain) -> tuple[Matrix, tuple[tuple[tuple
     return np.where(off, base, 0.0), tuple(coefs)
 
 
-def ball_generator(chain: JointChain, lo: Matrix, hi: Matrix) -> Ball:
-    """The joint generator as a ball matrix containing :math:`Q(r)` for every rate array
-    ``r`` with ``lo <= r <= hi`` (:func:`generator_coefficients`; the diagonal is minus
-    the ball row sum, so every row sums to an enclosure of zero)."""
+def _terms(chain: JointChain, lo: Matrix, hi: Matrix, literals: Literals | None) -> tuple[list[list[Any]], ...]:
+    """Off-diagonal entries of the generator at the rates ``lo`` and ``hi`` as balls, from
+    :meth:`~ftc_verify.model.chain.JointChain.generator_terms`: the fault rates
+    ``alpha`` and the box's ends enclosed as written (:func:`ftc_verify.analysis.exact.enclose`:
+    the decimal text of a number read from the system file; a rate the analysis chose,
+    such as a sub-box's split point, exact)."""
+    from ..exact import enclose
+
     flint = _flint()
-    base, coefs = generator_coefficients(chain)
     S = chain.n_states
-    Q = [[flint.arb(float(base[s, t])) for t in range(S)] for s in range(S)]
-    for idx, coef in coefs:
-        rate = flint.arb(float(lo[idx])).union(flint.arb(float(hi[idx])))
-        for s, t in zip(*np.nonzero(coef)):
-            if s != t:
-                Q[s][t] += int(coef[s, t]) * rate
+    low = [[flint.arb(0) for _ in range(S)] for _ in range(S)]
+    up = [[flint.arb(0) for _ in range(S)] for _ in range(S)]
+    for s, t, coef, kind, index in chain.generator_terms():
+        if kind == "alpha":
+            a = float(chain.alpha[index])
+            if a != 0.0:
+                v = coef * enclose(a, literals)
+                low[s][t] += v
+                up[s][t] += v
+        else:
+            low[s][t] += coef * enclose(float(lo[index]), literals, computed_exact=True)
+            up[s][t] += coef * enclose(float(hi[index]), literals, computed_exact=True)
+    return low, up
+
+
+def _assemble_generator(off: list[list[Any]], diag_from: list[list[Any]]) -> Ball:
+    flint = _flint()
+    S = len(off)
     out = flint.arb_mat(S, S)
     for s in range(S):
         total = flint.arb(0)
         for t in range(S):
             if t != s:
-                out[s, t] = Q[s][t]
-                total += Q[s][t]
+                out[s, t] = off[s][t]
+                total += diag_from[s][t]
         out[s, s] = -total
     return Ball(out)
 
 
-def envelope_generator(chain: JointChain, lo: Matrix, hi: Matrix) -> Ball:
+def ball_generator(chain: JointChain, lo: Matrix, hi: Matrix, literals: Literals | None = None) -> Ball:
+    """The joint generator as a ball matrix containing :math:`Q(r)` for every rate array
+    ``r`` with ``lo <= r <= hi`` (every entry is affine and non-decreasing in each rate:
+    the union of its balls at both ends; the diagonal is minus the ball row sum, so every
+    row sums to an enclosure of zero). ``literals``: the system file's numbers as
+    written (``_terms``)."""
+    low, up = _terms(chain, lo, hi, literals)
+    S = chain.n_states
+    both = [[low[s][t].union(up[s][t]) for t in range(S)] for s in range(S)]
+    return _assemble_generator(both, both)
+
+
+def envelope_generator(chain: JointChain, lo: Matrix, hi: Matrix, literals: Literals | None = None) -> Ball:
     """The upper envelope of the generator over ``[lo, hi]``: off-diagonal entries at
     the rates ``hi``, the diagonal minus the row sums at ``lo`` (a ball matrix; rows sum
     to at least 0). Used by ``_envelope_stable`` (module docstring)."""
-    flint = _flint()
-    base, coefs = generator_coefficients(chain)
-    S = chain.n_states
-    upper = [[flint.arb(float(base[s, t])) for t in range(S)] for s in range(S)]
-    lower = [[flint.arb(float(base[s, t])) for t in range(S)] for s in range(S)]
-    for idx, coef in coefs:
-        for s, t in zip(*np.nonzero(coef)):
-            if s != t:
-                upper[s][t] += int(coef[s, t]) * flint.arb(float(hi[idx]))
-                lower[s][t] += int(coef[s, t]) * flint.arb(float(lo[idx]))
-    out = flint.arb_mat(S, S)
-    for s in range(S):
-        total = flint.arb(0)
-        for t in range(S):
-            if t != s:
-                out[s, t] = upper[s][t]
-                total += lower[s][t]
-        out[s, s] = -total
-    return Ball(out)
+    low, up = _terms(chain, lo, hi, literals)
+    return _assemble_generator(up, low)
 
 
 def as_float(a: Any) -> Matrix:

@@ -44,7 +44,7 @@ from ...model.system import FTCSystem, Matrix, Mode
 from .stability import duplication_matrix, second_moment_matrix, vech_order
 from .energy import EXOSYSTEMS, ExactEnergy
 
-__all__ = ["perturbed_system", "sampled_energy"]
+__all__ = ["perturbed_system", "sampled_energy", "sample_trapezoid"]
 
 
 def perturbed_system(system: FTCSystem, delta1: Matrix | None, delta2: Matrix | None) -> FTCSystem:
@@ -67,17 +67,33 @@ def _vech_weights(W: Matrix) -> Matrix:
     return np.where(rows == cols, 1.0, 2.0) * W[rows, cols]
 
 
-def sampled_energy(system: FTCSystem, controller: Controller, period: float, *, beta: Matrix,
-                   disturbance: str = "paper", horizon: float = math.inf, x0: Matrix | None = None,
-                   start: tuple[int, int] = (0, 0)) -> ExactEnergy:
-    """Exact :math:`E\\|y\\|^2` and :math:`\\|w\\|^2` of the sampled loop (module
-    docstring) at the rate array ``beta``, from ``x0`` (default 0) in the joint state
-    ``start``. Build a constant :math:`\\Delta` in with :func:`perturbed_system`.
-    ``horizon=inf`` needs a stable one-period map (else :class:`ValidationError`)."""
+@dataclasses.dataclass(frozen=True, eq=False)
+class _Augmented:
+    """The moment data of the module docstring at one rate array and period."""
+
+    L: Matrix  # moment generator of z inside a period
+    lift: Matrix  # R (zeta moments -> z moments at the sample)
+    restrict: Matrix  # P (z moments -> zeta moments)
+    ell: Matrix  # E|C x|^2 weights on the z moments
+    ell_r: Matrix  # the same on the zeta moments
+    v0: Matrix  # zeta moments at t = 0
+
+    def blocks(self, span: float) -> tuple[Matrix, Matrix]:
+        """:math:`(e^{\\mathcal L \\tau}, \\int_0^\\tau e^{\\mathcal L s} ds)` at ``span``."""
+        N = self.L.shape[0]
+        V = np.zeros((2 * N, 2 * N))
+        V[:N, :N], V[:N, N:] = self.L, np.eye(N)
+        E = scipy.linalg.expm(V * span)
+        return E[:N, :N], E[:N, N:]
+
+
+def _augmented(system: FTCSystem, controller: Controller, period: float, beta: Matrix, disturbance: str,
+               x0: Matrix | None, start: tuple[int, int]) -> _Augmented:
+    """Checks the arguments and builds :class:`_Augmented` (module docstring)."""
     if disturbance not in EXOSYSTEMS:
         raise ValidationError(f"disturbance: no exact model for {disturbance!r}; choose from {sorted(EXOSYSTEMS)}")
-    if not (horizon > 0) or not (period > 0) or not math.isfinite(period):
-        raise ValidationError(f"sampled_energy: period and horizon must be positive, got {period!r}, {horizon!r}")
+    if not (period > 0) or not math.isfinite(period):
+        raise ValidationError(f"sampled_energy: the period must be positive and finite, got {period!r}")
     controller.check(system)
     chain = system.chain
     beta = chain.check_beta(beta)
@@ -87,7 +103,7 @@ def sampled_energy(system: FTCSystem, controller: Controller, period: float, *, 
     nc = controller.n_c
     d, r = n + nu + 1 + nc + q, n + nc + q
     iu, iw, ic, ie = n, n + nu, n + nu + 1, n + nu + 1 + nc  # block starts in z
-    flows, resets, outs = [], [], []
+    flows, resets, outs, outs_r = [], [], [], []
     for i, j in chain.joint_modes:
         md = system.modes[i]
         M = controller.measurement(md)
@@ -110,22 +126,11 @@ def sampled_energy(system: FTCSystem, controller: Controller, period: float, *, 
         C = np.zeros((md.C.shape[0], d))
         C[:, :n] = md.C
         outs.append(_vech_weights(C.T @ C))
+        outs_r.append(_vech_weights((C @ R).T @ (C @ R)))
     P = np.zeros((r, d))
     P[:n, :n], P[n:n + nc, ic:ie], P[n + nc:, ie:] = np.eye(n), np.eye(nc), np.eye(q)
     Dd, Ld = duplication_matrix(d)
     Dr, Lr = duplication_matrix(r)
-    L = second_moment_matrix(flows, chain.generator(beta))
-    lift = scipy.linalg.block_diag(*[Ld @ np.kron(R, R) @ Dr for R in resets])
-    restrict = scipy.linalg.block_diag(*[Lr @ np.kron(P, P) @ Dd] * chain.n_states)
-    ell = np.concatenate(outs)
-
-    def blocks(span: float) -> tuple[Matrix, Matrix]:
-        N = L.shape[0]
-        V = np.zeros((2 * N, 2 * N))
-        V[:N, :N], V[:N, N:] = L, np.eye(N)
-        E = scipy.linalg.expm(V * span)
-        return E[:N, :N], E[:N, N:]
-
     x_init = np.zeros(n) if x0 is None else np.asarray(x0, dtype=float).reshape(-1)
     if x_init.shape != (n,):
         raise ValidationError(f"x0: expected {n} entries, got {x_init.shape}")
@@ -135,9 +140,27 @@ def sampled_energy(system: FTCSystem, controller: Controller, period: float, *, 
     v = np.zeros(chain.n_states * vr)
     s0 = chain.start_state(start)
     v[s0 * vr:(s0 + 1) * vr] = np.outer(zeta, zeta)[rows, cols]
-    F, G = blocks(period)
-    T = restrict @ F @ lift
-    energy_row = ell @ G @ lift
+    return _Augmented(second_moment_matrix(flows, chain.generator(beta)),
+                      scipy.linalg.block_diag(*[Ld @ np.kron(R, R) @ Dr for R in resets]),
+                      scipy.linalg.block_diag(*[Lr @ np.kron(P, P) @ Dd] * chain.n_states),
+                      np.concatenate(outs), np.concatenate(outs_r), v)
+
+
+def sampled_energy(system: FTCSystem, controller: Controller, period: float, *, beta: Matrix,
+                   disturbance: str = "paper", horizon: float = math.inf, x0: Matrix | None = None,
+                   start: tuple[int, int] = (0, 0)) -> ExactEnergy:
+    """Exact :math:`E\\|y\\|^2` and :math:`\\|w\\|^2` of the sampled loop (module
+    docstring) at the rate array ``beta``, from ``x0`` (default 0) in the joint state
+    ``start``. Build a constant :math:`\\Delta` in with :func:`perturbed_system`.
+    ``horizon=inf`` needs a stable one-period map (else :class:`ValidationError`)."""
+    if not (horizon > 0):
+        raise ValidationError(f"sampled_energy: the horizon must be positive, got {horizon!r}")
+    aug = _augmented(system, controller, period, beta, disturbance, x0, start)
+    S_exo, c, zeta0 = EXOSYSTEMS[disturbance]
+    F, G = aug.blocks(period)
+    T = aug.restrict @ F @ aug.lift
+    energy_row = aug.ell @ G @ aug.lift
+    v = aug.v0
     if math.isinf(horizon):
         if np.max(np.abs(np.linalg.eigvals(T))) >= 1.0:
             raise ValidationError("horizon: an infinite horizon needs a mean-square stable sampled loop "
@@ -151,8 +174,44 @@ def sampled_energy(system: FTCSystem, controller: Controller, period: float, *, 
             v = T @ v
         rest = horizon - periods * period
         if rest > 1e-12 * period:
-            y_total += float(ell @ blocks(rest)[1] @ lift @ v)
+            y_total += float(aug.ell @ aug.blocks(rest)[1] @ aug.lift @ v)
+    nw = system.dims[3]
     return ExactEnergy(y_total, nw * _shape_energy(S_exo, c, zeta0, horizon), horizon, disturbance)
+
+
+def sample_trapezoid(system: FTCSystem, controller: Controller, period: float, *, beta: Matrix,
+                     horizon: float, disturbance: str = "paper", x0: Matrix | None = None,
+                     start: tuple[int, int] = (0, 0)) -> float:
+    """Exact expectation of the trapezoidal sum of :math:`|y|^2` over the samples
+    :math:`t_k = k h \\le` ``horizon`` (and the horizon when it is not one),
+    :math:`E \\sum_k \\omega_k |C_{\\theta(t_k)} x(t_k)|^2` with
+    :math:`\\omega_k = (t_{k+1} - t_{k-1})/2` (halved at the ends): the second moments at
+    the samples are :math:`T^k v_0` (module docstring), and
+    :math:`E|C_\\theta x|^2 = \\ell_r^T v` with :math:`\\ell_r` the weights of
+    :math:`(C R_s)^T (C R_s)` (``y`` at the sample in the sample's joint state). The same
+    quadrature applied to simulated paths at their samples has this expectation exactly
+    -- no quadrature bias between the two."""
+    if not (horizon > 0) or not math.isfinite(horizon):
+        raise ValidationError(f"sample_trapezoid: the horizon must be positive and finite, got {horizon!r}")
+    aug = _augmented(system, controller, period, beta, disturbance, x0, start)
+    F, _ = aug.blocks(period)
+    T = aug.restrict @ F @ aug.lift
+    periods = math.floor(horizon / period + 1e-9)
+    times = np.arange(periods + 1) * period
+    values, v = [float(aug.ell_r @ aug.v0)], aug.v0
+    for _ in range(periods):
+        v = T @ v
+        values.append(float(aug.ell_r @ v))
+    if horizon - times[-1] > 1e-12 * period:  # the horizon inside a period: the z moments there
+        values.append(float(aug.ell @ aug.blocks(horizon - times[-1])[0] @ aug.lift @ v))
+        times = np.append(times, horizon)
+    else:
+        times[-1] = horizon
+    dt = np.diff(times)
+    weights = np.zeros(times.size)
+    weights[:-1] += 0.5 * dt
+    weights[1:] += 0.5 * dt
+    return float(np.dot(weights, values))
 
 
 def _shape_energy(S: Matrix, c: Matrix, zeta0: Matrix, span: float) -> float:

@@ -55,7 +55,15 @@ sub-box. On each sub-box the upper envelope is tried first, then the direct ball
 :math:`T`, then a
 first-order expansion at its midpoint whose remainder is quadratic in the width
 (``_first_order_stable``). A set of
-vertices is never called proved.
+vertices is never called proved. The ball exponential of :math:`\mathcal L` is the
+cost (seconds at 189 rows), so the envelope and the direct ball are attempted only when
+their criterion holds in float64 first (``_float_stable``: the envelope's map;
+``_float_vertices_hold``: :math:`Y - T(r) Y \succ 0` at the sub-box's vertices, which the
+ball contains) -- a necessary condition checked with float exponentials; skipping an
+attempt can leave a box undecided or split, never prove it.
+
+**Data as written**: the flows, resets, generator and period are enclosed from the
+files' decimal texts (:attr:`SampledLoop.literals`, :meth:`SampledLoop.period_ball`).
 """
 
 from __future__ import annotations
@@ -67,14 +75,16 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import scipy.linalg
 
 from ...model.chain import JointChain
 from ...model.system import Matrix
+from ..exact import enclose, written
 from ..rigorous import PRECISION_BITS, Ball, ball, midpoint, precision, proven_positive_definite
-from .sampled_balls import (as_float, ball_block_diag, ball_generator, ball_kron, envelope_generator,
+from .sampled_balls import (ball_block_diag, ball_generator, ball_kron, envelope_generator,
                             generator_coefficients)
-from .sampled import SampledLoop, one_period_map, rate_points, spectral_radius, worst_radius
-from .stability import duplication_matrix, vech_order
+from .sampled import SampledLoop, assemble_map, one_period_map, rate_points, spectral_radius, worst_radius
+from .stability import duplication_matrix, unvech_stack, vech_order
 
 __all__ = ["FIRST_ORDER_LIMIT", "BoxVerdict", "ball_one_period_map", "prove_stable", "prove_unstable",
            "prove_point_unstable", "box_verdict"]
@@ -86,19 +96,34 @@ def _flint() -> Any:
     return flint
 
 
+def _written_flow(loop: SampledLoop, A: Matrix) -> Ball:
+    """The ball of a balanced flow matrix :math:`\\bar A_i` with the user's numbers as
+    written: entry :math:`(i, j)` is the written :math:`A_{ij}` (or :math:`B_{ij}`) times the
+    power of two :math:`s_j / s_i` of the balancing (exact)."""
+    flint = _flint()
+    sc = loop.scale
+    out = flint.arb_mat(A.shape[0], A.shape[1])
+    for i, j in zip(*np.nonzero(A)):
+        factor = float(sc[j] / sc[i])
+        out[int(i), int(j)] = enclose(float(A[i, j]) / factor, loop.literals) * factor
+    return Ball(out)
+
+
 def _ball_resets(loop: SampledLoop, h: float) -> list[Ball]:
     """:math:`R_s` as ball matrices; a dynamic controller's :math:`(\\Phi_c, \\Gamma_c)`
     from the rigorous exponential of :math:`[[A_c, B_c], [0, 0]] h` (Van Loan)."""
     flint = _flint()
     n, nu, nc = loop.n, loop.nu, loop.nc
     c = loop.controller
+    lit = loop.literals
     zoh: dict[int, tuple[Any, Any]] = {}
     out = []
-    for M, e in zip(loop.measurement, loop.entry):
+    for M_float, e in zip(loop.measurement, loop.entry):
+        M = written(M_float, lit)
         R = flint.arb_mat(loop.d, loop.r)
         for k in range(n):
             R[k, k] = 1
-        DM = (ball(c.Dc[e]) @ M).value
+        DM = (written(c.Dc[e], lit) @ M).value
         for i in range(nu):
             for j in range(n):
                 R[n + i, j] = DM[i, j]
@@ -107,7 +132,7 @@ def _ball_resets(loop: SampledLoop, h: float) -> list[Ball]:
                 nv = c.n_v
                 V = np.zeros((nc + nv, nc + nv))
                 V[:nc, :nc], V[:nc, nc:] = c.Ac[e], c.Bc[e]
-                E = (ball(V).value * flint.arb(float(h))).exp()
+                E = (written(V, lit).value * loop.period_ball(h)).exp()
                 zoh[e] = (E, None)
             E = zoh[e][0]
             Phi = flint.arb_mat(nc, nc)
@@ -118,10 +143,10 @@ def _ball_resets(loop: SampledLoop, h: float) -> list[Ball]:
                 for j in range(c.n_v):
                     Gam[i, j] = E[i, nc + j]
             GM = (Ball(Gam) @ M).value
-            Cc = c.Cc[e]
+            Cc = written(c.Cc[e], lit).value
             for i in range(nu):
                 for j in range(nc):
-                    R[n + i, n + j] = float(Cc[i, j])
+                    R[n + i, n + j] = Cc[i, j]
             for i in range(nc):
                 for j in range(n):
                     R[n + nu + i, j] = GM[i, j]
@@ -143,20 +168,22 @@ class _MapParts:
     h: Any
     vd: int
     states: int
+    literals: Any = None
 
     @classmethod
     def build(cls, loop: SampledLoop, h: float) -> _MapParts:
-        flint = _flint()
         Dd, Ld = duplication_matrix(loop.d)
         Dr, Lr = duplication_matrix(loop.r)
-        eye = np.eye(loop.d)
-        blocks = [ball(Ld) @ (ball(as_float(np.kron(eye, A))) + ball(as_float(np.kron(A, eye)))) @ ball(Dd)
-                  for A in loop.flow]
+        eye = ball(np.eye(loop.d))
+        blocks = []
+        for A in loop.flow:
+            Ab = _written_flow(loop, A)
+            blocks.append(ball(Ld) @ (ball_kron(eye, Ab) + ball_kron(Ab, eye)) @ ball(Dd))
         P = loop.restriction()
         restrict = ball(np.asarray(Lr @ np.kron(P, P) @ Dd, dtype=float))  # 0/1 products of 0/1 matrices: exact
         lift = ball_block_diag([ball(Ld) @ ball_kron(R, R) @ ball(Dr) for R in _ball_resets(loop, h)])
         return cls(ball_block_diag(blocks).value, ball_block_diag([restrict] * loop.states).value, lift.value,
-                   flint.arb(float(h)), Dd.shape[1], loop.states)
+                   loop.period_ball(h), Dd.shape[1], loop.states, loop.literals)
 
     def generator(self, Q: Any) -> Any:
         """:math:`\\mathcal L = ` blocks :math:`+ Q^T \\otimes I` for a ball generator ``Q``."""
@@ -207,7 +234,7 @@ def ball_one_period_map(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix) -> 
     """A ball matrix containing :math:`T` (:mod:`ftc_verify.analysis.moments.sampled`) at period
     ``h`` for every rate array in ``[lo, hi]``, in the balanced coordinates of
     :attr:`SampledLoop.scale` (``one_period_map(..., scaled=True)``; same spectrum)."""
-    return Ball(_MapParts.build(loop, h).map(ball_generator(loop.chain, lo, hi).value))
+    return Ball(_MapParts.build(loop, h).map(ball_generator(loop.chain, lo, hi, loop.literals).value))
 
 
 def _unvech_ball(col: Any, start: int, r: int) -> Ball:
@@ -251,8 +278,66 @@ def _envelope_stable(loop: SampledLoop, parts: _MapParts, lo: Matrix, hi: Matrix
     """The stable proof on a sub-box by the upper envelope (module docstring):
     :math:`T(r) \\preceq T_{up}` for every rate of the sub-box, so :math:`Y \\succ 0`,
     :math:`Y - T_{up}(Y) \\succ 0` proves :math:`\\rho(T(r)) < 1` for all of them."""
-    T_up = Ball(parts.map(envelope_generator(loop.chain, lo, hi).value))
+    Q_up = envelope_generator(loop.chain, lo, hi, loop.literals)
+    if not _float_stable(loop, midpoint(Q_up), float(parts.h.mid())):
+        return False  # the float64 criterion fails: the ball one would too (its exponential is the cost)
+    T_up = Ball(parts.map(Q_up.value))
     return prove_stable(T_up, midpoint(T_up), loop.states, loop.r)
+
+
+def _pd_stack(v: Any, loop: SampledLoop) -> bool:
+    """Every joint state's block of ``v`` positive definite in float64, with a relative
+    margin of ``1e-9``."""
+    for Y in unvech_stack(np.asarray(v, dtype=np.float64), loop.states, loop.r):
+        w = np.linalg.eigvalsh(Y)
+        if not w[0] > 1e-9 * max(abs(w[-1]), 1e-300):
+            return False
+    return True
+
+
+def _float_vertices_hold(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, T_mid: Matrix,
+                         limit: int = 16) -> bool:
+    """A float64 necessary condition of the direct ball proof on ``[lo, hi]``: with
+    :math:`Y = (I - T_{mid})^{-1} I`, :math:`Y - T(r) Y \\succ 0` at every vertex
+    :math:`r` of the sub-box (the ball contains every :math:`T(r)`). ``True`` (do the ball
+    proof) when the sub-box has more than ``limit`` vertices."""
+    free = [idx for idx in loop.chain.rate_indices if hi[idx] > lo[idx]]
+    if 2 ** len(free) > limit:
+        return True
+    N = T_mid.shape[0]
+    try:
+        y = np.linalg.solve(np.eye(N) - T_mid, _identity_stack(loop.states, loop.r))
+    except np.linalg.LinAlgError:
+        return False
+    if not (np.all(np.isfinite(y)) and _pd_stack(y, loop)):
+        return False
+    for corner in itertools.product((0, 1), repeat=len(free)):
+        r = np.array(lo, dtype=float)
+        for k, idx in zip(corner, free):
+            r[idx] = hi[idx] if k else lo[idx]
+        T = one_period_map(loop, h, r, scaled=True)
+        if not _pd_stack(y - T @ y, loop):
+            return False
+    return True
+
+
+def _float_stable(loop: SampledLoop, Q: Matrix, h: float) -> bool:
+    """The criterion of :func:`prove_stable` in float64 on the map of the generator ``Q``
+    (:math:`Y = (I - T)^{-1} I \\succ 0`, :math:`Y - T Y \\succ 0` per joint state, each
+    with a relative margin of ``1e-9``): a necessary condition of the ball proof, checked
+    first because it costs one float exponential instead of a ball one. Skipping a proof
+    only ever leaves a box undecided (or split), never proves anything."""
+    vd = loop.d * (loop.d + 1) // 2
+    F = scipy.linalg.expm((loop.modes_part + np.kron(Q.T, np.eye(vd))) * h)
+    T = assemble_map(loop, F, h)
+    N = T.shape[0]
+    try:
+        y = np.linalg.solve(np.eye(N) - T, _identity_stack(loop.states, loop.r))
+    except np.linalg.LinAlgError:
+        return False
+    if not np.all(np.isfinite(y)):
+        return False
+    return _pd_stack(y, loop) and _pd_stack(y - T @ y, loop)
 
 
 #: Largest Van Loan block (rows, twice the moment generator's) the first-order form
@@ -294,8 +379,8 @@ def _first_order_stable(loop: SampledLoop, parts: _MapParts, lo: Matrix, hi: Mat
     if not _stack_pd(ball(Yf).value, loop.states, loop.r):
         return False
     mid = 0.5 * (lo + hi)
-    Q0 = ball_generator(loop.chain, mid, mid).value
-    Qb = ball_generator(loop.chain, lo, hi).value
+    Q0 = ball_generator(loop.chain, mid, mid, loop.literals).value
+    Qb = ball_generator(loop.chain, lo, hi, loop.literals).value
     Y = ball(Yf).value
     base = Y - parts.map(Q0) * Y
     rem = flint.arb_mat(N, 1)
@@ -307,8 +392,9 @@ def _first_order_stable(loop: SampledLoop, parts: _MapParts, lo: Matrix, hi: Mat
             return False
         J0Y = parts.derivative(Q0, coef) * Y
         JbY = parts.derivative(Qb, coef) * Y
-        ends = (flint.arb(float(lo[idx])) - flint.arb(float(mid[idx])),
-                flint.arb(float(hi[idx])) - flint.arb(float(mid[idx])))
+        lit = loop.literals  # the box's ends as written, the midpoint exact (the analysis chose it)
+        ends = (enclose(float(lo[idx]), lit, computed_exact=True) - flint.arb(float(mid[idx])),
+                enclose(float(hi[idx]), lit, computed_exact=True) - flint.arb(float(mid[idx])))
         rem += ends[0].union(ends[1]) * (JbY - J0Y)
         linear.append((ends, J0Y))
     for corner in itertools.product((0, 1), repeat=len(linear)):
@@ -431,8 +517,8 @@ def box_verdict(loop: SampledLoop, h: float, *, max_boxes: int = 64, max_seconds
         T_mid = one_period_map(loop, h, mid, scaled=True)
         with precision(64):
             proved = _envelope_stable(loop, parts, lo, hi)
-            if not proved:
-                T = Ball(parts.map(ball_generator(chain, lo, hi).value))
+            if not proved and _float_vertices_hold(loop, h, lo, hi, T_mid):
+                T = Ball(parts.map(ball_generator(chain, lo, hi, loop.literals).value))
                 proved = prove_stable(T, T_mid, loop.states, loop.r)
             if not proved and not np.array_equal(lo, hi):
                 proved = _first_order_stable(loop, parts, lo, hi, T_mid, t0 + max_seconds)
