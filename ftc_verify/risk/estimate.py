@@ -23,9 +23,9 @@ The relative error is the half width over the estimate, :math:`z\hat\sigma/(\sqr
 p)`. Paths are drawn in batches until it is at most the target with at least
 :data:`MIN_HITS` hits, or the path budget is spent; checking after every batch makes the
 sample size random: the rule tends to stop when the variance happens to be estimated
-low, so the coverage falls a little below nominal (measured: 33 of 36 intervals at 95 %
-held the closed form of ``tests/test_risk.py`` at 1.4e-3, 1.3e-5 and 1.2e-7, mean
-estimates within 2.5 % of the truth); :data:`MIN_HITS` keeps the effect small.
+low, so the coverage can fall a little below nominal (measured: 35 of 36 intervals at
+95 % held the exact probability of ``tests/test_risk.py`` at 1.6e-3, 1.5e-5 and 1.4e-7,
+mean estimates within 6 % of it); :data:`MIN_HITS` keeps the effect small.
 """
 
 from __future__ import annotations
