@@ -147,6 +147,9 @@ def build_parser() -> argparse.ArgumentParser:
     from .export_commands import add_export_commands
 
     add_export_commands(sub)
+    from .risk_command import add_risk_command
+
+    add_risk_command(sub)
     _no_abbreviations(p)
     return p
 
