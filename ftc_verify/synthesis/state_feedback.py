@@ -93,7 +93,7 @@ from ..analysis.solvers import choose_solver
 from .starts import candidates, certify_start, diagnose
 from .results import SolverCalls, SynthesisResult, verify_controller
 from .convex_designs import dilated_design, true_mode_reference
-from .xy_design import gain_bound, xy_solve
+from .xy_design import gain_bound, xy_solve, xy_solver
 
 __all__ = ["METHODS", "SynthesisResult", "synthesize", "two_step", "gain_step", "descend"]
 
@@ -170,9 +170,12 @@ def _multipliers(system: FTCSystem, eps: list[float], delta: list[float]) -> lis
     return lam
 
 
-def two_step(system: FTCSystem, gamma: float, calls: SolverCalls, k_max: float | None) -> tuple[list[Matrix] | None, float | None, str]:
-    """Theorem 4.1 at a given gamma: ``(gains, synthesis gamma, message)``."""
-    step1 = xy_solve(system, "projected", gamma, calls, None)
+def two_step(system: FTCSystem, gamma: float, calls: SolverCalls, k_max: float | None,
+             step1_at: Any = None) -> tuple[list[Matrix] | None, float | None, str]:
+    """Theorem 4.1 at a given gamma: ``(gains, synthesis gamma, message)``. ``step1_at``:
+    step 1 as built once by :func:`~ftc_verify.synthesis.xy_design.xy_solver` (the
+    bisection's levels share it); built here when not given."""
+    step1 = (step1_at or xy_solver(system, "projected", calls, None))(gamma)
     if step1 is None:
         return None, None, f"step 1 (eq. 17) infeasible at gamma {gamma:.6g}"
     P = [np.linalg.inv(0.5 * (X + X.T)) for X in step1["X"]]
@@ -189,15 +192,19 @@ def two_step(system: FTCSystem, gamma: float, calls: SolverCalls, k_max: float |
     return gains, worst, f"two-step succeeded at gamma {gamma:.6g} (step-1 margin {step1['margin']:.3g})"
 
 
-def _two_step_min(system: FTCSystem, calls: SolverCalls, k_max: float | None) -> tuple[list[Matrix] | None, float | None, str]:
+def _two_step_min(system: FTCSystem, calls: SolverCalls, k_max: float | None,
+                  low: Any = False) -> tuple[list[Matrix] | None, float | None, str]:
     """Smallest gamma at which two-step succeeds: bisection between the full-information
     design level (a heuristic lower bracket: the full-information LMI relaxes every FDI-only
-    design) and a doubling upper bracket."""
-    low = xy_solve(system, "full-info", None, calls, None)
+    design) and a doubling upper bracket. ``low``: the full-information solution when
+    already solved (``None`` when it gave no point; solved here when not given)."""
+    if low is False:
+        low = xy_solve(system, "full-info", None, calls, None)
     lo = low["gamma"] / (1 + 1e-3) if low else 1e-3
     hi, best = max(lo, 1e-3) * 1.5, None
+    step1_at = xy_solver(system, "projected", calls, None)  # built once, solved at every level
     for _ in range(12):
-        gains, gsyn, msg = two_step(system, hi, calls, k_max)
+        gains, gsyn, msg = two_step(system, hi, calls, k_max, step1_at)
         if gains is not None:
             best = (gains, gsyn, hi)
             break
@@ -206,7 +213,7 @@ def _two_step_min(system: FTCSystem, calls: SolverCalls, k_max: float | None) ->
         return None, None, f"two-step failed for every gamma up to {hi / 2:.6g}: {msg}"
     while hi - lo > BISECTION_RTOL * hi:
         mid = 0.5 * (lo + hi)
-        gains, gsyn, _ = two_step(system, mid, calls, k_max)
+        gains, gsyn, _ = two_step(system, mid, calls, k_max, step1_at)
         if gains is not None:
             hi, best = mid, (gains, gsyn, mid)
         else:
@@ -255,16 +262,6 @@ def descend(loop_of: Any, step: Any, m: int, start: list[Matrix], calls: SolverC
     return best, history, f"stopped: {reason}"
 
 
-def _own_message(r: SynthesisResult) -> str:
-    """A nested result's message without its diagnosis (the outer run gives its own)."""
-    if r.gains and r.report is not None:
-        rep = r.report
-        why = (f"robust gamma {rep.robust.outcome} ({rep.robust.solver_status})" if rep.mss.stable
-               else "not mean-square stable")
-        return f"gains found but not certified: spectral abscissa {rep.mss.spectral_abscissa:.4g}, {why}"
-    return r.message.removesuffix(f"; {r.diagnosis['message']}") if r.diagnosis else r.message
-
-
 _PUBLIC_START_KEYS = ("name", "gamma_certified", "spectral_abscissa", "note", "reason", "seconds")
 
 
@@ -294,15 +291,15 @@ def _starts(system: FTCSystem, gamma: float | None, k_max: float | None, solver:
         rows = [certify_start(system, "given", start, solver)]
     else:
         rows = []
-        for seed_method in ("two-step", "common"):
-            r = synthesize(system, method=seed_method, gamma=gamma, k_max=k_max, solver=solver)
-            calls.absorb(r)
-            rows.append({"name": seed_method, "gamma_certified": r.gamma_certified, "gains": r.gains,
-                         "spectral_abscissa": None if r.report is None else r.report.mss.spectral_abscissa,
-                         "note": "", "reason": "" if r.certified else _own_message(r), "seconds": r.wall_seconds})
         t0 = time.perf_counter()
-        fi = xy_solve(system, "full-info", None, calls, None)
+        fi = xy_solve(system, "full-info", None, calls, None)  # two-step's bracket and a start of its own
         full_info = None if fi is None else [Y @ np.linalg.inv(X) for X, Y in zip(fi["X"], fi["Y"])]
+        for seed_method in ("two-step", "common"):
+            gains, _, msg = _design(system, seed_method, gamma, k_max, calls, fi)
+            made = ({"name": seed_method, "gamma_certified": None, "spectral_abscissa": None, "note": "",
+                     "reason": msg} if gains is None else certify_start(system, seed_method, gains, solver))
+            rows.append(made | {"seconds": time.perf_counter() - t0})
+            t0 = time.perf_counter()
         for c in candidates(system, k_max, full_info):
             if c.gains is None:
                 rows.append({"name": c.name, "gamma_certified": None, "spectral_abscissa": None, "note": "",
@@ -383,6 +380,26 @@ def _iterative(system: FTCSystem, gamma: float | None, k_max: float | None, solv
         best["name"], rows
 
 
+def _design(system: FTCSystem, method: str, gamma: float | None, k_max: float | None, calls: SolverCalls,
+            full_info: Any = False) -> tuple[list[Matrix] | None, float | None, str]:
+    """The gains of one convex method (``two-step``, ``full-info``, ``common`` or an
+    :data:`EXTRA_STARTS` design), not yet certified: ``(gains, synthesis gamma, message)``.
+    ``full_info``: the full-information solution when already solved (two-step's lower
+    bracket)."""
+    if method == "two-step":
+        return (two_step(system, gamma, calls, k_max) if gamma is not None
+                else _two_step_min(system, calls, k_max, full_info))
+    if method in EXTRA_STARTS:
+        return _convex_gains(system, method, calls, k_max)
+    sol = xy_solve(system, method, gamma, calls, k_max)
+    if sol is None:
+        return None, None, f"{method} LMI infeasible" + (f" at gamma {gamma:.6g}" if gamma else "")
+    Ks = [Y @ np.linalg.inv(X) for X, Y in zip(sol["X"], sol["Y"])]  # per joint state
+    pairs = [Ks[system.chain.state_index(i, j)] for i in range(system.m) for j in range(system.m)]
+    gains = Ks[:1] * system.m if method == "common" else pairs
+    return gains, sol["gamma"], f"{method} LMI solved at gamma {sol['gamma']:.6g}"
+
+
 def synthesize(
     system: FTCSystem,
     *,
@@ -411,19 +428,11 @@ def synthesize(
     name = choose_solver(solver, system.chain.n_states * (n * (n + 1) // 2 + n * system.dims[1]) + 1)
     calls = SolverCalls(name)
     history: list[float] = []
-    if method == "two-step":
-        gains, gsyn, msg = two_step(system, gamma, calls, k_max) if gamma is not None else _two_step_min(system, calls, k_max)
-    elif method in EXTRA_STARTS:
-        gains, gsyn, msg = _convex_gains(system, method, calls, k_max)
-    elif method in ("full-info", "common"):
-        sol = xy_solve(system, method, gamma, calls, k_max)
-        if sol is None:
-            gains, gsyn, msg = None, None, f"{method} LMI infeasible" + (f" at gamma {gamma:.6g}" if gamma else "")
-        else:
-            Ks = [Y @ np.linalg.inv(X) for X, Y in zip(sol["X"], sol["Y"])]  # per joint state
-            pairs = [Ks[system.chain.state_index(i, j)] for i in range(system.m) for j in range(system.m)]
-            gains = Ks[:1] * system.m if method == "common" else pairs
-            gsyn, msg = sol["gamma"], f"{method} LMI solved at gamma {sol['gamma']:.6g}"
+    gains: list[Matrix] | None = None
+    gsyn: float | None = None
+    msg = ""
+    if method in ("two-step", "full-info", "common") + EXTRA_STARTS:
+        gains, gsyn, msg = _design(system, method, gamma, k_max, calls)
     rows: list[dict[str, Any]] = []
     start_name = None
     reference = _reference(system, name, calls) if method == "best" else None
