@@ -296,9 +296,10 @@ def _starts(system: FTCSystem, gamma: float | None, k_max: float | None, solver:
         full_info = None if fi is None else [Y @ np.linalg.inv(X) for X, Y in zip(fi["X"], fi["Y"])]
         for seed_method in ("two-step", "common"):
             gains, _, msg = _design(system, seed_method, gamma, k_max, calls, fi)
-            made = ({"name": seed_method, "gamma_certified": None, "spectral_abscissa": None, "note": "",
-                     "reason": msg} if gains is None else certify_start(system, seed_method, gains, solver))
-            rows.append(made | {"seconds": time.perf_counter() - t0})
+            seed_row: dict[str, Any] = ({"name": seed_method, "gamma_certified": None, "spectral_abscissa": None,
+                                         "note": "", "reason": msg} if gains is None
+                                        else certify_start(system, seed_method, gains, solver))
+            rows.append(seed_row | {"seconds": time.perf_counter() - t0})
             t0 = time.perf_counter()
         for c in candidates(system, k_max, full_info):
             if c.gains is None:
