@@ -77,6 +77,7 @@ the blocks of the pair ``(i, j)`` lose their detection coupling, so the designed
 from __future__ import annotations
 
 import math
+import os
 import time
 from typing import Any
 
@@ -89,7 +90,7 @@ from ..errors import ValidationError
 from ..analysis.lmi import block_specs, lyapunov_block
 from ..analysis.lmi_analysis import hinf_gamma
 from ..model.system import FTCSystem, Matrix
-from ..analysis.solvers import choose_solver
+from ..analysis.solvers import ForkedCall, choose_solver
 from .starts import candidates, certify_start, diagnose
 from .results import SolverCalls, SynthesisResult, verify_controller
 from .convex_designs import dilated_design, true_mode_reference
@@ -335,6 +336,14 @@ def _reference(system: FTCSystem, solver: str, calls: SolverCalls) -> dict[str, 
     return out | {"seconds": time.perf_counter() - t0}
 
 
+def _reference_alone(system: FTCSystem, solver: str) -> tuple[dict[str, Any], list[Any]]:
+    """:func:`_reference` with calls of its own: ``(row, solver outcomes)``. ``best`` runs it
+    in a forked child beside its routes (:class:`~ftc_verify.analysis.solvers.ForkedCall`:
+    the same computation on the second core; its outcomes are added to the run's)."""
+    calls = SolverCalls(solver)
+    return _reference(system, solver, calls), calls.outcomes
+
+
 def _best(system: FTCSystem, gamma: float | None, k_max: float | None, solver: str, calls: SolverCalls,
           max_iter: int, tol: float) -> tuple[list[Matrix] | None, list[float], str, str | None, list[dict[str, Any]]]:
     """The ``best`` method: every start (``iterative``'s and :data:`EXTRA_STARTS`), then the
@@ -436,12 +445,20 @@ def synthesize(
         gains, gsyn, msg = _design(system, method, gamma, k_max, calls)
     rows: list[dict[str, Any]] = []
     start_name = None
-    reference = _reference(system, name, calls) if method == "best" else None
+    reference = None
     if method == "iterative":
         gains, history, msg, start_name, rows = _iterative(system, gamma, k_max, name, calls, start, max_iter, tol)
         gsyn = history[-1] if history else None
     elif method == "best":
-        gains, history, msg, start_name, rows = _best(system, gamma, k_max, name, calls, max_iter, tol)
+        forked = ForkedCall(lambda: _reference_alone(system, name), "the reference design") if hasattr(os, "fork") \
+            else None
+        try:
+            gains, history, msg, start_name, rows = _best(system, gamma, k_max, name, calls, max_iter, tol)
+            reference, outcomes = forked.result() if forked is not None else _reference_alone(system, name)
+        finally:
+            if forked is not None:
+                forked.cancel()
+        calls.outcomes.extend(outcomes)
         gsyn = history[-1] if history else None
     report = _verify(system, gains, name) if gains is not None else None
     certified = report is not None and report.certified_stable and report.robust.certified
