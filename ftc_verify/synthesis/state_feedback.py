@@ -348,26 +348,41 @@ def _best(system: FTCSystem, gamma: float | None, k_max: float | None, solver: s
           max_iter: int, tol: float) -> tuple[list[Matrix] | None, list[float], str, str | None, list[dict[str, Any]]]:
     """The ``best`` method: every start (``iterative``'s and :data:`EXTRA_STARTS`), then the
     descent from the best start of ``iterative`` (so the result is never worse than
-    ``iterative``) and from the best start overall when that is another one; the
-    smallest certified gamma of all these routes wins. Every route is a row."""
+    ``iterative``) and from the best start overall when that is another one (the two
+    descents are independent: the second runs in a forked child,
+    :class:`~ftc_verify.analysis.solvers.ForkedCall`); the smallest certified gamma of all
+    these routes wins. Every route is a row."""
     rows = _starts(system, gamma, k_max, solver, calls, None, extra=True)
     certified = [r for r in rows if r["gamma_certified"] is not None]
     if not certified:
         return None, [], f"no certified route ({len(rows)} tried)", None, rows
     seeds = [min((r for r in certified if r["name"] not in EXTRA_STARTS), key=lambda r: r["gamma_certified"],
                  default=None), min(certified, key=lambda r: r["gamma_certified"])]
-    done: list[str] = []
+    todo: list[dict[str, Any]] = []
     for seed in seeds:
-        if seed is None or seed["name"] in done:
-            continue
-        done.append(seed["name"])
-        t0 = time.perf_counter()
+        if seed is not None and all(seed["name"] != t["name"] for t in todo):
+            todo.append(seed)
+
+    def run(seed: dict[str, Any]) -> tuple[dict[str, Any], list[Any]]:
+        """One descent with calls of its own: its row and its solver outcomes."""
+        own, t0 = SolverCalls(solver), time.perf_counter()
         gains, history, msg = descend(lambda G: state_feedback_loop(system, G),
-                                      lambda P, lam, j: gain_step(system, P, lam, j, calls, k_max), system.m,
-                                      list(seed["gains"]), calls, solver, max_iter, tol, seed.get("lmi"))
-        rows.append({"name": f"descent from {seed['name']}", "gamma_certified": history[-1] if history else None,
-                     "spectral_abscissa": None, "note": "", "reason": "" if history else msg, "gains": gains,
-                     "history": history, "seconds": time.perf_counter() - t0})
+                                      lambda P, lam, j: gain_step(system, P, lam, j, own, k_max), system.m,
+                                      list(seed["gains"]), own, solver, max_iter, tol, seed.get("lmi"))
+        return {"name": f"descent from {seed['name']}", "gamma_certified": history[-1] if history else None,
+                "spectral_abscissa": None, "note": "", "reason": "" if history else msg, "gains": gains,
+                "history": history, "seconds": time.perf_counter() - t0}, own.outcomes
+
+    # the second descent (independent of the first) in a forked child, on the second core
+    forked = ForkedCall(lambda: run(todo[1]), "a descent") if len(todo) > 1 and hasattr(os, "fork") else None
+    try:
+        done = [run(todo[0])] + ([forked.result()] if forked is not None else [run(t) for t in todo[1:]])
+    finally:
+        if forked is not None:
+            forked.cancel()
+    for row, outcomes in done:
+        rows.append(row)
+        calls.outcomes.extend(outcomes)
     win = min((r for r in rows if r["gamma_certified"] is not None), key=lambda r: r["gamma_certified"])
     history = list(win.get("history") or [win["gamma_certified"]])
     return list(win["gains"]), history, f"best certified route: {win['name']} (gamma {win['gamma_certified']:.6g})", \
