@@ -46,10 +46,9 @@ Methods:
     and runs the ``descent`` before it only when no LMI route certified a controller
     within the gain bound.
 
-Every controller returned honours ``k_max`` in the norm :math:`\|\mathcal K_j\|_2` of
-every FDI mode's block: observer designs above it are scaled onto it before they are
-certified, and any route's answer above it (an LMI's bound met to the solver's
-tolerance) is scaled onto it and certified again (``_honour_bound``).
+Every controller returned honours ``k_max`` in :math:`\|\mathcal K_j\|_2`: observer designs
+above it are scaled onto it before certification, any other answer above it is scaled
+and certified again (``_honour_bound``).
 """
 
 from __future__ import annotations
