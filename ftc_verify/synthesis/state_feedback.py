@@ -287,36 +287,60 @@ def _starts(system: FTCSystem, gamma: float | None, k_max: float | None, solver:
             start: list[Matrix] | None, extra: bool = False) -> list[dict[str, Any]]:
     """Every start of the iterative method with its certification (module docstring);
     ``extra``: also the designs of :data:`EXTRA_STARTS` (the ``best`` method). Each row
-    records its wall ``seconds`` (design and certification)."""
+    records its wall ``seconds`` (design and certification). The full-information LMI is
+    solved once (two-step's lower bracket and a start of its own); two-step, the longest
+    start, runs in a forked child (:class:`~ftc_verify.analysis.solvers.ForkedCall`) beside
+    the others, its row first as before."""
     if start is not None:
         rows = [certify_start(system, "given", start, solver)]
     else:
-        rows = []
-        t0 = time.perf_counter()
         fi = xy_solve(system, "full-info", None, calls, None)  # two-step's bracket and a start of its own
         full_info = None if fi is None else [Y @ np.linalg.inv(X) for X, Y in zip(fi["X"], fi["Y"])]
-        for seed_method in ("two-step", "common"):
-            gains, _, msg = _design(system, seed_method, gamma, k_max, calls, fi)
-            seed_row: dict[str, Any] = ({"name": seed_method, "gamma_certified": None, "spectral_abscissa": None,
-                                         "note": "", "reason": msg} if gains is None
-                                        else certify_start(system, seed_method, gains, solver))
-            rows.append(seed_row | {"seconds": time.perf_counter() - t0})
-            t0 = time.perf_counter()
-        for c in candidates(system, k_max, full_info):
-            if c.gains is None:
-                rows.append({"name": c.name, "gamma_certified": None, "spectral_abscissa": None, "note": "",
-                             "reason": c.note})
-            else:
-                rows.append(certify_start(system, c.name, c.gains, solver, c.note))
-            rows[-1]["seconds"], t0 = time.perf_counter() - t0, time.perf_counter()
-        for name in EXTRA_STARTS if extra else ():
-            gains, _, msg = _convex_gains(system, name, calls, k_max)
-            made: dict[str, Any] = ({"name": name, "gamma_certified": None, "spectral_abscissa": None, "note": "",
-                                     "reason": msg} if gains is None else certify_start(system, name, gains, solver))
-            rows.append(made | {"seconds": time.perf_counter() - t0})
-            t0 = time.perf_counter()
+
+        def seed(method: str, own: SolverCalls) -> dict[str, Any]:
+            t = time.perf_counter()
+            gains, _, msg = _design(system, method, gamma, k_max, own, fi)
+            row: dict[str, Any] = ({"name": method, "gamma_certified": None, "spectral_abscissa": None, "note": "",
+                                    "reason": msg} if gains is None else certify_start(system, method, gains, solver))
+            return row | {"seconds": time.perf_counter() - t}
+
+        def two_step_alone() -> tuple[dict[str, Any], list[Any]]:
+            own = SolverCalls(solver)
+            return seed("two-step", own), own.outcomes
+
+        # two-step's bisection (the longest start) in a forked child beside the other starts
+        forked = ForkedCall(two_step_alone, "the two-step design") if hasattr(os, "fork") else None
+        try:
+            rows = _other_starts(system, k_max, solver, calls, full_info, extra, [seed("common", calls)])
+            two, outcomes = forked.result() if forked is not None else two_step_alone()
+        finally:
+            if forked is not None:
+                forked.cancel()
+        calls.outcomes.extend(outcomes)
+        rows.insert(0, two)
     for row in rows:
         calls.outcomes.extend(row.get("attempts", ()))
+    return rows
+
+
+def _other_starts(system: FTCSystem, k_max: float | None, solver: str, calls: SolverCalls,
+                  full_info: list[Matrix] | None, extra: bool, rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """``rows`` followed by the classical starts (:func:`~ftc_verify.synthesis.starts.candidates`)
+    and, with ``extra``, the :data:`EXTRA_STARTS` designs, each certified, with its seconds."""
+    t0 = time.perf_counter()
+    for c in candidates(system, k_max, full_info):
+        if c.gains is None:
+            rows.append({"name": c.name, "gamma_certified": None, "spectral_abscissa": None, "note": "",
+                         "reason": c.note})
+        else:
+            rows.append(certify_start(system, c.name, c.gains, solver, c.note))
+        rows[-1]["seconds"], t0 = time.perf_counter() - t0, time.perf_counter()
+    for name in EXTRA_STARTS if extra else ():
+        gains, _, msg = _convex_gains(system, name, calls, k_max)
+        made: dict[str, Any] = ({"name": name, "gamma_certified": None, "spectral_abscissa": None, "note": "",
+                                 "reason": msg} if gains is None else certify_start(system, name, gains, solver))
+        rows.append(made | {"seconds": time.perf_counter() - t0})
+        t0 = time.perf_counter()
     return rows
 
 
