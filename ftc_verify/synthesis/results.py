@@ -173,6 +173,10 @@ class SolverCalls:
         Every call of this run, in order.
     nested_calls, nested_seconds
         The calls and their seconds of the nested runs absorbed.
+    problems : dict
+        Convex programs built once in this run and solved again with new parameter values
+        (:func:`~ftc_verify.synthesis.xy_design.xy_solve`: step 1 of two-step at each gamma
+        of its bisection), so cvxpy canonicalises each once.
     """
 
     def __init__(self, solver: str) -> None:
@@ -180,6 +184,7 @@ class SolverCalls:
         self.outcomes: list[SolveOutcome] = []
         self.nested_calls = 0
         self.nested_seconds = 0.0
+        self.problems: dict[Any, Any] = {}
 
     def run(self, problem: Any) -> SolveOutcome:
         """Solve the cvxpy ``problem`` by :func:`~ftc_verify.analysis.solvers.solve` and log it."""
@@ -203,8 +208,11 @@ class SolverCalls:
         return sum(o.seconds for o in self.outcomes) + self.nested_seconds
 
 
-def verify_controller(system: FTCSystem, controller: Controller, solver: str) -> AnalysisReport:
+def verify_controller(system: FTCSystem, controller: Controller, solver: str,
+                      lower_bounds: bool = True) -> AnalysisReport:
     """The core analysis (spectral test, Theorem 3.1, nominal and robust gamma) of the
     closed loop of ``system`` and ``controller`` (:func:`~ftc_verify.analysis.analyze.analyze`,
-    without the cross-validation)."""
-    return analyze(closed_loop(system, controller), solver=solver, name=system.name, cross_validation=False)
+    without the cross-validation); ``lower_bounds=False`` leaves out the proved lower
+    bounds (the starts of ``iterative``, whose reports only rank them)."""
+    return analyze(closed_loop(system, controller), solver=solver, name=system.name, cross_validation=False,
+                   lower_bounds=lower_bounds)

@@ -214,8 +214,8 @@ def _two_step_min(system: FTCSystem, calls: SolverCalls, k_max: float | None) ->
     return best[0], best[1], f"smallest two-step gamma {best[2]:.6g} (bisection to {BISECTION_RTOL:g} relative)"
 
 
-def _verify(system: FTCSystem, gains: list[Matrix], solver: str) -> AnalysisReport:
-    return verify_controller(system, Controller.state_feedback(gains), solver)
+def _verify(system: FTCSystem, gains: list[Matrix], solver: str, lower_bounds: bool = True) -> AnalysisReport:
+    return verify_controller(system, Controller.state_feedback(gains), solver, lower_bounds)
 
 
 def descend(loop_of: Any, step: Any, m: int, start: list[Matrix], calls: SolverCalls, solver: str,
@@ -295,7 +295,7 @@ def _starts(system: FTCSystem, gamma: float | None, k_max: float | None, solver:
     else:
         rows = []
         for seed_method in ("two-step", "common"):
-            r = synthesize(system, method=seed_method, gamma=gamma, k_max=k_max, solver=solver)
+            r = _synthesize(system, seed_method, gamma, k_max, solver, None, 10, 1e-3, lower_bounds=False)
             calls.absorb(r)
             rows.append({"name": seed_method, "gamma_certified": r.gamma_certified, "gains": r.gains,
                          "spectral_abscissa": None if r.report is None else r.report.mss.spectral_abscissa,
@@ -401,6 +401,13 @@ def synthesize(
     ``iterative`` starts from ``start`` or else from the best certified of the starts in
     the module docstring.
     """
+    return _synthesize(system, method, gamma, k_max, solver, start, max_iter, tol, lower_bounds=True)
+
+
+def _synthesize(system: FTCSystem, method: str, gamma: float | None, k_max: float | None, solver: str | None,
+                start: list[Matrix] | None, max_iter: int, tol: float, *, lower_bounds: bool) -> SynthesisResult:
+    """:func:`synthesize`; ``lower_bounds=False``: the result's report has no proved lower
+    bounds (a start of ``iterative``, ranked by its certified gamma alone)."""
     if method not in METHODS:
         raise ValidationError(f"method: unknown method {method!r}; choose from {list(METHODS)}")
     for name, val in (("gamma", gamma), ("k_max", k_max)):
@@ -433,7 +440,7 @@ def synthesize(
     elif method == "best":
         gains, history, msg, start_name, rows = _best(system, gamma, k_max, name, calls, max_iter, tol)
         gsyn = history[-1] if history else None
-    report = _verify(system, gains, name) if gains is not None else None
+    report = _verify(system, gains, name, lower_bounds) if gains is not None else None
     certified = report is not None and report.certified_stable and report.robust.certified
     diagnosis = None
     if not certified:
