@@ -115,8 +115,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     bar = progress_bar(args.paths, f"simulate ({args.backend})", sys.stderr.isatty())
     done = None if bar is None else bar.update
     res: SimulationResult | StreamedResult
-    try:
-        with spec.client() as client:
+    try:  # the reference backend simulates its first batches here while a local cluster starts
+        with spec.client(wait=args.backend == "fmu") as client:
             if args.backend == "fmu":
                 res = fmu_monte_carlo(system, controller, paths, spec=spec, plant=plant, client=client,
                                       log=_fmu_logger(args), done=done)
