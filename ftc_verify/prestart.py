@@ -3,16 +3,17 @@
 Importing python-control (scipy.signal, matplotlib.pyplot) costs about a second, more than
 the whole analysis of a small loop, and its per-mode cross-check
 (:func:`~ftc_verify.analysis.crossval.cross_validate`) needs nothing but the closed loop.
-So ``analyze`` and ``verify`` start :func:`cross_check` first, before their own imports
-and stages: a :class:`Prestarted` child (a ``fork``, POSIX) that imports python-control
-at once and then waits. The command hands it the job as soon as the loop exists
+So ``analyze`` and ``verify`` start :func:`cross_check` first, right after importing their
+numerical modules (a forked child shares them: it imports only python-control, and on a
+busy machine no import is paid twice) and before any stage: a :class:`Prestarted` child
+(a ``fork``, POSIX) that imports python-control at once and then waits. The command hands it the job as soon as the loop exists
 (:meth:`Prestarted.submit`: a module-level function, pickled by name, and its argument)
 and collects the answer only at the very end (:meth:`Prestarted.result`); nothing in
 between waits for it. The answer is the function's on the same pickled argument, so the
 numbers are those of a call in this process.
 
 This module imports nothing but the standard library (and nothing of ``ftc_verify``), so
-the fork happens before the command's own numerical imports. Where ``fork`` is missing,
+a caller can fork wherever it likes. Where ``fork`` is missing,
 or when the child ends without an answer (killed, or dead in native code), the job runs in
 this process when :meth:`~Prestarted.result` is called: a third-party failure never
 decides the command's fate. An exception the job raises in the child is raised again

@@ -59,6 +59,8 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
     from .common import Stopwatch
 
     watch = Stopwatch()
+    from ..analysis import analyze as _  # noqa: F401  (numpy, scipy, the analysis: shared with the child below)
+
     check = start_cross_check()  # python-control's import starts now, beside everything below (issue 37)
     try:
         return _analyze_command(args, watch, check)

@@ -212,6 +212,8 @@ def _cmd_verify(args: argparse.Namespace) -> int:
     from .common import Stopwatch
 
     watch = Stopwatch()
+    from ..verification import verify as _  # noqa: F401  (numpy, scipy, the stages: shared with the child below)
+
     check = start_cross_check()  # python-control's import starts now, beside everything below (issue 37)
     try:
         return _verify_command(args, watch, check)

@@ -243,7 +243,7 @@ class ClusterStart:
     batches here, :mod:`ftc_verify.simulation.streaming`), asks :meth:`ready`, and takes
     :meth:`client` when it needs the workers. An exception raised in the main thread while
     it waits (SIGTERM, Ctrl-C) propagates; :meth:`close` then waits up to
-    :data:`START_TIMEOUT` for the half-built cluster and shuts it down quietly."""
+    ``START_TIMEOUT`` seconds for the half-built cluster and shuts it down quietly."""
 
     def __init__(self, workers: int, folder: Path) -> None:
         from distributed import LocalCluster

@@ -2,8 +2,9 @@
 
 A plant FMU is C code loaded into the process that runs it; a segfault there ends that
 process with no Python exception to catch. :func:`run_isolated` therefore runs the
-batches of an FMU Monte Carlo on one
-:class:`~ftc_verify.simulation.supervisor.Supervisor` in a child process and watches it:
+batches of an FMU Monte Carlo in child processes (:class:`PlantProcess`, one per core up
+to :data:`MAX_PROCESSES`, each a contiguous run of the batches on one
+:class:`~ftc_verify.simulation.supervisor.Supervisor`) and watches them:
 
 * the child is a fresh interpreter (``python -m ftc_verify.simulation.isolated``): it
   inherits none of this process's threads, signal handlers or main module; its job comes

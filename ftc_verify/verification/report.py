@@ -251,14 +251,30 @@ def write_report(rep: VerifyReport, out_dir: str | os.PathLike[str], watch: Any 
     except OSError as exc:
         raise ProblemFileError(f"{out}: cannot create a staging folder beside it: {exc.strerror}") from None
     try:
+        forked = None
         if rep.records:
             plant = rep.plant or {}
-            plot_path(rep.records[0], stage / "fig1_path.png", title=f"{rep.system.name}: one sample path"
-                      + (f" on {Path(plant['fmu']).name}" if plant else ""),
-                      state_offset=plant.get("states_op"), state_names=plant.get("states"))
+
+            def fig1() -> None:
+                plot_path(rep.records[0], stage / "fig1_path.png", title=f"{rep.system.name}: one sample path"
+                          + (f" on {Path(plant['fmu']).name}" if plant else ""),
+                          state_offset=plant.get("states_op"), state_names=plant.get("states"))
+
+            if hasattr(os, "fork"):  # the largest figure drawn in a child beside the other two
+                from ..analysis.solvers import ForkedCall
+
+                forked = ForkedCall(fig1, "the path figure")
+            else:
+                fig1()
             _ratio_plot(rep, stage / "ratio_distribution.png")
-        if rep.gamma_certified is not None:
-            _bracket_plot(rep, stage / "gamma_bracket.png")
+        try:
+            if rep.gamma_certified is not None:
+                _bracket_plot(rep, stage / "gamma_bracket.png")
+            if forked is not None:
+                forked.result()
+        finally:
+            if forked is not None:
+                forked.cancel()
         timings = dict(rep.seconds) | {"report_plots": time.perf_counter() - t0}
         if watch is not None:
             timings = dict(watch.timings) | timings | {"total": watch.total()}
