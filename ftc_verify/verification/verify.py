@@ -409,7 +409,7 @@ def run_verify(
     fault response's energy is reported). ``client``: a ``dask.distributed.Client`` whose workers co-simulate the Monte
     Carlo batches (same numbers); else ``fmu_log`` gets the FMU's messages. ``cross_check``: a
     :class:`~ftc_verify.prestart.Prestarted` started by the caller (the CLI starts it
-    before its own imports); by default one is started here, first. It gets the loop as
+    right after its numerical imports, before loading anything); by default one is started here, first. It gets the loop as
     soon as it exists and is waited for only at the end, so python-control's import and
     checks overlap every other stage."""
     if measure not in ("total", "incremental"):
