@@ -1,6 +1,7 @@
 """Verification properties (hypothesis, ``ci`` profile): the certified gamma bounds the
-exact expected energy and every disturbance the worst-case search finds; Monte Carlo
-agrees with the exact moments; python-control agrees on every frozen mode.
+exact expected energy and every disturbance the worst-case search finds; the simulated
+attenuation at the simulation step stays below the sampled loop's certificate at that
+step; Monte Carlo agrees with the exact moments; python-control agrees on every frozen mode.
 
 Solver: Clarabel. Statistical property: the Monte Carlo check uses a two-sided Student-t
 interval at alpha = 1e-6 per side, so each example fails falsely with probability about
@@ -17,6 +18,7 @@ from ftc_verify.analysis.crossval import cross_validate
 from ftc_verify.analysis.lmi_analysis import hinf_gamma
 from ftc_verify.verification.montecarlo import estimate
 from ftc_verify.analysis.moments.energy import exact_energy, worst_case_disturbance
+from ftc_verify.analysis.moments.sampled_gamma import sampled_gamma
 from ftc_verify.simulation.paths import sample_paths
 from ftc_verify.simulation.reference import energies_reference
 from ftc_verify.simulation.delta import constant_delta_loops
@@ -83,6 +85,30 @@ def test_monte_carlo_agrees_with_exact_moments(drawn: DrawnLoop, seed: int) -> N
     with replay_on_failure(system, controller):
         # O(h^2) left after Richardson: allow 0.5 % of the value on top of the interval
         assert lo - 5e-3 * exact.y_energy <= exact.y_energy <= hi + 5e-3 * exact.y_energy
+
+
+@settings(max_examples=4)
+@given(drawn=stable_loops(n=(1, 2), m=2, nw=1, uncertain=False, period=(5e-3, 0.05)),
+       seed=st.integers(0, 2**32 - 1))
+def test_simulated_attenuation_below_the_sampled_certificate(drawn: DrawnLoop, seed: int) -> None:
+    """The attenuation the simulator measures at its step ``h`` (the drawn controller
+    period: the controller sampled every ``h``, its output held) stays below the sampled
+    loop's proved gain at ``h`` (:mod:`ftc_verify.analysis.moments.sampled_gamma`, which
+    includes the behaviour between samples): 1000 paths at the box centre, horizon 6, the
+    Monte Carlo's lower bound of E||y||^2 / E||w||^2 (one-sided, alpha = 1e-6: false
+    failure about 1e-6 per example) at most gamma^2, plus 1 % for the grid's quadrature."""
+    system, controller = drawn.system, drawn.controller
+    h = controller.period
+    assert h is not None
+    cert = sampled_gamma(system, controller, h, robust=False)
+    assume(cert.gamma is not None)
+    assert cert.gamma is not None
+    paths = sample_paths(system.chain, 6.0, 1000, seed, beta=system.chain.midpoint())
+    y, w = energies_reference(system, controller, paths, step=h)
+    est = estimate(y, w, alpha=1e-6, seed=seed)
+    note(f"h {h:.4g}: Monte Carlo ratio >= {est.lower_bound:.6g} vs gamma^2 {cert.gamma ** 2:.6g}")
+    with replay_on_failure(system, controller):
+        assert est.lower_bound <= cert.gamma ** 2 * 1.01
 
 
 @settings(max_examples=8)

@@ -93,7 +93,7 @@ def test_sampled_proofs_enclose_the_files_decimals(tmp_path: Path) -> None:
     the data (exact balls)."""
     import flint
 
-    from ftc_verify.analysis.moments.sampled_proof import _MapParts, _ball_resets
+    from ftc_verify.analysis.moments.sampled_proof import _MapParts, ball_resets
     from ftc_verify.controllers import Controller
 
     from ftc_verify.analysis.rigorous import precision
@@ -113,11 +113,11 @@ def test_sampled_proofs_enclose_the_files_decimals(tmp_path: Path) -> None:
         s = loop.scale
         a22 = parts.modes[4, 4]  # vech entry (x2, x2) (column-major lower triangle, d = 4): 2 A_22
         assert (a22 / 2).contains(flint.arb("0.8")) and not (a22 / 2).contains(flint.arb(0.8))
-        R = _ball_resets(loop, 0.1)[0].value  # joint state (1, 1): D_c = K_1, balanced
+        R = ball_resets(loop, 0.1)[0].value  # joint state (1, 1): D_c = K_1, balanced
         k11 = R[2, 0] * float(s[2] / s[0])
         assert k11.contains(flint.arb("2.4563")) and not k11.contains(flint.arb(2.4563))
         plain = SampledLoop.build(_floats(system), Controller.state_feedback(list(controller.gains)))
-        assert plain.literals is None and _ball_resets(plain, 0.1)[0].value[2, 0].rad() == 0
+        assert plain.literals is None and ball_resets(plain, 0.1)[0].value[2, 0].rad() == 0
 
 def _floats(system: Any) -> Any:
     return dataclasses.replace(system, literals=None)

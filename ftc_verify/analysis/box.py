@@ -36,7 +36,9 @@ When the centre's candidate fails, the Theorem 3.1 LMI is solved on the sub-box
 (Clarabel, :func:`~ftc_verify.analysis.lmi_analysis.mes_lmi`): the best common
 :math:`P` of the sub-box, proved the same way. Loops too ill-conditioned for float64
 candidates get, at the whole box, a candidate solved in ball arithmetic at 256 then 512
-bits (:meth:`_Checker.check_precise`).
+bits (:meth:`_Checker.check_precise`): first when the centre's float candidate is not
+positive definite, after the LMI when it is (then the box's width, not float64, is what
+failed, and the LMI costs a fraction of the ball solves).
 
 **Branching.** A sub-box whose check fails is split in two along one rate: among the
 rates of the rows that failed, the widest relative to the whole box (all rates when the
@@ -69,7 +71,7 @@ from .closedloop import ClosedLoop
 from .conditioning import Similarity
 from .exact import ball_generator, ball_matrices, exact_loop, literals_of, written_box
 from .rigorous import Ball, ball, precision, proven_positive_definite, proven_positive_definite_cholesky
-from .verdict import SOLVE_LIMIT, StabilityProver, ball_lyapunov_solution
+from .verdict import SOLVE_LIMIT, StabilityProver, ball_lyapunov_solution, float_stack_solution
 
 __all__ = ["BOX_BUDGET_SECONDS", "MAX_BOXES", "MIN_RELATIVE_WIDTH", "RegionVerdict", "BoxVerdict",
            "box_stability"]
@@ -210,10 +212,8 @@ class _Checker:
         ``("failed", rates)`` with the rates of the rows that failed (empty when a row
         without uncertain rates failed or ``P`` was not proved positive definite)."""
         c = _centre(lo, hi)
-        from .moments.stability import lyapunov_stack_solution  # stability imports this module
-
         # the adjoint L*_c(P) = -I: the second-moment operator with A_s and Q transposed
-        Pt = lyapunov_stack_solution([a.T for a in self.conditioned.A], self.loop.chain.generator(c).T)
+        Pt = float_stack_solution([a.T for a in self.conditioned.A], self.loop.chain.generator(c).T)
         if Pt is None or not _float_positive(Pt):
             return "unstable-centre", set()
         with precision():
@@ -363,11 +363,14 @@ def box_stability(loop: ClosedLoop, sim: Similarity, *, budget_seconds: float = 
             proved.append(region(lo, hi, "stable", "P from the centre, P > 0 and -L*(P) > 0 proved at the vertices "
                                  "of every row's rates in 128-bit balls", 128, t0))
             continue
-        if boxes == 1 and _try_precise(checker, lo, hi, proved, region, t0):  # float64 may be too inaccurate
-            continue
+        # a centre candidate that is positive definite but misses some vertex: the box is too wide for it, not
+        # float64 too inaccurate, so the sub-box's LMI (under a second) before the 256/512-bit solves (seconds to
+        # tens of seconds at 300 rows)
         if status == "failed" and _lmi_on(loop, lo, hi):
             proved.append(region(lo, hi, "stable", "P from the Theorem 3.1 LMI on the sub-box (Clarabel), P > 0 and "
                                  "-L*(P) > 0 proved at the vertices of every row's rates in 128-bit balls", 128, t0))
+            continue
+        if boxes == 1 and _try_precise(checker, lo, hi, proved, region, t0):  # float64 may be too inaccurate
             continue
         centre = _centre(lo, hi)
         splittable = [r for r in uncertain if hi[r] - lo[r] > MIN_RELATIVE_WIDTH * root_width[r]]

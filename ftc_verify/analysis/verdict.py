@@ -57,7 +57,7 @@ from .exact import ball_generator, ball_matrices, exact_loop, literals_of
 from .rigorous import Ball, ball, precision, proven_not_psd, proven_positive_definite
 
 __all__ = ["VERDICTS", "SOLVE_LIMIT", "BUDGET_SECONDS", "FALLBACK_BITS", "VertexVerdict", "StabilityProver",
-           "certify_vertex", "combine", "describe", "ball_lyapunov_solution"]
+           "certify_vertex", "combine", "describe", "ball_lyapunov_solution", "float_stack_solution"]
 
 #: The three answers a stability verdict can give.
 VERDICTS = ("stable", "not stable", "undecided")
@@ -104,9 +104,30 @@ def _lyapunov_operator(A: Sequence[Ball], q: list[list[Any]], X: Sequence[Ball])
 def _float_candidate(conditioned: ClosedLoop, beta: Matrix) -> np.ndarray | None:
     """The float solution ``X~`` of ``L~(X~) = -I`` for the conditioned loop, as a stack of
     symmetric matrices (``None`` when the solve fails or is not finite)."""
-    from .moments.stability import lyapunov_stack_solution
+    return float_stack_solution(conditioned.A, conditioned.chain.generator(beta))
 
-    return lyapunov_stack_solution(conditioned.A, conditioned.chain.generator(beta))
+
+def float_stack_solution(A: Sequence[Matrix], Q: Matrix, shift: float = 0.0) -> np.ndarray | None:
+    r"""The float stack :math:`X` with :math:`A_s X_s + X_s A_s^T + \sum_t Q_{ts} X_t - \sigma X_s = -I`
+    (:math:`\sigma` = ``shift``, the equation of
+    :func:`~ftc_verify.analysis.moments.stability.abscissa_below`; with :math:`\sigma = 0`
+    :func:`~ftc_verify.analysis.moments.stability.lyapunov_stack_solution`'s; a candidate, proved
+    or not used). Above :data:`~ftc_verify.analysis.moments.stability.DENSE_LIMIT` rows, where that
+    function factors the sparse Kronecker system (fill-in of order :math:`(m^2 n^2)^2`),
+    it is :func:`~ftc_verify.analysis.bounded_real.coupled_lyapunov` first (GMRES
+    preconditioned by one Schur form per joint state, :math:`O(m^2 n^3)` per product), the
+    sparse factorisation only when GMRES does not converge."""
+    from .moments.stability import DENSE_LIMIT, lyapunov_stack_solution
+
+    n = A[0].shape[0]
+    shifted = [a - 0.5 * shift * np.eye(n) for a in A] if shift else list(A)
+    if len(A) * n * (n + 1) // 2 > DENSE_LIMIT:
+        from .bounded_real import coupled_lyapunov
+
+        X = coupled_lyapunov([a.T for a in shifted], np.asarray(Q).T, [np.eye(n)] * len(A))
+        if X is not None:
+            return np.array(X)
+    return lyapunov_stack_solution(shifted, Q)
 
 
 def _positive_definite(M: Ball, precond: Ball) -> bool:

@@ -72,6 +72,10 @@ def print_sampled(res: Any) -> None:
     verdict = {"stable": "mean-square stable over the rate box (proved)",
                "not stable": "NOT mean-square stable (proved)",
                "undecided": "UNDECIDED (neither stability nor instability proved)"}[res.verdict]
+    if res.performance is not None:  # analysis.moments.sampled_gamma
+        from ..analysis.moments.sampled_gamma import performance_lines
+
+        print("\n".join(performance_lines(res.performance)))
     print(f"  verdict at period h = {res.period:g}: the sampled loop is {verdict}")
 
 

@@ -72,7 +72,7 @@ from .records import DIVERGENCE_BOUND
 from .spec import SimulationSpec, spec_from
 from ..errors import ValidationError
 
-__all__ = ["energies_reference"]
+__all__ = ["energies_reference", "output_peaks_reference"]
 
 #: Joint tables up to this size use the "all modes, then select" kernel.
 _SELECT_LIMIT = 16
@@ -122,6 +122,43 @@ def energies_reference(
     if quadrature not in ("grid", "samples"):
         raise ValidationError(f"quadrature: {quadrature!r} is not 'grid' or 'samples'")
     spec = spec_from(spec, {"step": step, "disturbance": disturbance, "delta": delta, "x0": x0})
+    Ey, Ew, _, _ = _engine(system, controller, paths, spec, rng, peaks=False, samples_only=quadrature == "samples")
+    return Ey, Ew
+
+
+def output_peaks_reference(
+    system: FTCSystem,
+    controller: Controller,
+    paths: ChainPath | Sequence[ChainPath],
+    *,
+    spec: SimulationSpec,
+    rng: np.random.Generator | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    r"""Per path the largest :math:`|y|^2` and the largest value of every output channel
+    :math:`y_r` over the grid points of the sampled loop.
+
+    The loop, grid, ``Delta`` draws and arguments of :func:`energies_reference`; the
+    output at a grid point :math:`t_g` is :math:`y(t_g) = C_i x(t_g)` with :math:`i` the
+    true mode of the interval starting there (at the horizon: of the last interval), as
+    in the records of :func:`~ftc_verify.simulation.reference.simulate_reference`, so that
+    ``max_g |record.y[g]|^2`` and ``record.y.max(axis=0)`` are what this returns, without
+    keeping trajectories (``ftc_verify.risk`` passes a system whose ``C`` are its
+    envelope's rows).
+
+    Returns
+    -------
+    (peak_sq, peak) : (P,) and (ny, P) arrays
+        ``inf`` (every entry) for a path that diverged (as in :func:`energies_reference`).
+    """
+    _, _, peak_sq, peak = _engine(system, controller, paths, spec, rng, peaks=True)
+    return peak_sq, peak
+
+
+def _engine(system: FTCSystem, controller: Controller, paths: ChainPath | Sequence[ChainPath],
+            spec: SimulationSpec, rng: np.random.Generator | None, peaks: bool, samples_only: bool = False
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(Ey, Ew, peak_sq, peak)`` of :func:`energies_reference` and
+    :func:`output_peaks_reference` (the peaks are tracked only with ``peaks``)."""
     step = spec.step
     controller = check_controller(system, controller)
     plist = path_list(paths)
@@ -135,6 +172,8 @@ def energies_reference(
     P = len(plist)
     Ey = np.zeros(P)
     Ew = np.zeros(P)
+    ny = system.dims[2]
+    peak_sq, peak = np.full(P, -np.inf), np.full((ny, P), -np.inf)
     with np.errstate(over="ignore", invalid="ignore"):  # a diverging path: caught below
         for hz in np.unique(pa.horizon):
             sel = np.flatnonzero(pa.horizon == hz)
@@ -142,9 +181,11 @@ def energies_reference(
                 sub_pa, sub_seg_d = pa, seg_d
             else:
                 sub_pa, sub_seg_d = pa.select(sel), seg_d[pa.segments(sel)]
-            Ey[sel], Ew[sel] = _same_horizon(system, tab, sub_pa, sub_seg_d, float(hz), step, wfun, z0,
-                                             quadrature == "samples")
-    return Ey, Ew
+            Ey[sel], Ew[sel], ps, pk = _same_horizon(system, tab, sub_pa, sub_seg_d, float(hz), step, wfun, z0,
+                                                     samples_only, peaks)
+            if ps is not None and pk is not None:
+                peak_sq[sel], peak[:, sel] = ps, pk
+    return Ey, Ew, peak_sq, peak
 
 
 def _dynamics_ids(system: FTCSystem, controller: Controller, plist: list[ChainPath], pa: PathArrays,
@@ -179,9 +220,11 @@ def _dynamics_ids(system: FTCSystem, controller: Controller, plist: list[ChainPa
 
 def _same_horizon(system: FTCSystem, tab: Tables, pa: PathArrays, seg_d: np.ndarray, horizon: float,
                   step: float, wfun: Callable[[np.ndarray], np.ndarray],
-                  z0: np.ndarray, samples_only: bool = False) -> tuple[np.ndarray, np.ndarray]:
+                  z0: np.ndarray, samples_only: bool = False, peaks: bool = False
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
     """The engine for paths sharing one horizon (vocabulary of
-    ``ftc_verify.simulation._vectorised_grid``); returns ``(Ey, Ew)``."""
+    ``ftc_verify.simulation._vectorised_grid``); returns ``(Ey, Ew, peak_sq, peak)``
+    (the peaks ``None`` without ``peaks``)."""
     grid = eg.regular_grid(system.m, horizon, step, wfun)
     Ew = np.full(pa.count.size, float(np.sum(grid.wt_std * grid.w2reg)))
     jmp = eg.jumps(pa, seg_d, grid, step)
@@ -190,9 +233,34 @@ def _same_horizon(system: FTCSystem, tab: Tables, pa: PathArrays, seg_d: np.ndar
     pt = eg.points(jmp, it, pc, grid, wfun, Ew)
     stepper = _Stepper(tab, pa, seg_d, grid, jmp, it, pc, pt, step, z0)
     stepper.samples_only = samples_only
+    stepper.peaks = _Peaks(tab.Cz.shape[1], jmp.P) if peaks else None
     Ey = stepper.run()
-    Ey[~(stepper.zmax <= DIVERGENCE_BOUND ** 2)] = np.inf  # diverged (or NaN): records would stop there
-    return Ey, Ew
+    gone = ~(stepper.zmax <= DIVERGENCE_BOUND ** 2)
+    Ey[gone] = np.inf  # diverged (or NaN): records would stop there
+    if stepper.peaks is None:
+        return Ey, Ew, None, None
+    stepper.peaks.sq[gone] = np.inf
+    stepper.peaks.signed[:, gone] = np.inf
+    return Ey, Ew, stepper.peaks.sq, stepper.peaks.signed
+
+
+class _Peaks:
+    """Running maxima per path of :math:`|y|^2` (``sq``) and of every channel (``signed``)."""
+
+    def __init__(self, ny: int, P: int) -> None:
+        self.sq = np.full(P, -np.inf)
+        self.signed = np.full((ny, P), -np.inf)
+
+    def take(self, y: np.ndarray, where: np.ndarray | None = None) -> None:
+        """Outputs ``y`` (``(ny, P')``) of the paths ``where`` (all paths when ``None``;
+        a path may repeat)."""
+        if where is None:
+            np.maximum(self.sq, np.sum(np.square(y), axis=0), out=self.sq)
+            np.maximum(self.signed, y, out=self.signed)
+            return
+        np.maximum.at(self.sq, where, np.sum(np.square(y), axis=0))
+        for r in range(y.shape[0]):
+            np.maximum.at(self.signed[r], where, y[r])
 
 
 @dataclass(frozen=True)
@@ -242,6 +310,7 @@ class _Stepper:
         self.Bb = np.empty_like(self.Ba)
         self.Ey = np.zeros(P)
         self.samples_only = False  # Ey over the control samples only (energies_reference's quadrature)
+        self.peaks: _Peaks | None = None
         self.zmax = np.zeros(P)  # largest |z|^2 at the regular points (divergence test)
         self.dtab = np.empty((self.L + 1, P), dtype=np.int64)
         self.idx = np.empty((self.L, self.rows, P), dtype=np.int64) if self.select else None
@@ -356,6 +425,8 @@ class _Stepper:
             else:
                 np.sum(np.square(yk), axis=0, out=ysq)
             b0, b1 = sp_bounds[k], sp_bounds[k + 1]
+            if self.peaks is not None:  # the special points: in _last_point, with their own mode
+                self._take_regular(yk, spt_p[b0:b1])
             if b1 > b0:
                 pp = spt_p[b0:b1]
                 spt_x[b0:b1] = X[:, pp].T
@@ -372,6 +443,17 @@ class _Stepper:
             Ba, Bb = Bb, Ba
         self.Ba, self.Bb = Ba, Bb
 
+    def _take_regular(self, yk: np.ndarray, special: np.ndarray) -> None:
+        """Peaks of the regular points of a step, the paths with a special point there left out."""
+        assert self.peaks is not None
+        if special.size == 0:
+            self.peaks.take(yk)
+            return
+        keep = np.ones(self.P, dtype=bool)
+        keep[special] = False
+        idx = np.flatnonzero(keep)
+        self.peaks.take(yk[:, idx], idx)
+
     def _interior(self, i0: int, i1: int, maps: _ChunkMaps) -> None:
         """``Ey`` terms of the interior jump points of the special intervals ``i0:i1``,
         from the stored state at each interval's start."""
@@ -385,9 +467,12 @@ class _Stepper:
             q = si - 1 - s0
             xi[a] = np.einsum("pij,pj->pi", Fa[q], xi[a]) + np.einsum("pij,pj->pi", Fb[q], z0[a]) + gs[q]
             np.maximum.at(self.zmax, self.it.p[i0 + a], np.einsum("pi,pi->p", xi[a], xi[a]))  # jump points
+            yi = np.einsum("pij,pj->pi", Cz[d_true[pc.d[si]]], xi[a])
+            if self.peaks is not None:
+                self.peaks.take(yi.T, self.it.p[i0 + a])
             if self.samples_only:  # interior jump points are no samples
                 continue
-            qi = np.square(np.einsum("pij,pj->pi", Cz[d_true[pc.d[si]]], xi[a])).sum(axis=1)
+            qi = np.square(yi).sum(axis=1)
             self.Ey += np.bincount(self.it.p[i0 + a], pc.wt[si] * qi, minlength=self.P)
 
     def _last_point(self, npts: int) -> None:
@@ -395,12 +480,18 @@ class _Stepper:
         Cz, d_true, pt, b = self.tab.Cz, self.tab.d_true, self.pt, self.sp_bounds
         X = self.Ba[self.nw:self.nw + self.nz]
         np.maximum(self.zmax, np.einsum("ip,ip->p", X, X), out=self.zmax)
-        qK = np.square(np.einsum("pij,jp->pi", Cz[d_true[self.dtab[npts - 1]]], X)).sum(axis=1)
+        yK = np.einsum("pij,jp->pi", Cz[d_true[self.dtab[npts - 1]]], X)
+        qK = np.square(yK).sum(axis=1)
         b0, b1 = b[self.K], b[self.K + 1]
+        if self.peaks is not None:
+            self._take_regular(yK.T, pt.p[b0:b1])
         if b1 > b0:
             self.spt_x[b0:b1] = X[:, pt.p[b0:b1]].T
             qK[pt.p[b0:b1]] = 0.0
         self.Ey += self.grid.wt_std[self.K] * qK
-        q = np.square(np.einsum("pij,pj->pi", Cz[d_true[self.spt_d]], self.spt_x)).sum(axis=1)
+        ys = np.einsum("pij,pj->pi", Cz[d_true[self.spt_d]], self.spt_x)
+        if self.peaks is not None and ys.size:
+            self.peaks.take(ys.T, pt.p)
+        q = np.square(ys).sum(axis=1)
         weight = self.grid.wt_std[pt.k] if self.samples_only else pt.weight
         self.Ey += np.bincount(pt.p, weight * q, minlength=self.P)

@@ -10,6 +10,8 @@ can be pasted back into a test. :func:`closed_loops`, :func:`stable_loops` and
 
 from __future__ import annotations
 
+import dataclasses
+
 import functools
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -75,9 +77,11 @@ class DrawnLoop:
         dynamic: Mapping[str, Sequence[Any]] | None = None,
         fault_during_delay: bool = False,
         name: str = "drawn",
+        period: float | None = None,
     ) -> DrawnLoop:
         """Build from plain arrays (the inverse of :meth:`spec`): state-feedback ``gains``
-        or a ``dynamic`` controller given as lists ``{"Ac": [...], "Bc": [...], ...}``."""
+        or a ``dynamic`` controller given as lists ``{"Ac": [...], "Bc": [...], ...}``, and the
+        controller's sampling ``period`` (``None``: none)."""
         if (gains is None) == (dynamic is None):
             raise TypeError("DrawnLoop.from_spec: give exactly one of gains and dynamic")
         system = FTCSystem.from_arrays(name=name, modes=modes, alpha=alpha, beta_min=beta_min,
@@ -87,6 +91,8 @@ class DrawnLoop:
         else:
             assert dynamic is not None
             controller = Controller.dynamic(*([np.array(M, dtype=float) for M in dynamic[k]] for k in CONTROLLER_KEYS))
+        if period is not None:
+            controller = dataclasses.replace(controller, period=period)
         return cls(system, controller)
 
     def spec(self) -> dict[str, Any]:
@@ -105,6 +111,8 @@ class DrawnLoop:
             out["gains"] = [np.array(K) for K in self.controller.gains]
         else:
             out["dynamic"] = {k: [np.array(M) for M in getattr(self.controller, k)] for k in CONTROLLER_KEYS}
+        if self.controller.period is not None:
+            out["period"] = self.controller.period
         return out
 
     @property
@@ -136,7 +144,8 @@ class DrawnLoop:
         return (
             f"DrawnLoop.from_spec(modes={modes!r}, alpha={_plain(s['alpha'])!r}, "
             f"beta_min={_plain(s['beta_min'])!r}, beta_max={_plain(s['beta_max'])!r}, "
-            f"{ctrl}, fault_during_delay={s['fault_during_delay']!r})"
+            f"{ctrl}, fault_during_delay={s['fault_during_delay']!r}"
+            + (f", period={s['period']!r})" if "period" in s else ")")
         )
 
 
@@ -149,6 +158,7 @@ def closed_loops(
     dynamic: bool | st.SearchStrategy[bool] | None = False,
     n_c: Opt[int] | None = None,
     extra_states: Opt[int] = 0,
+    period: Opt[float] | None = None,
     **system_options: Any,
 ) -> DrawnLoop:
     """A plant and a controller from :func:`~ftc_verify.testing.controllers`.
@@ -161,6 +171,10 @@ def closed_loops(
         Factor on the LQR gains.
     dynamic, n_c, extra_states
         As in :func:`~ftc_verify.testing.controllers`.
+    period : float, (low, high) or strategy, optional (keyword only)
+        A sampling period for the controller (``Controller.period``; the sampled loop of
+        :mod:`ftc_verify.analysis.moments.sampled`), a range drawn log-uniformly
+        (:func:`~ftc_verify.testing.strategies.periods`); ``None``: no period.
     **system_options
         Options of :func:`~ftc_verify.testing.systems` (not together with ``systems``).
 
@@ -179,6 +193,11 @@ def closed_loops(
     system = draw(systems)
     controller = draw(strategies.controllers(system, dynamic=dynamic, n_c=n_c, extra_states=extra_states,
                                                scale=gain_scale))
+    if period is not None:
+        if isinstance(period, tuple):
+            period = strategies.periods(low=float(period[0]), high=float(period[1]))
+        h = draw(period) if isinstance(period, st.SearchStrategy) else float(period)
+        controller = dataclasses.replace(controller, period=h)
     return DrawnLoop(system, controller)
 
 

@@ -157,6 +157,10 @@ def sampled_stages(system: FTCSystem, controller: Controller, step: float, g2: f
 
     t = time.perf_counter()
     res, check = sampled_stage(system, controller, step)
+    if res is not None:  # its proved gains, JSON sampled.nominal_gamma / robust_gamma (+ lower estimates)
+        from ..analysis.moments.sampled_gamma import attach_performance
+
+        res = attach_performance(res, system, controller)
     checks.append(check)
     seconds["sampled"] = time.perf_counter() - t
     t = time.perf_counter()

@@ -6,7 +6,8 @@ the box verdict (:mod:`.stability`), the matrix-free spectral test for large loo
 the moment equations (:mod:`.energy`). Sampled data: the one-period map of the loop with a
 sample-and-hold controller, its spectral radius and ``h_max`` (:mod:`.sampled`), their
 ball-arithmetic proofs over the rate box (:mod:`.sampled_proof`, :mod:`.sampled_balls`)
-and the sampled loop's exact expected energy (:mod:`.sampled_energy`).
+the sampled loop's exact expected energy (:mod:`.sampled_energy`) and its proved L2 gain
+(:mod:`.sampled_gamma`).
 
 Monte Carlo energies of simulated paths are not here: they belong to the simulators
 (:mod:`ftc_verify.simulation.vectorised`).

@@ -468,6 +468,10 @@ class SampledResult:
         Runs of periods with float64 :math:`\\rho < 1` in the scanned range.
     scan : (float, float)
         The scanned range of periods.
+    performance : SampledPerformance or None
+        The proved gains at the period and their lower estimates
+        (:mod:`ftc_verify.analysis.moments.sampled_gamma`), when computed; merged into
+        :meth:`to_dict`.
     """
 
     period: float
@@ -482,6 +486,7 @@ class SampledResult:
     stability_intervals: tuple[tuple[float, float], ...]
     scan: tuple[float, float]
     seconds: float
+    performance: Any = None
 
     @property
     def stable(self) -> bool:
@@ -503,6 +508,7 @@ class SampledResult:
             "stability_intervals": [list(iv) for iv in self.stability_intervals],
             "scan": list(self.scan),
             "seconds": self.seconds,
+            **({} if self.performance is None else self.performance.to_dict()),
         }
 
 

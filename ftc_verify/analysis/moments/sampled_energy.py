@@ -87,17 +87,25 @@ class _Augmented:
         return E[:N, :N], E[:N, N:]
 
 
-def _augmented(system: FTCSystem, controller: Controller, period: float, beta: Matrix, disturbance: str,
-               x0: Matrix | None, start: tuple[int, int]) -> _Augmented:
-    """Checks the arguments and builds :class:`_Augmented` (module docstring)."""
+def _exosystem(disturbance: str, exosystem: tuple[Matrix, Matrix, Matrix] | None) -> tuple[Matrix, Matrix, Matrix]:
+    """``(S, c, zeta0)``: the given exosystem, else the named one of :data:`EXOSYSTEMS`."""
+    if exosystem is not None:
+        return exosystem
     if disturbance not in EXOSYSTEMS:
         raise ValidationError(f"disturbance: no exact model for {disturbance!r}; choose from {sorted(EXOSYSTEMS)}")
+    return EXOSYSTEMS[disturbance]
+
+
+def _augmented(system: FTCSystem, controller: Controller, period: float, beta: Matrix, disturbance: str,
+               x0: Matrix | None, start: tuple[int, int],
+               exosystem: tuple[Matrix, Matrix, Matrix] | None = None) -> _Augmented:
+    """Checks the arguments and builds :class:`_Augmented` (module docstring)."""
+    S_exo, c, zeta0 = _exosystem(disturbance, exosystem)
     if not (period > 0) or not math.isfinite(period):
         raise ValidationError(f"sampled_energy: the period must be positive and finite, got {period!r}")
     controller.check(system)
     chain = system.chain
     beta = chain.check_beta(beta)
-    S_exo, c, zeta0 = EXOSYSTEMS[disturbance]
     q = S_exo.shape[0]
     n, nu, _, nw = system.dims
     nc = controller.n_c
@@ -148,15 +156,18 @@ def _augmented(system: FTCSystem, controller: Controller, period: float, beta: M
 
 def sampled_energy(system: FTCSystem, controller: Controller, period: float, *, beta: Matrix,
                    disturbance: str = "paper", horizon: float = math.inf, x0: Matrix | None = None,
-                   start: tuple[int, int] = (0, 0)) -> ExactEnergy:
+                   start: tuple[int, int] = (0, 0),
+                   exosystem: tuple[Matrix, Matrix, Matrix] | None = None) -> ExactEnergy:
     """Exact :math:`E\\|y\\|^2` and :math:`\\|w\\|^2` of the sampled loop (module
     docstring) at the rate array ``beta``, from ``x0`` (default 0) in the joint state
     ``start``. Build a constant :math:`\\Delta` in with :func:`perturbed_system`.
-    ``horizon=inf`` needs a stable one-period map (else :class:`ValidationError`)."""
+    ``horizon=inf`` needs a stable one-period map (else :class:`ValidationError`).
+    ``exosystem = (S, c, zeta0)`` replaces the named one (``disturbance`` is then only
+    its label)."""
     if not (horizon > 0):
         raise ValidationError(f"sampled_energy: the horizon must be positive, got {horizon!r}")
-    aug = _augmented(system, controller, period, beta, disturbance, x0, start)
-    S_exo, c, zeta0 = EXOSYSTEMS[disturbance]
+    aug = _augmented(system, controller, period, beta, disturbance, x0, start, exosystem)
+    S_exo, c, zeta0 = _exosystem(disturbance, exosystem)
     F, G = aug.blocks(period)
     T = aug.restrict @ F @ aug.lift
     energy_row = aug.ell @ G @ aug.lift

@@ -91,7 +91,7 @@ from .sampled_balls import (ball_block_diag, ball_generator, ball_kron, envelope
 from .sampled import SampledLoop, assemble_map, one_period_map, rate_points, spectral_radius, worst_radius
 from .stability import duplication_matrix, unvech_stack, vech_order
 
-__all__ = ["FIRST_ORDER_LIMIT", "BoxVerdict", "ball_one_period_map", "prove_stable", "prove_unstable",
+__all__ = ["FIRST_ORDER_LIMIT", "BoxVerdict", "ball_resets", "ball_one_period_map", "prove_stable", "prove_unstable",
            "prove_point_unstable", "box_verdict"]
 
 
@@ -114,7 +114,7 @@ def _written_flow(loop: SampledLoop, A: Matrix) -> Ball:
     return Ball(out)
 
 
-def _ball_resets(loop: SampledLoop, h: float) -> list[Ball]:
+def ball_resets(loop: SampledLoop, h: float) -> list[Ball]:
     """:math:`R_s` as ball matrices; a dynamic controller's :math:`(\\Phi_c, \\Gamma_c)`
     from the rigorous exponential of :math:`[[A_c, B_c], [0, 0]] h` (Van Loan)."""
     flint = _flint()
@@ -187,7 +187,7 @@ class _MapParts:
             blocks.append(ball(Ld) @ (ball_kron(eye, Ab) + ball_kron(Ab, eye)) @ ball(Dd))
         P = loop.restriction()
         restrict = ball(np.asarray(Lr @ np.kron(P, P) @ Dd, dtype=float))  # 0/1 products of 0/1 matrices: exact
-        lift = ball_block_diag([ball(Ld) @ ball_kron(R, R) @ ball(Dr) for R in _ball_resets(loop, h)])
+        lift = ball_block_diag([ball(Ld) @ ball_kron(R, R) @ ball(Dr) for R in ball_resets(loop, h)])
         modes, res, hb = ball_block_diag(blocks).value, ball_block_diag([restrict] * loop.states).value, loop.period_ball(h)
         floats = tuple(from_arb(x) for x in (res, modes, lift.value, _flint().arb_mat(1, 1, [hb])))
         return cls(modes, res, lift.value, hb, Dd.shape[1], loop.states, loop.literals, floats)

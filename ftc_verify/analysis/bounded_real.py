@@ -1,0 +1,396 @@
+r"""Certificate candidates of Theorem 3.2 from the coupled bounded-real Riccati equations, without an SDP.
+
+For a joint chain with generator :math:`Q` (one rate vector of the box) and the nominal
+loop :math:`(A_s, B_{w,s}, C_{z,s})` of :mod:`ftc_verify.analysis.closedloop`, the
+bounded real lemma of the jump system (de Souza & Fragoso 1993; Costa, Fragoso & Todorov
+2013, ch. 7; written out in :mod:`ftc_verify.testing.references`) says that
+:math:`\gamma` exceeds the worst-case gain iff the coupled Riccati equations
+
+.. math::
+
+    A_s^T P_s + P_s A_s + \sum_t q_{st} P_t + C_{z,s}^T C_{z,s} + \varepsilon I
+    + \gamma^{-2} P_s B_{w,s} B_{w,s}^T P_s = 0 \tag{1}
+
+have a stabilising solution (here with :math:`\varepsilon = 0`). With
+:math:`\varepsilon > 0`, a solution of (1) satisfies the Riccati *inequality* of the
+unperturbed data with margin :math:`\varepsilon I`, and :math:`P_s \succ 0`; by the
+Schur complement on the :math:`-\gamma^2 I` and :math:`-I` rows it is the strict LMI of
+Theorem 3.2 (:func:`~ftc_verify.analysis.lmi.lyapunov_block`, :math:`g = \gamma^2`) at
+that rate vector.
+
+**The box.** Theorem 3.2's blocks must hold with the same :math:`P` at every vertex of
+the rates of each generator row. Row :math:`s` is affine in its rates
+(:meth:`~ftc_verify.model.chain.JointChain.row_rates`): over the box it is
+:math:`\bar q_s + \sum_r \sigma_r d_{s,r}`, :math:`|\sigma_r| \le 1` (midpoint and half
+ranges, :class:`RateEnvelope`), so its coupling is
+:math:`\sum_t \bar q_{st} P_t + \sum_r \sigma_r G_{s,r}`,
+:math:`G_{s,r} = \sum_{t \ne s} d_{s,r,t}(P_t - P_s)`. With a pinned vertex
+:math:`\hat\sigma` and the matrix absolute value :math:`|G|`,
+:math:`\sigma G \preceq \hat\sigma G + (|G| - \hat\sigma G)` for every
+:math:`|\sigma| \le 1`; hence a solution of
+
+.. math::
+
+    A_s^T P_s + P_s A_s + \sum_t \hat q_{st} P_t + E_s(P) + C_{z,s}^T C_{z,s} + \varepsilon I
+    + \gamma^{-2} P_s B_{w,s} B_{w,s}^T P_s = 0, \quad
+    E_s(P) = \sum_r (|G_{s,r}| - \hat\sigma_r G_{s,r}) \succeq 0 , \tag{3}
+
+(:math:`\hat q` the generator at the pinned vertex) satisfies the Riccati inequality
+with margin :math:`\varepsilon I` at *every* vertex: a candidate for the whole box.
+:math:`E_s = 0` where :math:`G_{s,r}` is definite and :math:`\hat\sigma_r` its sign
+(then (3) is (1) at the worst vertex); :meth:`RateEnvelope.pinned` takes
+:math:`\hat\sigma_r = \operatorname{sign}\operatorname{tr} G_{s,r}`. The construction
+is conservative where :math:`G` is indefinite (measured: the certified level 0.07-0.6 %
+above the SDP's on random loops). :func:`~ftc_verify.analysis.lmi.check_certificate`
+proves or rejects the candidate at every vertex in ball arithmetic (on the loop as the
+user wrote it, through the conditioning similarity). Nothing here is trusted: a rejected
+candidate sends the caller to the SDP (:func:`~ftc_verify.analysis.lmi_analysis.hinf_gamma`).
+
+**Solving (3).** Policy iteration (the maximising player's Newton step, the iteration
+of :func:`~ftc_verify.analysis.lower_bound.worst_case_feedback`, with a linear solver of
+the right complexity): from :math:`F = 0`, :math:`E = 0`, solve the coupled Lyapunov
+equation
+
+.. math::
+
+    \tilde A_s^T P_s + P_s \tilde A_s + \sum_t \hat q_{st} P_t = -(C_{z,s}^T C_{z,s} + \varepsilon I + E_s
+    - \gamma^2 F_s^T F_s), \qquad \tilde A_s = A_s + B_{w,s} F_s , \tag{2}
+
+then :math:`F_s = \gamma^{-2} B_{w,s}^T P_s`, :math:`E_s = E_s(P)`; at a fixed point
+(2) is (3). It fails (:math:`\gamma` too low, in float64, for this construction) when a
+solve of (2) fails, an iterate after the first is not positive semidefinite, or the
+iteration stops contracting or converging.
+
+**Solving (2) in** :math:`O(m^2 n^3)` **per iteration** (:func:`coupled_lyapunov`), not by the
+:math:`(m^2 n^2)^3` dense Kronecker system. Split the operator
+:math:`\mathcal L(P)_s = \hat A_s^T P_s + P_s \hat A_s + \sum_{t \ne s} q_{st} P_t`,
+:math:`\hat A_s = \tilde A_s + \tfrac12 q_{ss} I`, into its block diagonal
+:math:`\mathcal D` (one Lyapunov operator per joint state, solved by Bartels--Stewart on
+one real Schur form per state, LAPACK ``trsyl``) and the coupling :math:`\mathcal N`.
+:math:`\mathcal L` is resolvent positive; when it is Hurwitz (the loop mean-square
+stable), :math:`\mathcal L = \mathcal D + \mathcal N` is a regular splitting, so
+:math:`\rho(\mathcal D^{-1}\mathcal N) < 1` and the preconditioned equation
+:math:`(I + \mathcal D^{-1}\mathcal N) P = -\mathcal D^{-1} R` is solved by GMRES, each
+product :math:`m^2` Schur-based Sylvester solves and a coupling sum. Stacks of at most
+:data:`DENSE_ROWS` ``vech`` rows are solved densely instead
+(:func:`~ftc_verify.analysis.moments.stability.lyapunov_stack_solution`, faster there).
+
+**Gamma.** Bisection on :math:`\gamma` (geometric) between a failing and a succeeding
+level of the iteration with :math:`\varepsilon = 0` (the envelope pinned at the first
+feasible level), warm-started from the last
+feasible feedback, to :data:`BISECTION_RTOL`; the candidate is then solved at
+:math:`\gamma(1 + 2\rho)` with :math:`\varepsilon = \rho \max_s \|C_{z,s}\|^2` for
+:math:`\rho` in :data:`CANDIDATE_LADDER` until a certificate passes.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+import scipy.linalg.lapack
+import scipy.sparse.linalg
+
+from ..model.chain import JointChain
+from ..model.system import Matrix
+from .closedloop import ClosedLoop
+from .conditioning import Similarity
+from .lmi import Certificate, check_certificate
+
+__all__ = ["BISECTION_RTOL", "DENSE_ROWS", "POLICY_RTOL", "SEARCH_RTOL", "CANDIDATE_LADDER", "MAX_POLICY_STEPS", "coupled_lyapunov",
+           "RateEnvelope", "bounded_real_solution", "float_hinf_norm", "RiccatiCandidate", "riccati_candidate"]
+
+#: Relative width of the final bisection bracket of :func:`float_hinf_norm`.
+BISECTION_RTOL = 1e-4
+#: Relative steps above the float norm (and relative margins ``epsilon``) tried for a candidate.
+CANDIDATE_LADDER = (1e-4, 1e-3, 1e-2)
+#: Policy-iteration steps before :func:`bounded_real_solution` gives up.
+MAX_POLICY_STEPS = 60
+#: Relative change of ``P`` at which the policy iteration has converged (the candidate).
+POLICY_RTOL = 1e-10
+#: The same for the feasibility tests of the bisection (a level is decided long before).
+SEARCH_RTOL = 1e-6
+#: From this step on, an iteration whose step does not halve is stopped (not contracting).
+STALL_STEPS = 12
+#: Re-pinnings of the envelope at the first feasible level (:func:`float_hinf_norm`).
+PIN_ROUNDS = 3
+#: Stacks of at most this many ``vech`` rows are solved densely
+#: (:func:`~ftc_verify.analysis.moments.stability.lyapunov_stack_solution`), larger ones by GMRES.
+DENSE_ROWS = 400
+#: Relative residual of the GMRES solves of eq. (2).
+_GMRES_RTOL = 1e-11
+
+
+class _Schur:
+    """Real Schur forms ``hat A_s = U_s T_s U_s^T`` (module docstring) for Bartels--Stewart."""
+
+    def __init__(self, A: Sequence[Matrix], Q: Matrix) -> None:
+        n = A[0].shape[0]
+        self.forms = [scipy.linalg.schur(a + 0.5 * Q[s, s] * np.eye(n), output="real") for s, a in enumerate(A)]
+
+    def solve(self, s: int, W: Matrix) -> Matrix | None:
+        """``X`` with ``hat A_s^T X + X hat A_s = W``; ``None`` when singular."""
+        T, U = self.forms[s]
+        C = U.T @ W @ U
+        X, scale, info = scipy.linalg.lapack.dtrsyl(T, T, C, trana="T", tranb="N", isgn=1)
+        if info < 0 or scale == 0:
+            return None
+        X = U @ (X / scale) @ U.T
+        return 0.5 * (X + X.T)
+
+
+def coupled_lyapunov(A: Sequence[Matrix], Q: Matrix, R: Sequence[Matrix],
+                     start: Sequence[Matrix] | None = None) -> list[Matrix] | None:
+    r"""The stack :math:`P` with :math:`A_s^T P_s + P_s A_s + \sum_t q_{st} P_t = -R_s`
+    (eq. (2)), by GMRES on the block-diagonally preconditioned operator (module
+    docstring); ``start`` a first guess. ``None`` when a Schur solve is singular, GMRES
+    does not converge or the result is not finite (for a resolvent-positive operator: the
+    loop is, in float64, not mean-square stable)."""
+    n, S = A[0].shape[0], len(A)
+    Q = np.asarray(Q, dtype=float)
+    if S * n * (n + 1) // 2 <= DENSE_ROWS:  # small: the dense vech system of the stability module
+        from .moments.stability import lyapunov_stack_solution
+
+        X = lyapunov_stack_solution([a.T for a in A], Q.T, R)
+        return None if X is None else list(X)
+    schur = _Schur(A, Q)
+    size = n * n
+
+    def coupling(X: list[Matrix], s: int) -> Matrix:
+        out = np.zeros((n, n))
+        for t in range(S):
+            if t != s and Q[s, t] != 0.0:
+                out += Q[s, t] * X[t]
+        return out
+
+    def precondition(W: list[Matrix]) -> list[Matrix]:
+        out = []
+        for s in range(S):
+            X = schur.solve(s, W[s])
+            if X is None:
+                raise np.linalg.LinAlgError("singular Lyapunov operator")
+            out.append(X)
+        return out
+
+    def split(v: Matrix) -> list[Matrix]:
+        return [v[s * size:(s + 1) * size].reshape(n, n) for s in range(S)]
+
+    def matvec(v: Matrix) -> Matrix:
+        X = split(np.asarray(v, dtype=float).ravel())
+        Y = precondition([coupling(X, s) for s in range(S)])
+        return np.asarray(v, dtype=float).ravel() + np.concatenate([y.ravel() for y in Y])
+
+    try:
+        rhs = np.concatenate([x.ravel() for x in precondition([-np.asarray(r, dtype=float) for r in R])])
+        op = scipy.sparse.linalg.LinearOperator((S * size, S * size), matvec=matvec, dtype=float)
+        x0 = None if start is None else np.concatenate([np.asarray(p, dtype=float).ravel() for p in start])
+        v, info = scipy.sparse.linalg.gmres(op, rhs, x0=x0, rtol=_GMRES_RTOL, atol=0.0,
+                                            restart=min(S * size, 60), maxiter=40)
+    except (np.linalg.LinAlgError, ValueError, scipy.linalg.LinAlgError):
+        return None
+    if info != 0 or not np.all(np.isfinite(v)):
+        return None
+    return [0.5 * (X + X.T) for X in split(v)]
+
+
+@dataclass(frozen=True, eq=False)
+class RateEnvelope:
+    r"""The generator rows over the rate box (module docstring, eq. (3)): row :math:`s`
+    at any rate vector of the box is :math:`\bar q_s + \sum_r \sigma_r d_{s,r}`,
+    :math:`|\sigma_r| \le 1`; ``signs`` pins each :math:`\sigma_r` to a vertex
+    (``Q`` is the generator there), the rest of the envelope is the correction."""
+
+    mid: Matrix
+    half: tuple[tuple[Matrix, ...], ...]
+    signs: tuple[tuple[float, ...], ...]
+
+    @classmethod
+    def of(cls, chain: JointChain) -> RateEnvelope:
+        """The envelope of ``chain``'s rate box (each row affine in its rates,
+        :meth:`~ftc_verify.model.chain.JointChain.row_rates`), pinned at the lower corner."""
+        lo, hi, mid = chain.rate_min, chain.rate_max, np.asarray(chain.midpoint(), dtype=float)
+        half = []
+        for s in range(chain.n_states):
+            rows = []
+            for r in chain.row_rates(s):
+                up, down = mid.copy(), mid.copy()
+                up[r], down[r] = hi[r], lo[r]
+                d = 0.5 * (np.asarray(chain.row_generator(s, up)) - np.asarray(chain.row_generator(s, down)))
+                if np.any(d):
+                    rows.append(d)
+            half.append(tuple(rows))
+        return cls(np.array(chain.generator(mid), dtype=float), tuple(half),
+                   tuple(tuple(-1.0 for _ in rows) for rows in half))
+
+    @property
+    def Q(self) -> Matrix:
+        """The generator at the pinned vertex."""
+        Q = self.mid.copy()
+        for s, (rows, signs) in enumerate(zip(self.half, self.signs)):
+            for d, sign in zip(rows, signs):
+                Q[s] += sign * d
+        return Q
+
+    def _terms(self, P: Sequence[Matrix]) -> list[list[Matrix]]:
+        r""":math:`G_{s,r} = \sum_{t \ne s} d_{s,r,t} (P_t - P_s)`."""
+        return [[sum((float(q) * (P[t] - P[s]) for t, q in enumerate(d) if t != s and q != 0.0),
+                     np.zeros_like(P[s])) for d in rows] for s, rows in enumerate(self.half)]
+
+    def correction(self, P: Sequence[Matrix]) -> list[Matrix]:
+        r""":math:`E_s = \sum_r (|G_{s,r}| - \sigma_r G_{s,r})` (matrix absolute value):
+        every vertex's coupling is at most the pinned vertex's plus :math:`E_s`."""
+        out = []
+        for s, terms in enumerate(self._terms(P)):
+            E = np.zeros_like(P[s])
+            for G, sign in zip(terms, self.signs[s]):
+                w, V = np.linalg.eigh(0.5 * (G + G.T))
+                E += (V * (np.abs(w) - sign * w)) @ V.T
+            out.append(E)
+        return out
+
+    def pinned(self, P: Sequence[Matrix]) -> RateEnvelope:
+        r"""The envelope pinned at :math:`\sigma_r = \operatorname{sign} \operatorname{tr} G_{s,r}`
+        (the vertex whose correction is smallest in trace: zero where :math:`G` is definite)."""
+        signs = tuple(tuple(1.0 if float(np.trace(G)) >= 0 else -1.0 for G in terms) for terms in self._terms(P))
+        return RateEnvelope(self.mid, self.half, signs)
+
+
+def bounded_real_solution(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], box: RateEnvelope,
+                          gamma: float, epsilon: float = 0.0, start: Sequence[Matrix] | None = None,
+                          rtol: float = POLICY_RTOL) -> tuple[list[Matrix], list[Matrix]] | None:
+    r"""The stabilising solution ``P`` of eq. (3) (eq. (1) over the box) at ``gamma`` and
+    ``epsilon`` and its feedback ``F`` (``(P, F)``), by policy iteration from the
+    feedback ``start`` (default ``F = 0``; it must make the loop mean-square stable),
+    the envelope term taken at the previous iterate; ``None`` when it fails (an iterate
+    after the first not positive semidefinite, a failed solve, no convergence): then
+    ``gamma`` is, in float64, too low for this construction. A float search: what it
+    returns is proved or not used. ``rtol``: the relative change of ``P`` at which the
+    iteration has converged."""
+    n = A[0].shape[0]
+    g2 = gamma * gamma
+    F = [np.zeros((B.shape[1], n)) for B in Bw] if start is None else [np.asarray(f, dtype=float) for f in start]
+    base = [c.T @ c + epsilon * np.eye(n) for c in Cz]
+    P_old: list[Matrix] | None = None
+    E = [np.zeros((n, n)) for _ in A]
+    last = math.inf
+    for k in range(MAX_POLICY_STEPS):
+        with np.errstate(all="ignore"):
+            At = [a + b @ f for a, b, f in zip(A, Bw, F)]
+            R = [r + e - g2 * f.T @ f for r, e, f in zip(base, E, F)]
+        if not all(np.all(np.isfinite(x)) for x in (*At, *R)):
+            return None
+        P = coupled_lyapunov(At, box.Q, R, P_old)
+        if P is None:
+            return None
+        scale = max(np.finfo(float).tiny, *(float(np.abs(p).max()) for p in P))
+        if k > 0 and min(float(np.linalg.eigvalsh(p)[0]) for p in P) < -1e-9 * scale:
+            return None
+        F = [b.T @ p / g2 for b, p in zip(Bw, P)]
+        E = box.correction(P)
+        if P_old is not None:
+            step = max(float(np.abs(p - q).max()) for p, q in zip(P, P_old)) / scale
+            if step <= rtol:
+                return P, F
+            if k >= STALL_STEPS and step > 0.5 * last:  # not contracting: treated as infeasible
+                return None
+            last = step
+        P_old = P
+    return None
+
+
+def float_hinf_norm(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], box: RateEnvelope, *,
+                    rtol: float = BISECTION_RTOL) -> tuple[float, list[Matrix], RateEnvelope] | None:
+    """The smallest level of :func:`bounded_real_solution` (an upper end ``gamma`` of a
+    bracket of relative width ``rtol``) and the feedback there, by geometric bisection
+    warm-started from the last feasible feedback, and the envelope pinned as it was
+    used (:meth:`RateEnvelope.pinned`, at the first feasible level); ``None`` when no level up to 1e300 is
+    feasible or the input or output is zero."""
+    if all(not np.any(b) for b in Bw) or all(not np.any(c) for c in Cz):
+        return None
+    n = A[0].shape[0]
+    gains = []
+    for s, (a, b, c) in enumerate(zip(A, Bw, Cz)):  # the frozen modes' DC gains: a start
+        try:
+            gains.append(float(np.linalg.norm(c @ np.linalg.solve(-(a + 0.5 * box.Q[s, s] * np.eye(n)), b), 2)))
+        except np.linalg.LinAlgError:
+            continue
+    hi = max([x for x in gains if math.isfinite(x) and x > 0], default=1.0)
+    lo = 0.0
+    found = bounded_real_solution(A, Bw, Cz, box, hi, rtol=SEARCH_RTOL)
+    while found is None:
+        lo, hi = hi, 4.0 * hi
+        if hi > 1e300:
+            return None
+        found = bounded_real_solution(A, Bw, Cz, box, hi, rtol=SEARCH_RTOL)
+    for _ in range(PIN_ROUNDS):  # pin every row at the vertex its coupling prefers
+        again = box.pinned(found[0])
+        if again.signs == box.signs:
+            break
+        box = again
+        found = bounded_real_solution(A, Bw, Cz, box, hi, start=found[1], rtol=SEARCH_RTOL) or found
+    F = found[1]
+    while lo == 0.0:
+        trial = 0.5 * hi
+        nxt = bounded_real_solution(A, Bw, Cz, box, trial, start=F, rtol=SEARCH_RTOL)
+        if nxt is None:
+            lo = trial
+        else:
+            hi, F = trial, nxt[1]
+            if hi < 1e-300:
+                return hi, F, box
+    while hi - lo > rtol * hi:
+        mid = math.sqrt(lo * hi)
+        nxt = bounded_real_solution(A, Bw, Cz, box, mid, start=F, rtol=SEARCH_RTOL)
+        if nxt is None:
+            lo = mid
+        else:
+            hi, F = mid, nxt[1]
+    return hi, F, box
+
+
+@dataclass(frozen=True, eq=False)
+class RiccatiCandidate:
+    """What :func:`riccati_candidate` found: the float norm at the lower corner of the
+    rate box (``None`` when none), the certified level and its certificate (``None``
+    when no candidate passed), ``P`` in the coordinates of the target loop, the levels
+    tried and why the last one failed."""
+
+    float_norm: float | None
+    gamma: float | None
+    certificate: Certificate | None
+    P: tuple[Matrix, ...] | None
+    tried: int
+    message: str
+
+
+def riccati_candidate(original: ClosedLoop, target: ClosedLoop, similarity: Similarity | None) -> RiccatiCandidate:
+    r"""A certified Theorem 3.2 level of ``original`` from the box Riccati equations (3)
+    of ``target`` (``original`` in the coordinates of ``similarity``; nominal, no
+    uncertainty channels), each candidate proved at every vertex of the box by
+    :func:`~ftc_verify.analysis.lmi.check_certificate` (module docstring)."""
+    box = RateEnvelope.of(target.chain)
+    A, Bw, Cz = list(target.A), list(target.Bw), list(target.Cz)
+    norm = float_hinf_norm(A, Bw, Cz, box)
+    if norm is None:
+        return RiccatiCandidate(None, None, None, None, 0, "no feasible level of the box Riccati equations")
+    gamma0, F, box = norm
+    scale = max(*(float(np.linalg.norm(c, 2)) ** 2 for c in Cz), np.finfo(float).tiny)
+    why, tried = "", 0
+    for rho in CANDIDATE_LADDER:
+        gamma = gamma0 * (1.0 + 2.0 * rho)
+        found = bounded_real_solution(A, Bw, Cz, box, gamma, rho * scale, start=F)
+        tried += 1
+        if found is None:
+            why = f"no Riccati solution at {gamma:.6g} with margin {rho:.1e}"
+            continue
+        P = tuple(found[0])
+        cert = check_certificate(original, "theorem-3.2", P, None, gamma * gamma, similarity=similarity)
+        if cert.ok:
+            return RiccatiCandidate(gamma0, gamma, cert, P, tried,
+                                    f"float level {gamma0:.6g} of the box Riccati equations (no SDP); certified at "
+                                    f"{gamma:.6g} (+{2 * rho:.1e} relative), margin {rho:.1e}")
+        why = cert.reason
+    return RiccatiCandidate(gamma0, None, None, None, tried, f"no candidate passed ({tried} tried): {why}")

@@ -1,0 +1,525 @@
+r"""A performance certificate for the sampled loop: a proved bound on its L2 gain.
+
+The loop of :mod:`ftc_verify.analysis.moments.sampled` (the controller reads
+:math:`x(t_k)` and the FDI report at :math:`t_k = k h`, holds its output, faults and
+detections happen between samples) with the disturbance :math:`w` and the output
+:math:`z = C_\theta x` of the continuous analysis, observed *between* samples too.
+Bounded here: the stochastic :math:`L_2` gain :math:`\sup E\|z\|^2 / \|w\|^2` (zero
+initial state) over every rate of the box and, robust, every :math:`\|\Delta\| \le 1`
+(eq. (13)), with the period as the float given.
+
+**Model** (derived here). The augmented state :math:`\zeta = (x, u, x_c^+)` of
+dimension :math:`d` (:class:`~ftc_verify.analysis.moments.sampled.SampledLoop`) flows
+between samples by :math:`\dot\zeta = \bar A_i \zeta + \bar B_{w,i} w`,
+:math:`\bar B_{w,i} = (D_i, 0, 0)`, :math:`z = \bar C_i \zeta`,
+:math:`\bar C_i = (C_i, 0, 0)`, with :math:`i` the true mode of the joint chain
+:math:`\theta`; the uncertainty enters as :math:`\bar E_1 \Delta_1 \bar F_1 \zeta`,
+:math:`\bar E_1 = (A_{1}; 0; 0)`, :math:`\bar F_1 = (A_{2}, 0, 0)`, and
+:math:`\bar E_2 \Delta_2 \bar F_2 \zeta`, :math:`\bar E_2 = (B_{1}; 0; 0)`,
+:math:`\bar F_2 = (0, B_{2}, 0)` (the held input passes the uncertain :math:`B`).
+At a sample in joint state :math:`s` the controller resets
+:math:`\zeta^+ = J_s \zeta^-`, :math:`J_s = R_s P` (the reset and restriction of the
+one-period map: :math:`u = C_{c,e} x_c + D_{c,e} M_i x`, :math:`x_c^+ = \Phi_c x_c +
+\Gamma_c M_i x`). With the clock :math:`\tau = t - t_k \in [0, h)` the triple
+:math:`(\zeta, \theta, \tau)` is a piecewise-deterministic Markov process.
+
+**Clock-dependent storage** (derived here). Take :math:`V = \zeta^T P_\theta(\tau)
+\zeta` with :math:`P_s` continuous and affine on each piece :math:`[\tau_k,
+\tau_{k+1}]` of :math:`[0, h]` (:math:`\tau_k = k h / N`), nodes :math:`P_s^k`,
+slope :math:`D_s^k = (P_s^{k+1} - P_s^k) N / h`. Between samples Dynkin's formula
+(generator of the chain :math:`Q`, the clock advancing at rate 1) gives
+
+.. math::
+
+    \tfrac{d}{dt} E[V] = E\Bigl[\zeta^T\bigl(D^k_\theta + \bar A^T P_\theta + P_\theta
+    \bar A + \textstyle\sum_{s'} q_{\theta s'} P_{s'}\bigr)\zeta + 2 \zeta^T P_\theta
+    (\bar B_w w + \bar E \Delta \bar F \zeta)\Bigr],
+
+so the block of :mod:`ftc_verify.analysis.lmi` (:func:`~ftc_verify.analysis.lmi.lyapunov_block`:
+Theorem 3.2's bounded-real block, or Lemma 4.1's with the S-procedure multipliers
+:math:`\lambda_{s}` for :math:`\Delta`) built on :math:`(\bar A, \bar B_w, \bar C,
+\bar E, \bar F)` with :math:`P_s(\tau)`, plus :math:`D_s^k` in its leading block,
+negative definite for every :math:`\tau` of every piece, gives
+:math:`\frac{d}{dt} E[V] + E|z|^2 - \gamma^2 |w|^2 < 0` there. On a piece the block
+is affine in :math:`\tau` (:math:`P_s(\tau)` and the multipliers, interpolated
+between their node values, enter affinely; :math:`D_s^k` is constant), so it is
+negative definite on the piece iff it is at both ends: :math:`2 N` instances per
+block, each with the piece's slope. At the sample :math:`V` must not grow:
+
+.. math::
+
+    J_s^T P_s(0) J_s \prec P_s(h) \qquad \text{for every joint state } s
+
+(the chain does not jump at the sample instant, probability 0). Summing over the
+periods, :math:`E\!\int_0^T |z|^2 - \gamma^2 |w|^2 \le V(0) - E V(T) \le 0` from
+:math:`\zeta(0) = 0`: the gain is at most :math:`\gamma`, and with :math:`w = 0`,
+:math:`E V` decreases geometrically over periods (strict inequalities, compact
+clock interval): mean-square stability. Each block is affine in the generator row
+of its joint state, so imposing it at the vertices of the rates of that row
+(:func:`~ftc_verify.analysis.lmi.block_specs`) covers the box; the jump condition
+contains no rate. As :math:`h \to 0` with :math:`P_s(\tau)` constant in the
+plant part the conditions approach the continuous Theorem 3.2 / Lemma 4.1 for the
+loop :math:`A_i + B_i K_e`: the bound tends to the continuous gamma.
+
+**Solved and proved.** ``min g`` (:math:`g = \gamma^2`) subject to every instance
+:math:`\preceq -t I`, :math:`P_s^k \succeq t I`, :math:`\lambda \ge 0` with the margin
+:math:`t` fixed (:data:`MARGIN_TAU`, raised a hundredfold when the proof fails), by
+Clarabel on the conic program of :mod:`ftc_verify.analysis.conic` (the blocks are
+evaluated on its affine variables). The answer is then **proved** in ball
+arithmetic (:func:`~ftc_verify.analysis.rigorous.proven_positive_definite`, 128
+bits): every instance, every jump condition and every :math:`P_s^k`, rebuilt with
+:func:`~ftc_verify.analysis.lmi.lyapunov_block` on ball matrices -- the plant's
+numbers as written (:func:`~ftc_verify.analysis.exact.written`), the rates as written
+(:func:`~ftc_verify.analysis.exact.ball_generator`), a static gain as written, a dynamic
+controller's :math:`(\Phi_c, \Gamma_c)` by Arb's rigorous exponential with its
+matrices taken as the floats read (as :mod:`ftc_verify.analysis.moments.sampled_proof`
+does), the period as the float given. The
+state is in :class:`SampledLoop`'s balanced coordinates (powers of two: exact).
+
+**Beside it, a lower estimate** (:func:`gain_lower_estimate`). Any disturbance gives
+:math:`E\|z\|^2/\|w\|^2 \le \gamma^2`; the exact expected energy of the sampled loop
+for :math:`w(t) = w(t_k)` held over each period, :math:`w(t_k) = e^{-a t_k}
+\sin(\omega t_k)` on every channel, is computed from its moment equations by
+:func:`~ftc_verify.analysis.moments.sampled_energy.sampled_energy` (infinite horizon)
+and divided by that held signal's energy, :math:`n_w h \sum_k w(t_k)^2 = n_w h\,
+\eta_0^T W \eta_0` (:math:`W = \sum_k (e^{S h})^{kT} c c^T e^{S h k}`, a discrete
+Lyapunov equation); maximised over a few frequencies, the rate points of
+:func:`~ftc_verify.analysis.moments.sampled.rate_points` and, robust, the constant
+:math:`\Delta \in \{0, +E, -E\}`. It is computed in float64: an **estimate** of a
+lower bound, not a proof (the JSON says so).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+import scipy.linalg
+
+from ...controllers.controller import Controller, check_period
+from ...errors import FTCError
+from ...model.system import FTCSystem, Matrix
+from ..closedloop import Channel, ClosedLoop
+from ..conic import Affine, Rows, affine_bmat, scalar_variable, svec_index, sym_variable
+from ..lmi import BlockSpec, block_specs, lyapunov_block
+from .sampled import SampledLoop
+
+__all__ = ["MARGIN_TAU", "PIECES", "OMEGAS", "augmented_loop", "SampledGamma", "SampledPerformance",
+           "sampled_gamma", "gain_lower_estimate", "sampled_performance", "attach_performance",
+           "performance_lines"]
+
+#: First margin of the program (every instance ``<= -t I``); raised 100x when the proof fails.
+MARGIN_TAU = 1e-7
+#: Pieces of ``[0, h]`` the storage matrix is affine on, each tried (the smallest proved gamma kept).
+PIECES = (4, 8)
+#: Frequencies (rad per time unit) of the lower estimate's disturbances; the decay rate is ``DECAY``.
+OMEGAS = (0.0, 0.3, 1.0, 3.0, 10.0)
+#: Decay rate ``a`` of the lower estimate's disturbances ``e^{-a t} sin(omega t)``.
+DECAY = 0.02
+
+
+def augmented_loop(loop: SampledLoop, system: FTCSystem, *, balls: bool = False) -> ClosedLoop:
+    """The flow between samples as a :class:`ClosedLoop` on ``zeta = (x, u, x_c)`` in the
+    balanced coordinates of ``loop`` (module docstring): ``A`` the flow, ``Bw``, ``Cz`` and
+    the channels padded with zeros. ``balls=True``: every matrix a ball of the numbers as
+    written (call inside :func:`~ftc_verify.analysis.rigorous.precision`); the loop's
+    ``source`` then carries the system for its written rates."""
+    from ..exact import written
+    from ..rigorous import ball
+
+    n, nu, d = loop.n, loop.nu, loop.d
+    lit = system.literals
+    sc = loop.scale
+
+    def pad(M: Matrix, row: int, col: int, rows: int, cols: int) -> Any:
+        full = np.zeros((rows, cols))
+        full[row:row + M.shape[0], col:col + M.shape[1]] = M
+        if not balls:
+            return full
+        return written(full, lit)  # zeros stay exact zeros
+
+    def left(M: Any) -> Any:  # S^-1 M
+        return ball(np.diag(1.0 / sc)) @ M if balls else M / sc[:, None]
+
+    def right(M: Any) -> Any:  # M S
+        return M @ ball(np.diag(sc)) if balls else M * sc[None, :]
+
+    A: list[Any] = []
+    Bw: list[Any] = []
+    Cz: list[Any] = []
+    chans: list[tuple[Channel, ...]] = []
+    for i, _ in system.chain.joint_modes:
+        md = system.modes[i]
+        flow = np.zeros((d, d))
+        flow[:n, :n], flow[:n, n:n + nu] = md.A, md.B
+        A.append(right(left(pad(flow, 0, 0, d, d))) if balls else loop.flow[len(A)])
+        Bw.append(left(pad(md.D, 0, 0, d, md.D.shape[1])))
+        Cz.append(right(pad(md.C, 0, 0, md.C.shape[0], d)))
+        c = []
+        if md.A1 is not None and md.A2 is not None:
+            c.append(Channel(left(pad(md.A1, 0, 0, d, md.A1.shape[1])), right(pad(md.A2, 0, 0, md.A2.shape[0], d)),
+                             "Delta1 (A)"))
+        if md.B1 is not None and md.B2 is not None:
+            c.append(Channel(left(pad(md.B1, 0, 0, d, md.B1.shape[1])), right(pad(md.B2, 0, n, md.B2.shape[0], d)),
+                             "Delta2 (B)"))
+        chans.append(tuple(c))
+    return ClosedLoop(system.chain, tuple(A), tuple(Bw), tuple(Cz), tuple(chans), "sampled (x, u, x_c)",
+                      None, system.names, (system, loop.controller) if balls else None)
+
+
+def _jumps(loop: SampledLoop, h: float, *, balls: bool = False, literals: Any = None) -> list[Any]:
+    """:math:`J_s = R_s P` per joint state (balanced coordinates); as balls, a static gain
+    as written, a dynamic controller's discretisation by the rigorous exponential."""
+    P = loop.restriction()
+    if not balls:
+        return [R @ P for R in loop.resets(h)]
+    from ..exact import written
+    from ..rigorous import ball, ball_bmat
+    from .sampled_proof import ball_resets
+
+    if loop.nc:
+        return [R @ ball(P) for R in ball_resets(loop, h)]
+    c = loop.controller
+    out = []
+    for M, e in zip(loop.measurement, loop.entry):
+        R = ball_bmat([[np.eye(loop.n)], [written(c.Dc[e], c.literals) @ written(M, literals)]])
+        R = ball(np.diag(1.0 / loop.scale)) @ R @ ball(np.diag(loop.scale_r))
+        out.append(R @ ball(P))
+    return out
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """Columns of the program: ``svec`` of :math:`P_s^0` (key ``(0, s)``) and of the
+    slopes :math:`D_s^j` (key ``(j + 1, s)``), the multipliers node by node, ``g``, ``t``.
+    Nodes are :math:`P_s^k = P_s^0 + (h / N) \\sum_{j < k} D_s^j`: the slopes are
+    variables of their own size (nodes differing by :math:`O(h)` would make the program
+    ill-conditioned as :math:`h \\to 0`)."""
+
+    d: int
+    states: int
+    nodes: int
+    channels: tuple[int, ...]
+
+    @property
+    def pp(self) -> int:
+        return self.d * (self.d + 1) // 2
+
+    def p(self, k: int, s: int) -> int:
+        return (k * self.states + s) * self.pp
+
+    def lam(self, k: int, s: int) -> int:
+        return self.nodes * self.states * self.pp + k * sum(self.channels) + sum(self.channels[:s])
+
+    @property
+    def g(self) -> int:
+        return self.nodes * self.states * self.pp + self.nodes * sum(self.channels)
+
+    @property
+    def K(self) -> int:
+        return self.g + 2
+
+
+def _instance(aug: ClosedLoop, spec: BlockSpec, P: list[Any], D: Any, lam: Any, g: Any, bmat: Any) -> Any:
+    """One instance: :func:`lyapunov_block` at a node plus the piece's slope ``D`` in
+    the leading block."""
+    M = lyapunov_block(aug, spec, P, lam, g, bmat)
+    d = aug.n
+    rest = M.shape[0] - d
+    if rest == 0:
+        return M + D
+    return M + bmat([[D, np.zeros((d, rest))], [np.zeros((rest, d)), np.zeros((rest, rest))]])
+
+
+class _Local:
+    """The variables one constraint uses, as :class:`Affine` on its own columns."""
+
+    def __init__(self, lay: _Layout, keys: list[tuple[int, int]], extra: list[int]) -> None:
+        self.keys = list(dict.fromkeys(keys))
+        cols = [np.arange(lay.p(*key), lay.p(*key) + lay.pp) for key in self.keys] + [np.asarray(extra, dtype=int)]
+        self.columns = np.concatenate(cols).astype(int)
+        self.K = len(self.columns)
+        self.var = {key: sym_variable(lay.d, pos * lay.pp, self.K) for pos, key in enumerate(self.keys)}
+        self.base = len(self.keys) * lay.pp
+
+    def node(self, e: int, t: int, delta: float) -> Affine:
+        """:math:`P_t^e = P_t^0 + \\delta \\sum_{j < e} D_t^j`."""
+        out = self.var[(0, t)]
+        for j in range(e):
+            out = out + self.var[(j + 1, t)] * delta
+        return out
+
+    def scalar(self, k: int) -> Affine:
+        """Extra column ``k``."""
+        return scalar_variable(self.base + k, self.K)
+
+
+def _node_keys(e: int, t: int) -> list[tuple[int, int]]:
+    return [(j, t) for j in range(e + 1)]
+
+
+def _rows(aug: ClosedLoop, jumps: list[Matrix], lay: _Layout, h: float, robust: bool) -> Rows:
+    """Every instance, jump condition (divided by ``h``: its slack is :math:`O(h)`) and
+    ``P_s^k >= t I`` as conic rows (``+ t I <= 0``)."""
+    rows = Rows(lay.K)
+    N = lay.nodes - 1
+    delta = h / N
+    specs = block_specs(aug)
+    for k in range(N):
+        for e in (k, k + 1):
+            for spec in specs:
+                s = spec.s
+                coupled = [s] + [t for t, q in enumerate(spec.q_row) if q != 0.0 and t != s]
+                nl = lay.channels[s] if robust else 0
+                keys = [key for t in coupled for key in _node_keys(e, t)] + [(k + 1, s)]
+                loc = _Local(lay, keys, list(range(lay.lam(e, s), lay.lam(e, s) + nl)) + [lay.g, lay.g + 1])
+                P: list[Any] = [None] * lay.states
+                for t in coupled:
+                    P[t] = loc.node(e, t, delta)
+                lam = [loc.scalar(c) for c in range(nl)] if robust else None
+                M = _instance(aug, spec, P, loc.var[(k + 1, s)], lam, loc.scalar(nl), affine_bmat)
+                rows.lmi(M + loc.scalar(nl + 1) * np.eye(M.shape[0]), loc.columns)
+    for s, J in enumerate(jumps):
+        loc = _Local(lay, _node_keys(N, s), [lay.g + 1])
+        rows.lmi((J.T @ loc.node(0, s, delta) @ J - loc.node(N, s, delta)) * (1.0 / h)
+                 + loc.scalar(0) * np.eye(lay.d), loc.columns)
+    for k in range(lay.nodes):
+        for s in range(lay.states):
+            loc = _Local(lay, _node_keys(k, s), [lay.g + 1])
+            rows.lmi(loc.scalar(0) * np.eye(lay.d) - loc.node(k, s, delta), loc.columns)
+    nl = lay.g - lay.lam(0, 0)
+    if nl:
+        A = np.zeros((nl, lay.K))
+        A[np.arange(nl), lay.lam(0, 0) + np.arange(nl)] = -1.0
+        rows.nonneg(A, np.zeros(nl))
+    return rows
+
+
+def _values(x: Matrix, lay: _Layout, h: float) -> tuple[list[list[Matrix]], list[list[list[float]]]]:
+    """The nodes ``P[k][s]`` and ``lam[k][s]`` from a solution ``x``."""
+    r, c, w = svec_index(lay.d)
+    delta = h / (lay.nodes - 1)
+
+    def unsvec(k: int, s: int) -> Matrix:
+        M = np.zeros((lay.d, lay.d))
+        v = x[lay.p(k, s):lay.p(k, s) + lay.pp] / w
+        M[r, c] = v
+        M[c, r] = v
+        return M
+
+    P = [[unsvec(0, s) for s in range(lay.states)]]
+    for k in range(1, lay.nodes):
+        P.append([P[-1][s] + delta * unsvec(k, s) for s in range(lay.states)])
+    lam = [[list(x[lay.lam(k, s):lay.lam(k, s) + lay.channels[s]]) for s in range(lay.states)]
+           for k in range(lay.nodes)]
+    return P, lam
+
+
+def _prove(loop: SampledLoop, system: FTCSystem, h: float, P: list[list[Matrix]], lam: list[list[list[float]]],
+           g: float, robust: bool) -> bool:
+    """Every instance, jump condition and ``P_s^k`` proved definite in ball arithmetic
+    (module docstring), from the numbers as written."""
+    import flint
+
+    from ..rigorous import ball, ball_bmat, precision, proven_positive_definite
+
+    N = len(P) - 1
+    with precision():
+        aug = augmented_loop(loop, system, balls=True)
+        if not robust:
+            aug = aug.nominal()
+        Pb = [[ball(0.5 * (p + p.T)) for p in row] for row in P]
+        if not all(proven_positive_definite(p) for row in Pb for p in row):
+            return False
+        for s, J in enumerate(_jumps(loop, h, balls=True, literals=system.literals)):
+            if not proven_positive_definite(Pb[N][s] - J.T @ Pb[0][s] @ J):
+                return False
+        slope = flint.arb(N) / flint.arb(float(h))
+        for k in range(N):
+            for e in (k, k + 1):
+                for spec in block_specs(aug):
+                    lam_s = [float(v) for v in lam[e][spec.s]] if robust else None
+                    D = (Pb[k + 1][spec.s] - Pb[k][spec.s]) * slope
+                    M = _instance(aug, spec, Pb[e], D, lam_s, g, ball_bmat)
+                    if not proven_positive_definite(-M):
+                        return False
+    return True
+
+
+@dataclass(frozen=True)
+class SampledGamma:
+    """One certificate of :func:`sampled_gamma`.
+
+    ``gamma`` is the proved bound (``None`` when none was found: ``note`` says why),
+    ``pieces`` the :math:`N` of the storage matrix, ``margin`` the program's ``t``."""
+
+    robust: bool
+    gamma: float | None
+    pieces: int
+    margin: float
+    note: str
+    seconds: float
+
+
+def sampled_gamma(system: FTCSystem, controller: Controller, period: float, *, robust: bool,
+                  pieces: tuple[int, ...] = PIECES, loop: SampledLoop | None = None) -> SampledGamma:
+    """The smallest gamma proved by the clock-dependent certificate of the module
+    docstring at ``period``, over the rate box (and ``Delta`` when ``robust``), trying
+    each ``N`` of ``pieces`` (the smallest proved gamma kept), with the margins
+    ``MARGIN_TAU * 100**j``, ``j < 3``."""
+    from ..solvers import solve_conic_dual
+
+    h = check_period(period, "period")
+    t0 = time.perf_counter()
+    loop = SampledLoop.build(system, controller) if loop is None else loop
+    aug = augmented_loop(loop, system)
+    robust = robust and aug.uncertain
+    if not robust:
+        aug = aug.nominal()
+    jumps = _jumps(loop, h)
+    best: tuple[float, int, float] | None = None
+    why = "no certificate"
+    for N in pieces:
+        lay = _Layout(loop.d, loop.states, N + 1, tuple(len(c) if robust else 0 for c in aug.channels))
+        rows = _rows(aug, jumps, lay, h, robust)
+        objective = np.zeros(lay.K)
+        objective[lay.g] = 1.0
+        problem = rows.problem(objective)
+        tau = MARGIN_TAU
+        for _ in range(3):
+            out, x, _z = solve_conic_dual(problem.fix(lay.g + 1, tau))
+            if x is None:
+                why = f"N = {N}: the solver found no point ({out.status}{': ' + out.message if out.message else ''})"
+                break
+            g = float(x[lay.g]) * (1 + 1e-9) + 1e-300
+            P, lam = _values(x, lay, h)
+            if _prove(loop, system, h, P, lam, g, robust):
+                gamma = math.nextafter(math.sqrt(g), math.inf)
+                if best is None or gamma < best[0]:
+                    best = (gamma, N, tau)
+                break
+            why = f"N = {N}: the solver's answer was not proved in ball arithmetic"
+            tau *= 100.0
+    seconds = time.perf_counter() - t0
+    if best is None:
+        return SampledGamma(robust, None, 0, 0.0, why, seconds)
+    return SampledGamma(robust, best[0], best[1], best[2],
+                        f"proved in 128-bit ball arithmetic: storage affine on {best[1]} piece(s) of [0, h], "
+                        "every instance at both ends of each piece, the jump at the sample, every P_s", seconds)
+
+
+def _held_energy(S: Matrix, c: Matrix, eta0: Matrix, h: float, nw: int) -> float:
+    """:math:`n_w h \\sum_k (c^T e^{S h k} \\eta_0)^2` (module docstring)."""
+    Phi = scipy.linalg.expm(S * h)
+    W = scipy.linalg.solve_discrete_lyapunov(Phi.T, np.outer(c, c))
+    return float(nw * h * eta0 @ W @ eta0)
+
+
+def gain_lower_estimate(system: FTCSystem, controller: Controller, period: float, *, robust: bool,
+                        omegas: tuple[float, ...] = OMEGAS, decay: float = DECAY) -> tuple[float | None, str]:
+    """``(estimate, where)``: the largest :math:`\\sqrt{E\\|z\\|^2 / \\|w\\|^2}` of the sampled
+    loop over the disturbances, rate points and (``robust``) constant ``Delta`` of the
+    module docstring, in float64; ``None`` when the loop is not stable at some case
+    (then no finite gain: ``where`` names it)."""
+    from .sampled import rate_points
+    from .sampled_energy import perturbed_system, sampled_energy
+
+    nw = system.dims[3]
+    cases: list[tuple[str, Any, Any]] = [("Delta=0", None, None)]
+    if robust and system.uncertain:
+        md = next(m for m in system.modes if m.A1 is not None or m.B1 is not None)
+        s1 = None if md.A1 is None or md.A2 is None else (md.A1.shape[1], md.A2.shape[0])
+        s2 = None if md.B1 is None or md.B2 is None else (md.B1.shape[1], md.B2.shape[0])
+        cases += [(lab, None if s1 is None else sg * np.eye(*s1), None if s2 is None else sg * np.eye(*s2))
+                  for sg, lab in ((1.0, "Delta=+E"), (-1.0, "Delta=-E"))]
+    best, where = -1.0, ""
+    for label, d1, d2 in cases:
+        sys_d = perturbed_system(system, d1, d2)
+        for b in rate_points(system.chain):
+            for w in omegas:
+                exo = ((np.array([[-decay, w], [-w, -decay]]), np.array([1.0, 0.0]), np.array([0.0, 1.0])) if w > 0
+                       else (np.array([[-decay]]), np.ones(1), np.ones(1)))
+                try:
+                    e = sampled_energy(sys_d, controller, period, beta=b, exosystem=exo, disturbance="exosystem")
+                except FTCError:
+                    return None, f"{label}, {system.chain.rate_text(b)}: not mean-square stable (float64)"
+                ratio = e.y_energy / _held_energy(exo[0], exo[1], exo[2], period, nw)
+                if ratio > best:
+                    best, where = ratio, f"{label}, {system.chain.rate_text(b)}, omega {w:g}"
+    return math.sqrt(max(best, 0.0)), where
+
+
+@dataclass(frozen=True)
+class SampledPerformance:
+    """The sampled loop's gains at ``period`` (JSON: :meth:`to_dict`, merged into ``sampled``)."""
+
+    period: float
+    nominal: SampledGamma
+    robust: SampledGamma | None
+    nominal_lower: float | None
+    nominal_lower_where: str
+    robust_lower: float | None
+    robust_lower_where: str
+
+    def to_dict(self) -> dict[str, Any]:
+        """``nominal_gamma``, ``robust_gamma`` (proved, ``None`` if not), their lower
+        estimates and notes."""
+        rob = self.robust
+        return {
+            "nominal_gamma": self.nominal.gamma,
+            "nominal_gamma_note": self.nominal.note,
+            "nominal_gamma_pieces": self.nominal.pieces,
+            "robust_gamma": None if rob is None else rob.gamma,
+            "robust_gamma_note": "no uncertainty channels" if rob is None else rob.note,
+            "nominal_gamma_lower": self.nominal_lower,
+            "nominal_gamma_lower_where": self.nominal_lower_where,
+            "robust_gamma_lower": self.robust_lower,
+            "robust_gamma_lower_where": self.robust_lower_where,
+            "gamma_lower_kind": "estimate (float64 exact-energy ratio; not proved)",
+        }
+
+
+def sampled_performance(system: FTCSystem, controller: Controller, period: float) -> SampledPerformance:
+    """Both certificates (robust only with uncertainty channels) and their lower estimates."""
+    loop = SampledLoop.build(system, controller)
+    nominal = sampled_gamma(system, controller, period, robust=False, loop=loop)
+    robust = sampled_gamma(system, controller, period, robust=True, loop=loop) if system.uncertain else None
+    lo_n, where_n = gain_lower_estimate(system, controller, period, robust=False)
+    lo_r, where_r = (gain_lower_estimate(system, controller, period, robust=True) if system.uncertain
+                     else (None, "no uncertainty channels"))
+    return SampledPerformance(float(period), nominal, robust, lo_n, where_n, lo_r, where_r)
+
+
+def attach_performance(result: Any, system: FTCSystem, controller: Controller) -> Any:
+    """``result`` (a :class:`~ftc_verify.analysis.moments.sampled.SampledResult`) with its
+    ``performance`` at ``result.period``. A loop proved not mean-square stable there
+    has no finite gain: no program is solved and the notes say so."""
+    h = result.period
+    if result.verdict == "not stable":
+        why = "no certificate: the sampled loop is proved NOT mean-square stable at this period (infinite gain)"
+        none = SampledGamma(False, None, 0, 0.0, why, 0.0)
+        rob = SampledGamma(True, None, 0, 0.0, why, 0.0) if system.uncertain else None
+        perf = SampledPerformance(h, none, rob, None, why, None, why)
+    else:
+        perf = sampled_performance(system, controller, h)
+    return replace(result, performance=perf)
+
+
+def performance_lines(perf: SampledPerformance) -> list[str]:
+    """The report lines of ``analyze --period`` for ``perf``."""
+    out = []
+    rows = [("nominal", perf.nominal, perf.nominal_lower)]
+    if perf.robust is not None:
+        rows.append(("robust", perf.robust, perf.robust_lower))
+    for name, cert, lower in rows:
+        low = "n/a" if lower is None else f"{lower:.6g}"
+        if cert.gamma is None:
+            out.append(f"    {name} gain (sampled, between samples included)  NOT certified: {cert.note}; "
+                       f"lower estimate {low}")
+        else:
+            out.append(f"    {name} gain (sampled, between samples included)  gamma <= {cert.gamma:.6g} "
+                       f"(proved, N = {cert.pieces}); lower estimate {low} (float64, not proved)")
+    return out
