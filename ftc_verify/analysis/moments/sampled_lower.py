@@ -47,7 +47,8 @@ by doubling (:math:`S_{2m} = S_m + T^m S_m`, :math:`T^{2m} = (T^m)^2`).
 
 **The choice** (float64 search, then proved). :math:`F_s` is the continuous loop's
 worst-case feedback :func:`~ftc_verify.analysis.lower_bound.float_gain` (coupled
-bounded-real Riccati equations at :math:`\rho`, the smallest feasible gamma) on the plant
+bounded-real Riccati equations at the box's centre, the smallest feasible gamma; refined
+below by Nelder-Mead over its entries at the best rate array) on the plant
 state, times a scale :math:`\alpha` from :data:`SCALES`: as :math:`\alpha F` makes the loop
 nearly marginal, the ratio tends to the ratio of :math:`\ell` and :math:`h f` on the
 dominant eigenvector of :math:`T`, which at the Riccati equality is the gain. The
@@ -278,14 +279,13 @@ def _feedbacks(system: FTCSystem, controller: Controller, loop: SampledLoop, rat
     return out
 
 
-def _refine(ops: _Ops, aug: ClosedLoop, P: Matrix, resets: Sequence[Any], Q: Matrix, h: float, delta: float,
-            nw: int, p: int, F: list[Matrix], value: float) -> tuple[float, list[Matrix]]:
+def _refine(ops: _Ops, blocks: _Blocks, resets: Sequence[Any], h: float, nw: int, p: int, F: list[Matrix],
+            value: float) -> tuple[float, list[Matrix]]:
     """The float64 ratio maximised over the entries of ``F`` on the plant state by
     Nelder-Mead from ``F`` (at most :data:`REFINE_EVALUATIONS` ratios); ``(value, F)``
     unchanged when it finds nothing better."""
     import scipy.optimize
 
-    blocks = _blocks(ops, aug, P, Q, h, delta, nw)
     shape = (len(F), nw, resets[0].shape[1])
     x0 = np.stack(F).reshape(-1)
 
@@ -321,14 +321,14 @@ def sampled_lower_bound(system: FTCSystem, controller: Controller, period: float
     P = loop.restriction()
     resets = [J @ P.T for J in _jumps(loop, h)]
     p = _doublings(h)
-    best: tuple[float, Matrix, float, list[Matrix], float] | None = None
+    best: tuple[float, Matrix, float, list[Matrix], float, _Blocks] | None = None
     ops = _Ops(False)
     nw = system.dims[3]
     for delta in deltas:
+        F0 = _feedbacks(system, controller, loop, system.chain.midpoint(), delta)
+        if F0 is None:
+            continue
         for rates in rate_points(system.chain):
-            F0 = _feedbacks(system, controller, loop, rates, delta)
-            if F0 is None:
-                continue
             blocks = _blocks(ops, aug, P, system.chain.generator(rates), h, delta, nw)
             for a in scales:
                 F = [a * f for f in F0]
@@ -336,12 +336,12 @@ def sampled_lower_bound(system: FTCSystem, controller: Controller, period: float
                     num, den = _ratio(ops, blocks, resets, F, h, p)
                 value = float(num[0, 0] / den[0, 0])
                 if math.isfinite(value) and (best is None or value > best[0]):
-                    best = (value, rates, delta, F, a)
+                    best = (value, rates, delta, F, a, blocks)
     if best is None:
         return SampledLowerBound(None, "proved", "no float64 candidate (the continuous loop is not stable)", None)
-    value, rates, delta, F, a = best
+    value, rates, delta, F, a, blocks = best
     start = value
-    value, F = _refine(ops, aug, P, resets, system.chain.generator(rates), h, delta, nw, p, F, value)
+    value, F = _refine(ops, blocks, resets, h, nw, p, F, value)
     proved = _prove(system, loop, h, rates, delta, F, p)
     how = "refined by Nelder-Mead from " if value > start else ""
     where = (f"held feedback {how}{a:g} x the continuous worst case over {2 ** p + 1} periods, "
