@@ -505,13 +505,15 @@ def _lower(system: FTCSystem, controller: Controller, period: float, robust: boo
 
 def sampled_performance(system: FTCSystem, controller: Controller, period: float) -> SampledPerformance:
     """Both certificates (robust only with uncertainty channels) and their lower bounds
-    (proved, else float64 estimates)."""
+    (proved, else float64 estimates; the robust one at least the nominal: Delta = 0 is admissible)."""
     loop = SampledLoop.build(system, controller)
     nominal = sampled_gamma(system, controller, period, robust=False, loop=loop)
     robust = sampled_gamma(system, controller, period, robust=True, loop=loop) if system.uncertain else None
     lo_n, where_n, kind_n = _lower(system, controller, period, False, loop)
     lo_r, where_r, kind_r = (_lower(system, controller, period, True, loop) if system.uncertain
                              else (None, "no uncertainty channels", "estimate"))
+    if kind_n == kind_r == "proved" and lo_r is not None and lo_n is not None and lo_n > lo_r:
+        lo_r, where_r = lo_n, f"Delta = 0 (admissible): {where_n}"
     return SampledPerformance(float(period), nominal, robust, lo_n, where_n, lo_r, where_r, kind_n, kind_r)
 
 
