@@ -200,14 +200,14 @@ def test_doubling_matches_stepping(paper: tuple[FTCSystem, Controller]) -> None:
     """The doubling sums of a random held feedback (fixed seed) equal the period-by-period
     sums (K = 2^5 + 1 periods) to 1e-10."""
     from ftc_verify.analysis.moments.sampled import SampledLoop
-    from ftc_verify.analysis.moments.sampled_gamma import _jumps, augmented_loop
+    from ftc_verify.analysis.moments.sampled_gamma import sample_jumps, augmented_loop
 
     system, controller = paper
     h = 0.03
     loop = SampledLoop.build(system, controller)
     aug = augmented_loop(loop, system).nominal()
     P = loop.restriction()
-    resets = [J @ P.T for J in _jumps(loop, h)]
+    resets = [J @ P.T for J in sample_jumps(loop, h)]
     rng = np.random.default_rng(7)
     F = [rng.normal(size=(1, loop.r)) for _ in resets]
     Q = system.chain.generator(system.chain.midpoint())

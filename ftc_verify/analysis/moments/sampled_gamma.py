@@ -109,7 +109,7 @@ from ..conic import Affine, Rows, affine_bmat, scalar_variable, svec_index, sym_
 from ..lmi import BlockSpec, block_specs, lyapunov_block
 from .sampled import SampledLoop
 
-__all__ = ["MARGIN_TAU", "PIECES", "OMEGAS", "augmented_loop", "SampledGamma", "SampledPerformance",
+__all__ = ["MARGIN_TAU", "PIECES", "OMEGAS", "augmented_loop", "sample_jumps", "SampledGamma", "SampledPerformance",
            "sampled_gamma", "gain_lower_estimate", "sampled_performance", "attach_performance",
            "performance_lines"]
 
@@ -172,7 +172,7 @@ def augmented_loop(loop: SampledLoop, system: FTCSystem, *, balls: bool = False)
                       None, system.names, (system, loop.controller) if balls else None)
 
 
-def _jumps(loop: SampledLoop, h: float, *, balls: bool = False, literals: Any = None) -> list[Any]:
+def sample_jumps(loop: SampledLoop, h: float, *, balls: bool = False, literals: Any = None) -> list[Any]:
     """:math:`J_s = R_s P` per joint state (balanced coordinates); as balls, a static gain
     as written, a dynamic controller's discretisation by the rigorous exponential."""
     P = loop.restriction()
@@ -336,7 +336,7 @@ def _prove(loop: SampledLoop, system: FTCSystem, h: float, P: list[list[Matrix]]
         Pb = [[ball(0.5 * (p + p.T)) for p in row] for row in P]
         if not all(proven_positive_definite(p) for row in Pb for p in row):
             return False
-        for s, J in enumerate(_jumps(loop, h, balls=True, literals=system.literals)):
+        for s, J in enumerate(sample_jumps(loop, h, balls=True, literals=system.literals)):
             if not proven_positive_definite(Pb[N][s] - J.T @ Pb[0][s] @ J):
                 return False
         slope = flint.arb(N) / flint.arb(float(h))
@@ -381,7 +381,7 @@ def sampled_gamma(system: FTCSystem, controller: Controller, period: float, *, r
     robust = robust and aug.uncertain
     if not robust:
         aug = aug.nominal()
-    jumps = _jumps(loop, h)
+    jumps = sample_jumps(loop, h)
     best: tuple[float, int, float] | None = None
     why = "no certificate"
     for N in pieces:

@@ -311,7 +311,7 @@ def sampled_lower_bound(system: FTCSystem, controller: Controller, period: float
     """A proved lower bound of the sampled loop's nominal (``robust``: robust) gain at
     ``period`` (module docstring): the best float64 ratio over the feedback scales, rate
     arrays, initial joint state 0 and (robust) ``Delta``, proved in ball arithmetic."""
-    from .sampled_gamma import _jumps, augmented_loop
+    from .sampled_gamma import sample_jumps, augmented_loop
 
     h = check_period(period, "period")
     loop = SampledLoop.build(system, controller) if loop is None else loop
@@ -319,7 +319,7 @@ def sampled_lower_bound(system: FTCSystem, controller: Controller, period: float
     robust = robust and aug.uncertain
     deltas = (0.0, 1.0, -1.0) if robust else (0.0,)
     P = loop.restriction()
-    resets = [J @ P.T for J in _jumps(loop, h)]
+    resets = [J @ P.T for J in sample_jumps(loop, h)]
     p = _doublings(h)
     best: tuple[float, Matrix, float, list[Matrix], float, _Blocks] | None = None
     ops = _Ops(False)
@@ -358,14 +358,14 @@ def _prove(system: FTCSystem, loop: SampledLoop, h: float, rates: Matrix, delta:
 
     from ..rigorous import precision
     from .sampled_balls import ball_generator
-    from .sampled_gamma import _jumps, augmented_loop
+    from .sampled_gamma import sample_jumps, augmented_loop
 
     with precision():
         aug = augmented_loop(loop, system, balls=True)
         if delta == 0.0:
             aug = aug.nominal()
         P = loop.restriction()
-        resets = [J @ P.T for J in _jumps(loop, h, balls=True, literals=system.literals)]
+        resets = [J @ P.T for J in sample_jumps(loop, h, balls=True, literals=system.literals)]
         Q = ball_generator(system.chain, rates, rates, loop.literals).value
         hb = loop.period_ball(h)
         ops = _Ops(True)
