@@ -76,7 +76,9 @@ matrices taken as the floats read (as :mod:`ftc_verify.analysis.moments.sampled_
 does), the period as the float given. The
 state is in :class:`SampledLoop`'s balanced coordinates (powers of two: exact).
 
-**Beside it, a lower estimate** (:func:`gain_lower_estimate`). Any disturbance gives
+**Beside it, a proved lower bound** (:mod:`~ftc_verify.analysis.moments.sampled_lower`:
+a held worst-case feedback disturbance, its exact energies proved in ball arithmetic);
+when none is proved, the float64 **lower estimate** (:func:`gain_lower_estimate`). Any disturbance gives
 :math:`E\|z\|^2/\|w\|^2 \le \gamma^2`; the exact expected energy of the sampled loop
 for :math:`w(t) = w(t_k)` held over each period, :math:`w(t_k) = e^{-a t_k}
 \sin(\omega t_k)` on every channel, is computed from its moment equations by
@@ -107,7 +109,7 @@ from ..conic import Affine, Rows, affine_bmat, scalar_variable, svec_index, sym_
 from ..lmi import BlockSpec, block_specs, lyapunov_block
 from .sampled import SampledLoop
 
-__all__ = ["MARGIN_TAU", "PIECES", "OMEGAS", "augmented_loop", "SampledGamma", "SampledPerformance",
+__all__ = ["MARGIN_TAU", "PIECES", "OMEGAS", "augmented_loop", "sample_jumps", "SampledGamma", "SampledPerformance",
            "sampled_gamma", "gain_lower_estimate", "sampled_performance", "attach_performance",
            "performance_lines"]
 
@@ -170,7 +172,7 @@ def augmented_loop(loop: SampledLoop, system: FTCSystem, *, balls: bool = False)
                       None, system.names, (system, loop.controller) if balls else None)
 
 
-def _jumps(loop: SampledLoop, h: float, *, balls: bool = False, literals: Any = None) -> list[Any]:
+def sample_jumps(loop: SampledLoop, h: float, *, balls: bool = False, literals: Any = None) -> list[Any]:
     """:math:`J_s = R_s P` per joint state (balanced coordinates); as balls, a static gain
     as written, a dynamic controller's discretisation by the rigorous exponential."""
     P = loop.restriction()
@@ -334,7 +336,7 @@ def _prove(loop: SampledLoop, system: FTCSystem, h: float, P: list[list[Matrix]]
         Pb = [[ball(0.5 * (p + p.T)) for p in row] for row in P]
         if not all(proven_positive_definite(p) for row in Pb for p in row):
             return False
-        for s, J in enumerate(_jumps(loop, h, balls=True, literals=system.literals)):
+        for s, J in enumerate(sample_jumps(loop, h, balls=True, literals=system.literals)):
             if not proven_positive_definite(Pb[N][s] - J.T @ Pb[0][s] @ J):
                 return False
         slope = flint.arb(N) / flint.arb(float(h))
@@ -379,7 +381,7 @@ def sampled_gamma(system: FTCSystem, controller: Controller, period: float, *, r
     robust = robust and aug.uncertain
     if not robust:
         aug = aug.nominal()
-    jumps = _jumps(loop, h)
+    jumps = sample_jumps(loop, h)
     best: tuple[float, int, float] | None = None
     why = "no certificate"
     for N in pieces:
@@ -463,6 +465,8 @@ class SampledPerformance:
     nominal_lower_where: str
     robust_lower: float | None
     robust_lower_where: str
+    nominal_lower_kind: str = "estimate"
+    robust_lower_kind: str = "estimate"
 
     def to_dict(self) -> dict[str, Any]:
         """``nominal_gamma``, ``robust_gamma`` (proved, ``None`` if not), their lower
@@ -478,19 +482,39 @@ class SampledPerformance:
             "nominal_gamma_lower_where": self.nominal_lower_where,
             "robust_gamma_lower": self.robust_lower,
             "robust_gamma_lower_where": self.robust_lower_where,
-            "gamma_lower_kind": "estimate (float64 exact-energy ratio; not proved)",
+            "nominal_gamma_lower_kind": self.nominal_lower_kind,
+            "robust_gamma_lower_kind": self.robust_lower_kind,
+            "gamma_lower_kind": ("proved" if {self.nominal_lower_kind, self.robust_lower_kind} == {"proved"}
+                                 else "estimate (float64 exact-energy ratio; not proved)"),
         }
 
 
+def _lower(system: FTCSystem, controller: Controller, period: float, robust: bool,
+           loop: SampledLoop) -> tuple[float | None, str, str]:
+    """``(value, where, kind)``: the proved bound of
+    :func:`~ftc_verify.analysis.moments.sampled_lower.sampled_lower_bound`, else the
+    float64 :func:`gain_lower_estimate` (kind ``"estimate"``)."""
+    from .sampled_lower import sampled_lower_bound
+
+    low = sampled_lower_bound(system, controller, period, robust=robust, loop=loop)
+    if low.value is not None:
+        return low.value, low.where, "proved"
+    est, where = gain_lower_estimate(system, controller, period, robust=robust)
+    return est, f"{where} (no proved bound: {low.where})", "estimate"
+
+
 def sampled_performance(system: FTCSystem, controller: Controller, period: float) -> SampledPerformance:
-    """Both certificates (robust only with uncertainty channels) and their lower estimates."""
+    """Both certificates (robust only with uncertainty channels) and their lower bounds
+    (proved, else float64 estimates; the robust one at least the nominal: Delta = 0 is admissible)."""
     loop = SampledLoop.build(system, controller)
     nominal = sampled_gamma(system, controller, period, robust=False, loop=loop)
     robust = sampled_gamma(system, controller, period, robust=True, loop=loop) if system.uncertain else None
-    lo_n, where_n = gain_lower_estimate(system, controller, period, robust=False)
-    lo_r, where_r = (gain_lower_estimate(system, controller, period, robust=True) if system.uncertain
-                     else (None, "no uncertainty channels"))
-    return SampledPerformance(float(period), nominal, robust, lo_n, where_n, lo_r, where_r)
+    lo_n, where_n, kind_n = _lower(system, controller, period, False, loop)
+    lo_r, where_r, kind_r = (_lower(system, controller, period, True, loop) if system.uncertain
+                             else (None, "no uncertainty channels", "estimate"))
+    if kind_n == kind_r == "proved" and lo_r is not None and lo_n is not None and lo_n > lo_r:
+        lo_r, where_r = lo_n, f"Delta = 0 (admissible): {where_n}"
+    return SampledPerformance(float(period), nominal, robust, lo_n, where_n, lo_r, where_r, kind_n, kind_r)
 
 
 def attach_performance(result: Any, system: FTCSystem, controller: Controller) -> Any:
@@ -511,15 +535,16 @@ def attach_performance(result: Any, system: FTCSystem, controller: Controller) -
 def performance_lines(perf: SampledPerformance) -> list[str]:
     """The report lines of ``analyze --period`` for ``perf``."""
     out = []
-    rows = [("nominal", perf.nominal, perf.nominal_lower)]
+    rows = [("nominal", perf.nominal, perf.nominal_lower, perf.nominal_lower_kind)]
     if perf.robust is not None:
-        rows.append(("robust", perf.robust, perf.robust_lower))
-    for name, cert, lower in rows:
+        rows.append(("robust", perf.robust, perf.robust_lower, perf.robust_lower_kind))
+    for name, cert, lower, kind in rows:
         low = "n/a" if lower is None else f"{lower:.6g}"
+        low += " (proved)" if kind == "proved" else " (float64, not proved)"
         if cert.gamma is None:
             out.append(f"    {name} gain (sampled, between samples included)  NOT certified: {cert.note}; "
-                       f"lower estimate {low}")
+                       f"lower bound {low}")
         else:
             out.append(f"    {name} gain (sampled, between samples included)  gamma <= {cert.gamma:.6g} "
-                       f"(proved, N = {cert.pieces}); lower estimate {low} (float64, not proved)")
+                       f"(proved, N = {cert.pieces}); lower bound {low}")
     return out

@@ -1,0 +1,378 @@
+r"""A proved lower bound of the sampled loop's L2 gain: one admissible disturbance, exactly.
+
+The sampled loop of :mod:`ftc_verify.analysis.moments.sampled_gamma` (state
+:math:`\zeta = (x, u, x_c^+)` between samples, sampled state :math:`\xi = (x, x_c)`,
+reset :math:`\zeta = R_s \xi` at the sample :math:`t_k = k h` in joint state :math:`s`)
+has the stochastic gain :math:`\gamma_h = \sup_w (E\|z\|^2 / E\|w\|^2)^{1/2}` over
+adapted disturbances (zero initial state). Any one admissible disturbance, one rate
+array :math:`\rho` of the box and (robust) one :math:`\|\Delta\| \le 1` give
+:math:`\gamma_h \ge (E\|z\|^2 / E\|w\|^2)^{1/2}`. Derived here:
+
+**The disturbance** -- a *held feedback of the sampled state*, switched off after
+:math:`K` periods:
+
+.. math::
+
+    w(t) = e \ (k = 0), \qquad w(t) = F_{\theta(t_k)}\,\xi(t_k) \ (1 \le k < K), \qquad
+    w(t) = 0 \ (k \ge K), \qquad t \in [t_k, t_{k+1}),
+
+with :math:`e` a fixed unit vector. It uses only what is known at :math:`t_k` (adapted),
+is bounded on a finite horizon (in :math:`L_2`), and is what the simulator's
+sample-and-hold would apply. Augment the flow with the held value :math:`w_h`:
+:math:`\bar z = (\zeta, w_h)`, :math:`\dot{\bar z} = \hat A_i \bar z`,
+:math:`\hat A_i = \bigl[\begin{smallmatrix}\bar A_i + \bar E\Delta\bar F & \bar B_{w,i}
+\\ 0 & 0\end{smallmatrix}\bigr]`, reset :math:`\bar z = \hat R_s \xi`,
+:math:`\hat R_s = (R_s; F_s)`. Per joint state, the second moments
+:math:`\bar X_s = E[\bar z\bar z^T 1\{\theta = s\}]` obey :math:`\dot{\bar X} =
+\mathcal L(\bar X)` inside a period (the moment generator at :math:`\rho`, jumps of the
+chain included); with the Van Loan blocks :math:`\mathcal F = e^{\mathcal L h}`,
+:math:`\mathcal G = \int_0^h e^{\mathcal L \tau} d\tau` (one exponential of
+:math:`[[\mathcal L, I], [0, 0]]\,h`) and :math:`\mathcal P` the restriction to
+:math:`\xi`, the sampled moments :math:`v_k` (``vech`` per joint state) satisfy
+:math:`v_1 = \mathcal P\mathcal F m_0`, :math:`v_{k+1} = T v_k`,
+:math:`T = \mathcal P\mathcal F\hat{\mathcal R}` (:math:`m_0` the moments of
+:math:`\bar z(0) = (0, e)` in the initial joint state :math:`s_0`), and
+
+.. math::
+
+    E\!\int_0^{Kh}|z|^2 = \ell^T\mathcal G m_0 + \ell^T\mathcal G\hat{\mathcal R}\,S, \qquad
+    E\!\int_0^{\infty}|w|^2 = h|e|^2 + h\,f^T S, \qquad S = \sum_{j=0}^{K-2} T^j v_1,
+
+:math:`\ell` the weights of :math:`\operatorname{tr}(\bar C_i^T\bar C_i\,\cdot)`,
+:math:`f` those of :math:`\operatorname{tr}(F_s^T F_s\,\cdot)`. The output energy after
+:math:`Kh` is dropped (:math:`\ge 0`): the bound is :math:`\gamma_h \ge
+\sqrt{\text{numerator}/\text{denominator}}`. No stability is needed (finite horizon),
+so :math:`F` may even destabilise the loop. With :math:`K = 2^p`, :math:`S` is computed
+by doubling (:math:`S_{2m} = S_m + T^m S_m`, :math:`T^{2m} = (T^m)^2`).
+
+**The choice** (float64 search, then proved). :math:`F_s` is the continuous loop's
+worst-case feedback :func:`~ftc_verify.analysis.lower_bound.float_gain` (coupled
+bounded-real Riccati equations at the box's centre, the smallest feasible gamma; refined
+below by Nelder-Mead over its entries at the best rate array) on the plant
+state, times a scale :math:`\alpha` from :data:`SCALES`: as :math:`\alpha F` makes the loop
+nearly marginal, the ratio tends to the ratio of :math:`\ell` and :math:`h f` on the
+dominant eigenvector of :math:`T`, which at the Riccati equality is the gain. The
+best ratio in float64 over :math:`\alpha`, the rate arrays of
+:func:`~ftc_verify.analysis.moments.sampled.rate_points` and (robust)
+:math:`\Delta \in \{0, +I, -I\}` (norm 1) is then proved.
+
+**The proof.** :math:`F`, :math:`e` and :math:`\rho` are floats taken as exact (the rate
+array a vertex or the centre of the box, as the user wrote it:
+:func:`~ftc_verify.analysis.moments.sampled_balls.ball_generator`); the flow, the
+disturbance and output matrices, the uncertainty channels and the resets are balls of
+the numbers as written (:func:`~ftc_verify.analysis.moments.sampled_gamma.augmented_loop`,
+the resets of a dynamic controller by Arb's rigorous exponential), the period is the
+float given; :math:`\mathcal F`, :math:`\mathcal G` by Arb's rigorous exponential, the
+doubling in 128-bit ball arithmetic. The bound is the lower end of the enclosure of the
+ratio (rounded down): a **proved** lower bound of the sampled loop's nominal (robust)
+gain at this period.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import scipy.linalg
+
+from ...controllers.controller import Controller, check_period
+from ...model.system import FTCSystem, Matrix
+from ..closedloop import ClosedLoop, closed_loop
+from ..lower_bound import float_gain
+from .sampled import SampledLoop, rate_points
+from .stability import duplication_matrix, vech_order
+
+__all__ = ["SCALES", "HORIZON", "SampledLowerBound", "sampled_lower_bound"]
+
+#: Scales ``alpha`` of the worst-case feedback tried in float64 (the best ratio is proved).
+SCALES = (0.0, 0.8, 0.95, 1.0, 1.02, 1.05, 1.1, 1.3)
+#: Time span (time units) the disturbance acts over: ``K = 2^p`` periods, ``K h >= HORIZON``.
+HORIZON = 200.0
+#: Relative tolerance of the float bisection for the worst-case feedback (the scales absorb it).
+FEEDBACK_RTOL = 1e-3
+#: Most float64 ratios the Nelder-Mead refinement of the feedback evaluates.
+REFINE_EVALUATIONS = 400
+#: Largest ``p`` of ``K = 2^p``.
+MAX_DOUBLINGS = 20
+
+
+@dataclass(frozen=True)
+class SampledLowerBound:
+    """One lower bound of :func:`sampled_lower_bound`: ``value`` (``None`` when none was
+    proved), ``kind`` (``"proved"``), ``where`` the disturbance, rate array and ``Delta``."""
+
+    value: float | None
+    kind: str
+    where: str
+    float_value: float | None
+
+
+def _weights(W: Matrix) -> Matrix:
+    rows, cols = vech_order(W.shape[0])
+    return np.where(rows == cols, 1.0, 2.0) * W[rows, cols]
+
+
+class _Ops:
+    """float64 or ball versions of the few operations the moment computation uses."""
+
+    def __init__(self, balls: bool) -> None:
+        self.balls = balls
+
+    def mat(self, M: Any) -> Any:
+        if not self.balls:
+            return np.asarray(M, dtype=float)
+        from ..rigorous import ball
+
+        return ball(M)
+
+    def kron(self, A: Any, B: Any) -> Any:
+        if not self.balls:
+            return np.kron(A, B)
+        from .sampled_balls import ball_kron
+
+        return ball_kron(A, B)
+
+    def diag(self, blocks: Sequence[Any]) -> Any:
+        if not self.balls:
+            return scipy.linalg.block_diag(*blocks)
+        from .sampled_balls import ball_block_diag
+
+        return ball_block_diag(blocks)
+
+    def bmat(self, rows: Sequence[Sequence[Any]]) -> Any:
+        if not self.balls:
+            return np.block([[np.asarray(b, dtype=float) for b in row] for row in rows])
+        from ..rigorous import ball_bmat
+
+        return ball_bmat(rows)
+
+    def expm(self, M: Any, h: Any) -> Any:
+        if not self.balls:
+            return scipy.linalg.expm(M * h)
+        from ..rigorous import Ball
+
+        return Ball((M.value * h).exp())
+
+    def weights(self, W: Any) -> Any:
+        """The row ``w`` with ``w . vech(X) = tr(W X)`` for symmetric ``X``."""
+        if not self.balls:
+            return _weights(W)[None, :]
+        import flint
+
+        from ..rigorous import Ball
+
+        rows, cols = vech_order(W.shape[0])
+        out = flint.arb_mat(1, rows.size)
+        for k, (i, j) in enumerate(zip(rows, cols)):
+            out[0, k] = W.value[int(i), int(j)] * (1 if i == j else 2)
+        return Ball(out)
+
+    def block(self, M: Any, r0: int, r1: int, c0: int, c1: int) -> Any:
+        if not self.balls:
+            return M[r0:r1, c0:c1]
+        import flint
+
+        from ..rigorous import Ball
+
+        out = flint.arb_mat(r1 - r0, c1 - c0)
+        v = M.value
+        for i in range(r1 - r0):
+            for j in range(c1 - c0):
+                out[i, j] = v[r0 + i, c0 + j]
+        return Ball(out)
+
+
+@dataclass(frozen=True, eq=False)
+class _Blocks:
+    r"""The feedback-independent parts at one rate array and ``Delta``: the Van Loan
+    blocks :math:`\mathcal F`, :math:`\mathcal G`, the output weights :math:`\ell`,
+    the restriction :math:`\mathcal P`, :math:`m_0` (module docstring)."""
+
+    Fm: Any
+    Gm: Any
+    ell: Any
+    restrict: Any
+    m0: Matrix
+    Dr: Matrix
+    Ld: Matrix
+
+
+def _blocks(ops: _Ops, aug: ClosedLoop, restriction: Matrix, Q: Any, h: Any, delta: float, nw: int) -> _Blocks:
+    """:class:`_Blocks` (float or ball) for the loop ``aug`` with ``Delta = delta I``."""
+    d, r = aug.n, restriction.shape[0]
+    dd = d + nw
+    Dd, Ld = duplication_matrix(dd)
+    Dr, Lr = duplication_matrix(r)
+    vd = Dd.shape[1]
+    states = len(aug.A)
+    eye = ops.mat(np.eye(dd))
+    blocks, ell = [], []
+    for s in range(states):
+        A = aug.A[s]
+        for ch in aug.channels[s]:
+            A = A + ch.E @ ops.mat(delta * np.eye(ch.E.shape[1], ch.F.shape[0])) @ ch.F
+        Ah = ops.bmat([[A, aug.Bw[s]], [np.zeros((nw, d)), np.zeros((nw, nw))]])
+        blocks.append(ops.mat(Ld) @ (ops.kron(eye, Ah) + ops.kron(Ah, eye)) @ ops.mat(Dd))
+        Ch = ops.bmat([[aug.Cz[s], np.zeros((aug.Cz[s].shape[0], nw))]])
+        ell.append(ops.weights(Ch.T @ Ch))
+    N = states * vd
+    V = ops.diag(blocks)
+    if ops.balls:
+        for s in range(states):
+            for t in range(states):
+                for k in range(vd):
+                    V.value[s * vd + k, t * vd + k] += Q[t, s]
+    else:
+        V = V + np.kron(np.asarray(Q).T, np.eye(vd))
+    E = ops.expm(ops.bmat([[V, np.eye(N)], [np.zeros((N, N)), np.zeros((N, N))]]), h)
+    Pz = np.zeros((r, dd))
+    Pz[:, :d] = restriction
+    rows_d, cols_d = vech_order(dd)
+    z0 = np.zeros(dd)
+    z0[d] = 1.0
+    m0 = np.zeros((N, 1))
+    m0[:vd, 0] = np.outer(z0, z0)[rows_d, cols_d]  # the initial joint state 0
+    return _Blocks(ops.block(E, 0, N, 0, N), ops.block(E, 0, N, N, 2 * N), ops.bmat([ell]),
+                   ops.mat(np.kron(np.eye(states), Lr @ np.kron(Pz, Pz) @ Dd)), m0, Dr, Ld)
+
+
+def _ratio(ops: _Ops, b: _Blocks, resets: Sequence[Any], F: Sequence[Matrix], h: Any,
+           doublings: int) -> tuple[Any, Any]:
+    """``(numerator, denominator)`` of the module docstring (float or ball, 1 x 1) with
+    :math:`K = 2^p + 1` periods, :math:`p` = ``doublings``, :math:`e` the first unit vector."""
+    lifts = []
+    for R, Fs in zip(resets, F):
+        Rh = ops.bmat([[R], [Fs]])
+        lifts.append(ops.mat(b.Ld) @ ops.kron(Rh, Rh) @ ops.mat(b.Dr))
+    lift = ops.diag(lifts)
+    T = b.restrict @ b.Fm @ lift
+    Sm = b.restrict @ (b.Fm @ b.m0)  # v_1: one term
+    Pw = T
+    for _ in range(doublings):  # S_{2m} = S_m + T^m S_m, T^{2m} = (T^m)^2
+        Sm = Sm + Pw @ Sm
+        Pw = Pw @ Pw
+    num = b.ell @ (b.Gm @ b.m0) + b.ell @ (b.Gm @ (lift @ Sm))
+    den = (ops.mat(np.concatenate([_weights(Fs.T @ Fs) for Fs in F])[None, :]) @ Sm + 1.0) * h
+    return num, den
+
+
+def _feedbacks(system: FTCSystem, controller: Controller, loop: SampledLoop, rates: Matrix,
+               delta: float) -> list[Matrix] | None:
+    """The continuous loop's worst-case feedback at ``rates`` (``Delta = delta I``) on the
+    plant state, in the sampled loop's balanced coordinates, one per joint state."""
+    cl = closed_loop(system, controller)
+    deltas = ({ch.name: delta * np.eye(ch.E.shape[1], ch.F.shape[0]) for chans in cl.channels for ch in chans}
+              if delta else {})
+    A = cl.perturbed(deltas) if deltas else cl.A
+    found = float_gain(A, cl.Bw, cl.Cz, cl.chain.generator(rates), rtol=FEEDBACK_RTOL)
+    if found is None:
+        return None
+    sc = loop.scale_r
+    out = []
+    for Fs in found[1]:
+        Fb = np.zeros((Fs.shape[0], loop.r))
+        Fb[:, :loop.n] = Fs[:, :loop.n] * sc[None, :loop.n]
+        out.append(Fb)
+    return out
+
+
+def _refine(ops: _Ops, blocks: _Blocks, resets: Sequence[Any], h: float, nw: int, p: int, F: list[Matrix],
+            value: float) -> tuple[float, list[Matrix]]:
+    """The float64 ratio maximised over the entries of ``F`` on the plant state by
+    Nelder-Mead from ``F`` (at most :data:`REFINE_EVALUATIONS` ratios); ``(value, F)``
+    unchanged when it finds nothing better."""
+    import scipy.optimize
+
+    shape = (len(F), nw, resets[0].shape[1])
+    x0 = np.stack(F).reshape(-1)
+
+    def negative(x: Matrix) -> float:
+        with np.errstate(all="ignore"):
+            num, den = _ratio(ops, blocks, resets, list(x.reshape(shape)), h, p)
+        v = float(num[0, 0] / den[0, 0])
+        return -v if math.isfinite(v) else 0.0
+
+    found = scipy.optimize.minimize(negative, x0, method="Nelder-Mead",
+                                    options={"maxfev": REFINE_EVALUATIONS, "xatol": 1e-6, "fatol": 1e-9})
+    if -found.fun > value:
+        return float(-found.fun), list(np.asarray(found.x).reshape(shape))
+    return value, F
+
+
+def _doublings(h: float) -> int:
+    return max(1, min(MAX_DOUBLINGS, math.ceil(math.log2(max(HORIZON / h, 2.0)))))
+
+
+def sampled_lower_bound(system: FTCSystem, controller: Controller, period: float, *, robust: bool,
+                        loop: SampledLoop | None = None, scales: Sequence[float] = SCALES) -> SampledLowerBound:
+    """A proved lower bound of the sampled loop's nominal (``robust``: robust) gain at
+    ``period`` (module docstring): the best float64 ratio over the feedback scales, rate
+    arrays, initial joint state 0 and (robust) ``Delta``, proved in ball arithmetic."""
+    from .sampled_gamma import sample_jumps, augmented_loop
+
+    h = check_period(period, "period")
+    loop = SampledLoop.build(system, controller) if loop is None else loop
+    aug = augmented_loop(loop, system)
+    robust = robust and aug.uncertain
+    deltas = (0.0, 1.0, -1.0) if robust else (0.0,)
+    P = loop.restriction()
+    resets = [J @ P.T for J in sample_jumps(loop, h)]
+    p = _doublings(h)
+    best: tuple[float, Matrix, float, list[Matrix], float, _Blocks] | None = None
+    ops = _Ops(False)
+    nw = system.dims[3]
+    for delta in deltas:
+        F0 = _feedbacks(system, controller, loop, system.chain.midpoint(), delta)
+        if F0 is None:
+            continue
+        for rates in rate_points(system.chain):
+            blocks = _blocks(ops, aug, P, system.chain.generator(rates), h, delta, nw)
+            for a in scales:
+                F = [a * f for f in F0]
+                with np.errstate(all="ignore"):
+                    num, den = _ratio(ops, blocks, resets, F, h, p)
+                value = float(num[0, 0] / den[0, 0])
+                if math.isfinite(value) and (best is None or value > best[0]):
+                    best = (value, rates, delta, F, a, blocks)
+    if best is None:
+        return SampledLowerBound(None, "proved", "no float64 candidate (the continuous loop is not stable)", None)
+    value, rates, delta, F, a, blocks = best
+    start = value
+    value, F = _refine(ops, blocks, resets, h, nw, p, F, value)
+    proved = _prove(system, loop, h, rates, delta, F, p)
+    how = "refined by Nelder-Mead from " if value > start else ""
+    where = (f"held feedback {how}{a:g} x the continuous worst case over {2 ** p + 1} periods, "
+             f"{system.chain.rate_text(rates)}" + (f", Delta = {delta:+g} I" if robust else ""))
+    return SampledLowerBound(proved, "proved", where if proved is not None else "not proved: " + where,
+                             math.sqrt(max(value, 0.0)))
+
+
+def _prove(system: FTCSystem, loop: SampledLoop, h: float, rates: Matrix, delta: float, F: list[Matrix],
+           doublings: int) -> float | None:
+    """The lower end of the ball enclosure of the ratio's square root (``None`` when the
+    enclosure does not exclude 0)."""
+    import flint
+
+    from ..rigorous import precision
+    from .sampled_balls import ball_generator
+    from .sampled_gamma import sample_jumps, augmented_loop
+
+    with precision():
+        aug = augmented_loop(loop, system, balls=True)
+        if delta == 0.0:
+            aug = aug.nominal()
+        P = loop.restriction()
+        resets = [J @ P.T for J in sample_jumps(loop, h, balls=True, literals=system.literals)]
+        Q = ball_generator(system.chain, rates, rates, loop.literals).value
+        hb = loop.period_ball(h)
+        ops = _Ops(True)
+        num, den = _ratio(ops, _blocks(ops, aug, P, Q, hb, delta, system.dims[3]), resets, F, hb, doublings)
+        ratio = num.value[0, 0] / den.value[0, 0]
+        if not ratio > 0:
+            return None
+        root = ratio.sqrt()
+        lower = math.nextafter(float(root.mid()) - 2.0 * float(root.rad()), -math.inf)
+        return lower if lower > 0 and bool(flint.arb(lower) < root) else None
