@@ -207,6 +207,16 @@ def _fmu_logger(args: argparse.Namespace) -> Any:
     return log
 
 
+def _risk_stage() -> Any:
+    """``verify``'s risk stage (``ftc_verify.risk.verify_stage``), ``None`` when the risk
+    package is not installed."""
+    try:
+        from ..risk.verify_stage import verify_risk_stage
+    except ModuleNotFoundError:
+        return None
+    return verify_risk_stage
+
+
 def _cmd_verify(args: argparse.Namespace) -> int:
     from ..simulation.spec import SimulationSpec
     from ..verification.report import check_out_dir, write_report
@@ -233,7 +243,7 @@ def _cmd_verify(args: argparse.Namespace) -> int:
     with spec.client() as client:  # started before the synthesis: a bad cluster is refused before any work
         rep = run_verify(system, gamma=args.gamma, method=args.method, k_max=k_max, controller=controller,
                          spec=spec, solver=args.solver, progress=sys.stderr.isatty(), plant=plant,
-                         fmu_log=_fmu_logger(args), measure=args.measure, client=client)
+                         fmu_log=_fmu_logger(args), measure=args.measure, client=client, risk=_risk_stage())
     written = write_report(rep, args.out)
     from ..verification.summary import verify_summary
 

@@ -173,12 +173,13 @@ def run_risk(system: FTCSystem, controller: Controller, envelope: Envelope, *, h
              beta: Matrix | None = None, backend: str = "reference", plant: Any = None,
              bound: BoundStage | None = None, timing: TimingStage | None = None,
              interval: float | None = None, done: Callable[[int], object] | None = None,
-             workers: int | None = None) -> RiskResult:
+             workers: int | None = None, client: Any = None) -> RiskResult:
     """The risk run of the module docstring. ``beta``: the rate array (default: the centre
     of the box, :meth:`JointChain.midpoint`); the paths start in the joint mode ``(0, 0)``
     (no fault, FDI agrees); ``x0`` default 0; ``workers``: the FMU backend's batches on a
     local Dask cluster of that many processes (:meth:`SimulationSpec.client
-    <ftc_verify.simulation.spec.SimulationSpec.client>`, opened once for the run)."""
+    <ftc_verify.simulation.spec.SimulationSpec.client>`, opened once for the run), or on
+    the given Dask ``client`` (``verify``'s)."""
     if backend not in ("reference", "records", "fmu"):
         raise ValidationError(f"backend: {backend!r} is not one of reference, records, fmu")
     chain = system.chain
@@ -188,7 +189,7 @@ def run_risk(system: FTCSystem, controller: Controller, envelope: Envelope, *, h
     spec = SimulationSpec(step=step, horizon=horizon, seed=settings.seed, beta=rates, disturbance=disturbance,
                           x0=tuple(float(v) for v in x0v), workers=workers if backend == "fmu" else None)
     failed = [0]
-    with spec.client() as client:
+    with spec.client(client) as client:
         scorer = path_scores(system, controller, envelope, spec, backend, plant, client)
 
         def counted(paths: Sequence[ChainPath]) -> np.ndarray:

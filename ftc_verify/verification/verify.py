@@ -29,7 +29,12 @@ all on the one closed loop :func:`~ftc_verify.analysis.closedloop.closed_loop` b
    With a plant map instead (the user's FMU, ``system`` its linearisation), the **plant
    region** check: no path leaves ``[region]``; the Monte Carlo measures either the real
    paths (``measure="total"``) or, for plants whose faults move the equilibrium, each
-   path's incremental response to ``w`` (``"incremental"``, :func:`incremental_records`).
+   path's incremental response to ``w`` (``"incremental"``, :func:`incremental_records`);
+7. **risk**, when the plant map declares ``[risk]`` and a risk stage is given (the CLI
+   passes :func:`ftc_verify.risk.verify_stage.verify_risk_stage`; this package sits
+   below :mod:`ftc_verify.risk` and cannot import it): the probability of leaving
+   ``[region]`` within ``[0, T]``, its interval and proved upper bound, the FDI timing;
+   a check against ``[risk].target`` when the map gives one (:func:`_risk_check`).
 
 Each stage becomes a named check; the verdict is ``pass`` only if all pass. Every random
 draw comes from one :class:`numpy.random.Generator` whose seed is in the report.
@@ -41,7 +46,7 @@ import functools
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -62,7 +67,7 @@ from ..analysis.moments.energy import exact_energy
 from .montecarlo import MCEstimate, estimate
 from .sampled_stage import sampled_stages
 
-__all__ = ["Check", "VerifyReport", "run_verify", "incremental_records", "AGREE_RTOL", "MAX_EXACT_VERTICES"]
+__all__ = ["Check", "RiskStage", "VerifyReport", "run_verify", "incremental_records", "AGREE_RTOL", "MAX_EXACT_VERTICES"]
 
 #: Relative agreement required between the FMU and the numpy reference on equal paths.
 AGREE_RTOL = 1e-8
@@ -70,6 +75,14 @@ AGREE_RTOL = 1e-8
 MAX_EXACT_VERTICES = 64
 #: Paths re-simulated by the reference backend for the agreement check.
 AGREE_PATHS = 5
+
+
+class RiskStage(Protocol):
+    """The risk stage: :func:`ftc_verify.risk.verify_stage.verify_risk_stage` -- the JSON of
+    the risk run and ``(ok, detail)``, ``ok`` ``None`` when there is nothing to check."""
+
+    def __call__(self, system: FTCSystem, controller: Controller, plant: Any, spec: SimulationSpec,
+                 client: Any = None) -> tuple[dict[str, Any], bool | None, str]: ...
 
 
 @dataclass(frozen=True)
@@ -104,6 +117,7 @@ class VerifyReport:
     sampled: Any = None  # SampledResult of the loop at the simulation step (verification.sampled_stage)
     sampled_exact: tuple[dict[str, Any], ...] = ()  # its exact energies (sampled_stage.sampled_energy_stage)
     sampled_mc: dict[str, Any] | None = None  # simulated vs exact, two-sided (sampled_stage.sampled_mc_stage)
+    risk: dict[str, Any] | None = None  # the risk stage's result when the plant map declares [risk]
 
     @property
     def verdict(self) -> str:
@@ -148,6 +162,7 @@ class VerifyReport:
             "sampled": None if self.sampled is None else self.sampled.to_dict(),
             "sampled_exact": list(self.sampled_exact),
             "sampled_mc": self.sampled_mc,
+            "risk": self.risk,
             "seed": self.seed,
             "options": self.options,
             "seconds": self.seconds,
@@ -361,6 +376,25 @@ def _monte_carlo_stage(system: FTCSystem, controller: Controller, spec: Simulati
     return chain_paths, records, fmu, measured, fault_only
 
 
+def _risk_check(stage: RiskStage | None, system: FTCSystem, controller: Controller, plant: Any,
+                spec: SimulationSpec, client: Any, checks: list[Check], seconds: dict[str, float]) -> dict[str, Any] | None:
+    """The risk stage (module docstring, 7) when ``plant`` declares ``[risk]``: its JSON,
+    its check appended to ``checks`` when the map gives a target (a crashed plant FMU fails
+    the check), its time in ``seconds["risk"]``."""
+    if stage is None or plant is None or getattr(plant, "risk", None) is None:
+        return None
+    t = time.perf_counter()
+    with spec.client(client) as client:
+        try:
+            found, ok, detail = stage(system, controller, plant, spec, client)
+        except PlantRunError as exc:
+            found, ok, detail = {"plant_failure": str(exc)}, False, f"the plant FMU failed: {exc}"
+    if ok is not None:
+        checks.append(Check("risk", ok, detail))
+    seconds["risk"] = time.perf_counter() - t
+    return found | {"detail": detail}
+
+
 def _verify_spec(spec: SimulationSpec | None, given: dict[str, Any]) -> SimulationSpec:
     """The spec of :func:`run_verify`: ``n_paths``, ``step``, ``horizon``, ``seed`` (drawn
     and reported when ``None``), ``delta`` as
@@ -381,7 +415,7 @@ def run_verify(
     controller: Controller | None = None, spec: SimulationSpec | None = None,
     paths: int | None = None, step: float | None = None, horizon: float | None = None, seed: int | None = None,
     solver: str | None = None, progress: bool = False, plant: Any = None, fmu_log: Any = None,
-    measure: str = "total", client: Any = None,
+    measure: str = "total", client: Any = None, risk: RiskStage | None = None,
 ) -> VerifyReport:
     """Run every stage of the module docstring and collect the checks.
 
@@ -393,7 +427,7 @@ def run_verify(
     the Monte Carlo (``system`` is then its linearisation); the report gains a ``plant`` object and the region check
     replaces the backend agreement. ``measure``: ``"total"`` or ``"incremental"`` (:func:`incremental_records`; the
     fault response's energy is reported). ``client``: a ``dask.distributed.Client`` whose workers co-simulate the Monte
-    Carlo batches (same numbers); else ``fmu_log`` gets the FMU's messages."""
+    Carlo batches (same numbers); else ``fmu_log`` gets the FMU's messages. ``risk``: the risk stage (stage 7)."""
     if measure not in ("total", "incremental"):
         raise ValidationError(f"measure: {measure!r} is not 'total' or 'incremental'")
     spec = _verify_spec(spec, {"n_paths": paths, "step": step, "horizon": horizon, "seed": seed})
@@ -406,7 +440,6 @@ def run_verify(
 
     def stage(name: str, t0: float) -> None:
         seconds[name] = time.perf_counter() - t0
-
     def timed(name: str, run: Callable[[], tuple[Any, Check]]) -> Any:
         """``run()``'s finding; its check appended and its time recorded as ``name``."""
         t0 = time.perf_counter()
@@ -464,5 +497,6 @@ def run_verify(
     stage("monte_carlo", t)
     found_plant = timed("reference", lambda: _against_reference(system, controller, chain_paths, records, spec,
                                                                  plant, mc, fmu, measured, fault_only))
-    return report(gamma_certified=gamma_cert, analysis=analysis, per_mode=per_mode, exact=tuple(exact),
-                  mc=mc, records=tuple(records), plant=found_plant)
+    return report(gamma_certified=gamma_cert, analysis=analysis, per_mode=per_mode, exact=tuple(exact), mc=mc,
+                  records=tuple(records), plant=found_plant,
+                  risk=_risk_check(risk, system, controller, plant, spec, client, checks, seconds))
