@@ -155,3 +155,27 @@ def test_run_verify_reports_the_stage(tmp_path: Path) -> None:
     assert check["ok"] == (risk["ci"][1] <= 0.5 or (bound is not None and bound <= 0.5))
     md = (write_report(rep, tmp_path / "out")[0].parent / "report.md").read_text()
     assert "## Risk" in md and risk["envelope"] in md
+
+
+def test_reference_batches_on_dask_give_the_serial_numbers(loop: tuple) -> None:
+    """``run_risk`` on a Dask client (a LocalCluster of 2 threaded workers) scores the
+    reference chunks on the workers and returns exactly the serial estimate for the seed
+    (the paths are drawn in the client; 1,300 paths per batch: several chunks per batch)."""
+    distributed = pytest.importorskip("distributed")
+    system, controller = loop
+    env = region_envelope(np.array([-3.0]), np.array([3.0]), np.zeros(1), "box")
+    settings = Settings(seed=11, batch=1300, pilot_paths=600)
+
+    def run(client: object = None):
+        return run_risk(system, controller, env, horizon=10.0, step=0.1, settings=settings, disturbance="step",
+                        client=client).estimate
+
+    serial = run()
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None) as cl, \
+            distributed.Client(cl) as client:
+        with distributed.get_task_stream(client) as tasks:
+            spread = run(client)
+        assert len(client.scheduler_info()["workers"]) == 2
+    ran = [t for t in tasks.data if "_peak_scores" in str(t["key"])]
+    assert len(ran) >= 2 * 6 and len({t["worker"] for t in ran}) == 2  # >= 6 batches of >= 2 chunks, both workers
+    assert spread == serial and serial.hits >= 30

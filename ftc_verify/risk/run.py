@@ -20,6 +20,12 @@ Stages, in order (:func:`run_risk`):
 3. optionally the FDI timing view (a callable ``timing(chain, interval)``:
    :class:`TimingStage`) for a fault-tolerant time interval.
 
+On the reference backend the paths of a batch are scored in chunks of :data:`SIM_BATCH`,
+one after the other or, with a Dask client (``workers`` / ``scheduler`` / ``client``), as
+one task per chunk on the workers: the chain paths are drawn in this process from their
+seeded streams, and a chunk's scores depend on its paths only, so serial and Dask runs give
+the same numbers for a seed.
+
 A plant FMU path that failed (``fmi2Error``) or diverged counts as leaving the envelope
 (its score is infinite): the estimate errs towards danger, and ``failed_paths`` says how
 often.
@@ -53,7 +59,8 @@ from .estimate import Estimate, Settings, estimate_probability
 __all__ = ["BoundStage", "TimingStage", "RiskResult", "available_stages", "disturbance_energy", "path_scores",
            "run_risk"]
 
-#: Paths simulated per call of the reference simulator (their records are kept meanwhile).
+#: Paths simulated per call of the reference simulator (their records are kept meanwhile);
+#: also the chunk of a Dask task on the reference backend.
 SIM_BATCH = 250
 
 
@@ -140,6 +147,13 @@ def _record_score(envelope: Envelope, rec: PathRecord) -> float:
     return envelope.score(rec.x, rec.y)
 
 
+def _peak_scores(scored: FTCSystem, controller: Controller, envelope: Envelope, paths: Sequence[ChainPath],
+                 spec: SimulationSpec) -> np.ndarray:
+    """Scores of one chunk on the vectorised reference (a Dask task of :func:`path_scores`)."""
+    peak_sq, peak = output_peaks_reference(scored, controller, paths, spec=spec)
+    return envelope.peak_score(peak_sq, peak)
+
+
 def path_scores(system: FTCSystem, controller: Controller, envelope: Envelope, spec: SimulationSpec,
                 backend: str, plant: Any = None, client: Any = None) -> Callable[[Sequence[ChainPath]], np.ndarray]:
     """The scorer of the estimator: simulate the paths on ``backend`` and return every
@@ -147,7 +161,8 @@ def path_scores(system: FTCSystem, controller: Controller, envelope: Envelope, s
     plant map ``plant`` or the system's ``LinearJumpPlant``, on the Dask ``client`` when
     given (:func:`~ftc_verify.simulation.batches.fmu_monte_carlo`). ``reference`` takes the output peaks of the vectorised
     reference (:func:`~ftc_verify.simulation.vectorised.output_peaks_reference` on
-    :meth:`Envelope.score_system`); ``records`` scores the records of
+    :meth:`Envelope.score_system`) in chunks of :data:`SIM_BATCH` paths, each a task on
+    ``client``'s workers when given (the same numbers); ``records`` scores the records of
     :func:`~ftc_verify.simulation.reference.simulate_reference` (the same numbers, one path
     at a time: the check of the fast path)."""
     scored = envelope.score_system(system)
@@ -161,8 +176,13 @@ def path_scores(system: FTCSystem, controller: Controller, envelope: Envelope, s
             records.extend(fmu_monte_carlo(system, controller, list(paths), spec=spec, plant=plant,
                                            client=client).records)
         else:
-            peak_sq, peak = output_peaks_reference(scored, controller, paths, spec=spec)
-            return envelope.peak_score(peak_sq, peak)
+            chunks = [list(paths[b:b + SIM_BATCH]) for b in range(0, len(paths), SIM_BATCH)]
+            if client is None:
+                parts = [_peak_scores(scored, controller, envelope, c, spec) for c in chunks]
+            else:
+                parts = client.gather([client.submit(_peak_scores, scored, controller, envelope, c, spec, pure=False)
+                                       for c in chunks])
+            return np.concatenate(parts) if parts else np.zeros(0)
         return np.array([_record_score(envelope, r) for r in records])
 
     return score
@@ -173,13 +193,14 @@ def run_risk(system: FTCSystem, controller: Controller, envelope: Envelope, *, h
              beta: Matrix | None = None, backend: str = "reference", plant: Any = None,
              bound: BoundStage | None = None, timing: TimingStage | None = None,
              interval: float | None = None, done: Callable[[int], object] | None = None,
-             workers: int | None = None, client: Any = None) -> RiskResult:
+             workers: int | None = None, scheduler: str | None = None, client: Any = None) -> RiskResult:
     """The risk run of the module docstring. ``beta``: the rate array (default: the centre
     of the box, :meth:`JointChain.midpoint`); the paths start in the joint mode ``(0, 0)``
-    (no fault, FDI agrees); ``x0`` default 0; ``workers``: the FMU backend's batches on a
-    local Dask cluster of that many processes (:meth:`SimulationSpec.client
+    (no fault, FDI agrees); ``x0`` default 0; ``workers`` / ``scheduler``: the batches (FMU)
+    or chunks (reference) on a local Dask cluster of that many processes or on the
+    scheduler at that address (:meth:`SimulationSpec.client
     <ftc_verify.simulation.spec.SimulationSpec.client>`, opened once for the run), or on
-    the given Dask ``client`` (``verify``'s)."""
+    the given Dask ``client`` (``verify``'s); the same numbers as serially."""
     if backend not in ("reference", "records", "fmu"):
         raise ValidationError(f"backend: {backend!r} is not one of reference, records, fmu")
     chain = system.chain
@@ -187,7 +208,8 @@ def run_risk(system: FTCSystem, controller: Controller, envelope: Envelope, *, h
     n = system.dims[0]
     x0v = np.zeros(n) if x0 is None else np.asarray(x0, dtype=float)
     spec = SimulationSpec(step=step, horizon=horizon, seed=settings.seed, beta=rates, disturbance=disturbance,
-                          x0=tuple(float(v) for v in x0v), workers=workers if backend == "fmu" else None)
+                          x0=tuple(float(v) for v in x0v), workers=workers,
+                          scheduler=scheduler)
     failed = [0]
     with spec.client(client) as client:
         scorer = path_scores(system, controller, envelope, spec, backend, plant, client)
