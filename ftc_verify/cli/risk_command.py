@@ -161,7 +161,7 @@ def _plot(args: argparse.Namespace, system: Any, controller: Any, envelope: Any,
 def _print(d: dict[str, Any], args: argparse.Namespace) -> None:
     """The estimate as a few lines."""
     lo, hi = d["ci"]
-    print(f"risk of {d['system']}: P(leave {d['envelope']} within [0, {fmt(d['horizon'])}])")
+    print(f"ftc-verify risk: {d['system']}: P(leave {d['envelope']} within [0, {fmt(d['horizon'])}])")
     print(f"  estimate: {fmt(d['probability'], 4)}  {int(100 * d['confidence'])} % interval "
           f"[{fmt(lo, 4)}, {fmt(hi, 4)}] ({d['interval']}; relative error {fmt(d['relative_error'], 3)})")
     print(f"  {d['method']} sampling: {d['paths']} paths ({d['hits']} left the envelope), "

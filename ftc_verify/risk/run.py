@@ -16,7 +16,9 @@ Stages, in order (:func:`run_risk`):
    :class:`BoundStage`), on the closed loop :func:`~ftc_verify.analysis.closedloop.closed_loop`
    with the envelope's constraints (:meth:`Envelope.constraints`): a bound of the
    *continuous-time* loop (none is claimed when the controller declares a sampling
-   period), by the energy of ``w`` up to ``T`` (:func:`disturbance_energy`);
+   period), by the energy of ``w`` up to ``T`` (:func:`disturbance_energy`); none is
+   claimed either for a plant map's FMU (``plant``), which the linear model need not
+   describe (a fault that moves the equilibrium);
 3. optionally the FDI timing view (a callable ``timing(chain, interval)``:
    :class:`TimingStage`) for a fault-tolerant time interval.
 
@@ -222,7 +224,10 @@ def run_risk(system: FTCSystem, controller: Controller, envelope: Envelope, *, h
         est = estimate_probability(chain, rates, horizon, counted, settings, start=chain.start_state((0, 0)),
                                    done=done)
     upper = None
-    if bound is not None:
+    if bound is not None and plant is not None:  # the certificate speaks of the linear model, not of the FMU
+        upper = {"value": None, "reason": f"not claimed for the plant map's FMU ({getattr(plant, 'fmu', plant)}): the "
+                 "certificate is of the linear model, whose equilibrium the plant's faults may move"}
+    elif bound is not None:
         loop = closed_loop(system, controller)
         xi0 = np.concatenate((x0v, np.zeros(loop.n - n)))
         res = bound(loop, envelope.constraints(system, loop.n, chain.states), x0=xi0,
