@@ -179,3 +179,18 @@ def test_reference_batches_on_dask_give_the_serial_numbers(loop: tuple) -> None:
     ran = [t for t in tasks.data if "_peak_scores" in str(t["key"])]
     assert len(ran) >= 2 * 6 and len({t["worker"] for t in ran}) == 2  # >= 6 batches of >= 2 chunks, both workers
     assert spread == serial and serial.hits >= 30
+
+
+def test_no_bound_is_claimed_for_a_plant_fmu(loop: tuple) -> None:
+    """With a plant map the bound stage is not asked: its certificate is of the linear
+    model (a fault of the FMU may move the equilibrium, which that model does not carry)."""
+    system, controller = loop
+
+    def bound(*args: object, **kw: object) -> object:
+        raise AssertionError("the bound stage ran for a plant FMU")
+
+    res = run_risk(system, controller, region_envelope(np.array([-3.0]), np.array([3.0]), np.zeros(1), "box"),
+                   horizon=10.0, step=0.1, settings=Settings(method="crude", max_paths=2, batch=2), disturbance="step",
+                   plant=type("Map", (), {"fmu": "plant.fmu"})(), bound=bound)
+    assert res.upper_bound is not None and res.upper_bound["value"] is None
+    assert "plant map's FMU (plant.fmu)" in res.upper_bound["reason"]
