@@ -38,6 +38,7 @@ from __future__ import annotations
 import dataclasses
 import importlib
 import math
+from pathlib import Path
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -225,7 +226,7 @@ def run_risk(system: FTCSystem, controller: Controller, envelope: Envelope, *, h
                                    done=done)
     upper = None
     if bound is not None and plant is not None:  # the certificate speaks of the linear model, not of the FMU
-        upper = {"value": None, "reason": f"not claimed for the plant map's FMU ({getattr(plant, 'fmu', plant)}): the "
+        upper = {"value": None, "reason": f"not claimed for the plant map's FMU ({Path(str(getattr(plant, 'fmu', plant))).name}): the "
                  "certificate is of the linear model, whose equilibrium the plant's faults may move"}
     elif bound is not None:
         loop = closed_loop(system, controller)
