@@ -153,6 +153,7 @@ def test_run_verify_reports_the_stage(tmp_path: Path) -> None:
     check = next(c for c in d["checks"] if c["name"] == "risk")
     bound = (risk["upper_bound"] or {}).get("value")
     assert check["ok"] == (risk["ci"][1] <= 0.5 or (bound is not None and bound <= 0.5))
+    assert f"[{'pass' if check['ok'] else 'FAIL'}] risk: P(leave" in str(rep)
     md = (write_report(rep, tmp_path / "out")[0].parent / "report.md").read_text()
     assert "## Risk" in md and risk["envelope"] in md
 

@@ -22,7 +22,7 @@ Stages, in order (:func:`run_risk`):
 3. optionally the FDI timing view (a callable ``timing(chain, interval)``:
    :class:`TimingStage`) for a fault-tolerant time interval.
 
-On the reference backend the paths of a batch are scored in chunks of :data:`SIM_BATCH`,
+On the reference backend the paths of a batch are scored in chunks of ``SIM_BATCH`` (250),
 one after the other or, with a Dask client (``workers`` / ``scheduler`` / ``client``), as
 one task per chunk on the workers: the chain paths are drawn in this process from their
 seeded streams, and a chunk's scores depend on its paths only, so serial and Dask runs give
@@ -164,7 +164,7 @@ def path_scores(system: FTCSystem, controller: Controller, envelope: Envelope, s
     plant map ``plant`` or the system's ``LinearJumpPlant``, on the Dask ``client`` when
     given (:func:`~ftc_verify.simulation.batches.fmu_monte_carlo`). ``reference`` takes the output peaks of the vectorised
     reference (:func:`~ftc_verify.simulation.vectorised.output_peaks_reference` on
-    :meth:`Envelope.score_system`) in chunks of :data:`SIM_BATCH` paths, each a task on
+    :meth:`Envelope.score_system`) in chunks of ``SIM_BATCH`` (250) paths, each a task on
     ``client``'s workers when given (the same numbers); ``records`` scores the records of
     :func:`~ftc_verify.simulation.reference.simulate_reference` (the same numbers, one path
     at a time: the check of the fast path)."""

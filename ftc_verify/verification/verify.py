@@ -34,7 +34,7 @@ all on the one closed loop :func:`~ftc_verify.analysis.closedloop.closed_loop` b
    passes :func:`ftc_verify.risk.verify_stage.verify_risk_stage`; this package sits
    below :mod:`ftc_verify.risk` and cannot import it): the probability of leaving
    ``[region]`` within ``[0, T]``, its interval and proved upper bound, the FDI timing;
-   a check against ``[risk].target`` when the map gives one (:func:`_risk_check`).
+   a check against ``[risk].target`` when the map gives one (``_risk_check``).
 
 Each stage becomes a named check; the verdict is ``pass`` only if all pass. Every random
 draw comes from one :class:`numpy.random.Generator` whose seed is in the report.
