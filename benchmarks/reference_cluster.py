@@ -1,10 +1,15 @@
 #!/usr/bin/env python
-"""``simulate --backend reference`` serially and on 1, 2 and 4 local Dask workers (issue 24, item 3).
+"""``simulate --backend reference`` serially, on 1, 2 and 4 local Dask workers (issue 24, item 3),
+and on a persistent 2-worker cluster reached by ``--scheduler`` (issue 37: started once by
+this script, before the rounds, so its start-up is paid once, as a user's running cluster).
+The command with ``--workers`` simulates its first batches in the client while the local
+cluster starts (:class:`~ftc_verify.simulation.cluster.ClusterStart`).
 
 Run from the repository root (needs the ``dask`` extra)::
 
     python benchmarks/reference_cluster.py                 # 20,000 paths, 3 rounds (~2 min)
     python benchmarks/reference_cluster.py --paths 5000 --rounds 1   # smoke run
+    python benchmarks/reference_cluster.py --paths 100000 --rounds 1 --configs 0,2,-2 --no-stage
 
 Two measurements, each with the configurations interleaved round by round (serial, 1, 2,
 4 workers, the order rotated every round, so that the machine's load hits them alike):
@@ -43,10 +48,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-CONFIGS: tuple[int, ...] = (0, 1, 2, 4)  # 0: serial
+CONFIGS: tuple[int, ...] = (0, 1, 2, 4, -2)  # 0: serial; -N: a persistent cluster of N workers (--scheduler)
+SCHEDULER: dict[str, str] = {}  # the persistent cluster's address, once started
 
 
 def _label(workers: int) -> str:
+    if workers < 0:
+        return f"scheduler ({-workers} workers, started once)"
     return "serial" if workers == 0 else f"{workers} workers"
 
 
@@ -54,7 +62,7 @@ def run_command(workers: int, paths: int, horizon: float, step: float) -> tuple[
     cmd = [sys.executable, "-m", "ftc_verify", "simulate", str(ROOT / "examples" / "paper.toml"), "--gains",
            str(ROOT / "examples" / "paper_gains.toml"), "--backend", "reference", "--paths", str(paths),
            "--horizon", str(horizon), "--step", str(step), "--seed", "1", "--json"]
-    cmd += ["--workers", str(workers)] if workers else []
+    cmd += ["--workers", str(workers)] if workers > 0 else ["--scheduler", SCHEDULER["address"]] if workers else []
     t = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=3600)
     wall = time.perf_counter() - t
@@ -73,7 +81,8 @@ def run_stage(workers: int, spec: Any, system: Any, gains: Any, step: float) -> 
         res = simulate_streaming(system, gains, spec, step=step, seed=1)
         return {"start_s": 0.0, "monte_carlo_s": time.perf_counter() - t, "close_s": 0.0}, res
     t0 = time.perf_counter()
-    with open_client(workers=workers) as client:
+    where = {"scheduler": SCHEDULER["address"]} if workers < 0 else {"workers": workers}
+    with open_client(**where) as client:
         client.run(lambda: __import__("ftc_verify.simulation.streaming"))  # what the first task imports
         t1 = time.perf_counter()
         res = simulate_streaming(system, gains, spec, step=step, seed=1, client=client)
@@ -104,6 +113,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--step", type=float, default=0.01)
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--no-stage", action="store_true", help="only the command, not the in-process stage")
+    ap.add_argument("--configs", default=",".join(map(str, CONFIGS)),
+                    help="worker counts to run (0 serial, -N a persistent N-worker cluster reached by --scheduler), "
+                         "default %(default)s")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "reference_cluster.csv"))
     args = ap.parse_args(argv)
 
@@ -118,8 +130,18 @@ def main(argv: list[str] | None = None) -> int:
     rows: list[dict[str, Any]] = []
     serial_json: dict[str, Any] | None = None
     serial_res = None
+    configs = tuple(int(c) for c in args.configs.split(","))
+    persistent = None
+    if any(c < 0 for c in configs):  # started once, before every round: what --scheduler amortises
+        import logging
+
+        import distributed
+
+        persistent = distributed.LocalCluster(n_workers=-min(configs), threads_per_worker=1, processes=True,
+                                              dashboard_address=None, silence_logs=logging.ERROR)
+        SCHEDULER["address"] = persistent.scheduler_address
     for rnd in range(args.rounds):
-        order = CONFIGS[rnd % len(CONFIGS):] + CONFIGS[:rnd % len(CONFIGS)]
+        order = configs[rnd % len(configs):] + configs[:rnd % len(configs)]
         for workers in order:
             wall, out = run_command(workers, args.paths, args.horizon, args.step)
             if workers == 0 and serial_json is None:
@@ -138,6 +160,8 @@ def main(argv: list[str] | None = None) -> int:
                          "identical_to_serial": None if serial_res is None else _same(res, serial_res)})
             print(f"[round {rnd + 1}] stage, {_label(workers)}: start {times['start_s']:.2f} s, Monte Carlo "
                   f"{times['monte_carlo_s']:.2f} s, close {times['close_s']:.2f} s", file=sys.stderr, flush=True)
+    if persistent is not None:
+        persistent.close()
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     with out.open("w", newline="") as fh:
@@ -149,7 +173,7 @@ def main(argv: list[str] | None = None) -> int:
     _table(rows, "wall_s", "command")
     if not args.no_stage:
         _table(rows, "monte_carlo_s", "stage")
-        for c in ("1 workers", "2 workers", "4 workers"):
+        for c in dict.fromkeys(r["config"] for r in rows if r["config"] != "serial"):
             st = [r for r in rows if r["what"] == "stage" and r["config"] == c]
             if st:
                 print(f"  {c}: cluster start {statistics.median(r['start_s'] for r in st):.2f} s, "

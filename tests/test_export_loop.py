@@ -4,11 +4,14 @@ The archive is read by FMPy (which validates ``SystemStructure.ssd`` and the par
 against the SSP 1.0 schemas) and by ``pyssp-standard`` (schema compliance, connection
 semantics), and simulated by FMPy's ``simulate_ssp`` for a fixed joint mode. FMPy's SSP
 master exchanges the connections after every step (a Jacobi master): its loop is the
-sampled loop with one sample of delay, which is computed here exactly from the
-simulators' zero-order hold (:func:`~ftc_verify.simulation.discretise.zoh_matrices`) and
-matched to 1e-10; against the tool's own reference loop (no delay) it differs by O(h)
-(about 10 % of the state's size at h = 0.01 with the paper's fast gains, half of that at
-h = 0.005).
+sampled loop with one sample of delay, which the project computes from the simulators'
+discretisations (:func:`~ftc_verify.export.ssp.jacobi_reference`); FMPy matches it to
+1e-10 of the state's size, for a static and a dynamic controller, with a disturbance
+input. That no archive can give FMPy's master the undelayed loop is proved in
+:mod:`ftc_verify.export.ssp`; the test checks the proof's first step (FMPy's
+``x(h) = Phi x0``, the tool's loop ``Phi x0 + Gamma_B K x0``) and records the O(h)
+distance (about 10 % of the state's size at h = 0.01 with the paper's fast gains, half of
+that at h = 0.005).
 """
 
 from __future__ import annotations
@@ -17,12 +20,14 @@ import dataclasses
 import shutil
 import zipfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
 from ftc_verify.cli.main import main
 from ftc_verify.controllers.files import load_controller
+from ftc_verify.export.ssp import jacobi_reference
 from ftc_verify.model.files import load_system
 from ftc_verify.simulation.discretise import zoh_matrices
 from ftc_verify.simulation.paths import ChainPath
@@ -43,27 +48,24 @@ def export_loop(tmp_path: Path, *args: str, step: str = "0.01") -> Path:
     return out
 
 
-def fmpy_ssp_run(ssp: Path, h: float, stop: float) -> np.ndarray:
+def fmpy_ssp_run(ssp: Path, h: float, stop: float, w: Any = None, names: tuple[str, ...] = ("x[1]", "x[2]"),
+                 ) -> np.ndarray:
+    """FMPy's run of the archive: the plant's connectors ``names``, row j at t_{j+1}."""
     from fmpy.ssp.simulation import simulate_ssp
     from fmpy.ssp.ssd import read_ssv
 
     params = read_ssv(str(ssp), resource="resources/modes.ssv")
-    rows = simulate_ssp(str(ssp), stop_time=stop, step_size=h, parameter_set=params)
-    return np.column_stack([rows["plant.x[1]"], rows["plant.x[2]"]])  # row j: x(t_{j+1})
+    rows = simulate_ssp(str(ssp), stop_time=stop, step_size=h, parameter_set=params,
+                        input={} if w is None else {"w[1]": lambda t: w(t)[0]})
+    return np.column_stack([rows[f"plant.{name}"] for name in names])
 
 
-def delayed_loop(h: float, steps: int) -> np.ndarray:
-    """FMPy's Jacobi master on the loop: the plant steps with ``u_j`` from the previous
-    exchange, ``u_j = K x_{j-1}`` (``u_0 = u_1 = 0``: every connector starts at 0)."""
-    mode = load_system(PAPER).modes[1]  # fault mode 2, Delta = 0
-    K = load_controller(GAINS).Dc[1]  # FDI mode 2
-    phi, gb, _ = zoh_matrices(mode.A, mode.B, mode.D, h)
-    x, prev, out = np.array([1.0, -1.0]), None, []
-    for j in range(steps):
-        u = np.zeros(2) if j < 2 else K @ prev
-        prev, x = x, phi @ x + gb @ u
-        out.append(x)
-    return np.array(out)
+def disturbance(t: float) -> list[float]:
+    return [np.sin(7.0 * t) + 0.5]
+
+
+def _rel(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.max(np.abs(a - b))) / float(np.max(np.abs(b)))
 
 
 def test_ssp_is_read_by_standard_libraries(tmp_path: Path) -> None:
@@ -86,18 +88,46 @@ def test_ssp_is_read_by_standard_libraries(tmp_path: Path) -> None:
         assert sorted(str(r) for r in archive.resources) == ["controller.fmu", "modes.ssv", "plant.fmu"]
 
 
-def test_fmpy_simulates_the_loop_for_a_fixed_mode(tmp_path: Path) -> None:
+def test_fmpy_runs_the_jacobi_loop_and_not_the_undelayed_one(tmp_path: Path) -> None:
+    """FMPy's run equals the project's Jacobi-master loop to 1e-10 (with a disturbance
+    input, at two periods); its first step is ``Phi x0`` exactly where the tool's own loop
+    has ``Phi x0 + Gamma_B K x0`` (the proof's first step); the O(h) distance to that
+    loop is the delay's."""
     system, controller = load_system(PAPER), load_controller(GAINS)
     errors = []
     for h in (0.01, 0.005):
         ssp = export_loop(tmp_path, step=repr(h))
+        X = fmpy_ssp_run(ssp, h, 2.0, disturbance)
+        ref = jacobi_reference(system, controller, fault_mode=2, fdi_mode=2, x0=[1.0, -1.0], step=h, steps=len(X),
+                               w=disturbance)
+        assert _rel(X, ref) < 1e-10
+        mode = system.modes[1]
+        phi, gb, _ = zoh_matrices(mode.A, mode.B, mode.D, h)
+        x0 = np.array([1.0, -1.0])
+        np.testing.assert_allclose(X[0], phi @ x0, rtol=0, atol=1e-12)  # u = w = 0 over [0, h]
         X = fmpy_ssp_run(ssp, h, 2.0)
-        np.testing.assert_allclose(X, delayed_loop(h, len(X)), rtol=0, atol=1e-10)
         path = ChainPath(np.array([0.0]), np.array([1]), np.array([1]), system.chain.rate_max, len(X) * h)
-        ref = simulate_reference(system, controller, path, step=h, disturbance="zero", delta="zero",
-                                 x0=[1.0, -1.0]).records[0]
-        errors.append(float(np.max(np.abs(X - ref.x[1:len(X) + 1]))) / float(np.max(np.abs(ref.x))))
+        own = simulate_reference(system, controller, path, step=h, disturbance="zero", delta="zero",
+                                 x0=[1.0, -1.0]).records[0].x[1:len(X) + 1]
+        np.testing.assert_allclose(own[0], phi @ x0 + gb @ controller.Dc[1] @ x0, rtol=1e-9)
+        assert np.max(np.abs(own[0] - X[0])) > 1e-3  # Gamma_B K x0: the first-step gap no archive can close
+        errors.append(_rel(X, own))
     assert errors[0] < 0.2 and errors[1] < 0.6 * errors[0], errors  # O(h): the one-sample delay
+
+
+def test_fmpy_runs_the_jacobi_loop_of_a_dynamic_controller(tmp_path: Path) -> None:
+    """The observer-based controller (order 2, reads y_m; exported uncertified on request):
+    FMPy's measured output equals :func:`jacobi_reference`'s ``Cy x`` to 1e-10 with a
+    disturbance input (the controller's state and its update at the step boundary)."""
+    system, controller = load_system(PAPER), load_controller(OBSERVER)
+    out = tmp_path / "observer.ssp"
+    code = main(["export-loop", PAPER, "--controller", OBSERVER, "--fault-mode", "1", "--fdi-mode", "2", "--x0",
+                 "0.5,0.2", "--step", "0.01", "--stop-time", "1", "--allow-uncertified", "-o", str(out)])
+    assert code in (0, 1, 3, 5) and out.exists(), code
+    Y = fmpy_ssp_run(out, 0.01, 1.0, disturbance, names=("ym[1]",))  # the plant exposes y_m, not x
+    ref = jacobi_reference(system, controller, fault_mode=1, fdi_mode=2, x0=[0.5, 0.2], step=0.01, steps=len(Y),
+                           w=disturbance)
+    assert _rel(Y, ref @ system.modes[0].measured.T) < 1e-10
 
 
 @pytest.mark.parametrize("args, needle", [

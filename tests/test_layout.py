@@ -1,6 +1,6 @@
 """The package is laid out as the pipeline: imports only point down it, modules stay small.
 
-Pipeline order (README "Architecture"): errors, limits, jsonable, interrupts < model < controllers < plants < analysis
+Pipeline order (README "Architecture"): errors, limits, jsonable, interrupts, prestart < model < controllers < plants < analysis
 < synthesis < simulation < verification < export < cli, testing. A module may import from its own
 subpackage and from any earlier stage, never from a later one.
 """
@@ -13,7 +13,8 @@ from pathlib import Path
 import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "ftc_verify"
-ORDER = ["errors", "limits", "jsonable", "interrupts", "model", "controllers", "plants", "analysis", "synthesis", "simulation", "verification", "risk", "export", "cli",
+
+ORDER = ["errors", "limits", "jsonable", "interrupts", "prestart", "model", "controllers", "plants", "analysis", "synthesis", "simulation", "verification", "risk", "export", "cli",
          "testing"]
 #: Longest module and function accepted (the issue asks for "about 500" and "about 80").
 MAX_MODULE_LINES = 560

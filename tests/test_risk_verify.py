@@ -172,7 +172,7 @@ def test_reference_batches_on_dask_give_the_serial_numbers(loop: tuple) -> None:
                         client=client).estimate
 
     serial = run()
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None) as cl, \
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=":0") as cl, \
             distributed.Client(cl) as client:
         with distributed.get_task_stream(client) as tasks:
             spread = run(client)

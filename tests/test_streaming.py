@@ -80,3 +80,33 @@ def test_cli_simulate_reference_streams(tmp_path: Path) -> None:
                           str(ROOT / "examples" / "paper_gains.toml"), "--backend", "reference", "--record", "-1"],
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 2 and "--record" in out.stderr
+
+
+class _StillStarting:
+    """A local cluster that never finishes starting (the ``ClusterStart`` protocol)."""
+
+    def __init__(self) -> None:
+        self.asked = 0
+
+    def ready(self) -> bool:
+        self.asked += 1
+        return False
+
+    def client(self) -> None:
+        raise AssertionError("the cluster was waited for although every range could run here")
+
+
+def test_ranges_run_here_while_the_cluster_starts_with_the_serial_numbers() -> None:
+    """While a local cluster starts, the reference backend simulates the next range of paths
+    in this process (issue 37): with a cluster that never gets ready every range runs here,
+    the cluster is never waited for, and the norms equal the serial run's bitwise."""
+    from ftc_verify.simulation.paths import PathSpec
+
+    system, gains = load_system(PAPER), load_controller(ROOT / "examples" / "paper_gains.toml")
+    pspec = PathSpec(system.chain, 2.0, 30, 7)
+    serial = simulate_streaming(system, gains, pspec, step=0.01, seed=7, delta="random", batch=8)
+    starting = _StillStarting()
+    here = simulate_streaming(system, gains, pspec, step=0.01, seed=7, delta="random", batch=8, client=starting)
+    assert starting.asked == 4  # once before each of the 4 ranges of 8, 8, 8, 6 paths
+    np.testing.assert_array_equal(here.y_norm, serial.y_norm)
+    np.testing.assert_array_equal(here.w_norm, serial.w_norm)

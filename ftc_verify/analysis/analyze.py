@@ -127,8 +127,11 @@ def analyze(loop: ClosedLoop, *, solver: str | None = None, name: str = "", cros
 
     ``solver`` is ``None``/``"auto"`` (by size), ``"clarabel"``, ``"sdpa"`` or ``"scs"``.
     Without uncertainty channels the robust gamma is the nominal one (Lemma 4.1
-    reduces to Theorem 3.2) and is not solved twice. ``cross_validation=False`` skips
-    stage 4 (synthesis loops, where python-control's start-up cost would dominate).
+    reduces to Theorem 3.2) and is not solved twice. Stage 5 runs in a child process
+    started first (:class:`~ftc_verify.prestart.Prestarted`: python-control's import and
+    checks beside every other stage; ``seconds["cross_validation_wait"]`` is what was left
+    to wait for at the end); ``cross_validation=False`` skips it (synthesis loops, where
+    python-control's start-up cost would dominate).
     ``lmi=False`` runs only the exact spectral test and the cross-check (large loops);
     otherwise the LMI stage's memory is checked first, before any work
     (:func:`~ftc_verify.analysis.lmi_analysis.check_lmi_memory`), and so is the lower
@@ -145,6 +148,23 @@ def analyze(loop: ClosedLoop, *, solver: str | None = None, name: str = "", cros
                      f"the gamma lower bounds of a loop with n = {loop.n} and {len(loop.A)} joint states",
                      hint="reduce the problem, or run the exact spectral test alone (analyze --no-lmi)")
     seconds: dict[str, float] = {}
+    check = None
+    if cross_validation:  # python-control's import and checks in a child, beside every stage below
+        from ..prestart import cross_check as start_cross_check
+
+        check = start_cross_check()
+        check.submit(cross_validate, loop)
+    try:
+        return _analyze(loop, solver, name, lmi, lower_bounds, check, seconds)
+    finally:
+        if check is not None:
+            check.cancel()
+
+
+def _analyze(loop: ClosedLoop, solver: str | None, name: str, lmi: bool, lower_bounds: bool,
+             check: Any, seconds: dict[str, float]) -> AnalysisReport:
+    """The stages of :func:`analyze`; ``check``: the running
+    :class:`~ftc_verify.prestart.Prestarted` (``None``: no cross-validation)."""
     t = time.perf_counter()
     mss = mean_square_stability(loop)
     seconds["spectral"] = time.perf_counter() - t
@@ -163,22 +183,16 @@ def analyze(loop: ClosedLoop, *, solver: str | None = None, name: str = "", cros
     nominal_lower = robust_lower = None
     t = time.perf_counter()
     if lmi and lower_bounds and not mss.unstable:
-        if cross_validation and hasattr(os, "fork"):  # beside python-control's import and checks, on two cores
-            forked = ForkedCall(lambda: _lower_bounds(loop, mss, nominal, robust), "the lower bounds")
-            try:
-                per_mode = cross_validate(loop)
-                seconds["cross_validation"] = time.perf_counter() - t
-                nominal_lower, robust_lower = forked.result()
-            finally:
-                forked.cancel()
-            seconds["lower_bounds"] = time.perf_counter() - t
-            return AnalysisReport(name, loop.controller, mss, mes, nominal, robust, per_mode, seconds,
-                                  nominal_lower, robust_lower)
         nominal_lower, robust_lower = _lower_bounds(loop, mss, nominal, robust)
         seconds["lower_bounds"] = time.perf_counter() - t
-    t = time.perf_counter()
-    per_mode = cross_validate(loop) if cross_validation else ()
-    seconds["cross_validation"] = time.perf_counter() - t
+    per_mode: tuple[ModeCheck, ...] = ()
+    if check is not None:
+        try:
+            per_mode = check.result()
+        finally:
+            check.cancel()
+        seconds["cross_validation_wait"] = check.seconds.get("wait", 0.0)
+        seconds["cross_validation"] = check.seconds.get("run", 0.0)
     return AnalysisReport(name, loop.controller, mss, mes, nominal, robust, per_mode, seconds, nominal_lower,
                           robust_lower)
 

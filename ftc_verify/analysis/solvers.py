@@ -362,18 +362,26 @@ def _die_with_parent() -> None:
         ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL), 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
 
 
-def interruptible(fn: Any, what: str) -> Any:
+def interruptible(fn: Any, what: str, meanwhile: Any = None) -> Any:
     """``fn()`` in a :class:`ForkedCall` child leading its own process group; this process
     only waits for the answer. A solve or a dense eigenproblem holds the interpreter until
     it returns, so a SIGTERM or Ctrl-C arriving meanwhile would wait for it (29-87 s were
     measured with Clarabel, issue 32); here the wait is a ``read`` that the signal
     interrupts at once, and the ``finally`` kills the child's whole group (on Linux the
     child also dies with this process if it is killed outright). Where ``fork`` is
-    missing, ``fn()`` runs here. The child's exceptions are raised again here."""
+    missing, ``fn()`` runs here. The child's exceptions are raised again here.
+
+    ``meanwhile()``, when given, runs here after the fork and before the wait (``verify``
+    imports the modules of its later stages while the synthesis runs); a signal
+    interrupts it like the wait."""
     if not hasattr(os, "fork"):
+        if meanwhile is not None:
+            meanwhile()
         return fn()
     forked = ForkedCall(fn, what, group=True)
     try:
+        if meanwhile is not None:
+            meanwhile()
         return forked.result()
     finally:
         forked.cancel()

@@ -35,6 +35,7 @@ __all__ = [
     "nonneg_int",
     "positive_int",
     "seed_int",
+    "Stopwatch",
 ]
 
 EXIT_OK, EXIT_NEGATIVE, EXIT_BAD_INPUT, EXIT_UNCERTIFIED, EXIT_INTERNAL, EXIT_UNDECIDED = 0, 1, 2, 3, 4, 5
@@ -135,3 +136,40 @@ def seed_int(text: str) -> int:
     if value < 0:
         raise argparse.ArgumentTypeError(f"seeds are non-negative, got {text!r}")
     return value
+
+
+def _process_age() -> float:
+    """Seconds since this process started (Linux: ``/proc``, to 0.01 s; elsewhere 0):
+    the interpreter's start-up before :func:`~ftc_verify.cli.main.main` runs."""
+    try:
+        with open("/proc/self/stat") as f:
+            started = int(f.read().rsplit(")", 1)[1].split()[19])  # field 22: start time in clock ticks
+        with open("/proc/uptime") as f:
+            uptime = float(f.read().split()[0])
+        return max(0.0, uptime - started / os.sysconf("SC_CLK_TCK"))
+    except (OSError, ValueError, IndexError):
+        return 0.0
+
+
+class Stopwatch:
+    """The wall-time breakdown of one command (``timings`` of its JSON): ``startup`` (the
+    interpreter's start and the CLI's imports, up to the command's first line), then each
+    stage the command marks (:meth:`mark`), then ``total`` since the process started."""
+
+    def __init__(self) -> None:
+        import time
+
+        self._clock = time.perf_counter
+        self._t0 = self._last = self._clock()
+        self.timings: dict[str, float] = {"startup": _process_age()}
+
+    def mark(self, stage: str) -> float:
+        """Record the time since the last mark (or the start) as ``stage``; return it."""
+        now = self._clock()
+        self.timings[stage] = self.timings.get(stage, 0.0) + now - self._last
+        self._last = now
+        return self.timings[stage]
+
+    def total(self) -> float:
+        """Seconds since the process started (``startup`` included)."""
+        return self.timings["startup"] + self._clock() - self._t0

@@ -55,16 +55,36 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _cmd_analyze(args: argparse.Namespace) -> int:
+    from ..prestart import cross_check as start_cross_check
+    from .common import Stopwatch
+
+    watch = Stopwatch()
+    from ..analysis import analyze as _  # noqa: F401  (numpy, scipy, the analysis: shared with the child below)
+
+    check = start_cross_check()  # python-control's import starts now, beside everything below (issue 37)
+    try:
+        return _analyze_command(args, watch, check)
+    finally:
+        check.cancel()
+
+
+def _analyze_command(args: argparse.Namespace, watch: Any, check: Any) -> int:
+    import dataclasses
+
     from ..analysis.analyze import analyze
     from ..analysis.closedloop import closed_loop
+    from ..analysis.crossval import cross_validate
     from .sampled_lines import print_sampled, sampled_exit
 
     from ..analysis.solvers import interruptible
 
     system, controller = load(args.system, args.controller)
     loop = closed_loop(system, controller)
-    rep = interruptible(lambda: analyze(loop, solver=args.solver, name=system.name, lmi=not args.no_lmi),
-                        "the analysis")
+    check.submit(cross_validate, loop)
+    watch.mark("imports_and_load")
+    rep = interruptible(lambda: analyze(loop, solver=args.solver, name=system.name, lmi=not args.no_lmi,
+                                        cross_validation=False), "the analysis")
+    watch.mark("analysis")
     period = args.period if args.period is not None else controller.period
     sampled = None
     if period is not None:  # the loop that runs: sampled every period, output held
@@ -76,8 +96,14 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
 
             found = sampled
             sampled = interruptible(lambda: attach_performance(found, system, controller), "the sampled-loop gains")
+        watch.mark("sampled")
+    per_mode = check.result()
+    watch.mark("cross_validation_wait")
+    rep = dataclasses.replace(rep, per_mode=per_mode, seconds=rep.seconds | {
+        "cross_validation": check.seconds.get("run", 0.0), "cross_validation_wait": check.seconds["wait"]})
     if args.json:
-        print(dumps(rep.to_dict() | {"lmi_requested": not args.no_lmi, "fdi_model": system.chain.describe(),
+        print(dumps(rep.to_dict() | {"timings": watch.timings | {"total": watch.total()},
+                                     "lmi_requested": not args.no_lmi, "fdi_model": system.chain.describe(),
                                      "sampled": None if sampled is None else sampled.to_dict()}))
     else:
         from ..analysis.summary import analysis_summary

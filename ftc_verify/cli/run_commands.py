@@ -115,8 +115,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     bar = progress_bar(args.paths, f"simulate ({args.backend})", sys.stderr.isatty())
     done = None if bar is None else bar.update
     res: SimulationResult | StreamedResult
-    try:
-        with spec.client() as client:
+    try:  # the reference backend simulates its first batches here while a local cluster starts
+        with spec.client(wait=args.backend == "fmu") as client:
             if args.backend == "fmu":
                 res = fmu_monte_carlo(system, controller, paths, spec=spec, plant=plant, client=client,
                                       log=_fmu_logger(args), done=done)
@@ -218,6 +218,20 @@ def _risk_stage() -> Any:
 
 
 def _cmd_verify(args: argparse.Namespace) -> int:
+    from ..prestart import cross_check as start_cross_check
+    from .common import Stopwatch
+
+    watch = Stopwatch()
+    from ..verification import verify as _  # noqa: F401  (numpy, scipy, the stages: shared with the child below)
+
+    check = start_cross_check()  # python-control's import starts now, beside everything below (issue 37)
+    try:
+        return _verify_command(args, watch, check)
+    finally:
+        check.cancel()
+
+
+def _verify_command(args: argparse.Namespace, watch: Any, check: Any) -> int:
     from ..simulation.spec import SimulationSpec
     from ..verification.report import check_out_dir, write_report
     from ..verification.verify import run_verify
@@ -240,11 +254,16 @@ def _cmd_verify(args: argparse.Namespace) -> int:
     if controller is not None:
         spec.check_memory(system, controller, args.paths)
     k_max = None if args.no_gain_bound else args.k_max
+    watch.mark("imports_and_load")
     with spec.client() as client:  # started before the synthesis: a bad cluster is refused before any work
+        watch.mark("cluster_start")
         rep = run_verify(system, gamma=args.gamma, method=args.method, k_max=k_max, controller=controller,
                          spec=spec, solver=args.solver, progress=sys.stderr.isatty(), plant=plant,
-                         fmu_log=_fmu_logger(args), measure=args.measure, client=client, risk=_risk_stage())
-    written = write_report(rep, args.out)
+                         fmu_log=_fmu_logger(args), measure=args.measure, client=client, cross_check=check,
+                         risk=_risk_stage())
+        watch.mark("stages")
+    watch.mark("cluster_stop")
+    written = write_report(rep, args.out, watch)
     from ..verification.summary import verify_summary
 
     print(verify_summary(rep, written=written))

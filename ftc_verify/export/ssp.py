@@ -21,26 +21,67 @@ Names of the plant's connectors are the plant FMU's variables (from its plant ma
 default).
 
 The default experiment's step is the controller's period ``h`` (its FMU refuses any other).
-An SSP master that exchanges the connections after every step (a Jacobi master, as FMPy's
-``simulate_ssp``) runs the sampled loop with one sample of delay in the loop; the
-tool's own loop (``simulate``) reads ``x_k`` and writes ``u_k`` at the same instant.
+
+**The loop an SSP master runs.** An SSP 1.0 system fixes the connections, not the order
+in which a master steps the components and copies the values. FMPy's ``simulate_ssp``
+(``fmpy/ssp/simulation.py``) is a *Jacobi* master: it sets every connector to 0, then in
+each round ``k`` (time :math:`t_k = k h`) sets each component's inputs from its
+connectors, steps it over :math:`[t_k, t_{k+1}]`, reads its outputs, and only after all
+components have stepped copies every connection (the system inputs ``w`` are set at the
+round's start and reach the plant through a connection too). With :math:`c_u, c_v, c_w`
+the connector values the plant's ``u``, the controller's ``v`` and the plant's ``w`` hold
+during round ``k``, the archive's loop is exactly (:func:`jacobi_reference`)
+
+.. math::
+
+    x_{k+1} = \Phi x_k + \Gamma_B c_u^{(k)} + \Gamma_D c_w^{(k)}, \qquad
+    x_{c,k+1} = \Phi_c x_{c,k} + \Gamma_c c_v^{(k)},
+
+    c_u^{(k+1)} = C_c x_{c,k+1} + D_c c_v^{(k)}, \quad c_v^{(k+1)} = M x_{k+1}, \quad
+    c_w^{(k+1)} = w(t_k), \qquad c^{(0)} = 0,
+
+(:math:`\Phi, \Gamma_B, \Gamma_D`: the plant's exact zero-order hold over ``h``,
+:func:`~ftc_verify.simulation.discretise.zoh_matrices`; :math:`\Phi_c, \Gamma_c` the
+controller FMU's exact update, :func:`~ftc_verify.simulation.discretise.controller_zoh`;
+:math:`M = I` or :math:`C_y`). For a static gain this is :math:`u_k = K x_{k-1}`: the
+sampled loop with **one sample of delay** (and ``w`` delayed by one sample).
+
+*No archive of these two FMUs can give FMPy's master the tool's undelayed loop*
+(``simulate``: :math:`u_k = K x_k` over :math:`[t_k, t_{k+1}]`): the plant's input
+during round ``k`` is the value its connector got in the exchange after round
+``k - 1``, i.e. an output the controller produced from its inputs of round ``k - 1``,
+which were copied no later than the exchange after round ``k - 2``: plant outputs at
+:math:`t_{k-1}` at the latest. So :math:`u` over :math:`[t_k, t_{k+1}]` never depends on
+:math:`x(t_k)`, whatever the controller FMU computes, in whichever order the components
+are listed. Already the first step shows it: every connector starts at 0 and no
+exchange precedes round 0, so the plant's input over :math:`[0, h]` is 0 and FMPy's
+:math:`x(h) = \Phi x_0`, where the undelayed loop has :math:`\Phi x_0 + \Gamma_B K x_0`
+(``tests/test_export_loop.py`` checks both statements). Only a controller that
+predicts the plant (its true mode and ``w``) could hide the delay, and that is not the
+certified controller. A master that exchanges the plant's outputs before stepping the
+controller (Gauss-Seidel, or ``simulate --controller-fmu``) runs the undelayed loop.
 """
+
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from xml.etree import ElementTree as ET
 
 from typing import Any
 
+import numpy as np
+
 from .. import __version__
 from ..controllers.controller import Controller
 from ..errors import ValidationError
+from ..model.system import FTCSystem, Matrix
 from ..plants.build import write_zip
 
-__all__ = ["SSD_NS", "SSC_NS", "SSV_NS", "LoopSpec", "loop_spec", "loop_ssd", "loop_ssv", "write_loop_ssp"]
+__all__ = ["SSD_NS", "SSC_NS", "SSV_NS", "LoopSpec", "jacobi_reference", "loop_spec", "loop_ssd", "loop_ssv",
+           "write_loop_ssp"]
 
 SSD_NS = "http://ssp-standard.org/SSP1/SystemStructureDescription"
 SSC_NS = "http://ssp-standard.org/SSP1/SystemStructureCommon"
@@ -225,3 +266,34 @@ def loop_spec(mapping: Any, types: dict[str, str], controller: Controller, *, fa
     return LoopSpec(inputs=tuple(mapping.inputs), disturbances=tuple(mapping.disturbances),
                     outputs=tuple(mapping.outputs), reads=reads, parameters=tuple(params), fault_mode=fault_mode,
                     fdi_mode=fdi_mode, step=step, stop_time=stop_time, name=name)
+
+
+def jacobi_reference(system: FTCSystem, controller: Controller, *, fault_mode: int, fdi_mode: int,
+                     x0: Sequence[float], step: float, steps: int,
+                     w: Callable[[float], Sequence[float]] | None = None) -> Matrix:
+    r"""The loop a Jacobi SSP master (FMPy's ``simulate_ssp``) runs on the archive of
+    :func:`write_loop_ssp` for the system's linear plant (``Delta = 0``), computed from the
+    simulators' discretisations: the recursion of the module docstring, one row
+    :math:`x(t_{k+1})` per round, ``steps`` rows (FMPy's row ``k`` holds the outputs
+    after round ``k``). ``w(t)``: the system inputs FMPy's ``input`` gives (zero when
+    ``None``); ``fault_mode``, ``fdi_mode`` 1-based; the controller state starts at 0."""
+    from ..simulation.discretise import controller_zoh, zoh_matrices
+
+    mode, j = system.modes[fault_mode - 1], fdi_mode - 1
+    phi, gb, gd = zoh_matrices(mode.A, mode.B, mode.D, step)
+    meas = np.eye(mode.n) if controller.measures == "state" else mode.measured
+    nc = controller.n_c
+    if nc:
+        phic, gamc = (a[0] for a in controller_zoh(controller, [j], [step]))
+    x, xc = np.asarray(x0, dtype=float), np.zeros(nc)
+    cu, cv, cw = np.zeros(mode.B.shape[1]), np.zeros(meas.shape[0]), np.zeros(mode.D.shape[1])
+    out = np.empty((steps, mode.n))
+    for k in range(steps):
+        wk = np.zeros(mode.D.shape[1]) if w is None else np.asarray(w(k * step), dtype=float)
+        x = phi @ x + gb @ cu + gd @ cw
+        if nc:
+            xc = phic @ xc + gamc @ cv
+        cu = controller.Cc[j] @ xc + controller.Dc[j] @ cv if nc else controller.Dc[j] @ cv
+        cv, cw = meas @ x, wk
+        out[k] = x
+    return out

@@ -60,7 +60,8 @@ def fmu_monte_carlo(system: FTCSystem, controller: Controller, paths: Sequence[C
                     delta: DeltaSchedule | str | None = None, rng: np.random.Generator | None = None,
                     disturbance: str | None = None, seed: int | None = None, plant: Any = None,
                     batch: int | None = None, client: Any = None, log: Callable[[str, str, str], None] | None = None,
-                    done: Callable[[int], Any] | None = None, isolate: bool | None = None) -> SimulationResult:
+                    done: Callable[[int], Any] | None = None, isolate: bool | None = None,
+                    processes: Sequence[Any] | None = None) -> SimulationResult:
     """Co-simulate ``paths`` on the FMU of the plant map ``plant`` (default: the
     ``LinearJumpPlant`` of ``system``; :func:`~ftc_verify.simulation.supervisor.resolve_plant`)
     in batches (module docstring).
@@ -80,7 +81,10 @@ def fmu_monte_carlo(system: FTCSystem, controller: Controller, paths: Sequence[C
     ``spec.isolate`` (default): without a client, run the FMU in a watched child process
     (:func:`~ftc_verify.simulation.isolated.run_isolated`), so that a plant whose code
     crashes raises :class:`~ftc_verify.errors.PlantRunError` naming the path and the time
-    instead of ending this process; ``False`` runs it in this process. With a client, a
+    instead of ending this process, on one child per core (at most
+    :data:`~ftc_verify.simulation.isolated.MAX_PROCESSES`; ``processes``: children started
+    earlier, :func:`~ftc_verify.simulation.isolated.plant_processes`, closed here whatever
+    happens), the same records; ``False`` runs it in this process. With a client, a
     batch whose worker died repeatedly is run again in a watched child to find where the
     plant crashed.
 
@@ -97,14 +101,20 @@ def fmu_monte_carlo(system: FTCSystem, controller: Controller, paths: Sequence[C
     plist = list(paths)
     if plist and isinstance(controller, Controller):
         spec.check_memory(system, controller, len(plist), max(p.horizon for p in plist))
-    with spec.client(client) as client:
-        if client is not None:
-            return _on_cluster(client, system, plant, controller, plist, spec, rng, done)
-        if spec.isolate:
-            from .isolated import run_isolated
+    try:
+        with spec.client(client) as client:
+            if client is not None:
+                return _on_cluster(client, system, plant, controller, plist, spec, rng, done)
+            if spec.isolate:
+                from .isolated import run_isolated
 
-            parts = run_isolated(system, plant, controller, plist, spec=spec, rng=rng, log=log, done=done)
-            return merge_results(parts, plant.fmu, spec.seed)
+                parts = run_isolated(system, plant, controller, plist, spec=spec, rng=rng, log=log, done=done,
+                                     processes=processes)
+                processes = None  # closed by run_isolated
+                return merge_results(parts, plant.fmu, spec.seed)
+    finally:
+        for proc in processes or ():
+            proc.close()
     parts = []
     batch = FMU_TASK_PATHS if spec.batch is None else spec.batch
     with Supervisor(plant.fmu, plant.injection_map(), system=system, tolerance=plant.tolerance, log=log) as sup:
@@ -138,12 +148,12 @@ def _locate_crash(exc: PlantRunError, system: FTCSystem, plant: Any, controller:
     """The batch ``exc.batch`` that killed its Dask workers, run again in a watched child:
     raises the :class:`PlantRunError` naming the path and time where the plant crashes;
     returns when it does not crash there (the workers died of something else)."""
-    from .isolated import run_isolated
+    from .isolated import plant_processes, run_isolated
 
     first, stop = exc.batch  # type: ignore[misc]
     try:
         run_isolated(system, plant, controller, paths[first:stop], spec=dataclasses.replace(spec, batch=stop - first),
-                     rng=rng)
+                     rng=rng, processes=plant_processes(1))
     except PlantRunError as found:
         raise PlantRunError(found.fmu, found.detail + f" (the Dask workers running paths[{first}:{stop}] died "
                             "the same way)", path=None if found.path is None else first + found.path,

@@ -46,7 +46,7 @@ from typing import Any
 from ..errors import ValidationError
 from ..limits import format_bytes, memory_limit
 
-__all__ = ["open_client", "check_cluster_options", "max_workers", "dask_setup", "CONNECT_TIMEOUT",
+__all__ = ["open_client", "ClusterStart", "check_cluster_options", "max_workers", "dask_setup", "CONNECT_TIMEOUT",
            "CLOSE_TIMEOUT", "WORKERS_PER_CORE", "WORKER_MEMORY", "ALLOWED_FAILURES"]
 
 _INSTALL = "pip install 'ftc-verify[dask]'"
@@ -236,49 +236,70 @@ def _connect(address: str) -> Any:
         raise ValidationError(f"{where}: cannot connect ({exc})") from None
 
 
-def _start_local(workers: int, folder: Path) -> Any:
-    """A ``LocalCluster`` of ``workers`` one-thread worker processes living in ``folder``.
+class ClusterStart:
+    """A ``LocalCluster`` of ``workers`` one-thread worker processes living in ``folder``,
+    built in a helper thread from the constructor on (:func:`open_client` with
+    ``wait=False``): the caller works meanwhile (the reference backend simulates its first
+    batches here, :mod:`ftc_verify.simulation.streaming`), asks :meth:`ready`, and takes
+    :meth:`client` when it needs the workers. An exception raised in the main thread while
+    it waits (SIGTERM, Ctrl-C) propagates; :meth:`close` then waits up to
+    ``START_TIMEOUT`` seconds for the half-built cluster and shuts it down quietly."""
 
-    It is built in a helper thread: an exception raised in the main thread meanwhile
-    (SIGTERM, Ctrl-C) waits up to :data:`START_TIMEOUT` for the half-built cluster, shuts
-    it down quietly and propagates."""
-    from distributed import LocalCluster
+    def __init__(self, workers: int, folder: Path) -> None:
+        from distributed import LocalCluster
 
-    box: dict[str, Any] = {}
-    finished = threading.Event()  # not Thread.join: an interrupted join marks a live thread as stopped
+        self._box: dict[str, Any] = {}
+        self._finished = threading.Event()  # not Thread.join: an interrupted join marks a live thread as stopped
+        self._client: Any = None
 
-    def start() -> None:
-        try:
-            box["cluster"] = LocalCluster(
-                n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                silence_logs=logging.CRITICAL, local_directory=str(folder), env={"TMPDIR": str(folder)},
-                preload=[__name__],
-                scheduler_kwargs={"local_directory": str(folder), "allowed_failures": ALLOWED_FAILURES})
-        except BaseException as exc:  # handed to the main thread
-            box["error"] = exc
-        finally:
-            finished.set()
+        def start() -> None:
+            try:
+                self._box["cluster"] = LocalCluster(
+                    n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                    silence_logs=logging.CRITICAL, local_directory=str(folder), env={"TMPDIR": str(folder)},
+                    preload=[__name__],
+                    scheduler_kwargs={"local_directory": str(folder), "allowed_failures": ALLOWED_FAILURES})
+            except BaseException as exc:  # handed to the main thread
+                self._box["error"] = exc
+            finally:
+                self._finished.set()
 
-    starter = threading.Thread(target=start, name="ftc-verify-cluster-start", daemon=True)
-    starter.start()
-    try:
-        while not finished.wait(0.1):
+        threading.Thread(target=start, name="ftc-verify-cluster-start", daemon=True).start()
+
+    def ready(self) -> bool:
+        """The cluster's start has ended (:meth:`client` returns at once)."""
+        return self._finished.is_set()
+
+    def cluster(self) -> Any:
+        """The started ``LocalCluster`` (waits for it; its start's exception raised here)."""
+        while not self._finished.wait(0.1):
             pass
-    except BaseException:
-        with _quiet_logs():
-            finished.wait(START_TIMEOUT)
-        _shutdown(None, box.get("cluster"))
-        raise
-    if "error" in box:
-        raise box["error"]
-    return box["cluster"]
+        if "error" in self._box:
+            raise self._box["error"]
+        return self._box["cluster"]
+
+    def client(self) -> Any:
+        """A ``dask.distributed.Client`` of the cluster (made once; waits for the start)."""
+        if self._client is None:
+            from distributed import Client
+
+            self._client = Client(self.cluster())
+        return self._client
+
+    def close(self) -> None:
+        """Shut the client and the cluster down quietly, the start waited for first."""
+        if not self._finished.is_set():
+            with _quiet_logs():
+                self._finished.wait(START_TIMEOUT)
+        _shutdown(self._client, self._box.get("cluster"))
 
 
 @contextmanager
-def open_client(workers: int | None = None, scheduler: str | None = None) -> Iterator[Any]:
+def open_client(workers: int | None = None, scheduler: str | None = None, wait: bool = True) -> Iterator[Any]:
     """A ``dask.distributed.Client``: ``workers`` local worker processes (one thread each),
     or the scheduler at ``scheduler`` (``tcp://host:port``); ``None`` when neither is
-    given (module docstring for the contract).
+    given (module docstring for the contract). ``wait=False``: a local cluster is yielded
+    as its :class:`ClusterStart`, still starting, so that the caller works meanwhile.
 
     The options are checked first (:func:`check_cluster_options`). The local cluster is
     shut down on exit and its run folder removed; a remote one is only disconnected.
@@ -299,17 +320,15 @@ def open_client(workers: int | None = None, scheduler: str | None = None) -> Ite
         return
     assert workers is not None
     earlier = set(multiprocessing.active_children())
-    cluster = client = None
+    start: ClusterStart | None = None
     folder: Path | None = None
     try:
         folder = Path(tempfile.mkdtemp(prefix="ftc-verify-cluster-"))
-        cluster = _start_local(int(workers), folder)
-        from distributed import Client
-
-        client = Client(cluster)
-        yield client
+        start = ClusterStart(int(workers), folder)
+        yield start if not wait else start.client()
     finally:
-        _shutdown(client, cluster)
+        if start is not None:
+            start.close()
         _reap_workers(CLOSE_TIMEOUT, earlier)
         if folder is not None:
             shutil.rmtree(folder, ignore_errors=True)

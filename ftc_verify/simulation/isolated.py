@@ -2,8 +2,9 @@
 
 A plant FMU is C code loaded into the process that runs it; a segfault there ends that
 process with no Python exception to catch. :func:`run_isolated` therefore runs the
-batches of an FMU Monte Carlo on one
-:class:`~ftc_verify.simulation.supervisor.Supervisor` in a child process and watches it:
+batches of an FMU Monte Carlo in child processes (:class:`PlantProcess`, one per core up
+to :data:`MAX_PROCESSES`, each a contiguous run of the batches on one
+:class:`~ftc_verify.simulation.supervisor.Supervisor`) and watches them:
 
 * the child is a fresh interpreter (``python -m ftc_verify.simulation.isolated``): it
   inherits none of this process's threads, signal handlers or main module; its job comes
@@ -28,6 +29,7 @@ and raised again here as themselves.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import mmap
 import os
@@ -52,10 +54,12 @@ from .paths import ChainPath
 from .records import SimulationResult
 from .spec import SimulationSpec
 
-__all__ = ["POLL_SECONDS", "run_isolated"]
+__all__ = ["POLL_SECONDS", "MAX_PROCESSES", "PlantProcess", "default_processes", "plant_processes", "run_isolated"]
 
 #: How often the parent looks at the child while no message arrives (seconds).
 POLL_SECONDS = 0.1
+#: Most children one isolated Monte Carlo runs its batches on.
+MAX_PROCESSES = 2
 _MONITOR = "monitor.f64"  # (path index in the batch, time reached, first path of the batch)
 _HEADER = struct.Struct("<Q")
 
@@ -116,89 +120,174 @@ def _child_main(workdir: str, fd: int) -> None:
             _send(out, ("error", FMUError(f"{plant.fmu}: {type(exc).__name__}: {exc}")))
 
 
-def _messages(fd: int, child: subprocess.Popen[bytes]) -> Any:
-    """The child's messages as they arrive; ends when the pipe closes (the child ended)."""
-    buffer = bytearray()  # grown in place: a batch of several MB arrives in many reads
-    while True:
-        ready, _, _ = select.select([fd], [], [], POLL_SECONDS)
-        if not ready:
-            continue
-        chunk = os.read(fd, 1 << 20)
+class PlantProcess:
+    """One watched child (module docstring), started by the constructor and waiting for
+    its job: a caller that knows it will co-simulate starts it early (``verify`` does, before
+    the synthesis), so the interpreter's start and its imports overlap that work. Used by
+    one :func:`run_isolated` call; :meth:`close` (in a ``finally``) kills it if it is still
+    running and removes its folder."""
+
+    def __init__(self) -> None:
+        self.workdir = tempfile.mkdtemp(prefix="ftc-verify-plant-")
+        self.monitor_file = Path(self.workdir) / _MONITOR
+        self.monitor_file.write_bytes(bytes(3 * 8))
+        self.read_fd, write_fd = os.pipe()
+        self.child: subprocess.Popen[bytes] | None = None
+        self.buffer = bytearray()  # grown in place: a batch of several MB arrives in many reads
+        self.first = 0  # index of this child's first path among all the paths of the run
+        try:
+            self.child = subprocess.Popen([sys.executable, "-m", "ftc_verify.simulation.isolated", self.workdir,
+                                           str(write_fd)], stdin=subprocess.PIPE, stdout=2, pass_fds=(write_fd,),
+                                          start_new_session=True)
+        finally:
+            os.close(write_fd)
+
+    def send(self, job: bytes) -> None:
+        """Hand the pickled job to the child."""
+        assert self.child is not None and self.child.stdin is not None
+        self.child.stdin.write(job)
+        self.child.stdin.close()
+
+    def receive(self) -> list[tuple[str, Any]] | None:
+        """The messages complete after one read (the pipe is readable); ``None`` when the
+        pipe closed (the child ended)."""
+        chunk = os.read(self.read_fd, 1 << 20)
         if not chunk:
-            return
-        buffer += chunk
-        while len(buffer) >= _HEADER.size:
-            (size,) = _HEADER.unpack_from(buffer)
-            if len(buffer) < _HEADER.size + size:
+            return None
+        self.buffer += chunk
+        out = []
+        while len(self.buffer) >= _HEADER.size:
+            (size,) = _HEADER.unpack_from(self.buffer)
+            if len(self.buffer) < _HEADER.size + size:
                 break
-            message = pickle.loads(buffer[_HEADER.size:_HEADER.size + size])
-            del buffer[:_HEADER.size + size]
-            yield message
+            out.append(pickle.loads(self.buffer[_HEADER.size:_HEADER.size + size]))
+            del self.buffer[:_HEADER.size + size]
+        return out
+
+    def crashed(self, fmu: str) -> PlantRunError:
+        """The error of a child that ended without its ``end`` message."""
+        assert self.child is not None
+        returncode = self.child.wait()
+        index, time, first = np.frombuffer(self.monitor_file.read_bytes(), dtype=np.float64)
+        return PlantRunError(fmu, f"the process running it ended with {_signal_name(returncode)} "
+                             "(a crash in the FMU's own code)", path=self.first + int(first + index), time=float(time))
+
+    def close(self) -> None:
+        """Kill the child if it still runs, close the pipe, remove the folder."""
+        if self.child is not None and self.child.poll() is None:
+            self.child.kill()
+            self.child.wait()
+        if self.child is not None and self.child.stdin is not None and not self.child.stdin.closed:
+            with contextlib.suppress(OSError):
+                self.child.stdin.close()
+        if self.read_fd >= 0:
+            os.close(self.read_fd)
+            self.read_fd = -1
+        shutil.rmtree(self.workdir, ignore_errors=True)
+
+
+def plant_processes(count: int | None = None) -> list[PlantProcess]:
+    """``count`` (default: :func:`default_processes`) :class:`PlantProcess` children started now."""
+    procs: list[PlantProcess] = []
+    try:
+        for _ in range(default_processes() if count is None else count):
+            procs.append(PlantProcess())
+    except BaseException:
+        for p in procs:
+            p.close()
+        raise
+    return procs
+
+
+def default_processes() -> int:
+    """Children of an isolated Monte Carlo: one per core this process may use, at most
+    :data:`MAX_PROCESSES`."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        cores = os.cpu_count() or 1
+    return max(1, min(MAX_PROCESSES, cores))
 
 
 def run_isolated(system: FTCSystem, plant: Any, controller: Controller, paths: Sequence[ChainPath], *,
                  spec: SimulationSpec, rng: np.random.Generator, log: Callable[[str, str, str], None] | None = None,
-                 done: Callable[[int], Any] | None = None) -> list[SimulationResult]:
+                 done: Callable[[int], Any] | None = None,
+                 processes: Sequence[PlantProcess] | None = None) -> list[SimulationResult]:
     """What ``Supervisor(plant.fmu, ...).run(batch_k, controller, spec=spec, ...)``
     returns for each batch of ``spec.batch`` paths (default
-    :data:`~ftc_verify.simulation.batches.FMU_TASK_PATHS`), computed in a watched child
-    process (module docstring). ``plant``: a resolved and checked
+    :data:`~ftc_verify.simulation.batches.FMU_TASK_PATHS`), computed in watched child
+    processes (module docstring). ``plant``: a resolved and checked
     :class:`~ftc_verify.plants.plant_map.PlantMap`; ``rng`` ends in the state a run in
     this process leaves it in; ``log`` gets the FMU's messages and ``done(k)`` is called
     after each batch of ``k`` paths.
 
+    ``processes``: children started earlier (:func:`plant_processes`; closed here), default
+    :func:`default_processes` started now. The batches are cut into as many contiguous
+    runs as there are children (at most one per batch), each child starting from the
+    generator state a serial run has at its first batch
+    (:func:`~ftc_verify.simulation.streaming.batch_generators`), so the records are those
+    of one serial run, in order; children left without batches are closed.
+
     Raises
     ------
     PlantRunError
-        The child died (the plant FMU crashed, or something killed the process): names
-        the FMU, the signal, the path (0-based index into ``paths``) and the time reached.
+        A child died (the plant FMU crashed, or something killed the process): names the
+        FMU, the signal, the path (0-based index into ``paths``) and the time reached.
     """
     from .batches import FMU_TASK_PATHS
+    from .streaming import batch_generators
 
     plist = list(paths)
     if spec.batch is None:
         spec = dataclasses.replace(spec, batch=FMU_TASK_PATHS)
-    job = pickle.dumps({"plant": plant, "system": system, "controller": controller, "paths": plist, "spec": spec,
-                        "rng": rng, "log": log is not None}, protocol=pickle.HIGHEST_PROTOCOL)
-    workdir = tempfile.mkdtemp(prefix="ftc-verify-plant-")
-    monitor_file = Path(workdir) / _MONITOR
-    monitor_file.write_bytes(bytes(3 * 8))
-    read_fd, write_fd = os.pipe()
-    child: subprocess.Popen[bytes] | None = None
-    parts: list[SimulationResult] = []
+    batch = int(spec.batch)  # type: ignore[arg-type]
+    procs = list(processes) if processes is not None else plant_processes()
     try:
-        child = subprocess.Popen([sys.executable, "-m", "ftc_verify.simulation.isolated", workdir, str(write_fd)],
-                                 stdin=subprocess.PIPE, stdout=2, pass_fds=(write_fd,),
-                                 start_new_session=True)
-        os.close(write_fd)
-        write_fd = -1
-        assert child.stdin is not None
-        child.stdin.write(job)
-        child.stdin.close()
-        for kind, value in _messages(read_fd, child):
-            if kind == "log" and log is not None:
-                log(*value)
-            elif kind == "batch":
-                parts.append(value)
-                if done is not None:
-                    done(len(value.records))
-            elif kind == "error":
-                raise value
-            elif kind == "end":
-                rng.bit_generator.state = value
-                return parts
-        returncode = child.wait()
-        index, time, first = np.frombuffer(monitor_file.read_bytes(), dtype=np.float64)
-        raise PlantRunError(str(plant.fmu), f"the process running it ended with {_signal_name(returncode)} "
-                            "(a crash in the FMU's own code)", path=int(first + index), time=float(time))
+        n_batches = max(1, -(-len(plist) // batch))
+        used, spare = procs[:n_batches], procs[n_batches:]
+        for p in spare:
+            p.close()
+        starts = list(batch_generators(system, plist, spec.schedule, rng, batch))
+        cuts = [round(k * n_batches / len(used)) for k in range(len(used) + 1)]
+        for k, p in enumerate(used):
+            p.first = cuts[k] * batch
+            part = plist[cuts[k] * batch:cuts[k + 1] * batch]
+            gen = starts[cuts[k]] if cuts[k] < len(starts) else rng
+            p.send(pickle.dumps({"plant": plant, "system": system, "controller": controller, "paths": part,
+                                 "spec": spec, "rng": gen, "log": log is not None},
+                                protocol=pickle.HIGHEST_PROTOCOL))
+        results = _collect(used, str(plant.fmu), log, done)
+        return [r for k in range(len(used)) for r in results[k]]
     finally:
-        if child is not None and child.poll() is None:
-            child.kill()
-            child.wait()
-        for fd in (read_fd, write_fd):
-            if fd >= 0:
-                os.close(fd)
-        shutil.rmtree(workdir, ignore_errors=True)
+        for p in procs:
+            p.close()
+
+
+def _collect(procs: list[PlantProcess], fmu: str, log: Callable[[str, str, str], None] | None,
+             done: Callable[[int], Any] | None) -> list[list[SimulationResult]]:
+    """Every child's batches, as they arrive from all of them; a child's error raised again
+    here, a child that ended without finishing as :meth:`PlantProcess.crashed`."""
+    parts: list[list[SimulationResult]] = [[] for _ in procs]
+    pending = {p.read_fd: k for k, p in enumerate(procs)}
+    while pending:
+        ready, _, _ = select.select(list(pending), [], [], POLL_SECONDS)
+        for fd in ready:
+            k = pending[fd]
+            messages = procs[k].receive()
+            if messages is None:
+                raise procs[k].crashed(fmu)
+            for kind, value in messages:
+                if kind == "log" and log is not None:
+                    log(*value)
+                elif kind == "batch":
+                    parts[k].append(value)
+                    if done is not None:
+                        done(len(value.records))
+                elif kind == "error":
+                    raise value
+                elif kind == "end":
+                    del pending[fd]
+    return parts
 
 
 if __name__ == "__main__":

@@ -353,16 +353,18 @@ class SimulationSpec:
                      hint="use fewer --paths, a shorter --horizon or a larger --step")
 
     @contextmanager
-    def client(self, given: Any = None) -> Iterator[Any]:
+    def client(self, given: Any = None, wait: bool = True) -> Iterator[Any]:
         """The Dask client of a Monte Carlo run: ``given`` when there is one, else a
         cluster of ``workers`` / ``scheduler`` opened for the block
-        (:func:`~ftc_verify.simulation.cluster.open_client`), else ``None``."""
+        (:func:`~ftc_verify.simulation.cluster.open_client`; ``wait=False``: a local
+        cluster still starting, its :class:`~ftc_verify.simulation.cluster.ClusterStart`),
+        else ``None``."""
         if given is not None or (self.workers is None and self.scheduler is None):
             yield given
             return
         from .cluster import open_client
 
-        with open_client(self.workers, self.scheduler) as client:
+        with open_client(self.workers, self.scheduler, wait=wait) as client:
             yield client
 
 

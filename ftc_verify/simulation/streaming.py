@@ -239,6 +239,8 @@ def _stream(system: FTCSystem, controller: Controller, paths: Sequence[ChainPath
     if spec.x0 is not None:
         raise ValidationError("x0: a streamed run starts every path at x = 0; use simulate_reference for another x0")
     pspec = paths if isinstance(paths, PathSpec) else None
+    if pspec is None and hasattr(client, "ready"):  # a starting cluster: sampled paths wait for it
+        client = client.client()
     plist: Sequence[ChainPath] = pspec if pspec is not None else list(paths)
     if not len(plist):
         raise ValidationError("paths: at least one path is needed")
@@ -291,7 +293,11 @@ def _spec_parts(job: tuple[Any, ...], spec: PathSpec, gen: np.random.Generator, 
                 report: Callable[[int], Any]) -> list[tuple[np.ndarray, ...]]:
     """``(Ey, Ew, switches, betas)`` per range of path indices, each range sampled where
     it runs: serially here, one batch at a time, or one Dask task per range (only the
-    recipe and the range are shipped; the paths' own streams leave ``gen`` untouched)."""
+    recipe and the range are shipped; the paths' own streams leave ``gen`` untouched).
+    ``client`` may be a :class:`~ftc_verify.simulation.cluster.ClusterStart` still
+    starting: the first ranges are then sampled and simulated here, in order, until the
+    cluster is up, and the rest go to its workers (the same numbers: a range's draws come
+    from its paths' streams wherever it runs)."""
     system, controller, step, disturbance, schedule = job
     ranges = [(b, min(b + batch, spec.n_paths)) for b in range(0, spec.n_paths, batch)]
     if client is None:
@@ -300,9 +306,19 @@ def _spec_parts(job: tuple[Any, ...], spec: PathSpec, gen: np.random.Generator, 
             parts.append(_sampled_batch(system, controller, spec, first, stop, step, disturbance, schedule, gen))
             report(stop - first)
         return parts
+    here: list[tuple[np.ndarray, ...]] = []
+    if hasattr(client, "ready"):  # a local cluster still starting: the first ranges run here meanwhile
+        while len(here) < len(ranges) and not client.ready():
+            first, stop = ranges[len(here)]
+            here.append(_sampled_batch(system, controller, spec, first, stop, step, disturbance, schedule, gen))
+            report(stop - first)
+        ranges = ranges[len(here):]
+        if not ranges:
+            return here
+        client = client.client()
     futures = [client.submit(_sampled_task, system, controller, spec, first, stop, step, disturbance, schedule, gen,
                              retries=TASK_RETRIES, pure=False) for first, stop in ranges]
-    return _gather(client, futures, [stop - first for first, stop in ranges], report)
+    return here + _gather(client, futures, [stop - first for first, stop in ranges], report)
 
 
 def _gather(client: Any, futures: list[Any], sizes: list[int], report: Callable[[int], Any]) -> list[Any]:

@@ -44,11 +44,16 @@ Methods:
     controllers of the other routes (alone: from the ``descent`` route's, the route to a
     first stabilising controller); its answer certified by the core. ``auto`` runs it last,
     and runs the ``descent`` before it only when no LMI route certified a controller
-    within the gain bound (the observer route bounds only its state-feedback gains).
+    within the gain bound.
+
+Every controller returned honours ``k_max`` in :math:`\|\mathcal K_j\|_2`: observer designs
+above it are scaled onto it before certification, any other answer above it is scaled
+and certified again (``_honour_bound``).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass
@@ -69,7 +74,8 @@ from .starts import certify_start, lqr_gain
 from .results import SolverCalls, SynthesisResult, verify_controller
 from .state_feedback import descend, gain_step, synthesize
 
-__all__ = ["OF_METHODS", "augmented_system", "controller_from_blocks", "controller_blocks", "observer_designs",
+__all__ = ["OF_METHODS", "augmented_system", "bounded_blocks", "controller_from_blocks", "controller_blocks",
+           "observer_designs",
            "ccl_constraints", "ccl", "synthesize_output_feedback", "CCL_MAX_ITER", "CCL_TOL"]
 
 OF_METHODS = ("ccl", "observer", "vk", "descent", "hinf")
@@ -313,12 +319,31 @@ def _controller_step(aug: FTCSystem, cbars: list[Matrix], P: list[Matrix], lam: 
     return blocks, worst
 
 
+def bounded_blocks(blocks: list[Matrix], k_max: float | None) -> tuple[list[Matrix], bool]:
+    r"""Each block with :math:`\|K_j\|_2 > k_{max}` scaled onto the bound (the norm of
+    :func:`~ftc_verify.synthesis.hinf_descent.within_bound`, as the state-feedback starts
+    are scaled), so that the computed norm is at most ``k_max``; whether any was."""
+    if k_max is None:
+        return list(blocks), False
+    out, scaled = [], False
+    for K in blocks:
+        norm = float(np.linalg.norm(K, 2))
+        while norm > k_max:
+            K, scaled = K * (k_max / norm * (1.0 - 1e-12)), True
+            norm = float(np.linalg.norm(K, 2))
+        out.append(K)
+    return out, scaled
+
+
 def _observer_rows(system: FTCSystem, k_max: float | None, solver: str, calls: SolverCalls) -> list[dict[str, Any]]:
-    """The certified-or-not observer designs (the baseline and the start of ``vk``): the
+    r"""The certified-or-not observer designs (the baseline and the start of ``vk``): the
     state-feedback gains of ``synthesize(method="iterative")`` under ``k_max``, and, when
     no bound is given, also under :data:`OBSERVER_K_MAX` (unbounded state-feedback gains
     reach norms of 1e4 on the paper's plant, and the observer's model mismatch during a
-    detection delay, ``(B_j - B_i) K_j``, then destabilises the loop)."""
+    detection delay, ``(B_j - B_i) K_j``, then destabilises the loop). With ``k_max`` a
+    design whose blocks :math:`[[\hat A_j, \hat B_j], [\hat C_j, \hat D_j]]` exceed it
+    (the observer part is not bounded by the state-feedback design) is scaled onto it
+    (:func:`bounded_blocks`) before it is certified."""
     rows: list[dict[str, Any]] = []
     for bound in ([k_max] if k_max is not None else [None, OBSERVER_K_MAX]):
         sf = synthesize(system, method="iterative", k_max=bound, solver=solver)
@@ -329,7 +354,10 @@ def _observer_rows(system: FTCSystem, k_max: float | None, solver: str, calls: S
                          "reason": f"no certified state-feedback gains: {sf.message}"})
             continue
         for label, ctrl in observer_designs(system, list(sf.gains)):
-            rows.append(certify_start(system, label + tag, controller_blocks(ctrl), solver, loop=closed_loop(system, ctrl))
+            blocks, scaled = bounded_blocks(controller_blocks(ctrl), k_max)
+            note = f"blocks scaled onto --k-max {k_max:g}" if scaled and k_max is not None else ""
+            ctrl = controller_from_blocks(system, blocks, label) if scaled else ctrl
+            rows.append(certify_start(system, label + tag, blocks, solver, note, loop=closed_loop(system, ctrl))
                         | {"controller": ctrl})
     for r in rows:
         calls.outcomes.extend(r.get("attempts", ()))
@@ -509,16 +537,32 @@ def _routes(system: FTCSystem, method: str, order: int, rows: list[dict[str, Any
             outcomes.append(_Outcome(route, ctrl, report, history[-1] if history else None, history, [], msg))
         else:
             outcomes.append(_Outcome(route, *_run_route(route, system, rows, gamma, k_max, name, calls, max_iter, tol)))
+        outcomes[-1] = _honour_bound(system, outcomes[-1], k_max, name)
         took[route] = time.perf_counter() - t_route
     if method in ("hinf", "auto"):
         t_route = time.perf_counter()
         ranked = [(o.route, o.controller) for o in sorted(outcomes, key=lambda o: o.rank)
                   if o.gamma is not None and o.controller is not None]
         ctrl, report, history, msg, hinf_rows = hinf_route(system, order, ranked, calls, name, k_max=k_max, seed=seed)
-        outcomes.append(_Outcome("hinf", ctrl, report, history[-1] if history else None, history, [], msg))
+        outcomes.append(_honour_bound(system, _Outcome("hinf", ctrl, report, history[-1] if history else None,
+                                                       history, [], msg), k_max, name))
         descent_rows += hinf_rows
         took["hinf"] = time.perf_counter() - t_route
     return outcomes, descent_rows, took
+
+
+def _honour_bound(system: FTCSystem, outcome: _Outcome, k_max: float | None, solver: str) -> _Outcome:
+    """``outcome`` with its controller within ``k_max`` (:func:`within_bound`): a controller
+    above it (an LMI's bound met only to the solver's tolerance, a projection's rounding)
+    is scaled onto it (:func:`bounded_blocks`) and certified again, so every returned
+    controller honours ``--k-max`` and is the one certified."""
+    ctrl = outcome.controller
+    if ctrl is None or within_bound(ctrl, k_max):
+        return outcome
+    blocks, _ = bounded_blocks(controller_blocks(ctrl), k_max)
+    ctrl = controller_from_blocks(system, blocks, ctrl.name)
+    return dataclasses.replace(outcome, controller=ctrl, report=verify_controller(system, ctrl, solver),
+                               message=f"{outcome.message}; blocks scaled onto --k-max {k_max:g} and certified again")
 
 
 def _best_row(rows: list[dict[str, Any]]) -> dict[str, Any] | None:

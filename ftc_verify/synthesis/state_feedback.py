@@ -77,6 +77,7 @@ the blocks of the pair ``(i, j)`` lose their detection coupling, so the designed
 from __future__ import annotations
 
 import math
+import os
 import time
 from typing import Any
 
@@ -89,11 +90,11 @@ from ..errors import ValidationError
 from ..analysis.lmi import block_specs, lyapunov_block
 from ..analysis.lmi_analysis import hinf_gamma
 from ..model.system import FTCSystem, Matrix
-from ..analysis.solvers import choose_solver
+from ..analysis.solvers import ForkedCall, choose_solver
 from .starts import candidates, certify_start, diagnose
 from .results import SolverCalls, SynthesisResult, verify_controller
 from .convex_designs import dilated_design, true_mode_reference
-from .xy_design import gain_bound, xy_solve
+from .xy_design import gain_bound, xy_solve, xy_solver
 
 __all__ = ["METHODS", "SynthesisResult", "synthesize", "two_step", "gain_step", "descend"]
 
@@ -170,9 +171,12 @@ def _multipliers(system: FTCSystem, eps: list[float], delta: list[float]) -> lis
     return lam
 
 
-def two_step(system: FTCSystem, gamma: float, calls: SolverCalls, k_max: float | None) -> tuple[list[Matrix] | None, float | None, str]:
-    """Theorem 4.1 at a given gamma: ``(gains, synthesis gamma, message)``."""
-    step1 = xy_solve(system, "projected", gamma, calls, None)
+def two_step(system: FTCSystem, gamma: float, calls: SolverCalls, k_max: float | None,
+             step1_at: Any = None) -> tuple[list[Matrix] | None, float | None, str]:
+    """Theorem 4.1 at a given gamma: ``(gains, synthesis gamma, message)``. ``step1_at``:
+    step 1 as built once by :func:`~ftc_verify.synthesis.xy_design.xy_solver` (the
+    bisection's levels share it); built here when not given."""
+    step1 = (step1_at or xy_solver(system, "projected", calls, None))(gamma)
     if step1 is None:
         return None, None, f"step 1 (eq. 17) infeasible at gamma {gamma:.6g}"
     P = [np.linalg.inv(0.5 * (X + X.T)) for X in step1["X"]]
@@ -189,15 +193,19 @@ def two_step(system: FTCSystem, gamma: float, calls: SolverCalls, k_max: float |
     return gains, worst, f"two-step succeeded at gamma {gamma:.6g} (step-1 margin {step1['margin']:.3g})"
 
 
-def _two_step_min(system: FTCSystem, calls: SolverCalls, k_max: float | None) -> tuple[list[Matrix] | None, float | None, str]:
+def _two_step_min(system: FTCSystem, calls: SolverCalls, k_max: float | None,
+                  low: Any = False) -> tuple[list[Matrix] | None, float | None, str]:
     """Smallest gamma at which two-step succeeds: bisection between the full-information
     design level (a heuristic lower bracket: the full-information LMI relaxes every FDI-only
-    design) and a doubling upper bracket."""
-    low = xy_solve(system, "full-info", None, calls, None)
+    design) and a doubling upper bracket. ``low``: the full-information solution when
+    already solved (``None`` when it gave no point; solved here when not given)."""
+    if low is False:
+        low = xy_solve(system, "full-info", None, calls, None)
     lo = low["gamma"] / (1 + 1e-3) if low else 1e-3
     hi, best = max(lo, 1e-3) * 1.5, None
+    step1_at = xy_solver(system, "projected", calls, None)  # built once, solved at every level
     for _ in range(12):
-        gains, gsyn, msg = two_step(system, hi, calls, k_max)
+        gains, gsyn, msg = two_step(system, hi, calls, k_max, step1_at)
         if gains is not None:
             best = (gains, gsyn, hi)
             break
@@ -206,7 +214,7 @@ def _two_step_min(system: FTCSystem, calls: SolverCalls, k_max: float | None) ->
         return None, None, f"two-step failed for every gamma up to {hi / 2:.6g}: {msg}"
     while hi - lo > BISECTION_RTOL * hi:
         mid = 0.5 * (lo + hi)
-        gains, gsyn, _ = two_step(system, mid, calls, k_max)
+        gains, gsyn, _ = two_step(system, mid, calls, k_max, step1_at)
         if gains is not None:
             hi, best = mid, (gains, gsyn, mid)
         else:
@@ -255,16 +263,6 @@ def descend(loop_of: Any, step: Any, m: int, start: list[Matrix], calls: SolverC
     return best, history, f"stopped: {reason}"
 
 
-def _own_message(r: SynthesisResult) -> str:
-    """A nested result's message without its diagnosis (the outer run gives its own)."""
-    if r.gains and r.report is not None:
-        rep = r.report
-        why = (f"robust gamma {rep.robust.outcome} ({rep.robust.solver_status})" if rep.mss.stable
-               else "not mean-square stable")
-        return f"gains found but not certified: spectral abscissa {rep.mss.spectral_abscissa:.4g}, {why}"
-    return r.message.removesuffix(f"; {r.diagnosis['message']}") if r.diagnosis else r.message
-
-
 _PUBLIC_START_KEYS = ("name", "gamma_certified", "spectral_abscissa", "note", "reason", "seconds")
 
 
@@ -289,35 +287,60 @@ def _starts(system: FTCSystem, gamma: float | None, k_max: float | None, solver:
             start: list[Matrix] | None, extra: bool = False) -> list[dict[str, Any]]:
     """Every start of the iterative method with its certification (module docstring);
     ``extra``: also the designs of :data:`EXTRA_STARTS` (the ``best`` method). Each row
-    records its wall ``seconds`` (design and certification)."""
+    records its wall ``seconds`` (design and certification). The full-information LMI is
+    solved once (two-step's lower bracket and a start of its own); two-step, the longest
+    start, runs in a forked child (:class:`~ftc_verify.analysis.solvers.ForkedCall`) beside
+    the others, its row first as before."""
     if start is not None:
         rows = [certify_start(system, "given", start, solver)]
     else:
-        rows = []
-        for seed_method in ("two-step", "common"):
-            r = synthesize(system, method=seed_method, gamma=gamma, k_max=k_max, solver=solver)
-            calls.absorb(r)
-            rows.append({"name": seed_method, "gamma_certified": r.gamma_certified, "gains": r.gains,
-                         "spectral_abscissa": None if r.report is None else r.report.mss.spectral_abscissa,
-                         "note": "", "reason": "" if r.certified else _own_message(r), "seconds": r.wall_seconds})
-        t0 = time.perf_counter()
-        fi = xy_solve(system, "full-info", None, calls, None)
+        fi = xy_solve(system, "full-info", None, calls, None)  # two-step's bracket and a start of its own
         full_info = None if fi is None else [Y @ np.linalg.inv(X) for X, Y in zip(fi["X"], fi["Y"])]
-        for c in candidates(system, k_max, full_info):
-            if c.gains is None:
-                rows.append({"name": c.name, "gamma_certified": None, "spectral_abscissa": None, "note": "",
-                             "reason": c.note})
-            else:
-                rows.append(certify_start(system, c.name, c.gains, solver, c.note))
-            rows[-1]["seconds"], t0 = time.perf_counter() - t0, time.perf_counter()
-        for name in EXTRA_STARTS if extra else ():
-            gains, _, msg = _convex_gains(system, name, calls, k_max)
-            made: dict[str, Any] = ({"name": name, "gamma_certified": None, "spectral_abscissa": None, "note": "",
-                                     "reason": msg} if gains is None else certify_start(system, name, gains, solver))
-            rows.append(made | {"seconds": time.perf_counter() - t0})
-            t0 = time.perf_counter()
+
+        def seed(method: str, own: SolverCalls) -> dict[str, Any]:
+            t = time.perf_counter()
+            gains, _, msg = _design(system, method, gamma, k_max, own, fi)
+            row: dict[str, Any] = ({"name": method, "gamma_certified": None, "spectral_abscissa": None, "note": "",
+                                    "reason": msg} if gains is None else certify_start(system, method, gains, solver))
+            return row | {"seconds": time.perf_counter() - t}
+
+        def two_step_alone() -> tuple[dict[str, Any], list[Any]]:
+            own = SolverCalls(solver)
+            return seed("two-step", own), own.outcomes
+
+        # two-step's bisection (the longest start) in a forked child beside the other starts
+        forked = ForkedCall(two_step_alone, "the two-step design") if hasattr(os, "fork") else None
+        try:
+            rows = _other_starts(system, k_max, solver, calls, full_info, extra, [seed("common", calls)])
+            two, outcomes = forked.result() if forked is not None else two_step_alone()
+        finally:
+            if forked is not None:
+                forked.cancel()
+        calls.outcomes.extend(outcomes)
+        rows.insert(0, two)
     for row in rows:
         calls.outcomes.extend(row.get("attempts", ()))
+    return rows
+
+
+def _other_starts(system: FTCSystem, k_max: float | None, solver: str, calls: SolverCalls,
+                  full_info: list[Matrix] | None, extra: bool, rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """``rows`` followed by the classical starts (:func:`~ftc_verify.synthesis.starts.candidates`)
+    and, with ``extra``, the :data:`EXTRA_STARTS` designs, each certified, with its seconds."""
+    t0 = time.perf_counter()
+    for c in candidates(system, k_max, full_info):
+        if c.gains is None:
+            rows.append({"name": c.name, "gamma_certified": None, "spectral_abscissa": None, "note": "",
+                         "reason": c.note})
+        else:
+            rows.append(certify_start(system, c.name, c.gains, solver, c.note))
+        rows[-1]["seconds"], t0 = time.perf_counter() - t0, time.perf_counter()
+    for name in EXTRA_STARTS if extra else ():
+        gains, _, msg = _convex_gains(system, name, calls, k_max)
+        made: dict[str, Any] = ({"name": name, "gamma_certified": None, "spectral_abscissa": None, "note": "",
+                                 "reason": msg} if gains is None else certify_start(system, name, gains, solver))
+        rows.append(made | {"seconds": time.perf_counter() - t0})
+        t0 = time.perf_counter()
     return rows
 
 
@@ -337,30 +360,53 @@ def _reference(system: FTCSystem, solver: str, calls: SolverCalls) -> dict[str, 
     return out | {"seconds": time.perf_counter() - t0}
 
 
+def _reference_alone(system: FTCSystem, solver: str) -> tuple[dict[str, Any], list[Any]]:
+    """:func:`_reference` with calls of its own: ``(row, solver outcomes)``. ``best`` runs it
+    in a forked child beside its routes (:class:`~ftc_verify.analysis.solvers.ForkedCall`:
+    the same computation on the second core; its outcomes are added to the run's)."""
+    calls = SolverCalls(solver)
+    return _reference(system, solver, calls), calls.outcomes
+
+
 def _best(system: FTCSystem, gamma: float | None, k_max: float | None, solver: str, calls: SolverCalls,
           max_iter: int, tol: float) -> tuple[list[Matrix] | None, list[float], str, str | None, list[dict[str, Any]]]:
     """The ``best`` method: every start (``iterative``'s and :data:`EXTRA_STARTS`), then the
     descent from the best start of ``iterative`` (so the result is never worse than
-    ``iterative``) and from the best start overall when that is another one; the
-    smallest certified gamma of all these routes wins. Every route is a row."""
+    ``iterative``) and from the best start overall when that is another one (the two
+    descents are independent: the second runs in a forked child,
+    :class:`~ftc_verify.analysis.solvers.ForkedCall`); the smallest certified gamma of all
+    these routes wins. Every route is a row."""
     rows = _starts(system, gamma, k_max, solver, calls, None, extra=True)
     certified = [r for r in rows if r["gamma_certified"] is not None]
     if not certified:
         return None, [], f"no certified route ({len(rows)} tried)", None, rows
     seeds = [min((r for r in certified if r["name"] not in EXTRA_STARTS), key=lambda r: r["gamma_certified"],
                  default=None), min(certified, key=lambda r: r["gamma_certified"])]
-    done: list[str] = []
+    todo: list[dict[str, Any]] = []
     for seed in seeds:
-        if seed is None or seed["name"] in done:
-            continue
-        done.append(seed["name"])
-        t0 = time.perf_counter()
+        if seed is not None and all(seed["name"] != t["name"] for t in todo):
+            todo.append(seed)
+
+    def run(seed: dict[str, Any]) -> tuple[dict[str, Any], list[Any]]:
+        """One descent with calls of its own: its row and its solver outcomes."""
+        own, t0 = SolverCalls(solver), time.perf_counter()
         gains, history, msg = descend(lambda G: state_feedback_loop(system, G),
-                                      lambda P, lam, j: gain_step(system, P, lam, j, calls, k_max), system.m,
-                                      list(seed["gains"]), calls, solver, max_iter, tol, seed.get("lmi"))
-        rows.append({"name": f"descent from {seed['name']}", "gamma_certified": history[-1] if history else None,
-                     "spectral_abscissa": None, "note": "", "reason": "" if history else msg, "gains": gains,
-                     "history": history, "seconds": time.perf_counter() - t0})
+                                      lambda P, lam, j: gain_step(system, P, lam, j, own, k_max), system.m,
+                                      list(seed["gains"]), own, solver, max_iter, tol, seed.get("lmi"))
+        return {"name": f"descent from {seed['name']}", "gamma_certified": history[-1] if history else None,
+                "spectral_abscissa": None, "note": "", "reason": "" if history else msg, "gains": gains,
+                "history": history, "seconds": time.perf_counter() - t0}, own.outcomes
+
+    # the second descent (independent of the first) in a forked child, on the second core
+    forked = ForkedCall(lambda: run(todo[1]), "a descent") if len(todo) > 1 and hasattr(os, "fork") else None
+    try:
+        done = [run(todo[0])] + ([forked.result()] if forked is not None else [run(t) for t in todo[1:]])
+    finally:
+        if forked is not None:
+            forked.cancel()
+    for row, outcomes in done:
+        rows.append(row)
+        calls.outcomes.extend(outcomes)
     win = min((r for r in rows if r["gamma_certified"] is not None), key=lambda r: r["gamma_certified"])
     history = list(win.get("history") or [win["gamma_certified"]])
     return list(win["gains"]), history, f"best certified route: {win['name']} (gamma {win['gamma_certified']:.6g})", \
@@ -381,6 +427,26 @@ def _iterative(system: FTCSystem, gamma: float | None, k_max: float | None, solv
                                   list(best["gains"]), calls, solver, max_iter, tol, best.get("lmi"))
     return gains, history, f"start {best['name']} (certified gamma {best['gamma_certified']:.6g}); {msg}", \
         best["name"], rows
+
+
+def _design(system: FTCSystem, method: str, gamma: float | None, k_max: float | None, calls: SolverCalls,
+            full_info: Any = False) -> tuple[list[Matrix] | None, float | None, str]:
+    """The gains of one convex method (``two-step``, ``full-info``, ``common`` or an
+    :data:`EXTRA_STARTS` design), not yet certified: ``(gains, synthesis gamma, message)``.
+    ``full_info``: the full-information solution when already solved (two-step's lower
+    bracket)."""
+    if method == "two-step":
+        return (two_step(system, gamma, calls, k_max) if gamma is not None
+                else _two_step_min(system, calls, k_max, full_info))
+    if method in EXTRA_STARTS:
+        return _convex_gains(system, method, calls, k_max)
+    sol = xy_solve(system, method, gamma, calls, k_max)
+    if sol is None:
+        return None, None, f"{method} LMI infeasible" + (f" at gamma {gamma:.6g}" if gamma else "")
+    Ks = [Y @ np.linalg.inv(X) for X, Y in zip(sol["X"], sol["Y"])]  # per joint state
+    pairs = [Ks[system.chain.state_index(i, j)] for i in range(system.m) for j in range(system.m)]
+    gains = Ks[:1] * system.m if method == "common" else pairs
+    return gains, sol["gamma"], f"{method} LMI solved at gamma {sol['gamma']:.6g}"
 
 
 def synthesize(
@@ -411,27 +477,27 @@ def synthesize(
     name = choose_solver(solver, system.chain.n_states * (n * (n + 1) // 2 + n * system.dims[1]) + 1)
     calls = SolverCalls(name)
     history: list[float] = []
-    if method == "two-step":
-        gains, gsyn, msg = two_step(system, gamma, calls, k_max) if gamma is not None else _two_step_min(system, calls, k_max)
-    elif method in EXTRA_STARTS:
-        gains, gsyn, msg = _convex_gains(system, method, calls, k_max)
-    elif method in ("full-info", "common"):
-        sol = xy_solve(system, method, gamma, calls, k_max)
-        if sol is None:
-            gains, gsyn, msg = None, None, f"{method} LMI infeasible" + (f" at gamma {gamma:.6g}" if gamma else "")
-        else:
-            Ks = [Y @ np.linalg.inv(X) for X, Y in zip(sol["X"], sol["Y"])]  # per joint state
-            pairs = [Ks[system.chain.state_index(i, j)] for i in range(system.m) for j in range(system.m)]
-            gains = Ks[:1] * system.m if method == "common" else pairs
-            gsyn, msg = sol["gamma"], f"{method} LMI solved at gamma {sol['gamma']:.6g}"
+    gains: list[Matrix] | None = None
+    gsyn: float | None = None
+    msg = ""
+    if method in ("two-step", "full-info", "common") + EXTRA_STARTS:
+        gains, gsyn, msg = _design(system, method, gamma, k_max, calls)
     rows: list[dict[str, Any]] = []
     start_name = None
-    reference = _reference(system, name, calls) if method == "best" else None
+    reference = None
     if method == "iterative":
         gains, history, msg, start_name, rows = _iterative(system, gamma, k_max, name, calls, start, max_iter, tol)
         gsyn = history[-1] if history else None
     elif method == "best":
-        gains, history, msg, start_name, rows = _best(system, gamma, k_max, name, calls, max_iter, tol)
+        forked = ForkedCall(lambda: _reference_alone(system, name), "the reference design") if hasattr(os, "fork") \
+            else None
+        try:
+            gains, history, msg, start_name, rows = _best(system, gamma, k_max, name, calls, max_iter, tol)
+            reference, outcomes = forked.result() if forked is not None else _reference_alone(system, name)
+        finally:
+            if forked is not None:
+                forked.cancel()
+        calls.outcomes.extend(outcomes)
         gsyn = history[-1] if history else None
     report = _verify(system, gains, name) if gains is not None else None
     certified = report is not None and report.certified_stable and report.robust.certified

@@ -12,6 +12,7 @@ Used by :mod:`ftc_verify.synthesis.state_feedback`, which documents the methods.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -21,7 +22,7 @@ from ..analysis.lmi import block_specs, projection, xy_block
 from ..analysis.lmi_analysis import GAMMA_LADDER
 from ..model.system import FTCSystem
 
-__all__ = ["MARGIN_TOL", "CENTRE_WEIGHT", "gain_bound", "xy_solve"]
+__all__ = ["MARGIN_TOL", "CENTRE_WEIGHT", "gain_bound", "xy_solve", "xy_solver"]
 
 #: An (X, Y) problem counts as strictly feasible when its maximised margin exceeds this
 #: (a heuristic only: every result is certified by the core analysis afterwards).
@@ -76,7 +77,21 @@ def _xy_variables(system: FTCSystem, kind: str) -> tuple[list[Any], list[Any]]:
 
 
 def xy_solve(system: FTCSystem, kind: str, gamma: float | None, calls: Any, k_max: float | None) -> dict[str, Any] | None:
-    """Solve the (X, Y) inequality of :func:`~ftc_verify.analysis.lmi.xy_block`.
+    """Solve the (X, Y) inequality of :func:`~ftc_verify.analysis.lmi.xy_block` once:
+    ``xy_solver(system, kind, calls, k_max)(gamma)`` (:func:`xy_solver`)."""
+    return xy_solver(system, kind, calls, k_max)(gamma)
+
+
+def xy_solver(system: FTCSystem, kind: str, calls: Any,
+              k_max: float | None) -> Callable[[float | None], dict[str, Any] | None]:
+    """The (X, Y) inequality of :func:`~ftc_verify.analysis.lmi.xy_block`, built once and
+    solved at any level: a function ``gamma -> numbers`` (below).
+
+    The centred problem is built on its first use with ``g = gamma**2`` a cvxpy
+    parameter, so later levels (the bisection of ``two-step``) re-use its
+    canonicalisation: the solver receives the same data as from a problem built anew at
+    that level, so the answers are the same; only the building, most of a call's time,
+    is saved.
 
     ``kind``: ``"projected"`` (step 1 of Theorem 4.1, no ``Y``; one ``X`` per joint
     state), ``"full-info"`` (one ``X, Y`` per pair ``(true, fdi)``, shared by its phases:
@@ -89,8 +104,8 @@ def xy_solve(system: FTCSystem, kind: str, gamma: float | None, calls: Any, k_ma
     """
     import cvxpy as cp
 
-    n, nu = system.dims[0], system.dims[1]
     S = system.chain.n_states
+    n, nu = system.dims[0], system.dims[1]
     common = kind == "common"
     Xv, Yv = _xy_variables(system, kind)
     eps = [cp.Variable(nonneg=True) for _ in range(S)]
@@ -126,14 +141,6 @@ def xy_solve(system: FTCSystem, kind: str, gamma: float | None, calls: Any, k_ma
                 cons += [X >> mu * np.eye(n), gain_bound(Y, k_max, mu)]
         return cons
 
-    if gamma is None:
-        out = calls.run(cp.Problem(cp.Minimize(g), constraints(g, 0.0)))
-        if not out.solved or g.value is None:
-            return None
-        value = math.sqrt(max(float(g.value), 0.0))
-        ladder = [value * (1.0 + rho) + 1e-7 for rho in GAMMA_LADDER]
-    else:
-        ladder = [gamma]
     # The margin is capped (t <= 1) to keep the problem bounded; once the cap binds, the
     # maximiser is not unique and an interior-point method drifts to huge X, eps, delta
     # (measured: 1e5-4e6 at gamma = 10, after which step 2 failed). A small penalty on
@@ -145,23 +152,37 @@ def xy_solve(system: FTCSystem, kind: str, gamma: float | None, calls: Any, k_ma
         unique_x = list({id(x): x for x in Xv}.values())
         size = sum(cp.trace(x) for x in unique_x) / (len(unique_x) * n) + (sum(eps) + sum(dlt)) / (2 * S)
         objective = t - CENTRE_WEIGHT * size
-    centred = cp.Problem(cp.Maximize(objective), constraints(g_par, t) + [t <= 1.0])
-    for level in ladder:
-        g_par.value = level ** 2
-        out = calls.run(centred)
-        if out.solved and t.value is not None and float(t.value) > MARGIN_TOL:
-            break
-    else:
-        return None
+    built: list[Any] = []
 
     def num(v: Any) -> float:
         return math.nan if v.value is None else float(v.value)  # unused multipliers (common X)
 
-    return {
-        "X": [np.array(X.value) for X in Xv],
-        "Y": None if kind == "projected" else [np.array(Y.value) for Y in Yv],
-        "eps": [num(e) for e in eps],
-        "delta": [num(d) for d in dlt],
-        "gamma": level,
-        "margin": float(t.value),
-    }
+    def solve_at(gamma: float | None) -> dict[str, Any] | None:
+        """The numbers at ``gamma`` (or minimised and re-centred: ``gamma=None``), or ``None``."""
+        if gamma is None:
+            out = calls.run(cp.Problem(cp.Minimize(g), constraints(g, 0.0)))
+            if not out.solved or g.value is None:
+                return None
+            value = math.sqrt(max(float(g.value), 0.0))
+            ladder = [value * (1.0 + rho) + 1e-7 for rho in GAMMA_LADDER]
+        else:
+            ladder = [gamma]
+        if not built:
+            built.append(cp.Problem(cp.Maximize(objective), constraints(g_par, t) + [t <= 1.0]))
+        for level in ladder:
+            g_par.value = level ** 2
+            out = calls.run(built[0])
+            if out.solved and t.value is not None and float(t.value) > MARGIN_TOL:
+                break
+        else:
+            return None
+        return {
+            "X": [np.array(X.value) for X in Xv],
+            "Y": None if kind == "projected" else [np.array(Y.value) for Y in Yv],
+            "eps": [num(e) for e in eps],
+            "delta": [num(d) for d in dlt],
+            "gamma": level,
+            "margin": float(t.value),
+        }
+
+    return solve_at

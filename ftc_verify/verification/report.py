@@ -15,6 +15,7 @@ import math
 import os
 import shutil
 import tempfile
+import time
 from pathlib import Path
 from typing import Any
 
@@ -251,10 +252,18 @@ def _swap_in(stage: Path, out: Path) -> None:
             shutil.rmtree(old, ignore_errors=True)
 
 
-def write_report(rep: VerifyReport, out_dir: str | os.PathLike[str]) -> list[Path]:
+def write_report(rep: VerifyReport, out_dir: str | os.PathLike[str], watch: Any = None) -> list[Path]:
     """Write ``report.json``, ``report.md`` and the plots as the whole content of
-    ``out_dir``; return the paths."""
+    ``out_dir``; return the paths.
+
+    ``report.json`` gets ``timings``, the wall-time breakdown: the stages of
+    :func:`~ftc_verify.verification.verify.run_verify` (``rep.seconds``) and the plots'
+    ``report_plots``; with ``watch`` (the CLI's :class:`~ftc_verify.cli.common.Stopwatch`)
+    also its marks (``startup``, ``imports_and_load``, ...) and ``total``, the seconds
+    from the process's start to this file."""
     from .plots import plot_path
+
+    t0 = time.perf_counter()
 
     out = check_out_dir(out_dir)
     try:
@@ -262,16 +271,35 @@ def write_report(rep: VerifyReport, out_dir: str | os.PathLike[str]) -> list[Pat
     except OSError as exc:
         raise ProblemFileError(f"{out}: cannot create a staging folder beside it: {exc.strerror}") from None
     try:
-        (stage / "report.json").write_text(dumps(rep.to_dict()) + "\n")
-        (stage / "report.md").write_text(render_markdown(rep))
+        forked = None
         if rep.records:
             plant = rep.plant or {}
-            plot_path(rep.records[0], stage / "fig1_path.png", title=f"{rep.system.name}: one sample path"
-                      + (f" on {Path(plant['fmu']).name}" if plant else ""),
-                      state_offset=plant.get("states_op"), state_names=plant.get("states"))
+
+            def fig1() -> None:
+                plot_path(rep.records[0], stage / "fig1_path.png", title=f"{rep.system.name}: one sample path"
+                          + (f" on {Path(plant['fmu']).name}" if plant else ""),
+                          state_offset=plant.get("states_op"), state_names=plant.get("states"))
+
+            if hasattr(os, "fork"):  # the largest figure drawn in a child beside the other two
+                from ..analysis.solvers import ForkedCall
+
+                forked = ForkedCall(fig1, "the path figure")
+            else:
+                fig1()
             _ratio_plot(rep, stage / "ratio_distribution.png")
-        if rep.gamma_certified is not None:
-            _bracket_plot(rep, stage / "gamma_bracket.png")
+        try:
+            if rep.gamma_certified is not None:
+                _bracket_plot(rep, stage / "gamma_bracket.png")
+            if forked is not None:
+                forked.result()
+        finally:
+            if forked is not None:
+                forked.cancel()
+        timings = dict(rep.seconds) | {"report_plots": time.perf_counter() - t0}
+        if watch is not None:
+            timings = dict(watch.timings) | timings | {"total": watch.total()}
+        (stage / "report.json").write_text(dumps(rep.to_dict() | {"timings": timings}) + "\n")
+        (stage / "report.md").write_text(render_markdown(rep))
         names = sorted(item.name for item in stage.iterdir())
         stage.chmod(0o777 & ~_umask())
         _swap_in(stage, out)

@@ -67,7 +67,8 @@ from ..analysis.moments.energy import exact_energy
 from .montecarlo import MCEstimate, estimate
 from .sampled_stage import sampled_stages
 
-__all__ = ["Check", "RiskStage", "VerifyReport", "run_verify", "incremental_records", "AGREE_RTOL", "MAX_EXACT_VERTICES"]
+__all__ = ["Check", "RiskStage", "VerifyReport", "run_verify", "incremental_records", "AGREE_RTOL",
+           "MAX_EXACT_VERTICES", "LATER_STAGES"]
 
 #: Relative agreement required between the FMU and the numpy reference on equal paths.
 AGREE_RTOL = 1e-8
@@ -182,9 +183,10 @@ def _certify(analysis: AnalysisReport, gamma: float | None) -> tuple[float | Non
     return gamma_cert, checks
 
 
-def _cross_validation(loop: ClosedLoop) -> tuple[tuple[ModeCheck, ...], Check]:
-    """Every frozen joint mode against python-control."""
-    per_mode = cross_validate(loop)
+def _cross_validation(cross_check: Any) -> tuple[tuple[ModeCheck, ...], Check]:
+    """Every frozen joint mode against python-control (the answer of the running
+    :class:`~ftc_verify.prestart.Prestarted`)."""
+    per_mode = cross_check.result()
     bad = [f"({m.true_mode},{m.fdi_mode}): {m.detail}" for m in per_mode if not m.agree]
     return per_mode, Check("python-control per mode", not bad, "all joint modes agree" if not bad else "; ".join(bad))
 
@@ -206,8 +208,8 @@ def _exact_energies(system: FTCSystem, loop: ClosedLoop, g2: float) -> tuple[lis
 
 
 def _fmu_monte_carlo(system: FTCSystem, controller: Controller, chain_paths: list[ChainPath], spec: SimulationSpec,
-                     progress: bool, plant: Any = None, log: Any = None,
-                     client: Any = None) -> tuple[list[PathRecord], dict[str, Any]]:
+                     progress: bool, plant: Any = None, log: Any = None, client: Any = None,
+                     processes: list[Any] | None = None) -> tuple[list[PathRecord], dict[str, Any]]:
     """Every path co-simulated on the plant map's FMU (default: the ``LinearJumpPlant`` of
     ``system``) as ``spec`` says, in batches (:data:`~ftc_verify.simulation.batches.FMU_TASK_PATHS`), on
     ``client``'s Dask workers if given (:func:`~ftc_verify.simulation.batches.fmu_monte_carlo`;
@@ -217,8 +219,8 @@ def _fmu_monte_carlo(system: FTCSystem, controller: Controller, chain_paths: lis
 
     bar = progress_bar(len(chain_paths), "Monte Carlo (FMU)", progress)
     try:
-        res = fmu_monte_carlo(system, controller, chain_paths, spec=spec, plant=plant,
-                              client=client, log=log, done=None if bar is None else bar.update)
+        res = fmu_monte_carlo(system, controller, chain_paths, spec=spec, plant=plant, client=client, log=log,
+                              done=None if bar is None else bar.update, processes=processes or None)
     finally:
         if bar is not None:
             bar.close()
@@ -364,12 +366,15 @@ def _bracket(analysis: AnalysisReport, gamma_cert: float) -> tuple[None, Check]:
 
 
 def _monte_carlo_stage(system: FTCSystem, controller: Controller, spec: SimulationSpec, plant: Any, fmu_log: Any,
-                       measure: str, progress: bool, client: Any) -> tuple[Any, ...]:
+                       measure: str, progress: bool, client: Any, procs: list[Any]) -> tuple[Any, ...]:
     """The paths of ``spec``, their FMU records and the records the Monte Carlo measures
-    (:func:`_measured`); the ``w = 0`` runs of the incremental measure (else ``None``)."""
+    (:func:`_measured`); the ``w = 0`` runs of the incremental measure (else ``None``).
+    ``procs``: plant processes started earlier (used by the first run, closed there)."""
     chain_paths = spec.sample_paths(system.chain)
     with spec.client(client) as client:
-        records, fmu = _fmu_monte_carlo(system, controller, chain_paths, spec, progress, plant, fmu_log, client=client)
+        records, fmu = _fmu_monte_carlo(system, controller, chain_paths, spec, progress, plant, fmu_log, client=client,
+                                        processes=list(procs))
+        procs.clear()
         measured, fault_only = _measured(records, measure, lambda: _fmu_monte_carlo(
             system, controller, chain_paths, replace(spec, disturbance="zero"), progress, plant, fmu_log,
             client=client)[0])
@@ -395,6 +400,20 @@ def _risk_check(stage: RiskStage | None, system: FTCSystem, controller: Controll
     return found | {"detail": detail}
 
 
+#: Modules of the stages after the synthesis, imported while it runs in its child process.
+LATER_STAGES = ("ftc_verify.verification.plots", "ftc_verify.simulation.reference", "ftc_verify.simulation.batches",
+                "ftc_verify.simulation.isolated", "ftc_verify.verification.report", "ftc_verify.verification.summary")
+
+
+def _import_later_stages() -> None:
+    """Import :data:`LATER_STAGES` (and so matplotlib): work this process would do later
+    anyway, done while it would only wait for the synthesis."""
+    import importlib
+
+    for name in LATER_STAGES:
+        importlib.import_module(name)
+
+
 def _verify_spec(spec: SimulationSpec | None, given: dict[str, Any]) -> SimulationSpec:
     """The spec of :func:`run_verify`: ``n_paths``, ``step``, ``horizon``, ``seed`` (drawn
     and reported when ``None``), ``delta`` as
@@ -415,7 +434,7 @@ def run_verify(
     controller: Controller | None = None, spec: SimulationSpec | None = None,
     paths: int | None = None, step: float | None = None, horizon: float | None = None, seed: int | None = None,
     solver: str | None = None, progress: bool = False, plant: Any = None, fmu_log: Any = None,
-    measure: str = "total", client: Any = None, risk: RiskStage | None = None,
+    measure: str = "total", client: Any = None, cross_check: Any = None, risk: RiskStage | None = None,
 ) -> VerifyReport:
     """Run every stage of the module docstring and collect the checks.
 
@@ -427,10 +446,40 @@ def run_verify(
     the Monte Carlo (``system`` is then its linearisation); the report gains a ``plant`` object and the region check
     replaces the backend agreement. ``measure``: ``"total"`` or ``"incremental"`` (:func:`incremental_records`; the
     fault response's energy is reported). ``client``: a ``dask.distributed.Client`` whose workers co-simulate the Monte
-    Carlo batches (same numbers); else ``fmu_log`` gets the FMU's messages. ``risk``: the risk stage (stage 7)."""
+    Carlo batches (same numbers); else ``fmu_log`` gets the FMU's messages. ``cross_check``: a
+    :class:`~ftc_verify.prestart.Prestarted` started by the caller (the CLI starts it
+    right after its numerical imports, before loading anything); by default one is started here, first. It gets the loop as
+    soon as it exists and is waited for only at the end, so python-control's import and
+    checks overlap every other stage. ``risk``: the risk stage
+    (stage 7)."""
     if measure not in ("total", "incremental"):
         raise ValidationError(f"measure: {measure!r} is not 'total' or 'incremental'")
     spec = _verify_spec(spec, {"n_paths": paths, "step": step, "horizon": horizon, "seed": seed})
+    if cross_check is None:
+        from ..prestart import cross_check as start_cross_check
+
+        cross_check = start_cross_check()
+    procs: list[Any] = []
+    try:
+        if client is None and spec.workers is None and spec.scheduler is None and spec.isolate:
+            from ..simulation.isolated import plant_processes
+
+            procs = plant_processes()  # their interpreters start beside the synthesis and analysis
+        return _run_verify(system, gamma, method, k_max, controller, spec, solver, progress, plant, fmu_log,
+                           measure, client, cross_check, procs, risk)
+    finally:
+        cross_check.cancel()
+        for proc in procs:
+            proc.close()
+
+
+def _run_verify(system: FTCSystem, gamma: float | None, method: str, k_max: float | None,
+                controller: Controller | None, spec: SimulationSpec, solver: str | None, progress: bool,
+                plant: Any, fmu_log: Any, measure: str, client: Any, cross_check: Any,
+                procs: list[Any], risk: RiskStage | None = None) -> VerifyReport:
+    """The stages of :func:`run_verify`, with its running ``cross_check`` and the plant
+    processes ``procs`` started for the Monte Carlo
+    (:func:`~ftc_verify.simulation.isolated.plant_processes`; none on a cluster)."""
     seconds: dict[str, float] = {}
     seed = int(spec.seed)  # type: ignore[arg-type]
     options = {"fdi_model": system.chain.describe(), "method": method if controller is None else "given controller",
@@ -452,13 +501,23 @@ def run_verify(
     synthesis = None
     if controller is None:
         synthesis = interruptible(lambda: synthesize(system, method=method, gamma=gamma, k_max=k_max,
-                                                     solver=solver), "the synthesis")
+                                                     solver=solver), "the synthesis", _import_later_stages)
         checks.append(Check("synthesis", synthesis.feasible, synthesis.message))
         controller = synthesis.controller
     stage("synthesis", t)
     extra: dict[str, Any] = {}  # the sampled loop's findings (verification.sampled_stage)
 
+    cross: dict[str, Any] = {}  # where the python-control check goes among the checks, once the loop exists
+
     def report(**found: Any) -> VerifyReport:
+        if cross:  # the per-mode cross-check, computed beside every stage since the loop existed
+            t0 = time.perf_counter()
+            per_mode, check = _cross_validation(cross_check)
+            checks.insert(cross["at"], check)
+            seconds["cross_validation_wait"] = time.perf_counter() - t0
+            seconds["cross_validation"] = cross_check.seconds.get("run", 0.0)
+            found["per_mode"] = per_mode
+            cross.clear()
         parts: dict[str, Any] = {"gamma_certified": None, "analysis": None, "per_mode": (), "exact": (),
                                  "mc": None, "records": ()} | extra | found
         return VerifyReport(system, controller, synthesis=synthesis, checks=tuple(checks), seed=seed,
@@ -467,6 +526,7 @@ def run_verify(
     if controller is None:
         return report()
     loop = closed_loop(system, controller.check(system))
+    cross_check.submit(cross_validate, loop)
     spec.check_memory(system, controller, spec.n_paths)
     t = time.perf_counter()
     analysis = synthesis.report if synthesis is not None and synthesis.report is not None else interruptible(
@@ -474,9 +534,9 @@ def run_verify(
     gamma_cert, found = _certify(analysis, gamma)
     checks.extend(found)
     stage("analysis", t)
-    per_mode = timed("cross_validation", lambda: _cross_validation(loop))
+    cross["at"] = len(checks)
     if gamma_cert is None:
-        return report(analysis=analysis, per_mode=per_mode)
+        return report(analysis=analysis)
     g2 = gamma_cert ** 2
     exact = timed("exact_energy", lambda: _exact_energies(system, loop, g2))
     extra.update(sampled_stages(system, controller, spec.step, g2, checks, seconds, (spec.horizon, spec.n_paths, seed)))
@@ -485,18 +545,16 @@ def run_verify(
     spec, options["delta"] = spec.resolve_delta(system, plant)
     try:
         chain_paths, records, fmu, measured, fault_only = _monte_carlo_stage(
-            system, controller, spec, plant, fmu_log, measure, progress, client)
+            system, controller, spec, plant, fmu_log, measure, progress, client, procs)
     except PlantRunError as exc:  # the plant crashed: a result, reported
         checks.append(Check("Monte Carlo (FMU)", False, str(exc)))
         stage("monte_carlo", t)
-        return report(gamma_certified=gamma_cert, analysis=analysis, per_mode=per_mode, exact=tuple(exact),
-                      plant_failure=exc)
+        return report(gamma_certified=gamma_cert, analysis=analysis, exact=tuple(exact), plant_failure=exc)
     options.update(fmu)
     mc, check = _mc_check(measured, gamma_cert, seed, spec.step, spec.horizon, incremental=measure == "incremental")
     checks.append(check)
     stage("monte_carlo", t)
     found_plant = timed("reference", lambda: _against_reference(system, controller, chain_paths, records, spec,
                                                                  plant, mc, fmu, measured, fault_only))
-    return report(gamma_certified=gamma_cert, analysis=analysis, per_mode=per_mode, exact=tuple(exact), mc=mc,
-                  records=tuple(records), plant=found_plant,
-                  risk=_risk_check(risk, system, controller, plant, spec, client, checks, seconds))
+    return report(gamma_certified=gamma_cert, analysis=analysis, exact=tuple(exact), mc=mc, records=tuple(records),
+                  plant=found_plant, risk=_risk_check(risk, system, controller, plant, spec, client, checks, seconds))

@@ -1,0 +1,193 @@
+"""A child process started before the work it overlaps: its imports now, its job later.
+
+Importing python-control (scipy.signal, matplotlib.pyplot) costs about a second, more than
+the whole analysis of a small loop, and its per-mode cross-check
+(:func:`~ftc_verify.analysis.crossval.cross_validate`) needs nothing but the closed loop.
+So ``analyze`` and ``verify`` start :func:`cross_check` first, right after importing their
+numerical modules (a forked child shares them: it imports only python-control, and on a
+busy machine no import is paid twice) and before any stage: a :class:`Prestarted` child
+(a ``fork``, POSIX) that imports python-control at once and then waits. The command hands it the job as soon as the loop exists
+(:meth:`Prestarted.submit`: a module-level function, pickled by name, and its argument)
+and collects the answer only at the very end (:meth:`Prestarted.result`); nothing in
+between waits for it. The answer is the function's on the same pickled argument, so the
+numbers are those of a call in this process.
+
+This module imports nothing but the standard library (and nothing of ``ftc_verify``), so
+a caller can fork wherever it likes. Where ``fork`` is missing,
+or when the child ends without an answer (killed, or dead in native code), the job runs in
+this process when :meth:`~Prestarted.result` is called: a third-party failure never
+decides the command's fate. An exception the job raises in the child is raised again
+here. The child ignores SIGINT (a terminal's Ctrl-C goes to the whole group; the parent
+ends the child), dies with its parent on Linux, and :meth:`~Prestarted.cancel` (call it
+in a ``finally``) kills it if it is still running.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib
+import os
+import pickle
+import struct
+import sys
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+__all__ = ["Prestarted", "cross_check", "CROSS_CHECK_MODULES"]
+
+#: What the cross-check child imports first (python-control, then the check itself).
+CROSS_CHECK_MODULES = ("control", "ftc_verify.analysis.crossval")
+_SIZE = struct.Struct("<Q")
+_PIPE_BYTES = 60_000  # below Linux's 64 KiB pipe buffer: written at once, whatever the child is doing
+
+
+def _read_exact(fd: int, size: int) -> bytes | None:
+    """``size`` bytes from ``fd``, or ``None`` at end of file before that."""
+    chunks, left = [], size
+    while left:
+        chunk = os.read(fd, min(left, 1 << 20))
+        if not chunk:
+            return None
+        chunks.append(chunk)
+        left -= len(chunk)
+    return b"".join(chunks)
+
+
+def _die_with_parent() -> None:
+    """Linux: SIGKILL when the parent dies (``prctl(PR_SET_PDEATHSIG)``); elsewhere nothing."""
+    import ctypes
+    import signal
+
+    if sys.platform.startswith("linux"):
+        with contextlib.suppress(OSError, AttributeError):
+            ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL), 0, 0, 0)
+
+
+def _child(modules: Sequence[str], job_fd: int, answer_fd: int) -> None:
+    """The child: import ``modules``, wait for the job, answer ``(kind, value, seconds)``."""
+    t0 = time.perf_counter()
+    payload: tuple[str, Any, dict[str, float]]
+    try:
+        for name in modules:
+            importlib.import_module(name)
+        seconds = {"import": time.perf_counter() - t0}
+        head = _read_exact(job_fd, _SIZE.size)
+        body = None if head is None else _read_exact(job_fd, _SIZE.unpack(head)[0])
+        if body is None:  # the parent never sent a job (it stopped early)
+            return
+        fn, arg = pickle.loads(body)
+        t1 = time.perf_counter()
+        try:
+            payload = ("ok", fn(arg), seconds | {"run": time.perf_counter() - t1})
+        except Exception as exc:  # the job's own exception: raised again in the parent
+            payload = ("raised", exc, seconds)
+    except Exception as exc:  # an import failed: the parent runs the job itself
+        payload = ("error", repr(exc), {})
+    data = pickle.dumps(payload, protocol=pickle.HIGHEST_PROTOCOL)
+    with contextlib.suppress(Exception), os.fdopen(answer_fd, "wb") as out:
+        out.write(data)
+
+
+class Prestarted:
+    """A forked child that imports ``modules`` now and runs one job later (module docstring).
+
+    Attributes
+    ----------
+    seconds : dict
+        After :meth:`result`: ``import`` (the child's imports), ``run`` (the job) and
+        ``wait`` (how long :meth:`result` waited: the part that did not overlap the
+        caller's work).
+    """
+
+    def __init__(self, modules: Sequence[str]) -> None:
+        self.seconds: dict[str, float] = {}
+        self._job: tuple[Callable[[Any], Any], Any] | None = None
+        self.pid = 0
+        self._job_w = self._answer_r = -1
+        if not hasattr(os, "fork"):
+            return
+        job_r, job_w = os.pipe()
+        answer_r, answer_w = os.pipe()
+        sys.stdout.flush()
+        sys.stderr.flush()
+        pid = os.fork()
+        if pid == 0:  # child
+            try:
+                import signal
+
+                signal.signal(signal.SIGINT, signal.SIG_IGN)
+                signal.signal(signal.SIGTERM, signal.SIG_DFL)
+                _die_with_parent()
+                os.close(job_w)
+                os.close(answer_r)
+                _child(tuple(modules), job_r, answer_w)
+            finally:
+                os._exit(0)
+        os.close(job_r)
+        os.close(answer_w)
+        self.pid, self._job_w, self._answer_r = pid, job_w, answer_r
+
+    def submit(self, fn: Callable[[Any], Any], arg: Any) -> None:
+        """Hand the job ``fn(arg)`` to the child (once); ``fn`` a module-level function."""
+        self._job = (fn, arg)
+        if self._job_w < 0:
+            return
+        data = pickle.dumps(self._job, protocol=pickle.HIGHEST_PROTOCOL)
+        fd, self._job_w = self._job_w, -1
+
+        def send() -> None:
+            with contextlib.suppress(OSError), os.fdopen(fd, "wb") as out:  # a child gone: result() runs it here
+                out.write(_SIZE.pack(len(data)) + data)
+
+        if len(data) < _PIPE_BYTES:
+            send()
+        else:  # more than a pipe holds: written while the child still imports, never waited for here
+            import threading
+
+            threading.Thread(target=send, name="ftc-verify-prestarted", daemon=True).start()
+
+    def result(self) -> Any:
+        """``fn(arg)`` of :meth:`submit`: the child's answer, or computed here when it gave none."""
+        if self._job is None:
+            raise ValueError("Prestarted.result: no job was submitted")
+        t0 = time.perf_counter()
+        data = b""
+        if self._answer_r >= 0:
+            with os.fdopen(self._answer_r, "rb") as src:
+                self._answer_r = -1
+                data = src.read()
+            with contextlib.suppress(ChildProcessError):
+                os.waitpid(self.pid, 0)
+            self.pid = 0
+        kind, value, seconds = pickle.loads(data) if data else ("error", "no answer", {})
+        if kind == "raised":
+            raise value
+        if kind != "ok":
+            fn, arg = self._job
+            t1 = time.perf_counter()
+            value = fn(arg)
+            seconds = {"run": time.perf_counter() - t1}
+        self.seconds = dict(seconds) | {"wait": time.perf_counter() - t0}
+        return value
+
+    def cancel(self) -> None:
+        """Kill and reap the child if it is still running; close the pipes."""
+        import signal
+
+        for fd in (self._job_w, self._answer_r):
+            if fd >= 0:
+                os.close(fd)
+        self._job_w = self._answer_r = -1
+        if self.pid:
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                os.kill(self.pid, signal.SIGKILL)
+            with contextlib.suppress(ChildProcessError):
+                os.waitpid(self.pid, 0)
+            self.pid = 0
+
+
+def cross_check() -> Prestarted:
+    """The child of python-control's per-mode cross-check (:data:`CROSS_CHECK_MODULES`),
+    started now; submit ``(cross_validate, loop)`` to it."""
+    return Prestarted(CROSS_CHECK_MODULES)
