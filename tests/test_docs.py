@@ -56,7 +56,7 @@ RUN_ELSEWHERE = {"three-tank.md": "tests/test_three_tank.py::test_tutorial_recip
 
 def _page_params() -> list[object]:
     # Seconds measured on 2 busy cores, for the scheduler in conftest.py (longest first).
-    seconds = {"paper-example.md": 40, "output-feedback.md": 45, "dc-motor.md": 17}
+    seconds = {"paper-example.md": 40, "output-feedback.md": 45, "dc-motor.md": 17, "three-tank-risk.md": 85}
     return [pytest.param(p, id=p.stem, marks=pytest.mark.slow(seconds.get(p.name, 10))) for p in TUTORIALS
             if p.name not in RUN_ELSEWHERE]
 

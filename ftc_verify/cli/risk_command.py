@@ -89,12 +89,10 @@ def _check(args: argparse.Namespace, system: Any, controller: Any) -> None:
     n = system.dims[0]
     if args.x0 is not None and len(args.x0) != n:
         raise bad(f"--x0 {','.join(f'{v:g}' for v in args.x0)}: {len(args.x0)} numbers for the {n} plant states")
-    if args.workers is not None:
-        if args.backend != "fmu":
-            raise bad(f"--workers {args.workers}: the reference backend runs in this process; use --backend fmu")
+    if args.workers is not None or args.scheduler is not None:
         from ..simulation.cluster import check_cluster_options
 
-        check_cluster_options(args.workers, None)
+        check_cluster_options(args.workers, args.scheduler)
     if args.plot is not None:
         check_output_file(args.plot, "--plot", PLOT_SUFFIXES, inputs=(args.system, args.controller))
 
@@ -129,7 +127,8 @@ def _cmd_risk(args: argparse.Namespace) -> int:
     try:
         res = run_risk(system, controller, envelope, horizon=args.horizon, step=args.step, settings=settings,
                        x0=args.x0, disturbance=args.disturbance, beta=beta, backend=args.backend,
-                       plant=plant, bound=bound, timing=timing, interval=args.ftti, workers=args.workers)
+                       plant=plant, bound=bound, timing=timing, interval=args.ftti, workers=args.workers,
+                       scheduler=args.scheduler)
     except PlantRunError as exc:
         print(f"ftc-verify risk: the plant FMU failed: {exc}")
         print("verdict: fail (the plant FMU crashed; no estimate)")
@@ -162,7 +161,7 @@ def _plot(args: argparse.Namespace, system: Any, controller: Any, envelope: Any,
 def _print(d: dict[str, Any], args: argparse.Namespace) -> None:
     """The estimate as a few lines."""
     lo, hi = d["ci"]
-    print(f"risk of {d['system']}: P(leave {d['envelope']} within [0, {fmt(d['horizon'])}])")
+    print(f"ftc-verify risk: {d['system']}: P(leave {d['envelope']} within [0, {fmt(d['horizon'])}])")
     print(f"  estimate: {fmt(d['probability'], 4)}  {int(100 * d['confidence'])} % interval "
           f"[{fmt(lo, 4)}, {fmt(hi, 4)}] ({d['interval']}; relative error {fmt(d['relative_error'], 3)})")
     print(f"  {d['method']} sampling: {d['paths']} paths ({d['hits']} left the envelope), "
@@ -209,7 +208,10 @@ def add_risk_command(sub: Any) -> None:
     r.add_argument("--plant", default=None, metavar="MAP",
                    help="with --backend fmu: co-simulate this plant map's FMU instead of the LinearJumpPlant")
     r.add_argument("--workers", type=positive_int, default=None,
-                   help="with --backend fmu: run the FMU batches on a local Dask cluster of N worker processes")
+                   help="run the batches (FMU) or chunks of 250 paths (reference) on a local Dask cluster of N "
+                        "worker processes (the same numbers as without)")
+    r.add_argument("--scheduler", default=None, metavar="ADDR",
+                   help="as --workers, on the Dask scheduler at HOST:PORT")
     r.add_argument("--beta", default="mid", choices=["min", "max", "mid"],
                    help="the rate array of the chain: lower corner, upper corner or midpoint of its box "
                         "(default %(default)s)")

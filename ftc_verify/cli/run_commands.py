@@ -207,6 +207,16 @@ def _fmu_logger(args: argparse.Namespace) -> Any:
     return log
 
 
+def _risk_stage() -> Any:
+    """``verify``'s risk stage (``ftc_verify.risk.verify_stage``), ``None`` when the risk
+    package is not installed."""
+    try:
+        from ..risk.verify_stage import verify_risk_stage
+    except ModuleNotFoundError:
+        return None
+    return verify_risk_stage
+
+
 def _cmd_verify(args: argparse.Namespace) -> int:
     from ..prestart import cross_check as start_cross_check
     from .common import Stopwatch
@@ -249,7 +259,8 @@ def _verify_command(args: argparse.Namespace, watch: Any, check: Any) -> int:
         watch.mark("cluster_start")
         rep = run_verify(system, gamma=args.gamma, method=args.method, k_max=k_max, controller=controller,
                          spec=spec, solver=args.solver, progress=sys.stderr.isatty(), plant=plant,
-                         fmu_log=_fmu_logger(args), measure=args.measure, client=client, cross_check=check)
+                         fmu_log=_fmu_logger(args), measure=args.measure, client=client, cross_check=check,
+                         risk=_risk_stage())
         watch.mark("stages")
     watch.mark("cluster_stop")
     written = write_report(rep, args.out, watch)

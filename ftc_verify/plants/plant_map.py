@@ -37,6 +37,12 @@ chain. Full example (:doc:`/user-guide/plant`)::
     alpha = [[-0.5, 0.5], [1.0, -1.0]]
     beta_min = [[0.0, 2.0], [2.5, 0.0]]
     beta_max = [[0.0, 3.0], [3.5, 0.0]]
+    [risk]                                # optional: `verify` estimates P(leave [region] in [0, T])
+    horizon = 5.0                         # T (seconds)
+    target = 1e-3                         # optional: the probability the design must stay below
+    backend = "fmu"                       # optional: "fmu" (this map's FMU, default) or "reference"
+    method = "importance"                 # optional: or "crude"
+    relative_error = 0.2                  # optional, with confidence, max_paths, pilot_paths, ftti
 
 :func:`load_plant_map` checks the file on its own (keys, types, counts, fault tables);
 the names are checked against ``modelDescription.xml`` when the FMU is opened
@@ -49,7 +55,7 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -61,10 +67,10 @@ from ..model.files import PLANT_MAP, check_kind, parse_chain, read_toml, tables,
 from ..model.system import FTCSystem, JointChain
 from .fault_map import FaultInjectionMap, OperatingPoint
 
-__all__ = ["FaultMode", "PlantMap", "load_plant_map", "dump_plant_map", "save_plant_map", "ROLE_KEYS",
+__all__ = ["FaultMode", "RiskTarget", "PlantMap", "load_plant_map", "dump_plant_map", "save_plant_map", "ROLE_KEYS",
            "map_path_for", "linear_jump_plant_map", "check_against_system", "check_controller"]
 
-_TOP = {"fmu", "name", "tolerance", "variables", "operating_point", "parameters", "region", "fault", "chain"}
+_TOP = {"fmu", "name", "tolerance", "variables", "operating_point", "parameters", "region", "fault", "chain", "risk"}
 #: Keys of ``[variables]`` and what they carry.
 ROLE_KEYS = {
     "inputs": "control inputs u",
@@ -87,6 +93,28 @@ class FaultMode:
 
     name: str
     values: tuple[Scalar, ...]
+
+
+@dataclass(frozen=True)
+class RiskTarget:
+    """The ``[risk]`` table: the risk stage of ``verify`` on the map's ``[region]`` (the
+    envelope). ``target``: the probability the loop must stay below (``None``: the stage
+    reports only); the other fields are the settings of :func:`ftc_verify.risk.run.run_risk`
+    (defaults as ``ftc-verify risk``'s options, ``max_paths`` 10,000)."""
+
+    horizon: float
+    target: float | None = None
+    backend: str = "fmu"
+    method: str = "importance"
+    relative_error: float = 0.2
+    confidence: float = 0.95
+    max_paths: int = 10_000
+    pilot_paths: int = 500
+    ftti: float | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """The TOML table (``None`` fields left out)."""
+        return {k: v for k, v in vars(self).items() if v is not None}
 
 
 @dataclass(frozen=True)
@@ -121,6 +149,7 @@ class PlantMap:
     faults: tuple[FaultMode, ...]
     chain: JointChain | None
     tolerance: float | None
+    risk: RiskTarget | None = None
 
     @property
     def m(self) -> int:
@@ -292,6 +321,38 @@ def _chain(p: Path, doc: dict[str, Any], m: int) -> JointChain | None:
     return chain
 
 
+def _risk(p: Path, doc: dict[str, Any], has_region: bool) -> RiskTarget | None:
+    """The ``[risk]`` table (:class:`RiskTarget`), checked; it needs ``[region]`` states."""
+    tab = doc.get("risk")
+    if tab is None:
+        return None
+    if not isinstance(tab, dict):
+        raise ProblemFileError(f"{p}: [risk]: expected a table, got {tab!r}")
+    unknown_keys(p, "[risk]", list(tab), {f.name for f in fields(RiskTarget)})
+    if not has_region:
+        raise ProblemFileError(f"{p}: [risk]: the envelope is [region].states_min / states_max, which the map lacks")
+    if "horizon" not in tab:
+        raise ProblemFileError(f"{p}: [risk].horizon: missing (the envelope is watched on [0, horizon])")
+    out: dict[str, Any] = {}
+    for key, value in tab.items():
+        where = f"{p}: [risk].{key}"
+        if key in ("backend", "method"):
+            allowed = ("fmu", "reference") if key == "backend" else ("importance", "crude")
+            if value not in allowed:
+                raise ProblemFileError(f"{where}: {value!r} is not one of {', '.join(allowed)}")
+        elif key in ("max_paths", "pilot_paths"):
+            if isinstance(value, bool) or not isinstance(value, int) or value < 2:
+                raise ProblemFileError(f"{where}: expected an integer of at least 2, got {_shown(value)}")
+        else:
+            ok = not isinstance(value, bool) and isinstance(value, (int, float)) and 0 < value < math.inf
+            if not ok or (key in ("target", "confidence") and value >= 1):
+                bound = "in (0, 1)" if key in ("target", "confidence") else "positive and finite"
+                raise ProblemFileError(f"{where}: expected a number {bound}, got {_shown(value)}")
+            value = float(value)
+        out[key] = value
+    return RiskTarget(**out)
+
+
 def _build_hint(p: Path, fmu_path: Path) -> str:
     """How to make the missing FMU: ``build-fmu`` of the Modelica model of the same name
     beside it, else the build command the map's comments give, else where to read."""
@@ -356,7 +417,8 @@ def load_plant_map(path: str | os.PathLike[str]) -> PlantMap:
                     disturbances_op=w_op, parameters=parameters, states_min=lo, states_max=hi,
                     inputs_min=u_lo, inputs_max=u_hi,
                     fault_variables=fault_vars, faults=faults, chain=_chain(p, doc, len(faults)),
-                    tolerance=None if tol is None else float(tol))
+                    tolerance=None if tol is None else float(tol),
+                    risk=_risk(p, doc, lo is not None and hi is not None))
 
 
 # ------------------------------------------------------------------------------------------
@@ -392,6 +454,8 @@ def dump_plant_map(pm: PlantMap, *, relative_to: Path | None = None) -> str:
         c = pm.chain
         doc["chain"] = {"alpha": c.alpha.tolist(), "beta_min": c.beta_min.tolist(), "beta_max": c.beta_max.tolist(),
                         **({"fault_during_delay": True} if c.fault_during_delay else {})}
+    if pm.risk is not None:
+        doc["risk"] = pm.risk.to_dict()
     return tomli_w.dumps(doc)
 
 

@@ -16,9 +16,17 @@ Stages, in order (:func:`run_risk`):
    :class:`BoundStage`), on the closed loop :func:`~ftc_verify.analysis.closedloop.closed_loop`
    with the envelope's constraints (:meth:`Envelope.constraints`): a bound of the
    *continuous-time* loop (none is claimed when the controller declares a sampling
-   period), by the energy of ``w`` up to ``T`` (:func:`disturbance_energy`);
+   period), by the energy of ``w`` up to ``T`` (:func:`disturbance_energy`); none is
+   claimed either for a plant map's FMU (``plant``), which the linear model need not
+   describe (a fault that moves the equilibrium);
 3. optionally the FDI timing view (a callable ``timing(chain, interval)``:
    :class:`TimingStage`) for a fault-tolerant time interval.
+
+On the reference backend the paths of a batch are scored in chunks of ``SIM_BATCH`` (250),
+one after the other or, with a Dask client (``workers`` / ``scheduler`` / ``client``), as
+one task per chunk on the workers: the chain paths are drawn in this process from their
+seeded streams, and a chunk's scores depend on its paths only, so serial and Dask runs give
+the same numbers for a seed.
 
 A plant FMU path that failed (``fmi2Error``) or diverged counts as leaving the envelope
 (its score is infinite): the estimate errs towards danger, and ``failed_paths`` says how
@@ -30,6 +38,7 @@ from __future__ import annotations
 import dataclasses
 import importlib
 import math
+from pathlib import Path
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -53,7 +62,8 @@ from .estimate import Estimate, Settings, estimate_probability
 __all__ = ["BoundStage", "TimingStage", "RiskResult", "available_stages", "disturbance_energy", "path_scores",
            "run_risk"]
 
-#: Paths simulated per call of the reference simulator (their records are kept meanwhile).
+#: Paths simulated per call of the reference simulator (their records are kept meanwhile);
+#: also the chunk of a Dask task on the reference backend.
 SIM_BATCH = 250
 
 
@@ -140,6 +150,13 @@ def _record_score(envelope: Envelope, rec: PathRecord) -> float:
     return envelope.score(rec.x, rec.y)
 
 
+def _peak_scores(scored: FTCSystem, controller: Controller, envelope: Envelope, paths: Sequence[ChainPath],
+                 spec: SimulationSpec) -> np.ndarray:
+    """Scores of one chunk on the vectorised reference (a Dask task of :func:`path_scores`)."""
+    peak_sq, peak = output_peaks_reference(scored, controller, paths, spec=spec)
+    return envelope.peak_score(peak_sq, peak)
+
+
 def path_scores(system: FTCSystem, controller: Controller, envelope: Envelope, spec: SimulationSpec,
                 backend: str, plant: Any = None, client: Any = None) -> Callable[[Sequence[ChainPath]], np.ndarray]:
     """The scorer of the estimator: simulate the paths on ``backend`` and return every
@@ -147,7 +164,8 @@ def path_scores(system: FTCSystem, controller: Controller, envelope: Envelope, s
     plant map ``plant`` or the system's ``LinearJumpPlant``, on the Dask ``client`` when
     given (:func:`~ftc_verify.simulation.batches.fmu_monte_carlo`). ``reference`` takes the output peaks of the vectorised
     reference (:func:`~ftc_verify.simulation.vectorised.output_peaks_reference` on
-    :meth:`Envelope.score_system`); ``records`` scores the records of
+    :meth:`Envelope.score_system`) in chunks of ``SIM_BATCH`` (250) paths, each a task on
+    ``client``'s workers when given (the same numbers); ``records`` scores the records of
     :func:`~ftc_verify.simulation.reference.simulate_reference` (the same numbers, one path
     at a time: the check of the fast path)."""
     scored = envelope.score_system(system)
@@ -161,8 +179,13 @@ def path_scores(system: FTCSystem, controller: Controller, envelope: Envelope, s
             records.extend(fmu_monte_carlo(system, controller, list(paths), spec=spec, plant=plant,
                                            client=client).records)
         else:
-            peak_sq, peak = output_peaks_reference(scored, controller, paths, spec=spec)
-            return envelope.peak_score(peak_sq, peak)
+            chunks = [list(paths[b:b + SIM_BATCH]) for b in range(0, len(paths), SIM_BATCH)]
+            if client is None:
+                parts = [_peak_scores(scored, controller, envelope, c, spec) for c in chunks]
+            else:
+                parts = client.gather([client.submit(_peak_scores, scored, controller, envelope, c, spec, pure=False)
+                                       for c in chunks])
+            return np.concatenate(parts) if parts else np.zeros(0)
         return np.array([_record_score(envelope, r) for r in records])
 
     return score
@@ -173,12 +196,14 @@ def run_risk(system: FTCSystem, controller: Controller, envelope: Envelope, *, h
              beta: Matrix | None = None, backend: str = "reference", plant: Any = None,
              bound: BoundStage | None = None, timing: TimingStage | None = None,
              interval: float | None = None, done: Callable[[int], object] | None = None,
-             workers: int | None = None) -> RiskResult:
+             workers: int | None = None, scheduler: str | None = None, client: Any = None) -> RiskResult:
     """The risk run of the module docstring. ``beta``: the rate array (default: the centre
     of the box, :meth:`JointChain.midpoint`); the paths start in the joint mode ``(0, 0)``
-    (no fault, FDI agrees); ``x0`` default 0; ``workers``: the FMU backend's batches on a
-    local Dask cluster of that many processes (:meth:`SimulationSpec.client
-    <ftc_verify.simulation.spec.SimulationSpec.client>`, opened once for the run)."""
+    (no fault, FDI agrees); ``x0`` default 0; ``workers`` / ``scheduler``: the batches (FMU)
+    or chunks (reference) on a local Dask cluster of that many processes or on the
+    scheduler at that address (:meth:`SimulationSpec.client
+    <ftc_verify.simulation.spec.SimulationSpec.client>`, opened once for the run), or on
+    the given Dask ``client`` (``verify``'s); the same numbers as serially."""
     if backend not in ("reference", "records", "fmu"):
         raise ValidationError(f"backend: {backend!r} is not one of reference, records, fmu")
     chain = system.chain
@@ -186,9 +211,10 @@ def run_risk(system: FTCSystem, controller: Controller, envelope: Envelope, *, h
     n = system.dims[0]
     x0v = np.zeros(n) if x0 is None else np.asarray(x0, dtype=float)
     spec = SimulationSpec(step=step, horizon=horizon, seed=settings.seed, beta=rates, disturbance=disturbance,
-                          x0=tuple(float(v) for v in x0v), workers=workers if backend == "fmu" else None)
+                          x0=tuple(float(v) for v in x0v), workers=workers,
+                          scheduler=scheduler)
     failed = [0]
-    with spec.client() as client:
+    with spec.client(client) as client:
         scorer = path_scores(system, controller, envelope, spec, backend, plant, client)
 
         def counted(paths: Sequence[ChainPath]) -> np.ndarray:
@@ -199,7 +225,10 @@ def run_risk(system: FTCSystem, controller: Controller, envelope: Envelope, *, h
         est = estimate_probability(chain, rates, horizon, counted, settings, start=chain.start_state((0, 0)),
                                    done=done)
     upper = None
-    if bound is not None:
+    if bound is not None and plant is not None:  # the certificate speaks of the linear model, not of the FMU
+        upper = {"value": None, "reason": f"not claimed for the plant map's FMU ({Path(str(getattr(plant, 'fmu', plant))).name}): the "
+                 "certificate is of the linear model, whose equilibrium the plant's faults may move"}
+    elif bound is not None:
         loop = closed_loop(system, controller)
         xi0 = np.concatenate((x0v, np.zeros(loop.n - n)))
         res = bound(loop, envelope.constraints(system, loop.n, chain.states), x0=xi0,

@@ -63,6 +63,25 @@ def table_row(*cells: object) -> str:
     return "| " + " | ".join(" ".join(str(c).splitlines()).replace("|", "\\|") for c in cells) + " |"
 
 
+
+def _risk_lines(risk: dict[str, Any] | None) -> list[str]:
+    """The ``## Risk`` section of the markdown report (the plant map's ``[risk]`` stage)."""
+    if not risk:
+        return []
+    if "probability" not in risk:
+        return ["", "## Risk", "", risk["detail"]]
+    bound = risk.get("upper_bound") or {}
+    timing = risk.get("timing") or {}
+    rows = [("envelope", risk["envelope"]), ("horizon T (s)", _num(risk["horizon"])),
+            ("target", _num(risk.get("target"))),
+            (f"probability of leaving within [0, T] ({risk['method']}, {risk['backend']})", _num(risk["probability"])),
+            (f"{100 * risk['confidence']:g} % interval ({risk['interval']})", _nums(risk["ci"])),
+            ("paths (left the envelope)", f"{risk['paths']} ({risk['hits']})"),
+            ("proved upper bound (continuous-time loop)", _num(bound.get("value"))),
+            ("FDI timing: worst P(detection delay > ftti)", _num(timing.get("worst")))]
+    return ["", "## Risk", "", "| quantity | value |", "|---|---|",
+            *(table_row(k, v) for k, v in rows), "", risk["detail"]]
+
 def render_markdown(rep: VerifyReport) -> str:
     """The readable summary, with the verdict line first."""
     d = rep.to_dict()
@@ -119,6 +138,7 @@ def render_markdown(rep: VerifyReport) -> str:
         if plant["fault_response_energy"] is not None:
             lines.append(table_row("fault response: mean ||y(w = 0) - y_op||^2 (not bounded by gamma)",
                                    _num(plant["fault_response_energy"])))
+    lines += _risk_lines(d.get("risk"))
     ctrl = d["controller"] or {}
     matrices = ctrl.get("gains", ctrl.get("entries"))
     lines += ["", f"Controller: {ctrl.get('kind', 'none found')}: {matrices}", "",

@@ -36,6 +36,9 @@ def verify_summary(rep: VerifyReport, *, written: Sequence[Path] | None = None) 
     d = rep.to_dict()
     lines = [f"ftc-verify verify: {rep.system.name}", f"  {rep.system.chain.describe()}"]
     lines += [f"  [{'pass' if c['ok'] else 'FAIL'}] {c['name']}: {c['detail']}" for c in d["checks"]]
+    risk = d.get("risk")
+    if risk and not any(c["name"] == "risk" for c in d["checks"]):
+        lines.append(f"  [info] risk: {risk['detail']}")
     if d["options"].get("delta"):
         lines.append(f"  Delta in the Monte Carlo: {d['options']['delta']}")
     if written is not None:

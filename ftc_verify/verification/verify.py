@@ -29,7 +29,12 @@ all on the one closed loop :func:`~ftc_verify.analysis.closedloop.closed_loop` b
    With a plant map instead (the user's FMU, ``system`` its linearisation), the **plant
    region** check: no path leaves ``[region]``; the Monte Carlo measures either the real
    paths (``measure="total"``) or, for plants whose faults move the equilibrium, each
-   path's incremental response to ``w`` (``"incremental"``, :func:`incremental_records`).
+   path's incremental response to ``w`` (``"incremental"``, :func:`incremental_records`);
+7. **risk**, when the plant map declares ``[risk]`` and a risk stage is given (the CLI
+   passes :func:`ftc_verify.risk.verify_stage.verify_risk_stage`; this package sits
+   below :mod:`ftc_verify.risk` and cannot import it): the probability of leaving
+   ``[region]`` within ``[0, T]``, its interval and proved upper bound, the FDI timing;
+   a check against ``[risk].target`` when the map gives one (``_risk_check``).
 
 Each stage becomes a named check; the verdict is ``pass`` only if all pass. Every random
 draw comes from one :class:`numpy.random.Generator` whose seed is in the report.
@@ -41,7 +46,7 @@ import functools
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -62,7 +67,8 @@ from ..analysis.moments.energy import exact_energy
 from .montecarlo import MCEstimate, estimate
 from .sampled_stage import sampled_stages
 
-__all__ = ["Check", "VerifyReport", "run_verify", "incremental_records", "AGREE_RTOL", "MAX_EXACT_VERTICES", "LATER_STAGES"]
+__all__ = ["Check", "RiskStage", "VerifyReport", "run_verify", "incremental_records", "AGREE_RTOL",
+           "MAX_EXACT_VERTICES", "LATER_STAGES"]
 
 #: Relative agreement required between the FMU and the numpy reference on equal paths.
 AGREE_RTOL = 1e-8
@@ -70,6 +76,14 @@ AGREE_RTOL = 1e-8
 MAX_EXACT_VERTICES = 64
 #: Paths re-simulated by the reference backend for the agreement check.
 AGREE_PATHS = 5
+
+
+class RiskStage(Protocol):
+    """The risk stage: :func:`ftc_verify.risk.verify_stage.verify_risk_stage` -- the JSON of
+    the risk run and ``(ok, detail)``, ``ok`` ``None`` when there is nothing to check."""
+
+    def __call__(self, system: FTCSystem, controller: Controller, plant: Any, spec: SimulationSpec,
+                 client: Any = None) -> tuple[dict[str, Any], bool | None, str]: ...
 
 
 @dataclass(frozen=True)
@@ -104,6 +118,7 @@ class VerifyReport:
     sampled: Any = None  # SampledResult of the loop at the simulation step (verification.sampled_stage)
     sampled_exact: tuple[dict[str, Any], ...] = ()  # its exact energies (sampled_stage.sampled_energy_stage)
     sampled_mc: dict[str, Any] | None = None  # simulated vs exact, two-sided (sampled_stage.sampled_mc_stage)
+    risk: dict[str, Any] | None = None  # the risk stage's result when the plant map declares [risk]
 
     @property
     def verdict(self) -> str:
@@ -148,6 +163,7 @@ class VerifyReport:
             "sampled": None if self.sampled is None else self.sampled.to_dict(),
             "sampled_exact": list(self.sampled_exact),
             "sampled_mc": self.sampled_mc,
+            "risk": self.risk,
             "seed": self.seed,
             "options": self.options,
             "seconds": self.seconds,
@@ -365,6 +381,25 @@ def _monte_carlo_stage(system: FTCSystem, controller: Controller, spec: Simulati
     return chain_paths, records, fmu, measured, fault_only
 
 
+def _risk_check(stage: RiskStage | None, system: FTCSystem, controller: Controller, plant: Any,
+                spec: SimulationSpec, client: Any, checks: list[Check], seconds: dict[str, float]) -> dict[str, Any] | None:
+    """The risk stage (module docstring, 7) when ``plant`` declares ``[risk]``: its JSON,
+    its check appended to ``checks`` when the map gives a target (a crashed plant FMU fails
+    the check), its time in ``seconds["risk"]``."""
+    if stage is None or plant is None or getattr(plant, "risk", None) is None:
+        return None
+    t = time.perf_counter()
+    with spec.client(client) as client:
+        try:
+            found, ok, detail = stage(system, controller, plant, spec, client)
+        except PlantRunError as exc:
+            found, ok, detail = {"plant_failure": str(exc)}, False, f"the plant FMU failed: {exc}"
+    if ok is not None:
+        checks.append(Check("risk", ok, detail))
+    seconds["risk"] = time.perf_counter() - t
+    return found | {"detail": detail}
+
+
 #: Modules of the stages after the synthesis, imported while it runs in its child process.
 LATER_STAGES = ("ftc_verify.verification.plots", "ftc_verify.simulation.reference", "ftc_verify.simulation.batches",
                 "ftc_verify.simulation.isolated", "ftc_verify.verification.report", "ftc_verify.verification.summary")
@@ -399,7 +434,7 @@ def run_verify(
     controller: Controller | None = None, spec: SimulationSpec | None = None,
     paths: int | None = None, step: float | None = None, horizon: float | None = None, seed: int | None = None,
     solver: str | None = None, progress: bool = False, plant: Any = None, fmu_log: Any = None,
-    measure: str = "total", client: Any = None, cross_check: Any = None,
+    measure: str = "total", client: Any = None, cross_check: Any = None, risk: RiskStage | None = None,
 ) -> VerifyReport:
     """Run every stage of the module docstring and collect the checks.
 
@@ -415,7 +450,8 @@ def run_verify(
     :class:`~ftc_verify.prestart.Prestarted` started by the caller (the CLI starts it
     right after its numerical imports, before loading anything); by default one is started here, first. It gets the loop as
     soon as it exists and is waited for only at the end, so python-control's import and
-    checks overlap every other stage."""
+    checks overlap every other stage. ``risk``: the risk stage
+    (stage 7)."""
     if measure not in ("total", "incremental"):
         raise ValidationError(f"measure: {measure!r} is not 'total' or 'incremental'")
     spec = _verify_spec(spec, {"n_paths": paths, "step": step, "horizon": horizon, "seed": seed})
@@ -430,7 +466,7 @@ def run_verify(
 
             procs = plant_processes()  # their interpreters start beside the synthesis and analysis
         return _run_verify(system, gamma, method, k_max, controller, spec, solver, progress, plant, fmu_log,
-                           measure, client, cross_check, procs)
+                           measure, client, cross_check, procs, risk)
     finally:
         cross_check.cancel()
         for proc in procs:
@@ -440,7 +476,7 @@ def run_verify(
 def _run_verify(system: FTCSystem, gamma: float | None, method: str, k_max: float | None,
                 controller: Controller | None, spec: SimulationSpec, solver: str | None, progress: bool,
                 plant: Any, fmu_log: Any, measure: str, client: Any, cross_check: Any,
-                procs: list[Any]) -> VerifyReport:
+                procs: list[Any], risk: RiskStage | None = None) -> VerifyReport:
     """The stages of :func:`run_verify`, with its running ``cross_check`` and the plant
     processes ``procs`` started for the Monte Carlo
     (:func:`~ftc_verify.simulation.isolated.plant_processes`; none on a cluster)."""
@@ -453,7 +489,6 @@ def _run_verify(system: FTCSystem, gamma: float | None, method: str, k_max: floa
 
     def stage(name: str, t0: float) -> None:
         seconds[name] = time.perf_counter() - t0
-
     def timed(name: str, run: Callable[[], tuple[Any, Check]]) -> Any:
         """``run()``'s finding; its check appended and its time recorded as ``name``."""
         t0 = time.perf_counter()
@@ -522,4 +557,4 @@ def _run_verify(system: FTCSystem, gamma: float | None, method: str, k_max: floa
     found_plant = timed("reference", lambda: _against_reference(system, controller, chain_paths, records, spec,
                                                                  plant, mc, fmu, measured, fault_only))
     return report(gamma_certified=gamma_cert, analysis=analysis, exact=tuple(exact), mc=mc, records=tuple(records),
-                  plant=found_plant)
+                  plant=found_plant, risk=_risk_check(risk, system, controller, plant, spec, client, checks, seconds))
