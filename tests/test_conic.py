@@ -8,7 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from ftc_verify.analysis import stability
+from ftc_verify.analysis.moments import stability
 from ftc_verify.analysis.closedloop import state_feedback_loop
 from ftc_verify.analysis.conic import Affine, Rows, affine_bmat, scalar_variable, solve_clarabel, svec_index, sym_variable
 from ftc_verify.analysis.lmi import block_specs, lyapunov_block
