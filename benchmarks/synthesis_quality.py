@@ -164,7 +164,8 @@ def planted_system(seed: int, k: int) -> tuple[FTCSystem, Controller, float, int
 
 def planted_rows(seed: int, k: int) -> dict:
     """Planted case ``k``: the planted gamma against ``synthesize_output_feedback``'s."""
-    from ftc_verify.synthesis.output_feedback import controller_blocks, synthesize_output_feedback
+    from ftc_verify.synthesis.of_blocks import controller_blocks
+    from ftc_verify.synthesis.output_feedback import synthesize_output_feedback
 
     system, ctrl, planted, rs = planted_system(seed, k)
     bound = 2.0 * max(float(np.linalg.norm(K, 2)) for K in controller_blocks(ctrl))

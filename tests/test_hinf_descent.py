@@ -16,7 +16,7 @@ from ftc_verify.controllers.controller import Controller
 from ftc_verify.model.system import FTCSystem
 from ftc_verify.synthesis.descent import accepted_gamma
 from ftc_verify.synthesis.hinf_descent import NominalGamma, hinf_route
-from ftc_verify.synthesis.output_feedback import controller_blocks
+from ftc_verify.synthesis.of_blocks import controller_blocks
 from ftc_verify.synthesis.results import SolverCalls, verify_controller
 
 CHAIN = dict(alpha=[[-0.5, 0.5], [1.0, -1.0]], beta_min=[[0.0, 2.0], [2.5, 0.0]], beta_max=[[0.0, 3.0], [3.5, 0.0]])

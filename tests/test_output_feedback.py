@@ -19,15 +19,8 @@ from ftc_verify.analysis.closedloop import closed_loop, gain_loop
 from ftc_verify.analysis.lmi_analysis import hinf_gamma
 from ftc_verify.model.files import load_system, save_system
 from ftc_verify.model.system import FTCSystem
-from ftc_verify.synthesis.output_feedback import (
-    augmented_system,
-    bounded_blocks,
-    ccl,
-    ccl_constraints,
-    controller_from_blocks,
-    observer_designs,
-    synthesize_output_feedback,
-)
+from ftc_verify.synthesis.of_blocks import augmented_system, bounded_blocks, controller_from_blocks, observer_designs
+from ftc_verify.synthesis.output_feedback import ccl, ccl_constraints, synthesize_output_feedback
 from ftc_verify.synthesis.hinf_descent import within_bound
 from ftc_verify.synthesis.results import SolverCalls
 from ftc_verify.synthesis.state_feedback import gain_step, synthesize

@@ -458,7 +458,7 @@ def _alternate(system: FTCSystem, par: Parametrisation, chosen: tuple[Controller
     gamma). Every iterate is certified by the core; the result only if the core certifies
     it below the start on the real system (``None`` otherwise), with what happened."""
     from ..analysis.closedloop import closed_loop
-    from .output_feedback import augmented_system, controller_blocks
+    from .of_blocks import augmented_system, controller_blocks
     from .state_feedback import descend, gain_step
 
     target = system if chosen[1].robust.certified else _nominal_system(system)

@@ -243,7 +243,7 @@ def hinf_route(system: FTCSystem, order: int, starts: Sequence[tuple[str, Contro
     one is certified (``budget_seconds``: :func:`minimise_gamma`'s). Returns ``(controller, report, history, message, rows)``; ``history``
     is ``[start's certified gamma, certified gamma]``."""
     from .descent import accepted_gamma
-    from .output_feedback import controller_blocks
+    from .of_blocks import controller_blocks
     from .results import verify_controller
 
     par = Parametrisation.build(system, order)

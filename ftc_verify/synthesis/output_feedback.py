@@ -9,7 +9,7 @@ of the true mode ``i``; ``C`` when the system gives none) and is
 with :math:`n_c = n`. With the barred matrices of :mod:`ftc_verify.analysis.closedloop`
 (the paper's Section V definitions, ``Cy`` in place of ``C`` in :math:`\bar C_i`) the loop
 is :math:`\bar A_{0i} + \bar B_{0i} \mathcal K_j \bar C_i`: static output feedback of the
-**augmented plant** :func:`augmented_system` (state :math:`(x, x_c)`, input
+**augmented plant** :func:`~ftc_verify.synthesis.of_blocks.augmented_system` (state :math:`(x, x_c)`, input
 :math:`(\dot x_c, u)`) through :math:`\bar C_i`. So every tool of state feedback applies to
 the augmented plant, and the closed loop is the one :func:`closed_loop` builds for the
 dynamic controller (same state order, same two uncertainty channels), on which the core
@@ -61,22 +61,21 @@ from typing import Any
 
 import numpy as np
 
-from ..analysis.closedloop import barred, closed_loop, gain_loop
+from ..analysis.closedloop import closed_loop, gain_loop
 from ..analysis.lmi import block_specs, lyapunov_block, projection, xy_block
 from ..analysis.lmi_analysis import hinf_gamma
 from ..controllers.controller import Controller
 from ..errors import SolverError, ValidationError
 from ..limits import check_memory, dense_generator_estimate
-from ..model.system import FTCSystem, Matrix, Mode
+from ..model.system import FTCSystem, Matrix
 from .descent import accepted_gamma, descent_route
 from .hinf_descent import hinf_route, within_bound
-from .starts import certify_start, lqr_gain
+from .of_blocks import augmented_system, bounded_blocks, controller_blocks, controller_from_blocks, observer_designs
+from .starts import certify_start
 from .results import SolverCalls, SynthesisResult, verify_controller
 from .state_feedback import descend, gain_step, synthesize
 
-__all__ = ["OF_METHODS", "augmented_system", "bounded_blocks", "controller_from_blocks", "controller_blocks",
-           "observer_designs",
-           "ccl_constraints", "ccl", "synthesize_output_feedback", "CCL_MAX_ITER", "CCL_TOL"]
+__all__ = ["OF_METHODS", "ccl_constraints", "ccl", "synthesize_output_feedback", "CCL_MAX_ITER", "CCL_TOL"]
 
 OF_METHODS = ("ccl", "observer", "vk", "descent", "hinf")
 #: Iteration limit of the cone complementarity linearisation.
@@ -84,69 +83,8 @@ CCL_MAX_ITER = 30
 #: CCL stops when ``sum(trace(P X)) - n_total + sum(lam eps - 1)`` is below this times
 #: ``n_total`` (and a controller step at those ``P`` is tried after every iteration).
 CCL_TOL = 1e-6
-#: Observer Riccati input weights (the scale search of the baseline).
-OBSERVER_SCALES = (1e-2, 1.0, 1e2)
 #: Gain bound of the baseline's second state-feedback design when none is given.
 OBSERVER_K_MAX = 30.0
-
-
-def augmented_system(system: FTCSystem, n_c: int | None = None) -> tuple[FTCSystem, list[Matrix]]:
-    """The augmented plant of the module docstring and the :math:`\\bar C_i` per true mode.
-
-    Its modes are ``A = A0bar``, ``B = B0bar``, ``C = C1bar``, ``D = Dbar`` and the two
-    channels ``(A1bar[:, :p1], A2bar[:q1])``, ``(A1bar[:, p1:], B2bar[q1:])``: state
-    feedback ``ubar = G xbar`` on it is the loop of
-    :func:`~ftc_verify.analysis.closedloop.closed_loop` when ``G = K_j Cbar_i``. ``n_c``: the
-    controller order (default ``n``)."""
-    n = system.dims[0] if n_c is None else n_c
-    modes, cbars = [], []
-    for md in system.modes:
-        bar = barred(md, md.measured, n)
-        entries: dict[str, Any] = dict(A=bar.A0bar, B=bar.B0bar, C=bar.C1bar, D=bar.Dbar)
-        if bar.A1bar is not None and bar.A2bar is not None and bar.B2bar is not None:
-            k = bar.split
-            qa = 0 if md.A2 is None else md.A2.shape[0]
-            if md.A1 is not None:
-                entries |= dict(A1=bar.A1bar[:, :k], A2=bar.A2bar[:qa])
-            if md.B1 is not None:
-                entries |= dict(B1=bar.A1bar[:, k:], B2=bar.B2bar[qa:])
-        modes.append(Mode(**entries))
-        cbars.append(bar.Cbar)
-    return FTCSystem(f"{system.name} (augmented)", tuple(modes), system.chain), cbars
-
-
-def controller_from_blocks(system: FTCSystem, blocks: list[Matrix], name: str) -> Controller:
-    """The dynamic controller whose FDI-mode entries are the blocks ``K_j`` (module docstring)."""
-    n = system.dims[0]
-    return Controller.dynamic([K[:n, :n] for K in blocks], [K[:n, n:] for K in blocks],
-                              [K[n:, :n] for K in blocks], [K[n:, n:] for K in blocks], name=name)
-
-
-def controller_blocks(controller: Controller) -> list[Matrix]:
-    """The blocks ``K_j = [[Ac_j, Bc_j], [Cc_j, Dc_j]]`` of ``controller``, one per entry
-    (the inverse of :func:`controller_from_blocks`)."""
-    return [np.block([[a, b], [c, d]]) for a, b, c, d in zip(controller.Ac, controller.Bc, controller.Cc,
-                                                              controller.Dc)]
-
-
-def observer_designs(system: FTCSystem, gains: list[Matrix]) -> list[tuple[str, Controller]]:
-    """The observer-based controllers of the module docstring for state-feedback ``gains``
-    (one per FDI mode), one per observer weight; none where the dual Riccati equation has
-    no stabilising solution."""
-    out = []
-    for rho in OBSERVER_SCALES:
-        blocks = []
-        for md, K in zip(system.modes, gains):
-            Cy = md.measured
-            Q = md.D @ md.D.T + 1e-2 * np.eye(md.n)
-            Kd = lqr_gain(md.A.T, Cy.T, Q, rho * np.eye(Cy.shape[0]))
-            if Kd is None:
-                break
-            L = Kd.T
-            blocks.append(np.block([[md.A + md.B @ K + L @ Cy, -L], [K, np.zeros((K.shape[0], Cy.shape[0]))]]))
-        else:
-            out.append((f"observer rho={rho:g}", controller_from_blocks(system, blocks, f"observer rho={rho:g}")))
-    return out
 
 
 def ccl_constraints(aug: FTCSystem, cbars: list[Matrix], P: list[Any], X: list[Any], lam: list[list[Any]],
@@ -317,22 +255,6 @@ def _controller_step(aug: FTCSystem, cbars: list[Matrix], P: list[Matrix], lam: 
         blocks.append(K)
         worst = max(worst, gj)
     return blocks, worst
-
-
-def bounded_blocks(blocks: list[Matrix], k_max: float | None) -> tuple[list[Matrix], bool]:
-    r"""Each block with :math:`\|K_j\|_2 > k_{max}` scaled onto the bound (the norm of
-    :func:`~ftc_verify.synthesis.hinf_descent.within_bound`, as the state-feedback starts
-    are scaled), so that the computed norm is at most ``k_max``; whether any was."""
-    if k_max is None:
-        return list(blocks), False
-    out, scaled = [], False
-    for K in blocks:
-        norm = float(np.linalg.norm(K, 2))
-        while norm > k_max:
-            K, scaled = K * (k_max / norm * (1.0 - 1e-12)), True
-            norm = float(np.linalg.norm(K, 2))
-        out.append(K)
-    return out, scaled
 
 
 def _observer_rows(system: FTCSystem, k_max: float | None, solver: str, calls: SolverCalls) -> list[dict[str, Any]]:

@@ -82,6 +82,41 @@ def xy_solve(system: FTCSystem, kind: str, gamma: float | None, calls: Any, k_ma
     return xy_solver(system, kind, calls, k_max)(gamma)
 
 
+def _xy_constraints(system: FTCSystem, kind: str, variables: tuple[Any, Any, Any, Any], gval: Any, margin: Any,
+                    k_max: float | None) -> list[Any]:
+    """The constraints of :func:`xy_solver` at ``g = gval`` with the margin ``margin``."""
+    import cvxpy as cp
+
+    Xv, Yv, eps, dlt = variables
+    n, nu = system.dims[0], system.dims[1]
+    common = kind == "common"
+    cons = []
+    seen: set[int] = set()
+    probe = gain_loop(system, [np.zeros((nu, n))] * system.m, "probe")
+    for spec in block_specs(probe):
+        if common and spec.true in seen:
+            continue
+        seen.add(spec.true)
+        mode = system.modes[spec.true]
+        q_row = None if common else spec.q_row
+        M = xy_block(mode, Xv, spec.s, Yv[spec.s], eps[spec.s], dlt[spec.s], gval, q_row, cp.bmat)
+        if kind == "projected":
+            coupled = sum(1 for k, q in enumerate(spec.q_row) if k != spec.s and q > 0)
+            N = projection(mode, coupled)
+            if N.shape[1] == 0:
+                continue
+            M = N.T @ M @ N
+        M = 0.5 * (M + M.T)
+        cons.append(M << -margin * np.eye(M.shape[0]))
+    for X in {id(x): x for x in Xv}.values():
+        cons.append(X >> margin * np.eye(n))
+    if k_max is not None and kind != "projected":
+        mu = cp.Variable(nonneg=True)
+        for X, Y in {id(x): (x, y) for x, y in zip(Xv, Yv)}.values():
+            cons += [X >> mu * np.eye(n), gain_bound(Y, k_max, mu)]
+    return cons
+
+
 def xy_solver(system: FTCSystem, kind: str, calls: Any,
               k_max: float | None) -> Callable[[float | None], dict[str, Any] | None]:
     """The (X, Y) inequality of :func:`~ftc_verify.analysis.lmi.xy_block`, built once and
@@ -105,8 +140,7 @@ def xy_solver(system: FTCSystem, kind: str, calls: Any,
     import cvxpy as cp
 
     S = system.chain.n_states
-    n, nu = system.dims[0], system.dims[1]
-    common = kind == "common"
+    n = system.dims[0]
     Xv, Yv = _xy_variables(system, kind)
     eps = [cp.Variable(nonneg=True) for _ in range(S)]
     dlt = [cp.Variable(nonneg=True) for _ in range(S)]
@@ -115,31 +149,7 @@ def xy_solver(system: FTCSystem, kind: str, calls: Any,
     g_par = cp.Parameter(nonneg=True)
 
     def constraints(gval: Any, margin: Any) -> list[Any]:
-        cons = []
-        seen: set[int] = set()
-        probe = gain_loop(system, [np.zeros((nu, n))] * system.m, "probe")
-        for spec in block_specs(probe):
-            if common and spec.true in seen:
-                continue
-            seen.add(spec.true)
-            mode = system.modes[spec.true]
-            q_row = None if common else spec.q_row
-            M = xy_block(mode, Xv, spec.s, Yv[spec.s], eps[spec.s], dlt[spec.s], gval, q_row, cp.bmat)
-            if kind == "projected":
-                coupled = sum(1 for k, q in enumerate(spec.q_row) if k != spec.s and q > 0)
-                N = projection(mode, coupled)
-                if N.shape[1] == 0:
-                    continue
-                M = N.T @ M @ N
-            M = 0.5 * (M + M.T)
-            cons.append(M << -margin * np.eye(M.shape[0]))
-        for X in {id(x): x for x in Xv}.values():
-            cons.append(X >> margin * np.eye(n))
-        if k_max is not None and kind != "projected":
-            mu = cp.Variable(nonneg=True)
-            for X, Y in {id(x): (x, y) for x, y in zip(Xv, Yv)}.values():
-                cons += [X >> mu * np.eye(n), gain_bound(Y, k_max, mu)]
-        return cons
+        return _xy_constraints(system, kind, (Xv, Yv, eps, dlt), gval, margin, k_max)
 
     # The margin is capped (t <= 1) to keep the problem bounded; once the cap binds, the
     # maximiser is not unique and an interior-point method drifts to huge X, eps, delta
