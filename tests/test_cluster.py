@@ -62,7 +62,6 @@ def scheduler() -> Iterator[str]:
         yield cluster.scheduler_address
 
 
-@pytest.mark.xdist_group("scheduler")
 def test_cli_scheduler_address_equals_serial(scheduler: str) -> None:
     args = ["--backend", "reference", "--paths", "40", "--horizon", "5", "--seed", "6", "--delta", "random", "--json"]
     serial = _cli(*args)
@@ -90,7 +89,6 @@ def _without_timings(value: object) -> object:
 
 
 @pytest.mark.slow(13)  # seconds measured on 2 busy cores: scheduled first
-@pytest.mark.xdist_group("scheduler")
 def test_verify_serial_two_workers_and_scheduler_give_identical_reports(tmp_path: Path, scheduler: str) -> None:
     """The FMU Monte Carlo of ``verify`` (random Delta per segment, so every batch needs
     its generator state) serially, on 2 local workers and on an existing scheduler:
