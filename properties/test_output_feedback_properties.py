@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import assume, event, given, note, settings
+from hypothesis import assume, event, given, note
 from hypothesis import strategies as st
 
 from ftc_verify.analysis.closedloop import closed_loop
@@ -23,13 +23,14 @@ from ftc_verify.simulation.reference import simulate_reference
 from ftc_verify.simulation.supervisor import simulate_fmu
 from ftc_verify.synthesis.output_feedback import synthesize_output_feedback
 from ftc_verify.testing import systems
+from ftc_verify.testing.profiles import capped
 from ftc_verify.analysis.moments.energy import exact_energy
 
 from .replay import replay_on_failure
 
 
-@pytest.mark.slow(58)  # seconds measured on 2 busy cores: scheduled first
-@settings(max_examples=3, deadline=None)
+@pytest.mark.slow(40)  # seconds measured on 2 busy cores: scheduled first
+@capped(2, 20)  # ci: 2 examples of 14-27 s each (a state-feedback synthesis inside each)
 @given(system=systems(n=2, m=2, nu=(1, 2), uncertain=None, measured_outputs=(1, 2)),
        method=st.sampled_from(["observer", "vk", "ccl"]))
 def test_reported_output_feedback_is_certified_bounded_and_simulates_alike(system: FTCSystem, method: str) -> None:
@@ -60,8 +61,8 @@ def test_reported_output_feedback_is_certified_bounded_and_simulates_alike(syste
             assert np.max(np.abs(za - zb)) <= 1e-8 * max(1e-300, float(np.max(np.abs(zb))))
 
 
-@pytest.mark.slow(40)  # seconds measured on 2 busy cores: scheduled first
-@settings(max_examples=3, deadline=None)
+@pytest.mark.slow(27)  # seconds measured on 2 busy cores: scheduled first
+@capped(2, 20)  # ci: 2 examples (a descent each)
 @given(system=systems(n=2, m=2, nu=(1, 2), uncertain=None, measured_outputs=(1, 2)),
        order=st.sampled_from([0, 1, 2]))
 def test_descent_reports_only_verified_controllers_never_worse_than_its_start(system: FTCSystem, order: int) -> None:

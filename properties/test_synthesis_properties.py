@@ -19,6 +19,7 @@ from ftc_verify.analysis.lmi import block_specs, check_certificate, xy_block
 from ftc_verify.model.system import FTCSystem, JointChain
 from ftc_verify.synthesis.state_feedback import synthesize
 from ftc_verify.testing import systems
+from ftc_verify.testing.profiles import capped
 
 from .replay import replay_on_failure
 
@@ -158,8 +159,8 @@ def textbook_lqr(system: FTCSystem) -> list[np.ndarray] | None:
     return gains
 
 
-@pytest.mark.slow(32)  # seconds measured on 2 busy cores: scheduled first
-@settings(max_examples=4)
+@pytest.mark.slow(24)  # seconds measured on 2 busy cores: scheduled first
+@capped(3, 30)  # ci: 3 examples (an iterative synthesis, 8 starts, each)
 @given(system=systems(n=(2, 3), m=2, uncertain=None))
 def test_iterative_never_loses_to_textbook_lqr(system: FTCSystem) -> None:
     """Where the textbook per-mode LQR gains are certified by the core (spectral test and

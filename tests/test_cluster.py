@@ -12,6 +12,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -52,13 +53,20 @@ def test_serial_and_two_workers_give_identical_numbers() -> None:
     np.testing.assert_array_equal(spread.w_norm, serial.w_norm)
 
 
-def test_cli_scheduler_address_equals_serial() -> None:
+@pytest.fixture(scope="module")
+def scheduler() -> Iterator[str]:
+    """The address of an existing 2-worker cluster, started once for the tests that reach
+    it by ``--scheduler`` (each command connects as a new client)."""
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+                                  silence_logs=logging.ERROR) as cluster:
+        yield cluster.scheduler_address
+
+
+def test_cli_scheduler_address_equals_serial(scheduler: str) -> None:
     args = ["--backend", "reference", "--paths", "40", "--horizon", "5", "--seed", "6", "--delta", "random", "--json"]
     serial = _cli(*args)
     assert serial.returncode == 0, serial.stderr
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
-                                  silence_logs=logging.ERROR) as cluster:
-        remote = _cli(*args, "--scheduler", cluster.scheduler_address)
+    remote = _cli(*args, "--scheduler", scheduler)
     assert remote.returncode == 0, remote.stderr
     a, b = json.loads(serial.stdout), json.loads(remote.stdout)
     assert a["y_norm"] == b["y_norm"] and a["w_norm"] == b["w_norm"] and a["switches"] == b["switches"]
@@ -81,15 +89,13 @@ def _without_timings(value: object) -> object:
 
 
 @pytest.mark.slow(13)  # seconds measured on 2 busy cores: scheduled first
-def test_verify_serial_two_workers_and_scheduler_give_identical_reports(tmp_path: Path) -> None:
+def test_verify_serial_two_workers_and_scheduler_give_identical_reports(tmp_path: Path, scheduler: str) -> None:
     """The FMU Monte Carlo of ``verify`` (random Delta per segment, so every batch needs
     its generator state) serially, on 2 local workers and on an existing scheduler:
     report.json identical apart from timings."""
     serial, a = _verify(tmp_path / "serial")
     two, b = _verify(tmp_path / "two", "--workers", "2")
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
-                                  silence_logs=logging.ERROR) as cluster:
-        remote, c = _verify(tmp_path / "remote", "--scheduler", cluster.scheduler_address)
+    remote, c = _verify(tmp_path / "remote", "--scheduler", scheduler)
     for run in (serial, two, remote):
         assert run.returncode == 0, run.stderr
     assert load_system(PAPER).uncertain  # so Delta is drawn per segment and the batches need their states

@@ -119,14 +119,19 @@ def test_bad_arguments() -> None:
         worst_case_disturbance(PAPER_LOOP, beta=PAPER.chain.midpoint(), pieces=0)
 
 
-@pytest.mark.slow(25)  # seconds measured on 2 busy cores: scheduled first
-def test_exact_energy_against_100k_path_monte_carlo() -> None:
+@pytest.mark.slow(14)  # seconds measured on 2 busy cores: scheduled first
+def test_exact_energy_against_20k_path_monte_carlo() -> None:
     """Paper example, paper's gains, Delta = 0, beta fixed at the midpoint, horizon 15.
 
-    The simulator holds u over each step, a first-order bias (0.39 % at h = 0.01, measured);
-    Richardson extrapolation 2 E(h/2) - E(h) on common paths cancels it, leaving O(h^2).
-    The exact value must lie in the two-sided Student-t interval at alpha = 1e-6 per side
-    (false-failure probability about 2e-6 under the CLT; fixed seed)."""
+    The simulator holds u over each step, a first-order bias (0.2-0.4 % at h = 0.01,
+    measured); Richardson extrapolation 2 E(h/2) - E(h) on common paths cancels it, leaving
+    O(h^2). The exact value must lie in the two-sided Student-t interval at alpha = 1e-6
+    per side (false-failure probability about 2e-6 under the CLT; fixed seed).
+
+    20,000 paths (was 100,000: 5x the cost for an interval sqrt(5) narrower). The
+    sample's relative standard error is 0.36 % (measured), so the interval (+-4.9 standard
+    errors) is about 3.5 % of the exact value wide; it must be under 7 % (twice that: the
+    same margin the 100,000-path test had with 1.5 % against 3 %), so it is informative."""
     from ftc_verify.verification.montecarlo import estimate
     from ftc_verify.simulation.paths import sample_paths
     from ftc_verify.simulation.reference import energies_reference
@@ -134,13 +139,13 @@ def test_exact_energy_against_100k_path_monte_carlo() -> None:
     gains = load_controller(ROOT / "examples" / "paper_gains.toml")
     beta, T = PAPER.chain.midpoint(), 15.0
     exact = exact_energy(PAPER_LOOP, beta=beta, horizon=T)
-    paths = sample_paths(PAPER.chain, T, 100_000, 20261122, beta=beta)
+    paths = sample_paths(PAPER.chain, T, 20_000, 20261122, beta=beta)
     y_coarse, w = energies_reference(PAPER, gains, paths, step=0.01)
     y_fine, _ = energies_reference(PAPER, gains, paths, step=0.005)
     est = estimate(2.0 * y_fine - y_coarse, w, alpha=1e-6, seed=20261122)
     lo, hi = est.lower_bound * est.w_energy, est.upper_bound * est.w_energy
     assert lo <= exact.y_energy <= hi
-    assert (hi - lo) / exact.y_energy < 0.03  # the interval is informative, not vacuous
+    assert (hi - lo) / exact.y_energy < 0.07  # the interval is informative, not vacuous
 
 
 def _exact_in_monte_carlo_interval(system, controller, *, horizon, paths, step, seed) -> tuple[float, float, float]:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +23,7 @@ from ftc_verify.model.system import FTCSystem
 from ftc_verify.synthesis.of_blocks import augmented_system, bounded_blocks, controller_from_blocks, observer_designs
 from ftc_verify.synthesis.output_feedback import ccl, ccl_constraints, synthesize_output_feedback
 from ftc_verify.synthesis.hinf_descent import within_bound
-from ftc_verify.synthesis.results import SolverCalls
+from ftc_verify.synthesis.results import SolverCalls, SynthesisResult
 from ftc_verify.synthesis.state_feedback import gain_step, synthesize
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -46,6 +47,13 @@ def certified_observer() -> tuple[FTCSystem, object]:
     return system, ctrl
 
 
+@pytest.fixture(scope="module")
+def observer_certificate(certified_observer):
+    """``certified_observer`` with its robust certificate (one solve for the tests that read it)."""
+    system, ctrl = certified_observer
+    return system, ctrl, hinf_gamma(closed_loop(system, ctrl), robust=True, solver="clarabel")
+
+
 def test_augmented_plant_reproduces_the_dynamic_closed_loop() -> None:
     system = load_system(PAPER)
     rng = np.random.default_rng(4)
@@ -65,12 +73,11 @@ def test_augmented_plant_reproduces_the_dynamic_closed_loop() -> None:
 
 
 @pytest.mark.slow(7)  # seconds measured on 2 busy cores: scheduled first
-def test_theorem_5_1_conditions_hold_for_a_certified_controller(certified_observer) -> None:
+def test_theorem_5_1_conditions_hold_for_a_certified_controller(observer_certificate) -> None:
     """Necessity, checked with numbers: the robust certificate ``(P, lambda, gamma)`` of a
     certified controller satisfies (22) with ``P, lambda`` and (23) with ``X = P^-1``,
     ``eps = 1/lambda``: both are projections of its negative definite Lemma 4.1 blocks."""
-    system, ctrl = certified_observer
-    res = hinf_gamma(closed_loop(system, ctrl), robust=True, solver="clarabel")
+    system, _, res = observer_certificate
     assert res.certified and res.P is not None and res.multipliers is not None
     aug, cbars = augmented_system(system)
     P = [0.5 * (p + p.T) for p in res.P]
@@ -85,9 +92,8 @@ def test_theorem_5_1_conditions_hold_for_a_certified_controller(certified_observ
     assert min(worst) >= -1e-9, min(worst)  # every constraint "expr >= 0" holds
 
 
-def test_controller_step_recovers_the_level_of_a_certified_controller(certified_observer) -> None:
-    system, ctrl = certified_observer
-    res = hinf_gamma(closed_loop(system, ctrl), robust=True, solver="clarabel")
+def test_controller_step_recovers_the_level_of_a_certified_controller(observer_certificate) -> None:
+    system, _, res = observer_certificate
     aug, cbars = augmented_system(system)
     lam = [list(r) for r in res.multipliers]
     calls = SolverCalls("clarabel")
@@ -112,11 +118,25 @@ def test_ccl_reports_its_stopping_reason() -> None:
     assert blocks is None and len(history) == 1 and ("iteration limit 1" in msg or "failed" in msg)
 
 
-@pytest.mark.slow(28)  # seconds measured on 2 busy cores: scheduled first
-def test_three_methods_on_the_two_output_plant() -> None:
+@pytest.fixture(scope="module")
+def two_output_design() -> Callable[[str], SynthesisResult]:
+    """The design of the two-output plant by a method under ``k_max = 30``, computed once
+    per module and test process for the tests that check it (the observer's is issue
+    34's); on demand, so a process that needs only the observer design computes only it."""
     system = paper_two_outputs()
-    found = {m: synthesize_output_feedback(system, method=m, k_max=30.0, solver="clarabel")
-             for m in ("observer", "vk", "ccl")}
+    cache: dict[str, SynthesisResult] = {}
+
+    def design(method: str) -> SynthesisResult:
+        if method not in cache:
+            cache[method] = synthesize_output_feedback(system, method=method, k_max=30.0, solver="clarabel")
+        return cache[method]
+
+    return design
+
+
+@pytest.mark.slow(28)  # seconds measured on 2 busy cores: scheduled first
+def test_three_methods_on_the_two_output_plant(two_output_design) -> None:
+    found = {m: two_output_design(m) for m in ("observer", "vk", "ccl")}
     for method, res in found.items():
         assert res.certified and res.gamma_certified is not None, (method, res.message)
         assert res.report is not None and res.report.mss.spectral_abscissa < 0
@@ -186,11 +206,10 @@ def test_undetectable_output_is_diagnosed() -> None:
     assert diagnose(s, [], [], None, output_feedback=True)["reason"] == "no certified controller"
 
 
-def test_ccl_warm_start_from_a_certificate(certified_observer) -> None:
+def test_ccl_warm_start_from_a_certificate(observer_certificate) -> None:
     """CCL started from a certified controller's certificate at its own level: the start
     point has residual ~0 and the controller step succeeds at once."""
-    system, ctrl = certified_observer
-    res = hinf_gamma(closed_loop(system, ctrl), robust=True, solver="clarabel")
+    system, _, res = observer_certificate
     blocks, history, msg, reached = ccl(system, res.gamma * 1.01, SolverCalls("clarabel"), None,
                                         start=(res.P, res.multipliers))
     assert blocks is not None and len(history) == 1 and abs(history[0]) < 1e-6, msg
@@ -211,14 +230,13 @@ def test_bounded_blocks_meet_the_bound_in_the_norm_the_checks_use() -> None:
     assert bounded_blocks(blocks, None) == (blocks, False)
 
 
-@pytest.mark.slow(15)  # seconds measured on 2 busy cores: scheduled first
-def test_observer_route_honours_the_gain_bound() -> None:
+def test_observer_route_honours_the_gain_bound(two_output_design) -> None:
     """Issue 34: the observer design's blocks ``[[Ac, Bc], [Cc, Dc]]`` reached norms 40 and 36
     under ``--k-max 30`` on this plant (only its state-feedback gains were bounded); every
     controller returned now honours the bound (scaled onto it: certified gamma 9.39 here),
     and it is the controller certified."""
     system = paper_two_outputs()
-    res = synthesize_output_feedback(system, method="observer", k_max=30.0, solver="clarabel")
+    res = two_output_design("observer")
     assert res.certified, res.message
     assert within_bound(res.controller, 30.0), [np.linalg.norm(K, 2) for K in res.gains]
     again = hinf_gamma(closed_loop(system, res.controller), robust=True, solver="clarabel")

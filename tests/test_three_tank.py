@@ -68,17 +68,24 @@ def three_tank_fmu(cache: Path, tmp_path_factory: pytest.TempPathFactory) -> Pat
     return build_modelica_fmu(EXAMPLE / "ThreeTank.mo", dest=tmp_path_factory.mktemp("tt") / "ThreeTank.fmu")
 
 
-@pytest.mark.parametrize("fault", FAULTS, ids=["nominal", "pump", "leak", "clog"])
-def test_mass_balance(cache: Path, tmp_path: Path, fault: dict[str, float]) -> None:
+@pytest.fixture(scope="module")
+def balance_fmu(cache: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The model with two accumulator states added (integrated inflow and outflow), built
+    once for the four fault modes (a fault is a start value, not a model change)."""
     text = (EXAMPLE / "ThreeTank.mo").read_text()
     text = text.replace("equation\n", '  Real V_in(start = 0, fixed = true, unit = "m3") "integrated inflow";\n'
                         '  Real V_out(start = 0, fixed = true, unit = "m3") "integrated outflow";\nequation\n'
                         "  der(V_in) = f_pump1*q1 + q2 + q_unit*q_d;\n  der(V_out) = q20 + q_leak;\n", 1)
     assert "der(V_out)" in text
-    mo = tmp_path / "ThreeTank.mo"
+    folder = tmp_path_factory.mktemp("tt-balance")
+    mo = folder / "ThreeTank.mo"
     mo.write_text(text)
-    fmu = build_modelica_fmu(mo, dest=tmp_path / "Balance.fmu")
-    res = simulate_fmu(str(fmu), fmi_type="CoSimulation", stop_time=60.0, output_interval=0.5,
+    return build_modelica_fmu(mo, dest=folder / "Balance.fmu")
+
+
+@pytest.mark.parametrize("fault", FAULTS, ids=["nominal", "pump", "leak", "clog"])
+def test_mass_balance(balance_fmu: Path, fault: dict[str, float]) -> None:
+    res = simulate_fmu(str(balance_fmu), fmi_type="CoSimulation", stop_time=60.0, output_interval=0.5,
                        relative_tolerance=1e-12, input=_steps(SIGNAL), start_values=fault,
                        output=["h1", "h2", "h3", "V_in", "V_out"])
     stored = AREA * (res["h1"] + res["h2"] + res["h3"])
@@ -149,8 +156,7 @@ def test_directional_derivatives_equal_finite_differences(three_tank_fmu: Path, 
         fmu.freeInstance()
 
 
-@pytest.mark.slow(27)  # seconds measured on 2 busy cores: scheduled first
-@pytest.mark.slow(125)
+@pytest.mark.slow(125)  # seconds measured on 2 busy cores: scheduled first
 def test_tutorial_recipe_passes_with_reduced_paths(tmp_path: Path) -> None:
     """Every command of ``docs/tutorials/three-tank.md`` (build-fmu -> linearize --trim ->
     synthesize -> verify --plant --measure incremental, state and output feedback), run

@@ -9,6 +9,9 @@ object usable as a decorator, and :func:`load_profile` makes one the session def
   ``data_too_large`` and ``filter_too_much`` suppressed (the strategies reject draws
   whose Riccati equations fail or whose loops miss a stability margin).
 * ``thorough``: the same with 200 randomized examples; use it to hunt for counterexamples.
+
+A property whose every example costs seconds (a synthesis per example) is capped in
+``ci`` with :func:`capped` (and given its own, smaller count in ``thorough``).
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ from typing import Any
 
 from hypothesis import HealthCheck, settings
 
-__all__ = ["PROFILES", "PROFILE_ENV", "register_profiles", "profile", "load_profile"]
+__all__ = ["PROFILES", "PROFILE_ENV", "register_profiles", "profile", "load_profile", "capped"]
 
 #: Name of each profile and the options that differ between them.
 PROFILES: dict[str, dict[str, Any]] = {
@@ -128,3 +131,47 @@ def load_profile(name: str | None = None) -> str:
     register_profiles()
     settings.load_profile(chosen)
     return chosen
+
+
+def capped(ci_examples: int, thorough_examples: int | None = None) -> settings:
+    """The loaded profile's settings, with at most ``ci_examples`` examples when it is
+    derandomized (``ci``), and ``thorough_examples`` (default: its own count) when it is
+    randomized (``thorough``).
+
+    For properties dominated by a few expensive examples (a synthesis each, seconds to
+    tens of seconds): the ``ci`` run checks the property on that many fixed examples, the
+    hunt with ``thorough`` on many more. Read when the decorator is applied (test modules
+    are imported after ``--hypothesis-profile`` is loaded).
+
+    Parameters
+    ----------
+    ci_examples : int
+        Examples per property under a derandomized profile (at least 1).
+    thorough_examples : int, optional
+        Examples per property under a randomized profile (at least 1).
+
+    Returns
+    -------
+    hypothesis.settings
+
+    Raises
+    ------
+    ValueError
+        For a count below 1.
+
+    Examples
+    --------
+    >>> from hypothesis import settings
+    >>> loaded = settings.default
+    >>> capped(2, 20).max_examples == (min(2, loaded.max_examples) if loaded.derandomize else 20)
+    True
+    """
+    for name, count in (("ci_examples", ci_examples), ("thorough_examples", thorough_examples)):
+        if count is not None and count < 1:
+            raise ValueError(f"{name}: must be at least 1, got {count!r}")
+    base = settings.default
+    if base is None:  # pragma: no cover - hypothesis always has a default profile
+        base = settings()
+    if not base.derandomize:
+        return settings(base, max_examples=base.max_examples if thorough_examples is None else thorough_examples)
+    return settings(base, max_examples=min(ci_examples, base.max_examples))
