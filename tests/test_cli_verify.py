@@ -72,7 +72,7 @@ def test_verify_given_gains_writes_report(tmp_path: Path) -> None:
     # the loop that runs (h = 0.01): its h_max, and its exact energy inside the simulated interval
     assert 0.08 < d["sampled"]["h_max"] < 0.09 and d["sampled"]["verdict"] == "stable"
     smc = d["sampled_mc"]
-    assert smc["paths"] == 30 and smc["seed"] == [3, 31] and smc["interval"][0] <= smc["exact"] <= smc["interval"][1]
+    assert smc["paths"] == 1000 and smc["decided"] and smc["seed"] == [3, 31] and smc["interval"][0] <= smc["exact"] <= smc["interval"][1]
     assert any(c["name"].startswith("Monte Carlo vs exact (sampled loop") for c in d["checks"])
     md = (out / "report.md").read_text()
     assert "Verdict: PASS" in md

@@ -156,3 +156,19 @@ def test_verify_stage_compares_the_simulated_mean_with_the_exact_value_two_sided
     monkeypatch.setattr(vec, "held_maps", rereading)
     _, check = sampled_mc_stage(system, controller, H, 6.0, 2000, 12, object())  # type: ignore[arg-type]
     assert not check.ok, check.detail
+
+
+def test_verify_stage_does_not_decide_when_too_few_paths_jump(fast: tuple[FTCSystem, Controller]) -> None:
+    """With faults so rare that fewer than ``MC_MIN_JUMPED`` of the 1000 paths jump within
+    the horizon, the paths' spread misses the jumps' share of the mean: the stage reports
+    the numbers as not decided instead of a Student-t verdict with a false stated level."""
+    from ftc_verify.verification.sampled_stage import MC_MIN_JUMPED, MC_MIN_PATHS, sampled_mc_stage
+
+    system, controller = fast
+    rare = FTCSystem.from_arrays(name="rare", modes=[{"A": md.A, "B": md.B, "C": md.C, "D": md.D} for md in system.modes],
+                                 alpha=[[-4e-5, 4e-5], [4e-5, -4e-5]], beta_min=[[0, 8.0], [8.0, 0]],
+                                 beta_max=[[0, 8.0], [8.0, 0]])
+    found, check = sampled_mc_stage(rare, controller, H, 6.0, 10, 12, object())  # type: ignore[arg-type]
+    assert found is not None and found["paths"] == MC_MIN_PATHS
+    assert found["jumped"] < MC_MIN_JUMPED and not found["decided"]
+    assert check.ok and check.detail.startswith("not compared:"), check.detail
