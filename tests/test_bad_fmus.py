@@ -426,20 +426,26 @@ def stub_fmu(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def stub_exact(path: ChainPath, step: float, gains, eff, x0: float, a: float = -1.0):
-    """The stub's loop by hand: grid, sample-and-hold u = K[l] x, w = paper disturbance."""
-    from ftc_verify.simulation.paths import communication_grid
+    """The stub's loop by hand, purely periodic: at the control samples (the multiples of
+    ``step``, :func:`~ftc_verify.simulation.paths.sample_points`) ``u = K[l] x`` and the
+    paper disturbance ``w`` are taken and held over the grid's pieces (jump times inside a
+    period change only the plant's mode)."""
+    from ftc_verify.simulation.paths import communication_grid, sample_points
 
     t, true, fdi = communication_grid(path, step)
+    sample = sample_points(path, step, t)
     w = np.exp(-0.1 * t) * np.sin(t)
     x = np.empty(len(t))
     u = np.empty(len(t))
     x[0] = x0
+    u_held = w_held = 0.0
     for k in range(len(t)):
-        kk = min(k, len(t) - 2)
-        u[k] = gains[fdi[kk]] * x[k]
+        if sample[k]:
+            u_held, w_held = gains[fdi[min(k, len(t) - 2)]] * x[k], w[k]
+        u[k] = u_held
         if k + 1 < len(t):
             h = t[k + 1] - t[k]
-            x[k + 1] = math.exp(a * h) * x[k] + math.expm1(a * h) / a * (eff[true[k]] * u[k] + w[k])
+            x[k + 1] = math.exp(a * h) * x[k] + math.expm1(a * h) / a * (eff[true[k]] * u_held + w_held)
     return t, x, u, x + 0.5 * u
 
 
