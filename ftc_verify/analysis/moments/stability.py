@@ -55,6 +55,8 @@ __all__ = [
     "abscissa_near",
     "SHIFT_TEST_MIN",
     "SHIFT_TEST_LIMIT",
+    "SHIFT_GMRES_RTOL",
+    "SHIFT_GMRES_RESTARTS",
 ]
 
 
