@@ -125,7 +125,7 @@ def test_unknown_route_is_refused(paper_loop) -> None:
 def test_large_stacks_of_the_verdicts_go_through_gmres(monkeypatch: pytest.MonkeyPatch) -> None:
     """verdict.float_stack_solution above the dense limit (forced to 0 here): the same
     stack as the direct solve of stability.lyapunov_stack_solution."""
-    from ftc_verify.analysis import stability
+    from ftc_verify.analysis.moments import stability
     from ftc_verify.analysis.verdict import float_stack_solution
 
     rng = np.random.default_rng(8)
@@ -139,7 +139,7 @@ def test_large_stacks_of_the_verdicts_go_through_gmres(monkeypatch: pytest.Monke
 
 
 def test_shifted_stack_solution_solves_the_shifted_equation(monkeypatch: pytest.MonkeyPatch) -> None:
-    from ftc_verify.analysis import stability
+    from ftc_verify.analysis.moments import stability
     from ftc_verify.analysis.verdict import float_stack_solution
 
     rng = np.random.default_rng(9)
