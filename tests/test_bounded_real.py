@@ -166,3 +166,48 @@ def test_riccati_route_with_the_fdi_models(drawn) -> None:
         assert riccati.certificate is not None and riccati.certificate.ok
         if sdp.certified:
             assert riccati.gamma >= sdp.gamma * (1 - 1e-3)
+
+
+def test_one_policy_iteration_serves_the_lower_bounds(paper_loop) -> None:
+    """lower_bound.worst_case_feedback is bounded_real_solution at one rate vector (no
+    envelope correction) with a dense solver: the same feedback as the default GMRES/dense
+    route, a solution of the coupled Riccati equations, and no solution below the gain."""
+    from ftc_verify.analysis.lower_bound import float_gain, worst_case_feedback
+
+    loop = paper_loop.nominal()
+    Q = loop.chain.generator(loop.chain.midpoint())
+    point = RateEnvelope.at(Q)
+    assert np.array_equal(point.Q, Q)
+    assert all(not np.any(e) for e in point.correction([np.eye(loop.n)] * len(loop.A)))
+    found = float_gain(loop.A, loop.Bw, loop.Cz, Q)
+    assert found is not None
+    gain = found[0]
+    gamma = 1.2 * gain
+    F = worst_case_feedback(loop.A, loop.Bw, loop.Cz, Q, gamma)
+    solved = bounded_real.bounded_real_solution(loop.A, loop.Bw, loop.Cz, point, gamma)
+    assert F is not None and solved is not None
+    P, F_default = solved
+    for s in range(len(loop.A)):
+        assert np.allclose(F[s], F_default[s], rtol=1e-7, atol=1e-9)
+        residual = (loop.A[s].T @ P[s] + P[s] @ loop.A[s] + sum(Q[s, t] * P[t] for t in range(len(P)))
+                    + loop.Cz[s].T @ loop.Cz[s] + P[s] @ loop.Bw[s] @ loop.Bw[s].T @ P[s] / gamma**2)
+        assert np.abs(residual).max() < 1e-7 * max(1.0, np.abs(P[s]).max())
+    assert worst_case_feedback(loop.A, loop.Bw, loop.Cz, Q, 0.99 * gain) is None
+
+
+def test_memory_check_estimates_the_route_that_runs(paper_loop, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A limit between the Riccati route's estimate and the SDP's: refused while the SDP
+    would run, accepted when the Riccati candidate comes first (no uncertainty channels)."""
+    from ftc_verify.errors import MemoryLimitError
+
+    loop = paper_loop.nominal()
+    riccati, sdp = lmi_analysis.riccati_memory_estimate(loop), lmi_analysis.lmi_memory_estimate(loop, robust=False)
+    assert riccati < sdp
+    monkeypatch.setenv("FTC_VERIFY_MEMORY_LIMIT", str(int(0.5 * (riccati + sdp))))
+    with pytest.raises(MemoryLimitError):
+        lmi_analysis.check_lmi_memory(loop)
+    monkeypatch.setattr(lmi_analysis, "RICCATI_FIRST_SIZE", 0)
+    lmi_analysis.check_lmi_memory(loop)
+    monkeypatch.setenv("FTC_VERIFY_MEMORY_LIMIT", str(int(0.5 * riccati)))
+    with pytest.raises(MemoryLimitError):
+        lmi_analysis.check_lmi_memory(loop)

@@ -232,3 +232,24 @@ def test_greedy_vertex_search_respects_budget(make_scalar_system, budget):
     assert res.vertices_evaluated <= budget  # "the same budget"
     assert res.spectral_abscissa <= full.spectral_abscissa + 1e-12  # a lower bound of the maximum
     assert spectral_abscissa(loop, res.worst_beta) == pytest.approx(res.spectral_abscissa, abs=1e-12)
+
+
+def test_shift_test_above_the_dense_limit_goes_through_gmres(paper_loop, monkeypatch):
+    """abscissa_below by GMRES (the dense limit forced to 0): shown below a level above the
+    abscissa, never shown below a level under it (the check after the solve decides)."""
+    from ftc_verify.analysis import bounded_real
+    from ftc_verify.analysis.moments import stability
+
+    nominal = paper_loop.nominal()
+    ch = nominal.chain
+    betas = [ch.rate_min, ch.rate_max]
+    mus = [spectral_abscissa(nominal, b) for b in betas]
+    calls = []
+    real = bounded_real.coupled_lyapunov
+    monkeypatch.setattr(bounded_real, "coupled_lyapunov", lambda *a, **k: calls.append(1) or real(*a, **k))
+    monkeypatch.setattr(stability, "DENSE_LIMIT", 0)
+    monkeypatch.setattr(bounded_real, "DENSE_ROWS", 0)
+    for beta, mu in zip(betas, mus):
+        assert stability.abscissa_below(nominal, beta, mu + 0.05 * (1 + abs(mu)))
+        assert not stability.abscissa_below(nominal, beta, mu - 1e-3 * (1 + abs(mu)))
+    assert len(calls) == 4

@@ -86,7 +86,7 @@ feasible feedback, to :data:`BISECTION_RTOL`; the candidate is then solved at
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -101,6 +101,7 @@ from .conditioning import Similarity
 from .lmi import Certificate, check_certificate
 
 __all__ = ["BISECTION_RTOL", "DENSE_ROWS", "POLICY_RTOL", "SEARCH_RTOL", "CANDIDATE_LADDER", "MAX_POLICY_STEPS", "coupled_lyapunov",
+           "LyapunovSolver",
            "RateEnvelope", "bounded_real_solution", "float_hinf_norm", "RiccatiCandidate", "riccati_candidate"]
 
 #: Relative width of the final bisection bracket of :func:`float_hinf_norm`.
@@ -120,8 +121,6 @@ PIN_ROUNDS = 3
 #: Stacks of at most this many ``vech`` rows are solved densely
 #: (:func:`~ftc_verify.analysis.moments.stability.lyapunov_stack_solution`), larger ones by GMRES.
 DENSE_ROWS = 400
-#: Relative residual of the GMRES solves of eq. (2).
-_GMRES_RTOL = 1e-11
 
 
 class _Schur:
@@ -142,13 +141,21 @@ class _Schur:
         return 0.5 * (X + X.T)
 
 
+#: A solver of eq. (2): ``(A, Q, R, start) -> P`` or ``None`` (:func:`coupled_lyapunov`).
+LyapunovSolver = Callable[[Sequence[Matrix], Matrix, Sequence[Matrix], Sequence[Matrix] | None], list[Matrix] | None]
+
+
 def coupled_lyapunov(A: Sequence[Matrix], Q: Matrix, R: Sequence[Matrix],
-                     start: Sequence[Matrix] | None = None) -> list[Matrix] | None:
+                     start: Sequence[Matrix] | None = None, rtol: float = 1e-11,
+                     maxiter: int = 40) -> list[Matrix] | None:
     r"""The stack :math:`P` with :math:`A_s^T P_s + P_s A_s + \sum_t q_{st} P_t = -R_s`
     (eq. (2)), by GMRES on the block-diagonally preconditioned operator (module
     docstring); ``start`` a first guess. ``None`` when a Schur solve is singular, GMRES
     does not converge or the result is not finite (for a resolvent-positive operator: the
-    loop is, in float64, not mean-square stable)."""
+    loop is, in float64, not mean-square stable). ``rtol``: GMRES's relative residual
+    (of the preconditioned system); a caller that checks the solution afterwards (the
+    shift test of :func:`~ftc_verify.analysis.moments.stability.abscissa_below`) can
+    take a much looser one; ``maxiter``: GMRES restarts (of 60 steps) at most."""
     n, S = A[0].shape[0], len(A)
     Q = np.asarray(Q, dtype=float)
     if S * n * (n + 1) // 2 <= DENSE_ROWS:  # small: the dense vech system of the stability module
@@ -187,8 +194,8 @@ def coupled_lyapunov(A: Sequence[Matrix], Q: Matrix, R: Sequence[Matrix],
         rhs = np.concatenate([x.ravel() for x in precondition([-np.asarray(r, dtype=float) for r in R])])
         op = scipy.sparse.linalg.LinearOperator((S * size, S * size), matvec=matvec, dtype=float)
         x0 = None if start is None else np.concatenate([np.asarray(p, dtype=float).ravel() for p in start])
-        v, info = scipy.sparse.linalg.gmres(op, rhs, x0=x0, rtol=_GMRES_RTOL, atol=0.0,
-                                            restart=min(S * size, 60), maxiter=40)
+        v, info = scipy.sparse.linalg.gmres(op, rhs, x0=x0, rtol=rtol, atol=0.0,
+                                            restart=min(S * size, 60), maxiter=maxiter)
     except (np.linalg.LinAlgError, ValueError, scipy.linalg.LinAlgError):
         return None
     if info != 0 or not np.all(np.isfinite(v)):
@@ -225,6 +232,12 @@ class RateEnvelope:
         return cls(np.array(chain.generator(mid), dtype=float), tuple(half),
                    tuple(tuple(-1.0 for _ in rows) for rows in half))
 
+    @classmethod
+    def at(cls, Q: Matrix) -> RateEnvelope:
+        """The envelope of one rate vector (generator ``Q``): no half ranges, no correction."""
+        Q = np.array(Q, dtype=float)
+        return cls(Q, tuple(() for _ in range(Q.shape[0])), tuple(() for _ in range(Q.shape[0])))
+
     @property
     def Q(self) -> Matrix:
         """The generator at the pinned vertex."""
@@ -260,7 +273,8 @@ class RateEnvelope:
 
 def bounded_real_solution(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], box: RateEnvelope,
                           gamma: float, epsilon: float = 0.0, start: Sequence[Matrix] | None = None,
-                          rtol: float = POLICY_RTOL) -> tuple[list[Matrix], list[Matrix]] | None:
+                          rtol: float = POLICY_RTOL,
+                          solve: LyapunovSolver | None = None) -> tuple[list[Matrix], list[Matrix]] | None:
     r"""The stabilising solution ``P`` of eq. (3) (eq. (1) over the box) at ``gamma`` and
     ``epsilon`` and its feedback ``F`` (``(P, F)``), by policy iteration from the
     feedback ``start`` (default ``F = 0``; it must make the loop mean-square stable),
@@ -268,11 +282,16 @@ def bounded_real_solution(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequenc
     after the first not positive semidefinite, a failed solve, no convergence): then
     ``gamma`` is, in float64, too low for this construction. A float search: what it
     returns is proved or not used. ``rtol``: the relative change of ``P`` at which the
-    iteration has converged."""
+    iteration has converged. ``solve``: the linear solver of each step's coupled Lyapunov
+    equation, called as ``solve(A, Q, R, start)`` like :func:`coupled_lyapunov` (the
+    default). The one policy iteration of the project: the lower bounds of
+    :mod:`ftc_verify.analysis.lower_bound` run it at one rate vector
+    (:meth:`RateEnvelope.at`), with their own solver."""
     n = A[0].shape[0]
     g2 = gamma * gamma
     F = [np.zeros((B.shape[1], n)) for B in Bw] if start is None else [np.asarray(f, dtype=float) for f in start]
     base = [c.T @ c + epsilon * np.eye(n) for c in Cz]
+    Q = box.Q
     P_old: list[Matrix] | None = None
     E = [np.zeros((n, n)) for _ in A]
     last = math.inf
@@ -282,7 +301,7 @@ def bounded_real_solution(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequenc
             R = [r + e - g2 * f.T @ f for r, e, f in zip(base, E, F)]
         if not all(np.all(np.isfinite(x)) for x in (*At, *R)):
             return None
-        P = coupled_lyapunov(At, box.Q, R, P_old)
+        P = (coupled_lyapunov if solve is None else solve)(At, Q, R, P_old)
         if P is None:
             return None
         scale = max(np.finfo(float).tiny, *(float(np.abs(p).max()) for p in P))

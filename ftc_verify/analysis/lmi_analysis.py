@@ -75,7 +75,7 @@ from .bounded_real import riccati_candidate
 from .solvers import SETTINGS, SolveOutcome, choose_solver, second_solver, solve_conic, solve_conic_dual
 
 __all__ = ["GAMMA_LADDER", "ROUTES", "RICCATI_FIRST_SIZE", "LMIResult", "mes_lmi", "hinf_gamma", "decision_size",
-           "lmi_memory_estimate", "check_lmi_memory", "LMI_BYTES_PER_NONZERO"]
+           "riccati_memory_estimate", "BALL_BYTES", "lmi_memory_estimate", "check_lmi_memory", "LMI_BYTES_PER_NONZERO"]
 
 #: Peak memory per estimated nonzero of the LMI data, cvxpy compile plus Clarabel solve
 #: (measured: n = 30, m = 2 took +580 MB for 3.9e5 estimated nonzeros; n = 20, m = 3
@@ -92,6 +92,9 @@ REFINE_STEPS = 3
 MARGIN_TAU = 1e-6
 #: Routes of :func:`hinf_gamma`.
 ROUTES = ("auto", "sdp", "riccati")
+#: Bytes of one ball (``arb``) entry in the memory estimate of the Riccati route, with
+#: FLINT's bookkeeping (an allowance for a 128-bit midpoint, its radius and the headers).
+BALL_BYTES = 128
 #: ``route="auto"``: above this many decision variables the Riccati candidate comes first
 #: (:doc:`/performance`: n = 16, m = 2, 545: SDP 1.1 s, candidate 1.35 s; n = 32, m = 2: 300 s, 3.4 s).
 RICCATI_FIRST_SIZE = 800
@@ -174,9 +177,30 @@ def _check_size(loop: ClosedLoop, robust: bool, condition: str) -> None:
                  hint="reduce the problem, or run the exact spectral test alone (analyze --no-lmi)")
 
 
+def riccati_memory_estimate(loop: ClosedLoop) -> float:
+    """Bytes the Riccati route of :func:`hinf_gamma` needs (no SDP): the GMRES Krylov
+    basis of :func:`~ftc_verify.analysis.bounded_real.coupled_lyapunov` (61 stacks of
+    ``modes`` dense ``n x n`` matrices, and as much again for the Schur forms and
+    iterates) and the ball matrices of one LMI block of
+    :func:`~ftc_verify.analysis.lmi.check_certificate` at a time (a few copies of
+    ``(n + extra)^2`` balls of :data:`BALL_BYTES` each)."""
+    n, modes = loop.n, len(loop.A)
+    extra = max(Bw.shape[1] + Cz.shape[0] for Bw, Cz in zip(loop.Bw, loop.Cz))
+    return float(2 * 61 * modes * n * n * 8 + 4 * (n + extra) ** 2 * BALL_BYTES)
+
+
 def check_lmi_memory(loop: ClosedLoop) -> None:
     """Raise :class:`~ftc_verify.errors.MemoryLimitError` before any work when the largest
-    LMI problem of :func:`~ftc_verify.analysis.analyze.analyze` would not fit in memory."""
+    LMI problem of :func:`~ftc_verify.analysis.analyze.analyze` would not fit in memory,
+    estimated for the route that will run: without uncertainty channels and above
+    :data:`RICCATI_FIRST_SIZE` decision variables both programs go by the Riccati
+    candidate first (:func:`riccati_memory_estimate`; the SDP fallback is checked by
+    :func:`hinf_gamma` before it is built), otherwise by the SDP."""
+    if not loop.uncertain and decision_size(loop.nominal(), robust=False) > RICCATI_FIRST_SIZE:
+        check_memory(riccati_memory_estimate(loop),
+                     f"the Riccati candidate of Theorem 3.2 for a loop with n = {loop.n} and {len(loop.A)} joint states",
+                     hint="reduce the problem, or run the exact spectral test alone (analyze --no-lmi)")
+        return
     _check_size(loop, loop.uncertain, "Lemma 4.1" if loop.uncertain else "Theorem 3.2")
 
 

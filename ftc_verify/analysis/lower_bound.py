@@ -76,6 +76,7 @@ import scipy.linalg
 from ..jsonable import fields_dict
 from ..model.system import Matrix
 from .closedloop import ClosedLoop
+from .bounded_real import POLICY_RTOL, SEARCH_RTOL, RateEnvelope, bounded_real_solution
 from .conditioning import Similarity, conditioning_transform, stationary_distribution
 from .exact import ball_generator, ball_matrices, exact_loop, literals_of, written_box
 from ..interrupts import deferred_signals
@@ -88,8 +89,6 @@ __all__ = ["GainLowerBound", "gain_lower_bound", "float_gain", "worst_case_feedb
 
 #: Relative width of the float bisection on the gain.
 BISECTION_RTOL = 1e-5
-#: Policy iterations at most per gamma.
-MAX_POLICY_STEPS = 60
 
 
 @dataclass(frozen=True)
@@ -130,63 +129,67 @@ def _abscissa(A: Sequence[Matrix], Q: Matrix) -> float:
     return float(np.max(scipy.linalg.eigvals(second_moment_matrix(A, Q), check_finite=False).real))
 
 
+def _dense_adjoint(A: Sequence[Matrix], Q: Matrix, R: Sequence[Matrix],
+                   start: Sequence[Matrix] | None = None) -> list[Matrix] | None:
+    r""":math:`A_s^T P_s + P_s A_s + \sum_t q_{st} P_t = -R_s` by
+    :func:`~ftc_verify.analysis.moments.stability.lyapunov_stack_solution` in adjoint form
+    (dense ``vech`` system; ``start`` unused): the worst-case loop is nearly marginal, where
+    GMRES converges slowly and a direct solve costs the same at every step."""
+    P = lyapunov_stack_solution([a.T for a in A], np.asarray(Q).T, R)
+    return None if P is None else list(P)
+
+
 def worst_case_feedback(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], Q: Matrix,
-                        gamma: float, start: Sequence[Matrix] | None = None) -> tuple[Matrix, ...] | None:
+                        gamma: float, start: Sequence[Matrix] | None = None,
+                        rtol: float = POLICY_RTOL) -> tuple[Matrix, ...] | None:
     r"""The worst-case disturbance feedback :math:`F_s = \gamma^{-2} B_{w,s}^T P_s` of the
-    coupled bounded-real Riccati equations at ``gamma`` (module docstring), by policy
-    iteration from ``start`` (a feedback that makes the loop mean-square stable; default
-    :math:`F = 0`); ``None`` when it fails (``P`` not positive semidefinite, not finite,
-    or no convergence): then ``gamma`` is, in float64, at or below the gain. A float
-    search only: what it returns is proved afterwards or not used."""
-    F = [np.zeros((B.shape[1], B.shape[0])) for B in Bw] if start is None else list(start)
-    P_old: np.ndarray | None = None
-    g2 = gamma * gamma
-    for _ in range(MAX_POLICY_STEPS):
-        At = [a + b @ f for a, b, f in zip(A, Bw, F)]
-        P = lyapunov_stack_solution([a.T for a in At], Q.T, [c.T @ c - g2 * f.T @ f for c, f in zip(Cz, F)])
-        if P is None:
-            return None
-        scale = max(1.0, float(np.abs(P).max()))
-        if min(float(np.linalg.eigvalsh(0.5 * (p + p.T))[0]) for p in P) < -1e-9 * scale:
-            return None
-        F = [b.T @ p / g2 for b, p in zip(Bw, P)]
-        if P_old is not None and np.abs(P - P_old).max() <= 1e-9 * scale:
-            return tuple(F)
-        P_old = P
-    return None
+    coupled bounded-real Riccati equations at ``gamma`` (module docstring): the policy
+    iteration of :func:`~ftc_verify.analysis.bounded_real.bounded_real_solution` at the one
+    rate vector of ``Q`` (:meth:`~ftc_verify.analysis.bounded_real.RateEnvelope.at`), each
+    step a dense solve, from ``start`` (a feedback that makes the loop mean-square stable;
+    default :math:`F = 0`) until ``P`` changes by at most ``rtol`` relatively; ``None``
+    when it fails (``P`` not positive semidefinite, not finite, or no convergence): then
+    ``gamma`` is, in float64, at or below the gain. A float search only: what it returns
+    is proved afterwards or not used."""
+    found = bounded_real_solution(A, Bw, Cz, RateEnvelope.at(Q), gamma, start=start, rtol=rtol, solve=_dense_adjoint)
+    return None if found is None else tuple(found[1])
 
 
 def float_gain(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], Q: Matrix, *,
                upper: float | None = None, rtol: float = BISECTION_RTOL) -> tuple[float, tuple[Matrix, ...]] | None:
     """The float worst-case gain at one rate vector by bisection on
     :func:`worst_case_feedback` (started at ``upper``, each step warm-started from the
-    last feasible feedback), and the feedback at the smallest feasible gamma found
-    (``None`` when the loop is not mean-square stable)."""
+    last feasible feedback and run to
+    :data:`~ftc_verify.analysis.bounded_real.SEARCH_RTOL`: a level is decided long before
+    the policy iteration converges), and the feedback at the smallest feasible gamma
+    found, converged to :data:`~ftc_verify.analysis.bounded_real.POLICY_RTOL` (``None``
+    when the loop is not mean-square stable)."""
     if _abscissa(A, Q) >= 0:
         return None
     hi = upper if upper is not None and upper > 0 else 1.0
-    F = worst_case_feedback(A, Bw, Cz, Q, hi)
+    F = worst_case_feedback(A, Bw, Cz, Q, hi, rtol=SEARCH_RTOL)
     while F is None:
         hi *= 2.0
         if hi > 1e300:
             return None
-        F = worst_case_feedback(A, Bw, Cz, Q, hi)
+        F = worst_case_feedback(A, Bw, Cz, Q, hi, rtol=SEARCH_RTOL)
     lo, step = 0.0, 1e-3
     while lo == 0.0 and hi > 1e-300:
         trial = hi * (1.0 - step)
-        found = worst_case_feedback(A, Bw, Cz, Q, trial, F)
+        found = worst_case_feedback(A, Bw, Cz, Q, trial, F, rtol=SEARCH_RTOL)
         if found is None:
             lo = trial
         else:
             hi, F, step = trial, found, min(0.5, 8 * step)
     while hi - lo > rtol * hi:
         mid = math.sqrt(lo * hi) if lo > 0 else 0.5 * hi
-        found = worst_case_feedback(A, Bw, Cz, Q, mid, F)
+        found = worst_case_feedback(A, Bw, Cz, Q, mid, F, rtol=SEARCH_RTOL)
         if found is None:
             lo = mid
         else:
             hi, F = mid, found
-    return hi, F
+    final = worst_case_feedback(A, Bw, Cz, Q, hi, F)  # the feedback at the level found, converged
+    return hi, F if final is None else final
 
 
 def _forms(At: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], F: Sequence[Matrix], Q: Matrix,
@@ -423,7 +426,7 @@ def _candidate_rates(loop: ClosedLoop, worst: Matrix | None) -> list[Matrix]:
 def _exceeds(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], Q: Matrix, gamma: float) -> bool:
     """In float64: no stabilising Riccati solution at ``gamma`` (the worst-case gain is at
     least ``gamma``, or the loop is not mean-square stable): a cheap comparison."""
-    return worst_case_feedback(A, Bw, Cz, Q, gamma) is None
+    return worst_case_feedback(A, Bw, Cz, Q, gamma, rtol=SEARCH_RTOL) is None
 
 
 #: The feedback is first taken at the certified gamma times this: when the certificate is

@@ -55,6 +55,8 @@ __all__ = [
     "abscissa_near",
     "SHIFT_TEST_MIN",
     "SHIFT_TEST_LIMIT",
+    "SHIFT_GMRES_RTOL",
+    "SHIFT_GMRES_RESTARTS",
 ]
 
 
@@ -193,10 +195,17 @@ def generator_size(loop: ClosedLoop) -> int:
     return len(loop.A) * loop.n * (loop.n + 1) // 2
 
 
-#: Generators (rows) given the shift test (sparse LU) before eigenvalues; outside this
-#: range every vertex is evaluated by :func:`spectral_abscissa` (below, dense eigenvalues
-#: cost less than the test; above, the LU's fill-in could exceed the memory budget).
+#: Generators (rows) given the shift test before eigenvalues (sparse LU up to
+#: :data:`DENSE_LIMIT` rows, GMRES above); outside this range every vertex is evaluated by
+#: :func:`spectral_abscissa` (below, dense eigenvalues cost less than the test).
 SHIFT_TEST_MIN, SHIFT_TEST_LIMIT = 100, 20_000
+#: GMRES's relative residual in the shift test above :data:`DENSE_LIMIT` rows: the test
+#: recomputes the residual from :math:`X` and needs it only within a fraction of
+#: :math:`I`, so a loose solve decides the same (and converges far sooner near :math:`\mu`).
+SHIFT_GMRES_RTOL = 1e-6
+#: GMRES restarts (of 60 steps) of that test: near :math:`\mu` it converges slowly, and
+#: a vertex not shown below is evaluated by :func:`spectral_abscissa` instead.
+SHIFT_GMRES_RESTARTS = 2
 
 
 def sparse_mode_blocks(loop: ClosedLoop) -> Any:
@@ -212,7 +221,11 @@ def sparse_mode_blocks(loop: ClosedLoop) -> Any:
 def abscissa_below(loop: ClosedLoop, beta: Matrix, sigma: float, *, modes_part: Any = None) -> bool:
     r"""Certified test: ``True`` only if the spectral abscissa at ``beta`` is ``< sigma``.
 
-    Solves :math:`\mathcal L(X) - \sigma X = -I` (every joint mode; sparse LU) and
+    Solves :math:`\mathcal L(X) - \sigma X = -I` (every joint mode; sparse LU up to
+    :data:`DENSE_LIMIT` rows, above it
+    :func:`~ftc_verify.analysis.bounded_real.coupled_lyapunov` on :math:`A_s - \sigma I/2`:
+    GMRES preconditioned by one Schur form per joint state, no fill-in, at most
+    :data:`SHIFT_GMRES_RESTARTS` restarts; how :math:`X` was found does not matter) and
     checks by Cholesky that :math:`X_s \succ 0` and that the residual
     :math:`-(A_s X_s + X_s A_s^T + \sum_{s'} Q_{s's} X_{s'} - \sigma X_s)`, recomputed
     from :math:`X` with matrix products, is positive definite beyond a rounding margin.
@@ -222,22 +235,32 @@ def abscissa_below(loop: ClosedLoop, beta: Matrix, sigma: float, *, modes_part: 
     :math:`0 > \langle \mathcal L(X) - \sigma X, Z\rangle = (\mu - \sigma)\langle X, Z\rangle`
     with :math:`\langle X, Z\rangle > 0`. ``False`` means "not shown", not "above".
     """
-    import scipy.sparse as sp
-    from scipy.sparse.linalg import splu
-
     n, modes = loop.n, len(loop.A)
-    base = sparse_mode_blocks(loop) if modes_part is None else modes_part
-    G = base + sp.kron(loop.chain.generator(beta).T, sp.identity(n * (n + 1) // 2), format="csc")
-    rows, cols = vech_order(n)
-    rhs = np.tile(-(rows == cols).astype(float), modes)
-    try:
-        v = splu((G - sigma * sp.identity(G.shape[0], format="csc")).tocsc()).solve(rhs)
-    except RuntimeError:  # exactly singular
-        return False
-    if not np.all(np.isfinite(v)):
-        return False
-    X = unvech_stack(v, modes, n)
     Q = loop.chain.generator(beta)
+    if generator_size(loop) > DENSE_LIMIT:
+        from ..bounded_real import coupled_lyapunov
+
+        shifted = [(a - 0.5 * sigma * np.eye(n)).T for a in loop.A]
+        found = coupled_lyapunov(shifted, Q.T, [np.eye(n)] * modes, rtol=SHIFT_GMRES_RTOL,
+                                 maxiter=SHIFT_GMRES_RESTARTS)
+        if found is None:
+            return False
+        X = np.array(found)
+    else:
+        import scipy.sparse as sp
+        from scipy.sparse.linalg import splu
+
+        base = sparse_mode_blocks(loop) if modes_part is None else modes_part
+        G = base + sp.kron(Q.T, sp.identity(n * (n + 1) // 2), format="csc")
+        rows, cols = vech_order(n)
+        rhs = np.tile(-(rows == cols).astype(float), modes)
+        try:
+            v = splu((G - sigma * sp.identity(G.shape[0], format="csc")).tocsc()).solve(rhs)
+        except RuntimeError:  # exactly singular
+            return False
+        if not np.all(np.isfinite(v)):
+            return False
+        X = unvech_stack(v, modes, n)
     coupled = np.einsum("ts,tij->sij", Q, X)
     x_norm = 64 * n * np.finfo(float).eps * np.linalg.norm(X, 2, axis=(1, 2)).max()
     for s, A in enumerate(loop.A):
@@ -450,7 +473,7 @@ def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256,
     nominal = sim.apply(loop.nominal())
     chain = loop.chain
     prune = SHIFT_TEST_MIN <= generator_size(nominal) <= SHIFT_TEST_LIMIT
-    modes_part = sparse_mode_blocks(nominal) if prune else None
+    modes_part = sparse_mode_blocks(nominal) if prune and generator_size(nominal) <= DENSE_LIMIT else None
     exact: dict[tuple[bool, ...], float] = {}
     seen: set[tuple[bool, ...]] = set()
     pairs = chain.rate_indices  # beta pairs first, then the false-alarm pairs (chain.vertices() order)
@@ -465,7 +488,8 @@ def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256,
     def value(bits: tuple[bool, ...], near: float | None = None) -> float:
         seen.add(bits)
         if bits not in exact:
-            mu = None if near is None else abscissa_near(nominal, vertex(bits), near, modes_part=modes_part)
+            mu = None if near is None or modes_part is None else abscissa_near(nominal, vertex(bits), near,
+                                                                               modes_part=modes_part)
             exact[bits] = spectral_abscissa(nominal, vertex(bits)) if mu is None else mu
         return exact[bits]
 
