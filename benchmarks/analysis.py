@@ -263,7 +263,7 @@ def _child(conn: Any, n: int, m: int, seed: int, uncertain: bool, solver: str | 
     try:
         from ftc_verify.analysis.analyze import analyze
         from ftc_verify.analysis.closedloop import state_feedback_loop
-        from ftc_verify.analysis.lmi_analysis import decision_size
+        from ftc_verify.analysis.lmi_size import decision_size
 
         # warm-up (not timed): lazy imports and first-call costs. Clarabel only: an SDPA
         # solve of another problem changes later SDPA answers in the same process
@@ -313,7 +313,7 @@ def _child_paper(conn: Any) -> None:
     try:
         from ftc_verify.analysis.analyze import analyze
         from ftc_verify.analysis.closedloop import state_feedback_loop
-        from ftc_verify.analysis.lmi_analysis import decision_size
+        from ftc_verify.analysis.lmi_size import decision_size
         from ftc_verify.model.files import load_system
         from ftc_verify.controllers.files import check_gains, load_gains
 

@@ -198,16 +198,17 @@ def test_one_policy_iteration_serves_the_lower_bounds(paper_loop) -> None:
 def test_memory_check_estimates_the_route_that_runs(paper_loop, monkeypatch: pytest.MonkeyPatch) -> None:
     """A limit between the Riccati route's estimate and the SDP's: refused while the SDP
     would run, accepted when the Riccati candidate comes first (no uncertainty channels)."""
+    from ftc_verify.analysis import lmi_size
     from ftc_verify.errors import MemoryLimitError
 
     loop = paper_loop.nominal()
-    riccati, sdp = lmi_analysis.riccati_memory_estimate(loop), lmi_analysis.lmi_memory_estimate(loop, robust=False)
+    riccati, sdp = lmi_size.riccati_memory_estimate(loop), lmi_size.lmi_memory_estimate(loop, robust=False)
     assert riccati < sdp
     monkeypatch.setenv("FTC_VERIFY_MEMORY_LIMIT", str(int(0.5 * (riccati + sdp))))
     with pytest.raises(MemoryLimitError):
-        lmi_analysis.check_lmi_memory(loop)
-    monkeypatch.setattr(lmi_analysis, "RICCATI_FIRST_SIZE", 0)
-    lmi_analysis.check_lmi_memory(loop)
+        lmi_size.check_lmi_memory(loop)
+    monkeypatch.setattr(lmi_size, "RICCATI_FIRST_SIZE", 0)
+    lmi_size.check_lmi_memory(loop)
     monkeypatch.setenv("FTC_VERIFY_MEMORY_LIMIT", str(int(0.5 * riccati)))
     with pytest.raises(MemoryLimitError):
-        lmi_analysis.check_lmi_memory(loop)
+        lmi_size.check_lmi_memory(loop)

@@ -10,7 +10,8 @@ from .conic import ConicProblem
 from .closedloop import Channel, ClosedLoop, Barred, barred, closed_loop, state_feedback_loop, gain_loop
 from .crossval import NORM_RTOL, NORM_AGREE_RTOL, POLE_RTOL, ModeCheck, linf_norm, cross_validate
 from .lmi import BlockSpec, block_specs, lyapunov_block, xy_block, null_basis, projection, BlockCheck, Certificate, check_certificate
-from .lmi_analysis import GAMMA_LADDER, LMIResult, mes_lmi, hinf_gamma, decision_size
+from .lmi_analysis import GAMMA_LADDER, LMIResult, mes_lmi, hinf_gamma
+from .lmi_size import decision_size
 from .solvers import SOLVERS, SETTINGS, SolveOutcome, choose_solver, second_solver, solve, solve_conic
 from .box import BoxVerdict, RegionVerdict, box_stability
 from .exact import exact_loop

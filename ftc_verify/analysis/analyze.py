@@ -30,7 +30,8 @@ from .closedloop import ClosedLoop
 from ..jsonable import jsonable
 from .crossval import ModeCheck, cross_validate
 from ..limits import check_memory, dense_generator_estimate
-from .lmi_analysis import LMIResult, check_lmi_memory, hinf_gamma, mes_lmi
+from .lmi_analysis import LMIResult, hinf_gamma, mes_lmi
+from .lmi_size import check_lmi_memory
 from .lower_bound import GainLowerBound, gain_lower_bound, worst_constant_delta
 from .solvers import ForkedCall
 from .moments.stability import MSSResult, mean_square_stability
@@ -134,7 +135,7 @@ def analyze(loop: ClosedLoop, *, solver: str | None = None, name: str = "", cros
     python-control's start-up cost would dominate).
     ``lmi=False`` runs only the exact spectral test and the cross-check (large loops);
     otherwise the LMI stage's memory is checked first, before any work
-    (:func:`~ftc_verify.analysis.lmi_analysis.check_lmi_memory`), and so is the lower
+    (:func:`~ftc_verify.analysis.lmi_size.check_lmi_memory`), and so is the lower
     bounds' dense second-moment generator
     (:func:`~ftc_verify.limits.dense_generator_estimate`). ``lower_bounds=False``
     skips stage 4 (synthesis loops). A loop the spectral test proves NOT stable gets no

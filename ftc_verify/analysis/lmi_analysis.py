@@ -65,22 +65,17 @@ from typing import Any
 import numpy as np
 
 from ..jsonable import fields_dict
-from ..limits import check_memory
 from ..model.system import Matrix
 from .closedloop import ClosedLoop
 from .conditioning import Similarity, conditioning_transform
 from .conic import ConicProblem, Rows, affine_bmat, scalar_variable, svec_index, sym_variable
 from .lmi import Certificate, block_specs, check_certificate, lyapunov_block
 from .bounded_real import riccati_candidate
+from .lmi_size import RICCATI_FIRST_SIZE, check_size, decision_size
 from .solvers import SETTINGS, SolveOutcome, choose_solver, second_solver, solve_conic, solve_conic_dual
 
-__all__ = ["GAMMA_LADDER", "ROUTES", "RICCATI_FIRST_SIZE", "LMIResult", "mes_lmi", "hinf_gamma", "decision_size",
-           "riccati_memory_estimate", "BALL_BYTES", "lmi_memory_estimate", "check_lmi_memory", "LMI_BYTES_PER_NONZERO"]
+__all__ = ["GAMMA_LADDER", "ROUTES", "LMIResult", "mes_lmi", "hinf_gamma"]
 
-#: Peak memory per estimated nonzero of the LMI data, cvxpy compile plus Clarabel solve
-#: (measured: n = 30, m = 2 took +580 MB for 3.9e5 estimated nonzeros; n = 20, m = 3
-#: +365 MB for 3.6e5).
-LMI_BYTES_PER_NONZERO = 1600
 #: Relative increases of gamma tried, in order, when re-solving for a certificate.
 GAMMA_LADDER = (1e-5, 1e-4, 1e-3, 1e-2, 5e-2, 0.2, 1.0)
 #: Geometric bisections between the last failing and the first certifying ladder step.
@@ -92,12 +87,6 @@ REFINE_STEPS = 3
 MARGIN_TAU = 1e-6
 #: Routes of :func:`hinf_gamma`.
 ROUTES = ("auto", "sdp", "riccati")
-#: Bytes of one ball (``arb``) entry in the memory estimate of the Riccati route, with
-#: FLINT's bookkeeping (an allowance for a 128-bit midpoint, its radius and the headers).
-BALL_BYTES = 128
-#: ``route="auto"``: above this many decision variables the Riccati candidate comes first
-#: (:doc:`/performance`: n = 16, m = 2, 545: SDP 1.1 s, candidate 1.35 s; n = 32, m = 2: 300 s, 3.4 s).
-RICCATI_FIRST_SIZE = 800
 #: The one-solve path re-solves when its gamma is more than this above the dual bound.
 MARGIN_GAP = 1e-4
 #: At most this many solves on the one-solve path before the two-step ladder.
@@ -159,58 +148,6 @@ def _map_back(result: LMIResult, sim: Similarity) -> LMIResult:
         return dataclasses.replace(result, similarity=sim)
     return dataclasses.replace(result, P=tuple(sim.lyapunov_back(P) for P in result.P), P_conditioned=result.P,
                                similarity=sim)
-
-
-def lmi_memory_estimate(loop: ClosedLoop, *, robust: bool) -> float:
-    """Bytes the LMI stage of ``loop`` needs: blocks x (block size)^2 x (variables per
-    entry) nonzeros times :data:`LMI_BYTES_PER_NONZERO`."""
-    n, modes = loop.n, len(loop.A)
-    extra = max((sum(ch.E.shape[1] for ch in chans) if robust else 0) + Bw.shape[1] + Cz.shape[0]
-                for chans, Bw, Cz in zip(loop.channels, loop.Bw, loop.Cz))
-    blocks = sum(len(loop.chain.row_rate_points(s)) for s in range(loop.chain.n_states))
-    return float(blocks * (n + extra) ** 2 * (2 * n + modes) * LMI_BYTES_PER_NONZERO)
-
-
-def _check_size(loop: ClosedLoop, robust: bool, condition: str) -> None:
-    check_memory(lmi_memory_estimate(loop, robust=robust),
-                 f"the {condition} LMIs of a loop with n = {loop.n} and {len(loop.A)} joint states",
-                 hint="reduce the problem, or run the exact spectral test alone (analyze --no-lmi)")
-
-
-def riccati_memory_estimate(loop: ClosedLoop) -> float:
-    """Bytes the Riccati route of :func:`hinf_gamma` needs (no SDP): the GMRES Krylov
-    basis of :func:`~ftc_verify.analysis.bounded_real.coupled_lyapunov` (61 stacks of
-    ``modes`` dense ``n x n`` matrices, and as much again for the Schur forms and
-    iterates) and the ball matrices of one LMI block of
-    :func:`~ftc_verify.analysis.lmi.check_certificate` at a time (a few copies of
-    ``(n + extra)^2`` balls of :data:`BALL_BYTES` each)."""
-    n, modes = loop.n, len(loop.A)
-    extra = max(Bw.shape[1] + Cz.shape[0] for Bw, Cz in zip(loop.Bw, loop.Cz))
-    return float(2 * 61 * modes * n * n * 8 + 4 * (n + extra) ** 2 * BALL_BYTES)
-
-
-def check_lmi_memory(loop: ClosedLoop) -> None:
-    """Raise :class:`~ftc_verify.errors.MemoryLimitError` before any work when the largest
-    LMI problem of :func:`~ftc_verify.analysis.analyze.analyze` would not fit in memory,
-    estimated for the route that will run: without uncertainty channels and above
-    :data:`RICCATI_FIRST_SIZE` decision variables both programs go by the Riccati
-    candidate first (:func:`riccati_memory_estimate`; the SDP fallback is checked by
-    :func:`hinf_gamma` before it is built), otherwise by the SDP."""
-    if not loop.uncertain and decision_size(loop.nominal(), robust=False) > RICCATI_FIRST_SIZE:
-        check_memory(riccati_memory_estimate(loop),
-                     f"the Riccati candidate of Theorem 3.2 for a loop with n = {loop.n} and {len(loop.A)} joint states",
-                     hint="reduce the problem, or run the exact spectral test alone (analyze --no-lmi)")
-        return
-    _check_size(loop, loop.uncertain, "Lemma 4.1" if loop.uncertain else "Theorem 3.2")
-
-
-def decision_size(loop: ClosedLoop, *, robust: bool) -> int:
-    """Number of scalar decision variables of the analysis LMIs (for solver choice)."""
-    n = loop.n
-    count = len(loop.A) * n * (n + 1) // 2 + 1
-    if robust:
-        count += sum(len(c) for c in loop.channels)
-    return count
 
 
 @dataclass(frozen=True)
@@ -355,7 +292,7 @@ def mes_lmi(loop: ClosedLoop, *, solver: str | None = None, known: Sequence[LMIR
                 return LMIResult("theorem-3.1", "certified", None, result.solver, result.solver_status, 0.0, 0.0,
                                  cert, result.P, message=note, similarity=result.similarity,
                                  P_conditioned=result.P_conditioned)
-    _check_size(loop, False, "Theorem 3.1")
+    check_size(loop, False, "Theorem 3.1")
     nominal, sim = _conditioned(loop.nominal())
     return _map_back(_mes_lmi(loop.nominal(), nominal, sim, solver, second_opinion), sim)
 
@@ -401,7 +338,7 @@ def hinf_gamma(loop: ClosedLoop, *, robust: bool, solver: str | None = None,
     nominal gamma for Lemma 4.1, whose blocks contain Theorem 3.2's as leading blocks);
     it only scales the one-solve program (``_margin_gamma``), never the answer.
 
-    ``route``: ``"auto"`` tries, above :data:`RICCATI_FIRST_SIZE` decision variables, the
+    ``route``: ``"auto"`` tries, above :data:`~ftc_verify.analysis.lmi_size.RICCATI_FIRST_SIZE` decision variables, the
     coupled-Riccati candidate (:func:`~ftc_verify.analysis.bounded_real.riccati_candidate`:
     no SDP, proved at every vertex like an SDP answer) first where it applies (Theorem
     3.2, or Lemma 4.1 without uncertainty channels), the SDP when none passes (below: the
@@ -420,7 +357,7 @@ def hinf_gamma(loop: ClosedLoop, *, robust: bool, solver: str | None = None,
                                        "optimal" if found.gamma else "failed", 0.0, time.perf_counter() - t0,
                                        found.certificate, found.P, None, found.message), sim)
         fallback = f"; the Riccati candidate was not used ({found.message}), SDP fallback"
-    _check_size(loop, robust, "Lemma 4.1" if robust else "Theorem 3.2")
+    check_size(loop, robust, "Lemma 4.1" if robust else "Theorem 3.2")
     result = _hinf_gamma(original, conditioned, sim, robust, solver, gamma_hint)
     return _map_back(dataclasses.replace(result, message=result.message + fallback), sim)
 

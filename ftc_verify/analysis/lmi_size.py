@@ -1,0 +1,78 @@
+"""How large the analysis LMIs are: decision variables and the memory estimate checked
+before any work, for the route that will run (the SDP of
+:mod:`ftc_verify.analysis.lmi_analysis`, or the Riccati candidate of
+:mod:`ftc_verify.analysis.bounded_real`)."""
+
+from __future__ import annotations
+
+from ..limits import check_memory
+from .closedloop import ClosedLoop
+
+__all__ = ["LMI_BYTES_PER_NONZERO", "BALL_BYTES", "RICCATI_FIRST_SIZE", "lmi_memory_estimate", "check_size",
+           "riccati_memory_estimate", "check_lmi_memory", "decision_size"]
+
+#: Peak memory per estimated nonzero of the LMI data, cvxpy compile plus Clarabel solve
+#: (measured: n = 30, m = 2 took +580 MB for 3.9e5 estimated nonzeros; n = 20, m = 3
+#: +365 MB for 3.6e5).
+LMI_BYTES_PER_NONZERO = 1600
+
+#: Bytes of one ball (``arb``) entry in the memory estimate of the Riccati route, with
+#: FLINT's bookkeeping (an allowance for a 128-bit midpoint, its radius and the headers).
+BALL_BYTES = 128
+
+#: ``route="auto"``: above this many decision variables the Riccati candidate comes first
+#: (:doc:`/performance`: n = 16, m = 2, 545: SDP 1.1 s, candidate 1.35 s; n = 32, m = 2: 300 s, 3.4 s).
+RICCATI_FIRST_SIZE = 800
+
+
+def lmi_memory_estimate(loop: ClosedLoop, *, robust: bool) -> float:
+    """Bytes the LMI stage of ``loop`` needs: blocks x (block size)^2 x (variables per
+    entry) nonzeros times :data:`LMI_BYTES_PER_NONZERO`."""
+    n, modes = loop.n, len(loop.A)
+    extra = max((sum(ch.E.shape[1] for ch in chans) if robust else 0) + Bw.shape[1] + Cz.shape[0]
+                for chans, Bw, Cz in zip(loop.channels, loop.Bw, loop.Cz))
+    blocks = sum(len(loop.chain.row_rate_points(s)) for s in range(loop.chain.n_states))
+    return float(blocks * (n + extra) ** 2 * (2 * n + modes) * LMI_BYTES_PER_NONZERO)
+
+
+def check_size(loop: ClosedLoop, robust: bool, condition: str) -> None:
+    """:func:`~ftc_verify.limits.check_memory` of :func:`lmi_memory_estimate` for the ``condition``'s LMIs."""
+    check_memory(lmi_memory_estimate(loop, robust=robust),
+                 f"the {condition} LMIs of a loop with n = {loop.n} and {len(loop.A)} joint states",
+                 hint="reduce the problem, or run the exact spectral test alone (analyze --no-lmi)")
+
+
+def riccati_memory_estimate(loop: ClosedLoop) -> float:
+    """Bytes the Riccati route of :func:`~ftc_verify.analysis.lmi_analysis.hinf_gamma` needs (no SDP): the GMRES Krylov
+    basis of :func:`~ftc_verify.analysis.bounded_real.coupled_lyapunov` (61 stacks of
+    ``modes`` dense ``n x n`` matrices, and as much again for the Schur forms and
+    iterates) and the ball matrices of one LMI block of
+    :func:`~ftc_verify.analysis.lmi.check_certificate` at a time (a few copies of
+    ``(n + extra)^2`` balls of :data:`BALL_BYTES` each)."""
+    n, modes = loop.n, len(loop.A)
+    extra = max(Bw.shape[1] + Cz.shape[0] for Bw, Cz in zip(loop.Bw, loop.Cz))
+    return float(2 * 61 * modes * n * n * 8 + 4 * (n + extra) ** 2 * BALL_BYTES)
+
+
+def check_lmi_memory(loop: ClosedLoop) -> None:
+    """Raise :class:`~ftc_verify.errors.MemoryLimitError` before any work when the largest
+    LMI problem of :func:`~ftc_verify.analysis.analyze.analyze` would not fit in memory,
+    estimated for the route that will run: without uncertainty channels and above
+    :data:`RICCATI_FIRST_SIZE` decision variables both programs go by the Riccati
+    candidate first (:func:`riccati_memory_estimate`; the SDP fallback is checked by
+    :func:`~ftc_verify.analysis.lmi_analysis.hinf_gamma` before it is built), otherwise by the SDP."""
+    if not loop.uncertain and decision_size(loop.nominal(), robust=False) > RICCATI_FIRST_SIZE:
+        check_memory(riccati_memory_estimate(loop),
+                     f"the Riccati candidate of Theorem 3.2 for a loop with n = {loop.n} and {len(loop.A)} joint states",
+                     hint="reduce the problem, or run the exact spectral test alone (analyze --no-lmi)")
+        return
+    check_size(loop, loop.uncertain, "Lemma 4.1" if loop.uncertain else "Theorem 3.2")
+
+
+def decision_size(loop: ClosedLoop, *, robust: bool) -> int:
+    """Number of scalar decision variables of the analysis LMIs (for solver choice)."""
+    n = loop.n
+    count = len(loop.A) * n * (n + 1) // 2 + 1
+    if robust:
+        count += sum(len(c) for c in loop.channels)
+    return count
