@@ -262,3 +262,23 @@ def test_cli_says_when_the_pilot_never_reached_the_limit(files: tuple[Path, Path
              "--disturbance", "step", "--max-paths", "500", "--pilot-paths", "100")
     assert r.returncode == 5, r.stderr
     assert "estimate: 0 " in r.stdout and "no pilot round reached the limit" in r.stdout
+
+
+def test_horizon_plot_is_written_whole_or_refused_naming_the_option(tmp_path: Path) -> None:
+    """plot_risk_by_horizon writes a PNG (a zero estimate included) through
+    verification.plots.save_figure, and a folder that does not exist is one error naming
+    ``--plot`` with nothing left behind."""
+    from ftc_verify.errors import ValidationError
+    from ftc_verify.risk.estimate import Estimate
+    from ftc_verify.risk.horizon import plot_risk_by_horizon
+
+    def est(p: float) -> Estimate:
+        return Estimate(p, (0.5 * p, 1.5 * p), 0.25 * p, 0.5, 100, int(p > 0), "importance", "normal", 0.95,
+                        True, 1, {}, 0, ())
+
+    out = tmp_path / "risk.png"
+    plot_risk_by_horizon([1.0, 2.0, 4.0], [est(0.0), est(1e-6), est(1e-4)], out)
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and list(tmp_path.iterdir()) == [out]
+    with pytest.raises(ValidationError, match="--plot .*cannot write"):
+        plot_risk_by_horizon([1.0], [est(1e-3)], tmp_path / "missing" / "risk.png")
+    assert list(tmp_path.iterdir()) == [out]

@@ -10,7 +10,6 @@ seed), drawn with its confidence interval as an error bar on a logarithmic axis.
 from __future__ import annotations
 
 import os
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -22,6 +21,7 @@ from matplotlib.figure import Figure
 from ..controllers.controller import Controller
 from ..errors import ValidationError
 from ..model.system import FTCSystem
+from ..verification.plots import save_figure
 from .envelope import Envelope
 from .estimate import Estimate, Settings
 from .run import run_risk
@@ -67,18 +67,4 @@ def plot_risk_by_horizon(horizons: Sequence[float], estimates: Sequence[Estimate
     ax.legend()
     if title:
         ax.set_title(title)
-    folder = out.parent if str(out.parent) else Path(".")
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=f".{fmt}", dir=folder)
-    except OSError as exc:
-        raise ValidationError(f"--plot {out}: cannot write: {exc.strerror}") from None
-    try:
-        umask = os.umask(0)
-        os.umask(umask)
-        os.fchmod(fd, 0o666 & ~umask)
-        with os.fdopen(fd, "wb") as fh:
-            fig.savefig(fh, format=fmt)
-        os.replace(tmp, out)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    save_figure(fig, out, fmt, f"--plot {out}: cannot write")

@@ -19,7 +19,29 @@ from matplotlib.figure import Figure
 from ..errors import ValidationError
 from ..simulation.records import PathRecord
 
-__all__ = ["plot_path"]
+__all__ = ["plot_path", "save_figure"]
+
+
+def save_figure(fig: Figure, out: Path, fmt: str, failure: str) -> None:
+    """Write ``fig`` to ``out`` atomically: a temporary file in the same folder (mode
+    ``0o666`` less the umask, as ``open`` would give), renamed over ``out`` only once
+    complete, removed on any failure; a folder that cannot be written raises
+    :class:`~ftc_verify.errors.ValidationError` with ``failure`` and the OS's reason."""
+    folder = out.parent if str(out.parent) else Path(".")
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=f".{fmt}", dir=folder)
+    except OSError as exc:
+        raise ValidationError(f"{failure}: {exc.strerror}") from None
+    try:
+        umask = os.umask(0)
+        os.umask(umask)
+        os.fchmod(fd, 0o666 & ~umask)
+        with os.fdopen(fd, "wb") as fh:
+            fig.savefig(fh, format=fmt)
+        os.replace(tmp, out)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
 
 
 def _mode_steps(t: np.ndarray, modes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -102,18 +124,4 @@ def plot_path(record: PathRecord, path: str | os.PathLike[str], *, title: str = 
         ax.grid(True, alpha=0.3)
     if title:
         fig.suptitle(title)
-    folder = out.parent if str(out.parent) else Path(".")
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=f".{fmt}", dir=folder)
-    except OSError as exc:
-        raise ValidationError(f"path: cannot write {out}: {exc.strerror}") from None
-    try:
-        umask = os.umask(0)
-        os.umask(umask)
-        os.fchmod(fd, 0o666 & ~umask)
-        with os.fdopen(fd, "wb") as fh:
-            fig.savefig(fh, format=fmt)
-        os.replace(tmp, out)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    save_figure(fig, out, fmt, f"path: cannot write {out}")
