@@ -279,6 +279,6 @@ def test_horizon_plot_is_written_whole_or_refused_naming_the_option(tmp_path: Pa
     out = tmp_path / "risk.png"
     plot_risk_by_horizon([1.0, 2.0, 4.0], [est(0.0), est(1e-6), est(1e-4)], out)
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and list(tmp_path.iterdir()) == [out]
-    with pytest.raises(ValidationError, match="--plot .*cannot write"):
+    with pytest.raises(ValidationError, match=r"--plot .*cannot write"):
         plot_risk_by_horizon([1.0], [est(1e-3)], tmp_path / "missing" / "risk.png")
     assert list(tmp_path.iterdir()) == [out]
