@@ -464,5 +464,5 @@ def _bound(loop: ClosedLoop, checked: list[tuple[list[Matrix], float]], x: Matri
                           " no information", c_low, v_up, gamma, energy, result.condition, result.solver, width, note)
     how = "P chosen to minimise the bound" if result.outcome == "candidate" else "the analysis' P"
     basis = ("Ville's inequality on V + gamma^2 (remaining energy), V of the certified "
-             f"{result.condition} answer ({how}), over the rate box")
+             f"{result.condition} answer ({how}), over the rate box, for the continuous-time controller")
     return UpperBound(value, basis, c_low, v_up, gamma, energy, result.condition, result.solver, width, note)
