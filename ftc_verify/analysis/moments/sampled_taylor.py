@@ -63,6 +63,7 @@ from __future__ import annotations
 import itertools
 import math
 import time
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -74,7 +75,7 @@ from .sampled import SampledLoop
 from .sampled_balls import ball_generator, generator_coefficients
 from .stability import vech_order
 
-__all__ = ["FIRST_ORDER_LIMIT", "AFFINE_RATES", "unvech_ball", "stack_pd", "identity_stack", "perron_first_order_stable", "affine_stable"]
+__all__ = ["FIRST_ORDER_LIMIT", "AFFINE_RATES", "QUADRATIC_SIZE", "unvech_ball", "stack_pd", "identity_stack", "perron_first_order_stable", "affine_stable"]
 
 #: Largest Van Loan block (rows, twice the moment generator's) the first-order form
 #: exponentiates in ball arithmetic; above it only the direct ball is tried (cost).
@@ -82,6 +83,11 @@ FIRST_ORDER_LIMIT = 256
 
 #: Most free rates the affine proof takes (it checks :math:`2^K` vertices).
 AFFINE_RATES = 10
+
+#: Largest ``K^2`` times the moment generator's rows for which the second-order forms of
+#: :mod:`~ftc_verify.analysis.moments.quad_balls` are used (their products cost about
+#: ``K^2`` matrix products; above it the affine forms).
+QUADRATIC_SIZE = 1000
 
 
 def _flint() -> Any:
@@ -245,18 +251,30 @@ def affine_stable(loop: SampledLoop, parts: Any, lo: Matrix, hi: Matrix) -> bool
     (convex combinations, as above). ``None`` (not applicable) when no rate is free, more
     than :data:`AFFINE_RATES` are, Arb's precision is above 64 bits or a number overflows."""
     from .fast_balls import aff_map
+    from .quad_balls import pairs, quad_map
 
-    flint = _flint()
     if parts.floats == () or _flint().ctx.prec > 64:
         return None
     found = _rates_affine(loop, lo, hi)
     if found is None or len(found[1]) > AFFINE_RATES:
         return None
     res, modes, lift, h = parts.floats
-    T = aff_map(res, modes, found[0], found[1], h, lift)
-    if T is None:
-        return None
-    Tc, Tl, Tr = T
+    K = len(found[1])
+    second = K * K * modes[0].shape[0] <= QUADRATIC_SIZE
+    form = quad_map(res, modes, found[0], found[1], h, lift) if second else None
+    if form is None:
+        aff = aff_map(res, modes, found[0], found[1], h, lift)
+        if aff is None:
+            return None
+        form = (aff[0], aff[1], np.zeros((0,) + aff[0].shape), aff[2])
+    return _certify(loop, form, pairs(K) if form[2].shape[0] else ())
+
+
+def _certify(loop: SampledLoop, form: tuple[Matrix, Matrix, Matrix, Matrix], prs: Sequence[tuple[int, int]]) -> bool:
+    r"""The vertex checks of :func:`affine_stable` on :math:`T(\delta) \in T_c +
+    \sum_a \delta_a T_a + \sum_{(a, b) \in prs} \delta_a \delta_b T_{ab} + E`."""
+    flint = _flint()
+    Tc, Tl, Tq, Tr = form
     S, r, N, K = loop.states, loop.r, Tc.shape[0], Tl.shape[0]
     choice = _float_choices(Tc, list(Tl), S, r)
     if choice is None:
@@ -268,13 +286,18 @@ def affine_stable(loop: SampledLoop, parts: Any, lo: Matrix, hi: Matrix) -> bool
     def up(v: Matrix, k: int) -> Matrix:
         return np.asarray(v * (1.0 + 2.0 * (k + 1) * u) + (k + 1) * eta)
 
+    def sum_abs(x: Matrix) -> Matrix:
+        return up(np.abs(x).sum(axis=0), x.shape[0] + 1) if x.shape[0] else np.zeros(x.shape[1:])
+
     base = Y0 - Tc @ Y0
     lin = Yl - Yl @ Tc.T - np.einsum("aij,j->ai", Tl, Y0)
-    aTc, aTl, aY0, aYl = np.abs(Tc), up(np.abs(Tl).sum(axis=0), K), np.abs(Y0), up(np.abs(Yl).sum(axis=0), K)
-    # the non-affine part, and the rounding of base, lin and of the vertex sums below
-    rad = aTl @ aYl + Tr @ (aY0 + aYl)
-    rad += 1.01 * N * u * (aTc @ (aY0 + aYl) + aTl @ aY0) + (K + 4) * u * (np.abs(base) + up(np.abs(lin).sum(axis=0), K))
-    rad = up(rad, N + K + 12) + (3 * K + 4) * N * eta
+    aTc, aTl, aY0, aYl, aTq = np.abs(Tc), sum_abs(Tl), np.abs(Y0), sum_abs(Yl), sum_abs(Tq)
+    # the terms of degree two (with their signs, then bounded), three and the radius
+    quad = [Tq[k] @ Y0 + Tl[a] @ Yl[b] + (Tl[b] @ Yl[a] if a != b else 0.0) for k, (a, b) in enumerate(prs)]
+    rad = (sum_abs(np.stack(quad)) if quad else aTl @ aYl) + aTq @ aYl + Tr @ (aY0 + aYl)
+    rad += (1.01 * N * u + 3 * u) * (aTc @ (aY0 + aYl) + aTl @ (aY0 + aYl) + aTq @ aY0)
+    rad += (K + 4) * u * (np.abs(base) + sum_abs(lin))
+    rad = up(rad, N + K + len(prs) + 12) + (3 * K + 4) * N * eta
     yrad = up((K + 2) * u * (aY0 + aYl), K + 4)
     arb = flint.arb
     for corner in itertools.product((-1.0, 1.0), repeat=K):
