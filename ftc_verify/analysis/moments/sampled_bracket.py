@@ -30,18 +30,22 @@ from ...model.system import Matrix
 from .sampled import H_MAX_RTOL, SampledLoop, crossing, rate_points, spectral_radius, worst_radius
 from .sampled_proof import box_verdict, prove_point_unstable
 
-__all__ = ["LADDER", "prove_below", "worst_vertex", "h_max_bracket"]
+__all__ = ["LADDER", "TIGHT", "prove_below", "worst_vertex", "h_max_bracket"]
 
 #: Relative distances below the crossing tried after the tight one fails, easy first.
 LADDER = (0.1, 0.03, 0.01, 3e-3)
+
+#: The first attempt's distance below the crossing, in units of ``rtol``: the unstable
+#: end is at most ``3 rtol / 16`` above it, so the bracket is within ``rtol``.
+TIGHT = 0.5
 
 
 def prove_below(loop: SampledLoop, a: float, rtol: float, max_boxes: int, max_seconds: float,
                 deadline: float) -> float | None:
     """A period ``a (1 - f)`` below the float64 crossing ``a`` proved mean-square stable
     over the whole rate box, the closest to ``a`` of those tried (``None`` if none; no
-    attempt starts after ``deadline``, ``time.perf_counter()``): first ``f = rtol / 4``
-    with a third of the budget (the bracket within ``rtol`` at once); if that fails,
+    attempt starts after ``deadline``, ``time.perf_counter()``): first ``f =`` :data:`TIGHT`
+    ``rtol`` with half the budget (the bracket within ``rtol`` at once); if that fails,
     easy first -- ``f`` in :data:`LADDER` (the first with the full ``max_seconds``, the
     others with a third), then ``3 rtol / 4`` -- stopping at the first failure (a
     smaller margin is harder: its proof would rarely succeed and would spend its whole
@@ -52,8 +56,8 @@ def prove_below(loop: SampledLoop, a: float, rtol: float, max_boxes: int, max_se
 
     if time.perf_counter() > deadline:
         return None
-    if proved(0.25 * rtol, max_seconds / 3):
-        return a * (1 - 0.25 * rtol)
+    if proved(TIGHT * rtol, max_seconds / 2):
+        return a * (1 - TIGHT * rtol)
     best = None
     steps = [f for f in LADDER if f > 0.75 * rtol] + [0.75 * rtol]
     for k, f in enumerate(steps):
@@ -114,7 +118,7 @@ def _worst_crossing(loop: SampledLoop, stable_h: float, a: float, rtol: float, p
 
 
 def h_max_bracket(loop: SampledLoop, stable_h: float, unstable_h: float, *, rtol: float = H_MAX_RTOL,
-                  max_boxes: int = 64, max_seconds: float = 3.0,
+                  max_boxes: int = 512, max_seconds: float = 4.0,
                   deadline: float = math.inf) -> tuple[float | None, float | None, str]:
     """``(h_max, h_max_unstable, note)`` from a float64 bracket ``stable_h < unstable_h``
     of the crossing: a period proved mean-square stable over the whole rate box and a
