@@ -55,13 +55,22 @@ Otherwise the stable proof is tried on the whole box, and a sub-box where it fai
 halved along its widest rate (relative to the box), breadth first, until every
 sub-box is proved -- or a sub-box's midpoint is proved unstable, or the budget of
 sub-boxes (or seconds) runs out: then the verdict is ``undecided`` and names the
-sub-box. On each sub-box the upper envelope is tried first, then the direct ball of
-:math:`T`, then a
-first-order expansion at its midpoint whose remainder is quadratic in the width, with a
-certificate that moves with the rates
-(:func:`~ftc_verify.analysis.moments.sampled_taylor.perron_first_order_stable`). A set of
-vertices is never called proved. The ball exponential of :math:`\mathcal L` is the
-cost (a few tenths of a second at 189 rows in float64 balls, seconds in Arb), so the envelope and the direct ball are attempted only when
+sub-box. On each sub-box the upper envelope is tried first, then the enclosure of
+:math:`T` as a polynomial in the sub-box's rates (second order for small loops,
+:mod:`~ftc_verify.analysis.moments.quad_balls`; affine otherwise,
+:func:`~ftc_verify.analysis.moments.fast_balls.aff_expm`) with a certificate that moves
+with the rates (:func:`~ftc_verify.analysis.moments.sampled_taylor.affine_stable`): the
+rates stay symbols through the exponential, so a transfer of mass between joint states
+is not wrapped into independent entrywise balls, and the sub-boxes need only be about
+:math:`\sqrt{\epsilon}` (second order: :math:`\epsilon^{1/3}`) wide where the margin is
+:math:`\epsilon`. Only when that is not applicable (more than
+:data:`~ftc_verify.analysis.moments.sampled_taylor.AFFINE_RATES` free rates, Arb
+precision above 64 bits, overflow) the direct ball of :math:`T` and the first-order
+expansion with the derivative's ball over the sub-box
+(:func:`~ftc_verify.analysis.moments.sampled_taylor.perron_first_order_stable`) are
+tried. A set of vertices is never called proved. The ball exponential of
+:math:`\mathcal L` is the cost (a few tenths of a second at 189 rows in float64 balls,
+seconds in Arb), so the envelope and the direct ball are attempted only when
 their criterion holds in float64 first (``_float_stable``: the envelope's map;
 ``_float_vertices_hold``: :math:`Y - T(r) Y \succ 0` at the sub-box's vertices, which the
 ball contains) -- a necessary condition checked with float exponentials; skipping an

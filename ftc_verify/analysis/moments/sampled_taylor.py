@@ -54,6 +54,19 @@ condition reads :math:`1 - \sum_a \delta_a c_a / \epsilon > 0`, i.e.
 the true margin and by :math:`\mathbf E`, and the sub-boxes need only be about
 :math:`\sqrt{\epsilon}` wide where the margin is :math:`\epsilon`.
 
+**Forms instead of balls** (:func:`affine_stable`, tried first). The derivative's ball
+:math:`\mathbf J_b` over the sub-box is itself an entrywise ball of an exponential and
+wraps: its width bounds a transfer of mass between joint states (a rise in one entry, a
+fall in another) as independent spreads, about a hundred times the true second-order
+term on the random loops of ``benchmarks/sampled.py``. :func:`affine_stable` instead
+carries the sub-box's rates as symbols :math:`\delta_a \in [-1, 1]` through the
+exponential (:func:`~ftc_verify.analysis.moments.fast_balls.aff_map`, and with their
+products, :func:`~ftc_verify.analysis.moments.quad_balls.quad_map`, when
+:math:`K^2` times the generator's rows is at most :data:`QUADRATIC_SIZE`):
+:math:`T(r) \in T_c + \sum_a \delta_a T_a + \sum_{a \le b} \delta_a \delta_b T_{ab}
++ E`, with :math:`T_a` in the role of :math:`J_a(r_0)` above (scaled by the half-width)
+and only the terms of higher degree and the rounding in :math:`E`.
+
 All the balls are formed at the data as written (the sub-box's ends enclosed as in
 :func:`~ftc_verify.analysis.moments.sampled_balls.ball_generator`, the midpoint exact).
 """
