@@ -49,10 +49,12 @@ def prove_below(loop: SampledLoop, a: float, rtol: float, max_boxes: int, max_se
     easy first -- ``f`` in :data:`LADDER` (the first with the full ``max_seconds``, the
     others with a third), then ``3 rtol / 4`` -- stopping at the first failure (a
     smaller margin is harder: its proof would rarely succeed and would spend its whole
-    budget)."""
+    budget). The budgets are CPU seconds of this process (``time.process_time``), so that
+    the bracket does not depend on the machine's load; ``deadline`` is wall time."""
 
     def proved(f: float, seconds: float) -> bool:
-        return box_verdict(loop, a * (1 - f), max_boxes=max_boxes, max_seconds=seconds).verdict == "stable"
+        return box_verdict(loop, a * (1 - f), max_boxes=max_boxes, max_seconds=seconds,
+                           clock=time.process_time).verdict == "stable"
 
     if time.perf_counter() > deadline:
         return None
@@ -128,7 +130,7 @@ def h_max_bracket(loop: SampledLoop, stable_h: float, unstable_h: float, *, rtol
     then lowered where :func:`worst_vertex` finds a worse vertex (module docstring);
     instability is proved at the worst point just above it, stability by
     :func:`prove_below` (the bracket within ``rtol``, or the closest period its budget
-    reaches: ``max_boxes`` sub-boxes, ``max_seconds`` per attempt; then the note says the
+    reaches: ``max_boxes`` sub-boxes, ``max_seconds`` CPU seconds per attempt; then the note says the
     bracket is wider than ``rtol``). No new proof is started after ``deadline``
     (``time.perf_counter()``). ``None`` where no proof was found."""
     pts = list(rate_points(loop.chain))

@@ -84,6 +84,7 @@ from __future__ import annotations
 
 import itertools
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -427,9 +428,12 @@ def _widest(chain: JointChain, lo: Matrix, hi: Matrix) -> tuple[int, ...] | None
     return where
 
 
-def box_verdict(loop: SampledLoop, h: float, *, max_boxes: int = 64, max_seconds: float = 20.0) -> BoxVerdict:
+def box_verdict(loop: SampledLoop, h: float, *, max_boxes: int = 64, max_seconds: float = 20.0,
+                clock: Callable[[], float] = time.perf_counter) -> BoxVerdict:
     """Mean-square stability of the sampled loop at period ``h`` over the whole rate box
     (module docstring); at most ``max_boxes`` sub-boxes and about ``max_seconds`` seconds
+    of ``clock`` (wall time; ``time.process_time`` for a budget of work that does not
+    shrink with the machine's load)
     before the verdict is ``undecided``."""
     chain = loop.chain
     rho, where = worst_radius(loop, h, rate_points(chain))
@@ -441,12 +445,12 @@ def box_verdict(loop: SampledLoop, h: float, *, max_boxes: int = 64, max_seconds
         return BoxVerdict("undecided", f"float64 spectral radius {rho:.6g} >= 1 at {text(where)}, but "
                           "instability not proved there", 1, where)
     queue = [(np.array(chain.rate_min, dtype=float), np.array(chain.rate_max, dtype=float))]
-    done, t0 = 0, time.perf_counter()
+    done, t0, wall = 0, clock(), time.perf_counter()
     with precision(64):
         parts = MapParts.build(loop, h)
     while queue:
         lo, hi = queue.pop(0)
-        if done >= max_boxes or time.perf_counter() - t0 > max_seconds:
+        if done >= max_boxes or clock() - t0 > max_seconds:
             return BoxVerdict("undecided", f"budget ({max_boxes} sub-boxes, {max_seconds:g} s) spent after {done} "
                               f"sub-boxes; not proved on [{text(lo)}] .. [{text(hi)}]", done, (lo, hi))
         done += 1
@@ -460,7 +464,7 @@ def box_verdict(loop: SampledLoop, h: float, *, max_boxes: int = 64, max_seconds
                 T = Ball(parts.map(ball_generator(chain, lo, hi, loop.literals).value))
                 proved = prove_stable(T, T_mid, loop.states, loop.r)
             if not proved and affine is None and not np.array_equal(lo, hi):
-                proved = perron_first_order_stable(loop, parts, lo, hi, T_mid, t0 + max_seconds)
+                proved = perron_first_order_stable(loop, parts, lo, hi, T_mid, wall + max_seconds)
         if not proved and np.array_equal(lo, hi):
             with precision(PRECISION_BITS):
                 proved = prove_stable(ball_one_period_map(loop, h, lo, hi), T_mid, loop.states, loop.r)
