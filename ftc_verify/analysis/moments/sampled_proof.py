@@ -52,7 +52,8 @@ about :math:`h` times the widths of the rates.
 **Over the box** (:func:`box_verdict`): the float64 radius at the vertices and the
 midpoint first; if some point has :math:`\rho \ge 1`, instability is proved there.
 Otherwise the stable proof is tried on the whole box, and a sub-box where it fails is
-halved along its widest rate (relative to the box), breadth first, until every
+halved along the rate the float64 radius depends on most there (``_split_rate``),
+breadth first, until every
 sub-box is proved -- or a sub-box's midpoint is proved unstable, or the budget of
 sub-boxes (or seconds) runs out: then the verdict is ``undecided`` and names the
 sub-box. On each sub-box the upper envelope is tried first, then the enclosure of
@@ -83,6 +84,7 @@ files' decimal texts (:attr:`SampledLoop.literals`, :meth:`SampledLoop.period_ba
 from __future__ import annotations
 
 import itertools
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -91,7 +93,6 @@ from typing import Any
 import numpy as np
 import scipy.linalg
 
-from ...model.chain import JointChain
 from ...model.system import Matrix
 from ..exact import enclose, written
 from ..rigorous import PRECISION_BITS, Ball, ball, midpoint, precision
@@ -417,15 +418,28 @@ class BoxVerdict:
     where: Any = None
 
 
-def _widest(chain: JointChain, lo: Matrix, hi: Matrix) -> tuple[int, ...] | None:
+def _split_rate(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix) -> tuple[int, ...] | None:
+    """The rate along which a sub-box is halved: the largest score
+    :math:`|\rho(r_0 + w_a e_a) - \rho(r_0 - w_a e_a)| + 0.1\\, m\\, w_a / W_a` (float64
+    radii at the midpoint moved to the sub-box's ends along the rate, :math:`m` the
+    largest such change, :math:`w_a / W_a` the relative width): the rates the radius
+    depends on most first, every rate in turn as its relative width grows. A
+    heuristic; only where the proofs look next depends on it."""
+    chain = loop.chain
     full = chain.rate_max - chain.rate_min
-    best, where = 0.0, None
+    mid = 0.5 * (lo + hi)
+    rel, change = {}, {}
     for idx in chain.rate_indices:
-        if full[idx] > 0:
-            rel = (hi[idx] - lo[idx]) / full[idx]
-            if rel > best:
-                best, where = rel, idx
-    return where
+        if full[idx] > 0 and hi[idx] > lo[idx]:
+            rel[idx] = (hi[idx] - lo[idx]) / full[idx]
+            up, down = mid.copy(), mid.copy()
+            up[idx], down[idx] = hi[idx], lo[idx]
+            d = abs(spectral_radius(loop, h, up) - spectral_radius(loop, h, down))
+            change[idx] = d if math.isfinite(d) else 0.0
+    if not rel:
+        return None
+    m = max(change.values())
+    return max(rel, key=lambda idx: (change[idx] + 0.1 * m * rel[idx], rel[idx]))
 
 
 def box_verdict(loop: SampledLoop, h: float, *, max_boxes: int = 64, max_seconds: float = 20.0,
@@ -475,7 +489,7 @@ def box_verdict(loop: SampledLoop, h: float, *, max_boxes: int = 64, max_seconds
                 return BoxVerdict("not stable", f"spectral radius > 1 proved at {text(mid)} (ball arithmetic)",
                                   done, mid)
             return BoxVerdict("undecided", f"float64 spectral radius >= 1 at {text(mid)}, not proved", done, mid)
-        idx = _widest(chain, lo, hi)
+        idx = _split_rate(loop, h, lo, hi)
         if idx is None:
             return BoxVerdict("undecided", f"stability not proved at the rate point {text(lo)}", done, lo)
         left_hi, right_lo = hi.copy(), lo.copy()
