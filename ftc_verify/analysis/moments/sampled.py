@@ -404,7 +404,7 @@ def stability_intervals(loop: SampledLoop, hs: Matrix, rho: Matrix, rtol: float 
 
 
 def h_max_bracket(loop: SampledLoop, stable_h: float, unstable_h: float, *, rtol: float = H_MAX_RTOL,
-                  max_boxes: int = 512, max_seconds: float = 4.0,
+                  max_boxes: int = 512, max_seconds: float = 3.0,
                   deadline: float = math.inf) -> tuple[float | None, float | None, str]:
     """``(h_max, h_max_unstable, note)`` from a float64 bracket ``stable_h < unstable_h``
     of the crossing: :func:`ftc_verify.analysis.moments.sampled_bracket.h_max_bracket`."""

@@ -35,34 +35,36 @@ __all__ = ["LADDER", "TIGHT", "prove_below", "worst_vertex", "h_max_bracket"]
 #: Relative distances below the crossing tried after the tight one fails, easy first.
 LADDER = (0.1, 0.03, 0.01, 3e-3)
 
-#: The first attempt's distance below the crossing, in units of ``rtol``: the unstable
-#: end is at most ``3 rtol / 16`` above it, so the bracket is within ``rtol``.
-TIGHT = 0.5
+#: The first attempts' distances below the crossing, in units of ``rtol``, and their
+#: shares of the budget: the unstable end is at most ``3 rtol / 16`` above the crossing,
+#: so either bracket is within ``rtol``.
+TIGHT = ((0.25, 1 / 6), (0.75, 1 / 2))
 
 
 def prove_below(loop: SampledLoop, a: float, rtol: float, max_boxes: int, max_seconds: float,
                 deadline: float) -> float | None:
     """A period ``a (1 - f)`` below the float64 crossing ``a`` proved mean-square stable
     over the whole rate box, the closest to ``a`` of those tried (``None`` if none; no
-    attempt starts after ``deadline``, ``time.perf_counter()``): first ``f =`` :data:`TIGHT`
-    ``rtol`` with half the budget (the bracket within ``rtol`` at once); if that fails,
-    easy first -- ``f`` in :data:`LADDER` (the first with the full ``max_seconds``, the
-    others with a third), then ``3 rtol / 4`` -- stopping at the first failure (a
-    smaller margin is harder: its proof would rarely succeed and would spend its whole
-    budget). The budgets are CPU seconds of this process (``time.process_time``), so that
-    the bracket does not depend on the machine's load; ``deadline`` is wall time."""
+    attempt starts after ``deadline``, ``time.perf_counter()``): first the :data:`TIGHT`
+    distances (the bracket within ``rtol`` at once: ``f = rtol / 4`` with a sixth of the
+    budget, enough where one sub-box does, then ``3 rtol / 4`` with half of it); if both
+    fail, easy first -- ``f`` in :data:`LADDER` (the first with the full ``max_seconds``,
+    the others with a third) -- stopping at the first failure (a smaller margin is
+    harder: its proof would rarely succeed and would spend its whole budget). The budgets
+    are CPU seconds of this process (``time.process_time``), so that the bracket does
+    not depend on the machine's load; ``deadline`` is wall time."""
 
     def proved(f: float, seconds: float) -> bool:
         return box_verdict(loop, a * (1 - f), max_boxes=max_boxes, max_seconds=seconds,
                            clock=time.process_time).verdict == "stable"
 
-    if time.perf_counter() > deadline:
-        return None
-    if proved(TIGHT * rtol, max_seconds / 2):
-        return a * (1 - TIGHT * rtol)
+    for f, share in TIGHT:
+        if time.perf_counter() > deadline:
+            return None
+        if proved(f * rtol, share * max_seconds):
+            return a * (1 - f * rtol)
     best = None
-    steps = [f for f in LADDER if f > 0.75 * rtol] + [0.75 * rtol]
-    for k, f in enumerate(steps):
+    for k, f in enumerate(f for f in LADDER if f > TIGHT[-1][0] * rtol):
         if time.perf_counter() > deadline or not proved(f, max_seconds if k == 0 else max_seconds / 3):
             break
         best = a * (1 - f)
@@ -120,7 +122,7 @@ def _worst_crossing(loop: SampledLoop, stable_h: float, a: float, rtol: float, p
 
 
 def h_max_bracket(loop: SampledLoop, stable_h: float, unstable_h: float, *, rtol: float = H_MAX_RTOL,
-                  max_boxes: int = 512, max_seconds: float = 4.0,
+                  max_boxes: int = 512, max_seconds: float = 3.0,
                   deadline: float = math.inf) -> tuple[float | None, float | None, str]:
     """``(h_max, h_max_unstable, note)`` from a float64 bracket ``stable_h < unstable_h``
     of the crossing: a period proved mean-square stable over the whole rate box and a

@@ -245,7 +245,7 @@ def _rates_affine(loop: SampledLoop, lo: Matrix, hi: Matrix) -> tuple[Any, Matri
         return None
     qc, qr = from_arb(ball_generator(chain, mid, mid, lit).value)
     D = np.stack(dirs)
-    return (qc, qr + 2.0 ** -52 * np.abs(D).sum(axis=0) * (1 + 2 ** -40)), D
+    return (qc, (qr + 2.0 ** -52 * np.abs(D).sum(axis=0)) * (1 + 2 ** -40)), D
 
 
 def affine_stable(loop: SampledLoop, parts: Any, lo: Matrix, hi: Matrix) -> bool | None:
