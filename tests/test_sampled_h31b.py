@@ -149,3 +149,23 @@ def test_bracket_within_rtol_and_consistent_with_dense_rates(seed: int) -> None:
     pts += list(chain.vertices())
     assert max(spectral_radius(loop, hm, p) for p in pts) < 1.0
     assert max(spectral_radius(loop, hu, p) for p in pts) > 1.0
+
+
+
+def test_first_stability_interval_ends_at_the_proved_unstable_period(monkeypatch: pytest.MonkeyPatch) -> None:
+    """When the bracket proves instability below the end of the scan's first interval
+    (a worse vertex than the scan's rate points), the reported interval ends there; the
+    paper loop's own interval (ending near 0.0843, above the 0.08 faked here) is cut."""
+    from pathlib import Path
+
+    from ftc_verify.analysis.moments import sampled
+    from ftc_verify.controllers.files import load_controller
+    from ftc_verify.model.files import load_system
+
+    root = Path(__file__).resolve().parents[1]
+    system, gains = load_system(root / "examples" / "paper.toml"), load_controller(root / "examples" / "paper_gains.toml")
+    honest = sampled.sampled_analysis(system, gains, 0.01, max_boxes=4)
+    assert honest.stability_intervals[0][1] > 0.0842
+    monkeypatch.setattr(sampled, "h_max_bracket", lambda *a, **k: (None, 0.08, "faked"))
+    res = sampled.sampled_analysis(system, gains, 0.01, max_boxes=4)
+    assert res.stability_intervals[0] == (honest.stability_intervals[0][0], 0.08)

@@ -433,7 +433,9 @@ class SampledResult:
         The proved bracket: stable over the box at ``h_max``, unstable at a rate point at
         ``h_max_unstable``, within :data:`H_MAX_RTOL` relative (``None`` if not found).
     stability_intervals : tuple of (float, float)
-        Runs of periods with float64 :math:`\\rho < 1` in the scanned range.
+        Runs of periods with float64 :math:`\\rho < 1` at the scan's rate points in the
+        scanned range; the first ends no later than ``h_max_unstable`` (where the bracket
+        found a worse vertex, the loop is proved unstable there).
     scan : (float, float)
         The scanned range of periods.
     performance : SampledPerformance or None
@@ -523,5 +525,7 @@ def sampled_analysis(system: FTCSystem, controller: Controller, period: float, *
         else:
             k = int(np.searchsorted(hs, intervals[0][1], side="right"))
             hm, hu, note = h_max_bracket(loop, float(hs[k - 1]), float(hs[k]), deadline=t0 + max_seconds)
+            if hu is not None and intervals[0][1] > hu:  # a worse vertex than the scan's points
+                intervals = ((intervals[0][0], hu),) + intervals[1:]
     return SampledResult(period, verdict.verdict, rho, where, verdict.detail, verdict.boxes, hm, hu, note,
                          intervals, (lo, hi), time.perf_counter() - t0)
