@@ -86,7 +86,7 @@ def test_one_period_map_ball_contains_arbs() -> None:
 
     from ftc_verify.analysis.moments.sampled import SampledLoop
     from ftc_verify.analysis.moments.sampled_balls import ball_generator
-    from ftc_verify.analysis.moments.sampled_proof import _MapParts
+    from ftc_verify.analysis.moments.sampled_proof import MapParts
     from ftc_verify.analysis.rigorous import precision
     from ftc_verify.controllers.files import load_controller
     from ftc_verify.model.files import load_system
@@ -96,7 +96,7 @@ def test_one_period_map_ball_contains_arbs() -> None:
                              load_controller(root / "examples" / "paper_gains.toml"))
     chain = loop.chain
     with precision(64):
-        parts = _MapParts.build(loop, 0.08)
+        parts = MapParts.build(loop, 0.08)
         for lo, hi in ((chain.rate_min, chain.rate_max), (chain.midpoint(), chain.midpoint())):
             Q = ball_generator(chain, lo, hi, loop.literals).value
             fast = parts.map(Q)

@@ -336,17 +336,18 @@ def test_first_order_form_proves_where_the_direct_ball_cannot(paper: tuple[FTCSy
     with one sub-box."""
     from ftc_verify.analysis.rigorous import Ball, precision
     from ftc_verify.analysis.moments.sampled_balls import ball_generator
-    from ftc_verify.analysis.moments.sampled_proof import _first_order_stable, _MapParts, prove_stable
+    from ftc_verify.analysis.moments.sampled_proof import MapParts, prove_stable
+    from ftc_verify.analysis.moments.sampled_taylor import perron_first_order_stable
 
     system = paper[0]
     gains = Controller.state_feedback([[[2.9749, 9.5371], [-9.4142, 2.8536]], [[2.5399, 9.6565], [-9.5176, 2.3946]]])
     loop, chain = SampledLoop.build(system, gains), system.chain
     with precision(64):
-        parts = _MapParts.build(loop, 0.2)
+        parts = MapParts.build(loop, 0.2)
         T_mid = one_period_map(loop, 0.2, chain.midpoint(), scaled=True)
         T = Ball(parts.map(ball_generator(chain, chain.rate_min, chain.rate_max).value))
         assert not prove_stable(T, T_mid, loop.states, loop.r)
-        assert _first_order_stable(loop, parts, chain.rate_min, chain.rate_max, T_mid)
+        assert perron_first_order_stable(loop, parts, chain.rate_min, chain.rate_max, T_mid)
     v = box_verdict(loop, 0.2)
     assert v.verdict == "stable" and v.boxes == 1
 
@@ -357,13 +358,13 @@ def test_upper_envelope_dominates_every_rate_of_the_box(paper: tuple[FTCSystem, 
     semidefinite stacks (float64, to rounding)."""
     from ftc_verify.analysis.rigorous import midpoint, precision
     from ftc_verify.analysis.moments.sampled_balls import envelope_generator
-    from ftc_verify.analysis.moments.sampled_proof import _MapParts
+    from ftc_verify.analysis.moments.sampled_proof import MapParts
 
     system = _erlang_false_alarm(paper[0])
     loop, chain = SampledLoop.build(system, paper[1]), system.chain
     h = 0.05
     with precision(64):
-        T_up = midpoint(Ball(_MapParts.build(loop, h).map(envelope_generator(chain, chain.rate_min,
+        T_up = midpoint(Ball(MapParts.build(loop, h).map(envelope_generator(chain, chain.rate_min,
                                                                              chain.rate_max).value)))
     rng = np.random.default_rng(5)
     rows, cols = np.tril_indices(loop.r)

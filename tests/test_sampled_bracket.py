@@ -6,7 +6,7 @@ import math
 from pathlib import Path
 
 from ftc_verify.analysis.moments.sampled import SampledLoop
-from ftc_verify.analysis.moments.sampled_bracket import prove_below
+from ftc_verify.analysis.moments.sampled_bracket import TIGHT, prove_below
 from ftc_verify.analysis.moments.sampled_proof import box_verdict
 from ftc_verify.controllers.files import load_controller
 from ftc_verify.model.files import load_system
@@ -25,7 +25,7 @@ def test_tight_proof_first() -> None:
     loop = _paper()
     a, rtol = 0.0842, 1e-3
     h = prove_below(loop, a, rtol, 16, 10.0, math.inf)
-    assert h is not None and math.isclose(h, a * (1 - 0.25 * rtol))
+    assert h is not None and math.isclose(h, a * (1 - TIGHT[0][0] * rtol)) and TIGHT[0][0] == 0.25
     assert box_verdict(loop, h, max_boxes=16, max_seconds=10.0).verdict == "stable"
 
 

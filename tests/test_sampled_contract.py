@@ -93,7 +93,7 @@ def test_sampled_proofs_enclose_the_files_decimals(tmp_path: Path) -> None:
     the data (exact balls)."""
     import flint
 
-    from ftc_verify.analysis.moments.sampled_proof import _MapParts, ball_resets
+    from ftc_verify.analysis.moments.sampled_proof import MapParts, ball_resets
     from ftc_verify.controllers import Controller
 
     from ftc_verify.analysis.rigorous import precision
@@ -108,7 +108,7 @@ def test_sampled_proofs_enclose_the_files_decimals(tmp_path: Path) -> None:
         h = written.period_ball(0.1)
         assert h.contains(flint.arb("0.1")) and not h.contains(flint.arb(0.1))
         assert written.period_ball(0.0842) == flint.arb(0.0842) and loop.period_ball(0.1).rad() == 0
-        parts = _MapParts.build(written, 0.1)
+        parts = MapParts.build(written, 0.1)
         assert parts.h.contains(flint.arb("0.1"))
         s = loop.scale
         a22 = parts.modes[4, 4]  # vech entry (x2, x2) (column-major lower triangle, d = 4): 2 A_22

@@ -83,7 +83,7 @@ from ..closedloop import closed_loop
 from .stability import duplication_matrix, second_moment_matrix, vech_order
 
 __all__ = ["SampledLoop", "SampledResult", "one_period_map", "assemble_map", "spectral_radius", "rate_points",
-           "worst_radius", "scan_periods", "stability_intervals", "h_max_bracket", "sampled_analysis",
+           "worst_radius", "crossing", "scan_periods", "stability_intervals", "h_max_bracket", "sampled_analysis",
            "H_MAX_RTOL", "SCAN_PER_OCTAVE"]
 
 #: Relative width of the proved ``h_max`` bracket (proved stable, proved unstable).
@@ -368,10 +368,12 @@ def scan_periods(loop: SampledLoop, lo: float, hi: float) -> tuple[Matrix, Matri
     return hs, rho
 
 
-def _crossing(loop: SampledLoop, a: float, b: float, stable_at_a: bool, rtol: float) -> float:
-    """Float64 bisection of the change of ``rho < 1`` between ``a`` and ``b``; returns the
-    end on the side of ``a``'s verdict, within ``rtol`` relative."""
-    pts = rate_points(loop.chain)
+def crossing(loop: SampledLoop, a: float, b: float, stable_at_a: bool, rtol: float,
+             points: Sequence[Matrix] | None = None) -> float:
+    """Float64 bisection of the change of ``rho < 1`` (worst over ``points``, default
+    :func:`rate_points`) between ``a`` and ``b``; returns the end on the side of ``a``'s
+    verdict, within ``rtol`` relative."""
+    pts = rate_points(loop.chain) if points is None else points
     while (b - a) > rtol * max(abs(a), abs(b)):
         mid = 0.5 * (a + b)
         if (worst_radius(loop, mid, pts)[0] < 1.0) == stable_at_a:
@@ -394,56 +396,22 @@ def stability_intervals(loop: SampledLoop, hs: Matrix, rho: Matrix, rtol: float 
         start = k
         while k + 1 < hs.size and stable[k + 1]:
             k += 1
-        lo = float(hs[0]) if start == 0 else _crossing(loop, float(hs[start]), float(hs[start - 1]), True, rtol)
-        hi = float(hs[-1]) if k == hs.size - 1 else _crossing(loop, float(hs[k]), float(hs[k + 1]), True, rtol)
+        lo = float(hs[0]) if start == 0 else crossing(loop, float(hs[start]), float(hs[start - 1]), True, rtol)
+        hi = float(hs[-1]) if k == hs.size - 1 else crossing(loop, float(hs[k]), float(hs[k + 1]), True, rtol)
         out.append((lo, hi))
         k += 1
     return tuple(out)
 
 
 def h_max_bracket(loop: SampledLoop, stable_h: float, unstable_h: float, *, rtol: float = H_MAX_RTOL,
-                  max_boxes: int = 64, max_seconds: float = 3.0,
+                  max_boxes: int = 512, max_seconds: float = 3.0,
                   deadline: float = math.inf) -> tuple[float | None, float | None, str]:
     """``(h_max, h_max_unstable, note)`` from a float64 bracket ``stable_h < unstable_h``
-    of the crossing: a period proved mean-square stable over the whole rate box and a
-    larger one proved unstable at some rate point.
+    of the crossing: :func:`ftc_verify.analysis.moments.sampled_bracket.h_max_bracket`."""
+    from .sampled_bracket import h_max_bracket as bracket
 
-    The crossing is bisected in float64 to ``rtol / 16``; stability is then tried at
-    ``(1 - f) a`` for ``f = rtol / 4`` (the bracket within ``rtol``), then, if that proof
-    runs out of its budget (``max_boxes`` sub-boxes, ``max_seconds / 3``), from further
-    below (``f`` = 10 % with ``max_seconds``, 1 % and ``3 rtol / 4`` with a third)
-    upwards until one fails (:func:`~ftc_verify.analysis.moments.sampled_bracket.prove_below`),
-    and the note says the bracket is wider than ``rtol``. No new proof is started after
-    ``deadline`` (``time.perf_counter()``). ``None`` where no proof was found."""
-    from .sampled_bracket import prove_below
-    from .sampled_proof import prove_point_unstable
-
-    pts = rate_points(loop.chain)
-    a = _crossing(loop, stable_h, unstable_h, True, rtol / 16)
-    b = a * (1 + rtol / 16)
-    while worst_radius(loop, b, pts)[0] < 1.0 and b < unstable_h:  # pragma: no cover - float ties
-        b = min(unstable_h, b * (1 + rtol / 16))
-    proved_b = None
-    for f in (0.0, 0.0625, 0.125):  # with a's first margins, the gap stays below rtol
-        if time.perf_counter() > deadline:
-            break
-        hb = b * (1 + f * rtol)
-        rho, where = worst_radius(loop, hb, pts)
-        if rho > 1.0 and prove_point_unstable(loop, hb, where):
-            proved_b = hb
-            break
-    proved_a = prove_below(loop, a, rtol, max_boxes, max_seconds, deadline)
-    if proved_a is None or proved_b is None:
-        missing = " and ".join(w for w, v in (("stability", proved_a), ("instability", proved_b)) if v is None)
-        late = " (time budget spent)" if time.perf_counter() > deadline else ""
-        return proved_a, proved_b, f"{missing} near the float64 crossing {a:.6g} not proved{late}"
-    gap = (proved_b - proved_a) / proved_b
-    if gap > rtol:
-        return proved_a, proved_b, (f"proved stable over the rate box at {proved_a:.6g}, unstable at a rate point at "
-                                    f"{proved_b:.6g}: the bracket ({gap:.1e} relative) is WIDER than {rtol:g} "
-                                    f"(the sub-box budget ran out nearer the float64 crossing {a:.6g})")
-    return proved_a, proved_b, (f"proved stable over the rate box at {proved_a:.6g}, proved unstable at a rate "
-                                f"point at {proved_b:.6g} (relative gap {gap:.1e})")
+    return bracket(loop, stable_h, unstable_h, rtol=rtol, max_boxes=max_boxes, max_seconds=max_seconds,
+                   deadline=deadline)
 
 
 @dataclass(frozen=True, eq=False)
@@ -465,7 +433,9 @@ class SampledResult:
         The proved bracket: stable over the box at ``h_max``, unstable at a rate point at
         ``h_max_unstable``, within :data:`H_MAX_RTOL` relative (``None`` if not found).
     stability_intervals : tuple of (float, float)
-        Runs of periods with float64 :math:`\\rho < 1` in the scanned range.
+        Runs of periods with float64 :math:`\\rho < 1` at the scan's rate points in the
+        scanned range; the first ends no later than ``h_max_unstable`` (where the bracket
+        found a worse vertex, the loop is proved unstable there).
     scan : (float, float)
         The scanned range of periods.
     performance : SampledPerformance or None
@@ -555,5 +525,7 @@ def sampled_analysis(system: FTCSystem, controller: Controller, period: float, *
         else:
             k = int(np.searchsorted(hs, intervals[0][1], side="right"))
             hm, hu, note = h_max_bracket(loop, float(hs[k - 1]), float(hs[k]), deadline=t0 + max_seconds)
+            if hu is not None and intervals[0][1] > hu:  # a worse vertex than the scan's points
+                intervals = ((intervals[0][0], hu),) + intervals[1:]
     return SampledResult(period, verdict.verdict, rho, where, verdict.detail, verdict.boxes, hm, hu, note,
                          intervals, (lo, hi), time.perf_counter() - t0)

@@ -1,42 +1,164 @@
-"""The stable end of the sampled loop's ``h_max`` bracket
-(:func:`ftc_verify.analysis.moments.sampled.h_max_bracket`): which periods below the
-float64 crossing to prove stable over the rate box, in which order, with which budget.
+r"""The sampled loop's proved ``h_max`` bracket: where the float64 crossing is, and which
+periods around it to prove stable (over the rate box) and unstable (at a rate point).
 
-A proof over the rate box near the crossing has a small margin and needs many sub-boxes
-(:func:`~ftc_verify.analysis.moments.sampled_proof.box_verdict`), so a failing attempt
-spends its whole budget; the attempts are ordered so that few fail.
+**Where the crossing is.** The scan (:func:`~ftc_verify.analysis.moments.sampled.scan_periods`)
+evaluates :func:`~ftc_verify.analysis.moments.sampled.rate_points`: every vertex of the
+rate box when it has at most 16, else only its two corners and its midpoint. With more
+rates the worst rate array is often another vertex (on the random ``n = 4, m = 3``
+loop of ``benchmarks/sampled.py``, six detection rates, vertex ``(hi, lo, lo, lo, lo,
+hi)`` has :math:`\rho = 1.003` where both corners have :math:`\rho < 0.9994`), and a
+stable proof at the corners' crossing is bound to fail. :func:`worst_vertex` climbs
+from the worst corner to a vertex no single flip of one rate improves (float64, a
+heuristic: it only chooses where to look; every claim is proved), and
+:func:`h_max_bracket` moves the crossing down while such a vertex is unstable there.
+
+**Which periods.** A proof over the rate box near the crossing has a small margin and
+needs many sub-boxes (:func:`~ftc_verify.analysis.moments.sampled_proof.box_verdict`),
+so a failing attempt spends its whole budget; :func:`prove_below` orders the attempts
+so that few fail.
 """
 
 from __future__ import annotations
 
+import math
 import time
+from collections.abc import Sequence
 
-from .sampled import SampledLoop
-from .sampled_proof import box_verdict
+import numpy as np
 
-__all__ = ["prove_below"]
+from ...model.system import Matrix
+from .sampled import H_MAX_RTOL, SampledLoop, crossing, rate_points, spectral_radius, worst_radius
+from .sampled_proof import box_verdict, prove_point_unstable
+
+__all__ = ["LADDER", "TIGHT", "prove_below", "worst_vertex", "h_max_bracket"]
+
+#: Relative distances below the crossing tried after the tight one fails, easy first.
+LADDER = (0.1, 0.03, 0.01, 3e-3)
+
+#: The first attempts' distances below the crossing, in units of ``rtol``, and their
+#: shares of the budget: the unstable end is at most ``3 rtol / 16`` above the crossing,
+#: so either bracket is within ``rtol``.
+TIGHT = ((0.25, 1 / 6), (0.75, 1 / 2))
 
 
 def prove_below(loop: SampledLoop, a: float, rtol: float, max_boxes: int, max_seconds: float,
-                 deadline: float) -> float | None:
+                deadline: float) -> float | None:
     """A period ``a (1 - f)`` below the float64 crossing ``a`` proved mean-square stable
     over the whole rate box, the closest to ``a`` of those tried (``None`` if none; no
-    attempt starts after ``deadline``, ``time.perf_counter()``): first ``f = rtol / 4`` with a third of the budget (the bracket within
-    ``rtol`` at once); if that fails, easy first -- ``f = 0.1`` with the full budget,
-    then ``10^{-2}`` and ``3 rtol / 4`` with a third each -- stopping at the first
-    failure (a smaller margin is harder: its proof would rarely succeed and would spend
-    its whole budget)."""
+    attempt starts after ``deadline``, ``time.perf_counter()``): first the :data:`TIGHT`
+    distances (the bracket within ``rtol`` at once: ``f = rtol / 4`` with a sixth of the
+    budget, enough where one sub-box does, then ``3 rtol / 4`` with half of it); if both
+    fail, easy first -- ``f`` in :data:`LADDER` (the first with the full ``max_seconds``,
+    the others with a third) -- stopping at the first failure (a smaller margin is
+    harder: its proof would rarely succeed and would spend its whole budget). The budgets
+    are CPU seconds of this process (``time.process_time``), so that the bracket does
+    not depend on the machine's load; ``deadline`` is wall time."""
 
     def proved(f: float, seconds: float) -> bool:
-        return box_verdict(loop, a * (1 - f), max_boxes=max_boxes, max_seconds=seconds).verdict == "stable"
+        return box_verdict(loop, a * (1 - f), max_boxes=max_boxes, max_seconds=seconds,
+                           clock=time.process_time).verdict == "stable"
 
-    if time.perf_counter() > deadline:
-        return None
-    if proved(0.25 * rtol, max_seconds / 3):
-        return a * (1 - 0.25 * rtol)
+    for f, share in TIGHT:
+        if time.perf_counter() > deadline:
+            return None
+        if proved(f * rtol, share * max_seconds):
+            return a * (1 - f * rtol)
     best = None
-    for f, seconds in ((0.1, max_seconds), (1e-2, max_seconds / 3), (0.75 * rtol, max_seconds / 3)):
-        if time.perf_counter() > deadline or not proved(f, seconds):
+    for k, f in enumerate(f for f in LADDER if f > TIGHT[-1][0] * rtol):
+        if time.perf_counter() > deadline or not proved(f, max_seconds if k == 0 else max_seconds / 3):
             break
         best = a * (1 - f)
     return best
+
+
+def worst_vertex(loop: SampledLoop, h: float, points: Sequence[Matrix]) -> tuple[float, Matrix]:
+    """A vertex of the rate box with a large float64 :math:`\\rho(T)` at period ``h``
+    and that radius: the worst of ``points`` that is a vertex (the corners of
+    :func:`~ftc_verify.analysis.moments.sampled.rate_points`), then single flips of one
+    rate to its other end while one raises :math:`\\rho` (module docstring)."""
+    chain = loop.chain
+    free = [idx for idx in chain.rate_indices if chain.rate_max[idx] > chain.rate_min[idx]]
+    lo, hi = chain.rate_min, chain.rate_max
+
+    def is_vertex(p: Matrix) -> bool:
+        return all(p[idx] in (lo[idx], hi[idx]) for idx in free)
+
+    start = [p for p in points if is_vertex(p)] or [np.array(lo, dtype=float)]
+    best, where = worst_radius(loop, h, start)
+    where = np.array(where, dtype=float)
+    for _ in range(len(free)):
+        moves = []
+        for idx in free:
+            p = where.copy()
+            p[idx] = hi[idx] if p[idx] == lo[idx] else lo[idx]
+            moves.append((spectral_radius(loop, h, p), p))
+        rho, p = max(moves, key=lambda m: m[0])
+        if not rho > best:
+            break
+        best, where = rho, p
+    return best, where
+
+
+def _worst_crossing(loop: SampledLoop, stable_h: float, a: float, rtol: float, points: list[Matrix],
+                    deadline: float) -> float:
+    """The crossing ``a`` lowered while :func:`worst_vertex` finds a vertex unstable at it
+    (added to ``points``); a few rounds, none after ``deadline``."""
+    if loop.chain.vertex_count() <= 16:
+        return a  # rate_points has every vertex
+    for _ in range(4):
+        if time.perf_counter() > deadline:
+            break
+        rho, v = worst_vertex(loop, a, points)
+        if rho < 1.0:
+            break
+        points.append(v)
+        lo, hi = stable_h, a
+        while worst_radius(loop, lo, points)[0] >= 1.0:
+            if lo < stable_h / 16:
+                return a  # pragma: no cover - no stable period near: keep the corners' crossing
+            lo, hi = lo * 2.0 ** -0.125, lo
+        a = crossing(loop, lo, hi, True, rtol / 16, points)
+    return a
+
+
+def h_max_bracket(loop: SampledLoop, stable_h: float, unstable_h: float, *, rtol: float = H_MAX_RTOL,
+                  max_boxes: int = 512, max_seconds: float = 3.0,
+                  deadline: float = math.inf) -> tuple[float | None, float | None, str]:
+    """``(h_max, h_max_unstable, note)`` from a float64 bracket ``stable_h < unstable_h``
+    of the crossing: a period proved mean-square stable over the whole rate box and a
+    larger one proved unstable at some rate point.
+
+    The crossing is bisected in float64 to ``rtol / 16`` over the scan's rate points,
+    then lowered where :func:`worst_vertex` finds a worse vertex (module docstring);
+    instability is proved at the worst point just above it, stability by
+    :func:`prove_below` (the bracket within ``rtol``, or the closest period its budget
+    reaches: ``max_boxes`` sub-boxes, ``max_seconds`` CPU seconds per attempt; then the note says the
+    bracket is wider than ``rtol``). No new proof is started after ``deadline``
+    (``time.perf_counter()``). ``None`` where no proof was found."""
+    pts = list(rate_points(loop.chain))
+    a = crossing(loop, stable_h, unstable_h, True, rtol / 16, pts)
+    a = _worst_crossing(loop, stable_h, a, rtol, pts, deadline)
+    b = a * (1 + rtol / 16)
+    while worst_radius(loop, b, pts)[0] < 1.0 and b < unstable_h:  # pragma: no cover - float ties
+        b = min(unstable_h, b * (1 + rtol / 16))
+    proved_b = None
+    for f in (0.0, 0.0625, 0.125):  # with a's first margins, the gap stays below rtol
+        if time.perf_counter() > deadline:
+            break
+        hb = b * (1 + f * rtol)
+        rho, where = worst_radius(loop, hb, pts)
+        if rho > 1.0 and prove_point_unstable(loop, hb, where):
+            proved_b = hb
+            break
+    proved_a = prove_below(loop, a, rtol, max_boxes, max_seconds, deadline)
+    if proved_a is None or proved_b is None:
+        missing = " and ".join(w for w, v in (("stability", proved_a), ("instability", proved_b)) if v is None)
+        late = " (time budget spent)" if time.perf_counter() > deadline else ""
+        return proved_a, proved_b, f"{missing} near the float64 crossing {a:.6g} not proved{late}"
+    gap = (proved_b - proved_a) / proved_b
+    if gap > rtol:
+        return proved_a, proved_b, (f"proved stable over the rate box at {proved_a:.6g}, unstable at a rate point at "
+                                    f"{proved_b:.6g}: the bracket ({gap:.1e} relative) is WIDER than {rtol:g} "
+                                    f"(the sub-box budget ran out nearer the float64 crossing {a:.6g})")
+    return proved_a, proved_b, (f"proved stable over the rate box at {proved_a:.6g}, proved unstable at a rate "
+                                f"point at {proved_b:.6g} (relative gap {gap:.1e})")

@@ -52,15 +52,26 @@ about :math:`h` times the widths of the rates.
 **Over the box** (:func:`box_verdict`): the float64 radius at the vertices and the
 midpoint first; if some point has :math:`\rho \ge 1`, instability is proved there.
 Otherwise the stable proof is tried on the whole box, and a sub-box where it fails is
-halved along its widest rate (relative to the box), breadth first, until every
+halved along the rate the float64 radius depends on most there (``_split_rate``),
+breadth first, until every
 sub-box is proved -- or a sub-box's midpoint is proved unstable, or the budget of
 sub-boxes (or seconds) runs out: then the verdict is ``undecided`` and names the
-sub-box. On each sub-box the upper envelope is tried first, then the direct ball of
-:math:`T`, then a
-first-order expansion at its midpoint whose remainder is quadratic in the width
-(``_first_order_stable``). A set of
-vertices is never called proved. The ball exponential of :math:`\mathcal L` is the
-cost (a few tenths of a second at 189 rows in float64 balls, seconds in Arb), so the envelope and the direct ball are attempted only when
+sub-box. On each sub-box the upper envelope is tried first, then the enclosure of
+:math:`T` as a polynomial in the sub-box's rates (second order for small loops,
+:mod:`~ftc_verify.analysis.moments.quad_balls`; affine otherwise,
+:func:`~ftc_verify.analysis.moments.fast_balls.aff_expm`) with a certificate that moves
+with the rates (:func:`~ftc_verify.analysis.moments.sampled_taylor.affine_stable`): the
+rates stay symbols through the exponential, so a transfer of mass between joint states
+is not wrapped into independent entrywise balls, and the sub-boxes need only be about
+:math:`\sqrt{\epsilon}` (second order: :math:`\epsilon^{1/3}`) wide where the margin is
+:math:`\epsilon`. Only when that is not applicable (more than
+:data:`~ftc_verify.analysis.moments.sampled_taylor.AFFINE_RATES` free rates, Arb
+precision above 64 bits, overflow) the direct ball of :math:`T` and the first-order
+expansion with the derivative's ball over the sub-box
+(:func:`~ftc_verify.analysis.moments.sampled_taylor.perron_first_order_stable`) are
+tried. A set of vertices is never called proved. The ball exponential of
+:math:`\mathcal L` is the cost (a few tenths of a second at 189 rows in float64 balls,
+seconds in Arb), so the envelope and the direct ball are attempted only when
 their criterion holds in float64 first (``_float_stable``: the envelope's map;
 ``_float_vertices_hold``: :math:`Y - T(r) Y \succ 0` at the sub-box's vertices, which the
 ball contains) -- a necessary condition checked with float exponentials; skipping an
@@ -75,23 +86,23 @@ from __future__ import annotations
 import itertools
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import scipy.linalg
 
-from ...model.chain import JointChain
 from ...model.system import Matrix
 from ..exact import enclose, written
-from ..rigorous import PRECISION_BITS, Ball, ball, midpoint, precision, proven_positive_definite
+from ..rigorous import PRECISION_BITS, Ball, ball, midpoint, precision
 from .fast_balls import MidRad, arb_expm, from_arb, map_ball
-from .sampled_balls import (ball_block_diag, ball_generator, ball_kron, envelope_generator,
-                            generator_coefficients)
+from .sampled_balls import ball_block_diag, ball_generator, ball_kron, envelope_generator
 from .sampled import SampledLoop, assemble_map, one_period_map, rate_points, spectral_radius, worst_radius
-from .stability import duplication_matrix, unvech_stack, vech_order
+from .sampled_taylor import FIRST_ORDER_LIMIT, affine_stable, identity_stack, perron_first_order_stable, stack_pd
+from .stability import duplication_matrix, unvech_stack
 
-__all__ = ["FIRST_ORDER_LIMIT", "BoxVerdict", "ball_resets", "ball_one_period_map", "prove_stable", "prove_unstable",
+__all__ = ["FIRST_ORDER_LIMIT", "MapParts", "BoxVerdict", "ball_resets", "ball_one_period_map", "prove_stable", "prove_unstable",
            "prove_point_unstable", "box_verdict"]
 
 
@@ -163,7 +174,7 @@ def ball_resets(loop: SampledLoop, h: float) -> list[Ball]:
 
 
 @dataclass(frozen=True, eq=False)
-class _MapParts:
+class MapParts:
     """The rate-independent balls of :math:`T` at one period: the block diagonal of
     :math:`\\mathcal L`, :math:`\\mathcal P`, :math:`\\mathcal R`, the period."""
 
@@ -177,7 +188,7 @@ class _MapParts:
     floats: tuple[MidRad, ...] = ()  # (res, modes, lift, h) as float64 balls (fast_balls)
 
     @classmethod
-    def build(cls, loop: SampledLoop, h: float) -> _MapParts:
+    def build(cls, loop: SampledLoop, h: float) -> MapParts:
         Dd, Ld = duplication_matrix(loop.d)
         Dr, Lr = duplication_matrix(loop.r)
         eye = ball(np.eye(loop.d))
@@ -249,28 +260,7 @@ def ball_one_period_map(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix) -> 
     """A ball matrix containing :math:`T` (:mod:`ftc_verify.analysis.moments.sampled`) at period
     ``h`` for every rate array in ``[lo, hi]``, in the balanced coordinates of
     :attr:`SampledLoop.scale` (``one_period_map(..., scaled=True)``; same spectrum)."""
-    return Ball(_MapParts.build(loop, h).map(ball_generator(loop.chain, lo, hi, loop.literals).value))
-
-
-def _unvech_ball(col: Any, start: int, r: int) -> Ball:
-    """The symmetric ``r x r`` ball matrix whose ``vech`` starts at ``col[start]``."""
-    flint = _flint()
-    rows, cols = vech_order(r)
-    out = flint.arb_mat(r, r)
-    for k, (i, j) in enumerate(zip(rows, cols)):
-        out[int(i), int(j)] = col[start + k, 0]
-        out[int(j), int(i)] = col[start + k, 0]
-    return Ball(out)
-
-
-def _stack_pd(vec: Any, states: int, r: int) -> bool:
-    v = r * (r + 1) // 2
-    return all(proven_positive_definite(_unvech_ball(vec, s * v, r)) for s in range(states))
-
-
-def _identity_stack(states: int, r: int) -> Matrix:
-    rows, cols = vech_order(r)
-    return np.tile((rows == cols).astype(float), states)
+    return Ball(MapParts.build(loop, h).map(ball_generator(loop.chain, lo, hi, loop.literals).value))
 
 
 def prove_stable(T: Ball, T_mid: Matrix, states: int, r: int) -> bool:
@@ -278,18 +268,18 @@ def prove_stable(T: Ball, T_mid: Matrix, states: int, r: int) -> bool:
     docstring); ``T_mid`` is a float map inside (or near) it."""
     N = T_mid.shape[0]
     try:
-        y = np.linalg.solve(np.eye(N) - T_mid, _identity_stack(states, r))
+        y = np.linalg.solve(np.eye(N) - T_mid, identity_stack(states, r))
     except np.linalg.LinAlgError:
         return False
     if not np.all(np.isfinite(y)):
         return False
     Y = ball(np.asarray(y[:, None], dtype=float))
-    if not _stack_pd(Y.value, states, r):
+    if not stack_pd(Y.value, states, r):
         return False
-    return _stack_pd((Y - T @ Y).value, states, r)
+    return stack_pd((Y - T @ Y).value, states, r)
 
 
-def _envelope_stable(loop: SampledLoop, parts: _MapParts, lo: Matrix, hi: Matrix) -> bool:
+def _envelope_stable(loop: SampledLoop, parts: MapParts, lo: Matrix, hi: Matrix) -> bool:
     """The stable proof on a sub-box by the upper envelope (module docstring):
     :math:`T(r) \\preceq T_{up}` for every rate of the sub-box, so :math:`Y \\succ 0`,
     :math:`Y - T_{up}(Y) \\succ 0` proves :math:`\\rho(T(r)) < 1` for all of them."""
@@ -321,7 +311,7 @@ def _float_vertices_hold(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, T_
         return True
     N = T_mid.shape[0]
     try:
-        y = np.linalg.solve(np.eye(N) - T_mid, _identity_stack(loop.states, loop.r))
+        y = np.linalg.solve(np.eye(N) - T_mid, identity_stack(loop.states, loop.r))
     except np.linalg.LinAlgError:
         return False
     if not (np.all(np.isfinite(y)) and _pd_stack(y, loop)):
@@ -347,78 +337,12 @@ def _float_stable(loop: SampledLoop, Q: Matrix, h: float) -> bool:
     T = assemble_map(loop, F, h)
     N = T.shape[0]
     try:
-        y = np.linalg.solve(np.eye(N) - T, _identity_stack(loop.states, loop.r))
+        y = np.linalg.solve(np.eye(N) - T, identity_stack(loop.states, loop.r))
     except np.linalg.LinAlgError:
         return False
     if not np.all(np.isfinite(y)):
         return False
     return _pd_stack(y, loop) and _pd_stack(y - T @ y, loop)
-
-
-#: Largest Van Loan block (rows, twice the moment generator's) the first-order form
-#: exponentiates in ball arithmetic; above it only the direct ball is tried (cost).
-FIRST_ORDER_LIMIT = 256
-
-
-def _first_order_stable(loop: SampledLoop, parts: _MapParts, lo: Matrix, hi: Matrix, T_mid: Matrix,
-                        deadline: float = math.inf) -> bool:
-    """The stable proof on a sub-box by a first-order expansion at its midpoint
-    :math:`r_0` (derived here): for every :math:`r` of the sub-box, with
-    :math:`\\delta = r - r_0` and :math:`J_a = \\partial T / \\partial r_a`,
-
-    .. math::
-
-        T(r) = T(r_0) + \\sum_a \\delta_a J_a(r_0) + \\sum_a \\delta_a
-        \\int_0^1 \\bigl(J_a(r_0 + t\\delta) - J_a(r_0)\\bigr) dt,
-
-    and the last sum lies in the ball :math:`\\mathbf E = \\sum_a [\\delta_a]
-    (\\mathbf J_a - J_a(r_0))` with :math:`\\mathbf J_a` the derivative's ball over
-    the sub-box -- a remainder quadratic in the sub-box's width, where the direct ball
-    of :math:`T` over the sub-box is only linear. :math:`Y - T(r)Y` is affine in
-    :math:`\\delta` up to :math:`\\mathbf E Y`; if it is proved positive definite at
-    every vertex of the :math:`\\delta` box for every element of :math:`\\mathbf E Y`,
-    it is at every :math:`r` (a convex combination of those matrices). ``False`` also when
-    the Van Loan block exceeds :data:`FIRST_ORDER_LIMIT` or ``deadline``
-    (``time.perf_counter()``) passes."""
-    flint = _flint()
-    if 2 * parts.modes.nrows() > FIRST_ORDER_LIMIT:
-        return False
-    N = T_mid.shape[0]
-    try:
-        y = np.linalg.solve(np.eye(N) - T_mid, _identity_stack(loop.states, loop.r))
-    except np.linalg.LinAlgError:
-        return False
-    if not np.all(np.isfinite(y)):
-        return False
-    Yf = np.asarray(y[:, None], dtype=float)
-    if not _stack_pd(ball(Yf).value, loop.states, loop.r):
-        return False
-    mid = 0.5 * (lo + hi)
-    Q0 = ball_generator(loop.chain, mid, mid, loop.literals).value
-    Qb = ball_generator(loop.chain, lo, hi, loop.literals).value
-    Y = ball(Yf).value
-    base = Y - parts.map(Q0) * Y
-    rem = flint.arb_mat(N, 1)
-    linear = []
-    for idx, coef in generator_coefficients(loop.chain)[1]:
-        if hi[idx] <= lo[idx]:
-            continue
-        if time.perf_counter() > deadline:
-            return False
-        J0Y = parts.derivative(Q0, coef) * Y
-        JbY = parts.derivative(Qb, coef) * Y
-        lit = loop.literals  # the box's ends as written, the midpoint exact (the analysis chose it)
-        ends = (enclose(float(lo[idx]), lit, computed_exact=True) - flint.arb(float(mid[idx])),
-                enclose(float(hi[idx]), lit, computed_exact=True) - flint.arb(float(mid[idx])))
-        rem += ends[0].union(ends[1]) * (JbY - J0Y)
-        linear.append((ends, J0Y))
-    for corner in itertools.product((0, 1), repeat=len(linear)):
-        vec = base - rem
-        for k, (ends, J0Y) in zip(corner, linear):
-            vec -= ends[k] * J0Y
-        if not _stack_pd(vec, loop.states, loop.r):
-            return False
-    return True
 
 
 def prove_unstable(T: Ball, T_mid: Matrix, states: int, r: int) -> bool:
@@ -432,11 +356,11 @@ def prove_unstable(T: Ball, T_mid: Matrix, states: int, r: int) -> bool:
     if v.sum() < 0:  # the trace-like sum of a PSD stack is positive
         v = -v
     v = v / np.max(np.abs(v))
-    eye = _identity_stack(states, r)
+    eye = identity_stack(states, r)
     for eps in (0.0, 1e-9, 1e-6, 1e-4, 1e-2):
         x = v + eps * eye
         X = ball(x[:, None])
-        if _stack_pd(X.value, states, r) and _stack_pd((T @ X - X).value, states, r):
+        if stack_pd(X.value, states, r) and stack_pd((T @ X - X).value, states, r):
             return True
     return _real_eigenvalue_above_one(T, w)
 
@@ -494,20 +418,36 @@ class BoxVerdict:
     where: Any = None
 
 
-def _widest(chain: JointChain, lo: Matrix, hi: Matrix) -> tuple[int, ...] | None:
+def _split_rate(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix) -> tuple[int, ...] | None:
+    """The rate along which a sub-box is halved: the largest score
+    :math:`|\rho(r_0 + w_a e_a) - \rho(r_0 - w_a e_a)| + 0.1\\, m\\, w_a / W_a` (float64
+    radii at the midpoint moved to the sub-box's ends along the rate, :math:`m` the
+    largest such change, :math:`w_a / W_a` the relative width): the rates the radius
+    depends on most first, every rate in turn as its relative width grows. A
+    heuristic; only where the proofs look next depends on it."""
+    chain = loop.chain
     full = chain.rate_max - chain.rate_min
-    best, where = 0.0, None
+    mid = 0.5 * (lo + hi)
+    rel, change = {}, {}
     for idx in chain.rate_indices:
-        if full[idx] > 0:
-            rel = (hi[idx] - lo[idx]) / full[idx]
-            if rel > best:
-                best, where = rel, idx
-    return where
+        if full[idx] > 0 and hi[idx] > lo[idx]:
+            rel[idx] = (hi[idx] - lo[idx]) / full[idx]
+            up, down = mid.copy(), mid.copy()
+            up[idx], down[idx] = hi[idx], lo[idx]
+            d = abs(spectral_radius(loop, h, up) - spectral_radius(loop, h, down))
+            change[idx] = d if math.isfinite(d) else 0.0
+    if not rel:
+        return None
+    m = max(change.values())
+    return max(rel, key=lambda idx: (change[idx] + 0.1 * m * rel[idx], rel[idx]))
 
 
-def box_verdict(loop: SampledLoop, h: float, *, max_boxes: int = 64, max_seconds: float = 20.0) -> BoxVerdict:
+def box_verdict(loop: SampledLoop, h: float, *, max_boxes: int = 64, max_seconds: float = 20.0,
+                clock: Callable[[], float] = time.perf_counter) -> BoxVerdict:
     """Mean-square stability of the sampled loop at period ``h`` over the whole rate box
     (module docstring); at most ``max_boxes`` sub-boxes and about ``max_seconds`` seconds
+    of ``clock`` (wall time; ``time.process_time`` for a budget of work that does not
+    shrink with the machine's load)
     before the verdict is ``undecided``."""
     chain = loop.chain
     rho, where = worst_radius(loop, h, rate_points(chain))
@@ -519,12 +459,12 @@ def box_verdict(loop: SampledLoop, h: float, *, max_boxes: int = 64, max_seconds
         return BoxVerdict("undecided", f"float64 spectral radius {rho:.6g} >= 1 at {text(where)}, but "
                           "instability not proved there", 1, where)
     queue = [(np.array(chain.rate_min, dtype=float), np.array(chain.rate_max, dtype=float))]
-    done, t0 = 0, time.perf_counter()
+    done, t0, wall = 0, clock(), time.perf_counter()
     with precision(64):
-        parts = _MapParts.build(loop, h)
+        parts = MapParts.build(loop, h)
     while queue:
         lo, hi = queue.pop(0)
-        if done >= max_boxes or time.perf_counter() - t0 > max_seconds:
+        if done >= max_boxes or clock() - t0 > max_seconds:
             return BoxVerdict("undecided", f"budget ({max_boxes} sub-boxes, {max_seconds:g} s) spent after {done} "
                               f"sub-boxes; not proved on [{text(lo)}] .. [{text(hi)}]", done, (lo, hi))
         done += 1
@@ -532,11 +472,13 @@ def box_verdict(loop: SampledLoop, h: float, *, max_boxes: int = 64, max_seconds
         T_mid = one_period_map(loop, h, mid, scaled=True)
         with precision(64):
             proved = _envelope_stable(loop, parts, lo, hi)
-            if not proved and _float_vertices_hold(loop, h, lo, hi, T_mid):
+            affine = None if proved else affine_stable(loop, parts, lo, hi)  # None: not applicable
+            proved = proved or bool(affine)
+            if not proved and affine is None and _float_vertices_hold(loop, h, lo, hi, T_mid):
                 T = Ball(parts.map(ball_generator(chain, lo, hi, loop.literals).value))
                 proved = prove_stable(T, T_mid, loop.states, loop.r)
-            if not proved and not np.array_equal(lo, hi):
-                proved = _first_order_stable(loop, parts, lo, hi, T_mid, t0 + max_seconds)
+            if not proved and affine is None and not np.array_equal(lo, hi):
+                proved = perron_first_order_stable(loop, parts, lo, hi, T_mid, wall + max_seconds)
         if not proved and np.array_equal(lo, hi):
             with precision(PRECISION_BITS):
                 proved = prove_stable(ball_one_period_map(loop, h, lo, hi), T_mid, loop.states, loop.r)
@@ -547,7 +489,7 @@ def box_verdict(loop: SampledLoop, h: float, *, max_boxes: int = 64, max_seconds
                 return BoxVerdict("not stable", f"spectral radius > 1 proved at {text(mid)} (ball arithmetic)",
                                   done, mid)
             return BoxVerdict("undecided", f"float64 spectral radius >= 1 at {text(mid)}, not proved", done, mid)
-        idx = _widest(chain, lo, hi)
+        idx = _split_rate(loop, h, lo, hi)
         if idx is None:
             return BoxVerdict("undecided", f"stability not proved at the rate point {text(lo)}", done, lo)
         left_hi, right_lo = hi.copy(), lo.copy()

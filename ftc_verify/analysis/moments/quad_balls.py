@@ -1,0 +1,146 @@
+r"""Second-order forms: the rates kept as symbols, with their products, through the
+exponential (float64 midpoint-radius arithmetic).
+
+The affine forms of :mod:`ftc_verify.analysis.moments.fast_balls` (``aff_expm``) carry
+the first-order dependence on the rates with its sign and bound the second-order part
+entrywise -- where it wraps as the first-order part did in plain balls. Here a matrix is
+kept as
+
+.. math::
+
+    c + \sum_a \delta_a l_a + \sum_{a \le b} \delta_a \delta_b q_{ab} + E, \qquad
+    |E| \le r, \quad \delta \in [-1, 1]^K,
+
+and the product of two such forms (derived here) is
+:math:`c c' + \sum_a \delta_a (l_a c' + c l'_a) + \sum_{a \le b} \delta_a \delta_b
+(q_{ab} c' + c q'_{ab} + l_a l'_b + [a \ne b]\, l_b l'_a)` plus the terms of degree three
+and four, bounded entrywise by :math:`S_l S'_q + S_q S'_l + S_q S'_q` (:math:`S_l = \sum_a
+|l_a|`, :math:`S_q = \sum_{a \le b} |q_{ab}|`), plus
+:math:`r (|c'| + S'_l + S'_q + r') + (|c| + S_l + S_q) r'`. The rounding of every float
+product (Higham's bound :math:`1.01\, k u` on each inner product of length :math:`k`, as
+in :mod:`~ftc_verify.analysis.moments.fast_balls`) and of every sum goes to the radius,
+which is rounded up by ``_up`` (same lemma). The exponential is that module's: scaling by
+a power of two so that the norm bound :math:`\nu` of every matrix of the set is at most
+:math:`2^{s - 1}`, Horner's rule with the entrywise tail bound, :math:`s` squarings.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ...model.system import Matrix
+from .fast_balls import TAYLOR_TERMS, MidRad
+
+__all__ = ["Quad", "pairs", "quad_mul", "quad_expm", "quad_map"]
+
+_U = 2.0 ** -53
+_ETA = 2.0 ** -1022
+
+#: A second-order form ``(c, l, q, r)``: ``l`` is ``(K, n, m)``, ``q`` is ``(M, n, m)``
+#: over :func:`pairs` ``(a, b)``, ``a <= b``.
+Quad = tuple[Matrix, Matrix, Matrix, Matrix]
+
+
+def _up(v: Matrix | float, k: int) -> Matrix:
+    """An upper bound of a nonnegative expression computed with at most ``k`` roundings
+    on every path (:mod:`~ftc_verify.analysis.moments.fast_balls`)."""
+    return np.asarray(v * (1.0 + 2.0 * (k + 1) * _U) + (k + 1) * _ETA)
+
+
+def pairs(K: int) -> tuple[tuple[int, int], ...]:
+    """The pairs ``(a, b)``, ``a <= b < K``, in the order of a form's ``q``."""
+    return tuple((a, b) for a in range(K) for b in range(a, K))
+
+
+def _sum_abs(x: Matrix) -> Matrix:
+    return _up(np.abs(x).sum(axis=0), x.shape[0] + 1) if x.shape[0] else np.zeros(x.shape[1:])
+
+
+def quad_mul(x: Quad, y: Quad) -> Quad:
+    """The product of two second-order forms over the same symbols (module docstring)."""
+    (ac, al, aq, ar), (bc, bl, bq, br) = x, y
+    k, K = ac.shape[1], al.shape[0]
+    cc = ac @ bc
+    cl = np.matmul(al, bc) + np.matmul(ac, bl)
+    cq = np.matmul(aq, bc) + np.matmul(ac, bq)
+    cross = np.matmul(al[:, None], bl[None, :])  # (K, K, n, m): l_a l'_b
+    terms = [cross[a, b] + cross[b, a] if a != b else cross[a, a] for a, b in pairs(K)]
+    if terms:
+        cq = cq + np.stack(terms)
+    sl, sq, tl, tq = _sum_abs(al), _sum_abs(aq), _sum_abs(bl), _sum_abs(bq)
+    abs_ac, abs_bc = np.abs(ac), np.abs(bc)
+    g = 1.01 * k * _U + 2.0 * _U  # the products' rounding and that of the sums of two or four
+    mag_b = abs_bc + tl + tq + br
+    r = (abs_ac @ (g * (abs_bc + tl + tq) + br) + sl @ (g * (abs_bc + tl) + tq + br)
+         + sq @ (g * abs_bc + tl + tq + br) + ar @ mag_b
+         + 2.0 * _U * (_sum_abs(cl) + _sum_abs(cq)))
+    return cc, cl, cq, _up(r, k + 2 * K * K + 16) + (4 * K * K + 4) * k * _ETA
+
+
+def _scale(x: Quad, cm: float, cr: float) -> Quad:
+    """``x`` times the scalar ball ``<cm, cr>``."""
+    ac, al, aq, ar = x
+    cc, cl, cq = ac * cm, al * cm, aq * cm
+    mag = np.abs(ac) + _sum_abs(al) + _sum_abs(aq)
+    r = mag * cr + ar * (abs(cm) + cr) + _U * (np.abs(cc) + _sum_abs(cl) + _sum_abs(cq))
+    return cc, cl, cq, _up(r, al.shape[0] + aq.shape[0] + 8) + _ETA
+
+
+def _add_identity(x: Quad) -> Quad:
+    ac, al, aq, ar = x
+    cc = ac + np.eye(ac.shape[0])
+    return cc, al, aq, _up(ar + _U * np.abs(cc), 2)
+
+
+def quad_expm(x: Quad, terms: int = TAYLOR_TERMS) -> Quad | None:
+    """A second-order form containing :math:`e^{X}` for every :math:`X` of ``x`` at the
+    same :math:`\\delta` (module docstring); ``None`` when a number overflows."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        ac, al, aq, ar = x
+        mag = np.abs(ac) + _sum_abs(al) + _sum_abs(aq) + ar
+        nu = float(np.max(_up(np.sum(mag, axis=1), ac.shape[1] + 2))) if ac.size else 0.0
+        if not math.isfinite(nu):
+            return None
+        s = max(0, math.ceil(math.log2(nu)) + 1) if nu > 0 else 0
+        b = _scale(x, 2.0 ** -s, 0.0)
+        mu = float(_up(nu * 2.0 ** -s, 2))
+        if mu >= 1.0:  # pragma: no cover - s is chosen so that mu <= 1/2
+            return None
+        p = _add_identity(_scale(b, 1.0 / terms, _U / terms))
+        for j in range(terms - 1, 0, -1):
+            inv = 1.0 / j
+            p = _add_identity(_scale(quad_mul(b, p), inv, _U * inv))
+        tail = mu ** (terms + 1) / math.factorial(terms + 1) / (1.0 - mu / (terms + 2))
+        p = (p[0], p[1], p[2], p[3] + float(_up(tail, terms + 8)))
+        for _ in range(s):
+            p = quad_mul(p, p)
+        if not all(np.all(np.isfinite(v)) for v in p):
+            return None
+        return p
+
+
+def quad_map(res: MidRad, modes: MidRad, q: MidRad, dirs: Matrix, h: MidRad, lift: MidRad) -> Quad | None:
+    """:math:`\\mathcal P e^{(M + Q(\\delta)^T \\otimes I) h} \\mathcal R` as a
+    second-order form over :math:`\\delta \\in [-1, 1]^K`, the arguments as in
+    :func:`~ftc_verify.analysis.moments.fast_balls.aff_map`."""
+    qc, qr = q
+    K = dirs.shape[0]
+    M = len(pairs(K))
+    eye = np.eye(modes[0].shape[0] // qc.shape[0])
+    with np.errstate(over="ignore", invalid="ignore"):
+        gc = modes[0] + np.kron(qc.T, eye)
+        gl = np.stack([np.kron(d.T, eye) for d in dirs])
+        gr = _up(modes[1] + np.kron(qr.T, eye) + _U * np.abs(gc), 3)
+        g = _scale((gc, gl, np.zeros((M,) + gc.shape), gr), float(h[0][0, 0]), float(h[1][0, 0]))
+        e = quad_expm(g)
+        if e is None:
+            return None
+
+        def thin(b: MidRad) -> Quad:
+            z = np.zeros(b[0].shape)
+            return b[0], np.stack([z] * K), np.stack([z] * M), b[1]
+
+        t = quad_mul(quad_mul(thin(res), e), thin(lift))
+    return t if all(np.all(np.isfinite(v)) for v in t) else None
