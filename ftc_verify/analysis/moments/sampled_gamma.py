@@ -99,28 +99,32 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
-import scipy.linalg
 
 from ...controllers.controller import Controller, check_period
-from ...errors import FTCError
 from ...model.system import FTCSystem, Matrix
 from ..closedloop import Channel, ClosedLoop
 from ..conic import Affine, Rows, affine_bmat, scalar_variable, svec_index, sym_variable
 from ..lmi import BlockSpec, block_specs, lyapunov_block
 from .sampled import SampledLoop
+from .sampled_lower import OMEGAS, gain_lower_estimate
 
-__all__ = ["MARGIN_TAU", "PIECES", "OMEGAS", "augmented_loop", "sample_jumps", "SampledGamma", "SampledPerformance",
+__all__ = ["MARGIN_TAU", "PIECES", "MAX_SECONDS", "GAP_RTOL", "GAIN_RTOL", "GROWTH", "OMEGAS", "augmented_loop", "sample_jumps", "SampledGamma", "SampledPerformance",
            "sampled_gamma", "gain_lower_estimate", "sampled_performance", "attach_performance",
            "performance_lines"]
 
 #: First margin of the program (every instance ``<= -t I``); raised 100x when the proof fails.
 MARGIN_TAU = 1e-7
-#: Pieces of ``[0, h]`` the storage matrix is affine on, each tried (the smallest proved gamma kept).
-PIECES = (4, 8)
-#: Frequencies (rad per time unit) of the lower estimate's disturbances; the decay rate is ``DECAY``.
-OMEGAS = (0.0, 0.3, 1.0, 3.0, 10.0)
-#: Decay rate ``a`` of the lower estimate's disturbances ``e^{-a t} sin(omega t)``.
-DECAY = 0.02
+#: Pieces of ``[0, h]`` the storage matrix is affine on, tried in turn until one is proved.
+PIECES = (4, 8, 16, 32)
+#: No further ``N`` of :data:`PIECES` is started after this many seconds of one certificate.
+MAX_SECONDS = 20.0
+#: With a lower bound (``target``), a further ``N`` is tried while the proved gamma
+#: exceeds it by more than this fraction ...
+GAP_RTOL = 0.1
+#: ... and the last doubling of ``N`` tightened it by at least this fraction.
+GAIN_RTOL = 0.01
+#: Predicted cost of the next ``N`` (twice the pieces) over the last one's, for ``max_seconds``.
+GROWTH = 3.0
 
 
 def augmented_loop(loop: SampledLoop, system: FTCSystem, *, balls: bool = False) -> ClosedLoop:
@@ -366,14 +370,44 @@ class SampledGamma:
     seconds: float
 
 
-def sampled_gamma(system: FTCSystem, controller: Controller, period: float, *, robust: bool,
-                  pieces: tuple[int, ...] = PIECES, loop: SampledLoop | None = None) -> SampledGamma:
-    """The smallest gamma proved by the clock-dependent certificate of the module
-    docstring at ``period``, over the rate box (and ``Delta`` when ``robust``), trying
-    each ``N`` of ``pieces`` (the smallest proved gamma kept), with the margins
-    ``MARGIN_TAU * 100**j``, ``j < 3``."""
+def _attempt(loop: SampledLoop, system: FTCSystem, aug: ClosedLoop, jumps: list[Matrix], h: float, N: int,
+             robust: bool) -> tuple[float | None, float, str]:
+    """``(gamma, margin, why)`` of the program with ``N`` pieces: solved with the margins
+    ``MARGIN_TAU * 100**j``, ``j < 3``, until one answer is proved (``gamma`` ``None``:
+    ``why`` says what failed)."""
     from ..solvers import solve_conic_dual
 
+    lay = _Layout(loop.d, loop.states, N + 1, tuple(len(c) if robust else 0 for c in aug.channels))
+    rows = _rows(aug, jumps, lay, h, robust)
+    objective = np.zeros(lay.K)
+    objective[lay.g] = 1.0
+    problem = rows.problem(objective)
+    tau = MARGIN_TAU
+    why = "no certificate"
+    for _ in range(3):
+        out, x, _z = solve_conic_dual(problem.fix(lay.g + 1, tau))
+        if x is None:
+            return None, tau, f"N = {N}: the solver found no point ({out.status}{': ' + out.message if out.message else ''})"
+        g = float(x[lay.g]) * (1 + 1e-9) + 1e-300
+        P, lam = _values(x, lay, h)
+        if _prove(loop, system, h, P, lam, g, robust):
+            return math.nextafter(math.sqrt(g), math.inf), tau, ""
+        why = f"N = {N}: the solver's answer was not proved in ball arithmetic"
+        tau *= 100.0
+    return None, tau, why
+
+
+def sampled_gamma(system: FTCSystem, controller: Controller, period: float, *, robust: bool,
+                  pieces: tuple[int, ...] = PIECES, loop: SampledLoop | None = None,
+                  max_seconds: float = MAX_SECONDS, target: float | None = None) -> SampledGamma:
+    """The gamma proved by the clock-dependent certificate of the module docstring at
+    ``period``, over the rate box (and ``Delta`` when ``robust``): each ``N`` of
+    ``pieces`` in turn (the cost grows with ``N``, the reach towards ``h_max`` and the
+    tightness too) until one is proved -- with a ``target`` (a lower bound of the gain),
+    until one is proved within :data:`GAP_RTOL` of it or a doubling of ``N`` tightens it
+    by less than :data:`GAIN_RTOL`, the smallest proved gamma kept -- and no new ``N``
+    started when its predicted time (:data:`GROWTH` times the last one's) would pass
+    ``max_seconds``."""
     h = check_period(period, "period")
     t0 = time.perf_counter()
     loop = SampledLoop.build(system, controller) if loop is None else loop
@@ -382,76 +416,31 @@ def sampled_gamma(system: FTCSystem, controller: Controller, period: float, *, r
     if not robust:
         aug = aug.nominal()
     jumps = sample_jumps(loop, h)
+    whys: list[str] = []
     best: tuple[float, int, float] | None = None
-    why = "no certificate"
+    last = 0.0
     for N in pieces:
-        lay = _Layout(loop.d, loop.states, N + 1, tuple(len(c) if robust else 0 for c in aug.channels))
-        rows = _rows(aug, jumps, lay, h, robust)
-        objective = np.zeros(lay.K)
-        objective[lay.g] = 1.0
-        problem = rows.problem(objective)
-        tau = MARGIN_TAU
-        for _ in range(3):
-            out, x, _z = solve_conic_dual(problem.fix(lay.g + 1, tau))
-            if x is None:
-                why = f"N = {N}: the solver found no point ({out.status}{': ' + out.message if out.message else ''})"
-                break
-            g = float(x[lay.g]) * (1 + 1e-9) + 1e-300
-            P, lam = _values(x, lay, h)
-            if _prove(loop, system, h, P, lam, g, robust):
-                gamma = math.nextafter(math.sqrt(g), math.inf)
-                if best is None or gamma < best[0]:
-                    best = (gamma, N, tau)
-                break
-            why = f"N = {N}: the solver's answer was not proved in ball arithmetic"
-            tau *= 100.0
+        spent = time.perf_counter() - t0
+        if (whys or best) and spent + GROWTH * last > max_seconds:
+            whys.append(f"N = {N} not tried (its predicted time would pass {max_seconds:g} s)")
+            break
+        gamma, tau, why = _attempt(loop, system, aug, jumps, h, N, robust)
+        last = time.perf_counter() - t0 - spent
+        if gamma is None:
+            whys.append(why)
+            continue
+        if best is not None and gamma > best[0] * (1.0 - GAIN_RTOL):
+            best = min(best, (gamma, N, tau))
+            break  # diminishing returns: more pieces would not tighten it much further
+        best = (gamma, N, tau) if best is None or gamma < best[0] else best
+        if target is None or gamma <= target * (1.0 + GAP_RTOL):
+            break
     seconds = time.perf_counter() - t0
     if best is None:
-        return SampledGamma(robust, None, 0, 0.0, why, seconds)
+        return SampledGamma(robust, None, 0, 0.0, "; ".join(whys) or "no certificate", seconds)
     return SampledGamma(robust, best[0], best[1], best[2],
                         f"proved in 128-bit ball arithmetic: storage affine on {best[1]} piece(s) of [0, h], "
                         "every instance at both ends of each piece, the jump at the sample, every P_s", seconds)
-
-
-def _held_energy(S: Matrix, c: Matrix, eta0: Matrix, h: float, nw: int) -> float:
-    """:math:`n_w h \\sum_k (c^T e^{S h k} \\eta_0)^2` (module docstring)."""
-    Phi = scipy.linalg.expm(S * h)
-    W = scipy.linalg.solve_discrete_lyapunov(Phi.T, np.outer(c, c))
-    return float(nw * h * eta0 @ W @ eta0)
-
-
-def gain_lower_estimate(system: FTCSystem, controller: Controller, period: float, *, robust: bool,
-                        omegas: tuple[float, ...] = OMEGAS, decay: float = DECAY) -> tuple[float | None, str]:
-    """``(estimate, where)``: the largest :math:`\\sqrt{E\\|z\\|^2 / \\|w\\|^2}` of the sampled
-    loop over the disturbances, rate points and (``robust``) constant ``Delta`` of the
-    module docstring, in float64; ``None`` when the loop is not stable at some case
-    (then no finite gain: ``where`` names it)."""
-    from .sampled import rate_points
-    from .sampled_energy import perturbed_system, sampled_energy
-
-    nw = system.dims[3]
-    cases: list[tuple[str, Any, Any]] = [("Delta=0", None, None)]
-    if robust and system.uncertain:
-        md = next(m for m in system.modes if m.A1 is not None or m.B1 is not None)
-        s1 = None if md.A1 is None or md.A2 is None else (md.A1.shape[1], md.A2.shape[0])
-        s2 = None if md.B1 is None or md.B2 is None else (md.B1.shape[1], md.B2.shape[0])
-        cases += [(lab, None if s1 is None else sg * np.eye(*s1), None if s2 is None else sg * np.eye(*s2))
-                  for sg, lab in ((1.0, "Delta=+E"), (-1.0, "Delta=-E"))]
-    best, where = -1.0, ""
-    for label, d1, d2 in cases:
-        sys_d = perturbed_system(system, d1, d2)
-        for b in rate_points(system.chain):
-            for w in omegas:
-                exo = ((np.array([[-decay, w], [-w, -decay]]), np.array([1.0, 0.0]), np.array([0.0, 1.0])) if w > 0
-                       else (np.array([[-decay]]), np.ones(1), np.ones(1)))
-                try:
-                    e = sampled_energy(sys_d, controller, period, beta=b, exosystem=exo, disturbance="exosystem")
-                except FTCError:
-                    return None, f"{label}, {system.chain.rate_text(b)}: not mean-square stable (float64)"
-                ratio = e.y_energy / _held_energy(exo[0], exo[1], exo[2], period, nw)
-                if ratio > best:
-                    best, where = ratio, f"{label}, {system.chain.rate_text(b)}, omega {w:g}"
-    return math.sqrt(max(best, 0.0)), where
 
 
 @dataclass(frozen=True)
@@ -489,31 +478,58 @@ class SampledPerformance:
         }
 
 
-def _lower(system: FTCSystem, controller: Controller, period: float, robust: bool,
-           loop: SampledLoop) -> tuple[float | None, str, str]:
-    """``(value, where, kind)``: the proved bound of
-    :func:`~ftc_verify.analysis.moments.sampled_lower.sampled_lower_bound`, else the
-    float64 :func:`gain_lower_estimate` (kind ``"estimate"``)."""
-    from .sampled_lower import sampled_lower_bound
+def _lowers(system: FTCSystem, controller: Controller, period: float,
+            loop: SampledLoop) -> tuple[tuple[float | None, str, str], tuple[float | None, str, str]]:
+    """``((value, where, kind) nominal, robust)``: the proved bounds of
+    :func:`~ftc_verify.analysis.moments.sampled_lower.sampled_lower_bounds`, each else
+    the float64 :func:`gain_lower_estimate` (kind ``"estimate"``); the robust one
+    ``(None, "no uncertainty channels", "estimate")`` without uncertainty."""
+    from .sampled_lower import sampled_lower_bounds
 
-    low = sampled_lower_bound(system, controller, period, robust=robust, loop=loop)
-    if low.value is not None:
-        return low.value, low.where, "proved"
-    est, where = gain_lower_estimate(system, controller, period, robust=robust)
-    return est, f"{where} (no proved bound: {low.where})", "estimate"
+    def pick(low: Any, robust: bool) -> tuple[float | None, str, str]:
+        if low.value is not None:
+            return low.value, low.where, "proved"
+        est, where = gain_lower_estimate(system, controller, period, robust=robust)
+        return est, f"{where} (no proved bound: {low.where})", "estimate"
+
+    nom, rob = sampled_lower_bounds(system, controller, period, loop=loop)
+    return pick(nom, False), (pick(rob, True) if rob is not None else (None, "no uncertainty channels", "estimate"))
+
+
+def _certificates(system: FTCSystem, controller: Controller, period: float, loop: SampledLoop,
+                  targets: tuple[float | None, float | None]) -> tuple[SampledGamma, SampledGamma | None]:
+    """The nominal and (with uncertainty) robust :func:`sampled_gamma`, the robust one in
+    a forked child beside the nominal one where the platform forks
+    (:class:`~ftc_verify.analysis.solvers.ForkedCall`: two cores, each solve single-threaded)."""
+    import os
+
+    from ..solvers import ForkedCall
+
+    def robust_one() -> SampledGamma:
+        return sampled_gamma(system, controller, period, robust=True, loop=loop, target=targets[1])
+
+    forked = ForkedCall(robust_one, "the robust sampled gain") if system.uncertain and hasattr(os, "fork") else None
+    try:
+        nominal = sampled_gamma(system, controller, period, robust=False, loop=loop, target=targets[0])
+        if forked is not None:
+            return nominal, forked.result()
+    finally:
+        if forked is not None:
+            forked.cancel()
+    return nominal, robust_one() if system.uncertain else None
 
 
 def sampled_performance(system: FTCSystem, controller: Controller, period: float) -> SampledPerformance:
     """Both certificates (robust only with uncertainty channels) and their lower bounds
-    (proved, else float64 estimates; the robust one at least the nominal: Delta = 0 is admissible)."""
+    (proved, else float64 estimates; the robust one at least the nominal: Delta = 0 is
+    admissible). The lower bounds come first: proved, they are the certificates'
+    ``target`` (:func:`sampled_gamma`)."""
     loop = SampledLoop.build(system, controller)
-    nominal = sampled_gamma(system, controller, period, robust=False, loop=loop)
-    robust = sampled_gamma(system, controller, period, robust=True, loop=loop) if system.uncertain else None
-    lo_n, where_n, kind_n = _lower(system, controller, period, False, loop)
-    lo_r, where_r, kind_r = (_lower(system, controller, period, True, loop) if system.uncertain
-                             else (None, "no uncertainty channels", "estimate"))
+    (lo_n, where_n, kind_n), (lo_r, where_r, kind_r) = _lowers(system, controller, period, loop)
     if kind_n == kind_r == "proved" and lo_r is not None and lo_n is not None and lo_n > lo_r:
         lo_r, where_r = lo_n, f"Delta = 0 (admissible): {where_n}"
+    nominal, robust = _certificates(system, controller, period, loop,
+                                    (lo_n if kind_n == "proved" else None, lo_r if kind_r == "proved" else None))
     return SampledPerformance(float(period), nominal, robust, lo_n, where_n, lo_r, where_r, kind_n, kind_r)
 
 
