@@ -479,8 +479,21 @@ def gain_lower_estimate(system: FTCSystem, controller: Controller, period: float
                         omegas: tuple[float, ...] = OMEGAS, decay: float = DECAY) -> tuple[float | None, str]:
     """``(estimate, where)``: the largest :math:`\\sqrt{E\\|z\\|^2 / \\|w\\|^2}` of the sampled
     loop over the disturbances, rate points and (``robust``) constant ``Delta`` of the
-    module docstring, in float64; ``None`` when the loop is not stable at some case
-    (then no finite gain: ``where`` names it)."""
+    text below, in float64; ``None`` when the loop is not stable at some case
+    (then no finite gain: ``where`` names it).
+
+    The float64 **lower estimate** (when no bound is proved). Any disturbance gives
+    :math:`E\\|z\\|^2/\\|w\\|^2 \\le \\gamma^2`; the exact expected energy of the sampled loop
+    for :math:`w(t) = w(t_k)` held over each period, :math:`w(t_k) = e^{-a t_k}
+    \\sin(\\omega t_k)` on every channel, is computed from its moment equations by
+    :func:`~ftc_verify.analysis.moments.sampled_energy.sampled_energy` (infinite horizon)
+    and divided by that held signal's energy, :math:`n_w h \\sum_k w(t_k)^2 = n_w h\\,
+    \\eta_0^T W \\eta_0` (:math:`W = \\sum_k (e^{S h})^{kT} c c^T e^{S h k}`, a discrete
+    Lyapunov equation); maximised over a few frequencies, the rate points of
+    :func:`~ftc_verify.analysis.moments.sampled.rate_points` and, robust, the constant
+    :math:`\\Delta \\in \\{0, +E, -E\\}`. It is computed in float64: an **estimate** of a
+    lower bound, not a proof (the JSON says so).
+    """
     from .sampled import rate_points
     from .sampled_energy import perturbed_system, sampled_energy
 
