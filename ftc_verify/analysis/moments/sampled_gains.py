@@ -13,11 +13,13 @@ What ``analyze --period`` and ``verify --step`` report as ``sampled.nominal_gamm
    with those bounds as ``target`` (more pieces only while the gamma stays far above
    the bound), the robust one in a forked child beside the nominal one
    (:class:`~ftc_verify.analysis.solvers.ForkedCall`: each solve is single-threaded, so
-   the two use two cores).
+   the two use two cores). The robust certificate covers :math:`\Delta = 0`: when its
+   gamma is smaller, it is the nominal one too.
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 from ...controllers.controller import Controller
@@ -81,4 +83,7 @@ def sampled_gains(system: FTCSystem, controller: Controller, period: float) -> S
         lo_r, where_r = lo_n, f"Delta = 0 (admissible): {where_n}"
     nominal, robust = _certificates(system, controller, period, loop,
                                     (lo_n if kind_n == "proved" else None, lo_r if kind_r == "proved" else None))
+    if robust is not None and robust.gamma is not None and (nominal.gamma is None or robust.gamma < nominal.gamma):
+        nominal = replace(nominal, gamma=robust.gamma, pieces=robust.pieces, degree=robust.degree,
+                          note=f"the robust certificate (Delta = 0 is admissible): {robust.note}")
     return SampledPerformance(float(period), nominal, robust, lo_n, where_n, lo_r, where_r, kind_n, kind_r)
