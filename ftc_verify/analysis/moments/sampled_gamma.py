@@ -485,6 +485,7 @@ class SampledPerformance:
             "nominal_gamma_storage_degree": self.nominal.degree,
             "robust_gamma": None if rob is None else rob.gamma,
             "robust_gamma_note": "no uncertainty channels" if rob is None else rob.note,
+            "robust_gamma_storage_degree": None if rob is None else rob.degree,
             "nominal_gamma_lower": self.nominal_lower,
             "nominal_gamma_lower_where": self.nominal_lower_where,
             "robust_gamma_lower": self.robust_lower,
