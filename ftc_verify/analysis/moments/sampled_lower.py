@@ -65,8 +65,10 @@ the resets of a dynamic controller by Arb's rigorous exponential), the period is
 float given; :math:`\mathcal F`, :math:`\mathcal G` by a rigorous ball exponential
 (:func:`~ftc_verify.analysis.moments.fast_balls.arb_expm`: float64 midpoint-radius
 arithmetic with its error analysis, Arb's exponential when a number overflows), the
-doubling in 64-bit Arb ball arithmetic (:data:`PROOF_BITS`). The bound is the lower end of the enclosure of the
-ratio (rounded down): a **proved** lower bound of the sampled loop's nominal (robust)
+doubling in 64-bit Arb ball arithmetic (:data:`PROOF_BITS`); when the doublings widen
+that enclosure (its lower end more than :data:`PROOF_RTOL` below the float64 value),
+everything again at 128 bits with Arb's exponential. The bound is the lower end of the
+enclosure of the ratio (rounded down): a **proved** lower bound of the sampled loop's nominal (robust)
 gain at this period.
 """
 
@@ -88,7 +90,8 @@ from ..lower_bound import float_gain
 from .sampled import SampledLoop, rate_points
 from .stability import duplication_matrix, vech_order
 
-__all__ = ["SCALES", "HORIZON", "PROOF_BITS", "SampledLowerBound", "sampled_lower_bound", "sampled_lower_bounds", "OMEGAS", "DECAY",
+__all__ = ["SCALES", "HORIZON", "PROOF_BITS", "PROOF_RTOL", "SampledLowerBound", "sampled_lower_bound",
+           "sampled_lower_bounds", "OMEGAS", "DECAY",
            "gain_lower_estimate"]
 
 #: Scales ``alpha`` of the worst-case feedback tried in float64 (the best ratio is proved).
@@ -107,8 +110,11 @@ OMEGAS = (0.0, 0.3, 1.0, 3.0, 10.0)
 DECAY = 0.02
 #: Arb's working precision of the proof: 64 bits lets the Van Loan exponential run in
 #: float64 midpoint-radius arithmetic (:func:`~ftc_verify.analysis.moments.fast_balls.arb_expm`,
-#: seven times faster than Arb's at 128 bits); the bound loses about ``1e-9`` relative.
+#: seven times faster than Arb's at 128 bits); the bound usually loses about ``1e-9``
+#: relative, and the proof is redone at 128 bits when it loses more than ``PROOF_RTOL``.
 PROOF_BITS = 64
+#: The 64-bit bound is redone at 128 bits when it lies more than this fraction below the float value.
+PROOF_RTOL = 1e-6
 
 
 @dataclass(frozen=True)
@@ -400,7 +406,7 @@ def _finish(system: FTCSystem, loop: SampledLoop, h: float, best: _Candidate | N
     p = _doublings(h)
     start = value
     value, F = _refine(fast, resets, h, system.dims[3], p, F, value)
-    proved = _prove(system, loop, h, rates, delta, F, p)
+    proved = _prove(system, loop, h, rates, delta, F, p, math.sqrt(max(value, 0.0)))
     how = "refined by Nelder-Mead from " if value > start else ""
     where = (f"held feedback {how}{a:g} x the continuous worst case over {2 ** p + 1} periods, "
              f"{system.chain.rate_text(rates)}" + (f", Delta = {delta:+g} I" if robust else ""))
@@ -441,16 +447,32 @@ def sampled_lower_bounds(system: FTCSystem, controller: Controller, period: floa
 
 
 def _prove(system: FTCSystem, loop: SampledLoop, h: float, rates: Matrix, delta: float, F: list[Matrix],
-           doublings: int) -> float | None:
+           doublings: int, target: float = 0.0) -> float | None:
     """The lower end of the ball enclosure of the ratio's square root (``None`` when the
-    enclosure does not exclude 0)."""
+    enclosure does not exclude 0): at :data:`PROOF_BITS` first, again at
+    :data:`~ftc_verify.analysis.rigorous.PRECISION_BITS` (Arb's exponential) when that
+    end lies more than :data:`PROOF_RTOL` below ``target`` (the float64 value): the
+    doublings can widen the float64 exponential's radii by many orders."""
+    from ..rigorous import PRECISION_BITS
+
+    lower = None
+    for bits in (PROOF_BITS, PRECISION_BITS):
+        lower = _prove_at(system, loop, h, rates, delta, F, doublings, bits)
+        if lower is not None and lower >= target * (1.0 - PROOF_RTOL):
+            return lower
+    return lower
+
+
+def _prove_at(system: FTCSystem, loop: SampledLoop, h: float, rates: Matrix, delta: float, F: list[Matrix],
+              doublings: int, bits: int) -> float | None:
+    """:func:`_prove` at Arb's working precision ``bits``."""
     import flint
 
     from ..rigorous import precision
     from .sampled_balls import ball_generator
-    from .sampled_gamma import sample_jumps, augmented_loop
+    from .sampled_gamma import augmented_loop, sample_jumps
 
-    with precision(PROOF_BITS):
+    with precision(bits):
         aug = augmented_loop(loop, system, balls=True)
         if delta == 0.0:
             aug = aug.nominal()
