@@ -76,19 +76,15 @@ matrices taken as the floats read (as :mod:`ftc_verify.analysis.moments.sampled_
 does), the period as the float given. The
 state is in :class:`SampledLoop`'s balanced coordinates (powers of two: exact).
 
+**The pieces** (:data:`PIECES`, :func:`sampled_gamma`): affine on 4 pieces first; where
+that fails or stays far above the lower bound, a storage *quadratic* in the clock on
+each piece (:mod:`~ftc_verify.analysis.moments.sampled_quadratic`), whose loss is second
+order in the pieces' length: the certificate's reach towards ``h_max``.
+
 **Beside it, a proved lower bound** (:mod:`~ftc_verify.analysis.moments.sampled_lower`:
 a held worst-case feedback disturbance, its exact energies proved in ball arithmetic);
-when none is proved, the float64 **lower estimate** (:func:`gain_lower_estimate`). Any disturbance gives
-:math:`E\|z\|^2/\|w\|^2 \le \gamma^2`; the exact expected energy of the sampled loop
-for :math:`w(t) = w(t_k)` held over each period, :math:`w(t_k) = e^{-a t_k}
-\sin(\omega t_k)` on every channel, is computed from its moment equations by
-:func:`~ftc_verify.analysis.moments.sampled_energy.sampled_energy` (infinite horizon)
-and divided by that held signal's energy, :math:`n_w h \sum_k w(t_k)^2 = n_w h\,
-\eta_0^T W \eta_0` (:math:`W = \sum_k (e^{S h})^{kT} c c^T e^{S h k}`, a discrete
-Lyapunov equation); maximised over a few frequencies, the rate points of
-:func:`~ftc_verify.analysis.moments.sampled.rate_points` and, robust, the constant
-:math:`\Delta \in \{0, +E, -E\}`. It is computed in float64: an **estimate** of a
-lower bound, not a proof (the JSON says so).
+when none is proved, the float64 estimate of
+:func:`~ftc_verify.analysis.moments.sampled_lower.gain_lower_estimate`.
 """
 
 from __future__ import annotations
@@ -99,28 +95,34 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
-import scipy.linalg
 
 from ...controllers.controller import Controller, check_period
-from ...errors import FTCError
 from ...model.system import FTCSystem, Matrix
 from ..closedloop import Channel, ClosedLoop
 from ..conic import Affine, Rows, affine_bmat, scalar_variable, svec_index, sym_variable
 from ..lmi import BlockSpec, block_specs, lyapunov_block
 from .sampled import SampledLoop
+from .sampled_lower import OMEGAS, gain_lower_estimate
 
-__all__ = ["MARGIN_TAU", "PIECES", "OMEGAS", "augmented_loop", "sample_jumps", "SampledGamma", "SampledPerformance",
+__all__ = ["MARGIN_TAU", "PIECES", "clock_instance", "MAX_SECONDS", "GAP_RTOL", "GAIN_RTOL", "GROWTH", "OMEGAS", "augmented_loop", "sample_jumps", "SampledGamma", "SampledPerformance",
            "sampled_gamma", "gain_lower_estimate", "sampled_performance", "attach_performance",
            "performance_lines"]
 
 #: First margin of the program (every instance ``<= -t I``); raised 100x when the proof fails.
 MARGIN_TAU = 1e-7
-#: Pieces of ``[0, h]`` the storage matrix is affine on, each tried (the smallest proved gamma kept).
-PIECES = (4, 8)
-#: Frequencies (rad per time unit) of the lower estimate's disturbances; the decay rate is ``DECAY``.
-OMEGAS = (0.0, 0.3, 1.0, 3.0, 10.0)
-#: Decay rate ``a`` of the lower estimate's disturbances ``e^{-a t} sin(omega t)``.
-DECAY = 0.02
+#: ``(degree, N)`` of the storage tried in turn: affine (1) on 4 pieces (cheap, tight
+#: well below ``h_max``), then quadratic (2, :mod:`~ftc_verify.analysis.moments.sampled_quadratic`)
+#: on 2, 4, 8 pieces (its error is second order in the pieces' length: the reach towards ``h_max``).
+PIECES: tuple[tuple[int, int], ...] = ((1, 4), (2, 2), (2, 4), (2, 8))
+#: No further ``N`` of :data:`PIECES` is started when its predicted CPU seconds would pass this.
+MAX_SECONDS = 20.0
+#: With a lower bound (``target``), a further ``N`` is tried while the proved gamma
+#: exceeds it by more than this fraction ...
+GAP_RTOL = 0.1
+#: ... and the last doubling of ``N`` tightened it by at least this fraction.
+GAIN_RTOL = 0.01
+#: Predicted cost of the next ``N`` (twice the pieces) over the last one's, for ``max_seconds``.
+GROWTH = 3.0
 
 
 def augmented_loop(loop: SampledLoop, system: FTCSystem, *, balls: bool = False) -> ClosedLoop:
@@ -225,7 +227,7 @@ class _Layout:
         return self.g + 2
 
 
-def _instance(aug: ClosedLoop, spec: BlockSpec, P: list[Any], D: Any, lam: Any, g: Any, bmat: Any) -> Any:
+def clock_instance(aug: ClosedLoop, spec: BlockSpec, P: list[Any], D: Any, lam: Any, g: Any, bmat: Any) -> Any:
     """One instance: :func:`lyapunov_block` at a node plus the piece's slope ``D`` in
     the leading block."""
     M = lyapunov_block(aug, spec, P, lam, g, bmat)
@@ -282,7 +284,7 @@ def _rows(aug: ClosedLoop, jumps: list[Matrix], lay: _Layout, h: float, robust: 
                 for t in coupled:
                     P[t] = loc.node(e, t, delta)
                 lam = [loc.scalar(c) for c in range(nl)] if robust else None
-                M = _instance(aug, spec, P, loc.var[(k + 1, s)], lam, loc.scalar(nl), affine_bmat)
+                M = clock_instance(aug, spec, P, loc.var[(k + 1, s)], lam, loc.scalar(nl), affine_bmat)
                 rows.lmi(M + loc.scalar(nl + 1) * np.eye(M.shape[0]), loc.columns)
     for s, J in enumerate(jumps):
         loc = _Local(lay, _node_keys(N, s), [lay.g + 1])
@@ -345,7 +347,7 @@ def _prove(loop: SampledLoop, system: FTCSystem, h: float, P: list[list[Matrix]]
                 for spec in block_specs(aug):
                     lam_s = [float(v) for v in lam[e][spec.s]] if robust else None
                     D = (Pb[k + 1][spec.s] - Pb[k][spec.s]) * slope
-                    M = _instance(aug, spec, Pb[e], D, lam_s, g, ball_bmat)
+                    M = clock_instance(aug, spec, Pb[e], D, lam_s, g, ball_bmat)
                     if not proven_positive_definite(-M):
                         return False
     return True
@@ -356,7 +358,9 @@ class SampledGamma:
     """One certificate of :func:`sampled_gamma`.
 
     ``gamma`` is the proved bound (``None`` when none was found: ``note`` says why),
-    ``pieces`` the :math:`N` of the storage matrix, ``margin`` the program's ``t``."""
+    ``pieces`` the :math:`N` of the storage matrix, ``degree`` its degree in the clock on
+    each piece (1 affine, 2 quadratic), ``margin`` the program's ``t``, ``seconds`` CPU
+    seconds."""
 
     robust: bool
     gamma: float | None
@@ -364,94 +368,96 @@ class SampledGamma:
     margin: float
     note: str
     seconds: float
+    degree: int = 1
+
+
+def _attempt(loop: SampledLoop, system: FTCSystem, aug: ClosedLoop, jumps: list[Matrix], h: float,
+             piece: tuple[int, int], robust: bool) -> tuple[float | None, float, str]:
+    """``(gamma, margin, why)`` of the program with storage of degree ``piece[0]`` (1:
+    affine, this module; 2: quadratic, :mod:`~ftc_verify.analysis.moments.sampled_quadratic`)
+    on ``piece[1]`` pieces: solved with the margins ``MARGIN_TAU * 100**j``, ``j < 3``,
+    until one answer is proved (``gamma`` ``None``: ``why`` says what failed)."""
+    from ..solvers import solve_conic_dual
+    from .sampled_quadratic import quadratic_check, quadratic_program
+
+    degree, N = piece
+    name = f"N = {N} ({'affine' if degree == 1 else 'quadratic'})"
+    if degree == 1:
+        lay = _Layout(loop.d, loop.states, N + 1, tuple(len(c) if robust else 0 for c in aug.channels))
+        objective = np.zeros(lay.K)
+        objective[lay.g] = 1.0
+        problem, gi = _rows(aug, jumps, lay, h, robust).problem(objective), lay.g
+    else:
+        problem, quad = quadratic_program(aug, jumps, h, N, robust)
+        gi = quad.g
+    tau = MARGIN_TAU
+    why = "no certificate"
+    for _ in range(3):
+        out, x, _z = solve_conic_dual(problem.fix(gi + 1, tau))
+        if x is None:
+            return None, tau, f"{name}: the solver found no point ({out.status}{': ' + out.message if out.message else ''})"
+        g = float(x[gi]) * (1 + 1e-9) + 1e-300
+        if degree == 1:
+            P, lam = _values(x, lay, h)
+            proved = _prove(loop, system, h, P, lam, g, robust)
+        else:
+            proved = quadratic_check(loop, system, h, x, quad, g, robust)
+        if proved:
+            return math.nextafter(math.sqrt(g), math.inf), tau, ""
+        why = f"{name}: the solver's answer was not proved in ball arithmetic"
+        tau *= 100.0
+    return None, tau, why
 
 
 def sampled_gamma(system: FTCSystem, controller: Controller, period: float, *, robust: bool,
-                  pieces: tuple[int, ...] = PIECES, loop: SampledLoop | None = None) -> SampledGamma:
-    """The smallest gamma proved by the clock-dependent certificate of the module
-    docstring at ``period``, over the rate box (and ``Delta`` when ``robust``), trying
-    each ``N`` of ``pieces`` (the smallest proved gamma kept), with the margins
-    ``MARGIN_TAU * 100**j``, ``j < 3``."""
-    from ..solvers import solve_conic_dual
-
+                  pieces: tuple[int | tuple[int, int], ...] = PIECES, loop: SampledLoop | None = None,
+                  max_seconds: float = MAX_SECONDS, target: float | None = None) -> SampledGamma:
+    """The gamma proved by the clock-dependent certificate of the module docstring at
+    ``period``, over the rate box (and ``Delta`` when ``robust``): each ``N`` of
+    ``pieces`` in turn (the cost grows with ``N``, the reach towards ``h_max`` and the
+    tightness too) until one is proved -- with a ``target`` (a lower bound of the gain),
+    until one is proved within :data:`GAP_RTOL` of it or a doubling of ``N`` tightens it
+    by less than :data:`GAIN_RTOL`, the smallest proved gamma kept -- and no new ``N``
+    started when its predicted time (:data:`GROWTH` times the last one's) would pass
+    ``max_seconds`` (CPU seconds of this process: a loaded machine does not shrink the
+    reach; ``seconds`` of the result is CPU time too)."""
     h = check_period(period, "period")
-    t0 = time.perf_counter()
+    t0 = time.process_time()
     loop = SampledLoop.build(system, controller) if loop is None else loop
     aug = augmented_loop(loop, system)
     robust = robust and aug.uncertain
     if not robust:
         aug = aug.nominal()
     jumps = sample_jumps(loop, h)
-    best: tuple[float, int, float] | None = None
-    why = "no certificate"
-    for N in pieces:
-        lay = _Layout(loop.d, loop.states, N + 1, tuple(len(c) if robust else 0 for c in aug.channels))
-        rows = _rows(aug, jumps, lay, h, robust)
-        objective = np.zeros(lay.K)
-        objective[lay.g] = 1.0
-        problem = rows.problem(objective)
-        tau = MARGIN_TAU
-        for _ in range(3):
-            out, x, _z = solve_conic_dual(problem.fix(lay.g + 1, tau))
-            if x is None:
-                why = f"N = {N}: the solver found no point ({out.status}{': ' + out.message if out.message else ''})"
-                break
-            g = float(x[lay.g]) * (1 + 1e-9) + 1e-300
-            P, lam = _values(x, lay, h)
-            if _prove(loop, system, h, P, lam, g, robust):
-                gamma = math.nextafter(math.sqrt(g), math.inf)
-                if best is None or gamma < best[0]:
-                    best = (gamma, N, tau)
-                break
-            why = f"N = {N}: the solver's answer was not proved in ball arithmetic"
-            tau *= 100.0
-    seconds = time.perf_counter() - t0
+    whys: list[str] = []
+    best: tuple[float, tuple[int, int], float] | None = None
+    last = 0.0
+    for item in pieces:
+        piece = (1, item) if isinstance(item, int) else item
+        spent = time.process_time() - t0
+        if (whys or best) and spent + GROWTH * last > max_seconds:
+            whys.append(f"N = {piece[1]} not tried (its predicted time would pass {max_seconds:g} s)")
+            break
+        gamma, tau, why = _attempt(loop, system, aug, jumps, h, piece, robust)
+        last = time.process_time() - t0 - spent
+        if gamma is None:
+            whys.append(why)
+            continue
+        if best is not None and gamma > best[0] * (1.0 - GAIN_RTOL):
+            best = min(best, (gamma, piece, tau))
+            break  # diminishing returns: more pieces would not tighten it much further
+        best = (gamma, piece, tau) if best is None or gamma < best[0] else best
+        if target is None or gamma <= target * (1.0 + GAP_RTOL):
+            break
+    seconds = time.process_time() - t0
     if best is None:
-        return SampledGamma(robust, None, 0, 0.0, why, seconds)
-    return SampledGamma(robust, best[0], best[1], best[2],
-                        f"proved in 128-bit ball arithmetic: storage affine on {best[1]} piece(s) of [0, h], "
-                        "every instance at both ends of each piece, the jump at the sample, every P_s", seconds)
-
-
-def _held_energy(S: Matrix, c: Matrix, eta0: Matrix, h: float, nw: int) -> float:
-    """:math:`n_w h \\sum_k (c^T e^{S h k} \\eta_0)^2` (module docstring)."""
-    Phi = scipy.linalg.expm(S * h)
-    W = scipy.linalg.solve_discrete_lyapunov(Phi.T, np.outer(c, c))
-    return float(nw * h * eta0 @ W @ eta0)
-
-
-def gain_lower_estimate(system: FTCSystem, controller: Controller, period: float, *, robust: bool,
-                        omegas: tuple[float, ...] = OMEGAS, decay: float = DECAY) -> tuple[float | None, str]:
-    """``(estimate, where)``: the largest :math:`\\sqrt{E\\|z\\|^2 / \\|w\\|^2}` of the sampled
-    loop over the disturbances, rate points and (``robust``) constant ``Delta`` of the
-    module docstring, in float64; ``None`` when the loop is not stable at some case
-    (then no finite gain: ``where`` names it)."""
-    from .sampled import rate_points
-    from .sampled_energy import perturbed_system, sampled_energy
-
-    nw = system.dims[3]
-    cases: list[tuple[str, Any, Any]] = [("Delta=0", None, None)]
-    if robust and system.uncertain:
-        md = next(m for m in system.modes if m.A1 is not None or m.B1 is not None)
-        s1 = None if md.A1 is None or md.A2 is None else (md.A1.shape[1], md.A2.shape[0])
-        s2 = None if md.B1 is None or md.B2 is None else (md.B1.shape[1], md.B2.shape[0])
-        cases += [(lab, None if s1 is None else sg * np.eye(*s1), None if s2 is None else sg * np.eye(*s2))
-                  for sg, lab in ((1.0, "Delta=+E"), (-1.0, "Delta=-E"))]
-    best, where = -1.0, ""
-    for label, d1, d2 in cases:
-        sys_d = perturbed_system(system, d1, d2)
-        for b in rate_points(system.chain):
-            for w in omegas:
-                exo = ((np.array([[-decay, w], [-w, -decay]]), np.array([1.0, 0.0]), np.array([0.0, 1.0])) if w > 0
-                       else (np.array([[-decay]]), np.ones(1), np.ones(1)))
-                try:
-                    e = sampled_energy(sys_d, controller, period, beta=b, exosystem=exo, disturbance="exosystem")
-                except FTCError:
-                    return None, f"{label}, {system.chain.rate_text(b)}: not mean-square stable (float64)"
-                ratio = e.y_energy / _held_energy(exo[0], exo[1], exo[2], period, nw)
-                if ratio > best:
-                    best, where = ratio, f"{label}, {system.chain.rate_text(b)}, omega {w:g}"
-    return math.sqrt(max(best, 0.0)), where
+        return SampledGamma(robust, None, 0, 0.0, "; ".join(whys) or "no certificate", seconds)
+    (degree, N), how = best[1], ("affine", "every instance at both ends of each piece")
+    if degree == 2:
+        how = ("quadratic", "every instance on each whole piece (S-procedure in the clock)")
+    return SampledGamma(robust, best[0], N, best[2],
+                        f"proved in 128-bit ball arithmetic: storage {how[0]} on {N} piece(s) of [0, h], "
+                        f"{how[1]}, the jump at the sample, every node P_s", seconds, degree)
 
 
 @dataclass(frozen=True)
@@ -476,8 +482,10 @@ class SampledPerformance:
             "nominal_gamma": self.nominal.gamma,
             "nominal_gamma_note": self.nominal.note,
             "nominal_gamma_pieces": self.nominal.pieces,
+            "nominal_gamma_storage_degree": self.nominal.degree,
             "robust_gamma": None if rob is None else rob.gamma,
             "robust_gamma_note": "no uncertainty channels" if rob is None else rob.note,
+            "robust_gamma_storage_degree": None if rob is None else rob.degree,
             "nominal_gamma_lower": self.nominal_lower,
             "nominal_gamma_lower_where": self.nominal_lower_where,
             "robust_gamma_lower": self.robust_lower,
@@ -489,32 +497,12 @@ class SampledPerformance:
         }
 
 
-def _lower(system: FTCSystem, controller: Controller, period: float, robust: bool,
-           loop: SampledLoop) -> tuple[float | None, str, str]:
-    """``(value, where, kind)``: the proved bound of
-    :func:`~ftc_verify.analysis.moments.sampled_lower.sampled_lower_bound`, else the
-    float64 :func:`gain_lower_estimate` (kind ``"estimate"``)."""
-    from .sampled_lower import sampled_lower_bound
-
-    low = sampled_lower_bound(system, controller, period, robust=robust, loop=loop)
-    if low.value is not None:
-        return low.value, low.where, "proved"
-    est, where = gain_lower_estimate(system, controller, period, robust=robust)
-    return est, f"{where} (no proved bound: {low.where})", "estimate"
-
-
 def sampled_performance(system: FTCSystem, controller: Controller, period: float) -> SampledPerformance:
-    """Both certificates (robust only with uncertainty channels) and their lower bounds
-    (proved, else float64 estimates; the robust one at least the nominal: Delta = 0 is admissible)."""
-    loop = SampledLoop.build(system, controller)
-    nominal = sampled_gamma(system, controller, period, robust=False, loop=loop)
-    robust = sampled_gamma(system, controller, period, robust=True, loop=loop) if system.uncertain else None
-    lo_n, where_n, kind_n = _lower(system, controller, period, False, loop)
-    lo_r, where_r, kind_r = (_lower(system, controller, period, True, loop) if system.uncertain
-                             else (None, "no uncertainty channels", "estimate"))
-    if kind_n == kind_r == "proved" and lo_r is not None and lo_n is not None and lo_n > lo_r:
-        lo_r, where_r = lo_n, f"Delta = 0 (admissible): {where_n}"
-    return SampledPerformance(float(period), nominal, robust, lo_n, where_n, lo_r, where_r, kind_n, kind_r)
+    """Both certificates and their lower bounds at ``period``:
+    :func:`~ftc_verify.analysis.moments.sampled_gains.sampled_gains`."""
+    from .sampled_gains import sampled_gains
+
+    return sampled_gains(system, controller, period)
 
 
 def attach_performance(result: Any, system: FTCSystem, controller: Controller) -> Any:
@@ -545,6 +533,7 @@ def performance_lines(perf: SampledPerformance) -> list[str]:
             out.append(f"    {name} gain (sampled, between samples included)  NOT certified: {cert.note}; "
                        f"lower bound {low}")
         else:
+            shape = "affine" if cert.degree == 1 else "quadratic"
             out.append(f"    {name} gain (sampled, between samples included)  gamma <= {cert.gamma:.6g} "
-                       f"(proved, N = {cert.pieces}); lower bound {low}")
+                       f"(proved, N = {cert.pieces} {shape}); lower bound {low}")
     return out

@@ -62,9 +62,13 @@ array a vertex or the centre of the box, as the user wrote it:
 disturbance and output matrices, the uncertainty channels and the resets are balls of
 the numbers as written (:func:`~ftc_verify.analysis.moments.sampled_gamma.augmented_loop`,
 the resets of a dynamic controller by Arb's rigorous exponential), the period is the
-float given; :math:`\mathcal F`, :math:`\mathcal G` by Arb's rigorous exponential, the
-doubling in 128-bit ball arithmetic. The bound is the lower end of the enclosure of the
-ratio (rounded down): a **proved** lower bound of the sampled loop's nominal (robust)
+float given; :math:`\mathcal F`, :math:`\mathcal G` by a rigorous ball exponential
+(:func:`~ftc_verify.analysis.moments.fast_balls.arb_expm`: float64 midpoint-radius
+arithmetic with its error analysis, Arb's exponential when a number overflows), the
+doubling in 64-bit Arb ball arithmetic (:data:`PROOF_BITS`); when the doublings widen
+that enclosure (its lower end more than :data:`PROOF_RTOL` below the float64 value),
+everything again at 128 bits with Arb's exponential. The bound is the lower end of the
+enclosure of the ratio (rounded down): a **proved** lower bound of the sampled loop's nominal (robust)
 gain at this period.
 """
 
@@ -79,13 +83,16 @@ import numpy as np
 import scipy.linalg
 
 from ...controllers.controller import Controller, check_period
+from ...errors import FTCError
 from ...model.system import FTCSystem, Matrix
 from ..closedloop import ClosedLoop, closed_loop
 from ..lower_bound import float_gain
 from .sampled import SampledLoop, rate_points
 from .stability import duplication_matrix, vech_order
 
-__all__ = ["SCALES", "HORIZON", "SampledLowerBound", "sampled_lower_bound"]
+__all__ = ["SCALES", "HORIZON", "PROOF_BITS", "PROOF_RTOL", "SampledLowerBound", "sampled_lower_bound",
+           "sampled_lower_bounds", "OMEGAS", "DECAY",
+           "gain_lower_estimate"]
 
 #: Scales ``alpha`` of the worst-case feedback tried in float64 (the best ratio is proved).
 SCALES = (0.0, 0.8, 0.95, 1.0, 1.02, 1.05, 1.1, 1.3)
@@ -97,6 +104,17 @@ FEEDBACK_RTOL = 1e-3
 REFINE_EVALUATIONS = 400
 #: Largest ``p`` of ``K = 2^p``.
 MAX_DOUBLINGS = 20
+#: Frequencies (rad per time unit) of the lower estimate's disturbances; the decay rate is ``DECAY``.
+OMEGAS = (0.0, 0.3, 1.0, 3.0, 10.0)
+#: Decay rate ``a`` of the lower estimate's disturbances ``e^{-a t} sin(omega t)``.
+DECAY = 0.02
+#: Arb's working precision of the proof: 64 bits lets the Van Loan exponential run in
+#: float64 midpoint-radius arithmetic (:func:`~ftc_verify.analysis.moments.fast_balls.arb_expm`,
+#: seven times faster than Arb's at 128 bits); the bound usually loses about ``1e-9``
+#: relative, and the proof is redone at 128 bits when it loses more than ``PROOF_RTOL``.
+PROOF_BITS = 64
+#: The 64-bit bound is redone at 128 bits when it lies more than this fraction below the float value.
+PROOF_RTOL = 1e-6
 
 
 @dataclass(frozen=True)
@@ -153,8 +171,9 @@ class _Ops:
         if not self.balls:
             return scipy.linalg.expm(M * h)
         from ..rigorous import Ball
+        from .fast_balls import arb_expm
 
-        return Ball((M.value * h).exp())
+        return Ball(arb_expm(M.value * h))
 
     def weights(self, W: Any) -> Any:
         """The row ``w`` with ``w . vech(X) = tr(W X)`` for symmetric ``X``."""
@@ -259,6 +278,42 @@ def _ratio(ops: _Ops, b: _Blocks, resets: Sequence[Any], F: Sequence[Matrix], h:
     return num, den
 
 
+class _FloatRatio:
+    r""":func:`_ratio` in float64 with every feedback-independent product of ``b``
+    precomputed (:math:`\mathcal P\mathcal F`, :math:`\ell\mathcal G`, :math:`v_1`,
+    :math:`\ell\mathcal G m_0`): the same formulas, a few times faster; what the float
+    search and the Nelder-Mead refinement evaluate (the proof uses :func:`_ratio` on balls)."""
+
+    def __init__(self, b: _Blocks, r: int) -> None:
+        self.RF = b.restrict @ b.Fm
+        self.lg = b.ell @ b.Gm
+        self.v1 = b.restrict @ (b.Fm @ b.m0)
+        self.num0 = float((self.lg @ b.m0)[0, 0])
+        self.Ld, self.Dr = b.Ld, b.Dr
+        self.vd, self.vr = b.Ld.shape[0], b.Dr.shape[1]
+        rows, cols = vech_order(r)
+        self.index = (rows, cols, np.where(rows == cols, 1.0, 2.0))
+
+    def __call__(self, resets: Sequence[Matrix], F: Sequence[Matrix], h: float, doublings: int) -> float:
+        """The ratio numerator / denominator (``nan`` or ``inf`` when it overflows)."""
+        states = len(resets)
+        vd, vr = self.vd, self.vr
+        lift = np.zeros((states * vd, states * vr))
+        rows, cols, w = self.index
+        f = np.empty(states * vr)
+        for s, (R, Fs) in enumerate(zip(resets, F)):
+            Rh = np.vstack([R, Fs])
+            lift[s * vd:(s + 1) * vd, s * vr:(s + 1) * vr] = self.Ld @ np.kron(Rh, Rh) @ self.Dr
+            f[s * vr:(s + 1) * vr] = w * (Fs.T @ Fs)[rows, cols]
+        T = self.RF @ lift
+        Sm, Pw = self.v1, T
+        for _ in range(doublings):
+            Sm = Sm + Pw @ Sm
+            Pw = Pw @ Pw
+        num = self.num0 + float((self.lg @ (lift @ Sm))[0, 0])
+        return num / ((float(f @ Sm[:, 0]) + 1.0) * h)
+
+
 def _feedbacks(system: FTCSystem, controller: Controller, loop: SampledLoop, rates: Matrix,
                delta: float) -> list[Matrix] | None:
     """The continuous loop's worst-case feedback at ``rates`` (``Delta = delta I``) on the
@@ -279,11 +334,11 @@ def _feedbacks(system: FTCSystem, controller: Controller, loop: SampledLoop, rat
     return out
 
 
-def _refine(ops: _Ops, blocks: _Blocks, resets: Sequence[Any], h: float, nw: int, p: int, F: list[Matrix],
-            value: float) -> tuple[float, list[Matrix]]:
+def _refine(fast: _FloatRatio, resets: Sequence[Any], h: float, nw: int, p: int, F: list[Matrix],
+            value: float, evaluations: int = 0) -> tuple[float, list[Matrix]]:
     """The float64 ratio maximised over the entries of ``F`` on the plant state by
-    Nelder-Mead from ``F`` (at most :data:`REFINE_EVALUATIONS` ratios); ``(value, F)``
-    unchanged when it finds nothing better."""
+    Nelder-Mead from ``F`` (at most ``evaluations`` ratios, :data:`REFINE_EVALUATIONS`
+    by default); ``(value, F)`` unchanged when it finds nothing better."""
     import scipy.optimize
 
     shape = (len(F), nw, resets[0].shape[1])
@@ -291,12 +346,12 @@ def _refine(ops: _Ops, blocks: _Blocks, resets: Sequence[Any], h: float, nw: int
 
     def negative(x: Matrix) -> float:
         with np.errstate(all="ignore"):
-            num, den = _ratio(ops, blocks, resets, list(x.reshape(shape)), h, p)
-        v = float(num[0, 0] / den[0, 0])
+            v = fast(resets, list(x.reshape(shape)), h, p)
         return -v if math.isfinite(v) else 0.0
 
     found = scipy.optimize.minimize(negative, x0, method="Nelder-Mead",
-                                    options={"maxfev": REFINE_EVALUATIONS, "xatol": 1e-6, "fatol": 1e-9})
+                                    options={"maxfev": evaluations or REFINE_EVALUATIONS, "xatol": 1e-6,
+                                             "fatol": 1e-9})
     if -found.fun > value:
         return float(-found.fun), list(np.asarray(found.x).reshape(shape))
     return value, F
@@ -306,43 +361,52 @@ def _doublings(h: float) -> int:
     return max(1, min(MAX_DOUBLINGS, math.ceil(math.log2(max(HORIZON / h, 2.0)))))
 
 
-def sampled_lower_bound(system: FTCSystem, controller: Controller, period: float, *, robust: bool,
-                        loop: SampledLoop | None = None, scales: Sequence[float] = SCALES) -> SampledLowerBound:
-    """A proved lower bound of the sampled loop's nominal (``robust``: robust) gain at
-    ``period`` (module docstring): the best float64 ratio over the feedback scales, rate
-    arrays, initial joint state 0 and (robust) ``Delta``, proved in ball arithmetic."""
-    from .sampled_gamma import sample_jumps, augmented_loop
+#: One float64 candidate of the search: ``(ratio, rates, delta, F, alpha, evaluator)``.
+_Candidate = tuple[float, Matrix, float, list[Matrix], float, _FloatRatio]
 
-    h = check_period(period, "period")
-    loop = SampledLoop.build(system, controller) if loop is None else loop
+
+def _search(system: FTCSystem, controller: Controller, loop: SampledLoop, h: float, deltas: Sequence[float],
+            scales: Sequence[float]) -> dict[float, _Candidate]:
+    """The best float64 candidate per ``Delta = delta I`` over the feedback scales and
+    the rate arrays (module docstring); a ``delta`` without a worst-case feedback is absent."""
+    from .sampled_gamma import augmented_loop, sample_jumps
+
     aug = augmented_loop(loop, system)
-    robust = robust and aug.uncertain
-    deltas = (0.0, 1.0, -1.0) if robust else (0.0,)
     P = loop.restriction()
     resets = [J @ P.T for J in sample_jumps(loop, h)]
     p = _doublings(h)
-    best: tuple[float, Matrix, float, list[Matrix], float, _Blocks] | None = None
     ops = _Ops(False)
     nw = system.dims[3]
+    out: dict[float, _Candidate] = {}
     for delta in deltas:
         F0 = _feedbacks(system, controller, loop, system.chain.midpoint(), delta)
         if F0 is None:
             continue
         for rates in rate_points(system.chain):
-            blocks = _blocks(ops, aug, P, system.chain.generator(rates), h, delta, nw)
+            fast = _FloatRatio(_blocks(ops, aug, P, system.chain.generator(rates), h, delta, nw), loop.r)
             for a in scales:
                 F = [a * f for f in F0]
                 with np.errstate(all="ignore"):
-                    num, den = _ratio(ops, blocks, resets, F, h, p)
-                value = float(num[0, 0] / den[0, 0])
-                if math.isfinite(value) and (best is None or value > best[0]):
-                    best = (value, rates, delta, F, a, blocks)
+                    value = fast(resets, F, h, p)
+                if math.isfinite(value) and (delta not in out or value > out[delta][0]):
+                    out[delta] = (value, rates, delta, F, a, fast)
+    return out
+
+
+def _finish(system: FTCSystem, loop: SampledLoop, h: float, best: _Candidate | None,
+            robust: bool) -> SampledLowerBound:
+    """Refine the candidate ``best`` (:func:`_refine`) and prove it (:func:`_prove`)."""
     if best is None:
         return SampledLowerBound(None, "proved", "no float64 candidate (the continuous loop is not stable)", None)
-    value, rates, delta, F, a, blocks = best
+    from .sampled_gamma import sample_jumps
+
+    value, rates, delta, F, a, fast = best
+    P = loop.restriction()
+    resets = [J @ P.T for J in sample_jumps(loop, h)]
+    p = _doublings(h)
     start = value
-    value, F = _refine(ops, blocks, resets, h, nw, p, F, value)
-    proved = _prove(system, loop, h, rates, delta, F, p)
+    value, F = _refine(fast, resets, h, system.dims[3], p, F, value)
+    proved = _prove(system, loop, h, rates, delta, F, p, math.sqrt(max(value, 0.0)))
     how = "refined by Nelder-Mead from " if value > start else ""
     where = (f"held feedback {how}{a:g} x the continuous worst case over {2 ** p + 1} periods, "
              f"{system.chain.rate_text(rates)}" + (f", Delta = {delta:+g} I" if robust else ""))
@@ -350,17 +414,65 @@ def sampled_lower_bound(system: FTCSystem, controller: Controller, period: float
                              math.sqrt(max(value, 0.0)))
 
 
+def sampled_lower_bound(system: FTCSystem, controller: Controller, period: float, *, robust: bool,
+                        loop: SampledLoop | None = None, scales: Sequence[float] = SCALES) -> SampledLowerBound:
+    """A proved lower bound of the sampled loop's nominal (``robust``: robust) gain at
+    ``period`` (module docstring): the best float64 ratio over the feedback scales, rate
+    arrays, initial joint state 0 and (robust) ``Delta``, proved in ball arithmetic."""
+    h = check_period(period, "period")
+    loop = SampledLoop.build(system, controller) if loop is None else loop
+    robust = robust and system.uncertain
+    found = _search(system, controller, loop, h, (0.0, 1.0, -1.0) if robust else (0.0,), scales)
+    return _finish(system, loop, h, max(found.values(), key=lambda c: c[0], default=None), robust)
+
+
+def sampled_lower_bounds(system: FTCSystem, controller: Controller, period: float, *,
+                         loop: SampledLoop | None = None,
+                         scales: Sequence[float] = SCALES) -> tuple[SampledLowerBound, SampledLowerBound | None]:
+    """``(nominal, robust)``: :func:`sampled_lower_bound` for both (robust ``None``
+    without uncertainty channels) from one float64 search -- the nominal candidates
+    (``Delta = 0``) are among the robust ones, so they are computed once; when the
+    robust search's best is ``Delta = 0`` the nominal bound is reused (the same proof)."""
+    h = check_period(period, "period")
+    loop = SampledLoop.build(system, controller) if loop is None else loop
+    robust = system.uncertain
+    found = _search(system, controller, loop, h, (0.0, 1.0, -1.0) if robust else (0.0,), scales)
+    nominal = _finish(system, loop, h, found.get(0.0), False)
+    if not robust:
+        return nominal, None
+    best = max(found.values(), key=lambda c: c[0], default=None)
+    if best is not None and best[2] == 0.0:
+        return nominal, nominal
+    return nominal, _finish(system, loop, h, best, True)
+
+
 def _prove(system: FTCSystem, loop: SampledLoop, h: float, rates: Matrix, delta: float, F: list[Matrix],
-           doublings: int) -> float | None:
+           doublings: int, target: float = 0.0) -> float | None:
     """The lower end of the ball enclosure of the ratio's square root (``None`` when the
-    enclosure does not exclude 0)."""
+    enclosure does not exclude 0): at :data:`PROOF_BITS` first, again at
+    :data:`~ftc_verify.analysis.rigorous.PRECISION_BITS` (Arb's exponential) when that
+    end lies more than :data:`PROOF_RTOL` below ``target`` (the float64 value): the
+    doublings can widen the float64 exponential's radii by many orders."""
+    from ..rigorous import PRECISION_BITS
+
+    lower = None
+    for bits in (PROOF_BITS, PRECISION_BITS):
+        lower = _prove_at(system, loop, h, rates, delta, F, doublings, bits)
+        if lower is not None and lower >= target * (1.0 - PROOF_RTOL):
+            return lower
+    return lower
+
+
+def _prove_at(system: FTCSystem, loop: SampledLoop, h: float, rates: Matrix, delta: float, F: list[Matrix],
+              doublings: int, bits: int) -> float | None:
+    """:func:`_prove` at Arb's working precision ``bits``."""
     import flint
 
     from ..rigorous import precision
     from .sampled_balls import ball_generator
-    from .sampled_gamma import sample_jumps, augmented_loop
+    from .sampled_gamma import augmented_loop, sample_jumps
 
-    with precision():
+    with precision(bits):
         aug = augmented_loop(loop, system, balls=True)
         if delta == 0.0:
             aug = aug.nominal()
@@ -376,3 +488,57 @@ def _prove(system: FTCSystem, loop: SampledLoop, h: float, rates: Matrix, delta:
         root = ratio.sqrt()
         lower = math.nextafter(float(root.mid()) - 2.0 * float(root.rad()), -math.inf)
         return lower if lower > 0 and bool(flint.arb(lower) < root) else None
+
+
+def _held_energy(S: Matrix, c: Matrix, eta0: Matrix, h: float, nw: int) -> float:
+    """:math:`n_w h \\sum_k (c^T e^{S h k} \\eta_0)^2` (module docstring)."""
+    Phi = scipy.linalg.expm(S * h)
+    W = scipy.linalg.solve_discrete_lyapunov(Phi.T, np.outer(c, c))
+    return float(nw * h * eta0 @ W @ eta0)
+
+
+def gain_lower_estimate(system: FTCSystem, controller: Controller, period: float, *, robust: bool,
+                        omegas: tuple[float, ...] = OMEGAS, decay: float = DECAY) -> tuple[float | None, str]:
+    """``(estimate, where)``: the largest :math:`\\sqrt{E\\|z\\|^2 / \\|w\\|^2}` of the sampled
+    loop over the disturbances, rate points and (``robust``) constant ``Delta`` of the
+    text below, in float64; ``None`` when the loop is not stable at some case
+    (then no finite gain: ``where`` names it).
+
+    The float64 **lower estimate** (when no bound is proved). Any disturbance gives
+    :math:`E\\|z\\|^2/\\|w\\|^2 \\le \\gamma^2`; the exact expected energy of the sampled loop
+    for :math:`w(t) = w(t_k)` held over each period, :math:`w(t_k) = e^{-a t_k}
+    \\sin(\\omega t_k)` on every channel, is computed from its moment equations by
+    :func:`~ftc_verify.analysis.moments.sampled_energy.sampled_energy` (infinite horizon)
+    and divided by that held signal's energy, :math:`n_w h \\sum_k w(t_k)^2 = n_w h\\,
+    \\eta_0^T W \\eta_0` (:math:`W = \\sum_k (e^{S h})^{kT} c c^T e^{S h k}`, a discrete
+    Lyapunov equation); maximised over a few frequencies, the rate points of
+    :func:`~ftc_verify.analysis.moments.sampled.rate_points` and, robust, the constant
+    :math:`\\Delta \\in \\{0, +E, -E\\}`. It is computed in float64: an **estimate** of a
+    lower bound, not a proof (the JSON says so).
+    """
+    from .sampled import rate_points
+    from .sampled_energy import perturbed_system, sampled_energy
+
+    nw = system.dims[3]
+    cases: list[tuple[str, Any, Any]] = [("Delta=0", None, None)]
+    if robust and system.uncertain:
+        md = next(m for m in system.modes if m.A1 is not None or m.B1 is not None)
+        s1 = None if md.A1 is None or md.A2 is None else (md.A1.shape[1], md.A2.shape[0])
+        s2 = None if md.B1 is None or md.B2 is None else (md.B1.shape[1], md.B2.shape[0])
+        cases += [(lab, None if s1 is None else sg * np.eye(*s1), None if s2 is None else sg * np.eye(*s2))
+                  for sg, lab in ((1.0, "Delta=+E"), (-1.0, "Delta=-E"))]
+    best, where = -1.0, ""
+    for label, d1, d2 in cases:
+        sys_d = perturbed_system(system, d1, d2)
+        for b in rate_points(system.chain):
+            for w in omegas:
+                exo = ((np.array([[-decay, w], [-w, -decay]]), np.array([1.0, 0.0]), np.array([0.0, 1.0])) if w > 0
+                       else (np.array([[-decay]]), np.ones(1), np.ones(1)))
+                try:
+                    e = sampled_energy(sys_d, controller, period, beta=b, exosystem=exo, disturbance="exosystem")
+                except FTCError:
+                    return None, f"{label}, {system.chain.rate_text(b)}: not mean-square stable (float64)"
+                ratio = e.y_energy / _held_energy(exo[0], exo[1], exo[2], period, nw)
+                if ratio > best:
+                    best, where = ratio, f"{label}, {system.chain.rate_text(b)}, omega {w:g}"
+    return math.sqrt(max(best, 0.0)), where
