@@ -218,17 +218,9 @@ def _risk_stage() -> Any:
 
 
 def _cmd_verify(args: argparse.Namespace) -> int:
-    from ..prestart import cross_check as start_cross_check
-    from .common import Stopwatch
+    from .common import with_cross_check
 
-    watch = Stopwatch()
-    from ..verification import verify as _  # noqa: F401  (numpy, scipy, the stages: shared with the child below)
-
-    check = start_cross_check()  # python-control's import starts now, beside everything below (issue 37)
-    try:
-        return _verify_command(args, watch, check)
-    finally:
-        check.cancel()
+    return with_cross_check(args, _verify_command, "ftc_verify.verification.verify")
 
 
 def _verify_command(args: argparse.Namespace, watch: Any, check: Any) -> int:

@@ -260,7 +260,11 @@ def write_report(rep: VerifyReport, out_dir: str | os.PathLike[str], watch: Any 
     :func:`~ftc_verify.verification.verify.run_verify` (``rep.seconds``) and the plots'
     ``report_plots``; with ``watch`` (the CLI's :class:`~ftc_verify.cli.common.Stopwatch`)
     also its marks (``startup``, ``imports_and_load``, ...) and ``total``, the seconds
-    from the process's start to this file."""
+    from the process's start to this file. Stages run beside each other (the sampled
+    loop's in a child during the Monte Carlo, python-control's cross-check in another),
+    so the durations overlap: ``timings["timeline"]`` gives every stage's
+    ``[start, end]``, seconds since the process started (with ``watch``; else since the
+    first stage started), ordered by start."""
     from .plots import plot_path
 
     t0 = time.perf_counter()
@@ -295,9 +299,14 @@ def write_report(rep: VerifyReport, out_dir: str | os.PathLike[str], watch: Any 
         finally:
             if forked is not None:
                 forked.cancel()
-        timings = dict(rep.seconds) | {"report_plots": time.perf_counter() - t0}
+        spans = dict(rep.spans) | {"report_plots": (t0, time.perf_counter())}
+        timings: dict[str, Any] = dict(rep.seconds) | {"report_plots": spans["report_plots"][1] - t0}
         if watch is not None:
-            timings = dict(watch.timings) | timings | {"total": watch.total()}
+            timings = dict(watch.timings) | timings | {"total": watch.total(), "timeline": watch.timeline(spans)}
+        else:
+            origin = min(a for a, _ in spans.values())
+            timings["timeline"] = {k: [round(a - origin, 4), round(b - origin, 4)]
+                                   for k, (a, b) in sorted(spans.items(), key=lambda item: item[1][0])}
         (stage / "report.json").write_text(dumps(rep.to_dict() | {"timings": timings}) + "\n")
         (stage / "report.md").write_text(render_markdown(rep))
         names = sorted(item.name for item in stage.iterdir())
