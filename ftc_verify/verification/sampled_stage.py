@@ -9,6 +9,7 @@ certificates of the other stages are its :math:`h \\to 0` limit.
 
 from __future__ import annotations
 
+import contextlib
 import time
 from typing import TYPE_CHECKING, Any
 
@@ -255,6 +256,13 @@ class SampledRun:
         return found
 
     def cancel(self) -> None:
-        """Kill the child (and its group) if it still runs."""
+        """Kill the child (and its group) if it still runs. The child itself is killed
+        first: a child cancelled right after the fork may not lead its group yet."""
+        import os
+        import signal
+
         if self._child is not None:
+            if self._child.pid:
+                with contextlib.suppress(ProcessLookupError, PermissionError):
+                    os.kill(self._child.pid, signal.SIGKILL)
             self._child.cancel()
