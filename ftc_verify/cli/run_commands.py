@@ -225,7 +225,7 @@ def _cmd_verify(args: argparse.Namespace) -> int:
 
 def _verify_command(args: argparse.Namespace, watch: Any, check: Any) -> int:
     from ..simulation.spec import SimulationSpec
-    from ..verification.report import check_out_dir, write_report
+    from ..verification.report import EarlyFigures, check_out_dir, write_report
     from ..verification.verify import run_verify
 
     from .sampled_lines import check_period_option
@@ -247,15 +247,19 @@ def _verify_command(args: argparse.Namespace, watch: Any, check: Any) -> int:
         spec.check_memory(system, controller, args.paths)
     k_max = None if args.no_gain_bound else args.k_max
     watch.mark("imports_and_load")
-    with spec.client() as client:  # started before the synthesis: a bad cluster is refused before any work
-        watch.mark("cluster_start")
-        rep = run_verify(system, gamma=args.gamma, method=args.method, k_max=k_max, controller=controller,
-                         spec=spec, solver=args.solver, progress=sys.stderr.isatty(), plant=plant,
-                         fmu_log=_fmu_logger(args), measure=args.measure, client=client, cross_check=check,
-                         risk=_risk_stage())
-        watch.mark("stages")
-    watch.mark("cluster_stop")
-    written = write_report(rep, args.out, watch)
+    figures = EarlyFigures(args.out)  # drawn while the sampled-loop stages finish in their child
+    try:
+        with spec.client() as client:  # started before the synthesis: a bad cluster is refused before any work
+            watch.mark("cluster_start")
+            rep = run_verify(system, gamma=args.gamma, method=args.method, k_max=k_max, controller=controller,
+                             spec=spec, solver=args.solver, progress=sys.stderr.isatty(), plant=plant,
+                             fmu_log=_fmu_logger(args), measure=args.measure, client=client, cross_check=check,
+                             risk=_risk_stage(), meanwhile=figures)
+            watch.mark("stages")
+        watch.mark("cluster_stop")
+        written = write_report(rep, args.out, watch, figures)
+    finally:
+        figures.close()
     from ..verification.summary import verify_summary
 
     print(verify_summary(rep, written=written))

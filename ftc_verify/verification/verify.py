@@ -381,6 +381,7 @@ def run_verify(
     paths: int | None = None, step: float | None = None, horizon: float | None = None, seed: int | None = None,
     solver: str | None = None, progress: bool = False, plant: Any = None, fmu_log: Any = None,
     measure: str = "total", client: Any = None, cross_check: Any = None, risk: RiskStage | None = None,
+    meanwhile: Callable[[VerifyReport], Any] | None = None,
 ) -> VerifyReport:
     """Run every stage of the module docstring and collect the checks.
 
@@ -397,7 +398,10 @@ def run_verify(
     right after its numerical imports, before loading anything); by default one is started here, first. It gets the loop as
     soon as it exists and is waited for only at the end, so python-control's import and
     checks overlap every other stage. ``risk``: the risk stage
-    (stage 7)."""
+    (stage 7). ``meanwhile``: called with the report so far (every stage but the
+    sampled loop's and the python-control check, which run in child processes) before
+    waiting for those children, when the sampled stages ran; the CLI draws the report's
+    figures there (:class:`~ftc_verify.verification.report.EarlyFigures`)."""
     if measure not in ("total", "incremental"):
         raise ValidationError(f"measure: {measure!r} is not 'total' or 'incremental'")
     spec = _verify_spec(spec, {"n_paths": paths, "step": step, "horizon": horizon, "seed": seed})
@@ -413,7 +417,7 @@ def run_verify(
 
             procs = plant_processes()  # their interpreters start beside the synthesis and analysis
         return _run_verify(system, gamma, method, k_max, controller, spec, solver, progress, plant, fmu_log,
-                           measure, client, cross_check, procs, sampled, risk)
+                           measure, client, cross_check, procs, sampled, risk, meanwhile)
     finally:
         cross_check.cancel()
         for run in sampled:
@@ -425,7 +429,8 @@ def run_verify(
 def _run_verify(system: FTCSystem, gamma: float | None, method: str, k_max: float | None,
                 controller: Controller | None, spec: SimulationSpec, solver: str | None, progress: bool,
                 plant: Any, fmu_log: Any, measure: str, client: Any, cross_check: Any,
-                procs: list[Any], sampled: list[Any], risk: RiskStage | None = None) -> VerifyReport:
+                procs: list[Any], sampled: list[Any], risk: RiskStage | None = None,
+                meanwhile: Callable[[VerifyReport], Any] | None = None) -> VerifyReport:
     """The stages of :func:`run_verify`, with its running ``cross_check`` and the plant
     processes ``procs`` started for the Monte Carlo
     (:func:`~ftc_verify.simulation.isolated.plant_processes`; none on a cluster);
@@ -463,11 +468,16 @@ def _run_verify(system: FTCSystem, gamma: float | None, method: str, k_max: floa
     cross: dict[str, Any] = {}  # where the python-control check goes among the checks, once the loop exists
 
     def report(**found: Any) -> VerifyReport:
+        def made() -> VerifyReport:
+            parts: dict[str, Any] = {"gamma_certified": None, "analysis": None, "per_mode": (), "exact": (),
+                                     "mc": None, "records": ()} | extra | found
+            return VerifyReport(system, controller, synthesis=synthesis, checks=tuple(checks), seed=seed,
+                                options=options, seconds=dict(seconds), spans=dict(spans), **parts)
+
+        if meanwhile is not None and sampled:  # the report so far, while the sampled stages may still run
+            meanwhile(made())
         extra.update(_join(sampled, cross, cross_check, checks, seconds, spans))
-        parts: dict[str, Any] = {"gamma_certified": None, "analysis": None, "per_mode": (), "exact": (),
-                                 "mc": None, "records": ()} | extra | found
-        return VerifyReport(system, controller, synthesis=synthesis, checks=tuple(checks), seed=seed,
-                            options=options, seconds=seconds, spans=spans, **parts)
+        return made()
 
     if controller is None:
         return report()
