@@ -145,3 +145,29 @@ def test_report_json_has_every_stage_on_the_time_line(tmp_path: Path) -> None:
         assert line[name][0] == pytest.approx(a - watch.origin, abs=1e-3)
     assert line["sampled"][0] < line["monte_carlo"][0] < line["monte_carlo"][1] < line["sampled"][1]  # overlapping
     assert np.isclose(timings["monte_carlo"], 2.9) and timings["total"] >= line["report_plots"][1] - 1e-3
+
+
+def test_figures_drawn_early_are_moved_into_the_report(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from ftc_verify.verification import report as report_module
+
+    def fake_draw(rep: VerifyReport, folder: Path) -> None:
+        (folder / "gamma_bracket.png").write_bytes(b"\x89PNG\r\n\x1a\n early")
+
+    monkeypatch.setattr(report_module, "draw_figures", fake_draw)
+    system, _ = load(str(PAPER), str(GAINS))
+    rep = VerifyReport(system, None, None, None, None, (), (), None, (), (Check("synthesis", False, "none"),),
+                       seed=1, options={"fdi_model": "FDI: test"})
+    out = tmp_path / "out"
+    figures = report_module.EarlyFigures(out)
+    try:
+        figures(rep)
+        assert figures.folder is not None and figures.folder.parent == tmp_path
+        assert figures.folder.name.startswith(".out.figures-")
+        written = write_report(rep, out, None, figures)
+    finally:
+        figures.close()
+    assert (out / "gamma_bracket.png").read_bytes().endswith(b"early") and out / "gamma_bracket.png" in written
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # no figures or staging folder left
+    timings = json.loads((out / "report.json").read_text())["timings"]
+    assert figures.span is not None
+    assert timings["report_plots"] == pytest.approx(figures.span[1] - figures.span[0])
