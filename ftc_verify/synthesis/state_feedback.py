@@ -30,7 +30,10 @@ Methods (all return a :class:`~ftc_verify.synthesis.results.SynthesisResult` ver
     and a scale search, the LQR of the averaged plant, the full-information design
     projected onto FDI-mode gains); so it never loses to any of them, in particular not to
     the textbook per-mode LQR. When nothing is certified, ``diagnosis`` says why
-    (:func:`~ftc_verify.synthesis.starts.diagnose`).
+    (:func:`~ftc_verify.synthesis.starts.diagnose`). Two-step, the longest start, runs in
+    a forked child; meanwhile the descent from the best of the other starts and the
+    analysis of its result run here, and are kept when that start is the best of all (the
+    same result as in turn).
 
 ``common-fdi``
     One :math:`X_j, Y_j` per FDI mode (:math:`X_{(i,j)} = X_j`, :math:`K_j = Y_j X_j^{-1}`):
