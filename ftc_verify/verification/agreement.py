@@ -1,7 +1,7 @@
 """The last checks of ``verify``: the FMU against the numpy reference, or the plant region.
 
 With the ``LinearJumpPlant`` FMU, :func:`backend_agreement` re-simulates the first
-:data:`~ftc_verify.verification.verify.AGREE_PATHS` paths on the numpy reference with the
+``AGREE_PATHS`` (5, :mod:`ftc_verify.verification.verify`) paths on the numpy reference with the
 same ``Delta`` draws and requires the plant and controller states to agree to
 :data:`~ftc_verify.verification.verify.AGREE_RTOL`; with the user's plant map,
 :func:`plant_summary` reports the excursions, the paths that left ``[region]`` and the
