@@ -15,7 +15,9 @@ all on the one closed loop :func:`~ftc_verify.analysis.closedloop.closed_loop` b
    rate box at the period, ``h_max``, and its exact expected energy with the input and
    the disturbance held, :mod:`ftc_verify.analysis.moments.sampled_energy`; the simulated
    loop's mean against its exact expectation, two-sided,
-   :func:`~ftc_verify.verification.sampled_stage.sampled_mc_stage`);
+   :func:`~ftc_verify.verification.sampled_stage.sampled_mc_stage`), computed in a forked
+   child beside stages 4-7 (:class:`~ftc_verify.verification.sampled_stage.SampledRun`;
+   its checks keep their place, so the report is the one of a serial run);
 4. **gamma bracket**: the proved lower bound of the analysis
    (:mod:`ftc_verify.analysis.lower_bound`) does not exceed the certified gamma, and
    their ratio says how far from the truth the certificate can be;
@@ -37,7 +39,8 @@ all on the one closed loop :func:`~ftc_verify.analysis.closedloop.closed_loop` b
    a check against ``[risk].target`` when the map gives one (``_risk_check``).
 
 Each stage becomes a named check; the verdict is ``pass`` only if all pass. Every random
-draw comes from one :class:`numpy.random.Generator` whose seed is in the report.
+draw comes from one :class:`numpy.random.Generator` whose seed is in the report. Each
+stage's duration is in ``seconds`` and its start and end in ``spans`` (stages overlap).
 """
 
 from __future__ import annotations
