@@ -65,13 +65,16 @@ def _die_with_parent() -> None:
 
 
 def _child(modules: Sequence[str], job_fd: int, answer_fd: int) -> None:
-    """The child: import ``modules``, wait for the job, answer ``(kind, value, seconds)``."""
+    """The child: import ``modules``, wait for the job, answer ``(kind, value, seconds,
+    spans)`` (``spans``: ``import`` and ``run`` as ``(start, end)`` of :func:`time.perf_counter`,
+    one clock for every process on Linux)."""
     t0 = time.perf_counter()
-    payload: tuple[str, Any, dict[str, float]]
+    payload: tuple[str, Any, dict[str, float], dict[str, tuple[float, float]]]
     try:
         for name in modules:
             importlib.import_module(name)
-        seconds = {"import": time.perf_counter() - t0}
+        spans = {"import": (t0, time.perf_counter())}
+        seconds = {"import": spans["import"][1] - t0}
         head = _read_exact(job_fd, _SIZE.size)
         body = None if head is None else _read_exact(job_fd, _SIZE.unpack(head)[0])
         if body is None:  # the parent never sent a job (it stopped early)
@@ -79,11 +82,13 @@ def _child(modules: Sequence[str], job_fd: int, answer_fd: int) -> None:
         fn, arg = pickle.loads(body)
         t1 = time.perf_counter()
         try:
-            payload = ("ok", fn(arg), seconds | {"run": time.perf_counter() - t1})
+            value = fn(arg)
+            spans["run"] = (t1, time.perf_counter())
+            payload = ("ok", value, seconds | {"run": spans["run"][1] - t1}, spans)
         except Exception as exc:  # the job's own exception: raised again in the parent
-            payload = ("raised", exc, seconds)
+            payload = ("raised", exc, seconds, spans)
     except Exception as exc:  # an import failed: the parent runs the job itself
-        payload = ("error", repr(exc), {})
+        payload = ("error", repr(exc), {}, {})
     data = pickle.dumps(payload, protocol=pickle.HIGHEST_PROTOCOL)
     with contextlib.suppress(Exception), os.fdopen(answer_fd, "wb") as out:
         out.write(data)
@@ -98,10 +103,14 @@ class Prestarted:
         After :meth:`result`: ``import`` (the child's imports), ``run`` (the job) and
         ``wait`` (how long :meth:`result` waited: the part that did not overlap the
         caller's work).
+    spans : dict
+        After :meth:`result`: ``import``, ``run`` and ``wait`` as ``(start, end)`` of
+        :func:`time.perf_counter` (stages that overlap the caller's).
     """
 
     def __init__(self, modules: Sequence[str]) -> None:
         self.seconds: dict[str, float] = {}
+        self.spans: dict[str, tuple[float, float]] = {}
         self._job: tuple[Callable[[Any], Any], Any] | None = None
         self.pid = 0
         self._job_w = self._answer_r = -1
@@ -160,15 +169,17 @@ class Prestarted:
             with contextlib.suppress(ChildProcessError):
                 os.waitpid(self.pid, 0)
             self.pid = 0
-        kind, value, seconds = pickle.loads(data) if data else ("error", "no answer", {})
+        kind, value, seconds, spans = pickle.loads(data) if data else ("error", "no answer", {}, {})
         if kind == "raised":
             raise value
         if kind != "ok":
             fn, arg = self._job
             t1 = time.perf_counter()
             value = fn(arg)
-            seconds = {"run": time.perf_counter() - t1}
-        self.seconds = dict(seconds) | {"wait": time.perf_counter() - t0}
+            spans = {"run": (t1, time.perf_counter())}
+            seconds = {"run": spans["run"][1] - t1}
+        self.spans = dict(spans) | {"wait": (t0, time.perf_counter())}
+        self.seconds = dict(seconds) | {"wait": self.spans["wait"][1] - t0}
         return value
 
     def cancel(self) -> None:

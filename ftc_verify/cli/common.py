@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import os
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +27,7 @@ __all__ = [
     "EXIT_PIPE",
     "EXIT_TERMINATED",
     "PLOT_SUFFIXES",
+    "with_cross_check",
     "bad",
     "check_output_file",
     "fmt",
@@ -154,7 +156,12 @@ def _process_age() -> float:
 class Stopwatch:
     """The wall-time breakdown of one command (``timings`` of its JSON): ``startup`` (the
     interpreter's start and the CLI's imports, up to the command's first line), then each
-    stage the command marks (:meth:`mark`), then ``total`` since the process started."""
+    stage the command marks (:meth:`mark`), then ``total`` since the process started.
+
+    ``spans`` holds each mark's ``(start, end)`` on the clock of :func:`time.perf_counter`
+    and ``origin`` the process's start on that clock, so that stages run beside each other
+    (in child processes: on Linux the clock is the same in every process) can be placed
+    on one time line (:meth:`timeline`)."""
 
     def __init__(self) -> None:
         import time
@@ -162,14 +169,45 @@ class Stopwatch:
         self._clock = time.perf_counter
         self._t0 = self._last = self._clock()
         self.timings: dict[str, float] = {"startup": _process_age()}
+        self.origin = self._t0 - self.timings["startup"]
+        self.spans: dict[str, tuple[float, float]] = {"startup": (self.origin, self._t0)}
 
     def mark(self, stage: str) -> float:
         """Record the time since the last mark (or the start) as ``stage``; return it."""
         now = self._clock()
         self.timings[stage] = self.timings.get(stage, 0.0) + now - self._last
+        self.spans[stage] = (self.spans.get(stage, (self._last, now))[0], now)
         self._last = now
         return self.timings[stage]
+
+    def timeline(self, spans: dict[str, tuple[float, float]] | None = None) -> dict[str, list[float]]:
+        """``{stage: [start, end]}`` in seconds since the process started, for the marks
+        and ``spans`` (more stages on the same clock), ordered by start."""
+        every = self.spans | (spans or {})
+        return {name: [round(a - self.origin, 4), round(b - self.origin, 4)]
+                for name, (a, b) in sorted(every.items(), key=lambda item: item[1][0])}
 
     def total(self) -> float:
         """Seconds since the process started (``startup`` included)."""
         return self.timings["startup"] + self._clock() - self._t0
+
+
+def with_cross_check(args: argparse.Namespace, command: Callable[[argparse.Namespace, Stopwatch, Any], int],
+                     shared: str) -> int:
+    """``command(args, watch, check)``: the body of ``analyze`` and ``verify``, with its
+    :class:`Stopwatch` started first and python-control's cross-check child
+    (:func:`ftc_verify.prestart.cross_check`) started right after importing ``shared``,
+    the module of the command's numerical stages (numpy, scipy, the analysis: imported
+    once, the forked child shares them), so that python-control's import runs beside
+    everything the command does next (issue 37); the child is cancelled at the end."""
+    import importlib
+
+    from ..prestart import cross_check
+
+    watch = Stopwatch()
+    importlib.import_module(shared)
+    check = cross_check()
+    try:
+        return command(args, watch, check)
+    finally:
+        check.cancel()

@@ -55,17 +55,9 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _cmd_analyze(args: argparse.Namespace) -> int:
-    from ..prestart import cross_check as start_cross_check
-    from .common import Stopwatch
+    from .common import with_cross_check
 
-    watch = Stopwatch()
-    from ..analysis import analyze as _  # noqa: F401  (numpy, scipy, the analysis: shared with the child below)
-
-    check = start_cross_check()  # python-control's import starts now, beside everything below (issue 37)
-    try:
-        return _analyze_command(args, watch, check)
-    finally:
-        check.cancel()
+    return with_cross_check(args, _analyze_command, "ftc_verify.analysis.analyze")
 
 
 def _analyze_command(args: argparse.Namespace, watch: Any, check: Any) -> int:

@@ -218,22 +218,14 @@ def _risk_stage() -> Any:
 
 
 def _cmd_verify(args: argparse.Namespace) -> int:
-    from ..prestart import cross_check as start_cross_check
-    from .common import Stopwatch
+    from .common import with_cross_check
 
-    watch = Stopwatch()
-    from ..verification import verify as _  # noqa: F401  (numpy, scipy, the stages: shared with the child below)
-
-    check = start_cross_check()  # python-control's import starts now, beside everything below (issue 37)
-    try:
-        return _verify_command(args, watch, check)
-    finally:
-        check.cancel()
+    return with_cross_check(args, _verify_command, "ftc_verify.verification.verify")
 
 
 def _verify_command(args: argparse.Namespace, watch: Any, check: Any) -> int:
     from ..simulation.spec import SimulationSpec
-    from ..verification.report import check_out_dir, write_report
+    from ..verification.report import EarlyFigures, check_out_dir, write_report
     from ..verification.verify import run_verify
 
     from .sampled_lines import check_period_option
@@ -255,15 +247,19 @@ def _verify_command(args: argparse.Namespace, watch: Any, check: Any) -> int:
         spec.check_memory(system, controller, args.paths)
     k_max = None if args.no_gain_bound else args.k_max
     watch.mark("imports_and_load")
-    with spec.client() as client:  # started before the synthesis: a bad cluster is refused before any work
-        watch.mark("cluster_start")
-        rep = run_verify(system, gamma=args.gamma, method=args.method, k_max=k_max, controller=controller,
-                         spec=spec, solver=args.solver, progress=sys.stderr.isatty(), plant=plant,
-                         fmu_log=_fmu_logger(args), measure=args.measure, client=client, cross_check=check,
-                         risk=_risk_stage())
-        watch.mark("stages")
-    watch.mark("cluster_stop")
-    written = write_report(rep, args.out, watch)
+    figures = EarlyFigures(args.out)  # drawn while the sampled-loop stages finish in their child
+    try:
+        with spec.client() as client:  # started before the synthesis: a bad cluster is refused before any work
+            watch.mark("cluster_start")
+            rep = run_verify(system, gamma=args.gamma, method=args.method, k_max=k_max, controller=controller,
+                             spec=spec, solver=args.solver, progress=sys.stderr.isatty(), plant=plant,
+                             fmu_log=_fmu_logger(args), measure=args.measure, client=client, cross_check=check,
+                             risk=_risk_stage(), meanwhile=figures)
+            watch.mark("stages")
+        watch.mark("cluster_stop")
+        written = write_report(rep, args.out, watch, figures)
+    finally:
+        figures.close()
     from ..verification.summary import verify_summary
 
     print(verify_summary(rep, written=written))

@@ -36,7 +36,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import scipy.integrate
 from numpy.typing import ArrayLike
 
 from ..analysis.closedloop import ClosedLoop, closed_loop
@@ -170,6 +169,8 @@ def _exact(grid: _Grid, exo: _Exosystem, z0: np.ndarray) -> np.ndarray:
 
 def _ivp(grid: _Grid, path: ChainPath, wfun: Callable[[np.ndarray], np.ndarray], z0: np.ndarray) -> np.ndarray:
     """States at the grid points by :func:`scipy.integrate.solve_ivp` per chain segment."""
+    import scipy.integrate  # here: importing this module (every importer of ftc_verify.simulation) stays cheap
+
     t = grid.t
     X = np.empty((t.size, z0.size))
     X[0] = z0

@@ -30,7 +30,10 @@ Methods (all return a :class:`~ftc_verify.synthesis.results.SynthesisResult` ver
     and a scale search, the LQR of the averaged plant, the full-information design
     projected onto FDI-mode gains); so it never loses to any of them, in particular not to
     the textbook per-mode LQR. When nothing is certified, ``diagnosis`` says why
-    (:func:`~ftc_verify.synthesis.starts.diagnose`).
+    (:func:`~ftc_verify.synthesis.starts.diagnose`). Two-step, the longest start, runs in
+    a forked child; meanwhile the descent from the best of the other starts and the
+    analysis of its result run here, and are kept when that start is the best of all (the
+    same result as in turn).
 
 ``common-fdi``
     One :math:`X_j, Y_j` per FDI mode (:math:`X_{(i,j)} = X_j`, :math:`K_j = Y_j X_j^{-1}`):
@@ -79,6 +82,7 @@ from __future__ import annotations
 import math
 import os
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -284,13 +288,16 @@ def _convex_gains(system: FTCSystem, method: str, calls: SolverCalls,
 
 
 def _starts(system: FTCSystem, gamma: float | None, k_max: float | None, solver: str, calls: SolverCalls,
-            start: list[Matrix] | None, extra: bool = False) -> list[dict[str, Any]]:
+            start: list[Matrix] | None, extra: bool = False,
+            meanwhile: Callable[[list[dict[str, Any]]], Any] | None = None) -> list[dict[str, Any]]:
     """Every start of the iterative method with its certification (module docstring);
     ``extra``: also the designs of :data:`EXTRA_STARTS` (the ``best`` method). Each row
     records its wall ``seconds`` (design and certification). The full-information LMI is
     solved once (two-step's lower bracket and a start of its own); two-step, the longest
     start, runs in a forked child (:class:`~ftc_verify.analysis.solvers.ForkedCall`) beside
-    the others, its row first as before."""
+    the others, its row first as before. ``meanwhile(rows)``: called with the other
+    starts' rows while two-step still runs in its child (``iterative`` descends from the
+    best of them there)."""
     if start is not None:
         rows = [certify_start(system, "given", start, solver)]
     else:
@@ -312,6 +319,8 @@ def _starts(system: FTCSystem, gamma: float | None, k_max: float | None, solver:
         forked = ForkedCall(two_step_alone, "the two-step design") if hasattr(os, "fork") else None
         try:
             rows = _other_starts(system, k_max, solver, calls, full_info, extra, [seed("common", calls)])
+            if meanwhile is not None and forked is not None:
+                meanwhile(rows)
             two, outcomes = forked.result() if forked is not None else two_step_alone()
         finally:
             if forked is not None:
@@ -415,18 +424,43 @@ def _best(system: FTCSystem, gamma: float | None, k_max: float | None, solver: s
 
 def _iterative(system: FTCSystem, gamma: float | None, k_max: float | None, solver: str, calls: SolverCalls,
                start: list[Matrix] | None, max_iter: int, tol: float,
-               ) -> tuple[list[Matrix] | None, list[float], str, str | None, list[dict[str, Any]]]:
-    """The iterative method: certify the starts, descend from the best one."""
-    rows = _starts(system, gamma, k_max, solver, calls, start)
+               ) -> tuple[list[Matrix] | None, list[float], str, str | None, list[dict[str, Any]], Any]:
+    """The iterative method: certify the starts, descend from the best one; also the
+    analysis of the result (:func:`_verify`) when it was computed ahead, else ``None``.
+
+    While two-step, the longest start, runs in its child, the descent from the best of
+    the other starts and the analysis of its result run here (``ahead``, with solver
+    calls of their own); they are kept only when that start is the best of all (two-step
+    not certified, or certified above it: ``min`` keeps the first of equal gammas, which
+    is two-step's row), so the result is the one of the serial order, and the calls are
+    added in that order."""
+    early: dict[str, Any] = {}
+
+    def descent(best: dict[str, Any], own: SolverCalls) -> tuple[list[Matrix], list[float], str]:
+        return descend(lambda G: state_feedback_loop(system, G),
+                       lambda P, lam, j: gain_step(system, P, lam, j, own, k_max), system.m,
+                       list(best["gains"]), own, solver, max_iter, tol, best.get("lmi"))
+
+    def ahead(rows: list[dict[str, Any]]) -> None:
+        certified = [r for r in rows if r["gamma_certified"] is not None]
+        if certified:
+            best, own = min(certified, key=lambda r: r["gamma_certified"]), SolverCalls(solver)
+            found = descent(best, own)
+            early.update(row=best, found=found, calls=own, report=_verify(system, found[0], solver))
+
+    rows = _starts(system, gamma, k_max, solver, calls, start, meanwhile=ahead)
     certified = [r for r in rows if r["gamma_certified"] is not None]
     if not certified:
-        return None, [], f"no certified start ({len(rows)} tried)", None, rows
+        return None, [], f"no certified start ({len(rows)} tried)", None, rows, None
     best = min(certified, key=lambda r: r["gamma_certified"])
-    gains, history, msg = descend(lambda G: state_feedback_loop(system, G),
-                                  lambda P, lam, j: gain_step(system, P, lam, j, calls, k_max), system.m,
-                                  list(best["gains"]), calls, solver, max_iter, tol, best.get("lmi"))
+    report = None
+    if early.get("row") is best:
+        (gains, history, msg), report = early["found"], early["report"]
+        calls.outcomes.extend(early["calls"].outcomes)
+    else:
+        gains, history, msg = descent(best, calls)
     return gains, history, f"start {best['name']} (certified gamma {best['gamma_certified']:.6g}); {msg}", \
-        best["name"], rows
+        best["name"], rows, report
 
 
 def _design(system: FTCSystem, method: str, gamma: float | None, k_max: float | None, calls: SolverCalls,
@@ -485,8 +519,10 @@ def synthesize(
     rows: list[dict[str, Any]] = []
     start_name = None
     reference = None
+    report = None  # the analysis of the gains, when computed ahead (iterative)
     if method == "iterative":
-        gains, history, msg, start_name, rows = _iterative(system, gamma, k_max, name, calls, start, max_iter, tol)
+        gains, history, msg, start_name, rows, report = _iterative(system, gamma, k_max, name, calls, start,
+                                                                   max_iter, tol)
         gsyn = history[-1] if history else None
     elif method == "best":
         forked = ForkedCall(lambda: _reference_alone(system, name), "the reference design") if hasattr(os, "fork") \
@@ -499,7 +535,8 @@ def synthesize(
                 forked.cancel()
         calls.outcomes.extend(outcomes)
         gsyn = history[-1] if history else None
-    report = _verify(system, gains, name) if gains is not None else None
+    if report is None and gains is not None:
+        report = _verify(system, gains, name)
     certified = report is not None and report.certified_stable and report.robust.certified
     diagnosis = None
     if not certified:

@@ -25,7 +25,8 @@ from ..errors import ProblemFileError
 from ..jsonable import dumps
 from .verify import VerifyReport
 
-__all__ = ["REPORT_FILES", "check_out_dir", "write_report", "render_markdown", "table_row"]
+__all__ = ["REPORT_FILES", "check_out_dir", "write_report", "render_markdown", "table_row", "draw_figures",
+           "EarlyFigures"]
 
 #: Every file a report may hold; a folder with anything else is not replaced.
 REPORT_FILES = frozenset({"report.json", "report.md", "fig1_path.png", "ratio_distribution.png", "gamma_bracket.png"})
@@ -252,7 +253,71 @@ def _swap_in(stage: Path, out: Path) -> None:
             shutil.rmtree(old, ignore_errors=True)
 
 
-def write_report(rep: VerifyReport, out_dir: str | os.PathLike[str], watch: Any = None) -> list[Path]:
+def draw_figures(rep: VerifyReport, folder: Path) -> None:
+    """The report's PNGs in ``folder``: the paper's Fig. 1 for the first path (drawn in a
+    forked child beside the other two), the distribution of the paths' gains and the
+    gamma bracket (each only when its data exists)."""
+    from .plots import plot_path
+
+    forked = None
+    if rep.records:
+        plant = rep.plant or {}
+
+        def fig1() -> None:
+            plot_path(rep.records[0], folder / "fig1_path.png", title=f"{rep.system.name}: one sample path"
+                      + (f" on {Path(plant['fmu']).name}" if plant else ""),
+                      state_offset=plant.get("states_op"), state_names=plant.get("states"))
+
+        if hasattr(os, "fork"):  # the largest figure drawn in a child beside the other two
+            from ..analysis.solvers import ForkedCall
+
+            forked = ForkedCall(fig1, "the path figure")
+        else:
+            fig1()
+    try:
+        if rep.records:
+            _ratio_plot(rep, folder / "ratio_distribution.png")
+        if rep.gamma_certified is not None:
+            _bracket_plot(rep, folder / "gamma_bracket.png")
+        if forked is not None:
+            forked.result()
+    finally:
+        if forked is not None:
+            forked.cancel()
+
+
+class EarlyFigures:
+    """The figures of a report drawn before its last stages end: ``verify`` calls this
+    with the report so far (:func:`~ftc_verify.verification.verify.run_verify`'s
+    ``meanwhile``) while its sampled-loop stages still run in their child; the figures
+    need none of those stages. They go into a folder beside ``out_dir``
+    (``.NAME.figures-*``, like the staging folder), which :func:`write_report` empties
+    into the report; :meth:`close` (in a ``finally``) removes what is left."""
+
+    def __init__(self, out_dir: str | os.PathLike[str]) -> None:
+        self.out = Path(out_dir)
+        self.folder: Path | None = None
+        self.span: tuple[float, float] | None = None  # when they were drawn (time.perf_counter)
+
+    def __call__(self, rep: VerifyReport) -> None:
+        t0 = time.perf_counter()
+        try:
+            folder = Path(tempfile.mkdtemp(prefix=f".{self.out.name}.figures-", dir=self.out.resolve().parent))
+        except OSError as exc:
+            raise ProblemFileError(f"{self.out}: cannot create a folder beside it: {exc.strerror}") from None
+        self.folder = folder
+        draw_figures(rep, folder)
+        self.span = (t0, time.perf_counter())
+
+    def close(self) -> None:
+        """Remove the folder of the figures (after :func:`write_report` or an error)."""
+        if self.folder is not None:
+            shutil.rmtree(self.folder, ignore_errors=True)
+            self.folder = None
+
+
+def write_report(rep: VerifyReport, out_dir: str | os.PathLike[str], watch: Any = None,
+                 figures: EarlyFigures | None = None) -> list[Path]:
     """Write ``report.json``, ``report.md`` and the plots as the whole content of
     ``out_dir``; return the paths.
 
@@ -260,9 +325,12 @@ def write_report(rep: VerifyReport, out_dir: str | os.PathLike[str], watch: Any 
     :func:`~ftc_verify.verification.verify.run_verify` (``rep.seconds``) and the plots'
     ``report_plots``; with ``watch`` (the CLI's :class:`~ftc_verify.cli.common.Stopwatch`)
     also its marks (``startup``, ``imports_and_load``, ...) and ``total``, the seconds
-    from the process's start to this file."""
-    from .plots import plot_path
-
+    from the process's start to this file. Stages run beside each other (the sampled
+    loop's in a child during the Monte Carlo, python-control's cross-check in another),
+    so the durations overlap: ``timings["timeline"]`` gives every stage's
+    ``[start, end]``, seconds since the process started (with ``watch``; else since the
+    first stage started), ordered by start. ``figures``: the figures already drawn
+    (:class:`EarlyFigures`, when it was called), moved in instead of drawn here."""
     t0 = time.perf_counter()
 
     out = check_out_dir(out_dir)
@@ -271,33 +339,21 @@ def write_report(rep: VerifyReport, out_dir: str | os.PathLike[str], watch: Any 
     except OSError as exc:
         raise ProblemFileError(f"{out}: cannot create a staging folder beside it: {exc.strerror}") from None
     try:
-        forked = None
-        if rep.records:
-            plant = rep.plant or {}
-
-            def fig1() -> None:
-                plot_path(rep.records[0], stage / "fig1_path.png", title=f"{rep.system.name}: one sample path"
-                          + (f" on {Path(plant['fmu']).name}" if plant else ""),
-                          state_offset=plant.get("states_op"), state_names=plant.get("states"))
-
-            if hasattr(os, "fork"):  # the largest figure drawn in a child beside the other two
-                from ..analysis.solvers import ForkedCall
-
-                forked = ForkedCall(fig1, "the path figure")
-            else:
-                fig1()
-            _ratio_plot(rep, stage / "ratio_distribution.png")
-        try:
-            if rep.gamma_certified is not None:
-                _bracket_plot(rep, stage / "gamma_bracket.png")
-            if forked is not None:
-                forked.result()
-        finally:
-            if forked is not None:
-                forked.cancel()
-        timings = dict(rep.seconds) | {"report_plots": time.perf_counter() - t0}
+        if figures is not None and figures.folder is not None and figures.span is not None:
+            for png in sorted(figures.folder.iterdir()):
+                os.replace(png, stage / png.name)
+            drawn = figures.span
+        else:
+            draw_figures(rep, stage)
+            drawn = (t0, time.perf_counter())
+        spans = dict(rep.spans) | {"report_plots": drawn}
+        timings: dict[str, Any] = dict(rep.seconds) | {"report_plots": drawn[1] - drawn[0]}
         if watch is not None:
-            timings = dict(watch.timings) | timings | {"total": watch.total()}
+            timings = dict(watch.timings) | timings | {"total": watch.total(), "timeline": watch.timeline(spans)}
+        else:
+            origin = min(a for a, _ in spans.values())
+            timings["timeline"] = {k: [round(a - origin, 4), round(b - origin, 4)]
+                                   for k, (a, b) in sorted(spans.items(), key=lambda item: item[1][0])}
         (stage / "report.json").write_text(dumps(rep.to_dict() | {"timings": timings}) + "\n")
         (stage / "report.md").write_text(render_markdown(rep))
         names = sorted(item.name for item in stage.iterdir())

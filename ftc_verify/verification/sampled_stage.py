@@ -9,6 +9,7 @@ certificates of the other stages are its :math:`h \\to 0` limit.
 
 from __future__ import annotations
 
+import contextlib
 import time
 from typing import TYPE_CHECKING, Any
 
@@ -24,7 +25,7 @@ if TYPE_CHECKING:
     from .verify import Check
 
 __all__ = ["SAMPLED_LIMIT", "MC_ALPHA", "MC_PERIODS", "MC_MIN_PATHS", "MC_MIN_JUMPED", "sampled_stage", "sampled_energy_stage", "sampled_mc_stage",
-           "sampled_stages"]
+           "sampled_stages", "SampledRun"]
 
 #: Largest second-moment generator (rows, joint states times ``d (d + 1) / 2`` with
 #: ``d = n + n_u + n_c``) the stage analyses; its rigorous exponential is the cost.
@@ -41,11 +42,13 @@ MC_MIN_PATHS = 1000
 MC_MIN_JUMPED = 10
 
 
-def sampled_stage(system: FTCSystem, controller: Controller, step: float) -> tuple[SampledResult | None, Check]:
+def sampled_stage(system: FTCSystem, controller: Controller, step: float,
+                  here: bool = False) -> tuple[SampledResult | None, Check]:
     """``(result, check)`` of the sampled loop at period ``step``: the check passes when
     mean-square stability over the whole rate box is proved; a loop above
     :data:`SAMPLED_LIMIT` is not analysed (said in the check, which then passes as
-    before this stage existed and names what it does not cover)."""
+    before this stage existed and names what it does not cover). The analysis runs in a
+    killable child (:func:`~ftc_verify.analysis.solvers.interruptible`) unless ``here``."""
     from .verify import Check
 
     loop = SampledLoop.build(system, controller)
@@ -55,8 +58,10 @@ def sampled_stage(system: FTCSystem, controller: Controller, step: float) -> tup
     if rows > SAMPLED_LIMIT:
         return None, Check(name, True, f"NOT analysed: its moment generator has {rows} rows (limit {SAMPLED_LIMIT}); "
                                        "the certificates above are those of the continuous-time loop")
-    res = interruptible(lambda: sampled_analysis(system, controller, step, max_seconds=30.0),
-                        "the sampled-data analysis")
+    def run() -> SampledResult:
+        return sampled_analysis(system, controller, step, max_seconds=30.0)
+
+    res = run() if here else interruptible(run, "the sampled-data analysis")
     if res.h_max is None or res.h_max_unstable is None:
         bracket = "h_max not found: " + res.h_max_note
     else:
@@ -162,31 +167,102 @@ def sampled_mc_stage(system: FTCSystem, controller: Controller, step: float, hor
 
 
 def sampled_stages(system: FTCSystem, controller: Controller, step: float, g2: float, checks: list[Check],
-                   seconds: dict[str, float], mc: tuple[float, int, int] | None = None) -> dict[str, Any]:
+                   seconds: dict[str, float], mc: tuple[float, int, int] | None = None,
+                   spans: dict[str, tuple[float, float]] | None = None, here: bool = False) -> dict[str, Any]:
     """Both stages of ``verify`` on the sampled loop (:func:`sampled_stage`, then
     :func:`sampled_energy_stage` at the rate vertices up to
     :data:`~ftc_verify.verification.verify.MAX_EXACT_VERTICES`): their checks appended
-    to ``checks``, their times to ``seconds`` (``sampled``, ``sampled_energy``); with
+    to ``checks``, their times to ``seconds`` (``sampled``, ``sampled_energy``) and their
+    ``(start, end)`` (:func:`time.perf_counter`) to ``spans``; with
     ``mc = (horizon, paths, seed)`` also :func:`sampled_mc_stage` (``sampled_mc``). Returns
-    the report's ``sampled``, ``sampled_exact`` (and ``sampled_mc``)."""
+    the report's ``sampled``, ``sampled_exact`` (and ``sampled_mc``). ``here``: the
+    analysis runs in this process (already a child, :class:`SampledRun`), not in a child
+    of its own."""
     from .verify import MAX_EXACT_VERTICES
 
+    spans = {} if spans is None else spans
+
+    def done(name: str, t0: float) -> None:
+        spans[name] = (t0, time.perf_counter())
+        seconds[name] = spans[name][1] - t0
+
     t = time.perf_counter()
-    res, check = sampled_stage(system, controller, step)
+    res, check = sampled_stage(system, controller, step, here)
     if res is not None:  # its proved gains, JSON sampled.nominal_gamma / robust_gamma (+ lower estimates)
         from ..analysis.moments.sampled_gamma import attach_performance
 
         res = attach_performance(res, system, controller)
     checks.append(check)
-    seconds["sampled"] = time.perf_counter() - t
+    done("sampled", t)
     t = time.perf_counter()
     exact, check = sampled_energy_stage(system, controller, step, g2, res, MAX_EXACT_VERTICES)
     checks.append(check)
-    seconds["sampled_energy"] = time.perf_counter() - t
+    done("sampled_energy", t)
     found: dict[str, Any] = {"sampled": res, "sampled_exact": tuple(exact)}
     if mc is not None:
         t = time.perf_counter()
         found["sampled_mc"], check = sampled_mc_stage(system, controller, step, mc[0], mc[1], mc[2], res)
         checks.append(check)
-        seconds["sampled_mc"] = time.perf_counter() - t
+        done("sampled_mc", t)
     return found
+
+
+class SampledRun:
+    """:func:`sampled_stages` in a forked child started now
+    (:class:`~ftc_verify.analysis.solvers.ForkedCall`, leading its own process group),
+    beside what this process does next: ``verify`` runs the FMU Monte Carlo meanwhile,
+    which needs nothing of this stage. :meth:`join` waits for the answer and puts its
+    checks at the place they had when computed in turn (``at``, an index into the
+    report's checks), so the report is the same; :meth:`cancel` (in a ``finally``) kills
+    a child still running. Without ``fork`` the stages run in :meth:`join`."""
+
+    def __init__(self, system: FTCSystem, controller: Controller, step: float, g2: float,
+                 mc: tuple[float, int, int] | None, at: int) -> None:
+        import os
+
+        from ..analysis.solvers import ForkedCall
+
+        self.at = at
+        self._args = (system, controller, step, g2, mc)
+        self._child = ForkedCall(self._run, "the sampled-loop stages", group=True) if hasattr(os, "fork") else None
+
+    def _run(self, here: bool = True) -> tuple[dict[str, Any], list[Check], dict[str, float],
+                                              dict[str, tuple[float, float]]]:
+        checks: list[Check] = []
+        seconds: dict[str, float] = {}
+        spans: dict[str, tuple[float, float]] = {}
+        system, controller, step, g2, mc = self._args
+        found = sampled_stages(system, controller, step, g2, checks, seconds, mc, spans, here=here)
+        return found, checks, seconds, spans
+
+    def join(self, checks: list[Check], seconds: dict[str, float],
+             spans: dict[str, tuple[float, float]]) -> dict[str, Any]:
+        """The report's ``sampled`` fields; the stages' checks inserted into ``checks`` at
+        ``at``, their times into ``seconds`` and ``spans``, and ``sampled_wait`` (what
+        was left to wait for)."""
+        t0 = time.perf_counter()
+        if self._child is None:
+            found, mine, times, marks = self._run(here=False)
+        else:
+            try:
+                found, mine, times, marks = self._child.result()
+            finally:
+                self.cancel()
+        checks[self.at:self.at] = mine
+        seconds.update(times)
+        spans.update(marks)
+        spans["sampled_wait"] = (t0, time.perf_counter())
+        seconds["sampled_wait"] = spans["sampled_wait"][1] - t0
+        return found
+
+    def cancel(self) -> None:
+        """Kill the child (and its group) if it still runs. The child itself is killed
+        first: a child cancelled right after the fork may not lead its group yet."""
+        import os
+        import signal
+
+        if self._child is not None:
+            if self._child.pid:
+                with contextlib.suppress(ProcessLookupError, PermissionError):
+                    os.kill(self._child.pid, signal.SIGKILL)
+            self._child.cancel()

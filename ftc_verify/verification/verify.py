@@ -15,7 +15,9 @@ all on the one closed loop :func:`~ftc_verify.analysis.closedloop.closed_loop` b
    rate box at the period, ``h_max``, and its exact expected energy with the input and
    the disturbance held, :mod:`ftc_verify.analysis.moments.sampled_energy`; the simulated
    loop's mean against its exact expectation, two-sided,
-   :func:`~ftc_verify.verification.sampled_stage.sampled_mc_stage`);
+   :func:`~ftc_verify.verification.sampled_stage.sampled_mc_stage`), computed in a forked
+   child beside stages 4-7 (:class:`~ftc_verify.verification.sampled_stage.SampledRun`;
+   its checks keep their place, so the report is the one of a serial run);
 4. **gamma bracket**: the proved lower bound of the analysis
    (:mod:`ftc_verify.analysis.lower_bound`) does not exceed the certified gamma, and
    their ratio says how far from the truth the certificate can be;
@@ -37,7 +39,8 @@ all on the one closed loop :func:`~ftc_verify.analysis.closedloop.closed_loop` b
    a check against ``[risk].target`` when the map gives one (``_risk_check``).
 
 Each stage becomes a named check; the verdict is ``pass`` only if all pass. Every random
-draw comes from one :class:`numpy.random.Generator` whose seed is in the report.
+draw comes from one :class:`numpy.random.Generator` whose seed is in the report. Each
+stage's duration is in ``seconds`` and its start and end in ``spans`` (stages overlap).
 """
 
 from __future__ import annotations
@@ -64,8 +67,9 @@ from ..simulation.spec import SimulationSpec, spec_from
 from ..analysis.solvers import interruptible
 from ..synthesis.state_feedback import SynthesisResult, synthesize
 from ..analysis.moments.energy import exact_energy
+from .agreement import against_reference
 from .montecarlo import MCEstimate, estimate
-from .sampled_stage import sampled_stages
+from .sampled_stage import SampledRun
 
 __all__ = ["Check", "RiskStage", "VerifyReport", "run_verify", "incremental_records", "AGREE_RTOL",
            "MAX_EXACT_VERTICES", "LATER_STAGES"]
@@ -119,6 +123,7 @@ class VerifyReport:
     sampled_exact: tuple[dict[str, Any], ...] = ()  # its exact energies (sampled_stage.sampled_energy_stage)
     sampled_mc: dict[str, Any] | None = None  # simulated vs exact, two-sided (sampled_stage.sampled_mc_stage)
     risk: dict[str, Any] | None = None  # the risk stage's result when the plant map declares [risk]
+    spans: dict[str, tuple[float, float]] = field(default_factory=dict)  # stage: (start, end), time.perf_counter
 
     @property
     def verdict(self) -> str:
@@ -181,6 +186,29 @@ def _certify(analysis: AnalysisReport, gamma: float | None) -> tuple[float | Non
     if gamma is not None and gamma_cert is not None:
         checks.append(Check("requested gamma", gamma_cert <= gamma, f"certified {gamma_cert:.6g} vs requested {gamma:.6g}"))
     return gamma_cert, checks
+
+
+def _join(sampled: list[Any], cross: dict[str, Any], cross_check: Any, checks: list[Check],
+          seconds: dict[str, float], spans: dict[str, tuple[float, float]]) -> dict[str, Any]:
+    """The findings of the children, collected at the end: the sampled stages (computed
+    beside the Monte Carlo, :class:`~ftc_verify.verification.sampled_stage.SampledRun`),
+    then, once the loop existed (``cross["at"]``, where its check goes), the per-mode
+    cross-check (computed beside every stage). Their checks are put where they belong in
+    ``checks``, their times into ``seconds`` and ``spans``."""
+    found: dict[str, Any] = {}
+    for run in sampled:
+        found.update(run.join(checks, seconds, spans))
+    sampled.clear()
+    if cross:
+        t0 = time.perf_counter()
+        found["per_mode"], check = _cross_validation(cross_check)
+        checks.insert(cross["at"], check)
+        spans["cross_validation_wait"] = (t0, time.perf_counter())
+        seconds["cross_validation_wait"] = spans["cross_validation_wait"][1] - t0
+        seconds["cross_validation"] = cross_check.seconds.get("run", 0.0)
+        spans.update({"cross_validation": cross_check.spans["run"]} if "run" in cross_check.spans else {})
+        cross.clear()
+    return found
 
 
 def _cross_validation(cross_check: Any) -> tuple[tuple[ModeCheck, ...], Check]:
@@ -257,85 +285,6 @@ def _measured(records: list[PathRecord], measure: str,
         return records, None
     fault_only = run_without_w()
     return incremental_records(records, fault_only), fault_only
-
-
-def _plant_summary(plant: Any, records: list[PathRecord], reference: list[PathRecord], mc: MCEstimate,
-                   fmu: dict[str, Any], measured: list[PathRecord], fault_only: list[PathRecord] | None,
-                   ) -> tuple[dict[str, Any], Check]:
-    """The ``plant`` object of the report and the region check (issue: what "pass" means
-    on a plant): excursions from the operating point and paths leaving ``[region]`` (on the
-    real paths, ``records``), and the measured linearisation error: the paths the Monte
-    Carlo measured (``measured``: the real ones, or their incremental responses) against the
-    linear reference on the same chain and disturbance. ``fault_only``: the ``w = 0`` runs
-    of the incremental measure, whose mean output energy is the fault response."""
-    ok = [r for r in records if r.diverged_at is None]
-    excursion = np.max([np.max(np.abs(r.x), axis=0) for r in ok], axis=0) if ok else None
-    left: list[int] = []
-    x_op = plant.states_op if plant.states_op is not None else np.zeros(len(plant.states))
-    limits = [(lo, hi, op, key) for lo, hi, op, key in ((plant.states_min, plant.states_max, x_op, "x"),
-                                                       (plant.inputs_min, plant.inputs_max, plant.inputs_op, "u"))
-              if lo is not None]
-    for k, r in enumerate(records, start=1):
-        outside = any(np.any(getattr(r, key) + op < lo) or np.any(getattr(r, key) + op > hi)
-                      for lo, hi, op, key in limits)
-        if outside or r.diverged_at is not None:
-            left.append(k)
-    u_range = [np.min([np.min(r.u, axis=0) for r in ok], axis=0) + plant.inputs_op,
-               np.max([np.max(r.u, axis=0) for r in ok], axis=0) + plant.inputs_op] if ok else None
-    err: float | None = None
-    for a, b in zip(measured, reference):
-        if a.diverged_at is None and b.diverged_at is None:
-            diff = float(np.max(np.abs(a.x - b.x))) / max(1e-300, float(np.max(np.abs(b.x))))
-            err = diff if err is None else max(err, diff)
-    summary = fmu | {"mean_ratio": mc.mean_ratio, "upper_bound": mc.upper_bound,
-                     "max_excursion": None if excursion is None else excursion.tolist(),
-                     "input_range": None if u_range is None else [u_range[0].tolist(), u_range[1].tolist()],
-                     "linearisation_error": err, "left_region": len(left), "left_region_paths": left[:20],
-                     "paths": len(records), "states": list(plant.states),
-                     "states_op": None if plant.states_op is None else plant.states_op.tolist(), "measure": "total" if fault_only is None else "incremental",
-                     "fault_response_energy": None if fault_only is None else
-                     float(np.mean([r.y_norm ** 2 for r in fault_only]))}
-    shown = f" (paths {left[:10]}{' ...' if len(left) > 10 else ''})" if left else ""
-    excursion_text = ("none measured (every path diverged or failed)" if excursion is None else
-                      f"{summary['max_excursion']}; inputs within {summary['input_range']}")
-    detail = (f"{len(left)} of {len(records)} paths left [region]{shown}; largest excursion from the operating point "
-              f"{excursion_text}; FMU vs linear reference: "
-              + ("every compared path diverged" if err is None else
-                 f"largest relative state difference {err:.3g} on {min(len(records), len(reference))} paths "
-                 "(the measured linearisation error)"))
-    return summary, Check("plant region", not left, detail)
-
-
-def _backend_agreement(system: FTCSystem, controller: Controller, chain_paths: list[ChainPath],
-                       records: list[PathRecord], spec: SimulationSpec) -> Check:
-    """The first paths again on the numpy reference, with the same Delta draws."""
-    from ..simulation.reference import simulate_reference
-
-    # the paths the FMU ran (jump times on its step grid when it or the controller FMU has a fixed step)
-    ref = simulate_reference(system, controller, [r.path for r in records[:AGREE_PATHS]], spec=spec)
-    worst = 0.0
-    for k, (a, b) in enumerate(zip(records[:AGREE_PATHS], ref.records), start=1):
-        if a.diverged_at != b.diverged_at:
-            return Check("FMU vs reference", False, f"path {k} diverged at t = {a.diverged_at} on the FMU and at "
-                                                    f"t = {b.diverged_at} on the reference")
-        za, zb = np.hstack([a.x, a.xc]), np.hstack([b.x, b.xc])
-        worst = max(worst, float(np.max(np.abs(za - zb))) / max(1e-300, float(np.max(np.abs(zb)))))
-    return Check("FMU vs reference", worst <= AGREE_RTOL,
-                 f"max relative state difference (plant and controller) {worst:.3g} on "
-                 f"{min(AGREE_PATHS, len(records))} paths (tolerance {AGREE_RTOL:g})")
-
-
-def _against_reference(system: FTCSystem, controller: Controller, chain_paths: list[ChainPath],
-                       records: list[PathRecord], spec: SimulationSpec, plant: Any,
-                       mc: MCEstimate, fmu: dict[str, Any], measured: list[PathRecord],
-                       fault_only: list[PathRecord] | None) -> tuple[dict[str, Any] | None, Check]:
-    """The backend agreement (LinearJumpPlant), or the plant summary and region check."""
-    if plant is None:
-        return None, _backend_agreement(system, controller, chain_paths, records, spec)
-    from ..simulation.reference import simulate_reference
-
-    ref = simulate_reference(system, controller, chain_paths[:AGREE_PATHS], spec=spec)
-    return _plant_summary(plant, records, list(ref.records), mc, fmu, measured, fault_only)
 
 
 def _mc_check(records: list[PathRecord], gamma_cert: float, seed: int, step: float,
@@ -435,6 +384,7 @@ def run_verify(
     paths: int | None = None, step: float | None = None, horizon: float | None = None, seed: int | None = None,
     solver: str | None = None, progress: bool = False, plant: Any = None, fmu_log: Any = None,
     measure: str = "total", client: Any = None, cross_check: Any = None, risk: RiskStage | None = None,
+    meanwhile: Callable[[VerifyReport], Any] | None = None,
 ) -> VerifyReport:
     """Run every stage of the module docstring and collect the checks.
 
@@ -451,7 +401,10 @@ def run_verify(
     right after its numerical imports, before loading anything); by default one is started here, first. It gets the loop as
     soon as it exists and is waited for only at the end, so python-control's import and
     checks overlap every other stage. ``risk``: the risk stage
-    (stage 7)."""
+    (stage 7). ``meanwhile``: called with the report so far (every stage but the
+    sampled loop's and the python-control check, which run in child processes) before
+    waiting for those children, when the sampled stages ran; the CLI draws the report's
+    figures there (:class:`~ftc_verify.verification.report.EarlyFigures`)."""
     if measure not in ("total", "incremental"):
         raise ValidationError(f"measure: {measure!r} is not 'total' or 'incremental'")
     spec = _verify_spec(spec, {"n_paths": paths, "step": step, "horizon": horizon, "seed": seed})
@@ -460,15 +413,18 @@ def run_verify(
 
         cross_check = start_cross_check()
     procs: list[Any] = []
+    sampled: list[Any] = []  # the SampledRun child while it runs
     try:
         if client is None and spec.workers is None and spec.scheduler is None and spec.isolate:
             from ..simulation.isolated import plant_processes
 
             procs = plant_processes()  # their interpreters start beside the synthesis and analysis
         return _run_verify(system, gamma, method, k_max, controller, spec, solver, progress, plant, fmu_log,
-                           measure, client, cross_check, procs, risk)
+                           measure, client, cross_check, procs, sampled, risk, meanwhile)
     finally:
         cross_check.cancel()
+        for run in sampled:
+            run.cancel()
         for proc in procs:
             proc.close()
 
@@ -476,11 +432,15 @@ def run_verify(
 def _run_verify(system: FTCSystem, gamma: float | None, method: str, k_max: float | None,
                 controller: Controller | None, spec: SimulationSpec, solver: str | None, progress: bool,
                 plant: Any, fmu_log: Any, measure: str, client: Any, cross_check: Any,
-                procs: list[Any], risk: RiskStage | None = None) -> VerifyReport:
+                procs: list[Any], sampled: list[Any], risk: RiskStage | None = None,
+                meanwhile: Callable[[VerifyReport], Any] | None = None) -> VerifyReport:
     """The stages of :func:`run_verify`, with its running ``cross_check`` and the plant
     processes ``procs`` started for the Monte Carlo
-    (:func:`~ftc_verify.simulation.isolated.plant_processes`; none on a cluster)."""
+    (:func:`~ftc_verify.simulation.isolated.plant_processes`; none on a cluster);
+    ``sampled`` holds the :class:`~ftc_verify.verification.sampled_stage.SampledRun`
+    started here until it is joined (the caller cancels what is left)."""
     seconds: dict[str, float] = {}
+    spans: dict[str, tuple[float, float]] = {}  # each stage's start and end: stages overlap
     seed = int(spec.seed)  # type: ignore[arg-type]
     options = {"fdi_model": system.chain.describe(), "method": method if controller is None else "given controller",
                "gamma": gamma, "k_max": k_max, "paths": spec.n_paths, "step": spec.step, "horizon": spec.horizon,
@@ -488,7 +448,9 @@ def _run_verify(system: FTCSystem, gamma: float | None, method: str, k_max: floa
     checks: list[Check] = []
 
     def stage(name: str, t0: float) -> None:
-        seconds[name] = time.perf_counter() - t0
+        spans[name] = (t0, time.perf_counter())
+        seconds[name] = spans[name][1] - t0
+
     def timed(name: str, run: Callable[[], tuple[Any, Check]]) -> Any:
         """``run()``'s finding; its check appended and its time recorded as ``name``."""
         t0 = time.perf_counter()
@@ -506,22 +468,19 @@ def _run_verify(system: FTCSystem, gamma: float | None, method: str, k_max: floa
         controller = synthesis.controller
     stage("synthesis", t)
     extra: dict[str, Any] = {}  # the sampled loop's findings (verification.sampled_stage)
-
     cross: dict[str, Any] = {}  # where the python-control check goes among the checks, once the loop exists
 
     def report(**found: Any) -> VerifyReport:
-        if cross:  # the per-mode cross-check, computed beside every stage since the loop existed
-            t0 = time.perf_counter()
-            per_mode, check = _cross_validation(cross_check)
-            checks.insert(cross["at"], check)
-            seconds["cross_validation_wait"] = time.perf_counter() - t0
-            seconds["cross_validation"] = cross_check.seconds.get("run", 0.0)
-            found["per_mode"] = per_mode
-            cross.clear()
-        parts: dict[str, Any] = {"gamma_certified": None, "analysis": None, "per_mode": (), "exact": (),
-                                 "mc": None, "records": ()} | extra | found
-        return VerifyReport(system, controller, synthesis=synthesis, checks=tuple(checks), seed=seed,
-                            options=options, seconds=seconds, **parts)
+        def made() -> VerifyReport:
+            parts: dict[str, Any] = {"gamma_certified": None, "analysis": None, "per_mode": (), "exact": (),
+                                     "mc": None, "records": ()} | extra | found
+            return VerifyReport(system, controller, synthesis=synthesis, checks=tuple(checks), seed=seed,
+                                options=options, seconds=dict(seconds), spans=dict(spans), **parts)
+
+        if meanwhile is not None and sampled:  # the report so far, while the sampled stages may still run
+            meanwhile(made())
+        extra.update(_join(sampled, cross, cross_check, checks, seconds, spans))
+        return made()
 
     if controller is None:
         return report()
@@ -539,7 +498,8 @@ def _run_verify(system: FTCSystem, gamma: float | None, method: str, k_max: floa
         return report(analysis=analysis)
     g2 = gamma_cert ** 2
     exact = timed("exact_energy", lambda: _exact_energies(system, loop, g2))
-    extra.update(sampled_stages(system, controller, spec.step, g2, checks, seconds, (spec.horizon, spec.n_paths, seed)))
+    # the sampled loop's stages in a child beside the Monte Carlo; their checks go here (report() joins them)
+    sampled.append(SampledRun(system, controller, spec.step, g2, (spec.horizon, spec.n_paths, seed), len(checks)))
     timed("gamma_bracket", functools.partial(_bracket, analysis, gamma_cert))
     t = time.perf_counter()
     spec, options["delta"] = spec.resolve_delta(system, plant)
@@ -554,7 +514,7 @@ def _run_verify(system: FTCSystem, gamma: float | None, method: str, k_max: floa
     mc, check = _mc_check(measured, gamma_cert, seed, spec.step, spec.horizon, incremental=measure == "incremental")
     checks.append(check)
     stage("monte_carlo", t)
-    found_plant = timed("reference", lambda: _against_reference(system, controller, chain_paths, records, spec,
+    found_plant = timed("reference", lambda: against_reference(system, controller, chain_paths, records, spec,
                                                                  plant, mc, fmu, measured, fault_only))
     return report(gamma_certified=gamma_cert, analysis=analysis, exact=tuple(exact), mc=mc, records=tuple(records),
                   plant=found_plant, risk=_risk_check(risk, system, controller, plant, spec, client, checks, seconds))

@@ -1,0 +1,111 @@
+"""The last checks of ``verify``: the FMU against the numpy reference, or the plant region.
+
+With the ``LinearJumpPlant`` FMU, :func:`backend_agreement` re-simulates the first
+``AGREE_PATHS`` (5, :mod:`ftc_verify.verification.verify`) paths on the numpy reference with the
+same ``Delta`` draws and requires the plant and controller states to agree to
+:data:`~ftc_verify.verification.verify.AGREE_RTOL`; with the user's plant map,
+:func:`plant_summary` reports the excursions, the paths that left ``[region]`` and the
+measured linearisation error (:func:`against_reference` picks one). Stage 6 of
+:mod:`ftc_verify.verification.verify`, moved here from that module unchanged.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..controllers.controller import Controller
+from ..model.system import FTCSystem
+from ..simulation.paths import ChainPath
+from ..simulation.records import PathRecord
+from ..simulation.spec import SimulationSpec
+from .montecarlo import MCEstimate
+
+if TYPE_CHECKING:
+    from .verify import Check
+
+__all__ = ["plant_summary", "backend_agreement", "against_reference"]
+
+
+def plant_summary(plant: Any, records: list[PathRecord], reference: list[PathRecord], mc: MCEstimate,
+                   fmu: dict[str, Any], measured: list[PathRecord], fault_only: list[PathRecord] | None,
+                   ) -> tuple[dict[str, Any], Check]:
+    """The ``plant`` object of the report and the region check (issue: what "pass" means
+    on a plant): excursions from the operating point and paths leaving ``[region]`` (on the
+    real paths, ``records``), and the measured linearisation error: the paths the Monte
+    Carlo measured (``measured``: the real ones, or their incremental responses) against the
+    linear reference on the same chain and disturbance. ``fault_only``: the ``w = 0`` runs
+    of the incremental measure, whose mean output energy is the fault response."""
+    from .verify import Check
+
+    ok = [r for r in records if r.diverged_at is None]
+    excursion = np.max([np.max(np.abs(r.x), axis=0) for r in ok], axis=0) if ok else None
+    left: list[int] = []
+    x_op = plant.states_op if plant.states_op is not None else np.zeros(len(plant.states))
+    limits = [(lo, hi, op, key) for lo, hi, op, key in ((plant.states_min, plant.states_max, x_op, "x"),
+                                                       (plant.inputs_min, plant.inputs_max, plant.inputs_op, "u"))
+              if lo is not None]
+    for k, r in enumerate(records, start=1):
+        outside = any(np.any(getattr(r, key) + op < lo) or np.any(getattr(r, key) + op > hi)
+                      for lo, hi, op, key in limits)
+        if outside or r.diverged_at is not None:
+            left.append(k)
+    u_range = [np.min([np.min(r.u, axis=0) for r in ok], axis=0) + plant.inputs_op,
+               np.max([np.max(r.u, axis=0) for r in ok], axis=0) + plant.inputs_op] if ok else None
+    err: float | None = None
+    for a, b in zip(measured, reference):
+        if a.diverged_at is None and b.diverged_at is None:
+            diff = float(np.max(np.abs(a.x - b.x))) / max(1e-300, float(np.max(np.abs(b.x))))
+            err = diff if err is None else max(err, diff)
+    summary = fmu | {"mean_ratio": mc.mean_ratio, "upper_bound": mc.upper_bound,
+                     "max_excursion": None if excursion is None else excursion.tolist(),
+                     "input_range": None if u_range is None else [u_range[0].tolist(), u_range[1].tolist()],
+                     "linearisation_error": err, "left_region": len(left), "left_region_paths": left[:20],
+                     "paths": len(records), "states": list(plant.states),
+                     "states_op": None if plant.states_op is None else plant.states_op.tolist(), "measure": "total" if fault_only is None else "incremental",
+                     "fault_response_energy": None if fault_only is None else
+                     float(np.mean([r.y_norm ** 2 for r in fault_only]))}
+    shown = f" (paths {left[:10]}{' ...' if len(left) > 10 else ''})" if left else ""
+    excursion_text = ("none measured (every path diverged or failed)" if excursion is None else
+                      f"{summary['max_excursion']}; inputs within {summary['input_range']}")
+    detail = (f"{len(left)} of {len(records)} paths left [region]{shown}; largest excursion from the operating point "
+              f"{excursion_text}; FMU vs linear reference: "
+              + ("every compared path diverged" if err is None else
+                 f"largest relative state difference {err:.3g} on {min(len(records), len(reference))} paths "
+                 "(the measured linearisation error)"))
+    return summary, Check("plant region", not left, detail)
+
+
+def backend_agreement(system: FTCSystem, controller: Controller, chain_paths: list[ChainPath],
+                       records: list[PathRecord], spec: SimulationSpec) -> Check:
+    """The first paths again on the numpy reference, with the same Delta draws."""
+    from ..simulation.reference import simulate_reference
+    from .verify import AGREE_PATHS, AGREE_RTOL, Check
+
+    # the paths the FMU ran (jump times on its step grid when it or the controller FMU has a fixed step)
+    ref = simulate_reference(system, controller, [r.path for r in records[:AGREE_PATHS]], spec=spec)
+    worst = 0.0
+    for k, (a, b) in enumerate(zip(records[:AGREE_PATHS], ref.records), start=1):
+        if a.diverged_at != b.diverged_at:
+            return Check("FMU vs reference", False, f"path {k} diverged at t = {a.diverged_at} on the FMU and at "
+                                                    f"t = {b.diverged_at} on the reference")
+        za, zb = np.hstack([a.x, a.xc]), np.hstack([b.x, b.xc])
+        worst = max(worst, float(np.max(np.abs(za - zb))) / max(1e-300, float(np.max(np.abs(zb)))))
+    return Check("FMU vs reference", worst <= AGREE_RTOL,
+                 f"max relative state difference (plant and controller) {worst:.3g} on "
+                 f"{min(AGREE_PATHS, len(records))} paths (tolerance {AGREE_RTOL:g})")
+
+
+def against_reference(system: FTCSystem, controller: Controller, chain_paths: list[ChainPath],
+                       records: list[PathRecord], spec: SimulationSpec, plant: Any,
+                       mc: MCEstimate, fmu: dict[str, Any], measured: list[PathRecord],
+                       fault_only: list[PathRecord] | None) -> tuple[dict[str, Any] | None, Check]:
+    """The backend agreement (LinearJumpPlant), or the plant summary and region check."""
+    if plant is None:
+        return None, backend_agreement(system, controller, chain_paths, records, spec)
+    from ..simulation.reference import simulate_reference
+    from .verify import AGREE_PATHS
+
+    ref = simulate_reference(system, controller, chain_paths[:AGREE_PATHS], spec=spec)
+    return plant_summary(plant, records, list(ref.records), mc, fmu, measured, fault_only)
