@@ -55,8 +55,10 @@ centre, its lowest and highest rates and the worst spectral-abscissa vertex.
 **The proof.** :math:`F`, :math:`e`, :math:`\omega`, :math:`\rho` are floats taken as
 exact; the loop is :func:`~ftc_verify.analysis.exact.exact_loop` (the numbers the user
 wrote) plus :math:`B_{w,s}F_s` in ball arithmetic; :math:`\tilde{\mathcal L}` is proved
-stable (:class:`~ftc_verify.analysis.verdict.StabilityProver`); :math:`\pi`, :math:`M`
-and :math:`\bar X` are enclosed by FLINT's certified linear solves; the bound is the
+stable (:class:`~ftc_verify.analysis.verdict.StabilityProver`); :math:`\pi` and :math:`M`
+are enclosed by FLINT's certified linear solves, :math:`\bar X` by a float64 solve and
+its residual proved in balls (:func:`_residual_moments`; FLINT's solve of the whole
+moment system when that proof fails); the bound is the
 lower end of the enclosure of :math:`\sqrt{N/D}`. Above
 :data:`~ftc_verify.analysis.verdict.SOLVE_LIMIT` rows no bound is computed (none could be
 proved).
@@ -80,7 +82,7 @@ from .bounded_real import POLICY_RTOL, SEARCH_RTOL, RateEnvelope, bounded_real_s
 from .conditioning import Similarity, conditioning_transform, stationary_distribution
 from .exact import ball_generator, ball_matrices, exact_loop, literals_of, written_box
 from ..interrupts import deferred_signals
-from .rigorous import Ball, ball, midpoint, precision
+from .rigorous import Ball, ball, midpoint, precision, proven_positive_definite
 from .moments.stability import lyapunov_stack_solution, second_moment_matrix, unvech_stack, vech_order
 from .verdict import SOLVE_LIMIT, StabilityProver, ball_lyapunov_solution
 
@@ -303,7 +305,9 @@ def _proved_ratio(loop: ClosedLoop, deltas: dict[str, Matrix], sim: Similarity, 
         weight = flint.arb(1) if omega == 0.0 else flint.arb(0.5)
         Mr = [Ball(flint.arb_mat([[m[s * n + r, 0]] for r in range(n)])) for s in range(S)]
         G = [(Bw[s] @ eb @ Mr[s].T + Mr[s] @ eb.T @ Bw[s].T) * weight for s in range(S)]
-        X = ball_lyapunov_solution(At, q, bits, G)
+        X, how = _residual_moments(At, q, G, loop.chain.generator(rates)), "a float64 solve and its proved residual"
+        if X is None:  # the enclosure by FLINT's certified solve of the whole moment system
+            X, how = ball_lyapunov_solution(At, q, bits, G), f"{bits}-bit balls"
         if X is None:
             return None, "not proved: the averaged second moments could not be enclosed"
         N = flint.arb(0)
@@ -316,8 +320,58 @@ def _proved_ratio(loop: ClosedLoop, deltas: dict[str, Matrix], sim: Similarity, 
         if not (D > 0 and N >= 0):
             return None, "not proved: the energy rates could not be enclosed"
         ratio = (N / D).sqrt()
-        return float(ratio.lower()), (f"w = F x + e cos({omega:.6g} t): its stationary energy ratio enclosed in "
-                                      f"{bits}-bit balls, the feedback loop proved mean-square stable")
+        return float(ratio.lower()), (f"w = F x + e cos({omega:.6g} t): its stationary energy ratio enclosed "
+                                      f"({how}), the feedback loop proved mean-square stable")
+
+
+def _residual_moments(At: Sequence[Ball], q: list[list[Any]], G: Sequence[Ball], Q: Matrix) -> list[Ball] | None:
+    r"""An enclosure of the solution :math:`\bar X` of :math:`\tilde{\mathcal L}(\bar X) = -G`
+    without a ball solve of the whole system (``None`` when this proof does not go
+    through; the caller then encloses it by FLINT's solve). :math:`\tilde{\mathcal L}`
+    (of the balls ``At`` and ``q``) is proved mean-square stable here too (by
+    :math:`\hat Y_s \succ 0` below, :mod:`~ftc_verify.analysis.verdict`'s argument): then
+    :math:`-\tilde{\mathcal L}^{-1} = \int_0^\infty e^{\tilde{\mathcal L} t}\,dt` maps
+    positive semidefinite stacks to positive semidefinite stacks. With float stacks
+    :math:`\tilde X` (solving the float equation) and :math:`\hat Y` (solving
+    :math:`\tilde{\mathcal L}(\hat Y) = -2I`), proved in balls: :math:`-\tilde{\mathcal L}(\hat Y)_s
+    - I \succ 0` and :math:`\|R\|_F \le r` for the residual :math:`R = \tilde{\mathcal L}(\tilde X) + G`.
+    The error :math:`E = \bar X - \tilde X = -\tilde{\mathcal L}^{-1}(R)` then has
+    :math:`-rY \preceq E \preceq rY` (as :math:`-rI \preceq R_s \preceq rI`) with
+    :math:`Y = -\tilde{\mathcal L}^{-1}(I) \preceq \hat Y` (:math:`\hat Y - Y =
+    -\tilde{\mathcal L}^{-1}(-\tilde{\mathcal L}(\hat Y) - I) \succeq 0`), and :math:`-M \preceq E
+    \preceq M` gives :math:`|E_{ij}| \le (M_{ii} M_{jj})^{1/2}` (the quadratic forms at
+    :math:`e_i \pm t e_j`): :math:`\bar X_{s,ij} \in \tilde X_{s,ij} \pm r (\hat Y_{s,ii}
+    \hat Y_{s,jj})^{1/2}`. Costs a few ``n x n`` ball products per joint state where the
+    ball solve is cubic in the :math:`m^2 n^2/2` moment rows. Call inside a precision block."""
+    import flint
+
+    n, S = At[0].shape[0], len(At)
+    A = [midpoint(a) for a in At]
+    Xt = lyapunov_stack_solution(A, Q, [0.5 * (midpoint(g) + midpoint(g).T) for g in G])
+    Yh = lyapunov_stack_solution(A, Q, [2.0 * np.eye(n)] * S)
+    if Xt is None or Yh is None:
+        return None
+
+    def operator(X: Sequence[Ball]) -> list[Ball]:
+        return [a @ X[s] + X[s] @ a.T + sum((Ball(q[t][s] * X[t].value) for t in range(S) if q[t][s] != 0),
+                                            0 * X[s]) for s, a in enumerate(At)]
+
+    Xb, Yb = [ball(0.5 * (x + x.T)) for x in Xt], [ball(0.5 * (y + y.T)) for y in Yh]
+    if not (all(proven_positive_definite(-y - np.eye(n)) for y in operator(Yb))
+            and all(proven_positive_definite(y) for y in Yb)):  # stable, by itself (verdict module)
+        return None
+    r = sum((e * e for res, g in zip(operator(Xb), G) for e in (res + g).value.entries()), flint.arb(0)).sqrt()
+    out = []
+    for x, y in zip(Xb, Yh):
+        X = flint.arb_mat(x.value)
+        for i in range(n):
+            for j in range(n):
+                rad = r * (flint.arb(float(y[i, i])) * flint.arb(float(y[j, j]))).sqrt()
+                X[i, j] += (-rad).union(rad)
+        if not all(v.is_finite() for v in X.entries()):
+            return None
+        out.append(Ball(X))
+    return out
 
 
 def worst_constant_delta(loop: ClosedLoop, rates: Matrix, *, upper: float | None = None,
@@ -339,11 +393,11 @@ def worst_constant_delta(loop: ClosedLoop, rates: Matrix, *, upper: float | None
             out[name] = D
         return out
 
-    def gain(sg: dict[str, np.ndarray]) -> float:
+    def gain(sg: dict[str, np.ndarray]) -> tuple[float, Sequence[Matrix] | None]:
         found = float_gain(loop.perturbed(deltas(sg)), loop.Bw, loop.Cz, Q, upper=upper, rtol=1e-3)
-        return -math.inf if found is None else found[0]
+        return (-math.inf, None) if found is None else found
 
-    best = gain(signs)
+    best, F = gain(signs)
     for _ in range(passes):
         improved = False
         for name in signs:
@@ -351,11 +405,11 @@ def worst_constant_delta(loop: ClosedLoop, rates: Matrix, *, upper: float | None
                 trial = {key: v.copy() for key, v in signs.items()}
                 trial[name][k] = -trial[name][k]
                 if math.isfinite(best) and not _exceeds(loop.perturbed(deltas(trial)), loop.Bw, loop.Cz, Q,
-                                                        best * (1 + 1e-3)):
+                                                        best * (1 + 1e-3), F):
                     continue  # not clearly above the best so far
-                g = gain(trial)
+                g, G = gain(trial)
                 if g > best:
-                    best, signs, improved = g, trial, True
+                    best, F, signs, improved = g, G, trial, True
         if not improved:
             break
     label = "Delta = " + ", ".join(f"{name}: diag{[int(v) for v in sg]}" for name, sg in signs.items())
@@ -423,9 +477,14 @@ def _candidate_rates(loop: ClosedLoop, worst: Matrix | None) -> list[Matrix]:
     return out
 
 
-def _exceeds(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], Q: Matrix, gamma: float) -> bool:
+def _exceeds(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], Q: Matrix, gamma: float,
+             start: Sequence[Matrix] | None = None) -> bool:
     """In float64: no stabilising Riccati solution at ``gamma`` (the worst-case gain is at
-    least ``gamma``, or the loop is not mean-square stable): a cheap comparison."""
+    least ``gamma``, or the loop is not mean-square stable): a cheap comparison, the policy
+    iteration started from the feedback ``start`` (the worst case of a neighbouring loop:
+    a few steps) and, when that fails, from ``F = 0``."""
+    if start is not None and worst_case_feedback(A, Bw, Cz, Q, gamma, start, rtol=SEARCH_RTOL) is not None:
+        return False
     return worst_case_feedback(A, Bw, Cz, Q, gamma, rtol=SEARCH_RTOL) is None
 
 
