@@ -50,20 +50,22 @@ def riccati_memory_estimate(loop: ClosedLoop) -> float:
     :func:`~ftc_verify.analysis.lmi.check_certificate` at a time (a few copies of
     ``(n + extra)^2`` balls of :data:`BALL_BYTES` each)."""
     n, modes = loop.n, len(loop.A)
-    extra = max(Bw.shape[1] + Cz.shape[0] for Bw, Cz in zip(loop.Bw, loop.Cz))
+    extra = max(Bw.shape[1] + Cz.shape[0] + sum(ch.E.shape[1] for ch in chans)
+                for Bw, Cz, chans in zip(loop.Bw, loop.Cz, loop.channels))
     return float(2 * 61 * modes * n * n * 8 + 4 * (n + extra) ** 2 * BALL_BYTES)
 
 
 def check_lmi_memory(loop: ClosedLoop) -> None:
     """Raise :class:`~ftc_verify.errors.MemoryLimitError` before any work when the largest
     LMI problem of :func:`~ftc_verify.analysis.analyze.analyze` would not fit in memory,
-    estimated for the route that will run: without uncertainty channels and above
-    :data:`RICCATI_FIRST_SIZE` decision variables both programs go by the Riccati
-    candidate first (:func:`riccati_memory_estimate`; the SDP fallback is checked by
+    estimated for the route that will run: above :data:`RICCATI_FIRST_SIZE` decision
+    variables both programs go by the Riccati candidates first (:func:`riccati_memory_estimate`,
+    with the uncertainty channels' columns; the SDP fallback is checked by
     :func:`~ftc_verify.analysis.lmi_analysis.hinf_gamma` before it is built), otherwise by the SDP."""
-    if not loop.uncertain and decision_size(loop.nominal(), robust=False) > RICCATI_FIRST_SIZE:
+    if decision_size(loop.nominal(), robust=False) > RICCATI_FIRST_SIZE:
         check_memory(riccati_memory_estimate(loop),
-                     f"the Riccati candidate of Theorem 3.2 for a loop with n = {loop.n} and {len(loop.A)} joint states",
+                     f"the Riccati candidates of Theorem 3.2 and Lemma 4.1 for a loop with n = {loop.n} and "
+                     f"{len(loop.A)} joint states",
                      hint="reduce the problem, or run the exact spectral test alone (analyze --no-lmi)")
         return
     check_size(loop, loop.uncertain, "Lemma 4.1" if loop.uncertain else "Theorem 3.2")
