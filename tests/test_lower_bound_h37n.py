@@ -67,3 +67,18 @@ def test_paper_bound_is_the_same_by_both_enclosures(monkeypatch: pytest.MonkeyPa
     assert fast is not None and slow is not None and fast.value is not None and slow.value is not None
     assert "proved residual" in fast.method and "128-bit" in slow.method
     assert abs(fast.value - slow.value) <= 1e-9 * slow.value
+
+
+def test_lower_bounds_found_beside_lemma_4_1() -> None:
+    """With uncertainty the nominal bound and the constant-Delta search run in the forked
+    Theorem 3.2 child, beside Lemma 4.1's program; the robust bound is still proved, below
+    the certified robust gamma and at least the nominal bound."""
+    from ftc_verify.analysis.analyze import analyze
+
+    loop = closed_loop(load_system(ROOT / "examples/paper.toml"), load_controller(ROOT / "examples/paper_gains.toml"))
+    rep = analyze(loop, cross_validation=False)
+    assert "lower_bounds_beside" in rep.seconds
+    low, high = rep.nominal_lower, rep.robust_lower
+    assert low is not None and high is not None and low.value is not None and high.value is not None
+    assert low.value <= high.value <= rep.robust.gamma
+    assert rep.nominal.gamma / low.value < 1.002 and rep.robust.gamma / high.value < 1.05

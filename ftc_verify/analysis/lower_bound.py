@@ -168,14 +168,15 @@ def float_gain(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], 
     when the loop is not mean-square stable)."""
     if _abscissa(A, Q) >= 0:
         return None
-    hi = upper if upper is not None and upper > 0 else 1.0
+    hi = first = upper if upper is not None and upper > 0 else 1.0
+    lo = 0.0
     F = worst_case_feedback(A, Bw, Cz, Q, hi, rtol=SEARCH_RTOL)
-    while F is None:
-        hi *= 2.0
+    while F is None:  # below the gain: up by 10 % near the start, then doubling
+        lo, hi = hi, hi * (1.1 if hi < 2.0 * first else 2.0)
         if hi > 1e300:
             return None
         F = worst_case_feedback(A, Bw, Cz, Q, hi, rtol=SEARCH_RTOL)
-    lo, step = 0.0, 1e-3
+    step = 1e-3
     while lo == 0.0 and hi > 1e-300:
         trial = hi * (1.0 - step)
         found = worst_case_feedback(A, Bw, Cz, Q, trial, F, rtol=SEARCH_RTOL)
@@ -393,11 +394,11 @@ def worst_constant_delta(loop: ClosedLoop, rates: Matrix, *, upper: float | None
             out[name] = D
         return out
 
-    def gain(sg: dict[str, np.ndarray]) -> tuple[float, Sequence[Matrix] | None]:
-        found = float_gain(loop.perturbed(deltas(sg)), loop.Bw, loop.Cz, Q, upper=upper, rtol=1e-3)
+    def gain(sg: dict[str, np.ndarray], start: float | None) -> tuple[float, Sequence[Matrix] | None]:
+        found = float_gain(loop.perturbed(deltas(sg)), loop.Bw, loop.Cz, Q, upper=start, rtol=1e-3)
         return (-math.inf, None) if found is None else found
 
-    best, F = gain(signs)
+    best, _ = gain(signs, upper)
     for _ in range(passes):
         improved = False
         for name in signs:
@@ -405,11 +406,11 @@ def worst_constant_delta(loop: ClosedLoop, rates: Matrix, *, upper: float | None
                 trial = {key: v.copy() for key, v in signs.items()}
                 trial[name][k] = -trial[name][k]
                 if math.isfinite(best) and not _exceeds(loop.perturbed(deltas(trial)), loop.Bw, loop.Cz, Q,
-                                                        best * (1 + 1e-3), F):
+                                                        best * (1 + 1e-3)):
                     continue  # not clearly above the best so far
-                g, G = gain(trial)
+                g, _ = gain(trial, best * (1 + 1e-3) if math.isfinite(best) else upper)  # at least that
                 if g > best:
-                    best, F, signs, improved = g, G, trial, True
+                    best, signs, improved = g, trial, True
         if not improved:
             break
     label = "Delta = " + ", ".join(f"{name}: diag{[int(v) for v in sg]}" for name, sg in signs.items())
@@ -477,14 +478,11 @@ def _candidate_rates(loop: ClosedLoop, worst: Matrix | None) -> list[Matrix]:
     return out
 
 
-def _exceeds(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], Q: Matrix, gamma: float,
-             start: Sequence[Matrix] | None = None) -> bool:
+def _exceeds(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], Q: Matrix, gamma: float) -> bool:
     """In float64: no stabilising Riccati solution at ``gamma`` (the worst-case gain is at
-    least ``gamma``, or the loop is not mean-square stable): a cheap comparison, the policy
-    iteration started from the feedback ``start`` (the worst case of a neighbouring loop:
-    a few steps) and, when that fails, from ``F = 0``."""
-    if start is not None and worst_case_feedback(A, Bw, Cz, Q, gamma, start, rtol=SEARCH_RTOL) is not None:
-        return False
+    least ``gamma``, or the loop is not mean-square stable): a cheap comparison (from
+    ``F = 0``, which stabilises: a warm start from another loop's feedback may converge to
+    a solution that is not the stabilising one)."""
     return worst_case_feedback(A, Bw, Cz, Q, gamma, rtol=SEARCH_RTOL) is None
 
 
