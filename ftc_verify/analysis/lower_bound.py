@@ -421,25 +421,27 @@ def _first_moments(At: Sequence[Ball], Bw: Sequence[Ball], q: list[list[Any]], p
                    omega: float) -> Any:
     """The enclosure of ``[Mr; Mi]`` (module docstring): the real form
     ``[[-Ac, -omega I], [omega I, -Ac]] [Mr; Mi] = [b; 0]`` of the complex first-moment
-    equation, ``(Ac m)_s = At_s m_s + sum_t q_ts m_t``, ``b_s = pi_s B_s e``; ``None``
-    when FLINT cannot prove the system nonsingular. Call inside a precision block."""
+    equation, ``(Ac m)_s = At_s m_s + sum_t q_ts m_t``, ``b_s = pi_s B_s e``; at
+    ``omega = 0`` the two halves decouple and ``Mi = 0``: only ``-Ac Mr = b`` is solved
+    (a system of half the size). ``None`` when FLINT cannot prove the system nonsingular.
+    Call inside a precision block."""
     import flint
 
     S, n = len(At), At[0].shape[0]
-    K = 2 * S * n
+    halves = (0, S * n) if omega != 0.0 else (0,)
+    K = len(halves) * S * n
     G1 = flint.arb_mat(K, K)
     for s in range(S):
         a = At[s].value
-        for r in range(n):
-            for c in range(n):
-                G1[s * n + r, s * n + c] = -a[r, c]
-                G1[S * n + s * n + r, S * n + s * n + c] = -a[r, c]
-        for t in range(S):
-            if q[t][s] != 0:
-                for r in range(n):
-                    G1[s * n + r, t * n + r] -= q[t][s]
-                    G1[S * n + s * n + r, S * n + t * n + r] -= q[t][s]
-        for r in range(n):
+        for h in halves:
+            for r in range(n):
+                for c in range(n):
+                    G1[h + s * n + r, h + s * n + c] = -a[r, c]
+            for t in range(S):
+                if q[t][s] != 0:
+                    for r in range(n):
+                        G1[h + s * n + r, h + t * n + r] -= q[t][s]
+        for r in range(n if omega != 0.0 else 0):
             G1[s * n + r, S * n + s * n + r] = -omega
             G1[S * n + s * n + r, s * n + r] = omega
     b1 = flint.arb_mat(K, 1)
