@@ -72,7 +72,7 @@ from .conic import ConicProblem, Rows, affine_bmat, scalar_variable, svec_index,
 from .lmi import Certificate, block_specs, check_certificate, lyapunov_block
 from .bounded_real import riccati_candidate
 from .robust_riccati import robust_riccati_candidate
-from .lmi_size import RICCATI_FIRST_SIZE, check_size, decision_size
+from .lmi_size import RICCATI_FIRST_SIZE, RICCATI_FIRST_STATES, check_size, decision_size
 from .solvers import SETTINGS, SolveOutcome, choose_solver, second_solver, solve_conic, solve_conic_dual
 
 __all__ = ["GAMMA_LADDER", "ROUTES", "LMIResult", "mes_lmi", "hinf_gamma"]
@@ -339,7 +339,8 @@ def hinf_gamma(loop: ClosedLoop, *, robust: bool, solver: str | None = None,
     nominal gamma for Lemma 4.1, whose blocks contain Theorem 3.2's as leading blocks);
     it only scales the one-solve program (``_margin_gamma``), never the answer.
 
-    ``route``: ``"auto"`` tries, above :data:`~ftc_verify.analysis.lmi_size.RICCATI_FIRST_SIZE` decision variables, the
+    ``route``: ``"auto"`` tries, above :data:`~ftc_verify.analysis.lmi_size.RICCATI_FIRST_SIZE` decision variables
+    (with at least :data:`~ftc_verify.analysis.lmi_size.RICCATI_FIRST_STATES` states), the
     coupled-Riccati candidate (:func:`~ftc_verify.analysis.bounded_real.riccati_candidate`:
     no SDP, proved at every vertex like an SDP answer) first (Theorem 3.2, or Lemma 4.1
     without uncertainty channels; with them, the augmented loop's candidate of
@@ -351,7 +352,8 @@ def hinf_gamma(loop: ClosedLoop, *, robust: bool, solver: str | None = None,
     original = loop if robust else loop.nominal()
     conditioned, sim = _conditioned(original)
     fallback, t0 = "", time.perf_counter()
-    first = route == "riccati" or (route == "auto" and decision_size(original, robust=False) > RICCATI_FIRST_SIZE)
+    first = route == "riccati" or (route == "auto" and decision_size(original, robust=False) > RICCATI_FIRST_SIZE
+                                   and original.n >= RICCATI_FIRST_STATES)
     if first:
         augmented = robust and loop.uncertain
         found = (robust_riccati_candidate if augmented else riccati_candidate)(original, conditioned, sim)

@@ -159,17 +159,16 @@ def worst_case_feedback(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[
 
 def float_gain(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], Q: Matrix, *,
                upper: float | None = None, rtol: float = BISECTION_RTOL) -> tuple[float, tuple[Matrix, ...]] | None:
-    """The float worst-case gain at one rate vector by bisection on
-    :func:`worst_case_feedback` (started at ``upper``, each step warm-started from the
-    last feasible feedback and run to
-    :data:`~ftc_verify.analysis.bounded_real.SEARCH_RTOL`: a level is decided long before
+    """The float worst-case gain at one rate vector by bisection on :func:`worst_case_feedback`
+    (started at ``upper``, each step warm-started from the last feasible feedback and run
+    to :data:`~ftc_verify.analysis.bounded_real.SEARCH_RTOL`: a level is decided long before
     the policy iteration converges), and the feedback at the smallest feasible gamma
     found, converged to :data:`~ftc_verify.analysis.bounded_real.POLICY_RTOL` (``None``
     when the loop is not mean-square stable)."""
     if _abscissa(A, Q) >= 0:
         return None
-    hi = first = upper if upper is not None and upper > 0 else 1.0
-    lo = 0.0
+    lo, hi = 0.0, upper if upper is not None and upper > 0 else 1.0
+    first = hi
     F = worst_case_feedback(A, Bw, Cz, Q, hi, rtol=SEARCH_RTOL)
     while F is None:  # below the gain: up by 10 % near the start, then doubling
         lo, hi = hi, hi * (1.1 if hi < 2.0 * first else 2.0)
@@ -196,13 +195,13 @@ def float_gain(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], 
 
 
 def _forms(At: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], F: Sequence[Matrix], Q: Matrix,
-           pi: Matrix, omega: float) -> tuple[Matrix, Matrix]:
-    """The quadratic forms ``N(e) = e' HN e`` and ``D(e) = e' HD e`` (module docstring), float."""
+           pi: Matrix, omega: float, lu_second: Any) -> tuple[Matrix, Matrix]:
+    """The quadratic forms ``N(e) = e' HN e`` and ``D(e) = e' HD e`` (module docstring),
+    float; ``lu_second`` the LU factors of the second-moment generator (any frequency)."""
     n, S, nw = At[0].shape[0], len(At), Bw[0].shape[1]
     first = scipy.linalg.block_diag(*At) + np.kron(Q.T, np.eye(n))
     c = 1.0 if omega == 0.0 else 0.5
     lu_first = scipy.linalg.lu_factor(1j * omega * np.eye(S * n) - first)
-    lu_second = scipy.linalg.lu_factor(second_moment_matrix(At, Q))
     rows, cols = vech_order(n)
 
     def rates(e: Matrix) -> tuple[float, float]:
@@ -242,9 +241,13 @@ def _best_excitation(At: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Ma
     order = np.argsort(-ev.real)[:6]
     omegas = sorted({0.0, *(abs(float(ev[k].imag)) for k in order)})
     best = (-math.inf, 0.0, np.zeros(Bw[0].shape[1]))
+    try:
+        lu_second = scipy.linalg.lu_factor(second_moment_matrix(At, Q))
+    except (ValueError, np.linalg.LinAlgError, scipy.linalg.LinAlgError):
+        return best
     for omega in omegas:
         try:
-            HN, HD = _forms(At, Bw, Cz, F, Q, pi, omega)
+            HN, HD = _forms(At, Bw, Cz, F, Q, pi, omega, lu_second)
             w, V = scipy.linalg.eigh(0.5 * (HN + HN.T), 0.5 * (HD + HD.T))
         except (ValueError, np.linalg.LinAlgError, scipy.linalg.LinAlgError):
             continue
@@ -264,9 +267,17 @@ def _proved_ratio(loop: ClosedLoop, deltas: dict[str, Matrix], sim: Similarity, 
     if size > SOLVE_LIMIT or 2 * S * n > SOLVE_LIMIT:
         return None, f"not proved: the moment equations ({size} rows) exceed the ball-arithmetic limit ({SOLVE_LIMIT})"
     literals = literals_of(loop)
+    made: dict[int, ClosedLoop] = {}
+
+    def exact_here() -> ClosedLoop:  # exact_loop at the working precision, made once
+        bits_now = int(flint.ctx.prec)
+        if bits_now not in made:
+            made[bits_now] = exact_loop(loop)
+        return made[bits_now]
+
     def enclosures() -> tuple[Ball, ...]:
         """The feedback loop's state matrices at the working precision."""
-        exact = exact_loop(loop)
+        exact = exact_here()
         A = ball_matrices(exact.A)
         if deltas:
             A = tuple(a + _perturbation(chans, deltas, a) for a, chans in zip(A, exact.channels))
@@ -274,7 +285,7 @@ def _proved_ratio(loop: ClosedLoop, deltas: dict[str, Matrix], sim: Similarity, 
 
     with precision(bits):
         At = enclosures()
-        exact = exact_loop(loop)
+        exact = exact_here()
         Bw = ball_matrices(exact.Bw)
         Cz = ball_matrices(exact.Cz)
         q = ball_generator(loop.chain, rates, literals)
@@ -326,24 +337,17 @@ def _proved_ratio(loop: ClosedLoop, deltas: dict[str, Matrix], sim: Similarity, 
 
 
 def _residual_moments(At: Sequence[Ball], q: list[list[Any]], G: Sequence[Ball], Q: Matrix) -> list[Ball] | None:
-    r"""An enclosure of the solution :math:`\bar X` of :math:`\tilde{\mathcal L}(\bar X) = -G`
-    without a ball solve of the whole system (``None`` when this proof does not go
-    through; the caller then encloses it by FLINT's solve). :math:`\tilde{\mathcal L}`
-    (of the balls ``At`` and ``q``) is proved mean-square stable here too (by
-    :math:`\hat Y_s \succ 0` below, :mod:`~ftc_verify.analysis.verdict`'s argument): then
-    :math:`-\tilde{\mathcal L}^{-1} = \int_0^\infty e^{\tilde{\mathcal L} t}\,dt` maps
-    positive semidefinite stacks to positive semidefinite stacks. With float stacks
-    :math:`\tilde X` (solving the float equation) and :math:`\hat Y` (solving
-    :math:`\tilde{\mathcal L}(\hat Y) = -2I`), proved in balls: :math:`-\tilde{\mathcal L}(\hat Y)_s
-    - I \succ 0` and :math:`\|R\|_F \le r` for the residual :math:`R = \tilde{\mathcal L}(\tilde X) + G`.
-    The error :math:`E = \bar X - \tilde X = -\tilde{\mathcal L}^{-1}(R)` then has
-    :math:`-rY \preceq E \preceq rY` (as :math:`-rI \preceq R_s \preceq rI`) with
-    :math:`Y = -\tilde{\mathcal L}^{-1}(I) \preceq \hat Y` (:math:`\hat Y - Y =
-    -\tilde{\mathcal L}^{-1}(-\tilde{\mathcal L}(\hat Y) - I) \succeq 0`), and :math:`-M \preceq E
-    \preceq M` gives :math:`|E_{ij}| \le (M_{ii} M_{jj})^{1/2}` (the quadratic forms at
-    :math:`e_i \pm t e_j`): :math:`\bar X_{s,ij} \in \tilde X_{s,ij} \pm r (\hat Y_{s,ii}
-    \hat Y_{s,jj})^{1/2}`. Costs a few ``n x n`` ball products per joint state where the
-    ball solve is cubic in the :math:`m^2 n^2/2` moment rows. Call inside a precision block."""
+    r"""An enclosure of :math:`\bar X` with :math:`\tilde{\mathcal L}(\bar X) = -G` (``At``, ``q``)
+    without a ball solve of the whole system; ``None`` when this proof fails. With float
+    :math:`\tilde X` (the float equation) and :math:`\hat Y` (:math:`\tilde{\mathcal L}(\hat Y) = -2I`),
+    proved: :math:`\hat Y_s \succ 0`, :math:`-\tilde{\mathcal L}(\hat Y)_s - I \succ 0` (so
+    :math:`\tilde{\mathcal L}` is stable and :math:`-\tilde{\mathcal L}^{-1}` maps positive
+    semidefinite stacks to positive semidefinite ones, :mod:`~ftc_verify.analysis.verdict`),
+    and :math:`\|R\|_F \le r` for :math:`R = \tilde{\mathcal L}(\tilde X) + G`. Then
+    :math:`E = \bar X - \tilde X = -\tilde{\mathcal L}^{-1}(R)` has :math:`-rY \preceq E \preceq rY`,
+    :math:`Y = -\tilde{\mathcal L}^{-1}(I) \preceq \hat Y`, and :math:`-M \preceq E \preceq M` gives
+    :math:`|E_{ij}| \le (M_{ii} M_{jj})^{1/2}` (:doc:`/theory/certificates`). A few ``n x n``
+    ball products per joint state. Call inside a precision block."""
     import flint
 
     n, S = At[0].shape[0], len(At)
@@ -481,10 +485,8 @@ def _candidate_rates(loop: ClosedLoop, worst: Matrix | None) -> list[Matrix]:
 
 
 def _exceeds(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], Q: Matrix, gamma: float) -> bool:
-    """In float64: no stabilising Riccati solution at ``gamma`` (the worst-case gain is at
-    least ``gamma``, or the loop is not mean-square stable): a cheap comparison (from
-    ``F = 0``, which stabilises: a warm start from another loop's feedback may converge to
-    a solution that is not the stabilising one)."""
+    """In float64: no stabilising Riccati solution at ``gamma`` (the gain is at least
+    ``gamma``, or the loop is not mean-square stable), from ``F = 0``: a cheap comparison."""
     return worst_case_feedback(A, Bw, Cz, Q, gamma, rtol=SEARCH_RTOL) is None
 
 
