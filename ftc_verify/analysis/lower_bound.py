@@ -168,10 +168,9 @@ def float_gain(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], 
     if _abscissa(A, Q) >= 0:
         return None
     lo, hi = 0.0, upper if upper is not None and upper > 0 else 1.0
-    first = hi
     F = worst_case_feedback(A, Bw, Cz, Q, hi, rtol=SEARCH_RTOL)
     while F is None:  # below the gain: up by 10 % near the start, then doubling
-        lo, hi = hi, hi * (1.1 if hi < 2.0 * first else 2.0)
+        lo, hi = hi, hi * (1.1 if hi < 2.0 * (upper or 1.0) else 2.0)
         if hi > 1e300:
             return None
         F = worst_case_feedback(A, Bw, Cz, Q, hi, rtol=SEARCH_RTOL)
@@ -380,12 +379,13 @@ def _residual_moments(At: Sequence[Ball], q: list[list[Any]], G: Sequence[Ball],
 
 
 def worst_constant_delta(loop: ClosedLoop, rates: Matrix, *, upper: float | None = None,
-                         passes: int = 2) -> tuple[str, dict[str, Matrix]]:
+                         passes: int = 1) -> tuple[str, dict[str, Matrix]]:
     """A constant uncertainty of norm 1 that makes the float gain at ``rates`` large: on
     every channel a rectangular diagonal of signs (an extreme point of the unit ball),
     the same in every joint state, found by flipping one sign at a time while the coarse
-    float gain grows by more than 0.1 % (at most ``passes`` sweeps). A search: the bound it leads to is
-    proved afterwards. Returns a label and ``{channel name: Delta}``."""
+    float gain grows by more than 0.1 % (at most ``passes`` sweeps; a second changed nothing
+    on three random n = 8, m = 3 loops). A search: the bound it leads to is proved
+    afterwards. Returns a label and ``{channel name: Delta}``."""
     shapes = {ch.name: (ch.E.shape[1], ch.F.shape[0]) for chans in loop.channels for ch in chans}
     signs = {name: np.ones(min(shape)) for name, shape in shapes.items()}
     Q = loop.chain.generator(rates)
