@@ -298,7 +298,10 @@ def bounded_real_solution(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequenc
     P_old: list[Matrix] | None = None
     E = [np.zeros((n, n)) for _ in A]
     last = math.inf
-    checked_from = 1 if any(box.half) else 0  # the envelope term enters at step 1: step 2 is the first Newton step with it
+    # Without the envelope, every Newton iterate after the first is semidefinite at a feasible
+    # level; with it (it enters at step 1, lagged) the first iterates may not be (measured up to
+    # step 3 on n = 16, m = 3): there semidefiniteness is asked of the converged P only.
+    checked_from = MAX_POLICY_STEPS if any(box.half) else 0
     for k in range(MAX_POLICY_STEPS):
         with np.errstate(all="ignore"):
             At = [a + b @ f for a, b, f in zip(A, Bw, F)]
@@ -316,7 +319,8 @@ def bounded_real_solution(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequenc
         if P_old is not None:
             step = max(float(np.abs(p - q).max()) for p, q in zip(P, P_old)) / scale
             if step <= rtol:
-                return P, F
+                psd = min(float(np.linalg.eigvalsh(p)[0]) for p in P) >= -1e-9 * scale
+                return (P, F) if psd else None
             if k >= STALL_STEPS and step > STALL_RATIO * last:  # not contracting: treated as infeasible
                 return None
             last = step

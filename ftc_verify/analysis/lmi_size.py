@@ -28,8 +28,9 @@ RICCATI_FIRST_SIZE = 800
 #: cost grows with the block size (about ``n``), not with the number of joint states: random
 #: n = 12, m = 4 with uncertainty (1,249 variables, seed 5321), in CPU seconds: Theorem 3.2 SDP
 #: 1.5 s (26.605) against the candidate's 10.5 s (27.445); Lemma 4.1 SDP 11.1 s (28.144)
-#: against 8.6 s (28.947).
-RICCATI_FIRST_STATES = 16
+#: against 8.6 s (28.895); n = 16, m = 3 (seed 5331): Theorem 3.2 SDP 2.2 s (35.121) against
+#: 8.3 s (35.279), Lemma 4.1 SDP 20.1 s (36.118) against 12.0 s (36.410).
+RICCATI_FIRST_STATES = 20
 
 
 def lmi_memory_estimate(loop: ClosedLoop, *, robust: bool) -> float:

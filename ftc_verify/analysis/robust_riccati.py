@@ -39,7 +39,7 @@ picks the candidate (measured: 0.06 % above the SDP's level on the paper's loop,
 random n = 8, m = 3, 0.9 % on n = 12, m = 4).
 
 **The proof.** The candidate is the solution at :math:`\gamma(1 + 2\rho)` with margin
-:math:`\varepsilon = \rho \max_s \|\hat C_{z,s}\|^2` for :math:`\rho` in
+:math:`\varepsilon = \rho \max_s \|C_{z,s}\|^2` for :math:`\rho` in
 :data:`~ftc_verify.analysis.bounded_real.CANDIDATE_LADDER`; it and its multipliers are
 proved at every vertex of the box by :func:`~ftc_verify.analysis.lmi.check_certificate`
 (ball arithmetic, the loop as the user wrote it), exactly as an SDP's answer. Nothing
@@ -61,7 +61,7 @@ from .closedloop import ClosedLoop
 from .conditioning import Similarity
 from .lmi import check_certificate
 
-__all__ = ["ROUNDS", "LEVEL_RTOL", "FIRST_RTOL", "SEARCH_GMRES_RTOL", "robust_riccati_candidate"]
+__all__ = ["ROUNDS", "LEVEL_RTOL", "FIRST_RTOL", "SEARCH_GMRES_RTOL", "CANDIDATE_RTOL", "robust_riccati_candidate"]
 
 #: Rounds of multiplier updates (each a bisection on gamma).
 ROUNDS = 2
@@ -69,6 +69,9 @@ ROUNDS = 2
 FIRST_RTOL = 1e-2
 #: GMRES's relative residual in the feasibility tests of the bisection.
 SEARCH_GMRES_RTOL = 1e-8
+#: Relative change of ``P`` at which the candidate's policy iteration stops (its margin
+#: ``epsilon`` covers the rest; at 1e-10 GMRES's own error stalled it on n = 16, m = 3).
+CANDIDATE_RTOL = 1e-8
 #: Relative width of each round's bisection on gamma.
 LEVEL_RTOL = 1e-4
 
@@ -178,11 +181,11 @@ def robust_riccati_candidate(original: ClosedLoop, target: ClosedLoop, similarit
     if best is None:
         return RiccatiCandidate(None, None, None, None, 0, "no feasible level of the augmented Riccati equations")
     gamma0, lam, F, box = best
-    scale = max(float(np.linalg.norm(c, 2)) ** 2 for c in _augmented(target, lam, gamma0)[1])
+    scale = max(*(float(np.linalg.norm(c, 2)) ** 2 for c in target.Cz), np.finfo(float).tiny)  # as Theorem 3.2
     why, tried = "", 0
     for rho in CANDIDATE_LADDER:
         gamma = gamma0 * (1.0 + 2.0 * rho)
-        sol = _solve(target, box, lam, gamma, rho * scale, start=F, rtol=1e-10)
+        sol = _solve(target, box, lam, gamma, rho * scale, start=F, rtol=CANDIDATE_RTOL)
         tried += 1
         if sol is None:
             why = f"no Riccati solution at {gamma:.6g} with margin {rho:.1e}"
