@@ -116,7 +116,7 @@ POLICY_RTOL = 1e-10
 SEARCH_RTOL = 1e-6
 #: From this step on, an iteration whose step shrinks by less than :data:`STALL_RATIO` is stopped (not contracting).
 STALL_STEPS = 12
-#: The contraction an iteration must keep up after :data:`STALL_STEPS` (the envelope term makes
+#: The contraction an iteration must keep up after ``STALL_STEPS`` steps (the envelope term makes
 #: it linear, measured 0.25-0.55 per step on random n = 12, m = 4 loops with uncertainty).
 STALL_RATIO = 0.9
 #: Re-pinnings of the envelope at the first feasible level (:func:`float_hinf_norm`).

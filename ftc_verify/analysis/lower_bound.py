@@ -57,7 +57,7 @@ exact; the loop is :func:`~ftc_verify.analysis.exact.exact_loop` (the numbers th
 wrote) plus :math:`B_{w,s}F_s` in ball arithmetic; :math:`\tilde{\mathcal L}` is proved
 stable (:class:`~ftc_verify.analysis.verdict.StabilityProver`); :math:`\pi` and :math:`M`
 are enclosed by FLINT's certified linear solves, :math:`\bar X` by a float64 solve and
-its residual proved in balls (:func:`_residual_moments`; FLINT's solve of the whole
+its residual proved in balls (``_residual_moments``; FLINT's solve of the whole
 moment system when that proof fails); the bound is the
 lower end of the enclosure of :math:`\sqrt{N/D}`. Above
 :data:`~ftc_verify.analysis.verdict.SOLVE_LIMIT` rows no bound is computed (none could be
