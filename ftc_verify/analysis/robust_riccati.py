@@ -36,7 +36,8 @@ First round: :math:`P` and :math:`X` of the nominal loop (:math:`\mathcal L^*(P)
 all) :math:`P` of the previous level and :math:`X` of its worst-case loop
 :math:`A_s + \hat B_{w,s} F_s`, the level to :data:`LEVEL_RTOL`. A heuristic that only
 picks the candidate (measured: 0.06 % above the SDP's level on the paper's loop, 0.4 % on
-random n = 8, m = 3, 0.9 % on n = 12, m = 4).
+random n = 8, m = 3, 0.9-2.7 % on n = 12, m = 4, 0.8 % on n = 16, m = 3; used first only from
+:data:`~ftc_verify.analysis.lmi_size.RICCATI_FIRST_STATES` states on).
 
 **The proof.** The candidate is the solution at :math:`\gamma(1 + 2\rho)` with margin
 :math:`\varepsilon = \rho \max_s \|C_{z,s}\|^2` for :math:`\rho` in
