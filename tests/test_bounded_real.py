@@ -112,6 +112,7 @@ def test_failed_candidate_falls_back_to_the_sdp(paper_loop, monkeypatch: pytest.
     alone = hinf_gamma(paper_loop, robust=False, route="riccati")
     assert not alone.certified and "no candidate passed" in alone.message
     monkeypatch.setattr(lmi_analysis, "RICCATI_FIRST_SIZE", 0)
+    monkeypatch.setattr(lmi_analysis, "RICCATI_FIRST_STATES", 0)
     auto = hinf_gamma(paper_loop, robust=False, route="auto")
     assert auto.certified and auto.solver != "riccati"
     assert "Riccati candidate was not used" in auto.message
@@ -208,6 +209,7 @@ def test_memory_check_estimates_the_route_that_runs(paper_loop, monkeypatch: pyt
     with pytest.raises(MemoryLimitError):
         lmi_size.check_lmi_memory(loop)
     monkeypatch.setattr(lmi_size, "RICCATI_FIRST_SIZE", 0)
+    monkeypatch.setattr(lmi_size, "RICCATI_FIRST_STATES", 0)
     lmi_size.check_lmi_memory(loop)
     monkeypatch.setenv("FTC_VERIFY_MEMORY_LIMIT", str(int(0.5 * riccati)))
     with pytest.raises(MemoryLimitError):

@@ -173,7 +173,7 @@ def _analyze(loop: ClosedLoop, solver: str | None, name: str, lmi: bool, lower_b
         mes, nominal, robust = (_not_requested(c, "not solved: the loop is proved NOT mean-square stable, so no "
                                                "certificate exists") for c in ("Theorem 3.1", "Theorem 3.2", "Lemma 4.1"))
     elif lmi:
-        nominal, robust = _gammas(loop, solver, seconds)
+        nominal, robust, early = _gammas(loop, solver, seconds, mss if lower_bounds else None)
         t = time.perf_counter()
         mes = mes_lmi(loop, solver=solver, known=(nominal, robust))
         seconds["theorem_3_1"] = time.perf_counter() - t
@@ -184,7 +184,7 @@ def _analyze(loop: ClosedLoop, solver: str | None, name: str, lmi: bool, lower_b
     nominal_lower = robust_lower = None
     t = time.perf_counter()
     if lmi and lower_bounds and not mss.unstable:
-        nominal_lower, robust_lower = _lower_bounds(loop, mss, nominal, robust)
+        nominal_lower, robust_lower = _lower_bounds(loop, mss, nominal, robust, early)
         seconds["lower_bounds"] = time.perf_counter() - t
     per_mode: tuple[ModeCheck, ...] = ()
     if check is not None:
@@ -198,51 +198,83 @@ def _analyze(loop: ClosedLoop, solver: str | None, name: str, lmi: bool, lower_b
                           robust_lower)
 
 
-def _lower_bounds(loop: ClosedLoop, mss: MSSResult, nominal: LMIResult,
-                  robust: LMIResult) -> tuple[GainLowerBound | None, GainLowerBound | None]:
+#: The nominal lower bound and the constant ``Delta`` found for the robust one, computed
+#: beside Lemma 4.1's program (:func:`_nominal_side`); ``None`` when not computed there.
+Early = tuple[GainLowerBound | None, tuple[str, dict[str, Any]] | None] | None
+
+
+def _lower_bounds(loop: ClosedLoop, mss: MSSResult, nominal: LMIResult, robust: LMIResult,
+                  early: Early = None) -> tuple[GainLowerBound | None, GainLowerBound | None]:
     """The nominal lower bound and the robust one (the best of the nominal and the
     constant ``Delta`` of :func:`~ftc_verify.analysis.lower_bound.worst_constant_delta`
-    at the nominal bound's rates)."""
-    upper = nominal.gamma if nominal.certified else None
-    low = gain_lower_bound(loop, worst_rates=mss.worst_beta, upper=upper)
-    if not loop.uncertain or low is None:
-        return low, low
+    at the nominal bound's rates); ``early``: those two already found beside Lemma 4.1."""
     top = robust.gamma if robust.certified else None
-    delta = worst_constant_delta(loop, low.rates, upper=top)
+    if early is not None:
+        low, delta = early
+    else:
+        upper = nominal.gamma if nominal.certified else None
+        low = gain_lower_bound(loop, worst_rates=mss.worst_beta, upper=upper)
+        delta = worst_constant_delta(loop, low.rates, upper=top) if loop.uncertain and low is not None else None
+    if not loop.uncertain or low is None or delta is None:
+        return low, low
     high = gain_lower_bound(loop, deltas=[delta], worst_rates=mss.worst_beta, upper=top)
     candidates = [b for b in (low, high) if b is not None]
     best = max(candidates, key=lambda b: (b.value is not None, b.value or b.estimate), default=None)
     return low, best
 
 
-def _gammas(loop: ClosedLoop, solver: str | None, seconds: dict[str, float]) -> tuple[LMIResult, LMIResult]:
+def _gammas(loop: ClosedLoop, solver: str | None, seconds: dict[str, float],
+            mss: MSSResult | None = None) -> tuple[LMIResult, LMIResult, Early]:
     """The nominal (Theorem 3.2) and robust (Lemma 4.1) gamma programs. With uncertainty
     and a POSIX system, the nominal one runs in a forked child beside the robust one
     (:class:`~ftc_verify.analysis.solvers.ForkedCall`: two single-threaded solves on two
     cores; the same programs as one after the other, where the certified nominal gamma
-    only scales the robust program: its answer moves within the solver's tolerance);
-    ``seconds`` gets each stage's wall time (overlapping when forked)."""
+    only scales the robust program: its answer moves within the solver's tolerance),
+    and, given ``mss`` (lower bounds requested), the child goes on with the nominal
+    lower bound and the constant-``Delta`` search of the robust one
+    (:func:`_nominal_side`), which need only the nominal gamma; ``seconds`` gets each
+    stage's wall time (overlapping when forked; the child's lower-bound part as
+    ``lower_bounds_beside``)."""
     t = time.perf_counter()
     if not loop.uncertain:
         nominal = hinf_gamma(loop, robust=False, solver=solver)
         seconds["theorem_3_2"] = seconds["lemma_4_1"] = time.perf_counter() - t
-        return nominal, nominal
+        return nominal, nominal, None
     if not hasattr(os, "fork"):
         nominal = hinf_gamma(loop, robust=False, solver=solver)
         seconds["theorem_3_2"] = time.perf_counter() - t
         hint = nominal.gamma if nominal.certified else None  # Lemma 4.1's gamma is at least this
         robust = hinf_gamma(loop, robust=True, solver=solver, gamma_hint=hint)
         seconds["lemma_4_1"] = time.perf_counter() - t - seconds["theorem_3_2"]
-        return nominal, robust
-    forked = ForkedCall(lambda: hinf_gamma(loop, robust=False, solver=solver), "Theorem 3.2")
+        return nominal, robust, None
+    forked = ForkedCall(lambda: _nominal_side(loop, solver, mss), "Theorem 3.2")
     try:
         robust = hinf_gamma(loop, robust=True, solver=solver)
         seconds["lemma_4_1"] = time.perf_counter() - t
-        nominal = forked.result()
+        nominal, early, beside = forked.result()
         seconds["theorem_3_2"] = seconds["gammas_wall"] = time.perf_counter() - t
+        if early is not None:
+            seconds["lower_bounds_beside"] = beside
     finally:
         forked.cancel()
-    return nominal, robust
+    return nominal, robust, early
+
+
+def _nominal_side(loop: ClosedLoop, solver: str | None, mss: MSSResult | None) -> tuple[LMIResult, Early, float]:
+    """In the forked child of :func:`_gammas`: Theorem 3.2, then (given ``mss``, the
+    nominal gamma certified) the nominal lower bound and the constant ``Delta`` of the
+    robust one (``None`` in their place when not computed or when they fail: the parent
+    then computes them), and the seconds those took."""
+    nominal = hinf_gamma(loop, robust=False, solver=solver)
+    if mss is None or mss.unstable or not nominal.certified:
+        return nominal, None, 0.0
+    t = time.perf_counter()
+    try:
+        low = gain_lower_bound(loop, worst_rates=mss.worst_beta, upper=nominal.gamma)
+        delta = None if low is None else worst_constant_delta(loop, low.rates, upper=nominal.gamma)
+    except Exception:  # a float search: the parent runs it again and decides
+        return nominal, None, 0.0
+    return nominal, (low, delta), time.perf_counter() - t
 
 
 def _not_requested(condition: str, why: str = "") -> LMIResult:

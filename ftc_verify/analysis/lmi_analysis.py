@@ -71,7 +71,8 @@ from .conditioning import Similarity, conditioning_transform
 from .conic import ConicProblem, Rows, affine_bmat, scalar_variable, svec_index, sym_variable
 from .lmi import Certificate, block_specs, check_certificate, lyapunov_block
 from .bounded_real import riccati_candidate
-from .lmi_size import RICCATI_FIRST_SIZE, check_size, decision_size
+from .robust_riccati import robust_riccati_candidate
+from .lmi_size import RICCATI_FIRST_SIZE, RICCATI_FIRST_STATES, check_size, decision_size
 from .solvers import SETTINGS, SolveOutcome, choose_solver, second_solver, solve_conic, solve_conic_dual
 
 __all__ = ["GAMMA_LADDER", "ROUTES", "LMIResult", "mes_lmi", "hinf_gamma"]
@@ -338,24 +339,29 @@ def hinf_gamma(loop: ClosedLoop, *, robust: bool, solver: str | None = None,
     nominal gamma for Lemma 4.1, whose blocks contain Theorem 3.2's as leading blocks);
     it only scales the one-solve program (``_margin_gamma``), never the answer.
 
-    ``route``: ``"auto"`` tries, above :data:`~ftc_verify.analysis.lmi_size.RICCATI_FIRST_SIZE` decision variables, the
+    ``route``: ``"auto"`` tries, above :data:`~ftc_verify.analysis.lmi_size.RICCATI_FIRST_SIZE` decision variables
+    (with at least :data:`~ftc_verify.analysis.lmi_size.RICCATI_FIRST_STATES` states), the
     coupled-Riccati candidate (:func:`~ftc_verify.analysis.bounded_real.riccati_candidate`:
-    no SDP, proved at every vertex like an SDP answer) first where it applies (Theorem
-    3.2, or Lemma 4.1 without uncertainty channels), the SDP when none passes (below: the
-    SDP alone, faster and up to 0.6 % tighter); ``"sdp"``, ``"riccati"``: only that one."""
+    no SDP, proved at every vertex like an SDP answer) first (Theorem 3.2, or Lemma 4.1
+    without uncertainty channels; with them, the augmented loop's candidate of
+    :func:`~ftc_verify.analysis.robust_riccati.robust_riccati_candidate`), the SDP when
+    none passes (below: the SDP alone, faster and up to about 1 % tighter); ``"sdp"``,
+    ``"riccati"``: only that one."""
     if route not in ROUTES:
         raise ValueError(f"route must be one of {', '.join(ROUTES)}, got {route!r}")
     original = loop if robust else loop.nominal()
     conditioned, sim = _conditioned(original)
     fallback, t0 = "", time.perf_counter()
-    first = route == "riccati" or (route == "auto" and decision_size(original, robust=False) > RICCATI_FIRST_SIZE)
-    if first and not (robust and loop.uncertain):
-        found = riccati_candidate(original, conditioned, sim)
+    first = route == "riccati" or (route == "auto" and decision_size(original, robust=False) > RICCATI_FIRST_SIZE
+                                   and original.n >= RICCATI_FIRST_STATES)
+    if first:
+        augmented = robust and loop.uncertain
+        found = (robust_riccati_candidate if augmented else riccati_candidate)(original, conditioned, sim)
         if found.certificate is not None or route == "riccati":
             return _map_back(LMIResult("lemma-4.1" if robust else "theorem-3.2",
                                        "certified" if found.certificate is not None else "error", found.gamma, "riccati",
                                        "optimal" if found.gamma else "failed", 0.0, time.perf_counter() - t0,
-                                       found.certificate, found.P, None, found.message), sim)
+                                       found.certificate, found.P, found.multipliers, found.message), sim)
         fallback = f"; the Riccati candidate was not used ({found.message}), SDP fallback"
     check_size(loop, robust, "Lemma 4.1" if robust else "Theorem 3.2")
     result = _hinf_gamma(original, conditioned, sim, robust, solver, gamma_hint)

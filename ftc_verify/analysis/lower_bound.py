@@ -55,8 +55,10 @@ centre, its lowest and highest rates and the worst spectral-abscissa vertex.
 **The proof.** :math:`F`, :math:`e`, :math:`\omega`, :math:`\rho` are floats taken as
 exact; the loop is :func:`~ftc_verify.analysis.exact.exact_loop` (the numbers the user
 wrote) plus :math:`B_{w,s}F_s` in ball arithmetic; :math:`\tilde{\mathcal L}` is proved
-stable (:class:`~ftc_verify.analysis.verdict.StabilityProver`); :math:`\pi`, :math:`M`
-and :math:`\bar X` are enclosed by FLINT's certified linear solves; the bound is the
+stable (:class:`~ftc_verify.analysis.verdict.StabilityProver`); :math:`\pi` and :math:`M`
+are enclosed by FLINT's certified linear solves, :math:`\bar X` by a float64 solve and
+its residual proved in balls (``_residual_moments``; FLINT's solve of the whole
+moment system when that proof fails); the bound is the
 lower end of the enclosure of :math:`\sqrt{N/D}`. Above
 :data:`~ftc_verify.analysis.verdict.SOLVE_LIMIT` rows no bound is computed (none could be
 proved).
@@ -80,7 +82,7 @@ from .bounded_real import POLICY_RTOL, SEARCH_RTOL, RateEnvelope, bounded_real_s
 from .conditioning import Similarity, conditioning_transform, stationary_distribution
 from .exact import ball_generator, ball_matrices, exact_loop, literals_of, written_box
 from ..interrupts import deferred_signals
-from .rigorous import Ball, ball, midpoint, precision
+from .rigorous import Ball, ball, midpoint, precision, proven_positive_definite
 from .moments.stability import lyapunov_stack_solution, second_moment_matrix, unvech_stack, vech_order
 from .verdict import SOLVE_LIMIT, StabilityProver, ball_lyapunov_solution
 
@@ -157,23 +159,22 @@ def worst_case_feedback(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[
 
 def float_gain(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], Q: Matrix, *,
                upper: float | None = None, rtol: float = BISECTION_RTOL) -> tuple[float, tuple[Matrix, ...]] | None:
-    """The float worst-case gain at one rate vector by bisection on
-    :func:`worst_case_feedback` (started at ``upper``, each step warm-started from the
-    last feasible feedback and run to
-    :data:`~ftc_verify.analysis.bounded_real.SEARCH_RTOL`: a level is decided long before
+    """The float worst-case gain at one rate vector by bisection on :func:`worst_case_feedback`
+    (started at ``upper``, each step warm-started from the last feasible feedback and run
+    to :data:`~ftc_verify.analysis.bounded_real.SEARCH_RTOL`: a level is decided long before
     the policy iteration converges), and the feedback at the smallest feasible gamma
     found, converged to :data:`~ftc_verify.analysis.bounded_real.POLICY_RTOL` (``None``
     when the loop is not mean-square stable)."""
     if _abscissa(A, Q) >= 0:
         return None
-    hi = upper if upper is not None and upper > 0 else 1.0
+    lo, hi = 0.0, upper if upper is not None and upper > 0 else 1.0
     F = worst_case_feedback(A, Bw, Cz, Q, hi, rtol=SEARCH_RTOL)
-    while F is None:
-        hi *= 2.0
+    while F is None:  # below the gain: up by 10 % near the start, then doubling
+        lo, hi = hi, hi * (1.1 if hi < 2.0 * (upper or 1.0) else 2.0)
         if hi > 1e300:
             return None
         F = worst_case_feedback(A, Bw, Cz, Q, hi, rtol=SEARCH_RTOL)
-    lo, step = 0.0, 1e-3
+    step = 1e-3
     while lo == 0.0 and hi > 1e-300:
         trial = hi * (1.0 - step)
         found = worst_case_feedback(A, Bw, Cz, Q, trial, F, rtol=SEARCH_RTOL)
@@ -193,13 +194,13 @@ def float_gain(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], 
 
 
 def _forms(At: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], F: Sequence[Matrix], Q: Matrix,
-           pi: Matrix, omega: float) -> tuple[Matrix, Matrix]:
-    """The quadratic forms ``N(e) = e' HN e`` and ``D(e) = e' HD e`` (module docstring), float."""
+           pi: Matrix, omega: float, lu_second: Any) -> tuple[Matrix, Matrix]:
+    """The quadratic forms ``N(e) = e' HN e`` and ``D(e) = e' HD e`` (module docstring),
+    float; ``lu_second`` the LU factors of the second-moment generator (any frequency)."""
     n, S, nw = At[0].shape[0], len(At), Bw[0].shape[1]
     first = scipy.linalg.block_diag(*At) + np.kron(Q.T, np.eye(n))
     c = 1.0 if omega == 0.0 else 0.5
     lu_first = scipy.linalg.lu_factor(1j * omega * np.eye(S * n) - first)
-    lu_second = scipy.linalg.lu_factor(second_moment_matrix(At, Q))
     rows, cols = vech_order(n)
 
     def rates(e: Matrix) -> tuple[float, float]:
@@ -239,9 +240,13 @@ def _best_excitation(At: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Ma
     order = np.argsort(-ev.real)[:6]
     omegas = sorted({0.0, *(abs(float(ev[k].imag)) for k in order)})
     best = (-math.inf, 0.0, np.zeros(Bw[0].shape[1]))
+    try:
+        lu_second = scipy.linalg.lu_factor(second_moment_matrix(At, Q))
+    except (ValueError, np.linalg.LinAlgError, scipy.linalg.LinAlgError):
+        return best
     for omega in omegas:
         try:
-            HN, HD = _forms(At, Bw, Cz, F, Q, pi, omega)
+            HN, HD = _forms(At, Bw, Cz, F, Q, pi, omega, lu_second)
             w, V = scipy.linalg.eigh(0.5 * (HN + HN.T), 0.5 * (HD + HD.T))
         except (ValueError, np.linalg.LinAlgError, scipy.linalg.LinAlgError):
             continue
@@ -261,9 +266,17 @@ def _proved_ratio(loop: ClosedLoop, deltas: dict[str, Matrix], sim: Similarity, 
     if size > SOLVE_LIMIT or 2 * S * n > SOLVE_LIMIT:
         return None, f"not proved: the moment equations ({size} rows) exceed the ball-arithmetic limit ({SOLVE_LIMIT})"
     literals = literals_of(loop)
+    made: dict[int, ClosedLoop] = {}
+
+    def exact_here() -> ClosedLoop:  # exact_loop at the working precision, made once
+        bits_now = int(flint.ctx.prec)
+        if bits_now not in made:
+            made[bits_now] = exact_loop(loop)
+        return made[bits_now]
+
     def enclosures() -> tuple[Ball, ...]:
         """The feedback loop's state matrices at the working precision."""
-        exact = exact_loop(loop)
+        exact = exact_here()
         A = ball_matrices(exact.A)
         if deltas:
             A = tuple(a + _perturbation(chans, deltas, a) for a, chans in zip(A, exact.channels))
@@ -271,7 +284,7 @@ def _proved_ratio(loop: ClosedLoop, deltas: dict[str, Matrix], sim: Similarity, 
 
     with precision(bits):
         At = enclosures()
-        exact = exact_loop(loop)
+        exact = exact_here()
         Bw = ball_matrices(exact.Bw)
         Cz = ball_matrices(exact.Cz)
         q = ball_generator(loop.chain, rates, literals)
@@ -303,7 +316,9 @@ def _proved_ratio(loop: ClosedLoop, deltas: dict[str, Matrix], sim: Similarity, 
         weight = flint.arb(1) if omega == 0.0 else flint.arb(0.5)
         Mr = [Ball(flint.arb_mat([[m[s * n + r, 0]] for r in range(n)])) for s in range(S)]
         G = [(Bw[s] @ eb @ Mr[s].T + Mr[s] @ eb.T @ Bw[s].T) * weight for s in range(S)]
-        X = ball_lyapunov_solution(At, q, bits, G)
+        X, how = _residual_moments(At, q, G, loop.chain.generator(rates)), "a float64 solve and its proved residual"
+        if X is None:  # the enclosure by FLINT's certified solve of the whole moment system
+            X, how = ball_lyapunov_solution(At, q, bits, G), f"{bits}-bit balls"
         if X is None:
             return None, "not proved: the averaged second moments could not be enclosed"
         N = flint.arb(0)
@@ -316,17 +331,61 @@ def _proved_ratio(loop: ClosedLoop, deltas: dict[str, Matrix], sim: Similarity, 
         if not (D > 0 and N >= 0):
             return None, "not proved: the energy rates could not be enclosed"
         ratio = (N / D).sqrt()
-        return float(ratio.lower()), (f"w = F x + e cos({omega:.6g} t): its stationary energy ratio enclosed in "
-                                      f"{bits}-bit balls, the feedback loop proved mean-square stable")
+        return float(ratio.lower()), (f"w = F x + e cos({omega:.6g} t): its stationary energy ratio enclosed "
+                                      f"({how}), the feedback loop proved mean-square stable")
+
+
+def _residual_moments(At: Sequence[Ball], q: list[list[Any]], G: Sequence[Ball], Q: Matrix) -> list[Ball] | None:
+    r"""An enclosure of :math:`\bar X` with :math:`\tilde{\mathcal L}(\bar X) = -G` (``At``, ``q``)
+    without a ball solve of the whole system; ``None`` when this proof fails. With float
+    :math:`\tilde X` (the float equation) and :math:`\hat Y` (:math:`\tilde{\mathcal L}(\hat Y) = -2I`),
+    proved: :math:`\hat Y_s \succ 0`, :math:`-\tilde{\mathcal L}(\hat Y)_s - I \succ 0` (so
+    :math:`\tilde{\mathcal L}` is stable and :math:`-\tilde{\mathcal L}^{-1}` maps positive
+    semidefinite stacks to positive semidefinite ones, :mod:`~ftc_verify.analysis.verdict`),
+    and :math:`\|R\|_F \le r` for :math:`R = \tilde{\mathcal L}(\tilde X) + G`. Then
+    :math:`E = \bar X - \tilde X = -\tilde{\mathcal L}^{-1}(R)` has :math:`-rY \preceq E \preceq rY`,
+    :math:`Y = -\tilde{\mathcal L}^{-1}(I) \preceq \hat Y`, and :math:`-M \preceq E \preceq M` gives
+    :math:`|E_{ij}| \le (M_{ii} M_{jj})^{1/2}` (:doc:`/theory/certificates`). A few ``n x n``
+    ball products per joint state. Call inside a precision block."""
+    import flint
+
+    n, S = At[0].shape[0], len(At)
+    A = [midpoint(a) for a in At]
+    Xt = lyapunov_stack_solution(A, Q, [0.5 * (midpoint(g) + midpoint(g).T) for g in G])
+    Yh = lyapunov_stack_solution(A, Q, [2.0 * np.eye(n)] * S)
+    if Xt is None or Yh is None:
+        return None
+
+    def operator(X: Sequence[Ball]) -> list[Ball]:
+        return [a @ X[s] + X[s] @ a.T + sum((Ball(q[t][s] * X[t].value) for t in range(S) if q[t][s] != 0),
+                                            0 * X[s]) for s, a in enumerate(At)]
+
+    Xb, Yb = [ball(0.5 * (x + x.T)) for x in Xt], [ball(0.5 * (y + y.T)) for y in Yh]
+    if not (all(proven_positive_definite(-y - np.eye(n)) for y in operator(Yb))
+            and all(proven_positive_definite(y) for y in Yb)):  # stable, by itself (verdict module)
+        return None
+    r = sum((e * e for res, g in zip(operator(Xb), G) for e in (res + g).value.entries()), flint.arb(0)).sqrt()
+    out = []
+    for x, y in zip(Xb, Yh):
+        X = flint.arb_mat(x.value)
+        for i in range(n):
+            for j in range(n):
+                rad = r * (flint.arb(float(y[i, i])) * flint.arb(float(y[j, j]))).sqrt()
+                X[i, j] += (-rad).union(rad)
+        if not all(v.is_finite() for v in X.entries()):
+            return None
+        out.append(Ball(X))
+    return out
 
 
 def worst_constant_delta(loop: ClosedLoop, rates: Matrix, *, upper: float | None = None,
-                         passes: int = 2) -> tuple[str, dict[str, Matrix]]:
+                         passes: int = 1) -> tuple[str, dict[str, Matrix]]:
     """A constant uncertainty of norm 1 that makes the float gain at ``rates`` large: on
     every channel a rectangular diagonal of signs (an extreme point of the unit ball),
     the same in every joint state, found by flipping one sign at a time while the coarse
-    float gain grows by more than 0.1 % (at most ``passes`` sweeps). A search: the bound it leads to is
-    proved afterwards. Returns a label and ``{channel name: Delta}``."""
+    float gain grows by more than 0.1 % (at most ``passes`` sweeps; a second changed nothing
+    on three random n = 8, m = 3 loops). A search: the bound it leads to is proved
+    afterwards. Returns a label and ``{channel name: Delta}``."""
     shapes = {ch.name: (ch.E.shape[1], ch.F.shape[0]) for chans in loop.channels for ch in chans}
     signs = {name: np.ones(min(shape)) for name, shape in shapes.items()}
     Q = loop.chain.generator(rates)
@@ -339,11 +398,11 @@ def worst_constant_delta(loop: ClosedLoop, rates: Matrix, *, upper: float | None
             out[name] = D
         return out
 
-    def gain(sg: dict[str, np.ndarray]) -> float:
-        found = float_gain(loop.perturbed(deltas(sg)), loop.Bw, loop.Cz, Q, upper=upper, rtol=1e-3)
-        return -math.inf if found is None else found[0]
+    def gain(sg: dict[str, np.ndarray], start: float | None) -> tuple[float, Sequence[Matrix] | None]:
+        found = float_gain(loop.perturbed(deltas(sg)), loop.Bw, loop.Cz, Q, upper=start, rtol=1e-3)
+        return (-math.inf, None) if found is None else found
 
-    best = gain(signs)
+    best, _ = gain(signs, upper)
     for _ in range(passes):
         improved = False
         for name in signs:
@@ -353,7 +412,7 @@ def worst_constant_delta(loop: ClosedLoop, rates: Matrix, *, upper: float | None
                 if math.isfinite(best) and not _exceeds(loop.perturbed(deltas(trial)), loop.Bw, loop.Cz, Q,
                                                         best * (1 + 1e-3)):
                     continue  # not clearly above the best so far
-                g = gain(trial)
+                g, _ = gain(trial, best * (1 + 1e-3) if math.isfinite(best) else upper)  # at least that
                 if g > best:
                     best, signs, improved = g, trial, True
         if not improved:
@@ -366,25 +425,27 @@ def _first_moments(At: Sequence[Ball], Bw: Sequence[Ball], q: list[list[Any]], p
                    omega: float) -> Any:
     """The enclosure of ``[Mr; Mi]`` (module docstring): the real form
     ``[[-Ac, -omega I], [omega I, -Ac]] [Mr; Mi] = [b; 0]`` of the complex first-moment
-    equation, ``(Ac m)_s = At_s m_s + sum_t q_ts m_t``, ``b_s = pi_s B_s e``; ``None``
-    when FLINT cannot prove the system nonsingular. Call inside a precision block."""
+    equation, ``(Ac m)_s = At_s m_s + sum_t q_ts m_t``, ``b_s = pi_s B_s e``; at
+    ``omega = 0`` the two halves decouple and ``Mi = 0``: only ``-Ac Mr = b`` is solved
+    (a system of half the size). ``None`` when FLINT cannot prove the system nonsingular.
+    Call inside a precision block."""
     import flint
 
     S, n = len(At), At[0].shape[0]
-    K = 2 * S * n
+    halves = (0, S * n) if omega != 0.0 else (0,)
+    K = len(halves) * S * n
     G1 = flint.arb_mat(K, K)
     for s in range(S):
         a = At[s].value
-        for r in range(n):
-            for c in range(n):
-                G1[s * n + r, s * n + c] = -a[r, c]
-                G1[S * n + s * n + r, S * n + s * n + c] = -a[r, c]
-        for t in range(S):
-            if q[t][s] != 0:
-                for r in range(n):
-                    G1[s * n + r, t * n + r] -= q[t][s]
-                    G1[S * n + s * n + r, S * n + t * n + r] -= q[t][s]
-        for r in range(n):
+        for h in halves:
+            for r in range(n):
+                for c in range(n):
+                    G1[h + s * n + r, h + s * n + c] = -a[r, c]
+            for t in range(S):
+                if q[t][s] != 0:
+                    for r in range(n):
+                        G1[h + s * n + r, h + t * n + r] -= q[t][s]
+        for r in range(n if omega != 0.0 else 0):
             G1[s * n + r, S * n + s * n + r] = -omega
             G1[S * n + s * n + r, s * n + r] = omega
     b1 = flint.arb_mat(K, 1)
@@ -424,8 +485,8 @@ def _candidate_rates(loop: ClosedLoop, worst: Matrix | None) -> list[Matrix]:
 
 
 def _exceeds(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], Q: Matrix, gamma: float) -> bool:
-    """In float64: no stabilising Riccati solution at ``gamma`` (the worst-case gain is at
-    least ``gamma``, or the loop is not mean-square stable): a cheap comparison."""
+    """In float64: no stabilising Riccati solution at ``gamma`` (the gain is at least
+    ``gamma``, or the loop is not mean-square stable), from ``F = 0``: a cheap comparison."""
     return worst_case_feedback(A, Bw, Cz, Q, gamma, rtol=SEARCH_RTOL) is None
 
 
