@@ -3,6 +3,7 @@ reference implementations written from READING-NOTES (independent of ftc_verify)
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -132,3 +133,15 @@ def scalar_system(a, b, c=(1.0, 1.0), d=(1.0, 1.0), *, alpha, beta_min, beta_max
 @pytest.fixture(scope="session")
 def make_scalar_system():
     return scalar_system
+
+
+# --------------------------------------------------------------------------- shared between workers
+@pytest.fixture(scope="session")
+def shared_tmp(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A folder every test process of this session sees (under pytest-xdist the parent of
+    the workers' own temporary folders): for results computed once per session and shared
+    under a lock (``tests/tutorials.py``)."""
+    base = tmp_path_factory.getbasetemp()
+    folder = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / "shared"
+    folder.mkdir(exist_ok=True)
+    return folder

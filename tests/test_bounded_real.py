@@ -154,6 +154,7 @@ def test_shifted_stack_solution_solves_the_shifted_equation(monkeypatch: pytest.
         assert np.abs(residual).max() < 1e-9
 
 
+@pytest.mark.slow(25)  # seconds on 2 busy cores (--durations at load 9, / 4): scheduled first
 @settings(max_examples=4, deadline=None)
 @given(stable_loops(n=2, m=2, margin=0.1, chains={"false_alarms": True, "delay_phases": 2, "missed_detection": True}))
 def test_riccati_route_with_the_fdi_models(drawn) -> None:

@@ -77,6 +77,7 @@ def test_stable_loop_whose_worst_rate_is_interior_is_proved_over_the_box(tmp_pat
     assert mean_square_stability(shifted(base, 0.0902)).verdict == "not stable"  # the same, 0.02 above zero
 
 
+@pytest.mark.slow(12)  # seconds on 2 busy cores (--durations at load 9, / 4): scheduled first
 def test_false_alarm_rates_are_part_of_the_box(tmp_path: Path) -> None:
     extra = "false_alarm_min = [[0.0, 0.01], [0.01, 0.0]]\nfalse_alarm_max = [[0.0, 0.5], [0.5, 0.0]]"
     loop = interior_loop(tmp_path, extra=extra)

@@ -117,6 +117,7 @@ def test_bad_input_exit_2_one_message_nothing_left(tmp_path: Path, case: str, ar
     assert time.perf_counter() - t0 < 60  # refused up front, not after the run
 
 
+@pytest.mark.slow(17)  # seconds on 2 busy cores (--durations at load 9, / 4): scheduled first
 def test_divergence_is_a_result_on_both_backends(tmp_path: Path) -> None:
     """A loop sampled too slowly (h = 10) diverges: exit 1 with strict JSON naming the paths
     and times, the same on both backends; ``verify`` writes a ``fail`` report saying so."""
@@ -157,6 +158,7 @@ def test_stale_files_are_replaced_by_the_new_run(tmp_path: Path) -> None:
     assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".") and p.name != ".tmp") == []
 
 
+@pytest.mark.slow(10)  # seconds on 2 busy cores (--durations at load 9, / 4): scheduled first
 def test_sigterm_cleans_up_like_ctrl_c(tmp_path: Path) -> None:
     """SIGTERM in the FMU Monte Carlo stage: exit 143, one line, no staging folder beside
     ``--out``, no ``--out``, no extracted FMU left in the temporary folder."""

@@ -53,6 +53,7 @@ def test_simulate_bad_input_exit_2(tmp_path: Path) -> None:
         assert proc.returncode == 2 and "Traceback" not in proc.stderr, args
 
 
+@pytest.mark.slow(11)  # seconds on 2 busy cores (--durations at load 9, / 4): scheduled first
 def test_verify_given_gains_writes_report(tmp_path: Path) -> None:
     out = tmp_path / "report"
     proc = run_cli("verify", str(PAPER), "--gains", str(GAINS), "--paths", "30", "--horizon", "15",
@@ -105,6 +106,7 @@ def test_build_fmus_validates(tmp_path: Path) -> None:
     assert "validated, no problems" in proc.stdout
 
 
+@pytest.mark.slow(14)  # seconds on 2 busy cores (--durations at load 9, / 4): scheduled first
 def test_incremental_measure_equals_total_on_a_linear_plant() -> None:
     """Superposition: on the LinearJumpPlant (linear, starting at the origin) the run with
     ``w = 0`` stays at zero, so the incremental records are the paths themselves and both

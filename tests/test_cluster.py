@@ -62,6 +62,7 @@ def scheduler() -> Iterator[str]:
         yield cluster.scheduler_address
 
 
+@pytest.mark.slow(6)  # seconds on 2 busy cores (--durations at load 9, / 4): scheduled first
 def test_cli_scheduler_address_equals_serial(scheduler: str) -> None:
     args = ["--backend", "reference", "--paths", "40", "--horizon", "5", "--seed", "6", "--delta", "random", "--json"]
     serial = _cli(*args)
@@ -103,6 +104,7 @@ def test_verify_serial_two_workers_and_scheduler_give_identical_reports(tmp_path
     assert _without_timings(a) == _without_timings(b) == _without_timings(c)
 
 
+@pytest.mark.slow(12)  # seconds on 2 busy cores (--durations at load 9, / 4): scheduled first
 def test_simulate_fmu_backend_on_two_workers_equals_serial() -> None:
     """``simulate --backend fmu --workers 2``: batches of 25 paths on workers that each load
     the FMU once; the JSON equals the serial run's (random Delta, so the generator states

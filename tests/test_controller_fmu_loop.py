@@ -74,6 +74,7 @@ def test_supervisor_records_equal_the_builtin_controller(fmi: str, case: dict[st
         assert np.abs(ra.xc).max() > 0.01 and len(np.unique(ra.fdi)) == 2
 
 
+@pytest.mark.slow(21)  # seconds on 2 busy cores (--durations at load 9, / 4): scheduled first
 def test_simulate_and_verify_run_the_fmu(case: dict[str, str], capsys: pytest.CaptureFixture[str],
                                          tmp_path: Path) -> None:
     assert main(["simulate", case["system"], "--controller-fmu", case["3.0"], "--paths", "3", "--horizon", "2",

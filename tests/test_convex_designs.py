@@ -81,6 +81,7 @@ def best_paper(paper_system_module: FTCSystem):  # type: ignore[no-untyped-def]
     return synthesize(paper_system_module, k_max=30.0, solver="clarabel")
 
 
+@pytest.mark.slow(7)  # seconds on 2 busy cores (--durations at load 9, / 4): scheduled first
 def test_best_is_never_above_its_routes(best_paper, paper_system_module: FTCSystem) -> None:  # type: ignore[no-untyped-def]
     """``best``: certified, every route a row with seconds, the result the smallest certified
     row, at most the ``iterative`` method run alone, and the reference line present."""

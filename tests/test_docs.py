@@ -14,7 +14,8 @@ import re
 from pathlib import Path
 
 import pytest
-from tutorials import DOCS, REDUCED, ROOT, TUTORIALS, argv, fenced_blocks, run_tutorial, same_output, tutorial_steps
+from tutorials import (DOCS, REDUCED, ROOT, TUTORIALS, argv, fenced_blocks, run_tutorial, same_output, shared_prefix,
+                       tutorial_steps)
 
 def test_same_output_tells_digits_from_words() -> None:
     assert same_output("gamma 0.360844, 2.07e-14 on 5 paths", "gamma 0.360846, 2.04e-14 on 5 paths")
@@ -50,6 +51,14 @@ def test_readme_tour_is_the_tutorials_output() -> None:
     assert len(tour) == 1 and checked.get("ftc-verify verify examples/paper.toml --seed 1") == tour[0]
 
 
+def test_the_three_tank_pages_share_their_first_three_commands() -> None:
+    """build-fmu, linearize --trim and synthesize run once for both pages (tutorials.py);
+    pages whose commands differ share nothing."""
+    pages = {p.name: p for p in TUTORIALS}
+    assert shared_prefix(pages["three-tank.md"]) == shared_prefix(pages["three-tank-risk.md"]) == 3
+    assert shared_prefix(pages["paper-example.md"]) == shared_prefix(pages["dc-motor.md"]) == 0
+
+
 #: Pages whose commands another test runs, with checks of its own.
 RUN_ELSEWHERE = {"three-tank.md": "tests/test_three_tank.py::test_tutorial_recipe_passes_with_reduced_paths"}
 
@@ -62,8 +71,8 @@ def _page_params() -> list[object]:
 
 
 @pytest.mark.parametrize("page", _page_params())
-def test_tutorial_commands_run(page: Path, tmp_path: Path) -> None:
-    _, results = run_tutorial(page, tmp_path)
+def test_tutorial_commands_run(page: Path, tmp_path: Path, shared_tmp: Path) -> None:
+    _, results = run_tutorial(page, tmp_path, shared_tmp)
     assert len(results) == len(tutorial_steps(page.read_text(encoding="utf-8")))
 
 

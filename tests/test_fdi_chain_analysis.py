@@ -164,6 +164,7 @@ def test_descent_gradient_sums_over_phases(paper_system) -> None:
 
 
 # ============================================================================ (c) synthesis
+@pytest.mark.slow(7)  # seconds on 2 busy cores (--durations at load 9, / 4): scheduled first
 def test_iterative_synthesis_on_phase_type_chain_with_false_alarms_is_certified(paper_system) -> None:
     system = _with_chain(paper_system, delay_phases=3, false_alarm_min=FALSE_ALARMS[0],
                          false_alarm_max=FALSE_ALARMS[1])

@@ -11,9 +11,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
+@pytest.mark.slow(40)  # seconds on 2 busy cores (--durations at load 9, / 4): scheduled first
 def test_verify_passes_on_a_phase_type_chain_with_false_alarms(tmp_path: Path) -> None:
     out = subprocess.run([sys.executable, "-m", "ftc_verify", "verify", str(ROOT / "examples" / "paper_phase_type.toml"),
                           "--gains", str(ROOT / "examples" / "paper_gains.toml"), "--paths", "30", "--horizon", "6",

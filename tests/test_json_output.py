@@ -59,6 +59,7 @@ def test_an_unknown_type_names_its_place() -> None:
         jsonable({"outer": [1, {"inner": object()}]})
 
 
+@pytest.mark.slow(12)  # seconds on 2 busy cores (--durations at load 9, / 4): scheduled first
 @settings(max_examples=4)
 @given(data=st.data())
 def test_every_command_output_on_random_loops(data: st.DataObject) -> None:

@@ -130,6 +130,7 @@ def test_a_signal_during_an_fmu_monte_carlo_ends_it(plants: dict[str, Path], tmp
 # ------------------------------------------------------------------------------------------ item 2
 
 
+@pytest.mark.slow(8)  # seconds on 2 busy cores (--durations at load 9, / 4): scheduled first
 def test_a_crashing_plant_is_reported_not_fatal(plants: dict[str, Path], tmp_path: Path) -> None:
     """The plant segfaults in fmi2DoStep after t = 2: simulate exits 1 naming the FMU, the
     signal, the path and the time (JSON too); verify writes its report with the failure;
@@ -173,6 +174,7 @@ def test_the_watched_child_locates_the_crash(plants: dict[str, Path]) -> None:
 # ------------------------------------------------------------------------------------------ item 7
 
 
+@pytest.mark.slow(8)  # seconds on 2 busy cores (--durations at load 9, / 4): scheduled first
 def test_a_plant_failing_in_do_step_is_a_result(plants: dict[str, Path]) -> None:
     """fmi2DoStep returns fmi2Error after t = 2 (sqrt of a negative number): simulate
     prints its JSON with every path failed there and the FMU's message, exit 1 (it used to
@@ -199,6 +201,7 @@ def test_a_plant_failing_in_do_step_is_a_result(plants: dict[str, Path]) -> None
 # ------------------------------------------------------------------------------------------ item 12
 
 
+@pytest.mark.slow(11)  # seconds on 2 busy cores (--durations at load 9, / 4): scheduled first
 def test_delta_is_never_silently_zero(plants: dict[str, Path], tmp_path: Path) -> None:
     """An uncertain system on a plant map without Delta inputs: ``--delta random`` is refused
     (it ran with Delta = 0 and said "Delta zero"); verify says in its output and report that

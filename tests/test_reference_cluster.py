@@ -151,6 +151,7 @@ def test_workers_sample_their_paths_and_give_the_serial_numbers(monkeypatch: pyt
     np.testing.assert_array_equal(spread.records[0].x, serial.records[0].x)
 
 
+@pytest.mark.slow(8)  # seconds on 2 busy cores (--durations at load 9, / 4): scheduled first
 def test_cli_reference_on_two_workers_equals_serial() -> None:
     pytest.importorskip("distributed")
     base = [sys.executable, "-m", "ftc_verify", "simulate", str(PAPER), "--gains", str(GAINS), "--backend",

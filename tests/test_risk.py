@@ -127,6 +127,7 @@ def test_a_1e7_event_to_20_percent_within_1e5_paths(loop: tuple) -> None:
     assert est.ci[0] <= truth(5.0) <= est.ci[1]
 
 
+@pytest.mark.slow(20)  # seconds on 2 busy cores (--durations at load 9, / 4): scheduled first
 def test_intervals_cover_the_closed_form_at_the_stated_rate(loop: tuple) -> None:
     """Coverage at three rarity levels (1.6e-3, 1.5e-5, 1.4e-7), 12 seeds each: the 95 %
     intervals must cover the closed form in at least 30 of the 36 runs. With coverage

@@ -129,6 +129,7 @@ def test_stage_reuses_run_risk_and_decides(tmp_path: Path, loop: tuple) -> None:
     assert ok is False and "above target" in detail
 
 
+@pytest.mark.slow(6)  # seconds on 2 busy cores (--durations at load 9, / 4): scheduled first
 def test_run_verify_reports_the_stage(tmp_path: Path) -> None:
     """The stage inside run_verify (paper example, LinearJumpPlant FMU as the plant map,
     crude Monte Carlo on the reference): the report carries it, its check line follows

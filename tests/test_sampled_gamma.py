@@ -132,6 +132,7 @@ def test_gamma_above_the_lower_estimate_on_random_loops(drawn: DrawnLoop) -> Non
     assert proved.value is None or proved.value <= cert.gamma  # both proved: no slack
 
 
+@pytest.mark.slow(6)  # seconds on 2 busy cores (--durations at load 9, / 4): scheduled first
 def test_cli_analyze_period_reports_the_gains(capsys: pytest.CaptureFixture[str]) -> None:
     """``analyze --period 0.01 --json``: sampled.nominal_gamma / robust_gamma proved, their
     lower estimates below them, the robust one not below the nominal one's lower estimate."""
@@ -148,6 +149,7 @@ def test_cli_analyze_period_reports_the_gains(capsys: pytest.CaptureFixture[str]
     assert s["nominal_gamma_lower"] > 0.97 * s["nominal_gamma"]  # tight: 0.4727 against 0.4757
 
 
+@pytest.mark.slow(9)  # seconds on 2 busy cores (--durations at load 9, / 4): scheduled first
 def test_verify_step_reports_the_sampled_gains(tmp_path: Path) -> None:
     """``verify --step 0.01``: the report's ``sampled`` holds the proved gains of the loop
     it simulates, within 1 % of the continuous certificate at this short period."""

@@ -157,7 +157,7 @@ def test_directional_derivatives_equal_finite_differences(three_tank_fmu: Path, 
 
 
 @pytest.mark.slow(125)  # seconds measured on 2 busy cores: scheduled first
-def test_tutorial_recipe_passes_with_reduced_paths(tmp_path: Path) -> None:
+def test_tutorial_recipe_passes_with_reduced_paths(tmp_path: Path, shared_tmp: Path) -> None:
     """Every command of ``docs/tutorials/three-tank.md`` (build-fmu -> linearize --trim ->
     synthesize -> verify --plant --measure incremental, state and output feedback), run
     by :func:`tutorials.run_tutorial` with 10 paths of 300 s (the page: 200 paths of
@@ -165,7 +165,7 @@ def test_tutorial_recipe_passes_with_reduced_paths(tmp_path: Path) -> None:
     verify, for a controller whose incremental gain really is below the certified gamma;
     the seed is fixed."""
     page = DOCS / "tutorials" / "three-tank.md"
-    root, results = run_tutorial(page, tmp_path)
+    root, results = run_tutorial(page, tmp_path, shared_tmp)  # the first 3 commands shared with three-tank-risk
     work = root / "examples" / "three_tank"
     lin = next(out for line, out in results.items() if line.startswith("ftc-verify linearize three_tank.plant.toml"))
     assert "drift" in lin.stdout

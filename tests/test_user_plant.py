@@ -237,6 +237,7 @@ def test_empty_role_where_the_command_needs_it(motor_dir: Path) -> None:
 # ---------------------------------------------------------------------------------- commands
 
 
+@pytest.mark.slow(8)  # seconds on 2 busy cores (--durations at load 9, / 4): scheduled first
 def test_plant_linearize_simulate_verify_commands(motor_dir: Path) -> None:
     out = run_cli(["plant", "motor.plant.toml", "--check", "--json"], motor_dir)
     assert out.returncode == 0, out.stderr

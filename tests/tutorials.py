@@ -9,18 +9,30 @@ command's output (a plain fenced block starting with ``ftc-verify COMMAND:`` rig
 a ```sh block), the command prints that text up to the last digits of its numbers
 (:func:`same_output`). Long commands run shortened (:data:`REDUCED`).
 
+Commands that two pages share run once per test session: where pages start with the same
+commands in the same folders (the three-tank pages: build-fmu, linearize --trim,
+synthesize), the first test to reach them runs them and keeps the folder and the
+results in a folder every pytest-xdist worker sees (``shared``, under a lock); the
+other restores them and checks the same exit codes, tracebacks and shown outputs on
+those results before running its own commands.
+
 Used by ``tests/test_docs.py`` (every page) and ``tests/test_three_tank.py`` (the
 three-tank page, with its own checks of the report).
 """
 
 from __future__ import annotations
 
+import fcntl
+import hashlib
+import json
 import os
 import re
 import shlex
 import shutil
 import subprocess
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -104,22 +116,87 @@ def argv(command: str) -> list[str]:
     raise AssertionError(f"a tutorial command that the test cannot run: {command!r}")
 
 
-def run_tutorial(page: Path, tmp_path: Path) -> tuple[Path, dict[str, subprocess.CompletedProcess[str]]]:
-    """Run every command of ``page`` (module docstring) in a copy of ``examples/`` under
-    ``tmp_path``; the copy's root and each command's result, by the command as shown."""
-    work = tmp_path / "work"
-    shutil.copytree(ROOT / "examples", work / "examples", ignore=shutil.ignore_patterns("*.fmu", "__pycache__"))
-    env = os.environ | {"FTC_VERIFY_CACHE": str(tmp_path / "cache")}
-    results = {}
+def _commands(page: Path) -> list[tuple[str, str, int]]:
+    """(folder, command as run, expected exit) of each step of ``page``, reductions applied."""
+    out = []
     for step in tutorial_steps(page.read_text(encoding="utf-8")):
         command = step.line
         for full, short in REDUCED.get(page.name, []):
             command = command.replace(full, short)
+        out.append((step.folder, command, step.expected_exit))
+    return out
+
+
+def shared_prefix(page: Path) -> int:
+    """How many leading commands of ``page`` another tutorial page starts with too."""
+    mine, best = _commands(page), 0
+    for other in TUTORIALS:
+        if other != page:
+            theirs = _commands(other)
+            k = 0
+            while k < min(len(mine), len(theirs)) and mine[k] == theirs[k]:
+                k += 1
+            best = max(best, k)
+    return best
+
+
+@contextmanager
+def _locked(path: Path) -> Iterator[None]:
+    """An exclusive lock on ``path`` (created), held by one test process at a time."""
+    with open(path, "a") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+def _check(page: Path, step: Step, command: str, out: subprocess.CompletedProcess[str]) -> None:
+    assert out.returncode == step.expected_exit, (page.name, command, out.stdout, out.stderr)
+    assert "Traceback" not in out.stderr, (page.name, command, out.stderr)
+    if step.expected_stdout is not None:
+        assert same_output(out.stdout, step.expected_stdout), (page.name, command, out.stdout)
+
+
+def _run_steps(page: Path, steps: list[tuple[Step, str]], work: Path, env: dict[str, str],
+               results: dict[str, subprocess.CompletedProcess[str]]) -> None:
+    for step, command in steps:
         out = subprocess.run(argv(command), cwd=work / step.folder, capture_output=True, text=True, env=env,
                              timeout=900, check=False)
-        assert out.returncode == step.expected_exit, (page.name, command, out.stdout, out.stderr)
-        assert "Traceback" not in out.stderr, (page.name, command, out.stderr)
-        if step.expected_stdout is not None:
-            assert same_output(out.stdout, step.expected_stdout), (page.name, command, out.stdout)
+        _check(page, step, command, out)
         results[step.line] = out
+
+
+def run_tutorial(page: Path, tmp_path: Path,
+                 shared: Path | None = None) -> tuple[Path, dict[str, subprocess.CompletedProcess[str]]]:
+    """Run every command of ``page`` (module docstring) in a copy of ``examples/`` under
+    ``tmp_path``; the copy's root and each command's result, by the command as shown.
+    With ``shared`` (a folder all test processes of the session see), the commands this
+    page shares with another page run once in the session (module docstring)."""
+    work = tmp_path / "work"
+    env = os.environ | {"FTC_VERIFY_CACHE": str(tmp_path / "cache")}
+    steps = list(zip(tutorial_steps(page.read_text(encoding="utf-8")), (c for _, c, _ in _commands(page)),
+                     strict=True))
+    results: dict[str, subprocess.CompletedProcess[str]] = {}
+    k = shared_prefix(page) if shared is not None else 0
+    if shared is not None and k:
+        key = hashlib.sha256(json.dumps(_commands(page)[:k]).encode()).hexdigest()[:16]
+        snapshot = shared / f"tutorial-{key}"
+        with _locked(shared / f"tutorial-{key}.lock"):
+            if not (snapshot / "results.json").is_file():
+                shutil.copytree(ROOT / "examples", work / "examples",
+                                ignore=shutil.ignore_patterns("*.fmu", "__pycache__"))
+                _run_steps(page, steps[:k], work, env, results)
+                shutil.copytree(work, snapshot / "work")
+                rows = [[line, r.returncode, r.stdout, r.stderr] for line, r in results.items()]
+                (snapshot / "results.json").write_text(json.dumps(rows), encoding="utf-8")
+            else:
+                shutil.copytree(snapshot / "work", work)
+                for line, code, stdout, stderr in json.loads((snapshot / "results.json").read_text(encoding="utf-8")):
+                    results[line] = subprocess.CompletedProcess(argv(line), code, stdout, stderr)
+                for step, command in steps[:k]:
+                    _check(page, step, command, results[step.line])
+    else:
+        shutil.copytree(ROOT / "examples", work / "examples", ignore=shutil.ignore_patterns("*.fmu", "__pycache__"))
+    _run_steps(page, steps[k:], work, env, results)
     return work, results
