@@ -513,6 +513,13 @@ def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256,
         return MSSResult(estimate, where, len(evaluated), exhaustive, len(exact), box.verdict, box.regions, sim,
                          box.time_varying, box.boxes, box.reason)
 
+    if generator_size(nominal) > DENSE_LIMIT and len(pairs):  # ARPACK at a few vertices, not all
+        from .matrix_free import linearised_ascent
+
+        found = linearised_ascent(nominal, vertex, [float(hi[idx] - lo[idx]) for idx in pairs])
+        if found is not None:
+            exact.update(found)
+            return result(max(found, key=lambda k: found[k]), list(found), False)
     if chain.vertex_count() <= max_vertices:
         ends = [(False, True) if lo[idx] != hi[idx] else (False,) for idx in pairs]
         order = list(itertools.product(*ends))  # the order of chain.vertices()
