@@ -231,12 +231,13 @@ def resolvent_bracket(loop: ClosedLoop, beta: Matrix, sigma: float, start: np.nd
     return None
 
 
-def _left_eigenvector(op: MomentOperator, mu: float) -> np.ndarray | None:
+def _left_eigenvector(op: MomentOperator, mu: float, start: np.ndarray | None = None) -> np.ndarray | None:
     """The eigenvector of the adjoint :math:`\\mathcal L^*` (``A_s`` and ``Q`` transposed;
-    ``svec`` is orthonormal) at ``mu``, as a stack scaled to a positive trace; ``None``
-    when ARPACK's rightmost eigenvalue of the adjoint is not ``mu`` or is complex."""
+    ``svec`` is orthonormal) at ``mu``, as a stack scaled to a positive trace, ARPACK
+    started from the stack ``start`` when given; ``None`` when ARPACK's rightmost
+    eigenvalue of the adjoint is not ``mu`` or is complex."""
     adjoint = MomentOperator(np.ascontiguousarray(op.A.transpose(0, 2, 1)), op.Q.T, op.rows, op.cols, op.weight)
-    lam, z = _rightmost(adjoint)
+    lam, z = _rightmost(adjoint, None if start is None else adjoint.vec(start))
     if lam.imag != 0 or abs(lam.real - mu) > 1e-8 * (1.0 + abs(mu)):
         return None
     Z = adjoint.unvec(z.real)
@@ -273,6 +274,7 @@ def linearised_ascent(loop: ClosedLoop, vertex: Callable[[tuple[bool, ...]], Mat
     seen: dict[tuple[bool, ...], float] = {}
     best = -math.inf
     start: np.ndarray | None = None
+    left: np.ndarray | None = None
     while bits not in seen and len(seen) < max_steps:
         beta = vertex(bits)
         mu, X = matrix_free_eigenpair(loop, beta, start)
@@ -280,7 +282,7 @@ def linearised_ascent(loop: ClosedLoop, vertex: Callable[[tuple[bool, ...]], Mat
         if mu <= best:
             break
         best = mu
-        Z = None if X is None else _left_eigenvector(MomentOperator.build(loop.nominal(), beta), mu)
+        Z = None if X is None else _left_eigenvector(MomentOperator.build(loop.nominal(), beta), mu, left)
         if X is None or Z is None:
             return None if len(seen) == 1 else seen
         M = np.einsum("sij,tji->ts", Z, X)  # M[t, s] = tr(Z_s X_t)
@@ -291,5 +293,5 @@ def linearised_ascent(loop: ClosedLoop, vertex: Callable[[tuple[bool, ...]], Mat
             dQ = (np.asarray(loop.chain.generator(up)) - np.asarray(loop.chain.generator(down)))
             slopes.append(float(np.sum(dQ * M)) if width > 0 else 0.0)
         bits = tuple(g > 0 for g in slopes)
-        start = X
+        start, left = X, Z
     return seen
