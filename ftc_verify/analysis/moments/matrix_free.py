@@ -41,7 +41,7 @@ from ..closedloop import ClosedLoop
 from ...model.system import Matrix
 
 __all__ = ["RESIDUAL_RTOL", "BRACKET_RTOL", "BRACKET_STEPS", "MomentOperator", "matrix_free_abscissa",
-           "matrix_free_eigenpair", "resolvent_bracket", "ASCENT_STEPS", "linearised_ascent"]
+           "matrix_free_eigenpair", "resolvent_bracket", "ASCENT_STEPS", "ARPACK_NCV", "linearised_ascent"]
 
 #: Relative residual an ARPACK eigenpair (and the Lyapunov check) must reach.
 RESIDUAL_RTOL = 1e-7
@@ -49,6 +49,9 @@ RESIDUAL_RTOL = 1e-7
 BRACKET_RTOL = 1e-10
 #: Power steps of :func:`resolvent_bracket` at most.
 BRACKET_STEPS = 30
+#: ARPACK's Krylov basis: 80 vectors converge in a fifth of the CPU time of 40 at
+#: N = 10,584 (n = 48, m = 3: 3,200 products instead of 9,100, 2 s instead of 9 s).
+ARPACK_NCV = 80
 #: Vertices :func:`linearised_ascent` evaluates at most.
 ASCENT_STEPS = 6
 
@@ -112,7 +115,7 @@ def _rightmost(op: MomentOperator, start: np.ndarray | None = None) -> tuple[com
     k = min(6, op.size - 2)
     try:
         vals, vecs = spla.eigs(op.linear_operator(), k=k, which="LR", tol=1e-12, v0=start,
-                               ncv=min(op.size - 1, max(40, 2 * k + 1)), maxiter=20 * op.size)
+                               ncv=min(op.size - 1, max(ARPACK_NCV, 2 * k + 1)), maxiter=20 * op.size)
     except spla.ArpackNoConvergence as exc:
         raise SolverError(f"matrix-free spectral test: ARPACK did not converge ({exc})") from None
     best = int(np.argmax(vals.real))
