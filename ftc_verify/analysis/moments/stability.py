@@ -447,27 +447,33 @@ def describe_regions(verdict: str, regions: Sequence[RegionVerdict], time_varyin
     return "nothing proved"
 
 
+def _ascent(nominal: ClosedLoop, vertex: Any, widths: list[float]) -> dict[tuple[bool, ...], float] | None:
+    """:func:`~ftc_verify.analysis.moments.matrix_free.linearised_ascent` above :data:`DENSE_LIMIT` rows."""
+    if generator_size(nominal) <= DENSE_LIMIT or not widths:
+        return None
+    from .matrix_free import linearised_ascent
+
+    return linearised_ascent(nominal, vertex, widths)
+
+
 def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256,
                           budget_seconds: float = BOX_BUDGET_SECONDS) -> MSSResult:
     """The verified verdict over the whole rate box (``beta``, and the false-alarm rates
-    when given; :func:`~ftc_verify.analysis.box.box_stability`) and the float estimate of
-    the worst spectral abscissa over its vertices.
+    when given; :func:`~ftc_verify.analysis.box.box_stability`, ``budget_seconds``
+    bounds it) and the float estimate of the worst spectral abscissa over its vertices.
 
-    A vertex with a detection rate 0 is a missed detection: the detection states of that
-    pair are absorbing there (without ``fault_during_delay``), the second-moment generator
-    is block triangular and its abscissa is at least twice the abscissa of that frozen
-    mismatched loop; the verdict there is about an FDI that never detects the fault
-    (:mod:`ftc_verify.analysis.lmi`).
+    At a detection rate 0 (a missed detection) the verdict is about an FDI that never
+    detects that fault (:mod:`ftc_verify.analysis.lmi`).
 
     The loop is first moved to the coordinates of
-    :func:`~ftc_verify.analysis.conditioning.conditioning_transform`. Every vertex is
-    evaluated when there are at most ``max_vertices``; otherwise a greedy vertex ascent
-    is run with the same budget (``exhaustive=False``). A vertex that
-    :func:`abscissa_below` shows below the worst value found so far needs no
-    eigenvalues; the others get :func:`abscissa_near` (dense :func:`spectral_abscissa`
-    at the first vertex, and when that fails). The verdict is then proved over the whole
-    box by :func:`~ftc_verify.analysis.box.box_stability` (``budget_seconds`` bounds it);
-    an instability it proves inside the box raises the estimate to the abscissa there.
+    :func:`~ftc_verify.analysis.conditioning.conditioning_transform`. Above
+    :data:`DENSE_LIMIT` rows (ARPACK, seconds per vertex) the estimate is the vertex
+    ascent of :func:`~ftc_verify.analysis.moments.matrix_free.linearised_ascent`
+    (``exhaustive=False``). Otherwise every vertex is evaluated when there are at most
+    ``max_vertices``, else a greedy vertex ascent with that budget; a vertex that
+    :func:`abscissa_below` shows below the worst value so far needs no eigenvalues, the
+    others get :func:`abscissa_near` (:func:`spectral_abscissa` at the first vertex and
+    when that fails). An instability the box proof finds raises the estimate to it.
     """
     sim = conditioning_transform(loop.nominal())
     nominal = sim.apply(loop.nominal())
@@ -513,6 +519,10 @@ def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256,
         return MSSResult(estimate, where, len(evaluated), exhaustive, len(exact), box.verdict, box.regions, sim,
                          box.time_varying, box.boxes, box.reason)
 
+    found = _ascent(nominal, vertex, [float(hi[idx] - lo[idx]) for idx in pairs])
+    if found:  # above DENSE_LIMIT rows: ARPACK at a few vertices, not at all
+        exact.update(found)
+        return result(max(found, key=lambda k: found[k]), list(found), False)
     if chain.vertex_count() <= max_vertices:
         ends = [(False, True) if lo[idx] != hi[idx] else (False,) for idx in pairs]
         order = list(itertools.product(*ends))  # the order of chain.vertices()

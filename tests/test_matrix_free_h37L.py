@@ -1,0 +1,101 @@
+"""The matrix-free spectral stage of large loops (issue 37 item 6): the warm-started
+eigenpair, the resolvent bracket and the first-order vertex ascent, on a loop small
+enough for dense eigenvalues to be the reference (the large-loop route forced by
+lowering ``DENSE_LIMIT``)."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from ftc_verify.analysis.closedloop import state_feedback_loop
+from ftc_verify.analysis.moments import stability
+from ftc_verify.analysis.moments.matrix_free import (ASCENT_STEPS, MomentOperator, linearised_ascent,
+                                                     matrix_free_eigenpair, resolvent_bracket)
+from ftc_verify.analysis.moments.stability import abscissa_below, spectral_abscissa
+from ftc_verify.model.system import FTCSystem
+
+
+def three_mode_loop(seed: int = 7):
+    """n = 5, three fault modes (9 joint states, 135 generator rows, 6 uncertain rates)."""
+    rng = np.random.default_rng(seed)
+    n, m = 5, 3
+    modes = [{"A": rng.normal(size=(n, n)) / 2 - 1.5 * np.eye(n), "B": rng.normal(size=(n, 1)),
+              "C": rng.normal(size=(1, n)), "D": rng.normal(size=(n, 1))} for _ in range(m)]
+    alpha = rng.uniform(0.2, 1.0, (m, m))
+    np.fill_diagonal(alpha, 0.0)
+    np.fill_diagonal(alpha, -alpha.sum(axis=1))
+    bmin = rng.uniform(0.5, 2.0, (m, m))
+    np.fill_diagonal(bmin, 0.0)
+    system = FTCSystem.from_arrays(name="h37L", modes=modes, alpha=alpha, beta_min=bmin, beta_max=bmin + 2.0)
+    return state_feedback_loop(system, [np.zeros((1, n))] * m).nominal()
+
+
+def vertex_of(loop):
+    chain = loop.chain
+
+    def vertex(bits):
+        b = np.zeros(chain.rate_shape)
+        for idx, up in zip(chain.rate_indices, bits):
+            b[idx] = chain.rate_max[idx] if up else chain.rate_min[idx]
+        return b
+
+    return vertex
+
+
+def test_eigenpair_is_the_dense_abscissa_and_an_eigenvector_warm_start_or_not():
+    loop = three_mode_loop()
+    vertex = vertex_of(loop)
+    first, last = vertex((False,) * 6), vertex((True,) * 6)
+    mu, X = matrix_free_eigenpair(loop, first)
+    assert X is not None and mu == pytest.approx(spectral_abscissa(loop, first), rel=1e-9)
+    op = MomentOperator.build(loop, first)
+    assert np.linalg.norm(op.apply(op.vec(X)) - mu * op.vec(X)) <= 1e-8 * np.linalg.norm(op.vec(X))
+    assert min(np.linalg.eigvalsh(x)[0] for x in X) >= -1e-8  # the Perron eigenvector: PSD (trace 1)
+    warm, _ = matrix_free_eigenpair(loop, last, start=X)
+    assert warm == pytest.approx(spectral_abscissa(loop, last), rel=1e-9)
+
+
+def test_resolvent_bracket_encloses_the_dense_abscissa():
+    loop = three_mode_loop()
+    vertex = vertex_of(loop)
+    for bits in [(False,) * 6, (True, False, True, False, True, False), (True,) * 6]:
+        beta = vertex(bits)
+        mu = spectral_abscissa(loop, beta)
+        sigma = mu + 0.05 * (1 + abs(mu))
+        assert abscissa_below(loop, beta, sigma)
+        found = resolvent_bracket(loop, beta, sigma, None)
+        assert found is not None
+        lower, upper, _ = found
+        tol = 1e-9 * (1 + abs(mu))
+        assert lower - tol <= mu <= upper + tol
+        assert upper - lower <= 1e-9 * (1 + abs(upper))
+        early = resolvent_bracket(loop, beta, sigma, None, below=mu + 0.01)  # stops once below a higher level
+        assert early is not None and early[1] < mu + 0.01
+
+
+def test_linearised_ascent_values_are_dense_values_and_climb():
+    loop = three_mode_loop()
+    vertex = vertex_of(loop)
+    widths = [float(loop.chain.rate_max[i] - loop.chain.rate_min[i]) for i in loop.chain.rate_indices]
+    found = linearised_ascent(loop, vertex, widths)
+    assert found is not None and 1 <= len(found) <= ASCENT_STEPS
+    for bits, mu in found.items():
+        assert mu == pytest.approx(spectral_abscissa(loop, vertex(bits)), rel=1e-9)
+    every = {bits: spectral_abscissa(loop, vertex(bits)) for bits in itertools.product((False, True), repeat=6)}
+    best = max(found.values())
+    assert best >= every[(False,) * 6]
+    assert best == pytest.approx(max(every.values()), rel=1e-9)  # this loop's worst vertex is found
+
+
+def test_mean_square_stability_takes_the_ascent_above_the_dense_limit(monkeypatch):
+    loop = three_mode_loop()
+    dense = stability.mean_square_stability(loop)
+    monkeypatch.setattr(stability, "DENSE_LIMIT", 50)
+    large = stability.mean_square_stability(loop)
+    assert large.verdict == dense.verdict == "stable"
+    assert not large.exhaustive and large.vertices_evaluated <= ASCENT_STEPS
+    assert large.spectral_abscissa <= dense.spectral_abscissa + 1e-9
+    assert large.spectral_abscissa == pytest.approx(dense.spectral_abscissa, rel=1e-6)
