@@ -16,7 +16,7 @@ held parts constant; at the sample :math:`z = R_s \zeta` from
 :math:`w_h = c^T\eta`, :math:`x_c^+ = \Phi_c x_c + \Gamma_c M_i x`. The second moments per
 joint state move by :math:`e^{\mathcal L \tau}` inside the period, so with the Van Loan
 blocks :math:`F = e^{\mathcal L h}`, :math:`G = \int_0^h e^{\mathcal L \tau} d\tau`
-(one exponential of :math:`[[\mathcal L, I], [0, 0]] h`),
+(:math:`\ell^T G` and :math:`F` from one exponential of :math:`[[0, \ell^T], [0, \mathcal L]] h`),
 
 .. math::
 
@@ -79,12 +79,19 @@ class _Augmented:
     v0: Matrix  # zeta moments at t = 0
 
     def blocks(self, span: float) -> tuple[Matrix, Matrix]:
-        """:math:`(e^{\\mathcal L \\tau}, \\int_0^\\tau e^{\\mathcal L s} ds)` at ``span``."""
+        """:math:`(e^{\\mathcal L \\tau}, \\ell^T \\int_0^\\tau e^{\\mathcal L s} ds)` at
+        ``span`` from one exponential of size :math:`N + 1` (not the :math:`2N` of the
+        Van Loan block with the identity): :math:`\\exp\\big(\\big[\\begin{smallmatrix}
+        0 & \\ell^T \\\\ 0 & \\mathcal L\\end{smallmatrix}\\big]\\tau\\big) =
+        \\big[\\begin{smallmatrix} 1 & \\ell^T \\int_0^\\tau e^{\\mathcal L s} ds \\\\ 0 &
+        e^{\\mathcal L \\tau}\\end{smallmatrix}\\big]` (differentiate in :math:`\\tau`: the
+        top-right block :math:`g` obeys :math:`\\dot g = \\ell^T e^{\\mathcal L \\tau}`,
+        :math:`g(0) = 0`). Only :math:`\\ell^T \\mathcal G` is ever used."""
         N = self.L.shape[0]
-        V = np.zeros((2 * N, 2 * N))
-        V[:N, :N], V[:N, N:] = self.L, np.eye(N)
+        V = np.zeros((N + 1, N + 1))
+        V[0, 1:], V[1:, 1:] = self.ell, self.L
         E = scipy.linalg.expm(V * span)
-        return E[:N, :N], E[:N, N:]
+        return E[1:, 1:], E[0, 1:]
 
 
 def _exosystem(disturbance: str, exosystem: tuple[Matrix, Matrix, Matrix] | None) -> tuple[Matrix, Matrix, Matrix]:
@@ -168,9 +175,9 @@ def sampled_energy(system: FTCSystem, controller: Controller, period: float, *, 
         raise ValidationError(f"sampled_energy: the horizon must be positive, got {horizon!r}")
     aug = _augmented(system, controller, period, beta, disturbance, x0, start, exosystem)
     S_exo, c, zeta0 = _exosystem(disturbance, exosystem)
-    F, G = aug.blocks(period)
+    F, ellG = aug.blocks(period)
     T = aug.restrict @ F @ aug.lift
-    energy_row = aug.ell @ G @ aug.lift
+    energy_row = ellG @ aug.lift
     v = aug.v0
     if math.isinf(horizon):
         if np.max(np.abs(np.linalg.eigvals(T))) >= 1.0:
@@ -185,7 +192,7 @@ def sampled_energy(system: FTCSystem, controller: Controller, period: float, *, 
             v = T @ v
         rest = horizon - periods * period
         if rest > 1e-12 * period:
-            y_total += float(aug.ell @ aug.blocks(rest)[1] @ aug.lift @ v)
+            y_total += float(aug.blocks(rest)[1] @ aug.lift @ v)
     nw = system.dims[3]
     return ExactEnergy(y_total, nw * _shape_energy(S_exo, c, zeta0, horizon), horizon, disturbance)
 

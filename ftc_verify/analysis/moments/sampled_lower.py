@@ -26,8 +26,9 @@ sample-and-hold would apply. Augment the flow with the held value :math:`w_h`:
 :math:`\bar X_s = E[\bar z\bar z^T 1\{\theta = s\}]` obey :math:`\dot{\bar X} =
 \mathcal L(\bar X)` inside a period (the moment generator at :math:`\rho`, jumps of the
 chain included); with the Van Loan blocks :math:`\mathcal F = e^{\mathcal L h}`,
-:math:`\mathcal G = \int_0^h e^{\mathcal L \tau} d\tau` (one exponential of
-:math:`[[\mathcal L, I], [0, 0]]\,h`) and :math:`\mathcal P` the restriction to
+:math:`\mathcal G = \int_0^h e^{\mathcal L \tau} d\tau` (only :math:`\ell^T\mathcal G`
+is needed: with :math:`\mathcal F` it is a block of one exponential of size :math:`N + 1`,
+:math:`e^{[[0, \ell^T], [0, \mathcal L]]\,h} = [[1, \ell^T\mathcal G], [0, \mathcal F]]`) and :math:`\mathcal P` the restriction to
 :math:`\xi`, the sampled moments :math:`v_k` (``vech`` per joint state) satisfy
 :math:`v_1 = \mathcal P\mathcal F m_0`, :math:`v_{k+1} = T v_k`,
 :math:`T = \mathcal P\mathcal F\hat{\mathcal R}` (:math:`m_0` the moments of
@@ -206,13 +207,12 @@ class _Ops:
 
 @dataclass(frozen=True, eq=False)
 class _Blocks:
-    r"""The feedback-independent parts at one rate array and ``Delta``: the Van Loan
-    blocks :math:`\mathcal F`, :math:`\mathcal G`, the output weights :math:`\ell`,
+    r"""The feedback-independent parts at one rate array and ``Delta``: the blocks
+    :math:`\mathcal F` and :math:`\ell^T\mathcal G` (the output weights times the integral),
     the restriction :math:`\mathcal P`, :math:`m_0` (module docstring)."""
 
     Fm: Any
-    Gm: Any
-    ell: Any
+    lg: Any  # the row ell^T G
     restrict: Any
     m0: Matrix
     Dr: Matrix
@@ -246,7 +246,8 @@ def _blocks(ops: _Ops, aug: ClosedLoop, restriction: Matrix, Q: Any, h: Any, del
                     V.value[s * vd + k, t * vd + k] += Q[t, s]
     else:
         V = V + np.kron(np.asarray(Q).T, np.eye(vd))
-    E = ops.expm(ops.bmat([[V, np.eye(N)], [np.zeros((N, N)), np.zeros((N, N))]]), h)
+    # exp([[0, ell], [0, V]] h) = [[1, ell G], [0, F]]: size N + 1, not the 2N of [[V, I], [0, 0]]
+    E = ops.expm(ops.bmat([[np.zeros((1, 1)), ops.bmat([ell])], [np.zeros((N, 1)), V]]), h)
     Pz = np.zeros((r, dd))
     Pz[:, :d] = restriction
     rows_d, cols_d = vech_order(dd)
@@ -254,7 +255,7 @@ def _blocks(ops: _Ops, aug: ClosedLoop, restriction: Matrix, Q: Any, h: Any, del
     z0[d] = 1.0
     m0 = np.zeros((N, 1))
     m0[:vd, 0] = np.outer(z0, z0)[rows_d, cols_d]  # the initial joint state 0
-    return _Blocks(ops.block(E, 0, N, 0, N), ops.block(E, 0, N, N, 2 * N), ops.bmat([ell]),
+    return _Blocks(ops.block(E, 1, N + 1, 1, N + 1), ops.block(E, 0, 1, 1, N + 1),
                    ops.mat(np.kron(np.eye(states), Lr @ np.kron(Pz, Pz) @ Dd)), m0, Dr, Ld)
 
 
@@ -273,7 +274,7 @@ def _ratio(ops: _Ops, b: _Blocks, resets: Sequence[Any], F: Sequence[Matrix], h:
     for _ in range(doublings):  # S_{2m} = S_m + T^m S_m, T^{2m} = (T^m)^2
         Sm = Sm + Pw @ Sm
         Pw = Pw @ Pw
-    num = b.ell @ (b.Gm @ b.m0) + b.ell @ (b.Gm @ (lift @ Sm))
+    num = b.lg @ b.m0 + b.lg @ (lift @ Sm)
     den = (ops.mat(np.concatenate([_weights(Fs.T @ Fs) for Fs in F])[None, :]) @ Sm + 1.0) * h
     return num, den
 
@@ -286,7 +287,7 @@ class _FloatRatio:
 
     def __init__(self, b: _Blocks, r: int) -> None:
         self.RF = b.restrict @ b.Fm
-        self.lg = b.ell @ b.Gm
+        self.lg = b.lg
         self.v1 = b.restrict @ (b.Fm @ b.m0)
         self.num0 = float((self.lg @ b.m0)[0, 0])
         self.Ld, self.Dr = b.Ld, b.Dr

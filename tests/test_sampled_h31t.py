@@ -1,0 +1,78 @@
+"""The cheaper exponentials of the sampled loop's exact energy and proved lower bound
+(:mod:`ftc_verify.analysis.moments.sampled_energy`, :mod:`ftc_verify.analysis.moments.sampled_lower`):
+one exponential of size ``N + 1`` gives the blocks the ``2N`` Van Loan exponential gave."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.linalg
+
+from ftc_verify.analysis.moments.sampled import SampledLoop
+from ftc_verify.analysis.moments.sampled_energy import _augmented
+from ftc_verify.analysis.moments.sampled_gamma import augmented_loop
+from ftc_verify.analysis.moments.sampled_lower import _blocks, _Ops
+from ftc_verify.controllers.controller import Controller
+from ftc_verify.controllers.files import load_controller
+from ftc_verify.model.files import load_system
+from ftc_verify.model.system import FTCSystem
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def paper() -> tuple[FTCSystem, Controller]:
+    return load_system(ROOT / "examples" / "paper.toml"), load_controller(ROOT / "examples" / "paper_gains.toml")
+
+
+def _van_loan(L: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(e^{L h}, int_0^h e^{L s} ds)`` from the ``2N`` block ``[[L, I], [0, 0]]``."""
+    N = L.shape[0]
+    V = np.zeros((2 * N, 2 * N))
+    V[:N, :N], V[:N, N:] = L, np.eye(N)
+    E = scipy.linalg.expm(V * h)
+    return E[:N, :N], E[:N, N:]
+
+
+@pytest.mark.parametrize("h", [0.01, 0.07, 0.5])
+def test_energy_blocks_equal_the_van_loan_ones(paper: tuple[FTCSystem, Controller], h: float) -> None:
+    """``_Augmented.blocks``: ``e^{L h}`` and ``ell^T G`` equal those of the ``2N`` Van Loan
+    exponential to 1e-10 (relative to the largest entry) at a vertex of the rate box."""
+    system, controller = paper
+    beta = next(iter(system.chain.vertices()))
+    aug = _augmented(system, controller, h, beta, "paper", None, (0, 0))
+    F, ellG = aug.blocks(h)
+    F2, G2 = _van_loan(aug.L, h)
+    assert np.max(np.abs(F - F2)) <= 1e-10 * np.max(np.abs(F2))
+    row = aug.ell @ G2
+    assert np.max(np.abs(ellG - row)) <= 1e-10 * np.max(np.abs(row))
+
+
+def test_lower_bound_blocks_obey_the_semigroup(paper: tuple[FTCSystem, Controller]) -> None:
+    """The lower bound's float blocks at ``h`` and ``2h``: ``F(2h) = F(h)^2`` and
+    ``ell^T G(2h) = ell^T G(h) (I + F(h))`` (``int_0^{2h} = int_0^h + e^{V h} int_0^h``) to
+    1e-10; and the 64-bit ball blocks contain the float ones (midpoints within their radii
+    plus 1e-12 of the largest entry), so the proof encloses what the search computed."""
+    from ftc_verify.analysis.moments.fast_balls import from_arb
+    from ftc_verify.analysis.moments.sampled_balls import ball_generator
+    from ftc_verify.analysis.rigorous import precision
+
+    system, controller = paper
+    h = 0.05
+    loop = SampledLoop.build(system, controller)
+    P = loop.restriction()
+    rates = system.chain.midpoint()
+    Q = system.chain.generator(rates)
+    aug = augmented_loop(loop, system).nominal()
+    one, two = (_blocks(_Ops(False), aug, P, Q, t, 0.0, 1) for t in (h, 2 * h))
+    assert np.max(np.abs(two.Fm - one.Fm @ one.Fm)) <= 1e-10 * np.max(np.abs(two.Fm))
+    want = one.lg @ (np.eye(one.Fm.shape[0]) + one.Fm)
+    assert np.max(np.abs(two.lg - want)) <= 1e-10 * np.max(np.abs(want))
+    with precision(64):
+        ball = _blocks(_Ops(True), augmented_loop(loop, system, balls=True).nominal(), P,
+                       ball_generator(system.chain, rates, rates, loop.literals).value, loop.period_ball(h), 0.0, 1)
+    for got, flt in ((ball.Fm, one.Fm), (ball.lg, one.lg)):
+        mid, rad = from_arb(got.value)
+        assert np.all(np.abs(mid - flt) <= rad + 1e-12 * np.max(np.abs(flt)))
