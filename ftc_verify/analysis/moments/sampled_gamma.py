@@ -84,7 +84,7 @@ order in the pieces' length: the certificate's reach towards ``h_max``.
 **Beside it, a proved lower bound** (:mod:`~ftc_verify.analysis.moments.sampled_lower`:
 a held worst-case feedback disturbance, its exact energies proved in ball arithmetic);
 when none is proved, the float64 estimate of
-:func:`~ftc_verify.analysis.moments.sampled_lower.gain_lower_estimate`.
+:func:`~ftc_verify.analysis.moments.sampled_energy.gain_lower_estimate`.
 """
 
 from __future__ import annotations
@@ -102,7 +102,7 @@ from ..closedloop import Channel, ClosedLoop
 from ..conic import Affine, Rows, affine_bmat, scalar_variable, svec_index, sym_variable
 from ..lmi import BlockSpec, block_specs, lyapunov_block
 from .sampled import SampledLoop
-from .sampled_lower import OMEGAS, gain_lower_estimate
+from .sampled_energy import OMEGAS, gain_lower_estimate
 
 __all__ = ["MARGIN_TAU", "PIECES", "clock_instance", "MAX_SECONDS", "GAP_RTOL", "GAIN_RTOL", "GROWTH", "OMEGAS", "augmented_loop", "sample_jumps", "SampledGamma", "SampledPerformance",
            "sampled_gamma", "gain_lower_estimate", "sampled_performance", "attach_performance",
