@@ -129,3 +129,22 @@ def test_certificate_of_a_tiny_disturbance_input(paper: tuple[FTCSystem, Control
     got = sampled_gamma(tiny, controller, 0.05, robust=False, pieces=((1, 2),))
     assert ref.gamma is not None and got.gamma is not None, got.note
     assert got.gamma * 2.0 ** 14 == pytest.approx(ref.gamma, rel=5e-3)
+
+
+def test_prove_below_falls_back_to_coarse_distances(paper: tuple[FTCSystem, Controller]) -> None:
+    """A crossing given 30 % too high (the paper loop's is about 0.0843): the tight
+    attempts and the first ``LADDER`` distance lie above the true crossing, are not
+    proved, and the ladder stops; the first ``COARSE`` distance (0.3) lies below it and
+    is proved -- before ``COARSE`` the answer was ``None``."""
+    import math
+    import time
+
+    from ftc_verify.analysis.moments.sampled_bracket import COARSE, prove_below
+    from ftc_verify.analysis.moments.sampled_proof import box_verdict
+
+    system, controller = paper
+    loop = SampledLoop.build(system, controller)
+    a = 1.3 * 0.0843
+    got = prove_below(loop, a, 1e-3, 64, 3.0, math.inf)
+    assert got == a * (1 - COARSE[0])
+    assert box_verdict(loop, a * 0.9, max_boxes=4, clock=time.process_time).verdict != "stable"
