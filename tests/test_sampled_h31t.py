@@ -115,8 +115,9 @@ def test_lower_bound_is_time_scale_invariant(paper: tuple[FTCSystem, Controller]
 
 
 def test_certificate_of_a_tiny_disturbance_input(paper: tuple[FTCSystem, Controller], tmp_path: Path) -> None:
-    """``D`` divided by 2^14 (gain divided by 2^14, exactly): the certificate (affine
-    storage, 2 pieces, h = 0.05) times 2^14 is within 0.5 % of the paper loop's -- the
+    """``D`` divided by 2^14 (gain divided by 2^14, exactly): the certificates, nominal
+    and robust (affine storage, 2 pieces, h = 0.05), times 2^14 are within 0.5 % of the
+    paper loop's -- the
     program is solved on the loop with ``Bw`` scaled back up by :func:`io_scale`. (Without
     the scaling: 9 times above here.)"""
     from ftc_verify.analysis.moments.sampled_gamma import io_scale, sampled_gamma
@@ -128,6 +129,10 @@ def test_certificate_of_a_tiny_disturbance_input(paper: tuple[FTCSystem, Control
     ref = sampled_gamma(system, controller, 0.05, robust=False, pieces=((1, 2),))
     got = sampled_gamma(tiny, controller, 0.05, robust=False, pieces=((1, 2),))
     assert ref.gamma is not None and got.gamma is not None, got.note
+    assert got.gamma * 2.0 ** 14 == pytest.approx(ref.gamma, rel=5e-3)
+    ref = sampled_gamma(system, controller, 0.05, robust=True, pieces=((1, 2),))  # Delta's channels unscaled
+    got = sampled_gamma(tiny, controller, 0.05, robust=True, pieces=((1, 2),))
+    assert ref.gamma is not None and got.gamma is not None and got.robust, got.note
     assert got.gamma * 2.0 ** 14 == pytest.approx(ref.gamma, rel=5e-3)
 
 
