@@ -189,10 +189,10 @@ def _stepped_ratio(b: _Blocks, resets: list[np.ndarray], F: list[np.ndarray], h:
     lift = ops.diag([b.Ld @ np.kron(np.vstack([R, f]), np.vstack([R, f])) @ b.Dr for R, f in zip(resets, F)])
     T = b.restrict @ b.Fm @ lift
     fw = np.concatenate([_weights(f.T @ f) for f in F])
-    num, den = (b.ell @ b.Gm @ b.m0).item(), h
+    num, den = (b.lg @ b.m0).item(), h
     v = b.restrict @ b.Fm @ b.m0
     for _ in range(periods - 1):
-        num += (b.ell @ b.Gm @ lift @ v).item()
+        num += (b.lg @ lift @ v).item()
         den += h * (fw @ v).item()
         v = T @ v
     return num / den

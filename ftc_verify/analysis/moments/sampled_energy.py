@@ -16,7 +16,7 @@ held parts constant; at the sample :math:`z = R_s \zeta` from
 :math:`w_h = c^T\eta`, :math:`x_c^+ = \Phi_c x_c + \Gamma_c M_i x`. The second moments per
 joint state move by :math:`e^{\mathcal L \tau}` inside the period, so with the Van Loan
 blocks :math:`F = e^{\mathcal L h}`, :math:`G = \int_0^h e^{\mathcal L \tau} d\tau`
-(one exponential of :math:`[[\mathcal L, I], [0, 0]] h`),
+(:math:`\ell^T G` and :math:`F` from one exponential of :math:`[[0, \ell^T], [0, \mathcal L]] h`),
 
 .. math::
 
@@ -34,17 +34,23 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Any
 
 import numpy as np
 import scipy.linalg
 
 from ...controllers.controller import Controller
-from ...errors import ValidationError
+from ...errors import FTCError, ValidationError
 from ...model.system import FTCSystem, Matrix, Mode
 from .stability import duplication_matrix, second_moment_matrix, vech_order
 from .energy import EXOSYSTEMS, ExactEnergy
 
-__all__ = ["perturbed_system", "sampled_energy", "sample_trapezoid"]
+__all__ = ["perturbed_system", "sampled_energy", "sample_trapezoid", "OMEGAS", "DECAY", "gain_lower_estimate"]
+
+#: Frequencies (rad per time unit) of the lower estimate's disturbances; the decay rate is ``DECAY``.
+OMEGAS = (0.0, 0.3, 1.0, 3.0, 10.0)
+#: Decay rate ``a`` of the lower estimate's disturbances ``e^{-a t} sin(omega t)``.
+DECAY = 0.02
 
 
 def perturbed_system(system: FTCSystem, delta1: Matrix | None, delta2: Matrix | None) -> FTCSystem:
@@ -79,12 +85,19 @@ class _Augmented:
     v0: Matrix  # zeta moments at t = 0
 
     def blocks(self, span: float) -> tuple[Matrix, Matrix]:
-        """:math:`(e^{\\mathcal L \\tau}, \\int_0^\\tau e^{\\mathcal L s} ds)` at ``span``."""
+        """:math:`(e^{\\mathcal L \\tau}, \\ell^T \\int_0^\\tau e^{\\mathcal L s} ds)` at
+        ``span`` from one exponential of size :math:`N + 1` (not the :math:`2N` of the
+        Van Loan block with the identity): :math:`\\exp\\big(\\big[\\begin{smallmatrix}
+        0 & \\ell^T \\\\ 0 & \\mathcal L\\end{smallmatrix}\\big]\\tau\\big) =
+        \\big[\\begin{smallmatrix} 1 & \\ell^T \\int_0^\\tau e^{\\mathcal L s} ds \\\\ 0 &
+        e^{\\mathcal L \\tau}\\end{smallmatrix}\\big]` (differentiate in :math:`\\tau`: the
+        top-right block :math:`g` obeys :math:`\\dot g = \\ell^T e^{\\mathcal L \\tau}`,
+        :math:`g(0) = 0`). Only :math:`\\ell^T \\mathcal G` is ever used."""
         N = self.L.shape[0]
-        V = np.zeros((2 * N, 2 * N))
-        V[:N, :N], V[:N, N:] = self.L, np.eye(N)
+        V = np.zeros((N + 1, N + 1))
+        V[0, 1:], V[1:, 1:] = self.ell, self.L
         E = scipy.linalg.expm(V * span)
-        return E[:N, :N], E[:N, N:]
+        return E[1:, 1:], E[0, 1:]
 
 
 def _exosystem(disturbance: str, exosystem: tuple[Matrix, Matrix, Matrix] | None) -> tuple[Matrix, Matrix, Matrix]:
@@ -168,9 +181,9 @@ def sampled_energy(system: FTCSystem, controller: Controller, period: float, *, 
         raise ValidationError(f"sampled_energy: the horizon must be positive, got {horizon!r}")
     aug = _augmented(system, controller, period, beta, disturbance, x0, start, exosystem)
     S_exo, c, zeta0 = _exosystem(disturbance, exosystem)
-    F, G = aug.blocks(period)
+    F, ellG = aug.blocks(period)
     T = aug.restrict @ F @ aug.lift
-    energy_row = aug.ell @ G @ aug.lift
+    energy_row = ellG @ aug.lift
     v = aug.v0
     if math.isinf(horizon):
         if np.max(np.abs(np.linalg.eigvals(T))) >= 1.0:
@@ -185,7 +198,7 @@ def sampled_energy(system: FTCSystem, controller: Controller, period: float, *, 
             v = T @ v
         rest = horizon - periods * period
         if rest > 1e-12 * period:
-            y_total += float(aug.ell @ aug.blocks(rest)[1] @ aug.lift @ v)
+            y_total += float(aug.blocks(rest)[1] @ aug.lift @ v)
     nw = system.dims[3]
     return ExactEnergy(y_total, nw * _shape_energy(S_exo, c, zeta0, horizon), horizon, disturbance)
 
@@ -235,3 +248,55 @@ def _shape_energy(S: Matrix, c: Matrix, zeta0: Matrix, span: float) -> float:
         W = E[q:, q:].T @ E[:q, q:]
     return float(zeta0 @ W @ zeta0)
 
+
+def _held_energy(S: Matrix, c: Matrix, eta0: Matrix, h: float, nw: int) -> float:
+    """:math:`n_w h \\sum_k (c^T e^{S h k} \\eta_0)^2` (module docstring)."""
+    Phi = scipy.linalg.expm(S * h)
+    W = scipy.linalg.solve_discrete_lyapunov(Phi.T, np.outer(c, c))
+    return float(nw * h * eta0 @ W @ eta0)
+
+
+def gain_lower_estimate(system: FTCSystem, controller: Controller, period: float, *, robust: bool,
+                        omegas: tuple[float, ...] = OMEGAS, decay: float = DECAY) -> tuple[float | None, str]:
+    """``(estimate, where)``: the largest :math:`\\sqrt{E\\|z\\|^2 / \\|w\\|^2}` of the sampled
+    loop over the disturbances, rate points and (``robust``) constant ``Delta`` of the
+    text below, in float64; ``None`` when the loop is not stable at some case
+    (then no finite gain: ``where`` names it).
+
+    The float64 **lower estimate** (when no bound is proved). Any disturbance gives
+    :math:`E\\|z\\|^2/\\|w\\|^2 \\le \\gamma^2`; the exact expected energy of the sampled loop
+    for :math:`w(t) = w(t_k)` held over each period, :math:`w(t_k) = e^{-a t_k}
+    \\sin(\\omega t_k)` on every channel, is computed from its moment equations by
+    :func:`~ftc_verify.analysis.moments.sampled_energy.sampled_energy` (infinite horizon)
+    and divided by that held signal's energy, :math:`n_w h \\sum_k w(t_k)^2 = n_w h\\,
+    \\eta_0^T W \\eta_0` (:math:`W = \\sum_k (e^{S h})^{kT} c c^T e^{S h k}`, a discrete
+    Lyapunov equation); maximised over a few frequencies, the rate points of
+    :func:`~ftc_verify.analysis.moments.sampled.rate_points` and, robust, the constant
+    :math:`\\Delta \\in \\{0, +E, -E\\}`. It is computed in float64: an **estimate** of a
+    lower bound, not a proof (the JSON says so).
+    """
+    from .sampled import rate_points
+
+    nw = system.dims[3]
+    cases: list[tuple[str, Any, Any]] = [("Delta=0", None, None)]
+    if robust and system.uncertain:
+        md = next(m for m in system.modes if m.A1 is not None or m.B1 is not None)
+        s1 = None if md.A1 is None or md.A2 is None else (md.A1.shape[1], md.A2.shape[0])
+        s2 = None if md.B1 is None or md.B2 is None else (md.B1.shape[1], md.B2.shape[0])
+        cases += [(lab, None if s1 is None else sg * np.eye(*s1), None if s2 is None else sg * np.eye(*s2))
+                  for sg, lab in ((1.0, "Delta=+E"), (-1.0, "Delta=-E"))]
+    best, where = -1.0, ""
+    for label, d1, d2 in cases:
+        sys_d = perturbed_system(system, d1, d2)
+        for b in rate_points(system.chain):
+            for w in omegas:
+                exo = ((np.array([[-decay, w], [-w, -decay]]), np.array([1.0, 0.0]), np.array([0.0, 1.0])) if w > 0
+                       else (np.array([[-decay]]), np.ones(1), np.ones(1)))
+                try:
+                    e = sampled_energy(sys_d, controller, period, beta=b, exosystem=exo, disturbance="exosystem")
+                except FTCError:
+                    return None, f"{label}, {system.chain.rate_text(b)}: not mean-square stable (float64)"
+                ratio = e.y_energy / _held_energy(exo[0], exo[1], exo[2], period, nw)
+                if ratio > best:
+                    best, where = ratio, f"{label}, {system.chain.rate_text(b)}, omega {w:g}"
+    return math.sqrt(max(best, 0.0)), where

@@ -26,7 +26,7 @@ from ...controllers.controller import Controller
 from ...model.system import FTCSystem
 from .sampled import SampledLoop
 from .sampled_gamma import SampledGamma, SampledPerformance, sampled_gamma
-from .sampled_lower import gain_lower_estimate
+from .sampled_energy import gain_lower_estimate
 
 __all__ = ["sampled_gains"]
 

@@ -26,8 +26,9 @@ sample-and-hold would apply. Augment the flow with the held value :math:`w_h`:
 :math:`\bar X_s = E[\bar z\bar z^T 1\{\theta = s\}]` obey :math:`\dot{\bar X} =
 \mathcal L(\bar X)` inside a period (the moment generator at :math:`\rho`, jumps of the
 chain included); with the Van Loan blocks :math:`\mathcal F = e^{\mathcal L h}`,
-:math:`\mathcal G = \int_0^h e^{\mathcal L \tau} d\tau` (one exponential of
-:math:`[[\mathcal L, I], [0, 0]]\,h`) and :math:`\mathcal P` the restriction to
+:math:`\mathcal G = \int_0^h e^{\mathcal L \tau} d\tau` (only :math:`\ell^T\mathcal G`
+is needed: with :math:`\mathcal F` it is a block of one exponential of size :math:`N + 1`,
+:math:`e^{[[0, \ell^T], [0, \mathcal L]]\,h} = [[1, \ell^T\mathcal G], [0, \mathcal F]]`) and :math:`\mathcal P` the restriction to
 :math:`\xi`, the sampled moments :math:`v_k` (``vech`` per joint state) satisfy
 :math:`v_1 = \mathcal P\mathcal F m_0`, :math:`v_{k+1} = T v_k`,
 :math:`T = \mathcal P\mathcal F\hat{\mathcal R}` (:math:`m_0` the moments of
@@ -83,14 +84,14 @@ import numpy as np
 import scipy.linalg
 
 from ...controllers.controller import Controller, check_period
-from ...errors import FTCError
 from ...model.system import FTCSystem, Matrix
 from ..closedloop import ClosedLoop, closed_loop
 from ..lower_bound import float_gain
 from .sampled import SampledLoop, rate_points
+from .sampled_energy import DECAY, OMEGAS, gain_lower_estimate
 from .stability import duplication_matrix, vech_order
 
-__all__ = ["SCALES", "HORIZON", "PROOF_BITS", "PROOF_RTOL", "SampledLowerBound", "sampled_lower_bound",
+__all__ = ["SCALES", "HORIZON", "SPAN_TIMES", "PROOF_BITS", "PROOF_RTOL", "SampledLowerBound", "sampled_lower_bound",
            "sampled_lower_bounds", "OMEGAS", "DECAY",
            "gain_lower_estimate"]
 
@@ -98,16 +99,14 @@ __all__ = ["SCALES", "HORIZON", "PROOF_BITS", "PROOF_RTOL", "SampledLowerBound",
 SCALES = (0.0, 0.8, 0.95, 1.0, 1.02, 1.05, 1.1, 1.3)
 #: Time span (time units) the disturbance acts over: ``K = 2^p`` periods, ``K h >= HORIZON``.
 HORIZON = 200.0
+#: ... or this many time constants of the continuous loop's slowest second moment when longer.
+SPAN_TIMES = 200.0
 #: Relative tolerance of the float bisection for the worst-case feedback (the scales absorb it).
 FEEDBACK_RTOL = 1e-3
 #: Most float64 ratios the Nelder-Mead refinement of the feedback evaluates.
 REFINE_EVALUATIONS = 400
 #: Largest ``p`` of ``K = 2^p``.
 MAX_DOUBLINGS = 20
-#: Frequencies (rad per time unit) of the lower estimate's disturbances; the decay rate is ``DECAY``.
-OMEGAS = (0.0, 0.3, 1.0, 3.0, 10.0)
-#: Decay rate ``a`` of the lower estimate's disturbances ``e^{-a t} sin(omega t)``.
-DECAY = 0.02
 #: Arb's working precision of the proof: 64 bits lets the Van Loan exponential run in
 #: float64 midpoint-radius arithmetic (:func:`~ftc_verify.analysis.moments.fast_balls.arb_expm`,
 #: seven times faster than Arb's at 128 bits); the bound usually loses about ``1e-9``
@@ -206,13 +205,12 @@ class _Ops:
 
 @dataclass(frozen=True, eq=False)
 class _Blocks:
-    r"""The feedback-independent parts at one rate array and ``Delta``: the Van Loan
-    blocks :math:`\mathcal F`, :math:`\mathcal G`, the output weights :math:`\ell`,
+    r"""The feedback-independent parts at one rate array and ``Delta``: the blocks
+    :math:`\mathcal F` and :math:`\ell^T\mathcal G` (the output weights times the integral),
     the restriction :math:`\mathcal P`, :math:`m_0` (module docstring)."""
 
     Fm: Any
-    Gm: Any
-    ell: Any
+    lg: Any  # the row ell^T G
     restrict: Any
     m0: Matrix
     Dr: Matrix
@@ -246,7 +244,8 @@ def _blocks(ops: _Ops, aug: ClosedLoop, restriction: Matrix, Q: Any, h: Any, del
                     V.value[s * vd + k, t * vd + k] += Q[t, s]
     else:
         V = V + np.kron(np.asarray(Q).T, np.eye(vd))
-    E = ops.expm(ops.bmat([[V, np.eye(N)], [np.zeros((N, N)), np.zeros((N, N))]]), h)
+    # exp([[0, ell], [0, V]] h) = [[1, ell G], [0, F]]: size N + 1, not the 2N of [[V, I], [0, 0]]
+    E = ops.expm(ops.bmat([[np.zeros((1, 1)), ops.bmat([ell])], [np.zeros((N, 1)), V]]), h)
     Pz = np.zeros((r, dd))
     Pz[:, :d] = restriction
     rows_d, cols_d = vech_order(dd)
@@ -254,7 +253,7 @@ def _blocks(ops: _Ops, aug: ClosedLoop, restriction: Matrix, Q: Any, h: Any, del
     z0[d] = 1.0
     m0 = np.zeros((N, 1))
     m0[:vd, 0] = np.outer(z0, z0)[rows_d, cols_d]  # the initial joint state 0
-    return _Blocks(ops.block(E, 0, N, 0, N), ops.block(E, 0, N, N, 2 * N), ops.bmat([ell]),
+    return _Blocks(ops.block(E, 1, N + 1, 1, N + 1), ops.block(E, 0, 1, 1, N + 1),
                    ops.mat(np.kron(np.eye(states), Lr @ np.kron(Pz, Pz) @ Dd)), m0, Dr, Ld)
 
 
@@ -262,6 +261,13 @@ def _ratio(ops: _Ops, b: _Blocks, resets: Sequence[Any], F: Sequence[Matrix], h:
            doublings: int) -> tuple[Any, Any]:
     """``(numerator, denominator)`` of the module docstring (float or ball, 1 x 1) with
     :math:`K = 2^p + 1` periods, :math:`p` = ``doublings``, :math:`e` the first unit vector."""
+    return _ratios(ops, b, resets, F, h, doublings)[-1]
+
+
+def _ratios(ops: _Ops, b: _Blocks, resets: Sequence[Any], F: Sequence[Matrix], h: Any,
+            doublings: int) -> list[tuple[Any, Any]]:
+    """:func:`_ratio` at every :math:`p' \\le p` (``out[p']``, :math:`K = 2^{p'} + 1`), from
+    the one pass of doublings: each is a lower bound of its own."""
     lifts = []
     for R, Fs in zip(resets, F):
         Rh = ops.bmat([[R], [Fs]])
@@ -270,12 +276,14 @@ def _ratio(ops: _Ops, b: _Blocks, resets: Sequence[Any], F: Sequence[Matrix], h:
     T = b.restrict @ b.Fm @ lift
     Sm = b.restrict @ (b.Fm @ b.m0)  # v_1: one term
     Pw = T
-    for _ in range(doublings):  # S_{2m} = S_m + T^m S_m, T^{2m} = (T^m)^2
-        Sm = Sm + Pw @ Sm
-        Pw = Pw @ Pw
-    num = b.ell @ (b.Gm @ b.m0) + b.ell @ (b.Gm @ (lift @ Sm))
-    den = (ops.mat(np.concatenate([_weights(Fs.T @ Fs) for Fs in F])[None, :]) @ Sm + 1.0) * h
-    return num, den
+    f, num0 = ops.mat(np.concatenate([_weights(Fs.T @ Fs) for Fs in F])[None, :]), b.lg @ b.m0
+    out = []
+    for k in range(doublings + 1):  # S_{2m} = S_m + T^m S_m, T^{2m} = (T^m)^2
+        if k:
+            Sm = Sm + Pw @ Sm
+            Pw = Pw @ Pw if k < doublings else Pw
+        out.append((num0 + b.lg @ (lift @ Sm), (f @ Sm + 1.0) * h))
+    return out
 
 
 class _FloatRatio:
@@ -286,7 +294,7 @@ class _FloatRatio:
 
     def __init__(self, b: _Blocks, r: int) -> None:
         self.RF = b.restrict @ b.Fm
-        self.lg = b.ell @ b.Gm
+        self.lg = b.lg
         self.v1 = b.restrict @ (b.Fm @ b.m0)
         self.num0 = float((self.lg @ b.m0)[0, 0])
         self.Ld, self.Dr = b.Ld, b.Dr
@@ -357,12 +365,23 @@ def _refine(fast: _FloatRatio, resets: Sequence[Any], h: float, nw: int, p: int,
     return value, F
 
 
-def _doublings(h: float) -> int:
-    return max(1, min(MAX_DOUBLINGS, math.ceil(math.log2(max(HORIZON / h, 2.0)))))
+def _doublings(h: float, span: float = HORIZON) -> int:
+    return max(1, min(MAX_DOUBLINGS, math.ceil(math.log2(max(span / h, 2.0)))))
+
+
+def _span(system: FTCSystem, controller: Controller) -> float:
+    """The time the disturbance acts over: :data:`HORIZON`, or :data:`SPAN_TIMES` time
+    constants :math:`1/|\\alpha|` of the continuous loop's slowest second moment
+    (:func:`~ftc_verify.analysis.moments.stability.spectral_abscissa` at the box's midpoint)
+    when longer -- a slow loop's energy ratio converges only over many of them."""
+    from .stability import spectral_abscissa
+
+    alpha = spectral_abscissa(closed_loop(system, controller), system.chain.midpoint())
+    return max(HORIZON, SPAN_TIMES / -alpha) if alpha < 0 else HORIZON
 
 
 #: One float64 candidate of the search: ``(ratio, rates, delta, F, alpha, evaluator)``.
-_Candidate = tuple[float, Matrix, float, list[Matrix], float, _FloatRatio]
+_Candidate = tuple[float, Matrix, float, list[Matrix], float, _FloatRatio, int]
 
 
 def _search(system: FTCSystem, controller: Controller, loop: SampledLoop, h: float, deltas: Sequence[float],
@@ -374,7 +393,7 @@ def _search(system: FTCSystem, controller: Controller, loop: SampledLoop, h: flo
     aug = augmented_loop(loop, system)
     P = loop.restriction()
     resets = [J @ P.T for J in sample_jumps(loop, h)]
-    p = _doublings(h)
+    p = _doublings(h, _span(system, controller))
     ops = _Ops(False)
     nw = system.dims[3]
     out: dict[float, _Candidate] = {}
@@ -389,7 +408,7 @@ def _search(system: FTCSystem, controller: Controller, loop: SampledLoop, h: flo
                 with np.errstate(all="ignore"):
                     value = fast(resets, F, h, p)
                 if math.isfinite(value) and (delta not in out or value > out[delta][0]):
-                    out[delta] = (value, rates, delta, F, a, fast)
+                    out[delta] = (value, rates, delta, F, a, fast, p)
     return out
 
 
@@ -400,15 +419,16 @@ def _finish(system: FTCSystem, loop: SampledLoop, h: float, best: _Candidate | N
         return SampledLowerBound(None, "proved", "no float64 candidate (the continuous loop is not stable)", None)
     from .sampled_gamma import sample_jumps
 
-    value, rates, delta, F, a, fast = best
+    value, rates, delta, F, a, fast, _ = best
     P = loop.restriction()
     resets = [J @ P.T for J in sample_jumps(loop, h)]
-    p = _doublings(h)
+    p = best[6]
     start = value
     value, F = _refine(fast, resets, h, system.dims[3], p, F, value)
-    proved = _prove(system, loop, h, rates, delta, F, p, math.sqrt(max(value, 0.0)))
+    proved, level = _prove(system, loop, h, rates, delta, F, p, math.sqrt(max(value, 0.0)))
     how = "refined by Nelder-Mead from " if value > start else ""
-    where = (f"held feedback {how}{a:g} x the continuous worst case over {2 ** p + 1} periods, "
+    where = (f"held feedback {how}{a:g} x the continuous worst case over {2 ** level + 1} periods, "
+
              f"{system.chain.rate_text(rates)}" + (f", Delta = {delta:+g} I" if robust else ""))
     return SampledLowerBound(proved, "proved", where if proved is not None else "not proved: " + where,
                              math.sqrt(max(value, 0.0)))
@@ -447,24 +467,27 @@ def sampled_lower_bounds(system: FTCSystem, controller: Controller, period: floa
 
 
 def _prove(system: FTCSystem, loop: SampledLoop, h: float, rates: Matrix, delta: float, F: list[Matrix],
-           doublings: int, target: float = 0.0) -> float | None:
-    """The lower end of the ball enclosure of the ratio's square root (``None`` when the
-    enclosure does not exclude 0): at :data:`PROOF_BITS` first, again at
-    :data:`~ftc_verify.analysis.rigorous.PRECISION_BITS` (Arb's exponential) when that
-    end lies more than :data:`PROOF_RTOL` below ``target`` (the float64 value): the
-    doublings can widen the float64 exponential's radii by many orders."""
+           doublings: int, target: float = 0.0) -> tuple[float | None, int]:
+    """``(lower, p')``: the lower end of the ball enclosure of the ratio's square root
+    (``None`` when no enclosure excludes 0), the largest over the :math:`K = 2^{p'} + 1`,
+    :math:`p' \\le` ``doublings`` (each a proved bound: the doublings can widen the
+    enclosure past use before they end); at :data:`PROOF_BITS` first, again at
+    :data:`~ftc_verify.analysis.rigorous.PRECISION_BITS` (Arb's exponential) when it
+    lies more than :data:`PROOF_RTOL` below ``target`` (the float64 value)."""
     from ..rigorous import PRECISION_BITS
 
-    lower = None
+    best: tuple[float | None, int] = (None, doublings)
     for bits in (PROOF_BITS, PRECISION_BITS):
-        lower = _prove_at(system, loop, h, rates, delta, F, doublings, bits)
-        if lower is not None and lower >= target * (1.0 - PROOF_RTOL):
-            return lower
-    return lower
+        found = _prove_at(system, loop, h, rates, delta, F, doublings, bits)
+        if found[0] is not None and (best[0] is None or found[0] > best[0]):
+            best = found
+        if best[0] is not None and best[0] >= target * (1.0 - PROOF_RTOL):
+            break
+    return best
 
 
 def _prove_at(system: FTCSystem, loop: SampledLoop, h: float, rates: Matrix, delta: float, F: list[Matrix],
-              doublings: int, bits: int) -> float | None:
+              doublings: int, bits: int) -> tuple[float | None, int]:
     """:func:`_prove` at Arb's working precision ``bits``."""
     import flint
 
@@ -472,6 +495,7 @@ def _prove_at(system: FTCSystem, loop: SampledLoop, h: float, rates: Matrix, del
     from .sampled_balls import ball_generator
     from .sampled_gamma import augmented_loop, sample_jumps
 
+    best: tuple[float | None, int] = (None, doublings)
     with precision(bits):
         aug = augmented_loop(loop, system, balls=True)
         if delta == 0.0:
@@ -481,64 +505,13 @@ def _prove_at(system: FTCSystem, loop: SampledLoop, h: float, rates: Matrix, del
         Q = ball_generator(system.chain, rates, rates, loop.literals).value
         hb = loop.period_ball(h)
         ops = _Ops(True)
-        num, den = _ratio(ops, _blocks(ops, aug, P, Q, hb, delta, system.dims[3]), resets, F, hb, doublings)
-        ratio = num.value[0, 0] / den.value[0, 0]
-        if not ratio > 0:
-            return None
-        root = ratio.sqrt()
-        lower = math.nextafter(float(root.mid()) - 2.0 * float(root.rad()), -math.inf)
-        return lower if lower > 0 and bool(flint.arb(lower) < root) else None
-
-
-def _held_energy(S: Matrix, c: Matrix, eta0: Matrix, h: float, nw: int) -> float:
-    """:math:`n_w h \\sum_k (c^T e^{S h k} \\eta_0)^2` (module docstring)."""
-    Phi = scipy.linalg.expm(S * h)
-    W = scipy.linalg.solve_discrete_lyapunov(Phi.T, np.outer(c, c))
-    return float(nw * h * eta0 @ W @ eta0)
-
-
-def gain_lower_estimate(system: FTCSystem, controller: Controller, period: float, *, robust: bool,
-                        omegas: tuple[float, ...] = OMEGAS, decay: float = DECAY) -> tuple[float | None, str]:
-    """``(estimate, where)``: the largest :math:`\\sqrt{E\\|z\\|^2 / \\|w\\|^2}` of the sampled
-    loop over the disturbances, rate points and (``robust``) constant ``Delta`` of the
-    text below, in float64; ``None`` when the loop is not stable at some case
-    (then no finite gain: ``where`` names it).
-
-    The float64 **lower estimate** (when no bound is proved). Any disturbance gives
-    :math:`E\\|z\\|^2/\\|w\\|^2 \\le \\gamma^2`; the exact expected energy of the sampled loop
-    for :math:`w(t) = w(t_k)` held over each period, :math:`w(t_k) = e^{-a t_k}
-    \\sin(\\omega t_k)` on every channel, is computed from its moment equations by
-    :func:`~ftc_verify.analysis.moments.sampled_energy.sampled_energy` (infinite horizon)
-    and divided by that held signal's energy, :math:`n_w h \\sum_k w(t_k)^2 = n_w h\\,
-    \\eta_0^T W \\eta_0` (:math:`W = \\sum_k (e^{S h})^{kT} c c^T e^{S h k}`, a discrete
-    Lyapunov equation); maximised over a few frequencies, the rate points of
-    :func:`~ftc_verify.analysis.moments.sampled.rate_points` and, robust, the constant
-    :math:`\\Delta \\in \\{0, +E, -E\\}`. It is computed in float64: an **estimate** of a
-    lower bound, not a proof (the JSON says so).
-    """
-    from .sampled import rate_points
-    from .sampled_energy import perturbed_system, sampled_energy
-
-    nw = system.dims[3]
-    cases: list[tuple[str, Any, Any]] = [("Delta=0", None, None)]
-    if robust and system.uncertain:
-        md = next(m for m in system.modes if m.A1 is not None or m.B1 is not None)
-        s1 = None if md.A1 is None or md.A2 is None else (md.A1.shape[1], md.A2.shape[0])
-        s2 = None if md.B1 is None or md.B2 is None else (md.B1.shape[1], md.B2.shape[0])
-        cases += [(lab, None if s1 is None else sg * np.eye(*s1), None if s2 is None else sg * np.eye(*s2))
-                  for sg, lab in ((1.0, "Delta=+E"), (-1.0, "Delta=-E"))]
-    best, where = -1.0, ""
-    for label, d1, d2 in cases:
-        sys_d = perturbed_system(system, d1, d2)
-        for b in rate_points(system.chain):
-            for w in omegas:
-                exo = ((np.array([[-decay, w], [-w, -decay]]), np.array([1.0, 0.0]), np.array([0.0, 1.0])) if w > 0
-                       else (np.array([[-decay]]), np.ones(1), np.ones(1)))
-                try:
-                    e = sampled_energy(sys_d, controller, period, beta=b, exosystem=exo, disturbance="exosystem")
-                except FTCError:
-                    return None, f"{label}, {system.chain.rate_text(b)}: not mean-square stable (float64)"
-                ratio = e.y_energy / _held_energy(exo[0], exo[1], exo[2], period, nw)
-                if ratio > best:
-                    best, where = ratio, f"{label}, {system.chain.rate_text(b)}, omega {w:g}"
-    return math.sqrt(max(best, 0.0)), where
+        levels = _ratios(ops, _blocks(ops, aug, P, Q, hb, delta, system.dims[3]), resets, F, hb, doublings)
+        for level, (num, den) in enumerate(levels):
+            ratio = num.value[0, 0] / den.value[0, 0]
+            if not ratio > 0:
+                continue
+            root = ratio.sqrt()
+            lower = math.nextafter(float(root.mid()) - 2.0 * float(root.rad()), -math.inf)
+            if lower > 0 and bool(flint.arb(lower) < root) and (best[0] is None or lower > best[0]):
+                best = (lower, level)
+    return best

@@ -227,7 +227,7 @@ def quadratic_values(x: Matrix, lay: QuadraticLayout, h: float) -> dict[str, Any
 
 
 def prove_quadratic(loop: SampledLoop, system: FTCSystem, h: float, values: dict[str, Any], g: float,
-                    robust: bool) -> bool:
+                    robust: bool, w_scale: float = 1.0) -> bool:
     """Every bordered condition, ``G``, node and jump condition proved definite in ball
     arithmetic (module docstring), on the ball loop and jumps of
     :func:`~ftc_verify.analysis.moments.sampled_gamma.augmented_loop` and
@@ -242,7 +242,7 @@ def prove_quadratic(loop: SampledLoop, system: FTCSystem, h: float, values: dict
     P, D, lam, G = values["P"], values["D"], values["lam"], values["G"]
     N = len(P) - 1
     with precision():
-        aug = augmented(loop, system, balls=True)
+        aug = augmented(loop, system, balls=True, w_scale=w_scale)
         if not robust:
             aug = aug.nominal()
         Pb = [[ball(0.5 * (p + p.T)) for p in row] for row in P]
@@ -286,6 +286,7 @@ def quadratic_program(aug: ClosedLoop, jumps: list[Matrix], h: float, N: int,
 
 
 def quadratic_check(loop: SampledLoop, system: FTCSystem, h: float, x: Matrix, lay: QuadraticLayout, g: float,
-                    robust: bool) -> bool:
-    """:func:`prove_quadratic` of the solution ``x`` with the bound ``g`` (gamma squared)."""
-    return prove_quadratic(loop, system, h, quadratic_values(x, lay, h), g, robust)
+                    robust: bool, w_scale: float = 1.0) -> bool:
+    """:func:`prove_quadratic` of the solution ``x`` with the bound ``g`` (gamma squared of
+    the loop with ``Bw`` times ``w_scale``)."""
+    return prove_quadratic(loop, system, h, quadratic_values(x, lay, h), g, robust, w_scale)
