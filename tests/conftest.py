@@ -153,16 +153,17 @@ def shared_tmp(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 #: The options of the ``verify`` run of the paper's plant and gains that several CLI tests
 #: read (:func:`paper_verify_run`).
-PAPER_VERIFY_OPTIONS = ("--paths", "30", "--horizon", "15", "--seed", "3")
+PAPER_VERIFY_OPTIONS = ("--paths", "30", "--horizon", "15", "--step", "0.01", "--seed", "3")
 
 
 @pytest.fixture(scope="session")
 def paper_verify_run(shared_tmp: Path) -> SimpleNamespace:
     """``ftc-verify verify examples/paper.toml --gains examples/paper_gains.toml --paths 30
-    --horizon 15 --seed 3 --out report`` run once per session as a user runs it (a
-    subprocess; under pytest-xdist once for all workers, under a lock), for the tests that
-    check its report (``tests/test_cli_verify.py``), start from a passing run's folder
-    (``tests/test_cli_contract.py``) or compare other runs with it (``tests/test_cluster.py``).
+    --horizon 15 --step 0.01 --seed 3 --out report`` run once per session as a user runs it
+    (a subprocess; under pytest-xdist once for all workers, under a lock), for the tests
+    that check its report (``tests/test_cli_verify.py``, ``tests/test_sampled_gamma.py``),
+    start from a passing run's folder (``tests/test_cli_contract.py``) or compare other runs
+    with it (``tests/test_cluster.py``).
     ``returncode``, ``stdout``, ``stderr``; ``out`` the report folder (read or copy it, never
     write into it); ``folder`` the run's working folder (its ``TMPDIR`` is ``folder/.tmp``);
     ``cache`` its FMU cache (``FTC_VERIFY_CACHE``; the FMU's path there is in the report)."""

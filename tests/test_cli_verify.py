@@ -57,7 +57,8 @@ def test_simulate_bad_input_exit_2(tmp_path: Path) -> None:
 @pytest.mark.slow(11)  # seconds on 2 busy cores (--durations at load 9, / 4): scheduled first
 def test_verify_given_gains_writes_report(paper_verify_run: SimpleNamespace) -> None:
     """``verify examples/paper.toml --gains examples/paper_gains.toml --paths 30 --horizon 15
-    --seed 3`` (run once per session by the ``paper_verify_run`` fixture, which other tests read too)."""
+    --step 0.01 --seed 3`` (run once per session by the ``paper_verify_run`` fixture, which
+    other tests read too; 0.01 is also the default step)."""
     out, proc = paper_verify_run.out, paper_verify_run
     assert proc.returncode == 0, proc.stdout + proc.stderr
     d = json.loads((out / "report.json").read_text())
