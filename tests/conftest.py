@@ -3,7 +3,11 @@ reference implementations written from READING-NOTES (independent of ftc_verify)
 
 from __future__ import annotations
 
+import fcntl
+import json
 import os
+import subprocess
+import sys
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -145,3 +149,38 @@ def shared_tmp(tmp_path_factory: pytest.TempPathFactory) -> Path:
     folder = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / "shared"
     folder.mkdir(exist_ok=True)
     return folder
+
+
+#: The options of the ``verify`` run of the paper's plant and gains that several CLI tests
+#: read (:func:`paper_verify_run`).
+PAPER_VERIFY_OPTIONS = ("--paths", "30", "--horizon", "15", "--step", "0.01", "--seed", "3")
+
+
+@pytest.fixture(scope="session")
+def paper_verify_run(shared_tmp: Path) -> SimpleNamespace:
+    """``ftc-verify verify examples/paper.toml --gains examples/paper_gains.toml --paths 30
+    --horizon 15 --step 0.01 --seed 3 --out report`` run once per session as a user runs it
+    (a subprocess; under pytest-xdist once for all workers, under a lock), for the tests
+    that check its report (``tests/test_cli_verify.py``, ``tests/test_sampled_gamma.py``),
+    start from a passing run's folder (``tests/test_cli_contract.py``) or compare other runs
+    with it (``tests/test_cluster.py``).
+    ``returncode``, ``stdout``, ``stderr``; ``out`` the report folder (read or copy it, never
+    write into it); ``folder`` the run's working folder (its ``TMPDIR`` is ``folder/.tmp``);
+    ``cache`` its FMU cache (``FTC_VERIFY_CACHE``; the FMU's path there is in the report)."""
+    folder = shared_tmp / "paper-verify"
+    with open(shared_tmp / "paper-verify.lock", "a") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            if not (folder / "run.json").is_file():
+                (folder / ".tmp").mkdir(parents=True, exist_ok=True)
+                env = os.environ | {"TMPDIR": str(folder / ".tmp"), "FTC_VERIFY_CACHE": str(folder / "cache")}
+                run = subprocess.run([sys.executable, "-m", "ftc_verify", "verify", str(EXAMPLES / "paper.toml"),
+                                      "--gains", str(EXAMPLES / "paper_gains.toml"), *PAPER_VERIFY_OPTIONS,
+                                      "--out", "report"], capture_output=True, text=True, timeout=600, cwd=folder,
+                                     env=env)
+                (folder / "run.json").write_text(json.dumps([run.returncode, run.stdout, run.stderr]))
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+    code, stdout, stderr = json.loads((folder / "run.json").read_text())
+    return SimpleNamespace(returncode=code, stdout=stdout, stderr=stderr, out=folder / "report", folder=folder,
+                           cache=folder / "cache")

@@ -6,6 +6,7 @@ import json
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
@@ -54,10 +55,11 @@ def test_simulate_bad_input_exit_2(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow(11)  # seconds on 2 busy cores (--durations at load 9, / 4): scheduled first
-def test_verify_given_gains_writes_report(tmp_path: Path) -> None:
-    out = tmp_path / "report"
-    proc = run_cli("verify", str(PAPER), "--gains", str(GAINS), "--paths", "30", "--horizon", "15",
-                   "--seed", "3", "--out", str(out))
+def test_verify_given_gains_writes_report(paper_verify_run: SimpleNamespace) -> None:
+    """``verify examples/paper.toml --gains examples/paper_gains.toml --paths 30 --horizon 15
+    --step 0.01 --seed 3`` (run once per session by the ``paper_verify_run`` fixture, which
+    other tests read too; 0.01 is also the default step)."""
+    out, proc = paper_verify_run.out, paper_verify_run
     assert proc.returncode == 0, proc.stdout + proc.stderr
     d = json.loads((out / "report.json").read_text())
     assert d["verdict"] == "pass"
@@ -80,6 +82,8 @@ def test_verify_given_gains_writes_report(tmp_path: Path) -> None:
     for png in ("fig1_path.png", "ratio_distribution.png", "gamma_bracket.png"):
         assert (out / png).read_bytes()[:8] == PNG
     assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no staging leftovers
+    assert [p.name for p in out.parent.iterdir() if p.name.startswith(".")] == [".tmp"]  # none beside it either
+    assert not list((out.parent / ".tmp").iterdir())  # nor in its temporary folder
 
 
 def test_verify_fails_for_unstable_gains(tmp_path: Path) -> None:

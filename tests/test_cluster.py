@@ -14,12 +14,15 @@ import sys
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 import pytest
 
 distributed = pytest.importorskip("distributed")
+
+from conftest import PAPER_VERIFY_OPTIONS
 
 from ftc_verify.controllers import load_controller
 from ftc_verify.model.files import load_system
@@ -73,10 +76,12 @@ def test_cli_scheduler_address_equals_serial(scheduler: str) -> None:
     assert a["y_norm"] == b["y_norm"] and a["w_norm"] == b["w_norm"] and a["switches"] == b["switches"]
 
 
-def _verify(out: Path, *args: str) -> tuple[subprocess.CompletedProcess[str], dict]:
-    run = subprocess.run([sys.executable, "-m", "ftc_verify", "verify", str(PAPER), "--gains", str(GAINS), "--paths", "30",
-                          "--horizon", "5", "--seed", "3", "--out", str(out), *args],
-                         capture_output=True, text=True, timeout=600)
+def _verify(out: Path, serial: SimpleNamespace, *args: str) -> tuple[subprocess.CompletedProcess[str], dict]:
+    """``verify`` of the paper's gains with the options and the FMU cache (its path is in the
+    report) of the session's serial run ``serial`` (``paper_verify_run`` in conftest.py), and ``args``."""
+    run = subprocess.run([sys.executable, "-m", "ftc_verify", "verify", str(PAPER), "--gains", str(GAINS),
+                          *PAPER_VERIFY_OPTIONS, "--out", str(out), *args], capture_output=True, text=True, timeout=600,
+                         env=os.environ | {"FTC_VERIFY_CACHE": str(serial.cache)})
     report = json.loads((out / "report.json").read_text()) if run.returncode == 0 else {}
     return run, report
 
@@ -90,13 +95,16 @@ def _without_timings(value: object) -> object:
 
 
 @pytest.mark.slow(13)  # seconds measured on 2 busy cores: scheduled first
-def test_verify_serial_two_workers_and_scheduler_give_identical_reports(tmp_path: Path, scheduler: str) -> None:
+def test_verify_serial_two_workers_and_scheduler_give_identical_reports(tmp_path: Path, scheduler: str,
+                                                                        paper_verify_run: SimpleNamespace) -> None:
     """The FMU Monte Carlo of ``verify`` (random Delta per segment, so every batch needs
     its generator state) serially, on 2 local workers and on an existing scheduler:
-    report.json identical apart from timings."""
-    serial, a = _verify(tmp_path / "serial")
-    two, b = _verify(tmp_path / "two", "--workers", "2")
-    remote, c = _verify(tmp_path / "remote", "--scheduler", scheduler)
+    report.json identical apart from timings. The serial run is the session's
+    (``paper_verify_run``: the same command without ``--workers``/``--scheduler``)."""
+    serial = paper_verify_run
+    a = json.loads((serial.out / "report.json").read_text()) if serial.returncode == 0 else {}
+    two, b = _verify(tmp_path / "two", serial, "--workers", "2")
+    remote, c = _verify(tmp_path / "remote", serial, "--scheduler", scheduler)
     for run in (serial, two, remote):
         assert run.returncode == 0, run.stderr
     assert load_system(PAPER).uncertain  # so Delta is drawn per segment and the batches need their states

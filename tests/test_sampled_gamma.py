@@ -9,6 +9,7 @@ import dataclasses
 import json
 import math
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -150,18 +151,16 @@ def test_cli_analyze_period_reports_the_gains(capsys: pytest.CaptureFixture[str]
 
 
 @pytest.mark.slow(9)  # seconds on 2 busy cores (--durations at load 9, / 4): scheduled first
-def test_verify_step_reports_the_sampled_gains(tmp_path: Path) -> None:
+def test_verify_step_reports_the_sampled_gains(paper_verify_run: SimpleNamespace) -> None:
     """``verify --step 0.01``: the report's ``sampled`` holds the proved gains of the loop
-    it simulates, within 1 % of the continuous certificate at this short period."""
-    import subprocess
-    import sys
-
-    out = tmp_path / "report"
-    proc = subprocess.run([sys.executable, "-m", "ftc_verify", "verify", str(PAPER), "--gains", str(GAINS),
-                           "--paths", "5", "--horizon", "5", "--step", "0.01", "--seed", "1", "--out", str(out)],
-                          capture_output=True, text=True, timeout=600)
-    assert proc.returncode in (0, 1), proc.stderr  # 5 paths: the Monte Carlo's bound may be too wide to pass
-    d = json.loads((out / "report.json").read_text())
+    it simulates, within 1 % of the continuous certificate at this short period. The run is
+    the session's ``verify examples/paper.toml --gains examples/paper_gains.toml --paths 30
+    --horizon 15 --step 0.01 --seed 3`` (``paper_verify_run`` in conftest.py; the sampled
+    gains depend on the step, not on the paths or the seed)."""
+    proc = paper_verify_run
+    assert proc.returncode in (0, 1), proc.stderr  # (a Monte Carlo bound too wide to pass is not this test's)
+    d = json.loads((proc.out / "report.json").read_text())
+    assert d["options"]["step"] == 0.01
     s = d["sampled"]
     assert s["nominal_gamma"] is not None and s["robust_gamma"] is not None
     assert abs(s["robust_gamma"] / d["gamma_certified"] - 1) < 0.01
