@@ -13,6 +13,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from paper_run import PAPER_VERIFY_OPTIONS
 
 from ftc_verify.analysis.closedloop import state_feedback_loop
 from ftc_verify.model.system import FTCSystem
@@ -151,9 +152,6 @@ def shared_tmp(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return folder
 
 
-#: The options of the ``verify`` run of the paper's plant and gains that several CLI tests
-#: read (:func:`paper_verify_run`).
-PAPER_VERIFY_OPTIONS = ("--paths", "30", "--horizon", "15", "--step", "0.01", "--seed", "3")
 
 
 @pytest.fixture(scope="session")

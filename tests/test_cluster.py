@@ -22,7 +22,7 @@ import pytest
 
 distributed = pytest.importorskip("distributed")
 
-from conftest import PAPER_VERIFY_OPTIONS
+from paper_run import PAPER_VERIFY_OPTIONS
 
 from ftc_verify.controllers import load_controller
 from ftc_verify.model.files import load_system
