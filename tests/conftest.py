@@ -6,6 +6,7 @@ from __future__ import annotations
 import fcntl
 import json
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -152,6 +153,16 @@ def shared_tmp(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return folder
 
 
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _sigint_as_at_a_terminal() -> None:
+    """Python's SIGINT handler in every test process: a run started in the background by a
+    non-interactive shell (``pytest ... &``) inherits SIGINT ignored, and so would every CLI
+    the tests start, so the Ctrl-C tests (a SIGINT to the process group) would see it
+    ignored -- as the command would be, correctly, in that shell."""
+    if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture(scope="session")
