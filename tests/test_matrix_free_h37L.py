@@ -1,5 +1,5 @@
 """The matrix-free spectral stage of large loops (issue 37 item 6): the warm-started
-eigenpair, the resolvent bracket and the first-order vertex ascent, on a loop small
+eigenpair and the first-order vertex ascent, on a loop small
 enough for dense eigenvalues to be the reference (the large-loop route forced by
 lowering ``DENSE_LIMIT``)."""
 
@@ -13,8 +13,8 @@ import pytest
 from ftc_verify.analysis.closedloop import state_feedback_loop
 from ftc_verify.analysis.moments import stability
 from ftc_verify.analysis.moments.matrix_free import (ASCENT_STEPS, MomentOperator, linearised_ascent,
-                                                     matrix_free_eigenpair, resolvent_bracket)
-from ftc_verify.analysis.moments.stability import abscissa_below, spectral_abscissa
+                                                     matrix_free_eigenpair)
+from ftc_verify.analysis.moments.stability import spectral_abscissa
 from ftc_verify.model.system import FTCSystem
 
 
@@ -56,24 +56,6 @@ def test_eigenpair_is_the_dense_abscissa_and_an_eigenvector_warm_start_or_not():
     assert min(np.linalg.eigvalsh(x)[0] for x in X) >= -1e-8  # the Perron eigenvector: PSD (trace 1)
     warm, _ = matrix_free_eigenpair(loop, last, start=X)
     assert warm == pytest.approx(spectral_abscissa(loop, last), rel=1e-9)
-
-
-def test_resolvent_bracket_encloses_the_dense_abscissa():
-    loop = three_mode_loop()
-    vertex = vertex_of(loop)
-    for bits in [(False,) * 6, (True, False, True, False, True, False), (True,) * 6]:
-        beta = vertex(bits)
-        mu = spectral_abscissa(loop, beta)
-        sigma = mu + 0.05 * (1 + abs(mu))
-        assert abscissa_below(loop, beta, sigma)
-        found = resolvent_bracket(loop, beta, sigma, None)
-        assert found is not None
-        lower, upper, _ = found
-        tol = 1e-9 * (1 + abs(mu))
-        assert lower - tol <= mu <= upper + tol
-        assert upper - lower <= 1e-9 * (1 + abs(upper))
-        early = resolvent_bracket(loop, beta, sigma, None, below=mu + 0.01)  # stops once below a higher level
-        assert early is not None and early[1] < mu + 0.01
 
 
 def test_linearised_ascent_values_are_dense_values_and_climb():

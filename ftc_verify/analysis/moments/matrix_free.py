@@ -40,15 +40,11 @@ from ...errors import SolverError
 from ..closedloop import ClosedLoop
 from ...model.system import Matrix
 
-__all__ = ["RESIDUAL_RTOL", "BRACKET_RTOL", "BRACKET_STEPS", "MomentOperator", "matrix_free_abscissa",
-           "matrix_free_eigenpair", "resolvent_bracket", "ASCENT_STEPS", "ARPACK_NCV", "linearised_ascent"]
+__all__ = ["RESIDUAL_RTOL", "MomentOperator", "matrix_free_abscissa", "matrix_free_eigenpair", "ASCENT_STEPS",
+           "ARPACK_NCV", "linearised_ascent"]
 
 #: Relative residual an ARPACK eigenpair (and the Lyapunov check) must reach.
 RESIDUAL_RTOL = 1e-7
-#: Relative width at which :func:`resolvent_bracket` has converged (the value reported is its top).
-BRACKET_RTOL = 1e-10
-#: Power steps of :func:`resolvent_bracket` at most.
-BRACKET_STEPS = 30
 #: ARPACK's Krylov basis: 80 vectors converge in a fifth of the CPU time of 40 at
 #: N = 10,584 (n = 48, m = 3: 3,200 products instead of 9,100, 2 s instead of 9 s).
 ARPACK_NCV = 80
@@ -177,61 +173,6 @@ def matrix_free_abscissa(loop: ClosedLoop, beta: Matrix) -> float:
     """The spectral abscissa of the second-moment generator at ``beta``, matrix-free and
     checked (module docstring); raises :class:`SolverError` when a check fails."""
     return matrix_free_eigenpair(loop, beta)[0]
-
-
-def resolvent_bracket(loop: ClosedLoop, beta: Matrix, sigma: float, start: np.ndarray | None, *,
-                      below: float = -math.inf, rtol: float = BRACKET_RTOL,
-                      max_steps: int = BRACKET_STEPS) -> tuple[float, float, np.ndarray] | None:
-    r"""A float bracket ``(lower, upper, X)`` of the spectral abscissa :math:`\mu` at
-    ``beta``, given a shift :math:`\sigma > \mu` (proved by the caller, e.g. by
-    :func:`~ftc_verify.analysis.moments.stability.abscissa_below`), without ARPACK.
-
-    :math:`T = (\sigma - \mathcal L)^{-1} = \int_0^\infty e^{-\sigma t} e^{\mathcal L t} dt`
-    maps positive semidefinite stacks to positive semidefinite stacks and has spectral
-    radius :math:`1/(\sigma - \mu)` (:func:`~ftc_verify.analysis.moments.stability.abscissa_near`,
-    derived there). Power iteration :math:`X \leftarrow T(X)` gives, with
-    :math:`Y = T(X)`, :math:`X \succ 0`, the Collatz-Wielandt bracket
-    :math:`\min_s \lambda_{min}(Y_s, X_s) \le 1/(\sigma - \mu) \le \max_s \lambda_{max}(Y_s, X_s)`.
-    Each :math:`T(X)` is one solve of :math:`\mathcal L(Y) - \sigma Y = -X` by
-    :func:`~ftc_verify.analysis.bounded_real.coupled_lyapunov` (:math:`O(m^2 n^3)` per
-    GMRES product). From ``start`` (the eigenvector at a neighbouring vertex, plus
-    :math:`10^{-3}` of its trace times :math:`I` to be definite) the right-hand side is
-    nearly an eigenvector, so GMRES converges in a few products even close to
-    :math:`\mu` (inverse iteration). Every three steps the shift moves to the bracket's
-    top plus its width. Stops as soon as ``upper < below`` (the vertex is below a known
-    level), or the width is at most ``rtol * (1 + |upper|)``; ``X`` is the last iterate
-    (trace 1). ``None`` when a solve fails or an iterate is not definite. A float
-    estimate: the proofs of the verdict are elsewhere (:mod:`ftc_verify.analysis.box`).
-    """
-    import scipy.linalg
-
-    from ..bounded_real import coupled_lyapunov
-
-    n, S = loop.n, len(loop.A)
-    Qt = np.asarray(loop.chain.generator(beta), dtype=float).T
-    eye = np.eye(n)
-    X = np.tile(eye, (S, 1, 1)) if start is None else np.asarray(start, dtype=float) + 1e-3 * eye
-    X = X / float(np.einsum("sii->", X))
-    lower, upper = -math.inf, sigma
-    for step in range(max_steps):
-        if step and step % 3 == 0:
-            sigma = upper + max(upper - lower, rtol * (1.0 + abs(upper)))
-        found = coupled_lyapunov([(a - 0.5 * sigma * eye).T for a in loop.A], Qt, list(X), rtol=1e-10)
-        if found is None:
-            return None
-        Y = np.array(found)
-        try:
-            ev = [scipy.linalg.eigh(y, x, eigvals_only=True) for y, x in zip(Y, X)]
-        except (np.linalg.LinAlgError, ValueError):
-            return None
-        lo, hi = min(e[0] for e in ev), max(e[-1] for e in ev)
-        if not (np.isfinite(hi) and lo > 0):
-            return None
-        lower, upper = max(lower, sigma - 1.0 / lo), min(upper, sigma - 1.0 / hi)
-        X = Y / float(np.einsum("sii->", Y))
-        if upper < below or upper - lower <= rtol * (1.0 + abs(upper)):
-            return lower, upper, X
-    return None
 
 
 def _left_eigenvector(op: MomentOperator, mu: float, start: np.ndarray | None = None) -> np.ndarray | None:
