@@ -347,19 +347,15 @@ def _prove(loop: SampledLoop, system: FTCSystem, h: float, P: list[list[Matrix]]
     (module docstring), from the numbers as written."""
     import flint
 
-    from ..rigorous import ball, ball_bmat, precision, proven_positive_definite
+    from ..rigorous import ball_bmat, precision, proven_positive_definite
+    from .sampled_quadratic import proved_nodes
 
     N = len(P) - 1
     with precision():
-        aug = augmented_loop(loop, system, balls=True, w_scale=w_scale)
-        if not robust:
-            aug = aug.nominal()
-        Pb = [[ball(0.5 * (p + p.T)) for p in row] for row in P]
-        if not all(proven_positive_definite(p) for row in Pb for p in row):
+        nodes = proved_nodes(loop, system, h, P, robust, w_scale)
+        if nodes is None:
             return False
-        for s, J in enumerate(sample_jumps(loop, h, balls=True, literals=system.literals)):
-            if not proven_positive_definite(Pb[N][s] - J.T @ Pb[0][s] @ J):
-                return False
+        aug, Pb = nodes
         slope = flint.arb(N) / flint.arb(float(h))
         for k in range(N):
             for e in (k, k + 1):

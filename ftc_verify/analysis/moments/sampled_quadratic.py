@@ -69,8 +69,8 @@ from ..conic import Affine, ConicProblem, Rows, affine_bmat, scalar_variable, sv
 from ..lmi import BlockSpec, block_specs
 from .sampled import SampledLoop
 
-__all__ = ["QuadraticLayout", "quadratic_rows", "quadratic_values", "prove_quadratic", "quadratic_program",
-           "quadratic_check"]
+__all__ = ["QuadraticLayout", "quadratic_rows", "quadratic_values", "proved_nodes", "prove_quadratic",
+           "quadratic_program", "quadratic_check"]
 
 
 class QuadraticLayout:
@@ -226,6 +226,30 @@ def quadratic_values(x: Matrix, lay: QuadraticLayout, h: float) -> dict[str, Any
     return {"P": P, "D": D, "lam": lam, "G": G}
 
 
+def proved_nodes(loop: SampledLoop, system: FTCSystem, h: float, P: list[list[Matrix]], robust: bool,
+                 w_scale: float = 1.0) -> tuple[ClosedLoop, list[list[Any]]] | None:
+    """What the affine and the quadratic storage prove alike: the ball loop of
+    :func:`~ftc_verify.analysis.moments.sampled_gamma.augmented_loop` (nominal unless
+    ``robust``) and the nodes ``P_s^k`` as symmetric balls, returned when every node is
+    proved positive definite and every jump condition ``P_s^N - J_s^T P_s^0 J_s`` too
+    (``J_s`` of :func:`~ftc_verify.analysis.moments.sampled_gamma.sample_jumps`, from the
+    numbers as written); ``None`` otherwise. Call it inside :func:`~ftc_verify.analysis.rigorous.precision`."""
+    from ..rigorous import ball, proven_positive_definite
+    from .sampled_gamma import augmented_loop, sample_jumps
+
+    N = len(P) - 1
+    aug = augmented_loop(loop, system, balls=True, w_scale=w_scale)
+    if not robust:
+        aug = aug.nominal()
+    Pb = [[ball(0.5 * (p + p.T)) for p in row] for row in P]
+    if not all(proven_positive_definite(p) for row in Pb for p in row):
+        return None
+    for s, J in enumerate(sample_jumps(loop, h, balls=True, literals=system.literals)):
+        if not proven_positive_definite(Pb[N][s] - J.T @ Pb[0][s] @ J):
+            return None
+    return aug, Pb
+
+
 def prove_quadratic(loop: SampledLoop, system: FTCSystem, h: float, values: dict[str, Any], g: float,
                     robust: bool, w_scale: float = 1.0) -> bool:
     """Every bordered condition, ``G``, node and jump condition proved definite in ball
@@ -235,22 +259,15 @@ def prove_quadratic(loop: SampledLoop, system: FTCSystem, h: float, values: dict
     import flint
 
     from ..rigorous import ball, ball_bmat, precision, proven_positive_definite
-    from .sampled_gamma import augmented_loop as augmented
     from .sampled_gamma import clock_instance as instance
-    from .sampled_gamma import sample_jumps as jumps_of
 
     P, D, lam, G = values["P"], values["D"], values["lam"], values["G"]
     N = len(P) - 1
     with precision():
-        aug = augmented(loop, system, balls=True, w_scale=w_scale)
-        if not robust:
-            aug = aug.nominal()
-        Pb = [[ball(0.5 * (p + p.T)) for p in row] for row in P]
-        if not all(proven_positive_definite(p) for row in Pb for p in row):
+        nodes = proved_nodes(loop, system, h, P, robust, w_scale)
+        if nodes is None:
             return False
-        for s, J in enumerate(jumps_of(loop, h, balls=True, literals=system.literals)):
-            if not proven_positive_definite(Pb[N][s] - J.T @ Pb[0][s] @ J):
-                return False
+        aug, Pb = nodes
         delta = flint.arb(float(h)) / N
         for k in range(N):
             Db = [ball(0.5 * (m + m.T)) for m in D[k]]
