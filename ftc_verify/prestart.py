@@ -12,6 +12,13 @@ and collects the answer only at the very end (:meth:`Prestarted.result`); nothin
 between waits for it. The answer is the function's on the same pickled argument, so the
 numbers are those of a call in this process.
 
+The cross-check child imports python-control without the docstrings that scipy and
+matplotlib generate at import time (:func:`skip_docstring_generation`: about 0.3 s of its
+1 s of CPU; the child computes, nobody reads a docstring there). Running it as a fresh
+``python -OO`` instead does not help: scipy then reads source files to find the comments
+that stand in for the missing docstrings (``pydoc.getdoc``), and with
+``PYTHONDONTWRITEBYTECODE`` set no ``.opt-2.pyc`` is ever cached (measured, issue 37).
+
 This module imports nothing but the standard library (and nothing of ``ftc_verify``), so
 a caller can fork wherever it likes. Where ``fork`` is missing,
 or when the child ends without an answer (killed, or dead in native code), the job runs in
@@ -34,7 +41,7 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
-__all__ = ["Prestarted", "cross_check", "CROSS_CHECK_MODULES"]
+__all__ = ["Prestarted", "cross_check", "skip_docstring_generation", "CROSS_CHECK_MODULES"]
 
 #: What the cross-check child imports first (python-control, then the check itself).
 CROSS_CHECK_MODULES = ("control", "ftc_verify.analysis.crossval")
@@ -64,13 +71,48 @@ def _die_with_parent() -> None:
             ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL), 0, 0, 0)
 
 
-def _child(modules: Sequence[str], job_fd: int, answer_fd: int) -> None:
-    """The child: import ``modules``, wait for the job, answer ``(kind, value, seconds,
-    spans)`` (``spans``: ``import`` and ``run`` as ``(start, end)`` of :func:`time.perf_counter`,
-    one clock for every process on Linux)."""
+def _no_parse(self: Any) -> None:
+    """Stands in for scipy's ``NumpyDocString._parse`` (:func:`skip_docstring_generation`)."""
+
+
+def _no_kwdoc(artist: Any) -> str:
+    """Stands in for ``matplotlib.artist.kwdoc`` (:func:`skip_docstring_generation`)."""
+    return ""
+
+
+def skip_docstring_generation() -> None:
+    """Switch off the docstring work scipy and matplotlib do at import time, in this process.
+
+    For a child that only computes (the cross-check): scipy's ``xp_capabilities``
+    decorator parses the numpydoc docstring of about 650 functions when ``scipy.signal``
+    and ``scipy.stats`` are imported (``NumpyDocString._parse``), and matplotlib writes the
+    property table of every ``Artist`` subclass into its ``set`` docstring
+    (``matplotlib.artist.kwdoc``); python-control imports both. Here the parse leaves the
+    default sections and ``kwdoc`` returns an empty table: only ``__doc__`` strings change,
+    no signature, no function, no number (the cross-check's answers are the same, tested).
+    Both are private names: when one is missing (another version) it is left alone.
+    """
+    with contextlib.suppress(Exception):
+        from scipy._lib import _docscrape
+
+        if callable(getattr(_docscrape.NumpyDocString, "_parse", None)):
+            _docscrape.NumpyDocString._parse = _no_parse
+    with contextlib.suppress(Exception):
+        from matplotlib import artist
+
+        if callable(getattr(artist, "kwdoc", None)):
+            artist.kwdoc = _no_kwdoc
+
+
+def _child(modules: Sequence[str], job_fd: int, answer_fd: int, prepare: Callable[[], None] | None) -> None:
+    """The child: ``prepare()``, import ``modules``, wait for the job, answer ``(kind, value,
+    seconds, spans)`` (``spans``: ``import`` and ``run`` as ``(start, end)`` of
+    :func:`time.perf_counter`, one clock for every process on Linux)."""
     t0 = time.perf_counter()
     payload: tuple[str, Any, dict[str, float], dict[str, tuple[float, float]]]
     try:
+        if prepare is not None:
+            prepare()
         for name in modules:
             importlib.import_module(name)
         spans = {"import": (t0, time.perf_counter())}
@@ -95,7 +137,8 @@ def _child(modules: Sequence[str], job_fd: int, answer_fd: int) -> None:
 
 
 class Prestarted:
-    """A forked child that imports ``modules`` now and runs one job later (module docstring).
+    """A forked child that imports ``modules`` now and runs one job later (module docstring);
+    ``prepare()``, when given, runs in the child before the imports.
 
     Attributes
     ----------
@@ -108,7 +151,7 @@ class Prestarted:
         :func:`time.perf_counter` (stages that overlap the caller's).
     """
 
-    def __init__(self, modules: Sequence[str]) -> None:
+    def __init__(self, modules: Sequence[str], prepare: Callable[[], None] | None = None) -> None:
         self.seconds: dict[str, float] = {}
         self.spans: dict[str, tuple[float, float]] = {}
         self._job: tuple[Callable[[Any], Any], Any] | None = None
@@ -130,7 +173,7 @@ class Prestarted:
                 _die_with_parent()
                 os.close(job_w)
                 os.close(answer_r)
-                _child(tuple(modules), job_r, answer_w)
+                _child(tuple(modules), job_r, answer_w, prepare)
             finally:
                 os._exit(0)
         os.close(job_r)
@@ -199,6 +242,7 @@ class Prestarted:
 
 
 def cross_check() -> Prestarted:
-    """The child of python-control's per-mode cross-check (:data:`CROSS_CHECK_MODULES`),
-    started now; submit ``(cross_validate, loop)`` to it."""
-    return Prestarted(CROSS_CHECK_MODULES)
+    """The child of python-control's per-mode cross-check (:data:`CROSS_CHECK_MODULES`,
+    imported without generated docstrings: :func:`skip_docstring_generation`), started
+    now; submit ``(cross_validate, loop)`` to it."""
+    return Prestarted(CROSS_CHECK_MODULES, skip_docstring_generation)

@@ -1,0 +1,75 @@
+"""python-control imported without scipy's and matplotlib's generated docstrings
+(ftc_verify.prestart.skip_docstring_generation, the cross-check child's import, issue 37):
+the switch takes effect, and the cross-check's numbers are those of a normal import."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+_CHILD = """
+import json, sys
+from ftc_verify.prestart import skip_docstring_generation
+skip_docstring_generation()
+import control, matplotlib.lines
+from ftc_verify.analysis.closedloop import closed_loop
+from ftc_verify.analysis.crossval import cross_validate
+from ftc_verify.cli.common import load
+system, gains = load(sys.argv[1], sys.argv[2])
+checks = cross_validate(closed_loop(system, gains))
+print(json.dumps({
+    "set_doc": matplotlib.lines.Line2D.set.__doc__ or "",
+    "checks": [[m.true_mode, m.fdi_mode, m.poles.real.tolist(), m.poles.imag.tolist(), m.linf_norm,
+                m.control_poles.real.tolist(), m.control_poles.imag.tolist(), m.control_linf_norm, m.agree]
+               for m in checks],
+}))
+"""
+
+
+def test_the_cross_check_without_generated_docstrings_gives_the_same_numbers() -> None:
+    """A fresh interpreter (nothing imported before the switch) against this process."""
+    import matplotlib.lines
+
+    from ftc_verify.analysis.closedloop import closed_loop
+    from ftc_verify.analysis.crossval import cross_validate
+    from ftc_verify.cli.common import load
+
+    paper, gains_file = str(ROOT / "examples" / "paper.toml"), str(ROOT / "examples" / "paper_gains.toml")
+    done = subprocess.run([sys.executable, "-c", _CHILD, paper, gains_file], capture_output=True, text=True,
+                          check=True, timeout=120)
+    child = json.loads(done.stdout)
+    # the switch took effect there (an empty property table), not here
+    assert "Properties:" not in child["set_doc"]
+    assert "Properties:" in (matplotlib.lines.Line2D.set.__doc__ or "")
+    system, gains = load(paper, gains_file)
+    ours = cross_validate(closed_loop(system, gains))
+    assert len(child["checks"]) == len(ours) == 4
+    for theirs, m in zip(child["checks"], ours, strict=True):
+        true_mode, fdi_mode, re, im, linf, cre, cim, clinf, agree = theirs
+        assert (true_mode, fdi_mode) == (m.true_mode, m.fdi_mode) and agree and m.agree
+        np.testing.assert_array_equal(np.array(re) + 1j * np.array(im), m.poles)
+        np.testing.assert_array_equal(np.array(cre) + 1j * np.array(cim), m.control_poles)
+        assert linf == m.linf_norm and math.isfinite(clinf) and clinf == m.control_linf_norm
+
+
+def test_a_missing_private_name_is_left_alone() -> None:
+    """Another scipy/matplotlib version without the patched names: no error, nothing set."""
+    from ftc_verify import prestart
+
+    done = subprocess.run([sys.executable, "-c", (
+        "import scipy._lib._docscrape as d, matplotlib.artist as a\n"
+        "del d.NumpyDocString._parse\n"
+        "del a.kwdoc\n"
+        "from ftc_verify.prestart import skip_docstring_generation\n"
+        "skip_docstring_generation()\n"
+        "print(hasattr(d.NumpyDocString, '_parse'), hasattr(a, 'kwdoc'))\n")],
+        capture_output=True, text=True, check=True, timeout=60)
+    assert done.stdout.split() == ["False", "False"]
+    assert "skip_docstring_generation" in prestart.__all__
