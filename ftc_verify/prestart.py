@@ -75,6 +75,20 @@ def _no_parse(self: Any) -> None:
     """Stands in for scipy's ``NumpyDocString._parse`` (:func:`skip_docstring_generation`)."""
 
 
+class _BlankDoc:
+    """Stands in for scipy's ``FunctionDoc`` in ``xp_capabilities`` (:func:`skip_docstring_generation`):
+    empty sections, rendered as an empty docstring."""
+
+    def __init__(self, func: Any, *args: Any, **kwargs: Any) -> None:
+        self._sections: dict[str, list[Any]] = {}
+
+    def __getitem__(self, key: str) -> list[Any]:
+        return self._sections.setdefault(key, [])
+
+    def __str__(self) -> str:
+        return "\n"  # ``xp_capabilities`` drops the first line (the signature)
+
+
 def _no_kwdoc(artist: Any) -> str:
     """Stands in for ``matplotlib.artist.kwdoc`` (:func:`skip_docstring_generation`)."""
     return ""
@@ -85,11 +99,13 @@ def skip_docstring_generation() -> None:
 
     For a child that only computes (the cross-check): scipy's ``xp_capabilities``
     decorator parses the numpydoc docstring of about 650 functions when ``scipy.signal``
-    and ``scipy.stats`` are imported (``NumpyDocString._parse``), and matplotlib writes the
-    property table of every ``Artist`` subclass into its ``set`` docstring
-    (``matplotlib.artist.kwdoc``); python-control imports both. Here the parse leaves the
-    default sections and ``kwdoc`` returns an empty table: only ``__doc__`` strings change,
-    no signature, no function, no number (the cross-check's answers are the same, tested).
+    and ``scipy.stats`` are imported (its ``FunctionDoc``; other decorators through
+    ``NumpyDocString._parse``), and matplotlib writes the property table of every
+    ``Artist`` subclass into its ``set`` docstring (``matplotlib.artist.kwdoc``);
+    python-control imports both. Here ``xp_capabilities`` writes an empty docstring, the
+    parse leaves the default sections and ``kwdoc`` returns an empty table: only
+    ``__doc__`` strings change, no signature, no function, no number (the cross-check's
+    answers are the same, tested).
     Both are private names: when one is missing (another version) it is left alone.
     """
     with contextlib.suppress(Exception):
@@ -97,6 +113,11 @@ def skip_docstring_generation() -> None:
 
         if callable(getattr(_docscrape.NumpyDocString, "_parse", None)):
             _docscrape.NumpyDocString._parse = _no_parse
+    with contextlib.suppress(Exception):
+        from scipy._lib import _array_api
+
+        if isinstance(getattr(_array_api, "FunctionDoc", None), type):
+            _array_api.FunctionDoc = _BlankDoc
     with contextlib.suppress(Exception):
         from matplotlib import artist
 

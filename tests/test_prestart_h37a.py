@@ -18,7 +18,7 @@ _CHILD = """
 import json, sys
 from ftc_verify.prestart import skip_docstring_generation
 skip_docstring_generation()
-import control, matplotlib.lines
+import control, matplotlib.lines, scipy.signal
 from ftc_verify.analysis.closedloop import closed_loop
 from ftc_verify.analysis.crossval import cross_validate
 from ftc_verify.cli.common import load
@@ -26,6 +26,7 @@ system, gains = load(sys.argv[1], sys.argv[2])
 checks = cross_validate(closed_loop(system, gains))
 print(json.dumps({
     "set_doc": matplotlib.lines.Line2D.set.__doc__ or "",
+    "lfilter_doc": scipy.signal.lfilter.__doc__ or "",
     "checks": [[m.true_mode, m.fdi_mode, m.poles.real.tolist(), m.poles.imag.tolist(), m.linf_norm,
                 m.control_poles.real.tolist(), m.control_poles.imag.tolist(), m.control_linf_norm, m.agree]
                for m in checks],
@@ -36,6 +37,7 @@ print(json.dumps({
 def test_the_cross_check_without_generated_docstrings_gives_the_same_numbers() -> None:
     """A fresh interpreter (nothing imported before the switch) against this process."""
     import matplotlib.lines
+    import scipy.signal
 
     from ftc_verify.analysis.closedloop import closed_loop
     from ftc_verify.analysis.crossval import cross_validate
@@ -48,6 +50,7 @@ def test_the_cross_check_without_generated_docstrings_gives_the_same_numbers() -
     # the switch took effect there (an empty property table), not here
     assert "Properties:" not in child["set_doc"]
     assert "Properties:" in (matplotlib.lines.Line2D.set.__doc__ or "")
+    assert "Parameters" not in child["lfilter_doc"] and "Parameters" in (scipy.signal.lfilter.__doc__ or "")
     system, gains = load(paper, gains_file)
     ours = cross_validate(closed_loop(system, gains))
     assert len(child["checks"]) == len(ours) == 4
@@ -64,12 +67,13 @@ def test_a_missing_private_name_is_left_alone() -> None:
     from ftc_verify import prestart
 
     done = subprocess.run([sys.executable, "-c", (
-        "import scipy._lib._docscrape as d, matplotlib.artist as a\n"
+        "import scipy._lib._docscrape as d, scipy._lib._array_api as x, matplotlib.artist as a\n"
         "del d.NumpyDocString._parse\n"
+        "del x.FunctionDoc\n"
         "del a.kwdoc\n"
         "from ftc_verify.prestart import skip_docstring_generation\n"
         "skip_docstring_generation()\n"
-        "print(hasattr(d.NumpyDocString, '_parse'), hasattr(a, 'kwdoc'))\n")],
+        "print(hasattr(d.NumpyDocString, '_parse'), hasattr(x, 'FunctionDoc'), hasattr(a, 'kwdoc'))\n")],
         capture_output=True, text=True, check=True, timeout=60)
-    assert done.stdout.split() == ["False", "False"]
+    assert done.stdout.split() == ["False", "False", "False"]
     assert "skip_docstring_generation" in prestart.__all__
