@@ -8,7 +8,13 @@
 2. the smallest certified nominal gamma (Theorem 3.2) and robust gamma (Lemma 4.1,
    gains fixed), both over the rate box;
 3. Theorem 3.1 over the rate box, certified (:func:`~ftc_verify.analysis.lmi_analysis.mes_lmi`),
-   first with the ``P`` of step 2 (no solve), solved only when that check fails;
+   first with the ``P`` of step 2 (no solve), solved only when that check fails. When the
+   box proof of step 1 would solve this LMI on the whole box (its centre's candidate
+   misses a vertex), step 1 leaves it to this step (``root_lmi=False``,
+   :data:`~ftc_verify.analysis.box.ROOT_LMI_DEFERRED`): the certified answer proves the
+   verdict over the whole box (:meth:`~ftc_verify.analysis.moments.stability.MSSResult.proved_by`,
+   one ``P`` for every rate); without one, step 1 runs again in full. Same proof, one
+   SDP fewer;
 4. beside each certified gamma, a proved lower bound of the same worst-case gain
    (:mod:`ftc_verify.analysis.lower_bound`): the bracket ``lower <= gain <= gamma``;
 5. per-mode cross-validation with python-control (:mod:`ftc_verify.analysis.crossval`).
@@ -26,6 +32,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
+from .box import ROOT_LMI_DEFERRED
 from .closedloop import ClosedLoop
 from ..jsonable import jsonable
 from .crossval import ModeCheck, cross_validate
@@ -167,7 +174,7 @@ def _analyze(loop: ClosedLoop, solver: str | None, name: str, lmi: bool, lower_b
     """The stages of :func:`analyze`; ``check``: the running
     :class:`~ftc_verify.prestart.Prestarted` (``None``: no cross-validation)."""
     t = time.perf_counter()
-    mss = mean_square_stability(loop)
+    mss = mean_square_stability(loop, root_lmi=not lmi)  # with LMIs the whole box's is stage 3's (ROOT_LMI_DEFERRED)
     seconds["spectral"] = time.perf_counter() - t
     if lmi and mss.unstable:  # proved not stable: no certificate can exist, no solve is spent on one
         mes, nominal, robust = (_not_requested(c, "not solved: the loop is proved NOT mean-square stable, so no "
@@ -179,6 +186,10 @@ def _analyze(loop: ClosedLoop, solver: str | None, name: str, lmi: bool, lower_b
         seconds["theorem_3_1"] = time.perf_counter() - t
         if mss.undecided and mes.certified:
             mss = mss.proved_by("the certified Theorem 3.1 LMI over the whole box (one P for every rate)", loop.chain)
+        elif mss.reason == ROOT_LMI_DEFERRED:  # no certificate from stage 3: the branch and bound in full
+            t = time.perf_counter()
+            mss = mean_square_stability(loop)
+            seconds["spectral"] += time.perf_counter() - t
     else:
         mes, nominal, robust = (_not_requested(c) for c in ("Theorem 3.1", "Theorem 3.2", "Lemma 4.1"))
     nominal_lower = robust_lower = None

@@ -73,11 +73,15 @@ from .exact import ball_generator, ball_matrices, exact_loop, literals_of, writt
 from .rigorous import Ball, ball, precision, proven_positive_definite, proven_positive_definite_cholesky
 from .verdict import SOLVE_LIMIT, StabilityProver, ball_lyapunov_solution, float_stack_solution
 
-__all__ = ["BOX_BUDGET_SECONDS", "MAX_BOXES", "MIN_RELATIVE_WIDTH", "RegionVerdict", "BoxVerdict",
-           "box_stability"]
+__all__ = ["BOX_BUDGET_SECONDS", "MAX_BOXES", "MIN_RELATIVE_WIDTH", "ROOT_LMI_DEFERRED", "RegionVerdict",
+           "BoxVerdict", "box_stability"]
 
 #: Time budget (seconds) of the branch and bound, the point proofs included.
 BOX_BUDGET_SECONDS = 60.0
+#: The reason of an "undecided" verdict returned by ``box_stability(root_lmi=False)`` when
+#: the whole box's centre candidate fails and its LMI is left to the caller.
+ROOT_LMI_DEFERRED = ("the centre's P misses a vertex of the box; the whole box's Theorem 3.1 LMI is left to the "
+                     "analysis's Theorem 3.1 stage")
 #: Sub-boxes examined at most.
 MAX_BOXES = 4096
 #: A sub-box narrower than this (relative to the whole box, along every rate it can be
@@ -326,9 +330,13 @@ def _try_precise(checker: _Checker, lo: Matrix, hi: Matrix, proved: list[RegionV
 
 
 def box_stability(loop: ClosedLoop, sim: Similarity, *, budget_seconds: float = BOX_BUDGET_SECONDS,
-                  max_boxes: int = MAX_BOXES) -> BoxVerdict:
+                  max_boxes: int = MAX_BOXES, root_lmi: bool = True) -> BoxVerdict:
     """The verdict of ``loop`` (its nominal part) over the whole rate box (module
-    docstring), in the coordinates ``sim`` for the float candidates."""
+    docstring), in the coordinates ``sim`` for the float candidates.
+
+    ``root_lmi=False``: when the whole box's centre candidate misses a vertex, "undecided"
+    (:data:`ROOT_LMI_DEFERRED`) instead of the whole box's Theorem 3.1 LMI, for a caller
+    that certifies that LMI anyway (:func:`~ftc_verify.analysis.analyze.analyze`)."""
     start = time.perf_counter()
     deadline = start + budget_seconds
     chain = loop.chain
@@ -366,6 +374,8 @@ def box_stability(loop: ClosedLoop, sim: Similarity, *, budget_seconds: float = 
         # a centre candidate that is positive definite but misses some vertex: the box is too wide for it, not
         # float64 too inaccurate, so the sub-box's LMI (under a second) before the 256/512-bit solves (seconds to
         # tens of seconds at 300 rows)
+        if status == "failed" and boxes == 1 and not root_lmi:
+            return give_up(lo, hi, ROOT_LMI_DEFERRED, t0)
         if status == "failed" and _lmi_on(loop, lo, hi):
             proved.append(region(lo, hi, "stable", "P from the Theorem 3.1 LMI on the sub-box (Clarabel), P > 0 and "
                                  "-L*(P) > 0 proved at the vertices of every row's rates in 128-bit balls", 128, t0))

@@ -457,10 +457,10 @@ def _ascent(nominal: ClosedLoop, vertex: Any, widths: list[float]) -> dict[tuple
 
 
 def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256,
-                          budget_seconds: float = BOX_BUDGET_SECONDS) -> MSSResult:
+                          budget_seconds: float = BOX_BUDGET_SECONDS, root_lmi: bool = True) -> MSSResult:
     """The verified verdict over the whole rate box (``beta``, and the false-alarm rates
-    when given; :func:`~ftc_verify.analysis.box.box_stability`, ``budget_seconds``
-    bounds it) and the float estimate of the worst spectral abscissa over its vertices.
+    when given; :func:`~ftc_verify.analysis.box.box_stability`, with its ``budget_seconds``
+    and ``root_lmi``) and the float estimate of the worst spectral abscissa over its vertices.
 
     At a detection rate 0 (a missed detection) the verdict is about an FDI that never
     detects that fault (:mod:`ftc_verify.analysis.lmi`).
@@ -511,7 +511,7 @@ def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256,
 
     def result(worst: tuple[bool, ...], evaluated: list[tuple[bool, ...]], exhaustive: bool) -> MSSResult:
         """The float estimate over the vertices evaluated and the verdict over the box."""
-        box = box_stability(loop, sim, budget_seconds=budget_seconds)
+        box = box_stability(loop, sim, budget_seconds=budget_seconds, root_lmi=root_lmi)
         estimate, where = exact[worst], vertex(worst)
         witness = box.witness
         if witness is not None and witness.estimate is not None and witness.estimate > estimate:
