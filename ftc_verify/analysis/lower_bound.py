@@ -127,16 +127,17 @@ class GainLowerBound:
         return d
 
 
-def _abscissa(A: Sequence[Matrix], Q: Matrix) -> float:
-    return float(np.max(scipy.linalg.eigvals(second_moment_matrix(A, Q), check_finite=False).real))
+def _ms_stable(A: Sequence[Matrix], Q: Matrix) -> bool:
+    r"""Float64: :math:`\mathcal L(X) = -I` has a solution positive definite in every joint state, i.e. a
+    negative abscissa (the operator is resolvent positive, :mod:`~ftc_verify.analysis.verdict`): one solve."""
+    X = lyapunov_stack_solution(A, Q)
+    return X is not None and all(np.linalg.eigvalsh(x)[0] > 0 for x in X)
 
 
 def _dense_adjoint(A: Sequence[Matrix], Q: Matrix, R: Sequence[Matrix],
                    start: Sequence[Matrix] | None = None) -> list[Matrix] | None:
-    r""":math:`A_s^T P_s + P_s A_s + \sum_t q_{st} P_t = -R_s` by
-    :func:`~ftc_verify.analysis.moments.stability.lyapunov_stack_solution` in adjoint form
-    (dense ``vech`` system; ``start`` unused): the worst-case loop is nearly marginal, where
-    GMRES converges slowly and a direct solve costs the same at every step."""
+    r""":math:`A_s^T P_s + P_s A_s + \sum_t q_{st} P_t = -R_s`, dense (``start`` unused; near marginal loops GMRES
+    is slow): :func:`~ftc_verify.analysis.moments.stability.lyapunov_stack_solution` in adjoint form."""
     P = lyapunov_stack_solution([a.T for a in A], np.asarray(Q).T, R)
     return None if P is None else list(P)
 
@@ -165,7 +166,7 @@ def float_gain(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], 
     the policy iteration converges), and the feedback at the smallest feasible gamma
     found, converged to :data:`~ftc_verify.analysis.bounded_real.POLICY_RTOL` (``None``
     when the loop is not mean-square stable)."""
-    if _abscissa(A, Q) >= 0:
+    if not _ms_stable(A, Q):
         return None
     lo, hi = 0.0, upper if upper is not None and upper > 0 else 1.0
     F = worst_case_feedback(A, Bw, Cz, Q, hi, rtol=SEARCH_RTOL)
@@ -225,8 +226,7 @@ def _forms(At: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], F: 
 
 
 def _stationary(Q: Matrix) -> Matrix | None:
-    """:func:`~ftc_verify.analysis.conditioning.stationary_distribution` when it is one
-    (the balance equations hold), else ``None``."""
+    """:func:`~ftc_verify.analysis.conditioning.stationary_distribution` if the balance equations hold."""
     pi = stationary_distribution(Q)
     return pi if np.all(np.isfinite(pi)) and np.abs(Q.T @ pi).max() < 1e-9 * max(1.0, np.abs(Q).max()) else None
 
