@@ -6,7 +6,8 @@
    vertices of the rate box (detection rates ``beta`` and, when given, false-alarm
    rates, :mod:`ftc_verify.model.chain`);
 2. the smallest certified nominal gamma (Theorem 3.2) and robust gamma (Lemma 4.1,
-   gains fixed), both over the rate box;
+   gains fixed), both over the rate box (without uncertainty channels, Theorem 3.2's
+   program runs in a forked child beside step 1, which it does not need);
 3. Theorem 3.1 over the rate box, certified (:func:`~ftc_verify.analysis.lmi_analysis.mes_lmi`),
    first with the ``P`` of step 2 (no solve), solved only when that check fails. When the
    box proof of step 1 would solve this LMI on the whole box (its centre's candidate
@@ -173,6 +174,30 @@ def _analyze(loop: ClosedLoop, solver: str | None, name: str, lmi: bool, lower_b
              check: Any, seconds: dict[str, float]) -> AnalysisReport:
     """The stages of :func:`analyze`; ``check``: the running
     :class:`~ftc_verify.prestart.Prestarted` (``None``: no cross-validation)."""
+    ahead = _nominal_ahead(loop, solver) if lmi and not loop.uncertain else None
+    try:
+        return _stages(loop, solver, name, lmi, lower_bounds, check, seconds, ahead)
+    finally:
+        if ahead is not None:
+            ahead.cancel()
+
+
+def _nominal_ahead(loop: ClosedLoop, solver: str | None) -> ForkedCall | None:
+    """Without uncertainty: Theorem 3.2's program in a forked child beside the spectral
+    stage (it needs nothing of it; cancelled when the loop is proved unstable), FLINT and
+    Clarabel imported first so that neither process imports them twice; ``None`` without
+    ``fork``."""
+    if not hasattr(os, "fork"):
+        return None
+    import clarabel  # noqa: F401
+    import flint  # noqa: F401
+
+    return ForkedCall(lambda: hinf_gamma(loop, robust=False, solver=solver), "Theorem 3.2")
+
+
+def _stages(loop: ClosedLoop, solver: str | None, name: str, lmi: bool, lower_bounds: bool, check: Any,
+            seconds: dict[str, float], ahead: ForkedCall | None) -> AnalysisReport:
+    """The stages of :func:`_analyze`; ``ahead``: Theorem 3.2 running (:func:`_nominal_ahead`)."""
     t = time.perf_counter()
     mss = mean_square_stability(loop, root_lmi=not lmi)  # with LMIs the whole box's is stage 3's (ROOT_LMI_DEFERRED)
     seconds["spectral"] = time.perf_counter() - t
@@ -180,7 +205,7 @@ def _analyze(loop: ClosedLoop, solver: str | None, name: str, lmi: bool, lower_b
         mes, nominal, robust = (_not_requested(c, "not solved: the loop is proved NOT mean-square stable, so no "
                                                "certificate exists") for c in ("Theorem 3.1", "Theorem 3.2", "Lemma 4.1"))
     elif lmi:
-        nominal, robust, early = _gammas(loop, solver, seconds, mss if lower_bounds else None)
+        nominal, robust, early = _gammas(loop, solver, seconds, mss if lower_bounds else None, ahead)
         t = time.perf_counter()
         mes = mes_lmi(loop, solver=solver, known=(nominal, robust))
         seconds["theorem_3_1"] = time.perf_counter() - t
@@ -235,7 +260,7 @@ def _lower_bounds(loop: ClosedLoop, mss: MSSResult, nominal: LMIResult, robust: 
 
 
 def _gammas(loop: ClosedLoop, solver: str | None, seconds: dict[str, float],
-            mss: MSSResult | None = None) -> tuple[LMIResult, LMIResult, Early]:
+            mss: MSSResult | None = None, ahead: ForkedCall | None = None) -> tuple[LMIResult, LMIResult, Early]:
     """The nominal (Theorem 3.2) and robust (Lemma 4.1) gamma programs. With uncertainty
     and a POSIX system, the nominal one runs in a forked child beside the robust one
     (:class:`~ftc_verify.analysis.solvers.ForkedCall`: two single-threaded solves on two
@@ -245,10 +270,11 @@ def _gammas(loop: ClosedLoop, solver: str | None, seconds: dict[str, float],
     lower bound and the constant-``Delta`` search of the robust one
     (:func:`_nominal_side`), which need only the nominal gamma; ``seconds`` gets each
     stage's wall time (overlapping when forked; the child's lower-bound part as
-    ``lower_bounds_beside``)."""
+    ``lower_bounds_beside``). ``ahead``: the nominal program already running (no
+    uncertainty, :func:`_nominal_ahead`; ``theorem_3_2`` is then the wait for it)."""
     t = time.perf_counter()
     if not loop.uncertain:
-        nominal = hinf_gamma(loop, robust=False, solver=solver)
+        nominal = ahead.result() if ahead is not None else hinf_gamma(loop, robust=False, solver=solver)
         seconds["theorem_3_2"] = seconds["lemma_4_1"] = time.perf_counter() - t
         return nominal, nominal, None
     if not hasattr(os, "fork"):
