@@ -85,7 +85,7 @@ def prove_below(loop: SampledLoop, a: float, rtol: float, max_boxes: int, work: 
     per_box = box_work(loop)
 
     def proved(f: float, share: float) -> bool:
-        boxes = max(2, min(max_boxes, int(share * work / per_box)))
+        boxes = min(max_boxes, max(2, int(share * work / per_box)))
         return box_verdict(loop, a * (1 - f), max_boxes=boxes, max_seconds=math.inf).verdict == "stable"
 
     for f, share in TIGHT:

@@ -419,22 +419,25 @@ class BoxVerdict:
 
 
 def _split_rate(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix) -> tuple[int, ...] | None:
-    """The rate along which a sub-box is halved: the largest score
-    :math:`|\rho(r_0 + w_a e_a) - \rho(r_0 - w_a e_a)| + 0.1\\, m\\, w_a / W_a` (float64
-    radii at the midpoint moved to the sub-box's ends along the rate, :math:`m` the
-    largest such change, :math:`w_a / W_a` the relative width): the rates the radius
+    r"""The rate along which a sub-box is halved: the largest score
+    :math:`s_a + 0.1\, m\, w_a / W_a` with :math:`s_a = \max_\pm |\rho(r_0 \pm w_a e_a)
+    - \rho(r_0)|` (float64 radii at the midpoint and moved to the sub-box's ends along
+    the rate: the slope and the curvature -- where :math:`\rho` dips in the middle of a
+    rate's range, the difference of its two ends alone would miss it), :math:`m` the
+    largest such change, :math:`w_a / W_a` the relative width: the rates the radius
     depends on most first, every rate in turn as its relative width grows. A
     heuristic; only where the proofs look next depends on it."""
     chain = loop.chain
     full = chain.rate_max - chain.rate_min
     mid = 0.5 * (lo + hi)
+    rho0 = spectral_radius(loop, h, mid)
     rel, change = {}, {}
     for idx in chain.rate_indices:
         if full[idx] > 0 and hi[idx] > lo[idx]:
             rel[idx] = (hi[idx] - lo[idx]) / full[idx]
             up, down = mid.copy(), mid.copy()
             up[idx], down[idx] = hi[idx], lo[idx]
-            d = abs(spectral_radius(loop, h, up) - spectral_radius(loop, h, down))
+            d = max(abs(spectral_radius(loop, h, up) - rho0), abs(spectral_radius(loop, h, down) - rho0))
             change[idx] = d if math.isfinite(d) else 0.0
     if not rel:
         return None
