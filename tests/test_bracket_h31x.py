@@ -19,7 +19,8 @@ from ftc_verify.analysis.moments.sampled import (SampledLoop, crossing, scan_per
                                                  scan_range, spectral_radius, stability_intervals)
 from ftc_verify.analysis.moments.sampled_bracket import box_work, h_max_bracket
 from ftc_verify.analysis.moments.sampled_proof import MapParts, prove_point_unstable
-from ftc_verify.analysis.moments.sampled_taylor import _certify, _rates_affine, certify_second_order
+from ftc_verify.analysis.moments.sampled_second import certify_second_order
+from ftc_verify.analysis.moments.sampled_taylor import _certify, _rates_affine
 from ftc_verify.analysis.moments.quad_balls import quad_map
 from ftc_verify.analysis.rigorous import precision
 from ftc_verify.testing.sampled_cases import lqr_case
@@ -109,12 +110,12 @@ def test_perron_aligned_second_order_certificate_proves_what_the_identity_cannot
 
     below = form(a * (1 - 3e-3))
     assert not _certify(loop, below, pairs(2), None)
-    assert certify_second_order(loop, below, pairs(2), 0.05)
+    assert certify_second_order(loop, below, 0.05)
     h_up = a * (1 + 2e-3)
     assert spectral_radius(loop, h_up, hi * 0 + np.where(lo == 3.5, 4.0, lo)) > 1.0
     above = form(h_up)
     for mix in (None, 0.05, 0.3):
-        assert not certify_second_order(loop, above, pairs(2), mix)
+        assert not certify_second_order(loop, above, mix)
         assert not _certify(loop, above, pairs(2), mix)
 
 
@@ -152,3 +153,22 @@ def test_one_taylor_routine_contains_scipy_expm(kind: str) -> None:
         F = scipy.linalg.expm(X)
         assert np.all(np.abs(F - mid) <= r + 1e-13 * np.abs(F).max())
         assert float(r.max()) < (1e-8 if kind == "ball" else 0.1) * float(np.abs(F).max())
+
+
+def test_quadratic_max_bounds_the_maximum_over_the_box() -> None:
+    """``quadratic_max`` is an upper bound of a random quadratic's maximum over
+    ``[-1, 1]^4`` (seed 9; a grid of 9^4 points and every vertex never exceeds it) and
+    within its tolerance of the grid's best value (the bound is not loose)."""
+    import itertools
+
+    from ftc_verify.analysis.moments.sampled_second import quadratic_max
+
+    rng = np.random.default_rng(9)
+    K = 4
+    lin, quad = rng.standard_normal(K), rng.standard_normal(len(pairs(K)))
+    bound = quadratic_max(lin, quad)
+    grid = np.linspace(-1, 1, 9)
+    best = max(float(lin @ np.array(d) + sum(q * d[a] * d[b] for q, (a, b) in zip(quad, pairs(K))))
+               for d in itertools.product(grid, repeat=K))
+    scale = float(np.abs(lin).sum() + np.abs(quad).sum())
+    assert best <= bound <= best + 0.05 * scale

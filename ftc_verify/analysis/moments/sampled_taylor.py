@@ -89,7 +89,7 @@ from .sampled_balls import ball_generator, generator_coefficients
 from .stability import vech_order
 
 __all__ = ["FIRST_ORDER_LIMIT", "AFFINE_RATES", "QUADRATIC_SIZE", "unvech_ball", "stack_pd", "identity_stack", "perron_first_order_stable", "affine_stable",
-           "certify_second_order"]
+           "float_choices", "left_perron", "right_perron", "RHS_MIXES"]
 
 #: Largest Van Loan block (rows, twice the moment generator's) the first-order form
 #: exponentiates in ball arithmetic; above it only the direct ball is tried (cost).
@@ -134,7 +134,8 @@ def identity_stack(states: int, r: int) -> Matrix:
     return np.tile((rows == cols).astype(float), states)
 
 
-def _left_perron(T: Matrix) -> Matrix | None:
+def left_perron(T: Matrix) -> Matrix | None:
+    """The left Perron vector of ``T`` in float64 (``None`` when the dominant eigenvalue is not real)."""
     w, V = np.linalg.eig(T.T)
     k = int(np.argmax(np.abs(w)))
     if abs(w[k].imag) > 1e-9 * max(abs(w[k]), 1e-300):
@@ -143,7 +144,7 @@ def _left_perron(T: Matrix) -> Matrix | None:
     return v if np.all(np.isfinite(v)) else None
 
 
-def _right_perron(T: Matrix) -> Matrix | None:
+def right_perron(T: Matrix) -> Matrix | None:
     """The right Perron stack of ``T`` in float64, scaled to largest entry 1 with a
     positive sum (``None`` when the dominant eigenvalue is not real)."""
     w, V = np.linalg.eig(T)
@@ -162,7 +163,7 @@ def _right_perron(T: Matrix) -> Matrix | None:
 RHS_MIXES: tuple[float | None, ...] = (None, 0.05)
 
 
-def _float_choices(T0: Matrix, J0: list[Matrix], states: int, r: int,
+def float_choices(T0: Matrix, J0: list[Matrix], states: int, r: int,
                    mix: float | None = None) -> tuple[Matrix, list[Matrix]] | None:
     r"""``(Y_0, [y_a])`` of the module docstring in float64 (``None`` when a solve fails),
     with :math:`(I - T_0) Y_0 = b`: ``b`` the identity stack (``mix`` ``None``) or the
@@ -175,7 +176,7 @@ def _float_choices(T0: Matrix, J0: list[Matrix], states: int, r: int,
     A = np.eye(N) - T0
     rhs = identity_stack(states, r)
     if mix is not None:
-        v = _right_perron(T0)
+        v = right_perron(T0)
         if v is None:
             return None
         rhs = v + mix * rhs
@@ -183,7 +184,7 @@ def _float_choices(T0: Matrix, J0: list[Matrix], states: int, r: int,
         y0 = np.linalg.solve(A, rhs)
     except np.linalg.LinAlgError:
         return None
-    w = _left_perron(T0)
+    w = left_perron(T0)
     if w is None or not np.all(np.isfinite(y0)) or w @ y0 == 0:
         return None
     ys = []
@@ -224,7 +225,7 @@ def perron_first_order_stable(loop: SampledLoop, parts: Any, lo: Matrix, hi: Mat
             return False
         J0.append(parts.derivative(Q0, coef))
         Jb.append(parts.derivative(Qb, coef))
-    choice = _float_choices(T_mid, [midpoint(Ball(J)) for J in J0], S, r)
+    choice = float_choices(T_mid, [midpoint(Ball(J)) for J in J0], S, r)
     if choice is None:
         return False
     y0f, ysf = choice
@@ -313,8 +314,10 @@ def affine_stable(loop: SampledLoop, parts: Any, lo: Matrix, hi: Matrix) -> bool
         if aff is None:
             return None
         form = (aff[0], aff[1], np.zeros((0,) + aff[0].shape), aff[2])
+    from .sampled_second import certify_second_order
+
     for mix in RHS_MIXES:
-        if form[2].shape[0] and certify_second_order(loop, form, pairs(K), mix):
+        if certify_second_order(loop, form, mix):
             return True
         if _certify(loop, form, pairs(K) if form[2].shape[0] else (), mix):
             return True
@@ -328,7 +331,7 @@ def _certify(loop: SampledLoop, form: tuple[Matrix, Matrix, Matrix, Matrix], prs
     flint = _flint()
     Tc, Tl, Tq, Tr = form
     S, r, N, K = loop.states, loop.r, Tc.shape[0], Tl.shape[0]
-    choice = _float_choices(Tc, list(Tl), S, r, mix)
+    choice = float_choices(Tc, list(Tl), S, r, mix)
     if choice is None:
         return False
     Y0, ys = choice
@@ -362,116 +365,3 @@ def _certify(loop: SampledLoop, form: tuple[Matrix, Matrix, Matrix, Matrix], prs
             return False
     return True
 
-
-def _second_order_choices(Tc: Matrix, Tl: Matrix, Tq: Matrix, prs: Sequence[tuple[int, int]], Y0: Matrix,
-                          Yl: Matrix) -> tuple[Matrix, Matrix] | None:
-    r"""``(Yq, c)``: the second-order terms :math:`y_p` of the certificate and the
-    Perron coefficients :math:`c_p` (:func:`certify_second_order`), float64 choices."""
-    w = _left_perron(Tc)
-    if w is None or w @ Y0 == 0:
-        return None
-    A = np.eye(Tc.shape[0]) - Tc
-    ys, cs = [], []
-    for k, (a, b) in enumerate(prs):
-        g = Tq[k] @ Y0 + Tl[a] @ Yl[b] + (Tl[b] @ Yl[a] if a != b else 0.0)
-        c = float(w @ g / (w @ Y0))
-        try:
-            y = np.linalg.solve(A, g - c * Y0)
-        except np.linalg.LinAlgError:
-            return None
-        if not (np.all(np.isfinite(y)) and math.isfinite(c)):
-            return None
-        ys.append(y)
-        cs.append(c)
-    return np.asarray(np.stack(ys), dtype=np.float64), np.asarray(cs, dtype=np.float64)
-
-
-def certify_second_order(loop: SampledLoop, form: tuple[Matrix, Matrix, Matrix, Matrix],
-                         prs: Sequence[tuple[int, int]], mix: float | None = None) -> bool:
-    r"""``True`` only if :math:`\rho(T(\delta)) < 1` is proved for every
-    :math:`\delta \in [-1, 1]^K`, from a second-order form :math:`T(\delta) \in T_c +
-    \sum_a \delta_a T_a + \sum_p \mu_p T_p + E` (:math:`p = (a, b)`, :math:`a \le b`,
-    :math:`\mu_p = \delta_a \delta_b`) and a certificate that follows the Perron vector to
-    second order (derived here):
-
-    .. math::
-
-        Y(\delta) = Y_0 + \sum_a \delta_a y_a + \sum_p \mu_p y_p, \qquad
-        (I - T_c)\, y_p = g_p - c_p Y_0, \quad
-        g_p = T_p Y_0 + T_a y_b + [a \ne b]\, T_b y_a,
-
-    :math:`c_p = \langle w, g_p\rangle / \langle w, Y_0\rangle` (:math:`Y_0, y_a, w` as
-    in :func:`affine_stable`). Expanding,
-    :math:`Y - T Y = (Y_0 - T_c Y_0) + \sum_a \delta_a L_a + \sum_p \mu_p L_p - C - E Y`
-    with :math:`L_a = y_a - T_c y_a - T_a Y_0`, :math:`L_p = y_p - T_c y_p - g_p =
-    -c_p Y_0 + r_p` (:math:`r_p` the float residual of the solve) and :math:`C` the terms
-    of degree three and four, :math:`|C| \le S(T_a) S(y_p) + S(T_p) S(y_a) + S(T_p)
-    S(y_p)` (:math:`S` the sum of absolute values over the index). The quadratic part
-    :math:`-t(\delta) Y_0`, :math:`t = \sum_p c_p \mu_p \le t_{hi} = \sum_a \max(c_{aa},
-    0) + \sum_{a < b} |c_{ab}|` (:math:`\mu_{aa} \in [0, 1]`), is :math:`\succeq -t_{hi}
-    Y_0` once :math:`Y_0 \succeq 0` is proved; the rest is affine in :math:`\delta` plus
-    an entrywise-bounded part. So if :math:`Y_0 \succ 0` and, at every vertex
-    :math:`\delta \in \{-1, 1\}^K`, the balls of :math:`Y_0 + \sum_a \delta_a y_a \pm
-    S(y_p)` and of :math:`Y_0 - T_c Y_0 + \sum_a \delta_a L_a - t_{hi} Y_0 \pm (\sum_p
-    |r_p| + |C| + |E| |Y|)` (with every rounding) are proved positive definite per joint
-    state, then for every :math:`\delta` of the box :math:`Y(\delta) \succ 0` and
-    :math:`Y(\delta) - T(\delta) Y(\delta) \succ 0` (convex combinations, then adding
-    :math:`(t_{hi} - t(\delta)) Y_0 \succeq 0`): :math:`\rho < 1` (the cone argument of
-    :mod:`~ftc_verify.analysis.moments.sampled_proof`). To second order the condition
-    reads :math:`\rho(r_0) + \sum_a \delta_a \partial_a \rho + \tfrac12 |\partial^2 \rho|
-    \cdot w^2 < 1`: the curvature of :math:`\rho`, not that of :math:`T` (which the
-    first-order certificate pays in full), limits the sub-box.
-
-    Rounding (as in :func:`affine_stable`, Higham's :math:`1.01\, N u` per inner product
-    of length :math:`N`, :math:`u` per sum): :math:`r_p` is computed from five products and
-    sums, its error at most :math:`(1.01 N u + 6u)` times the sum of the magnitudes of
-    its terms."""
-    flint = _flint()
-    Tc, Tl, Tq, Tr = form
-    S, r, N, K, M = loop.states, loop.r, Tc.shape[0], Tl.shape[0], len(prs)
-    choice = _float_choices(Tc, list(Tl), S, r, mix)
-    if choice is None:
-        return False
-    Y0, ys = choice
-    Yl = np.stack(ys)
-    second = _second_order_choices(Tc, Tl, Tq, prs, Y0, Yl)
-    if second is None:
-        return False
-    Yq, cq = second
-    u, eta = 2.0 ** -53, 2.0 ** -1022
-
-    def up(v: Matrix, k: int) -> Matrix:
-        return np.asarray(v * (1.0 + 2.0 * (k + 1) * u) + (k + 1) * eta)
-
-    def sum_abs(x: Matrix) -> Matrix:
-        return up(np.abs(x).sum(axis=0), x.shape[0] + 1)
-
-    aTc, aY0 = np.abs(Tc), np.abs(Y0)
-    aTl, aTq, aYl, aYq = sum_abs(Tl), sum_abs(Tq), sum_abs(Yl), sum_abs(Yq)
-    base = Y0 - Tc @ Y0
-    lin = Yl - Yl @ Tc.T - np.einsum("aij,j->ai", Tl, Y0)
-    resid, mags = [], []
-    for k, (a, b) in enumerate(prs):
-        cross = Tl[a] @ Yl[b] + (Tl[b] @ Yl[a] if a != b else 0.0)
-        resid.append(Yq[k] - Tc @ Yq[k] - Tq[k] @ Y0 - cross + cq[k] * Y0)
-        mag = np.abs(Yq[k]) + aTc @ np.abs(Yq[k]) + np.abs(Tq[k]) @ aY0 + np.abs(Tl[a]) @ np.abs(Yl[b])
-        mags.append(mag + (np.abs(Tl[b]) @ np.abs(Yl[a]) if a != b else 0.0) + abs(cq[k]) * aY0)
-    t_hi = float(up(np.array(sum(max(c, 0.0) if a == b else abs(c) for c, (a, b) in zip(cq, prs))), M + 1))
-    rad = sum_abs(np.stack(resid)) + (1.01 * N * u + 6 * u) * sum_abs(np.stack(mags))
-    rad += aTl @ aYq + aTq @ aYl + aTq @ aYq + Tr @ (aY0 + aYl + aYq)
-    rad += (1.01 * N * u + 3 * u) * (aTc @ (aY0 + aYl) + aTl @ aY0)
-    rad += (K + 5) * u * (np.abs(base) + sum_abs(lin) + t_hi * aY0)
-    rad = up(rad, N + K + 2 * M + 16) + (3 * K + 3 * M + 6) * N * eta
-    yrad = up(aYq + (K + 2) * u * (aY0 + aYl), K + 4)
-    arb = flint.arb
-    if not stack_pd(flint.arb_mat(N, 1, [arb(float(x)) for x in Y0]), S, r):
-        return False
-    for corner in itertools.product((-1.0, 1.0), repeat=K):
-        sg = np.array(corner)
-        v = base + sg @ lin - t_hi * Y0
-        Y = Y0 + sg @ Yl
-        vec = flint.arb_mat(N, 1, [arb(float(x), float(e)) for x, e in zip(v, rad)])
-        Yb = flint.arb_mat(N, 1, [arb(float(x), float(e)) for x, e in zip(Y, yrad)])
-        if not (stack_pd(Yb, S, r) and stack_pd(vec, S, r)):
-            return False
-    return True
