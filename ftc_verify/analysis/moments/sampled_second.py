@@ -74,7 +74,7 @@ import numpy as np
 from ...model.system import Matrix
 from .quad_balls import pairs
 from .sampled import SampledLoop
-from .sampled_taylor import float_choices, left_perron, stack_pd
+from .sampled_taylor import float_choices, float_pd, left_perron, stack_pd
 
 __all__ = ["quadratic_max", "second_order_choices", "certify_second_order"]
 
@@ -226,11 +226,13 @@ def certify_second_order(loop: SampledLoop, form: tuple[Matrix, ...], mix: float
     flint = _flint()
     arb = flint.arb
     v = base - phi * Y0
+    if not (float_pd(v, S, r) and float_pd(Y0, S, r)):
+        return False
     vec = flint.arb_mat(N, 1, [arb(float(x), float(e)) for x, e in zip(v, rad)])
     if not (stack_pd(flint.arb_mat(N, 1, [arb(float(x)) for x in Y0]), S, r) and stack_pd(vec, S, r)):
         return False
     for corner in itertools.product((-1.0, 1.0), repeat=K):
         Y = Y0 + np.array(corner) @ Yl
-        if not stack_pd(flint.arb_mat(N, 1, [arb(float(x), float(e)) for x, e in zip(Y, yrad)]), S, r):
+        if not (float_pd(Y, S, r) and stack_pd(flint.arb_mat(N, 1, [arb(float(x), float(e)) for x, e in zip(Y, yrad)]), S, r)):
             return False
     return True

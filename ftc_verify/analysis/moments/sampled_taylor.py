@@ -89,7 +89,7 @@ from .sampled_balls import ball_generator, generator_coefficients
 from .stability import vech_order
 
 __all__ = ["FIRST_ORDER_LIMIT", "AFFINE_RATES", "QUADRATIC_SIZE", "unvech_ball", "stack_pd", "identity_stack", "perron_first_order_stable", "affine_stable",
-           "float_choices", "left_perron", "right_perron", "RHS_MIXES"]
+           "float_pd", "float_choices", "left_perron", "right_perron", "RHS_MIXES"]
 
 #: Largest Van Loan block (rows, twice the moment generator's) the first-order form
 #: exponentiates in ball arithmetic; above it only the direct ball is tried (cost).
@@ -126,6 +126,16 @@ def stack_pd(vec: Any, states: int, r: int) -> bool:
     definite (:func:`~ftc_verify.analysis.rigorous.proven_positive_definite`)."""
     v = r * (r + 1) // 2
     return all(proven_positive_definite(unvech_ball(vec, s * v, r)) for s in range(states))
+
+
+def float_pd(vec: Matrix, states: int, r: int) -> bool:
+    """Every joint state's block of the float column ``vec`` has a positive float64
+    smallest eigenvalue: a necessary condition of :func:`stack_pd` on a ball around
+    ``vec`` (the ball contains its midpoint), checked first because it is cheap --
+    skipping a proof only ever loses it, never claims one."""
+    from .stability import unvech_stack
+
+    return all(np.linalg.eigvalsh(B)[0] > 0 for B in unvech_stack(np.asarray(vec, dtype=np.float64), states, r))
 
 
 def identity_stack(states: int, r: int) -> Matrix:
@@ -359,6 +369,8 @@ def _certify(loop: SampledLoop, form: tuple[Matrix, Matrix, Matrix, Matrix], prs
         sg = np.array(corner)
         v = base + sg @ lin
         Y = Y0 + sg @ Yl
+        if not (float_pd(Y, S, r) and float_pd(v, S, r)):
+            return False
         vec = flint.arb_mat(N, 1, [arb(float(x), float(e)) for x, e in zip(v, rad)])
         Yb = flint.arb_mat(N, 1, [arb(float(x), float(e)) for x, e in zip(Y, yrad)])
         if not (stack_pd(Yb, S, r) and stack_pd(vec, S, r)):
