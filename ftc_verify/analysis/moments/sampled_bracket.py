@@ -46,9 +46,9 @@ COARSE = (0.3, 0.5)
 TIGHT = ((0.25, 1 / 6), (0.75, 1 / 2))
 
 #: The proof budget of one attempt of :func:`prove_below` in work units
-#: (:func:`box_work`): about 4 s of one core of the machine ``benchmarks/sampled.py``
+#: (:func:`box_work`): about 3 s of one core of the machine ``benchmarks/sampled.py``
 #: was calibrated on.
-BRACKET_WORK = 4000.0
+BRACKET_WORK = 3000.0
 
 
 def box_work(loop: SampledLoop) -> float:
