@@ -129,6 +129,7 @@ def _ball_expm(a: MidRad, terms: int) -> MidRad | None:
     return taylor_expm((ac, ar), BALLS, terms)
 
 
+#: An enclosure of one of the arithmetics of :func:`taylor_expm` (a tuple of float arrays).
 F = TypeVar("F", bound=tuple[Any, ...])
 
 
