@@ -3,8 +3,8 @@
 
 Cases: the paper's example with its gains at h = 0.1 (goal, issue 31: within 3 s), and
 random systems with ``n`` states, ``m`` modes and two inputs (``n = 4, m = 3``: the
-``h_max`` scan within 10 s), each mode's gain an LQR gain of the mode's own plant (the
-FDI mode's plant for the gain of that mode), the detection rates in ``[2, 4]``. Columns:
+``h_max`` scan within 10 s) drawn by :func:`ftc_verify.testing.sampled_cases.lqr_case`
+(each mode's gain an LQR gain of the mode's own plant, the detection rates in ``[2, 4]``). Columns:
 ``case, n, m, joint_states, map_rows, period, verdict, spectral_radius, h_max,
 h_max_unstable, sub_boxes, exp, bracket`` (relative width of the proved ``h_max``
 bracket) ``, seconds, cpu_seconds``. ``--seed`` draws other random systems (held-out
@@ -30,33 +30,14 @@ from typing import Any
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
-import scipy.linalg
 
 from ftc_verify.analysis.moments import sampled_proof
 from ftc_verify.analysis.moments.sampled import SampledLoop, sampled_analysis
-from ftc_verify.controllers.controller import Controller
 from ftc_verify.controllers.files import load_controller
 from ftc_verify.model.files import load_system
-from ftc_verify.model.system import FTCSystem
+from ftc_verify.testing.sampled_cases import lqr_case
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def random_case(n: int, m: int, rng: np.random.Generator) -> tuple[FTCSystem, Controller]:
-    """A random plant per mode (shifted by -0.5 I) and an LQR gain per FDI mode."""
-    modes, gains = [], []
-    for _ in range(m):
-        A = rng.standard_normal((n, n)) * 0.6 - 0.5 * np.eye(n)
-        B = rng.standard_normal((n, 2))
-        modes.append({"A": A, "B": B, "C": np.ones((1, n)), "D": np.ones((n, 1)) * 0.3})
-        P = scipy.linalg.solve_continuous_are(A, B, np.eye(n), np.eye(2))
-        gains.append(-B.T @ P)
-    alpha = np.full((m, m), 0.3)
-    np.fill_diagonal(alpha, -0.3 * (m - 1))
-    off = 1 - np.eye(m)
-    system = FTCSystem.from_arrays(name=f"random n={n} m={m}", modes=modes, alpha=alpha, beta_min=2 * off,
-                                   beta_max=4 * off)
-    return system, Controller.state_feedback(gains)
 
 
 @contextlib.contextmanager
@@ -92,7 +73,7 @@ def main() -> None:
     cases = [("paper", load_system(ROOT / "examples" / "paper.toml"),
               load_controller(ROOT / "examples" / "paper_gains.toml"), 0.1)]
     for n, m in ((2, 2), (4, 3)):
-        system, controller = random_case(n, m, rng)
+        system, controller = lqr_case(n, m, rng)
         cases.append((f"random n={n} m={m}", system, controller, 0.01))
     rows = []
     kinds = ["float64-balls", "arb"] if args.exp == "both" else [args.exp]

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import scipy.linalg
 
 from ftc_verify.analysis.moments.fast_balls import aff_map
 from ftc_verify.analysis.moments.quad_balls import pairs, quad_map
@@ -17,8 +16,7 @@ from ftc_verify.analysis.moments.sampled_bracket import h_max_bracket, worst_ver
 from ftc_verify.analysis.moments.sampled_proof import MapParts, box_verdict
 from ftc_verify.analysis.moments.sampled_taylor import _rates_affine, affine_stable
 from ftc_verify.analysis.rigorous import precision
-from ftc_verify.controllers.controller import Controller
-from ftc_verify.model.system import FTCSystem
+from ftc_verify.testing.sampled_cases import lqr_case
 
 
 def _random_loop(n: int, m: int, seed: int) -> SampledLoop:
@@ -27,20 +25,8 @@ def _random_loop(n: int, m: int, seed: int) -> SampledLoop:
 
 
 def _draw(n: int, m: int, rng: np.random.Generator) -> SampledLoop:
-    """A random plant per mode (shifted by -0.5 I), an LQR gain per FDI mode, detection
-    rates in [2, 4] (as ``benchmarks/sampled.py``)."""
-    modes, gains = [], []
-    for _ in range(m):
-        A = rng.standard_normal((n, n)) * 0.6 - 0.5 * np.eye(n)
-        B = rng.standard_normal((n, 2))
-        modes.append({"A": A, "B": B, "C": np.ones((1, n)), "D": np.ones((n, 1)) * 0.3})
-        P = scipy.linalg.solve_continuous_are(A, B, np.eye(n), np.eye(2))
-        gains.append(-B.T @ P)
-    alpha = np.full((m, m), 0.3)
-    np.fill_diagonal(alpha, -0.3 * (m - 1))
-    off = 1 - np.eye(m)
-    system = FTCSystem.from_arrays(name="random", modes=modes, alpha=alpha, beta_min=2 * off, beta_max=4 * off)
-    return SampledLoop.build(system, Controller.state_feedback(gains))
+    """The loop of :func:`~ftc_verify.testing.sampled_cases.lqr_case` (as ``benchmarks/sampled.py``)."""
+    return SampledLoop.build(*lqr_case(n, m, rng))
 
 
 def _crossing(loop: SampledLoop) -> tuple[float, float, float]:
@@ -137,15 +123,15 @@ def test_worst_vertex_beyond_the_corners() -> None:
 @pytest.mark.parametrize("seed", [4, 1])
 def test_bracket_within_rtol_and_consistent_with_dense_rates(seed: int) -> None:
     """Held-out random loops (n = 2, m = 2, seeds 4 and 1): the proved bracket is within
-    1e-3 relative; at h_max the float radius is below 1 at 300 random rates of the box
+    1e-3 relative; at h_max the float radius is below 1 at 150 random rates of the box
     and every vertex (seed 5), and at h_max_unstable some rate of the box has rho > 1."""
     loop = _random_loop(2, 2, seed)
     _, stable_h, unstable_h = _crossing(loop)
-    hm, hu, note = h_max_bracket(loop, stable_h, unstable_h, max_seconds=30.0)
+    hm, hu, note = h_max_bracket(loop, stable_h, unstable_h)
     assert hm is not None and hu is not None, note
     assert (hu - hm) / hu <= 1e-3, note
     chain = loop.chain
-    pts = _box_points(loop, chain.rate_min, chain.rate_max, np.random.default_rng(5), 300)
+    pts = _box_points(loop, chain.rate_min, chain.rate_max, np.random.default_rng(5), 150)
     pts += list(chain.vertices())
     assert max(spectral_radius(loop, hm, p) for p in pts) < 1.0
     assert max(spectral_radius(loop, hu, p) for p in pts) > 1.0

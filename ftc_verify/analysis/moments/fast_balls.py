@@ -58,14 +58,16 @@ exponential; no result is ever returned without its bound.
 from __future__ import annotations
 
 import math
-from typing import Any
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Generic, TypeVar
 
 import numpy as np
 
 from ...model.system import Matrix
 
 __all__ = ["MidRad", "Affine", "ball_expm", "arb_expm", "map_ball", "from_arb", "to_arb", "TAYLOR_TERMS", "aff_mul",
-           "aff_expm", "aff_map"]
+           "aff_expm", "aff_map", "FormArithmetic", "taylor_expm", "BALLS", "AFFINE"]
 
 _U = 2.0 ** -53
 _ETA = 2.0 ** -1022
@@ -124,26 +126,64 @@ def _ball_expm(a: MidRad, terms: int) -> MidRad | None:
     ac, ar = (np.asarray(x, dtype=np.float64) for x in a)
     if not (np.all(np.isfinite(ac)) and np.all(np.isfinite(ar)) and np.all(ar >= 0)):
         return None
-    nu = float(np.max(_up(np.sum(np.abs(ac) + ar, axis=1), ac.shape[1] + 2))) if ac.size else 0.0
-    if not math.isfinite(nu):
-        return None
-    s = max(0, math.ceil(math.log2(nu)) + 1) if nu > 0 else 0
-    b = _scale((ac, ar), 2.0 ** -s, 0.0)
-    mu = float(_up(nu * 2.0 ** -s, 2))  # <= 1/2 up to rounding
-    if mu >= 1.0:  # pragma: no cover - s is chosen so that mu <= 1/2
-        return None
-    p = _add_identity(_scale(b, 1.0 / terms, _U / terms))
-    for j in range(terms - 1, 0, -1):
-        inv = 1.0 / j
-        p = _add_identity(_scale(_mul(b, p), inv, _U * inv))
-    tail = mu ** (terms + 1) / math.factorial(terms + 1) / (1.0 - mu / (terms + 2))
-    pc, pr = p
-    p = (pc, pr + float(_up(tail, terms + 8)))
-    for _ in range(s):
-        p = _mul(p, p)
-    if not (np.all(np.isfinite(p[0])) and np.all(np.isfinite(p[1]))):
-        return None
-    return p
+    return taylor_expm((ac, ar), BALLS, terms)
+
+
+#: An enclosure of one of the arithmetics of :func:`taylor_expm` (a tuple of float arrays).
+F = TypeVar("F", bound=tuple[Any, ...])
+
+
+@dataclass(frozen=True)
+class FormArithmetic(Generic[F]):
+    r"""The operations :func:`taylor_expm` needs on one kind of enclosure ``F`` (a tuple
+    of float arrays: a ball ``(mid, rad)``, an affine form ``(c, lin, r)``, a
+    second-order form ``(c, l, q, r)``); each returns an enclosure of the exact result
+    for every element of its arguments (at the same symbols).
+
+    ``magnitude(x)``: an entrywise upper bound of :math:`|X|` over the set (rounded
+    to within the two roundings :func:`taylor_expm` adds); ``mul``, ``scale(x, cm, cr)``
+    (times the scalar ball :math:`\langle cm, cr\rangle`), ``add_identity``;
+    ``widen(x, t)``: ``x`` with ``t >= 0`` added to every radius (``t`` exact)."""
+
+    magnitude: Callable[[F], Matrix]
+    mul: Callable[[F, F], F]
+    scale: Callable[[F, float, float], F]
+    add_identity: Callable[[F], F]
+    widen: Callable[[F, float], F]
+
+
+def taylor_expm(x: F, arith: FormArithmetic[F], terms: int = TAYLOR_TERMS) -> F | None:
+    r"""An enclosure of :math:`e^{X}` for every :math:`X` of the enclosure ``x`` (at the
+    same symbols), in the arithmetic ``arith``; ``None`` when a number overflows.
+
+    The one scaling-and-squaring routine of the ball, affine and second-order
+    exponentials (module docstring, *Taylor series with remainder* and *Squaring*):
+    :math:`\nu \ge \| \mathrm{magnitude}(x) \|_\infty` rounded up, :math:`s` with
+    :math:`\mu = \nu 2^{-s} \le 1/2`, Horner's rule on :math:`X / 2^s` (the scaling
+    by a power of two exact up to underflow), the tail
+    :math:`\mu^{K+1} / (K+1)! / (1 - \mu / (K + 2))` added to every radius, ``s``
+    squarings."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        mag = arith.magnitude(x)
+        nu = float(np.max(_up(np.sum(mag, axis=1), mag.shape[1] + 2))) if mag.size else 0.0
+        if not math.isfinite(nu):
+            return None
+        s = max(0, math.ceil(math.log2(nu)) + 1) if nu > 0 else 0
+        b = arith.scale(x, 2.0 ** -s, 0.0)
+        mu = float(_up(nu * 2.0 ** -s, 2))  # <= 1/2 up to rounding
+        if mu >= 1.0:  # pragma: no cover - s is chosen so that mu <= 1/2
+            return None
+        p = arith.add_identity(arith.scale(b, 1.0 / terms, _U / terms))
+        for j in range(terms - 1, 0, -1):
+            inv = 1.0 / j
+            p = arith.add_identity(arith.scale(arith.mul(b, p), inv, _U * inv))
+        tail = mu ** (terms + 1) / math.factorial(terms + 1) / (1.0 - mu / (terms + 2))
+        p = arith.widen(p, float(_up(tail, terms + 8)))
+        for _ in range(s):
+            p = arith.mul(p, p)
+        if not all(np.all(np.isfinite(v)) for v in p):
+            return None
+        return p
 
 
 def from_arb(m: Any) -> MidRad:
@@ -246,6 +286,18 @@ def _aff_add_identity(a: Affine) -> Affine:
     return cc, al, _up(ar + _U * np.abs(cc), 2)
 
 
+def _widen(x: Any, t: float) -> Any:
+    """``x`` with ``t`` added to its radius (the last array), rounded up."""
+    return (*x[:-1], _up(x[-1] + t, 1))
+
+
+#: :func:`taylor_expm` in the ball arithmetic of :func:`ball_expm`.
+BALLS: FormArithmetic[MidRad] = FormArithmetic(lambda a: np.abs(a[0]) + a[1], _mul, _scale, _add_identity, _widen)
+#: :func:`taylor_expm` in the affine arithmetic of :func:`aff_expm`.
+AFFINE: FormArithmetic[Affine] = FormArithmetic(lambda a: np.abs(a[0]) + _lin_abs(a[1]) + a[2], aff_mul,
+                                                 lambda a, cm, cr: _aff_scale(a, cm, cr), _aff_add_identity, _widen)
+
+
 def aff_expm(a: Affine, terms: int = TAYLOR_TERMS) -> Affine | None:
     r"""An affine ball containing :math:`e^{X}` for every :math:`X` of the affine ball
     ``a``, at the same :math:`\delta` (``None`` when a number overflows).
@@ -264,31 +316,10 @@ def aff_expm(a: Affine, terms: int = TAYLOR_TERMS) -> Affine | None:
     bounded in absolute value; the plain ball arithmetic of :func:`ball_expm` bounds the
     first-order spread entrywise at every product, which wraps (about a hundred times the
     true spread on the random loops of ``benchmarks/sampled.py``). The exponential is
-    that of :func:`ball_expm` (scaling, Horner's rule with the same remainder bound for
+    :func:`taylor_expm` (:data:`AFFINE`; scaling, Horner's rule with the same remainder bound for
     every matrix of the set: :math:`\nu` bounds :math:`\| |c| + S + r \|_\infty`,
     squaring) in this arithmetic."""
-    with np.errstate(over="ignore", invalid="ignore"):
-        ac, al, ar = a
-        mag = np.abs(ac) + _lin_abs(al) + ar
-        nu = float(np.max(_up(np.sum(mag, axis=1), ac.shape[1] + 2))) if ac.size else 0.0
-        if not math.isfinite(nu):
-            return None
-        s = max(0, math.ceil(math.log2(nu)) + 1) if nu > 0 else 0
-        b = _aff_scale(a, 2.0 ** -s, 0.0)
-        mu = float(_up(nu * 2.0 ** -s, 2))
-        if mu >= 1.0:  # pragma: no cover - s is chosen so that mu <= 1/2
-            return None
-        p = _aff_add_identity(_aff_scale(b, 1.0 / terms, _U / terms))
-        for j in range(terms - 1, 0, -1):
-            inv = 1.0 / j
-            p = _aff_add_identity(_aff_scale(aff_mul(b, p), inv, _U * inv))
-        tail = mu ** (terms + 1) / math.factorial(terms + 1) / (1.0 - mu / (terms + 2))
-        p = (p[0], p[1], p[2] + float(_up(tail, terms + 8)))
-        for _ in range(s):
-            p = aff_mul(p, p)
-        if not all(np.all(np.isfinite(x)) for x in p):
-            return None
-        return p
+    return taylor_expm(a, AFFINE, terms)
 
 
 def aff_map(res: MidRad, modes: MidRad, q: MidRad, dirs: Matrix, h: MidRad, lift: MidRad) -> Affine | None:

@@ -19,21 +19,22 @@ and four, bounded entrywise by :math:`S_l S'_q + S_q S'_l + S_q S'_q` (:math:`S_
 :math:`r (|c'| + S'_l + S'_q + r') + (|c| + S_l + S_q) r'`. The rounding of every float
 product (Higham's bound :math:`1.01\, k u` on each inner product of length :math:`k`, as
 in :mod:`~ftc_verify.analysis.moments.fast_balls`) and of every sum goes to the radius,
-which is rounded up by ``_up`` (same lemma). The exponential is that module's: scaling by
-a power of two so that the norm bound :math:`\nu` of every matrix of the set is at most
-:math:`2^{s - 1}`, Horner's rule with the entrywise tail bound, :math:`s` squarings.
+which is rounded up by ``_up`` (same lemma). The exponential is that module's one
+:func:`~ftc_verify.analysis.moments.fast_balls.taylor_expm` in this arithmetic
+(:data:`QUADRATIC`): scaling by a power of two so that the norm bound :math:`\nu` of
+every matrix of the set is at most :math:`2^{s - 1}`, Horner's rule with the entrywise
+tail bound, :math:`s` squarings.
 """
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 
 from ...model.system import Matrix
-from .fast_balls import TAYLOR_TERMS, MidRad
+from .fast_balls import TAYLOR_TERMS, FormArithmetic, MidRad, taylor_expm
 
-__all__ = ["Quad", "pairs", "quad_mul", "quad_expm", "quad_map"]
+__all__ = ["Quad", "QUADRATIC", "pairs", "quad_mul", "quad_expm", "quad_map"]
 
 _U = 2.0 ** -53
 _ETA = 2.0 ** -1022
@@ -94,31 +95,16 @@ def _add_identity(x: Quad) -> Quad:
     return cc, al, aq, _up(ar + _U * np.abs(cc), 2)
 
 
+#: :func:`~ftc_verify.analysis.moments.fast_balls.taylor_expm` in this module's arithmetic.
+QUADRATIC: FormArithmetic[Quad] = FormArithmetic(lambda x: np.abs(x[0]) + _sum_abs(x[1]) + _sum_abs(x[2]) + x[3],
+                                                 quad_mul, _scale, _add_identity,
+                                                 lambda x, t: (x[0], x[1], x[2], _up(x[3] + t, 1)))
+
+
 def quad_expm(x: Quad, terms: int = TAYLOR_TERMS) -> Quad | None:
     """A second-order form containing :math:`e^{X}` for every :math:`X` of ``x`` at the
     same :math:`\\delta` (module docstring); ``None`` when a number overflows."""
-    with np.errstate(over="ignore", invalid="ignore"):
-        ac, al, aq, ar = x
-        mag = np.abs(ac) + _sum_abs(al) + _sum_abs(aq) + ar
-        nu = float(np.max(_up(np.sum(mag, axis=1), ac.shape[1] + 2))) if ac.size else 0.0
-        if not math.isfinite(nu):
-            return None
-        s = max(0, math.ceil(math.log2(nu)) + 1) if nu > 0 else 0
-        b = _scale(x, 2.0 ** -s, 0.0)
-        mu = float(_up(nu * 2.0 ** -s, 2))
-        if mu >= 1.0:  # pragma: no cover - s is chosen so that mu <= 1/2
-            return None
-        p = _add_identity(_scale(b, 1.0 / terms, _U / terms))
-        for j in range(terms - 1, 0, -1):
-            inv = 1.0 / j
-            p = _add_identity(_scale(quad_mul(b, p), inv, _U * inv))
-        tail = mu ** (terms + 1) / math.factorial(terms + 1) / (1.0 - mu / (terms + 2))
-        p = (p[0], p[1], p[2], p[3] + float(_up(tail, terms + 8)))
-        for _ in range(s):
-            p = quad_mul(p, p)
-        if not all(np.all(np.isfinite(v)) for v in p):
-            return None
-        return p
+    return taylor_expm(x, QUADRATIC, terms)
 
 
 def quad_map(res: MidRad, modes: MidRad, q: MidRad, dirs: Matrix, h: MidRad, lift: MidRad) -> Quad | None:

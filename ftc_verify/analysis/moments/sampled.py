@@ -404,14 +404,17 @@ def stability_intervals(loop: SampledLoop, hs: Matrix, rho: Matrix, rtol: float 
 
 
 def h_max_bracket(loop: SampledLoop, stable_h: float, unstable_h: float, *, rtol: float = H_MAX_RTOL,
-                  max_boxes: int = 512, max_seconds: float = 3.0,
+                  max_boxes: int = 512, work: float | None = None,
                   deadline: float = math.inf) -> tuple[float | None, float | None, str]:
     """``(h_max, h_max_unstable, note)`` from a float64 bracket ``stable_h < unstable_h``
-    of the crossing: :func:`ftc_verify.analysis.moments.sampled_bracket.h_max_bracket`."""
+    of the crossing: :func:`ftc_verify.analysis.moments.sampled_bracket.h_max_bracket`
+    (``work``: its budget per attempt, default
+    :data:`~ftc_verify.analysis.moments.sampled_bracket.BRACKET_WORK`)."""
+    from .sampled_bracket import BRACKET_WORK
     from .sampled_bracket import h_max_bracket as bracket
 
-    return bracket(loop, stable_h, unstable_h, rtol=rtol, max_boxes=max_boxes, max_seconds=max_seconds,
-                   deadline=deadline)
+    return bracket(loop, stable_h, unstable_h, rtol=rtol, max_boxes=max_boxes,
+                   work=BRACKET_WORK if work is None else work, deadline=deadline)
 
 
 @dataclass(frozen=True, eq=False)
@@ -500,9 +503,12 @@ def sampled_analysis(system: FTCSystem, controller: Controller, period: float, *
 
     ``h_max`` is the end of the stability interval that starts at the smallest scanned
     period (the continuous loop's limit); ``None`` when the loop is unstable there or
-    stable over the whole scanned range (then ``h_max_note`` says which). ``max_seconds``
-    bounds the proofs: the verdict at the period gets up to a third of it, the ``h_max``
-    bracket starts no proof after it has passed.
+    stable over the whole scanned range (then ``h_max_note`` says which). The bracket's
+    proofs have a budget of sub-boxes fixed by the problem's sizes
+    (:func:`~ftc_verify.analysis.moments.sampled_bracket.box_work`), so the bracket is
+    the same on every machine; ``max_seconds`` (wall time) is a safety valve: the verdict
+    at the period gets up to a third of it, the ``h_max`` bracket starts no proof after
+    it has passed (its note then says so).
     """
     from .sampled_proof import box_verdict
 

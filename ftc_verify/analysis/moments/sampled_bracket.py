@@ -15,7 +15,8 @@ heuristic: it only chooses where to look; every claim is proved), and
 **Which periods.** A proof over the rate box near the crossing has a small margin and
 needs many sub-boxes (:func:`~ftc_verify.analysis.moments.sampled_proof.box_verdict`),
 so a failing attempt spends its whole budget; :func:`prove_below` orders the attempts
-so that few fail.
+so that few fail. The budget is a count of sub-boxes fixed by the problem's sizes
+(:func:`box_work`), not seconds: the same loop gets the same bracket on every machine.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ from ...model.system import Matrix
 from .sampled import H_MAX_RTOL, SampledLoop, crossing, rate_points, spectral_radius, worst_radius
 from .sampled_proof import box_verdict, prove_point_unstable
 
-__all__ = ["LADDER", "COARSE", "TIGHT", "prove_below", "worst_vertex", "h_max_bracket"]
+__all__ = ["LADDER", "COARSE", "TIGHT", "BRACKET_WORK", "box_work", "prove_below", "worst_vertex", "h_max_bracket"]
 
 #: Relative distances below the crossing tried after the tight one fails, easy first.
 LADDER = (0.1, 0.03, 0.01, 3e-3)
@@ -44,39 +45,63 @@ COARSE = (0.3, 0.5)
 #: so either bracket is within ``rtol``.
 TIGHT = ((0.25, 1 / 6), (0.75, 1 / 2))
 
+#: The proof budget of one attempt of :func:`prove_below` in work units
+#: (:func:`box_work`): about 3 s of one core of the machine ``benchmarks/sampled.py``
+#: was calibrated on.
+BRACKET_WORK = 3000.0
 
-def prove_below(loop: SampledLoop, a: float, rtol: float, max_boxes: int, max_seconds: float,
-                deadline: float) -> float | None:
+
+def box_work(loop: SampledLoop) -> float:
+    """The work units one sub-box proof is charged, from the problem's sizes only (so the
+    bracket is the same on every machine and under any load): ``5 + 3e-6 N^3 t`` with
+    ``N`` the moment generator's rows and ``t = 1 + K`` (``+ K (K + 1) / 2`` where the
+    second-order forms are used) the matrices a product of the sub-box's forms holds,
+    ``K`` the free rates -- about a millisecond each on the calibration machine (a
+    sub-box's cost is mostly the products of its exponential, plus a few float
+    exponentials and eigenvalue problems)."""
+    from .sampled_taylor import QUADRATIC_SIZE
+
+    chain = loop.chain
+    K = sum(1 for idx in chain.rate_indices if chain.rate_max[idx] > chain.rate_min[idx])
+    N = loop.states * loop.d * (loop.d + 1) // 2
+    t = 1 + K + (K * (K + 1) // 2 if K * K * N <= QUADRATIC_SIZE else 0)
+    return 5.0 + 3e-6 * N ** 3 * t
+
+
+def prove_below(loop: SampledLoop, a: float, rtol: float, max_boxes: int, work: float = BRACKET_WORK,
+                deadline: float = math.inf) -> float | None:
     """A period ``a (1 - f)`` below the float64 crossing ``a`` proved mean-square stable
     over the whole rate box, the closest to ``a`` of those tried (``None`` if none; no
-    attempt starts after ``deadline``, ``time.perf_counter()``): first the :data:`TIGHT`
-    distances (the bracket within ``rtol`` at once: ``f = rtol / 4`` with a sixth of the
-    budget, enough where one sub-box does, then ``3 rtol / 4`` with half of it); if both
-    fail, easy first -- ``f`` in :data:`LADDER` (the first with the full ``max_seconds``,
-    the others with a third) -- stopping at the first failure (a smaller margin is
-    harder: its proof would rarely succeed and would spend its whole budget); when none
-    of those is proved, :data:`COARSE` (a third each), the first proved returned. The budgets
-    are CPU seconds of this process (``time.process_time``), so that the bracket does
-    not depend on the machine's load; ``deadline`` is wall time."""
+    attempt starts after ``deadline``, ``time.perf_counter()``, a safety valve): first
+    the :data:`TIGHT` distances (the bracket within ``rtol`` at once: ``f = rtol / 4``
+    with a sixth of the budget, enough where one sub-box does, then ``3 rtol / 4`` with
+    half of it); if both fail, easy first -- ``f`` in :data:`LADDER` (the first with the
+    full budget, the others with a third) -- stopping at the first failure (a smaller
+    margin is harder: its proof would rarely succeed and would spend its whole budget);
+    when none of those is proved, :data:`COARSE` (a third each), the first proved
+    returned. The budget of an attempt is ``work`` units (:func:`box_work` per sub-box),
+    at most ``max_boxes`` sub-boxes: a count that depends only on the problem, so the
+    bracket does not depend on the machine or its load."""
+    per_box = box_work(loop)
 
-    def proved(f: float, seconds: float) -> bool:
-        return box_verdict(loop, a * (1 - f), max_boxes=max_boxes, max_seconds=seconds,
-                           clock=time.process_time).verdict == "stable"
+    def proved(f: float, share: float) -> bool:
+        boxes = min(max_boxes, max(2, int(share * work / per_box)))
+        return box_verdict(loop, a * (1 - f), max_boxes=boxes, max_seconds=math.inf).verdict == "stable"
 
     for f, share in TIGHT:
         if time.perf_counter() > deadline:
             return None
-        if proved(f * rtol, share * max_seconds):
+        if proved(f * rtol, share):
             return a * (1 - f * rtol)
     best = None
     for k, f in enumerate(f for f in LADDER if f > TIGHT[-1][0] * rtol):
-        if time.perf_counter() > deadline or not proved(f, max_seconds if k == 0 else max_seconds / 3):
+        if time.perf_counter() > deadline or not proved(f, 1.0 if k == 0 else 1 / 3):
             break
         best = a * (1 - f)
     for f in COARSE if best is None else ():
         if time.perf_counter() > deadline:
             break
-        if proved(f, max_seconds / 3):
+        if proved(f, 1 / 3):
             return a * (1 - f)
     return best
 
@@ -132,7 +157,7 @@ def _worst_crossing(loop: SampledLoop, stable_h: float, a: float, rtol: float, p
 
 
 def h_max_bracket(loop: SampledLoop, stable_h: float, unstable_h: float, *, rtol: float = H_MAX_RTOL,
-                  max_boxes: int = 512, max_seconds: float = 3.0,
+                  max_boxes: int = 512, work: float = BRACKET_WORK,
                   deadline: float = math.inf) -> tuple[float | None, float | None, str]:
     """``(h_max, h_max_unstable, note)`` from a float64 bracket ``stable_h < unstable_h``
     of the crossing: a period proved mean-square stable over the whole rate box and a
@@ -142,9 +167,11 @@ def h_max_bracket(loop: SampledLoop, stable_h: float, unstable_h: float, *, rtol
     then lowered where :func:`worst_vertex` finds a worse vertex (module docstring);
     instability is proved at the worst point just above it, stability by
     :func:`prove_below` (the bracket within ``rtol``, or the closest period its budget
-    reaches: ``max_boxes`` sub-boxes, ``max_seconds`` CPU seconds per attempt; then the note says the
-    bracket is wider than ``rtol``). No new proof is started after ``deadline``
-    (``time.perf_counter()``). ``None`` where no proof was found."""
+    reaches: ``work`` units, at most ``max_boxes`` sub-boxes per attempt -- a budget
+    that depends only on the problem; then the note says the bracket is wider than
+    ``rtol``). No new proof is started after ``deadline`` (``time.perf_counter()``, a
+    safety valve; the note then says the time budget was spent). ``None`` where no
+    proof was found."""
     pts = list(rate_points(loop.chain))
     a = crossing(loop, stable_h, unstable_h, True, rtol / 16, pts)
     a = _worst_crossing(loop, stable_h, a, rtol, pts, deadline)
@@ -160,7 +187,7 @@ def h_max_bracket(loop: SampledLoop, stable_h: float, unstable_h: float, *, rtol
         if rho > 1.0 and prove_point_unstable(loop, hb, where):
             proved_b = hb
             break
-    proved_a = prove_below(loop, a, rtol, max_boxes, max_seconds, deadline)
+    proved_a = prove_below(loop, a, rtol, max_boxes, work, deadline)
     if proved_a is None or proved_b is None:
         missing = " and ".join(w for w, v in (("stability", proved_a), ("instability", proved_b)) if v is None)
         late = " (time budget spent)" if time.perf_counter() > deadline else ""

@@ -103,7 +103,7 @@ from .sampled_taylor import FIRST_ORDER_LIMIT, affine_stable, identity_stack, pe
 from .stability import duplication_matrix, unvech_stack
 
 __all__ = ["FIRST_ORDER_LIMIT", "MapParts", "BoxVerdict", "ball_resets", "ball_one_period_map", "prove_stable", "prove_unstable",
-           "prove_point_unstable", "box_verdict"]
+           "prove_point_unstable", "box_verdict", "SPLIT_WIDTH_WEIGHT"]
 
 
 def _flint() -> Any:
@@ -418,28 +418,41 @@ class BoxVerdict:
     where: Any = None
 
 
+#: Weight of a rate's relative width against its change of :math:`\rho` when choosing
+#: the rate to halve (``_split_rate``): at 1 a full-width rate counts as much as the
+#: largest change, so the rates :math:`T` moves mass with (while :math:`\rho` barely
+#: moves) are halved too -- on the random ``n = 4, m = 3`` loop 37 sub-boxes at 3 %
+#: below the crossing instead of 73 with 0.1, on ``n = 2, m = 2`` seed 2 105 at
+#: ``2.5e-4`` instead of 231.
+SPLIT_WIDTH_WEIGHT = 1.0
+
+
 def _split_rate(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix) -> tuple[int, ...] | None:
-    """The rate along which a sub-box is halved: the largest score
-    :math:`|\rho(r_0 + w_a e_a) - \rho(r_0 - w_a e_a)| + 0.1\\, m\\, w_a / W_a` (float64
-    radii at the midpoint moved to the sub-box's ends along the rate, :math:`m` the
-    largest such change, :math:`w_a / W_a` the relative width): the rates the radius
-    depends on most first, every rate in turn as its relative width grows. A
+    r"""The rate along which a sub-box is halved: the largest score
+    :math:`s_a + c\, m\, w_a / W_a` with :math:`s_a = \max_\pm |\rho(r_0 \pm w_a e_a)
+    - \rho(r_0)|` (float64 radii at the midpoint and moved to the sub-box's ends along
+    the rate: the slope and the curvature -- where :math:`\rho` dips in the middle of a
+    rate's range, the difference of its two ends alone would miss it), :math:`m` the
+    largest such change, :math:`w_a / W_a` the relative width (weight
+    :data:`SPLIT_WIDTH_WEIGHT`): the rates the radius depends on most first, every rate
+    in turn as its relative width grows. A
     heuristic; only where the proofs look next depends on it."""
     chain = loop.chain
     full = chain.rate_max - chain.rate_min
     mid = 0.5 * (lo + hi)
+    rho0 = spectral_radius(loop, h, mid)
     rel, change = {}, {}
     for idx in chain.rate_indices:
         if full[idx] > 0 and hi[idx] > lo[idx]:
             rel[idx] = (hi[idx] - lo[idx]) / full[idx]
             up, down = mid.copy(), mid.copy()
             up[idx], down[idx] = hi[idx], lo[idx]
-            d = abs(spectral_radius(loop, h, up) - spectral_radius(loop, h, down))
+            d = max(abs(spectral_radius(loop, h, up) - rho0), abs(spectral_radius(loop, h, down) - rho0))
             change[idx] = d if math.isfinite(d) else 0.0
     if not rel:
         return None
     m = max(change.values())
-    return max(rel, key=lambda idx: (change[idx] + 0.1 * m * rel[idx], rel[idx]))
+    return max(rel, key=lambda idx: (change[idx] + SPLIT_WIDTH_WEIGHT * m * rel[idx], rel[idx]))
 
 
 def box_verdict(loop: SampledLoop, h: float, *, max_boxes: int = 64, max_seconds: float = 20.0,

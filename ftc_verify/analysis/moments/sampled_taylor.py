@@ -88,7 +88,8 @@ from .sampled import SampledLoop
 from .sampled_balls import ball_generator, generator_coefficients
 from .stability import vech_order
 
-__all__ = ["FIRST_ORDER_LIMIT", "AFFINE_RATES", "QUADRATIC_SIZE", "unvech_ball", "stack_pd", "identity_stack", "perron_first_order_stable", "affine_stable"]
+__all__ = ["FIRST_ORDER_LIMIT", "AFFINE_RATES", "QUADRATIC_SIZE", "unvech_ball", "stack_pd", "identity_stack", "perron_first_order_stable", "affine_stable",
+           "float_pd", "float_choices", "left_perron", "right_perron", "RHS_MIXES"]
 
 #: Largest Van Loan block (rows, twice the moment generator's) the first-order form
 #: exponentiates in ball arithmetic; above it only the direct ball is tried (cost).
@@ -127,13 +128,24 @@ def stack_pd(vec: Any, states: int, r: int) -> bool:
     return all(proven_positive_definite(unvech_ball(vec, s * v, r)) for s in range(states))
 
 
+def float_pd(vec: Matrix, states: int, r: int) -> bool:
+    """Every joint state's block of the float column ``vec`` has a positive float64
+    smallest eigenvalue: a necessary condition of :func:`stack_pd` on a ball around
+    ``vec`` (the ball contains its midpoint), checked first because it is cheap --
+    skipping a proof only ever loses it, never claims one."""
+    from .stability import unvech_stack
+
+    return all(np.linalg.eigvalsh(B)[0] > 0 for B in unvech_stack(np.asarray(vec, dtype=np.float64), states, r))
+
+
 def identity_stack(states: int, r: int) -> Matrix:
     """``vech`` of the identity in every joint state."""
     rows, cols = vech_order(r)
     return np.tile((rows == cols).astype(float), states)
 
 
-def _left_perron(T: Matrix) -> Matrix | None:
+def left_perron(T: Matrix) -> Matrix | None:
+    """The left Perron vector of ``T`` in float64 (``None`` when the dominant eigenvalue is not real)."""
     w, V = np.linalg.eig(T.T)
     k = int(np.argmax(np.abs(w)))
     if abs(w[k].imag) > 1e-9 * max(abs(w[k]), 1e-300):
@@ -142,15 +154,47 @@ def _left_perron(T: Matrix) -> Matrix | None:
     return v if np.all(np.isfinite(v)) else None
 
 
-def _float_choices(T0: Matrix, J0: list[Matrix], states: int, r: int) -> tuple[Matrix, list[Matrix]] | None:
-    """``(Y_0, [y_a])`` of the module docstring in float64 (``None`` when a solve fails)."""
+def right_perron(T: Matrix) -> Matrix | None:
+    """The right Perron stack of ``T`` in float64, scaled to largest entry 1 with a
+    positive sum (``None`` when the dominant eigenvalue is not real)."""
+    w, V = np.linalg.eig(T)
+    k = int(np.argmax(np.abs(w)))
+    if abs(w[k].imag) > 1e-9 * max(abs(w[k]), 1e-300):
+        return None
+    v = np.real(V[:, k])
+    v = -v if v.sum() < 0 else v
+    v = v / np.max(np.abs(v))
+    return v if np.all(np.isfinite(v)) else None
+
+
+#: The right-hand side of :math:`(I - T_0) Y_0 = b` tried by the certificates: ``None``
+#: for the identity stack, ``k`` for the float Perron stack plus ``k`` times it (a
+#: float choice: the proof checks whatever it gives).
+RHS_MIXES: tuple[float | None, ...] = (None, 0.05)
+
+
+def float_choices(T0: Matrix, J0: list[Matrix], states: int, r: int,
+                   mix: float | None = None) -> tuple[Matrix, list[Matrix]] | None:
+    r"""``(Y_0, [y_a])`` of the module docstring in float64 (``None`` when a solve fails),
+    with :math:`(I - T_0) Y_0 = b`: ``b`` the identity stack (``mix`` ``None``) or the
+    right Perron stack :math:`v` of :math:`T_0` plus ``mix`` times the identity stack --
+    then :math:`Y_0 - T_0 Y_0 \approx v + k I` is aligned with :math:`Y_0 \approx v /
+    (1 - \rho)`, and the vertex condition :math:`b - s Y_0 \succ 0` holds up to
+    :math:`s \approx 1 - \rho` (with the identity, only up to :math:`1 / \lambda_{max}`
+    of :math:`Y_0`'s blocks, far less when a Perron block is anisotropic)."""
     N = T0.shape[0]
     A = np.eye(N) - T0
+    rhs = identity_stack(states, r)
+    if mix is not None:
+        v = right_perron(T0)
+        if v is None:
+            return None
+        rhs = v + mix * rhs
     try:
-        y0 = np.linalg.solve(A, identity_stack(states, r))
+        y0 = np.linalg.solve(A, rhs)
     except np.linalg.LinAlgError:
         return None
-    w = _left_perron(T0)
+    w = left_perron(T0)
     if w is None or not np.all(np.isfinite(y0)) or w @ y0 == 0:
         return None
     ys = []
@@ -191,7 +235,7 @@ def perron_first_order_stable(loop: SampledLoop, parts: Any, lo: Matrix, hi: Mat
             return False
         J0.append(parts.derivative(Q0, coef))
         Jb.append(parts.derivative(Qb, coef))
-    choice = _float_choices(T_mid, [midpoint(Ball(J)) for J in J0], S, r)
+    choice = float_choices(T_mid, [midpoint(Ball(J)) for J in J0], S, r)
     if choice is None:
         return False
     y0f, ysf = choice
@@ -280,16 +324,24 @@ def affine_stable(loop: SampledLoop, parts: Any, lo: Matrix, hi: Matrix) -> bool
         if aff is None:
             return None
         form = (aff[0], aff[1], np.zeros((0,) + aff[0].shape), aff[2])
-    return _certify(loop, form, pairs(K) if form[2].shape[0] else ())
+    from .sampled_second import certify_second_order
+
+    for mix in RHS_MIXES:
+        if certify_second_order(loop, form, mix):
+            return True
+        if _certify(loop, form, pairs(K) if form[2].shape[0] else (), mix):
+            return True
+    return False
 
 
-def _certify(loop: SampledLoop, form: tuple[Matrix, Matrix, Matrix, Matrix], prs: Sequence[tuple[int, int]]) -> bool:
+def _certify(loop: SampledLoop, form: tuple[Matrix, Matrix, Matrix, Matrix], prs: Sequence[tuple[int, int]],
+             mix: float | None = None) -> bool:
     r"""The vertex checks of :func:`affine_stable` on :math:`T(\delta) \in T_c +
     \sum_a \delta_a T_a + \sum_{(a, b) \in prs} \delta_a \delta_b T_{ab} + E`."""
     flint = _flint()
     Tc, Tl, Tq, Tr = form
     S, r, N, K = loop.states, loop.r, Tc.shape[0], Tl.shape[0]
-    choice = _float_choices(Tc, list(Tl), S, r)
+    choice = float_choices(Tc, list(Tl), S, r, mix)
     if choice is None:
         return False
     Y0, ys = choice
@@ -317,8 +369,11 @@ def _certify(loop: SampledLoop, form: tuple[Matrix, Matrix, Matrix, Matrix], prs
         sg = np.array(corner)
         v = base + sg @ lin
         Y = Y0 + sg @ Yl
+        if not (float_pd(Y, S, r) and float_pd(v, S, r)):
+            return False
         vec = flint.arb_mat(N, 1, [arb(float(x), float(e)) for x, e in zip(v, rad)])
         Yb = flint.arb_mat(N, 1, [arb(float(x), float(e)) for x, e in zip(Y, yrad)])
         if not (stack_pd(Yb, S, r) and stack_pd(vec, S, r)):
             return False
     return True
+

@@ -1,0 +1,238 @@
+r"""A second-order stability certificate of the sampled loop on a rate sub-box: one
+positive-definiteness check, limited by the curvature of :math:`\rho`, not of :math:`T`.
+
+:func:`~ftc_verify.analysis.moments.sampled_taylor.affine_stable` encloses the one-period
+map over a sub-box as a form in the sub-box's symbols :math:`\delta \in [-1, 1]^K`
+(:math:`r = r_0 + \sum_a \delta_a w_a e_a`),
+
+.. math::
+
+    T(\delta) \in T_c + \sum_a \delta_a T_a + \sum_p \mu_p T_p + E, \qquad
+    p = (a, b),\ a \le b,\ \mu_p = \delta_a \delta_b,\ |E| \le T_r
+
+(``quad_map``; an affine form is the case :math:`T_p = 0`, its second-order terms in
+:math:`T_r`). Its first-order certificate :math:`Y_0 + \sum_a \delta_a y_a` bounds the
+terms :math:`\delta_a \delta_b T_a y_b` in absolute value, and checks the
+:math:`2^K` vertices: where :math:`T` moves second moments between joint states (a
+large second-order change of :math:`T` with a small one of :math:`\rho`) the sub-box
+must be small. Here (derived):
+
+**Certificate.** With :math:`(I - T_c) Y_0 = b` (:func:`~ftc_verify.analysis.moments.sampled_taylor.float_choices`:
+``b`` the identity stack or the Perron-aligned one), :math:`(I - T_c) y_a = T_a Y_0 -
+c_a Y_0` and
+
+.. math::
+
+    (I - T_c)\, y_p = g_p - c_p Y_0, \qquad g_p = T_p Y_0 + T_a y_b + [a \ne b]\, T_b y_a,
+    \qquad c = \langle w, \cdot\rangle / \langle w, Y_0\rangle
+
+(:math:`w` the left Perron vector of :math:`T_c`; float choices), take
+:math:`Y(\delta) = Y_0 + \sum_a \delta_a y_a + \sum_p \mu_p y_p`. Expanding
+:math:`T(\delta) Y(\delta)` and collecting powers of :math:`\delta`,
+
+.. math::
+
+    Y - T Y = b' - \varphi(\delta)\, Y_0 + \sum_a \delta_a r_a + \sum_p \mu_p r_p - C - E Y,
+    \qquad \varphi(\delta) = \sum_a c_a \delta_a + \sum_p c_p \mu_p,
+
+with :math:`b' = Y_0 - T_c Y_0`, :math:`r_a = L_a + c_a Y_0`, :math:`L_a = y_a - T_c y_a
+- T_a Y_0`, :math:`r_p = L_p + c_p Y_0`, :math:`L_p = y_p - T_c y_p - g_p` (the
+residuals of the float solves: :math:`c` is *any* float here, the identities are exact
+by definition of :math:`r`), and :math:`C` the terms of degree three and four,
+:math:`|C| \le S(T_a) S(y_p) + S(T_p) S(y_a) + S(T_p) S(y_p)` (:math:`S` the sum of
+absolute values over the index; :math:`|\delta_a|, |\mu_p| \le 1`).
+
+**Check.** :math:`\varphi` is a scalar quadratic; :func:`quadratic_max` bounds its
+maximum over the box from above, :math:`\varphi \le \varphi_{hi}`. If :math:`Y_0`
+and, at every vertex :math:`\delta \in \{-1, 1\}^K`, the ball :math:`Y_0 + \sum_a
+\delta_a y_a \pm S(y_p)` are proved positive definite per joint state, then
+:math:`Y(\delta) \succ 0` for every :math:`\delta` of the box (convex combinations)
+and :math:`-\varphi(\delta) Y_0 \succeq -\varphi_{hi} Y_0`. So if the ball
+:math:`b' - \varphi_{hi} Y_0 \pm (S(r_a) + S(r_p) + |C| + T_r |Y|)` (with the rounding
+of every float operation, Higham's bound as in
+:mod:`~ftc_verify.analysis.moments.fast_balls`) is proved positive definite per joint
+state, :math:`Y(\delta) - T(\delta) Y(\delta) \succ 0` on the whole sub-box and
+:math:`\rho(T(r)) < 1` for every rate of it (the cone argument of
+:mod:`~ftc_verify.analysis.moments.sampled_proof`). Since :math:`b' \approx v + k I`
+and :math:`Y_0 \approx (v + k I) / (1 - \rho_c)` along the Perron stack :math:`v`, the
+condition reads :math:`\max_\delta (\rho_c + \sum_a \delta_a \partial_a\rho + \tfrac12
+\delta^T \partial^2\rho\, \delta) < 1` up to the remainders: the maximum of
+:math:`\rho`'s quadratic model over the sub-box, not a vertex bound of :math:`T`'s
+second-order terms. The check of :math:`Y - T Y` is one positive-definiteness proof
+instead of :math:`2^K`.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import math
+from typing import Any
+
+import numpy as np
+
+from ...model.system import Matrix
+from .quad_balls import pairs
+from .sampled import SampledLoop
+from .sampled_taylor import float_choices, float_pd, left_perron, stack_pd
+
+__all__ = ["quadratic_max", "second_order_choices", "certify_second_order"]
+
+_U = 2.0 ** -53
+_ETA = 2.0 ** -1022
+
+
+def _flint() -> Any:
+    import flint
+
+    return flint
+
+
+def _up(v: Any, k: int) -> Any:
+    """An upper bound of a nonnegative expression computed with at most ``k`` roundings
+    (:mod:`~ftc_verify.analysis.moments.fast_balls`)."""
+    return v * (1.0 + 2.0 * (k + 1) * _U) + (k + 1) * _ETA
+
+
+def quadratic_max(lin: Matrix, quad: Matrix, max_boxes: int = 400, rtol: float = 1e-3) -> float:
+    r"""An upper bound of :math:`\max_{\delta \in [-1, 1]^K} \varphi(\delta)`,
+    :math:`\varphi = \sum_a l_a \delta_a + \sum_{p = (a, b)} q_p \delta_a \delta_b`
+    (``quad`` over :func:`~ftc_verify.analysis.moments.quad_balls.pairs`), by branch and
+    bound: on a box with centre :math:`m` and half-widths :math:`h`,
+    :math:`\varphi(m + e) = \varphi(m) + \sum_a g_a e_a + \sum_p q_p e_a e_b` exactly
+    (:math:`g = \nabla\varphi(m)`), so :math:`\varphi \le \varphi(m) + \sum_a |g_a| h_a +
+    \sum_{a < b} |q_p| h_a h_b + \sum_a \max(q_{aa}, 0) h_a^2`; the box with the largest
+    bound is halved along its widest side until that bound is within ``rtol`` times
+    :math:`\sum |l| + \sum |q|` of the best centre value or ``max_boxes`` boxes are
+    split. Every bound is inflated by :math:`10^{-12}` times that sum (the float
+    evaluation's rounding, at most :math:`4 K^2 u` of it, :math:`K \le 100`)."""
+    K = lin.shape[0]
+    prs = pairs(K)
+    scale = float(np.abs(lin).sum() + np.abs(quad).sum())
+    if scale == 0.0:
+        return 0.0
+    slack = 1e-12 * scale
+    Q = np.zeros((K, K))  # phi = l.d + d^T Q d with Q symmetric
+    for k, (a, b) in enumerate(prs):
+        if a == b:
+            Q[a, a] += quad[k]
+        else:
+            Q[a, b] += 0.5 * quad[k]
+            Q[b, a] += 0.5 * quad[k]
+    absQ = np.abs(Q - np.diag(np.diag(Q)))
+    diag_pos = np.maximum(np.diag(Q), 0.0)
+
+    def bound(m: Matrix, h: Matrix) -> tuple[float, float]:
+        value = float(lin @ m + m @ Q @ m)
+        g = lin + 2.0 * Q @ m
+        return value + float(np.abs(g) @ h + h @ absQ @ h + diag_pos @ (h * h)) + slack, value
+
+    m0, h0 = np.zeros(K), np.ones(K)
+    ub, best = bound(m0, h0)
+    heap = [(-ub, 0, m0, h0)]
+    count = 1
+    for _ in range(max_boxes):
+        neg, _, m, h = heap[0]
+        if -neg - best <= rtol * scale:
+            break
+        heapq.heappop(heap)
+        a = int(np.argmax(h))
+        for sign in (-0.5, 0.5):
+            mc, hc = m.copy(), h.copy()
+            hc[a] = 0.5 * h[a]
+            mc[a] = m[a] + sign * h[a]
+            u, v = bound(mc, hc)
+            best = max(best, v)
+            heapq.heappush(heap, (-u, count, mc, hc))
+            count += 1
+    return -heap[0][0]
+
+
+def second_order_choices(Tc: Matrix, Tl: Matrix, Tq: Matrix, Y0: Matrix, Yl: Matrix,
+                         w: Matrix) -> tuple[Matrix, Matrix] | None:
+    r"""``(Yq, cq)``: the certificate's :math:`y_p` and :math:`c_p` (module docstring;
+    ``Tq`` may be empty, an affine form), float64; ``None`` when a solve fails."""
+    K = Tl.shape[0]
+    A = np.eye(Tc.shape[0]) - Tc
+    rhs, cs = [], []
+    for k, (a, b) in enumerate(pairs(K)):
+        g = Tl[a] @ Yl[b] + (Tl[b] @ Yl[a] if a != b else 0.0)
+        if Tq.shape[0]:
+            g = g + Tq[k] @ Y0
+        c = float(w @ g / (w @ Y0))
+        rhs.append(g - c * Y0)
+        cs.append(c)
+    try:
+        ys = np.linalg.solve(A, np.stack(rhs, axis=1)).T
+    except np.linalg.LinAlgError:
+        return None
+    if not (np.all(np.isfinite(ys)) and all(math.isfinite(c) for c in cs)):
+        return None
+    return np.asarray(ys, dtype=np.float64), np.asarray(cs, dtype=np.float64)
+
+
+def certify_second_order(loop: SampledLoop, form: tuple[Matrix, ...], mix: float | None = None) -> bool:
+    """``True`` only if :math:`\\rho(T(\\delta)) < 1` is proved for every
+    :math:`\\delta \\in [-1, 1]^K` of the form ``form`` (``(Tc, Tl, Tq, Tr)`` with ``Tq``
+    over :func:`~ftc_verify.analysis.moments.quad_balls.pairs`, or an affine
+    ``(Tc, Tl, Tr)``) by the certificate and check of the module docstring; ``mix``
+    chooses the right-hand side ``b``
+    (:func:`~ftc_verify.analysis.moments.sampled_taylor.float_choices`)."""
+    if len(form) == 3:
+        Tc, Tl, Tr = form
+        Tq = np.zeros((0,) + Tc.shape)
+    else:
+        Tc, Tl, Tq, Tr = form
+    S, r, N, K = loop.states, loop.r, Tc.shape[0], Tl.shape[0]
+    prs = pairs(K)
+    M = len(prs)
+    choice = float_choices(Tc, list(Tl), S, r, mix)
+    w = left_perron(Tc)
+    if choice is None or w is None:
+        return False
+    Y0, ys = choice
+    Yl = np.stack(ys)
+    second = second_order_choices(Tc, Tl, Tq, Y0, Yl, w)
+    if second is None:
+        return False
+    Yq, cq = second
+    u = _U
+    aTc, aY0, aYl, aYq = np.abs(Tc), np.abs(Y0), np.abs(Yl), np.abs(Yq)
+    sTl, sYl, sYq = (_up(np.abs(x).sum(axis=0), x.shape[0] + 1) for x in (Tl, Yl, Yq))
+    sTq = _up(np.abs(Tq).sum(axis=0), M + 1) if Tq.shape[0] else np.zeros(N)
+    wY0 = float(w @ Y0)
+    base = Y0 - Tc @ Y0
+    # first order: r_a = L_a + c_a Y0, with every rounding in err (Higham: 1.01 N u per product)
+    lin = Yl - Yl @ Tc.T - np.einsum("aij,j->ai", Tl, Y0)
+    ca = -(lin @ w) / wY0
+    ra = lin + ca[:, None] * Y0[None, :]
+    err = (1.01 * N * u + 6 * u) * (aYl + aYl @ aTc.T + np.abs(Tl) @ aY0 + np.abs(ca)[:, None] * aY0).sum(axis=0)
+    # second order: r_p = y_p - Tc y_p - g_p + c_p Y0
+    rp = Yq - Yq @ Tc.T + cq[:, None] * Y0[None, :]
+    mags = aYq + aYq @ aTc.T + np.abs(cq)[:, None] * aY0
+    for k, (a, b) in enumerate(prs):
+        rp[k] -= Tl[a] @ Yl[b] + (Tl[b] @ Yl[a] if a != b else 0.0)
+        mags[k] += np.abs(Tl[a]) @ aYl[b] + (np.abs(Tl[b]) @ aYl[a] if a != b else 0.0)
+        if Tq.shape[0]:
+            rp[k] -= Tq[k] @ Y0
+            mags[k] += np.abs(Tq[k]) @ aY0
+    err = err + (1.01 * N * u + 8 * u) * mags.sum(axis=0)
+    phi = quadratic_max(ca, cq)
+    rad = np.abs(ra).sum(axis=0) + np.abs(rp).sum(axis=0) + err
+    rad = rad + sTl @ sYq + sTq @ sYl + sTq @ sYq + Tr @ (aY0 + sYl + sYq)
+    rad = rad + (1.01 * N * u + 3 * u) * (aTc @ aY0) + 4 * u * (np.abs(base) + abs(phi) * aY0)
+    rad = _up(rad, N + K + M + 16) + (2 * K + 2 * M + 6) * N * _ETA
+    yrad = _up(sYq + (K + 2) * u * (aY0 + sYl), K + M + 4)
+    flint = _flint()
+    arb = flint.arb
+    v = base - phi * Y0
+    if not (float_pd(v, S, r) and float_pd(Y0, S, r)):
+        return False
+    vec = flint.arb_mat(N, 1, [arb(float(x), float(e)) for x, e in zip(v, rad)])
+    if not (stack_pd(flint.arb_mat(N, 1, [arb(float(x)) for x in Y0]), S, r) and stack_pd(vec, S, r)):
+        return False
+    for corner in itertools.product((-1.0, 1.0), repeat=K):
+        Y = Y0 + np.array(corner) @ Yl
+        if not (float_pd(Y, S, r) and stack_pd(flint.arb_mat(N, 1, [arb(float(x), float(e)) for x, e in zip(Y, yrad)]), S, r)):
+            return False
+    return True
