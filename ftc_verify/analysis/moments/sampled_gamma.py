@@ -78,8 +78,10 @@ state is in :class:`SampledLoop`'s balanced coordinates (powers of two: exact).
 
 **The pieces** (:data:`PIECES`, :func:`sampled_gamma`): affine on 4 pieces first; where
 that fails or stays far above the lower bound, a storage *quadratic* in the clock on
-each piece (:mod:`~ftc_verify.analysis.moments.sampled_quadratic`), whose loss is second
-order in the pieces' length: the certificate's reach towards ``h_max``.
+each piece (:mod:`~ftc_verify.analysis.moments.sampled_quadratic`; loss second order in
+the pieces' length: the reach towards ``h_max``), while the program has at most
+:data:`MAX_ROWS` rows (:func:`~ftc_verify.analysis.moments.sampled_quadratic.program_rows`:
+the dimensions decide, never the clock, so every machine proves the same gamma).
 
 **Beside it, a proved lower bound** (:mod:`~ftc_verify.analysis.moments.sampled_lower`:
 a held worst-case feedback disturbance, its exact energies proved in ball arithmetic);
@@ -104,9 +106,9 @@ from ..lmi import BlockSpec, block_specs, lyapunov_block
 from .sampled import SampledLoop
 from .sampled_energy import OMEGAS, gain_lower_estimate
 
-__all__ = ["MARGIN_TAU", "PIECES", "clock_instance", "MAX_SECONDS", "GAP_RTOL", "GAIN_RTOL", "GROWTH", "OMEGAS", "augmented_loop", "io_scale", "sample_jumps", "SampledGamma", "SampledPerformance",
-           "sampled_gamma", "gain_lower_estimate", "sampled_performance", "attach_performance",
-           "performance_lines"]
+__all__ = ["MARGIN_TAU", "PIECES", "clock_instance", "MAX_ROWS", "GAP_RTOL", "GAIN_RTOL", "OMEGAS", "augmented_loop",
+           "io_scale", "sample_jumps", "SampledGamma", "SampledPerformance", "sampled_gamma", "gain_lower_estimate",
+           "sampled_performance", "attach_performance", "performance_lines"]
 
 #: First margin of the program (every instance ``<= -t I``); raised 100x when the proof fails.
 MARGIN_TAU = 1e-7
@@ -114,15 +116,13 @@ MARGIN_TAU = 1e-7
 #: well below ``h_max``), then quadratic (2, :mod:`~ftc_verify.analysis.moments.sampled_quadratic`)
 #: on 2, 4, 8 pieces (its error is second order in the pieces' length: the reach towards ``h_max``).
 PIECES: tuple[tuple[int, int], ...] = ((1, 4), (2, 2), (2, 4), (2, 8))
-#: No further ``N`` of :data:`PIECES` is started when its predicted CPU seconds would pass this.
-MAX_SECONDS = 20.0
-#: With a lower bound (``target``), a further ``N`` is tried while the proved gamma
-#: exceeds it by more than this fraction ...
+#: No entry of :data:`PIECES` after the first is tried when its program has more rows
+#: (:func:`~ftc_verify.analysis.moments.sampled_quadratic.program_rows`; the paper's robust N = 8: 13184).
+MAX_ROWS = 16384
+#: With a lower bound (``target``), a further ``N`` is tried while gamma exceeds it by more than this ...
 GAP_RTOL = 0.1
 #: ... and the last doubling of ``N`` tightened it by at least this fraction.
 GAIN_RTOL = 0.01
-#: Predicted cost of the next ``N`` (twice the pieces) over the last one's, for ``max_seconds``.
-GROWTH = 3.0
 
 
 def io_scale(aug: ClosedLoop) -> float:
@@ -375,7 +375,7 @@ class SampledGamma:
     ``gamma`` is the proved bound (``None`` when none was found: ``note`` says why),
     ``pieces`` the :math:`N` of the storage matrix, ``degree`` its degree in the clock on
     each piece (1 affine, 2 quadratic), ``margin`` the program's ``t``, ``seconds`` CPU
-    seconds."""
+    seconds (reported, never deciding anything), ``rows`` the rows of its program."""
 
     robust: bool
     gamma: float | None
@@ -384,6 +384,7 @@ class SampledGamma:
     note: str
     seconds: float
     degree: int = 1
+    rows: int = 0
 
 
 def _attempt(loop: SampledLoop, system: FTCSystem, aug: ClosedLoop, jumps: list[Matrix], h: float,
@@ -426,16 +427,19 @@ def _attempt(loop: SampledLoop, system: FTCSystem, aug: ClosedLoop, jumps: list[
 
 def sampled_gamma(system: FTCSystem, controller: Controller, period: float, *, robust: bool,
                   pieces: tuple[int | tuple[int, int], ...] = PIECES, loop: SampledLoop | None = None,
-                  max_seconds: float = MAX_SECONDS, target: float | None = None) -> SampledGamma:
+                  max_rows: int = MAX_ROWS, target: float | None = None) -> SampledGamma:
     """The gamma proved by the clock-dependent certificate of the module docstring at
     ``period``, over the rate box (and ``Delta`` when ``robust``): each ``N`` of
     ``pieces`` in turn (the cost grows with ``N``, the reach towards ``h_max`` and the
     tightness too) until one is proved -- with a ``target`` (a lower bound of the gain),
     until one is proved within :data:`GAP_RTOL` of it or a doubling of ``N`` tightens it
-    by less than :data:`GAIN_RTOL`, the smallest proved gamma kept -- and no new ``N``
-    started when its predicted time (:data:`GROWTH` times the last one's) would pass
-    ``max_seconds`` (CPU seconds of this process: a loaded machine does not shrink the
-    reach; ``seconds`` of the result is CPU time too)."""
+    by less than :data:`GAIN_RTOL`, the smallest proved gamma kept -- and no entry after
+    the first tried when its program would have more than ``max_rows`` rows
+    (:func:`~ftc_verify.analysis.moments.sampled_quadratic.program_rows`, from the
+    dimensions: the result does not depend on the machine's speed or load; ``seconds``
+    is CPU time, reported only)."""
+    from .sampled_quadratic import program_rows
+
     h = check_period(period, "period")
     t0 = time.process_time()
     loop = SampledLoop.build(system, controller) if loop is None else loop
@@ -447,15 +451,13 @@ def sampled_gamma(system: FTCSystem, controller: Controller, period: float, *, r
     jumps = sample_jumps(loop, h)
     whys: list[str] = []
     best: tuple[float, tuple[int, int], float] | None = None
-    last = 0.0
     for item in pieces:
         piece = (1, item) if isinstance(item, int) else item
-        spent = time.process_time() - t0
-        if (whys or best) and spent + GROWTH * last > max_seconds:
-            whys.append(f"N = {piece[1]} not tried (its predicted time would pass {max_seconds:g} s)")
+        rows = program_rows(aug, piece, robust)
+        if (whys or best) and rows > max_rows:
+            whys.append(f"N = {piece[1]} not tried (its program would have {rows} rows, above {max_rows})")
             break
         gamma, tau, why = _attempt(loop, system, aug, jumps, h, piece, robust, w_scale)
-        last = time.process_time() - t0 - spent
         if gamma is None:
             whys.append(why)
             continue
@@ -473,7 +475,8 @@ def sampled_gamma(system: FTCSystem, controller: Controller, period: float, *, r
         how = ("quadratic", "every instance on each whole piece (S-procedure in the clock)")
     return SampledGamma(robust, best[0], N, best[2],
                         f"proved in 128-bit ball arithmetic: storage {how[0]} on {N} piece(s) of [0, h], "
-                        f"{how[1]}, the jump at the sample, every node P_s", seconds, degree)
+                        f"{how[1]}, the jump at the sample, every node P_s", seconds, degree,
+                        program_rows(aug, best[1], robust))
 
 
 @dataclass(frozen=True)
@@ -499,6 +502,10 @@ class SampledPerformance:
             "nominal_gamma_note": self.nominal.note,
             "nominal_gamma_pieces": self.nominal.pieces,
             "nominal_gamma_storage_degree": self.nominal.degree,
+            "nominal_gamma_program_rows": self.nominal.rows,
+            "robust_gamma_pieces": None if rob is None else rob.pieces,
+            "robust_gamma_program_rows": None if rob is None else rob.rows,
+            "gamma_max_program_rows": MAX_ROWS,
             "robust_gamma": None if rob is None else rob.gamma,
             "robust_gamma_note": "no uncertainty channels" if rob is None else rob.note,
             "robust_gamma_storage_degree": None if rob is None else rob.degree,
@@ -514,8 +521,7 @@ class SampledPerformance:
 
 
 def sampled_performance(system: FTCSystem, controller: Controller, period: float) -> SampledPerformance:
-    """Both certificates and their lower bounds at ``period``:
-    :func:`~ftc_verify.analysis.moments.sampled_gains.sampled_gains`."""
+    """Both certificates and their lower bounds: :func:`~ftc_verify.analysis.moments.sampled_gains.sampled_gains`."""
     from .sampled_gains import sampled_gains
 
     return sampled_gains(system, controller, period)
@@ -549,7 +555,6 @@ def performance_lines(perf: SampledPerformance) -> list[str]:
             out.append(f"    {name} gain (sampled, between samples included)  NOT certified: {cert.note}; "
                        f"lower bound {low}")
         else:
-            shape = "affine" if cert.degree == 1 else "quadratic"
-            out.append(f"    {name} gain (sampled, between samples included)  gamma <= {cert.gamma:.6g} "
-                       f"(proved, N = {cert.pieces} {shape}); lower bound {low}")
+            out.append(f"    {name} gain (sampled, between samples included)  gamma <= {cert.gamma:.6g} (proved, "
+                       f"N = {cert.pieces} {'affine' if cert.degree == 1 else 'quadratic'}); lower bound {low}")
     return out

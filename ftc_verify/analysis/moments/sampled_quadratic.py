@@ -70,7 +70,7 @@ from ..lmi import BlockSpec, block_specs
 from .sampled import SampledLoop
 
 __all__ = ["QuadraticLayout", "quadratic_rows", "quadratic_values", "proved_nodes", "prove_quadratic",
-           "quadratic_program", "quadratic_check"]
+           "quadratic_program", "quadratic_check", "instance_sizes", "program_rows"]
 
 
 class QuadraticLayout:
@@ -291,11 +291,7 @@ def quadratic_program(aug: ClosedLoop, jumps: list[Matrix], h: float, N: int,
                       robust: bool) -> tuple[ConicProblem, QuadraticLayout]:
     """``min g`` subject to :func:`quadratic_rows` on ``N`` pieces, and its layout
     (``g`` is column ``layout.g``, the margin ``t`` the next one)."""
-    from .sampled_gamma import clock_instance
-
-    zero = [np.zeros((aug.n, aug.n))] * len(aug.A)
-    sizes = [clock_instance(aug, spec, zero, zero[0], [0.0] * len(aug.channels[spec.s]) if robust else None, 1.0,
-                            np.block).shape[0] for spec in block_specs(aug)]
+    sizes = instance_sizes(aug, robust)
     lay = QuadraticLayout(aug.n, len(aug.A), N, tuple(len(c) if robust else 0 for c in aug.channels), sizes)
     objective = np.zeros(lay.K)
     objective[lay.g] = 1.0
@@ -307,3 +303,41 @@ def quadratic_check(loop: SampledLoop, system: FTCSystem, h: float, x: Matrix, l
     """:func:`prove_quadratic` of the solution ``x`` with the bound ``g`` (gamma squared of
     the loop with ``Bw`` times ``w_scale``)."""
     return prove_quadratic(loop, system, h, quadratic_values(x, lay, h), g, robust, w_scale)
+
+
+def instance_sizes(aug: ClosedLoop, robust: bool) -> list[int]:
+    """The size of the instance of every block spec of ``aug`` (:func:`block_specs` order):
+    ``d`` plus the disturbance and output sizes (and, ``robust``, the channels')."""
+    from .sampled_gamma import clock_instance
+
+    zero = [np.zeros((aug.n, aug.n))] * len(aug.A)
+    return [clock_instance(aug, spec, zero, zero[0], [0.0] * len(aug.channels[spec.s]) if robust else None, 1.0,
+                           np.block).shape[0] for spec in block_specs(aug)]
+
+
+def program_rows(aug: ClosedLoop, piece: tuple[int, int], robust: bool) -> int:
+    r"""The rows of the conic program of the storage of degree ``piece[0]`` on
+    ``piece[1]`` pieces (the dimension of its cone), from the dimensions alone: with
+    :math:`N` pieces, block specs of instance sizes :math:`m_j`, :math:`S` joint states,
+    :math:`d` the augmented state's size and :math:`t(m) = m (m + 1) / 2`,
+
+    .. math::
+
+        \text{affine: } 2N \textstyle\sum_j t(m_j), \qquad
+        \text{quadratic: } N \textstyle\sum_j \bigl(t(2 m_j) + t(m_j)\bigr)
+
+    (every instance at both ends of each piece; one bordered block and its :math:`G` per
+    piece), plus :math:`S\,t(d)` jump and :math:`(N + 1) S\,t(d)` node rows and, robust,
+    one nonnegative row per multiplier (per node, affine; per piece, quadratic). The
+    solver's work and memory per iteration grow with it:
+    :func:`~ftc_verify.analysis.moments.sampled_gamma.sampled_gamma` tries no program
+    above :data:`~ftc_verify.analysis.moments.sampled_gamma.MAX_ROWS` rows."""
+    degree, N = piece
+
+    def t(m: int) -> int:
+        return m * (m + 1) // 2
+
+    sizes = instance_sizes(aug, robust)
+    flow = 2 * N * sum(t(m) for m in sizes) if degree == 1 else N * sum(t(2 * m) + t(m) for m in sizes)
+    multipliers = (N + 1 if degree == 1 else N) * sum(len(c) for c in aug.channels) if robust else 0
+    return flow + (N + 2) * len(aug.A) * t(aug.n) + multipliers
