@@ -105,6 +105,7 @@ from ..conic import Affine, Rows, affine_bmat, scalar_variable, svec_index, sym_
 from ..lmi import BlockSpec, block_specs, lyapunov_block
 from .sampled import SampledLoop
 from .sampled_energy import OMEGAS, gain_lower_estimate
+from .sampled_frame import Coordinates, coordinates, io_scales
 
 __all__ = ["MARGIN_TAU", "PIECES", "clock_instance", "MAX_ROWS", "GAP_RTOL", "GAIN_RTOL", "OMEGAS", "augmented_loop",
            "io_scale", "sample_jumps", "SampledGamma", "SampledPerformance", "sampled_gamma", "gain_lower_estimate",
@@ -126,29 +127,19 @@ GAIN_RTOL = 0.01
 
 
 def io_scale(aug: ClosedLoop) -> float:
-    r"""The power of two :math:`s` nearest to :math:`\max\|\bar C_i\| / \max\|\bar B_{w,i}\|`
-    (spectral norms over the joint modes) when that is above 1, else 1: the program is
-    solved and proved for the loop with :math:`s \bar B_w`, whose gain is :math:`s\gamma`
-    (the disturbance :math:`w/s`), and the bound divided by :math:`s` (exact). The
-    program is invariant under it in exact arithmetic; the solver is not: a disturbance
-    input 1e4 times smaller than the output left the three-tank certificate 27 % above
-    the gain (1.8 % after), while scaling *down* loosened a dynamic controller's
-    quadratic storage on the paper plant by 3 % -- hence only up (measured, not derived)."""
-    b = max(float(np.linalg.norm(B, 2)) if B.size else 0.0 for B in aug.Bw)
-    c = max(float(np.linalg.norm(C, 2)) if C.size else 0.0 for C in aug.Cz)
-    if not (b > 0 and c > b and math.isfinite(c)):
-        return 1.0
-    return float(2.0 ** round(math.log2(c / b)))
+    """:math:`s_w s_z` of :func:`~ftc_verify.analysis.moments.sampled_frame.io_scales`: the
+    factor by which the gain of the loop the program is solved for is larger."""
+    return math.prod(io_scales(aug))
 
 
 def augmented_loop(loop: SampledLoop, system: FTCSystem, *, balls: bool = False,
-                   w_scale: float = 1.0) -> ClosedLoop:
+                   w_scale: float = 1.0, z_scale: float = 1.0) -> ClosedLoop:
     """The flow between samples as a :class:`ClosedLoop` on ``zeta = (x, u, x_c)`` in the
     balanced coordinates of ``loop`` (module docstring): ``A`` the flow, ``Bw``, ``Cz`` and
     the channels padded with zeros. ``balls=True``: every matrix a ball of the numbers as
     written (call inside :func:`~ftc_verify.analysis.rigorous.precision`); the loop's
-    ``source`` then carries the system for its written rates. ``w_scale`` (a power of
-    two: exact) multiplies ``Bw``: the loop's gain is then ``w_scale`` times the gain."""
+    ``source`` then carries the system for its written rates. ``w_scale`` and ``z_scale``
+    (powers of two: exact) multiply ``Bw`` and ``Cz``: the gain is multiplied by both."""
     from ..exact import written
     from ..rigorous import ball
 
@@ -169,6 +160,15 @@ def augmented_loop(loop: SampledLoop, system: FTCSystem, *, balls: bool = False,
     def right(M: Any) -> Any:  # M S
         return M @ ball(np.diag(sc)) if balls else M * sc[None, :]
 
+    def channel(E: Matrix, F: Matrix, col: int, name: str) -> Channel:
+        """``(E r) Delta (F / r)``: the same uncertainty; ``r`` the power of two that makes the
+        two norms (balanced coordinates) equal when their ratio is outside [2^-6, 2^6]."""
+        e = float(np.linalg.norm(E / sc[:n, None], 2))
+        f = float(np.linalg.norm(F * sc[None, col:col + F.shape[1]], 2))
+        ok = e > 0 and f > 0 and math.isfinite(f / e) and not 2.0 ** -6 <= f / e <= 2.0 ** 6
+        r = float(2.0 ** round(0.5 * math.log2(f / e))) if ok else 1.0
+        return Channel(left(pad(E, 0, 0, d, E.shape[1])) * r, right(pad(F, 0, col, F.shape[0], d)) * (1.0 / r), name)
+
     A: list[Any] = []
     Bw: list[Any] = []
     Cz: list[Any] = []
@@ -180,14 +180,11 @@ def augmented_loop(loop: SampledLoop, system: FTCSystem, *, balls: bool = False,
         A.append(right(left(pad(flow, 0, 0, d, d))) if balls else loop.flow[len(A)])
         bw = left(pad(md.D, 0, 0, d, md.D.shape[1]))
         Bw.append(bw * w_scale if w_scale != 1.0 else bw)  # times a power of two: exact on balls too
-        Cz.append(right(pad(md.C, 0, 0, md.C.shape[0], d)))
-        c = []
-        if md.A1 is not None and md.A2 is not None:
-            c.append(Channel(left(pad(md.A1, 0, 0, d, md.A1.shape[1])), right(pad(md.A2, 0, 0, md.A2.shape[0], d)),
-                             "Delta1 (A)"))
-        if md.B1 is not None and md.B2 is not None:
-            c.append(Channel(left(pad(md.B1, 0, 0, d, md.B1.shape[1])), right(pad(md.B2, 0, n, md.B2.shape[0], d)),
-                             "Delta2 (B)"))
+        cz = right(pad(md.C, 0, 0, md.C.shape[0], d))
+        Cz.append(cz * z_scale if z_scale != 1.0 else cz)
+        c = [channel(E, F, col, name) for E, F, col, name in ((md.A1, md.A2, 0, "Delta1 (A)"),
+                                                              (md.B1, md.B2, n, "Delta2 (B)"))
+             if E is not None and F is not None]
         chans.append(tuple(c))
     return ClosedLoop(system.chain, tuple(A), tuple(Bw), tuple(Cz), tuple(chans), "sampled (x, u, x_c)",
                       None, system.names, (system, loop.controller) if balls else None)
@@ -342,7 +339,7 @@ def _values(x: Matrix, lay: _Layout, h: float) -> tuple[list[list[Matrix]], list
 
 
 def _prove(loop: SampledLoop, system: FTCSystem, h: float, P: list[list[Matrix]], lam: list[list[list[float]]],
-           g: float, robust: bool, w_scale: float = 1.0) -> bool:
+           g: float, robust: bool, coords: Coordinates | None = None) -> bool:
     """Every instance, jump condition and ``P_s^k`` proved definite in ball arithmetic
     (module docstring), from the numbers as written."""
     import flint
@@ -352,7 +349,7 @@ def _prove(loop: SampledLoop, system: FTCSystem, h: float, P: list[list[Matrix]]
 
     N = len(P) - 1
     with precision():
-        nodes = proved_nodes(loop, system, h, P, robust, w_scale)
+        nodes = proved_nodes(loop, system, h, P, robust, coords)
         if nodes is None:
             return False
         aug, Pb = nodes
@@ -388,7 +385,8 @@ class SampledGamma:
 
 
 def _attempt(loop: SampledLoop, system: FTCSystem, aug: ClosedLoop, jumps: list[Matrix], h: float,
-             piece: tuple[int, int], robust: bool, w_scale: float = 1.0) -> tuple[float | None, float, str]:
+             piece: tuple[int, int], robust: bool,
+             coords: Coordinates | None = None) -> tuple[float | None, float, str]:
     """``(gamma, margin, why)`` of the program with storage of degree ``piece[0]`` (1:
     affine, this module; 2: quadratic, :mod:`~ftc_verify.analysis.moments.sampled_quadratic`)
     on ``piece[1]`` pieces: solved with the margins ``MARGIN_TAU * 100**j``, ``j < 3``,
@@ -415,11 +413,12 @@ def _attempt(loop: SampledLoop, system: FTCSystem, aug: ClosedLoop, jumps: list[
         g = float(x[gi]) * (1 + 1e-9) + 1e-300
         if degree == 1:
             P, lam = _values(x, lay, h)
-            proved = _prove(loop, system, h, P, lam, g, robust, w_scale)
+            proved = _prove(loop, system, h, P, lam, g, robust, coords)
         else:
-            proved = quadratic_check(loop, system, h, x, quad, g, robust, w_scale)
+            proved = quadratic_check(loop, system, h, x, quad, g, robust, coords)
         if proved:
-            return math.nextafter(math.sqrt(g) / w_scale, math.inf), tau, ""
+            factor = 1.0 if coords is None else coords.gain_factor  # a power of two: exact
+            return math.nextafter(math.sqrt(g) / factor, math.inf), tau, ""
         why = f"{name}: the solver's answer was not proved in ball arithmetic"
         tau *= 100.0
     return None, tau, why
@@ -443,12 +442,12 @@ def sampled_gamma(system: FTCSystem, controller: Controller, period: float, *, r
     h = check_period(period, "period")
     t0 = time.process_time()
     loop = SampledLoop.build(system, controller) if loop is None else loop
-    w_scale = io_scale(augmented_loop(loop, system))
-    aug = augmented_loop(loop, system, w_scale=w_scale)
+    coords = coordinates(augmented_loop(loop, system), sample_jumps(loop, h), loop, system)
+    aug = coords.loop(augmented_loop(loop, system, w_scale=coords.w_scale, z_scale=coords.z_scale))
     robust = robust and aug.uncertain
     if not robust:
         aug = aug.nominal()
-    jumps = sample_jumps(loop, h)
+    jumps = coords.jumps(sample_jumps(loop, h))
     whys: list[str] = []
     best: tuple[float, tuple[int, int], float] | None = None
     for item in pieces:
@@ -457,7 +456,7 @@ def sampled_gamma(system: FTCSystem, controller: Controller, period: float, *, r
         if (whys or best) and rows > max_rows:
             whys.append(f"N = {piece[1]} not tried (its program would have {rows} rows, above {max_rows})")
             break
-        gamma, tau, why = _attempt(loop, system, aug, jumps, h, piece, robust, w_scale)
+        gamma, tau, why = _attempt(loop, system, aug, jumps, h, piece, robust, coords)
         if gamma is None:
             whys.append(why)
             continue

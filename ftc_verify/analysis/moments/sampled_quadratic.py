@@ -68,6 +68,7 @@ from ..closedloop import ClosedLoop
 from ..conic import Affine, ConicProblem, Rows, affine_bmat, scalar_variable, svec_index, sym_variable
 from ..lmi import BlockSpec, block_specs
 from .sampled import SampledLoop
+from .sampled_frame import Coordinates
 
 __all__ = ["QuadraticLayout", "quadratic_rows", "quadratic_values", "proved_nodes", "prove_quadratic",
            "quadratic_program", "quadratic_check", "instance_sizes", "program_rows"]
@@ -227,31 +228,35 @@ def quadratic_values(x: Matrix, lay: QuadraticLayout, h: float) -> dict[str, Any
 
 
 def proved_nodes(loop: SampledLoop, system: FTCSystem, h: float, P: list[list[Matrix]], robust: bool,
-                 w_scale: float = 1.0) -> tuple[ClosedLoop, list[list[Any]]] | None:
+                 coords: Coordinates | None = None) -> tuple[ClosedLoop, list[list[Any]]] | None:
     """What the affine and the quadratic storage prove alike: the ball loop of
     :func:`~ftc_verify.analysis.moments.sampled_gamma.augmented_loop` (nominal unless
     ``robust``) and the nodes ``P_s^k`` as symmetric balls, returned when every node is
     proved positive definite and every jump condition ``P_s^N - J_s^T P_s^0 J_s`` too
     (``J_s`` of :func:`~ftc_verify.analysis.moments.sampled_gamma.sample_jumps`, from the
-    numbers as written); ``None`` otherwise. Call it inside :func:`~ftc_verify.analysis.rigorous.precision`."""
+    numbers as written), both in the coordinates ``coords``
+    (:class:`~ftc_verify.analysis.moments.sampled_frame.Coordinates`, built on the balls);
+    ``None`` otherwise. Call it inside :func:`~ftc_verify.analysis.rigorous.precision`."""
     from ..rigorous import ball, proven_positive_definite
     from .sampled_gamma import augmented_loop, sample_jumps
 
     N = len(P) - 1
-    aug = augmented_loop(loop, system, balls=True, w_scale=w_scale)
+    coords = Coordinates() if coords is None else coords
+    aug = coords.loop(augmented_loop(loop, system, balls=True, w_scale=coords.w_scale, z_scale=coords.z_scale),
+                      balls=True)
     if not robust:
         aug = aug.nominal()
     Pb = [[ball(0.5 * (p + p.T)) for p in row] for row in P]
     if not all(proven_positive_definite(p) for row in Pb for p in row):
         return None
-    for s, J in enumerate(sample_jumps(loop, h, balls=True, literals=system.literals)):
+    for s, J in enumerate(coords.jumps(sample_jumps(loop, h, balls=True, literals=system.literals), balls=True)):
         if not proven_positive_definite(Pb[N][s] - J.T @ Pb[0][s] @ J):
             return None
     return aug, Pb
 
 
 def prove_quadratic(loop: SampledLoop, system: FTCSystem, h: float, values: dict[str, Any], g: float,
-                    robust: bool, w_scale: float = 1.0) -> bool:
+                    robust: bool, coords: Coordinates | None = None) -> bool:
     """Every bordered condition, ``G``, node and jump condition proved definite in ball
     arithmetic (module docstring), on the ball loop and jumps of
     :func:`~ftc_verify.analysis.moments.sampled_gamma.augmented_loop` and
@@ -264,7 +269,7 @@ def prove_quadratic(loop: SampledLoop, system: FTCSystem, h: float, values: dict
     P, D, lam, G = values["P"], values["D"], values["lam"], values["G"]
     N = len(P) - 1
     with precision():
-        nodes = proved_nodes(loop, system, h, P, robust, w_scale)
+        nodes = proved_nodes(loop, system, h, P, robust, coords)
         if nodes is None:
             return False
         aug, Pb = nodes
@@ -299,10 +304,10 @@ def quadratic_program(aug: ClosedLoop, jumps: list[Matrix], h: float, N: int,
 
 
 def quadratic_check(loop: SampledLoop, system: FTCSystem, h: float, x: Matrix, lay: QuadraticLayout, g: float,
-                    robust: bool, w_scale: float = 1.0) -> bool:
+                    robust: bool, coords: Coordinates | None = None) -> bool:
     """:func:`prove_quadratic` of the solution ``x`` with the bound ``g`` (gamma squared of
-    the loop with ``Bw`` times ``w_scale``)."""
-    return prove_quadratic(loop, system, h, quadratic_values(x, lay, h), g, robust, w_scale)
+    the loop in the coordinates ``coords``)."""
+    return prove_quadratic(loop, system, h, quadratic_values(x, lay, h), g, robust, coords)
 
 
 def instance_sizes(aug: ClosedLoop, robust: bool) -> list[int]:
