@@ -73,8 +73,9 @@ numbers as written (:func:`~ftc_verify.analysis.exact.written`), the rates as wr
 (:func:`~ftc_verify.analysis.exact.ball_generator`), a static gain as written, a dynamic
 controller's :math:`(\Phi_c, \Gamma_c)` by Arb's rigorous exponential with its
 matrices taken as the floats read (as :mod:`ftc_verify.analysis.moments.sampled_proof`
-does), the period as the float given. The
-state is in :class:`SampledLoop`'s balanced coordinates (powers of two: exact).
+does), the period as the float given. Both in the coordinates of
+:mod:`~ftc_verify.analysis.moments.sampled_frame` (from :class:`SampledLoop`'s balanced
+ones; the transform built on balls).
 
 **The pieces** (:data:`PIECES`, :func:`sampled_gamma`): affine on 4 pieces first; where
 that fails or stays far above the lower bound, a storage *quadratic* in the clock on
