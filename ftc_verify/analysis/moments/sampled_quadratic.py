@@ -242,14 +242,18 @@ def proved_nodes(loop: SampledLoop, system: FTCSystem, h: float, P: list[list[Ma
 
     N = len(P) - 1
     coords = Coordinates() if coords is None else coords
-    aug = coords.loop(augmented_loop(loop, system, balls=True, w_scale=coords.w_scale, z_scale=coords.z_scale),
-                      balls=True)
+    try:  # Arb proves the transform invertible, or nothing is proved
+        aug = coords.loop(augmented_loop(loop, system, balls=True, w_scale=coords.w_scale, z_scale=coords.z_scale),
+                          balls=True)
+        jumps = coords.jumps(sample_jumps(loop, h, balls=True, literals=system.literals), balls=True)
+    except ZeroDivisionError:
+        return None
     if not robust:
         aug = aug.nominal()
     Pb = [[ball(0.5 * (p + p.T)) for p in row] for row in P]
     if not all(proven_positive_definite(p) for row in Pb for p in row):
         return None
-    for s, J in enumerate(coords.jumps(sample_jumps(loop, h, balls=True, literals=system.literals), balls=True)):
+    for s, J in enumerate(jumps):
         if not proven_positive_definite(Pb[N][s] - J.T @ Pb[0][s] @ J):
             return None
     return aug, Pb
