@@ -19,7 +19,9 @@ chosen -- else none (a well-conditioned loop is solved as written). **Soundness 
 depend on** :math:`T`: the proof builds the transformed loop and jumps in ball arithmetic
 from the balls of the numbers as written, with :math:`T` an exact float matrix and
 :math:`T^{-1}` a ball that contains the exact inverse (Arb's ``arb_mat.inv``), so what is
-proved is the program for a loop congruent to the written one: the same gain.
+proved is the program for a loop congruent to the written one: the same gain. The proved
+lower bound (:mod:`~ftc_verify.analysis.moments.sampled_lower`) is searched and proved in
+the same similarity (without the scales).
 """
 
 from __future__ import annotations
