@@ -9,10 +9,13 @@ proved ``h_max``. Per case what ``analyze --period`` computes
 (:func:`~ftc_verify.analysis.moments.sampled_gamma.sampled_performance`: the proved
 lower bounds first, then the nominal and robust certificates, side by side in two
 processes): the proved gammas (empty when none), the pieces ``N`` and the storage's
-degree in the clock (1 affine, 2 quadratic) used, each certificate's CPU seconds, the lower bounds and their kind, the continuous certificates, the
-total wall and CPU seconds (this process and its reaped children). Columns:
-``case, h_max, period, fraction, nominal_gamma, nominal_pieces, nominal_degree,
-nominal_seconds, robust_gamma, robust_pieces, robust_degree, robust_seconds, nominal_lower, robust_lower, lower_kind,
+degree in the clock (1 affine, 2 quadratic) used, the rows of that program (the schedule
+stops at ``MAX_ROWS``: the same numbers on every machine), each certificate's CPU seconds,
+the lower bounds and their kind, the continuous certificates, the total wall and CPU
+seconds (this process and its reaped children). Columns:
+``case, h_max, period, fraction, nominal_gamma, nominal_pieces, nominal_degree, nominal_rows,
+nominal_seconds, robust_gamma, robust_pieces, robust_degree, robust_rows, robust_seconds, nominal_lower,
+robust_lower, lower_kind,
 continuous_nominal, continuous_robust, wall_seconds, cpu_seconds, note``.
 
 Usage::
@@ -48,8 +51,9 @@ from ftc_verify.model.system import FTCSystem
 ROOT = Path(__file__).resolve().parents[1]
 PERIODS = (0.001, 0.01, 0.05, 0.07, 0.075, 0.08, 0.083)
 FRACTIONS = (0.5, 0.8, 0.9, 0.95)
-COLUMNS = ["case", "h_max", "period", "fraction", "nominal_gamma", "nominal_pieces", "nominal_degree",
-           "nominal_seconds", "robust_gamma", "robust_pieces", "robust_degree", "robust_seconds", "nominal_lower", "robust_lower", "lower_kind",
+COLUMNS = ["case", "h_max", "period", "fraction", "nominal_gamma", "nominal_pieces", "nominal_degree", "nominal_rows",
+           "nominal_seconds", "robust_gamma", "robust_pieces", "robust_degree", "robust_rows", "robust_seconds",
+           "nominal_lower", "robust_lower", "lower_kind",
            "continuous_nominal", "continuous_robust", "wall_seconds", "cpu_seconds", "note"]
 
 
@@ -84,8 +88,8 @@ def row(case: str, system: FTCSystem, controller: Controller, h: float, h_max: f
     certs = [perf.nominal, perf.robust]
     out: list[Any] = [case, "" if h_max is None else round(h_max, 6), h, "" if not h_max else round(h / h_max, 3)]
     for c in certs:
-        out += ["", "", "", ""] if c is None else ["" if c.gamma is None else c.gamma, c.pieces, c.degree,
-                                                   round(c.seconds, 2)]
+        out += ["", "", "", "", ""] if c is None else ["" if c.gamma is None else c.gamma, c.pieces, c.degree,
+                                                       c.rows, round(c.seconds, 2)]
     out += ["" if v is None else v for v in (perf.nominal_lower, perf.robust_lower)]
     out += [perf.nominal_lower_kind if perf.nominal_lower_kind == perf.robust_lower_kind else "mixed"]
     out += cont + [round(wall, 2), round(used, 2)]

@@ -66,10 +66,10 @@ def test_pieces_escalate_until_one_is_proved(paper: tuple[FTCSystem, Controller]
 
 
 def test_budget_stops_the_escalation(paper: tuple[FTCSystem, Controller]) -> None:
-    """With ``max_seconds = 0`` only the first N is tried: at h = 0.07 it fails, and the
+    """With ``max_rows = 0`` only the first N is tried: at h = 0.07 it fails, and the
     note names the failure and says that N = 8 was not tried."""
     system, controller = paper
-    cert = sampled_gamma(system, controller, 0.07, robust=False, pieces=(4, 8), max_seconds=0.0)
+    cert = sampled_gamma(system, controller, 0.07, robust=False, pieces=(4, 8), max_rows=0)
     assert cert.gamma is None and "N = 4 (affine):" in cert.note and "N = 8 not tried" in cert.note
 
 

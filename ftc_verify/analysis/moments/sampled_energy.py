@@ -109,14 +109,54 @@ def _exosystem(disturbance: str, exosystem: tuple[Matrix, Matrix, Matrix] | None
     return EXOSYSTEMS[disturbance]
 
 
+def _conditioned(system: FTCSystem, controller: Controller,
+                 x0: Matrix | None) -> tuple[FTCSystem, Controller, Matrix | None]:
+    r"""The loop in the coordinates :math:`x = T\tilde x` of the continuous loop's
+    :func:`~ftc_verify.analysis.conditioning.conditioning_transform` when that has
+    condition above 100 and the controller is static (its input :math:`M x` becomes
+    :math:`M T \tilde x`; :math:`x_0 \to T^{-1} x_0`): the energies are invariant (float64
+    either way). In the coordinates of a similarity of condition 1e3 the one-period map of
+    the paper loop at :math:`h = 10^{-3}` (radius :math:`1 - O(h)`) looked unstable."""
+    from ..closedloop import closed_loop
+    from ..conditioning import conditioning_transform
+
+    if controller.n_c:
+        return system, controller, x0
+    try:
+        sim = conditioning_transform(closed_loop(system, controller))
+    except (np.linalg.LinAlgError, ValueError, FTCError):
+        return system, controller, x0
+    if not 100.0 < sim.condition < 1e12:
+        return system, controller, x0
+    T, Ti = np.asarray(sim.T, dtype=float), np.asarray(sim.T_inv, dtype=float)
+
+    def left(M: Matrix | None) -> Matrix | None:
+        return None if M is None else Ti @ M
+
+    def right(M: Matrix | None) -> Matrix | None:
+        return None if M is None else M @ T
+
+    modes = tuple(dataclasses.replace(md, A=Ti @ md.A @ T, B=Ti @ md.B, C=md.C @ T, D=Ti @ md.D, A1=left(md.A1),
+                                      A2=right(md.A2), B1=left(md.B1), Cy=right(md.Cy)) for md in system.modes)
+    if controller.measures == "state":
+        controller = dataclasses.replace(controller, Dc=tuple(K @ T for K in controller.Dc))
+    moved = dataclasses.replace(system, modes=modes)
+    return moved, controller, None if x0 is None else Ti @ np.asarray(x0, dtype=float).reshape(-1)
+
+
 def _augmented(system: FTCSystem, controller: Controller, period: float, beta: Matrix, disturbance: str,
                x0: Matrix | None, start: tuple[int, int],
                exosystem: tuple[Matrix, Matrix, Matrix] | None = None) -> _Augmented:
-    """Checks the arguments and builds :class:`_Augmented` (module docstring)."""
+    """Checks the arguments and builds :class:`_Augmented` (module docstring), in the
+    coordinates of :func:`_conditioned`."""
     S_exo, c, zeta0 = _exosystem(disturbance, exosystem)
     if not (period > 0) or not math.isfinite(period):
         raise ValidationError(f"sampled_energy: the period must be positive and finite, got {period!r}")
     controller.check(system)
+    n_given = system.dims[0]
+    if x0 is not None and np.asarray(x0).size != n_given:
+        raise ValidationError(f"x0: expected {n_given} entries, got {np.asarray(x0).shape}")
+    system, controller, x0 = _conditioned(system, controller, x0)
     chain = system.chain
     beta = chain.check_beta(beta)
     q = S_exo.shape[0]

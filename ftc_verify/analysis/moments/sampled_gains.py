@@ -84,6 +84,6 @@ def sampled_gains(system: FTCSystem, controller: Controller, period: float) -> S
     nominal, robust = _certificates(system, controller, period, loop,
                                     (lo_n if kind_n == "proved" else None, lo_r if kind_r == "proved" else None))
     if robust is not None and robust.gamma is not None and (nominal.gamma is None or robust.gamma < nominal.gamma):
-        nominal = replace(nominal, gamma=robust.gamma, pieces=robust.pieces, degree=robust.degree,
+        nominal = replace(nominal, gamma=robust.gamma, pieces=robust.pieces, degree=robust.degree, rows=robust.rows,
                           note=f"the robust certificate (Delta = 0 is admissible): {robust.note}")
     return SampledPerformance(float(period), nominal, robust, lo_n, where_n, lo_r, where_r, kind_n, kind_r)

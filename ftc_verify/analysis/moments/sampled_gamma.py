@@ -73,13 +73,16 @@ numbers as written (:func:`~ftc_verify.analysis.exact.written`), the rates as wr
 (:func:`~ftc_verify.analysis.exact.ball_generator`), a static gain as written, a dynamic
 controller's :math:`(\Phi_c, \Gamma_c)` by Arb's rigorous exponential with its
 matrices taken as the floats read (as :mod:`ftc_verify.analysis.moments.sampled_proof`
-does), the period as the float given. The
-state is in :class:`SampledLoop`'s balanced coordinates (powers of two: exact).
+does), the period as the float given. Both in the coordinates of
+:mod:`~ftc_verify.analysis.moments.sampled_frame` (from :class:`SampledLoop`'s balanced
+ones; the transform built on balls).
 
 **The pieces** (:data:`PIECES`, :func:`sampled_gamma`): affine on 4 pieces first; where
 that fails or stays far above the lower bound, a storage *quadratic* in the clock on
-each piece (:mod:`~ftc_verify.analysis.moments.sampled_quadratic`), whose loss is second
-order in the pieces' length: the certificate's reach towards ``h_max``.
+each piece (:mod:`~ftc_verify.analysis.moments.sampled_quadratic`; loss second order in
+the pieces' length: the reach towards ``h_max``), while the program has at most
+:data:`MAX_ROWS` rows (:func:`~ftc_verify.analysis.moments.sampled_quadratic.program_rows`:
+the dimensions decide, never the clock, so every machine proves the same gamma).
 
 **Beside it, a proved lower bound** (:mod:`~ftc_verify.analysis.moments.sampled_lower`:
 a held worst-case feedback disturbance, its exact energies proved in ball arithmetic);
@@ -103,10 +106,11 @@ from ..conic import Affine, Rows, affine_bmat, scalar_variable, svec_index, sym_
 from ..lmi import BlockSpec, block_specs, lyapunov_block
 from .sampled import SampledLoop
 from .sampled_energy import OMEGAS, gain_lower_estimate
+from .sampled_frame import Coordinates, coordinates, io_scales
 
-__all__ = ["MARGIN_TAU", "PIECES", "clock_instance", "MAX_SECONDS", "GAP_RTOL", "GAIN_RTOL", "GROWTH", "OMEGAS", "augmented_loop", "io_scale", "sample_jumps", "SampledGamma", "SampledPerformance",
-           "sampled_gamma", "gain_lower_estimate", "sampled_performance", "attach_performance",
-           "performance_lines"]
+__all__ = ["MARGIN_TAU", "PIECES", "clock_instance", "MAX_ROWS", "GAP_RTOL", "GAIN_RTOL", "OMEGAS", "augmented_loop",
+           "io_scale", "sample_jumps", "SampledGamma", "SampledPerformance", "sampled_gamma", "gain_lower_estimate",
+           "sampled_performance", "attach_performance", "performance_lines"]
 
 #: First margin of the program (every instance ``<= -t I``); raised 100x when the proof fails.
 MARGIN_TAU = 1e-7
@@ -114,41 +118,29 @@ MARGIN_TAU = 1e-7
 #: well below ``h_max``), then quadratic (2, :mod:`~ftc_verify.analysis.moments.sampled_quadratic`)
 #: on 2, 4, 8 pieces (its error is second order in the pieces' length: the reach towards ``h_max``).
 PIECES: tuple[tuple[int, int], ...] = ((1, 4), (2, 2), (2, 4), (2, 8))
-#: No further ``N`` of :data:`PIECES` is started when its predicted CPU seconds would pass this.
-MAX_SECONDS = 20.0
-#: With a lower bound (``target``), a further ``N`` is tried while the proved gamma
-#: exceeds it by more than this fraction ...
+#: No entry of :data:`PIECES` after the first is tried when its program has more rows
+#: (:func:`~ftc_verify.analysis.moments.sampled_quadratic.program_rows`; the paper's robust N = 8: 13184).
+MAX_ROWS = 16384
+#: With a lower bound (``target``), a further ``N`` is tried while gamma exceeds it by more than this ...
 GAP_RTOL = 0.1
 #: ... and the last doubling of ``N`` tightened it by at least this fraction.
 GAIN_RTOL = 0.01
-#: Predicted cost of the next ``N`` (twice the pieces) over the last one's, for ``max_seconds``.
-GROWTH = 3.0
 
 
 def io_scale(aug: ClosedLoop) -> float:
-    r"""The power of two :math:`s` nearest to :math:`\max\|\bar C_i\| / \max\|\bar B_{w,i}\|`
-    (spectral norms over the joint modes) when that is above 1, else 1: the program is
-    solved and proved for the loop with :math:`s \bar B_w`, whose gain is :math:`s\gamma`
-    (the disturbance :math:`w/s`), and the bound divided by :math:`s` (exact). The
-    program is invariant under it in exact arithmetic; the solver is not: a disturbance
-    input 1e4 times smaller than the output left the three-tank certificate 27 % above
-    the gain (1.8 % after), while scaling *down* loosened a dynamic controller's
-    quadratic storage on the paper plant by 3 % -- hence only up (measured, not derived)."""
-    b = max(float(np.linalg.norm(B, 2)) if B.size else 0.0 for B in aug.Bw)
-    c = max(float(np.linalg.norm(C, 2)) if C.size else 0.0 for C in aug.Cz)
-    if not (b > 0 and c > b and math.isfinite(c)):
-        return 1.0
-    return float(2.0 ** round(math.log2(c / b)))
+    """:math:`s_w s_z` of :func:`~ftc_verify.analysis.moments.sampled_frame.io_scales`: the
+    factor by which the gain of the loop the program is solved for is larger."""
+    return math.prod(io_scales(aug))
 
 
 def augmented_loop(loop: SampledLoop, system: FTCSystem, *, balls: bool = False,
-                   w_scale: float = 1.0) -> ClosedLoop:
+                   w_scale: float = 1.0, z_scale: float = 1.0) -> ClosedLoop:
     """The flow between samples as a :class:`ClosedLoop` on ``zeta = (x, u, x_c)`` in the
     balanced coordinates of ``loop`` (module docstring): ``A`` the flow, ``Bw``, ``Cz`` and
     the channels padded with zeros. ``balls=True``: every matrix a ball of the numbers as
     written (call inside :func:`~ftc_verify.analysis.rigorous.precision`); the loop's
-    ``source`` then carries the system for its written rates. ``w_scale`` (a power of
-    two: exact) multiplies ``Bw``: the loop's gain is then ``w_scale`` times the gain."""
+    ``source`` then carries the system for its written rates. ``w_scale`` and ``z_scale``
+    (powers of two: exact) multiply ``Bw`` and ``Cz``: the gain is multiplied by both."""
     from ..exact import written
     from ..rigorous import ball
 
@@ -169,6 +161,15 @@ def augmented_loop(loop: SampledLoop, system: FTCSystem, *, balls: bool = False,
     def right(M: Any) -> Any:  # M S
         return M @ ball(np.diag(sc)) if balls else M * sc[None, :]
 
+    def channel(E: Matrix, F: Matrix, col: int, name: str) -> Channel:
+        """``(E r) Delta (F / r)``: the same uncertainty; ``r`` the power of two that makes the
+        two norms (balanced coordinates) equal when their ratio is outside [2^-6, 2^6]."""
+        e = float(np.linalg.norm(E / sc[:n, None], 2))
+        f = float(np.linalg.norm(F * sc[None, col:col + F.shape[1]], 2))
+        ok = e > 0 and f > 0 and math.isfinite(f / e) and not 2.0 ** -6 <= f / e <= 2.0 ** 6
+        r = float(2.0 ** round(0.5 * math.log2(f / e))) if ok else 1.0
+        return Channel(left(pad(E, 0, 0, d, E.shape[1])) * r, right(pad(F, 0, col, F.shape[0], d)) * (1.0 / r), name)
+
     A: list[Any] = []
     Bw: list[Any] = []
     Cz: list[Any] = []
@@ -180,14 +181,11 @@ def augmented_loop(loop: SampledLoop, system: FTCSystem, *, balls: bool = False,
         A.append(right(left(pad(flow, 0, 0, d, d))) if balls else loop.flow[len(A)])
         bw = left(pad(md.D, 0, 0, d, md.D.shape[1]))
         Bw.append(bw * w_scale if w_scale != 1.0 else bw)  # times a power of two: exact on balls too
-        Cz.append(right(pad(md.C, 0, 0, md.C.shape[0], d)))
-        c = []
-        if md.A1 is not None and md.A2 is not None:
-            c.append(Channel(left(pad(md.A1, 0, 0, d, md.A1.shape[1])), right(pad(md.A2, 0, 0, md.A2.shape[0], d)),
-                             "Delta1 (A)"))
-        if md.B1 is not None and md.B2 is not None:
-            c.append(Channel(left(pad(md.B1, 0, 0, d, md.B1.shape[1])), right(pad(md.B2, 0, n, md.B2.shape[0], d)),
-                             "Delta2 (B)"))
+        cz = right(pad(md.C, 0, 0, md.C.shape[0], d))
+        Cz.append(cz * z_scale if z_scale != 1.0 else cz)
+        c = [channel(E, F, col, name) for E, F, col, name in ((md.A1, md.A2, 0, "Delta1 (A)"),
+                                                              (md.B1, md.B2, n, "Delta2 (B)"))
+             if E is not None and F is not None]
         chans.append(tuple(c))
     return ClosedLoop(system.chain, tuple(A), tuple(Bw), tuple(Cz), tuple(chans), "sampled (x, u, x_c)",
                       None, system.names, (system, loop.controller) if balls else None)
@@ -342,7 +340,7 @@ def _values(x: Matrix, lay: _Layout, h: float) -> tuple[list[list[Matrix]], list
 
 
 def _prove(loop: SampledLoop, system: FTCSystem, h: float, P: list[list[Matrix]], lam: list[list[list[float]]],
-           g: float, robust: bool, w_scale: float = 1.0) -> bool:
+           g: float, robust: bool, coords: Coordinates | None = None) -> bool:
     """Every instance, jump condition and ``P_s^k`` proved definite in ball arithmetic
     (module docstring), from the numbers as written."""
     import flint
@@ -352,7 +350,7 @@ def _prove(loop: SampledLoop, system: FTCSystem, h: float, P: list[list[Matrix]]
 
     N = len(P) - 1
     with precision():
-        nodes = proved_nodes(loop, system, h, P, robust, w_scale)
+        nodes = proved_nodes(loop, system, h, P, robust, coords)
         if nodes is None:
             return False
         aug, Pb = nodes
@@ -375,7 +373,7 @@ class SampledGamma:
     ``gamma`` is the proved bound (``None`` when none was found: ``note`` says why),
     ``pieces`` the :math:`N` of the storage matrix, ``degree`` its degree in the clock on
     each piece (1 affine, 2 quadratic), ``margin`` the program's ``t``, ``seconds`` CPU
-    seconds."""
+    seconds (reported, never deciding anything), ``rows`` the rows of its program."""
 
     robust: bool
     gamma: float | None
@@ -384,10 +382,12 @@ class SampledGamma:
     note: str
     seconds: float
     degree: int = 1
+    rows: int = 0
 
 
 def _attempt(loop: SampledLoop, system: FTCSystem, aug: ClosedLoop, jumps: list[Matrix], h: float,
-             piece: tuple[int, int], robust: bool, w_scale: float = 1.0) -> tuple[float | None, float, str]:
+             piece: tuple[int, int], robust: bool,
+             coords: Coordinates | None = None) -> tuple[float | None, float, str]:
     """``(gamma, margin, why)`` of the program with storage of degree ``piece[0]`` (1:
     affine, this module; 2: quadratic, :mod:`~ftc_verify.analysis.moments.sampled_quadratic`)
     on ``piece[1]`` pieces: solved with the margins ``MARGIN_TAU * 100**j``, ``j < 3``,
@@ -414,11 +414,12 @@ def _attempt(loop: SampledLoop, system: FTCSystem, aug: ClosedLoop, jumps: list[
         g = float(x[gi]) * (1 + 1e-9) + 1e-300
         if degree == 1:
             P, lam = _values(x, lay, h)
-            proved = _prove(loop, system, h, P, lam, g, robust, w_scale)
+            proved = _prove(loop, system, h, P, lam, g, robust, coords)
         else:
-            proved = quadratic_check(loop, system, h, x, quad, g, robust, w_scale)
+            proved = quadratic_check(loop, system, h, x, quad, g, robust, coords)
         if proved:
-            return math.nextafter(math.sqrt(g) / w_scale, math.inf), tau, ""
+            factor = 1.0 if coords is None else coords.gain_factor  # a power of two: exact
+            return math.nextafter(math.sqrt(g) / factor, math.inf), tau, ""
         why = f"{name}: the solver's answer was not proved in ball arithmetic"
         tau *= 100.0
     return None, tau, why
@@ -426,36 +427,37 @@ def _attempt(loop: SampledLoop, system: FTCSystem, aug: ClosedLoop, jumps: list[
 
 def sampled_gamma(system: FTCSystem, controller: Controller, period: float, *, robust: bool,
                   pieces: tuple[int | tuple[int, int], ...] = PIECES, loop: SampledLoop | None = None,
-                  max_seconds: float = MAX_SECONDS, target: float | None = None) -> SampledGamma:
+                  max_rows: int = MAX_ROWS, target: float | None = None) -> SampledGamma:
     """The gamma proved by the clock-dependent certificate of the module docstring at
     ``period``, over the rate box (and ``Delta`` when ``robust``): each ``N`` of
     ``pieces`` in turn (the cost grows with ``N``, the reach towards ``h_max`` and the
     tightness too) until one is proved -- with a ``target`` (a lower bound of the gain),
     until one is proved within :data:`GAP_RTOL` of it or a doubling of ``N`` tightens it
-    by less than :data:`GAIN_RTOL`, the smallest proved gamma kept -- and no new ``N``
-    started when its predicted time (:data:`GROWTH` times the last one's) would pass
-    ``max_seconds`` (CPU seconds of this process: a loaded machine does not shrink the
-    reach; ``seconds`` of the result is CPU time too)."""
+    by less than :data:`GAIN_RTOL`, the smallest proved gamma kept -- and no entry after
+    the first tried when its program would have more than ``max_rows`` rows
+    (:func:`~ftc_verify.analysis.moments.sampled_quadratic.program_rows`, from the
+    dimensions: the result does not depend on the machine's speed or load; ``seconds``
+    is CPU time, reported only)."""
+    from .sampled_quadratic import program_rows
+
     h = check_period(period, "period")
     t0 = time.process_time()
     loop = SampledLoop.build(system, controller) if loop is None else loop
-    w_scale = io_scale(augmented_loop(loop, system))
-    aug = augmented_loop(loop, system, w_scale=w_scale)
+    coords = coordinates(augmented_loop(loop, system), sample_jumps(loop, h), loop, system)
+    aug = coords.loop(augmented_loop(loop, system, w_scale=coords.w_scale, z_scale=coords.z_scale))
     robust = robust and aug.uncertain
     if not robust:
         aug = aug.nominal()
-    jumps = sample_jumps(loop, h)
+    jumps = coords.jumps(sample_jumps(loop, h))
     whys: list[str] = []
     best: tuple[float, tuple[int, int], float] | None = None
-    last = 0.0
     for item in pieces:
         piece = (1, item) if isinstance(item, int) else item
-        spent = time.process_time() - t0
-        if (whys or best) and spent + GROWTH * last > max_seconds:
-            whys.append(f"N = {piece[1]} not tried (its predicted time would pass {max_seconds:g} s)")
+        rows = program_rows(aug, piece, robust)
+        if (whys or best) and rows > max_rows:
+            whys.append(f"N = {piece[1]} not tried (its program would have {rows} rows, above {max_rows})")
             break
-        gamma, tau, why = _attempt(loop, system, aug, jumps, h, piece, robust, w_scale)
-        last = time.process_time() - t0 - spent
+        gamma, tau, why = _attempt(loop, system, aug, jumps, h, piece, robust, coords)
         if gamma is None:
             whys.append(why)
             continue
@@ -473,7 +475,8 @@ def sampled_gamma(system: FTCSystem, controller: Controller, period: float, *, r
         how = ("quadratic", "every instance on each whole piece (S-procedure in the clock)")
     return SampledGamma(robust, best[0], N, best[2],
                         f"proved in 128-bit ball arithmetic: storage {how[0]} on {N} piece(s) of [0, h], "
-                        f"{how[1]}, the jump at the sample, every node P_s", seconds, degree)
+                        f"{how[1]}, the jump at the sample, every node P_s", seconds, degree,
+                        program_rows(aug, best[1], robust))
 
 
 @dataclass(frozen=True)
@@ -499,6 +502,10 @@ class SampledPerformance:
             "nominal_gamma_note": self.nominal.note,
             "nominal_gamma_pieces": self.nominal.pieces,
             "nominal_gamma_storage_degree": self.nominal.degree,
+            "nominal_gamma_program_rows": self.nominal.rows,
+            "robust_gamma_pieces": None if rob is None else rob.pieces,
+            "robust_gamma_program_rows": None if rob is None else rob.rows,
+            "gamma_max_program_rows": MAX_ROWS,
             "robust_gamma": None if rob is None else rob.gamma,
             "robust_gamma_note": "no uncertainty channels" if rob is None else rob.note,
             "robust_gamma_storage_degree": None if rob is None else rob.degree,
@@ -514,8 +521,7 @@ class SampledPerformance:
 
 
 def sampled_performance(system: FTCSystem, controller: Controller, period: float) -> SampledPerformance:
-    """Both certificates and their lower bounds at ``period``:
-    :func:`~ftc_verify.analysis.moments.sampled_gains.sampled_gains`."""
+    """Both certificates and their lower bounds: :func:`~ftc_verify.analysis.moments.sampled_gains.sampled_gains`."""
     from .sampled_gains import sampled_gains
 
     return sampled_gains(system, controller, period)
@@ -549,7 +555,6 @@ def performance_lines(perf: SampledPerformance) -> list[str]:
             out.append(f"    {name} gain (sampled, between samples included)  NOT certified: {cert.note}; "
                        f"lower bound {low}")
         else:
-            shape = "affine" if cert.degree == 1 else "quadratic"
-            out.append(f"    {name} gain (sampled, between samples included)  gamma <= {cert.gamma:.6g} "
-                       f"(proved, N = {cert.pieces} {shape}); lower bound {low}")
+            out.append(f"    {name} gain (sampled, between samples included)  gamma <= {cert.gamma:.6g} (proved, "
+                       f"N = {cert.pieces} {'affine' if cert.degree == 1 else 'quadratic'}); lower bound {low}")
     return out

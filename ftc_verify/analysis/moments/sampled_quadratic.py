@@ -68,9 +68,10 @@ from ..closedloop import ClosedLoop
 from ..conic import Affine, ConicProblem, Rows, affine_bmat, scalar_variable, svec_index, sym_variable
 from ..lmi import BlockSpec, block_specs
 from .sampled import SampledLoop
+from .sampled_frame import Coordinates
 
 __all__ = ["QuadraticLayout", "quadratic_rows", "quadratic_values", "proved_nodes", "prove_quadratic",
-           "quadratic_program", "quadratic_check"]
+           "quadratic_program", "quadratic_check", "instance_sizes", "program_rows"]
 
 
 class QuadraticLayout:
@@ -227,31 +228,39 @@ def quadratic_values(x: Matrix, lay: QuadraticLayout, h: float) -> dict[str, Any
 
 
 def proved_nodes(loop: SampledLoop, system: FTCSystem, h: float, P: list[list[Matrix]], robust: bool,
-                 w_scale: float = 1.0) -> tuple[ClosedLoop, list[list[Any]]] | None:
+                 coords: Coordinates | None = None) -> tuple[ClosedLoop, list[list[Any]]] | None:
     """What the affine and the quadratic storage prove alike: the ball loop of
     :func:`~ftc_verify.analysis.moments.sampled_gamma.augmented_loop` (nominal unless
     ``robust``) and the nodes ``P_s^k`` as symmetric balls, returned when every node is
     proved positive definite and every jump condition ``P_s^N - J_s^T P_s^0 J_s`` too
     (``J_s`` of :func:`~ftc_verify.analysis.moments.sampled_gamma.sample_jumps`, from the
-    numbers as written); ``None`` otherwise. Call it inside :func:`~ftc_verify.analysis.rigorous.precision`."""
+    numbers as written), both in the coordinates ``coords``
+    (:class:`~ftc_verify.analysis.moments.sampled_frame.Coordinates`, built on the balls);
+    ``None`` otherwise. Call it inside :func:`~ftc_verify.analysis.rigorous.precision`."""
     from ..rigorous import ball, proven_positive_definite
     from .sampled_gamma import augmented_loop, sample_jumps
 
     N = len(P) - 1
-    aug = augmented_loop(loop, system, balls=True, w_scale=w_scale)
+    coords = Coordinates() if coords is None else coords
+    try:  # Arb proves the transform invertible, or nothing is proved
+        aug = coords.loop(augmented_loop(loop, system, balls=True, w_scale=coords.w_scale, z_scale=coords.z_scale),
+                          balls=True)
+        jumps = coords.jumps(sample_jumps(loop, h, balls=True, literals=system.literals), balls=True)
+    except ZeroDivisionError:
+        return None
     if not robust:
         aug = aug.nominal()
     Pb = [[ball(0.5 * (p + p.T)) for p in row] for row in P]
     if not all(proven_positive_definite(p) for row in Pb for p in row):
         return None
-    for s, J in enumerate(sample_jumps(loop, h, balls=True, literals=system.literals)):
+    for s, J in enumerate(jumps):
         if not proven_positive_definite(Pb[N][s] - J.T @ Pb[0][s] @ J):
             return None
     return aug, Pb
 
 
 def prove_quadratic(loop: SampledLoop, system: FTCSystem, h: float, values: dict[str, Any], g: float,
-                    robust: bool, w_scale: float = 1.0) -> bool:
+                    robust: bool, coords: Coordinates | None = None) -> bool:
     """Every bordered condition, ``G``, node and jump condition proved definite in ball
     arithmetic (module docstring), on the ball loop and jumps of
     :func:`~ftc_verify.analysis.moments.sampled_gamma.augmented_loop` and
@@ -264,7 +273,7 @@ def prove_quadratic(loop: SampledLoop, system: FTCSystem, h: float, values: dict
     P, D, lam, G = values["P"], values["D"], values["lam"], values["G"]
     N = len(P) - 1
     with precision():
-        nodes = proved_nodes(loop, system, h, P, robust, w_scale)
+        nodes = proved_nodes(loop, system, h, P, robust, coords)
         if nodes is None:
             return False
         aug, Pb = nodes
@@ -291,11 +300,7 @@ def quadratic_program(aug: ClosedLoop, jumps: list[Matrix], h: float, N: int,
                       robust: bool) -> tuple[ConicProblem, QuadraticLayout]:
     """``min g`` subject to :func:`quadratic_rows` on ``N`` pieces, and its layout
     (``g`` is column ``layout.g``, the margin ``t`` the next one)."""
-    from .sampled_gamma import clock_instance
-
-    zero = [np.zeros((aug.n, aug.n))] * len(aug.A)
-    sizes = [clock_instance(aug, spec, zero, zero[0], [0.0] * len(aug.channels[spec.s]) if robust else None, 1.0,
-                            np.block).shape[0] for spec in block_specs(aug)]
+    sizes = instance_sizes(aug, robust)
     lay = QuadraticLayout(aug.n, len(aug.A), N, tuple(len(c) if robust else 0 for c in aug.channels), sizes)
     objective = np.zeros(lay.K)
     objective[lay.g] = 1.0
@@ -303,7 +308,45 @@ def quadratic_program(aug: ClosedLoop, jumps: list[Matrix], h: float, N: int,
 
 
 def quadratic_check(loop: SampledLoop, system: FTCSystem, h: float, x: Matrix, lay: QuadraticLayout, g: float,
-                    robust: bool, w_scale: float = 1.0) -> bool:
+                    robust: bool, coords: Coordinates | None = None) -> bool:
     """:func:`prove_quadratic` of the solution ``x`` with the bound ``g`` (gamma squared of
-    the loop with ``Bw`` times ``w_scale``)."""
-    return prove_quadratic(loop, system, h, quadratic_values(x, lay, h), g, robust, w_scale)
+    the loop in the coordinates ``coords``)."""
+    return prove_quadratic(loop, system, h, quadratic_values(x, lay, h), g, robust, coords)
+
+
+def instance_sizes(aug: ClosedLoop, robust: bool) -> list[int]:
+    """The size of the instance of every block spec of ``aug`` (:func:`block_specs` order):
+    ``d`` plus the disturbance and output sizes (and, ``robust``, the channels')."""
+    from .sampled_gamma import clock_instance
+
+    zero = [np.zeros((aug.n, aug.n))] * len(aug.A)
+    return [clock_instance(aug, spec, zero, zero[0], [0.0] * len(aug.channels[spec.s]) if robust else None, 1.0,
+                           np.block).shape[0] for spec in block_specs(aug)]
+
+
+def program_rows(aug: ClosedLoop, piece: tuple[int, int], robust: bool) -> int:
+    r"""The rows of the conic program of the storage of degree ``piece[0]`` on
+    ``piece[1]`` pieces (the dimension of its cone), from the dimensions alone: with
+    :math:`N` pieces, block specs of instance sizes :math:`m_j`, :math:`S` joint states,
+    :math:`d` the augmented state's size and :math:`t(m) = m (m + 1) / 2`,
+
+    .. math::
+
+        \text{affine: } 2N \textstyle\sum_j t(m_j), \qquad
+        \text{quadratic: } N \textstyle\sum_j \bigl(t(2 m_j) + t(m_j)\bigr)
+
+    (every instance at both ends of each piece; one bordered block and its :math:`G` per
+    piece), plus :math:`S\,t(d)` jump and :math:`(N + 1) S\,t(d)` node rows and, robust,
+    one nonnegative row per multiplier (per node, affine; per piece, quadratic). The
+    solver's work and memory per iteration grow with it:
+    :func:`~ftc_verify.analysis.moments.sampled_gamma.sampled_gamma` tries no program
+    above :data:`~ftc_verify.analysis.moments.sampled_gamma.MAX_ROWS` rows."""
+    degree, N = piece
+
+    def t(m: int) -> int:
+        return m * (m + 1) // 2
+
+    sizes = instance_sizes(aug, robust)
+    flow = 2 * N * sum(t(m) for m in sizes) if degree == 1 else N * sum(t(2 * m) + t(m) for m in sizes)
+    multipliers = (N + 1 if degree == 1 else N) * sum(len(c) for c in aug.channels) if robust else 0
+    return flow + (N + 2) * len(aug.A) * t(aug.n) + multipliers
