@@ -297,8 +297,11 @@ def one_period_map(loop: SampledLoop, h: float, rates: Matrix, *, scaled: bool =
 
 
 def spectral_radius(loop: SampledLoop, h: float, rates: Matrix) -> float:
-    """:math:`\\rho(T)` at period ``h`` and ``rates`` (float64 eigenvalues)."""
+    """:math:`\\rho(T)` at period ``h`` and ``rates`` (float64 eigenvalues); ``inf`` when
+    :math:`T` overflows float64 (a period so long that the moments leave its range)."""
     T = one_period_map(loop, h, rates, scaled=True)
+    if not np.all(np.isfinite(T)):
+        return math.inf
     return float(np.max(np.abs(scipy.linalg.eigvals(T, check_finite=False))))
 
 

@@ -529,14 +529,14 @@ def sampled_performance(system: FTCSystem, controller: Controller, period: float
 
 def attach_performance(result: Any, system: FTCSystem, controller: Controller) -> Any:
     """``result`` (a :class:`~ftc_verify.analysis.moments.sampled.SampledResult`) with its
-    ``performance`` at ``result.period``. A loop proved not mean-square stable there
-    has no finite gain: no program is solved and the notes say so."""
-    h = result.period
-    if result.verdict == "not stable":
-        why = "no certificate: the sampled loop is proved NOT mean-square stable at this period (infinite gain)"
-        none = SampledGamma(False, None, 0, 0.0, why, 0.0)
+    ``performance`` at ``result.period``; none is sought (the notes say why) when the loop is
+    proved not mean-square stable there or its float64 radius is not below 1 (or overflows)."""
+    h, rho = result.period, result.spectral_radius
+    if result.verdict == "not stable" or not rho < 1.0:
+        why = "no certificate: " + ("the sampled loop is proved NOT mean-square stable at this period (infinite gain)"
+                                    if result.verdict == "not stable" else f"float64 one-period radius {rho:.6g} >= 1")
         rob = SampledGamma(True, None, 0, 0.0, why, 0.0) if system.uncertain else None
-        perf = SampledPerformance(h, none, rob, None, why, None, why)
+        perf = SampledPerformance(h, SampledGamma(False, None, 0, 0.0, why, 0.0), rob, None, why, None, why)
     else:
         perf = sampled_performance(system, controller, h)
     return replace(result, performance=perf)
