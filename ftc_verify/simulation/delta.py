@@ -24,11 +24,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..analysis.closedloop import ClosedLoop
 from ..errors import ValidationError
 from ..model.system import FTCSystem, Matrix, as_matrix
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # closedloop imports the analysis package, which the plant processes do not need
+    from ..analysis.closedloop import ClosedLoop
     from .paths import ChainPath
 
 __all__ = ["DELTA_KINDS", "DeltaSchedule", "delta_shapes", "delta_segments", "constant_delta_loops"]
