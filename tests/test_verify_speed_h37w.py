@@ -1,0 +1,87 @@
+"""What issue 37's speed-ups of ``verify`` rest on, checked without timing anything.
+
+* The plant processes of the isolated Monte Carlo import only what they run: the modules
+  a plant process loads (its entry module, the supervisor, and the classes of its pickled
+  job) pull in neither the analysis, nor cvxpy, nor scipy, nor matplotlib
+  (``ftc_verify.simulation`` loads its names on first use).
+* ``ftc_verify.simulation``'s lazy names are the objects of their modules, and a
+  submodule is reachable as an attribute.
+* ``report.json``'s ``timings["cpu"]`` counts a waited-for child's CPU time.
+* The random ``Delta``'s norm is ``np.linalg.norm(G, 2)`` bit for bit.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from ftc_verify.verification.report import cpu_seconds
+
+CHILD_IMPORTS = """
+import json, sys
+import ftc_verify.simulation.isolated, ftc_verify.simulation.supervisor, ftc_verify.plants.plant_map
+import ftc_verify.controllers.controller, ftc_verify.model.system, ftc_verify.simulation.spec
+print(json.dumps(sorted(sys.modules)))
+"""
+
+
+def test_plant_process_imports_stay_light() -> None:
+    out = subprocess.run([sys.executable, "-c", CHILD_IMPORTS], capture_output=True, text=True, check=True,
+                         timeout=120)
+    loaded = set(json.loads(out.stdout))
+    assert "ftc_verify.simulation.supervisor" in loaded and "ftc_verify.plants.fmu_session" in loaded
+    heavy = {m for m in loaded if m.split(".")[0] in ("scipy", "cvxpy", "matplotlib", "control", "clarabel")
+             or m.startswith(("ftc_verify.analysis", "ftc_verify.synthesis"))}
+    assert not heavy, sorted(heavy)[:10]
+
+
+def test_lazy_names_are_the_module_objects() -> None:
+    import ftc_verify.simulation as sim
+    from ftc_verify.simulation import supervisor, vectorised
+
+    assert sim.Supervisor is supervisor.Supervisor and sim.energies_reference is vectorised.energies_reference
+    assert sim.vectorised is vectorised
+    assert set(sim.__all__) <= set(dir(sim))
+    with pytest.raises(AttributeError):
+        sim.no_such_name  # noqa: B018
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="needs fork")
+def test_cpu_seconds_counts_a_waited_child() -> None:
+    before = cpu_seconds()
+    pid = os.fork()
+    if pid == 0:  # pragma: no cover - the child burns 0.3 s of CPU
+        t = time.process_time()
+        while time.process_time() - t < 0.3:
+            pass
+        os._exit(0)
+    os.waitpid(pid, 0)
+    after = cpu_seconds()
+    assert after["children"] - before["children"] >= 0.25
+    assert after["total"] == pytest.approx(after["process"] + after["children"], abs=2e-3)
+
+
+def test_random_delta_norm_is_numpys_two_norm() -> None:
+    from ftc_verify.simulation.delta import DeltaSchedule, delta_segments
+    from ftc_verify.model.system import FTCSystem
+
+    system = FTCSystem.from_arrays(
+        name="delta", modes=[dict(A=-np.eye(3), B=np.ones((3, 2)), C=np.ones((1, 3)), D=np.ones((3, 1)),
+                                  A1=np.ones((3, 2)), A2=np.ones((3, 3)), B1=np.ones((3, 1)), B2=np.ones((2, 2)))] * 2,
+        alpha=[[-1.0, 1.0], [1.0, -1.0]], beta_min=[[0.0, 2.0], [2.0, 0.0]], beta_max=[[0.0, 3.0], [3.0, 0.0]])
+    from ftc_verify.simulation.paths import sample_paths
+
+    path = sample_paths(system.chain, 20.0, 1, 3)[0]
+    got = delta_segments(system, path, DeltaSchedule("random"))
+    gen = path.delta_generator()
+    for d1, d2 in got:  # the same draws, normalised by np.linalg.norm(G, 2) as before
+        for d, shape in ((d1, (2, 3)), (d2, (1, 2))):
+            G = gen.standard_normal(shape)
+            norm = float(np.linalg.norm(G, 2))
+            assert d.tobytes() == (G * (gen.random() / norm)).tobytes()
