@@ -337,9 +337,8 @@ class Supervisor:
             snapped = [snap_to_grid(p, step) for p in paths]
             paths, shift = [p for p, _ in snapped], max(sh for _, sh in snapped)
         rng = spec.generator(rng)
-        for p in paths:
-            for mode in np.unique(p.true):
-                self.session.fault_writes(int(mode))  # every mode's values checked before any simulation
+        for mode in sorted({int(v) for p in paths for v in p.true.tolist()}):  # (np.unique would import numpy.ma)
+            self.session.fault_writes(mode)  # every mode's values checked before any simulation
 
         warnings_before = self.log_counts.get("Warning", 0)
         records = []
