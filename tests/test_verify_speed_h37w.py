@@ -95,3 +95,28 @@ def test_random_delta_norm_is_numpys_two_norm() -> None:
             G = gen.standard_normal(shape)
             norm = float(np.linalg.norm(G, 2))
             assert d.tobytes() == (G * (gen.random() / norm)).tobytes()
+
+
+def test_early_reference_is_the_call_made_in_turn(paper_system, paper_gains) -> None:
+    """The thread's reference equals ``simulate_reference`` on the same paths, also when the
+    paths come back pickled (from the plant processes); other paths (snapped to the step
+    grid) get ``None``, and the caller computes its own."""
+    import pickle
+
+    from ftc_verify.controllers import Controller
+    from ftc_verify.simulation.paths import snap_to_grid
+    from ftc_verify.simulation.reference import simulate_reference
+    from ftc_verify.simulation.spec import spec_from
+    from ftc_verify.verification.agreement import EarlyReference
+
+    spec = spec_from(None, {"n_paths": 3, "horizon": 3.0, "step": 0.01, "seed": 4, "delta": "random"}).with_seed()
+    paths = spec.sample_paths(paper_system.chain)
+    ctrl = Controller.state_feedback(list(paper_gains))
+    early = EarlyReference(paper_system, ctrl, paths, spec)
+    got = early.result_for(pickle.loads(pickle.dumps(paths)))
+    want = simulate_reference(paper_system, ctrl, paths, spec=spec)
+    for a, b in zip(got.records, want.records, strict=True):
+        assert a.x.tobytes() == b.x.tobytes() and a.u.tobytes() == b.u.tobytes()
+    snapped = [snap_to_grid(p, 0.07)[0] for p in paths]
+    assert any(len(s.times) > 1 and not np.array_equal(s.times, p.times) for s, p in zip(snapped, paths))
+    assert early.result_for(snapped) is None and early.result_for(paths[:2]) is None
