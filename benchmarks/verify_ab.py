@@ -54,10 +54,15 @@ def _without_times(value: Any) -> Any:
 def run_once(code: Path, seed: int, out: Path) -> dict[str, Any]:
     """One ``verify`` with the package of ``code``: wall, CPU, stages."""
     env = dict(os.environ, PYTHONPATH=str(code), OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
+    probe = subprocess.run([sys.executable, "-c", "import ftc_verify; print(ftc_verify.__file__)"], env=env,
+                           cwd=out.parent, capture_output=True, text=True, check=True).stdout.strip()
+    if not probe.startswith(str(code)):
+        raise SystemExit(f"{code}: python imports ftc_verify from {probe}, not from this checkout")
     load = os.getloadavg()[0]
     t0 = time.perf_counter()
     proc = subprocess.Popen([sys.executable, "-m", "ftc_verify", "verify", str(REPO / "examples" / "paper.toml"),
-                             "--seed", str(seed), "--out", str(out)], env=env, stdout=subprocess.DEVNULL)
+                             "--seed", str(seed), "--out", str(out)], env=env, stdout=subprocess.DEVNULL,
+                            cwd=out.parent)  # not a checkout: ``-m`` puts the working directory first on sys.path
     _, status, usage = os.wait4(proc.pid, 0)
     wall = time.perf_counter() - t0
     proc.returncode = os.waitstatus_to_exitcode(status)
@@ -105,8 +110,8 @@ def main() -> int:
     print(f"{'':18}" + "".join(f"{k:>17}" for k in ("wall_s", "cpu_s", *STAGES)))
     for c in codes:
         print(f"{('this' if c == REPO else 'other'):18}" + "".join(f"{med[c][k]:17.3f}" for k in ("wall_s", "cpu_s", *STAGES)))
-    print(f"{'ratio this/other':18}" + "".join(f"{med[codes[0]][k] / med[codes[1]][k]:17.3f}"
-                                               for k in ("wall_s", "cpu_s", *STAGES)))
+    print(f"{'ratio this/other':18}" + "".join(f"{med[codes[0]][k] / med[codes[1]][k]:17.3f}" if med[codes[1]][k]
+                                               else f"{'-':>17}" for k in ("wall_s", "cpu_s", *STAGES)))
     print(f"same report and figures in every round: {all(r['same_report'] for r in rows)}; wrote {args.out}")
     return 0 if all(r["same_report"] for r in rows) else 1
 

@@ -353,9 +353,11 @@ def _risk_check(stage: RiskStage | None, system: FTCSystem, controller: Controll
     return found | {"detail": detail}
 
 
-#: Modules of the stages after the synthesis, imported while it runs in its child process.
+#: Modules of the stages after the synthesis, imported while it runs in its child process
+#: (fmpy: the plant FMU's build check, ``plants.build.fmi2_include_dir``, imports it).
 LATER_STAGES = ("ftc_verify.verification.plots", "ftc_verify.simulation.reference", "ftc_verify.simulation.batches",
-                "ftc_verify.simulation.isolated", "ftc_verify.verification.report", "ftc_verify.verification.summary")
+                "ftc_verify.simulation.isolated", "ftc_verify.verification.report", "ftc_verify.verification.summary",
+                "fmpy.model_description")
 
 
 def _import_later_stages() -> None:
