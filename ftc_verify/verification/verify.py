@@ -324,13 +324,17 @@ def _monte_carlo_stage(system: FTCSystem, controller: Controller, spec: Simulati
     (:class:`~ftc_verify.verification.agreement.EarlyReference`, put into ``early``)."""
     chain_paths = spec.sample_paths(system.chain)
     early.append(EarlyReference(system, controller, chain_paths[:AGREE_PATHS], spec))
-    with spec.client(client) as client:
-        records, fmu = _fmu_monte_carlo(system, controller, chain_paths, spec, progress, plant, fmu_log, client=client,
-                                        processes=list(procs))
-        procs.clear()
-        measured, fault_only = _measured(records, measure, lambda: _fmu_monte_carlo(
-            system, controller, chain_paths, replace(spec, disturbance="zero"), progress, plant, fmu_log,
-            client=client)[0])
+    try:
+        with spec.client(client) as client:
+            records, fmu = _fmu_monte_carlo(system, controller, chain_paths, spec, progress, plant, fmu_log,
+                                            client=client, processes=list(procs))
+            procs.clear()
+            measured, fault_only = _measured(records, measure, lambda: _fmu_monte_carlo(
+                system, controller, chain_paths, replace(spec, disturbance="zero"), progress, plant, fmu_log,
+                client=client)[0])
+    except PlantRunError:  # reported by the caller, whose figures fork: the thread ends first
+        early[-1].wait()
+        raise
     return chain_paths, records, fmu, measured, fault_only
 
 
@@ -514,8 +518,6 @@ def _run_verify(system: FTCSystem, gamma: float | None, method: str, k_max: floa
         chain_paths, records, fmu, measured, fault_only = _monte_carlo_stage(
             system, controller, spec, plant, fmu_log, measure, progress, client, procs, early)
     except PlantRunError as exc:  # the plant crashed: a result, reported
-        for ref in early:  # its thread ends before anything forks (the figures)
-            ref.wait()
         checks.append(Check("Monte Carlo (FMU)", False, str(exc)))
         stage("monte_carlo", t)
         return report(gamma_certified=gamma_cert, analysis=analysis, exact=tuple(exact), plant_failure=exc)
