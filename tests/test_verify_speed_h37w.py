@@ -120,3 +120,17 @@ def test_early_reference_is_the_call_made_in_turn(paper_system, paper_gains) -> 
     snapped = [snap_to_grid(p, 0.07)[0] for p in paths]
     assert any(len(s.times) > 1 and not np.array_equal(s.times, p.times) for s, p in zip(snapped, paths))
     assert early.result_for(snapped) is None and early.result_for(paths[:2]) is None
+
+
+def test_early_reference_raises_what_the_reference_raised(paper_system) -> None:
+    from ftc_verify.controllers import Controller
+    from ftc_verify.errors import ValidationError
+    from ftc_verify.simulation.spec import spec_from
+    from ftc_verify.verification.agreement import EarlyReference
+
+    spec = spec_from(None, {"n_paths": 2, "horizon": 1.0, "step": 0.01, "seed": 4}).with_seed()
+    paths = spec.sample_paths(paper_system.chain)
+    wrong = Controller.state_feedback([np.ones((2, 3))] * 2)  # the plant has 2 states
+    early = EarlyReference(paper_system, wrong, paths, spec)
+    with pytest.raises(ValidationError):
+        early.result_for(paths)

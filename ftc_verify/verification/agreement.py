@@ -46,14 +46,24 @@ class EarlyReference:
 
     def __init__(self, system: FTCSystem, controller: Controller, paths: list[ChainPath],
                  spec: SimulationSpec) -> None:
-        from concurrent.futures import ThreadPoolExecutor
+        import threading
 
         from ..simulation.reference import simulate_reference
 
         self.paths = list(paths)
-        pool = ThreadPoolExecutor(1, thread_name_prefix="ftc-verify-reference")
-        self._future = pool.submit(simulate_reference, system, controller, self.paths, spec=spec)
-        pool.shutdown(wait=False)
+        self._done = threading.Event()
+        self._found: tuple[Any, BaseException | None] = (None, None)
+
+        def work() -> None:
+            try:
+                self._found = (simulate_reference(system, controller, self.paths, spec=spec), None)
+            except BaseException as exc:  # raised again by result_for, in the caller's thread
+                self._found = (None, exc)
+            finally:
+                self._done.set()
+
+        # a daemon: a command interrupted during the Monte Carlo exits without waiting for it
+        threading.Thread(target=work, name="ftc-verify-reference", daemon=True).start()
 
     def result_for(self, paths: list[ChainPath]) -> Any:
         """The reference's :class:`~ftc_verify.simulation.records.SimulationResult` when
@@ -62,13 +72,14 @@ class EarlyReference:
         self.wait()
         if len(paths) != len(self.paths) or not all(_same_path(a, b) for a, b in zip(paths, self.paths)):
             return None
-        return self._future.result()
+        result, error = self._found
+        if error is not None:
+            raise error
+        return result
 
     def wait(self) -> None:
         """Wait for the thread (before this process forks; errors are left to :meth:`result_for`)."""
-        from concurrent.futures import wait
-
-        wait([self._future])
+        self._done.wait()
 
 
 def _same_path(a: ChainPath, b: ChainPath) -> bool:
