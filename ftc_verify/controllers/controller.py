@@ -38,7 +38,6 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
-import scipy.linalg
 from numpy.typing import ArrayLike
 
 from ..errors import ValidationError
@@ -266,6 +265,8 @@ class Controller:
         both read from one exponential of :math:`\bigl[\begin{smallmatrix} A_c & B_c \\ 0 & 0
         \end{smallmatrix}\bigr] h` (Van Loan). Returns ``(Phi_c, Gamma_c)``.
         """
+        import scipy.linalg  # here: the plant processes of the Monte Carlo unpickle controllers without it
+
         nc, nv = self.n_c, self.n_v
         M = np.zeros((nc + nv, nc + nv))
         M[:nc, :nc] = self.Ac[entry]

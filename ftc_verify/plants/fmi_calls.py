@@ -124,6 +124,9 @@ class SlaveCalls:
     start time; ``instantiate``, ``enter_initialization`` and ``free_instance`` act on the
     slave's current instance; ``last_successful_time`` raises where the FMU gives none.
     ``keep`` holds the ctypes callbacks the FMU calls, alive as long as these calls.
+    ``raw`` (FMI 2.0 only, else ``None``): the unchecked ctypes functions ``fmi2GetReal``,
+    ``fmi2SetReal`` and ``fmi2DoStep`` themselves, returning the status, for a loop that
+    checks the status inline (:class:`~ftc_verify.simulation.loop_parts.StaticLoop`).
     """
 
     get_real: Callable[[Any, Any, int, Any], Any]
@@ -137,6 +140,7 @@ class SlaveCalls:
     free_instance: Callable[[], None]
     last_successful_time: Callable[[], float]
     keep: Any = None
+    raw: tuple[Any, Any, Any] | None = None
 
 
 def _checked(fun: Any, name: str) -> Callable[..., int]:
@@ -213,7 +217,7 @@ def _fmi2_calls(slave: Any, logger: Callable[..., None]) -> SlaveCalls:
         enter_initialization=lambda: slave.enterInitializationMode(),
         free_instance=lambda: slave.fmi2FreeInstance(slave.component),
         last_successful_time=lambda: slave.getRealStatus(2),  # fmi2LastSuccessfulTime = 2
-        keep=cb)
+        keep=cb, raw=(f["fmi2GetReal"], f["fmi2SetReal"], f["fmi2DoStep"]))
 
 
 def _fmi3_calls(slave: Any, md: Any, logger: Callable[..., None]) -> SlaveCalls:

@@ -345,6 +345,17 @@ class FMUSession:
         error = self.call_error(exc, "", names)
         return FMICallError(str(error), exc.function, exc.status)
 
+    def failed(self, function: str, status: int, names: Sequence[str]) -> FMICallError:
+        """The :class:`FMICallError` :meth:`read`/:meth:`write`/:meth:`step` raise when ``function`` returns ``status``."""
+        return self._failed_call(self._call_exception(function=function, status=status), names)
+
+    def raw_calls(self) -> tuple[Any, Any, Any, Any] | None:
+        """``(fmi2GetReal, fmi2SetReal, fmi2DoStep, component)``, the unchecked ctypes calls of an
+        FMI 2.0 FMU and its instance (new after a failed reset: ask after :meth:`start_path`;
+        FMI 3.0: ``None``); the caller raises :meth:`failed` above Warning, as :meth:`step` does."""
+        raw = None if self._calls is None else self._calls.raw
+        return None if raw is None else (*raw, self._component)
+
     def check_open(self) -> None:
         """Raise unless the instance can be called."""
         if self.closed or self.slave is None:

@@ -24,11 +24,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..analysis.closedloop import ClosedLoop
 from ..errors import ValidationError
 from ..model.system import FTCSystem, Matrix, as_matrix
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # closedloop imports the analysis package, which the plant processes do not need
+    from ..analysis.closedloop import ClosedLoop
     from .paths import ChainPath
 
 __all__ = ["DELTA_KINDS", "DeltaSchedule", "delta_shapes", "delta_segments", "constant_delta_loops"]
@@ -91,7 +91,9 @@ def _random(shape: tuple[int, int] | None, rng: np.random.Generator) -> Matrix |
     if shape is None:
         return None
     G = rng.standard_normal(shape)
-    norm = float(np.linalg.norm(G, 2))
+    # np.linalg.norm(G, 2) is this largest singular value (the same LAPACK call, without its
+    # axis handling: a tenth of the Monte Carlo's per-path cost went there)
+    norm = float(np.linalg.svd(G, compute_uv=False).max()) if G.size else float(np.linalg.norm(G, 2))
     return G * (rng.random() / norm) if norm > 0 else G
 
 

@@ -61,7 +61,8 @@ from ..plants.fault_map import FaultInjectionMap
 from ..plants.controller_session import ControllerFMU, ExportedController, check_period
 from ..plants.fmu_session import FMICallError, FMUSession
 from .paths import ChainPath, communication_grid, disturbance as disturbance_fn, sample_points, snap_to_grid
-from .loop_parts import LoopLaw, Offsets, PathController, PathInputs, PathPlan, PathRecorder, full_intervals
+from .loop_parts import (LoopLaw, Offsets, PathController, PathInputs, PathPlan, PathRecorder, StaticLoop,
+                         full_intervals)
 from .records import DIVERGENCE_BOUND, PathRecord, SimulationResult
 from .spec import SimulationSpec, spec_from
 
@@ -336,9 +337,8 @@ class Supervisor:
             snapped = [snap_to_grid(p, step) for p in paths]
             paths, shift = [p for p, _ in snapped], max(sh for _, sh in snapped)
         rng = spec.generator(rng)
-        for p in paths:
-            for mode in np.unique(p.true):
-                self.session.fault_writes(int(mode))  # every mode's values checked before any simulation
+        for mode in sorted({int(v) for p in paths for v in p.true.tolist()}):  # (np.unique would import numpy.ma)
+            self.session.fault_writes(mode)  # every mode's values checked before any simulation
 
         warnings_before = self.log_counts.get("Warning", 0)
         records = []
@@ -397,8 +397,10 @@ class Supervisor:
         s = self.session
         inputs = PathInputs(s, plan, law, off, index)
         inputs.start(x0)
-        controller = PathController(law, plan, inputs.u, inputs.entry, s.n)
         recorder = PathRecorder(s, plan, law, off)
+        if StaticLoop.applies(s, law, off):  # the same calls and numbers, the FMI calls made directly
+            return self._run_static(index, plan, StaticLoop(s, inputs, recorder, law), monitor)
+        controller = PathController(law, plan, inputs.u, inputs.entry, s.n)
         times, steps, samples = plan.t.tolist(), np.diff(plan.t).tolist(), plan.sample
         last, n = len(times) - 1, s.n
         k, stage, stop = 0, "", 0
@@ -445,6 +447,24 @@ class Supervisor:
             s.check_advanced(times[last], f"paths[{index}]")
         record = recorder.record()
         return record.truncated(stop) if stop else record
+
+    def _run_static(self, index: int, plan: PathPlan, loop: StaticLoop, monitor: np.ndarray | None) -> PathRecord:
+        """:meth:`_run_path` by :class:`~ftc_verify.simulation.loop_parts.StaticLoop`."""
+        s, last = self.session, len(plan.t) - 1
+        try:
+            loop.run(np.zeros(3) if monitor is None else monitor, _BOUND_SQ)
+        except FMICallError as exc:
+            error = self._loop_error(exc, loop.stage, index, plan, loop.k, loop.law.measured, loop.inputs.values)
+            keep = loop.k + 1 if loop.stage == "step" else loop.k
+            return self._failed(error, index, float(plan.t[loop.k]), loop.recorder.record(), keep)
+        finally:
+            s.stats["steps"] += min(loop.k, last)
+            s.raise_pending()
+        s.stats["paths"] += 1
+        if not loop.stop and last:
+            s.check_advanced(float(plan.t[last]), f"paths[{index}]")
+        record = loop.recorder.record()
+        return record.truncated(loop.stop) if loop.stop else record
 
     def _failed(self, error: FMUError, index: int, time: float, record: PathRecord, keep: int) -> PathRecord:
         """The path ``index`` after the FMU failed in its loop at ``time``: a failed record,

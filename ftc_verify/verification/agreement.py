@@ -25,7 +25,69 @@ from .montecarlo import MCEstimate
 if TYPE_CHECKING:
     from .verify import Check
 
-__all__ = ["plant_summary", "backend_agreement", "against_reference"]
+__all__ = ["plant_summary", "backend_agreement", "against_reference", "EarlyReference"]
+
+
+class EarlyReference:
+    """The numpy reference of the paths the agreement checks, computed in a thread of this
+    process while the FMU Monte Carlo runs in its plant processes (this process only
+    waits for them then): :func:`~ftc_verify.simulation.reference.simulate_reference` of
+    ``paths`` with ``spec``, the call :func:`backend_agreement` and
+    :func:`against_reference` make after the Monte Carlo. They use it when the FMU ran
+    the same paths (:meth:`result_for`: a plant FMU that cannot vary its step, or an
+    exported controller, moves the jump times to the step grid; then they compute it
+    themselves), so the check's numbers are those of the call made in turn.
+
+    Parameters
+    ----------
+    system, controller, paths, spec
+        The arguments of ``simulate_reference``.
+    """
+
+    def __init__(self, system: FTCSystem, controller: Controller, paths: list[ChainPath],
+                 spec: SimulationSpec) -> None:
+        import threading
+
+        from ..simulation.reference import simulate_reference
+
+        self.paths = list(paths)
+        self._done = threading.Event()
+        self._found: tuple[Any, BaseException | None] = (None, None)
+
+        def work() -> None:
+            try:
+                self._found = (simulate_reference(system, controller, self.paths, spec=spec), None)
+            except BaseException as exc:  # raised again by result_for, in the caller's thread
+                self._found = (None, exc)
+            finally:
+                self._done.set()
+
+        # a daemon: a command interrupted during the Monte Carlo exits without waiting for it
+        threading.Thread(target=work, name="ftc-verify-reference", daemon=True).start()
+
+    def result_for(self, paths: list[ChainPath]) -> Any:
+        """The reference's :class:`~ftc_verify.simulation.records.SimulationResult` when
+        ``paths`` are its paths (the same jump times, modes, rates and horizons), else
+        ``None`` (the thread has ended either way); raises what the reference raised."""
+        self.wait()
+        if len(paths) != len(self.paths) or not all(_same_path(a, b) for a, b in zip(paths, self.paths)):
+            return None
+        result, error = self._found
+        if error is not None:
+            raise error
+        return result
+
+    def wait(self) -> None:
+        """Wait for the thread (before this process forks; errors are left to :meth:`result_for`)."""
+        self._done.wait()
+
+
+def _same_path(a: ChainPath, b: ChainPath) -> bool:
+    """The same path and the same ``Delta`` draws (its stream's seed: what ``delta_stream`` reads)."""
+    seeds = [None if p.stream is None else (p.stream.entropy, tuple(p.stream.spawn_key), p.stream.pool_size)
+             for p in (a, b)]
+    return (a.horizon == b.horizon and seeds[0] == seeds[1] and np.array_equal(a.times, b.times)
+            and np.array_equal(a.true, b.true) and np.array_equal(a.fdi, b.fdi) and np.array_equal(a.beta, b.beta))
 
 
 def plant_summary(plant: Any, records: list[PathRecord], reference: list[PathRecord], mc: MCEstimate,
@@ -78,13 +140,17 @@ def plant_summary(plant: Any, records: list[PathRecord], reference: list[PathRec
 
 
 def backend_agreement(system: FTCSystem, controller: Controller, chain_paths: list[ChainPath],
-                       records: list[PathRecord], spec: SimulationSpec) -> Check:
-    """The first paths again on the numpy reference, with the same Delta draws."""
+                       records: list[PathRecord], spec: SimulationSpec, early: EarlyReference | None = None) -> Check:
+    """The first paths again on the numpy reference, with the same Delta draws
+    (``early``'s when it simulated them)."""
     from ..simulation.reference import simulate_reference
     from .verify import AGREE_PATHS, AGREE_RTOL, Check
 
     # the paths the FMU ran (jump times on its step grid when it or the controller FMU has a fixed step)
-    ref = simulate_reference(system, controller, [r.path for r in records[:AGREE_PATHS]], spec=spec)
+    ran = [r.path for r in records[:AGREE_PATHS]]
+    ref = early.result_for(ran) if early is not None else None
+    if ref is None:
+        ref = simulate_reference(system, controller, ran, spec=spec)
     worst = 0.0
     for k, (a, b) in enumerate(zip(records[:AGREE_PATHS], ref.records), start=1):
         if a.diverged_at != b.diverged_at:
@@ -100,12 +166,17 @@ def backend_agreement(system: FTCSystem, controller: Controller, chain_paths: li
 def against_reference(system: FTCSystem, controller: Controller, chain_paths: list[ChainPath],
                        records: list[PathRecord], spec: SimulationSpec, plant: Any,
                        mc: MCEstimate, fmu: dict[str, Any], measured: list[PathRecord],
-                       fault_only: list[PathRecord] | None) -> tuple[dict[str, Any] | None, Check]:
-    """The backend agreement (LinearJumpPlant), or the plant summary and region check."""
+                       fault_only: list[PathRecord] | None,
+                       early: EarlyReference | None = None) -> tuple[dict[str, Any] | None, Check]:
+    """The backend agreement (LinearJumpPlant), or the plant summary and region check;
+    ``early``: the reference computed during the Monte Carlo (:class:`EarlyReference`)."""
     if plant is None:
-        return None, backend_agreement(system, controller, chain_paths, records, spec)
+        return None, backend_agreement(system, controller, chain_paths, records, spec, early)
     from ..simulation.reference import simulate_reference
     from .verify import AGREE_PATHS
 
-    ref = simulate_reference(system, controller, chain_paths[:AGREE_PATHS], spec=spec)
+    first = chain_paths[:AGREE_PATHS]
+    ref = early.result_for(first) if early is not None else None
+    if ref is None:
+        ref = simulate_reference(system, controller, first, spec=spec)
     return plant_summary(plant, records, list(ref.records), mc, fmu, measured, fault_only)

@@ -26,7 +26,7 @@ from ..jsonable import dumps
 from .verify import VerifyReport
 
 __all__ = ["REPORT_FILES", "check_out_dir", "write_report", "render_markdown", "table_row", "draw_figures",
-           "EarlyFigures"]
+           "EarlyFigures", "cpu_seconds"]
 
 #: Every file a report may hold; a folder with anything else is not replaced.
 REPORT_FILES = frozenset({"report.json", "report.md", "fig1_path.png", "ratio_distribution.png", "gamma_bracket.png"})
@@ -329,7 +329,8 @@ def write_report(rep: VerifyReport, out_dir: str | os.PathLike[str], watch: Any 
     loop's in a child during the Monte Carlo, python-control's cross-check in another),
     so the durations overlap: ``timings["timeline"]`` gives every stage's
     ``[start, end]``, seconds since the process started (with ``watch``; else since the
-    first stage started), ordered by start. ``figures``: the figures already drawn
+    first stage started), ordered by start; ``timings["cpu"]``, the CPU seconds so far
+    (:func:`cpu_seconds`). ``figures``: the figures already drawn
     (:class:`EarlyFigures`, when it was called), moved in instead of drawn here."""
     t0 = time.perf_counter()
 
@@ -348,6 +349,7 @@ def write_report(rep: VerifyReport, out_dir: str | os.PathLike[str], watch: Any 
             drawn = (t0, time.perf_counter())
         spans = dict(rep.spans) | {"report_plots": drawn}
         timings: dict[str, Any] = dict(rep.seconds) | {"report_plots": drawn[1] - drawn[0]}
+        timings["cpu"] = cpu_seconds()
         if watch is not None:
             timings = dict(watch.timings) | timings | {"total": watch.total(), "timeline": watch.timeline(spans)}
         else:
@@ -362,6 +364,21 @@ def write_report(rep: VerifyReport, out_dir: str | os.PathLike[str], watch: Any 
         return [out / name for name in names]
     finally:
         shutil.rmtree(stage, ignore_errors=True)
+
+
+def cpu_seconds() -> dict[str, float]:
+    """CPU seconds (user + system) of this process (``process``) and of its child
+    processes that ended and were waited for (``children``: the plant processes of the
+    Monte Carlo, the forked synthesis, analysis and sampled-loop stages, python-control's
+    cross-check once it ended), and their sum ``total``: beside the wall times, what the
+    run cost the machine's cores (empty where the ``resource`` module is missing)."""
+    try:
+        import resource
+    except ImportError:  # pragma: no cover - not POSIX
+        return {}
+    own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    mine, theirs = own.ru_utime + own.ru_stime, kids.ru_utime + kids.ru_stime
+    return {"process": round(mine, 3), "children": round(theirs, 3), "total": round(mine + theirs, 3)}
 
 
 def _umask() -> int:

@@ -67,7 +67,7 @@ from ..simulation.spec import SimulationSpec, spec_from
 from ..analysis.solvers import interruptible
 from ..synthesis.state_feedback import SynthesisResult, synthesize
 from ..analysis.moments.energy import exact_energy
-from .agreement import against_reference
+from .agreement import EarlyReference, against_reference
 from .montecarlo import MCEstimate, estimate
 from .sampled_stage import SampledRun
 
@@ -315,18 +315,26 @@ def _bracket(analysis: AnalysisReport, gamma_cert: float) -> tuple[None, Check]:
 
 
 def _monte_carlo_stage(system: FTCSystem, controller: Controller, spec: SimulationSpec, plant: Any, fmu_log: Any,
-                       measure: str, progress: bool, client: Any, procs: list[Any]) -> tuple[Any, ...]:
+                       measure: str, progress: bool, client: Any, procs: list[Any],
+                       early: list[EarlyReference]) -> tuple[Any, ...]:
     """The paths of ``spec``, their FMU records and the records the Monte Carlo measures
     (:func:`_measured`); the ``w = 0`` runs of the incremental measure (else ``None``).
-    ``procs``: plant processes started earlier (used by the first run, closed there)."""
+    ``procs``: plant processes started earlier (used by the first run, closed there).
+    Meanwhile a thread computes the reference of the agreement's paths
+    (:class:`~ftc_verify.verification.agreement.EarlyReference`, put into ``early``)."""
     chain_paths = spec.sample_paths(system.chain)
-    with spec.client(client) as client:
-        records, fmu = _fmu_monte_carlo(system, controller, chain_paths, spec, progress, plant, fmu_log, client=client,
-                                        processes=list(procs))
-        procs.clear()
-        measured, fault_only = _measured(records, measure, lambda: _fmu_monte_carlo(
-            system, controller, chain_paths, replace(spec, disturbance="zero"), progress, plant, fmu_log,
-            client=client)[0])
+    early.append(EarlyReference(system, controller, chain_paths[:AGREE_PATHS], spec))
+    try:
+        with spec.client(client) as client:
+            records, fmu = _fmu_monte_carlo(system, controller, chain_paths, spec, progress, plant, fmu_log,
+                                            client=client, processes=list(procs))
+            procs.clear()
+            measured, fault_only = _measured(records, measure, lambda: _fmu_monte_carlo(
+                system, controller, chain_paths, replace(spec, disturbance="zero"), progress, plant, fmu_log,
+                client=client)[0])
+    except PlantRunError:  # reported by the caller, whose figures fork: the thread ends first
+        early[-1].wait()
+        raise
     return chain_paths, records, fmu, measured, fault_only
 
 
@@ -349,9 +357,11 @@ def _risk_check(stage: RiskStage | None, system: FTCSystem, controller: Controll
     return found | {"detail": detail}
 
 
-#: Modules of the stages after the synthesis, imported while it runs in its child process.
+#: Modules of the stages after the synthesis, imported while it runs in its child process
+#: (fmpy: the plant FMU's build check, ``plants.build.fmi2_include_dir``, imports it).
 LATER_STAGES = ("ftc_verify.verification.plots", "ftc_verify.simulation.reference", "ftc_verify.simulation.batches",
-                "ftc_verify.simulation.isolated", "ftc_verify.verification.report", "ftc_verify.verification.summary")
+                "ftc_verify.simulation.isolated", "ftc_verify.verification.report", "ftc_verify.verification.summary",
+                "fmpy.model_description")
 
 
 def _import_later_stages() -> None:
@@ -503,9 +513,10 @@ def _run_verify(system: FTCSystem, gamma: float | None, method: str, k_max: floa
     timed("gamma_bracket", functools.partial(_bracket, analysis, gamma_cert))
     t = time.perf_counter()
     spec, options["delta"] = spec.resolve_delta(system, plant)
+    early: list[EarlyReference] = []
     try:
         chain_paths, records, fmu, measured, fault_only = _monte_carlo_stage(
-            system, controller, spec, plant, fmu_log, measure, progress, client, procs)
+            system, controller, spec, plant, fmu_log, measure, progress, client, procs, early)
     except PlantRunError as exc:  # the plant crashed: a result, reported
         checks.append(Check("Monte Carlo (FMU)", False, str(exc)))
         stage("monte_carlo", t)
@@ -515,6 +526,6 @@ def _run_verify(system: FTCSystem, gamma: float | None, method: str, k_max: floa
     checks.append(check)
     stage("monte_carlo", t)
     found_plant = timed("reference", lambda: against_reference(system, controller, chain_paths, records, spec,
-                                                                 plant, mc, fmu, measured, fault_only))
+                                                                 plant, mc, fmu, measured, fault_only, early[0]))
     return report(gamma_certified=gamma_cert, analysis=analysis, exact=tuple(exact), mc=mc, records=tuple(records),
                   plant=found_plant, risk=_risk_check(risk, system, controller, plant, spec, client, checks, seconds))
