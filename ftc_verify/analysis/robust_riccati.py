@@ -40,7 +40,8 @@ random n = 8, m = 3, 0.9-2.7 % on n = 12, m = 4, 0.8 % on n = 16, m = 3; used fi
 :data:`~ftc_verify.analysis.lmi_size.RICCATI_FIRST_STATES` states on).
 
 **The proof.** The candidate is the solution at :math:`\gamma(1 + 2\rho)` with margin
-:math:`\varepsilon = \rho \max_s \|C_{z,s}\|^2` for :math:`\rho` in
+:math:`\varepsilon = \rho|\rho| \max_s \|C_{z,s}\|^2`
+(:func:`~ftc_verify.analysis.bounded_real.candidate_margin`) for :math:`\rho` in
 :data:`~ftc_verify.analysis.bounded_real.CANDIDATE_LADDER`; it and its multipliers are
 proved at every vertex of the box by :func:`~ftc_verify.analysis.lmi.check_certificate`
 (ball arithmetic, the loop as the user wrote it), exactly as an SDP's answer. Nothing
@@ -56,8 +57,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..model.system import Matrix
-from .bounded_real import (CANDIDATE_LADDER, SEARCH_RTOL, RateEnvelope, RiccatiCandidate, bounded_real_solution,
-                           coupled_lyapunov)
+from .bounded_real import (CANDIDATE_LADDER, POLICY_GMRES_RESTARTS, SEARCH_RTOL, RateEnvelope, RiccatiCandidate,
+                           bounded_real_solution, candidate_margin, coupled_lyapunov)
 from .closedloop import ClosedLoop
 from .conditioning import Similarity
 from .lmi import check_certificate
@@ -125,7 +126,7 @@ def _solve(loop: ClosedLoop, box: RateEnvelope, lam: Multipliers, gamma: float, 
 
 
 def _loose(A: Sequence[Matrix], Q: Matrix, R: Sequence[Matrix], start: Sequence[Matrix] | None) -> list[Matrix] | None:
-    return coupled_lyapunov(A, Q, R, start, rtol=SEARCH_GMRES_RTOL)
+    return coupled_lyapunov(A, Q, R, start, rtol=SEARCH_GMRES_RTOL, maxiter=POLICY_GMRES_RESTARTS)
 
 
 def _level(loop: ClosedLoop, box: RateEnvelope, lam: Multipliers, lo: float, hi: float,
@@ -186,10 +187,10 @@ def robust_riccati_candidate(original: ClosedLoop, target: ClosedLoop, similarit
     why, tried = "", 0
     for rho in CANDIDATE_LADDER:
         gamma = gamma0 * (1.0 + 2.0 * rho)
-        sol = _solve(target, box, lam, gamma, rho * scale, start=F, rtol=CANDIDATE_RTOL)
+        sol = _solve(target, box, lam, gamma, candidate_margin(rho, scale), start=F, rtol=CANDIDATE_RTOL)
         tried += 1
         if sol is None:
-            why = f"no Riccati solution at {gamma:.6g} with margin {rho:.1e}"
+            why = f"no Riccati solution at {gamma:.6g} with margin {rho * abs(rho):.1e} |C_z|^2"
             continue
         candidate = tuple(sol[0])
         multipliers = tuple(tuple(row) for row in lam)
@@ -197,6 +198,6 @@ def robust_riccati_candidate(original: ClosedLoop, target: ClosedLoop, similarit
         if cert.ok:
             return RiccatiCandidate(gamma0, gamma, cert, candidate, tried,
                                     f"float level {gamma0:.6g} of the augmented Riccati equations (no SDP); certified "
-                                    f"at {gamma:.6g} (+{2 * rho:.1e} relative), margin {rho:.1e}", multipliers)
+                                    f"at {gamma:.6g} (+{2 * rho:.1e} relative), margin {rho * abs(rho):.1e} |C_z|^2", multipliers)
         why = cert.reason
     return RiccatiCandidate(gamma0, None, None, None, tried, f"no candidate passed ({tried} tried): {why}")
