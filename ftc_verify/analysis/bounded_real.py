@@ -189,8 +189,12 @@ def batched_lyapunov(A: Sequence[Matrix], Q: Matrix, R: Sequence[Matrix], start:
     (real part). GMRES solves :math:`\mathcal L(\mathcal D^{-1} y) = -R`,
     :math:`P = \mathcal D^{-1} y`, so ``rtol`` bounds the *true* relative residual
     :math:`\|\mathcal L(P) + R\| / \|R\|` whatever the conditioning of :math:`V_s`
-    (an inaccurate preconditioner costs iterations, not accuracy). ``None`` as
-    :func:`coupled_lyapunov`; stacks of at most :data:`DENSE_ROWS` rows go to its dense solve."""
+    (an inaccurate preconditioner costs iterations, not accuracy). When GMRES does not
+    converge within ``maxiter`` restarts (rounding in an ill-conditioned :math:`V_s` can
+    stall the true residual above ``rtol``: seen on n = 48, m = 3), or some
+    :math:`\|V_s\|_F \|V_s^{-1}\|_F > 10^8`, the answer is :func:`coupled_lyapunov`'s with the
+    same budget (backward-stable Schur forms), so the feasibility decisions of the policy
+    iteration are that function's; stacks of at most :data:`DENSE_ROWS` rows go to its dense solve."""
     n, S = A[0].shape[0], len(A)
     Q = np.asarray(Q, dtype=float)
     if S * n * (n + 1) // 2 <= DENSE_ROWS:
@@ -205,7 +209,8 @@ def batched_lyapunov(A: Sequence[Matrix], Q: Matrix, R: Sequence[Matrix], start:
         except np.linalg.LinAlgError:
             return coupled_lyapunov(A, Q, R, start, rtol=rtol, maxiter=maxiter)
         denom = lam[:, :, None] + lam[:, None, :]
-    if not np.all(np.isfinite(Vinv)) or not np.all(np.abs(denom) > 0):
+    kappa = np.linalg.norm(V, axis=(1, 2)) * np.linalg.norm(Vinv, axis=(1, 2))
+    if not np.all(np.isfinite(kappa)) or kappa.max() > 1e8 or not np.all(np.abs(denom) > 0):
         return coupled_lyapunov(A, Q, R, start, rtol=rtol, maxiter=maxiter)
     VT, VinvT = V.transpose(0, 2, 1), Vinv.transpose(0, 2, 1)
 
@@ -229,9 +234,9 @@ def batched_lyapunov(A: Sequence[Matrix], Q: Matrix, R: Sequence[Matrix], start:
         y, info = scipy.sparse.linalg.gmres(op, rhs.ravel(), x0=x0, rtol=rtol, atol=0.0,
                                             restart=min(S * n * n, 60), maxiter=maxiter)
     except (np.linalg.LinAlgError, ValueError, scipy.linalg.LinAlgError):
-        return None
-    if info != 0 or not np.all(np.isfinite(y)):
-        return None
+        info = -1
+    if info != 0 or not np.all(np.isfinite(y)):  # stalled (eigenvectors ill-conditioned) or not stable
+        return coupled_lyapunov(A, Q, R, start, rtol=rtol, maxiter=maxiter)
     return list(inverse(y.reshape(S, n, n)))
 
 
