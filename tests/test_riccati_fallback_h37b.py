@@ -112,3 +112,21 @@ def test_batched_lyapunov_refuses_an_unstable_stack() -> None:
     np.fill_diagonal(Q, -0.5 * (S - 1))
     P = batched_lyapunov(A, Q, [np.eye(n)] * S, maxiter=2)
     assert P is None or min(float(np.linalg.eigvalsh(p)[0]) for p in P) < 0
+
+
+def test_batched_lyapunov_with_defective_modes_is_the_schur_answer() -> None:
+    """Modes with a Jordan block (eigenvectors numerically dependent, the eigen-based
+    preconditioner useless): the answer is coupled_lyapunov's (Schur forms), with its
+    small residual, not a stalled GMRES's None."""
+    from ftc_verify.analysis.bounded_real import batched_lyapunov, coupled_lyapunov
+
+    n, S = 12, 6
+    J = -np.eye(n) + 0.5 * np.eye(n, k=1)  # one eigenvalue -1, a single Jordan block
+    A = [J + 0.01 * s * np.eye(n) for s in range(S)]
+    Q = np.full((S, S), 0.3)
+    np.fill_diagonal(Q, -0.3 * (S - 1))
+    R = [np.eye(n)] * S
+    batched, reference = batched_lyapunov(A, Q, R, maxiter=40), coupled_lyapunov(A, Q, R, maxiter=40)
+    assert batched is not None and reference is not None
+    assert max(float(np.abs(a - b).max()) for a, b in zip(batched, reference)) <= 1e-8 * max(
+        float(np.abs(b).max()) for b in reference)

@@ -209,7 +209,7 @@ def batched_lyapunov(A: Sequence[Matrix], Q: Matrix, R: Sequence[Matrix], start:
         except np.linalg.LinAlgError:
             return coupled_lyapunov(A, Q, R, start, rtol=rtol, maxiter=maxiter)
         denom = lam[:, :, None] + lam[:, None, :]
-    kappa = np.linalg.norm(V, axis=(1, 2)) * np.linalg.norm(Vinv, axis=(1, 2))
+        kappa = np.linalg.norm(V, axis=(1, 2)) * np.linalg.norm(Vinv, axis=(1, 2))
     if not np.all(np.isfinite(kappa)) or kappa.max() > 1e8 or not np.all(np.abs(denom) > 0):
         return coupled_lyapunov(A, Q, R, start, rtol=rtol, maxiter=maxiter)
     VT, VinvT = V.transpose(0, 2, 1), Vinv.transpose(0, 2, 1)
