@@ -91,11 +91,9 @@ rung (no candidate, then an SDP of 10,585 variables). The proof needs only
 128-bit ball arithmetic), so :math:`\rho^2` keeps every rung solvable
 (measured there: :math:`\varepsilon = 10^{-8}\|C_z\|^2` at :math:`+2\cdot 10^{-4}` certified).
 
-**Bounded work.** Every policy iteration stops after :data:`MAX_POLICY_STEPS` steps or
-when it stops contracting, and every GMRES solve of its steps after
-:data:`POLICY_GMRES_RESTARTS` restarts of 60 steps (a level where an iterate is not
-mean-square stable never converges; converging solves take 20-60 steps at n = 48), so
-the route's cost is bounded by the number of levels the bisection can visit.
+**Bounded work.** A policy iteration stops after :data:`MAX_POLICY_STEPS` steps or when
+it stops contracting, each GMRES solve after :data:`POLICY_GMRES_RESTARTS` restarts of 60
+steps (converging ones take 20-60 steps at n = 48; an unstable iterate never converges).
 """
 
 from __future__ import annotations
@@ -175,6 +173,11 @@ def _policy_solve(A: Sequence[Matrix], Q: Matrix, R: Sequence[Matrix], start: Se
     return batched_lyapunov(A, Q, R, start, maxiter=POLICY_GMRES_RESTARTS)
 
 
+def _schur_solve(A: Sequence[Matrix], Q: Matrix, R: Sequence[Matrix], start: Sequence[Matrix] | None) -> list[Matrix] | None:
+    """:func:`coupled_lyapunov` (backward stable: the candidate's tight steps) with the same bound."""
+    return coupled_lyapunov(A, Q, R, start, maxiter=POLICY_GMRES_RESTARTS)
+
+
 def batched_lyapunov(A: Sequence[Matrix], Q: Matrix, R: Sequence[Matrix], start: Sequence[Matrix] | None = None,
                      rtol: float = 1e-11, maxiter: int = POLICY_GMRES_RESTARTS) -> list[Matrix] | None:
     r"""The stack of :func:`coupled_lyapunov` (eq. (2)) by right-preconditioned GMRES,
@@ -189,12 +192,10 @@ def batched_lyapunov(A: Sequence[Matrix], Q: Matrix, R: Sequence[Matrix], start:
     (real part). GMRES solves :math:`\mathcal L(\mathcal D^{-1} y) = -R`,
     :math:`P = \mathcal D^{-1} y`, so ``rtol`` bounds the *true* relative residual
     :math:`\|\mathcal L(P) + R\| / \|R\|` whatever the conditioning of :math:`V_s`
-    (an inaccurate preconditioner costs iterations, not accuracy). When GMRES does not
-    converge within ``maxiter`` restarts (rounding in an ill-conditioned :math:`V_s` can
-    stall the true residual above ``rtol``: seen on n = 48, m = 3), or some
-    :math:`\|V_s\|_F \|V_s^{-1}\|_F > 10^8`, the answer is :func:`coupled_lyapunov`'s with the
-    same budget (backward-stable Schur forms), so the feasibility decisions of the policy
-    iteration are that function's; stacks of at most :data:`DENSE_ROWS` rows go to its dense solve."""
+    (a poor preconditioner costs iterations). When GMRES does not converge in ``maxiter``
+    restarts (rounding in an ill-conditioned :math:`V_s` can stall the residual: seen at
+    n = 48, m = 3) or some :math:`\|V_s\|_F \|V_s^{-1}\|_F > 10^8`, the answer is
+    :func:`coupled_lyapunov`'s with the same budget; small stacks go to its dense solve."""
     n, S = A[0].shape[0], len(A)
     Q = np.asarray(Q, dtype=float)
     if S * n * (n + 1) // 2 <= DENSE_ROWS:
@@ -382,8 +383,10 @@ def bounded_real_solution(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequenc
     ``gamma`` is, in float64, too low for this construction. A float search: what it
     returns is proved or not used. ``rtol``: the relative change of ``P`` at which the
     iteration has converged. ``solve``: the linear solver of each step's coupled Lyapunov
-    equation, called as ``solve(A, Q, R, start)`` like :func:`coupled_lyapunov` (the
-    default, with :data:`POLICY_GMRES_RESTARTS` restarts at most). The one policy iteration of the project: the lower bounds of
+    equation, called as ``solve(A, Q, R, start)`` like :func:`coupled_lyapunov` (default: with
+    :data:`POLICY_GMRES_RESTARTS` restarts at most, :func:`batched_lyapunov` for a search
+    (``rtol >= SEARCH_RTOL``), else the Schur forms, whose steps shrink below ``rtol``: the
+    eigen-based inverse's rounding stalled a candidate of n = 48, m = 3 near 1e-10). The one policy iteration of the project: the lower bounds of
     :mod:`ftc_verify.analysis.lower_bound` run it at one rate vector
     (:meth:`RateEnvelope.at`), with their own solver."""
     n = A[0].shape[0]
@@ -404,7 +407,7 @@ def bounded_real_solution(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequenc
             R = [r + e - g2 * f.T @ f for r, e, f in zip(base, E, F)]
         if not all(np.all(np.isfinite(x)) for x in (*At, *R)):
             return None
-        P = (_policy_solve if solve is None else solve)(At, Q, R, P_old)
+        P = (solve or (_policy_solve if rtol >= SEARCH_RTOL else _schur_solve))(At, Q, R, P_old)
         if P is None:
             return None
         scale = max(np.finfo(float).tiny, *(float(np.abs(p).max()) for p in P))
@@ -523,14 +526,8 @@ def riccati_candidate(original: ClosedLoop, target: ClosedLoop, similarity: Simi
 
 def lyapunov_candidate(original: ClosedLoop, target: ClosedLoop, similarity: Similarity | None) -> RiccatiCandidate:
     r"""A Theorem 3.1 certificate of ``original`` (nominal) from the coupled Lyapunov
-    equations over the box, without an SDP: eq. (3) with no input (:math:`B_w` of zero
-    columns, so :math:`F = 0`) and :math:`C_{z,s} = I`,
-
-    .. math::
-
-        A_s^T P_s + P_s A_s + \sum_t \hat q_{st} P_t + E_s(P) + I = 0 ,
-
-    solved by :func:`bounded_real_solution` (the envelope term lagged one step; the
+    equations over the box, eq. (3) with no input and :math:`C_{z,s} = I`:
+    :math:`A_s^T P_s + P_s A_s + \sum_t \hat q_{st} P_t + E_s(P) + I = 0`, solved by :func:`bounded_real_solution` (the envelope term lagged one step; the
     envelope re-pinned where the solution prefers, :data:`PIN_ROUNDS` times). At every
     vertex the coupling is at most the pinned one plus :math:`E_s`, so
     :math:`\Pi_s(P) \preceq -I \prec 0` there: Theorem 3.1's blocks (eq. (4)) for the
