@@ -528,7 +528,7 @@ def lyapunov_candidate(original: ClosedLoop, target: ClosedLoop, similarity: Sim
     r"""A Theorem 3.1 certificate of ``original`` (nominal) from the coupled Lyapunov
     equations over the box, eq. (3) with no input and :math:`C_{z,s} = I`:
     :math:`A_s^T P_s + P_s A_s + \sum_t \hat q_{st} P_t + E_s(P) + I = 0`, solved by :func:`bounded_real_solution` (the envelope term lagged one step; the
-    envelope re-pinned where the solution prefers, :data:`PIN_ROUNDS` times). At every
+    envelope re-pinned where the solution prefers, ``PIN_ROUNDS`` times). At every
     vertex the coupling is at most the pinned one plus :math:`E_s`, so
     :math:`\Pi_s(P) \preceq -I \prec 0` there: Theorem 3.1's blocks (eq. (4)) for the
     whole box, proved at every vertex by :func:`~ftc_verify.analysis.lmi.check_certificate`
