@@ -9,7 +9,8 @@ temporary directory (``ftc_verify.model.files.save_system``,
 ``python -m ftc_verify analyze SYSTEM --gains GAINS --json`` (``OPENBLAS_NUM_THREADS=1``),
 one child process per run; the wall time, the CPU time of the child and of the
 processes it waited for, the load average before the run and the peak RSS (``wait4``) are
-recorded with the report's stage times, certified gamma and the route that certified it.
+recorded with the report's stage times, certified gammas and the route that produced each
+(``riccati`` or the SDP solver, for Theorem 3.2, Lemma 4.1 and Theorem 3.1).
 
 ``--against DIR`` runs every case also with ``PYTHONPATH=DIR`` (another checkout, e.g. the
 first release), interleaved with this tree (the order swapped on odd repetitions), and
@@ -51,7 +52,7 @@ DEFAULT_CASES = "8x2,16x2,24x2,32x2,48x2,48x3"
 #: Goals (issue 37): wall seconds, and peak MB where given.
 GOALS: dict[str, tuple[float, float | None]] = {"32x2": (20.0, None), "48x3": (120.0, 4096.0), "12x4u": (12.0, None)}
 COLUMNS = ["case", "n", "m", "uncertain", "seed", "tree", "repeat", "wall_s", "cpu_s", "load", "peak_mb", "exit", "certified_stable",
-           "nominal_gamma", "robust_gamma", "nominal_route", "spectral_s", "theorem_3_2_s", "lemma_4_1_s",
+           "nominal_gamma", "robust_gamma", "nominal_route", "robust_route", "theorem_3_1_route", "spectral_s", "theorem_3_2_s", "lemma_4_1_s",
            "theorem_3_1_s", "lower_bounds_s", "cross_validation_s"]
 
 
@@ -125,6 +126,7 @@ def row_of(case: str, n: int, m: int, uncertain: bool, seed: int, tree: str, rep
             "peak_mb": round(run["peak_mb"], 1), "exit": run["exit"],
             "certified_stable": rep_json.get("certified_stable"), "nominal_gamma": hinf.get("nominal_gamma"),
             "robust_gamma": hinf.get("robust_gamma"), "nominal_route": (hinf.get("nominal") or {}).get("solver"),
+            "robust_route": (hinf.get("robust") or {}).get("solver"), "theorem_3_1_route": (rep_json.get("mes_lmi") or {}).get("solver"),
             **{f"{k}_s": round(seconds[k], 3) if k in seconds else None
                for k in ("spectral", "theorem_3_2", "lemma_4_1", "theorem_3_1", "lower_bounds", "cross_validation")}}
 

@@ -70,9 +70,10 @@ from .closedloop import ClosedLoop
 from .conditioning import Similarity, conditioning_transform
 from .conic import ConicProblem, Rows, affine_bmat, scalar_variable, svec_index, sym_variable
 from .lmi import Certificate, block_specs, check_certificate, lyapunov_block
-from .bounded_real import riccati_candidate
+from .bounded_real import lyapunov_candidate, riccati_candidate
 from .robust_riccati import robust_riccati_candidate
-from .lmi_size import RICCATI_FIRST_SIZE, RICCATI_FIRST_STATES, check_size, decision_size
+from .lmi_size import (RICCATI_FIRST_SIZE, RICCATI_FIRST_STATES, SDP_FALLBACK_LIMIT, check_size, decision_size,
+                       sdp_fallback_refusal)
 from .solvers import CLARABEL_NATIVE, SETTINGS, SolveOutcome, choose_solver, second_solver, solve_conic, solve_conic_dual
 
 __all__ = ["GAMMA_LADDER", "ROUTES", "LMIResult", "mes_lmi", "hinf_gamma"]
@@ -293,8 +294,13 @@ def mes_lmi(loop: ClosedLoop, *, solver: str | None = None, known: Sequence[LMIR
                 return LMIResult("theorem-3.1", "certified", None, result.solver, result.solver_status, 0.0, 0.0,
                                  cert, result.P, message=note, similarity=result.similarity,
                                  P_conditioned=result.P_conditioned)
-    check_size(loop, False, "Theorem 3.1")
     nominal, sim = _conditioned(loop.nominal())
+    if decision_size(loop.nominal(), robust=False) > SDP_FALLBACK_LIMIT:  # no SDP at this size (lmi_size)
+        found = lyapunov_candidate(loop.nominal(), nominal, sim)
+        why = "" if found.certificate is not None else sdp_fallback_refusal(loop.nominal(), False, "Theorem 3.1")
+        return _map_back(LMIResult("theorem-3.1", "error" if why else "certified", None, "riccati", "failed" if why else
+                                   "optimal", 0.0, 0.0, found.certificate, found.P, message=found.message + why), sim)
+    check_size(loop, False, "Theorem 3.1")
     return _map_back(_mes_lmi(loop.nominal(), nominal, sim, solver, second_opinion), sim)
 
 
@@ -357,11 +363,13 @@ def hinf_gamma(loop: ClosedLoop, *, robust: bool, solver: str | None = None,
     if first:
         augmented = robust and loop.uncertain
         found = (robust_riccati_candidate if augmented else riccati_candidate)(original, conditioned, sim)
-        if found.certificate is not None or route == "riccati":
+        refused = "" if found.certificate is not None or route == "riccati" else \
+            sdp_fallback_refusal(original, robust, "Lemma 4.1" if robust else "Theorem 3.2")
+        if found.certificate is not None or route == "riccati" or refused:
             return _map_back(LMIResult("lemma-4.1" if robust else "theorem-3.2",
                                        "certified" if found.certificate is not None else "error", found.gamma, "riccati",
                                        "optimal" if found.gamma else "failed", 0.0, time.perf_counter() - t0,
-                                       found.certificate, found.P, found.multipliers, found.message), sim)
+                                       found.certificate, found.P, found.multipliers, found.message + refused), sim)
         fallback = f"; the Riccati candidate was not used ({found.message}), SDP fallback"
     check_size(loop, robust, "Lemma 4.1" if robust else "Theorem 3.2")
     result = _hinf_gamma(original, conditioned, sim, robust, solver, gamma_hint)

@@ -8,8 +8,9 @@ from __future__ import annotations
 from ..limits import check_memory
 from .closedloop import ClosedLoop
 
-__all__ = ["LMI_BYTES_PER_NONZERO", "BALL_BYTES", "RICCATI_FIRST_SIZE", "RICCATI_FIRST_STATES", "lmi_memory_estimate", "check_size",
-           "riccati_memory_estimate", "check_lmi_memory", "decision_size"]
+__all__ = ["LMI_BYTES_PER_NONZERO", "BALL_BYTES", "RICCATI_FIRST_SIZE", "RICCATI_FIRST_STATES", "SDP_FALLBACK_LIMIT",
+           "lmi_memory_estimate", "check_size", "riccati_memory_estimate", "check_lmi_memory", "decision_size",
+           "sdp_fallback_refusal"]
 
 #: Peak memory per estimated nonzero of the LMI data, cvxpy compile plus Clarabel solve
 #: (measured: n = 30, m = 2 took +580 MB for 3.9e5 estimated nonzeros; n = 20, m = 3
@@ -31,6 +32,13 @@ RICCATI_FIRST_SIZE = 800
 #: against 8.6 s (28.895); n = 16, m = 3 (seed 5331): Theorem 3.2 SDP 2.2 s (35.121) against
 #: 8.3 s (35.279), Lemma 4.1 SDP 20.1 s (36.118) against 12.0 s (36.410).
 RICCATI_FIRST_STATES = 20
+#: ``route="auto"``: above this many decision variables an SDP is not started when the
+#: Riccati candidate (or, for Theorem 3.1, the certified gammas' ``P``) gave no certificate
+#: (:func:`sdp_fallback_refusal`). Measured SDP costs: n = 32, m = 2 (2,113 variables) 297 s
+#: and 2.1 GB; random n = 48, m = 3 (10,585 variables, seed 5100) had not finished after
+#: 10 min at 3.4 GB. The bound is on the problem's size, so the same input always takes the
+#: same route: a refused fallback is reported as such ("no certificate"), never a hang.
+SDP_FALLBACK_LIMIT = 2200
 
 
 def lmi_memory_estimate(loop: ClosedLoop, *, robust: bool) -> float:
@@ -77,6 +85,18 @@ def check_lmi_memory(loop: ClosedLoop) -> None:
                      hint="reduce the problem, or run the exact spectral test alone (analyze --no-lmi)")
         return
     check_size(loop, loop.uncertain, "Lemma 4.1" if loop.uncertain else "Theorem 3.2")
+
+
+def sdp_fallback_refusal(loop: ClosedLoop, robust: bool, condition: str) -> str:
+    """Why the ``condition``'s SDP of ``loop`` is not started as a fallback: ``""`` (it is)
+    up to :data:`SDP_FALLBACK_LIMIT` decision variables, else the sentence the result's
+    message carries (the size, the limit, how to run it anyway)."""
+    size = decision_size(loop, robust=robust)
+    if size <= SDP_FALLBACK_LIMIT:
+        return ""
+    return (f"; the {condition} SDP fallback was not started: {size:,} decision variables, above "
+            f"SDP_FALLBACK_LIMIT = {SDP_FALLBACK_LIMIT:,} (minutes to hours and gigabytes at this size; "
+            f"hinf_gamma(..., route='sdp') runs it)")
 
 
 def decision_size(loop: ClosedLoop, *, robust: bool) -> int:

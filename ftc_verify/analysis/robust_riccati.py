@@ -40,7 +40,8 @@ random n = 8, m = 3, 0.9-2.7 % on n = 12, m = 4, 0.8 % on n = 16, m = 3; used fi
 :data:`~ftc_verify.analysis.lmi_size.RICCATI_FIRST_STATES` states on).
 
 **The proof.** The candidate is the solution at :math:`\gamma(1 + 2\rho)` with margin
-:math:`\varepsilon = \rho \max_s \|C_{z,s}\|^2` for :math:`\rho` in
+:math:`\varepsilon = \rho|\rho| \max_s \|C_{z,s}\|^2`
+(:func:`~ftc_verify.analysis.bounded_real.candidate_margin`) for :math:`\rho` in
 :data:`~ftc_verify.analysis.bounded_real.CANDIDATE_LADDER`; it and its multipliers are
 proved at every vertex of the box by :func:`~ftc_verify.analysis.lmi.check_certificate`
 (ball arithmetic, the loop as the user wrote it), exactly as an SDP's answer. Nothing
@@ -56,8 +57,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..model.system import Matrix
-from .bounded_real import (CANDIDATE_LADDER, SEARCH_RTOL, RateEnvelope, RiccatiCandidate, bounded_real_solution,
-                           coupled_lyapunov)
+from .bounded_real import (CANDIDATE_LADDER, POLICY_GMRES_RESTARTS, SEARCH_RTOL, RateEnvelope, RiccatiCandidate,
+                           batched_lyapunov, bounded_real_solution, candidate_margin, coupled_lyapunov)
 from .closedloop import ClosedLoop
 from .conditioning import Similarity
 from .lmi import check_certificate
@@ -108,10 +109,21 @@ def _multipliers(loop: ClosedLoop, P: Sequence[Matrix], X: Sequence[Matrix] | No
 def _weights(loop: ClosedLoop, box: RateEnvelope, lam: Multipliers, gamma: float, F: Sequence[Matrix]) -> list[Matrix] | None:
     r"""The second moments :math:`X` of the worst-case loop :math:`A_s + \hat B_{w,s} F_s`
     driven by :math:`I` (the dual weight of the multipliers' optimality condition)."""
+    B, _ = _augmented(loop, lam, gamma)
+    return _moments([a + b @ f for a, b, f in zip(loop.A, B, F)], box.Q)
+
+
+def _moments(A: Sequence[Matrix], Q: Matrix) -> list[Matrix] | None:
+    r"""The second moments :math:`A_s X_s + X_s A_s^T + \sum_t q_{ts} X_t = -I` (the adjoint
+    stack of :func:`~ftc_verify.analysis.bounded_real.batched_lyapunov`; the dense or sparse
+    solve of :func:`~ftc_verify.analysis.verdict.float_stack_solution` when GMRES fails)."""
     from .verdict import float_stack_solution
 
-    B, _ = _augmented(loop, lam, gamma)
-    X = float_stack_solution([a + b @ f for a, b, f in zip(loop.A, B, F)], box.Q)
+    n = A[0].shape[0]
+    X = batched_lyapunov([a.T for a in A], np.asarray(Q).T, [np.eye(n)] * len(A), rtol=SEARCH_GMRES_RTOL)
+    if X is None:
+        Y = float_stack_solution(A, Q)
+        X = None if Y is None else list(Y)
     return None if X is None else [0.5 * (x + x.T) for x in X]
 
 
@@ -125,7 +137,7 @@ def _solve(loop: ClosedLoop, box: RateEnvelope, lam: Multipliers, gamma: float, 
 
 
 def _loose(A: Sequence[Matrix], Q: Matrix, R: Sequence[Matrix], start: Sequence[Matrix] | None) -> list[Matrix] | None:
-    return coupled_lyapunov(A, Q, R, start, rtol=SEARCH_GMRES_RTOL)
+    return batched_lyapunov(A, Q, R, start, rtol=SEARCH_GMRES_RTOL, maxiter=POLICY_GMRES_RESTARTS)
 
 
 def _level(loop: ClosedLoop, box: RateEnvelope, lam: Multipliers, lo: float, hi: float,
@@ -159,15 +171,14 @@ def robust_riccati_candidate(original: ClosedLoop, target: ClosedLoop, similarit
     nominal loop's observability and controllability stacks (:math:`F = 0`), its level
     to :data:`FIRST_RTOL`; the envelope is then pinned where that solution prefers
     (:meth:`~ftc_verify.analysis.bounded_real.RateEnvelope.pinned`)."""
-    from .verdict import float_stack_solution
-
     box = RateEnvelope.of(target.chain)
     A, Q = list(target.A), box.Q
-    P0 = coupled_lyapunov(A, Q, [c.T @ c for c in target.Cz])
-    X0 = float_stack_solution(A, Q)
+    P0 = batched_lyapunov(A, Q, [c.T @ c for c in target.Cz], rtol=SEARCH_GMRES_RTOL) or \
+        coupled_lyapunov(A, Q, [c.T @ c for c in target.Cz])
+    X0 = _moments(A, Q)
     if P0 is None or X0 is None:
         return RiccatiCandidate(None, None, None, None, 0, "the nominal loop is not mean-square stable in float64")
-    lam = _multipliers(target, P0, [0.5 * (x + x.T) for x in X0])
+    lam = _multipliers(target, P0, X0)
     best: tuple[float, Multipliers, list[Matrix], RateEnvelope] | None = None
     lo, hi, F, rtol = 0.0, 1.0, None, FIRST_RTOL
     for _ in range(ROUNDS):
@@ -186,10 +197,10 @@ def robust_riccati_candidate(original: ClosedLoop, target: ClosedLoop, similarit
     why, tried = "", 0
     for rho in CANDIDATE_LADDER:
         gamma = gamma0 * (1.0 + 2.0 * rho)
-        sol = _solve(target, box, lam, gamma, rho * scale, start=F, rtol=CANDIDATE_RTOL)
+        sol = _solve(target, box, lam, gamma, candidate_margin(rho, scale), start=F, rtol=CANDIDATE_RTOL)
         tried += 1
         if sol is None:
-            why = f"no Riccati solution at {gamma:.6g} with margin {rho:.1e}"
+            why = f"no Riccati solution at {gamma:.6g} with margin {rho * abs(rho):.1e} |C_z|^2"
             continue
         candidate = tuple(sol[0])
         multipliers = tuple(tuple(row) for row in lam)
@@ -197,6 +208,6 @@ def robust_riccati_candidate(original: ClosedLoop, target: ClosedLoop, similarit
         if cert.ok:
             return RiccatiCandidate(gamma0, gamma, cert, candidate, tried,
                                     f"float level {gamma0:.6g} of the augmented Riccati equations (no SDP); certified "
-                                    f"at {gamma:.6g} (+{2 * rho:.1e} relative), margin {rho:.1e}", multipliers)
+                                    f"at {gamma:.6g} (+{2 * rho:.1e} relative), margin {rho * abs(rho):.1e} |C_z|^2", multipliers)
         why = cert.reason
     return RiccatiCandidate(gamma0, None, None, None, tried, f"no candidate passed ({tried} tried): {why}")
