@@ -78,7 +78,7 @@ RUN_ELSEWHERE = {"three-tank.md": "tests/test_three_tank.py::test_tutorial_recip
 
 def _page_params() -> list[object]:
     # Seconds measured on 2 busy cores, for the scheduler in conftest.py (longest first).
-    seconds = {"paper-example.md": 40, "output-feedback.md": 45, "dc-motor.md": 17, "three-tank-risk.md": 30}
+    seconds = {"paper-example.md": 25, "output-feedback.md": 35, "dc-motor.md": 17, "three-tank-risk.md": 20}
     out = []
     for p in TUTORIALS:
         if p.name in RUN_ELSEWHERE:

@@ -56,6 +56,8 @@ REDUCED = {
 PARTS = {
     "three-tank.md": {"state-feedback": (3, range(3, 4)), "output-feedback": (3, range(4, 6))},
     "three-tank-risk.md": {"designed": (5, range(5, 6)), "nominal": (5, range(6, 7)), "region": (5, range(7, 8))},
+    "paper-example.md": {"design": (0, range(3)), "verify": (0, range(3, 6))},
+    "output-feedback.md": {"design": (0, range(3)), "observer": (0, range(3, 4))},
 }
 
 FENCE = re.compile(r"^```([^\n`]*)\n(.*?)^```\s*$", flags=re.S | re.M)
