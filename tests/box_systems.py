@@ -9,9 +9,10 @@ from pathlib import Path
 import numpy as np
 import scipy.linalg
 
-from ftc_verify.analysis.closedloop import ClosedLoop, closed_loop
+from ftc_verify.analysis.closedloop import ClosedLoop, closed_loop, state_feedback_loop
 from ftc_verify.controllers.files import load_controller
 from ftc_verify.model.files import load_system
+from ftc_verify.model.system import FTCSystem
 
 #: Two modes, B = I, a second FDI-mode gain: stable at the four vertices of the box
 #: beta in [0.1, 10]^2 but not for the constant rates near beta = (2.2, 6.6).
@@ -102,3 +103,21 @@ def coupled_riccati_gain(loop: ClosedLoop, rates: np.ndarray, *, rtol: float = 1
 def shifted(loop: ClosedLoop, shift: float) -> ClosedLoop:
     """``loop`` with every state matrix moved by ``-shift I`` (a loop without a source)."""
     return replace(loop, A=tuple(a - shift * np.eye(loop.n) for a in loop.A), source=None)
+
+
+def three_mode_loop(seed: int = 7) -> ClosedLoop:
+    """A random stable plant with three fault modes, n = 5, zero gains: 9 joint states, a
+    second-moment generator of 135 rows (above the pruning threshold of the spectral
+    stage), 6 uncertain rates (64 vertices). The one loop of ``tests/test_conic.py``'s
+    pruned vertex search and ``tests/test_matrix_free_h37L.py``'s matrix-free stage."""
+    rng = np.random.default_rng(seed)
+    n, m = 5, 3
+    modes = [{"A": rng.normal(size=(n, n)) / 2 - 1.5 * np.eye(n), "B": rng.normal(size=(n, 1)),
+              "C": rng.normal(size=(1, n)), "D": rng.normal(size=(n, 1))} for _ in range(m)]
+    alpha = rng.uniform(0.2, 1.0, (m, m))
+    np.fill_diagonal(alpha, 0.0)
+    np.fill_diagonal(alpha, -alpha.sum(axis=1))
+    bmin = rng.uniform(0.5, 2.0, (m, m))
+    np.fill_diagonal(bmin, 0.0)
+    system = FTCSystem.from_arrays(name="three-mode", modes=modes, alpha=alpha, beta_min=bmin, beta_max=bmin + 2.0)
+    return state_feedback_loop(system, [np.zeros((1, n))] * m)

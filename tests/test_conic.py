@@ -7,6 +7,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from box_systems import three_mode_loop
 
 from ftc_verify.analysis.moments import stability
 from ftc_verify.analysis.closedloop import state_feedback_loop
@@ -156,17 +157,7 @@ def test_pruned_vertex_search_equals_the_exhaustive_one(monkeypatch):
     """Three fault modes, n = 5 (a generator of 135 rows: pruned): same worst vertex and
     value (to rounding) as with the shift test switched off, with fewer eigenvalue
     problems."""
-    rng = np.random.default_rng(7)
-    n, m = 5, 3
-    modes = [{"A": rng.normal(size=(n, n)) / 2 - 1.5 * np.eye(n), "B": rng.normal(size=(n, 1)),
-              "C": rng.normal(size=(1, n)), "D": rng.normal(size=(n, 1))} for _ in range(m)]
-    alpha = rng.uniform(0.2, 1.0, (m, m))
-    np.fill_diagonal(alpha, 0.0)
-    np.fill_diagonal(alpha, -alpha.sum(axis=1))
-    bmin = rng.uniform(0.5, 2.0, (m, m))
-    np.fill_diagonal(bmin, 0.0)
-    system = FTCSystem.from_arrays(name="prune", modes=modes, alpha=alpha, beta_min=bmin, beta_max=bmin + 2.0)
-    loop = state_feedback_loop(system, [np.zeros((1, n))] * m)
+    loop = three_mode_loop()
     pruned = mean_square_stability(loop)
     monkeypatch.setattr(stability, "SHIFT_TEST_MIN", 10**9)
     full = mean_square_stability(loop)

@@ -110,8 +110,8 @@ def test_order_one_controller_synthesized_and_certified() -> None:
     assert res.gamma_nominal_certified == pytest.approx(min(res.history))
 
 
-@pytest.mark.slow(37)  # seconds measured on 2 busy cores: scheduled first
-def test_cli_doubled_rates_certified_by_analyze_and_paper_rates_diagnosed(tmp_path: Path) -> None:
+@pytest.mark.slow(30)  # seconds measured on 2 busy cores: scheduled first
+def test_cli_doubled_rates_certified_by_analyze(tmp_path: Path) -> None:
     import subprocess
     import sys
 
@@ -125,6 +125,15 @@ def test_cli_doubled_rates_certified_by_analyze_and_paper_rates_diagnosed(tmp_pa
                            capture_output=True, text=True, timeout=600)
     assert check.returncode == 0, check.stdout  # certified stable: the verdict and Theorem 3.1
     assert "nominal gamma (Th. 3.2)" in check.stdout and "certified (clarabel" in check.stdout
+
+
+@pytest.mark.slow(12)  # seconds measured on 2 busy cores: scheduled first
+def test_cli_paper_rates_diagnosed(tmp_path: Path) -> None:
+    """The paper's own rates: the descent's full search finds no stabilising controller of
+    order <= 2 and says why (exit 1, nothing written)."""
+    import subprocess
+    import sys
+
     none = tmp_path / "none.toml"
     run = subprocess.run([sys.executable, "-m", "ftc_verify", "synthesize", str(ROOT / "examples" / "paper.toml"),
                           "--output-feedback", "--method", "descent", "-o", str(none)],

@@ -14,8 +14,8 @@ import re
 from pathlib import Path
 
 import pytest
-from tutorials import (DOCS, REDUCED, ROOT, TUTORIALS, argv, fenced_blocks, run_tutorial, same_output, shared_prefix,
-                       tutorial_steps)
+from tutorials import (DOCS, PARTS, REDUCED, ROOT, TUTORIALS, argv, fenced_blocks, run_tutorial, same_output,
+                       shared_prefix, tutorial_steps)
 
 def test_same_output_tells_digits_from_words() -> None:
     assert same_output("gamma 0.360844, 2.07e-14 on 5 paths", "gamma 0.360846, 2.04e-14 on 5 paths")
@@ -59,21 +59,43 @@ def test_the_three_tank_pages_share_their_first_three_commands() -> None:
     assert shared_prefix(pages["paper-example.md"]) == shared_prefix(pages["dc-motor.md"]) == 0
 
 
+def test_every_command_of_a_page_in_parts_runs_once() -> None:
+    """The parts of a page (tutorials.PARTS) restore the same leading commands (run once, by
+    the first part to need them), at least those it shares with another page, and run
+    every other command of the page exactly once between them."""
+    pages = {p.name: p for p in TUTORIALS}
+    for name, parts in PARTS.items():
+        after = {k for k, _ in parts.values()}
+        runs = sorted(i for _, run in parts.values() for i in run)
+        total = len(tutorial_steps(pages[name].read_text(encoding="utf-8")))
+        assert len(after) == 1 and after.pop() >= shared_prefix(pages[name]), name
+        assert runs == list(range(min(k for k, _ in parts.values()), total)), name
+
+
 #: Pages whose commands another test runs, with checks of its own.
-RUN_ELSEWHERE = {"three-tank.md": "tests/test_three_tank.py::test_tutorial_recipe_passes_with_reduced_paths"}
+RUN_ELSEWHERE = {"three-tank.md": "tests/test_three_tank.py::test_tutorial_recipe_*_passes_with_reduced_paths"}
 
 
 def _page_params() -> list[object]:
     # Seconds measured on 2 busy cores, for the scheduler in conftest.py (longest first).
-    seconds = {"paper-example.md": 40, "output-feedback.md": 45, "dc-motor.md": 17, "three-tank-risk.md": 85}
-    return [pytest.param(p, id=p.stem, marks=pytest.mark.slow(seconds.get(p.name, 10))) for p in TUTORIALS
-            if p.name not in RUN_ELSEWHERE]
+    seconds = {"paper-example.md": 25, "output-feedback.md": 35, "dc-motor.md": 17, "three-tank-risk.md": 20}
+    out = []
+    for p in TUTORIALS:
+        if p.name in RUN_ELSEWHERE:
+            continue
+        parts = PARTS.get(p.name, {"": (None, None)})
+        for part, (after, run) in parts.items():
+            out.append(pytest.param(p, after, run, id=f"{p.stem}-{part}" if part else p.stem,
+                                    marks=pytest.mark.slow(seconds.get(p.name, 10))))
+    return out
 
 
-@pytest.mark.parametrize("page", _page_params())
-def test_tutorial_commands_run(page: Path, tmp_path: Path, shared_tmp: Path) -> None:
-    _, results = run_tutorial(page, tmp_path, shared_tmp)
-    assert len(results) == len(tutorial_steps(page.read_text(encoding="utf-8")))
+@pytest.mark.parametrize(("page", "after", "run"), _page_params())
+def test_tutorial_commands_run(page: Path, after: int | None, run: range | None, tmp_path: Path,
+                               shared_tmp: Path) -> None:
+    _, results = run_tutorial(page, tmp_path, shared_tmp, after=after, run=run)
+    steps = tutorial_steps(page.read_text(encoding="utf-8"))
+    assert len(results) == (len(steps) if run is None else run.stop - run.start + after)
 
 
 def test_every_public_module_has_an_api_page() -> None:

@@ -9,28 +9,12 @@ import itertools
 
 import numpy as np
 import pytest
+from box_systems import three_mode_loop
 
-from ftc_verify.analysis.closedloop import state_feedback_loop
 from ftc_verify.analysis.moments import stability
 from ftc_verify.analysis.moments.matrix_free import (ASCENT_STEPS, MomentOperator, linearised_ascent,
                                                      matrix_free_eigenpair)
 from ftc_verify.analysis.moments.stability import spectral_abscissa
-from ftc_verify.model.system import FTCSystem
-
-
-def three_mode_loop(seed: int = 7):
-    """n = 5, three fault modes (9 joint states, 135 generator rows, 6 uncertain rates)."""
-    rng = np.random.default_rng(seed)
-    n, m = 5, 3
-    modes = [{"A": rng.normal(size=(n, n)) / 2 - 1.5 * np.eye(n), "B": rng.normal(size=(n, 1)),
-              "C": rng.normal(size=(1, n)), "D": rng.normal(size=(n, 1))} for _ in range(m)]
-    alpha = rng.uniform(0.2, 1.0, (m, m))
-    np.fill_diagonal(alpha, 0.0)
-    np.fill_diagonal(alpha, -alpha.sum(axis=1))
-    bmin = rng.uniform(0.5, 2.0, (m, m))
-    np.fill_diagonal(bmin, 0.0)
-    system = FTCSystem.from_arrays(name="h37L", modes=modes, alpha=alpha, beta_min=bmin, beta_max=bmin + 2.0)
-    return state_feedback_loop(system, [np.zeros((1, n))] * m).nominal()
 
 
 def vertex_of(loop):
@@ -46,7 +30,7 @@ def vertex_of(loop):
 
 
 def test_eigenpair_is_the_dense_abscissa_and_an_eigenvector_warm_start_or_not():
-    loop = three_mode_loop()
+    loop = three_mode_loop().nominal()
     vertex = vertex_of(loop)
     first, last = vertex((False,) * 6), vertex((True,) * 6)
     mu, X = matrix_free_eigenpair(loop, first)
@@ -59,7 +43,7 @@ def test_eigenpair_is_the_dense_abscissa_and_an_eigenvector_warm_start_or_not():
 
 
 def test_linearised_ascent_values_are_dense_values_and_climb():
-    loop = three_mode_loop()
+    loop = three_mode_loop().nominal()
     vertex = vertex_of(loop)
     widths = [float(loop.chain.rate_max[i] - loop.chain.rate_min[i]) for i in loop.chain.rate_indices]
     found = linearised_ascent(loop, vertex, widths)
@@ -73,7 +57,7 @@ def test_linearised_ascent_values_are_dense_values_and_climb():
 
 
 def test_mean_square_stability_takes_the_ascent_above_the_dense_limit(monkeypatch):
-    loop = three_mode_loop()
+    loop = three_mode_loop().nominal()
     dense = stability.mean_square_stability(loop)
     monkeypatch.setattr(stability, "DENSE_LIMIT", 50)
     large = stability.mean_square_stability(loop)

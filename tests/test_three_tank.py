@@ -10,7 +10,8 @@ tutorial's recipe end to end.
   derivatives (1e-6 relative), also at equal levels where the regularised square root acts;
 * the tutorial's recipe (``docs/tutorials/three-tank.md``: build-fmu, linearize --trim,
   synthesize, verify --plant --measure incremental, state and output feedback) passes
-  with reduced paths.
+  with reduced paths (in two tests, the state- and the output-feedback part, which the
+  pytest-xdist workers share).
 """
 
 from __future__ import annotations
@@ -33,11 +34,12 @@ if shutil.which("gcc") is None:  # pragma: no cover
 from fmpy import extract, read_model_description, simulate_fmu
 from fmpy.fmi2 import FMU2Model, fmi2Real
 
-from tutorials import DOCS, run_tutorial
+from tutorials import DOCS, PARTS, run_tutorial
 
 from ftc_verify.plants.modelica import build_modelica_fmu
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "three_tank"
+PAGE = DOCS / "tutorials" / "three-tank.md"
 AREA = 0.0154
 FAULTS = [{}, {"f_pump1": 0.6}, {"leak1": 1e-5}, {"clog13": 0.5}]
 #: pump commands stepping at t = 20 s and 40 s, a disturbance pulse from 10 s to 30 s
@@ -156,16 +158,17 @@ def test_directional_derivatives_equal_finite_differences(three_tank_fmu: Path, 
         fmu.freeInstance()
 
 
-@pytest.mark.slow(125)  # seconds measured on 2 busy cores: scheduled first
-def test_tutorial_recipe_passes_with_reduced_paths(tmp_path: Path, shared_tmp: Path) -> None:
-    """Every command of ``docs/tutorials/three-tank.md`` (build-fmu -> linearize --trim ->
-    synthesize -> verify --plant --measure incremental, state and output feedback), run
-    by :func:`tutorials.run_tutorial` with 10 paths of 300 s (the page: 200 paths of
-    600 s). The Monte Carlo's false failure probability is at most its alpha, 1e-6, per
-    verify, for a controller whose incremental gain really is below the certified gamma;
-    the seed is fixed."""
-    page = DOCS / "tutorials" / "three-tank.md"
-    root, results = run_tutorial(page, tmp_path, shared_tmp)  # the first 3 commands shared with three-tank-risk
+@pytest.mark.slow(45)  # seconds measured on 2 busy cores: scheduled first
+def test_tutorial_recipe_state_feedback_passes_with_reduced_paths(tmp_path: Path, shared_tmp: Path) -> None:
+    """The commands of ``docs/tutorials/three-tank.md`` up to the state-feedback ``verify``
+    (build-fmu -> linearize --trim -> synthesize -> verify --plant --measure incremental),
+    run by :func:`tutorials.run_tutorial` with 10 paths of 300 s (the page: 200 paths of
+    600 s); the first three are shared with three-tank-risk, the output-feedback commands
+    are the next test's (``tutorials.PARTS``). The Monte Carlo's false failure probability
+    is at most its alpha, 1e-6, per verify, for a controller whose incremental gain really
+    is below the certified gamma; the seed is fixed."""
+    after, run = PARTS["three-tank.md"]["state-feedback"]
+    root, results = run_tutorial(PAGE, tmp_path, shared_tmp, after=after, run=run)
     work = root / "examples" / "three_tank"
     lin = next(out for line, out in results.items() if line.startswith("ftc-verify linearize three_tank.plant.toml"))
     assert "drift" in lin.stdout
@@ -178,5 +181,16 @@ def test_tutorial_recipe_passes_with_reduced_paths(tmp_path: Path, shared_tmp: P
     lo, hi = plant["input_range"]
     assert min(lo) >= 0.0 and max(hi) <= 1e-4  # the pumps stayed within 0 .. 100 ml/s
     assert (work / "report" / "fig1_path.png").stat().st_size > 0
+
+
+@pytest.mark.slow(45)  # seconds measured on 2 busy cores: scheduled first
+def test_tutorial_recipe_output_feedback_passes_with_reduced_paths(tmp_path: Path, shared_tmp: Path) -> None:
+    """The output-feedback commands of ``docs/tutorials/three-tank.md`` (synthesize
+    --output-feedback --method observer -> verify --plant --measure incremental), after the
+    page's first three commands (restored from their one run in the session), with 10 paths
+    of 300 s; the same false failure probability as above."""
+    after, run = PARTS["three-tank.md"]["output-feedback"]
+    root, _ = run_tutorial(PAGE, tmp_path, shared_tmp, after=after, run=run)
+    work = root / "examples" / "three_tank"
     of = json.loads((work / "report_of" / "report.json").read_text())
     assert of["verdict"] == "pass" and of["plant"]["left_region"] == 0

@@ -14,7 +14,10 @@ commands in the same folders (the three-tank pages: build-fmu, linearize --trim,
 synthesize), the first test to reach them runs them and keeps the folder and the
 results in a folder every pytest-xdist worker sees (``shared``, under a lock); the
 other restores them and checks the same exit codes, tracebacks and shown outputs on
-those results before running its own commands.
+those results before running its own commands. A long page is run in parts
+(:data:`PARTS`), by as many tests, which the two xdist workers share: each part restores
+the page's first commands the same way and runs its own commands; every command runs
+once per session.
 
 Used by ``tests/test_docs.py`` (every page) and ``tests/test_three_tank.py`` (the
 three-tank page, with its own checks of the report).
@@ -44,6 +47,17 @@ TUTORIALS = sorted(p for p in (DOCS / "tutorials").glob("*.md") if p.name != "in
 #: Carlo runs 10 paths of 300 s.
 REDUCED = {
     "three-tank.md": [("--paths 200 --horizon 600", "--paths 10 --horizon 300")],
+}
+
+#: Pages run in parts by several tests (so that the pytest-xdist workers share a long page):
+#: per page, per part, (how many leading commands are restored from the session's run of
+#: them, the commands the part runs itself). The parts of a page restore the same
+#: commands and run the others once (``tests/test_docs.py`` checks it).
+PARTS = {
+    "three-tank.md": {"state-feedback": (3, range(3, 4)), "output-feedback": (3, range(4, 6))},
+    "three-tank-risk.md": {"designed": (5, range(5, 6)), "nominal": (5, range(6, 7)), "region": (5, range(7, 8))},
+    "paper-example.md": {"design": (0, range(3)), "verify": (0, range(3, 6))},
+    "output-feedback.md": {"design": (0, range(3)), "observer": (0, range(3, 4))},
 }
 
 FENCE = re.compile(r"^```([^\n`]*)\n(.*?)^```\s*$", flags=re.S | re.M)
@@ -167,36 +181,62 @@ def _run_steps(page: Path, steps: list[tuple[Step, str]], work: Path, env: dict[
         results[step.line] = out
 
 
-def run_tutorial(page: Path, tmp_path: Path,
-                 shared: Path | None = None) -> tuple[Path, dict[str, subprocess.CompletedProcess[str]]]:
+def _restore(page: Path, steps: list[tuple[Step, str]], k: int, work: Path, env: dict[str, str], shared: Path,
+             results: dict[str, subprocess.CompletedProcess[str]]) -> None:
+    """``work`` as the first ``k`` commands of ``page`` leave it, with their results: run
+    once per session (the first test to need them, under a lock, from the snapshot of the
+    commands the page shares with another page when that is shorter) and kept in ``shared``;
+    restored and checked again by every other test."""
+    key = hashlib.sha256(json.dumps(_commands(page)[:k]).encode()).hexdigest()[:16]
+    snapshot = shared / f"tutorial-{key}"
+    with _locked(shared / f"tutorial-{key}.lock"):
+        if not (snapshot / "results.json").is_file():
+            base = shared_prefix(page)
+            if 0 < base < k:
+                _restore(page, steps, base, work, env, shared, results)
+            else:
+                base = 0
+                shutil.copytree(ROOT / "examples", work / "examples",
+                                ignore=shutil.ignore_patterns("*.fmu", "__pycache__"))
+            _run_steps(page, steps[base:k], work, env, results)
+            shutil.copytree(work, snapshot / "work")
+            rows = [[step.line, *_row(results[step.line])] for step, _ in steps[:k]]
+            (snapshot / "results.json").write_text(json.dumps(rows), encoding="utf-8")
+        else:
+            shutil.copytree(snapshot / "work", work, dirs_exist_ok=True)
+            for line, code, stdout, stderr in json.loads((snapshot / "results.json").read_text(encoding="utf-8")):
+                results[line] = subprocess.CompletedProcess(argv(line), code, stdout, stderr)
+            for step, command in steps[:k]:
+                _check(page, step, command, results[step.line])
+
+
+def _row(out: subprocess.CompletedProcess[str]) -> list[object]:
+    return [out.returncode, out.stdout, out.stderr]
+
+
+def run_tutorial(page: Path, tmp_path: Path, shared: Path | None = None, *, after: int | None = None,
+                 run: range | None = None) -> tuple[Path, dict[str, subprocess.CompletedProcess[str]]]:
     """Run every command of ``page`` (module docstring) in a copy of ``examples/`` under
     ``tmp_path``; the copy's root and each command's result, by the command as shown.
-    With ``shared`` (a folder all test processes of the session see), the commands this
-    page shares with another page run once in the session (module docstring)."""
+
+    With ``shared`` (a folder all test processes of the session see), the first ``after``
+    commands (by default those the page shares with another page, :func:`shared_prefix`)
+    run once in the session and are restored from there (module docstring), and the test
+    runs the commands ``run`` (default: all the others). A page split into parts this way
+    (``tests/test_docs.py``'s ``PARTS``) runs each of its commands once per session.
+    """
     work = tmp_path / "work"
     env = os.environ | {"FTC_VERIFY_CACHE": str(tmp_path / "cache")}
     steps = list(zip(tutorial_steps(page.read_text(encoding="utf-8")), (c for _, c, _ in _commands(page)),
                      strict=True))
     results: dict[str, subprocess.CompletedProcess[str]] = {}
-    k = shared_prefix(page) if shared is not None else 0
-    if shared is not None and k:
-        key = hashlib.sha256(json.dumps(_commands(page)[:k]).encode()).hexdigest()[:16]
-        snapshot = shared / f"tutorial-{key}"
-        with _locked(shared / f"tutorial-{key}.lock"):
-            if not (snapshot / "results.json").is_file():
-                shutil.copytree(ROOT / "examples", work / "examples",
-                                ignore=shutil.ignore_patterns("*.fmu", "__pycache__"))
-                _run_steps(page, steps[:k], work, env, results)
-                shutil.copytree(work, snapshot / "work")
-                rows = [[line, r.returncode, r.stdout, r.stderr] for line, r in results.items()]
-                (snapshot / "results.json").write_text(json.dumps(rows), encoding="utf-8")
-            else:
-                shutil.copytree(snapshot / "work", work)
-                for line, code, stdout, stderr in json.loads((snapshot / "results.json").read_text(encoding="utf-8")):
-                    results[line] = subprocess.CompletedProcess(argv(line), code, stdout, stderr)
-                for step, command in steps[:k]:
-                    _check(page, step, command, results[step.line])
+    k = (shared_prefix(page) if after is None else after) if shared is not None else 0
+    if k:
+        assert shared is not None
+        _restore(page, steps, k, work, env, shared, results)
     else:
         shutil.copytree(ROOT / "examples", work / "examples", ignore=shutil.ignore_patterns("*.fmu", "__pycache__"))
-    _run_steps(page, steps[k:], work, env, results)
+    todo = range(k, len(steps)) if run is None else run
+    assert todo.start >= k and todo.stop <= len(steps), (page.name, k, todo)
+    _run_steps(page, steps[todo.start:todo.stop], work, env, results)
     return work, results
