@@ -4,6 +4,7 @@ box, it never proves an unstable period, and its conditions are the ones that de
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -67,8 +68,9 @@ def test_each_condition_decides() -> None:
     """Nodes found at 0.06 s are proved there; reversed in the clock (the flow condition
     breaks) or with the last node halved (the jump condition breaks) they are not."""
     loop = _paper()
-    nodes = clock_certificate(loop, 0.06, pieces=4)
-    assert nodes is not None and prove_clock(loop, 0.06, nodes)
-    assert not prove_clock(loop, 0.06, nodes[::-1])
+    cert = clock_certificate(loop, 0.06, pieces=4)
+    assert cert is not None and prove_clock(loop, cert)
+    nodes = cert.nodes
+    assert not prove_clock(loop, dataclasses.replace(cert, nodes=nodes[::-1]))
     halved = nodes[:-1] + (tuple(0.5 * y for y in nodes[-1]),)
-    assert not prove_clock(loop, 0.06, halved)
+    assert not prove_clock(loop, dataclasses.replace(cert, nodes=halved))

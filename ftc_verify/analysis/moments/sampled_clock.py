@@ -56,13 +56,14 @@ experiment: ``benchmarks/sampled_clock.py``, ``benchmarks/results/h31c.md``).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from ...model.system import Matrix
-from ..conic import Rows, sym_variable
+from ..conic import Rows, affine_bmat, sym_variable
 from ..solvers import solve_conic
 from .sampled import SampledLoop
 
@@ -71,7 +72,9 @@ __all__ = ["ClockCertificate", "clock_program", "clock_certificate", "prove_cloc
 
 @dataclass(frozen=True, eq=False)
 class ClockCertificate:
-    """The nodes :math:`Y_s^k` (``nodes[k][s]``, balanced coordinates of the loop) found
+    """The nodes :math:`Y_s^k` (``nodes[k][s]``, balanced coordinates of the loop), the
+    curvatures :math:`C_s^k` (``curvatures[k][s]``, empty for affine pieces) and the
+    multipliers :math:`G` (``multipliers[k][i]``, one per piece and vertex instance) found
     at period ``h`` with ``pieces`` pieces, and whether they were proved (ball
     arithmetic) to certify stability over the whole rate box."""
 
@@ -79,6 +82,8 @@ class ClockCertificate:
     pieces: int
     nodes: tuple[tuple[Matrix, ...], ...]
     proved: bool
+    curvatures: tuple[tuple[Matrix, ...], ...] = ()
+    multipliers: tuple[tuple[Matrix, ...], ...] = ()
 
 
 def _specs(loop: SampledLoop) -> list[tuple[int, Matrix, Matrix]]:
@@ -88,37 +93,77 @@ def _specs(loop: SampledLoop) -> list[tuple[int, Matrix, Matrix]]:
             for point in chain.row_rate_points(s)]
 
 
-def _flow_block(A: Any, Ys: list[Any], s: int, q_row: Any, D: Any) -> Any:
-    """:math:`D + A^T Y_s + Y_s A + \\sum_{t \\ne s} q_{st} (Y_t - Y_s)`."""
-    out = D + A.T @ Ys[s] + Ys[s] @ A
+def _adjoint(A: Any, Ys: list[Any], s: int, q_row: Any) -> Any:
+    r"""Block ``s`` of :math:`\mathcal L^* Y`: :math:`A^T Y_s + Y_s A + \sum_{t \ne s}
+    q_{st} (Y_t - Y_s)` (a generator row sums to zero)."""
+    out = A.T @ Ys[s] + Ys[s] @ A
     for t, q in enumerate(q_row):
         if t != s and not (isinstance(q, float) and q == 0.0):
             out = out + (Ys[t] - Ys[s]) * q
     return out
 
 
-def clock_program(loop: SampledLoop, h: float, pieces: int) -> tuple[Rows, int]:
-    """The rows of the certificate's program at period ``h`` (module docstring): nodes
-    :math:`Y_s^k \\succeq I`, every block :math:`F_s^k \\preceq -I` at both ends of its
-    piece at every vertex of its row, :math:`J_s^T Y_s^0 J_s - Y_s^N \\preceq -I` (margins
-    of 1: the program is homogeneous in :math:`Y`). Returns the rows and the number of
-    variables (the ``svec`` of every node, node by node, state by state)."""
+def _piece_parts(A: Any, Y0: list[Any], Y1: list[Any], C: list[Any] | None, s: int, q_row: Any,
+                 rate: Any) -> tuple[Any, Any, Any]:
+    r"""The coefficients :math:`F_0, F_1, F_2` of :math:`F(t) = F_0 + t F_1 + t^2 F_2`,
+    :math:`F = dY_s/d	au + (\mathcal L^* Y)_s` on a piece, :math:`	au = 	au_k + t
+    \delta`, ``rate`` :math:`= 1/\delta`, :math:`Y(t) = (1 - t) Y^k + t Y^{k+1} + t (1 - t)
+    C^k` (``C`` ``None``: affine, :math:`F_2 = 0`). With :math:`E = Y^{k+1} - Y^k`:
+    :math:`dY/d	au = (E + (1 - 2t) C) / \delta`, so :math:`F_0 = (E_s + C_s)/\delta +
+    \mathcal L^*(Y^k)`, :math:`F_1 = -2 C_s / \delta + \mathcal L^*(E + C)`,
+    :math:`F_2 = -\mathcal L^*(C)`."""
+    E = [b - a for a, b in zip(Y0, Y1)]
+    if C is None:
+        return (E[s] * rate + _adjoint(A, Y0, s, q_row), _adjoint(A, E, s, q_row), None)
+    EC = [e + c for e, c in zip(E, C)]
+    F0 = EC[s] * rate + _adjoint(A, Y0, s, q_row)
+    F1 = C[s] * (-2.0 * rate) + _adjoint(A, EC, s, q_row)
+    F2 = -_adjoint(A, C, s, q_row)
+    return F0, F1, F2
+
+
+def _layout(loop: SampledLoop, pieces: int, quadratic: bool) -> tuple[int, int, int]:
+    """``(m, first curvature, first multiplier)`` offsets: ``svec`` of every node, node
+    by node and state by state, then (quadratic) every curvature, then every multiplier."""
+    m = loop.d * (loop.d + 1) // 2
+    curv = (pieces + 1) * loop.states * m
+    mult = curv + (pieces * loop.states * m if quadratic else 0)
+    return m, curv, mult
+
+
+def clock_program(loop: SampledLoop, h: float, pieces: int, quadratic: bool = False) -> tuple[Rows, int]:
+    r"""The rows of the certificate's program at period ``h`` (module docstring): nodes
+    :math:`Y_s^k \succeq I`, on every piece at every vertex of its row the flow
+    condition :math:`F \preceq -I` (affine pieces: at both ends; quadratic ones: the
+    bordered matrix :math:`\bigl[\begin{smallmatrix} F_0 & (F_1 + G)/2 \\ (F_1 + G)/2 &
+    F_2 - G\end{smallmatrix}\bigr] \preceq -I`, :math:`G \succeq I`, which gives
+    :math:`F(t) + t (1 - t) G \preceq -(1 + t^2) I` on :math:`[0, 1]`), and
+    :math:`J_s^T Y_s^0 J_s - Y_s^N \preceq -I` (margins of 1: the program is homogeneous).
+    Returns the rows and the number of variables (:func:`_layout`)."""
     d, S = loop.d, loop.states
-    m = d * (d + 1) // 2
-    K = (pieces + 1) * S * m
+    m, curv, mult = _layout(loop, pieces, quadratic)
+    specs = _specs(loop)
+    K = mult + (pieces * len(specs) * m if quadratic else 0)
     Y = [[sym_variable(d, (k * S + s) * m, K) for s in range(S)] for k in range(pieces + 1)]
+    C = [[sym_variable(d, curv + (k * S + s) * m, K) for s in range(S)] for k in range(pieces)] if quadratic else []
     cols: Any = np.arange(K)
     rows = Rows(K)
     eye = np.eye(d)
     for row in Y:
         for y in row:
             rows.lmi(eye - y, cols)
-    specs = _specs(loop)
     for k in range(pieces):
-        for s, _, q_row in specs:
-            D = (Y[k + 1][s] - Y[k][s]) * (pieces / h)
-            for e in (k, k + 1):
-                rows.lmi(_flow_block(loop.flow[s], Y[e], s, [float(q) for q in q_row], D) + eye, cols)
+        for i, (s, _, q_row) in enumerate(specs):
+            q = [float(v) for v in q_row]
+            F0, F1, F2 = _piece_parts(loop.flow[s], Y[k], Y[k + 1], C[k] if quadratic else None, s, q, pieces / h)
+            if not quadratic:
+                rows.lmi(F0 + eye, cols)
+                rows.lmi(F0 + F1 + eye, cols)
+                continue
+            G = sym_variable(d, mult + (k * len(specs) + i) * m, K)
+            rows.lmi(eye - G, cols)
+            half = (F1 + G) * 0.5
+            rows.lmi(affine_bmat([[F0, half], [half, F2 - G]]) + np.eye(2 * d), cols)
     P = loop.restriction()
     for s, R in enumerate(loop.resets(h)):
         J = R @ P
@@ -126,13 +171,23 @@ def clock_program(loop: SampledLoop, h: float, pieces: int) -> tuple[Rows, int]:
     return rows, K
 
 
-def clock_certificate(loop: SampledLoop, h: float, pieces: int = 4) -> tuple[tuple[Matrix, ...], ...] | None:
-    """The nodes of a certificate found by the solver (float64; nothing proved yet), or
-    ``None``. The objective: the smallest total trace of the last nodes (the program is
-    homogeneous; this keeps the point bounded)."""
-    rows, K = clock_program(loop, h, pieces)
-    d, S = loop.d, loop.states
+def _unpack(x: Matrix, d: int, first: int, count: int, K: int) -> list[Matrix]:
     m = d * (d + 1) // 2
+    out = []
+    for j in range(count):
+        v = np.einsum("ijk,k->ij", sym_variable(d, first + j * m, K).lin, x)
+        out.append(0.5 * (v + v.T))
+    return out
+
+
+def clock_certificate(loop: SampledLoop, h: float, pieces: int = 4,
+                      quadratic: bool = False) -> ClockCertificate | None:
+    """The certificate found by the solver (float64; ``proved`` is ``False``: nothing
+    proved yet), or ``None``. The objective: the smallest total trace of the last nodes
+    (the program is homogeneous; this keeps the point bounded)."""
+    rows, K = clock_program(loop, h, pieces, quadratic)
+    d, S = loop.d, loop.states
+    m, curv, mult = _layout(loop, pieces, quadratic)
     c = np.zeros(K)
     r, cl = np.tril_indices(d)
     diag = np.flatnonzero(r == cl)
@@ -141,30 +196,32 @@ def clock_certificate(loop: SampledLoop, h: float, pieces: int = 4) -> tuple[tup
     outcome, x = solve_conic(rows.problem(c), "clarabel")
     if x is None or not outcome.solved:
         return None
-    out = []
-    for k in range(pieces + 1):
-        row = []
-        for s in range(S):
-            y = sym_variable(d, (k * S + s) * m, K)
-            v = np.einsum("ijk,k->ij", y.lin, x)
-            row.append(0.5 * (v + v.T))
-        out.append(tuple(row))
-    return tuple(out)
+    flat = _unpack(x, d, 0, (pieces + 1) * S, K)
+    nodes = tuple(tuple(flat[k * S:(k + 1) * S]) for k in range(pieces + 1))
+    if not quadratic:
+        return ClockCertificate(float(h), pieces, nodes, False)
+    flat = _unpack(x, d, curv, pieces * S, K)
+    curvs = tuple(tuple(flat[k * S:(k + 1) * S]) for k in range(pieces))
+    n_spec = len(_specs(loop))
+    flat = _unpack(x, d, mult, pieces * n_spec, K)
+    mults = tuple(tuple(flat[k * n_spec:(k + 1) * n_spec]) for k in range(pieces))
+    return ClockCertificate(float(h), pieces, nodes, False, curvs, mults)
 
 
-def prove_clock(loop: SampledLoop, h: float, nodes: tuple[tuple[Matrix, ...], ...]) -> bool:
-    """``True`` only if the nodes certify mean-square stability over the whole rate box
-    at period ``h`` (module docstring), every condition proved in ball arithmetic on the
-    numbers as written: the flows and gains by :func:`~ftc_verify.analysis.exact.written`,
-    the rates of each vertex by :func:`~ftc_verify.analysis.exact.ball_generator`, the
-    period by :meth:`~ftc_verify.analysis.moments.sampled.SampledLoop.period_ball`."""
-    from ..exact import ball_generator, enclose
-    from ..rigorous import ball, precision, proven_positive_definite
-    from .sampled_gamma import sample_jumps
-
+def prove_clock(loop: SampledLoop, cert: ClockCertificate) -> bool:
+    """``True`` only if ``cert`` certifies mean-square stability over the whole rate box
+    at its period (module docstring), every condition proved in ball arithmetic on the
+    numbers as written: the flows by :func:`~ftc_verify.analysis.exact.enclose`, the gains
+    by :func:`~ftc_verify.analysis.moments.sampled_gamma.sample_jumps`, the rates of each
+    vertex by :func:`~ftc_verify.analysis.exact.ball_generator`, the period by
+    :meth:`~ftc_verify.analysis.moments.sampled.SampledLoop.period_ball`."""
     import flint
 
-    pieces = len(nodes) - 1
+    from ..exact import ball_generator, enclose
+    from ..rigorous import Ball, ball, ball_bmat, precision, proven_positive_definite
+    from .sampled_gamma import sample_jumps
+
+    h, pieces, quadratic = cert.h, cert.pieces, bool(cert.curvatures)
     with precision():
         flows = []
         sc = loop.scale
@@ -173,35 +230,34 @@ def prove_clock(loop: SampledLoop, h: float, nodes: tuple[tuple[Matrix, ...], ..
             for i, j in zip(*np.nonzero(A)):
                 factor = float(sc[j] / sc[i])  # a power of two: exact
                 B[int(i), int(j)] = enclose(float(A[i, j]) / factor, loop.literals) * factor
-            flows.append(_as_ball(B))
-        Yb = [[ball(y) for y in row] for row in nodes]
+            flows.append(Ball(B))
+        Yb = [[ball(y) for y in row] for row in cert.nodes]
+        Cb = [[ball(c) for c in row] for row in cert.curvatures]
         if not all(proven_positive_definite(y) for row in Yb for y in row):
             return False
         for s, J in enumerate(sample_jumps(loop, h, balls=True, literals=loop.literals)):
             if not proven_positive_definite(Yb[pieces][s] - J.T @ Yb[0][s] @ J):
                 return False
-        hb = loop.period_ball(h)
-        step = _as_ball(flint.arb_mat(1, 1, [pieces / hb]))
-        for s, beta, _ in _specs(loop):
+        rate = pieces / loop.period_ball(h)
+        for i, (s, beta, _) in enumerate(_specs(loop)):
             row = ball_generator(loop.chain, beta, loop.literals)[s]
             for k in range(pieces):
-                D = (Yb[k + 1][s] - Yb[k][s]) * step.value[0, 0]
-                for e in (k, k + 1):
-                    if not proven_positive_definite(-_flow_block(flows[s], Yb[e], s, row, D)):
+                F0, F1, F2 = _piece_parts(flows[s], Yb[k], Yb[k + 1], Cb[k] if quadratic else None, s, row, rate)
+                if not quadratic:
+                    if not (proven_positive_definite(-F0) and proven_positive_definite(-(F0 + F1))):
                         return False
+                    continue
+                G = ball(cert.multipliers[k][i])
+                half = (F1 + G) * 0.5
+                if not (proven_positive_definite(G) and proven_positive_definite(-ball_bmat([[F0, half], [half, F2 - G]]))):
+                    return False
     return True
 
 
-def _as_ball(M: Any) -> Any:
-    from ..rigorous import Ball
-
-    return Ball(M)
-
-
-def clock_stable(loop: SampledLoop, h: float, pieces: int = 4) -> ClockCertificate | None:
-    """A certificate found and proved at period ``h`` (:func:`clock_certificate`,
-    :func:`prove_clock`), or ``None``."""
-    nodes = clock_certificate(loop, h, pieces)
-    if nodes is None:
+def clock_stable(loop: SampledLoop, h: float, pieces: int = 4, quadratic: bool = False) -> ClockCertificate | None:
+    """A certificate found at period ``h`` (:func:`clock_certificate`) with ``proved`` set
+    by :func:`prove_clock`, or ``None`` when the solver found none."""
+    cert = clock_certificate(loop, h, pieces, quadratic)
+    if cert is None:
         return None
-    return ClockCertificate(float(h), pieces, nodes, prove_clock(loop, h, nodes))
+    return dataclasses.replace(cert, proved=prove_clock(loop, cert))
