@@ -7,14 +7,15 @@ For each case (the paper example with its gains, random ``n = 2, m = 2`` loops o
 ``--seeds``, the random ``n = 4, m = 3`` loop of seed 1; the random loops drawn as
 ``benchmarks/sampled.py`` draws them) and each number of pieces: the float64 crossing
 ``h_c`` of the worst vertex (largest :math:`\\rho(T)` over every vertex of the box, by
-bisection), then a bisection (``--steps`` halvings of ``[h_c / 2, h_c]``) for the largest
-period at which the certificate is found and proved in ball arithmetic. Columns:
-``case, seed, pieces, crossing, proved_h, gap`` (``1 - proved_h / crossing``)
+bisection), then a bisection (``--steps`` halvings of ``[low h_c, h_c]``) for the largest
+period at which the certificate (affine pieces, or ``--quadratic``) is found and proved in
+ball arithmetic. Columns: ``case, seed, pieces, shape, crossing, proved_h, gap`` (``1 - proved_h / crossing``)
 ``, cpu_seconds`` (of the bisection), ``cpu_per_attempt``.
 
 Usage::
 
     python benchmarks/sampled_clock.py --pieces 4 8 16 --out /tmp/clock.csv
+    python benchmarks/sampled_clock.py --quadratic --pieces 2 4 --low 0.9 --out /tmp/clockq.csv
 """
 
 from __future__ import annotations
@@ -56,15 +57,16 @@ def vertex_crossing(loop: SampledLoop, lo: float, hi: float) -> float:
     return lo
 
 
-def largest_proved(loop: SampledLoop, crossing: float, pieces: int, steps: int) -> tuple[float | None, int]:
+def largest_proved(loop: SampledLoop, crossing: float, pieces: int, steps: int, quadratic: bool,
+                   low: float) -> tuple[float | None, int]:
     """The largest period of the bisection proved by the certificate, and the attempts."""
-    lo, hi = 0.5 * crossing, crossing
-    cert = clock_stable(loop, lo, pieces)
+    lo, hi = low * crossing, crossing
+    cert = clock_stable(loop, lo, pieces, quadratic)
     if cert is None or not cert.proved:
         return None, 1
     for _ in range(steps):
         mid = 0.5 * (lo + hi)
-        cert = clock_stable(loop, mid, pieces)
+        cert = clock_stable(loop, mid, pieces, quadratic)
         lo, hi = (mid, hi) if cert is not None and cert.proved else (lo, mid)
     return lo, steps + 1
 
@@ -75,6 +77,8 @@ def main() -> None:
     p.add_argument("--pieces", type=int, nargs="+", default=[4, 8, 16])
     p.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4])
     p.add_argument("--steps", type=int, default=10)
+    p.add_argument("--quadratic", action="store_true", help="quadratic pieces (S-procedure in the clock)")
+    p.add_argument("--low", type=float, default=0.5, help="the bisection's lower end, times the crossing")
     p.add_argument("--cases", nargs="+", default=["paper", "n2", "n4"])
     args = p.parse_args()
     cases: list[tuple[str, int, Any, Any]] = []
@@ -95,9 +99,10 @@ def main() -> None:
         hc = vertex_crossing(loop, 1e-3, 1.0)
         for pieces in args.pieces:
             cpu = time.process_time()
-            h, attempts = largest_proved(loop, hc, pieces, args.steps)
+            h, attempts = largest_proved(loop, hc, pieces, args.steps, args.quadratic, args.low)
             cpu = time.process_time() - cpu
-            rows.append({"case": name, "seed": seed, "pieces": pieces, "crossing": f"{hc:.6f}",
+            rows.append({"case": name, "seed": seed, "pieces": pieces,
+                         "shape": "quadratic" if args.quadratic else "affine", "crossing": f"{hc:.6f}",
                          "proved_h": "" if h is None else f"{h:.6f}",
                          "gap": "" if h is None else f"{1 - h / hc:.1e}",
                          "cpu_seconds": f"{cpu:.1f}", "cpu_per_attempt": f"{cpu / attempts:.2f}"})
