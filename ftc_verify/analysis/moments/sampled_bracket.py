@@ -29,9 +29,11 @@ import numpy as np
 
 from ...model.system import Matrix
 from .sampled import H_MAX_RTOL, SampledLoop, crossing, rate_points, spectral_radius, worst_radius
+from .sampled_clock import clock_size, clock_stable
 from .sampled_proof import box_verdict, prove_point_unstable
 
-__all__ = ["LADDER", "COARSE", "TIGHT", "BRACKET_WORK", "box_work", "prove_below", "worst_vertex", "h_max_bracket"]
+__all__ = ["LADDER", "COARSE", "TIGHT", "BRACKET_WORK", "CLOCK_LADDER", "CLOCK_PIECES", "CLOCK_SIZE", "CLOCK_WORK",
+           "box_work", "prove_below", "clock_below", "worst_vertex", "h_max_bracket"]
 
 #: Relative distances below the crossing tried after the tight one fails, easy first.
 LADDER = (0.1, 0.03, 0.01, 3e-3)
@@ -44,6 +46,15 @@ COARSE = (0.3, 0.5)
 #: shares of the budget: the unstable end is at most ``3 rtol / 16`` above the crossing,
 #: so either bracket is within ``rtol``.
 TIGHT = ((0.25, 1 / 6), (0.75, 1 / 2))
+
+#: Distances below the crossing tried, easy first, by the clock-dependent certificate
+#: (:mod:`~ftc_verify.analysis.moments.sampled_clock`, quadratic pieces) when the tight
+#: sub-box attempts fail; with :data:`CLOCK_PIECES` pieces, on loops whose program has at
+#: most :data:`CLOCK_SIZE` variables, with a budget of at least :data:`CLOCK_WORK` units.
+CLOCK_LADDER = (0.03, 0.01, 3e-3)
+CLOCK_PIECES = 2
+CLOCK_SIZE = 4000
+CLOCK_WORK = 1000.0
 
 #: The proof budget of one attempt of :func:`prove_below` in work units
 #: (:func:`box_work`): about 3 s of one core of the machine ``benchmarks/sampled.py``
@@ -93,6 +104,10 @@ def prove_below(loop: SampledLoop, a: float, rtol: float, max_boxes: int, work: 
             return None
         if proved(f * rtol, share):
             return a * (1 - f * rtol)
+    if max_boxes > 0 and work >= CLOCK_WORK:
+        clock = clock_below(loop, a, deadline)
+        if clock is not None:
+            return clock
     best = None
     for k, f in enumerate(f for f in LADDER if f > TIGHT[-1][0] * rtol):
         if time.perf_counter() > deadline or not proved(f, 1.0 if k == 0 else 1 / 3):
@@ -103,6 +118,26 @@ def prove_below(loop: SampledLoop, a: float, rtol: float, max_boxes: int, work: 
             break
         if proved(f, 1 / 3):
             return a * (1 - f)
+    return best
+
+
+def clock_below(loop: SampledLoop, a: float, deadline: float = math.inf) -> float | None:
+    """The closest period ``a (1 - f)``, ``f`` in :data:`CLOCK_LADDER` tried easy first and
+    stopping at the first failure, proved stable over the whole rate box by one
+    clock-dependent certificate (:func:`~ftc_verify.analysis.moments.sampled_clock.clock_stable`,
+    :data:`CLOCK_PIECES` quadratic pieces, proved in ball arithmetic; no sub-boxes); ``None``
+    if none is, or the loop's program is larger than :data:`CLOCK_SIZE`. Deterministic: no
+    time budget (``deadline`` only stops new attempts)."""
+    if clock_size(loop, CLOCK_PIECES, True) > CLOCK_SIZE:
+        return None
+    best = None
+    for f in CLOCK_LADDER:
+        if time.perf_counter() > deadline:
+            break
+        cert = clock_stable(loop, a * (1 - f), CLOCK_PIECES, quadratic=True)
+        if cert is None or not cert.proved:
+            break
+        best = a * (1 - f)
     return best
 
 

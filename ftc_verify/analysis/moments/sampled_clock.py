@@ -67,7 +67,7 @@ from ..conic import Rows, affine_bmat, sym_variable
 from ..solvers import solve_conic
 from .sampled import SampledLoop
 
-__all__ = ["ClockCertificate", "clock_program", "clock_certificate", "prove_clock", "clock_stable"]
+__all__ = ["ClockCertificate", "clock_program", "clock_certificate", "prove_clock", "clock_stable", "clock_size"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -131,6 +131,12 @@ def _layout(loop: SampledLoop, pieces: int, quadratic: bool) -> tuple[int, int, 
     return m, curv, mult
 
 
+def clock_size(loop: SampledLoop, pieces: int, quadratic: bool) -> int:
+    """The number of scalar variables of :func:`clock_program`."""
+    m, _, mult = _layout(loop, pieces, quadratic)
+    return mult + (pieces * len(_specs(loop)) * m if quadratic else 0)
+
+
 def clock_program(loop: SampledLoop, h: float, pieces: int, quadratic: bool = False) -> tuple[Rows, int]:
     r"""The rows of the certificate's program at period ``h`` (module docstring): nodes
     :math:`Y_s^k \succeq I`, on every piece at every vertex of its row the flow
@@ -143,7 +149,7 @@ def clock_program(loop: SampledLoop, h: float, pieces: int, quadratic: bool = Fa
     d, S = loop.d, loop.states
     m, curv, mult = _layout(loop, pieces, quadratic)
     specs = _specs(loop)
-    K = mult + (pieces * len(specs) * m if quadratic else 0)
+    K = clock_size(loop, pieces, quadratic)
     Y = [[sym_variable(d, (k * S + s) * m, K) for s in range(S)] for k in range(pieces + 1)]
     C = [[sym_variable(d, curv + (k * S + s) * m, K) for s in range(S)] for k in range(pieces)] if quadratic else []
     cols: Any = np.arange(K)
