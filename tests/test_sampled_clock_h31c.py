@@ -5,6 +5,7 @@ box, it never proves an unstable period, and its conditions are the ones that de
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 
 import numpy as np
@@ -74,3 +75,23 @@ def test_each_condition_decides() -> None:
     assert not prove_clock(loop, dataclasses.replace(cert, nodes=nodes[::-1]))
     halved = nodes[:-1] + (tuple(0.5 * y for y in nodes[-1]),)
     assert not prove_clock(loop, dataclasses.replace(cert, nodes=halved))
+
+
+def test_bracket_uses_the_clock_certificate_when_the_tight_sub_box_attempts_fail() -> None:
+    """A crossing given 1 % too high (the paper loop's is 0.08426): the tight sub-box
+    attempts lie above the true crossing and fail, the clock certificate proves the first
+    :data:`CLOCK_LADDER` distance (3 % below, under the true crossing) and not the next (above
+    it); the sub-box ladder then proves the closer 1 % (a third of the budget each) -- the
+    period returned is never farther than the sub-box route's alone, and is stable at 40
+    random rates of the box (float64, a proved claim)."""
+    from ftc_verify.analysis.moments.sampled_bracket import CLOCK_LADDER, CLOCK_WORK, clock_below, prove_below
+
+    loop = _paper()
+    a = 1.01 * 0.08426
+    got = prove_below(loop, a, 1e-3, 8, CLOCK_WORK, math.inf)
+    assert clock_below(loop, a) == a * (1 - CLOCK_LADDER[0])
+    assert got is not None and got >= a * (1 - CLOCK_LADDER[0])
+    rng = np.random.default_rng(7)
+    assert max(spectral_radius(loop, got, _random_rates(loop, rng)) for _ in range(40)) < 1.0
+    without = prove_below(loop, a, 1e-3, 8, CLOCK_WORK - 1.0, math.inf)  # below CLOCK_WORK: sub-boxes only
+    assert without is None or without <= got

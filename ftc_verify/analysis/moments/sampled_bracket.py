@@ -86,8 +86,10 @@ def prove_below(loop: SampledLoop, a: float, rtol: float, max_boxes: int, work: 
     attempt starts after ``deadline``, ``time.perf_counter()``, a safety valve): first
     the :data:`TIGHT` distances (the bracket within ``rtol`` at once: ``f = rtol / 4``
     with a sixth of the budget, enough where one sub-box does, then ``3 rtol / 4`` with
-    half of it); if both fail, easy first -- ``f`` in :data:`LADDER` (the first with the
-    full budget, the others with a third) -- stopping at the first failure (a smaller
+    half of it); if both fail, the clock-dependent certificate without sub-boxes
+    (:func:`clock_below`, with a budget of at least :data:`CLOCK_WORK`), then easy first -- ``f`` in :data:`LADDER` (the first with the
+    full budget, the others with a third; only those closer than the clock's period, each
+    with a third, when the clock proved one) -- stopping at the first failure (a smaller
     margin is harder: its proof would rarely succeed and would spend its whole budget);
     when none of those is proved, :data:`COARSE` (a third each), the first proved
     returned. The budget of an attempt is ``work`` units (:func:`box_work` per sub-box),
@@ -104,13 +106,10 @@ def prove_below(loop: SampledLoop, a: float, rtol: float, max_boxes: int, work: 
             return None
         if proved(f * rtol, share):
             return a * (1 - f * rtol)
-    if max_boxes > 0 and work >= CLOCK_WORK:
-        clock = clock_below(loop, a, deadline)
-        if clock is not None:
-            return clock
-    best = None
-    for k, f in enumerate(f for f in LADDER if f > TIGHT[-1][0] * rtol):
-        if time.perf_counter() > deadline or not proved(f, 1.0 if k == 0 else 1 / 3):
+    best = clock_below(loop, a, deadline) if max_boxes > 0 and work >= CLOCK_WORK else None
+    ladder = [f for f in LADDER if f > TIGHT[-1][0] * rtol and (best is None or a * (1 - f) > best)]
+    for k, f in enumerate(ladder):
+        if time.perf_counter() > deadline or not proved(f, 1.0 if k == 0 and best is None else 1 / 3):
             break
         best = a * (1 - f)
     for f in COARSE if best is None else ():
