@@ -52,8 +52,12 @@ TIGHT = ((0.25, 1 / 6), (0.75, 1 / 2))
 #: sub-box attempts fail; with :data:`CLOCK_PIECES` pieces, on loops whose program has at
 #: most :data:`CLOCK_SIZE` variables, with a budget of at least :data:`CLOCK_WORK` units.
 CLOCK_LADDER = (0.03, 0.01, 3e-3)
+#: Quadratic pieces of the clock-dependent certificate in :func:`clock_below`.
 CLOCK_PIECES = 2
+#: The largest clock program (scalar variables) :func:`clock_below` solves.
 CLOCK_SIZE = 4000
+#: The smallest budget of an attempt (work units) with which :func:`prove_below` tries
+#: :func:`clock_below` (one clock attempt on ``n = 4, m = 3``: about 4 CPU seconds).
 CLOCK_WORK = 1000.0
 
 #: The proof budget of one attempt of :func:`prove_below` in work units

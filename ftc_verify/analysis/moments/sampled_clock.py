@@ -145,7 +145,7 @@ def clock_program(loop: SampledLoop, h: float, pieces: int, quadratic: bool = Fa
     F_2 - G\end{smallmatrix}\bigr] \preceq -I`, :math:`G \succeq I`, which gives
     :math:`F(t) + t (1 - t) G \preceq -(1 + t^2) I` on :math:`[0, 1]`), and
     :math:`J_s^T Y_s^0 J_s - Y_s^N \preceq -I` (margins of 1: the program is homogeneous).
-    Returns the rows and the number of variables (:func:`_layout`)."""
+    Returns the rows and the number of variables (:func:`clock_size`)."""
     d, S = loop.d, loop.states
     m, curv, mult = _layout(loop, pieces, quadratic)
     specs = _specs(loop)
