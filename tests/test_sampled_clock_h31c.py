@@ -37,9 +37,11 @@ def _random_rates(loop: SampledLoop, rng: np.random.Generator) -> np.ndarray:
 @pytest.mark.parametrize("seed", [29, 37])
 def test_proved_period_is_stable_at_random_rates_of_the_box(seed: int) -> None:
     """Held-out n = 2, m = 2 loops (seeds not in the benchmark): at 60 % of the worst
-    vertex's float64 crossing (found here by bisection) the 4-piece certificate is proved
-    in balls, and the float64 radius is below 1 at 40 uniform random rates of the box (a
-    proved claim: a radius >= 1 there would be a bug, no false-failure probability)."""
+    vertex's float64 crossing (found here by bisection) the certificate with 4 affine
+    pieces is proved in balls, at 95 % the one with 4 quadratic pieces, and the float64
+    radius is below 1 at 40 uniform random rates of the box at each (a proved claim: a
+    radius >= 1 there would be a bug, no false-failure probability); 2 % above the
+    crossing nothing is proved."""
     system, controller = lqr_case(2, 2, np.random.default_rng(seed))
     loop = SampledLoop.build(system, controller)
     lo, hi = 1e-3, 8.0
@@ -47,11 +49,13 @@ def test_proved_period_is_stable_at_random_rates_of_the_box(seed: int) -> None:
     for _ in range(30):
         mid = 0.5 * (lo + hi)
         lo, hi = (mid, hi) if _worst_vertex_radius(loop, mid) < 1.0 else (lo, mid)
-    h = 0.6 * lo
-    cert = clock_stable(loop, h, pieces=4)
-    assert cert is not None and cert.proved
     rng = np.random.default_rng(seed + 1000)
-    assert max(spectral_radius(loop, h, _random_rates(loop, rng)) for _ in range(40)) < 1.0
+    for h, quadratic in ((0.6 * lo, False), (0.95 * lo, True)):
+        cert = clock_stable(loop, h, pieces=4, quadratic=quadratic)
+        assert cert is not None and cert.proved
+        assert max(spectral_radius(loop, h, _random_rates(loop, rng)) for _ in range(40)) < 1.0
+    above = clock_stable(loop, 1.02 * lo, pieces=4, quadratic=True)  # a vertex is unstable there
+    assert above is None or not above.proved
 
 
 def test_paper_example_proved_on_the_numbers_as_written_and_never_above_the_crossing() -> None:
