@@ -29,9 +29,11 @@ import numpy as np
 
 from ...model.system import Matrix
 from .sampled import H_MAX_RTOL, SampledLoop, crossing, rate_points, spectral_radius, worst_radius
+from .sampled_clock import clock_size, clock_stable
 from .sampled_proof import box_verdict, prove_point_unstable
 
-__all__ = ["LADDER", "COARSE", "TIGHT", "BRACKET_WORK", "box_work", "prove_below", "worst_vertex", "h_max_bracket"]
+__all__ = ["LADDER", "COARSE", "TIGHT", "BRACKET_WORK", "CLOCK_LADDER", "CLOCK_PIECES", "CLOCK_SIZE", "CLOCK_WORK",
+           "box_work", "prove_below", "clock_below", "worst_vertex", "h_max_bracket"]
 
 #: Relative distances below the crossing tried after the tight one fails, easy first.
 LADDER = (0.1, 0.03, 0.01, 3e-3)
@@ -44,6 +46,19 @@ COARSE = (0.3, 0.5)
 #: shares of the budget: the unstable end is at most ``3 rtol / 16`` above the crossing,
 #: so either bracket is within ``rtol``.
 TIGHT = ((0.25, 1 / 6), (0.75, 1 / 2))
+
+#: Distances below the crossing tried, easy first, by the clock-dependent certificate
+#: (:mod:`~ftc_verify.analysis.moments.sampled_clock`, quadratic pieces) when the tight
+#: sub-box attempts fail; with :data:`CLOCK_PIECES` pieces, on loops whose program has at
+#: most :data:`CLOCK_SIZE` variables, with a budget of at least :data:`CLOCK_WORK` units.
+CLOCK_LADDER = (0.03, 0.01, 3e-3)
+#: Quadratic pieces of the clock-dependent certificate in :func:`clock_below`.
+CLOCK_PIECES = 2
+#: The largest clock program (scalar variables) :func:`clock_below` solves.
+CLOCK_SIZE = 4000
+#: The smallest budget of an attempt (work units) with which :func:`prove_below` tries
+#: :func:`clock_below` (one clock attempt on ``n = 4, m = 3``: about 4 CPU seconds).
+CLOCK_WORK = 1000.0
 
 #: The proof budget of one attempt of :func:`prove_below` in work units
 #: (:func:`box_work`): about 3 s of one core of the machine ``benchmarks/sampled.py``
@@ -75,8 +90,10 @@ def prove_below(loop: SampledLoop, a: float, rtol: float, max_boxes: int, work: 
     attempt starts after ``deadline``, ``time.perf_counter()``, a safety valve): first
     the :data:`TIGHT` distances (the bracket within ``rtol`` at once: ``f = rtol / 4``
     with a sixth of the budget, enough where one sub-box does, then ``3 rtol / 4`` with
-    half of it); if both fail, easy first -- ``f`` in :data:`LADDER` (the first with the
-    full budget, the others with a third) -- stopping at the first failure (a smaller
+    half of it); if both fail, the clock-dependent certificate without sub-boxes
+    (:func:`clock_below`, with a budget of at least :data:`CLOCK_WORK`), then easy first -- ``f`` in :data:`LADDER` (the first with the
+    full budget, the others with a third; only those closer than the clock's period, each
+    with a third, when the clock proved one) -- stopping at the first failure (a smaller
     margin is harder: its proof would rarely succeed and would spend its whole budget);
     when none of those is proved, :data:`COARSE` (a third each), the first proved
     returned. The budget of an attempt is ``work`` units (:func:`box_work` per sub-box),
@@ -93,9 +110,10 @@ def prove_below(loop: SampledLoop, a: float, rtol: float, max_boxes: int, work: 
             return None
         if proved(f * rtol, share):
             return a * (1 - f * rtol)
-    best = None
-    for k, f in enumerate(f for f in LADDER if f > TIGHT[-1][0] * rtol):
-        if time.perf_counter() > deadline or not proved(f, 1.0 if k == 0 else 1 / 3):
+    best = clock_below(loop, a, deadline) if max_boxes > 0 and work >= CLOCK_WORK else None
+    ladder = [f for f in LADDER if f > TIGHT[-1][0] * rtol and (best is None or a * (1 - f) > best)]
+    for k, f in enumerate(ladder):
+        if time.perf_counter() > deadline or not proved(f, 1.0 if k == 0 and best is None else 1 / 3):
             break
         best = a * (1 - f)
     for f in COARSE if best is None else ():
@@ -103,6 +121,26 @@ def prove_below(loop: SampledLoop, a: float, rtol: float, max_boxes: int, work: 
             break
         if proved(f, 1 / 3):
             return a * (1 - f)
+    return best
+
+
+def clock_below(loop: SampledLoop, a: float, deadline: float = math.inf) -> float | None:
+    """The closest period ``a (1 - f)``, ``f`` in :data:`CLOCK_LADDER` tried easy first and
+    stopping at the first failure, proved stable over the whole rate box by one
+    clock-dependent certificate (:func:`~ftc_verify.analysis.moments.sampled_clock.clock_stable`,
+    :data:`CLOCK_PIECES` quadratic pieces, proved in ball arithmetic; no sub-boxes); ``None``
+    if none is, or the loop's program is larger than :data:`CLOCK_SIZE`. Deterministic: no
+    time budget (``deadline`` only stops new attempts)."""
+    if clock_size(loop, CLOCK_PIECES, True) > CLOCK_SIZE:
+        return None
+    best = None
+    for f in CLOCK_LADDER:
+        if time.perf_counter() > deadline:
+            break
+        cert = clock_stable(loop, a * (1 - f), CLOCK_PIECES, quadratic=True)
+        if cert is None or not cert.proved:
+            break
+        best = a * (1 - f)
     return best
 
 

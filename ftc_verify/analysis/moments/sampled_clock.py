@@ -1,0 +1,269 @@
+r"""Mean-square stability of the sampled loop over the whole rate box, without sub-boxes:
+a clock-dependent Lyapunov certificate of the second moments.
+
+The loop of :mod:`ftc_verify.analysis.moments.sampled`: between samples the joint
+second moments :math:`Z_s(t) = E[\zeta\zeta^T 1\{\theta_t = s\}]` of the augmented
+state :math:`\zeta = (x, u, x_c)` obey :math:`\dot Z_s = \bar A_s Z_s + Z_s \bar A_s^T +
+\sum_t q_{ts} Z_t` (the moment generator :math:`\mathcal L(\beta)`, affine in the rates
+:math:`\beta` of the box); at a sample the controller resets them,
+:math:`Z_s^+ = J_s Z_s^- J_s^T` with :math:`J_s = R_s P` (the reset and restriction of
+the one-period map).
+
+**Certificate** (derived here). Take the linear functional :math:`V(\tau, Z) = \sum_s
+\langle Y_s(\tau), Z_s\rangle` of the moments, :math:`\tau = t - t_k \in [0, h)` the
+time since the last sample, with :math:`Y_s` continuous and affine on each piece
+:math:`[\tau_k, \tau_{k+1}]`, :math:`\tau_k = k h / N` (nodes :math:`Y_s^k`, slope
+:math:`D_s^k = (Y_s^{k+1} - Y_s^k) N / h`). Between samples
+
+.. math::
+
+    \tfrac{d}{dt} V = \sum_s \bigl\langle D_s^k + \bar A_s^T Y_s + Y_s \bar A_s +
+    \textstyle\sum_{t} q_{st} Y_t,\; Z_s \bigr\rangle,
+
+(the adjoint :math:`\mathcal L^*` of the moment generator: the same operator as the
+Lyapunov block of :mod:`ftc_verify.analysis.lmi` without disturbance). It is
+:math:`\le 0` for every positive semidefinite stack :math:`Z` iff every
+:math:`F_s^k(\tau) = D_s^k + \bar A_s^T Y_s(\tau) + Y_s(\tau) \bar A_s + \sum_{t \ne s}
+q_{st} (Y_t(\tau) - Y_s(\tau)) \preceq 0`. On a piece :math:`F_s^k` is affine in
+:math:`\tau` (so negative semidefinite on it iff at both ends) and affine in row
+:math:`s` of the generator (so on the whole box iff at the vertices of the rates of
+that row, :meth:`~ftc_verify.model.chain.JointChain.row_rate_points`). At the sample
+
+.. math::
+
+    V(0, Z^+) = \sum_s \langle J_s^T Y_s(0) J_s, Z_s^-\rangle
+    < \sum_s \langle Y_s(h), Z_s^- \rangle = V(h^-, Z^-)
+    \quad\Longleftarrow\quad J_s^T Y_s^0 J_s \prec Y_s^N
+
+for every nonzero :math:`Z^- \succeq 0`. With :math:`Y_s^0 \succ 0`, the post-reset
+moments :math:`Z_k^+` then obey :math:`\langle Y^0, Z_{k+1}^+\rangle \le c \langle Y^0,
+Z_k^+ \rangle` with :math:`c < 1` (the flow over a period maps a nonzero stack to a
+nonzero one, the compact set :math:`\{Z \succeq 0, \langle Y^0, Z\rangle = 1\}`), for
+*every* rate path inside the box: the post-reset map :math:`\mathcal R \mathcal P e^{\mathcal L h}`,
+hence :math:`T` of :mod:`~ftc_verify.analysis.moments.sampled` (same non-zero spectrum),
+has spectral radius below 1 at every rate of the box -- the loop is mean-square
+stable over the box at period :math:`h`. (It is the storage of
+:mod:`~ftc_verify.analysis.moments.sampled_gamma` with no disturbance; the same
+functional in the quadratic form :math:`E[\zeta^T Y_\theta(\tau) \zeta]`.)
+
+**What it costs and what it gives up.** One semidefinite program over the vertices
+(no sub-boxes), then every block proved negative definite and every node and jump
+condition positive definite in ball arithmetic on the numbers as written
+(:func:`prove_clock`). A certificate common to the box holds for rates that vary in
+time inside the box, so it can fail below the crossing of the worst constant rate (the
+experiment: ``benchmarks/sampled_clock.py``, ``benchmarks/results/h31c.md``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ...model.system import Matrix
+from ..conic import Rows, affine_bmat, sym_variable
+from ..solvers import solve_conic
+from .sampled import SampledLoop
+
+__all__ = ["ClockCertificate", "clock_program", "clock_certificate", "prove_clock", "clock_stable", "clock_size"]
+
+
+@dataclass(frozen=True, eq=False)
+class ClockCertificate:
+    """The nodes :math:`Y_s^k` (``nodes[k][s]``, balanced coordinates of the loop), the
+    curvatures :math:`C_s^k` (``curvatures[k][s]``, empty for affine pieces) and the
+    multipliers :math:`G` (``multipliers[k][i]``, one per piece and vertex instance) found
+    at period ``h`` with ``pieces`` pieces, and whether they were proved (ball
+    arithmetic) to certify stability over the whole rate box."""
+
+    h: float
+    pieces: int
+    nodes: tuple[tuple[Matrix, ...], ...]
+    proved: bool
+    curvatures: tuple[tuple[Matrix, ...], ...] = ()
+    multipliers: tuple[tuple[Matrix, ...], ...] = ()
+
+
+def _specs(loop: SampledLoop) -> list[tuple[int, Matrix, Matrix]]:
+    """``(s, beta, q_row)`` at every vertex of the rates of row ``s`` (every joint state)."""
+    chain = loop.chain
+    return [(s, point, chain.row_generator(s, point)) for s in range(loop.states)
+            for point in chain.row_rate_points(s)]
+
+
+def _adjoint(A: Any, Ys: list[Any], s: int, q_row: Any) -> Any:
+    r"""Block ``s`` of :math:`\mathcal L^* Y`: :math:`A^T Y_s + Y_s A + \sum_{t \ne s}
+    q_{st} (Y_t - Y_s)` (a generator row sums to zero)."""
+    out = A.T @ Ys[s] + Ys[s] @ A
+    for t, q in enumerate(q_row):
+        if t != s and not (isinstance(q, float) and q == 0.0):
+            out = out + (Ys[t] - Ys[s]) * q
+    return out
+
+
+def _piece_parts(A: Any, Y0: list[Any], Y1: list[Any], C: list[Any] | None, s: int, q_row: Any,
+                 rate: Any) -> tuple[Any, Any, Any]:
+    r"""The coefficients :math:`F_0, F_1, F_2` of :math:`F(t) = F_0 + t F_1 + t^2 F_2`,
+    :math:`F = dY_s/d	au + (\mathcal L^* Y)_s` on a piece, :math:`	au = 	au_k + t
+    \delta`, ``rate`` :math:`= 1/\delta`, :math:`Y(t) = (1 - t) Y^k + t Y^{k+1} + t (1 - t)
+    C^k` (``C`` ``None``: affine, :math:`F_2 = 0`). With :math:`E = Y^{k+1} - Y^k`:
+    :math:`dY/d	au = (E + (1 - 2t) C) / \delta`, so :math:`F_0 = (E_s + C_s)/\delta +
+    \mathcal L^*(Y^k)`, :math:`F_1 = -2 C_s / \delta + \mathcal L^*(E + C)`,
+    :math:`F_2 = -\mathcal L^*(C)`."""
+    E = [b - a for a, b in zip(Y0, Y1)]
+    if C is None:
+        return (E[s] * rate + _adjoint(A, Y0, s, q_row), _adjoint(A, E, s, q_row), None)
+    EC = [e + c for e, c in zip(E, C)]
+    F0 = EC[s] * rate + _adjoint(A, Y0, s, q_row)
+    F1 = C[s] * (-2.0 * rate) + _adjoint(A, EC, s, q_row)
+    F2 = -_adjoint(A, C, s, q_row)
+    return F0, F1, F2
+
+
+def _layout(loop: SampledLoop, pieces: int, quadratic: bool) -> tuple[int, int, int]:
+    """``(m, first curvature, first multiplier)`` offsets: ``svec`` of every node, node
+    by node and state by state, then (quadratic) every curvature, then every multiplier."""
+    m = loop.d * (loop.d + 1) // 2
+    curv = (pieces + 1) * loop.states * m
+    mult = curv + (pieces * loop.states * m if quadratic else 0)
+    return m, curv, mult
+
+
+def clock_size(loop: SampledLoop, pieces: int, quadratic: bool) -> int:
+    """The number of scalar variables of :func:`clock_program`."""
+    m, _, mult = _layout(loop, pieces, quadratic)
+    return mult + (pieces * len(_specs(loop)) * m if quadratic else 0)
+
+
+def clock_program(loop: SampledLoop, h: float, pieces: int, quadratic: bool = False) -> tuple[Rows, int]:
+    r"""The rows of the certificate's program at period ``h`` (module docstring): nodes
+    :math:`Y_s^k \succeq I`, on every piece at every vertex of its row the flow
+    condition :math:`F \preceq -I` (affine pieces: at both ends; quadratic ones: the
+    bordered matrix :math:`\bigl[\begin{smallmatrix} F_0 & (F_1 + G)/2 \\ (F_1 + G)/2 &
+    F_2 - G\end{smallmatrix}\bigr] \preceq -I`, :math:`G \succeq I`, which gives
+    :math:`F(t) + t (1 - t) G \preceq -(1 + t^2) I` on :math:`[0, 1]`), and
+    :math:`J_s^T Y_s^0 J_s - Y_s^N \preceq -I` (margins of 1: the program is homogeneous).
+    Returns the rows and the number of variables (:func:`clock_size`)."""
+    d, S = loop.d, loop.states
+    m, curv, mult = _layout(loop, pieces, quadratic)
+    specs = _specs(loop)
+    K = clock_size(loop, pieces, quadratic)
+    Y = [[sym_variable(d, (k * S + s) * m, K) for s in range(S)] for k in range(pieces + 1)]
+    C = [[sym_variable(d, curv + (k * S + s) * m, K) for s in range(S)] for k in range(pieces)] if quadratic else []
+    cols: Any = np.arange(K)
+    rows = Rows(K)
+    eye = np.eye(d)
+    for row in Y:
+        for y in row:
+            rows.lmi(eye - y, cols)
+    for k in range(pieces):
+        for i, (s, _, q_row) in enumerate(specs):
+            q = [float(v) for v in q_row]
+            F0, F1, F2 = _piece_parts(loop.flow[s], Y[k], Y[k + 1], C[k] if quadratic else None, s, q, pieces / h)
+            if not quadratic:
+                rows.lmi(F0 + eye, cols)
+                rows.lmi(F0 + F1 + eye, cols)
+                continue
+            G = sym_variable(d, mult + (k * len(specs) + i) * m, K)
+            rows.lmi(eye - G, cols)
+            half = (F1 + G) * 0.5
+            rows.lmi(affine_bmat([[F0, half], [half, F2 - G]]) + np.eye(2 * d), cols)
+    P = loop.restriction()
+    for s, R in enumerate(loop.resets(h)):
+        J = R @ P
+        rows.lmi(J.T @ Y[0][s] @ J - Y[pieces][s] + eye, cols)
+    return rows, K
+
+
+def _unpack(x: Matrix, d: int, first: int, count: int, K: int) -> list[Matrix]:
+    m = d * (d + 1) // 2
+    out = []
+    for j in range(count):
+        v = np.einsum("ijk,k->ij", sym_variable(d, first + j * m, K).lin, x)
+        out.append(0.5 * (v + v.T))
+    return out
+
+
+def clock_certificate(loop: SampledLoop, h: float, pieces: int = 4,
+                      quadratic: bool = False) -> ClockCertificate | None:
+    """The certificate found by the solver (float64; ``proved`` is ``False``: nothing
+    proved yet), or ``None``. The objective: the smallest total trace of the last nodes
+    (the program is homogeneous; this keeps the point bounded)."""
+    rows, K = clock_program(loop, h, pieces, quadratic)
+    d, S = loop.d, loop.states
+    m, curv, mult = _layout(loop, pieces, quadratic)
+    c = np.zeros(K)
+    r, cl = np.tril_indices(d)
+    diag = np.flatnonzero(r == cl)
+    for s in range(S):
+        c[(pieces * S + s) * m + diag] = 1.0
+    outcome, x = solve_conic(rows.problem(c), "clarabel")
+    if x is None or not outcome.solved:
+        return None
+    flat = _unpack(x, d, 0, (pieces + 1) * S, K)
+    nodes = tuple(tuple(flat[k * S:(k + 1) * S]) for k in range(pieces + 1))
+    if not quadratic:
+        return ClockCertificate(float(h), pieces, nodes, False)
+    flat = _unpack(x, d, curv, pieces * S, K)
+    curvs = tuple(tuple(flat[k * S:(k + 1) * S]) for k in range(pieces))
+    n_spec = len(_specs(loop))
+    flat = _unpack(x, d, mult, pieces * n_spec, K)
+    mults = tuple(tuple(flat[k * n_spec:(k + 1) * n_spec]) for k in range(pieces))
+    return ClockCertificate(float(h), pieces, nodes, False, curvs, mults)
+
+
+def prove_clock(loop: SampledLoop, cert: ClockCertificate) -> bool:
+    """``True`` only if ``cert`` certifies mean-square stability over the whole rate box
+    at its period (module docstring), every condition proved in ball arithmetic on the
+    numbers as written: the flows by :func:`~ftc_verify.analysis.exact.enclose`, the gains
+    by :func:`~ftc_verify.analysis.moments.sampled_gamma.sample_jumps`, the rates of each
+    vertex by :func:`~ftc_verify.analysis.exact.ball_generator`, the period by
+    :meth:`~ftc_verify.analysis.moments.sampled.SampledLoop.period_ball`."""
+    import flint
+
+    from ..exact import ball_generator, enclose
+    from ..rigorous import Ball, ball, ball_bmat, precision, proven_positive_definite
+    from .sampled_gamma import sample_jumps
+
+    h, pieces, quadratic = cert.h, cert.pieces, bool(cert.curvatures)
+    with precision():
+        flows = []
+        sc = loop.scale
+        for A in loop.flow:
+            B = flint.arb_mat(A.shape[0], A.shape[1])
+            for i, j in zip(*np.nonzero(A)):
+                factor = float(sc[j] / sc[i])  # a power of two: exact
+                B[int(i), int(j)] = enclose(float(A[i, j]) / factor, loop.literals) * factor
+            flows.append(Ball(B))
+        Yb = [[ball(y) for y in row] for row in cert.nodes]
+        Cb = [[ball(c) for c in row] for row in cert.curvatures]
+        if not all(proven_positive_definite(y) for row in Yb for y in row):
+            return False
+        for s, J in enumerate(sample_jumps(loop, h, balls=True, literals=loop.literals)):
+            if not proven_positive_definite(Yb[pieces][s] - J.T @ Yb[0][s] @ J):
+                return False
+        rate = pieces / loop.period_ball(h)
+        for i, (s, beta, _) in enumerate(_specs(loop)):
+            row = ball_generator(loop.chain, beta, loop.literals)[s]
+            for k in range(pieces):
+                F0, F1, F2 = _piece_parts(flows[s], Yb[k], Yb[k + 1], Cb[k] if quadratic else None, s, row, rate)
+                if not quadratic:
+                    if not (proven_positive_definite(-F0) and proven_positive_definite(-(F0 + F1))):
+                        return False
+                    continue
+                G = ball(cert.multipliers[k][i])
+                half = (F1 + G) * 0.5
+                if not (proven_positive_definite(G) and proven_positive_definite(-ball_bmat([[F0, half], [half, F2 - G]]))):
+                    return False
+    return True
+
+
+def clock_stable(loop: SampledLoop, h: float, pieces: int = 4, quadratic: bool = False) -> ClockCertificate | None:
+    """A certificate found at period ``h`` (:func:`clock_certificate`) with ``proved`` set
+    by :func:`prove_clock`, or ``None`` when the solver found none."""
+    cert = clock_certificate(loop, h, pieces, quadratic)
+    if cert is None:
+        return None
+    return dataclasses.replace(cert, proved=prove_clock(loop, cert))
