@@ -53,8 +53,9 @@ def augmented_system(system: FTCSystem, n_c: int | None = None) -> tuple[FTCSyst
 
 
 def controller_from_blocks(system: FTCSystem, blocks: list[Matrix], name: str) -> Controller:
-    """The dynamic controller whose FDI-mode entries are the blocks ``K_j`` (module docstring)."""
-    n = system.dims[0]
+    """The dynamic controller whose FDI-mode entries are the blocks ``K_j`` (module docstring);
+    its order is read from the blocks (``rows - inputs``: 0 for static output feedback)."""
+    n = blocks[0].shape[0] - system.dims[1]
     return Controller.dynamic([K[:n, :n] for K in blocks], [K[:n, n:] for K in blocks],
                               [K[n:, :n] for K in blocks], [K[n:, n:] for K in blocks], name=name)
 
