@@ -230,9 +230,7 @@ def solve_clarabel(problem: ConicProblem, settings: dict[str, Any]) -> tuple[str
 def solve_clarabel_dual(problem: ConicProblem, settings: dict[str, Any]) -> tuple[str, str, Matrix | None, Matrix | None]:
     """:func:`solve_clarabel` that also returns the dual point ``z`` (``A' z + c = 0``,
     ``z`` in the dual cone; ``-b' z`` is the dual objective, a lower bound on
-    ``min c' x`` up to the solver's tolerances), ``None`` with ``x``. With
-    ``iterative_refinement_enable`` false (:data:`~ftc_verify.analysis.solvers.SETTINGS`),
-    a solve that does not end ``Solved`` is run again with it true."""
+    ``min c' x`` up to the solver's tolerances), ``None`` with ``x``."""
     import clarabel
 
     opts = clarabel.DefaultSettings()
@@ -245,8 +243,6 @@ def solve_clarabel_dual(problem: ConicProblem, settings: dict[str, Any]) -> tupl
     solver = clarabel.DefaultSolver(sp.csc_matrix((K, K)), problem.c, problem.A, problem.b, cones, opts)
     sol = solver.solve()
     raw = str(sol.status)
-    if raw != "Solved" and settings.get("iterative_refinement_enable") is False:  # SETTINGS: refinement off
-        return solve_clarabel_dual(problem, settings | {"iterative_refinement_enable": True})
     status = _CLARABEL_STATUS.get(raw, "error")
     message = "" if raw in _CLARABEL_STATUS else f"clarabel status {raw}"
     if status not in ("optimal", "optimal_inaccurate"):

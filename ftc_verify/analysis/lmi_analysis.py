@@ -74,7 +74,7 @@ from .bounded_real import lyapunov_candidate, riccati_candidate
 from .robust_riccati import robust_riccati_candidate
 from .lmi_size import (RICCATI_FIRST_SIZE, RICCATI_FIRST_STATES, SDP_FALLBACK_LIMIT, check_size, decision_size,
                        sdp_fallback_refusal)
-from .solvers import CLARABEL_NATIVE, SETTINGS, SolveOutcome, choose_solver, second_solver, solve_conic, solve_conic_dual
+from .solvers import SETTINGS, SolveOutcome, choose_solver, second_solver, solve_conic, solve_conic_dual
 
 __all__ = ["GAMMA_LADDER", "ROUTES", "LMIResult", "mes_lmi", "hinf_gamma"]
 
@@ -127,7 +127,7 @@ class LMIResult:
             "certified": self.certified,
             "gamma": self.gamma,
             "solver": self.solver,
-            "solver_settings": SETTINGS.get(self.solver, {}) | (CLARABEL_NATIVE if self.solver == "clarabel" else {}),
+            "solver_settings": SETTINGS.get(self.solver, {}),
             "solver_status": self.solver_status,
             "build_seconds": self.build_seconds,
             "solve_seconds": self.solve_seconds,

@@ -4,13 +4,6 @@
   one thread: its default of one per core was 1.4x slower on the Lemma 4.1 programs at
   n = 8, 3 modes and n = 12, 4 modes on this 2-core machine (same answers), and the test
   suite runs two processes anyway.
-  On the native path (:data:`CLARABEL_NATIVE`, the analysis's LMIs) without iterative
-  refinement of its KKT solves: on the Theorem 3.1/3.2 and Lemma 4.1
-  programs of the paper's example and of random n = 8, m = 3 loops the same iterations
-  and gammas to 9 digits for 15-35 % less CPU (issue 37); a solve that does not end
-  ``Solved`` is run again with refinement
-  (:func:`~ftc_verify.analysis.conic.solve_clarabel_dual`), and every answer stands only
-  through its certificate anyway.
 * ``sdpa`` (``sdpa-python``; selectable, and the second opinion that confirms an
   infeasibility claim): a primal-dual interior-point SDP solver. It was meant to be
   chosen automatically above a size threshold, but ``benchmarks/analysis.py`` measured
@@ -55,7 +48,6 @@ from .conic import ConicProblem, solve_clarabel, solve_clarabel_dual, to_cvxpy
 __all__ = [
     "SOLVERS",
     "SETTINGS",
-    "CLARABEL_NATIVE",
     "SolveOutcome",
     "ForkedCall",
     "interruptible",
@@ -76,9 +68,6 @@ SETTINGS: dict[str, dict[str, Any]] = {
     "sdpa": {},
     "scs": {"eps_abs": 1e-8, "eps_rel": 1e-8, "max_iters": 200_000},
 }
-#: Added to ``SETTINGS["clarabel"]`` on the native path (:func:`solve_conic`,
-#: :func:`solve_conic_dual`; module docstring): no iterative refinement of the KKT solves.
-CLARABEL_NATIVE: dict[str, Any] = {"iterative_refinement_enable": False}
 #: Solvers run in a child process (their native code has ended the process itself).
 ISOLATED = frozenset({"sdpa"})
 
@@ -223,7 +212,7 @@ def _solve_isolated(problem: Any, solver: str) -> tuple[str, str]:
 
 
 def _clarabel_guarded(call: Any, problem: ConicProblem) -> tuple[SolveOutcome, tuple[Any, ...]]:
-    """Run ``call(problem, SETTINGS["clarabel"] | CLARABEL_NATIVE)`` (``(status, message, *arrays)``);
+    """Run ``call(problem, SETTINGS["clarabel"])`` (``(status, message, *arrays)``);
     anything it raises, a Rust panic (a ``BaseException``) included, becomes status
     ``"error"`` and arrays ``None``. SIGINT and SIGTERM are held during the call and
     delivered after it (:func:`~ftc_verify.interrupts.deferred_signals`): raised inside
@@ -231,7 +220,7 @@ def _clarabel_guarded(call: Any, problem: ConicProblem) -> tuple[SolveOutcome, t
     start = time.perf_counter()
     try:
         with deferred_signals():
-            status, message, *arrays = call(problem, SETTINGS["clarabel"] | CLARABEL_NATIVE)
+            status, message, *arrays = call(problem, SETTINGS["clarabel"])
     except BaseException as exc:  # pyo3's PanicException is a BaseException
         if not isinstance(exc, Exception) and type(exc).__name__ != "PanicException":
             raise  # Ctrl-C, SIGTERM (the CLI's own BaseException), SystemExit: never a solver failure
