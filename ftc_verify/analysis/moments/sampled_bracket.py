@@ -28,6 +28,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ...model.system import Matrix
+from ..solvers import ForkedCall
 from .sampled import H_MAX_RTOL, SampledLoop, crossing, rate_points, spectral_radius, worst_radius
 from .sampled_clock import clock_size, clock_stable
 from .sampled_proof import box_verdict, prove_point_unstable
@@ -91,7 +92,8 @@ def prove_below(loop: SampledLoop, a: float, rtol: float, max_boxes: int, work: 
     the :data:`TIGHT` distances (the bracket within ``rtol`` at once: ``f = rtol / 4``
     with a sixth of the budget, enough where one sub-box does, then ``3 rtol / 4`` with
     half of it); if both fail, the clock-dependent certificate without sub-boxes
-    (:func:`clock_below`, with a budget of at least :data:`CLOCK_WORK`), then easy first -- ``f`` in :data:`LADDER` (the first with the
+    (:func:`clock_below`, with a budget of at least :data:`CLOCK_WORK`; computed in a forked
+    child beside the tight attempts, so the same answer on a second core), then easy first -- ``f`` in :data:`LADDER` (the first with the
     full budget, the others with a third; only those closer than the clock's period, each
     with a third, when the clock proved one) -- stopping at the first failure (a smaller
     margin is harder: its proof would rarely succeed and would spend its whole budget);
@@ -105,12 +107,20 @@ def prove_below(loop: SampledLoop, a: float, rtol: float, max_boxes: int, work: 
         boxes = min(max_boxes, max(2, int(share * work / per_box)))
         return box_verdict(loop, a * (1 - f), max_boxes=boxes, max_seconds=math.inf).verdict == "stable"
 
-    for f, share in TIGHT:
-        if time.perf_counter() > deadline:
-            return None
-        if proved(f * rtol, share):
-            return a * (1 - f * rtol)
-    best = clock_below(loop, a, deadline) if max_boxes > 0 and work >= CLOCK_WORK else None
+    # the clock certificate does not depend on the tight attempts: it runs beside them in a
+    # forked child (a second core; the same answers as one after the other)
+    ahead = (ForkedCall(lambda: clock_below(loop, a, deadline), "the clock-dependent certificate", group=True)
+             if max_boxes > 0 and work >= CLOCK_WORK and clock_size(loop, CLOCK_PIECES, True) <= CLOCK_SIZE else None)
+    try:
+        for f, share in TIGHT:
+            if time.perf_counter() > deadline:
+                return None
+            if proved(f * rtol, share):
+                return a * (1 - f * rtol)
+        best = None if ahead is None else ahead.result()
+    finally:
+        if ahead is not None:
+            ahead.cancel()
     ladder = [f for f in LADDER if f > TIGHT[-1][0] * rtol and (best is None or a * (1 - f) > best)]
     for k, f in enumerate(ladder):
         if time.perf_counter() > deadline or not proved(f, 1.0 if k == 0 and best is None else 1 / 3):
