@@ -112,21 +112,17 @@ def _exosystem(disturbance: str, exosystem: tuple[Matrix, Matrix, Matrix] | None
 def _conditioned(system: FTCSystem, controller: Controller,
                  x0: Matrix | None) -> tuple[FTCSystem, Controller, Matrix | None]:
     r"""The loop in the coordinates :math:`x = T\tilde x` of the continuous loop's
-    :func:`~ftc_verify.analysis.conditioning.conditioning_transform` when that has
-    condition above 100 and the controller is static (its input :math:`M x` becomes
-    :math:`M T \tilde x`; :math:`x_0 \to T^{-1} x_0`): the energies are invariant (float64
-    either way). In the coordinates of a similarity of condition 1e3 the one-period map of
-    the paper loop at :math:`h = 10^{-3}` (radius :math:`1 - O(h)`) looked unstable."""
-    from ..closedloop import closed_loop
-    from ..conditioning import conditioning_transform
+    :func:`~ftc_verify.analysis.conditioning.conditioning_transform`, when
+    :func:`~ftc_verify.analysis.moments.sampled_frame.loop_similarity` uses one (the rule
+    of the sampled gain's coordinates) and the controller is static (its input :math:`M x`
+    becomes :math:`M T \tilde x`; :math:`x_0 \to T^{-1} x_0`): the energies are invariant
+    (float64 either way). In the coordinates of a similarity of condition 1e3 the
+    one-period map of the paper loop at :math:`h = 10^{-3}` (radius :math:`1 - O(h)`)
+    looked unstable."""
+    from .sampled_frame import loop_similarity
 
-    if controller.n_c:
-        return system, controller, x0
-    try:
-        sim = conditioning_transform(closed_loop(system, controller))
-    except (np.linalg.LinAlgError, ValueError, FTCError):
-        return system, controller, x0
-    if not 100.0 < sim.condition < 1e12:
+    sim = None if controller.n_c else loop_similarity(system, controller)
+    if sim is None:
         return system, controller, x0
     T, Ti = np.asarray(sim.T, dtype=float), np.asarray(sim.T_inv, dtype=float)
 

@@ -33,12 +33,13 @@ from typing import Any
 import numpy as np
 import scipy.linalg
 
+from ...controllers.controller import Controller
 from ...errors import FTCError
 from ...model.system import FTCSystem, Matrix
 from ..closedloop import ClosedLoop
 from .sampled import SampledLoop
 
-__all__ = ["CONDITION", "BAND", "io_scales", "Coordinates", "coordinates"]
+__all__ = ["CONDITION", "BAND", "io_scales", "loop_similarity", "Coordinates", "coordinates"]
 
 #: A similarity is used only when the conditioning transform has a larger condition number.
 CONDITION = 100.0
@@ -109,21 +110,29 @@ class Coordinates:
         return [T_inv @ J @ T for J in jumps]
 
 
+def loop_similarity(system: FTCSystem, controller: Controller) -> Any | None:
+    """The :func:`~ftc_verify.analysis.conditioning.conditioning_transform` of the continuous
+    closed loop of ``system`` and ``controller`` when its condition number is between
+    :data:`CONDITION` and ``1e12``; ``None`` otherwise (no transform can be formed, or the
+    loop as written is as well conditioned)."""
+    from ..closedloop import closed_loop
+    from ..conditioning import conditioning_transform
+
+    try:
+        sim = conditioning_transform(closed_loop(system, controller))
+    except (np.linalg.LinAlgError, ValueError, FTCError):  # no transform: the loop as written
+        return None
+    return sim if CONDITION < float(sim.condition) < 1e12 else None
+
+
 def coordinates(aug: ClosedLoop, jumps: list[Matrix], loop: SampledLoop, system: FTCSystem) -> Coordinates:
     """:class:`Coordinates` of the module docstring for the float augmented loop ``aug`` of
     ``loop`` (balanced coordinates, :attr:`SampledLoop.scale`): ``T`` acts on the plant and
     controller states as the conditioning transform of the continuous closed loop, the held
     input stays; then :func:`io_scales` of the transformed loop."""
-    from ..closedloop import closed_loop
-    from ..conditioning import conditioning_transform
-
     plain = Coordinates()
-    try:
-        sim = conditioning_transform(closed_loop(system, loop.controller))
-        cond = float(sim.condition)
-    except (np.linalg.LinAlgError, ValueError, FTCError):  # no transform: the loop as written
-        cond = math.nan
-    if CONDITION < cond < 1e12:
+    sim = loop_similarity(system, loop.controller)
+    if sim is not None:
         idx = np.r_[0:loop.n, loop.n + loop.nu:loop.d]
         sc = loop.scale[idx]
         T, T_inv = np.eye(loop.d), np.eye(loop.d)
