@@ -106,10 +106,10 @@ def _adjoint(A: Any, Ys: list[Any], s: int, q_row: Any) -> Any:
 def _piece_parts(A: Any, Y0: list[Any], Y1: list[Any], C: list[Any] | None, s: int, q_row: Any,
                  rate: Any) -> tuple[Any, Any, Any]:
     r"""The coefficients :math:`F_0, F_1, F_2` of :math:`F(t) = F_0 + t F_1 + t^2 F_2`,
-    :math:`F = dY_s/d	au + (\mathcal L^* Y)_s` on a piece, :math:`	au = 	au_k + t
+    :math:`F = dY_s/d\tau + (\mathcal L^* Y)_s` on a piece, :math:`\tau = \tau_k + t
     \delta`, ``rate`` :math:`= 1/\delta`, :math:`Y(t) = (1 - t) Y^k + t Y^{k+1} + t (1 - t)
     C^k` (``C`` ``None``: affine, :math:`F_2 = 0`). With :math:`E = Y^{k+1} - Y^k`:
-    :math:`dY/d	au = (E + (1 - 2t) C) / \delta`, so :math:`F_0 = (E_s + C_s)/\delta +
+    :math:`dY/d\tau = (E + (1 - 2t) C) / \delta`, so :math:`F_0 = (E_s + C_s)/\delta +
     \mathcal L^*(Y^k)`, :math:`F_1 = -2 C_s / \delta + \mathcal L^*(E + C)`,
     :math:`F_2 = -\mathcal L^*(C)`."""
     E = [b - a for a, b in zip(Y0, Y1)]
@@ -217,26 +217,18 @@ def clock_certificate(loop: SampledLoop, h: float, pieces: int = 4,
 def prove_clock(loop: SampledLoop, cert: ClockCertificate) -> bool:
     """``True`` only if ``cert`` certifies mean-square stability over the whole rate box
     at its period (module docstring), every condition proved in ball arithmetic on the
-    numbers as written: the flows by :func:`~ftc_verify.analysis.exact.enclose`, the gains
+    numbers as written: the flows by :func:`~ftc_verify.analysis.moments.sampled_proof.written_flow`, the gains
     by :func:`~ftc_verify.analysis.moments.sampled_gamma.sample_jumps`, the rates of each
     vertex by :func:`~ftc_verify.analysis.exact.ball_generator`, the period by
     :meth:`~ftc_verify.analysis.moments.sampled.SampledLoop.period_ball`."""
-    import flint
-
-    from ..exact import ball_generator, enclose
-    from ..rigorous import Ball, ball, ball_bmat, precision, proven_positive_definite
+    from ..exact import ball_generator
+    from ..rigorous import ball, ball_bmat, precision, proven_positive_definite
     from .sampled_gamma import sample_jumps
+    from .sampled_proof import written_flow
 
     h, pieces, quadratic = cert.h, cert.pieces, bool(cert.curvatures)
     with precision():
-        flows = []
-        sc = loop.scale
-        for A in loop.flow:
-            B = flint.arb_mat(A.shape[0], A.shape[1])
-            for i, j in zip(*np.nonzero(A)):
-                factor = float(sc[j] / sc[i])  # a power of two: exact
-                B[int(i), int(j)] = enclose(float(A[i, j]) / factor, loop.literals) * factor
-            flows.append(Ball(B))
+        flows = [written_flow(loop, A) for A in loop.flow]
         Yb = [[ball(y) for y in row] for row in cert.nodes]
         Cb = [[ball(c) for c in row] for row in cert.curvatures]
         if not all(proven_positive_definite(y) for row in Yb for y in row):

@@ -103,7 +103,7 @@ from .sampled_taylor import FIRST_ORDER_LIMIT, affine_stable, identity_stack, pe
 from .stability import duplication_matrix, unvech_stack
 
 __all__ = ["FIRST_ORDER_LIMIT", "MapParts", "BoxVerdict", "ball_resets", "ball_one_period_map", "prove_stable", "prove_unstable",
-           "prove_point_unstable", "box_verdict", "SPLIT_WIDTH_WEIGHT"]
+           "prove_point_unstable", "box_verdict", "SPLIT_WIDTH_WEIGHT", "written_flow"]
 
 
 def _flint() -> Any:
@@ -112,7 +112,7 @@ def _flint() -> Any:
     return flint
 
 
-def _written_flow(loop: SampledLoop, A: Matrix) -> Ball:
+def written_flow(loop: SampledLoop, A: Matrix) -> Ball:
     """The ball of a balanced flow matrix :math:`\\bar A_i` with the user's numbers as
     written: entry :math:`(i, j)` is the written :math:`A_{ij}` (or :math:`B_{ij}`) times the
     power of two :math:`s_j / s_i` of the balancing (exact)."""
@@ -194,7 +194,7 @@ class MapParts:
         eye = ball(np.eye(loop.d))
         blocks = []
         for A in loop.flow:
-            Ab = _written_flow(loop, A)
+            Ab = written_flow(loop, A)
             blocks.append(ball(Ld) @ (ball_kron(eye, Ab) + ball_kron(Ab, eye)) @ ball(Dd))
         P = loop.restriction()
         restrict = ball(np.asarray(Lr @ np.kron(P, P) @ Dd, dtype=float))  # 0/1 products of 0/1 matrices: exact
