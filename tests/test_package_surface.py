@@ -29,3 +29,16 @@ def test_import_loads_no_stage() -> None:
     code = "import sys, ftc_verify; print(sorted(m for m in sys.modules if m.startswith(('ftc_verify.', 'numpy'))))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
     assert out.stdout.strip() == "[]"
+
+
+def test_every_subpackage_is_installed_by_pip_install_dot() -> None:
+    """``pip install .`` (the README's main job) installs the packages ``pyproject.toml``
+    lists, not the tree: each package under ``ftc_verify/`` must be listed (the sampled-loop
+    stages in ``analysis.moments`` and ``risk`` were missing, found by a fresh install)."""
+    import tomllib
+    from pathlib import Path
+
+    root = Path(ftc_verify.__file__).resolve().parent
+    listed = set(tomllib.loads((root.parent / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    found = {".".join(p.parent.relative_to(root.parent).parts) for p in root.rglob("__init__.py")}
+    assert found - listed == set()
