@@ -520,6 +520,10 @@ def sampled_analysis(system: FTCSystem, controller: Controller, period: float, *
     loop = dataclasses.replace(SampledLoop.build(system, controller), written=(float(period),))
     verdict = box_verdict(loop, period, max_boxes=max_boxes, max_seconds=max_seconds / 3)
     rho, where = worst_radius(loop, period, rate_points(loop.chain))
+    if verdict.verdict == "undecided" and not math.isfinite(rho):  # the map overflows float64: decide it in Arb
+        from .sampled_overflow import overflow_verdict
+
+        verdict = overflow_verdict(loop, period, where) or verdict
     lo, hi = scan_range(loop, period)
     intervals: tuple[tuple[float, float], ...] = ()
     hm = hu = None
