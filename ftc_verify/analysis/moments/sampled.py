@@ -125,6 +125,10 @@ class SampledLoop:
         such a period as its decimal text when the controller file has it, else as the
         ball of every decimal read as that float; the periods the analysis chooses (the
         scan, the ``h_max`` bracket) are exact.
+    memo : dict
+        Float64 work derived from the loop and a period, computed once
+        (:func:`~ftc_verify.analysis.moments.sampled_frame.float_frame`); empty in a copy
+        made by ``dataclasses.replace``.
     """
 
     chain: JointChain
@@ -139,6 +143,7 @@ class SampledLoop:
     speed: float
     literals: Mapping[float, tuple[str, ...]] | None = None
     written: tuple[float, ...] = ()
+    memo: dict[Any, Any] = dataclasses.field(default_factory=dict, init=False, repr=False, compare=False)
 
     @classmethod
     def build(cls, system: FTCSystem, controller: Controller) -> SampledLoop:
