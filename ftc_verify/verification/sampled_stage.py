@@ -127,7 +127,8 @@ def sampled_mc_stage(system: FTCSystem, controller: Controller, step: float, hor
     with probability about ``alpha``), widened by ``1e-9`` relative for rounding. Not run
     when the sampled loop was not analysed or is proved not mean-square stable (the check
     fails: no finite expectation; at ``--step 1e4`` its 1000 paths over 10 periods held
-    1e8 jumps of the chain, 2.6 GB, and the run reached 7 GB); not decided (reported, passed) when fewer than
+    1e8 jumps of the chain, 2.6 GB, and the run reached 7 GB); not decided (reported,
+    passed) when fewer than
     :data:`MC_MIN_JUMPED` paths saw a jump of the chain: the paths without one all have
     the same energy, so the sample spread would miss the jumps' share of the mean and the
     interval's stated false-failure probability would not hold."""
