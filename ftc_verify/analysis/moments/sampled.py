@@ -114,7 +114,12 @@ class SampledLoop:
         the balanced coordinates :math:`z = \\operatorname{diag}(scale)\\, \\tilde z`
         (a similarity, exact in floating point; the spectrum is the same).
     speed : float
-        The largest closed-loop rate (for the range of periods scanned).
+        The largest closed-loop rate (for the range of periods scanned): 2-norms of the
+        continuous loop's matrices in the coordinates of
+        :func:`~ftc_verify.analysis.moments.sampled_frame.loop_similarity` when it applies
+        (in the user's, a similarity of condition 1e3 made it 1e6 times larger and the scan
+        start at ``3e-11``; condition 1e4 in units of condition 1e6 at ``3e-14``, where
+        float64 rounding put the radius above 1).
     literals : mapping or None
         The numbers of the system and controller files as written (float -> decimal
         texts, :func:`ftc_verify.model.files.read_toml`); the proofs enclose those
@@ -181,6 +186,11 @@ class SampledLoop:
         flows = [Ab / scale[:, None] * scale[None, :] for Ab in flows]
         modes_part = second_moment_matrix(flows, np.zeros((S, S)))
         loop = closed_loop(system, controller)
+        from .sampled_frame import loop_similarity  # the one rule for the loop's coordinates
+
+        sim = loop_similarity(system, controller)
+        if sim is not None:  # norms in well-chosen coordinates: a similarity does not change the loop's speed
+            loop = sim.apply(loop)
         rates = [float(np.linalg.norm(A, 2)) for A in loop.A]
         rates.append(float(np.max(np.abs(system.chain.generator(system.chain.rate_max)))))
         literals: dict[float, tuple[str, ...]] | None = None
