@@ -105,3 +105,19 @@ def test_analyze_at_an_overflowing_period_proves_instability(capsys: pytest.Capt
     assert sampled["spectral_radius"] is None
     assert "overflows float64" in sampled["proof"] and "2^28860" in sampled["proof"]
     assert sampled["h_max"] is not None and sampled["h_max"] < 0.1
+
+
+def test_two_sided_monte_carlo_skipped_on_a_loop_proved_unstable() -> None:
+    """``verify``'s sampled Monte Carlo has no finite expectation to compare with on a loop
+    proved NOT stable: its check fails at once, without drawing paths (at ``--step 1e4``
+    its 1000 paths over 1e5 time units were 1e8 jumps of the chain and the run 7 GB). With
+    the period 1 and horizon 10 a regression would simulate (and report divergence)."""
+    from ftc_verify.verification.sampled_stage import sampled_mc_stage
+
+    system = load_system(ROOT / "examples" / "paper.toml")
+    controller = load_controller(ROOT / "examples" / "paper_gains.toml")
+    res = sampled_analysis(system, controller, 1.0, h_max=False, max_seconds=6.0)
+    assert res.verdict == "not stable", res.proof
+    found, check = sampled_mc_stage(system, controller, 1.0, 10.0, 10, 1, res)
+    assert found is None and not check.ok
+    assert "proved NOT mean-square stable" in check.detail
