@@ -38,6 +38,14 @@ that :math:`\rho_e \in [2, 4)`. The Collatz-Wielandt argument of
 and the loop is not mean-square stable at that rate array -- for the numbers as
 written. Only a point of the box is needed for instability, as at ordinary periods.
 
+A period the user wrote is the ball of every decimal that reads as it (radius
+:math:`10^{-12}` at :math:`10^4`); a dynamic controller's :math:`(\Phi_c, \Gamma_c)` is one
+Arb exponential of that ball times :math:`[[A_c, B_c], [0, 0]]`
+(:func:`~ftc_verify.analysis.moments.sampled_proof.ball_resets`), whose radius then grows
+with :math:`\|A_c\| h`: the observer of ``paper_observer.toml`` at :math:`h = 10^4`
+stays "undecided" (its map's radii :math:`10^{15}` times its entries; with the resets at
+the exact float period the proof goes through at 128 bits, radii :math:`10^{-10}`).
+
 **The stable side.** A loop whose map stays finite is decided by the ordinary proofs:
 the float64 ball arithmetic of :mod:`~ftc_verify.analysis.moments.fast_balls` bounds
 every underflow (its :math:`\eta` terms), so moments that underflow at a long period
