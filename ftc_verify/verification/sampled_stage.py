@@ -142,7 +142,7 @@ def sampled_mc_stage(system: FTCSystem, controller: Controller, step: float, hor
     name = f"Monte Carlo vs exact (sampled loop, h = {step:g})"
     if sampled is None:
         return None, Check(name, True, "not compared: the sampled loop was not analysed")
-    if sampled.verdict == "not stable":  # no finite expectation to compare with (and the paths diverge)
+    if getattr(sampled, "verdict", None) == "not stable":  # no finite expectation to compare with (and the paths diverge)
         return None, Check(name, False, "not compared: the sampled loop is proved NOT mean-square stable")
     H = min(horizon, MC_PERIODS * step)
     nominal = system.nominal()
