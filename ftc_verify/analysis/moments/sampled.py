@@ -188,8 +188,7 @@ class SampledLoop:
         loop = closed_loop(system, controller)
         from .sampled_frame import loop_similarity  # the one rule for the loop's coordinates
 
-        sim = loop_similarity(system, controller)
-        if sim is not None:  # norms in well-chosen coordinates: a similarity does not change the loop's speed
+        if (sim := loop_similarity(system, controller)) is not None:  # a similarity does not change the speed
             loop = sim.apply(loop)
         rates = [float(np.linalg.norm(A, 2)) for A in loop.A]
         rates.append(float(np.max(np.abs(system.chain.generator(system.chain.rate_max)))))
@@ -303,8 +302,9 @@ def one_period_map(loop: SampledLoop, h: float, rates: Matrix, *, scaled: bool =
     loop's own (``scaled=False``) or in those (``scaled=True``)."""
     Q = loop.chain.generator(rates)
     vd = loop.d * (loop.d + 1) // 2
-    F = scipy.linalg.expm((loop.modes_part + np.kron(Q.T, np.eye(vd))) * float(h))
-    T = assemble_map(loop, F, h)
+    with np.errstate(over="ignore", invalid="ignore"):  # an overflow is a result: inf (spectral_radius)
+        F = scipy.linalg.expm((loop.modes_part + np.kron(Q.T, np.eye(vd))) * float(h))
+        T = assemble_map(loop, F, h)
     if scaled:
         return T
     w = loop.vech_weights()
@@ -370,19 +370,20 @@ def scan_periods(loop: SampledLoop, lo: float, hi: float) -> tuple[Matrix, Matri
     rho = np.zeros(count)
     gens = [loop.modes_part + np.kron(loop.chain.generator(p).T, np.eye(vd)) for p in rate_points(loop.chain)]
     rings: list[list[Matrix]] = [[] for _ in gens]  # the last octave's flows, flow k at k % K
-    for k, h in enumerate(hs):
-        for G, ring in zip(gens, rings):
-            if k < K:
-                F = scipy.linalg.expm(G * float(h))
-                ring.append(F)
-            else:
-                F = ring[k % K] @ ring[k % K]
-                ring[k % K] = F
-            if rho[k] >= 1.0:
-                continue  # unstable at this period already: the other points cannot change that
-            T = assemble_map(loop, F, float(h))
-            r = float(np.max(np.abs(scipy.linalg.eigvals(T, check_finite=False)))) if np.all(np.isfinite(T)) else math.inf
-            rho[k] = max(rho[k], r)
+    with np.errstate(over="ignore", invalid="ignore"):  # an overflow is a result: rho inf
+        for k, h in enumerate(hs):
+            for G, ring in zip(gens, rings):
+                if k < K:
+                    F = scipy.linalg.expm(G * float(h))
+                    ring.append(F)
+                else:
+                    F = ring[k % K] @ ring[k % K]
+                    ring[k % K] = F
+                if rho[k] >= 1.0:
+                    continue  # unstable at this period already: the other points cannot change that
+                T = assemble_map(loop, F, float(h))
+                r = float(np.max(np.abs(scipy.linalg.eigvals(T, check_finite=False)))) if np.all(np.isfinite(T)) else math.inf
+                rho[k] = max(rho[k], r)
     return hs, rho
 
 
