@@ -22,11 +22,11 @@ def test_overflowing_map_has_infinite_radius_without_lapack() -> None:
     assert spectral_radius(loop, 0.05, np.asarray(rates)) < 1.0
 
 
-def test_analyze_at_an_overflowing_period_is_undecided_not_an_internal_error(
+def test_analyze_at_an_overflowing_period_is_proved_unstable_not_an_internal_error(
         capsys: pytest.CaptureFixture[str]) -> None:
     code = main(["analyze", "examples/paper.toml", "--gains", "examples/paper_gains.toml", "--period", "1e4"])
     out, err = capsys.readouterr()
-    assert code == 5, (out, err)
+    assert code == 1, (out, err)  # proved in Arb (analysis.moments.sampled_overflow)
     assert "internal error" not in err and "Traceback" not in err
-    assert "UNDECIDED" in out
+    assert "NOT mean-square stable (proved)" in out
     assert "NOT certified" in out  # no gain certificate is attempted at radius inf

@@ -114,7 +114,12 @@ class SampledLoop:
         the balanced coordinates :math:`z = \\operatorname{diag}(scale)\\, \\tilde z`
         (a similarity, exact in floating point; the spectrum is the same).
     speed : float
-        The largest closed-loop rate (for the range of periods scanned).
+        The largest closed-loop rate (for the range of periods scanned): 2-norms of the
+        continuous loop's matrices in the coordinates of
+        :func:`~ftc_verify.analysis.moments.sampled_frame.loop_similarity` when it applies
+        (in the user's, a similarity of condition 1e3 made it 1e6 times larger and the scan
+        start at ``3e-11``; condition 1e4 in units of condition 1e6 at ``3e-14``, where
+        float64 rounding put the radius above 1).
     literals : mapping or None
         The numbers of the system and controller files as written (float -> decimal
         texts, :func:`ftc_verify.model.files.read_toml`); the proofs enclose those
@@ -125,6 +130,10 @@ class SampledLoop:
         such a period as its decimal text when the controller file has it, else as the
         ball of every decimal read as that float; the periods the analysis chooses (the
         scan, the ``h_max`` bracket) are exact.
+    memo : dict
+        Float64 work derived from the loop and a period, computed once
+        (:func:`~ftc_verify.analysis.moments.sampled_frame.float_frame`); empty in a copy
+        made by ``dataclasses.replace``.
     """
 
     chain: JointChain
@@ -139,6 +148,7 @@ class SampledLoop:
     speed: float
     literals: Mapping[float, tuple[str, ...]] | None = None
     written: tuple[float, ...] = ()
+    memo: dict[Any, Any] = dataclasses.field(default_factory=dict, init=False, repr=False, compare=False)
 
     @classmethod
     def build(cls, system: FTCSystem, controller: Controller) -> SampledLoop:
@@ -176,6 +186,10 @@ class SampledLoop:
         flows = [Ab / scale[:, None] * scale[None, :] for Ab in flows]
         modes_part = second_moment_matrix(flows, np.zeros((S, S)))
         loop = closed_loop(system, controller)
+        from .sampled_frame import loop_similarity  # the one rule for the loop's coordinates
+
+        if (sim := loop_similarity(system, controller)) is not None:  # a similarity does not change the speed
+            loop = sim.apply(loop)
         rates = [float(np.linalg.norm(A, 2)) for A in loop.A]
         rates.append(float(np.max(np.abs(system.chain.generator(system.chain.rate_max)))))
         literals: dict[float, tuple[str, ...]] | None = None
@@ -288,8 +302,9 @@ def one_period_map(loop: SampledLoop, h: float, rates: Matrix, *, scaled: bool =
     loop's own (``scaled=False``) or in those (``scaled=True``)."""
     Q = loop.chain.generator(rates)
     vd = loop.d * (loop.d + 1) // 2
-    F = scipy.linalg.expm((loop.modes_part + np.kron(Q.T, np.eye(vd))) * float(h))
-    T = assemble_map(loop, F, h)
+    with np.errstate(over="ignore", invalid="ignore"):  # an overflow is a result: inf (spectral_radius)
+        F = scipy.linalg.expm((loop.modes_part + np.kron(Q.T, np.eye(vd))) * float(h))
+        T = assemble_map(loop, F, h)
     if scaled:
         return T
     w = loop.vech_weights()
@@ -355,19 +370,20 @@ def scan_periods(loop: SampledLoop, lo: float, hi: float) -> tuple[Matrix, Matri
     rho = np.zeros(count)
     gens = [loop.modes_part + np.kron(loop.chain.generator(p).T, np.eye(vd)) for p in rate_points(loop.chain)]
     rings: list[list[Matrix]] = [[] for _ in gens]  # the last octave's flows, flow k at k % K
-    for k, h in enumerate(hs):
-        for G, ring in zip(gens, rings):
-            if k < K:
-                F = scipy.linalg.expm(G * float(h))
-                ring.append(F)
-            else:
-                F = ring[k % K] @ ring[k % K]
-                ring[k % K] = F
-            if rho[k] >= 1.0:
-                continue  # unstable at this period already: the other points cannot change that
-            T = assemble_map(loop, F, float(h))
-            r = float(np.max(np.abs(scipy.linalg.eigvals(T, check_finite=False)))) if np.all(np.isfinite(T)) else math.inf
-            rho[k] = max(rho[k], r)
+    with np.errstate(over="ignore", invalid="ignore"):  # an overflow is a result: rho inf
+        for k, h in enumerate(hs):
+            for G, ring in zip(gens, rings):
+                if k < K:
+                    F = scipy.linalg.expm(G * float(h))
+                    ring.append(F)
+                else:
+                    F = ring[k % K] @ ring[k % K]
+                    ring[k % K] = F
+                if rho[k] >= 1.0:
+                    continue  # unstable at this period already: the other points cannot change that
+                T = assemble_map(loop, F, float(h))
+                r = float(np.max(np.abs(scipy.linalg.eigvals(T, check_finite=False)))) if np.all(np.isfinite(T)) else math.inf
+                rho[k] = max(rho[k], r)
     return hs, rho
 
 
@@ -520,6 +536,10 @@ def sampled_analysis(system: FTCSystem, controller: Controller, period: float, *
     loop = dataclasses.replace(SampledLoop.build(system, controller), written=(float(period),))
     verdict = box_verdict(loop, period, max_boxes=max_boxes, max_seconds=max_seconds / 3)
     rho, where = worst_radius(loop, period, rate_points(loop.chain))
+    if verdict.verdict == "undecided" and not math.isfinite(rho):  # the map overflows float64: decide it in Arb
+        from .sampled_overflow import overflow_verdict
+
+        verdict = overflow_verdict(loop, period, where) or verdict
     lo, hi = scan_range(loop, period)
     intervals: tuple[tuple[float, float], ...] = ()
     hm = hu = None

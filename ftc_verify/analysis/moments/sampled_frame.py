@@ -22,6 +22,11 @@ from the balls of the numbers as written, with :math:`T` an exact float matrix a
 proved is the program for a loop congruent to the written one: the same gain. The proved
 lower bound (:mod:`~ftc_verify.analysis.moments.sampled_lower`) is searched and proved in
 the same similarity (without the scales).
+
+Both stages start from the same float64 work -- the augmented loop
+(:func:`~ftc_verify.analysis.moments.sampled_gamma.augmented_loop`), the sample jumps
+(:func:`~ftc_verify.analysis.moments.sampled_gamma.sample_jumps`) and :func:`coordinates`
+of them -- which :func:`float_frame` computes once per loop and period.
 """
 
 from __future__ import annotations
@@ -39,7 +44,7 @@ from ...model.system import FTCSystem, Matrix
 from ..closedloop import ClosedLoop
 from .sampled import SampledLoop
 
-__all__ = ["CONDITION", "BAND", "io_scales", "loop_similarity", "Coordinates", "coordinates"]
+__all__ = ["CONDITION", "BAND", "io_scales", "loop_similarity", "Coordinates", "coordinates", "FloatFrame", "float_frame"]
 
 #: A similarity is used only when the conditioning transform has a larger condition number.
 CONDITION = 100.0
@@ -146,3 +151,32 @@ def coordinates(aug: ClosedLoop, jumps: list[Matrix], loop: SampledLoop, system:
         plain = Coordinates(1.0, 1.0, T, T_inv)
     sw, sz = io_scales(plain.loop(aug))
     return Coordinates(sw, sz, plain.T, plain.T_inv)
+
+
+@dataclass(frozen=True, eq=False)
+class FloatFrame:
+    """The float64 augmented loop ``aug`` (balanced coordinates, ``Bw`` and ``Cz`` as
+    written), its sample jumps ``jumps`` (:math:`J_s = R_s P`) and :func:`coordinates` of
+    them, of one loop at one period (:func:`float_frame`)."""
+
+    aug: ClosedLoop
+    jumps: tuple[Matrix, ...]
+    coords: Coordinates
+
+
+def float_frame(loop: SampledLoop, system: FTCSystem, h: float) -> FloatFrame:
+    """:class:`FloatFrame` of ``loop`` (built from ``system``) at period ``h``: computed on
+    the first call and kept in ``loop.memo`` (the gain certificate and the lower bound of
+    :mod:`~ftc_verify.analysis.moments.sampled_gains` share it; the same float64
+    operations as computing it afresh, so the same bits)."""
+    from .sampled_gamma import augmented_loop, sample_jumps
+
+    key = ("float_frame", float(h), id(system))
+    found = loop.memo.get(key)
+    if found is not None and found[0] is system:
+        return found[1]
+    aug = augmented_loop(loop, system)
+    jumps = sample_jumps(loop, h)
+    frame = FloatFrame(aug, tuple(jumps), coordinates(aug, jumps, loop, system))
+    loop.memo[key] = (system, frame)
+    return frame

@@ -106,7 +106,7 @@ from ..conic import Affine, Rows, affine_bmat, scalar_variable, svec_index, sym_
 from ..lmi import BlockSpec, block_specs, lyapunov_block
 from .sampled import SampledLoop
 from .sampled_energy import OMEGAS, gain_lower_estimate
-from .sampled_frame import Coordinates, coordinates, io_scales
+from .sampled_frame import Coordinates, float_frame, io_scales
 
 __all__ = ["MARGIN_TAU", "PIECES", "clock_instance", "MAX_ROWS", "GAP_RTOL", "GAIN_RTOL", "OMEGAS", "augmented_loop",
            "io_scale", "sample_jumps", "SampledGamma", "SampledPerformance", "sampled_gamma", "gain_lower_estimate",
@@ -443,12 +443,12 @@ def sampled_gamma(system: FTCSystem, controller: Controller, period: float, *, r
     h = check_period(period, "period")
     t0 = time.process_time()
     loop = SampledLoop.build(system, controller) if loop is None else loop
-    coords = coordinates(augmented_loop(loop, system), sample_jumps(loop, h), loop, system)
+    coords = (frame := float_frame(loop, system, h)).coords  # shared with the lower bound (sampled_lower)
     aug = coords.loop(augmented_loop(loop, system, w_scale=coords.w_scale, z_scale=coords.z_scale))
     robust = robust and aug.uncertain
     if not robust:
         aug = aug.nominal()
-    jumps = coords.jumps(sample_jumps(loop, h))
+    jumps = coords.jumps(list(frame.jumps))
     whys: list[str] = []
     best: tuple[float, tuple[int, int], float] | None = None
     for item in pieces:

@@ -369,13 +369,17 @@ def _moved(loop: SampledLoop, system: FTCSystem, h: float, balls: bool) -> tuple
     from the numbers as written with the ball of the exact :math:`T^{-1}`: the energies are
     those of the written loop. In a similarity of condition 1e3 the proof in the loop's own
     coordinates kept 0.18 of the float64 value."""
-    from .sampled_frame import Coordinates, coordinates
+    from .sampled_frame import Coordinates, float_frame
     from .sampled_gamma import augmented_loop, sample_jumps
 
-    aug = augmented_loop(loop, system, balls=balls)
+    shared = float_frame(loop, system, h)  # shared with the gain certificate (sampled_gamma)
     P = loop.restriction()
-    jumps = sample_jumps(loop, h, balls=balls, literals=system.literals)
-    found = coordinates(augmented_loop(loop, system), sample_jumps(loop, h), loop, system)
+    if balls:
+        aug = augmented_loop(loop, system, balls=True)
+        jumps = sample_jumps(loop, h, balls=True, literals=system.literals)
+    else:
+        aug, jumps = shared.aug, list(shared.jumps)
+    found = shared.coords
     if found.T is None:
         return aug, [J @ P.T for J in jumps], np.eye(loop.r)
     frame = Coordinates(1.0, 1.0, found.T, found.T_inv)
