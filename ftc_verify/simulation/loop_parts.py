@@ -295,6 +295,21 @@ class PathRecorder:
         return record_from_rows(self.plan, self.law, self.session.n, self.read_rows, self.U, self.Y, self.XC)
 
 
+def _unconverted(fn: Any) -> Any:
+    """The C function of the ctypes function ``fn`` without its ``argtypes``: called with
+    ctypes objects of exactly those types (a ``c_void_p``, ctypes arrays, a ``c_size_t``,
+    ``c_double``, ``c_int``), it passes them as they are, with no conversion per call (the
+    same call in C, a third cheaper); returns the ``int`` status. A Python callable
+    standing in for the C function (a test's) gets the ``c_double`` arguments' values."""
+    if isinstance(fn, ctypes._CFuncPtr):  # type: ignore[attr-defined]
+        return ctypes.CFUNCTYPE(ctypes.c_int)(ctypes.cast(fn, ctypes.c_void_p).value or 0)
+
+    def call(*args: Any) -> Any:
+        return fn(*(a.value if isinstance(a, ctypes.c_double) else a for a in args))
+
+    return call
+
+
 class StaticLoop:
     r"""One path's loop (:meth:`~ftc_verify.simulation.supervisor.Supervisor.run`, steps
     1-4) for a static controller on an FMI 2.0 FMU without feedthrough or operating point,
@@ -347,27 +362,32 @@ class StaticLoop:
         :class:`~ftc_verify.plants.fmu_session.FMICallError` where a call failed."""
         s, inputs, plan, rec = self.session, self.inputs, self.inputs.plan, self.recorder
         get, put, do_step, c = s.raw_calls()  # type: ignore[misc]
+        get, put, do_step = _unconverted(get), _unconverted(put), _unconverted(do_step)
         before, group, n, nu = rec.before, inputs.group, s.n, s.nu
         vr_x, nx, buf_x, vr_uw, nuw, buf_uw = before.vr, before.n, before.buf, group.vr, group.n, group.buf
-        # the arguments as the ctypes objects of the functions' argtypes: no conversion per call
+        # the arguments as ctypes objects of the C types: passed as they are (_unconverted)
         c, c_nx, c_nuw, c_true = ctypes.c_void_p(c), ctypes.c_size_t(nx), ctypes.c_size_t(nuw), ctypes.c_int(1)
+        double, h_last, c_h = ctypes.c_double, math.nan, ctypes.c_double(math.nan)
         near = math.sqrt(bound_sq) * (1 - 1e-6)  # sum |x_i| <= near: |x|^2 <= bound_sq however summed (Notes)
         read = np.frombuffer(buf_x, dtype=np.float64, count=nx)  # type: ignore[call-overload]
         x, v = read[:n], read[n:n + self.law.controller.n_v] if self.law.measured else read[:n]
         u, dot, Dc, entry = inputs.u, np.dot, self.law.Dc, inputs.entry
+        # u = gain.dot(v): numpy.dot's own product (ndarray.dot and numpy.dot are one C function,
+        # PyArray_MatrixProduct2), without numpy.dot's dispatch per call
         gain, held = Dc[entry], [0.0] * nu  # u before the first sample: zero, as in PathController
         W = plan.W.reshape(len(plan.t), -1).tolist() if s.nw else None
         times, steps, samples = plan.t.tolist(), np.diff(plan.t).tolist(), plan.sample
         last, event, rows, U = len(times) - 1, inputs.next_event, [], []
-        k, stage = 0, ""
+        at: Any = memoryview(monitor) if monitor.flags.c_contiguous and monitor.dtype == np.float64 else monitor  # type: ignore[arg-type]
+        k, stage, wanted = 0, "", entry
         try:
             for k in range(last + 1):
                 if k == event:
-                    inputs.switch(k)
+                    wanted = inputs.switch(k)
                     event = inputs.next_event
                 sample = samples[k]
-                if sample and entry != inputs.entry:
-                    entry = inputs.entry
+                if sample and entry != wanted:
+                    entry = wanted
                     gain = Dc[entry]
                 stage = "x"
                 status = get(c, vr_x, c_nx, buf_x)
@@ -379,7 +399,7 @@ class StaticLoop:
                     self.stop = k
                     break
                 if sample:
-                    dot(gain, v, out=u)
+                    gain.dot(v, out=u)
                     held = buf_uw[:nu]  # type: ignore[assignment]  # c_double slices are floats
                     if W is not None:
                         buf_uw[nu:nuw] = W[k]
@@ -391,8 +411,11 @@ class StaticLoop:
                 if k == last:
                     break
                 stage = "step"
-                monitor[1] = times[k]
-                status = do_step(c, times[k], steps[k], c_true)
+                t, h = times[k], steps[k]
+                at[1] = t
+                if h != h_last:
+                    c_h, h_last = double(h), h
+                status = do_step(c, double(t), c_h, c_true)
                 if status > 1:
                     raise s.failed("fmi2DoStep", status, ())
                 if s.pending is not None:
