@@ -54,7 +54,7 @@ from .paths import ChainPath
 from .records import SimulationResult
 from .spec import SimulationSpec
 
-__all__ = ["POLL_SECONDS", "MAX_PROCESSES", "PlantProcess", "default_processes", "plant_processes", "run_isolated"]
+__all__ = ["POLL_SECONDS", "MAX_PROCESSES", "IMPORT_AHEAD", "PlantProcess", "default_processes", "plant_processes", "run_isolated"]
 
 #: How often the parent looks at the child while no message arrives (seconds).
 POLL_SECONDS = 0.1
@@ -89,11 +89,26 @@ def _die_with_parent() -> None:
         pass
 
 
+#: What the child imports while it waits for its job (the job's generator, the FMU's loader):
+#: a caller that starts it early (``verify``) has them ready when the job comes.
+IMPORT_AHEAD = ("numpy.random", "fmpy.fmi2", "fmpy.fmi3", "fmpy.model_description")
+
+
+def _import_ahead() -> None:
+    """Import :data:`IMPORT_AHEAD`; one that fails is left to the code that needs it."""
+    import importlib
+
+    for name in IMPORT_AHEAD:
+        with contextlib.suppress(Exception):
+            importlib.import_module(name)
+
+
 def _child_main(workdir: str, fd: int) -> None:
     """The child: every batch on one supervisor; results, log lines and errors to ``fd``."""
     from .supervisor import Supervisor
 
     _die_with_parent()
+    _import_ahead()
     job = pickle.load(sys.stdin.buffer)
     out = os.fdopen(fd, "wb")
     with open(Path(workdir) / _MONITOR, "r+b") as f:
