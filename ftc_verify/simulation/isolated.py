@@ -54,7 +54,7 @@ from .paths import ChainPath
 from .records import SimulationResult
 from .spec import SimulationSpec
 
-__all__ = ["POLL_SECONDS", "MAX_PROCESSES", "IMPORT_AHEAD", "PlantProcess", "default_processes", "plant_processes", "run_isolated"]
+__all__ = ["POLL_SECONDS", "MAX_PROCESSES", "PlantProcess", "default_processes", "plant_processes", "run_isolated"]
 
 #: How often the parent looks at the child while no message arrives (seconds).
 POLL_SECONDS = 0.1
@@ -89,18 +89,15 @@ def _die_with_parent() -> None:
         pass
 
 
-#: What the child imports while it waits for its job (the job's generator, the FMU's loader):
-#: a caller that starts it early (``verify``) has them ready when the job comes.
-IMPORT_AHEAD = ("numpy.random", "fmpy.fmi2", "fmpy.fmi3", "fmpy.model_description")
-
-
 def _import_ahead() -> None:
-    """Import :data:`IMPORT_AHEAD`; one that fails is left to the code that needs it."""
-    import importlib
+    """What a child imports while it waits for its job: the job's generator
+    (``numpy.random``) and fmpy's FMU loader (:func:`~ftc_verify.plants.fmi_calls.preload`);
+    a caller that starts it early (``verify``) finds them ready when the job comes."""
+    import numpy.random  # noqa: F401
 
-    for name in IMPORT_AHEAD:
-        with contextlib.suppress(Exception):
-            importlib.import_module(name)
+    from ..plants.fmi_calls import preload
+
+    preload()
 
 
 def _child_main(workdir: str, fd: int) -> None:
