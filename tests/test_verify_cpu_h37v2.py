@@ -110,3 +110,29 @@ def test_plant_process_imports_ahead_and_skips_what_fails(monkeypatch) -> None:
     monkeypatch.delitem(sys.modules, "colorsys", raising=False)
     isolated._import_ahead()
     assert "colorsys" in sys.modules and "no_such_module_h37v" not in sys.modules and "numpy.random" in sys.modules
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 4, 5])
+def test_the_skip_of_the_divergence_test_implies_it_passes(n: int) -> None:
+    """Wherever ``_below`` skips the test, ``|x|^2 <= B^2`` by numpy.dot; NaN and infinite
+    entries are never skipped. Edge values at the limit, just above, and random ones."""
+    from ftc_verify.simulation.records import DIVERGENCE_BOUND
+
+    bound_sq = DIVERGENCE_BOUND ** 2
+    near = np.sqrt(bound_sq) * (1 - 1e-6)
+    below = loop_parts._below(n, near)
+    lim = near / n
+    g = np.random.default_rng(n)
+    rows = [[lim] * n, [-lim] * n, [np.nextafter(lim, np.inf)] * n, [near] + [0.0] * (n - 1)]
+    rows += [list(g.uniform(-1.2, 1.2, n) * lim) for _ in range(2000)]
+    rows += [[np.nan] + [0.0] * (n - 1), [0.0] * (n - 1) + [np.nan], [0.0] * (n - 1) + [np.inf]]
+    skipped = 0
+    for r in rows:
+        x = np.array(r)
+        if below(r):
+            skipped += 1
+            assert float(np.dot(x, x)) <= bound_sq
+            assert np.all(np.isfinite(x))
+    if n <= 3:  # the per-entry limit, exactly
+        assert below([lim] * n) and not below([np.nextafter(lim, np.inf)] + [0.0] * (n - 1))
+    assert 0 < skipped < len(rows)
