@@ -359,7 +359,7 @@ class StaticLoop:
     :math:`n < 10^9`: the test would pass. A NaN or infinite entry makes :math:`S` NaN or
     infinite, and the test runs. So the decision is the test's at every grid point.
     For :math:`n \le 3` the skip asks instead that every :math:`|x_i|` be at most the
-    float :math:`L = c / n` (:func:`_below`: chained comparisons, a third of the sum's
+    float :math:`L = c / n` (``_below``: chained comparisons, a third of the sum's
     cost): then the exact :math:`\sum |x_i| \le n L \le c (1 + u)` and the same bound
     holds with one more factor :math:`(1 + u)`; a NaN entry fails its comparison, and the
     test runs.
