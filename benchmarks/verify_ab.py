@@ -66,7 +66,8 @@ def run_once(code: Path, seed: int, out: Path) -> dict[str, Any]:
     _, status, usage = os.wait4(proc.pid, 0)
     wall = time.perf_counter() - t0
     proc.returncode = os.waitstatus_to_exitcode(status)
-    report = json.loads((out / "report.json").read_text())
+    written = out / "report.json"  # none when the run ended early (killed, failed)
+    report = json.loads(written.read_text()) if written.exists() else {"verdict": "no report"}
     timings = report.get("timings", {})
     return {"code": str(code), "wall_s": round(wall, 3), "cpu_s": round(usage.ru_utime + usage.ru_stime, 3),
             "load1": round(load, 2), "verdict": report["verdict"] if proc.returncode == 0 else f"exit {proc.returncode}",
@@ -75,6 +76,8 @@ def run_once(code: Path, seed: int, out: Path) -> dict[str, Any]:
 
 def same_outputs(a: Path, b: Path) -> bool:
     """The same report (apart from times) and the same figures."""
+    if not ((a / "report.json").exists() and (b / "report.json").exists()):
+        return False
     ja, jb = (_without_times(json.loads((p / "report.json").read_text())) for p in (a, b))
     pngs = sorted(p.name for p in a.glob("*.png"))
     return ja == jb and pngs == sorted(p.name for p in b.glob("*.png")) and all(
@@ -105,8 +108,9 @@ def main() -> int:
         writer = csv.DictWriter(f, fieldnames=COLUMNS)
         writer.writeheader()
         writer.writerows(rows)
-    med = {c: {k: statistics.median(float(r[k]) for r in rows if r["code"] == str(c)) for k in ("wall_s", "cpu_s", *STAGES)}
-           for c in codes}
+    done = [r for r in rows if r["verdict"] in ("pass", "fail")]  # runs that wrote their report
+    med = {c: {k: statistics.median([float(r[k]) for r in done if r["code"] == str(c)] or [float("nan")])
+               for k in ("wall_s", "cpu_s", *STAGES)} for c in codes}
     print(f"{'':18}" + "".join(f"{k:>17}" for k in ("wall_s", "cpu_s", *STAGES)))
     for c in codes:
         print(f"{('this' if c == REPO else 'other'):18}" + "".join(f"{med[c][k]:17.3f}" for k in ("wall_s", "cpu_s", *STAGES)))

@@ -218,12 +218,36 @@ def _risk_stage() -> Any:
 
 
 def _cmd_verify(args: argparse.Namespace) -> int:
+    """``verify``. This process only computes and writes files: scipy's and matplotlib's
+    import-time docstring generation is switched off first
+    (:func:`~ftc_verify.prestart.skip_docstring_generation`, as in the cross-check child;
+    only ``__doc__`` strings change), before ``scipy.stats`` and matplotlib are imported:
+    about 0.3 s of CPU on the way to the first stage (issue 37)."""
+    from ..prestart import skip_docstring_generation
     from .common import with_cross_check
 
-    return with_cross_check(args, _verify_command, "ftc_verify.verification.verify")
+    skip_docstring_generation()
+    procs = _plant_processes(args)
+    try:
+        return with_cross_check(args, lambda a, watch, check: _verify_command(a, watch, check, procs),
+                                "ftc_verify.verification.verify")
+    finally:
+        for proc in procs:
+            proc.close()
 
 
-def _verify_command(args: argparse.Namespace, watch: Any, check: Any) -> int:
+def _plant_processes(args: argparse.Namespace) -> list[Any]:
+    """The Monte Carlo's plant processes (:func:`~ftc_verify.simulation.isolated.plant_processes`),
+    started first, so that their interpreters start beside this process's imports, when it
+    runs on this machine (no ``--workers``/``--scheduler``); ``run_verify`` uses and closes them."""
+    if args.workers or args.scheduler:
+        return []
+    from ..simulation.isolated import plant_processes
+
+    return list(plant_processes())
+
+
+def _verify_command(args: argparse.Namespace, watch: Any, check: Any, procs: list[Any] | None = None) -> int:
     from ..simulation.spec import SimulationSpec
     from ..verification.report import EarlyFigures, check_out_dir, write_report
     from ..verification.verify import run_verify
@@ -254,7 +278,7 @@ def _verify_command(args: argparse.Namespace, watch: Any, check: Any) -> int:
             rep = run_verify(system, gamma=args.gamma, method=args.method, k_max=k_max, controller=controller,
                              spec=spec, solver=args.solver, progress=sys.stderr.isatty(), plant=plant,
                              fmu_log=_fmu_logger(args), measure=args.measure, client=client, cross_check=check,
-                             risk=_risk_stage(), meanwhile=figures)
+                             risk=_risk_stage(), meanwhile=figures, processes=procs)
             watch.mark("stages")
         watch.mark("cluster_stop")
         written = write_report(rep, args.out, watch, figures)

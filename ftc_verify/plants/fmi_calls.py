@@ -42,7 +42,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["CALL_NAMES", "FAULT_KINDS", "INT_RANGES", "SlaveCalls", "is_fmi3", "load_slave", "typed_value"]
+__all__ = ["CALL_NAMES", "FAULT_KINDS", "INT_RANGES", "LOADER_MODULES", "SlaveCalls", "is_fmi3", "load_slave",
+           "preload", "typed_value"]
 
 #: The names of the calls :class:`~ftc_verify.plants.fmu_session.FMUSession` reports, per version.
 CALL_NAMES = {
@@ -154,6 +155,22 @@ def _checked(fun: Any, name: str) -> Callable[..., int]:
         return status
 
     return call
+
+
+#: fmpy's modules that open an FMU (:func:`load_slave`, the model description's reader).
+LOADER_MODULES = ("fmpy.fmi2", "fmpy.fmi3", "fmpy.model_description")
+
+
+def preload() -> None:
+    """Import :data:`LOADER_MODULES` now (a plant process waiting for its job,
+    :mod:`ftc_verify.simulation.isolated`); one that fails to import is left to the code
+    that needs it, which reports it as before."""
+    import contextlib
+    import importlib
+
+    for name in LOADER_MODULES:
+        with contextlib.suppress(Exception):
+            importlib.import_module(name)
 
 
 def load_slave(md: Any, unzip: str, model_identifier: str, instance_name: str,

@@ -89,11 +89,23 @@ def _die_with_parent() -> None:
         pass
 
 
+def _import_ahead() -> None:
+    """What a child imports while it waits for its job: the job's generator
+    (``numpy.random``) and fmpy's FMU loader (:func:`~ftc_verify.plants.fmi_calls.preload`);
+    a caller that starts it early (``verify``) finds them ready when the job comes."""
+    import numpy.random  # noqa: F401
+
+    from ..plants.fmi_calls import preload
+
+    preload()
+
+
 def _child_main(workdir: str, fd: int) -> None:
     """The child: every batch on one supervisor; results, log lines and errors to ``fd``."""
     from .supervisor import Supervisor
 
     _die_with_parent()
+    _import_ahead()
     job = pickle.load(sys.stdin.buffer)
     out = os.fdopen(fd, "wb")
     with open(Path(workdir) / _MONITOR, "r+b") as f:

@@ -295,6 +295,35 @@ class PathRecorder:
         return record_from_rows(self.plan, self.law, self.session.n, self.read_rows, self.U, self.Y, self.XC)
 
 
+def _below(n: int, near: float) -> Any:
+    """``row -> bool``: whether the first ``n`` entries of ``row`` are surely small
+    (:class:`StaticLoop`, Notes): each of them within ``+-near / n`` for ``n <= 3``, else
+    the float sum of their absolute values at most ``near``."""
+    lim = near / max(n, 1)
+    if n == 1:
+        return lambda r: -lim <= r[0] <= lim
+    if n == 2:
+        return lambda r: -lim <= r[0] <= lim and -lim <= r[1] <= lim
+    if n == 3:
+        return lambda r: -lim <= r[0] <= lim and -lim <= r[1] <= lim and -lim <= r[2] <= lim
+    return lambda r: sum(map(abs, r[:n])) <= near
+
+
+def _unconverted(fn: Any) -> Any:
+    """The C function of the ctypes function ``fn`` without its ``argtypes``: called with
+    ctypes objects of exactly those types (a ``c_void_p``, ctypes arrays, a ``c_size_t``,
+    ``c_double``, ``c_int``), it passes them as they are, with no conversion per call (the
+    same call in C, a third cheaper); returns the ``int`` status. A Python callable
+    standing in for the C function (a test's) gets the ``c_double`` arguments' values."""
+    if isinstance(fn, ctypes._CFuncPtr):  # type: ignore[attr-defined]
+        return ctypes.CFUNCTYPE(ctypes.c_int)(ctypes.cast(fn, ctypes.c_void_p).value or 0)
+
+    def call(*args: Any) -> Any:
+        return fn(*(a.value if isinstance(a, ctypes.c_double) else a for a in args))
+
+    return call
+
+
 class StaticLoop:
     r"""One path's loop (:meth:`~ftc_verify.simulation.supervisor.Supervisor.run`, steps
     1-4) for a static controller on an FMI 2.0 FMU without feedthrough or operating point,
@@ -329,6 +358,11 @@ class StaticLoop:
     is at most :math:`(1 + n u)` times larger, so below :math:`B^2` for any
     :math:`n < 10^9`: the test would pass. A NaN or infinite entry makes :math:`S` NaN or
     infinite, and the test runs. So the decision is the test's at every grid point.
+    For :math:`n \le 3` the skip asks instead that every :math:`|x_i|` be at most the
+    float :math:`L = c / n` (``_below``: chained comparisons, a third of the sum's
+    cost): then the exact :math:`\sum |x_i| \le n L \le c (1 + u)` and the same bound
+    holds with one more factor :math:`(1 + u)`; a NaN entry fails its comparison, and the
+    test runs.
     """
 
     def __init__(self, session: FMUSession, inputs: PathInputs, recorder: PathRecorder, law: LoopLaw) -> None:
@@ -347,27 +381,33 @@ class StaticLoop:
         :class:`~ftc_verify.plants.fmu_session.FMICallError` where a call failed."""
         s, inputs, plan, rec = self.session, self.inputs, self.inputs.plan, self.recorder
         get, put, do_step, c = s.raw_calls()  # type: ignore[misc]
+        get, put, do_step = _unconverted(get), _unconverted(put), _unconverted(do_step)
         before, group, n, nu = rec.before, inputs.group, s.n, s.nu
         vr_x, nx, buf_x, vr_uw, nuw, buf_uw = before.vr, before.n, before.buf, group.vr, group.n, group.buf
-        # the arguments as the ctypes objects of the functions' argtypes: no conversion per call
+        # the arguments as ctypes objects of the C types: passed as they are (_unconverted)
         c, c_nx, c_nuw, c_true = ctypes.c_void_p(c), ctypes.c_size_t(nx), ctypes.c_size_t(nuw), ctypes.c_int(1)
+        double, h_last, c_h = ctypes.c_double, math.nan, ctypes.c_double(math.nan)
         near = math.sqrt(bound_sq) * (1 - 1e-6)  # sum |x_i| <= near: |x|^2 <= bound_sq however summed (Notes)
+        below = _below(n, near)
         read = np.frombuffer(buf_x, dtype=np.float64, count=nx)  # type: ignore[call-overload]
         x, v = read[:n], read[n:n + self.law.controller.n_v] if self.law.measured else read[:n]
         u, dot, Dc, entry = inputs.u, np.dot, self.law.Dc, inputs.entry
+        # u = gain.dot(v): numpy.dot's own product (ndarray.dot and numpy.dot are one C function,
+        # PyArray_MatrixProduct2), without numpy.dot's dispatch per call
         gain, held = Dc[entry], [0.0] * nu  # u before the first sample: zero, as in PathController
         W = plan.W.reshape(len(plan.t), -1).tolist() if s.nw else None
         times, steps, samples = plan.t.tolist(), np.diff(plan.t).tolist(), plan.sample
         last, event, rows, U = len(times) - 1, inputs.next_event, [], []
-        k, stage = 0, ""
+        at: Any = memoryview(monitor) if monitor.flags.c_contiguous and monitor.dtype == np.float64 else monitor  # type: ignore[arg-type]
+        k, stage, wanted = 0, "", entry
         try:
             for k in range(last + 1):
                 if k == event:
-                    inputs.switch(k)
+                    wanted = inputs.switch(k)
                     event = inputs.next_event
                 sample = samples[k]
-                if sample and entry != inputs.entry:
-                    entry = inputs.entry
+                if sample and entry != wanted:
+                    entry = wanted
                     gain = Dc[entry]
                 stage = "x"
                 status = get(c, vr_x, c_nx, buf_x)
@@ -375,11 +415,11 @@ class StaticLoop:
                     raise s.failed("fmi2GetReal", status, before.names)
                 row = buf_x[:nx]
                 rows.append(row)
-                if k and not (sum(map(abs, row[:n])) <= near or float(dot(x, x)) <= bound_sq):
+                if k and not (below(row) or float(dot(x, x)) <= bound_sq):
                     self.stop = k
                     break
                 if sample:
-                    dot(gain, v, out=u)
+                    gain.dot(v, out=u)
                     held = buf_uw[:nu]  # type: ignore[assignment]  # c_double slices are floats
                     if W is not None:
                         buf_uw[nu:nuw] = W[k]
@@ -391,8 +431,11 @@ class StaticLoop:
                 if k == last:
                     break
                 stage = "step"
-                monitor[1] = times[k]
-                status = do_step(c, times[k], steps[k], c_true)
+                t, h = times[k], steps[k]
+                at[1] = t
+                if h != h_last:
+                    c_h, h_last = double(h), h
+                status = do_step(c, double(t), c_h, c_true)
                 if status > 1:
                     raise s.failed("fmi2DoStep", status, ())
                 if s.pending is not None:

@@ -394,7 +394,7 @@ def run_verify(
     paths: int | None = None, step: float | None = None, horizon: float | None = None, seed: int | None = None,
     solver: str | None = None, progress: bool = False, plant: Any = None, fmu_log: Any = None,
     measure: str = "total", client: Any = None, cross_check: Any = None, risk: RiskStage | None = None,
-    meanwhile: Callable[[VerifyReport], Any] | None = None,
+    meanwhile: Callable[[VerifyReport], Any] | None = None, processes: list[Any] | None = None,
 ) -> VerifyReport:
     """Run every stage of the module docstring and collect the checks.
 
@@ -414,7 +414,11 @@ def run_verify(
     (stage 7). ``meanwhile``: called with the report so far (every stage but the
     sampled loop's and the python-control check, which run in child processes) before
     waiting for those children, when the sampled stages ran; the CLI draws the report's
-    figures there (:class:`~ftc_verify.verification.report.EarlyFigures`)."""
+    figures there (:class:`~ftc_verify.verification.report.EarlyFigures`). ``processes``: the
+    Monte Carlo's plant processes (:func:`~ftc_verify.simulation.isolated.plant_processes`)
+    started by the caller (the CLI starts them first, so their interpreters start beside its
+    own imports); by default started here, before the synthesis, when the Monte Carlo runs
+    isolated in this machine (no cluster); closed here either way."""
     if measure not in ("total", "incremental"):
         raise ValidationError(f"measure: {measure!r} is not 'total' or 'incremental'")
     spec = _verify_spec(spec, {"n_paths": paths, "step": step, "horizon": horizon, "seed": seed})
@@ -422,10 +426,14 @@ def run_verify(
         from ..prestart import cross_check as start_cross_check
 
         cross_check = start_cross_check()
-    procs: list[Any] = []
+    procs: list[Any] = list(processes or ())
     sampled: list[Any] = []  # the SampledRun child while it runs
     try:
-        if client is None and spec.workers is None and spec.scheduler is None and spec.isolate:
+        if not (client is None and spec.workers is None and spec.scheduler is None and spec.isolate):
+            for proc in procs:  # the Monte Carlo runs elsewhere
+                proc.close()
+            procs = []
+        elif not procs:
             from ..simulation.isolated import plant_processes
 
             procs = plant_processes()  # their interpreters start beside the synthesis and analysis
