@@ -33,7 +33,7 @@ from .sampled import H_MAX_RTOL, SampledLoop, crossing, rate_points, spectral_ra
 from .sampled_clock import clock_size, clock_stable
 from .sampled_proof import box_verdict, prove_point_unstable
 
-__all__ = ["LADDER", "COARSE", "TIGHT", "BRACKET_WORK", "CLOCK_LADDER", "CLOCK_PIECES", "CLOCK_SIZE", "CLOCK_WORK",
+__all__ = ["LADDER", "COARSE", "TIGHT", "BRACKET_WORK", "CLOCK_LADDER", "CLOCK_FALLBACK", "CLOCK_PIECES", "CLOCK_SIZE", "CLOCK_WORK",
            "box_work", "prove_below", "clock_below", "worst_vertex", "h_max_bracket"]
 
 #: Relative distances below the crossing tried after the tight one fails, easy first.
@@ -52,7 +52,13 @@ TIGHT = ((0.25, 1 / 6), (0.75, 1 / 2))
 #: (:mod:`~ftc_verify.analysis.moments.sampled_clock`, quadratic pieces) when the tight
 #: sub-box attempts fail; with :data:`CLOCK_PIECES` pieces, on loops whose program has at
 #: most :data:`CLOCK_SIZE` variables, with a budget of at least :data:`CLOCK_WORK` units.
-CLOCK_LADDER = (0.03, 0.01, 3e-3)
+#: When the first fails, :data:`CLOCK_FALLBACK` is tried instead (on the random
+#: ``n = 4, m = 3`` loop two pieces prove 2 % below the crossing in 2.0 CPU s, fail at
+#: 1.5 % and 1 % in 0.9 s each: starting at 2 % gives that bracket for less than the
+#: old start at 3 % plus the failed 1 %; ``benchmarks/results/h31p.md``).
+CLOCK_LADDER = (0.02, 0.01, 3e-3)
+#: The easier distance tried once when the first of :data:`CLOCK_LADDER` fails.
+CLOCK_FALLBACK = 0.03
 #: Quadratic pieces of the clock-dependent certificate in :func:`clock_below`.
 CLOCK_PIECES = 2
 #: The largest clock program (scalar variables) :func:`clock_below` solves.
@@ -136,19 +142,26 @@ def prove_below(loop: SampledLoop, a: float, rtol: float, max_boxes: int, work: 
 
 def clock_below(loop: SampledLoop, a: float, deadline: float = math.inf) -> float | None:
     """The closest period ``a (1 - f)``, ``f`` in :data:`CLOCK_LADDER` tried easy first and
-    stopping at the first failure, proved stable over the whole rate box by one
-    clock-dependent certificate (:func:`~ftc_verify.analysis.moments.sampled_clock.clock_stable`,
-    :data:`CLOCK_PIECES` quadratic pieces, proved in ball arithmetic; no sub-boxes); ``None``
-    if none is, or the loop's program is larger than :data:`CLOCK_SIZE`. Deterministic: no
-    time budget (``deadline`` only stops new attempts)."""
+    stopping at the first failure (when the first fails, :data:`CLOCK_FALLBACK` alone),
+    proved stable over the whole rate box by one clock-dependent certificate
+    (:func:`~ftc_verify.analysis.moments.sampled_clock.clock_stable`, :data:`CLOCK_PIECES`
+    quadratic pieces, proved in ball arithmetic; no sub-boxes); ``None`` if none is, or the
+    loop's program is larger than :data:`CLOCK_SIZE`. Deterministic: no time budget
+    (``deadline`` only stops new attempts)."""
     if clock_size(loop, CLOCK_PIECES, True) > CLOCK_SIZE:
         return None
+
+    def proved(f: float) -> bool:
+        cert = clock_stable(loop, a * (1 - f), CLOCK_PIECES, quadratic=True)
+        return cert is not None and cert.proved
+
     best = None
-    for f in CLOCK_LADDER:
+    for k, f in enumerate(CLOCK_LADDER):
         if time.perf_counter() > deadline:
             break
-        cert = clock_stable(loop, a * (1 - f), CLOCK_PIECES, quadratic=True)
-        if cert is None or not cert.proved:
+        if not proved(f):
+            if k == 0 and time.perf_counter() <= deadline and proved(CLOCK_FALLBACK):
+                best = a * (1 - CLOCK_FALLBACK)
             break
         best = a * (1 - f)
     return best

@@ -1,0 +1,80 @@
+"""The clock-dependent rung of the ``h_max`` bracket
+(:func:`ftc_verify.analysis.moments.sampled_bracket.clock_below`): which distances below the
+float64 crossing it tries, in which order, and that what it returns is stable."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ftc_verify.analysis.moments import sampled_bracket
+from ftc_verify.analysis.moments.sampled import SampledLoop, spectral_radius
+from ftc_verify.analysis.moments.sampled_bracket import CLOCK_FALLBACK, CLOCK_LADDER, clock_below
+from ftc_verify.controllers.files import load_controller
+from ftc_verify.model.files import load_system
+
+ROOT = Path(__file__).resolve().parents[1]
+PAPER_CROSSING = 0.08426  # float64 crossing of the paper loop's worst vertex (h31c)
+
+
+def _paper() -> SampledLoop:
+    return SampledLoop.build(load_system(ROOT / "examples" / "paper.toml"),
+                             load_controller(ROOT / "examples" / "paper_gains.toml"))
+
+
+class _Proved:
+    """A stand-in for :func:`clock_stable` that proves every period at most ``limit`` and
+    records the periods asked."""
+
+    def __init__(self, limit: float) -> None:
+        self.limit = limit
+        self.asked: list[float] = []
+
+    def __call__(self, loop: SampledLoop, h: float, pieces: int, quadratic: bool) -> object:
+        self.asked.append(h)
+
+        class Cert:
+            proved = h <= self.limit
+
+        return Cert()
+
+
+@pytest.mark.parametrize(("limit_f", "expected_f", "tried"), [
+    (0.002, 3e-3, (0.02, 0.01, 3e-3)),        # every rung proved
+    (0.015, 0.02, (0.02, 0.01)),              # stops at the first failure
+    (0.025, 0.03, (0.02, 0.03)),              # the first fails: the fallback alone
+    (0.05, None, (0.02, 0.03)),               # neither
+])
+def test_ladder_order_and_fallback(monkeypatch: pytest.MonkeyPatch, limit_f: float, expected_f: float | None,
+                                   tried: tuple[float, ...]) -> None:
+    """With a certificate that holds up to ``a (1 - limit_f)``, the rungs asked and the
+    period returned (the closest proved): the fallback only after the first rung fails,
+    nothing after the first failure."""
+    assert CLOCK_LADDER == (0.02, 0.01, 3e-3) and CLOCK_FALLBACK == 0.03  # the table above assumes them
+    a = 1.0
+    fake = _Proved(a * (1 - limit_f))
+    monkeypatch.setattr(sampled_bracket, "clock_stable", fake)
+    got = clock_below(_paper(), a)
+    assert fake.asked == pytest.approx([a * (1 - f) for f in tried])
+    assert (got is None) if expected_f is None else got == pytest.approx(a * (1 - expected_f))
+
+
+def test_fallback_proves_where_the_first_rung_lies_above_the_crossing() -> None:
+    """The paper loop with a crossing given 2.5 % too high: 2 % below it is above the true
+    crossing (a vertex has radius above 1, nothing is proved), 3 % below it is under the
+    true one and the two-piece certificate proves it (ball arithmetic); the float64 radius
+    is below 1 there at every vertex and at 40 random rates of the box (a proved claim: a
+    radius >= 1 would be a bug, no false-failure probability)."""
+    loop = _paper()
+    a = 1.025 * PAPER_CROSSING
+    assert max(spectral_radius(loop, a * (1 - CLOCK_LADDER[0]), v) for v in loop.chain.vertices()) > 1.0
+    got = clock_below(loop, a)
+    assert got == a * (1 - CLOCK_FALLBACK)
+    rng = np.random.default_rng(11)
+    lo, hi = loop.chain.rate_min, loop.chain.rate_max
+    rates = [lo + rng.uniform(size=lo.shape) * (hi - lo) for _ in range(40)] + list(loop.chain.vertices())
+    assert max(spectral_radius(loop, got, r) for r in rates) < 1.0
+    assert not math.isnan(got)
