@@ -34,7 +34,7 @@ from .sampled_clock import clock_size, clock_stable
 from .sampled_proof import box_verdict, prove_point_unstable
 
 __all__ = ["LADDER", "COARSE", "TIGHT", "BRACKET_WORK", "CLOCK_LADDER", "CLOCK_FALLBACK", "CLOCK_PIECES", "CLOCK_SIZE", "CLOCK_WORK",
-           "box_work", "prove_below", "clock_below", "worst_vertex", "h_max_bracket"]
+           "box_work", "prove_below", "clock_below", "worst_vertex", "worst_crossing", "h_max_bracket"]
 
 #: Relative distances below the crossing tried after the tight one fails, easy first.
 LADDER = (0.1, 0.03, 0.01, 3e-3)
@@ -195,7 +195,7 @@ def worst_vertex(loop: SampledLoop, h: float, points: Sequence[Matrix]) -> tuple
     return best, where
 
 
-def _worst_crossing(loop: SampledLoop, stable_h: float, a: float, rtol: float, points: list[Matrix],
+def worst_crossing(loop: SampledLoop, stable_h: float, a: float, rtol: float, points: list[Matrix],
                     deadline: float) -> float:
     """The crossing ``a`` lowered while :func:`worst_vertex` finds a vertex unstable at it
     (added to ``points``); a few rounds, none after ``deadline``."""
@@ -235,7 +235,7 @@ def h_max_bracket(loop: SampledLoop, stable_h: float, unstable_h: float, *, rtol
     proof was found."""
     pts = list(rate_points(loop.chain))
     a = crossing(loop, stable_h, unstable_h, True, rtol / 16, pts)
-    a = _worst_crossing(loop, stable_h, a, rtol, pts, deadline)
+    a = worst_crossing(loop, stable_h, a, rtol, pts, deadline)
     b = a * (1 + rtol / 16)
     while worst_radius(loop, b, pts)[0] < 1.0 and b < unstable_h:  # pragma: no cover - float ties
         b = min(unstable_h, b * (1 + rtol / 16))

@@ -103,7 +103,7 @@ from .sampled_taylor import FIRST_ORDER_LIMIT, affine_stable, identity_stack, pe
 from .stability import duplication_matrix, unvech_stack
 
 __all__ = ["FIRST_ORDER_LIMIT", "MapParts", "BoxVerdict", "ball_resets", "ball_one_period_map", "prove_stable", "prove_unstable",
-           "prove_point_unstable", "box_verdict", "SPLIT_WIDTH_WEIGHT", "written_flow"]
+           "prove_point_unstable", "box_verdict", "SPLIT_WIDTH_WEIGHT", "written_flow", "envelope_stable"]
 
 
 def _flint() -> Any:
@@ -279,7 +279,7 @@ def prove_stable(T: Ball, T_mid: Matrix, states: int, r: int) -> bool:
     return stack_pd((Y - T @ Y).value, states, r)
 
 
-def _envelope_stable(loop: SampledLoop, parts: MapParts, lo: Matrix, hi: Matrix) -> bool:
+def envelope_stable(loop: SampledLoop, parts: MapParts, lo: Matrix, hi: Matrix) -> bool:
     """The stable proof on a sub-box by the upper envelope (module docstring):
     :math:`T(r) \\preceq T_{up}` for every rate of the sub-box, so :math:`Y \\succ 0`,
     :math:`Y - T_{up}(Y) \\succ 0` proves :math:`\\rho(T(r)) < 1` for all of them."""
@@ -484,7 +484,7 @@ def box_verdict(loop: SampledLoop, h: float, *, max_boxes: int = 64, max_seconds
         mid = 0.5 * (lo + hi)
         T_mid = one_period_map(loop, h, mid, scaled=True)
         with precision(64):
-            proved = _envelope_stable(loop, parts, lo, hi)
+            proved = envelope_stable(loop, parts, lo, hi)
             affine = None if proved else affine_stable(loop, parts, lo, hi)  # None: not applicable
             proved = proved or bool(affine)
             if not proved and affine is None and _float_vertices_hold(loop, h, lo, hi, T_mid):
