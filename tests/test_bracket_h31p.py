@@ -45,15 +45,16 @@ class _Proved:
 @pytest.mark.parametrize(("limit_f", "expected_f", "tried"), [
     (0.002, 3e-3, (0.02, 0.01, 3e-3)),        # every rung proved
     (0.015, 0.02, (0.02, 0.01)),              # stops at the first failure
-    (0.025, 0.03, (0.02, 0.03)),              # the first fails: the fallback alone
-    (0.05, None, (0.02, 0.03)),               # neither
+    (0.025, 0.03, (0.02, 0.03)),              # the first fails: the fallback, closest first
+    (0.2, 0.3, (0.02, 0.03, 0.1, 0.3)),       # ... the first proved
+    (0.6, None, (0.02, 0.03, 0.1, 0.3, 0.5)),  # none
 ])
 def test_ladder_order_and_fallback(monkeypatch: pytest.MonkeyPatch, limit_f: float, expected_f: float | None,
                                    tried: tuple[float, ...]) -> None:
     """With a certificate that holds up to ``a (1 - limit_f)``, the rungs asked and the
     period returned (the closest proved): the fallback only after the first rung fails,
-    nothing after the first failure."""
-    assert CLOCK_LADDER == (0.02, 0.01, 3e-3) and CLOCK_FALLBACK == 0.03  # the table above assumes them
+    nothing after the first failure or the first proved fallback."""
+    assert CLOCK_LADDER == (0.02, 0.01, 3e-3) and CLOCK_FALLBACK == (0.03, 0.1, 0.3, 0.5)  # the table assumes them
     a = 1.0
     fake = _Proved(a * (1 - limit_f))
     monkeypatch.setattr(sampled_bracket, "clock_stable", fake)
@@ -72,7 +73,7 @@ def test_fallback_proves_where_the_first_rung_lies_above_the_crossing() -> None:
     a = 1.025 * PAPER_CROSSING
     assert max(spectral_radius(loop, a * (1 - CLOCK_LADDER[0]), v) for v in loop.chain.vertices()) > 1.0
     got = clock_below(loop, a)
-    assert got == a * (1 - CLOCK_FALLBACK)
+    assert got == a * (1 - CLOCK_FALLBACK[0])
     rng = np.random.default_rng(11)
     lo, hi = loop.chain.rate_min, loop.chain.rate_max
     rates = [lo + rng.uniform(size=lo.shape) * (hi - lo) for _ in range(40)] + list(loop.chain.vertices())
