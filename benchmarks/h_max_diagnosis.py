@@ -19,6 +19,14 @@ measured quantity:
 * ``envelope_flat_<k>``: the float64 radius of the upper envelope
   (``sampled_balls.envelope_generator``) over the flat rates at relative width ``2^-k``
   (the steep ones at the vertex): the envelope proves nothing where it is >= 1.
+* ``flat_box_<k>``: the sub-box at the vertex with the flat rates at relative width
+  ``2^-k``, the others at ``1/32``: proved by the second-order certificate
+  (``sampled_second.certify_second_order``, Perron mix 0.05) on the affine forms
+  (``fast_balls.aff_map``) and on the second-order forms (``quad_balls.quad_map``), and
+  their CPU seconds.
+* ``box_verdict`` (``--box-cap N``): ``box_verdict`` at ``h`` with at most ``N`` sub-boxes.
+* ``clock_<f>`` (``--clock f ...``): the clock-dependent certificate
+  (``sampled_clock.clock_stable``, ``--pieces`` quadratic pieces) at ``a (1 - f)``.
 * ``ordering``: the largest eigenvalue, relative to the block, of ``sign * (V_t - V_s)``
   over the clock, ``V`` the dual Perron stack at the vertex carried back over the period
   and ``s -> t`` each free rate's transition: <= 0 for every rate would prove the radius
@@ -27,6 +35,7 @@ measured quantity:
 Usage::
 
     python benchmarks/h_max_diagnosis.py --seed 1 --f 1e-3 --out /tmp/diag.csv
+    python benchmarks/h_max_diagnosis.py --seed 1 --f 1e-3 --box-cap 300 --clock 0.03 0.02 0.01
 """
 
 from __future__ import annotations
@@ -49,7 +58,11 @@ from ftc_verify.analysis.moments.sampled import (SampledLoop, assemble_map, cros
                                                  scan_range, spectral_radius, stability_intervals)
 from ftc_verify.analysis.moments.sampled_balls import envelope_generator, generator_coefficients
 from ftc_verify.analysis.moments.sampled_bracket import worst_crossing, worst_vertex
-from ftc_verify.analysis.moments.sampled_taylor import affine_stable, right_perron
+from ftc_verify.analysis.moments.fast_balls import aff_map
+from ftc_verify.analysis.moments.quad_balls import quad_map
+from ftc_verify.analysis.moments.sampled_clock import clock_stable
+from ftc_verify.analysis.moments.sampled_second import certify_second_order
+from ftc_verify.analysis.moments.sampled_taylor import affine_stable, rates_affine, right_perron
 from ftc_verify.analysis.moments.stability import unvech_stack, vech_order
 from ftc_verify.analysis.rigorous import midpoint, precision
 from ftc_verify.testing.sampled_cases import lqr_case
@@ -104,6 +117,32 @@ def ordering(loop: SampledLoop, h: float, v: np.ndarray, free: list[tuple[tuple[
     return out
 
 
+def flat_boxes(loop: SampledLoop, parts: sp.MapParts, v: np.ndarray, inward: dict[tuple[int, ...], float],
+               flat: list[tuple[int, ...]]) -> list[tuple[str, str]]:
+    """Sub-boxes at the vertex: the flat rates at ``2^-k`` of their range, the others at 1/32;
+    the second-order certificate on the affine and on the second-order forms."""
+    chain = loop.chain
+    full = chain.rate_max - chain.rate_min
+    res, modes, lift, hh = parts.floats
+    rows = []
+    for k in (1, 2, 3, 4):
+        lo, hi = v.copy(), v.copy()
+        for idx, sign in inward.items():
+            other = v[idx] + sign * (2.0 ** -k if idx in flat else 1 / 32) * full[idx]
+            lo[idx], hi[idx] = min(v[idx], other), max(v[idx], other)
+        found = rates_affine(loop, lo, hi)
+        assert found is not None
+        cells = []
+        for name, make in (("affine", aff_map), ("second-order", quad_map)):
+            t = time.process_time()
+            form = make(res, modes, found[0], found[1], hh, lift)
+            with precision(64):
+                ok = form is not None and certify_second_order(loop, form, 0.05)
+            cells.append(f"{name} {ok} ({time.process_time() - t:.2f} CPU s)")
+        rows.append((f"flat_box_{k}", "; ".join(cells)))
+    return rows
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--n", type=int, default=4)
@@ -111,6 +150,9 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--f", type=float, default=1e-3)
     p.add_argument("--samples", type=int, default=2000)
+    p.add_argument("--box-cap", type=int, default=0, help="also box_verdict with at most this many sub-boxes")
+    p.add_argument("--clock", type=float, nargs="*", default=[], help="distances below the crossing for the clock")
+    p.add_argument("--pieces", type=int, default=2)
     p.add_argument("--out", default="/tmp/h_max_diagnosis.csv")
     args = p.parse_args()
     loop = the_loop(args.n, args.m, args.seed)
@@ -152,6 +194,7 @@ def main() -> None:
         with precision(64):
             ok = sp.envelope_stable(loop, parts, lo, hi) or bool(affine_stable(loop, parts, lo, hi))
         rows.append((f"vertex_box_{k}", f"{ok} ({time.process_time() - t:.2f} CPU s)"))
+    rows += flat_boxes(loop, parts, v, inward, flat)
     vd = loop.d * (loop.d + 1) // 2
     for k in (0, 1, 2, 3, 4):
         lo, hi = v.copy(), v.copy()
@@ -162,6 +205,15 @@ def main() -> None:
         T = assemble_map(loop, scipy.linalg.expm((loop.modes_part + np.kron(Q.T, np.eye(vd))) * h), h)
         rows.append((f"envelope_flat_{k}", f"{float(np.max(np.abs(np.linalg.eigvals(T)))):.5f}"))
     rows += [(f"ordering_{k}", f"{val:.3e}") for k, val in ordering(loop, h, v, free).items()]
+    if args.box_cap:
+        t = time.process_time()
+        verdict = sp.box_verdict(loop, h, max_boxes=args.box_cap, max_seconds=math.inf)
+        rows.append(("box_verdict", f"{verdict.verdict} after {verdict.boxes} sub-boxes "
+                                    f"({time.process_time() - t:.1f} CPU s): {verdict.detail}"))
+    for f in args.clock:
+        t = time.process_time()
+        cert = clock_stable(loop, a * (1 - f), args.pieces, quadratic=True)
+        rows.append((f"clock_{f:g}", f"{cert is not None and cert.proved} ({time.process_time() - t:.2f} CPU s)"))
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     with open(args.out, "w", newline="") as f:
         csv.writer(f).writerows([("quantity", "value"), *rows])
