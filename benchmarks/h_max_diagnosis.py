@@ -62,7 +62,7 @@ from ftc_verify.analysis.moments.fast_balls import aff_map
 from ftc_verify.analysis.moments.quad_balls import quad_map
 from ftc_verify.analysis.moments.sampled_clock import clock_stable
 from ftc_verify.analysis.moments.sampled_second import certify_second_order
-from ftc_verify.analysis.moments.sampled_taylor import affine_stable, rates_affine, right_perron
+from ftc_verify.analysis.moments.sampled_taylor import _rates_affine, affine_stable, right_perron
 from ftc_verify.analysis.moments.stability import unvech_stack, vech_order
 from ftc_verify.analysis.rigorous import midpoint, precision
 from ftc_verify.testing.sampled_cases import lqr_case
@@ -130,7 +130,7 @@ def flat_boxes(loop: SampledLoop, parts: sp.MapParts, v: np.ndarray, inward: dic
         for idx, sign in inward.items():
             other = v[idx] + sign * (2.0 ** -k if idx in flat else 1 / 32) * full[idx]
             lo[idx], hi[idx] = min(v[idx], other), max(v[idx], other)
-        found = rates_affine(loop, lo, hi)
+        found = _rates_affine(loop, lo, hi)
         assert found is not None
         cells = []
         for name, make in (("affine", aff_map), ("second-order", quad_map)):

@@ -89,7 +89,7 @@ from .sampled_balls import ball_generator, generator_coefficients
 from .stability import vech_order
 
 __all__ = ["FIRST_ORDER_LIMIT", "AFFINE_RATES", "QUADRATIC_SIZE", "unvech_ball", "stack_pd", "identity_stack", "perron_first_order_stable", "affine_stable",
-           "float_pd", "float_choices", "left_perron", "right_perron", "RHS_MIXES", "rates_affine"]
+           "float_pd", "float_choices", "left_perron", "right_perron", "RHS_MIXES"]
 
 #: Largest Van Loan block (rows, twice the moment generator's) the first-order form
 #: exponentiates in ball arithmetic; above it only the direct ball is tried (cost).
@@ -265,7 +265,7 @@ def perron_first_order_stable(loop: SampledLoop, parts: Any, lo: Matrix, hi: Mat
     return True
 
 
-def rates_affine(loop: SampledLoop, lo: Matrix, hi: Matrix) -> tuple[Any, Matrix] | None:
+def _rates_affine(loop: SampledLoop, lo: Matrix, hi: Matrix) -> tuple[Any, Matrix] | None:
     """``(q, dirs)``: the generator over ``[lo, hi]`` (ends as written) as
     :math:`Q(\\delta) = Q(r_0) + \\sum_a \\delta_a\\, w_a C_a`, :math:`\\delta \\in [-1, 1]^K`
     over the free rates (:math:`r_0` the midpoint, :math:`w_a` an upper bound of the
@@ -312,7 +312,7 @@ def affine_stable(loop: SampledLoop, parts: Any, lo: Matrix, hi: Matrix) -> bool
 
     if parts.floats == () or _flint().ctx.prec > 64:
         return None
-    found = rates_affine(loop, lo, hi)
+    found = _rates_affine(loop, lo, hi)
     if found is None or len(found[1]) > AFFINE_RATES:
         return None
     res, modes, lift, h = parts.floats
