@@ -79,3 +79,43 @@ def test_fallback_proves_where_the_first_rung_lies_above_the_crossing() -> None:
     rates = [lo + rng.uniform(size=lo.shape) * (hi - lo) for _ in range(40)] + list(loop.chain.vertices())
     assert max(spectral_radius(loop, got, r) for r in rates) < 1.0
     assert not math.isnan(got)
+
+
+class _Box:
+    """A stand-in for :func:`box_verdict` that proves every period at most ``limit``."""
+
+    def __init__(self, limit: float) -> None:
+        self.limit = limit
+        self.asked: list[float] = []
+
+    def __call__(self, loop: SampledLoop, h: float, max_boxes: int, max_seconds: float) -> object:
+        self.asked.append(h)
+
+        class Verdict:
+            verdict = "stable" if h <= self.limit else "undecided"
+
+        return Verdict()
+
+
+@pytest.mark.parametrize(("clock_f", "box_f", "expected_f", "box_tried"), [
+    (0.5, 0.3, 0.3, (0.25e-3, 0.75e-3, 0.1, 0.3)),   # a coarse clock period: the closer COARSE one tried
+    (0.5, 0.6, 0.5, (0.25e-3, 0.75e-3, 0.1, 0.3)),   # ... and kept when that fails
+    (0.3, 0.3, 0.3, (0.25e-3, 0.75e-3, 0.1)),        # nothing of COARSE is closer than 30 %
+    (None, 0.3, 0.3, (0.25e-3, 0.75e-3, 0.1, 0.3)),  # no clock period: COARSE as before
+])
+def test_coarse_sub_box_distances_closer_than_the_clock(monkeypatch: pytest.MonkeyPatch, clock_f: float | None,
+                                                        box_f: float, expected_f: float, box_tried: tuple[float, ...]) -> None:
+    """:func:`prove_below` after the clock rung returned a coarse period: the sub-box
+    ladder stops at its first failure (10 %), then only the :data:`COARSE` distances
+    closer than the clock's period are tried; the closest proved period is returned."""
+    from ftc_verify.analysis.moments.sampled_bracket import CLOCK_WORK, COARSE, LADDER, prove_below
+
+    assert LADDER[0] == 0.1 and COARSE == (0.3, 0.5)  # the table assumes them
+    a = 1.0
+    box = _Box(a * (1 - box_f))
+    monkeypatch.setattr(sampled_bracket, "box_verdict", box)
+    monkeypatch.setattr(sampled_bracket, "clock_below",
+                        lambda loop, a, deadline=math.inf: None if clock_f is None else a * (1 - clock_f))
+    got = prove_below(_paper(), a, 1e-3, 64, CLOCK_WORK, math.inf)
+    assert got == pytest.approx(a * (1 - expected_f))
+    assert box.asked == pytest.approx([a * (1 - f) for f in box_tried])

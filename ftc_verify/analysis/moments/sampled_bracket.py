@@ -106,8 +106,8 @@ def prove_below(loop: SampledLoop, a: float, rtol: float, max_boxes: int, work: 
     full budget, the others with a third; only those closer than the clock's period, each
     with a third, when the clock proved one) -- stopping at the first failure (a smaller
     margin is harder: its proof would rarely succeed and would spend its whole budget);
-    when none of those is proved, :data:`COARSE` (a third each), the first proved
-    returned. The budget of an attempt is ``work`` units (:func:`box_work` per sub-box),
+    when none of those is proved, :data:`COARSE` (a third each; only those closer than a
+    coarse period of the clock's), the first proved returned. The budget of an attempt is ``work`` units (:func:`box_work` per sub-box),
     at most ``max_boxes`` sub-boxes: a count that depends only on the problem, so the
     bracket does not depend on the machine or its load."""
     per_box = box_work(loop)
@@ -135,7 +135,7 @@ def prove_below(loop: SampledLoop, a: float, rtol: float, max_boxes: int, work: 
         if time.perf_counter() > deadline or not proved(f, 1.0 if k == 0 and best is None else 1 / 3):
             break
         best = a * (1 - f)
-    for f in COARSE if best is None else ():
+    for f in [f for f in COARSE if best is None or a * (1 - f) > best]:  # closer than a coarse clock period
         if time.perf_counter() > deadline:
             break
         if proved(f, 1 / 3):
@@ -146,8 +146,7 @@ def prove_below(loop: SampledLoop, a: float, rtol: float, max_boxes: int, work: 
 def clock_below(loop: SampledLoop, a: float, deadline: float = math.inf) -> float | None:
     """The closest period ``a (1 - f)``, ``f`` in :data:`CLOCK_LADDER` tried easy first and
     stopping at the first failure (when the first fails, :data:`CLOCK_FALLBACK` closest
-    first, the first proved),
-    proved stable over the whole rate box by one clock-dependent certificate
+    first, the first proved), proved stable over the whole rate box by one clock-dependent certificate
     (:func:`~ftc_verify.analysis.moments.sampled_clock.clock_stable`, :data:`CLOCK_PIECES`
     quadratic pieces, proved in ball arithmetic; no sub-boxes); ``None`` if none is, or the
     loop's program is larger than :data:`CLOCK_SIZE`. Deterministic: no time budget
@@ -203,7 +202,7 @@ def worst_vertex(loop: SampledLoop, h: float, points: Sequence[Matrix]) -> tuple
 
 
 def worst_crossing(loop: SampledLoop, stable_h: float, a: float, rtol: float, points: list[Matrix],
-                    deadline: float) -> float:
+                   deadline: float) -> float:
     """The crossing ``a`` lowered while :func:`worst_vertex` finds a vertex unstable at it
     (added to ``points``); a few rounds, none after ``deadline``."""
     if loop.chain.vertex_count() <= 16:
