@@ -88,7 +88,8 @@ class _Box:
         self.limit = limit
         self.asked: list[float] = []
 
-    def __call__(self, loop: SampledLoop, h: float, max_boxes: int, max_seconds: float) -> object:
+    def __call__(self, loop: SampledLoop, h: float, max_boxes: int, max_seconds: float,
+                 stable_only: bool = False) -> object:
         self.asked.append(h)
 
         class Verdict:
@@ -119,3 +120,23 @@ def test_coarse_sub_box_distances_closer_than_the_clock(monkeypatch: pytest.Monk
     got = prove_below(_paper(), a, 1e-3, 64, CLOCK_WORK, math.inf)
     assert got == pytest.approx(a * (1 - expected_f))
     assert box.asked == pytest.approx([a * (1 - f) for f in box_tried])
+
+
+def test_stable_only_stops_when_the_budget_cannot_cover_the_sub_boxes_left() -> None:
+    """``box_verdict(stable_only=True)`` (the bracket's attempts): the ``n = 2, m = 2`` loop
+    of ``benchmarks/sampled.py --seed 2`` at ``3e-3`` below its worst vertex's crossing
+    needs more than 8 sub-boxes; with 8 both searches are undecided, the early one after
+    fewer sub-boxes; with 64 both prove it stable after the same sub-boxes (the early stop
+    never loses a proof the budget could finish)."""
+    from ftc_verify.analysis.moments.sampled_proof import box_verdict
+    from ftc_verify.testing.sampled_cases import lqr_case
+
+    system, controller = lqr_case(2, 2, np.random.default_rng(2))
+    loop = SampledLoop.build(system, controller)
+    h = 1.2393284 * (1 - 3e-3)
+    full, early = (box_verdict(loop, h, max_boxes=8, max_seconds=math.inf, stable_only=s) for s in (False, True))
+    assert full.verdict == early.verdict == "undecided"
+    assert early.boxes < full.boxes == 8
+    full, early = (box_verdict(loop, h, max_boxes=64, max_seconds=math.inf, stable_only=s) for s in (False, True))
+    assert full.verdict == early.verdict == "stable"
+    assert early.boxes == full.boxes

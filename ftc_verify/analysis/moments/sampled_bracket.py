@@ -114,7 +114,7 @@ def prove_below(loop: SampledLoop, a: float, rtol: float, max_boxes: int, work: 
 
     def proved(f: float, share: float) -> bool:
         boxes = min(max_boxes, max(2, int(share * work / per_box)))
-        return box_verdict(loop, a * (1 - f), max_boxes=boxes, max_seconds=math.inf).verdict == "stable"
+        return box_verdict(loop, a * (1 - f), max_boxes=boxes, max_seconds=math.inf, stable_only=True).verdict == "stable"
 
     # the clock certificate does not depend on the tight attempts: it runs beside them in a
     # forked child (a second core; the same answers as one after the other)

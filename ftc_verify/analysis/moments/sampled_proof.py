@@ -456,12 +456,16 @@ def _split_rate(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix) -> tuple[in
 
 
 def box_verdict(loop: SampledLoop, h: float, *, max_boxes: int = 64, max_seconds: float = 20.0,
-                clock: Callable[[], float] = time.perf_counter) -> BoxVerdict:
+                clock: Callable[[], float] = time.perf_counter, stable_only: bool = False) -> BoxVerdict:
     """Mean-square stability of the sampled loop at period ``h`` over the whole rate box
     (module docstring); at most ``max_boxes`` sub-boxes and about ``max_seconds`` seconds
     of ``clock`` (wall time; ``time.process_time`` for a budget of work that does not
     shrink with the machine's load)
-    before the verdict is ``undecided``."""
+    before the verdict is ``undecided``. ``stable_only``: the caller needs only a
+    ``stable`` verdict (the ``h_max`` bracket), so the search stops, ``undecided``, as soon
+    as the sub-boxes left exceed the budget left -- each must be evaluated at least once
+    before the box is proved, so ``stable`` can no longer be reached (a ``not stable``
+    sub-box midpoint it might still have met is not looked for)."""
     chain = loop.chain
     rho, where = worst_radius(loop, h, rate_points(chain))
     text = chain.rate_text
@@ -477,8 +481,9 @@ def box_verdict(loop: SampledLoop, h: float, *, max_boxes: int = 64, max_seconds
         parts = MapParts.build(loop, h)
     while queue:
         lo, hi = queue.pop(0)
-        if done >= max_boxes or clock() - t0 > max_seconds:
-            return BoxVerdict("undecided", f"budget ({max_boxes} sub-boxes, {max_seconds:g} s) spent after {done} "
+        if done >= max_boxes or clock() - t0 > max_seconds or (stable_only and done + 1 + len(queue) > max_boxes):
+            spent = "spent" if done >= max_boxes or clock() - t0 > max_seconds else f"short of {1 + len(queue)} sub-boxes"
+            return BoxVerdict("undecided", f"budget ({max_boxes} sub-boxes, {max_seconds:g} s) {spent} after {done} "
                               f"sub-boxes; not proved on [{text(lo)}] .. [{text(hi)}]", done, (lo, hi))
         done += 1
         mid = 0.5 * (lo + hi)
