@@ -84,7 +84,7 @@ def test_each_condition_decides() -> None:
 def test_bracket_uses_the_clock_certificate_when_the_tight_sub_box_attempts_fail() -> None:
     """A crossing given 1 % too high (the paper loop's is 0.08426): the tight sub-box
     attempts lie above the true crossing and fail, the clock certificate proves the first
-    :data:`CLOCK_LADDER` distance (3 % below, under the true crossing) and not the next (above
+    :data:`CLOCK_LADDER` distance (2 % below, under the true crossing) and not the next (above
     it); the sub-box ladder then proves the closer 1 % (a third of the budget each) -- the
     period returned is never farther than the sub-box route's alone, and is stable at 40
     random rates of the box (float64, a proved claim)."""

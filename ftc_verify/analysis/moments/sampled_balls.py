@@ -112,7 +112,7 @@ def ball_generator(chain: JointChain, lo: Matrix, hi: Matrix, literals: Literals
 def envelope_generator(chain: JointChain, lo: Matrix, hi: Matrix, literals: Literals | None = None) -> Ball:
     """The upper envelope of the generator over ``[lo, hi]``: off-diagonal entries at
     the rates ``hi``, the diagonal minus the row sums at ``lo`` (a ball matrix; rows sum
-    to at least 0). Used by ``_envelope_stable`` (module docstring)."""
+    to at least 0). Used by ``envelope_stable`` (module docstring)."""
     low, up = _terms(chain, lo, hi, literals)
     return _assemble_generator(up, low)
 

@@ -33,8 +33,8 @@ from .sampled import H_MAX_RTOL, SampledLoop, crossing, rate_points, spectral_ra
 from .sampled_clock import clock_size, clock_stable
 from .sampled_proof import box_verdict, prove_point_unstable
 
-__all__ = ["LADDER", "COARSE", "TIGHT", "BRACKET_WORK", "CLOCK_LADDER", "CLOCK_PIECES", "CLOCK_SIZE", "CLOCK_WORK",
-           "box_work", "prove_below", "clock_below", "worst_vertex", "h_max_bracket"]
+__all__ = ["LADDER", "COARSE", "TIGHT", "BRACKET_WORK", "CLOCK_LADDER", "CLOCK_FALLBACK", "CLOCK_PIECES", "CLOCK_SIZE", "CLOCK_WORK",
+           "box_work", "prove_below", "clock_below", "worst_vertex", "worst_crossing", "h_max_bracket"]
 
 #: Relative distances below the crossing tried after the tight one fails, easy first.
 LADDER = (0.1, 0.03, 0.01, 3e-3)
@@ -52,7 +52,16 @@ TIGHT = ((0.25, 1 / 6), (0.75, 1 / 2))
 #: (:mod:`~ftc_verify.analysis.moments.sampled_clock`, quadratic pieces) when the tight
 #: sub-box attempts fail; with :data:`CLOCK_PIECES` pieces, on loops whose program has at
 #: most :data:`CLOCK_SIZE` variables, with a budget of at least :data:`CLOCK_WORK` units.
-CLOCK_LADDER = (0.03, 0.01, 3e-3)
+#: When the first fails, :data:`CLOCK_FALLBACK` is tried instead (on the random
+#: ``n = 4, m = 3`` loop two pieces prove 2 % below the crossing in 2.0 CPU s, fail at
+#: 1.5 % and 1 % in 0.9 s each: starting at 2 % gives that bracket for less than the
+#: old start at 3 % plus the failed 1 %; ``benchmarks/results/h31p.md``).
+CLOCK_LADDER = (0.02, 0.01, 3e-3)
+#: The easier distances tried, closest first, when the first of :data:`CLOCK_LADDER`
+#: fails; the first proved is returned (a held-out ``n = 4, m = 3`` loop, seed 13 of
+#: ``benchmarks/sampled.py``'s draw: the certificate fails at 3 % and 10 %, proves 30 %
+#: below the crossing, where 20 sub-boxes do not even at 50 %).
+CLOCK_FALLBACK = (0.03, 0.1, 0.3, 0.5)
 #: Quadratic pieces of the clock-dependent certificate in :func:`clock_below`.
 CLOCK_PIECES = 2
 #: The largest clock program (scalar variables) :func:`clock_below` solves.
@@ -97,15 +106,15 @@ def prove_below(loop: SampledLoop, a: float, rtol: float, max_boxes: int, work: 
     full budget, the others with a third; only those closer than the clock's period, each
     with a third, when the clock proved one) -- stopping at the first failure (a smaller
     margin is harder: its proof would rarely succeed and would spend its whole budget);
-    when none of those is proved, :data:`COARSE` (a third each), the first proved
-    returned. The budget of an attempt is ``work`` units (:func:`box_work` per sub-box),
+    when none of those is proved, :data:`COARSE` (a third each; only those closer than a
+    coarse period of the clock's), the first proved returned. The budget of an attempt is ``work`` units (:func:`box_work` per sub-box),
     at most ``max_boxes`` sub-boxes: a count that depends only on the problem, so the
     bracket does not depend on the machine or its load."""
     per_box = box_work(loop)
 
     def proved(f: float, share: float) -> bool:
         boxes = min(max_boxes, max(2, int(share * work / per_box)))
-        return box_verdict(loop, a * (1 - f), max_boxes=boxes, max_seconds=math.inf).verdict == "stable"
+        return box_verdict(loop, a * (1 - f), max_boxes=boxes, max_seconds=math.inf, stable_only=True).verdict == "stable"
 
     # the clock certificate does not depend on the tight attempts: it runs beside them in a
     # forked child (a second core; the same answers as one after the other)
@@ -126,7 +135,7 @@ def prove_below(loop: SampledLoop, a: float, rtol: float, max_boxes: int, work: 
         if time.perf_counter() > deadline or not proved(f, 1.0 if k == 0 and best is None else 1 / 3):
             break
         best = a * (1 - f)
-    for f in COARSE if best is None else ():
+    for f in [f for f in COARSE if best is None or a * (1 - f) > best]:  # closer than a coarse clock period
         if time.perf_counter() > deadline:
             break
         if proved(f, 1 / 3):
@@ -136,19 +145,29 @@ def prove_below(loop: SampledLoop, a: float, rtol: float, max_boxes: int, work: 
 
 def clock_below(loop: SampledLoop, a: float, deadline: float = math.inf) -> float | None:
     """The closest period ``a (1 - f)``, ``f`` in :data:`CLOCK_LADDER` tried easy first and
-    stopping at the first failure, proved stable over the whole rate box by one
-    clock-dependent certificate (:func:`~ftc_verify.analysis.moments.sampled_clock.clock_stable`,
-    :data:`CLOCK_PIECES` quadratic pieces, proved in ball arithmetic; no sub-boxes); ``None``
-    if none is, or the loop's program is larger than :data:`CLOCK_SIZE`. Deterministic: no
-    time budget (``deadline`` only stops new attempts)."""
+    stopping at the first failure (when the first fails, :data:`CLOCK_FALLBACK` closest
+    first, the first proved), proved stable over the whole rate box by one clock-dependent certificate
+    (:func:`~ftc_verify.analysis.moments.sampled_clock.clock_stable`, :data:`CLOCK_PIECES`
+    quadratic pieces, proved in ball arithmetic; no sub-boxes); ``None`` if none is, or the
+    loop's program is larger than :data:`CLOCK_SIZE`. Deterministic: no time budget
+    (``deadline`` only stops new attempts)."""
     if clock_size(loop, CLOCK_PIECES, True) > CLOCK_SIZE:
         return None
+
+    def proved(f: float) -> bool:
+        cert = clock_stable(loop, a * (1 - f), CLOCK_PIECES, quadratic=True)
+        return cert is not None and cert.proved
+
     best = None
-    for f in CLOCK_LADDER:
+    for k, f in enumerate(CLOCK_LADDER):
         if time.perf_counter() > deadline:
             break
-        cert = clock_stable(loop, a * (1 - f), CLOCK_PIECES, quadratic=True)
-        if cert is None or not cert.proved:
+        if not proved(f):
+            for g in CLOCK_FALLBACK if k == 0 else ():
+                if time.perf_counter() > deadline:
+                    break
+                if proved(g):
+                    return a * (1 - g)
             break
         best = a * (1 - f)
     return best
@@ -182,8 +201,8 @@ def worst_vertex(loop: SampledLoop, h: float, points: Sequence[Matrix]) -> tuple
     return best, where
 
 
-def _worst_crossing(loop: SampledLoop, stable_h: float, a: float, rtol: float, points: list[Matrix],
-                    deadline: float) -> float:
+def worst_crossing(loop: SampledLoop, stable_h: float, a: float, rtol: float, points: list[Matrix],
+                   deadline: float) -> float:
     """The crossing ``a`` lowered while :func:`worst_vertex` finds a vertex unstable at it
     (added to ``points``); a few rounds, none after ``deadline``."""
     if loop.chain.vertex_count() <= 16:
@@ -222,7 +241,7 @@ def h_max_bracket(loop: SampledLoop, stable_h: float, unstable_h: float, *, rtol
     proof was found."""
     pts = list(rate_points(loop.chain))
     a = crossing(loop, stable_h, unstable_h, True, rtol / 16, pts)
-    a = _worst_crossing(loop, stable_h, a, rtol, pts, deadline)
+    a = worst_crossing(loop, stable_h, a, rtol, pts, deadline)
     b = a * (1 + rtol / 16)
     while worst_radius(loop, b, pts)[0] < 1.0 and b < unstable_h:  # pragma: no cover - float ties
         b = min(unstable_h, b * (1 + rtol / 16))

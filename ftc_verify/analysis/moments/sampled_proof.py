@@ -103,7 +103,7 @@ from .sampled_taylor import FIRST_ORDER_LIMIT, affine_stable, identity_stack, pe
 from .stability import duplication_matrix, unvech_stack
 
 __all__ = ["FIRST_ORDER_LIMIT", "MapParts", "BoxVerdict", "ball_resets", "ball_one_period_map", "prove_stable", "prove_unstable",
-           "prove_point_unstable", "box_verdict", "SPLIT_WIDTH_WEIGHT", "written_flow"]
+           "prove_point_unstable", "box_verdict", "SPLIT_WIDTH_WEIGHT", "written_flow", "envelope_stable"]
 
 
 def _flint() -> Any:
@@ -279,7 +279,7 @@ def prove_stable(T: Ball, T_mid: Matrix, states: int, r: int) -> bool:
     return stack_pd((Y - T @ Y).value, states, r)
 
 
-def _envelope_stable(loop: SampledLoop, parts: MapParts, lo: Matrix, hi: Matrix) -> bool:
+def envelope_stable(loop: SampledLoop, parts: MapParts, lo: Matrix, hi: Matrix) -> bool:
     """The stable proof on a sub-box by the upper envelope (module docstring):
     :math:`T(r) \\preceq T_{up}` for every rate of the sub-box, so :math:`Y \\succ 0`,
     :math:`Y - T_{up}(Y) \\succ 0` proves :math:`\\rho(T(r)) < 1` for all of them."""
@@ -456,12 +456,16 @@ def _split_rate(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix) -> tuple[in
 
 
 def box_verdict(loop: SampledLoop, h: float, *, max_boxes: int = 64, max_seconds: float = 20.0,
-                clock: Callable[[], float] = time.perf_counter) -> BoxVerdict:
+                clock: Callable[[], float] = time.perf_counter, stable_only: bool = False) -> BoxVerdict:
     """Mean-square stability of the sampled loop at period ``h`` over the whole rate box
     (module docstring); at most ``max_boxes`` sub-boxes and about ``max_seconds`` seconds
     of ``clock`` (wall time; ``time.process_time`` for a budget of work that does not
     shrink with the machine's load)
-    before the verdict is ``undecided``."""
+    before the verdict is ``undecided``. ``stable_only``: the caller needs only a
+    ``stable`` verdict (the ``h_max`` bracket), so the search stops, ``undecided``, as soon
+    as the sub-boxes left exceed the budget left -- each must be evaluated at least once
+    before the box is proved, so ``stable`` can no longer be reached (a ``not stable``
+    sub-box midpoint it might still have met is not looked for)."""
     chain = loop.chain
     rho, where = worst_radius(loop, h, rate_points(chain))
     text = chain.rate_text
@@ -477,14 +481,15 @@ def box_verdict(loop: SampledLoop, h: float, *, max_boxes: int = 64, max_seconds
         parts = MapParts.build(loop, h)
     while queue:
         lo, hi = queue.pop(0)
-        if done >= max_boxes or clock() - t0 > max_seconds:
-            return BoxVerdict("undecided", f"budget ({max_boxes} sub-boxes, {max_seconds:g} s) spent after {done} "
+        if done >= max_boxes or clock() - t0 > max_seconds or (stable_only and done + 1 + len(queue) > max_boxes):
+            spent = "spent" if done >= max_boxes or clock() - t0 > max_seconds else f"short of {1 + len(queue)} sub-boxes"
+            return BoxVerdict("undecided", f"budget ({max_boxes} sub-boxes, {max_seconds:g} s) {spent} after {done} "
                               f"sub-boxes; not proved on [{text(lo)}] .. [{text(hi)}]", done, (lo, hi))
         done += 1
         mid = 0.5 * (lo + hi)
         T_mid = one_period_map(loop, h, mid, scaled=True)
         with precision(64):
-            proved = _envelope_stable(loop, parts, lo, hi)
+            proved = envelope_stable(loop, parts, lo, hi)
             affine = None if proved else affine_stable(loop, parts, lo, hi)  # None: not applicable
             proved = proved or bool(affine)
             if not proved and affine is None and _float_vertices_hold(loop, h, lo, hi, T_mid):
