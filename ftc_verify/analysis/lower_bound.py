@@ -86,7 +86,7 @@ from .rigorous import Ball, ball, midpoint, precision, proven_positive_definite
 from .moments.stability import lyapunov_stack_solution
 from .verdict import SOLVE_LIMIT, StabilityProver, ball_lyapunov_solution
 
-__all__ = ["GainLowerBound", "gain_lower_bound", "float_gain", "worst_case_feedback", "worst_constant_delta", "exceeds",
+__all__ = ["GainLowerBound", "gain_lower_bound", "float_gain", "worst_case_feedback", "exceeds",
            "BISECTION_RTOL"]
 
 #: Relative width of the float bisection on the gain.
@@ -380,61 +380,6 @@ def _residual_moments(At: Sequence[Ball], q: list[list[Any]], G: Sequence[Ball],
             return None
         out.append(Ball(X))
     return out
-
-
-#: The first step of the constant-Delta search's gain above a level its comparison found
-#: infeasible (one sign flip moved the gain by 0.07-0.4 % on random n = 8, m = 3 loops).
-CLIMB = 0.01
-
-
-def worst_constant_delta(loop: ClosedLoop, rates: Matrix, *, upper: float | None = None,
-                         passes: int = 1) -> tuple[str, dict[str, Matrix]]:
-    """A constant uncertainty of norm 1 that makes the float gain at ``rates`` large: on
-    every channel a rectangular diagonal of signs (an extreme point of the unit ball),
-    the same in every joint state, found by flipping one sign at a time while the coarse
-    float gain grows by more than 0.1 % (at most ``passes`` sweeps; a second changed nothing
-    on three random n = 8, m = 3 loops). Each comparison (:func:`exceeds`) and each
-    gain's first levels start from the best loop's feedback (a nearby loop: most
-    comparisons end in a few policy steps), each gain's search from the level its
-    comparison found infeasible. A search: the bound it leads to is proved afterwards.
-    Returns a label and ``{channel name: Delta}``."""
-    shapes = {ch.name: (ch.E.shape[1], ch.F.shape[0]) for chans in loop.channels for ch in chans}
-    signs = {name: np.ones(min(shape)) for name, shape in shapes.items()}
-    Q = loop.chain.generator(rates)
-
-    def deltas(sg: dict[str, np.ndarray]) -> dict[str, Matrix]:
-        out = {}
-        for name, (p, q) in shapes.items():
-            D = np.zeros((p, q))
-            D[np.arange(len(sg[name])), np.arange(len(sg[name]))] = sg[name]
-            out[name] = D
-        return out
-
-    def gain(sg: dict[str, np.ndarray], start: float | None, above: float | None = None,
-             near: Sequence[Matrix] | None = None) -> tuple[float, Sequence[Matrix] | None]:
-        found = float_gain(loop.perturbed(deltas(sg)), loop.Bw, loop.Cz, Q, upper=start, rtol=1e-3, above=above,
-                           start=near, climb=CLIMB, converge=False)
-        return (-math.inf, None) if found is None else found
-
-    best, F = gain(signs, upper)
-    for _ in range(passes):
-        improved = False
-        for name in signs:
-            for k in range(len(signs[name])):
-                trial = {key: v.copy() for key, v in signs.items()}
-                trial[name][k] = -trial[name][k]
-                if not math.isfinite(best):
-                    g, found = gain(trial, upper)
-                elif exceeds(loop.perturbed(deltas(trial)), loop.Bw, loop.Cz, Q, best * (1 + 1e-3), F):
-                    g, found = gain(trial, best * (1 + 1e-3), above=best * (1 + 1e-3), near=F)  # at least that
-                else:
-                    continue  # not clearly above the best so far
-                if g > best:
-                    best, signs, F, improved = g, trial, found, True
-        if not improved:
-            break
-    label = "Delta = " + ", ".join(f"{name}: diag{[int(v) for v in sg]}" for name, sg in signs.items())
-    return label, deltas(signs)
 
 
 def _first_moments(At: Sequence[Ball], Bw: Sequence[Ball], q: list[list[Any]], pi: Any, eb: Ball,
