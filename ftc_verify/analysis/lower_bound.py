@@ -49,8 +49,10 @@ bisection: the worst-case feedback, which makes the loop nearly marginal, so tha
 small :math:`v` near resonance gives a ratio close to :math:`\gamma_F^2`. The frequency
 is the best of :math:`\omega = 0` and the imaginary parts of the rightmost eigenvalues of
 :math:`\tilde{\mathcal A}`; :math:`e` is the top generalised eigenvector of the two
-quadratic forms :math:`N(e)`, :math:`D(e)`. The rate vector is the best of the box's
-centre, its lowest and highest rates and the worst spectral-abscissa vertex.
+quadratic forms :math:`N(e)`, :math:`D(e)` (:mod:`~ftc_verify.analysis.excitation`).
+The rate vector is the best of the box's centre, its lowest and highest rates and the
+worst spectral-abscissa vertex. The constant :math:`\Delta` of the robust bound, and its
+:math:`\gamma_F`, come from :mod:`~ftc_verify.analysis.worst_delta`.
 
 **The proof.** :math:`F`, :math:`e`, :math:`\omega`, :math:`\rho` are floats taken as
 exact; the loop is :func:`~ftc_verify.analysis.exact.exact_loop` (the numbers the user
