@@ -88,7 +88,7 @@ from .rigorous import Ball, ball, midpoint, precision, proven_positive_definite
 from .moments.stability import lyapunov_stack_solution
 from .verdict import SOLVE_LIMIT, StabilityProver, ball_lyapunov_solution
 
-__all__ = ["GainLowerBound", "gain_lower_bound", "float_gain", "worst_case_feedback", "exceeds",
+__all__ = ["GainLowerBound", "gain_lower_bound", "float_gain", "worst_case_feedback", "exceeds", "FALL_TOL",
            "BISECTION_RTOL"]
 
 #: Relative width of the float bisection on the gain.
@@ -145,7 +145,7 @@ def _dense_adjoint(A: Sequence[Matrix], Q: Matrix, R: Sequence[Matrix],
 
 
 #: A step of the lower bounds' policy iteration that lowers ``P`` by more than this (relative
-#: to ``max |P|``, in the least eigenvalue of the step) ends the iteration (:func:`_rising_adjoint`).
+#: to ``max |P|``, in the least eigenvalue of the step) ends the iteration (``_rising_adjoint``).
 FALL_TOL = 1e-6
 
 
@@ -185,7 +185,7 @@ def worst_case_feedback(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[
     step a dense solve, from ``start`` (a feedback that makes the loop mean-square stable;
     default :math:`F = 0`) until ``P`` changes by at most ``rtol`` relatively; ``None``
     when it fails (``P`` not positive semidefinite, not finite, no convergence, or an
-    iterate that falls, :func:`_rising_adjoint`): then
+    iterate that falls, ``_rising_adjoint``): then
     ``gamma`` is, in float64, at or below the gain. A float search only: what it returns
     is proved afterwards or not used."""
     found = bounded_real_solution(A, Bw, Cz, RateEnvelope.at(Q), gamma, start=start, rtol=rtol,
@@ -206,7 +206,7 @@ def float_gain(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], 
     (:func:`exceeds`): the search goes on from it as if it had just failed there (the
     same steps, the failed test not repeated), its first step up by ``climb`` (relative; later ones
     by 10 % as from ``upper``). ``start``: a feedback of a nearby loop
-    tried first at the levels above the bracket (:func:`_feasible`: a failure is decided
+    tried first at the levels above the bracket (``_feasible``: a failure is decided
     from ``F = 0``, so the levels decided are the same). ``converge=False``: the feedback
     returned is the bisection's (converged to ``SEARCH_RTOL`` only), for a search that
     uses the gain alone."""
@@ -453,7 +453,7 @@ def exceeds(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], Q: 
             start: Sequence[Matrix] | None = None) -> bool:
     """In float64: no stabilising Riccati solution at ``gamma`` (the gain is at least
     ``gamma``, or the loop is not mean-square stable), tried from ``start`` and from
-    ``F = 0`` (:func:`_feasible`): a cheap comparison."""
+    ``F = 0`` (``_feasible``): a cheap comparison."""
     return _feasible(A, Bw, Cz, Q, gamma, start) is None
 
 

@@ -39,7 +39,7 @@ from ..model.system import Matrix
 from .closedloop import ClosedLoop
 from .lower_bound import GainLowerBound, exceeds, float_gain, gain_lower_bound
 
-__all__ = ["CLIMB", "worst_constant_delta", "robust_lower_bound"]
+__all__ = ["CLIMB", "SEARCH_WIDTH", "worst_constant_delta", "robust_lower_bound"]
 
 #: The first step of the search's gain above the level its comparison found infeasible
 #: (one sign flip moved the gain by 0.07-0.4 % on random n = 8, m = 3 loops).
