@@ -157,11 +157,12 @@ def _rising_adjoint(A: Sequence[Matrix], Q: Matrix, R: Sequence[Matrix],
     :data:`FALL_TOL`. With :math:`F_{k+1} = \gamma^{-2}B^T P_k`, subtracting step
     :math:`k`'s equation, rewritten with :math:`A + BF_{k+1}`, from step :math:`k+1`'s gives
     :math:`\tilde{\mathcal L}_{k+1}^*(P_{k+1} - P_k) = -\gamma^2 (F_{k+1} - F_k)^T(F_{k+1} - F_k)
-    \preceq 0`: while :math:`A + BF_{k+1}` is mean-square stable the iterates rise. From a
-    stabilising start they stay stabilising whenever a stabilising solution exists (the
-    maximising player's Newton iteration; Lanzon, Feng, Anderson and Rotkowitz, IEEE TAC
-    53(10), 2008, Theorem 3.1, for one mode; the coupled case is the same argument with
-    the resolvent-positive operator), so a clear fall means no solution at this level: it
+    \preceq 0`: while :math:`A + BF_{k+1}` is mean-square stable the iterates rise. The
+    Riccati operator :math:`\mathcal R` is convex, so with a stabilising solution
+    :math:`P^*`, :math:`\tilde{\mathcal L}_{k+1}^*(P^* - P_{k+1}) = \mathcal R(P_k) +
+    \mathcal R'(P_k)(P^* - P_k) - \mathcal R(P^*) \preceq 0`: the iterates stay below
+    :math:`P^*` and, from a stabilising start, stabilising (the maximising player's Newton
+    iteration, monotone from below), so a clear fall means no solution at this level: it
     is decided in a step or two instead of the :data:`~ftc_verify.analysis.bounded_real.STALL_STEPS`
     a stall takes (a level found feasible ends the same way). Float only: a level is decided,
     not proved (the candidate rate vectors of :func:`gain_lower_bound`, at a certified gamma,
@@ -213,10 +214,9 @@ def float_gain(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], 
     if not _ms_stable(A, Q):
         return None
     lo, hi = 0.0, upper if upper is not None and upper > 0 else 1.0
-    F = None if above is not None else _feasible(A, Bw, Cz, Q, hi, start)
-    if above is not None:
+    if above is not None:  # found infeasible there already: the next level up
         lo, hi = above, above * (1.0 + climb if above < 2.0 * (upper or 1.0) else 2.0)
-        F = _feasible(A, Bw, Cz, Q, hi, start)
+    F = _feasible(A, Bw, Cz, Q, hi, start)
     while F is None:  # below the gain: up by 10 % near the start, then doubling
         lo, hi = hi, hi * (1.1 if hi < 2.0 * (upper or 1.0) else 2.0)
         if hi > 1e300:
