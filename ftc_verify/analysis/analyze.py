@@ -40,7 +40,8 @@ from .crossval import ModeCheck, cross_validate
 from ..limits import check_memory, dense_generator_estimate
 from .lmi_analysis import LMIResult, hinf_gamma, mes_lmi
 from .lmi_size import check_lmi_memory
-from .lower_bound import GainLowerBound, gain_lower_bound, worst_constant_delta
+from .lower_bound import GainLowerBound, gain_lower_bound
+from .worst_delta import robust_lower_bound
 from .solvers import ForkedCall
 from .moments.stability import MSSResult, mean_square_stability
 
@@ -234,26 +235,26 @@ def _stages(loop: ClosedLoop, solver: str | None, name: str, lmi: bool, lower_bo
                           robust_lower)
 
 
-#: The nominal lower bound and the constant ``Delta`` found for the robust one, computed
+#: The nominal lower bound and the robust one at a constant ``Delta``, computed
 #: beside Lemma 4.1's program (:func:`_nominal_side`); ``None`` when not computed there.
-Early = tuple[GainLowerBound | None, tuple[str, dict[str, Any]] | None] | None
+Early = tuple[GainLowerBound | None, GainLowerBound | None] | None
 
 
 def _lower_bounds(loop: ClosedLoop, mss: MSSResult, nominal: LMIResult, robust: LMIResult,
                   early: Early = None) -> tuple[GainLowerBound | None, GainLowerBound | None]:
     """The nominal lower bound and the robust one (the best of the nominal and the
-    constant ``Delta`` of :func:`~ftc_verify.analysis.lower_bound.worst_constant_delta`
+    bound at the constant ``Delta`` of :func:`~ftc_verify.analysis.worst_delta.robust_lower_bound`
     at the nominal bound's rates); ``early``: those two already found beside Lemma 4.1."""
     top = robust.gamma if robust.certified else None
     if early is not None:
-        low, delta = early
+        low, high = early
     else:
         upper = nominal.gamma if nominal.certified else None
         low = gain_lower_bound(loop, worst_rates=mss.worst_beta, upper=upper)
-        delta = worst_constant_delta(loop, low.rates, upper=top) if loop.uncertain and low is not None else None
-    if not loop.uncertain or low is None or delta is None:
+        high = (robust_lower_bound(loop, low.rates, worst_rates=mss.worst_beta, upper=top)[1]
+                if loop.uncertain and low is not None else None)
+    if not loop.uncertain or low is None:
         return low, low
-    high = gain_lower_bound(loop, deltas=[delta], worst_rates=mss.worst_beta, upper=top)
     candidates = [b for b in (low, high) if b is not None]
     best = max(candidates, key=lambda b: (b.value is not None, b.value or b.estimate), default=None)
     return low, best
@@ -267,7 +268,7 @@ def _gammas(loop: ClosedLoop, solver: str | None, seconds: dict[str, float],
     cores; the same programs as one after the other, where the certified nominal gamma
     only scales the robust program: its answer moves within the solver's tolerance),
     and, given ``mss`` (lower bounds requested), the child goes on with the nominal
-    lower bound and the constant-``Delta`` search of the robust one
+    lower bound and the robust one at a constant ``Delta``
     (:func:`_nominal_side`), which need only the nominal gamma; ``seconds`` gets each
     stage's wall time (overlapping when forked; the child's lower-bound part as
     ``lower_bounds_beside``). ``ahead``: the nominal program already running (no
@@ -299,8 +300,8 @@ def _gammas(loop: ClosedLoop, solver: str | None, seconds: dict[str, float],
 
 def _nominal_side(loop: ClosedLoop, solver: str | None, mss: MSSResult | None) -> tuple[LMIResult, Early, float]:
     """In the forked child of :func:`_gammas`: Theorem 3.2, then (given ``mss``, the
-    nominal gamma certified) the nominal lower bound and the constant ``Delta`` of the
-    robust one (``None`` in their place when not computed or when they fail: the parent
+    nominal gamma certified) the nominal lower bound and the robust one at a constant
+    ``Delta`` (``None`` in their place when not computed or when they fail: the parent
     then computes them), and the seconds those took."""
     nominal = hinf_gamma(loop, robust=False, solver=solver)
     if mss is None or mss.unstable or not nominal.certified:
@@ -308,10 +309,11 @@ def _nominal_side(loop: ClosedLoop, solver: str | None, mss: MSSResult | None) -
     t = time.perf_counter()
     try:
         low = gain_lower_bound(loop, worst_rates=mss.worst_beta, upper=nominal.gamma)
-        delta = None if low is None else worst_constant_delta(loop, low.rates, upper=nominal.gamma)
+        high = None if low is None else robust_lower_bound(loop, low.rates, worst_rates=mss.worst_beta,
+                                                            upper=nominal.gamma)[1]
     except Exception:  # a float search: the parent runs it again and decides
         return nominal, None, 0.0
-    return nominal, (low, delta), time.perf_counter() - t
+    return nominal, (low, high), time.perf_counter() - t
 
 
 def _not_requested(condition: str, why: str = "") -> LMIResult:

@@ -49,8 +49,10 @@ bisection: the worst-case feedback, which makes the loop nearly marginal, so tha
 small :math:`v` near resonance gives a ratio close to :math:`\gamma_F^2`. The frequency
 is the best of :math:`\omega = 0` and the imaginary parts of the rightmost eigenvalues of
 :math:`\tilde{\mathcal A}`; :math:`e` is the top generalised eigenvector of the two
-quadratic forms :math:`N(e)`, :math:`D(e)`. The rate vector is the best of the box's
-centre, its lowest and highest rates and the worst spectral-abscissa vertex.
+quadratic forms :math:`N(e)`, :math:`D(e)` (:mod:`~ftc_verify.analysis.excitation`).
+The rate vector is the best of the box's centre, its lowest and highest rates and the
+worst spectral-abscissa vertex. The constant :math:`\Delta` of the robust bound, and its
+:math:`\gamma_F`, come from :mod:`~ftc_verify.analysis.worst_delta`.
 
 **The proof.** :math:`F`, :math:`e`, :math:`\omega`, :math:`\rho` are floats taken as
 exact; the loop is :func:`~ftc_verify.analysis.exact.exact_loop` (the numbers the user
@@ -73,20 +75,20 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
-import scipy.linalg
 
 from ..jsonable import fields_dict
 from ..model.system import Matrix
 from .closedloop import ClosedLoop
 from .bounded_real import POLICY_RTOL, SEARCH_RTOL, RateEnvelope, bounded_real_solution
 from .conditioning import Similarity, conditioning_transform, stationary_distribution
+from .excitation import best_excitation
 from .exact import ball_generator, ball_matrices, exact_loop, literals_of, written_box
 from ..interrupts import deferred_signals
 from .rigorous import Ball, ball, midpoint, precision, proven_positive_definite
-from .moments.stability import lyapunov_stack_solution, second_moment_matrix, unvech_stack, vech_order
+from .moments.stability import lyapunov_stack_solution
 from .verdict import SOLVE_LIMIT, StabilityProver, ball_lyapunov_solution
 
-__all__ = ["GainLowerBound", "gain_lower_bound", "float_gain", "worst_case_feedback", "worst_constant_delta",
+__all__ = ["GainLowerBound", "gain_lower_bound", "float_gain", "worst_case_feedback", "exceeds", "FALL_TOL",
            "BISECTION_RTOL"]
 
 #: Relative width of the float bisection on the gain.
@@ -142,6 +144,38 @@ def _dense_adjoint(A: Sequence[Matrix], Q: Matrix, R: Sequence[Matrix],
     return None if P is None else list(P)
 
 
+#: A step of the lower bounds' policy iteration that lowers ``P`` by more than this (relative
+#: to ``max |P|``, in the least eigenvalue of the step) ends the iteration (``_rising_adjoint``).
+FALL_TOL = 1e-6
+
+
+def _rising_adjoint(A: Sequence[Matrix], Q: Matrix, R: Sequence[Matrix],
+                    start: Sequence[Matrix] | None = None) -> list[Matrix] | None:
+    r""":func:`_dense_adjoint` for the lower bounds' policy iterations, ``None`` when the new
+    iterate falls below the last one (``start``, which
+    :func:`~ftc_verify.analysis.bounded_real.bounded_real_solution` passes) by more than
+    :data:`FALL_TOL`. With :math:`F_{k+1} = \gamma^{-2}B^T P_k`, subtracting step
+    :math:`k`'s equation, rewritten with :math:`A + BF_{k+1}`, from step :math:`k+1`'s gives
+    :math:`\tilde{\mathcal L}_{k+1}^*(P_{k+1} - P_k) = -\gamma^2 (F_{k+1} - F_k)^T(F_{k+1} - F_k)
+    \preceq 0`: while :math:`A + BF_{k+1}` is mean-square stable the iterates rise. The
+    Riccati operator :math:`\mathcal R` is convex, so with a stabilising solution
+    :math:`P^*`, :math:`\tilde{\mathcal L}_{k+1}^*(P^* - P_{k+1}) = \mathcal R(P_k) +
+    \mathcal R'(P_k)(P^* - P_k) - \mathcal R(P^*) \preceq 0`: the iterates stay below
+    :math:`P^*` and, from a stabilising start, stabilising (the maximising player's Newton
+    iteration, monotone from below), so a clear fall means no solution at this level: it
+    is decided in a step or two instead of the :data:`~ftc_verify.analysis.bounded_real.STALL_STEPS`
+    a stall takes (a level found feasible ends the same way). Float only: a level is decided,
+    not proved (the candidate rate vectors of :func:`gain_lower_bound`, at a certified gamma,
+    got the same feedback with and without it on seven random n = 8, m = 3 loops)."""
+    P = _dense_adjoint(A, Q, R)
+    if P is None or start is None:
+        return P
+    scale = max(np.finfo(float).tiny, *(float(np.abs(p).max()) for p in P))
+    if min(float(np.linalg.eigvalsh(p - q)[0]) for p, q in zip(P, start)) < -FALL_TOL * scale:
+        return None
+    return P
+
+
 def worst_case_feedback(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], Q: Matrix,
                         gamma: float, start: Sequence[Matrix] | None = None,
                         rtol: float = POLICY_RTOL) -> tuple[Matrix, ...] | None:
@@ -151,30 +185,43 @@ def worst_case_feedback(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[
     rate vector of ``Q`` (:meth:`~ftc_verify.analysis.bounded_real.RateEnvelope.at`), each
     step a dense solve, from ``start`` (a feedback that makes the loop mean-square stable;
     default :math:`F = 0`) until ``P`` changes by at most ``rtol`` relatively; ``None``
-    when it fails (``P`` not positive semidefinite, not finite, or no convergence): then
+    when it fails (``P`` not positive semidefinite, not finite, no convergence, or an
+    iterate that falls, ``_rising_adjoint``): then
     ``gamma`` is, in float64, at or below the gain. A float search only: what it returns
     is proved afterwards or not used."""
-    found = bounded_real_solution(A, Bw, Cz, RateEnvelope.at(Q), gamma, start=start, rtol=rtol, solve=_dense_adjoint)
+    found = bounded_real_solution(A, Bw, Cz, RateEnvelope.at(Q), gamma, start=start, rtol=rtol,
+                                  solve=_rising_adjoint)
     return None if found is None else tuple(found[1])
 
 
 def float_gain(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], Q: Matrix, *,
-               upper: float | None = None, rtol: float = BISECTION_RTOL) -> tuple[float, tuple[Matrix, ...]] | None:
+               upper: float | None = None, rtol: float = BISECTION_RTOL, above: float | None = None,
+               start: Sequence[Matrix] | None = None, climb: float = 0.1,
+               converge: bool = True) -> tuple[float, tuple[Matrix, ...]] | None:
     """The float worst-case gain at one rate vector by bisection on :func:`worst_case_feedback`
     (started at ``upper``, each step warm-started from the last feasible feedback and run
     to :data:`~ftc_verify.analysis.bounded_real.SEARCH_RTOL`: a level is decided long before
     the policy iteration converges), and the feedback at the smallest feasible gamma
     found, converged to :data:`~ftc_verify.analysis.bounded_real.POLICY_RTOL` (``None``
-    when the loop is not mean-square stable)."""
+    when the loop is not mean-square stable). ``above``: a level already found infeasible
+    (:func:`exceeds`): the search goes on from it as if it had just failed there (the
+    same steps, the failed test not repeated), its first step up by ``climb`` (relative; later ones
+    by 10 % as from ``upper``). ``start``: a feedback of a nearby loop
+    tried first at the levels above the bracket (``_feasible``: a failure is decided
+    from ``F = 0``, so the levels decided are the same). ``converge=False``: the feedback
+    returned is the bisection's (converged to ``SEARCH_RTOL`` only), for a search that
+    uses the gain alone."""
     if not _ms_stable(A, Q):
         return None
     lo, hi = 0.0, upper if upper is not None and upper > 0 else 1.0
-    F = worst_case_feedback(A, Bw, Cz, Q, hi, rtol=SEARCH_RTOL)
+    if above is not None:  # found infeasible there already: the next level up
+        lo, hi = above, above * (1.0 + climb if above < 2.0 * (upper or 1.0) else 2.0)
+    F = _feasible(A, Bw, Cz, Q, hi, start)
     while F is None:  # below the gain: up by 10 % near the start, then doubling
         lo, hi = hi, hi * (1.1 if hi < 2.0 * (upper or 1.0) else 2.0)
         if hi > 1e300:
             return None
-        F = worst_case_feedback(A, Bw, Cz, Q, hi, rtol=SEARCH_RTOL)
+        F = _feasible(A, Bw, Cz, Q, hi, start)
     step = 1e-3
     while lo == 0.0 and hi > 1e-300:
         trial = hi * (1.0 - step)
@@ -190,70 +237,31 @@ def float_gain(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], 
             lo = mid
         else:
             hi, F = mid, found
+    if not converge:
+        return hi, F
     final = worst_case_feedback(A, Bw, Cz, Q, hi, F)  # the feedback at the level found, converged
     return hi, F if final is None else final
 
 
-def _forms(At: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], F: Sequence[Matrix], Q: Matrix,
-           pi: Matrix, omega: float, lu_second: Any) -> tuple[Matrix, Matrix]:
-    """The quadratic forms ``N(e) = e' HN e`` and ``D(e) = e' HD e`` (module docstring),
-    float; ``lu_second`` the LU factors of the second-moment generator (any frequency)."""
-    n, S, nw = At[0].shape[0], len(At), Bw[0].shape[1]
-    first = scipy.linalg.block_diag(*At) + np.kron(Q.T, np.eye(n))
-    c = 1.0 if omega == 0.0 else 0.5
-    lu_first = scipy.linalg.lu_factor(1j * omega * np.eye(S * n) - first)
-    rows, cols = vech_order(n)
-
-    def rates(e: Matrix) -> tuple[float, float]:
-        M = scipy.linalg.lu_solve(lu_first, np.concatenate([pi[s] * Bw[s] @ e for s in range(S)])).reshape(S, n)
-        Mr = M.real
-        G = [c * (np.outer(Bw[s] @ e, Mr[s]) + np.outer(Mr[s], Bw[s] @ e)) for s in range(S)]
-        X = unvech_stack(scipy.linalg.lu_solve(lu_second, -np.concatenate([g[rows, cols] for g in G])), S, n)
-        N = sum(float(np.trace(Cz[s] @ X[s] @ Cz[s].T)) for s in range(S))
-        D = sum(float(np.trace(F[s] @ X[s] @ F[s].T)) + 2 * c * float(e @ F[s] @ Mr[s]) for s in range(S))
-        return N, D + c * float(e @ e)
-
-    HN, HD = np.zeros((nw, nw)), np.zeros((nw, nw))
-    eye = np.eye(nw)
-    for i in range(nw):
-        HN[i, i], HD[i, i] = rates(eye[i])
-    for i in range(nw):
-        for j in range(i + 1, nw):
-            N, D = rates(eye[i] + eye[j])
-            HN[i, j] = HN[j, i] = 0.5 * (N - HN[i, i] - HN[j, j])
-            HD[i, j] = HD[j, i] = 0.5 * (D - HD[i, i] - HD[j, j])
-    return HN, HD
+def _feasible(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], Q: Matrix, gamma: float,
+              start: Sequence[Matrix] | None) -> tuple[Matrix, ...] | None:
+    """:func:`worst_case_feedback` at ``gamma`` to ``SEARCH_RTOL``, from ``start`` (a
+    feedback of a nearby loop, which need not make this loop mean-square stable) and,
+    when that fails, from ``F = 0``. A positive semidefinite solution of the coupled
+    Riccati equations found from any start bounds the gain by ``gamma`` (the stochastic
+    bounded-real lemma, the loop being mean-square stable), so the start moves only the
+    cost, not which levels are found feasible (up to float64 near the gain itself)."""
+    if start is not None:
+        found = worst_case_feedback(A, Bw, Cz, Q, gamma, start, rtol=SEARCH_RTOL)
+        if found is not None:
+            return found
+    return worst_case_feedback(A, Bw, Cz, Q, gamma, rtol=SEARCH_RTOL)
 
 
 def _stationary(Q: Matrix) -> Matrix | None:
     """:func:`~ftc_verify.analysis.conditioning.stationary_distribution` if the balance equations hold."""
     pi = stationary_distribution(Q)
     return pi if np.all(np.isfinite(pi)) and np.abs(Q.T @ pi).max() < 1e-9 * max(1.0, np.abs(Q).max()) else None
-
-
-def _best_excitation(At: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], F: Sequence[Matrix],
-                     Q: Matrix, pi: Matrix) -> tuple[float, float, Matrix]:
-    """``(ratio, omega, e)``: the best frequency of the candidates and its best direction."""
-    n = At[0].shape[0]
-    first = scipy.linalg.block_diag(*At) + np.kron(Q.T, np.eye(n))
-    ev = np.linalg.eigvals(first)
-    order = np.argsort(-ev.real)[:6]
-    omegas = sorted({0.0, *(abs(float(ev[k].imag)) for k in order)})
-    best = (-math.inf, 0.0, np.zeros(Bw[0].shape[1]))
-    try:
-        lu_second = scipy.linalg.lu_factor(second_moment_matrix(At, Q))
-    except (ValueError, np.linalg.LinAlgError, scipy.linalg.LinAlgError):
-        return best
-    for omega in omegas:
-        try:
-            HN, HD = _forms(At, Bw, Cz, F, Q, pi, omega, lu_second)
-            w, V = scipy.linalg.eigh(0.5 * (HN + HN.T), 0.5 * (HD + HD.T))
-        except (ValueError, np.linalg.LinAlgError, scipy.linalg.LinAlgError):
-            continue
-        if np.isfinite(w[-1]) and w[-1] > best[0]:
-            e = V[:, -1] / np.abs(V[:, -1]).max()
-            best = (float(w[-1]), omega, e)
-    return best
 
 
 def _proved_ratio(loop: ClosedLoop, deltas: dict[str, Matrix], sim: Similarity, F: Sequence[Matrix], rates: Matrix,
@@ -378,49 +386,6 @@ def _residual_moments(At: Sequence[Ball], q: list[list[Any]], G: Sequence[Ball],
     return out
 
 
-def worst_constant_delta(loop: ClosedLoop, rates: Matrix, *, upper: float | None = None,
-                         passes: int = 1) -> tuple[str, dict[str, Matrix]]:
-    """A constant uncertainty of norm 1 that makes the float gain at ``rates`` large: on
-    every channel a rectangular diagonal of signs (an extreme point of the unit ball),
-    the same in every joint state, found by flipping one sign at a time while the coarse
-    float gain grows by more than 0.1 % (at most ``passes`` sweeps; a second changed nothing
-    on three random n = 8, m = 3 loops). A search: the bound it leads to is proved
-    afterwards. Returns a label and ``{channel name: Delta}``."""
-    shapes = {ch.name: (ch.E.shape[1], ch.F.shape[0]) for chans in loop.channels for ch in chans}
-    signs = {name: np.ones(min(shape)) for name, shape in shapes.items()}
-    Q = loop.chain.generator(rates)
-
-    def deltas(sg: dict[str, np.ndarray]) -> dict[str, Matrix]:
-        out = {}
-        for name, (p, q) in shapes.items():
-            D = np.zeros((p, q))
-            D[np.arange(len(sg[name])), np.arange(len(sg[name]))] = sg[name]
-            out[name] = D
-        return out
-
-    def gain(sg: dict[str, np.ndarray], start: float | None) -> tuple[float, Sequence[Matrix] | None]:
-        found = float_gain(loop.perturbed(deltas(sg)), loop.Bw, loop.Cz, Q, upper=start, rtol=1e-3)
-        return (-math.inf, None) if found is None else found
-
-    best, _ = gain(signs, upper)
-    for _ in range(passes):
-        improved = False
-        for name in signs:
-            for k in range(len(signs[name])):
-                trial = {key: v.copy() for key, v in signs.items()}
-                trial[name][k] = -trial[name][k]
-                if math.isfinite(best) and not _exceeds(loop.perturbed(deltas(trial)), loop.Bw, loop.Cz, Q,
-                                                        best * (1 + 1e-3)):
-                    continue  # not clearly above the best so far
-                g, _ = gain(trial, best * (1 + 1e-3) if math.isfinite(best) else upper)  # at least that
-                if g > best:
-                    best, signs, improved = g, trial, True
-        if not improved:
-            break
-    label = "Delta = " + ", ".join(f"{name}: diag{[int(v) for v in sg]}" for name, sg in signs.items())
-    return label, deltas(signs)
-
-
 def _first_moments(At: Sequence[Ball], Bw: Sequence[Ball], q: list[list[Any]], pi: Any, eb: Ball,
                    omega: float) -> Any:
     """The enclosure of ``[Mr; Mi]`` (module docstring): the real form
@@ -484,10 +449,12 @@ def _candidate_rates(loop: ClosedLoop, worst: Matrix | None) -> list[Matrix]:
     return out
 
 
-def _exceeds(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], Q: Matrix, gamma: float) -> bool:
+def exceeds(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], Q: Matrix, gamma: float,
+            start: Sequence[Matrix] | None = None) -> bool:
     """In float64: no stabilising Riccati solution at ``gamma`` (the gain is at least
-    ``gamma``, or the loop is not mean-square stable), from ``F = 0``: a cheap comparison."""
-    return worst_case_feedback(A, Bw, Cz, Q, gamma, rtol=SEARCH_RTOL) is None
+    ``gamma``, or the loop is not mean-square stable), tried from ``start`` and from
+    ``F = 0`` (``_feasible``): a cheap comparison."""
+    return _feasible(A, Bw, Cz, Q, gamma, start) is None
 
 
 #: The feedback is first taken at the certified gamma times this: when the certificate is
@@ -538,7 +505,7 @@ def gain_lower_bound(loop: ClosedLoop, *, deltas: Sequence[tuple[str, dict[str, 
                     continue
                 g, F = gamma_f, F_or_none
             At = [a + b @ f for a, b, f in zip(A, loop.Bw, F)]
-            ratio, omega, e = _best_excitation(At, loop.Bw, loop.Cz, F, Q, pi)
+            ratio, omega, e = best_excitation(At, loop.Bw, loop.Cz, F, Q, pi)
             if best is None or ratio > best[0]:
                 best = (ratio, label, delta, rates, F, g, pi, omega, e)
     if best is None:
@@ -552,7 +519,7 @@ def gain_lower_bound(loop: ClosedLoop, *, deltas: Sequence[tuple[str, dict[str, 
         if found is not None:
             g, F = found
             At = [a + b @ f for a, b, f in zip(A, loop.Bw, F)]
-            ratio, omega, e = _best_excitation(At, loop.Bw, loop.Cz, F, Q, pi)
+            ratio, omega, e = best_excitation(At, loop.Bw, loop.Cz, F, Q, pi)
     At = [a + b @ f for a, b, f in zip(A, loop.Bw, F)]
     estimate = math.sqrt(max(ratio, 0.0))
     sim = conditioning_transform(replace(nominal, A=tuple(At), source=None))
