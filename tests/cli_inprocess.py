@@ -12,6 +12,11 @@ captured too; the fd output follows the stream output), argparse's ``SystemExit`
 turned into the exit code. Everything is restored afterwards. The result is a
 :class:`subprocess.CompletedProcess`, so the tests' assertions read the same.
 
+python-control (the modules of ``analyze``'s and ``verify``'s cross-check child,
+:data:`ftc_verify.prestart.CROSS_CHECK_MODULES`) is imported in this process once, so the
+child each command forks finds it imported instead of importing it again (about 1 s of
+CPU per command; the child still computes the cross-check).
+
 What stays a real subprocess (and is tested as one): signals (SIGINT, SIGTERM, a closed
 pipe), the start-up time and imports of a fresh interpreter, the umask, the console
 script, and the tutorials' commands as a user types them.
@@ -62,9 +67,14 @@ def run_cli(args: Sequence[str], cwd: Path | str | None = None, env: Mapping[str
             timeout: float | None = None) -> subprocess.CompletedProcess[str]:
     """``python -m ftc_verify *args`` in this process (module docstring); ``timeout`` is
     accepted for the signature of the subprocess helpers it replaces and not enforced."""
+    import importlib
+
     from ftc_verify.cli.main import main
+    from ftc_verify.prestart import CROSS_CHECK_MODULES
 
     del timeout
+    for name in CROSS_CHECK_MODULES:  # once per test process: the forked cross-check children share them
+        importlib.import_module(name)
     out, err = io.StringIO(), io.StringIO()
     here = os.getcwd()
     sys.stdout.flush()
