@@ -9,10 +9,10 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 from collections.abc import Callable
 from pathlib import Path
 
+import cli_inprocess
 import numpy as np
 import pytest
 
@@ -151,7 +151,9 @@ def test_three_methods_on_the_two_output_plant(two_output_design) -> None:
 
 
 def _cli(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "ftc_verify", *args], capture_output=True, text=True, timeout=600)
+    """``ftc-verify ARGS`` in this process (``tests/cli_inprocess.py``: exit code, stdout and
+    stderr as a subprocess gives them)."""
+    return cli_inprocess.run_cli(args)
 
 
 @pytest.mark.slow(11)  # seconds measured on 2 busy cores: scheduled first
