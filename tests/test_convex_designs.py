@@ -11,10 +11,9 @@ Solver: Clarabel. No randomness except the fixed seeds of the drawn matrices.
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
+import cli_inprocess
 import numpy as np
 import pytest
 
@@ -115,8 +114,7 @@ def test_true_mode_reference_closed_form() -> None:
 def test_cli_default_is_best(tmp_path, paper_path) -> None:  # type: ignore[no-untyped-def]
     """``synthesize SYSTEM -o K.toml`` without ``--method``: the best route, exit 0, file written."""
     out = tmp_path / "K.toml"
-    proc = subprocess.run([sys.executable, "-m", "ftc_verify", "synthesize", str(paper_path), "--k-max", "30", "-o",
-                           str(out), "--json"], capture_output=True, text=True, check=False)
+    proc = cli_inprocess.run_cli(["synthesize", str(paper_path), "--k-max", "30", "-o", str(out), "--json"])
     assert proc.returncode == 0, proc.stderr
     d = json.loads(proc.stdout)
     assert d["method"] == "best" and d["certified"] and out.exists()
