@@ -156,6 +156,21 @@ def shared_tmp(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture(autouse=True, scope="session")
+def _cross_check_modules_imported() -> None:
+    """python-control (and the cross-check module) imported once per test process: every
+    ``analyze`` and ``verify`` run in a test process (``main(argv)``, ``run_verify``) forks
+    a cross-check child (:func:`ftc_verify.prestart.cross_check`) that imports them unless
+    its parent has; imported here, each child finds them (about 1 s of CPU saved per run;
+    the child still computes the cross-check). Subprocess runs of the CLI are unaffected."""
+    import importlib
+
+    from ftc_verify.prestart import CROSS_CHECK_MODULES
+
+    for name in CROSS_CHECK_MODULES:
+        importlib.import_module(name)
+
+
+@pytest.fixture(autouse=True, scope="session")
 def _sigint_as_at_a_terminal() -> None:
     """Python's SIGINT handler in every test process: a run started in the background by a
     non-interactive shell (``pytest ... &``) inherits SIGINT ignored, and so would every CLI

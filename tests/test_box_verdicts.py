@@ -10,6 +10,7 @@ import time
 from fractions import Fraction
 from pathlib import Path
 
+import cli_inprocess
 import numpy as np
 import pytest
 
@@ -57,8 +58,7 @@ def test_instability_inside_the_box_is_found_though_every_vertex_is_stable(tmp_p
 
 def test_cli_no_longer_calls_the_interior_instability_stable(tmp_path: Path) -> None:
     system, gains = interior_files(tmp_path)
-    proc = subprocess.run([sys.executable, "-m", "ftc_verify", "analyze", str(system), "--gains", str(gains),
-                           "--no-lmi", "--json"], capture_output=True, text=True, timeout=300)
+    proc = cli_inprocess.run_cli(["analyze", str(system), "--gains", str(gains), "--no-lmi", "--json"])
     assert proc.returncode == 1, proc.stdout + proc.stderr
     mss = json.loads(proc.stdout)["mss"]
     assert mss["verdict"] == "not stable" and mss["witness"]["abscissa_enclosure"][0] > 0

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 from pathlib import Path
 
+import cli_inprocess
 import pytest
 
 from ftc_verify.cli.main import main
@@ -17,7 +17,9 @@ PAPER_GAINS = ROOT / "examples" / "paper_gains.toml"
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "ftc_verify", *args], capture_output=True, text=True, timeout=300)
+    """``ftc-verify ARGS`` in this process (``tests/cli_inprocess.py``: exit code, stdout and
+    stderr as a subprocess gives them)."""
+    return cli_inprocess.run_cli(args)
 
 
 def test_analyze_paper_json_schema_and_exit_0() -> None:

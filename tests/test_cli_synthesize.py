@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 from pathlib import Path
 
+import cli_inprocess
 import numpy as np
 
 from ftc_verify.controllers.files import load_gains
@@ -16,7 +16,8 @@ PAPER = ROOT / "examples" / "paper.toml"
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "ftc_verify", *args], capture_output=True, text=True, timeout=600)
+    """``ftc-verify ARGS`` in this process (``tests/cli_inprocess.py``)."""
+    return cli_inprocess.run_cli(args)
 
 
 def test_two_step_at_paper_gamma_is_certified_and_reanalysable(tmp_path: Path) -> None:

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 from pathlib import Path
 from types import SimpleNamespace
 
+import cli_inprocess
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -22,8 +22,9 @@ def _cache(tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyP
 
 
 def run_cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "ftc_verify", *args], capture_output=True, text=True,
-                          timeout=600, cwd=cwd)
+    """``ftc-verify ARGS`` in this process (``tests/cli_inprocess.py``: exit code, stdout and
+    stderr as a subprocess gives them)."""
+    return cli_inprocess.run_cli(args, cwd)
 
 
 @pytest.mark.parametrize("backend", ["reference", "fmu"])

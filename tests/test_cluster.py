@@ -17,6 +17,7 @@ from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
+import cli_inprocess
 import numpy as np
 import pytest
 
@@ -39,8 +40,13 @@ GAINS = ROOT / "examples" / "paper_gains.toml"
 
 
 def _cli(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "ftc_verify", "simulate", str(PAPER), "--gains", str(GAINS),
-                           *args], capture_output=True, text=True, timeout=600)
+    """``simulate`` of the paper's gains with ``args``: with ``--workers`` or ``--scheduler``
+    as a user runs it (a subprocess: its Dask cluster or client is the process's own), the
+    serial runs they are compared with in this process (``tests/cli_inprocess.py``)."""
+    argv = ["simulate", str(PAPER), "--gains", str(GAINS), *args]
+    if "--workers" in args or "--scheduler" in args:
+        return subprocess.run([sys.executable, "-m", "ftc_verify", *argv], capture_output=True, text=True, timeout=600)
+    return cli_inprocess.run_cli(argv)
 
 
 def test_serial_and_two_workers_give_identical_numbers() -> None:

@@ -11,12 +11,12 @@ Solver: Clarabel. No randomness except the fixed seeds of the drawn matrices.
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
+import cli_inprocess
 import numpy as np
 import pytest
+from session_cache import computed_once
 
 from ftc_verify.analysis.closedloop import gain_loop
 from ftc_verify.analysis.lmi import block_specs, dilated_block, xy_block
@@ -77,26 +77,36 @@ def paper_system_module() -> FTCSystem:
 
 
 @pytest.fixture(scope="module")
-def best_paper(paper_system_module: FTCSystem):  # type: ignore[no-untyped-def]
-    return synthesize(paper_system_module, k_max=30.0, solver="clarabel")
+def best_paper(shared_tmp: Path, paper_path: Path) -> tuple[int, dict, Path]:
+    """``synthesize examples/paper.toml --k-max 30 -o K.toml --json`` (no ``--method``: the
+    ``best`` route) run once per session, in a test process (``tests/cli_inprocess.py``;
+    ``tests/session_cache.py``), for the tests of the CLI default and of ``best``'s rows
+    (its JSON is ``SynthesisResult.to_dict``): exit code, JSON, the gains file."""
+    def run(folder: Path) -> tuple[int, dict, Path]:
+        proc = cli_inprocess.run_cli(["synthesize", str(paper_path), "--k-max", "30", "-o", "K.toml", "--json"],
+                                     folder)
+        assert proc.returncode == 0, proc.stderr
+        return proc.returncode, json.loads(proc.stdout), folder / "K.toml"
+
+    return computed_once(shared_tmp, "convex-best-paper", run)
 
 
 @pytest.mark.slow(7)  # seconds on 2 busy cores (--durations at load 9, / 4): scheduled first
 def test_best_is_never_above_its_routes(best_paper, paper_system_module: FTCSystem) -> None:  # type: ignore[no-untyped-def]
     """``best``: certified, every route a row with seconds, the result the smallest certified
     row, at most the ``iterative`` method run alone, and the reference line present."""
-    res = best_paper
-    assert res.method == "best" and res.certified
-    names = [r["name"] for r in res.starts]
+    _, res, _ = best_paper
+    assert res["method"] == "best" and res["certified"]
+    names = [r["name"] for r in res["starts"]]
     for route in ("two-step", "common", "common-fdi", "dilated", "descent from common"):
         assert route in names
-    certified = [r["gamma_certified"] for r in res.starts if r["gamma_certified"] is not None]
-    assert all(r["seconds"] is not None and r["seconds"] >= 0 for r in res.starts)
-    assert res.gamma_certified <= min(certified) * (1 + RTOL)
+    certified = [r["gamma_certified"] for r in res["starts"] if r["gamma_certified"] is not None]
+    assert all(r["seconds"] is not None and r["seconds"] >= 0 for r in res["starts"])
+    assert res["gamma_certified"] <= min(certified) * (1 + RTOL)
     alone = synthesize(paper_system_module, method="iterative", k_max=30.0, solver="clarabel")
-    assert res.gamma_certified <= alone.gamma_certified * (1 + RTOL)
-    assert max(np.linalg.norm(K, 2) for K in res.gains) <= 30.0 * (1 + 1e-6)
-    ref = res.to_dict()["reference"]
+    assert res["gamma_certified"] <= alone.gamma_certified * (1 + RTOL)
+    assert max(np.linalg.norm(np.array(K), 2) for K in res["gains"]) <= 30.0 * (1 + 1e-6)
+    ref = res["reference"]
     assert ref["name"].startswith("true-mode") and ref["lmi_gamma"] is not None
 
 
@@ -112,13 +122,11 @@ def test_true_mode_reference_closed_form() -> None:
     assert ref["gamma"] == pytest.approx(abs(c * d / a), rel=1e-4)
 
 
-def test_cli_default_is_best(tmp_path, paper_path) -> None:  # type: ignore[no-untyped-def]
-    """``synthesize SYSTEM -o K.toml`` without ``--method``: the best route, exit 0, file written."""
-    out = tmp_path / "K.toml"
-    proc = subprocess.run([sys.executable, "-m", "ftc_verify", "synthesize", str(paper_path), "--k-max", "30", "-o",
-                           str(out), "--json"], capture_output=True, text=True, check=False)
-    assert proc.returncode == 0, proc.stderr
-    d = json.loads(proc.stdout)
+def test_cli_default_is_best(best_paper) -> None:  # type: ignore[no-untyped-def]
+    """``synthesize SYSTEM -o K.toml`` without ``--method``: the best route, exit 0, file
+    written (the run of the ``best_paper`` fixture, whose rows the test above checks)."""
+    code, d, out = best_paper
+    assert code == 0
     assert d["method"] == "best" and d["certified"] and out.exists()
     assert d["reference"]["gamma_certified"] is None or d["reference"]["gamma_certified"] > 0
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
+import cli_inprocess
 import numpy as np
 import pytest
 
@@ -112,17 +113,12 @@ def test_order_one_controller_synthesized_and_certified() -> None:
 
 @pytest.mark.slow(30)  # seconds measured on 2 busy cores: scheduled first
 def test_cli_doubled_rates_certified_by_analyze(tmp_path: Path) -> None:
-    import subprocess
-    import sys
-
     out = tmp_path / "K.toml"
-    run = subprocess.run([sys.executable, "-m", "ftc_verify", "synthesize",
-                          str(ROOT / "examples" / "paper_fast_detection.toml"), "--output-feedback", "-o", str(out)],
-                         capture_output=True, text=True, timeout=600)
+    run = cli_inprocess.run_cli(["synthesize", str(ROOT / "examples" / "paper_fast_detection.toml"),
+                                 "--output-feedback", "-o", str(out)])
     assert run.returncode == 0, run.stdout + run.stderr
-    check = subprocess.run([sys.executable, "-m", "ftc_verify", "analyze",
-                            str(ROOT / "examples" / "paper_fast_detection.toml"), "--controller", str(out)],
-                           capture_output=True, text=True, timeout=600)
+    check = cli_inprocess.run_cli(["analyze", str(ROOT / "examples" / "paper_fast_detection.toml"),
+                                   "--controller", str(out)])
     assert check.returncode == 0, check.stdout  # certified stable: the verdict and Theorem 3.1
     assert "nominal gamma (Th. 3.2)" in check.stdout and "certified (clarabel" in check.stdout
 
@@ -131,13 +127,9 @@ def test_cli_doubled_rates_certified_by_analyze(tmp_path: Path) -> None:
 def test_cli_paper_rates_diagnosed(tmp_path: Path) -> None:
     """The paper's own rates: the descent's full search finds no stabilising controller of
     order <= 2 and says why (exit 1, nothing written)."""
-    import subprocess
-    import sys
-
     none = tmp_path / "none.toml"
-    run = subprocess.run([sys.executable, "-m", "ftc_verify", "synthesize", str(ROOT / "examples" / "paper.toml"),
-                          "--output-feedback", "--method", "descent", "-o", str(none)],
-                         capture_output=True, text=True, timeout=600)
+    run = cli_inprocess.run_cli(["synthesize", str(ROOT / "examples" / "paper.toml"), "--output-feedback",
+                                 "--method", "descent", "-o", str(none)])
     assert run.returncode == 1, run.stdout + run.stderr
     assert "no controller of order <= 2 found" in run.stdout
     assert "approaches 0 only with unbounded gains" in run.stdout
@@ -151,11 +143,7 @@ def test_cli_paper_rates_diagnosed(tmp_path: Path) -> None:
     (["--output-feedback", "--method", "two-step"], "--method two-step"),
 ])
 def test_order_and_method_misuse_is_one_error(tmp_path: Path, options: list[str], word: str) -> None:
-    import subprocess
-    import sys
-
     out = tmp_path / "K.toml"
-    run = subprocess.run([sys.executable, "-m", "ftc_verify", "synthesize", str(ROOT / "examples" / "paper.toml"),
-                          *options, "-o", str(out)], capture_output=True, text=True, timeout=120)
+    run = cli_inprocess.run_cli(["synthesize", str(ROOT / "examples" / "paper.toml"), *options, "-o", str(out)])
     assert run.returncode == 2, run.stdout + run.stderr
     assert word in run.stderr and len(run.stderr.strip().splitlines()) == 1 and not out.exists()

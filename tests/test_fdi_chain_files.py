@@ -10,10 +10,9 @@ valid file round-trips exactly; the paper's model writes none of them; a plant m
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
+import cli_inprocess
 import numpy as np
 import pytest
 
@@ -65,8 +64,7 @@ def test_each_bad_key_is_one_error_naming_it(tmp_path: Path, lines: list[str], f
 
 def test_the_command_line_refuses_with_exit_2(tmp_path: Path) -> None:
     bad = _with(tmp_path, "delay_phases = 0")
-    out = subprocess.run([sys.executable, "-m", "ftc_verify", "analyze", str(bad), "--gains",
-                          str(ROOT / "examples" / "paper_gains.toml")], capture_output=True, text=True, timeout=120)
+    out = cli_inprocess.run_cli(["analyze", str(bad), "--gains", str(ROOT / "examples" / "paper_gains.toml")])
     assert out.returncode == 2 and out.stdout == "" and out.stderr.count("\n") == 1, out
     assert "delay_phases" in out.stderr and "Traceback" not in out.stderr
 

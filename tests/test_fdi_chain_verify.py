@@ -7,10 +7,9 @@ in the output and the report."""
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
+import cli_inprocess
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -18,9 +17,9 @@ ROOT = Path(__file__).resolve().parents[1]
 
 @pytest.mark.slow(40)  # seconds on 2 busy cores (--durations at load 9, / 4): scheduled first
 def test_verify_passes_on_a_phase_type_chain_with_false_alarms(tmp_path: Path) -> None:
-    out = subprocess.run([sys.executable, "-m", "ftc_verify", "verify", str(ROOT / "examples" / "paper_phase_type.toml"),
-                          "--gains", str(ROOT / "examples" / "paper_gains.toml"), "--paths", "30", "--horizon", "6",
-                          "--seed", "5", "--out", str(tmp_path / "rep")], capture_output=True, text=True, timeout=600)
+    out = cli_inprocess.run_cli(["verify", str(ROOT / "examples" / "paper_phase_type.toml"),
+                                 "--gains", str(ROOT / "examples" / "paper_gains.toml"), "--paths", "30", "--horizon",
+                                 "6", "--seed", "5", "--out", str(tmp_path / "rep")])
     assert out.returncode == 0, out
     assert "FDI: Erlang-4 detection delays" in out.stdout and "false alarms at rates in [0.02, 0.05]" in out.stdout
     report = json.loads((tmp_path / "rep" / "report.json").read_text())

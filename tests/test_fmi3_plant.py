@@ -17,13 +17,12 @@ with ``fmi_version="3.0"``; each is compared with the FMI 2.0 FMU of the same mo
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import subprocess
-import sys
 import zipfile
 from pathlib import Path
 
+import cli_inprocess
 import numpy as np
 import pytest
 
@@ -72,9 +71,9 @@ def plants(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 
 
 def _cli(args: list[str], cwd: Path) -> subprocess.CompletedProcess[str]:
-    env = os.environ | {"TMPDIR": str(cwd)}
-    return subprocess.run([sys.executable, "-m", "ftc_verify", *args], capture_output=True, text=True, cwd=cwd,
-                          env=env, timeout=300)
+    """``ftc-verify ARGS`` in ``cwd`` (also its temporary folder), in this process
+    (``tests/cli_inprocess.py``: exit code, stdout and stderr as a subprocess gives them)."""
+    return cli_inprocess.run_cli(args, cwd, {"TMPDIR": str(cwd)})
 
 
 def _loaded(folder: Path) -> tuple:

@@ -16,6 +16,7 @@ import sys
 import time
 from pathlib import Path
 
+import cli_inprocess
 import control
 import numpy as np
 import pytest
@@ -72,10 +73,11 @@ def test_good_deltas_still_perturb() -> None:
 
 # ------------------------------------------------------------------ items 2 and 3: sizes, seeds, the disk
 
-def _cli(args: list[str], tmp_path: Path, env: dict[str, str] | None = None,
-         timeout: float = 120) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "ftc_verify", *args], capture_output=True, text=True,
-                          timeout=timeout, cwd=tmp_path, env=os.environ | (env or {}))
+def _cli(args: list[str], tmp_path: Path, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
+    """``ftc-verify ARGS`` in ``tmp_path``, in this process (``tests/cli_inprocess.py``:
+    exit code, stdout and stderr as a subprocess gives them); the signal tests below run
+    real subprocesses."""
+    return cli_inprocess.run_cli(args, tmp_path, env)
 
 
 @pytest.mark.parametrize("order, limit", [("200", None), ("1000", None), ("100000000000", None), ("20", "50M")])
@@ -407,8 +409,11 @@ def test_the_child_dies_with_a_parent_killed_outright(tmp_path: Path) -> None:
     proc = subprocess.Popen([sys.executable, "-m", "ftc_verify", "synthesize", str(EXAMPLES / "paper.toml"),
                              "--output-feedback", "--method", "descent", "--order", "30", "-o", "c.toml"],
                             cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    time.sleep(5)
+    deadline = time.monotonic() + 120  # the descent's child starts after the imports: seconds under load
     children = _children(proc.pid)
+    while not children and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.1)
+        children = _children(proc.pid)
     assert children
     proc.kill()
     proc.wait(timeout=30)

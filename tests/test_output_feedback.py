@@ -9,12 +9,13 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 from collections.abc import Callable
 from pathlib import Path
 
+import cli_inprocess
 import numpy as np
 import pytest
+from session_cache import computed_once
 
 from ftc_verify.analysis.closedloop import closed_loop, gain_loop
 from ftc_verify.analysis.lmi_analysis import hinf_gamma
@@ -39,19 +40,18 @@ def paper_two_outputs() -> FTCSystem:
 
 
 @pytest.fixture(scope="module")
-def certified_observer() -> tuple[FTCSystem, object]:
-    system = paper_two_outputs()
-    sf = synthesize(system, method="iterative", k_max=30.0, solver="clarabel")
-    assert sf.certified
-    _name, ctrl = observer_designs(system, list(sf.gains))[0]
-    return system, ctrl
+def observer_certificate(shared_tmp: Path):
+    """The observer-based controller of the two-output plant built on its certified
+    iterative state-feedback gains (``k_max = 30``), with its robust certificate, computed once per session for the tests that read it, whichever xdist worker runs
+    them (``tests/session_cache.py``)."""
+    def compute(_folder: Path):
+        system = paper_two_outputs()
+        sf = synthesize(system, method="iterative", k_max=30.0, solver="clarabel")
+        assert sf.certified
+        _name, ctrl = observer_designs(system, list(sf.gains))[0]
+        return system, ctrl, hinf_gamma(closed_loop(system, ctrl), robust=True, solver="clarabel")
 
-
-@pytest.fixture(scope="module")
-def observer_certificate(certified_observer):
-    """``certified_observer`` with its robust certificate (one solve for the tests that read it)."""
-    system, ctrl = certified_observer
-    return system, ctrl, hinf_gamma(closed_loop(system, ctrl), robust=True, solver="clarabel")
+    return computed_once(shared_tmp, "of-observer-certificate", compute)
 
 
 def test_augmented_plant_reproduces_the_dynamic_closed_loop() -> None:
@@ -119,17 +119,14 @@ def test_ccl_reports_its_stopping_reason() -> None:
 
 
 @pytest.fixture(scope="module")
-def two_output_design() -> Callable[[str], SynthesisResult]:
+def two_output_design(shared_tmp: Path) -> Callable[[str], SynthesisResult]:
     """The design of the two-output plant by a method under ``k_max = 30``, computed once
-    per module and test process for the tests that check it (the observer's is issue
-    34's); on demand, so a process that needs only the observer design computes only it."""
-    system = paper_two_outputs()
-    cache: dict[str, SynthesisResult] = {}
-
+    per session for the tests that check it, whichever xdist worker runs them
+    (``tests/session_cache.py``; the observer's is issue 34's); on demand, so a session
+    that needs only the observer design computes only it."""
     def design(method: str) -> SynthesisResult:
-        if method not in cache:
-            cache[method] = synthesize_output_feedback(system, method=method, k_max=30.0, solver="clarabel")
-        return cache[method]
+        return computed_once(shared_tmp, f"of-two-output-{method}", lambda _folder: synthesize_output_feedback(
+            paper_two_outputs(), method=method, k_max=30.0, solver="clarabel"))
 
     return design
 
@@ -151,7 +148,9 @@ def test_three_methods_on_the_two_output_plant(two_output_design) -> None:
 
 
 def _cli(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "ftc_verify", *args], capture_output=True, text=True, timeout=600)
+    """``ftc-verify ARGS`` in this process (``tests/cli_inprocess.py``: exit code, stdout and
+    stderr as a subprocess gives them)."""
+    return cli_inprocess.run_cli(args)
 
 
 @pytest.mark.slow(11)  # seconds measured on 2 busy cores: scheduled first

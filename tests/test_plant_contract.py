@@ -1,5 +1,7 @@
 """The plant commands' contract (issue 22, items 8-11, 13, 14): ``plant``, ``linearize``,
-``build-fmu`` and ``synthesize`` run as a user runs them (``python -m ftc_verify``).
+``build-fmu`` and ``synthesize`` run with the folder, environment and streams a user's
+``python -m ftc_verify`` has, in the test process (``tests/cli_inprocess.py``; the
+umask and SIGTERM cases, which are about the process, run as subprocesses).
 
 Each case asserts the exit code, the answer (one verdict line or one JSON object; for bad
 input one stderr line naming the file, key and value), no traceback, and that nothing is
@@ -20,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import cli_inprocess
 import pytest
 
 from fmu_plants import build_plant
@@ -29,12 +32,11 @@ PAPER = ROOT / "examples" / "paper.toml"
 THREE_TANK = ROOT / "examples" / "three_tank" / "ThreeTank.mo"
 
 
-def run_cli(args: list[str], cwd: Path, env: dict[str, str] | None = None,
-            timeout: float = 300) -> subprocess.CompletedProcess[str]:
+def run_cli(args: list[str], cwd: Path, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
+    """``ftc-verify ARGS`` in ``cwd`` with the temporary folder ``cwd/.tmp``, in this process
+    (``tests/cli_inprocess.py``: what a subprocess would get and print)."""
     (cwd / ".tmp").mkdir(exist_ok=True)
-    full_env = os.environ | {"TMPDIR": str(cwd / ".tmp")} | (env or {})
-    return subprocess.run([sys.executable, "-m", "ftc_verify", *args], capture_output=True, text=True,
-                          timeout=timeout, cwd=cwd, env=full_env)
+    return cli_inprocess.run_cli(args, cwd, {"TMPDIR": str(cwd / ".tmp")} | (env or {}))
 
 
 def strict_json(text: str) -> Any:

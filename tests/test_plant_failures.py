@@ -27,6 +27,7 @@ import sys
 import time
 from pathlib import Path
 
+import cli_inprocess
 import numpy as np
 import pytest
 
@@ -63,6 +64,15 @@ def _cli(args: list[str], cwd: Path, timeout: float = 300) -> subprocess.Complet
     env = os.environ | {"TMPDIR": str(tmp)}
     return subprocess.run([sys.executable, "-m", "ftc_verify", *args], capture_output=True, text=True, cwd=cwd,
                           env=env, timeout=timeout)
+
+
+def _cli_here(args: list[str], cwd: Path) -> subprocess.CompletedProcess[str]:
+    """:func:`_cli` in this process (``tests/cli_inprocess.py``), for the cases whose claim
+    is the output and the files, not the process (the crashes, signals and Dask workers
+    stay subprocesses)."""
+    tmp = cwd / ".tmp"
+    tmp.mkdir(exist_ok=True)
+    return cli_inprocess.run_cli(args, cwd, {"TMPDIR": str(tmp)})
 
 
 def _left(cwd: Path) -> list[str]:
@@ -180,14 +190,14 @@ def test_a_plant_failing_in_do_step_is_a_result(plants: dict[str, Path]) -> None
     prints its JSON with every path failed there and the FMU's message, exit 1 (it used to
     exit 2, "bad input", with no JSON); verify writes the report, exit 1."""
     cwd = plants["fail"]
-    out = _cli(["simulate", "system.toml", "--gains", "K.toml", "--plant", "plant.toml", "--paths", "3",
+    out = _cli_here(["simulate", "system.toml", "--gains", "K.toml", "--plant", "plant.toml", "--paths", "3",
                 "--horizon", "4", "--seed", "1", "--json"], cwd)
     assert out.returncode == 1 and out.stderr == "", out
     d = json.loads(out.stdout)
     assert d["verdict"] == "fail" and [x["t"] for x in d["diverged"]] == [2.0, 2.0, 2.0]
     assert all("der(x) is not finite" in x["fmu_failure"] for x in d["diverged"])
     assert "failed in the plant FMU" in d["divergence"] and d["y_norm"] == [None, None, None]
-    out = _cli(["verify", "system.toml", "--gains", "K.toml", "--plant", "plant.toml", "--paths", "10",
+    out = _cli_here(["verify", "system.toml", "--gains", "K.toml", "--plant", "plant.toml", "--paths", "10",
                 "--horizon", "4", "--seed", "1", "--out", "rep"], cwd)
     assert out.returncode == 1 and out.stderr == "", out
     report = json.loads((cwd / "rep" / "report.json").read_text())
@@ -211,11 +221,11 @@ def test_delta_is_never_silently_zero(plants: dict[str, Path], tmp_path: Path) -
     text = (plants["ok"] / "system.toml").read_text().replace("D = [[1.0]]\n", "D = [[1.0]]\nA1 = [[0.1]]\nA2 = [[0.1]]\n")
     (tmp_path / "system.toml").write_text(text)
     assert load_system(tmp_path / "system.toml").uncertain
-    out = _cli(["simulate", "system.toml", "--gains", "K.toml", "--plant", "plant.toml", "--paths", "2",
+    out = _cli_here(["simulate", "system.toml", "--gains", "K.toml", "--plant", "plant.toml", "--paths", "2",
                 "--horizon", "1", "--delta", "random"], tmp_path)
     assert out.returncode == 2 and out.stdout == "" and out.stderr.count("\n") == 1, out
     assert "--delta random" in out.stderr and "names no Delta inputs" in out.stderr
-    out = _cli(["verify", "system.toml", "--gains", "K.toml", "--plant", "plant.toml", "--paths", "10",
+    out = _cli_here(["verify", "system.toml", "--gains", "K.toml", "--plant", "plant.toml", "--paths", "10",
                 "--horizon", "2", "--seed", "2", "--out", "rep"], tmp_path)
     assert out.returncode in (0, 1) and "Delta in the Monte Carlo: zero: the plant map names no Delta inputs" in out.stdout
     report = json.loads((tmp_path / "rep" / "report.json").read_text())

@@ -11,6 +11,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cli_inprocess
 import numpy as np
 import pytest
 
@@ -157,7 +158,7 @@ def test_cli_reference_on_two_workers_equals_serial() -> None:
     base = [sys.executable, "-m", "ftc_verify", "simulate", str(PAPER), "--gains", str(GAINS), "--backend",
             "reference", "--paths", "4500", "--horizon", "3", "--seed", "12", "--delta", "random", "--record", "1",
             "--json"]
-    serial = subprocess.run(base, capture_output=True, text=True, timeout=600)
+    serial = cli_inprocess.run_cli(base[3:])  # in this process (tests/cli_inprocess.py); the Dask run as a user's
     spread = subprocess.run(base + ["--workers", "2"], capture_output=True, text=True, timeout=600)
     assert serial.returncode == 0, serial.stderr
     assert spread.returncode == 0, spread.stderr

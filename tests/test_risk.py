@@ -16,9 +16,9 @@ from __future__ import annotations
 import json
 import math
 import subprocess
-import sys
 from pathlib import Path
 
+import cli_inprocess
 import numpy as np
 import pytest
 from scipy.stats import binom
@@ -157,8 +157,9 @@ def test_crude_monte_carlo_agrees_on_a_frequent_event(loop: tuple) -> None:
 
 
 def _cli(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "ftc_verify", "risk", *args], capture_output=True, text=True,
-                          timeout=300, env={"OPENBLAS_NUM_THREADS": "1", "PATH": "/usr/bin:/bin"})
+    """``ftc-verify risk ARGS`` in this process (``tests/cli_inprocess.py``: exit code, stdout
+    and stderr as a subprocess gives them)."""
+    return cli_inprocess.run_cli(["risk", *args], env={"OPENBLAS_NUM_THREADS": "1"})
 
 
 def test_cli_json(files: tuple[Path, Path]) -> None:

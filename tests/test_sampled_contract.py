@@ -7,11 +7,10 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
-import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
+import cli_inprocess
 import pytest
 
 from ftc_verify.analysis.moments.sampled import SampledLoop, sampled_analysis
@@ -40,9 +39,8 @@ def test_the_one_period_maps_memory_is_checked_before_any_work(monkeypatch: pyte
 
 
 def test_cli_period_over_the_memory_limit_exits_2_naming_it(tmp_path: Path) -> None:
-    proc = subprocess.run([sys.executable, "-m", "ftc_verify", "analyze", str(PAPER), "--controller", str(GAINS),
-                           "--period", "0.05", "--no-lmi"], capture_output=True, text=True, timeout=300, cwd=tmp_path,
-                          env={"FTC_VERIFY_MEMORY_LIMIT": "60K", "PATH": "/usr/bin:/bin"})
+    proc = cli_inprocess.run_cli(["analyze", str(PAPER), "--controller", str(GAINS), "--period", "0.05", "--no-lmi"],
+                                 tmp_path, {"FTC_VERIFY_MEMORY_LIMIT": "60K"})
     assert proc.returncode == 2, proc.stderr
     err = proc.stderr.strip()
     assert "sampled-data analysis" in err and "FTC_VERIFY_MEMORY_LIMIT" in err and len(err.splitlines()) == 1, err

@@ -6,10 +6,9 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import subprocess
-import sys
 from pathlib import Path
 
+import cli_inprocess
 import numpy as np
 import pytest
 
@@ -70,15 +69,13 @@ def test_streaming_reports_divergence_times_like_per_path() -> None:
 
 
 def test_cli_simulate_reference_streams(tmp_path: Path) -> None:
-    out = subprocess.run([sys.executable, "-m", "ftc_verify", "simulate", str(PAPER), "--gains",
-                          str(ROOT / "examples" / "paper_gains.toml"), "--backend", "reference", "--paths", "30",
-                          "--horizon", "5", "--seed", "2", "--json"], capture_output=True, text=True, timeout=300)
+    out = cli_inprocess.run_cli(["simulate", str(PAPER), "--gains", str(ROOT / "examples" / "paper_gains.toml"),
+                                 "--backend", "reference", "--paths", "30", "--horizon", "5", "--seed", "2", "--json"])
     assert out.returncode == 0, out.stderr
     d = json.loads(out.stdout)
     assert d["paths"] == 30 and len(d["y_norm"]) == 30 and d["options"]["streamed"] and d["options"]["recorded"] == 0
-    out = subprocess.run([sys.executable, "-m", "ftc_verify", "simulate", str(PAPER), "--gains",
-                          str(ROOT / "examples" / "paper_gains.toml"), "--backend", "reference", "--record", "-1"],
-                         capture_output=True, text=True, timeout=300)
+    out = cli_inprocess.run_cli(["simulate", str(PAPER), "--gains", str(ROOT / "examples" / "paper_gains.toml"),
+                                 "--backend", "reference", "--record", "-1"])
     assert out.returncode == 2 and "--record" in out.stderr
 
 

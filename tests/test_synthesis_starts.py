@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 from pathlib import Path
 
+import cli_inprocess
 import numpy as np
 import pytest
 
@@ -103,7 +103,9 @@ def test_starts_respect_the_gain_bound() -> None:
 
 
 def _cli(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "ftc_verify", *args], capture_output=True, text=True, timeout=600)
+    """``ftc-verify ARGS`` in this process (``tests/cli_inprocess.py``: exit code, stdout and
+    stderr as a subprocess gives them)."""
+    return cli_inprocess.run_cli(args)
 
 
 def test_unstabilisable_plant_is_diagnosed_exit_1(tmp_path: Path) -> None:

@@ -9,7 +9,8 @@
   mode, whose operating point is not an equilibrium).
 - ``--trim`` finds the nominal stationary point; the loop runs in deviation variables;
   a failing ``fmi2Reset`` is recovered by re-instantiation; fixed-step FMUs get snapped jumps.
-- Map errors each give one clear error and exit 2 on the command line.
+- Map errors each give one clear error and exit 2 on the command line (the commands run
+  in process, ``tests/cli_inprocess.py``).
 """
 
 from __future__ import annotations
@@ -17,9 +18,9 @@ from __future__ import annotations
 import json
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
+import cli_inprocess
 import numpy as np
 import pytest
 
@@ -65,8 +66,9 @@ def _write_map(folder: Path, text: str) -> Path:
 
 
 def run_cli(args: list[str], cwd: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "ftc_verify", *args], capture_output=True, text=True, cwd=cwd,
-                          timeout=300)
+    """``ftc-verify ARGS`` in ``cwd``, in this process (``tests/cli_inprocess.py``: what a
+    subprocess would get and print, the FMU's own output at the file descriptors too)."""
+    return cli_inprocess.run_cli(args, cwd)
 
 
 # ---------------------------------------------------------------------------------- LinearJumpPlant

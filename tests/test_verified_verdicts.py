@@ -17,6 +17,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
+import cli_inprocess
 import numpy as np
 import pytest
 
@@ -120,8 +121,7 @@ def test_cli_exits_5_when_undecided(tmp_path: Path) -> None:
                       f'[[mode]]\n{mode}[[mode]]\n{mode}')
     gains = tmp_path / "zero.toml"
     gains.write_text('[[gain]]\nK = [[0.0, 0.0]]\n[[gain]]\nK = [[0.0, 0.0]]\n')
-    run = subprocess.run([sys.executable, "-m", "ftc_verify", "analyze", str(system), "--gains", str(gains)],
-                         capture_output=True, text=True, timeout=300)
+    run = cli_inprocess.run_cli(["analyze", str(system), "--gains", str(gains)])
     assert run.returncode == 5, run.stdout + run.stderr
     assert "UNDECIDED" in run.stdout and "Traceback" not in run.stderr
 

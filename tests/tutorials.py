@@ -1,8 +1,10 @@
 """The tutorials of ``docs/tutorials``: their commands read from the pages and run.
 
 Every command in a ```sh block is run, in order, from a temporary copy of ``examples/``
-(so the files the commands write stay there): lines ``ftc-verify ...`` as
-``python -m ftc_verify ...``, lines ``python ...`` with this interpreter, ``cd DIR``
+(so the files the commands write stay there): lines ``ftc-verify ...`` by the CLI's
+``main`` in the test process with the folder, environment and streams the shell would
+give them (``tests/cli_inprocess.py``), lines ``python ...`` with this interpreter in a
+subprocess, ``cd DIR``
 changes the folder of the next lines, a trailing ``\\`` joins lines. A command exits 0
 unless its line ends with ``# exit N``; nothing prints a traceback. Where a page shows a
 command's output (a plain fenced block starting with ``ftc-verify COMMAND:`` right after
@@ -38,6 +40,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+
+import cli_inprocess
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
@@ -172,11 +176,21 @@ def _check(page: Path, step: Step, command: str, out: subprocess.CompletedProces
         assert same_output(out.stdout, step.expected_stdout), (page.name, command, out.stdout)
 
 
+def run_command(command: str, cwd: Path, env: dict[str, str]) -> subprocess.CompletedProcess[str]:
+    """One command of a page: ``ftc-verify ...`` in this process (``tests/cli_inprocess.py``:
+    the folder, environment and streams, the file descriptors included, that the command
+    typed in a shell has; a fresh interpreter per command cost 0.4-1.4 s of CPU, mostly
+    imports), ``python ...`` as a subprocess."""
+    words = shlex.split(command)
+    if words[0] == "ftc-verify":
+        return cli_inprocess.run_cli(words[1:], cwd, env)
+    return subprocess.run(argv(command), cwd=cwd, capture_output=True, text=True, env=env, timeout=900, check=False)
+
+
 def _run_steps(page: Path, steps: list[tuple[Step, str]], work: Path, env: dict[str, str],
                results: dict[str, subprocess.CompletedProcess[str]]) -> None:
     for step, command in steps:
-        out = subprocess.run(argv(command), cwd=work / step.folder, capture_output=True, text=True, env=env,
-                             timeout=900, check=False)
+        out = run_command(command, work / step.folder, env)
         _check(page, step, command, out)
         results[step.line] = out
 
