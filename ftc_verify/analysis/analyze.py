@@ -39,7 +39,7 @@ from .closedloop import ClosedLoop
 from ..jsonable import jsonable
 from .crossval import ModeCheck, cross_validate
 from ..limits import check_memory, dense_generator_estimate
-from .lmi_analysis import LMIResult, hinf_gamma, mes_lmi
+from .lmi_analysis import LMIResult, hinf_gamma, mes_known, mes_lmi
 from .lmi_size import check_lmi_memory
 from .lower_bound import GainLowerBound, gain_lower_bound, worst_constant_delta
 from .solvers import ForkedCall
@@ -211,10 +211,10 @@ def _stages(loop: ClosedLoop, solver: str | None, name: str, lmi: bool, lower_bo
         mes, nominal, robust = (_not_requested(c, "not solved: the loop is proved NOT mean-square stable, so no "
                                                "certificate exists") for c in ("Theorem 3.1", "Theorem 3.2", "Lemma 4.1"))
     elif lmi:
-        nominal, robust, early = _gammas(loop, solver, seconds, mss if lower_bounds else None, ahead)
+        nominal, robust, early, mes_first = _gammas(loop, solver, seconds, mss if lower_bounds else None, ahead)
         t = time.perf_counter()
-        mes = mes_lmi(loop, solver=solver, known=(nominal, robust))
-        seconds["theorem_3_1"] = time.perf_counter() - t
+        mes = mes_first or mes_lmi(loop, solver=solver, known=(nominal, robust))
+        seconds["theorem_3_1"] = seconds.get("theorem_3_1", 0.0) + time.perf_counter() - t
         if mss.undecided and mes.certified:
             mss = mss.proved_by("the certified Theorem 3.1 LMI over the whole box (one P for every rate)", loop.chain)
         elif mss.reason == ROOT_LMI_DEFERRED:  # no certificate from stage 3: the branch and bound in full
@@ -266,7 +266,8 @@ def _lower_bounds(loop: ClosedLoop, mss: MSSResult, nominal: LMIResult, robust: 
 
 
 def _gammas(loop: ClosedLoop, solver: str | None, seconds: dict[str, float],
-            mss: MSSResult | None = None, ahead: ForkedCall | None = None) -> tuple[LMIResult, LMIResult, Early]:
+            mss: MSSResult | None = None,
+            ahead: ForkedCall | None = None) -> tuple[LMIResult, LMIResult, Early, LMIResult | None]:
     """The nominal (Theorem 3.2) and robust (Lemma 4.1) gamma programs. ``ahead``: the
     one already running in a forked child since before the spectral stage
     (:func:`_gamma_ahead`; ``None`` without ``fork``: both solved here, the certified
@@ -275,28 +276,39 @@ def _gammas(loop: ClosedLoop, solver: str | None, seconds: dict[str, float],
     the child (two single-threaded solves on two cores), and, given ``mss`` (lower
     bounds requested), this process goes on with the nominal lower bound and the
     constant-``Delta`` search of the robust one (:func:`_nominal_side`), which need only
-    the nominal gamma. ``seconds`` gets each stage's wall time after the spectral stage
-    (``lemma_4_1``: until the child's answer arrived; the lower-bound part of
-    :func:`_nominal_side` as ``lower_bounds_beside``)."""
+    the nominal gamma, and with Theorem 3.1 on Theorem 3.2's ``P``
+    (:func:`~ftc_verify.analysis.lmi_analysis.mes_known`); when that fails, Theorem 3.1
+    (:func:`~ftc_verify.analysis.lmi_analysis.mes_lmi`) on Lemma 4.1's answer once it
+    arrives: the same answer as ``mes_lmi(known=(nominal, robust))``, returned last
+    (``None`` in the other cases: the caller runs that). ``seconds`` gets each stage's
+    wall time after the spectral stage (``lemma_4_1``: until the child's answer arrived;
+    the lower-bound part of :func:`_nominal_side` as ``lower_bounds_beside``)."""
     t = time.perf_counter()
     if not loop.uncertain:
         nominal = ahead.result() if ahead is not None else hinf_gamma(loop, robust=False, solver=solver)
         seconds["theorem_3_2"] = seconds["lemma_4_1"] = time.perf_counter() - t
-        return nominal, nominal, None
+        return nominal, nominal, None, None
     if ahead is None:
         nominal = hinf_gamma(loop, robust=False, solver=solver)
         seconds["theorem_3_2"] = time.perf_counter() - t
         hint = nominal.gamma if nominal.certified else None  # Lemma 4.1's gamma is at least this
         robust = hinf_gamma(loop, robust=True, solver=solver, gamma_hint=hint)
         seconds["lemma_4_1"] = time.perf_counter() - t - seconds["theorem_3_2"]
-        return nominal, robust, None
+        return nominal, robust, None, None
     nominal, early, beside = _nominal_side(loop, solver, mss)
     seconds["theorem_3_2"] = time.perf_counter() - t
     if early is not None:
         seconds["lower_bounds_beside"] = beside
+    t31 = time.perf_counter()
+    mes = mes_known(loop, (nominal,))
+    seconds["theorem_3_1"] = time.perf_counter() - t31
     robust = ahead.result()
     seconds["lemma_4_1"] = seconds["gammas_wall"] = time.perf_counter() - t
-    return nominal, robust, early
+    if mes is None:  # Theorem 3.2's P did not pass: Lemma 4.1's, else the solve (mes_lmi)
+        t31 = time.perf_counter()
+        mes = mes_lmi(loop, solver=solver, known=(robust,))
+        seconds["theorem_3_1"] += time.perf_counter() - t31
+    return nominal, robust, early, mes
 
 
 def _nominal_side(loop: ClosedLoop, solver: str | None, mss: MSSResult | None) -> tuple[LMIResult, Early, float]:

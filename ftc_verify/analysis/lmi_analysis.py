@@ -76,7 +76,7 @@ from .lmi_size import (RICCATI_FIRST_SIZE, RICCATI_FIRST_STATES, SDP_FALLBACK_LI
                        sdp_fallback_refusal)
 from .solvers import SETTINGS, SolveOutcome, choose_solver, second_solver, solve_conic, solve_conic_dual
 
-__all__ = ["GAMMA_LADDER", "ROUTES", "LMIResult", "mes_lmi", "hinf_gamma"]
+__all__ = ["GAMMA_LADDER", "ROUTES", "LMIResult", "mes_lmi", "mes_known", "hinf_gamma"]
 
 #: Relative increases of gamma tried, in order, when re-solving for a certificate.
 GAMMA_LADDER = (1e-5, 1e-4, 1e-3, 1e-2, 5e-2, 0.2, 1.0)
@@ -285,6 +285,24 @@ def mes_lmi(loop: ClosedLoop, *, solver: str | None = None, known: Sequence[LMIR
     solver that confirms an infeasibility (the branch and bound of
     :mod:`ftc_verify.analysis.box` needs a certificate or nothing).
     """
+    passed = mes_known(loop, known)
+    if passed is not None:
+        return passed
+    nominal, sim = _conditioned(loop.nominal())
+    if decision_size(loop.nominal(), robust=False) > SDP_FALLBACK_LIMIT:  # no SDP at this size (lmi_size)
+        found = lyapunov_candidate(loop.nominal(), nominal, sim)
+        why = "" if found.certificate is not None else sdp_fallback_refusal(loop.nominal(), False, "Theorem 3.1")
+        return _map_back(LMIResult("theorem-3.1", "error" if why else "certified", None, "riccati", "failed" if why else
+                                   "optimal", 0.0, 0.0, found.certificate, found.P, message=found.message + why), sim)
+    check_size(loop, False, "Theorem 3.1")
+    return _map_back(_mes_lmi(loop.nominal(), nominal, sim, solver, second_opinion), sim)
+
+
+def mes_known(loop: ClosedLoop, known: Sequence[LMIResult]) -> LMIResult | None:
+    """The first step of :func:`mes_lmi` alone: Theorem 3.1 certified with the ``P`` of
+    the first certified result of ``known`` whose check passes (no solve), ``None``
+    when none passes. :func:`~ftc_verify.analysis.analyze.analyze` runs it on Theorem
+    3.2's answer while Lemma 4.1's program is still running."""
     for result in known:
         if result.certified and result.P is not None:
             P = result.P if result.P_conditioned is None else result.P_conditioned
@@ -294,14 +312,7 @@ def mes_lmi(loop: ClosedLoop, *, solver: str | None = None, known: Sequence[LMIR
                 return LMIResult("theorem-3.1", "certified", None, result.solver, result.solver_status, 0.0, 0.0,
                                  cert, result.P, message=note, similarity=result.similarity,
                                  P_conditioned=result.P_conditioned)
-    nominal, sim = _conditioned(loop.nominal())
-    if decision_size(loop.nominal(), robust=False) > SDP_FALLBACK_LIMIT:  # no SDP at this size (lmi_size)
-        found = lyapunov_candidate(loop.nominal(), nominal, sim)
-        why = "" if found.certificate is not None else sdp_fallback_refusal(loop.nominal(), False, "Theorem 3.1")
-        return _map_back(LMIResult("theorem-3.1", "error" if why else "certified", None, "riccati", "failed" if why else
-                                   "optimal", 0.0, 0.0, found.certificate, found.P, message=found.message + why), sim)
-    check_size(loop, False, "Theorem 3.1")
-    return _map_back(_mes_lmi(loop.nominal(), nominal, sim, solver, second_opinion), sim)
+    return None
 
 
 def _mes_lmi(original: ClosedLoop, nominal: ClosedLoop, sim: Similarity, solver: str | None,
