@@ -72,6 +72,7 @@ from .conic import ConicProblem, Rows, affine_bmat, scalar_variable, svec_index,
 from .lmi import Certificate, block_specs, check_certificate, lyapunov_block
 from .bounded_real import lyapunov_candidate, riccati_candidate
 from .robust_riccati import robust_riccati_candidate
+from .shared_channels import ChannelGroup, group_cones, merged_loop, shared_input_groups
 from .lmi_size import (RICCATI_FIRST_SIZE, RICCATI_FIRST_STATES, SDP_FALLBACK_LIMIT, check_size, decision_size,
                        sdp_fallback_refusal)
 from .solvers import SETTINGS, SolveOutcome, choose_solver, second_solver, solve_conic, solve_conic_dual
@@ -155,12 +156,15 @@ def _map_back(result: LMIResult, sim: Similarity) -> LMIResult:
 @dataclass(frozen=True)
 class _Layout:
     """Where each decision variable of the analysis programs lives in ``x``:
-    ``svec(P_s)`` for every joint state, the multipliers ``lambda`` (robust only),
-    then ``g`` and ``t``."""
+    ``svec(P_s)`` for every joint state, the multipliers ``lambda`` (robust only; with
+    each group's ``mu`` after the state's own, :mod:`~ftc_verify.analysis.shared_channels`),
+    then ``g``, ``t`` and the groups' ``sigma``."""
 
     n: int
     modes: int
-    channels: tuple[int, ...]  # multipliers per joint state (all 0 when not robust)
+    channels: tuple[int, ...]  # multipliers per joint state (all 0 when not robust), the groups' mu included
+    groups: tuple[ChannelGroup, ...] = ()
+    checked: tuple[int, ...] = ()  # the loop's own channels per joint state (without the mu)
 
     @property
     def per_p(self) -> int:
@@ -181,7 +185,7 @@ class _Layout:
 
     @property
     def K(self) -> int:
-        return self.g + 2
+        return self.g + 2 + sum(len(group.members) for group in self.groups)
 
     def values(self, x: Matrix, robust: bool) -> tuple[tuple[Matrix, ...], tuple[tuple[float, ...], ...] | None]:
         """``(P, lambda)`` at the point ``x`` (``P`` rebuilt from its ``svec``)."""
@@ -194,12 +198,15 @@ class _Layout:
             P.append(M)
         lam = None
         if robust:
-            lam = tuple(tuple(float(v) for v in x[a:a + k]) for a, k in zip(self.lam_start, self.channels))
+            lam = tuple(tuple(float(v) for v in x[a:a + k]) for a, k in zip(self.lam_start, self.checked or self.channels))
         return tuple(P), lam
 
 
 def _layout(loop: ClosedLoop, robust: bool) -> _Layout:
-    return _Layout(loop.n, len(loop.A), tuple(len(c) if robust else 0 for c in loop.channels))
+    groups = shared_input_groups(loop) if robust else ()
+    own = tuple(len(c) if robust else 0 for c in loop.channels)
+    mus = tuple(sum(1 for group in groups if group.s == s) for s in range(len(loop.A)))
+    return _Layout(loop.n, len(loop.A), tuple(a + b for a, b in zip(own, mus)), groups, own)
 
 
 def _block_rows(loop: ClosedLoop, lay: _Layout, *, with_g: bool, margin: float | None) -> Rows:
@@ -210,6 +217,7 @@ def _block_rows(loop: ClosedLoop, lay: _Layout, *, with_g: bool, margin: float |
     ``t``) and placed into the global columns."""
     rows = Rows(lay.K)
     robust = any(lay.channels)
+    loop = merged_loop(loop, lay.groups)  # the channels sharing an E: one border (shared_channels)
     for spec in block_specs(loop):
         coupled = [spec.s] + [t for t, q in enumerate(spec.q_row) if q != 0.0 and t != spec.s]
         columns = np.concatenate([np.arange(t * lay.per_p, (t + 1) * lay.per_p) for t in coupled]
@@ -400,6 +408,7 @@ def _gamma_rows(target: ClosedLoop, lay: _Layout, robust: bool) -> Rows:
     _p_rows(rows, lay, low=None, high=False)
     if robust:
         _nonneg(rows, lay, range(lay.lam_start[0], lay.g))
+        group_cones(rows, lay.groups, lay.lam_start, lay.checked, lay.t, lay.t + 1)
     return rows
 
 
