@@ -19,7 +19,7 @@ require
 
     \frac{1}{\mu - t} \ge \sum_k \frac{c_k^2}{\lambda_k - t}
     \iff \exists \sigma_k:\;
-    \begin{bmatrix} \sigma_k & \mu - t \\ \mu - t & (\lambda_k - t)/c_k^2 \end{bmatrix} \succeq 0,
+    \begin{bmatrix} \sigma_k & c_k (\mu - t) \\ c_k (\mu - t) & \lambda_k - t \end{bmatrix} \succeq 0,
     \quad \sum_k \sigma_k \le \mu - t ,
 
 (the 2 x 2 cone says :math:`\sigma_k (\lambda_k - t) \ge c_k^2 (\mu - t)^2`; summing,
@@ -29,7 +29,7 @@ feasible point of the full one gives a feasible point of the merged one
 (:math:`\mu - t = 1/\sum_k c_k^2/(\lambda_k - t)`, :math:`\sigma_k = c_k^2 (\mu - t)^2 /
 (\lambda_k - t)`): the same program, with blocks smaller by
 :math:`(\text{members} - 1) \operatorname{cols}(\bar E)` rows each (n = 12, two channels of
-12 columns: 39 -> 27) and two 2 x 2 cones per channel. The :math:`\lambda_k` stay
+12 columns: 39 -> 27), for one 2 x 2 cone per channel and one row per group. The :math:`\lambda_k` stay
 variables; the certificate is proved on the full blocks with them
 (:func:`~ftc_verify.analysis.lmi.check_certificate`), so nothing here is trusted.
 
@@ -122,10 +122,10 @@ def group_cones(rows: Rows, groups: tuple[ChannelGroup, ...], lam_start: tuple[i
         total = np.zeros((1, rows.K))
         total[0, mu], total[0, t] = -1.0, 1.0
         for k, c in zip(group.members, group.scales):
-            lin = np.zeros((2, 2, 4))  # local variables: sigma_k, mu, t, lambda_k; -[[s, mu - t], [., (l - t)/c^2]]
+            lin = np.zeros((2, 2, 4))  # local variables: sigma_k, mu, t, lambda_k; -[[s, c (mu - t)], [., l - t]]
             lin[0, 0, 0] = -1.0
-            lin[0, 1] = lin[1, 0] = (0.0, -1.0, 1.0, 0.0)
-            lin[1, 1] = (0.0, 0.0, 1.0 / c ** 2, -1.0 / c ** 2)
+            lin[0, 1] = lin[1, 0] = (0.0, -c, c, 0.0)
+            lin[1, 1] = (0.0, 0.0, 1.0, -1.0)
             rows.lmi(Affine(np.zeros((2, 2)), lin), np.array([sigma, mu, t, lam_start[group.s] + k]))
             total[0, sigma] = 1.0
             sigma += 1
