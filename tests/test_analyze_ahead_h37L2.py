@@ -59,3 +59,10 @@ def test_theorem_3_1_from_lemma_4_1_when_theorem_3_2_p_fails(paper_loop: Any, mo
     monkeypatch.setattr(analyze_module, "mes_known", lambda loop, known: None)  # as if Theorem 3.2's P failed
     rep = analyze_module.analyze(paper_loop, cross_validation=False, lower_bounds=False)
     assert rep.mes_lmi.certified and "lemma-4.1" in rep.mes_lmi.message and rep.certified_stable
+
+
+def test_an_uncertain_loop_proved_unstable_gets_no_answer_from_the_child(paper_loop: Any) -> None:
+    unstable = dataclasses.replace(paper_loop, A=tuple(a + 5.0 * np.eye(paper_loop.n) for a in paper_loop.A), source=None)
+    rep = analyze_module.analyze(unstable, cross_validation=False)  # the Lemma 4.1 child is cancelled, not waited for
+    assert rep.mss.verdict == "not stable" and not rep.certified_stable
+    assert rep.robust.outcome == rep.nominal.outcome == rep.mes_lmi.outcome == "skipped"
