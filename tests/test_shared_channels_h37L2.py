@@ -42,11 +42,11 @@ def test_the_merged_program_has_the_full_programs_optimum(paper_loop: Any, facto
                                                          monkeypatch: pytest.MonkeyPatch) -> None:
     loop = _scaled_second(paper_loop, factor)
     merged = hinf_gamma(loop, robust=True)
-    lay = lmi_analysis._layout(loop, True)
+    lay = lmi_analysis._layout(loop, True, True)
     small = max(d for kind, d in lmi_analysis._margin_problem(loop, lay, True, 1.0).cones if kind == "psd")
     monkeypatch.setattr(lmi_analysis, "shared_input_groups", lambda loop: ())
     full = hinf_gamma(loop, robust=True)
-    lay = lmi_analysis._layout(loop, True)
+    lay = lmi_analysis._layout(loop, True, True)
     large = max(d for kind, d in lmi_analysis._margin_problem(loop, lay, True, 1.0).cones if kind == "psd")
     assert (small, large) == (paper_loop.n + 2 + 1 + 1, paper_loop.n + 4 + 1 + 1)  # n + E's columns + w + z
     assert merged.certified and full.certified
@@ -60,3 +60,28 @@ def test_the_merged_program_has_the_full_programs_optimum(paper_loop: Any, facto
     below = check_certificate(loop, "lemma-4.1", P, merged.multipliers, (0.999 * merged.gamma) ** 2,
                               similarity=merged.similarity)
     assert not below.ok  # the certificate is tight: 0.1 % lower is not proved
+
+
+def test_the_full_program_is_solved_too_when_the_merged_one_does_not_end_cleanly() -> None:
+    from ftc_verify.analysis.shared_channels import merged_first
+
+    class R:
+        def __init__(self, gamma: float) -> None:
+            self.gamma = gamma
+
+    calls: list[bool] = []
+
+    def solve(answers: dict[bool, tuple[Any, bool]]) -> Any:
+        def run(merge: bool) -> tuple[Any, bool]:
+            calls.append(merge)
+            return answers[merge]
+        return run
+
+    assert merged_first(solve({True: (R(2.0), False), False: (R(1.0), True)}), True).gamma == 1.0
+    assert merged_first(solve({True: (R(1.0), False), False: (R(2.0), True)}), True).gamma == 1.0
+    assert merged_first(solve({True: (None, False), False: (R(3.0), True)}), True).gamma == 3.0
+    assert calls == [True, False] * 3
+    calls.clear()
+    assert merged_first(solve({True: (R(2.0), True)}), True).gamma == 2.0  # clean: the merged answer alone
+    assert merged_first(solve({True: (None, False)}), False) is None  # nothing merged: no second solve
+    assert calls == [True, True]

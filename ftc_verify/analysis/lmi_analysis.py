@@ -72,7 +72,7 @@ from .conic import ConicProblem, Rows, affine_bmat, scalar_variable, svec_index,
 from .lmi import Certificate, block_specs, check_certificate, lyapunov_block
 from .bounded_real import lyapunov_candidate, riccati_candidate
 from .robust_riccati import robust_riccati_candidate
-from .shared_channels import ChannelGroup, group_cones, merged_loop, shared_input_groups
+from .shared_channels import ChannelGroup, group_cones, merged_first, merged_loop, shared_input_groups
 from .lmi_size import (RICCATI_FIRST_SIZE, RICCATI_FIRST_STATES, SDP_FALLBACK_LIMIT, check_size, decision_size,
                        sdp_fallback_refusal)
 from .solvers import SETTINGS, SolveOutcome, choose_solver, second_solver, solve_conic, solve_conic_dual
@@ -202,8 +202,8 @@ class _Layout:
         return tuple(P), lam
 
 
-def _layout(loop: ClosedLoop, robust: bool) -> _Layout:
-    groups = shared_input_groups(loop) if robust else ()
+def _layout(loop: ClosedLoop, robust: bool, merge: bool = False) -> _Layout:
+    groups = shared_input_groups(loop) if robust and merge else ()
     own = tuple(len(c) if robust else 0 for c in loop.channels)
     mus = tuple(sum(1 for group in groups if group.s == s) for s in range(len(loop.A)))
     return _Layout(loop.n, len(loop.A), tuple(a + b for a, b in zip(own, mus)), groups, own)
@@ -424,10 +424,11 @@ def _margin_problem(target: ClosedLoop, lay: _Layout, robust: bool, gamma_hat: f
     return _gamma_rows(scaled, lay, robust).extended(g_row, [0.0]).problem(objective)
 
 
-def _margin_gamma(original: ClosedLoop, target: ClosedLoop, sim: Similarity, robust: bool,
-                  gamma_hint: float | None, attempts: list[SolveOutcome]) -> LMIResult | None:
+def _margin_gamma(original: ClosedLoop, target: ClosedLoop, sim: Similarity, robust: bool, gamma_hint: float | None,
+                  attempts: list[SolveOutcome], merge: bool) -> tuple[LMIResult | None, bool]:
     r"""The certified gamma in (usually) one Clarabel solve, ``None`` when this path
-    gives no certificate (the caller then runs the two-step ladder).
+    gives no certificate (the caller then runs the two-step ladder), and whether it ended
+    cleanly (see below); ``merge``: the program of :func:`_layout` with ``merge``.
 
     Minimise ``g`` with every block :math:`\preceq -\tau I` and :math:`P_s \succeq \tau I`
     (``MARGIN_TAU``; ``Bw / gamma_hat`` as in step 2 of the ladder, ``gamma_hat``
@@ -437,10 +438,11 @@ def _margin_gamma(original: ClosedLoop, target: ClosedLoop, sim: Similarity, rob
     :math:`\tau`). When the certified gamma is more than ``MARGIN_GAP`` above that
     bound, the program is re-solved scaled by the certified gamma with :math:`\tau` cut
     in proportion; when the certificate fails, with :math:`100\tau`. At most
-    ``MARGIN_SOLVES`` solves; the smallest certified gamma is kept. The certificate
-    is the proof; the bound is only the reported minimum (as step 1's)."""
+    ``MARGIN_SOLVES`` solves; the smallest certified gamma is kept; clean: the last one
+    ``optimal`` within ``MARGIN_GAP``. The certificate is the proof; the bound is only
+    the reported minimum (as step 1's)."""
     condition = "lemma-4.1" if robust else "theorem-3.2"
-    lay = _layout(target, robust)
+    lay = _layout(target, robust, merge)
     gamma_hat = gamma_hint if gamma_hint is not None and math.isfinite(gamma_hint) and gamma_hint > 0 else 1.0
     tau = MARGIN_TAU
     best: LMIResult | None = None
@@ -468,23 +470,25 @@ def _margin_gamma(original: ClosedLoop, target: ClosedLoop, sim: Similarity, rob
                 note += f"; solver status {out.status}, accepted only because the certificate passed"
             best = LMIResult(condition, "certified", gamma, "clarabel", out.status, 0.0, 0.0, cert, Pv, lv, note)
         if out.status == "optimal" and gap <= MARGIN_GAP:
-            break
+            return best, True
         gamma_hat, tau = gamma, max(tau * min(1.0, 0.1 * MARGIN_GAP / max(gap, 1e-300)), 1e-9)
-    return best
+    return best, False
 
 
 def _hinf_gamma(original: ClosedLoop, target: ClosedLoop, sim: Similarity, robust: bool,
                 solver: str | None, gamma_hint: float | None = None) -> LMIResult:
-    """The one-solve path (Clarabel), else the two steps, on the conditioned ``target``;
-    every certificate checked on ``original``."""
+    """The one-solve path (Clarabel; the shared channels merged first,
+    :func:`~ftc_verify.analysis.shared_channels.merged_first`), else the two steps, on the
+    conditioned ``target``; every certificate checked on ``original``."""
     condition = "lemma-4.1" if robust else "theorem-3.2"
-    lay = _layout(target, robust)
+    lay = _layout(target, robust)  # the ladder: the full program
     attempts: list[SolveOutcome] = []
     best: LMIResult | None = None
     t_build = 0.0
     for name in _solver_order(target, solver, robust):
         t0, before = time.perf_counter(), len(attempts)
-        fast = _margin_gamma(original, target, sim, robust, gamma_hint, attempts) if name == "clarabel" else None
+        fast = merged_first(lambda merge: _margin_gamma(original, target, sim, robust, gamma_hint, attempts, merge),
+                            robust and bool(shared_input_groups(target))) if name == "clarabel" else None
         t_build += time.perf_counter() - t0 - sum(a.seconds for a in attempts[before:])
         if fast is not None:
             return dataclasses.replace(fast, build_seconds=t_build, attempts=tuple(attempts),
