@@ -37,6 +37,10 @@ In the loop handed to the block builder (:func:`merged_loop`) a member keeps its
 :math:`F_k` (the term :math:`\lambda_k F_k^T F_k`) with an :math:`E` of no columns, and the
 group's :math:`\bar E` is a channel of its own with an :math:`F` of no rows, whose
 multiplier is :math:`\mu`, appended after the state's channels.
+
+The extra cones can be badly scaled (one tiny multiplier makes :math:`\sigma_k` and
+:math:`\mu` tiny): :func:`merged_first` solves the full program too when the merged one
+does not end cleanly, and keeps the smaller certified gamma.
 """
 
 from __future__ import annotations
