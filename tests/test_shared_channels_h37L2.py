@@ -72,9 +72,12 @@ def test_the_full_program_is_solved_too_when_the_merged_one_does_not_end_cleanly
     calls: list[bool] = []
 
     def solve(answers: dict[bool, tuple[Any, bool]]) -> Any:
-        def run(merge: bool) -> tuple[Any, bool]:
+        def run(merge: bool, ended: list[bool]) -> Any:
             calls.append(merge)
-            return answers[merge]
+            result, clean = answers[merge]
+            if clean:
+                ended.append(True)
+            return result
         return run
 
     assert merged_first(solve({True: (R(2.0), False), False: (R(1.0), True)}), True).gamma == 1.0

@@ -425,10 +425,10 @@ def _margin_problem(target: ClosedLoop, lay: _Layout, robust: bool, gamma_hat: f
 
 
 def _margin_gamma(original: ClosedLoop, target: ClosedLoop, sim: Similarity, robust: bool, gamma_hint: float | None,
-                  attempts: list[SolveOutcome], merge: bool) -> tuple[LMIResult | None, bool]:
+                  attempts: list[SolveOutcome], merge: bool = False, ended: list[bool] | None = None) -> LMIResult | None:
     r"""The certified gamma in (usually) one Clarabel solve, ``None`` when this path
-    gives no certificate (the caller then runs the two-step ladder), and whether it ended
-    cleanly (see below); ``merge``: the program of :func:`_layout` with ``merge``.
+    gives no certificate (the caller then runs the two-step ladder); ``merge``: the program
+    of :func:`_layout` with ``merge``; ``True`` appended to ``ended`` when it ended cleanly.
 
     Minimise ``g`` with every block :math:`\preceq -\tau I` and :math:`P_s \succeq \tau I`
     (``MARGIN_TAU``; ``Bw / gamma_hat`` as in step 2 of the ladder, ``gamma_hat``
@@ -470,9 +470,10 @@ def _margin_gamma(original: ClosedLoop, target: ClosedLoop, sim: Similarity, rob
                 note += f"; solver status {out.status}, accepted only because the certificate passed"
             best = LMIResult(condition, "certified", gamma, "clarabel", out.status, 0.0, 0.0, cert, Pv, lv, note)
         if out.status == "optimal" and gap <= MARGIN_GAP:
-            return best, True
+            (ended if ended is not None else []).append(True)
+            break
         gamma_hat, tau = gamma, max(tau * min(1.0, 0.1 * MARGIN_GAP / max(gap, 1e-300)), 1e-9)
-    return best, False
+    return best
 
 
 def _hinf_gamma(original: ClosedLoop, target: ClosedLoop, sim: Similarity, robust: bool,
@@ -487,7 +488,7 @@ def _hinf_gamma(original: ClosedLoop, target: ClosedLoop, sim: Similarity, robus
     t_build = 0.0
     for name in _solver_order(target, solver, robust):
         t0, before = time.perf_counter(), len(attempts)
-        fast = merged_first(lambda merge: _margin_gamma(original, target, sim, robust, gamma_hint, attempts, merge),
+        fast = merged_first(lambda merge, ended: _margin_gamma(original, target, sim, robust, gamma_hint, attempts, merge, ended),
                             robust and bool(shared_input_groups(target))) if name == "clarabel" else None
         t_build += time.perf_counter() - t0 - sum(a.seconds for a in attempts[before:])
         if fast is not None:

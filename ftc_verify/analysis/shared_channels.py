@@ -138,17 +138,18 @@ def group_cones(rows: Rows, groups: tuple[ChannelGroup, ...], lam_start: tuple[i
         rows.nonneg(total, [0.0])
 
 
-def merged_first(solve: Callable[[bool], tuple[Any, bool]], groups: bool) -> Any:
-    """``solve(merge)`` returns ``(result, clean)`` (a certified ``LMIResult`` or ``None``;
-    ``clean``: the solver ended ``optimal`` near its dual bound). The merged program first;
-    when there are ``groups`` to merge and it did not end cleanly, the full program too, and
-    the smaller certified gamma of the two (the same feasible set, but the merged program's
-    extra cones can be badly scaled: the paper's loop designed with unbounded gains
-    (``synthesize --method common``, ``k_max = 1e300``) gave 0.001494, ``optimal_inaccurate``,
-    where the full program gives 0.001008)."""
-    merged, clean = solve(True)
-    if clean or not groups:
+def merged_first(solve: Callable[[bool, list[bool]], Any], groups: bool) -> Any:
+    """``solve(merge, ended)`` returns a certified ``LMIResult`` or ``None``, and appends
+    ``True`` to ``ended`` when the solver ended cleanly (``optimal`` near its dual bound).
+    The merged program first; when there are ``groups`` to merge and it did not end
+    cleanly, the full program too, and the smaller certified gamma of the two (the same
+    feasible set, but the merged program's extra cones can be badly scaled: the paper's
+    loop designed with unbounded gains (``synthesize --method common``, ``k_max = 1e300``)
+    gave 0.001494, ``optimal_inaccurate``, where the full program gives 0.001008)."""
+    ended: list[bool] = []
+    merged = solve(True, ended)
+    if ended or not groups:
         return merged
-    full, _ = solve(False)
+    full = solve(False, [])
     found = [r for r in (merged, full) if r is not None and r.gamma is not None]
     return min(found, key=lambda r: r.gamma) if found else None
