@@ -6,8 +6,9 @@
    vertices of the rate box (detection rates ``beta`` and, when given, false-alarm
    rates, :mod:`ftc_verify.model.chain`);
 2. the smallest certified nominal gamma (Theorem 3.2) and robust gamma (Lemma 4.1,
-   gains fixed), both over the rate box (without uncertainty channels, Theorem 3.2's
-   program runs in a forked child beside step 1, which it does not need);
+   gains fixed), both over the rate box (Lemma 4.1's program, or without uncertainty
+   channels Theorem 3.2's, runs in a forked child started before step 1, which it does
+   not need; with uncertainty Theorem 3.2 follows step 1 here, beside that child);
 3. Theorem 3.1 over the rate box, certified (:func:`~ftc_verify.analysis.lmi_analysis.mes_lmi`),
    first with the ``P`` of step 2 (no solve), solved only when that check fails. When the
    box proof of step 1 would solve this LMI on the whole box (its centre's candidate
@@ -38,7 +39,7 @@ from .closedloop import ClosedLoop
 from ..jsonable import jsonable
 from .crossval import ModeCheck, cross_validate
 from ..limits import check_memory, dense_generator_estimate
-from .lmi_analysis import LMIResult, hinf_gamma, mes_lmi
+from .lmi_analysis import LMIResult, hinf_gamma, mes_known, mes_lmi
 from .lmi_size import check_lmi_memory
 from .lower_bound import GainLowerBound, gain_lower_bound
 from .worst_delta import robust_lower_bound
@@ -175,7 +176,7 @@ def _analyze(loop: ClosedLoop, solver: str | None, name: str, lmi: bool, lower_b
              check: Any, seconds: dict[str, float]) -> AnalysisReport:
     """The stages of :func:`analyze`; ``check``: the running
     :class:`~ftc_verify.prestart.Prestarted` (``None``: no cross-validation)."""
-    ahead = _nominal_ahead(loop, solver) if lmi and not loop.uncertain else None
+    ahead = _gamma_ahead(loop, solver) if lmi else None
     try:
         return _stages(loop, solver, name, lmi, lower_bounds, check, seconds, ahead)
     finally:
@@ -183,22 +184,27 @@ def _analyze(loop: ClosedLoop, solver: str | None, name: str, lmi: bool, lower_b
             ahead.cancel()
 
 
-def _nominal_ahead(loop: ClosedLoop, solver: str | None) -> ForkedCall | None:
-    """Without uncertainty: Theorem 3.2's program in a forked child beside the spectral
-    stage (it needs nothing of it; cancelled when the loop is proved unstable), FLINT and
-    Clarabel imported first so that neither process imports them twice; ``None`` without
-    ``fork``."""
+def _gamma_ahead(loop: ClosedLoop, solver: str | None) -> ForkedCall | None:
+    """The gamma program that needs nothing of the spectral stage, in a forked child
+    started before it: Theorem 3.2 without uncertainty channels, Lemma 4.1 (the longest
+    program of an uncertain loop) with them; cancelled when the loop is proved
+    unstable. FLINT and Clarabel are imported first so that neither process imports them
+    twice; ``None`` without ``fork``. The child solves the same program as a call here
+    would (no hint, no shared state), so its answer is the same to the last bit."""
     if not hasattr(os, "fork"):
         return None
     import clarabel  # noqa: F401
     import flint  # noqa: F401
 
+    if loop.uncertain:
+        return ForkedCall(lambda: hinf_gamma(loop, robust=True, solver=solver), "Lemma 4.1")
     return ForkedCall(lambda: hinf_gamma(loop, robust=False, solver=solver), "Theorem 3.2")
 
 
 def _stages(loop: ClosedLoop, solver: str | None, name: str, lmi: bool, lower_bounds: bool, check: Any,
             seconds: dict[str, float], ahead: ForkedCall | None) -> AnalysisReport:
-    """The stages of :func:`_analyze`; ``ahead``: Theorem 3.2 running (:func:`_nominal_ahead`)."""
+    """The stages of :func:`_analyze`; ``ahead``: the gamma program running beside
+    (:func:`_gamma_ahead`)."""
     t = time.perf_counter()
     mss = mean_square_stability(loop, root_lmi=not lmi)  # with LMIs the whole box's is stage 3's (ROOT_LMI_DEFERRED)
     seconds["spectral"] = time.perf_counter() - t
@@ -206,10 +212,10 @@ def _stages(loop: ClosedLoop, solver: str | None, name: str, lmi: bool, lower_bo
         mes, nominal, robust = (_not_requested(c, "not solved: the loop is proved NOT mean-square stable, so no "
                                                "certificate exists") for c in ("Theorem 3.1", "Theorem 3.2", "Lemma 4.1"))
     elif lmi:
-        nominal, robust, early = _gammas(loop, solver, seconds, mss if lower_bounds else None, ahead)
+        nominal, robust, early, mes_first = _gammas(loop, solver, seconds, mss if lower_bounds else None, ahead)
         t = time.perf_counter()
-        mes = mes_lmi(loop, solver=solver, known=(nominal, robust))
-        seconds["theorem_3_1"] = time.perf_counter() - t
+        mes = mes_first or mes_lmi(loop, solver=solver, known=(nominal, robust))
+        seconds["theorem_3_1"] = seconds.get("theorem_3_1", 0.0) + time.perf_counter() - t
         if mss.undecided and mes.certified:
             mss = mss.proved_by("the certified Theorem 3.1 LMI over the whole box (one P for every rate)", loop.chain)
         elif mss.reason == ROOT_LMI_DEFERRED:  # no certificate from stage 3: the branch and bound in full
@@ -261,48 +267,56 @@ def _lower_bounds(loop: ClosedLoop, mss: MSSResult, nominal: LMIResult, robust: 
 
 
 def _gammas(loop: ClosedLoop, solver: str | None, seconds: dict[str, float],
-            mss: MSSResult | None = None, ahead: ForkedCall | None = None) -> tuple[LMIResult, LMIResult, Early]:
-    """The nominal (Theorem 3.2) and robust (Lemma 4.1) gamma programs. With uncertainty
-    and a POSIX system, the nominal one runs in a forked child beside the robust one
-    (:class:`~ftc_verify.analysis.solvers.ForkedCall`: two single-threaded solves on two
-    cores; the same programs as one after the other, where the certified nominal gamma
-    only scales the robust program: its answer moves within the solver's tolerance),
-    and, given ``mss`` (lower bounds requested), the child goes on with the nominal
-    lower bound and the robust one at a constant ``Delta``
-    (:func:`_nominal_side`), which need only the nominal gamma; ``seconds`` gets each
-    stage's wall time (overlapping when forked; the child's lower-bound part as
-    ``lower_bounds_beside``). ``ahead``: the nominal program already running (no
-    uncertainty, :func:`_nominal_ahead`; ``theorem_3_2`` is then the wait for it)."""
+            mss: MSSResult | None = None,
+            ahead: ForkedCall | None = None) -> tuple[LMIResult, LMIResult, Early, LMIResult | None]:
+    """The nominal (Theorem 3.2) and robust (Lemma 4.1) gamma programs. ``ahead``: the
+    one already running in a forked child since before the spectral stage
+    (:func:`_gamma_ahead`; ``None`` without ``fork``: both solved here, the certified
+    nominal gamma as the robust program's scale hint). Without uncertainty the robust
+    gamma is the nominal one. With it, Theorem 3.2 runs here while Lemma 4.1 runs in
+    the child (two single-threaded solves on two cores), and, given ``mss`` (lower
+    bounds requested), this process goes on with the nominal lower bound and the
+    robust one at a constant ``Delta`` (:func:`_nominal_side`), which need only
+    the nominal gamma, and with Theorem 3.1 on Theorem 3.2's ``P``
+    (:func:`~ftc_verify.analysis.lmi_analysis.mes_known`); when that fails, Theorem 3.1
+    (:func:`~ftc_verify.analysis.lmi_analysis.mes_lmi`) on Lemma 4.1's answer once it
+    arrives: the same answer as ``mes_lmi(known=(nominal, robust))``, returned last
+    (``None`` in the other cases: the caller runs that). ``seconds`` gets each stage's
+    wall time after the spectral stage (``lemma_4_1``: until the child's answer arrived;
+    the lower-bound part of :func:`_nominal_side` as ``lower_bounds_beside``)."""
     t = time.perf_counter()
     if not loop.uncertain:
         nominal = ahead.result() if ahead is not None else hinf_gamma(loop, robust=False, solver=solver)
         seconds["theorem_3_2"] = seconds["lemma_4_1"] = time.perf_counter() - t
-        return nominal, nominal, None
-    if not hasattr(os, "fork"):
+        return nominal, nominal, None, None
+    if ahead is None:
         nominal = hinf_gamma(loop, robust=False, solver=solver)
         seconds["theorem_3_2"] = time.perf_counter() - t
         hint = nominal.gamma if nominal.certified else None  # Lemma 4.1's gamma is at least this
         robust = hinf_gamma(loop, robust=True, solver=solver, gamma_hint=hint)
         seconds["lemma_4_1"] = time.perf_counter() - t - seconds["theorem_3_2"]
-        return nominal, robust, None
-    forked = ForkedCall(lambda: _nominal_side(loop, solver, mss), "Theorem 3.2")
-    try:
-        robust = hinf_gamma(loop, robust=True, solver=solver)
-        seconds["lemma_4_1"] = time.perf_counter() - t
-        nominal, early, beside = forked.result()
-        seconds["theorem_3_2"] = seconds["gammas_wall"] = time.perf_counter() - t
-        if early is not None:
-            seconds["lower_bounds_beside"] = beside
-    finally:
-        forked.cancel()
-    return nominal, robust, early
+        return nominal, robust, None, None
+    nominal, early, beside = _nominal_side(loop, solver, mss)
+    seconds["theorem_3_2"] = time.perf_counter() - t
+    if early is not None:
+        seconds["lower_bounds_beside"] = beside
+    t31 = time.perf_counter()
+    mes = mes_known(loop, (nominal,))
+    seconds["theorem_3_1"] = time.perf_counter() - t31
+    robust = ahead.result()
+    seconds["lemma_4_1"] = seconds["gammas_wall"] = time.perf_counter() - t
+    if mes is None:  # Theorem 3.2's P did not pass: Lemma 4.1's, else the solve (mes_lmi)
+        t31 = time.perf_counter()
+        mes = mes_lmi(loop, solver=solver, known=(robust,))
+        seconds["theorem_3_1"] += time.perf_counter() - t31
+    return nominal, robust, early, mes
 
 
 def _nominal_side(loop: ClosedLoop, solver: str | None, mss: MSSResult | None) -> tuple[LMIResult, Early, float]:
-    """In the forked child of :func:`_gammas`: Theorem 3.2, then (given ``mss``, the
+    """Beside Lemma 4.1's child (:func:`_gammas`): Theorem 3.2, then (given ``mss``, the
     nominal gamma certified) the nominal lower bound and the robust one at a constant
-    ``Delta`` (``None`` in their place when not computed or when they fail: the parent
-    then computes them), and the seconds those took."""
+    ``Delta`` (``None`` in their place when not computed or when they fail:
+    :func:`_lower_bounds` then computes them), and the seconds those took."""
     nominal = hinf_gamma(loop, robust=False, solver=solver)
     if mss is None or mss.unstable or not nominal.certified:
         return nominal, None, 0.0
@@ -311,7 +325,7 @@ def _nominal_side(loop: ClosedLoop, solver: str | None, mss: MSSResult | None) -
         low = gain_lower_bound(loop, worst_rates=mss.worst_beta, upper=nominal.gamma)
         high = None if low is None else robust_lower_bound(loop, low.rates, worst_rates=mss.worst_beta,
                                                             upper=nominal.gamma)[1]
-    except Exception:  # a float search: the parent runs it again and decides
+    except Exception:  # a float search: _lower_bounds runs it again and decides
         return nominal, None, 0.0
     return nominal, (low, high), time.perf_counter() - t
 

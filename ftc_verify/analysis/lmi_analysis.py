@@ -72,11 +72,12 @@ from .conic import ConicProblem, Rows, affine_bmat, scalar_variable, svec_index,
 from .lmi import Certificate, block_specs, check_certificate, lyapunov_block
 from .bounded_real import lyapunov_candidate, riccati_candidate
 from .robust_riccati import robust_riccati_candidate
+from .shared_channels import ChannelGroup, group_cones, merged_first, merged_loop, shared_input_groups
 from .lmi_size import (RICCATI_FIRST_SIZE, RICCATI_FIRST_STATES, SDP_FALLBACK_LIMIT, check_size, decision_size,
                        sdp_fallback_refusal)
 from .solvers import SETTINGS, SolveOutcome, choose_solver, second_solver, solve_conic, solve_conic_dual
 
-__all__ = ["GAMMA_LADDER", "ROUTES", "LMIResult", "mes_lmi", "hinf_gamma"]
+__all__ = ["GAMMA_LADDER", "ROUTES", "LMIResult", "mes_lmi", "mes_known", "hinf_gamma"]
 
 #: Relative increases of gamma tried, in order, when re-solving for a certificate.
 GAMMA_LADDER = (1e-5, 1e-4, 1e-3, 1e-2, 5e-2, 0.2, 1.0)
@@ -155,12 +156,15 @@ def _map_back(result: LMIResult, sim: Similarity) -> LMIResult:
 @dataclass(frozen=True)
 class _Layout:
     """Where each decision variable of the analysis programs lives in ``x``:
-    ``svec(P_s)`` for every joint state, the multipliers ``lambda`` (robust only),
-    then ``g`` and ``t``."""
+    ``svec(P_s)`` for every joint state, the multipliers ``lambda`` (robust only; with
+    each group's ``mu`` after the state's own, :mod:`~ftc_verify.analysis.shared_channels`),
+    then ``g``, ``t`` and the groups' ``sigma``."""
 
     n: int
     modes: int
-    channels: tuple[int, ...]  # multipliers per joint state (all 0 when not robust)
+    channels: tuple[int, ...]  # multipliers per joint state (all 0 when not robust), the groups' mu included
+    groups: tuple[ChannelGroup, ...] = ()
+    checked: tuple[int, ...] = ()  # the loop's own channels per joint state (without the mu)
 
     @property
     def per_p(self) -> int:
@@ -181,7 +185,7 @@ class _Layout:
 
     @property
     def K(self) -> int:
-        return self.g + 2
+        return self.g + 2 + sum(len(group.members) for group in self.groups)
 
     def values(self, x: Matrix, robust: bool) -> tuple[tuple[Matrix, ...], tuple[tuple[float, ...], ...] | None]:
         """``(P, lambda)`` at the point ``x`` (``P`` rebuilt from its ``svec``)."""
@@ -194,12 +198,15 @@ class _Layout:
             P.append(M)
         lam = None
         if robust:
-            lam = tuple(tuple(float(v) for v in x[a:a + k]) for a, k in zip(self.lam_start, self.channels))
+            lam = tuple(tuple(float(v) for v in x[a:a + k]) for a, k in zip(self.lam_start, self.checked or self.channels))
         return tuple(P), lam
 
 
-def _layout(loop: ClosedLoop, robust: bool) -> _Layout:
-    return _Layout(loop.n, len(loop.A), tuple(len(c) if robust else 0 for c in loop.channels))
+def _layout(loop: ClosedLoop, robust: bool, merge: bool = False) -> _Layout:
+    groups = shared_input_groups(loop) if robust and merge else ()
+    own = tuple(len(c) if robust else 0 for c in loop.channels)
+    mus = tuple(sum(1 for group in groups if group.s == s) for s in range(len(loop.A)))
+    return _Layout(loop.n, len(loop.A), tuple(a + b for a, b in zip(own, mus)), groups, own)
 
 
 def _block_rows(loop: ClosedLoop, lay: _Layout, *, with_g: bool, margin: float | None) -> Rows:
@@ -210,6 +217,7 @@ def _block_rows(loop: ClosedLoop, lay: _Layout, *, with_g: bool, margin: float |
     ``t``) and placed into the global columns."""
     rows = Rows(lay.K)
     robust = any(lay.channels)
+    loop = merged_loop(loop, lay.groups)  # the channels sharing an E: one border (shared_channels)
     for spec in block_specs(loop):
         coupled = [spec.s] + [t for t, q in enumerate(spec.q_row) if q != 0.0 and t != spec.s]
         columns = np.concatenate([np.arange(t * lay.per_p, (t + 1) * lay.per_p) for t in coupled]
@@ -285,6 +293,24 @@ def mes_lmi(loop: ClosedLoop, *, solver: str | None = None, known: Sequence[LMIR
     solver that confirms an infeasibility (the branch and bound of
     :mod:`ftc_verify.analysis.box` needs a certificate or nothing).
     """
+    passed = mes_known(loop, known)
+    if passed is not None:
+        return passed
+    nominal, sim = _conditioned(loop.nominal())
+    if decision_size(loop.nominal(), robust=False) > SDP_FALLBACK_LIMIT:  # no SDP at this size (lmi_size)
+        found = lyapunov_candidate(loop.nominal(), nominal, sim)
+        why = "" if found.certificate is not None else sdp_fallback_refusal(loop.nominal(), False, "Theorem 3.1")
+        return _map_back(LMIResult("theorem-3.1", "error" if why else "certified", None, "riccati", "failed" if why else
+                                   "optimal", 0.0, 0.0, found.certificate, found.P, message=found.message + why), sim)
+    check_size(loop, False, "Theorem 3.1")
+    return _map_back(_mes_lmi(loop.nominal(), nominal, sim, solver, second_opinion), sim)
+
+
+def mes_known(loop: ClosedLoop, known: Sequence[LMIResult]) -> LMIResult | None:
+    """The first step of :func:`mes_lmi` alone: Theorem 3.1 certified with the ``P`` of
+    the first certified result of ``known`` whose check passes (no solve), ``None``
+    when none passes. :func:`~ftc_verify.analysis.analyze.analyze` runs it on Theorem
+    3.2's answer while Lemma 4.1's program is still running."""
     for result in known:
         if result.certified and result.P is not None:
             P = result.P if result.P_conditioned is None else result.P_conditioned
@@ -294,14 +320,7 @@ def mes_lmi(loop: ClosedLoop, *, solver: str | None = None, known: Sequence[LMIR
                 return LMIResult("theorem-3.1", "certified", None, result.solver, result.solver_status, 0.0, 0.0,
                                  cert, result.P, message=note, similarity=result.similarity,
                                  P_conditioned=result.P_conditioned)
-    nominal, sim = _conditioned(loop.nominal())
-    if decision_size(loop.nominal(), robust=False) > SDP_FALLBACK_LIMIT:  # no SDP at this size (lmi_size)
-        found = lyapunov_candidate(loop.nominal(), nominal, sim)
-        why = "" if found.certificate is not None else sdp_fallback_refusal(loop.nominal(), False, "Theorem 3.1")
-        return _map_back(LMIResult("theorem-3.1", "error" if why else "certified", None, "riccati", "failed" if why else
-                                   "optimal", 0.0, 0.0, found.certificate, found.P, message=found.message + why), sim)
-    check_size(loop, False, "Theorem 3.1")
-    return _map_back(_mes_lmi(loop.nominal(), nominal, sim, solver, second_opinion), sim)
+    return None
 
 
 def _mes_lmi(original: ClosedLoop, nominal: ClosedLoop, sim: Similarity, solver: str | None,
@@ -389,6 +408,7 @@ def _gamma_rows(target: ClosedLoop, lay: _Layout, robust: bool) -> Rows:
     _p_rows(rows, lay, low=None, high=False)
     if robust:
         _nonneg(rows, lay, range(lay.lam_start[0], lay.g))
+        group_cones(rows, lay.groups, lay.lam_start, lay.checked, lay.t, lay.t + 1)
     return rows
 
 
@@ -404,10 +424,11 @@ def _margin_problem(target: ClosedLoop, lay: _Layout, robust: bool, gamma_hat: f
     return _gamma_rows(scaled, lay, robust).extended(g_row, [0.0]).problem(objective)
 
 
-def _margin_gamma(original: ClosedLoop, target: ClosedLoop, sim: Similarity, robust: bool,
-                  gamma_hint: float | None, attempts: list[SolveOutcome]) -> LMIResult | None:
+def _margin_gamma(original: ClosedLoop, target: ClosedLoop, sim: Similarity, robust: bool, gamma_hint: float | None,
+                  attempts: list[SolveOutcome], merge: bool = False, ended: list[bool] | None = None) -> LMIResult | None:
     r"""The certified gamma in (usually) one Clarabel solve, ``None`` when this path
-    gives no certificate (the caller then runs the two-step ladder).
+    gives no certificate (the caller then runs the two-step ladder); ``merge``: the program
+    of :func:`_layout` with ``merge``; ``True`` appended to ``ended`` when it ended cleanly.
 
     Minimise ``g`` with every block :math:`\preceq -\tau I` and :math:`P_s \succeq \tau I`
     (``MARGIN_TAU``; ``Bw / gamma_hat`` as in step 2 of the ladder, ``gamma_hat``
@@ -417,10 +438,11 @@ def _margin_gamma(original: ClosedLoop, target: ClosedLoop, sim: Similarity, rob
     :math:`\tau`). When the certified gamma is more than ``MARGIN_GAP`` above that
     bound, the program is re-solved scaled by the certified gamma with :math:`\tau` cut
     in proportion; when the certificate fails, with :math:`100\tau`. At most
-    ``MARGIN_SOLVES`` solves; the smallest certified gamma is kept. The certificate
-    is the proof; the bound is only the reported minimum (as step 1's)."""
+    ``MARGIN_SOLVES`` solves; the smallest certified gamma is kept; clean: the last one
+    ``optimal`` within ``MARGIN_GAP``. The certificate is the proof; the bound is only
+    the reported minimum (as step 1's)."""
     condition = "lemma-4.1" if robust else "theorem-3.2"
-    lay = _layout(target, robust)
+    lay = _layout(target, robust, merge)
     gamma_hat = gamma_hint if gamma_hint is not None and math.isfinite(gamma_hint) and gamma_hint > 0 else 1.0
     tau = MARGIN_TAU
     best: LMIResult | None = None
@@ -448,6 +470,7 @@ def _margin_gamma(original: ClosedLoop, target: ClosedLoop, sim: Similarity, rob
                 note += f"; solver status {out.status}, accepted only because the certificate passed"
             best = LMIResult(condition, "certified", gamma, "clarabel", out.status, 0.0, 0.0, cert, Pv, lv, note)
         if out.status == "optimal" and gap <= MARGIN_GAP:
+            (ended if ended is not None else []).append(True)
             break
         gamma_hat, tau = gamma, max(tau * min(1.0, 0.1 * MARGIN_GAP / max(gap, 1e-300)), 1e-9)
     return best
@@ -455,16 +478,18 @@ def _margin_gamma(original: ClosedLoop, target: ClosedLoop, sim: Similarity, rob
 
 def _hinf_gamma(original: ClosedLoop, target: ClosedLoop, sim: Similarity, robust: bool,
                 solver: str | None, gamma_hint: float | None = None) -> LMIResult:
-    """The one-solve path (Clarabel), else the two steps, on the conditioned ``target``;
-    every certificate checked on ``original``."""
+    """The one-solve path (Clarabel; the shared channels merged first,
+    :func:`~ftc_verify.analysis.shared_channels.merged_first`), else the two steps, on the
+    conditioned ``target``; every certificate checked on ``original``."""
     condition = "lemma-4.1" if robust else "theorem-3.2"
-    lay = _layout(target, robust)
+    lay = _layout(target, robust)  # the ladder: the full program
     attempts: list[SolveOutcome] = []
     best: LMIResult | None = None
     t_build = 0.0
     for name in _solver_order(target, solver, robust):
         t0, before = time.perf_counter(), len(attempts)
-        fast = _margin_gamma(original, target, sim, robust, gamma_hint, attempts) if name == "clarabel" else None
+        fast = merged_first(lambda merge, ended: _margin_gamma(original, target, sim, robust, gamma_hint, attempts, merge, ended),
+                            robust and bool(shared_input_groups(target))) if name == "clarabel" else None
         t_build += time.perf_counter() - t0 - sum(a.seconds for a in attempts[before:])
         if fast is not None:
             return dataclasses.replace(fast, build_seconds=t_build, attempts=tuple(attempts),

@@ -1,0 +1,68 @@
+"""Lemma 4.1 beside the spectral stage (issue 37, item 3, n = 12, m = 4): with uncertainty
+channels the robust program runs in a forked child started before the spectral stage,
+Theorem 3.2 and Theorem 3.1 (on Theorem 3.2's ``P``) run here meanwhile; every answer is
+the one the same calls give in this process, to the last bit."""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import os
+from typing import Any
+
+import numpy as np
+import pytest
+
+from ftc_verify.analysis.lmi_analysis import hinf_gamma, mes_known, mes_lmi
+
+analyze_module = importlib.import_module("ftc_verify.analysis.analyze")
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="POSIX fork")
+def test_the_robust_program_beside_the_spectral_stage_gives_the_answers_solved_here(
+        paper_loop: Any, monkeypatch: pytest.MonkeyPatch) -> None:
+    assert paper_loop.uncertain
+    started: list[str] = []
+    real = analyze_module.ForkedCall
+
+    def spy(fn: Any, what: str, **kwargs: Any) -> Any:
+        started.append(what)
+        return real(fn, what, **kwargs)
+
+    monkeypatch.setattr(analyze_module, "ForkedCall", spy)
+    rep = analyze_module.analyze(paper_loop, cross_validation=False)
+    assert started == ["Lemma 4.1"]  # the only child: Theorem 3.2 ran in this process
+    nominal, robust = hinf_gamma(paper_loop, robust=False), hinf_gamma(paper_loop, robust=True)
+    for got, here in ((rep.nominal, nominal), (rep.robust, robust)):
+        assert got.certified and here.certified and got.gamma == here.gamma
+        np.testing.assert_array_equal(np.asarray(got.P), np.asarray(here.P))
+        assert got.multipliers == here.multipliers
+    mes = mes_lmi(paper_loop, known=(nominal, robust))
+    assert rep.mes_lmi.certified and rep.mes_lmi.message == mes.message
+    np.testing.assert_array_equal(np.asarray(rep.mes_lmi.P), np.asarray(mes.P))
+    assert rep.certified_stable and "lower_bounds_beside" in rep.seconds and "gammas_wall" in rep.seconds
+
+
+def test_mes_known_takes_the_first_known_p_that_passes_and_never_solves(paper_loop: Any) -> None:
+    nominal = hinf_gamma(paper_loop, robust=False)
+    assert mes_known(paper_loop, ()) is None
+    broken = dataclasses.replace(nominal, P=tuple(-np.eye(paper_loop.n) for _ in nominal.P), P_conditioned=None,
+                                 similarity=None)  # still labelled certified, but its P is not positive
+    assert broken.certified and mes_known(paper_loop, (broken,)) is None
+    found = mes_known(paper_loop, (broken, nominal))
+    assert found is not None and found.certified and "theorem-3.2" in found.message
+    assert found.message == mes_lmi(paper_loop, known=(broken, nominal)).message
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="POSIX fork")
+def test_theorem_3_1_from_lemma_4_1_when_theorem_3_2_p_fails(paper_loop: Any, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(analyze_module, "mes_known", lambda loop, known: None)  # as if Theorem 3.2's P failed
+    rep = analyze_module.analyze(paper_loop, cross_validation=False, lower_bounds=False)
+    assert rep.mes_lmi.certified and "lemma-4.1" in rep.mes_lmi.message and rep.certified_stable
+
+
+def test_an_uncertain_loop_proved_unstable_gets_no_answer_from_the_child(paper_loop: Any) -> None:
+    unstable = dataclasses.replace(paper_loop, A=tuple(a + 5.0 * np.eye(paper_loop.n) for a in paper_loop.A), source=None)
+    rep = analyze_module.analyze(unstable, cross_validation=False)  # the Lemma 4.1 child is cancelled, not waited for
+    assert rep.mss.verdict == "not stable" and not rep.certified_stable
+    assert rep.robust.outcome == rep.nominal.outcome == rep.mes_lmi.outcome == "skipped"
