@@ -229,7 +229,9 @@ def test_corrupted_cached_binary_is_rebuilt(tmp_path: Path) -> None:
 
 def test_stable_without_certificate_exits_3(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
     """Exit 3 = stable by the exact spectral test, no LMI certificate found (never 1). The
-    LMI stage is replaced by one that finds nothing, in process."""
+    Theorem 3.1 stage is replaced by one that finds nothing, in process: both its solve
+    (``mes_lmi``) and its no-solve check on Theorem 3.2's ``P`` (``mes_known``, which
+    ``analyze`` tries first on an uncertain loop)."""
     import dataclasses
     import importlib
 
@@ -243,6 +245,7 @@ def test_stable_without_certificate_exits_3(monkeypatch: pytest.MonkeyPatch, cap
         return dataclasses.replace(real(loop, solver=solver, known=known), outcome="infeasible", certificate=None)
 
     monkeypatch.setattr(analysis, "mes_lmi", nothing_found)
+    monkeypatch.setattr(analysis, "mes_known", lambda loop, known: None)
     assert main(["analyze", PAPER, "--gains", GAINS]) == 3
     out = capsys.readouterr().out
     assert "stable by the exact spectral test, but NO LMI certificate found" in out
