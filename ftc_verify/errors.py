@@ -46,7 +46,17 @@ class FMUError(FTCError, RuntimeError):
 
 
 class MemoryLimitError(FTCError, MemoryError):
-    """A problem would need more memory than allowed (names the estimate and the limit)."""
+    """A problem would need more memory than allowed (names the estimate and the limit).
+
+    ``MemoryLimitError.__new__(MemoryLimitError)`` must work: it is how pickle's
+    ``copyreg`` reconstructors (and tblib's, which Dask installs for every exception once
+    a cluster is used in the process) rebuild an exception sent back by a forked stage.
+    Inherited, it would be ``MemoryError.__new__``, which Python refuses for a class laid
+    out as ``Exception`` (``"MemoryError.__new__(MemoryLimitError) is not safe"``), and the
+    clear memory-limit error would become an internal error."""
+
+    def __new__(cls, *args: Any) -> MemoryLimitError:
+        return Exception.__new__(cls, *args)
 
 
 class OutputError(FTCError, OSError):
