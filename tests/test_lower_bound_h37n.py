@@ -70,9 +70,9 @@ def test_paper_bound_is_the_same_by_both_enclosures(monkeypatch: pytest.MonkeyPa
 
 
 def test_lower_bounds_found_beside_lemma_4_1() -> None:
-    """With uncertainty the nominal bound and the constant-Delta search run in the forked
-    Theorem 3.2 child, beside Lemma 4.1's program; the robust bound is still proved, below
-    the certified robust gamma and at least the nominal bound."""
+    """With uncertainty the nominal bound and the robust one at a constant Delta are
+    computed beside Lemma 4.1's program (which runs in a forked child); the robust bound
+    is still proved, below the certified robust gamma and at least the nominal bound."""
     from ftc_verify.analysis.analyze import analyze
 
     loop = closed_loop(load_system(ROOT / "examples/paper.toml"), load_controller(ROOT / "examples/paper_gains.toml"))
