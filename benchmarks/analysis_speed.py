@@ -29,7 +29,6 @@ Writes ``benchmarks/results/analysis_speed.csv`` (one row per run) and prints a 
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import os
 import statistics
@@ -37,6 +36,8 @@ import subprocess
 import sys
 import tempfile
 from pathlib import Path
+
+from csvout import write_rows
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -181,11 +182,7 @@ def main() -> int:
                        "solvers": "+".join(got["solvers"])}
                 rows.append(row)
                 print(f"  run {rep} {case} {tree}: LMI {row['lmi_s']:.2f} s, total {row['total_s']:.2f} s", flush=True)
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    with open(args.out, "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    write_rows(args.out, rows)
     print("\n".join(summarise(rows, cases, names)))
     print(f"(medians of {args.repeat} interleaved runs; total = analyze() without the cross-check; CSV: {args.out})")
     return 0

@@ -28,7 +28,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import os
 import resource
@@ -39,6 +38,7 @@ import tempfile
 import time
 from pathlib import Path
 from typing import Any
+from csvout import write_rows
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = str(ROOT / "examples" / "paper.toml")
@@ -133,11 +133,7 @@ def main() -> None:
             print(f"    this: {rows[-1]['this_all']}   against: {rows[-1]['against_all']}")
             for k, v in med.items():
                 print(f"    {k:28s} {v:7.3f} s")
-    args.csv.parent.mkdir(parents=True, exist_ok=True)
-    with open(args.csv, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    write_rows(args.csv, rows)
     print(f"written {args.csv}")
 
 

@@ -23,7 +23,6 @@ Writes ``benchmarks/results/critical_path.csv`` (one row per stage and run) and 
 from __future__ import annotations
 
 import argparse
-import csv
 import dataclasses
 import importlib
 import json
@@ -34,6 +33,7 @@ import tempfile
 import time
 from pathlib import Path
 from typing import Any
+from csvout import write_rows
 
 HERE = Path(__file__).resolve().parent
 COLUMNS = ["tree", "repeat", "stage", "process", "cpu_s"]
@@ -115,11 +115,7 @@ def main() -> int:
                       f"gammas {run['nominal']!r} / {run['robust']!r}", flush=True)
                 for st in run["stages"]:
                     print(f"    {st['process']:8s} {st['stage']:24s} {st['cpu_s']:.3f} s")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    with args.out.open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=COLUMNS)
-        writer.writeheader()
-        writer.writerows(rows)
+    write_rows(args.out, rows, COLUMNS)
     print(f"wrote {args.out}")
     return 0
 

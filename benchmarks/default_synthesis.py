@@ -27,7 +27,6 @@ Output: ``benchmarks/results/default_synthesis.csv`` (``--out``) and a table on 
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import os
 import subprocess
@@ -35,6 +34,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from csvout import write_rows
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
@@ -108,11 +108,7 @@ def main(argv: list[str] | None = None) -> int:
         r["goal_s"] = GOALS[r["case"]]
         r["meets_goal"] = bool(r["certified"]) and r["seconds"] <= r["goal_s"]
     out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with out.open("w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=FIELDS)
-        w.writeheader()
-        w.writerows({k: r.get(k) for k in FIELDS} for r in rows)
+    write_rows(out, rows, FIELDS)
     print(f"{'case':7} {'system':28} {'run':>3} {'seconds':>8} {'goal':>6} {'met':>4} {'gamma':>12} {'load':>5}  route")
     for r in rows:
         gamma = "-" if r["gamma"] is None else f"{r['gamma']:.6g}"

@@ -26,7 +26,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import csv
 import math
 import time
 from pathlib import Path
@@ -40,6 +39,7 @@ from ftc_verify.model.files import load_system
 from ftc_verify.model.system import FTCSystem, JointChain
 from ftc_verify.synthesis.state_feedback import synthesize
 from ftc_verify.analysis.moments.energy import exact_energy
+from csvout import write_rows
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -86,11 +86,7 @@ def main() -> None:
                   f"exact {worst_ratio:.5g} (sqrt {math.sqrt(worst_ratio):.5g})  proved lower bound {_f(lower)}  "
                   f"ratio {_f(r['ratio'])}  ({r['seconds']:.1f} s)", flush=True)
     out = ROOT / "benchmarks" / "results" / "fdi_models.csv"
-    out.parent.mkdir(exist_ok=True)
-    with out.open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    write_rows(out, rows)
     print(f"written {out}")
 
 

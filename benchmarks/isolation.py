@@ -19,7 +19,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import csv
 import time
 from pathlib import Path
 
@@ -30,6 +29,7 @@ from ftc_verify.model.files import load_system
 from ftc_verify.simulation.batches import fmu_monte_carlo
 from ftc_verify.simulation.delta import DeltaSchedule
 from ftc_verify.simulation.paths import sample_paths
+from csvout import write_rows
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -58,11 +58,7 @@ def main() -> None:
         rows.append({"paths": count, "isolated_s": best[True], "in_process_s": best[False],
                      "ratio": best[True] / best[False], "identical_records": same})
     out = ROOT / "benchmarks" / "results" / "isolation.csv"
-    out.parent.mkdir(exist_ok=True)
-    with out.open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    write_rows(out, rows)
     print(f"{'paths':>6} {'isolated s':>11} {'in-process s':>13} {'ratio':>6}  identical")
     for r in rows:
         print(f"{r['paths']:>6} {r['isolated_s']:>11.3f} {r['in_process_s']:>13.3f} {r['ratio']:>6.2f}  "

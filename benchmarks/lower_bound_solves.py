@@ -16,13 +16,13 @@ brackets ``certified gamma / proved lower bound``. Run it once per tree with ``P
 from __future__ import annotations
 
 import argparse
-import csv
 import importlib.util
 import os
 import tempfile
 import time
 from pathlib import Path
 from typing import Any
+from csvout import write_rows
 
 HERE = Path(__file__).resolve().parent
 
@@ -96,10 +96,7 @@ def main() -> int:
               f"{r['robust_cpu_s']} s / {r['robust_solves']} solves; brackets {r['nominal_bracket']:.5f} / "
               f"{r['robust_bracket']:.5f}; {r['delta']} (load {r['load']})")
     if args.out is not None:
-        with open(args.out, "w", newline="") as fh:
-            writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-            writer.writeheader()
-            writer.writerows(rows)
+        write_rows(args.out, rows)
         print(f"wrote {args.out}")
     return 0
 

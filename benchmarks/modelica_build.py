@@ -15,7 +15,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import csv
 import os
 import statistics
 import subprocess
@@ -23,6 +22,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from csvout import write_rows
 
 ROOT = Path(__file__).resolve().parents[1]
 MODEL = ROOT / "examples" / "three_tank" / "ThreeTank.mo"
@@ -52,11 +52,7 @@ def main() -> int:
             fresh = _build(cache, Path(tmp) / f"fresh{k}.fmu")
             warm = _build(cache, Path(tmp) / f"warm{k}.fmu")
             rows.append({"repeat": k, "fresh_s": round(fresh, 3), "warm_s": round(warm, 3)})
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    with open(args.out, "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    write_rows(args.out, rows)
     fresh_med = statistics.median(r["fresh_s"] for r in rows)
     warm_med = statistics.median(r["warm_s"] for r in rows)
     print(f"{'case':<28}{'median s':>10}{'min s':>10}{'max s':>10}")

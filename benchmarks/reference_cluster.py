@@ -34,7 +34,6 @@ Table: medians over the rounds and the speed-up over serial. CSV (one row per ru
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import statistics
 import subprocess
@@ -44,6 +43,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from csvout import write_rows
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -163,11 +163,7 @@ def main(argv: list[str] | None = None) -> int:
     if persistent is not None:
         persistent.close()
     out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with out.open("w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_rows(out, rows)
     print(f"simulate --backend reference, paper example, {args.paths} paths, horizon {args.horizon:g}, step "
           f"{args.step:g}; batches of {STREAM_BATCH} paths serially, {DASK_BATCH} per Dask task")
     _table(rows, "wall_s", "command")

@@ -24,7 +24,6 @@ Writes ``benchmarks/results/risk.csv`` (or ``--out``) and prints a fixed-width t
 from __future__ import annotations
 
 import argparse
-import csv
 import os
 import sys
 import time
@@ -38,6 +37,7 @@ from test_risk import GAINS, SYSTEM, T, truth  # the closed-form case, one place
 from ftc_verify.controllers.files import load_controller
 from ftc_verify.model.files import load_system
 from ftc_verify.risk import Settings, output_envelope, run_risk
+from csvout import write_rows
 
 LEVELS = (2.0, 3.5, 5.0, 6.5)
 FIELDS = ["limit", "truth", "seed", "probability", "ci_lo", "ci_hi", "covered", "relative_error", "converged",
@@ -68,11 +68,7 @@ def main() -> None:
                          "pilot_paths": est.pilot_paths, "seconds": round(wall, 2), "crude_paths": f"{crude:.3g}",
                          "crude_over_is": f"{crude / (est.paths + est.pilot_paths):.3g}",
                          "blas_threads": os.environ.get("OPENBLAS_NUM_THREADS", "(unset)")})
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    with open(args.out, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=FIELDS)
-        w.writeheader()
-        w.writerows(rows)
+    write_rows(args.out, rows, FIELDS)
     print(f"{'L':>4} {'truth':>9} {'seed':>4} {'estimate':>9} {'95 % interval':>21} {'cov':>3} {'rel':>5} "
           f"{'paths':>6} {'pilot':>6} {'s':>6} {'crude paths':>11} {'ratio':>8}")
     for r in rows:

@@ -21,7 +21,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import csv
 import os
 import time
 from pathlib import Path
@@ -36,6 +35,7 @@ from ftc_verify.analysis.moments.sampled_clock import clock_stable
 from ftc_verify.controllers.files import load_controller
 from ftc_verify.model.files import load_system
 from ftc_verify.testing.sampled_cases import lqr_case
+from csvout import write_rows
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -107,10 +107,7 @@ def main() -> None:
                          "gap": "" if h is None else f"{1 - h / hc:.1e}",
                          "cpu_seconds": f"{cpu:.1f}", "cpu_per_attempt": f"{cpu / attempts:.2f}"})
             print(rows[-1], flush=True)
-    with open(args.out, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_rows(args.out, rows)
 
 
 if __name__ == "__main__":

@@ -14,7 +14,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import csv
 import os
 import time
 from pathlib import Path
@@ -24,6 +23,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 from ftc_verify.controllers.files import load_controller
 from ftc_verify.model.files import load_system
 from ftc_verify.verification.sampled_stage import sampled_mc_stage
+from csvout import write_rows
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -47,11 +47,7 @@ def main() -> None:
                          "half_width": f"{(found['interval'][1] - found['interval'][0]) / 2:.3g}",
                          "inside": check.ok, "seconds": f"{seconds:.2f}"})
             print(rows[-1], flush=True)
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    with open(args.out, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_rows(args.out, rows)
 
 
 if __name__ == "__main__":

@@ -28,7 +28,6 @@ Two measurements, written to ``benchmarks/results/simulate_stream.csv`` and prin
 from __future__ import annotations
 
 import argparse
-import csv
 import resource
 import subprocess
 import sys
@@ -36,6 +35,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from csvout import write_rows
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -109,11 +109,7 @@ def main(argv: list[str] | None = None) -> int:
                          "wall_s": round(wall, 2), "peak_mb": "",
                          "note": note if proc.returncode == 0 else f"exit {proc.returncode}"})
     out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with out.open("w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_rows(out, rows)
     for r in rows:
         print(f"{r['what']:78s} {r['wall_s']:>8} s {r['peak_mb']!s:>8} MB  {r['note']}")
     print(f"CSV: {out}")

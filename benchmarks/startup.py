@@ -17,13 +17,13 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import csv
 import os
 import statistics
 import subprocess
 import sys
 import time
 from pathlib import Path
+from csvout import write_rows
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = str(ROOT / "examples" / "paper.toml")
@@ -59,11 +59,7 @@ def main() -> None:
         rows.append({"command": name, "this_s": a, "against_s": b, "speedup": b / a})
         print(f"{name:40s} this {a:6.3f} s   against {b:6.3f} s   {b / a:5.2f}x", flush=True)
     out = ROOT / "benchmarks" / "results" / "startup.csv"
-    out.parent.mkdir(exist_ok=True)
-    with out.open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    write_rows(out, rows)
     print(f"written {out}")
 
 

@@ -92,6 +92,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
+from csvout import write_rows
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER = ROOT / "examples" / "paper.toml"
@@ -691,11 +692,7 @@ def output_feedback_benchmark(args: argparse.Namespace) -> int:
                 print(f"n={n} m={m} {method:8s} certified={res.certified!s:5s} gamma={_g(gamma, 10)} "
                       f"({d['certified_gamma_kind'] or '-'}) iterations={d['iterations']:3d} wall={wall:6.1f} s",
                       flush=True)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with out.open("w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_rows(out, rows)
     goal = next(r for r in rows if r["n"] == 4 and r["m"] == 2 and r["method"] == "ccl")
     met = goal["certified"] and goal["wall_s"] <= OF_GOAL_S
     print(f"goal: CCL at n = 4, m = 2 certified within {OF_GOAL_S:g} s: {'met' if met else 'NOT met'} "

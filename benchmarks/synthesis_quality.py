@@ -76,6 +76,7 @@ from ftc_verify.model.system import FTCSystem
 from ftc_verify.simulation.cluster import open_client
 from ftc_verify.synthesis.starts import lqr_gain
 from ftc_verify.synthesis.state_feedback import synthesize
+from csvout import write_rows
 
 METHODS = ("lqr", "two-step", "common", "common-fdi", "dilated", "iterative", "best")
 ITERATIVE_STARTS = ("two-step", "common", "lqr", "lqr-C rho=0.01", "lqr-C rho=1", "lqr-C rho=100", "averaged",
@@ -285,10 +286,7 @@ def main(argv: list[str] | None = None) -> int:
     if not rows:  # only the planted output-feedback set
         missed_of = _planted_table(args, out)
         return 0 if not missed_of else 1
-    with out.open("w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_rows(out, rows)
     by = {(r["system"], r["method"]): r for r in rows}
     systems = list(dict.fromkeys(r["system"] for r in rows))
     print(f"{'route':10s} {'certified':>12s} {'gamma/lqr':>10s} {'vs best W/T/L':>14s} {'vs iterative W/T/L':>19s} "

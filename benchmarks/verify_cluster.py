@@ -23,7 +23,6 @@ serial run, and the overhead per task, ``(MC(1 worker) - MC(serial)) / tasks`` w
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import math
 import os
@@ -39,6 +38,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from ftc_verify.simulation.batches import FMU_TASK_PATHS
+from csvout import write_rows
 
 CONFIGS: tuple[int | None, ...] = (None, 1, 2, 4)
 
@@ -87,11 +87,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"[{label}, round {rnd + 1}] wall {wall:.1f} s, Monte Carlo {rows[-1]['monte_carlo_s']:.1f} s, "
                       f"identical {same}", file=sys.stderr, flush=True)
     out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with out.open("w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_rows(out, rows)
     med = {c: (statistics.median(r["wall_s"] for r in rows if r["config"] == c),
                statistics.median(r["monte_carlo_s"] for r in rows if r["config"] == c))
            for c in dict.fromkeys(r["config"] for r in rows)}
