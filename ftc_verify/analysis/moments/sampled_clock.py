@@ -223,17 +223,23 @@ def prove_clock(loop: SampledLoop, cert: ClockCertificate) -> bool:
     :meth:`~ftc_verify.analysis.moments.sampled.SampledLoop.period_ball`."""
     from ..exact import ball_generator
     from ..rigorous import ball, ball_bmat, precision, proven_positive_definite
+    from .sampled_conditioned import ConditionedLoop
     from .sampled_gamma import sample_jumps
-    from .sampled_proof import written_flow
+    from .sampled_proof import written_data, written_flow
 
     h, pieces, quadratic = cert.h, cert.pieces, bool(cert.curvatures)
     with precision():
-        flows = [written_flow(loop, A) for A in loop.flow]
+        if isinstance(loop, ConditionedLoop):  # the moved data from the written balls
+            flows, resets = written_data(loop, h)
+            jumps = [R @ ball(loop.restriction()) for R in resets]
+        else:
+            flows = [written_flow(loop, A) for A in loop.flow]
+            jumps = sample_jumps(loop, h, balls=True, literals=loop.literals)
         Yb = [[ball(y) for y in row] for row in cert.nodes]
         Cb = [[ball(c) for c in row] for row in cert.curvatures]
         if not all(proven_positive_definite(y) for row in Yb for y in row):
             return False
-        for s, J in enumerate(sample_jumps(loop, h, balls=True, literals=loop.literals)):
+        for s, J in enumerate(jumps):
             if not proven_positive_definite(Yb[pieces][s] - J.T @ Yb[0][s] @ J):
                 return False
         rate = pieces / loop.period_ball(h)

@@ -97,6 +97,7 @@ from ...model.system import Matrix
 from ..exact import enclose, written
 from ..rigorous import PRECISION_BITS, Ball, ball, midpoint, precision
 from .fast_balls import MidRad, arb_expm, from_arb, map_ball
+from .sampled_conditioned import ConditionedLoop, ball_data, conditioned
 from .sampled_balls import ball_block_diag, ball_generator, ball_kron, envelope_generator
 from .sampled import SampledLoop, assemble_map, one_period_map, rate_points, spectral_radius, worst_radius
 from .sampled_taylor import FIRST_ORDER_LIMIT, affine_stable, identity_stack, perron_first_order_stable, stack_pd
@@ -112,10 +113,18 @@ def _flint() -> Any:
     return flint
 
 
+def _written_only(loop: SampledLoop) -> None:
+    if isinstance(loop, ConditionedLoop):  # its floats are moved data, not the numbers written
+        raise TypeError("the written balls of a conditioned loop come from written_data")
+
+
 def written_flow(loop: SampledLoop, A: Matrix) -> Ball:
     """The ball of a balanced flow matrix :math:`\\bar A_i` with the user's numbers as
     written: entry :math:`(i, j)` is the written :math:`A_{ij}` (or :math:`B_{ij}`) times the
-    power of two :math:`s_j / s_i` of the balancing (exact)."""
+    power of two :math:`s_j / s_i` of the balancing (exact). Not for a
+    :class:`~ftc_verify.analysis.moments.sampled_conditioned.ConditionedLoop` (its floats
+    are not the numbers written: :func:`written_data`)."""
+    _written_only(loop)
     flint = _flint()
     sc = loop.scale
     out = flint.arb_mat(A.shape[0], A.shape[1])
@@ -127,7 +136,10 @@ def written_flow(loop: SampledLoop, A: Matrix) -> Ball:
 
 def ball_resets(loop: SampledLoop, h: float) -> list[Ball]:
     """:math:`R_s` as ball matrices; a dynamic controller's :math:`(\\Phi_c, \\Gamma_c)`
-    from the rigorous exponential of :math:`[[A_c, B_c], [0, 0]] h` (Van Loan)."""
+    from the rigorous exponential of :math:`[[A_c, B_c], [0, 0]] h` (Van Loan). Not for a
+    :class:`~ftc_verify.analysis.moments.sampled_conditioned.ConditionedLoop`
+    (:func:`written_data`)."""
+    _written_only(loop)
     flint = _flint()
     n, nu, nc = loop.n, loop.nu, loop.nc
     c = loop.controller
@@ -173,6 +185,18 @@ def ball_resets(loop: SampledLoop, h: float) -> list[Ball]:
     return out
 
 
+def written_data(loop: SampledLoop, h: float) -> tuple[list[Ball], list[Ball]]:
+    """The flows :math:`\\bar A_s` and resets :math:`R_s` of ``loop`` as balls of the numbers
+    as written (:func:`written_flow`, :func:`ball_resets`); for a
+    :class:`~ftc_verify.analysis.moments.sampled_conditioned.ConditionedLoop` those of its
+    base loop moved by its similarity in ball arithmetic
+    (:func:`~ftc_verify.analysis.moments.sampled_conditioned.ball_data`)."""
+    if isinstance(loop, ConditionedLoop) and loop.base is not None:
+        base = loop.base
+        return ball_data(loop, [written_flow(base, A) for A in base.flow], ball_resets(base, h))
+    return [written_flow(loop, A) for A in loop.flow], ball_resets(loop, h)
+
+
 @dataclass(frozen=True, eq=False)
 class MapParts:
     """The rate-independent balls of :math:`T` at one period: the block diagonal of
@@ -192,13 +216,11 @@ class MapParts:
         Dd, Ld = duplication_matrix(loop.d)
         Dr, Lr = duplication_matrix(loop.r)
         eye = ball(np.eye(loop.d))
-        blocks = []
-        for A in loop.flow:
-            Ab = written_flow(loop, A)
-            blocks.append(ball(Ld) @ (ball_kron(eye, Ab) + ball_kron(Ab, eye)) @ ball(Dd))
+        flows, resets = written_data(loop, h)
+        blocks = [ball(Ld) @ (ball_kron(eye, Ab) + ball_kron(Ab, eye)) @ ball(Dd) for Ab in flows]
         P = loop.restriction()
         restrict = ball(np.asarray(Lr @ np.kron(P, P) @ Dd, dtype=float))  # 0/1 products of 0/1 matrices: exact
-        lift = ball_block_diag([ball(Ld) @ ball_kron(R, R) @ ball(Dr) for R in ball_resets(loop, h)])
+        lift = ball_block_diag([ball(Ld) @ ball_kron(R, R) @ ball(Dr) for R in resets])
         modes, res, hb = ball_block_diag(blocks).value, ball_block_diag([restrict] * loop.states).value, loop.period_ball(h)
         floats = tuple(from_arb(x) for x in (res, modes, lift.value, _flint().arb_mat(1, 1, [hb])))
         return cls(modes, res, lift.value, hb, Dd.shape[1], loop.states, loop.literals, floats)
@@ -396,6 +418,7 @@ def prove_point_unstable(loop: SampledLoop, h: float, rates: Matrix) -> bool:
     """``True`` only if the sampled loop at period ``h`` is proved not mean-square stable
     at the rate array ``rates`` (of the box)."""
     rates = np.asarray(rates, dtype=float)
+    loop = conditioned(loop)
     T_mid = one_period_map(loop, h, rates, scaled=True)
     for bits in (64, PRECISION_BITS):  # the cheap precision first
         with precision(bits):
@@ -466,6 +489,7 @@ def box_verdict(loop: SampledLoop, h: float, *, max_boxes: int = 64, max_seconds
     as the sub-boxes left exceed the budget left -- each must be evaluated at least once
     before the box is proved, so ``stable`` can no longer be reached (a ``not stable``
     sub-box midpoint it might still have met is not looked for)."""
+    loop = conditioned(loop)  # the proofs in well-conditioned coordinates (sampled_conditioned)
     chain = loop.chain
     rho, where = worst_radius(loop, h, rate_points(chain))
     text = chain.rate_text
