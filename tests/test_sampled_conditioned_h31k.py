@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from ftc_verify.analysis.moments.sampled import H_MAX_RTOL, SampledLoop, crossing, one_period_map, sampled_analysis
+from ftc_verify.analysis.moments.sampled_clock import clock_stable
 from ftc_verify.analysis.moments.sampled_conditioned import ConditionedLoop, conditioned
 from ftc_verify.analysis.moments.sampled_proof import ball_one_period_map, ball_resets, box_verdict, written_flow
 from ftc_verify.analysis.rigorous import midpoint, precision
@@ -92,6 +93,17 @@ def test_moved_loop_bracket_agrees_with_the_paper_loop(paper: tuple, reference: 
     assert abs(res.h_max * u.s - lo) <= width and abs(res.h_max_unstable * u.s - hi) <= width
     unstable = box_verdict(SampledLoop.build(system, controller), 0.1 / u.s)
     assert unstable.verdict == "not stable", unstable.detail
+
+
+@pytest.mark.parametrize("u", CASES, ids=[u.name for u in CASES])
+def test_clock_certificate_on_moved_loops(paper: tuple[FTCSystem, Controller], u: Units) -> None:
+    """Proved at ``0.08 / s`` (5 % below the crossing) in the conditioned coordinates,
+    never at the unstable ``0.1 / s`` (before: none found at condition 1e3 and 1e4)."""
+    loop = SampledLoop.build(*moved(*paper, u))
+    found = clock_stable(loop, 0.08 / u.s, pieces=2, quadratic=True)
+    assert found is not None and found.proved, u.name
+    above = clock_stable(loop, 0.1 / u.s, pieces=2, quadratic=True)
+    assert above is None or not above.proved
 
 
 def test_conditioned_map_is_similar_and_its_ball_contains_the_moved_written_map(paper: tuple) -> None:
