@@ -132,6 +132,19 @@ def loop_transform(loop: SampledLoop) -> tuple[Matrix, Matrix] | None:
     return T, T_inv
 
 
+def _ball_invertible(T: Matrix) -> bool:
+    """Arb's inverse of the exact float ``T`` exists at 64 bits (then at every higher precision
+    too: the proofs' retries)."""
+    from ..rigorous import ball, precision
+
+    try:
+        with precision(64):
+            ball(T).value.inv()
+    except ZeroDivisionError:
+        return False
+    return True
+
+
 def conditioned(loop: SampledLoop) -> SampledLoop:
     """``loop`` itself when its coordinates are good (:func:`loop_transform` ``None``), else
     the :class:`ConditionedLoop` of it; computed once per loop (kept in ``loop.memo``)."""
@@ -142,6 +155,8 @@ def conditioned(loop: SampledLoop) -> SampledLoop:
         return found
     pair = loop_transform(loop)
     out: SampledLoop = loop
+    if pair is not None and not _ball_invertible(pair[0]):
+        pair = None  # the proofs need a ball inverse: the loop as written
     if pair is not None:
         from .stability import second_moment_matrix
 
@@ -162,7 +177,7 @@ def ball_data(loop: ConditionedLoop, flows: list[Any], resets: list[Any]) -> tup
     from ..rigorous import Ball, ball
 
     assert loop.T is not None
-    T = ball(loop.T)
+    T = ball(loop.T)  # its ball inverse exists (checked by conditioned at 64 bits)
     T_inv = Ball(T.value.inv())  # raises ZeroDivisionError when T is not proved invertible
     Tr = ball(loop.T_r)
     return [T_inv @ F @ T for F in flows], [T_inv @ R @ Tr for R in resets]

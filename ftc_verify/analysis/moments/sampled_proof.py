@@ -83,6 +83,7 @@ files' decimal texts (:attr:`SampledLoop.literals`, :meth:`SampledLoop.period_ba
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 import time
@@ -192,7 +193,8 @@ def written_data(loop: SampledLoop, h: float) -> tuple[list[Ball], list[Ball]]:
     base loop moved by its similarity in ball arithmetic
     (:func:`~ftc_verify.analysis.moments.sampled_conditioned.ball_data`)."""
     if isinstance(loop, ConditionedLoop) and loop.base is not None:
-        base = loop.base
+        base = loop.base  # the periods it was told were written: the conditioned loop's
+        base = base if base.written == loop.written else dataclasses.replace(base, written=loop.written)
         return ball_data(loop, [written_flow(base, A) for A in base.flow], ball_resets(base, h))
     return [written_flow(loop, A) for A in loop.flow], ball_resets(loop, h)
 
