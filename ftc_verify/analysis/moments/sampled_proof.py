@@ -79,6 +79,9 @@ attempt can leave a box undecided or split, never prove it.
 
 **Data as written**: the flows, resets, generator and period are enclosed from the
 files' decimal texts (:attr:`SampledLoop.literals`, :meth:`SampledLoop.period_ball`).
+**Coordinates**: :func:`box_verdict` and :func:`prove_point_unstable` run on
+:func:`~ftc_verify.analysis.moments.sampled_conditioned.conditioned` of the loop (a similar
+loop, its data from the written balls and a ball inverse: :func:`written_data`).
 """
 
 from __future__ import annotations
