@@ -135,3 +135,22 @@ def test_the_written_balls_are_never_read_from_moved_floats(paper: tuple) -> Non
         written_flow(cl, cl.flow[0])
     with pytest.raises(TypeError):
         ball_resets(cl, 0.05)
+
+
+def test_dynamic_controller_moved_loop_keeps_its_spectrum(paper: tuple[FTCSystem, Controller]) -> None:
+    """The observer of ``paper_observer.toml`` (its own loop has a conditioning transform of
+    condition about 1.5e3, so it is moved): the float map and the ball map formed from the
+    moved written balls (the controller's discretisation in Arb) have the loop's spectral
+    radius; the moved resets follow the period (``ConditionedLoop.resets``)."""
+    loop = SampledLoop.build(paper[0], load_controller(ROOT / "examples" / "paper_observer.toml"))
+    cl = conditioned(loop)
+    assert isinstance(cl, ConditionedLoop)
+    rates = loop.chain.midpoint()
+    for h in (1e-3, 0.05):
+        rho = max(abs(np.linalg.eigvals(one_period_map(loop, h, rates, scaled=True))))
+        moved_rho = max(abs(np.linalg.eigvals(one_period_map(cl, h, rates, scaled=True))))
+        assert moved_rho == pytest.approx(rho, rel=1e-9)
+        with precision(64):
+            B = ball_one_period_map(cl, h, rates, rates)
+        assert max(abs(np.linalg.eigvals(midpoint(B)))) == pytest.approx(rho, rel=1e-9)
+    assert not np.allclose(cl.resets(1e-3)[0], cl.resets(0.05)[0])
