@@ -154,3 +154,20 @@ def test_dynamic_controller_moved_loop_keeps_its_spectrum(paper: tuple[FTCSystem
             B = ball_one_period_map(cl, h, rates, rates)
         assert max(abs(np.linalg.eigvals(midpoint(B)))) == pytest.approx(rho, rel=1e-9)
     assert not np.allclose(cl.resets(1e-3)[0], cl.resets(0.05)[0])
+
+
+def test_a_bad_similarity_never_loses_a_verdict(paper: tuple[FTCSystem, Controller]) -> None:
+    """Whatever float similarity is chosen (here one of condition 1e7, far worse than the
+    loop as written), the verdicts stay the paper loop's: the loop as written is tried
+    when the moved one leaves the verdict undecided, and a proof in any similar
+    coordinates is a proof for the written loop."""
+    from ftc_verify.analysis.moments.sampled_conditioned import moved_loop
+
+    loop = SampledLoop.build(*paper)
+    T = np.eye(loop.d)
+    T[:2, :2] = similarity(np.random.default_rng(3), 2, 1.0, 1e7)
+    bad = moved_loop(loop, T, np.linalg.inv(T))
+    loop.memo["conditioned"] = bad
+    assert conditioned(loop) is bad
+    assert box_verdict(loop, 0.05).verdict == "stable"
+    assert box_verdict(loop, 0.1).verdict == "not stable"

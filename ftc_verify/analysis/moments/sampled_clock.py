@@ -266,9 +266,9 @@ def prove_clock(loop: SampledLoop, cert: ClockCertificate) -> bool:
     :meth:`~ftc_verify.analysis.moments.sampled.SampledLoop.period_ball`."""
     from ..exact import ball_generator
     from ..rigorous import ball, ball_bmat, precision, proven_positive_definite
-    from .sampled_conditioned import ConditionedLoop
+    from .sampled_conditioned import ConditionedLoop, written_data
     from .sampled_gamma import sample_jumps
-    from .sampled_proof import written_data, written_flow
+    from .sampled_proof import written_flow
 
     h, pieces, quadratic = cert.h, cert.pieces, bool(cert.curvatures)
     with precision():

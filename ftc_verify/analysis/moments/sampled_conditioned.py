@@ -45,16 +45,17 @@ written in good coordinates is proved as before, bit for bit.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 import scipy.linalg
 
 from ...model.system import Matrix
+from ..rigorous import Ball
 from .sampled import SampledLoop
 
-__all__ = ["ConditionedLoop", "conditioned", "loop_transform", "ball_data"]
+__all__ = ["ConditionedLoop", "conditioned", "moved_loop", "loop_transform", "ball_data", "written_data"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -158,23 +159,29 @@ def conditioned(loop: SampledLoop) -> SampledLoop:
     if pair is not None and not _ball_invertible(pair[0]):
         pair = None  # the proofs need a ball inverse: the loop as written
     if pair is not None:
-        from .stability import second_moment_matrix
-
-        T, T_inv = pair
-        flows = tuple(np.asarray(T_inv @ F @ T) for F in loop.flow)
-        modes = second_moment_matrix(list(flows), np.zeros((loop.states, loop.states)))
-        out = ConditionedLoop(loop.chain, flows, loop.measurement, loop.entry, loop.controller, loop.n, loop.nu,
-                              modes, np.ones(loop.d), loop.speed, loop.literals, loop.written, base=loop, T=T,
-                              T_inv=T_inv)
+        out = moved_loop(loop, *pair)
     loop.memo["conditioned"] = out
     return out
+
+
+def moved_loop(loop: SampledLoop, T: Matrix, T_inv: Matrix) -> ConditionedLoop:
+    """The :class:`ConditionedLoop` of ``loop`` in the coordinates :math:`z = T \tilde z`
+    (``T`` acting on :math:`(x, x_c)` and diagonally on :math:`u`; ``T_inv`` its float
+    inverse, used only for the float data)."""
+    from .stability import second_moment_matrix
+
+    flows = tuple(np.asarray(T_inv @ F @ T) for F in loop.flow)
+    modes = second_moment_matrix(list(flows), np.zeros((loop.states, loop.states)))
+    return ConditionedLoop(loop.chain, flows, loop.measurement, loop.entry, loop.controller, loop.n, loop.nu,
+                           modes, np.ones(loop.d), loop.speed, loop.literals, loop.written, base=loop, T=T,
+                           T_inv=T_inv)
 
 
 def ball_data(loop: ConditionedLoop, flows: list[Any], resets: list[Any]) -> tuple[list[Any], list[Any]]:
     """The moved flows :math:`T_d^{-1} \\bar A_s T_d` and resets :math:`T_d^{-1} R_s T_r` as
     balls from the base loop's balls ``flows`` and ``resets`` (module docstring: ``T``
     exact, the inverse Arb's ball inverse at the working precision)."""
-    from ..rigorous import Ball, ball
+    from ..rigorous import ball
 
     assert loop.T is not None
     T = ball(loop.T)  # its ball inverse exists (checked by conditioned at 64 bits)
@@ -182,3 +189,17 @@ def ball_data(loop: ConditionedLoop, flows: list[Any], resets: list[Any]) -> tup
     Tr = ball(loop.T_r)
     return [T_inv @ F @ T for F in flows], [T_inv @ R @ Tr for R in resets]
 
+
+def written_data(loop: SampledLoop, h: float) -> tuple[list[Ball], list[Ball]]:
+    """The flows :math:`\\bar A_s` and resets :math:`R_s` of ``loop`` as balls of the numbers
+    as written (:func:`~ftc_verify.analysis.moments.sampled_proof.written_flow`,
+    :func:`~ftc_verify.analysis.moments.sampled_proof.ball_resets`); for a
+    :class:`ConditionedLoop` those of its base loop moved by its similarity in ball
+    arithmetic (:func:`ball_data`)."""
+    from .sampled_proof import ball_resets, written_flow
+
+    if isinstance(loop, ConditionedLoop) and loop.base is not None:
+        base = loop.base  # the periods it was told were written: the conditioned loop's
+        base = base if base.written == loop.written else replace(base, written=loop.written)
+        return ball_data(loop, [written_flow(base, A) for A in base.flow], ball_resets(base, h))
+    return [written_flow(loop, A) for A in loop.flow], ball_resets(loop, h)

@@ -81,12 +81,11 @@ attempt can leave a box undecided or split, never prove it.
 files' decimal texts (:attr:`SampledLoop.literals`, :meth:`SampledLoop.period_ball`).
 **Coordinates**: :func:`box_verdict` and :func:`prove_point_unstable` run on
 :func:`~ftc_verify.analysis.moments.sampled_conditioned.conditioned` of the loop (a similar
-loop, its data from the written balls and a ball inverse: :func:`written_data`).
+loop, its data from the written balls and a ball inverse: :func:`~ftc_verify.analysis.moments.sampled_conditioned.written_data`).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
 import math
 import time
@@ -101,14 +100,14 @@ from ...model.system import Matrix
 from ..exact import enclose, written
 from ..rigorous import PRECISION_BITS, Ball, ball, midpoint, precision
 from .fast_balls import MidRad, arb_expm, from_arb, map_ball
-from .sampled_conditioned import ConditionedLoop, ball_data, conditioned
+from .sampled_conditioned import ConditionedLoop, conditioned, written_data
 from .sampled_balls import ball_block_diag, ball_generator, ball_kron, envelope_generator
 from .sampled import SampledLoop, assemble_map, one_period_map, rate_points, spectral_radius, worst_radius
 from .sampled_taylor import FIRST_ORDER_LIMIT, affine_stable, identity_stack, perron_first_order_stable, stack_pd
 from .stability import duplication_matrix, unvech_stack
 
 __all__ = ["FIRST_ORDER_LIMIT", "MapParts", "BoxVerdict", "ball_resets", "ball_one_period_map", "prove_stable", "prove_unstable",
-           "prove_point_unstable", "box_verdict", "SPLIT_WIDTH_WEIGHT", "written_flow", "written_data", "envelope_stable"]
+           "prove_point_unstable", "box_verdict", "SPLIT_WIDTH_WEIGHT", "written_flow", "envelope_stable"]
 
 
 def _flint() -> Any:
@@ -127,7 +126,7 @@ def written_flow(loop: SampledLoop, A: Matrix) -> Ball:
     written: entry :math:`(i, j)` is the written :math:`A_{ij}` (or :math:`B_{ij}`) times the
     power of two :math:`s_j / s_i` of the balancing (exact). Not for a
     :class:`~ftc_verify.analysis.moments.sampled_conditioned.ConditionedLoop` (its floats
-    are not the numbers written: :func:`written_data`)."""
+    are not the numbers written: :func:`~ftc_verify.analysis.moments.sampled_conditioned.written_data`)."""
     _written_only(loop)
     flint = _flint()
     sc = loop.scale
@@ -142,7 +141,7 @@ def ball_resets(loop: SampledLoop, h: float) -> list[Ball]:
     """:math:`R_s` as ball matrices; a dynamic controller's :math:`(\\Phi_c, \\Gamma_c)`
     from the rigorous exponential of :math:`[[A_c, B_c], [0, 0]] h` (Van Loan). Not for a
     :class:`~ftc_verify.analysis.moments.sampled_conditioned.ConditionedLoop`
-    (:func:`written_data`)."""
+    (:func:`~ftc_verify.analysis.moments.sampled_conditioned.written_data`)."""
     _written_only(loop)
     flint = _flint()
     n, nu, nc = loop.n, loop.nu, loop.nc
@@ -166,15 +165,8 @@ def ball_resets(loop: SampledLoop, h: float) -> list[Ball]:
                 V[:nc, :nc], V[:nc, nc:] = c.Ac[e], c.Bc[e]
                 E = _held_exponential(written(V, lit).value, loop.period_ball(h))
                 zoh[e] = (E, None)
-            E = zoh[e][0]
-            Phi = flint.arb_mat(nc, nc)
-            Gam = flint.arb_mat(nc, c.n_v)
-            for i in range(nc):
-                for j in range(nc):
-                    Phi[i, j] = E[i, j]
-                for j in range(c.n_v):
-                    Gam[i, j] = E[i, nc + j]
-            GM = (Ball(Gam) @ M).value
+            E = zoh[e][0]  # [[Phi_c, Gamma_c], [0, I]]
+            GM = (Ball(flint.arb_mat([[E[i, nc + j] for j in range(c.n_v)] for i in range(nc)])) @ M).value
             Cc = written(c.Cc[e], lit).value
             for i in range(nu):
                 for j in range(nc):
@@ -183,23 +175,10 @@ def ball_resets(loop: SampledLoop, h: float) -> list[Ball]:
                 for j in range(n):
                     R[n + nu + i, j] = GM[i, j]
                 for j in range(nc):
-                    R[n + nu + i, n + j] = Phi[i, j]
+                    R[n + nu + i, n + j] = E[i, j]
         # the balanced coordinates: powers of two, exact
         out.append(ball(np.diag(1.0 / loop.scale)) @ Ball(R) @ ball(np.diag(loop.scale_r)))
     return out
-
-
-def written_data(loop: SampledLoop, h: float) -> tuple[list[Ball], list[Ball]]:
-    """The flows :math:`\\bar A_s` and resets :math:`R_s` of ``loop`` as balls of the numbers
-    as written (:func:`written_flow`, :func:`ball_resets`); for a
-    :class:`~ftc_verify.analysis.moments.sampled_conditioned.ConditionedLoop` those of its
-    base loop moved by its similarity in ball arithmetic
-    (:func:`~ftc_verify.analysis.moments.sampled_conditioned.ball_data`)."""
-    if isinstance(loop, ConditionedLoop) and loop.base is not None:
-        base = loop.base  # the periods it was told were written: the conditioned loop's
-        base = base if base.written == loop.written else dataclasses.replace(base, written=loop.written)
-        return ball_data(loop, [written_flow(base, A) for A in base.flow], ball_resets(base, h))
-    return [written_flow(loop, A) for A in loop.flow], ball_resets(loop, h)
 
 
 def _held_exponential(V: Any, hb: Any) -> Any:
@@ -437,13 +416,21 @@ def prove_point_unstable(loop: SampledLoop, h: float, rates: Matrix) -> bool:
     """``True`` only if the sampled loop at period ``h`` is proved not mean-square stable
     at the rate array ``rates`` (of the box)."""
     rates = np.asarray(rates, dtype=float)
-    loop = conditioned(loop)
-    T_mid = one_period_map(loop, h, rates, scaled=True)
-    for bits in (64, PRECISION_BITS):  # the cheap precision first
-        with precision(bits):
-            if prove_unstable(ball_one_period_map(loop, h, rates, rates), T_mid, loop.states, loop.r):
-                return True
+    for frame in _frames(loop):  # the conditioned coordinates first, then the loop as written
+        T_mid = one_period_map(frame, h, rates, scaled=True)
+        for bits in (64, PRECISION_BITS):  # the cheap precision first
+            with precision(bits):
+                if prove_unstable(ball_one_period_map(frame, h, rates, rates), T_mid, frame.states, frame.r):
+                    return True
     return False
+
+
+def _frames(loop: SampledLoop) -> list[SampledLoop]:
+    """:func:`~ftc_verify.analysis.moments.sampled_conditioned.conditioned` of ``loop``, then
+    the loop as written when that is another one."""
+    first = conditioned(loop)
+    base = first.base if isinstance(first, ConditionedLoop) and first.base is not None else loop
+    return [first] if base is first else [first, base]
 
 
 @dataclass(frozen=True, eq=False)
@@ -507,8 +494,19 @@ def box_verdict(loop: SampledLoop, h: float, *, max_boxes: int = 64, max_seconds
     ``stable`` verdict (the ``h_max`` bracket), so the search stops, ``undecided``, as soon
     as the sub-boxes left exceed the budget left -- each must be evaluated at least once
     before the box is proved, so ``stable`` can no longer be reached (a ``not stable``
-    sub-box midpoint it might still have met is not looked for)."""
-    loop = conditioned(loop)  # the proofs in well-conditioned coordinates (sampled_conditioned)
+    sub-box midpoint it might still have met is not looked for). On
+    :func:`~ftc_verify.analysis.moments.sampled_conditioned.conditioned` of the loop; when
+    that leaves it ``undecided`` (not ``stable_only``), the loop as written gets the budget left."""
+    frames, t0 = _frames(loop), clock()
+    out = _box_verdict(frames[0], h, max_boxes, max_seconds, clock, stable_only)
+    if len(frames) == 1 or out.verdict != "undecided" or stable_only or out.boxes >= max_boxes:
+        return out
+    second = _box_verdict(frames[1], h, max_boxes - out.boxes, max_seconds - (clock() - t0), clock, stable_only)
+    return out if second.verdict == "undecided" else second
+
+
+def _box_verdict(loop: SampledLoop, h: float, max_boxes: int, max_seconds: float, clock: Callable[[], float],
+                 stable_only: bool) -> BoxVerdict:
     chain = loop.chain
     rho, where = worst_radius(loop, h, rate_points(chain))
     text = chain.rate_text
