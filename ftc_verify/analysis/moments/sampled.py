@@ -529,6 +529,7 @@ def sampled_analysis(system: FTCSystem, controller: Controller, period: float, *
     at the period gets up to a third of it, the ``h_max`` bracket starts no proof after
     it has passed (its note then says so).
     """
+    from .sampled_conditioned import conditioned
     from .sampled_proof import box_verdict
 
     period = check_period(period, "period")
@@ -538,13 +539,12 @@ def sampled_analysis(system: FTCSystem, controller: Controller, period: float, *
     rho, where = worst_radius(loop, period, rate_points(loop.chain))
     if verdict.verdict == "undecided" and not math.isfinite(rho):  # the map overflows float64: decide it in Arb
         from .sampled_overflow import overflow_verdict
-
         verdict = overflow_verdict(loop, period, where) or verdict
     lo, hi = scan_range(loop, period)
     intervals: tuple[tuple[float, float], ...] = ()
-    hm = hu = None
-    note = "not requested"
+    hm, hu, note = None, None, "not requested"
     if h_max:
+        loop = conditioned(loop)  # the scan and bracket in the proofs' coordinates (same spectrum)
         hs, rhos = scan_periods(loop, lo, hi)
         intervals = stability_intervals(loop, hs, rhos)
         if not intervals or intervals[0][0] > hs[0]:

@@ -57,25 +57,28 @@ experiment: ``benchmarks/sampled_clock.py``, ``benchmarks/results/h31c.md``).
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import scipy.linalg
 
 from ...model.system import Matrix
 from ..conic import Rows, affine_bmat, sym_variable
 from ..solvers import solve_conic
 from .sampled import SampledLoop
 
-__all__ = ["ClockCertificate", "clock_program", "clock_certificate", "prove_clock", "clock_stable", "clock_size"]
+__all__ = ["ClockCertificate", "clock_program", "clock_certificate", "prove_clock", "clock_stable", "clock_size",
+           "TIME_OCTAVES", "time_unit", "frame_scale"]
 
 
 @dataclass(frozen=True, eq=False)
 class ClockCertificate:
     """The nodes :math:`Y_s^k` (``nodes[k][s]``, balanced coordinates of the loop), the
     curvatures :math:`C_s^k` (``curvatures[k][s]``, empty for affine pieces) and the
-    multipliers :math:`G` (``multipliers[k][i]``, one per piece and vertex instance) found
-    at period ``h`` with ``pieces`` pieces, and whether they were proved (ball
+    multipliers :math:`G` (``multipliers[k][i]``, one per piece and vertex instance, of the
+    flow conditions in the frame of :func:`time_unit`) found at period ``h`` with ``pieces`` pieces, and whether they were proved (ball
     arithmetic) to certify stability over the whole rate box."""
 
     h: float
@@ -122,6 +125,42 @@ def _piece_parts(A: Any, Y0: list[Any], Y1: list[Any], C: list[Any] | None, s: i
     return F0, F1, F2
 
 
+#: Octaves of :attr:`SampledLoop.speed` around 1 in which the program is solved in the
+#: loop's own time unit (:func:`time_unit`).
+TIME_OCTAVES = 6
+
+
+def time_unit(loop: SampledLoop) -> float:
+    r"""The time unit :math:`c` of the program (:math:`t = c\,t'`): the power of two nearest
+    :math:`1 / \text{speed}` (:attr:`SampledLoop.speed`, the loop's largest rate) when that
+    is more than :data:`TIME_OCTAVES` octaves from 1, else 1 (the loop as written). In the
+    frame :math:`t'` the flows and rates are :math:`c \bar A_s, c\,Q` and the period
+    :math:`h / c`; every flow condition is :math:`c F` (definiteness unchanged, :math:`c > 0`),
+    the nodes and jumps are the same. Without it the flow conditions' margin :math:`-I`
+    against data :math:`10^{-6}` times smaller (a plant in microseconds of a slow process)
+    left the solver without a solution (``benchmarks/results/h31r.md``)."""
+    e = round(-math.log2(loop.speed)) if math.isfinite(loop.speed) and loop.speed > 0 else 0
+    return 1.0 if abs(e) <= TIME_OCTAVES else float(2.0 ** e)
+
+
+def frame_scale(loop: SampledLoop, h: float) -> Matrix:
+    """Powers of two :math:`D` (``z = diag(D) z'``) balancing the program's data in the frame
+    of :func:`time_unit` (the pattern of :math:`c |\\bar A_s|` and :math:`|J_s|`): the
+    loop's own balancing (:attr:`SampledLoop.scale`) weighs the flows in its time unit, so a
+    plant in time units of ``1e6`` had its held input scaled for flows ``1e6`` larger and
+    no certificate was found in the normalised frame. Ones when the unit is 1 (the program
+    as before)."""
+    unit = time_unit(loop)
+    if unit == 1.0:
+        return np.ones(loop.d)
+    P = loop.restriction()
+    pattern = np.eye(loop.d) + sum(np.abs(F) * unit for F in loop.flow) + sum(np.abs(R @ P) for R in loop.resets(h))
+    if not np.all(np.isfinite(pattern)):
+        return np.ones(loop.d)
+    _, (found, _) = scipy.linalg.matrix_balance(pattern, permute=False, separate=True)
+    return np.asarray(found, dtype=float)
+
+
 def _layout(loop: SampledLoop, pieces: int, quadratic: bool) -> tuple[int, int, int]:
     """``(m, first curvature, first multiplier)`` offsets: ``svec`` of every node, node
     by node and state by state, then (quadratic) every curvature, then every multiplier."""
@@ -158,10 +197,13 @@ def clock_program(loop: SampledLoop, h: float, pieces: int, quadratic: bool = Fa
     for row in Y:
         for y in row:
             rows.lmi(eye - y, cols)
+    unit = time_unit(loop)  # t = unit t': the flows and rates times unit, the period over it
+    D = frame_scale(loop, h)  # z = diag(D) z' (powers of two)
     for k in range(pieces):
         for i, (s, _, q_row) in enumerate(specs):
-            q = [float(v) for v in q_row]
-            F0, F1, F2 = _piece_parts(loop.flow[s], Y[k], Y[k + 1], C[k] if quadratic else None, s, q, pieces / h)
+            q = [float(v) * unit for v in q_row]
+            F0, F1, F2 = _piece_parts(loop.flow[s] * unit / D[:, None] * D[None, :], Y[k], Y[k + 1], C[k] if quadratic else None, s, q,
+                                      pieces * unit / h)
             if not quadratic:
                 rows.lmi(F0 + eye, cols)
                 rows.lmi(F0 + F1 + eye, cols)
@@ -172,7 +214,7 @@ def clock_program(loop: SampledLoop, h: float, pieces: int, quadratic: bool = Fa
             rows.lmi(affine_bmat([[F0, half], [half, F2 - G]]) + np.eye(2 * d), cols)
     P = loop.restriction()
     for s, R in enumerate(loop.resets(h)):
-        J = R @ P
+        J = R @ P / D[:, None] * D[None, :]
         rows.lmi(J.T @ Y[0][s] @ J - Y[pieces][s] + eye, cols)
     return rows, K
 
@@ -202,14 +244,15 @@ def clock_certificate(loop: SampledLoop, h: float, pieces: int = 4,
     outcome, x = solve_conic(rows.problem(c), "clarabel")
     if x is None or not outcome.solved:
         return None
-    flat = _unpack(x, d, 0, (pieces + 1) * S, K)
+    w = 1.0 / frame_scale(loop, h)  # back to the loop's coordinates: Y = D^-1 Y' D^-1 (exact)
+    flat = [Y * w[:, None] * w[None, :] for Y in _unpack(x, d, 0, (pieces + 1) * S, K)]
     nodes = tuple(tuple(flat[k * S:(k + 1) * S]) for k in range(pieces + 1))
     if not quadratic:
         return ClockCertificate(float(h), pieces, nodes, False)
-    flat = _unpack(x, d, curv, pieces * S, K)
+    flat = [Y * w[:, None] * w[None, :] for Y in _unpack(x, d, curv, pieces * S, K)]
     curvs = tuple(tuple(flat[k * S:(k + 1) * S]) for k in range(pieces))
     n_spec = len(_specs(loop))
-    flat = _unpack(x, d, mult, pieces * n_spec, K)
+    flat = [Y * w[:, None] * w[None, :] for Y in _unpack(x, d, mult, pieces * n_spec, K)]
     mults = tuple(tuple(flat[k * n_spec:(k + 1) * n_spec]) for k in range(pieces))
     return ClockCertificate(float(h), pieces, nodes, False, curvs, mults)
 
@@ -223,22 +266,30 @@ def prove_clock(loop: SampledLoop, cert: ClockCertificate) -> bool:
     :meth:`~ftc_verify.analysis.moments.sampled.SampledLoop.period_ball`."""
     from ..exact import ball_generator
     from ..rigorous import ball, ball_bmat, precision, proven_positive_definite
+    from .sampled_conditioned import ConditionedLoop, written_data
     from .sampled_gamma import sample_jumps
     from .sampled_proof import written_flow
 
     h, pieces, quadratic = cert.h, cert.pieces, bool(cert.curvatures)
     with precision():
-        flows = [written_flow(loop, A) for A in loop.flow]
+        if isinstance(loop, ConditionedLoop):  # the moved data from the written balls
+            flows, resets = written_data(loop, h)
+            jumps = [R @ ball(loop.restriction()) for R in resets]
+        else:
+            flows = [written_flow(loop, A) for A in loop.flow]
+            jumps = sample_jumps(loop, h, balls=True, literals=loop.literals)
         Yb = [[ball(y) for y in row] for row in cert.nodes]
         Cb = [[ball(c) for c in row] for row in cert.curvatures]
         if not all(proven_positive_definite(y) for row in Yb for y in row):
             return False
-        for s, J in enumerate(sample_jumps(loop, h, balls=True, literals=loop.literals)):
+        for s, J in enumerate(jumps):
             if not proven_positive_definite(Yb[pieces][s] - J.T @ Yb[0][s] @ J):
                 return False
-        rate = pieces / loop.period_ball(h)
+        unit = time_unit(loop)  # a power of two: the program's frame, scaled exactly
+        flows = [F * unit for F in flows]
+        rate = pieces * unit / loop.period_ball(h)
         for i, (s, beta, _) in enumerate(_specs(loop)):
-            row = ball_generator(loop.chain, beta, loop.literals)[s]
+            row = [q * unit for q in ball_generator(loop.chain, beta, loop.literals)[s]]
             for k in range(pieces):
                 F0, F1, F2 = _piece_parts(flows[s], Yb[k], Yb[k + 1], Cb[k] if quadratic else None, s, row, rate)
                 if not quadratic:
@@ -254,7 +305,13 @@ def prove_clock(loop: SampledLoop, cert: ClockCertificate) -> bool:
 
 def clock_stable(loop: SampledLoop, h: float, pieces: int = 4, quadratic: bool = False) -> ClockCertificate | None:
     """A certificate found at period ``h`` (:func:`clock_certificate`) with ``proved`` set
-    by :func:`prove_clock`, or ``None`` when the solver found none."""
+    by :func:`prove_clock`, or ``None`` when the solver found none; found and proved for
+    :func:`~ftc_verify.analysis.moments.sampled_conditioned.conditioned` of ``loop`` (its
+    nodes in those coordinates: the loop itself unless its coordinates are badly
+    conditioned -- the paper loop moved by a similarity of condition 1e3 had none)."""
+    from .sampled_conditioned import conditioned
+
+    loop = conditioned(loop)
     cert = clock_certificate(loop, h, pieces, quadratic)
     if cert is None:
         return None

@@ -79,6 +79,9 @@ attempt can leave a box undecided or split, never prove it.
 
 **Data as written**: the flows, resets, generator and period are enclosed from the
 files' decimal texts (:attr:`SampledLoop.literals`, :meth:`SampledLoop.period_ball`).
+**Coordinates**: :func:`box_verdict` and :func:`prove_point_unstable` run on
+:func:`~ftc_verify.analysis.moments.sampled_conditioned.conditioned` of the loop (a similar
+loop, its data from the written balls and a ball inverse: :func:`~ftc_verify.analysis.moments.sampled_conditioned.written_data`).
 """
 
 from __future__ import annotations
@@ -97,6 +100,7 @@ from ...model.system import Matrix
 from ..exact import enclose, written
 from ..rigorous import PRECISION_BITS, Ball, ball, midpoint, precision
 from .fast_balls import MidRad, arb_expm, from_arb, map_ball
+from .sampled_conditioned import ConditionedLoop, conditioned, written_data
 from .sampled_balls import ball_block_diag, ball_generator, ball_kron, envelope_generator
 from .sampled import SampledLoop, assemble_map, one_period_map, rate_points, spectral_radius, worst_radius
 from .sampled_taylor import FIRST_ORDER_LIMIT, affine_stable, identity_stack, perron_first_order_stable, stack_pd
@@ -112,10 +116,18 @@ def _flint() -> Any:
     return flint
 
 
+def _written_only(loop: SampledLoop) -> None:
+    if isinstance(loop, ConditionedLoop):  # its floats are moved data, not the numbers written
+        raise TypeError("the written balls of a conditioned loop come from written_data")
+
+
 def written_flow(loop: SampledLoop, A: Matrix) -> Ball:
     """The ball of a balanced flow matrix :math:`\\bar A_i` with the user's numbers as
     written: entry :math:`(i, j)` is the written :math:`A_{ij}` (or :math:`B_{ij}`) times the
-    power of two :math:`s_j / s_i` of the balancing (exact)."""
+    power of two :math:`s_j / s_i` of the balancing (exact). Not for a
+    :class:`~ftc_verify.analysis.moments.sampled_conditioned.ConditionedLoop` (its floats
+    are not the numbers written: :func:`~ftc_verify.analysis.moments.sampled_conditioned.written_data`)."""
+    _written_only(loop)
     flint = _flint()
     sc = loop.scale
     out = flint.arb_mat(A.shape[0], A.shape[1])
@@ -127,7 +139,10 @@ def written_flow(loop: SampledLoop, A: Matrix) -> Ball:
 
 def ball_resets(loop: SampledLoop, h: float) -> list[Ball]:
     """:math:`R_s` as ball matrices; a dynamic controller's :math:`(\\Phi_c, \\Gamma_c)`
-    from the rigorous exponential of :math:`[[A_c, B_c], [0, 0]] h` (Van Loan)."""
+    from the rigorous exponential of :math:`[[A_c, B_c], [0, 0]] h` (Van Loan). Not for a
+    :class:`~ftc_verify.analysis.moments.sampled_conditioned.ConditionedLoop`
+    (:func:`~ftc_verify.analysis.moments.sampled_conditioned.written_data`)."""
+    _written_only(loop)
     flint = _flint()
     n, nu, nc = loop.n, loop.nu, loop.nc
     c = loop.controller
@@ -148,17 +163,10 @@ def ball_resets(loop: SampledLoop, h: float) -> list[Ball]:
                 nv = c.n_v
                 V = np.zeros((nc + nv, nc + nv))
                 V[:nc, :nc], V[:nc, nc:] = c.Ac[e], c.Bc[e]
-                E = (written(V, lit).value * loop.period_ball(h)).exp()
+                E = _held_exponential(written(V, lit).value, loop.period_ball(h))
                 zoh[e] = (E, None)
-            E = zoh[e][0]
-            Phi = flint.arb_mat(nc, nc)
-            Gam = flint.arb_mat(nc, c.n_v)
-            for i in range(nc):
-                for j in range(nc):
-                    Phi[i, j] = E[i, j]
-                for j in range(c.n_v):
-                    Gam[i, j] = E[i, nc + j]
-            GM = (Ball(Gam) @ M).value
+            E = zoh[e][0]  # [[Phi_c, Gamma_c], [0, I]]
+            GM = (Ball(flint.arb_mat([[E[i, nc + j] for j in range(c.n_v)] for i in range(nc)])) @ M).value
             Cc = written(c.Cc[e], lit).value
             for i in range(nu):
                 for j in range(nc):
@@ -167,10 +175,24 @@ def ball_resets(loop: SampledLoop, h: float) -> list[Ball]:
                 for j in range(n):
                     R[n + nu + i, j] = GM[i, j]
                 for j in range(nc):
-                    R[n + nu + i, n + j] = Phi[i, j]
+                    R[n + nu + i, n + j] = E[i, j]
         # the balanced coordinates: powers of two, exact
         out.append(ball(np.diag(1.0 / loop.scale)) @ Ball(R) @ ball(np.diag(loop.scale_r)))
     return out
+
+
+def _held_exponential(V: Any, hb: Any) -> Any:
+    """A ball containing :math:`e^{V t}` for every :math:`V` in the ball ``V`` and every
+    :math:`t` in the ball ``hb``: :math:`e^{V h_0}\\, e^{V (t - h_0)}` with :math:`h_0` the
+    ball's (exact) midpoint -- equal for each :math:`V` (:math:`V` commutes with itself).
+    One exponential of :math:`V \\mathbf h` instead multiplies the period's radius by
+    :math:`\\|V\\| h` at every squaring: the observer of ``examples/paper_observer.toml``
+    at ``h = 1e4`` (the period as written: radius ``1.1e-12``) had radii ``8e15``."""
+    flint = _flint()
+    h0 = flint.arb(hb.mid())
+    if hb.rad() == 0:
+        return (V * h0).exp()
+    return (V * h0).exp() * (V * (hb - h0)).exp()
 
 
 @dataclass(frozen=True, eq=False)
@@ -192,13 +214,11 @@ class MapParts:
         Dd, Ld = duplication_matrix(loop.d)
         Dr, Lr = duplication_matrix(loop.r)
         eye = ball(np.eye(loop.d))
-        blocks = []
-        for A in loop.flow:
-            Ab = written_flow(loop, A)
-            blocks.append(ball(Ld) @ (ball_kron(eye, Ab) + ball_kron(Ab, eye)) @ ball(Dd))
+        flows, resets = written_data(loop, h)
+        blocks = [ball(Ld) @ (ball_kron(eye, Ab) + ball_kron(Ab, eye)) @ ball(Dd) for Ab in flows]
         P = loop.restriction()
         restrict = ball(np.asarray(Lr @ np.kron(P, P) @ Dd, dtype=float))  # 0/1 products of 0/1 matrices: exact
-        lift = ball_block_diag([ball(Ld) @ ball_kron(R, R) @ ball(Dr) for R in ball_resets(loop, h)])
+        lift = ball_block_diag([ball(Ld) @ ball_kron(R, R) @ ball(Dr) for R in resets])
         modes, res, hb = ball_block_diag(blocks).value, ball_block_diag([restrict] * loop.states).value, loop.period_ball(h)
         floats = tuple(from_arb(x) for x in (res, modes, lift.value, _flint().arb_mat(1, 1, [hb])))
         return cls(modes, res, lift.value, hb, Dd.shape[1], loop.states, loop.literals, floats)
@@ -396,12 +416,21 @@ def prove_point_unstable(loop: SampledLoop, h: float, rates: Matrix) -> bool:
     """``True`` only if the sampled loop at period ``h`` is proved not mean-square stable
     at the rate array ``rates`` (of the box)."""
     rates = np.asarray(rates, dtype=float)
-    T_mid = one_period_map(loop, h, rates, scaled=True)
-    for bits in (64, PRECISION_BITS):  # the cheap precision first
-        with precision(bits):
-            if prove_unstable(ball_one_period_map(loop, h, rates, rates), T_mid, loop.states, loop.r):
-                return True
+    for frame in _frames(loop):  # the conditioned coordinates first, then the loop as written
+        T_mid = one_period_map(frame, h, rates, scaled=True)
+        for bits in (64, PRECISION_BITS):  # the cheap precision first
+            with precision(bits):
+                if prove_unstable(ball_one_period_map(frame, h, rates, rates), T_mid, frame.states, frame.r):
+                    return True
     return False
+
+
+def _frames(loop: SampledLoop) -> list[SampledLoop]:
+    """:func:`~ftc_verify.analysis.moments.sampled_conditioned.conditioned` of ``loop``, then
+    the loop as written when that is another one."""
+    first = conditioned(loop)
+    base = first.base if isinstance(first, ConditionedLoop) and first.base is not None else loop
+    return [first] if base is first else [first, base]
 
 
 @dataclass(frozen=True, eq=False)
@@ -465,7 +494,19 @@ def box_verdict(loop: SampledLoop, h: float, *, max_boxes: int = 64, max_seconds
     ``stable`` verdict (the ``h_max`` bracket), so the search stops, ``undecided``, as soon
     as the sub-boxes left exceed the budget left -- each must be evaluated at least once
     before the box is proved, so ``stable`` can no longer be reached (a ``not stable``
-    sub-box midpoint it might still have met is not looked for)."""
+    sub-box midpoint it might still have met is not looked for). On
+    :func:`~ftc_verify.analysis.moments.sampled_conditioned.conditioned` of the loop; when
+    that leaves it ``undecided`` (not ``stable_only``), the loop as written gets the budget left."""
+    frames, t0 = _frames(loop), clock()
+    out = _box_verdict(frames[0], h, max_boxes, max_seconds, clock, stable_only)
+    if len(frames) == 1 or out.verdict != "undecided" or stable_only or out.boxes >= max_boxes:
+        return out
+    second = _box_verdict(frames[1], h, max_boxes - out.boxes, max_seconds - (clock() - t0), clock, stable_only)
+    return out if second.verdict == "undecided" else second
+
+
+def _box_verdict(loop: SampledLoop, h: float, max_boxes: int, max_seconds: float, clock: Callable[[], float],
+                 stable_only: bool) -> BoxVerdict:
     chain = loop.chain
     rho, where = worst_radius(loop, h, rate_points(chain))
     text = chain.rate_text
