@@ -51,6 +51,8 @@ is drawn from the path's own stream as in every simulator).
 
 from __future__ import annotations
 
+import bisect
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -130,31 +132,64 @@ def sample_tilted(chain: JointChain, keys: RateKeys, tilt: np.ndarray, beta: Mat
     streams = path_streams(seed, first, stop)
     R = len(keys.labels)
     logw, jumps, expo = np.zeros(len(streams)), np.zeros((len(streams), R)), np.zeros((len(streams), R))
+    table = _JumpTable.build(keys, tilt, q, qt, exit_t)
+    rates, drift = exit_t.tolist(), (exit_q - exit_t).tolist()
     paths = []
     for p, stream in enumerate(streams):
         gen = np.random.default_rng(stream)
-        s, t = start, 0.0
+        s, t, lw = start, 0.0, 0.0
         times, states = [0.0], [start]
         while True:
-            rate = exit_t[s]
-            dt = gen.standard_exponential() / rate if rate > 0 else np.inf
+            rate = rates[s]
+            dt = gen.standard_exponential() / rate if rate > 0 else math.inf
             stay = min(dt, horizon - t)
-            logw[p] -= (exit_q[s] - exit_t[s]) * stay
+            lw -= drift[s] * stay
             expo[p] += out_a[s] * stay
             if t + dt >= horizon:
                 break
             t += dt
-            nxt = int(np.searchsorted(np.cumsum(qt[s]) / rate, gen.random(), side="right"))
-            nxt = min(nxt, qt.shape[0] - 1)
-            while qt[s, nxt] <= 0.0:  # rounding at the top of the cumulative sum
-                nxt -= 1
-            logw[p] += np.log(q[s, nxt]) - np.log(qt[s, nxt])
-            jumps[p] += tilt * keys.a[:, s, nxt] / qt[s, nxt]
+            nxt = table.next_state(s, gen.random())
+            lw += table.log_ratio[s][nxt]
+            jumps[p] += table.shares[s][nxt]
             s = nxt
             times.append(t)
             states.append(s)
+        logw[p] = lw
         paths.append(_chain_path(np.array(times), true_of[states], fdi_of[states], beta, horizon, stream))
     return TiltedPaths(tuple(paths), logw, jumps, expo)
+
+
+@dataclass(frozen=True, eq=False)
+class _JumpTable:
+    """Per state ``s``: the cumulative jump probabilities ``cumsum(Q'_s.) / q'_s`` (a plain
+    list, searched with :func:`bisect.bisect_right` exactly as ``numpy.searchsorted(...,
+    side="right")`` searches the same numbers), and per jump ``s -> t`` with
+    :math:`Q'_{st} > 0` the log-ratio term :math:`\\log Q_{st} - \\log Q'_{st}` and the
+    key shares :math:`c_r a_{r,st} / Q'_{st}`: what :func:`sample_tilted` adds per jump,
+    computed once per state instead of once per jump (the same floating-point numbers)."""
+
+    cumulative: list[list[float]]
+    log_ratio: list[dict[int, float]]
+    shares: list[dict[int, np.ndarray]]
+
+    @classmethod
+    def build(cls, keys: RateKeys, tilt: np.ndarray, q: np.ndarray, qt: np.ndarray, exit_t: np.ndarray) -> _JumpTable:
+        N = qt.shape[0]
+        cumulative, log_ratio, shares = [], [], []
+        for s in range(N):
+            cumulative.append((np.cumsum(qt[s]) / exit_t[s]).tolist() if exit_t[s] > 0 else [])
+            targets = [t for t in range(N) if qt[s, t] > 0.0]
+            log_ratio.append({t: float(np.log(q[s, t]) - np.log(qt[s, t])) for t in targets})
+            shares.append({t: tilt * keys.a[:, s, t] / qt[s, t] for t in targets})
+        return cls(cumulative, log_ratio, shares)
+
+    def next_state(self, s: int, u: float) -> int:
+        """The state a jump from ``s`` goes to for the uniform draw ``u``."""
+        row = self.cumulative[s]
+        nxt = min(bisect.bisect_right(row, u), len(row) - 1)
+        while nxt not in self.shares[s]:  # rounding at the top of the cumulative sum
+            nxt -= 1
+        return nxt
 
 
 def _chain_path(times: np.ndarray, true: np.ndarray, fdi: np.ndarray, beta: Matrix, horizon: float,
