@@ -14,6 +14,7 @@ from ftc_verify.analysis.closedloop import closed_loop
 from ftc_verify.analysis.moments.stability import mean_square_stability
 from ftc_verify.model.files import load_system
 from ftc_verify.model.system import FTCSystem, JointChain
+from ftc_verify.synthesis import hinf_descent
 from ftc_verify.synthesis.descent import Parametrisation, stabilise, worst_abscissa
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -111,8 +112,17 @@ def test_order_one_controller_synthesized_and_certified() -> None:
     assert res.gamma_nominal_certified == pytest.approx(min(res.history))
 
 
-@pytest.mark.slow(30)  # seconds measured on 2 busy cores: scheduled first
-def test_cli_doubled_rates_certified_by_analyze(tmp_path: Path) -> None:
+@pytest.mark.slow(12)  # seconds measured on 2 busy cores: scheduled first
+def test_cli_doubled_rates_certified_by_analyze(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``synthesize --output-feedback`` (every route) at the doubled detection rates writes
+    a controller that ``analyze`` certifies stable with Theorem 3.2's gamma.
+
+    The ``hinf`` route's BFGS runs on a wall-clock budget (``HINF_SECONDS``, 40 s; the
+    first start 60 % of it) and descends until it is spent: here 3 s. Its length is not
+    this test's claim: whatever the route answers is certified by the core before it
+    counts, and what the command writes is checked by ``analyze`` below
+    (``tests/test_hinf_descent.py`` checks the descent itself)."""
+    monkeypatch.setattr(hinf_descent, "HINF_SECONDS", 3.0)
     out = tmp_path / "K.toml"
     run = cli_inprocess.run_cli(["synthesize", str(ROOT / "examples" / "paper_fast_detection.toml"),
                                  "--output-feedback", "-o", str(out)])

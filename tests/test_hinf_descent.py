@@ -75,13 +75,17 @@ def test_level_is_the_certified_nominal_gamma() -> None:
 
 
 def test_route_beats_the_planted_controller() -> None:
-    """From the planted controller: certified, gamma at most the planted one, within the bound."""
+    """From the planted controller: certified, gamma at most the planted one, within the bound.
+
+    Budget 2 s (the route's default is 40 s): BFGS only accepts points below the start's
+    level, so the claim holds at any length of the descent; measured, 2 s reach a
+    certified 0.246 from the planted 0.371 (10 s: 0.240)."""
     system, ctrl = planted(1)
     planted_gamma = accepted_gamma(verify_controller(system, ctrl, "clarabel"), True)
     assert planted_gamma is not None
     bound = 2.0 * max(float(np.linalg.norm(K, 2)) for K in controller_blocks(ctrl))
     found, report, history, msg, rows = hinf_route(system, 1, [("planted", ctrl)], SolverCalls("clarabel"),
-                                                   "clarabel", k_max=bound, seed=0, budget_seconds=10.0)
+                                                   "clarabel", k_max=bound, seed=0, budget_seconds=2.0)
     assert found is not None, msg
     gamma = accepted_gamma(report, True)
     assert gamma is not None and gamma <= planted_gamma * (1 + 1e-3)

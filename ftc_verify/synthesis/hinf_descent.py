@@ -195,14 +195,14 @@ class _Watched:
 
 def minimise_gamma(system: FTCSystem, order: int, starts: Sequence[tuple[str, Matrix]], calls: SolverCalls, *,
                    k_max: float | None = None, seed: int = 0, max_iter: int = 300,
-                   budget_seconds: float = HINF_SECONDS) -> list[dict[str, Any]]:
+                   budget_seconds: float | None = None) -> list[dict[str, Any]]:
     """BFGS on :class:`NominalGamma` from each start (``(name, theta)``, best first) and from
     :data:`PERTURBED_STARTS` perturbations (relative size 1e-3) of the first one drawn from
     ``numpy.random.default_rng(seed)``. From each start BFGS is restarted (a fresh
     inverse Hessian) where its line search ended, until a restart gains less than
     :data:`RESTART_RTOL` relative or its share of ``budget_seconds`` is spent (the first
     start :data:`FIRST_SHARE`, each later one an equal part of what is left; its best point
-    kept). Returns one row per start: ``name``, ``theta``, ``gamma`` (the program's value,
+    kept; ``None``: :data:`HINF_SECONDS` as the module holds it when called). Returns one row per start: ``name``, ``theta``, ``gamma`` (the program's value,
     not certified; ``inf`` when none), ``start_gamma``, ``seconds``; best first."""
     if not starts:
         return []
@@ -213,7 +213,7 @@ def minimise_gamma(system: FTCSystem, order: int, starts: Sequence[tuple[str, Ma
     every = list(starts) + [(f"{starts[0][0]} perturbed {k} (seed {seed})",
                              first * (1.0 + 1e-3 * rng.standard_normal(first.size))) for k in range(PERTURBED_STARTS)]
     rows: list[dict[str, Any]] = []
-    deadline = time.perf_counter() + budget_seconds
+    deadline = time.perf_counter() + (HINF_SECONDS if budget_seconds is None else budget_seconds)
     for k, (name, theta) in enumerate(every):
         t0 = time.perf_counter()
         if rows and t0 > deadline:
@@ -236,7 +236,7 @@ def minimise_gamma(system: FTCSystem, order: int, starts: Sequence[tuple[str, Ma
 
 
 def hinf_route(system: FTCSystem, order: int, starts: Sequence[tuple[str, Controller]], calls: SolverCalls,
-               solver: str, *, k_max: float | None = None, seed: int = 0, budget_seconds: float = HINF_SECONDS,
+               solver: str, *, k_max: float | None = None, seed: int = 0, budget_seconds: float | None = None,
                ) -> tuple[Controller | None, Any, list[float], str, list[dict[str, Any]]]:
     """The ``hinf`` route: :func:`minimise_gamma` from the certified controllers ``starts``
     (order ``order``, best first), then the core analysis of each answer, best first, until
