@@ -371,7 +371,7 @@ class RateEnvelope:
         return RateEnvelope(self.mid, self.half, signs)
 
 
-def least_eigenvalue(P: Sequence[Matrix]) -> float:
+def least_eigenvalue(P: Sequence[Matrix] | Matrix) -> float:
     """The least eigenvalue of a stack of symmetric matrices (one batched ``eigvalsh``)."""
     return float(np.linalg.eigvalsh(np.asarray(P))[..., 0].min())
 
