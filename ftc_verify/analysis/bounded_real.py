@@ -113,7 +113,7 @@ from .closedloop import ClosedLoop
 from .conditioning import Similarity
 from .lmi import Certificate, check_certificate
 
-__all__ = ["BISECTION_RTOL", "DENSE_ROWS", "POLICY_RTOL", "SEARCH_RTOL", "CANDIDATE_LADDER", "MAX_POLICY_STEPS", "STALL_RATIO", "coupled_lyapunov",
+__all__ = ["least_eigenvalue", "BISECTION_RTOL", "DENSE_ROWS", "POLICY_RTOL", "SEARCH_RTOL", "CANDIDATE_LADDER", "MAX_POLICY_STEPS", "STALL_RATIO", "coupled_lyapunov",
            "POLICY_GMRES_RESTARTS", "candidate_margin", "lyapunov_candidate", "batched_lyapunov",
            "LyapunovSolver",
            "RateEnvelope", "bounded_real_solution", "float_hinf_norm", "RiccatiCandidate", "riccati_candidate"]
@@ -371,6 +371,11 @@ class RateEnvelope:
         return RateEnvelope(self.mid, self.half, signs)
 
 
+def least_eigenvalue(P: Sequence[Matrix] | Matrix) -> float:
+    """The least eigenvalue of a stack of symmetric matrices (one batched ``eigvalsh``)."""
+    return float(np.linalg.eigvalsh(np.asarray(P))[..., 0].min())
+
+
 def bounded_real_solution(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], box: RateEnvelope,
                           gamma: float, epsilon: float = 0.0, start: Sequence[Matrix] | None = None,
                           rtol: float = POLICY_RTOL,
@@ -410,15 +415,15 @@ def bounded_real_solution(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequenc
         P = (solve or (_policy_solve if rtol >= SEARCH_RTOL else _schur_solve))(At, Q, R, P_old)
         if P is None:
             return None
-        scale = max(np.finfo(float).tiny, *(float(np.abs(p).max()) for p in P))
-        if k > checked_from and min(float(np.linalg.eigvalsh(p)[0]) for p in P) < -1e-9 * scale:
+        scale = max(np.finfo(float).tiny, float(np.abs(np.asarray(P)).max()))
+        if k > checked_from and least_eigenvalue(P) < -1e-9 * scale:
             return None
         F = [b.T @ p / g2 for b, p in zip(Bw, P)]
         E = box.correction(P)
         if P_old is not None:
             step = max(float(np.abs(p - q).max()) for p, q in zip(P, P_old)) / scale
             if step <= rtol:
-                psd = min(float(np.linalg.eigvalsh(p)[0]) for p in P) >= -1e-9 * scale
+                psd = least_eigenvalue(P) >= -1e-9 * scale
                 return (P, F) if psd else None
             if k >= STALL_STEPS and step > STALL_RATIO * last:  # not contracting: treated as infeasible
                 return None

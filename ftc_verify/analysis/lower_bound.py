@@ -79,12 +79,12 @@ import numpy as np
 from ..jsonable import fields_dict
 from ..model.system import Matrix
 from .closedloop import ClosedLoop
-from .bounded_real import POLICY_RTOL, SEARCH_RTOL, RateEnvelope, bounded_real_solution
+from .bounded_real import POLICY_RTOL, SEARCH_RTOL, RateEnvelope, bounded_real_solution, least_eigenvalue
 from .conditioning import Similarity, conditioning_transform, stationary_distribution
 from .excitation import best_excitation
 from .exact import ball_generator, ball_matrices, exact_loop, literals_of, written_box
 from ..interrupts import deferred_signals
-from .rigorous import Ball, ball, midpoint, precision, proven_positive_definite
+from .rigorous import Ball, ball, midpoint, precision, proven_positive_definite, tight_solve
 from .moments.stability import lyapunov_stack_solution
 from .verdict import SOLVE_LIMIT, StabilityProver, ball_lyapunov_solution
 
@@ -133,7 +133,7 @@ def _ms_stable(A: Sequence[Matrix], Q: Matrix) -> bool:
     r"""Float64: :math:`\mathcal L(X) = -I` has a solution positive definite in every joint state, i.e. a
     negative abscissa (the operator is resolvent positive, :mod:`~ftc_verify.analysis.verdict`): one solve."""
     X = lyapunov_stack_solution(A, Q)
-    return X is not None and all(np.linalg.eigvalsh(x)[0] > 0 for x in X)
+    return X is not None and least_eigenvalue(X) > 0
 
 
 def _dense_adjoint(A: Sequence[Matrix], Q: Matrix, R: Sequence[Matrix],
@@ -170,8 +170,8 @@ def _rising_adjoint(A: Sequence[Matrix], Q: Matrix, R: Sequence[Matrix],
     P = _dense_adjoint(A, Q, R)
     if P is None or start is None:
         return P
-    scale = max(np.finfo(float).tiny, *(float(np.abs(p).max()) for p in P))
-    if min(float(np.linalg.eigvalsh(p - q)[0]) for p, q in zip(P, start)) < -FALL_TOL * scale:
+    scale = max(np.finfo(float).tiny, float(np.abs(np.asarray(P)).max()))
+    if least_eigenvalue(np.asarray(P) - np.asarray(start)) < -FALL_TOL * scale:
         return None
     return P
 
@@ -418,11 +418,7 @@ def _first_moments(At: Sequence[Ball], Bw: Sequence[Ball], q: list[list[Any]], p
         Be = (Bw[s] @ eb).value
         for r in range(n):
             b1[s * n + r, 0] = pi[s, 0] * Be[r, 0]
-    try:
-        with deferred_signals():
-            return G1.solve(b1)
-    except (ZeroDivisionError, ValueError):
-        return None
+    return tight_solve(G1, b1)
 
 
 def _perturbation(chans: Sequence[Any], deltas: dict[str, Matrix], like: Ball) -> Ball:

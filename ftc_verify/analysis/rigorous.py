@@ -36,10 +36,11 @@ from typing import Any
 
 import numpy as np
 
+from ..interrupts import deferred_signals
 from ..model.system import Matrix
 
 __all__ = ["PRECISION_BITS", "Ball", "ball", "ball_bmat", "precision", "proven_positive_definite",
-           "proven_positive_definite_cholesky", "proven_not_psd", "midpoint"]
+           "proven_positive_definite_cholesky", "proven_not_psd", "midpoint", "tight_solve", "LU_RADIUS"]
 
 #: Working precision (bits) of the rigorous checks; enclosures of products of float data
 #: are then tight to about 1e-38 relative, far below any margin a certificate can have.
@@ -229,3 +230,29 @@ def proven_not_psd(M: Ball) -> bool:
     v = ball(V[:, :1])
     q = (v.T @ M @ v).value[0, 0]
     return bool(q < 0)
+
+
+#: A ball solve's enclosure is accepted from plain interval LU when every radius is at most
+#: this times the largest midpoint (below float64's half unit in the last place, 2**-53: a
+#: float read off the enclosure moves by at most one unit in the last place).
+LU_RADIUS = 2.0 ** -56
+
+
+def tight_solve(G: Any, b: Any) -> Any:
+    """``G^{-1} b`` enclosed by FLINT: first by interval LU (``algorithm="lu"``: about 4x
+    faster than FLINT's default, which adds a preconditioned solve, at these sizes), kept
+    when its radii are at most :data:`LU_RADIUS` relative to the largest entry; otherwise
+    (LU's intervals grew, or a pivot contained zero) by the default algorithm. Either way
+    a rigorous enclosure of the exact solution. ``None`` when FLINT cannot prove ``G``
+    nonsingular. Call inside a precision block."""
+    with contextlib.suppress(ZeroDivisionError, ValueError), deferred_signals():
+        x = G.solve(b, algorithm="lu")
+        entries = x.entries()
+        top = max((float(abs(e.mid())) for e in entries), default=0.0)
+        if all(e.is_finite() and float(e.rad()) <= LU_RADIUS * top for e in entries):
+            return x
+    try:
+        with deferred_signals():  # a signal handled inside solve() came out as a ZeroDivisionError
+            return G.solve(b)
+    except (ZeroDivisionError, ValueError):
+        return None

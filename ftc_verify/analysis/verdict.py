@@ -48,13 +48,12 @@ from typing import Any
 
 import numpy as np
 
-from ..interrupts import deferred_signals
 from ..jsonable import fields_dict, renamed
 from ..model.system import Matrix
 from .closedloop import ClosedLoop
 from .conditioning import Similarity
 from .exact import ball_generator, ball_matrices, exact_loop, literals_of
-from .rigorous import Ball, ball, precision, proven_not_psd, proven_positive_definite
+from .rigorous import Ball, ball, precision, proven_not_psd, proven_positive_definite, tight_solve
 
 __all__ = ["VERDICTS", "SOLVE_LIMIT", "BUDGET_SECONDS", "FALLBACK_BITS", "VertexVerdict", "StabilityProver",
            "certify_vertex", "combine", "describe", "ball_lyapunov_solution", "float_stack_solution"]
@@ -198,10 +197,8 @@ def ball_lyapunov_solution(A: Sequence[Ball], q: list[list[Any]], bits: int,
             for s in range(modes):
                 for k, (r, c) in enumerate(zip(rows, cols)):
                     b[s * h + k, 0] = -rhs[s].value[int(r), int(c)]
-        try:
-            with deferred_signals():  # a signal handled inside solve() came out as a ZeroDivisionError
-                v = G.solve(b)
-        except (ZeroDivisionError, ValueError):
+        v = tight_solve(G, b)
+        if v is None:
             return None
         out = []
         for s in range(modes):
