@@ -62,7 +62,7 @@ def print_sampled(res: Any) -> None:
     print(f"  sampled loop, period h = {res.period:g} (controller reads x and the FDI report every h, holds u)")
     rho = f"{res.spectral_radius:.6g}" + ("" if res.spectral_radius < float("inf") else " (overflows float64)")
     print(f"    mean-square stability  spectral radius of the one-period map {rho}: {word}")
-    print(f"      proved: {res.proof}")
+    print(f"      {'not proved' if res.verdict == 'undecided' else 'proved'}: {res.proof}")
     if res.h_max is not None and res.h_max_unstable is not None:
         print(f"    h_max {res.h_max:.6g}: proved stable over the rate box there, proved unstable at "
               f"{res.h_max_unstable:.6g}")

@@ -517,26 +517,22 @@ def scan_range(loop: SampledLoop, period: float | None = None) -> tuple[float, f
 
 def sampled_analysis(system: FTCSystem, controller: Controller, period: float, *, max_boxes: int = 64,
                      h_max: bool = True, max_seconds: float = 60.0) -> SampledResult:
-    """Mean-square stability of the sampled loop at ``period`` over the rate box, and
-    the proved ``h_max`` bracket after a scan of periods (module docstring).
-
-    ``h_max`` is the end of the stability interval that starts at the smallest scanned
-    period (the continuous loop's limit); ``None`` when the loop is unstable there or
-    stable over the whole scanned range (then ``h_max_note`` says which). The bracket's
-    proofs have a budget of sub-boxes fixed by the problem's sizes
-    (:func:`~ftc_verify.analysis.moments.sampled_bracket.box_work`), so the bracket is
-    the same on every machine; ``max_seconds`` (wall time) is a safety valve: the verdict
-    at the period gets up to a third of it, the ``h_max`` bracket starts no proof after
-    it has passed (its note then says so).
-    """
+    """Mean-square stability of the sampled loop at ``period`` over the rate box (sub-box
+    proofs, at most ``max_boxes``, and a clock-dependent certificate of the whole box:
+    :func:`~ftc_verify.analysis.moments.sampled_clock.period_verdict`), and the proved
+    ``h_max`` bracket (module docstring): the end of the stability interval that starts at
+    the smallest scanned period, ``None`` when the loop is unstable there or stable over
+    the whole scanned range (``h_max_note`` says which). Its proofs' budget is fixed by the
+    problem's sizes (:func:`~ftc_verify.analysis.moments.sampled_bracket.box_work`); ``max_seconds``
+    (wall) is a safety valve: the sub-box proofs at the period get a third of it."""
+    from .sampled_clock import period_verdict
     from .sampled_conditioned import conditioned
-    from .sampled_proof import box_verdict
 
     period = check_period(period, "period")
     t0 = time.perf_counter()
     loop = dataclasses.replace(SampledLoop.build(system, controller), written=(float(period),))
-    verdict = box_verdict(loop, period, max_boxes=max_boxes, max_seconds=max_seconds / 3)
     rho, where = worst_radius(loop, period, rate_points(loop.chain))
+    verdict = period_verdict(loop, period, rho, max_boxes=max_boxes, max_seconds=max_seconds / 3)
     if verdict.verdict == "undecided" and not math.isfinite(rho):  # the map overflows float64: decide it in Arb
         from .sampled_overflow import overflow_verdict
         verdict = overflow_verdict(loop, period, where) or verdict
