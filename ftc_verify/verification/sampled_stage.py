@@ -191,24 +191,62 @@ def sampled_stages(system: FTCSystem, controller: Controller, step: float, g2: f
         seconds[name] = spans[name][1] - t0
 
     t = time.perf_counter()
-    res, check = sampled_stage(system, controller, step, here)
-    if res is not None:  # its proved gains, JSON sampled.nominal_gamma / robust_gamma (+ lower estimates)
-        from ..analysis.moments.sampled_gamma import attach_performance
-
-        res = attach_performance(res, system, controller)
-    checks.append(check)
-    done("sampled", t)
-    t = time.perf_counter()
-    exact, check = sampled_energy_stage(system, controller, step, g2, res, MAX_EXACT_VERTICES)
-    checks.append(check)
-    done("sampled_energy", t)
-    found: dict[str, Any] = {"sampled": res, "sampled_exact": tuple(exact)}
-    if mc is not None:
-        t = time.perf_counter()
-        found["sampled_mc"], check = sampled_mc_stage(system, controller, step, mc[0], mc[1], mc[2], res)
+    gains = _gains_child(system, controller, step) if here else None
+    try:
+        res, check = sampled_stage(system, controller, step, here)
         checks.append(check)
-        done("sampled_mc", t)
+        done("sampled", t)
+        t = time.perf_counter()
+        exact, check = sampled_energy_stage(system, controller, step, g2, res, MAX_EXACT_VERTICES)
+        checks.append(check)
+        done("sampled_energy", t)
+        found: dict[str, Any] = {"sampled_exact": tuple(exact)}
+        if mc is not None:
+            t = time.perf_counter()
+            found["sampled_mc"], check = sampled_mc_stage(system, controller, step, mc[0], mc[1], mc[2], res)
+            checks.append(check)
+            done("sampled_mc", t)
+        t = time.perf_counter()
+        if res is not None:  # its proved gains, JSON sampled.nominal_gamma / robust_gamma (+ lower estimates)
+            res = _attach_gains(res, system, controller, gains)
+        done("sampled_gains_wait", t)
+    finally:
+        if gains is not None:
+            gains.cancel()
+    found["sampled"] = res
     return found
+
+
+def _gains_child(system: FTCSystem, controller: Controller, step: float) -> Any:
+    """The sampled loop's gains at ``step`` (:func:`~ftc_verify.analysis.moments.sampled_gamma.sampled_performance`:
+    the proved lower bounds and certificates, which need nothing of the stability analysis)
+    started in a forked child (:class:`~ftc_verify.analysis.solvers.ForkedCall`, its own
+    process group, dying with this process) beside the analysis, the exact energies and the
+    Monte Carlo check; ``None`` (computed afterwards, in turn) without ``fork`` or when the
+    loop is too large to be analysed (:data:`SAMPLED_LIMIT`). On the three-tank example the
+    two halves are about 9 s of CPU each."""
+    import os
+
+    from ..analysis.moments.sampled_gamma import sampled_performance
+    from ..analysis.solvers import ForkedCall
+
+    loop = SampledLoop.build(system, controller)
+    if not hasattr(os, "fork") or loop.states * loop.d * (loop.d + 1) // 2 > SAMPLED_LIMIT:
+        return None
+    return ForkedCall(lambda: sampled_performance(system, controller, step), "the sampled loop's gains", group=True)
+
+
+def _attach_gains(res: SampledResult, system: FTCSystem, controller: Controller, gains: Any) -> SampledResult:
+    """``res`` with its gains (:func:`~ftc_verify.analysis.moments.sampled_gamma.attach_performance`):
+    the child's answer when the loop has any (its float64 radius below 1, not proved
+    unstable: what ``attach_performance`` computes then), else as ``attach_performance`` says."""
+    import dataclasses
+
+    from ..analysis.moments.sampled_gamma import attach_performance
+
+    if gains is None or res.verdict == "not stable" or not res.spectral_radius < 1.0:
+        return attach_performance(res, system, controller)
+    return dataclasses.replace(res, performance=gains.result())
 
 
 class SampledRun:
