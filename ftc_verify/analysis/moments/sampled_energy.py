@@ -251,8 +251,8 @@ def sampled_energies(system: FTCSystem, controller: Controller, period: float, b
                      disturbance: str = "paper") -> list[ExactEnergy | None]:
     """:func:`sampled_energy` (infinite horizon, from 0 in the joint state ``(0, 0)``) at
     each rate array of ``betas``, ``None`` where the sampled loop is not mean-square
-    stable: the same numbers, with the rate-independent parts (the coordinates of
-    :func:`_conditioned`, the resets, restriction and output weights) built once -- what
+    stable: the same numbers, with the rate-independent parts (the conditioning
+    coordinates, the resets, restriction and output weights) built once -- what
     ``verify``'s exact-energy stage evaluates at every rate vertex."""
     frame = _frame(system, controller, period, disturbance, None, (0, 0))
     out: list[ExactEnergy | None] = []
