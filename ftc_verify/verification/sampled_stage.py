@@ -191,11 +191,12 @@ def sampled_stages(system: FTCSystem, controller: Controller, step: float, g2: f
         seconds[name] = spans[name][1] - t0
 
     t = time.perf_counter()
-    gains = _gains_child(system, controller, step) if here else None
+    res, check = sampled_stage(system, controller, step, here)
+    checks.append(check)
+    done("sampled", t)
+    # after the analysis, so that it runs alone as before (its h_max bracket has a wall-time valve)
+    gains = _gains_child(system, controller, step) if here and res is not None and _has_gains(res) else None
     try:
-        res, check = sampled_stage(system, controller, step, here)
-        checks.append(check)
-        done("sampled", t)
         t = time.perf_counter()
         exact, check = sampled_energy_stage(system, controller, step, g2, res, MAX_EXACT_VERTICES)
         checks.append(check)
@@ -217,34 +218,38 @@ def sampled_stages(system: FTCSystem, controller: Controller, step: float, g2: f
     return found
 
 
+def _has_gains(res: SampledResult) -> bool:
+    """Whether :func:`~ftc_verify.analysis.moments.sampled_gamma.attach_performance` seeks
+    gains for ``res``: not proved unstable and its float64 radius below 1."""
+    return res.verdict != "not stable" and res.spectral_radius < 1.0
+
+
 def _gains_child(system: FTCSystem, controller: Controller, step: float) -> Any:
     """The sampled loop's gains at ``step`` (:func:`~ftc_verify.analysis.moments.sampled_gamma.sampled_performance`:
-    the proved lower bounds and certificates, which need nothing of the stability analysis)
-    started in a forked child (:class:`~ftc_verify.analysis.solvers.ForkedCall`, its own
-    process group, dying with this process) beside the analysis, the exact energies and the
-    Monte Carlo check; ``None`` (computed afterwards, in turn) without ``fork`` or when the
-    loop is too large to be analysed (:data:`SAMPLED_LIMIT`). On the three-tank example the
-    two halves are about 9 s of CPU each."""
+    the proved lower bounds and certificates, which need nothing of the exact energies or the
+    Monte Carlo check) started in a forked child (:class:`~ftc_verify.analysis.solvers.ForkedCall`,
+    its own process group, dying with this process) beside them; ``None`` (computed
+    afterwards, in turn) without ``fork``. On the three-tank example the gains are about
+    9 s of CPU, the energies 5.5 s."""
     import os
 
     from ..analysis.moments.sampled_gamma import sampled_performance
     from ..analysis.solvers import ForkedCall
 
-    loop = SampledLoop.build(system, controller)
-    if not hasattr(os, "fork") or loop.states * loop.d * (loop.d + 1) // 2 > SAMPLED_LIMIT:
+    if not hasattr(os, "fork"):
         return None
     return ForkedCall(lambda: sampled_performance(system, controller, step), "the sampled loop's gains", group=True)
 
 
 def _attach_gains(res: SampledResult, system: FTCSystem, controller: Controller, gains: Any) -> SampledResult:
     """``res`` with its gains (:func:`~ftc_verify.analysis.moments.sampled_gamma.attach_performance`):
-    the child's answer when the loop has any (its float64 radius below 1, not proved
-    unstable: what ``attach_performance`` computes then), else as ``attach_performance`` says."""
+    the child's answer when one was started (:func:`_has_gains`: what ``attach_performance``
+    computes then), else ``attach_performance`` in turn."""
     import dataclasses
 
     from ..analysis.moments.sampled_gamma import attach_performance
 
-    if gains is None or res.verdict == "not stable" or not res.spectral_radius < 1.0:
+    if gains is None:
         return attach_performance(res, system, controller)
     return dataclasses.replace(res, performance=gains.result())
 
