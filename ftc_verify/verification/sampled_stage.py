@@ -75,13 +75,13 @@ def sampled_stage(system: FTCSystem, controller: Controller, step: float,
 def sampled_energy_stage(system: FTCSystem, controller: Controller, step: float, g2: float,
                          sampled: SampledResult | None, max_vertices: int) -> tuple[list[dict[str, Any]], Check]:
     """The exact expected energy of the sampled loop at ``step`` for the paper's
-    disturbance (:func:`ftc_verify.analysis.moments.sampled_energy.sampled_energy`, infinite
+    disturbance (:func:`ftc_verify.analysis.moments.sampled_energy.sampled_energies`, infinite
     horizon) at the rate vertices (up to ``max_vertices``) and the constant
     ``Delta in {0, +E, -E}``, against ``g2`` (gamma^2 of the continuous certificate: the
     loop that runs must keep it). Not run when the sampled loop was not analysed or not
     proved stable (its check says why)."""
     from ..simulation.delta import delta_shapes
-    from ..analysis.moments.sampled_energy import perturbed_system, sampled_energy
+    from ..analysis.moments.sampled_energy import perturbed_system, sampled_energies
     from .verify import Check
 
     name = f"exact energy (sampled loop, h = {step:g})"
@@ -94,15 +94,14 @@ def sampled_energy_stage(system: FTCSystem, controller: Controller, step: float,
         cases += [(label, None if s1 is None else sign * np.eye(*s1), None if s2 is None else sign * np.eye(*s2))
                   for sign, label in ((1.0, "Delta=+E"), (-1.0, "Delta=-E"))]
     out: list[dict[str, Any]] = []
+    betas = list(system.chain.vertices())[:max_vertices]
     for label, d1, d2 in cases:
-        perturbed = perturbed_system(system, d1, d2)
-        for b in list(system.chain.vertices())[:max_vertices]:
-            try:
-                e = sampled_energy(perturbed, controller, step, beta=b)
-                ratio = e.ratio
-            except FTCError:  # the perturbed sampled loop is not stable at this vertex
-                ratio = float("inf")
-            out.append({"delta": label, "beta": b.tolist(), "ratio": ratio})
+        try:  # the rate-independent parts once per Delta (sampled_energies)
+            found = sampled_energies(perturbed_system(system, d1, d2), controller, step, betas)
+        except FTCError:
+            found = [None] * len(betas)
+        for b, e in zip(betas, found):  # None: the perturbed sampled loop is not stable at this vertex
+            out.append({"delta": label, "beta": b.tolist(), "ratio": float("inf") if e is None else e.ratio})
     worst = max(out, key=lambda e: e["ratio"])
     return out, Check(name, worst["ratio"] <= g2,
                       f"max E||y||^2/||w||^2 = {worst['ratio']:.6g} ({worst['delta']}, "
@@ -193,23 +192,66 @@ def sampled_stages(system: FTCSystem, controller: Controller, step: float, g2: f
 
     t = time.perf_counter()
     res, check = sampled_stage(system, controller, step, here)
-    if res is not None:  # its proved gains, JSON sampled.nominal_gamma / robust_gamma (+ lower estimates)
-        from ..analysis.moments.sampled_gamma import attach_performance
-
-        res = attach_performance(res, system, controller)
     checks.append(check)
     done("sampled", t)
-    t = time.perf_counter()
-    exact, check = sampled_energy_stage(system, controller, step, g2, res, MAX_EXACT_VERTICES)
-    checks.append(check)
-    done("sampled_energy", t)
-    found: dict[str, Any] = {"sampled": res, "sampled_exact": tuple(exact)}
-    if mc is not None:
+    # after the analysis, so that it runs alone as before (its h_max bracket has a wall-time valve)
+    gains = _gains_child(system, controller, step) if here and res is not None and _has_gains(res) else None
+    try:
         t = time.perf_counter()
-        found["sampled_mc"], check = sampled_mc_stage(system, controller, step, mc[0], mc[1], mc[2], res)
+        exact, check = sampled_energy_stage(system, controller, step, g2, res, MAX_EXACT_VERTICES)
         checks.append(check)
-        done("sampled_mc", t)
+        done("sampled_energy", t)
+        found: dict[str, Any] = {"sampled_exact": tuple(exact)}
+        if mc is not None:
+            t = time.perf_counter()
+            found["sampled_mc"], check = sampled_mc_stage(system, controller, step, mc[0], mc[1], mc[2], res)
+            checks.append(check)
+            done("sampled_mc", t)
+        t = time.perf_counter()
+        if res is not None:  # its proved gains, JSON sampled.nominal_gamma / robust_gamma (+ lower estimates)
+            res = _attach_gains(res, system, controller, gains)
+        done("sampled_gains_wait", t)
+    finally:
+        if gains is not None:
+            gains.cancel()
+    found["sampled"] = res
     return found
+
+
+def _has_gains(res: SampledResult) -> bool:
+    """Whether :func:`~ftc_verify.analysis.moments.sampled_gamma.attach_performance` seeks
+    gains for ``res``: not proved unstable and its float64 radius below 1."""
+    return res.verdict != "not stable" and res.spectral_radius < 1.0
+
+
+def _gains_child(system: FTCSystem, controller: Controller, step: float) -> Any:
+    """The sampled loop's gains at ``step`` (:func:`~ftc_verify.analysis.moments.sampled_gamma.sampled_performance`:
+    the proved lower bounds and certificates, which need nothing of the exact energies or the
+    Monte Carlo check) started in a forked child (:class:`~ftc_verify.analysis.solvers.ForkedCall`,
+    its own process group, dying with this process) beside them; ``None`` (computed
+    afterwards, in turn) without ``fork``. On the three-tank example the gains are about
+    9 s of CPU, the energies 5.5 s."""
+    import os
+
+    from ..analysis.moments.sampled_gamma import sampled_performance
+    from ..analysis.solvers import ForkedCall
+
+    if not hasattr(os, "fork"):
+        return None
+    return ForkedCall(lambda: sampled_performance(system, controller, step), "the sampled loop's gains", group=True)
+
+
+def _attach_gains(res: SampledResult, system: FTCSystem, controller: Controller, gains: Any) -> SampledResult:
+    """``res`` with its gains (:func:`~ftc_verify.analysis.moments.sampled_gamma.attach_performance`):
+    the child's answer when one was started (:func:`_has_gains`: what ``attach_performance``
+    computes then), else ``attach_performance`` in turn."""
+    import dataclasses
+
+    from ..analysis.moments.sampled_gamma import attach_performance
+
+    if gains is None:
+        return attach_performance(res, system, controller)
+    return dataclasses.replace(res, performance=gains.result())
 
 
 class SampledRun:

@@ -313,11 +313,14 @@ def one_period_map(loop: SampledLoop, h: float, rates: Matrix, *, scaled: bool =
 
 def spectral_radius(loop: SampledLoop, h: float, rates: Matrix) -> float:
     """:math:`\\rho(T)` at period ``h`` and ``rates`` (float64 eigenvalues); ``inf`` when
-    :math:`T` overflows float64 (a period so long that the moments leave its range)."""
-    T = one_period_map(loop, h, rates, scaled=True)
-    if not np.all(np.isfinite(T)):
-        return math.inf
-    return float(np.max(np.abs(scipy.linalg.eigvals(T, check_finite=False))))
+    :math:`T` overflows float64 (a period so long that the moments leave its range). Kept
+    in ``loop.memo``: the bisections and the ``h_max`` bracket ask for some again."""
+    key = ("rho", float(h), np.asarray(rates, dtype=float).tobytes())
+    if (found := loop.memo.get(key)) is None:
+        T = one_period_map(loop, h, rates, scaled=True)
+        found = math.inf if not np.all(np.isfinite(T)) else float(np.max(np.abs(scipy.linalg.eigvals(T, check_finite=False))))
+        loop.memo[key] = found
+    return float(found)
 
 
 def rate_points(chain: JointChain, limit: int = 16) -> tuple[Matrix, ...]:
@@ -391,11 +394,15 @@ def crossing(loop: SampledLoop, a: float, b: float, stable_at_a: bool, rtol: flo
              points: Sequence[Matrix] | None = None) -> float:
     """Float64 bisection of the change of ``rho < 1`` (worst over ``points``, default
     :func:`rate_points`) between ``a`` and ``b``; returns the end on the side of ``a``'s
-    verdict, within ``rtol`` relative."""
-    pts = rate_points(loop.chain) if points is None else points
+    verdict, within ``rtol`` relative. A step stops at its first point with ``rho >= 1``
+    (tried first at the next step): the same verdicts, fewer exponentials."""
+    pts = list(rate_points(loop.chain) if points is None else points)
     while (b - a) > rtol * max(abs(a), abs(b)):
         mid = 0.5 * (a + b)
-        if (worst_radius(loop, mid, pts)[0] < 1.0) == stable_at_a:
+        bad = next((k for k, p in enumerate(pts) if not spectral_radius(loop, mid, p) < 1.0), None)
+        if bad is not None:
+            pts.insert(0, pts.pop(bad))
+        if (bad is None) == stable_at_a:
             a = mid
         else:
             b = mid
@@ -488,19 +495,11 @@ class SampledResult:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready (``sampled`` in the report schema)."""
         return {
-            "period": self.period,
-            "verdict": self.verdict,
-            "spectral_radius": self.spectral_radius,
-            "worst_rates": np.asarray(self.worst_rates).tolist(),
-            "proof": self.proof,
-            "sub_boxes": self.boxes,
-            "h_max": self.h_max,
-            "h_max_unstable": self.h_max_unstable,
-            "h_max_note": self.h_max_note,
-            "stability_intervals": [list(iv) for iv in self.stability_intervals],
-            "scan": list(self.scan),
-            "seconds": self.seconds,
-            **({} if self.performance is None else self.performance.to_dict()),
+            "period": self.period, "verdict": self.verdict, "spectral_radius": self.spectral_radius,
+            "worst_rates": np.asarray(self.worst_rates).tolist(), "proof": self.proof, "sub_boxes": self.boxes,
+            "h_max": self.h_max, "h_max_unstable": self.h_max_unstable, "h_max_note": self.h_max_note,
+            "stability_intervals": [list(iv) for iv in self.stability_intervals], "scan": list(self.scan),
+            "seconds": self.seconds, **({} if self.performance is None else self.performance.to_dict()),
         }
 
 

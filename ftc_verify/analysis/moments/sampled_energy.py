@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -45,7 +46,7 @@ from ...model.system import FTCSystem, Matrix, Mode
 from .stability import duplication_matrix, second_moment_matrix, vech_order
 from .energy import EXOSYSTEMS, ExactEnergy
 
-__all__ = ["perturbed_system", "sampled_energy", "sample_trapezoid", "OMEGAS", "DECAY", "gain_lower_estimate"]
+__all__ = ["perturbed_system", "sampled_energy", "sampled_energies", "sample_trapezoid", "OMEGAS", "DECAY", "gain_lower_estimate"]
 
 #: Frequencies (rad per time unit) of the lower estimate's disturbances; the decay rate is ``DECAY``.
 OMEGAS = (0.0, 0.3, 1.0, 3.0, 10.0)
@@ -140,10 +141,39 @@ def _conditioned(system: FTCSystem, controller: Controller,
     return moved, controller, None if x0 is None else Ti @ np.asarray(x0, dtype=float).reshape(-1)
 
 
+@dataclasses.dataclass(frozen=True, eq=False)
+class _Frame:
+    r"""Everything of :class:`_Augmented` but the rate array: the per-joint-state flows
+    (:math:`\mathcal L` is :func:`second_moment_matrix` of them and the generator at a rate
+    array, :meth:`at`), built once for every rate array of one loop, period and disturbance."""
+
+    flows: tuple[Matrix, ...]
+    chain: Any
+    lift: Matrix
+    restrict: Matrix
+    ell: Matrix
+    ell_r: Matrix
+    v0: Matrix
+
+    def at(self, beta: Matrix) -> _Augmented:
+        """:class:`_Augmented` at the rate array ``beta`` (checked against the box)."""
+        beta = self.chain.check_beta(beta)
+        return _Augmented(second_moment_matrix(list(self.flows), self.chain.generator(beta)), self.lift,
+                          self.restrict, self.ell, self.ell_r, self.v0)
+
+
 def _augmented(system: FTCSystem, controller: Controller, period: float, beta: Matrix, disturbance: str,
                x0: Matrix | None, start: tuple[int, int],
                exosystem: tuple[Matrix, Matrix, Matrix] | None = None) -> _Augmented:
     """Checks the arguments and builds :class:`_Augmented` (module docstring), in the
+    coordinates of :func:`_conditioned`."""
+    return _frame(system, controller, period, disturbance, x0, start, exosystem).at(beta)
+
+
+def _frame(system: FTCSystem, controller: Controller, period: float, disturbance: str,
+           x0: Matrix | None, start: tuple[int, int],
+           exosystem: tuple[Matrix, Matrix, Matrix] | None = None) -> _Frame:
+    """Checks the arguments (but the rate array) and builds :class:`_Frame`, in the
     coordinates of :func:`_conditioned`."""
     S_exo, c, zeta0 = _exosystem(disturbance, exosystem)
     if not (period > 0) or not math.isfinite(period):
@@ -154,7 +184,6 @@ def _augmented(system: FTCSystem, controller: Controller, period: float, beta: M
         raise ValidationError(f"x0: expected {n_given} entries, got {np.asarray(x0).shape}")
     system, controller, x0 = _conditioned(system, controller, x0)
     chain = system.chain
-    beta = chain.check_beta(beta)
     q = S_exo.shape[0]
     n, nu, _, nw = system.dims
     nc = controller.n_c
@@ -197,10 +226,9 @@ def _augmented(system: FTCSystem, controller: Controller, period: float, beta: M
     v = np.zeros(chain.n_states * vr)
     s0 = chain.start_state(start)
     v[s0 * vr:(s0 + 1) * vr] = np.outer(zeta, zeta)[rows, cols]
-    return _Augmented(second_moment_matrix(flows, chain.generator(beta)),
-                      scipy.linalg.block_diag(*[Ld @ np.kron(R, R) @ Dr for R in resets]),
-                      scipy.linalg.block_diag(*[Lr @ np.kron(P, P) @ Dd] * chain.n_states),
-                      np.concatenate(outs), np.concatenate(outs_r), v)
+    return _Frame(tuple(flows), chain, scipy.linalg.block_diag(*[Ld @ np.kron(R, R) @ Dr for R in resets]),
+                  scipy.linalg.block_diag(*[Lr @ np.kron(P, P) @ Dd] * chain.n_states),
+                  np.concatenate(outs), np.concatenate(outs_r), v)
 
 
 def sampled_energy(system: FTCSystem, controller: Controller, period: float, *, beta: Matrix,
@@ -216,6 +244,29 @@ def sampled_energy(system: FTCSystem, controller: Controller, period: float, *, 
     if not (horizon > 0):
         raise ValidationError(f"sampled_energy: the horizon must be positive, got {horizon!r}")
     aug = _augmented(system, controller, period, beta, disturbance, x0, start, exosystem)
+    return _energy(aug, system, period, horizon, disturbance, exosystem)
+
+
+def sampled_energies(system: FTCSystem, controller: Controller, period: float, betas: Sequence[Matrix], *,
+                     disturbance: str = "paper") -> list[ExactEnergy | None]:
+    """:func:`sampled_energy` (infinite horizon, from 0 in the joint state ``(0, 0)``) at
+    each rate array of ``betas``, ``None`` where the sampled loop is not mean-square
+    stable: the same numbers, with the rate-independent parts (the conditioning
+    coordinates, the resets, restriction and output weights) built once -- what
+    ``verify``'s exact-energy stage evaluates at every rate vertex."""
+    frame = _frame(system, controller, period, disturbance, None, (0, 0))
+    out: list[ExactEnergy | None] = []
+    for beta in betas:
+        try:
+            out.append(_energy(frame.at(beta), system, period, math.inf, disturbance, None))
+        except FTCError:  # the sampled loop is not mean-square stable at this rate array
+            out.append(None)
+    return out
+
+
+def _energy(aug: _Augmented, system: FTCSystem, period: float, horizon: float, disturbance: str,
+            exosystem: tuple[Matrix, Matrix, Matrix] | None) -> ExactEnergy:
+    """The energies of :func:`sampled_energy` from its :class:`_Augmented`."""
     S_exo, c, zeta0 = _exosystem(disturbance, exosystem)
     F, ellG = aug.blocks(period)
     T = aug.restrict @ F @ aug.lift
