@@ -21,6 +21,7 @@ import control
 import numpy as np
 import pytest
 
+from process_stages import child_has_worked, wait_for_stage
 from ftc_verify.analysis import closed_loop
 from ftc_verify.controllers import load_controller
 from ftc_verify.errors import ValidationError
@@ -188,12 +189,14 @@ def _alive(pid: int) -> bool:
 @pytest.mark.skipif(not Path("/proc").is_dir(), reason="reads /proc for the child processes")
 def test_sigterm_stops_a_descent_inside_lapack_at_once(tmp_path: Path) -> None:
     """``--order 30``: every objective evaluation is a dense eigenproblem of 2112 rows that
-    holds the interpreter for seconds (scipy's LAPACK binding keeps the GIL). SIGTERM 6 s
-    in: exit 143 within 3 s, the ``terminated`` line, no controller file, no process left."""
+    holds the interpreter for seconds (scipy's LAPACK binding keeps the GIL; the first
+    starts 0.2 s into the synthesis's child and takes about 4 s of CPU). SIGTERM once the
+    child has used 1 s of CPU (``tests/process_stages.py``), inside that eigenproblem:
+    exit 143 within 3 s, the ``terminated`` line, no controller file, no process left."""
     proc = subprocess.Popen([sys.executable, "-m", "ftc_verify", "synthesize", str(EXAMPLES / "paper.toml"),
                              "--output-feedback", "--method", "descent", "--order", "30", "-o", "c.toml"],
                             cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(6)
+    wait_for_stage(proc, lambda: child_has_worked(proc.pid, 1.0), "1 s of the synthesis's child")
     children = _children(proc.pid)
     assert children, "the synthesis runs in a child process"
     t0 = time.monotonic()
@@ -371,12 +374,14 @@ def _big_system(path: Path, m: int, n: int, phases: int) -> Path:
 
 @pytest.mark.skipif(not Path("/proc").is_dir(), reason="reads /proc for the child processes")
 def test_sigterm_stops_a_long_analysis_at_once(tmp_path: Path) -> None:
-    """m = 6, Erlang-8 delays (246 joint states): SIGTERM 6 s into ``analyze`` exits 143
-    within 3 s and leaves no process (it waited for the solve in progress, 29-87 s)."""
+    """m = 6, Erlang-8 delays (246 joint states): SIGTERM to ``analyze`` once its analysis's
+    child has used 0.5 s of CPU (``tests/process_stages.py``; inside the first dense
+    eigenproblem of 1476 rows, 0.2-1.2 s) exits 143 within 3 s and leaves no process (it
+    waited for the solve in progress, 29-87 s)."""
     gains = _big_system(tmp_path / "big.toml", 6, 3, 8)
     proc = subprocess.Popen([sys.executable, "-m", "ftc_verify", "analyze", "big.toml", "--gains", str(gains), "--json"],
                             cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(6)
+    wait_for_stage(proc, lambda: child_has_worked(proc.pid, 0.5), "0.5 s of the analysis's child")
     children = _children(proc.pid)
     assert children and proc.poll() is None
     t0 = time.monotonic()
