@@ -31,7 +31,7 @@ from ftc_verify.simulation.paths import sample_paths
 from ftc_verify.simulation.spec import SimulationSpec
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from fmu_plants import build_plant
+from session_cache import shared_plant
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "examples" / "paper.toml"
@@ -270,8 +270,9 @@ def test_a_signal_during_an_fmu_run_on_workers(tmp_path: Path, fmu_cache: Path, 
 
 # ------------------------------------------------------------------ a crashing plant FMU on workers
 @pytest.fixture(scope="module")
-def crash_plant(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return build_plant(tmp_path_factory.mktemp("crash"), "crash")
+def crash_plant(shared_tmp: Path) -> Path:
+    """The crashing plant, built once per session (``tests/session_cache.py``; read only)."""
+    return shared_plant(shared_tmp, "crash")
 
 
 @pytest.mark.slow(20)  # seconds measured on 2 busy cores: scheduled first

@@ -31,7 +31,7 @@ import cli_inprocess
 import numpy as np
 import pytest
 
-from fmu_plants import build_plant
+from session_cache import copied_plants
 from ftc_verify.controllers import load_controller
 from ftc_verify.errors import PlantRunError
 from ftc_verify.model.files import load_system
@@ -53,9 +53,10 @@ def _isolated_cache(tmp_path_factory: pytest.TempPathFactory):
 
 
 @pytest.fixture(scope="module")
-def plants(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    root = tmp_path_factory.mktemp("plants")
-    return {kind: build_plant(root / kind, kind) for kind in ("ok", "crash", "fail", "stiff")}
+def plants(tmp_path_factory: pytest.TempPathFactory, shared_tmp: Path) -> dict[str, Path]:
+    """This process's copies of the plants built once per session (``tests/session_cache.py``)."""
+    return copied_plants(shared_tmp, tmp_path_factory.mktemp("plants"),
+                         {kind: (kind, "2.0") for kind in ("ok", "crash", "fail", "stiff")})
 
 
 def _cli(args: list[str], cwd: Path, timeout: float = 300) -> subprocess.CompletedProcess[str]:
