@@ -6,13 +6,11 @@ reference backend and on FMUs loaded once per worker; misuse is one error, exit 
 from __future__ import annotations
 
 import json
-import logging
 import os
 import signal
 import subprocess
 import sys
 import tempfile
-from collections.abc import Iterator
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -62,13 +60,12 @@ def test_serial_and_two_workers_give_identical_numbers() -> None:
     np.testing.assert_array_equal(spread.w_norm, serial.w_norm)
 
 
-@pytest.fixture(scope="module")
-def scheduler() -> Iterator[str]:
-    """The address of an existing 2-worker cluster, started once for the tests that reach
-    it by ``--scheduler`` (each command connects as a new client)."""
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
-                                  silence_logs=logging.ERROR) as cluster:
-        yield cluster.scheduler_address
+@pytest.fixture
+def scheduler(dask_scheduler: str) -> str:
+    """The address of an existing 2-worker cluster (``dask_scheduler`` of conftest.py: one
+    per test process, shared), for the tests that reach it by ``--scheduler`` (each
+    command connects as a new client)."""
+    return dask_scheduler
 
 
 @pytest.mark.slow(6)  # seconds on 2 busy cores (--durations at load 9, / 4): scheduled first
@@ -133,15 +130,20 @@ def test_simulate_fmu_backend_on_two_workers_equals_serial() -> None:
     assert a["paths"] == 60 and a == b
 
 
-@pytest.mark.slow(12)  # seconds measured on 2 busy cores: scheduled first
 def test_cluster_misuse_is_one_error() -> None:
-    out = _cli("--backend", "fmu", "--workers", "2", "--fmu-log")
+    """Refused before any cluster is started or reached, so in this process
+    (``tests/cli_inprocess.py``: the exit code and the lines a subprocess gives)."""
+    run = cli_inprocess.run_cli
+    out = run(["simulate", str(PAPER), "--gains", str(GAINS), "--backend", "fmu", "--workers", "2", "--fmu-log"])
     assert out.returncode == 2 and "--fmu-log" in out.stderr and out.stderr.count("\n") == 1
-    out = _cli("--backend", "reference", "--scheduler", "tcp://127.0.0.1:9", "--paths", "2")
+    out = run(["simulate", str(PAPER), "--gains", str(GAINS), "--backend", "reference", "--scheduler",
+               "tcp://127.0.0.1:9", "--paths", "2"])
     assert out.returncode == 2 and "--scheduler" in out.stderr and "Traceback" not in out.stderr
-    out = subprocess.run([sys.executable, "-m", "ftc_verify", "verify", str(PAPER), "--gains", str(GAINS), "--workers",
-                          "2", "--fmu-log"], capture_output=True, text=True, timeout=600)
+    out = run(["verify", str(PAPER), "--gains", str(GAINS), "--workers", "2", "--fmu-log"])
     assert out.returncode == 2 and "--fmu-log" in out.stderr and out.stderr.count("\n") == 1
+    out = run(["simulate", str(PAPER), "--gains", str(GAINS), "--workers", "2", "--connect-timeout", "2"])
+    assert out.returncode == 2 and out.stderr.count("\n") == 1 and "--connect-timeout 2: only with --scheduler" \
+        in out.stderr
 
 
 def _die_if_first(marker: str) -> None:

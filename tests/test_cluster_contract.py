@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 from types import SimpleNamespace
 
+import cli_inprocess
 import numpy as np
 import pytest
 
@@ -40,9 +41,11 @@ SLACK = 8.0  # seconds of start-up and load on 2 busy cores on top of a time-box
 BOX = 2.0  # the time box these tests give (--connect-timeout / connect_timeout; 10 s by default)
 
 
-def _cli(*args: str, env: dict[str, str] | None = None, timeout: float = 300) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "ftc_verify", *args], capture_output=True, text=True,
-                          timeout=timeout, env=env)
+def _cli(*args: str, timeout: float = 300) -> subprocess.CompletedProcess[str]:
+    """``ftc-verify ARGS`` in this process (``tests/cli_inprocess.py``: the exit code and
+    output a subprocess gives), for the refusals whose claim is the output; the signal
+    tests below run real subprocesses."""
+    return cli_inprocess.run_cli(args, timeout=timeout)
 
 
 def _free_port() -> int:
