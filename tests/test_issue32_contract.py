@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 
 from process_stages import child_has_worked, wait_for_stage
+from session_cache import computed_once
 from ftc_verify.analysis import closed_loop
 from ftc_verify.controllers import load_controller
 from ftc_verify.errors import ValidationError
@@ -121,11 +122,22 @@ def test_bad_synthesize_options_exit_2_naming_the_option(tmp_path: Path, option:
 @pytest.mark.parametrize("code", [errno.ENOSPC, errno.EACCES, errno.EDQUOT])
 def test_output_refused_by_the_environment_exits_2_with_the_path(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                                                   capsys: pytest.CaptureFixture[str],
-                                                                  code: int) -> None:
+                                                                  code: int, shared_tmp: Path) -> None:
     """A full disk (or a permission lost after the checks) while ``-o`` is written: exit 2
-    naming the path and the OS error (it was exit 4, an internal error), nothing left."""
+    naming the path and the OS error (it was exit 4, an internal error), nothing left.
+    The design written is the same for every case: ``synthesize``'s two-step design of
+    the paper's plant is computed by the first case of the session and reused by the
+    others (``tests/session_cache.py``; about 2.5 s of CPU each), the rest of the command
+    runs as it is."""
     from ftc_verify.cli.main import main
+    from ftc_verify.synthesis import state_feedback
 
+    real_synthesize = state_feedback.synthesize
+
+    def once(*args: object, **kwargs: object) -> object:
+        return computed_once(shared_tmp, "issue32-paper-two-step", lambda folder: real_synthesize(*args, **kwargs))
+
+    monkeypatch.setattr(state_feedback, "synthesize", once)
     monkeypatch.chdir(tmp_path)
     real_replace = os.replace
 
