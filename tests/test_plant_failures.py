@@ -146,20 +146,21 @@ def test_a_crashing_plant_is_reported_not_fatal(plants: dict[str, Path], tmp_pat
     """The plant segfaults in fmi2DoStep after t = 2: simulate exits 1 naming the FMU, the
     signal, the path and the time (JSON too); verify writes its report with the failure;
     nothing is left in the temporary folder (the process used to die with 139, silently,
-    leaving the extracted FMU)."""
+    leaving the extracted FMU). The first run is a real process (its exit code is the
+    claim); the JSON and the report, from the same watched child, in this process."""
     cwd = plants["crash"]
     out = _cli(["simulate", "system.toml", "--gains", "K.toml", "--plant", "plant.toml", "--paths", "3",
                 "--horizon", "4", "--seed", "1"], cwd)
     assert out.returncode == 1 and out.stderr == "", out
     assert "PLANT FMU FAILED" in out.stdout and "SIGSEGV" in out.stdout and "paths[0] at t = 2" in out.stdout
     assert str(cwd / "plant.fmu") in out.stdout
-    out = _cli(["simulate", "system.toml", "--gains", "K.toml", "--plant", "plant.toml", "--paths", "3",
-                "--horizon", "4", "--seed", "1", "--json"], cwd)
+    out = _cli_here(["simulate", "system.toml", "--gains", "K.toml", "--plant", "plant.toml", "--paths", "3",
+                     "--horizon", "4", "--seed", "1", "--json"], cwd)
     d = json.loads(out.stdout)
     assert out.returncode == 1 and d["verdict"] == "fail" and d["plant_failure"]["path"] == 0
     assert d["plant_failure"]["time"] == pytest.approx(2.0, abs=0.011)
-    out = _cli(["verify", "system.toml", "--gains", "K.toml", "--plant", "plant.toml", "--paths", "10",
-                "--horizon", "4", "--seed", "1", "--out", "rep"], cwd)
+    out = _cli_here(["verify", "system.toml", "--gains", "K.toml", "--plant", "plant.toml", "--paths", "10",
+                     "--horizon", "4", "--seed", "1", "--out", "rep"], cwd)
     assert out.returncode == 1 and "Traceback" not in out.stderr, out
     report = json.loads((cwd / "rep" / "report.json").read_text())
     assert report["verdict"] == "fail" and "SIGSEGV" in report["plant_failure"]["detail"]
@@ -267,7 +268,7 @@ def test_crashing_and_failing_plants_on_two_workers(plants: dict[str, Path]) -> 
     cwd = plants["fail"]
     args = ["simulate", "system.toml", "--gains", "K.toml", "--plant", "plant.toml", "--paths", "30",
             "--horizon", "4", "--seed", "1", "--json"]
-    serial, spread = _cli(args, cwd), _cli(args + ["--workers", "2"], cwd)
+    serial, spread = _cli_here(args, cwd), _cli(args + ["--workers", "2"], cwd)  # the serial run in this process
     assert serial.returncode == spread.returncode == 1 and spread.stderr == "", spread
     assert json.loads(serial.stdout) == json.loads(spread.stdout)
     assert _left(cwd) == []
