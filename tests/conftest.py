@@ -10,7 +10,6 @@ import signal
 import subprocess
 import sys
 from pathlib import Path
-from collections.abc import Iterator
 from types import SimpleNamespace
 
 import numpy as np
@@ -209,18 +208,3 @@ def paper_verify_run(shared_tmp: Path) -> SimpleNamespace:
     code, stdout, stderr = json.loads((folder / "run.json").read_text())
     return SimpleNamespace(returncode=code, stdout=stdout, stderr=stderr, out=folder / "report", folder=folder,
                            cache=folder / "cache")
-
-
-@pytest.fixture(scope="session")
-def dask_scheduler() -> Iterator[str]:
-    """The address of a 2-worker Dask cluster (one thread per worker process) started once
-    per test process, at its first use, and shared by the tests that only need a cluster
-    to run on (reached by ``--scheduler`` or ``open_client(scheduler=...)``, each as a
-    client of its own); tests that kill workers or check a local cluster's start, folder
-    or teardown open their own (``open_client(workers=...)``). Skipped without Dask."""
-    distributed = pytest.importorskip("distributed")
-    import logging
-
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
-                                  silence_logs=logging.ERROR) as cluster:
-        yield cluster.scheduler_address
