@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from box_systems import coupled_riccati_gain, interior_files, interior_loop, shifted
+from process_stages import child_has_worked, wait_for_stage
 from ftc_verify.analysis.analyze import analyze
 from ftc_verify.analysis.closedloop import closed_loop
 from ftc_verify.analysis.exact import exact_loop
@@ -129,12 +130,14 @@ def test_budget_gives_undecided_with_the_open_sub_box(tmp_path: Path) -> None:
     assert np.all(last.rate_max <= np.nextafter(loop.chain.rate_max, np.inf))
 
 
-@pytest.mark.slow(8)
+@pytest.mark.slow(3)
 def test_sigterm_during_the_branch_and_bound_exits_143(tmp_path: Path) -> None:
-    system, gains = interior_files(tmp_path, shift=0.1052)  # about 15 s of sub-boxes
+    """SIGTERM once the analysis's child has done 0.5 s of the branch and bound (it starts
+    at once there: about 9 s of sub-boxes in all; ``tests/process_stages.py``)."""
+    system, gains = interior_files(tmp_path, shift=0.1052)
     proc = subprocess.Popen([sys.executable, "-m", "ftc_verify", "analyze", str(system), "--gains", str(gains),
                              "--no-lmi"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(4.0)
+    wait_for_stage(proc, lambda: child_has_worked(proc.pid, 0.5), "0.5 s of the branch and bound")
     assert proc.poll() is None, proc.communicate()
     sent = time.monotonic()
     proc.send_signal(signal.SIGTERM)

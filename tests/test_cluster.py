@@ -65,7 +65,9 @@ def test_serial_and_two_workers_give_identical_numbers() -> None:
 @pytest.fixture(scope="module")
 def scheduler() -> Iterator[str]:
     """The address of an existing 2-worker cluster, started once for the tests that reach
-    it by ``--scheduler`` (each command connects as a new client)."""
+    it by ``--scheduler`` (each command connects as a new client). Module-scoped, not one
+    per session: an idle 2-worker cluster costs about 12 % of a core (3.5 s of CPU per
+    30 s, measured), which over a session outweighs the 2-3 s of CPU of a start."""
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
                                   silence_logs=logging.ERROR) as cluster:
         yield cluster.scheduler_address
@@ -133,15 +135,20 @@ def test_simulate_fmu_backend_on_two_workers_equals_serial() -> None:
     assert a["paths"] == 60 and a == b
 
 
-@pytest.mark.slow(12)  # seconds measured on 2 busy cores: scheduled first
 def test_cluster_misuse_is_one_error() -> None:
-    out = _cli("--backend", "fmu", "--workers", "2", "--fmu-log")
+    """Refused before any cluster is started or reached, so in this process
+    (``tests/cli_inprocess.py``: the exit code and the lines a subprocess gives)."""
+    run = cli_inprocess.run_cli
+    out = run(["simulate", str(PAPER), "--gains", str(GAINS), "--backend", "fmu", "--workers", "2", "--fmu-log"])
     assert out.returncode == 2 and "--fmu-log" in out.stderr and out.stderr.count("\n") == 1
-    out = _cli("--backend", "reference", "--scheduler", "tcp://127.0.0.1:9", "--paths", "2")
+    out = run(["simulate", str(PAPER), "--gains", str(GAINS), "--backend", "reference", "--scheduler",
+               "tcp://127.0.0.1:9", "--paths", "2"])
     assert out.returncode == 2 and "--scheduler" in out.stderr and "Traceback" not in out.stderr
-    out = subprocess.run([sys.executable, "-m", "ftc_verify", "verify", str(PAPER), "--gains", str(GAINS), "--workers",
-                          "2", "--fmu-log"], capture_output=True, text=True, timeout=600)
+    out = run(["verify", str(PAPER), "--gains", str(GAINS), "--workers", "2", "--fmu-log"])
     assert out.returncode == 2 and "--fmu-log" in out.stderr and out.stderr.count("\n") == 1
+    out = run(["simulate", str(PAPER), "--gains", str(GAINS), "--workers", "2", "--connect-timeout", "2"])
+    assert out.returncode == 2 and out.stderr.count("\n") == 1 and "--connect-timeout 2: only with --scheduler" \
+        in out.stderr
 
 
 def _die_if_first(marker: str) -> None:

@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 from types import SimpleNamespace
 
+import cli_inprocess
 import numpy as np
 import pytest
 
@@ -31,17 +32,20 @@ from ftc_verify.simulation.paths import sample_paths
 from ftc_verify.simulation.spec import SimulationSpec
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from fmu_plants import build_plant
+from session_cache import shared_plant
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "examples" / "paper.toml"
 GAINS = ROOT / "examples" / "paper_gains.toml"
 SLACK = 8.0  # seconds of start-up and load on 2 busy cores on top of a time-box
+BOX = 2.0  # the time box these tests give (--connect-timeout / connect_timeout; 10 s by default)
 
 
-def _cli(*args: str, env: dict[str, str] | None = None, timeout: float = 300) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "ftc_verify", *args], capture_output=True, text=True,
-                          timeout=timeout, env=env)
+def _cli(*args: str, timeout: float = 300) -> subprocess.CompletedProcess[str]:
+    """``ftc-verify ARGS`` in this process (``tests/cli_inprocess.py``: the exit code and
+    output a subprocess gives), for the refusals whose claim is the output; the signal
+    tests below run real subprocesses."""
+    return cli_inprocess.run_cli(args, timeout=timeout)
 
 
 def _free_port() -> int:
@@ -71,10 +75,11 @@ def test_scheduler_address_syntax_is_checked_without_dask() -> None:
         assert str(err.value).startswith(f"--scheduler {bad!r}")
 
 
-@pytest.mark.slow(12)  # seconds measured on 2 busy cores: scheduled first
+@pytest.mark.slow(4)  # seconds measured on 2 busy cores: scheduled first
 def test_an_http_server_is_not_a_scheduler(tmp_path: Path) -> None:
-    """``--scheduler`` at an HTTP server's port: exit 2 within the time-box, one line
-    naming the option and the address (it used to wait forever)."""
+    """``--scheduler`` at an HTTP server's port: exit 2 within the time-box
+    (``--connect-timeout``), one line naming the option and the address (it used to wait
+    forever)."""
     port = _free_port()
     server = subprocess.Popen([sys.executable, "-m", "http.server", str(port), "--bind", "127.0.0.1"],
                               cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -88,7 +93,7 @@ def test_an_http_server_is_not_a_scheduler(tmp_path: Path) -> None:
         address = f"tcp://127.0.0.1:{port}"
         start = time.monotonic()
         out = _cli("simulate", str(PAPER), "--gains", str(GAINS), "--backend", "reference", "--paths", "2",
-                   "--horizon", "1", "--scheduler", address, timeout=120)
+                   "--horizon", "1", "--scheduler", address, "--connect-timeout", f"{BOX:g}", timeout=120)
         took = time.monotonic() - start
     finally:
         server.terminate()
@@ -96,7 +101,7 @@ def test_an_http_server_is_not_a_scheduler(tmp_path: Path) -> None:
     assert out.returncode == 2, out.stderr
     assert out.stderr.count("\n") == 1 and "Traceback" not in out.stderr
     assert "--scheduler" in out.stderr and address in out.stderr
-    assert took < cluster.CONNECT_TIMEOUT + SLACK
+    assert took < BOX + SLACK
 
 
 def _silent_server() -> tuple[socket.socket, threading.Thread]:
@@ -118,7 +123,7 @@ def _silent_server() -> tuple[socket.socket, threading.Thread]:
     return srv, thread
 
 
-@pytest.mark.slow(10)  # seconds measured on 2 busy cores: scheduled first
+@pytest.mark.slow(2)  # seconds measured on 2 busy cores: scheduled first
 @pytest.mark.parametrize("kind", ["silent", "closed"])
 def test_a_silent_server_or_a_closed_port_is_refused_within_the_time_box(kind: str) -> None:
     srv, _ = _silent_server()
@@ -127,7 +132,7 @@ def test_a_silent_server_or_a_closed_port_is_refused_within_the_time_box(kind: s
     start = time.monotonic()
     try:
         with pytest.raises(ValidationError, match="--scheduler") as err:
-            with open_client(scheduler=address):
+            with open_client(scheduler=address, connect_timeout=BOX):
                 pytest.fail("connected to a server that is no scheduler")
     finally:
         try:
@@ -137,11 +142,11 @@ def test_a_silent_server_or_a_closed_port_is_refused_within_the_time_box(kind: s
         srv.close()
     assert address in str(err.value)
     took = time.monotonic() - start
-    assert took < cluster.CONNECT_TIMEOUT + 3
+    assert took < BOX + 3
     if kind == "closed":  # refused at once, not after Dask's connect retries for its timeout
         assert "connection refused" in str(err.value) and took < 5
     else:
-        assert "no Dask scheduler answered within" in str(err.value)
+        assert f"no Dask scheduler answered within {BOX:g} s" in str(err.value)
 
 
 # ------------------------------------------------------------------ item 4: --workers
@@ -268,8 +273,9 @@ def test_a_signal_during_an_fmu_run_on_workers(tmp_path: Path, fmu_cache: Path, 
 
 # ------------------------------------------------------------------ a crashing plant FMU on workers
 @pytest.fixture(scope="module")
-def crash_plant(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return build_plant(tmp_path_factory.mktemp("crash"), "crash")
+def crash_plant(shared_tmp: Path) -> Path:
+    """The crashing plant, built once per session (``tests/session_cache.py``; read only)."""
+    return shared_plant(shared_tmp, "crash")
 
 
 @pytest.mark.slow(20)  # seconds measured on 2 busy cores: scheduled first

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from session_cache import computed_once
 
 from ftc_verify.cli.main import main
 from ftc_verify.controllers.controller import Controller
@@ -32,11 +33,9 @@ GAINS = str(ROOT / "examples" / "paper_gains.toml")
 pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="gcc is needed to compile exported code")
 
 
-@pytest.fixture(scope="module")
-def case(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
+def _export(folder: Path) -> dict[str, str]:
     """The paper's plant measured in full and a certified order-2 controller, exported as
-    FMI 2.0 and 3.0 FMUs (``--step 0.01``)."""
-    folder = tmp_path_factory.mktemp("loop")
+    FMI 2.0 and 3.0 FMUs (``--step 0.01``) into ``folder``."""
     s = load_system(PAPER)
     s2 = dataclasses.replace(s, name="paper, y_m = x", modes=tuple(dataclasses.replace(m, Cy=np.eye(2)) for m in s.modes))
     K = load_controller(GAINS).Dc
@@ -52,6 +51,14 @@ def case(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
         assert main(["export-controller", out["controller"], "--system", out["system"], "--fmi", fmi,
                      "-o", out[fmi]]) == 0
     return out
+
+
+@pytest.fixture(scope="module")
+def case(shared_tmp: Path) -> dict[str, str]:
+    """:func:`_export` run once per session (``tests/session_cache.py``: pytest-xdist's
+    order re-created a module fixture each time it came back to this module, 2.3-2.6 s
+    each); the tests only read its files."""
+    return computed_once(shared_tmp, "controller-fmu-loop", _export)
 
 
 @pytest.mark.parametrize("fmi", ["2.0", "3.0"])

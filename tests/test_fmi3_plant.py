@@ -26,13 +26,13 @@ import cli_inprocess
 import numpy as np
 import pytest
 
-from fmu_plants import _RHS, _SOURCE, build_plant
+from session_cache import copied_plants
 from ftc_verify.controllers import load_controller
 from ftc_verify.errors import FMUError
 from ftc_verify.model.files import load_system
 from ftc_verify.plants.fmu_session import FMUSession
 from ftc_verify.plants.linearize import linearize_plant
-from ftc_verify.plants.ode_fmu import OdeFmuSpec, OdeVariable, build_ode_fmu, motor_spec
+from ftc_verify.plants.ode_fmu import build_ode_fmu, motor_spec
 from ftc_verify.plants.plant_map import load_plant_map
 from ftc_verify.simulation.paths import sample_paths
 from ftc_verify.simulation.supervisor import Supervisor
@@ -50,24 +50,13 @@ def _isolated_cache(tmp_path_factory: pytest.TempPathFactory):
         yield
 
 
-def _spec(kind: str) -> OdeFmuSpec:
-    """The spec :func:`fmu_plants.build_plant` builds for ``kind`` (one state)."""
-    return OdeFmuSpec(
-        model_name=f"Plant_{kind}", states=(OdeVariable("x"),), inputs=(OdeVariable("u"), OdeVariable("w")),
-        parameters=(OdeVariable("k", 1.0),), outputs=(OdeVariable("y_meas"), OdeVariable("y_out")),
-        c_source=_SOURCE.format(nx=1, rhs=_RHS[kind]), description=f"test plant ({kind})")
-
-
 @pytest.fixture(scope="module")
-def plants(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    """``{"ok2": FMI 2.0 folder, "ok3": the same with an FMI 3.0 plant.fmu, "fail3": ...}``."""
-    root = tmp_path_factory.mktemp("plants")
-    out = {"ok2": build_plant(root / "ok2", "ok")}
-    for kind in ("ok", "fail"):
-        folder = build_plant(root / f"{kind}3", kind)
-        build_ode_fmu(_spec(kind), folder / "plant.fmu", fmi_version="3.0")
-        out[f"{kind}3"] = folder
-    return out
+def plants(tmp_path_factory: pytest.TempPathFactory, shared_tmp: Path) -> dict[str, Path]:
+    """``{"ok2": FMI 2.0 folder, "ok3": the same with an FMI 3.0 plant.fmu, "fail3": ...}``:
+    copies (this process's own) of the plants built once per session
+    (``tests/session_cache.py``)."""
+    return copied_plants(shared_tmp, tmp_path_factory.mktemp("plants"),
+                         {"ok2": ("ok", "2.0"), "ok3": ("ok", "3.0"), "fail3": ("fail", "3.0")})
 
 
 def _cli(args: list[str], cwd: Path) -> subprocess.CompletedProcess[str]:

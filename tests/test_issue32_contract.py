@@ -21,6 +21,8 @@ import control
 import numpy as np
 import pytest
 
+from process_stages import child_has_worked, wait_for_stage
+from session_cache import computed_once
 from ftc_verify.analysis import closed_loop
 from ftc_verify.controllers import load_controller
 from ftc_verify.errors import ValidationError
@@ -120,11 +122,22 @@ def test_bad_synthesize_options_exit_2_naming_the_option(tmp_path: Path, option:
 @pytest.mark.parametrize("code", [errno.ENOSPC, errno.EACCES, errno.EDQUOT])
 def test_output_refused_by_the_environment_exits_2_with_the_path(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                                                   capsys: pytest.CaptureFixture[str],
-                                                                  code: int) -> None:
+                                                                  code: int, shared_tmp: Path) -> None:
     """A full disk (or a permission lost after the checks) while ``-o`` is written: exit 2
-    naming the path and the OS error (it was exit 4, an internal error), nothing left."""
+    naming the path and the OS error (it was exit 4, an internal error), nothing left.
+    The design written is the same for every case: ``synthesize``'s two-step design of
+    the paper's plant is computed by the first case of the session and reused by the
+    others (``tests/session_cache.py``; about 2.5 s of CPU each), the rest of the command
+    runs as it is."""
     from ftc_verify.cli.main import main
+    from ftc_verify.synthesis import state_feedback
 
+    real_synthesize = state_feedback.synthesize
+
+    def once(*args: object, **kwargs: object) -> object:
+        return computed_once(shared_tmp, "issue32-paper-two-step", lambda folder: real_synthesize(*args, **kwargs))
+
+    monkeypatch.setattr(state_feedback, "synthesize", once)
     monkeypatch.chdir(tmp_path)
     real_replace = os.replace
 
@@ -188,12 +201,14 @@ def _alive(pid: int) -> bool:
 @pytest.mark.skipif(not Path("/proc").is_dir(), reason="reads /proc for the child processes")
 def test_sigterm_stops_a_descent_inside_lapack_at_once(tmp_path: Path) -> None:
     """``--order 30``: every objective evaluation is a dense eigenproblem of 2112 rows that
-    holds the interpreter for seconds (scipy's LAPACK binding keeps the GIL). SIGTERM 6 s
-    in: exit 143 within 3 s, the ``terminated`` line, no controller file, no process left."""
+    holds the interpreter for seconds (scipy's LAPACK binding keeps the GIL; the first
+    starts 0.2 s into the synthesis's child and takes about 4 s of CPU). SIGTERM once the
+    child has used 1 s of CPU (``tests/process_stages.py``), inside that eigenproblem:
+    exit 143 within 3 s, the ``terminated`` line, no controller file, no process left."""
     proc = subprocess.Popen([sys.executable, "-m", "ftc_verify", "synthesize", str(EXAMPLES / "paper.toml"),
                              "--output-feedback", "--method", "descent", "--order", "30", "-o", "c.toml"],
                             cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(6)
+    wait_for_stage(proc, lambda: child_has_worked(proc.pid, 1.0), "1 s of the synthesis's child")
     children = _children(proc.pid)
     assert children, "the synthesis runs in a child process"
     t0 = time.monotonic()
@@ -371,12 +386,14 @@ def _big_system(path: Path, m: int, n: int, phases: int) -> Path:
 
 @pytest.mark.skipif(not Path("/proc").is_dir(), reason="reads /proc for the child processes")
 def test_sigterm_stops_a_long_analysis_at_once(tmp_path: Path) -> None:
-    """m = 6, Erlang-8 delays (246 joint states): SIGTERM 6 s into ``analyze`` exits 143
-    within 3 s and leaves no process (it waited for the solve in progress, 29-87 s)."""
+    """m = 6, Erlang-8 delays (246 joint states): SIGTERM to ``analyze`` once its analysis's
+    child has used 0.5 s of CPU (``tests/process_stages.py``; inside the first dense
+    eigenproblem of 1476 rows, 0.2-1.2 s) exits 143 within 3 s and leaves no process (it
+    waited for the solve in progress, 29-87 s)."""
     gains = _big_system(tmp_path / "big.toml", 6, 3, 8)
     proc = subprocess.Popen([sys.executable, "-m", "ftc_verify", "analyze", "big.toml", "--gains", str(gains), "--json"],
                             cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(6)
+    wait_for_stage(proc, lambda: child_has_worked(proc.pid, 0.5), "0.5 s of the analysis's child")
     children = _children(proc.pid)
     assert children and proc.poll() is None
     t0 = time.monotonic()

@@ -25,7 +25,7 @@ import numpy as np
 import cli_inprocess
 import pytest
 
-from fmu_plants import build_plant
+from session_cache import shared_plant
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "examples" / "paper.toml"
@@ -64,10 +64,10 @@ def one_error_line(proc: subprocess.CompletedProcess[str], *needles: str) -> str
 
 
 @pytest.fixture(scope="module")
-def plants(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    """The test plants of ``tests/fmu_plants.py`` this file needs, built once."""
-    base = tmp_path_factory.mktemp("plants")
-    return {kind: build_plant(base / kind, kind) for kind in ("ok", "fail", "early", "kink")}
+def plants(shared_tmp: Path) -> dict[str, Path]:
+    """The test plants of ``tests/fmu_plants.py`` this file needs, built once per session
+    (``tests/session_cache.py``; the tests copy them before writing)."""
+    return {kind: shared_plant(shared_tmp, kind) for kind in ("ok", "fail", "early", "kink")}
 
 
 def copy_plant(src: Path, dest: Path, edit: tuple[str, str] | None = None) -> Path:

@@ -31,7 +31,7 @@ import cli_inprocess
 import numpy as np
 import pytest
 
-from fmu_plants import build_plant
+from session_cache import copied_plants
 from ftc_verify.controllers import load_controller
 from ftc_verify.errors import PlantRunError
 from ftc_verify.model.files import load_system
@@ -53,9 +53,10 @@ def _isolated_cache(tmp_path_factory: pytest.TempPathFactory):
 
 
 @pytest.fixture(scope="module")
-def plants(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    root = tmp_path_factory.mktemp("plants")
-    return {kind: build_plant(root / kind, kind) for kind in ("ok", "crash", "fail", "stiff")}
+def plants(tmp_path_factory: pytest.TempPathFactory, shared_tmp: Path) -> dict[str, Path]:
+    """This process's copies of the plants built once per session (``tests/session_cache.py``)."""
+    return copied_plants(shared_tmp, tmp_path_factory.mktemp("plants"),
+                         {kind: (kind, "2.0") for kind in ("ok", "crash", "fail", "stiff")})
 
 
 def _cli(args: list[str], cwd: Path, timeout: float = 300) -> subprocess.CompletedProcess[str]:
@@ -145,20 +146,21 @@ def test_a_crashing_plant_is_reported_not_fatal(plants: dict[str, Path], tmp_pat
     """The plant segfaults in fmi2DoStep after t = 2: simulate exits 1 naming the FMU, the
     signal, the path and the time (JSON too); verify writes its report with the failure;
     nothing is left in the temporary folder (the process used to die with 139, silently,
-    leaving the extracted FMU)."""
+    leaving the extracted FMU). The first run is a real process (its exit code is the
+    claim); the JSON and the report, from the same watched child, in this process."""
     cwd = plants["crash"]
     out = _cli(["simulate", "system.toml", "--gains", "K.toml", "--plant", "plant.toml", "--paths", "3",
                 "--horizon", "4", "--seed", "1"], cwd)
     assert out.returncode == 1 and out.stderr == "", out
     assert "PLANT FMU FAILED" in out.stdout and "SIGSEGV" in out.stdout and "paths[0] at t = 2" in out.stdout
     assert str(cwd / "plant.fmu") in out.stdout
-    out = _cli(["simulate", "system.toml", "--gains", "K.toml", "--plant", "plant.toml", "--paths", "3",
-                "--horizon", "4", "--seed", "1", "--json"], cwd)
+    out = _cli_here(["simulate", "system.toml", "--gains", "K.toml", "--plant", "plant.toml", "--paths", "3",
+                     "--horizon", "4", "--seed", "1", "--json"], cwd)
     d = json.loads(out.stdout)
     assert out.returncode == 1 and d["verdict"] == "fail" and d["plant_failure"]["path"] == 0
     assert d["plant_failure"]["time"] == pytest.approx(2.0, abs=0.011)
-    out = _cli(["verify", "system.toml", "--gains", "K.toml", "--plant", "plant.toml", "--paths", "10",
-                "--horizon", "4", "--seed", "1", "--out", "rep"], cwd)
+    out = _cli_here(["verify", "system.toml", "--gains", "K.toml", "--plant", "plant.toml", "--paths", "10",
+                     "--horizon", "4", "--seed", "1", "--out", "rep"], cwd)
     assert out.returncode == 1 and "Traceback" not in out.stderr, out
     report = json.loads((cwd / "rep" / "report.json").read_text())
     assert report["verdict"] == "fail" and "SIGSEGV" in report["plant_failure"]["detail"]
@@ -266,7 +268,7 @@ def test_crashing_and_failing_plants_on_two_workers(plants: dict[str, Path]) -> 
     cwd = plants["fail"]
     args = ["simulate", "system.toml", "--gains", "K.toml", "--plant", "plant.toml", "--paths", "30",
             "--horizon", "4", "--seed", "1", "--json"]
-    serial, spread = _cli(args, cwd), _cli(args + ["--workers", "2"], cwd)
+    serial, spread = _cli_here(args, cwd), _cli(args + ["--workers", "2"], cwd)  # the serial run in this process
     assert serial.returncode == spread.returncode == 1 and spread.stderr == "", spread
     assert json.loads(serial.stdout) == json.loads(spread.stdout)
     assert _left(cwd) == []

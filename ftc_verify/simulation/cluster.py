@@ -10,9 +10,10 @@ The contract:
 * :func:`check_cluster_options` refuses, before any work, a worker count above
   :func:`max_workers` (cores and memory) and a scheduler address that is not
   ``[PROTOCOL://]HOST:PORT``; it needs no Dask.
-* Connecting to ``--scheduler`` is time-boxed (:data:`CONNECT_TIMEOUT`, connection and
-  handshake together): a closed port, a silent server or a server that is not a Dask
-  scheduler (an HTTP server) is one :class:`~ftc_verify.errors.ValidationError`.
+* Connecting to ``--scheduler`` is time-boxed (``connect_timeout`` seconds of
+  :func:`open_client`, :data:`CONNECT_TIMEOUT` by default; connection and handshake
+  together): a closed port, a silent server or a server that is not a Dask scheduler (an
+  HTTP server) is one :class:`~ftc_verify.errors.ValidationError`.
 * A local cluster lives in one run folder (``ftc-verify-cluster-*`` in the temporary
   folder): the scheduler's and workers' ``local_directory`` and the workers' ``TMPDIR``,
   so everything a worker writes (its FMU copies, the FMUs extracted by ``tempfile``) is
@@ -50,7 +51,8 @@ __all__ = ["open_client", "ClusterStart", "check_cluster_options", "max_workers"
            "CLOSE_TIMEOUT", "WORKERS_PER_CORE", "WORKER_MEMORY", "ALLOWED_FAILURES"]
 
 _INSTALL = "pip install 'ftc-verify[dask]'"
-#: Seconds for connecting to ``--scheduler``, handshake included.
+#: Seconds for connecting to ``--scheduler``, handshake included (the default of
+#: :func:`open_client`'s ``connect_timeout``).
 CONNECT_TIMEOUT = 10.0
 #: Seconds each of the client and the local cluster may take to close.
 CLOSE_TIMEOUT = 10.0
@@ -177,35 +179,35 @@ def _reap_workers(seconds: float, earlier: set[Any]) -> None:
                 child.join(1.0)
 
 
-def _reachable(address: str, where: str) -> None:
+def _reachable(address: str, where: str, timeout: float) -> None:
     """Refuse a ``tcp`` address at once when nothing listens there (Dask's ``connect``
     retries a refused connection until its timeout), its host is unknown, or it does not
-    accept a connection within :data:`CONNECT_TIMEOUT`."""
+    accept a connection within ``timeout`` seconds."""
     found = _ADDRESS.match(address)
     if found is None or (found["protocol"] or "tcp").lower() != "tcp":
         return
     try:
-        socket.create_connection((found["host"].strip("[]"), int(found["port"])), timeout=CONNECT_TIMEOUT).close()
+        socket.create_connection((found["host"].strip("[]"), int(found["port"])), timeout=timeout).close()
     except ConnectionRefusedError:
         raise ValidationError(f"{where}: nothing listens at that address (connection refused); start the "
                               "scheduler first (dask scheduler) or give the address it printed") from None
     except socket.gaierror as exc:
         raise ValidationError(f"{where}: unknown host {found['host']!r} ({exc.strerror or exc})") from None
     except TimeoutError:
-        raise ValidationError(f"{where}: no connection within {CONNECT_TIMEOUT:g} s") from None
+        raise ValidationError(f"{where}: no connection within {timeout:g} s") from None
     except OSError as exc:
         raise ValidationError(f"{where}: cannot connect ({exc.strerror or exc})") from None
 
 
-def _connect(address: str) -> Any:
+def _connect(address: str, timeout: float) -> Any:
     """A client of the scheduler at ``address``, or a :class:`ValidationError` within
-    :data:`CONNECT_TIMEOUT` (asks for the server's identity first: ``Client`` itself can
+    ``timeout`` seconds (asks for the server's identity first: ``Client`` itself can
     wait forever on a server that accepts and never answers like a scheduler)."""
     from distributed import Client
     from distributed.comm import connect
 
     async def identity() -> Any:
-        comm = await connect(address, timeout=CONNECT_TIMEOUT)
+        comm = await connect(address, timeout=timeout)
         try:
             await comm.write({"op": "identity"})
             return await comm.read()
@@ -213,13 +215,13 @@ def _connect(address: str) -> Any:
             comm.abort()
 
     where = f"--scheduler {address}"
-    deadline = time.monotonic() + CONNECT_TIMEOUT
-    _reachable(address, where)
+    deadline = time.monotonic() + timeout
+    _reachable(address, where, timeout)
     try:
         with _quiet_logs():
             reply = asyncio.run(asyncio.wait_for(identity(), max(deadline - time.monotonic(), 1.0)))
     except TimeoutError:
-        raise ValidationError(f"{where}: no Dask scheduler answered within {CONNECT_TIMEOUT:g} s "
+        raise ValidationError(f"{where}: no Dask scheduler answered within {timeout:g} s "
                               "(is it the address the scheduler printed?)") from None
     except OSError as exc:  # closed during the handshake, TLS trouble...
         raise ValidationError(f"{where}: cannot connect to a Dask scheduler ({type(exc).__name__}: "
@@ -231,7 +233,7 @@ def _connect(address: str) -> Any:
     if kind != "Scheduler":
         raise ValidationError(f"{where}: the server there is not a Dask scheduler (it answered as {kind!r})")
     try:
-        return Client(address, timeout=CONNECT_TIMEOUT)
+        return Client(address, timeout=timeout)
     except (OSError, TimeoutError, ValueError) as exc:
         raise ValidationError(f"{where}: cannot connect ({exc})") from None
 
@@ -295,11 +297,15 @@ class ClusterStart:
 
 
 @contextmanager
-def open_client(workers: int | None = None, scheduler: str | None = None, wait: bool = True) -> Iterator[Any]:
+def open_client(workers: int | None = None, scheduler: str | None = None, wait: bool = True,
+                connect_timeout: float = CONNECT_TIMEOUT) -> Iterator[Any]:
     """A ``dask.distributed.Client``: ``workers`` local worker processes (one thread each),
     or the scheduler at ``scheduler`` (``tcp://host:port``); ``None`` when neither is
     given (module docstring for the contract). ``wait=False``: a local cluster is yielded
     as its :class:`ClusterStart`, still starting, so that the caller works meanwhile.
+    ``connect_timeout``: the seconds that connecting to ``scheduler`` may take, handshake
+    included (a positive finite number; :data:`CONNECT_TIMEOUT` by default), after which
+    the address is refused.
 
     The options are checked first (:func:`check_cluster_options`). The local cluster is
     shut down on exit and its run folder removed; a remote one is only disconnected.
@@ -309,10 +315,13 @@ def open_client(workers: int | None = None, scheduler: str | None = None, wait: 
         yield None
         return
     check_cluster_options(workers, scheduler)
+    if isinstance(connect_timeout, bool) or not (isinstance(connect_timeout, (int, float))
+                                                and 0 < connect_timeout < float("inf")):
+        raise ValidationError(f"connect_timeout: must be positive and finite (seconds), got {connect_timeout!r}")
     if importlib.util.find_spec("distributed") is None:
         raise ValidationError(f"--workers/--scheduler: dask.distributed is not installed ({_INSTALL})")
     if scheduler:
-        client = _connect(scheduler.strip())
+        client = _connect(scheduler.strip(), float(connect_timeout))
         try:
             yield client
         finally:

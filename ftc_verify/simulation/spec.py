@@ -189,6 +189,9 @@ class SimulationSpec:
         :func:`~ftc_verify.simulation.cluster.check_cluster_options`.
     isolate : bool
         FMU Monte Carlo without a cluster: run the FMU in a watched child process.
+    connect_timeout : float
+        Seconds that connecting to ``scheduler`` may take, handshake included, before the
+        address is refused (``--connect-timeout``; default 10).
 
     Raises
     ------
@@ -210,6 +213,7 @@ class SimulationSpec:
     workers: int | None = None
     scheduler: str | None = None
     isolate: bool = True
+    connect_timeout: float = 10.0
 
     def __post_init__(self) -> None:
         from .paths import DISTURBANCES
@@ -217,6 +221,7 @@ class SimulationSpec:
         put = object.__setattr__
         put(self, "step", _positive_float("step", self.step))
         put(self, "horizon", _positive_float("horizon", self.horizon))
+        put(self, "connect_timeout", _positive_float("connect_timeout", self.connect_timeout))
         if isinstance(self.n_paths, bool) or not isinstance(self.n_paths, (int, np.integer)) or self.n_paths < 1:
             raise ValidationError(f"paths: must be a positive integer, got {self.n_paths!r}")
         put(self, "n_paths", int(self.n_paths))
@@ -364,7 +369,7 @@ class SimulationSpec:
             return
         from .cluster import open_client
 
-        with open_client(self.workers, self.scheduler, wait=wait) as client:
+        with open_client(self.workers, self.scheduler, wait=wait, connect_timeout=self.connect_timeout) as client:
             yield client
 
 

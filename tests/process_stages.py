@@ -1,0 +1,75 @@
+"""Where a running ``ftc-verify`` process is, seen from outside (Linux ``/proc``), so that a
+signal test sends its signal as soon as the stage it is about is reached instead of after
+a fixed sleep (issue 37, item 5).
+
+The long stages of the CLI run in a forked child that leads a process group of its own
+(:func:`ftc_verify.analysis.solvers.interruptible`: an analysis, a synthesis, the
+ball-arithmetic retries), while the command waits for it; :func:`working_child` finds that
+child and :func:`cpu_seconds` says how much work it has done.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+__all__ = ["cpu_seconds", "children", "working_child", "child_has_worked", "wait_for_stage"]
+
+_TICK = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+
+
+def _stat(pid: int) -> list[str] | None:
+    """The fields of ``/proc/PID/stat`` after the command name (field 3 is the first)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except (OSError, IndexError):
+        return None
+
+
+def cpu_seconds(pid: int) -> float:
+    """User and system CPU seconds process ``pid`` has used (0 once it is gone)."""
+    fields = _stat(pid)
+    return 0.0 if fields is None else (int(fields[11]) + int(fields[12])) / _TICK
+
+
+def children(pid: int) -> set[int]:
+    """The live (not zombie) child processes of ``pid``."""
+    found = set()
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        fields = _stat(int(stat.parent.name))
+        if fields is not None and int(fields[1]) == pid and fields[0] != "Z":
+            found.add(int(stat.parent.name))
+    return found
+
+
+def working_child(pid: int) -> int | None:
+    """The child of ``pid`` that leads a process group of its own (the forked stage of
+    :func:`~ftc_verify.analysis.solvers.interruptible`), or ``None``."""
+    for child in sorted(children(pid)):
+        fields = _stat(child)
+        if fields is not None and int(fields[2]) == child:  # field 5: the process group
+            return child
+    return None
+
+
+def child_has_worked(pid: int, seconds: float) -> bool:
+    """:func:`working_child` of ``pid`` exists and has used ``seconds`` of CPU."""
+    child = working_child(pid)
+    return child is not None and cpu_seconds(child) >= seconds
+
+
+def wait_for_stage(proc: subprocess.Popen[str], reached: Callable[[], bool], what: str,
+                   seconds: float = 120.0) -> None:
+    """Poll ``reached()`` every 20 ms until it holds; fail if ``proc`` ends first or
+    ``seconds`` pass (then ``proc`` is killed)."""
+    deadline = time.monotonic() + seconds
+    while not reached():
+        if proc.poll() is not None:
+            raise AssertionError(f"the command ended ({proc.returncode}) before {what}: {proc.communicate()}")
+        if time.monotonic() > deadline:
+            proc.kill()
+            raise AssertionError(f"no {what} within {seconds} s")
+        time.sleep(0.02)
