@@ -54,10 +54,10 @@ def test_a_spec_connects_within_its_time_box() -> None:
     (["--connect-timeout", "5"], "--connect-timeout 5: only with --scheduler"),
     (["--workers", "2", "--connect-timeout", "5"], "--connect-timeout 5: only with --scheduler"),
 ])
-@pytest.mark.parametrize("command", ["simulate", "verify"])
-def test_cli_refuses_a_bad_or_idle_time_box(tmp_path: Path, command: str, args: list[str], says: str) -> None:
-    run = cli_inprocess.run_cli([command, PAPER, "--gains", GAINS, *args, *(["--out", "rep"] if command == "verify"
-                                                                            else [])], tmp_path)
+@pytest.mark.parametrize("command, extra", [("simulate", []), ("verify", ["--out", "rep"]), ("risk", ["--horizon", "5"])])
+def test_cli_refuses_a_bad_or_idle_time_box(tmp_path: Path, command: str, extra: list[str], args: list[str],
+                                            says: str) -> None:
+    run = cli_inprocess.run_cli([command, PAPER, "--gains", GAINS, *args, *extra], tmp_path)
     assert run.returncode == 2 and run.stdout == "", run.stderr
     assert says in run.stderr and len(run.stderr.strip().splitlines()) == 1 and "Traceback" not in run.stderr
     assert list(tmp_path.iterdir()) == []

@@ -38,6 +38,8 @@ __all__ = [
     "positive_int",
     "seed_int",
     "Stopwatch",
+    "add_connect_timeout",
+    "connect_timeout",
 ]
 
 EXIT_OK, EXIT_NEGATIVE, EXIT_BAD_INPUT, EXIT_UNCERTIFIED, EXIT_INTERNAL, EXIT_UNDECIDED = 0, 1, 2, 3, 4, 5
@@ -138,6 +140,24 @@ def seed_int(text: str) -> int:
     if value < 0:
         raise argparse.ArgumentTypeError(f"seeds are non-negative, got {text!r}")
     return value
+
+
+def add_connect_timeout(parser: argparse.ArgumentParser) -> None:
+    """``--connect-timeout SECONDS`` (with ``--scheduler``) on a command's parser."""
+    parser.add_argument("--connect-timeout", type=positive, default=None, metavar="SECONDS",
+                        help="with --scheduler: refuse the address when connecting to it (handshake included) "
+                             "takes longer than this (default: 10)")
+
+
+def connect_timeout(args: argparse.Namespace) -> float:
+    """``--connect-timeout``, refused without ``--scheduler`` (exit 2, naming the option), or
+    the default time box of connecting to ``--scheduler``
+    (:data:`~ftc_verify.simulation.cluster.CONNECT_TIMEOUT`)."""
+    from ..simulation.cluster import CONNECT_TIMEOUT
+
+    if args.connect_timeout is not None and not args.scheduler:
+        raise bad(f"--connect-timeout {args.connect_timeout:g}: only with --scheduler (the time box of connecting to it)")
+    return CONNECT_TIMEOUT if args.connect_timeout is None else float(args.connect_timeout)
 
 
 def _process_age() -> float:

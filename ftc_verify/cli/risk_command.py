@@ -14,8 +14,8 @@ from typing import Any
 
 from ..errors import PlantRunError
 from ..jsonable import dumps
-from .common import (EXIT_NEGATIVE, EXIT_OK, EXIT_UNDECIDED, PLOT_SUFFIXES, bad, check_output_file, fmt, load, positive,
-                     positive_int, seed_int, strict)
+from .common import (EXIT_NEGATIVE, EXIT_OK, EXIT_UNDECIDED, PLOT_SUFFIXES, add_connect_timeout, bad, check_output_file,
+                     connect_timeout, fmt, load, positive, positive_int, seed_int, strict)
 
 __all__ = ["add_risk_command"]
 
@@ -89,6 +89,7 @@ def _check(args: argparse.Namespace, system: Any, controller: Any) -> None:
     n = system.dims[0]
     if args.x0 is not None and len(args.x0) != n:
         raise bad(f"--x0 {','.join(f'{v:g}' for v in args.x0)}: {len(args.x0)} numbers for the {n} plant states")
+    connect_timeout(args)
     if args.workers is not None or args.scheduler is not None:
         from ..simulation.cluster import check_cluster_options
 
@@ -128,7 +129,7 @@ def _cmd_risk(args: argparse.Namespace) -> int:
         res = run_risk(system, controller, envelope, horizon=args.horizon, step=args.step, settings=settings,
                        x0=args.x0, disturbance=args.disturbance, beta=beta, backend=args.backend,
                        plant=plant, bound=bound, timing=timing, interval=args.ftti, workers=args.workers,
-                       scheduler=args.scheduler)
+                       scheduler=args.scheduler, connect_timeout=connect_timeout(args))
     except PlantRunError as exc:
         print(f"ftc-verify risk: the plant FMU failed: {exc}")
         print("verdict: fail (the plant FMU crashed; no estimate)")
@@ -212,6 +213,7 @@ def add_risk_command(sub: Any) -> None:
                         "worker processes (the same numbers as without)")
     r.add_argument("--scheduler", default=None, metavar="ADDR",
                    help="as --workers, on the Dask scheduler at HOST:PORT")
+    add_connect_timeout(r)
     r.add_argument("--beta", default="mid", choices=["min", "max", "mid"],
                    help="the rate array of the chain: lower corner, upper corner or midpoint of its box "
                         "(default %(default)s)")

@@ -19,8 +19,8 @@ from typing import TYPE_CHECKING, Any
 from ..errors import FTCError, PlantRunError
 from ..jsonable import dumps
 from .export_commands import add_controller_fmu_option, load_loop
-from .common import (EXIT_NEGATIVE, EXIT_OK, EXIT_UNCERTIFIED, EXIT_UNDECIDED, PLOT_SUFFIXES, bad, check_output_file,
-                     nonneg_int, positive, positive_int, seed_int, strict)
+from .common import (EXIT_NEGATIVE, EXIT_OK, EXIT_UNCERTIFIED, EXIT_UNDECIDED, PLOT_SUFFIXES, add_connect_timeout, bad,
+                     check_output_file, connect_timeout, nonneg_int, positive, positive_int, seed_int, strict)
 
 if TYPE_CHECKING:
     from ..simulation.paths import ChainPath
@@ -93,7 +93,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     kept = args.paths if args.backend == "fmu" else min(record, args.paths)  # the reference backend streams
     spec = SimulationSpec(step=args.step, horizon=args.horizon, n_paths=args.paths, seed=args.seed,
                           disturbance=args.disturbance, delta=args.delta, record=record, workers=args.workers,
-                          scheduler=args.scheduler, connect_timeout=_connect_timeout(args))
+                          scheduler=args.scheduler, connect_timeout=connect_timeout(args))
     spec.check_memory(system, controller, kept)
     plant = _load_plant(args, system, controller)
     if args.backend == "fmu" and plant is None:
@@ -267,7 +267,7 @@ def _verify_command(args: argparse.Namespace, watch: Any, check: Any, procs: lis
         _check_fmu_dims(system, args.system)
     spec = SimulationSpec(step=args.step, horizon=args.horizon, n_paths=args.paths, seed=args.seed,
                           delta="random", delta_explicit=False, workers=args.workers, scheduler=args.scheduler,
-                          connect_timeout=_connect_timeout(args))
+                          connect_timeout=connect_timeout(args))
     if controller is not None:
         spec.check_memory(system, controller, args.paths)
     k_max = None if args.no_gain_bound else args.k_max
@@ -377,8 +377,7 @@ def _check_cluster(args: argparse.Namespace) -> None:
     """``--workers`` / ``--scheduler`` checked before any work: the worker count within the
     machine's bound, the address's syntax, no ``--fmu-log`` with them, ``--connect-timeout``
     only with ``--scheduler``."""
-    if args.connect_timeout is not None and not args.scheduler:
-        raise bad(f"--connect-timeout {args.connect_timeout:g}: only with --scheduler (the time box of connecting to it)")
+    connect_timeout(args)
     if args.fmu_log and (args.workers or args.scheduler):
         raise bad("--fmu-log: the FMU's messages stay on the Dask workers; leave out --workers/--scheduler to see them")
     if args.workers or args.scheduler:
@@ -387,22 +386,13 @@ def _check_cluster(args: argparse.Namespace) -> None:
         check_cluster_options(args.workers, args.scheduler)
 
 
-def _connect_timeout(args: argparse.Namespace) -> float:
-    """``--connect-timeout``, or the default time box of connecting to ``--scheduler``."""
-    from ..simulation.cluster import CONNECT_TIMEOUT
-
-    return CONNECT_TIMEOUT if args.connect_timeout is None else float(args.connect_timeout)
-
-
 def _cluster_options(parser: argparse.ArgumentParser) -> None:
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--workers", type=positive_int, default=None,
                        help="run the Monte Carlo batches on a local Dask cluster of N worker processes")
     where.add_argument("--scheduler", default=None,
                        help="run the Monte Carlo batches on the Dask cluster at this address (tcp://host:port)")
-    parser.add_argument("--connect-timeout", type=positive, default=None, metavar="SECONDS",
-                        help="with --scheduler: refuse the address when connecting to it (handshake included) "
-                             "takes longer than this (default: 10)")
+    add_connect_timeout(parser)
 
 
 def _plant_options(parser: argparse.ArgumentParser) -> None:

@@ -51,6 +51,7 @@ from ..errors import ValidationError
 from ..jsonable import fields_dict
 from ..model.system import FTCSystem, JointChain, Matrix
 from ..simulation.batches import fmu_monte_carlo
+from ..simulation.cluster import CONNECT_TIMEOUT
 from ..simulation.paths import ChainPath
 from ..simulation.records import PathRecord
 from ..simulation.reference import simulate_reference
@@ -196,13 +197,15 @@ def run_risk(system: FTCSystem, controller: Controller, envelope: Envelope, *, h
              beta: Matrix | None = None, backend: str = "reference", plant: Any = None,
              bound: BoundStage | None = None, timing: TimingStage | None = None,
              interval: float | None = None, done: Callable[[int], object] | None = None,
-             workers: int | None = None, scheduler: str | None = None, client: Any = None) -> RiskResult:
+             workers: int | None = None, scheduler: str | None = None, client: Any = None,
+             connect_timeout: float = CONNECT_TIMEOUT) -> RiskResult:
     """The risk run of the module docstring. ``beta``: the rate array (default: the centre
     of the box, :meth:`JointChain.midpoint`); the paths start in the joint mode ``(0, 0)``
     (no fault, FDI agrees); ``x0`` default 0; ``workers`` / ``scheduler``: the batches (FMU)
     or chunks (reference) on a local Dask cluster of that many processes or on the
     scheduler at that address (:meth:`SimulationSpec.client
-    <ftc_verify.simulation.spec.SimulationSpec.client>`, opened once for the run), or on
+    <ftc_verify.simulation.spec.SimulationSpec.client>`, opened once for the run; connecting
+    to ``scheduler`` time-boxed to ``connect_timeout`` seconds), or on
     the given Dask ``client`` (``verify``'s); the same numbers as serially."""
     if backend not in ("reference", "records", "fmu"):
         raise ValidationError(f"backend: {backend!r} is not one of reference, records, fmu")
@@ -212,7 +215,7 @@ def run_risk(system: FTCSystem, controller: Controller, envelope: Envelope, *, h
     x0v = np.zeros(n) if x0 is None else np.asarray(x0, dtype=float)
     spec = SimulationSpec(step=step, horizon=horizon, seed=settings.seed, beta=rates, disturbance=disturbance,
                           x0=tuple(float(v) for v in x0v), workers=workers,
-                          scheduler=scheduler)
+                          scheduler=scheduler, connect_timeout=connect_timeout)
     failed = [0]
     with spec.client(client) as client:
         scorer = path_scores(system, controller, envelope, spec, backend, plant, client)

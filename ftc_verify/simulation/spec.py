@@ -38,6 +38,7 @@ from numpy.typing import ArrayLike
 
 from ..errors import ValidationError
 from ..limits import check_memory
+from .cluster import CONNECT_TIMEOUT
 from .delta import DeltaSchedule
 
 if TYPE_CHECKING:
@@ -191,7 +192,8 @@ class SimulationSpec:
         FMU Monte Carlo without a cluster: run the FMU in a watched child process.
     connect_timeout : float
         Seconds that connecting to ``scheduler`` may take, handshake included, before the
-        address is refused (``--connect-timeout``; default 10).
+        address is refused (``--connect-timeout``; default
+        :data:`~ftc_verify.simulation.cluster.CONNECT_TIMEOUT`).
 
     Raises
     ------
@@ -213,7 +215,7 @@ class SimulationSpec:
     workers: int | None = None
     scheduler: str | None = None
     isolate: bool = True
-    connect_timeout: float = 10.0
+    connect_timeout: float = CONNECT_TIMEOUT
 
     def __post_init__(self) -> None:
         from .paths import DISTURBANCES
