@@ -171,3 +171,45 @@ def test_figures_drawn_early_are_moved_into_the_report(tmp_path: Path, monkeypat
     timings = json.loads((out / "report.json").read_text())["timings"]
     assert figures.span is not None
     assert timings["report_plots"] == pytest.approx(figures.span[1] - figures.span[0])
+
+
+def _running(pid: int) -> bool:
+    """Whether ``pid`` is a live process (a zombie awaiting its reaper is not)."""
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+@fork_only
+@pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="reads /proc")
+def test_cancel_ends_the_gains_grandchild_too(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    """``verify``'s sampled stages fork the gains beside the energies
+    (``sampled_stage._gains_child``); cancelling the stages' child ends that grandchild as
+    well (it stays in the child's process group), whatever the platform's parent-death
+    signal does."""
+    from ftc_verify.analysis.moments import sampled_gamma
+
+    monkeypatch.setattr(sampled_gamma, "sampled_performance", _sleeps)
+    marker = tmp_path / "grandchild.pid"
+
+    def stages(*args: Any, **kwargs: Any) -> dict[str, Any]:
+        gains = sampled_stage._gains_child(None, None, 0.01)  # type: ignore[arg-type]
+        marker.write_text(str(gains.pid))
+        time.sleep(60)
+        return {}
+
+    monkeypatch.setattr(sampled_stage, "sampled_stages", stages)
+    run = SampledRun(None, None, 0.01, 0.25, None, at=0)  # type: ignore[arg-type]
+    deadline = time.monotonic() + 30
+    while not marker.exists() or not marker.read_text():
+        assert time.monotonic() < deadline, "the grandchild was not started"
+        time.sleep(0.02)
+    grandchild = int(marker.read_text())
+    assert _running(grandchild) and os.getpgid(grandchild) == run._child.pid  # type: ignore[union-attr]
+    run.cancel()
+    deadline = time.monotonic() + 5
+    while _running(grandchild):
+        assert time.monotonic() < deadline, "the gains grandchild outlived the cancelled stages"
+        time.sleep(0.02)

@@ -227,10 +227,11 @@ def _has_gains(res: SampledResult) -> bool:
 def _gains_child(system: FTCSystem, controller: Controller, step: float) -> Any:
     """The sampled loop's gains at ``step`` (:func:`~ftc_verify.analysis.moments.sampled_gamma.sampled_performance`:
     the proved lower bounds and certificates, which need nothing of the exact energies or the
-    Monte Carlo check) started in a forked child (:class:`~ftc_verify.analysis.solvers.ForkedCall`,
-    its own process group, dying with this process) beside them; ``None`` (computed
-    afterwards, in turn) without ``fork``. On the three-tank example the gains are about
-    9 s of CPU, the energies 5.5 s."""
+    Monte Carlo check) started in a forked child (:class:`~ftc_verify.analysis.solvers.ForkedCall`)
+    beside them; ``None`` (computed afterwards, in turn) without ``fork``. The child stays
+    in this process's group, which :class:`SampledRun` leads, so that
+    :meth:`SampledRun.cancel` kills it with its group on every POSIX system. On the
+    three-tank example the gains are about 9 s of CPU, the energies 5.5 s."""
     import os
 
     from ..analysis.moments.sampled_gamma import sampled_performance
@@ -238,7 +239,7 @@ def _gains_child(system: FTCSystem, controller: Controller, step: float) -> Any:
 
     if not hasattr(os, "fork"):
         return None
-    return ForkedCall(lambda: sampled_performance(system, controller, step), "the sampled loop's gains", group=True)
+    return ForkedCall(lambda: sampled_performance(system, controller, step), "the sampled loop's gains")
 
 
 def _attach_gains(res: SampledResult, system: FTCSystem, controller: Controller, gains: Any) -> SampledResult:
