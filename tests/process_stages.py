@@ -16,7 +16,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-__all__ = ["cpu_seconds", "children", "working_child", "child_has_worked", "wait_for_stage"]
+__all__ = ["cpu_seconds", "children", "working_child", "child_has_worked", "wait_for_stage", "stage_cpu"]
 
 _TICK = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
 
@@ -73,3 +73,17 @@ def wait_for_stage(proc: subprocess.Popen[str], reached: Callable[[], bool], wha
             proc.kill()
             raise AssertionError(f"no {what} within {seconds} s")
         time.sleep(0.02)
+
+
+def stage_cpu(command: list[str]) -> float:
+    """The CPU seconds :func:`working_child` of ``command`` uses in a whole run (the last
+    value seen, polled every 20 ms), so that a signal test can aim at fractions of the
+    stage on whatever machine runs it instead of at seconds measured on another."""
+    proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    seen = 0.0
+    while proc.poll() is None:
+        child = working_child(proc.pid)
+        if child is not None:
+            seen = max(seen, cpu_seconds(child))
+        time.sleep(0.02)
+    return seen
