@@ -144,9 +144,11 @@ def seed_int(text: str) -> int:
 
 def add_connect_timeout(parser: argparse.ArgumentParser) -> None:
     """``--connect-timeout SECONDS`` (with ``--scheduler``) on a command's parser."""
+    from ..simulation.cluster import CONNECT_TIMEOUT
+
     parser.add_argument("--connect-timeout", type=positive, default=None, metavar="SECONDS",
                         help="with --scheduler: refuse the address when connecting to it (handshake included) "
-                             "takes longer than this (default: 10)")
+                             f"takes longer than about this (default: {CONNECT_TIMEOUT:g})")
 
 
 def connect_timeout(args: argparse.Namespace) -> float:

@@ -58,6 +58,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 from dataclasses import dataclass
 from typing import Any
 
@@ -76,7 +77,8 @@ __all__ = ["ClockCertificate", "clock_program", "clock_certificate", "prove_cloc
 
 @dataclass(frozen=True, eq=False)
 class ClockCertificate:
-    """The nodes :math:`Y_s^k` (``nodes[k][s]``, balanced coordinates of the loop), the
+    """The nodes :math:`Y_s^k` (``nodes[k][s]``, in the balanced coordinates of the loop it was found for:
+    :func:`clock_stable`'s conditioned loop), the
     curvatures :math:`C_s^k` (``curvatures[k][s]``, empty for affine pieces) and the
     multipliers :math:`G` (``multipliers[k][i]``, one per piece and vertex instance, of the
     flow conditions in the frame of :func:`time_unit`) found at period ``h`` with ``pieces`` pieces, and whether they were proved (ball
@@ -319,7 +321,6 @@ def clock_stable(loop: SampledLoop, h: float, pieces: int = 4, quadratic: bool =
     return dataclasses.replace(cert, proved=prove_clock(loop, cert))
 
 
-
 def period_verdict(loop: SampledLoop, h: float, rho: float, *, max_boxes: int, max_seconds: float,
                    pieces: int = 2, max_size: int = 4000) -> BoxVerdict:
     """Mean-square stability of the sampled loop at period ``h`` over the whole rate box
@@ -329,8 +330,9 @@ def period_verdict(loop: SampledLoop, h: float, rho: float, *, max_boxes: int, m
     (:func:`~ftc_verify.analysis.moments.sampled_proof.box_verdict`) on the whole box
     alone; when ``rho < 1``, one clock-dependent certificate of the whole box
     (:func:`clock_verdict`: ``pieces`` quadratic pieces, at most ``max_size`` scalar
-    variables); the sub-box proofs with up to ``max_boxes`` sub-boxes and about
-    ``max_seconds`` of wall time.
+    variables); the sub-box proofs with up to ``max_boxes`` sub-boxes. ``max_seconds`` of
+    wall time from the start is a safety valve for the sub-box proofs (they start no
+    sub-box after it); the clock certificate's one program has no time budget.
 
     The box alone decides the easy loops at the price of one proof (the paper's loop at
     0.05 s: 0.07 CPU s against 0.15 s for the clock certificate); the clock certificate
@@ -339,6 +341,7 @@ def period_verdict(loop: SampledLoop, h: float, rho: float, *, max_boxes: int, m
     radius is far below 1: a random ``n = 4, m = 3`` loop at 40 % of its ``h_max``, radius
     0.85, undecided after 17 sub-boxes and 20 s, proved by the clock in 0.9 CPU s), and
     its verdict does not depend on the machine's speed."""
+    t0 = time.perf_counter()
     first = box_verdict(loop, h, max_boxes=1, max_seconds=max_seconds)
     if first.verdict != "undecided":
         return first
@@ -346,7 +349,10 @@ def period_verdict(loop: SampledLoop, h: float, rho: float, *, max_boxes: int, m
         clock = clock_verdict(loop, h, first, pieces=pieces, max_size=max_size)
         if clock.verdict != "undecided":
             return clock
-    return box_verdict(loop, h, max_boxes=max_boxes, max_seconds=max_seconds) if max_boxes > 1 else first
+    if max_boxes <= 1:
+        return first
+    return box_verdict(loop, h, max_boxes=max_boxes, max_seconds=max(0.0, max_seconds - (time.perf_counter() - t0)))
+
 
 def clock_verdict(loop: SampledLoop, h: float, undecided: BoxVerdict, *, pieces: int = 2,
                   max_size: int = 4000) -> BoxVerdict:
