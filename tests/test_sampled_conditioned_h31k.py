@@ -11,6 +11,7 @@ condition 1e3 had no bracket, condition 1e4 was "undecided" at 0.05 s.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +19,7 @@ import pytest
 
 from ftc_verify.analysis.moments.sampled import H_MAX_RTOL, SampledLoop, crossing, one_period_map, sampled_analysis
 from ftc_verify.analysis.moments.sampled_clock import clock_stable
-from ftc_verify.analysis.moments.sampled_conditioned import ConditionedLoop, conditioned
+from ftc_verify.analysis.moments.sampled_conditioned import ConditionedLoop, ball_data, conditioned
 from ftc_verify.analysis.moments.sampled_proof import ball_one_period_map, ball_resets, box_verdict, written_flow
 from ftc_verify.analysis.rigorous import midpoint, precision
 from ftc_verify.controllers.controller import Controller
@@ -171,3 +172,56 @@ def test_a_bad_similarity_never_loses_a_verdict(paper: tuple[FTCSystem, Controll
     assert conditioned(loop) is bad
     assert box_verdict(loop, 0.05).verdict == "stable"
     assert box_verdict(loop, 0.1).verdict == "not stable"
+
+
+def _exact(x: object) -> Fraction:
+    """An exact Arb value (a midpoint or a radius) as a fraction."""
+    man, exp = x.man_exp()  # type: ignore[attr-defined]
+    return Fraction(int(man)) * Fraction(2) ** int(exp)
+
+
+def test_the_moved_balls_contain_the_exact_similarity_of_the_written_balls_midpoints(paper: tuple) -> None:
+    """:func:`ball_data` against exact rational arithmetic: for every flow and reset of the
+    paper loop moved by a similarity of condition 1e4, the ball of ``T^-1 F T`` (``T^-1
+    R T_r``) contains the exact rational product of the exact inverse of the float ``T``
+    with the midpoints of the written balls ``F`` (``R``) -- a point of the set the ball
+    must enclose, checked entry by entry without floating point."""
+    cl = conditioned(SampledLoop.build(*moved(*paper, CASES[1])))
+    assert isinstance(cl, ConditionedLoop) and cl.base is not None and cl.T is not None
+
+    def exact_matrix(a: np.ndarray) -> list[list[Fraction]]:
+        return [[Fraction(float(v)) for v in row] for row in a]
+
+    def inverse(a: list[list[Fraction]]) -> list[list[Fraction]]:  # Gauss-Jordan over the rationals
+        n = len(a)
+        m = [row[:] + [Fraction(int(i == j)) for j in range(n)] for i, row in enumerate(a)]
+        for c in range(n):
+            p = next(r for r in range(c, n) if m[r][c] != 0)
+            m[c], m[p] = m[p], m[c]
+            m[c] = [v / m[c][c] for v in m[c]]
+            for r in range(n):
+                if r != c and m[r][c] != 0:
+                    m[r] = [v - m[r][c] * w for v, w in zip(m[r], m[c])]
+        return [row[n:] for row in m]
+
+    def product(*ms: list[list[Fraction]]) -> list[list[Fraction]]:
+        out = ms[0]
+        for b in ms[1:]:
+            out = [[sum((x * b[k][j] for k, x in enumerate(row)), Fraction(0)) for j in range(len(b[0]))]
+                   for row in out]
+        return out
+
+    T = exact_matrix(cl.T)
+    T_inv, T_r = inverse(T), exact_matrix(cl.T_r)
+    with precision(64):
+        base = cl.base
+        flows, resets = [written_flow(base, A) for A in base.flow], ball_resets(base, 0.05)
+        moved_flows, moved_resets = ball_data(cl, flows, resets)
+        pairs = [(F, G, T) for F, G in zip(flows, moved_flows)] + [(R, G, T_r) for R, G in zip(resets, moved_resets)]
+        for written, moved_ball, right in pairs:
+            mid = [[_exact(written.value[i, j].mid()) for j in range(written.shape[1])] for i in range(written.shape[0])]
+            exact = product(T_inv, mid, right)
+            for i, row in enumerate(exact):
+                for j, v in enumerate(row):
+                    entry = moved_ball.value[i, j]
+                    assert abs(v - _exact(entry.mid())) <= _exact(entry.rad()), (i, j)
