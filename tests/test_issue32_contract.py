@@ -135,7 +135,11 @@ def test_output_refused_by_the_environment_exits_2_with_the_path(tmp_path: Path,
     real_synthesize = state_feedback.synthesize
 
     def once(*args: object, **kwargs: object) -> object:
-        return computed_once(shared_tmp, "issue32-paper-two-step", lambda folder: real_synthesize(*args, **kwargs))
+        import hashlib
+        import pickle
+
+        called = hashlib.sha256(pickle.dumps((args, sorted(kwargs.items())))).hexdigest()[:16]  # the same call only
+        return computed_once(shared_tmp, f"issue32-paper-two-step-{called}", lambda folder: real_synthesize(*args, **kwargs))
 
     monkeypatch.setattr(state_feedback, "synthesize", once)
     monkeypatch.chdir(tmp_path)
