@@ -18,13 +18,16 @@ code returned to Python.
 
 from __future__ import annotations
 
+import contextlib
+import os
 import signal
+import sys
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
-__all__ = ["deferred_signals"]
+__all__ = ["deferred_signals", "die_with_parent"]
 
 _SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -54,3 +57,19 @@ def deferred_signals() -> Iterator[None]:
                 handler(signum, frame)
             elif handler == signal.SIG_DFL:
                 signal.raise_signal(signum)
+
+
+def die_with_parent(parent: int | None = None) -> None:
+    """Linux: this process gets SIGKILL when its parent dies (``prctl(PR_SET_PDEATHSIG)``),
+    so a forked or spawned worker never computes on for a parent killed outright
+    (SIGKILL, the kernel's out-of-memory killer); with ``parent`` (the parent's pid, read
+    before the fork) a process orphaned before the request took effect ends at once.
+    Elsewhere nothing."""
+    import ctypes
+
+    if not sys.platform.startswith("linux"):
+        return
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL), 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
+    if parent is not None and os.getppid() != parent:  # orphaned before the request: no signal will come
+        os._exit(1)

@@ -41,6 +41,8 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from .interrupts import die_with_parent
+
 __all__ = ["Prestarted", "cross_check", "skip_docstring_generation", "CROSS_CHECK_MODULES"]
 
 #: What the cross-check child imports first (python-control, then the check itself).
@@ -59,16 +61,6 @@ def _read_exact(fd: int, size: int) -> bytes | None:
         chunks.append(chunk)
         left -= len(chunk)
     return b"".join(chunks)
-
-
-def _die_with_parent() -> None:
-    """Linux: SIGKILL when the parent dies (``prctl(PR_SET_PDEATHSIG)``); elsewhere nothing."""
-    import ctypes
-    import signal
-
-    if sys.platform.startswith("linux"):
-        with contextlib.suppress(OSError, AttributeError):
-            ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL), 0, 0, 0)
 
 
 def _no_parse(self: Any) -> None:
@@ -184,6 +176,7 @@ class Prestarted:
         answer_r, answer_w = os.pipe()
         sys.stdout.flush()
         sys.stderr.flush()
+        parent = os.getpid()
         pid = os.fork()
         if pid == 0:  # child
             try:
@@ -191,7 +184,7 @@ class Prestarted:
 
                 signal.signal(signal.SIGINT, signal.SIG_IGN)
                 signal.signal(signal.SIGTERM, signal.SIG_DFL)
-                _die_with_parent()
+                die_with_parent(parent)
                 os.close(job_w)
                 os.close(answer_r)
                 _child(tuple(modules), job_r, answer_w, prepare)

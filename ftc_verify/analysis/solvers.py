@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ValidationError
+from ..interrupts import die_with_parent
 from ..model.system import Matrix
 from ..interrupts import deferred_signals
 from .conic import ConicProblem, solve_clarabel, solve_clarabel_dual, to_cvxpy
@@ -290,12 +291,13 @@ class ForkedCall:
         read_fd, write_fd = os.pipe()
         sys.stdout.flush()
         sys.stderr.flush()
+        parent = os.getpid()
         self.pid = os.fork()
         if self.pid == 0:  # child
             try:
                 if group:
                     os.setpgid(0, 0)
-                    _die_with_parent()
+                    die_with_parent(parent)
                 signal.signal(signal.SIGINT, signal.SIG_IGN)
                 signal.signal(signal.SIGTERM, signal.SIG_DFL)
                 os.close(read_fd)
@@ -347,19 +349,6 @@ class ForkedCall:
         if self._read_fd is not None:
             os.close(self._read_fd)
             self._read_fd = None
-
-
-def _die_with_parent() -> None:
-    """Linux: this process gets SIGKILL when its parent dies (``prctl(PR_SET_PDEATHSIG)``),
-    so a child of :func:`interruptible` never computes on for a parent killed outright
-    (SIGKILL, the kernel's out-of-memory killer). Elsewhere nothing."""
-    import ctypes
-    import signal
-
-    if not sys.platform.startswith("linux"):
-        return
-    with contextlib.suppress(OSError, AttributeError):
-        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL), 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
 
 
 def interruptible(fn: Any, what: str, meanwhile: Any = None) -> Any:

@@ -49,6 +49,7 @@ import numpy as np
 
 from ..controllers.controller import Controller
 from ..errors import FMUError, PlantRunError
+from ..interrupts import die_with_parent
 from ..model.system import FTCSystem
 from .paths import ChainPath
 from .records import SimulationResult
@@ -79,16 +80,6 @@ def _send(out: BinaryIO, message: tuple[str, Any]) -> None:
     out.flush()
 
 
-def _die_with_parent() -> None:
-    """Linux: SIGKILL this process when its parent dies (best effort elsewhere)."""
-    try:
-        import ctypes
-
-        ctypes.CDLL(None).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
-
-
 def _import_ahead() -> None:
     """What a child imports while it waits for its job: the job's generator
     (``numpy.random``) and fmpy's FMU loader (:func:`~ftc_verify.plants.fmi_calls.preload`);
@@ -104,7 +95,7 @@ def _child_main(workdir: str, fd: int) -> None:
     """The child: every batch on one supervisor; results, log lines and errors to ``fd``."""
     from .supervisor import Supervisor
 
-    _die_with_parent()
+    die_with_parent()
     _import_ahead()
     job = pickle.load(sys.stdin.buffer)
     out = os.fdopen(fd, "wb")
