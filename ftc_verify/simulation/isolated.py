@@ -146,10 +146,16 @@ class PlantProcess:
             os.close(write_fd)
 
     def send(self, job: bytes) -> None:
-        """Hand the pickled job to the child."""
+        """Hand the pickled job to the child. A child that has already ended (it could not
+        start) is reported by the read that follows (:meth:`crashed`: its exit status), not
+        as a broken pipe of this process, which the CLI would take for its own output."""
         assert self.child is not None and self.child.stdin is not None
-        self.child.stdin.write(job)
-        self.child.stdin.close()
+        try:
+            self.child.stdin.write(job)
+            self.child.stdin.close()
+        except BrokenPipeError:
+            with contextlib.suppress(OSError):
+                self.child.stdin.close()
 
     def receive(self) -> list[tuple[str, Any]] | None:
         """The messages complete after one read (the pipe is readable); ``None`` when the
