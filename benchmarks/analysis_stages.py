@@ -22,7 +22,6 @@ Prints a table (medians, ratios against the other tree) and writes
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import os
 import statistics
@@ -31,6 +30,8 @@ import sys
 import tempfile
 from pathlib import Path
 from typing import Any
+
+from csvout import write_rows
 
 HERE = Path(__file__).resolve().parent
 CHILD = r"""
@@ -98,11 +99,7 @@ def main() -> int:
                     print(f"{case} {name} rep {rep}: {row['cpu_s']} s CPU, {row['wall_s']} s wall (load {row['load']:.1f}) "
                           f"gamma {row['nominal']} / {row['robust']}, lower {row['nominal_lower']} / {row['robust_lower']}",
                           flush=True)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    with args.out.open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    write_rows(args.out, rows)
     print("\n| case | CPU this | CPU against | CPU ratio | wall this | wall against | wall ratio |")
     print("|---|---|---|---|---|---|---|")
     for case in dict.fromkeys(r["case"] for r in rows):

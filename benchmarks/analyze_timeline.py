@@ -25,7 +25,6 @@ Writes ``benchmarks/results/analyze_timeline.csv``.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import os
 import subprocess
@@ -34,6 +33,7 @@ import tempfile
 import time
 from pathlib import Path
 from typing import Any
+from csvout import write_rows
 
 HERE = Path(__file__).resolve().parent
 COLUMNS = ["tree", "repeat", "pid", "process", "stage", "start_s", "end_s", "cpu_s"]
@@ -134,11 +134,7 @@ def main() -> int:
                     if not r["stage"].startswith(("start-up", "analysis import", "end")):
                         per_pid[r["pid"]] = per_pid.get(r["pid"], 0.0) + r["cpu_s"]
                 print("    stage CPU per process: " + ", ".join(f"{p}: {c:.2f} s" for p, c in per_pid.items()))
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    with args.out.open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=COLUMNS)
-        writer.writeheader()
-        writer.writerows(rows)
+    write_rows(args.out, rows, COLUMNS)
     print(f"wrote {args.out}")
     return 0
 

@@ -27,6 +27,7 @@ import numpy as np
 
 from ftc_verify.model.files import load_system
 from ftc_verify.risk.importance import rate_keys, sample_tilted
+from csvout import write_rows
 
 ROOT = Path(__file__).resolve().parents[1]
 CASES = (("envelope_delay.toml", 10.0, 11), ("paper.toml", 4.0, 3), ("paper_phase_type.toml", 5.0, 12))
@@ -58,10 +59,7 @@ def main() -> None:
                 rows.append({"example": example, "tilt": tilt_name, "start": start, "paths": args.paths,
                              "jumps": sum(p.times.size - 1 for p in s.paths), "cpu_seconds": round(cpu, 4),
                              "digest": digest.hexdigest()[:16]})
-    with open(args.out, "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=FIELDS)
-        writer.writeheader()
-        writer.writerows(rows)
+    write_rows(args.out, rows, FIELDS)
     csv.DictWriter(sys.stdout, fieldnames=FIELDS).writerows(rows)
     print(f"total cpu_seconds {sum(r['cpu_seconds'] for r in rows):.3f}")
 

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import csv
 import os
 import time
 from collections.abc import Iterator
@@ -36,6 +35,7 @@ from ftc_verify.analysis.moments.sampled import SampledLoop, sampled_analysis
 from ftc_verify.controllers.files import load_controller
 from ftc_verify.model.files import load_system
 from ftc_verify.testing.sampled_cases import lqr_case
+from csvout import write_rows
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -99,11 +99,7 @@ def main() -> None:
                          f"{(res.h_max_unstable - res.h_max) / res.h_max_unstable:.1e}",
                          "seconds": f"{seconds:.2f}", "cpu_seconds": f"{cpu:.2f}"})
             print(rows[-1], flush=True)
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    with open(args.out, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_rows(args.out, rows)
     print(table(rows))
 
 

@@ -19,7 +19,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import csv
 import os
 from pathlib import Path
 from typing import Any
@@ -35,6 +34,7 @@ from ftc_verify.controllers.files import load_controller
 from ftc_verify.model.files import load_system
 from ftc_verify.model.system import FTCSystem, Matrix
 from ftc_verify.testing.illconditioned import similarity
+from csvout import write_rows
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -88,11 +88,7 @@ def main() -> None:
                      "clock_above": bool(above is not None and above.proved),
                      "clock_cpu_seconds": f"{_cpu() - c1:.2f}"})
         print(rows[-1], flush=True)
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    with open(args.out, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_rows(args.out, rows)
 
 
 if __name__ == "__main__":

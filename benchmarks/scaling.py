@@ -31,7 +31,6 @@ Writes ``benchmarks/results/scaling.csv`` (one row per run) and prints a table.
 from __future__ import annotations
 
 import argparse
-import csv
 import importlib.util
 import json
 import math
@@ -45,6 +44,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from csvout import write_rows
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -172,11 +172,7 @@ def main() -> int:
                           f"(load {row['load']}), {row['peak_mb']:.0f} MB, exit {row['exit']}, "
                           f"certified {row['certified_stable']}, gamma {row['nominal_gamma']} ({row['nominal_route']})",
                           flush=True)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    with args.out.open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=COLUMNS)
-        writer.writeheader()
-        writer.writerows(rows)
+    write_rows(args.out, rows, COLUMNS)
     print("\n| case | wall (median) | CPU (median) | peak MB | goal | wall ratio against | CPU ratio against |")
     print("|---|---|---|---|---|---|---|")
     for case in dict.fromkeys(r["case"] for r in rows):

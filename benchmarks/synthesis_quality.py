@@ -57,7 +57,6 @@ above any route by more than :data:`TIE`.
 from __future__ import annotations
 
 import argparse
-import csv
 import math
 import sys
 import time
@@ -325,10 +324,7 @@ def _planted_table(args: argparse.Namespace, out: Path) -> list[str]:
         print(f"[of {k + 1}/{args.output_feedback}] {r['system']}: planted {r['planted_gamma']:.4g}, found "
               f"{r['found_gamma']} ({r['route']}, {r['seconds']:.1f} s)", file=sys.stderr, flush=True)
     of_out = out.with_name(out.stem + "_of.csv")
-    with of_out.open("w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_rows(of_out, rows)
     print(f"{'planted case':22s} {'order':>5s} {'planted':>9s} {'found':>9s} {'ratio':>7s} {'route':>9s} {'s':>7s}")
     for r in rows:
         found = math.nan if r["found_gamma"] is None else r["found_gamma"]

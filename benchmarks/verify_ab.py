@@ -25,7 +25,6 @@ other) of runs side by side, and the CPU seconds, are what compare. Writes one C
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import os
 import statistics
@@ -35,6 +34,7 @@ import tempfile
 import time
 from pathlib import Path
 from typing import Any
+from csvout import write_rows
 
 REPO = Path(__file__).resolve().parent.parent
 DEFAULT_OUT = REPO / "benchmarks" / "results" / "verify_ab.csv"
@@ -103,11 +103,7 @@ def main() -> int:
             same = same_outputs(outs[codes[0]], outs[codes[1]])
             for row in rows[-2:]:
                 row["same_report"] = same
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    with open(args.out, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=COLUMNS)
-        writer.writeheader()
-        writer.writerows(rows)
+    write_rows(args.out, rows, COLUMNS)
     done = [r for r in rows if r["verdict"] in ("pass", "fail")]  # runs that wrote their report
     med = {c: {k: statistics.median([float(r[k]) for r in done if r["code"] == str(c)] or [float("nan")])
                for k in ("wall_s", "cpu_s", *STAGES)} for c in codes}
