@@ -10,12 +10,13 @@ condition 1e3 had no bracket, condition 1e4 was "undecided" at 0.05 s.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
 import pytest
+
+from moved_loops import Units, moved
 
 from ftc_verify.analysis.moments.sampled import H_MAX_RTOL, SampledLoop, crossing, one_period_map, sampled_analysis
 from ftc_verify.analysis.moments.sampled_clock import clock_stable
@@ -29,27 +30,6 @@ from ftc_verify.model.system import FTCSystem
 from ftc_verify.testing.illconditioned import similarity
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-@dataclass(frozen=True)
-class Units:
-    """Time ``t -> s t`` and states ``x' = S x`` (as in ``test_sampled_units_h31r.py``)."""
-
-    name: str
-    s: float = 1.0
-    S: np.ndarray | None = None
-
-
-def moved(system: FTCSystem, controller: Controller, u: Units) -> tuple[FTCSystem, Controller]:
-    """The nominal paper loop in the units of ``u`` (same joint chain, rates times ``s``)."""
-    S = np.eye(system.dims[0]) if u.S is None else u.S
-    Si = np.linalg.inv(S)
-    modes = [{"A": u.s * S @ md.A @ Si, "B": u.s * S @ md.B, "C": md.C @ Si, "D": u.s * S @ md.D}
-             for md in system.modes]
-    ch = system.chain
-    out = FTCSystem.from_arrays(name=u.name, modes=modes, alpha=u.s * ch.alpha, beta_min=u.s * ch.beta_min,
-                                beta_max=u.s * ch.beta_max)
-    return out, Controller.state_feedback([K @ Si for K in controller.Dc])
 
 CASES = [
     Units("similarity of condition 1e3", S=similarity(np.random.default_rng(31), 2, 1.0, 1e3)),

@@ -25,11 +25,12 @@ above 1 and the analysis reported the loop "not stable at the smallest scanned p
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pytest
+
+from moved_loops import Units, moved
 
 from ftc_verify.analysis.moments.sampled import H_MAX_RTOL, SampledLoop, crossing, sampled_analysis
 from ftc_verify.analysis.moments.sampled_clock import clock_stable
@@ -42,16 +43,6 @@ from ftc_verify.testing.illconditioned import similarity
 ROOT = Path(__file__).resolve().parents[1]
 
 
-@dataclass(frozen=True)
-class Units:
-    """Time ``t -> s t``, states ``x' = S x``, inputs ``u = a u'``."""
-
-    name: str
-    s: float = 1.0
-    S: np.ndarray | None = None
-    a: float = 1.0
-
-
 CASES = [
     Units("time 1e-6 (microseconds of a slow plant)", s=1e-6),
     Units("time 1e6", s=1e6),
@@ -61,18 +52,6 @@ CASES = [
     Units("time 1e-3, inputs 1e-4, similarity 1e2 in units of condition 1e4", s=1e-3,
           S=similarity(np.random.default_rng(5), 2, 1e4, 1e2), a=1e-4),
 ]
-
-
-def moved(system: FTCSystem, controller: Controller, u: Units) -> tuple[FTCSystem, Controller]:
-    """The nominal paper loop in the units of ``u`` (same joint chain, rates times ``s``)."""
-    S = np.eye(system.dims[0]) if u.S is None else u.S
-    Si = np.linalg.inv(S)
-    modes = [{"A": u.s * S @ md.A @ Si, "B": u.s * S @ md.B * u.a, "C": md.C @ Si, "D": u.s * S @ md.D}
-             for md in system.modes]
-    ch = system.chain
-    out = FTCSystem.from_arrays(name=u.name, modes=modes, alpha=u.s * ch.alpha, beta_min=u.s * ch.beta_min,
-                                beta_max=u.s * ch.beta_max)
-    return out, Controller.state_feedback([K @ Si / u.a for K in controller.Dc])
 
 
 @pytest.fixture(scope="module")
