@@ -321,16 +321,14 @@ def clock_stable(loop: SampledLoop, h: float, pieces: int = 4, quadratic: bool =
     return dataclasses.replace(cert, proved=prove_clock(loop, cert))
 
 
-def period_verdict(loop: SampledLoop, h: float, rho: float, *, max_boxes: int, max_seconds: float,
-                   pieces: int = 2, max_size: int = 4000) -> BoxVerdict:
+def period_verdict(loop: SampledLoop, h: float, rho: float, *, max_boxes: int, max_seconds: float) -> BoxVerdict:
     """Mean-square stability of the sampled loop at period ``h`` over the whole rate box
     (``rho``: the largest float64 spectral radius of the one-period map at the rate points
     of :func:`~ftc_verify.analysis.moments.sampled.rate_points`). In order, the first that
     decides: the sub-box proofs
     (:func:`~ftc_verify.analysis.moments.sampled_proof.box_verdict`) on the whole box
     alone; when ``rho < 1``, one clock-dependent certificate of the whole box
-    (:func:`clock_verdict`: ``pieces`` quadratic pieces, at most ``max_size`` scalar
-    variables); the sub-box proofs with up to ``max_boxes`` sub-boxes. ``max_seconds`` of
+    (:func:`clock_verdict`); the sub-box proofs with up to ``max_boxes`` sub-boxes. ``max_seconds`` of
     wall time from the start is a safety valve for the sub-box proofs (they start no
     sub-box after it); the clock certificate's one program has no time budget.
 
@@ -346,7 +344,7 @@ def period_verdict(loop: SampledLoop, h: float, rho: float, *, max_boxes: int, m
     if first.verdict != "undecided":
         return first
     if rho < 1:
-        clock = clock_verdict(loop, h, first, pieces=pieces, max_size=max_size)
+        clock = clock_verdict(loop, h, first)
         if clock.verdict != "undecided":
             return clock
     if max_boxes <= 1:
@@ -354,23 +352,26 @@ def period_verdict(loop: SampledLoop, h: float, rho: float, *, max_boxes: int, m
     return box_verdict(loop, h, max_boxes=max_boxes, max_seconds=max(0.0, max_seconds - (time.perf_counter() - t0)))
 
 
-def clock_verdict(loop: SampledLoop, h: float, undecided: BoxVerdict, *, pieces: int = 2,
-                  max_size: int = 4000) -> BoxVerdict:
+def clock_verdict(loop: SampledLoop, h: float, undecided: BoxVerdict) -> BoxVerdict:
     """The verdict at period ``h`` when the sub-box proofs
     (:func:`~ftc_verify.analysis.moments.sampled_proof.box_verdict`) left it ``undecided``:
-    ``"stable"`` when one clock-dependent certificate with ``pieces`` quadratic pieces is
-    found and proved over the whole rate box (:func:`clock_stable`; module docstring: it
-    holds for every rate of the box, constant or not), else ``undecided`` unchanged (also
-    when the program has more than ``max_size`` scalar variables, :func:`clock_size`).
+    ``"stable"`` when one clock-dependent certificate is found and proved over the whole
+    rate box (:func:`clock_stable`; module docstring: it holds for every rate of the box,
+    constant or not), else ``undecided`` unchanged. The certificate is the ``h_max``
+    bracket's (:data:`~ftc_verify.analysis.moments.sampled_bracket.CLOCK_PIECES` quadratic
+    pieces, not tried when its program has more than
+    :data:`~ftc_verify.analysis.moments.sampled_bracket.CLOCK_SIZE` scalar variables).
 
     Deterministic (no time budget): where the sub-box proofs ran out of their budget --
     wide rate boxes at long periods, where the one-period map is far from affine in the
     rates even though its radius is far below 1 -- the verdict no longer depends on how
     fast the machine was."""
-    if undecided.verdict != "undecided" or clock_size(loop, pieces, True) > max_size:
+    from .sampled_bracket import CLOCK_PIECES, CLOCK_SIZE
+
+    if undecided.verdict != "undecided" or clock_size(loop, CLOCK_PIECES, True) > CLOCK_SIZE:
         return undecided
-    cert = clock_stable(loop, h, pieces, quadratic=True)
+    cert = clock_stable(loop, h, CLOCK_PIECES, quadratic=True)
     if cert is None or not cert.proved:
         return undecided
     return BoxVerdict("stable", f"spectral radius < 1 on the whole rate box by one clock-dependent Lyapunov "
-                      f"certificate ({pieces} quadratic pieces, ball arithmetic)", undecided.boxes)
+                      f"certificate ({CLOCK_PIECES} quadratic pieces, ball arithmetic)", undecided.boxes)
