@@ -46,7 +46,7 @@ class _Proved:
     (0.002, 3e-3, (0.02, 0.01, 3e-3)),        # every rung proved
     (0.015, 0.02, (0.02, 0.01)),              # stops at the first failure
     (0.025, 0.03, (0.02, 0.03)),              # the first fails: the fallback, closest first
-    (0.2, 0.3, (0.02, 0.03, 0.1, 0.3)),       # ... the first proved
+    (0.2, 0.3, (0.02, 0.03, 0.1, 0.3, math.sqrt(0.03))),  # ... the first proved (then h31n's split)
     (0.6, None, (0.02, 0.03, 0.1, 0.3, 0.5)),  # none
 ])
 def test_ladder_order_and_fallback(monkeypatch: pytest.MonkeyPatch, limit_f: float, expected_f: float | None,

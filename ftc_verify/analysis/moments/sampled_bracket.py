@@ -33,7 +33,7 @@ from .sampled import H_MAX_RTOL, SampledLoop, crossing, rate_points, spectral_ra
 from .sampled_clock import clock_size, clock_stable
 from .sampled_proof import box_verdict, prove_point_unstable
 
-__all__ = ["LADDER", "COARSE", "TIGHT", "BRACKET_WORK", "CLOCK_LADDER", "CLOCK_FALLBACK", "CLOCK_PIECES", "CLOCK_SIZE", "CLOCK_WORK",
+__all__ = ["LADDER", "COARSE", "TIGHT", "BRACKET_WORK", "CLOCK_LADDER", "CLOCK_FALLBACK", "CLOCK_SPLIT", "CLOCK_PIECES", "CLOCK_SIZE", "CLOCK_WORK",
            "box_work", "prove_below", "clock_below", "worst_vertex", "worst_crossing", "h_max_bracket"]
 
 #: Relative distances below the crossing tried after the tight one fails, easy first.
@@ -62,6 +62,12 @@ CLOCK_LADDER = (0.02, 0.01, 3e-3)
 #: ``benchmarks/sampled.py``'s draw: the certificate fails at 3 % and 10 %, proves 30 %
 #: below the crossing, where 20 sub-boxes do not even at 50 %).
 CLOCK_FALLBACK = (0.03, 0.1, 0.3, 0.5)
+#: When a fallback distance ``g`` is proved and the closer one tried before it, ``e``,
+#: failed with ``g > CLOCK_SPLIT e``, one more attempt at their geometric mean
+#: :math:`\sqrt{e g}` (the fallback's steps are about 3x: a 30 % bracket can become
+#: 17 %; ``benchmarks/results/h31n.md``). One attempt, not a bisection: its cost is
+#: one more clock program, fixed in advance.
+CLOCK_SPLIT = 2.0
 #: Quadratic pieces of the clock-dependent certificate in :func:`clock_below`.
 CLOCK_PIECES = 2
 #: The largest clock program (scalar variables) :func:`clock_below` solves.
@@ -146,7 +152,8 @@ def prove_below(loop: SampledLoop, a: float, rtol: float, max_boxes: int, work: 
 def clock_below(loop: SampledLoop, a: float, deadline: float = math.inf) -> float | None:
     """The closest period ``a (1 - f)``, ``f`` in :data:`CLOCK_LADDER` tried easy first and
     stopping at the first failure (when the first fails, :data:`CLOCK_FALLBACK` closest
-    first, the first proved), proved stable over the whole rate box by one clock-dependent certificate
+    first, the first proved, then the geometric mean of it and the failed distance before
+    it when they differ by more than :data:`CLOCK_SPLIT` times), proved stable over the whole rate box by one clock-dependent certificate
     (:func:`~ftc_verify.analysis.moments.sampled_clock.clock_stable`, :data:`CLOCK_PIECES`
     quadratic pieces, proved in ball arithmetic; no sub-boxes); ``None`` if none is, or the
     loop's program is larger than :data:`CLOCK_SIZE`. Deterministic: no time budget
@@ -163,11 +170,16 @@ def clock_below(loop: SampledLoop, a: float, deadline: float = math.inf) -> floa
         if time.perf_counter() > deadline:
             break
         if not proved(f):
+            failed = f
             for g in CLOCK_FALLBACK if k == 0 else ():
                 if time.perf_counter() > deadline:
                     break
                 if proved(g):
+                    mid = math.sqrt(failed * g)
+                    if g > CLOCK_SPLIT * failed and time.perf_counter() <= deadline and proved(mid):
+                        return a * (1 - mid)
                     return a * (1 - g)
+                failed = g
             break
         best = a * (1 - f)
     return best
