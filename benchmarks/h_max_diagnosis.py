@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Why the stable end of the ``h_max`` bracket stops short on a loop: the rate box at
+r"""Why the stable end of the ``h_max`` bracket stops short on a loop: the rate box at
 ``h = a (1 - f)`` below the worst vertex's float64 crossing ``a`` (issue 31, item 2).
 
 For the random loop of ``benchmarks/sampled.py`` (``--n 4 --m 3 --seed 1`` is the
@@ -27,6 +27,18 @@ measured quantity:
 * ``box_verdict`` (``--box-cap N``): ``box_verdict`` at ``h`` with at most ``N`` sub-boxes.
 * ``clock_<f>`` (``--clock f ...``): the clock-dependent certificate
   (``sampled_clock.clock_stable``, ``--pieces`` quadratic pieces) at ``a (1 - f)``.
+* ``certificate_<ks>_<kf>`` (``--certificates``): on the sub-box at the vertex with the
+  steep rates at ``2^-ks`` and the flat ones at ``2^-kf`` of their range, float64 with
+  the *exact* map at the sub-box's 64 vertices and 40 random points: the smallest
+  relative slack :math:`\lambda_{min}(Y^{-1/2}(Y - T Y) Y^{-1/2})` over joint states
+  and points of a Lyapunov stack fixed at the centre (``fixed``, :math:`Y_0`), moving
+  with the rates to first order (``first``, :math:`Y_0 + \sum \delta_a y_a`) and to
+  second order (``second``, :math:`+ \sum \mu_p y_p`; the certificate of
+  ``sampled_second``, Perron mix 0.05) -- what the rate-dependent certificate gains
+  before any enclosure; then ``wrap``: the second-order form's remainder bound
+  ``T_r |Y|`` (``quad_map``) over the true remainder of the map's second-order
+  expansion at those points (largest ratio over joint states), and whether the rigorous
+  check proves the sub-box.
 * ``ordering``: the largest eigenvalue, relative to the block, of ``sign * (V_t - V_s)``
   over the clock, ``V`` the dual Perron stack at the vertex carried back over the period
   and ``s -> t`` each free rate's transition: <= 0 for every rate would prove the radius
@@ -36,11 +48,13 @@ Usage::
 
     python benchmarks/h_max_diagnosis.py --seed 1 --f 1e-3 --out /tmp/diag.csv
     python benchmarks/h_max_diagnosis.py --seed 1 --f 1e-3 --box-cap 300 --clock 0.03 0.02 0.01
+    python benchmarks/h_max_diagnosis.py --seed 1 --f 1e-3 --samples 0 --certificates 5:2 5:1 5:0 4:2 3:1
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import csv
 import dataclasses
 import math
@@ -54,15 +68,15 @@ import numpy as np
 import scipy.linalg
 
 from ftc_verify.analysis.moments import sampled_proof as sp
-from ftc_verify.analysis.moments.sampled import (SampledLoop, assemble_map, crossing, rate_points, scan_periods,
+from ftc_verify.analysis.moments.sampled import (SampledLoop, assemble_map, crossing, one_period_map, rate_points, scan_periods,
                                                  scan_range, spectral_radius, stability_intervals)
 from ftc_verify.analysis.moments.sampled_balls import envelope_generator, generator_coefficients
 from ftc_verify.analysis.moments.sampled_bracket import worst_crossing, worst_vertex
 from ftc_verify.analysis.moments.fast_balls import aff_map
-from ftc_verify.analysis.moments.quad_balls import quad_map
+from ftc_verify.analysis.moments.quad_balls import pairs, quad_map
 from ftc_verify.analysis.moments.sampled_clock import clock_stable
-from ftc_verify.analysis.moments.sampled_second import certify_second_order
-from ftc_verify.analysis.moments.sampled_taylor import _rates_affine, affine_stable, right_perron
+from ftc_verify.analysis.moments.sampled_second import certify_second_order, second_order_choices
+from ftc_verify.analysis.moments.sampled_taylor import _rates_affine, affine_stable, float_choices, left_perron, right_perron
 from ftc_verify.analysis.moments.stability import unvech_stack, vech_order
 from ftc_verify.analysis.rigorous import midpoint, precision
 from ftc_verify.testing.sampled_cases import lqr_case
@@ -143,6 +157,68 @@ def flat_boxes(loop: SampledLoop, parts: sp.MapParts, v: np.ndarray, inward: dic
     return rows
 
 
+def _relative_slack(loop: SampledLoop, Y: np.ndarray, TY: np.ndarray) -> float:
+    """The smallest eigenvalue of ``Y_s^{-1/2} (Y - T Y)_s Y_s^{-1/2}`` over joint states."""
+    out = math.inf
+    for Ys, Zs in zip(unvech_stack(Y, loop.states, loop.r), unvech_stack(Y - TY, loop.states, loop.r)):
+        ev, U = np.linalg.eigh(Ys)
+        if ev[0] <= 0:
+            return -math.inf
+        W = U @ np.diag(ev ** -0.5) @ U.T
+        out = min(out, float(np.linalg.eigvalsh(W @ Zs @ W)[0]))
+    return out
+
+
+def certificates(loop: SampledLoop, h: float, parts: sp.MapParts, v: np.ndarray, inward: dict[tuple[int, ...], float],
+                 flat: list[tuple[int, ...]], widths: list[tuple[int, int]]) -> list[tuple[str, str]]:
+    """The ``certificate_<ks>_<kf>`` rows (module docstring)."""
+    chain, S = loop.chain, loop.states
+    full = chain.rate_max - chain.rate_min
+    res, modes, lift, hh = parts.floats
+    rng = np.random.default_rng(0)
+    rows = []
+    for ks, kf in widths:
+        lo, hi = v.copy(), v.copy()
+        for idx, sign in inward.items():
+            other = v[idx] + sign * 2.0 ** -(kf if idx in flat else ks) * full[idx]
+            lo[idx], hi[idx] = min(v[idx], other), max(v[idx], other)
+        found = _rates_affine(loop, lo, hi)
+        form = None if found is None else quad_map(res, modes, found[0], found[1], hh, lift)
+        if form is None:
+            continue
+        Tc, Tl, Tq, Tr = form
+        choice, w = float_choices(Tc, list(Tl), S, loop.r, 0.05), left_perron(Tc)
+        second = None if choice is None or w is None else second_order_choices(Tc, Tl, Tq, choice[0], np.stack(choice[1]), w)
+        if second is None:
+            continue
+        Y0, Yl, Yq = choice[0], np.stack(choice[1]), second[0]
+        idxs = list(inward)
+        prs = pairs(len(idxs))
+        points = [np.array(c) for c in itertools.product((-1.0, 1.0), repeat=len(idxs))]
+        worst = dict.fromkeys(("fixed", "first", "second"), math.inf)
+        true_rem = np.zeros_like(Y0)
+        for d in points + [rng.uniform(-1, 1, len(idxs)) for _ in range(40)]:
+            rates = 0.5 * (lo + hi)
+            for k, idx in enumerate(idxs):
+                rates[idx] += 0.5 * d[k] * (hi[idx] - lo[idx])
+            T = one_period_map(loop, h, rates, scaled=True)
+            mu = np.array([d[a] * d[b] for a, b in prs])
+            Ys = {"fixed": Y0, "first": Y0 + d @ Yl, "second": Y0 + d @ Yl + mu @ Yq}
+            for name, Y in Ys.items():
+                worst[name] = min(worst[name], _relative_slack(loop, Y, T @ Y))
+            poly = Tc + np.tensordot(d, Tl, 1) + np.tensordot(mu, Tq, 1)
+            true_rem = np.maximum(true_rem, np.abs((T - poly) @ Ys["second"]))
+        bound = Tr @ (np.abs(Y0) + np.abs(Yl).sum(0) + np.abs(Yq).sum(0))
+        size = loop.r * (loop.r + 1) // 2
+        wrap = max(float(bound[s * size:(s + 1) * size].sum() / max(true_rem[s * size:(s + 1) * size].sum(), 1e-300))
+                   for s in range(S))
+        with precision(64):
+            ok = certify_second_order(loop, form, 0.05)
+        rows.append((f"certificate_{ks}_{kf}", " ".join(f"{k} {x:.2e}" for k, x in worst.items())
+                     + f" wrap {wrap:.1f} proved {ok}"))
+    return rows
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--n", type=int, default=4)
@@ -153,6 +229,8 @@ def main() -> None:
     p.add_argument("--box-cap", type=int, default=0, help="also box_verdict with at most this many sub-boxes")
     p.add_argument("--clock", type=float, nargs="*", default=[], help="distances below the crossing for the clock")
     p.add_argument("--pieces", type=int, default=2)
+    p.add_argument("--certificates", nargs="*", default=[], metavar="KS:KF",
+                   help="certificate rows: steep rates at 2^-KS, flat at 2^-KF of their range")
     p.add_argument("--out", default="/tmp/h_max_diagnosis.csv")
     args = p.parse_args()
     loop = the_loop(args.n, args.m, args.seed)
@@ -204,6 +282,7 @@ def main() -> None:
         Q = midpoint(envelope_generator(chain, lo, hi, loop.literals))
         T = assemble_map(loop, scipy.linalg.expm((loop.modes_part + np.kron(Q.T, np.eye(vd))) * h), h)
         rows.append((f"envelope_flat_{k}", f"{float(np.max(np.abs(np.linalg.eigvals(T)))):.5f}"))
+    rows += certificates(loop, h, parts, v, inward, flat, [tuple(map(int, x.split(":"))) for x in args.certificates])
     rows += [(f"ordering_{k}", f"{val:.3e}") for k, val in ordering(loop, h, v, free).items()]
     if args.box_cap:
         t = time.process_time()
