@@ -7,10 +7,11 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from ftc_verify.analysis.moments import sampled_bracket
-from ftc_verify.analysis.moments.sampled import SampledLoop
+from ftc_verify.analysis.moments.sampled import SampledLoop, spectral_radius
 from ftc_verify.analysis.moments.sampled_bracket import CLOCK_FALLBACK, CLOCK_LADDER, CLOCK_SPLIT, clock_below
 from ftc_verify.controllers.files import load_controller
 from ftc_verify.model.files import load_system
@@ -73,3 +74,25 @@ def test_split_not_started_after_the_deadline(monkeypatch: pytest.MonkeyPatch) -
     monkeypatch.setattr(sampled_bracket, "clock_stable", fake)
     assert clock_below(_paper(), 1.0, deadline=-math.inf) is None
     assert fake.asked == []
+
+
+PAPER_CROSSING = 0.08426  # float64 crossing of the paper loop's worst vertex (h31c)
+
+
+@pytest.mark.parametrize(("scale", "expected_f"), [
+    (1.15, math.sqrt(0.03)),  # 10 % below fails, 30 % proved: the split, 4.9 % below the crossing, proved
+    (1.1, 0.1),               # 10 % proved after 3 %: the split at 5.5 % lies above the crossing
+])
+def test_split_on_the_paper_loop(scale: float, expected_f: float) -> None:
+    """The paper loop with its crossing given ``scale`` times too high, the real
+    two-piece certificate (ball arithmetic): the period returned, and the float64 radius
+    below 1 there at every vertex and at 40 random rates of the box (a proved claim: a
+    radius >= 1 would be a bug, no false-failure probability)."""
+    loop = _paper()
+    a = scale * PAPER_CROSSING
+    got = clock_below(loop, a)
+    assert got == pytest.approx(a * (1 - expected_f), rel=1e-12)
+    rng = np.random.default_rng(5)
+    lo, hi = loop.chain.rate_min, loop.chain.rate_max
+    rates = [lo + rng.uniform(size=lo.shape) * (hi - lo) for _ in range(40)] + list(loop.chain.vertices())
+    assert max(spectral_radius(loop, got, r) for r in rates) < 1.0
