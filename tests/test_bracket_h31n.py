@@ -91,7 +91,7 @@ def test_split_on_the_paper_loop(scale: float, expected_f: float) -> None:
     loop = _paper()
     a = scale * PAPER_CROSSING
     got = clock_below(loop, a)
-    assert got == pytest.approx(a * (1 - expected_f), rel=1e-12)
+    assert got is not None and got == pytest.approx(a * (1 - expected_f), rel=1e-12)
     rng = np.random.default_rng(5)
     lo, hi = loop.chain.rate_min, loop.chain.rate_max
     rates = [lo + rng.uniform(size=lo.shape) * (hi - lo) for _ in range(40)] + list(loop.chain.vertices())
