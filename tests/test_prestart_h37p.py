@@ -1,7 +1,9 @@
-"""The cross-check child imports python-control without ``scipy.stats`` until something of
-it is used (ftc_verify.prestart.defer_modules, issue 37 item 3): the stand-in's semantics
-(a listed ``from`` import does not load the package, anything else does and is the real
-package, submodule imports work) and the cross-check's numbers, those of a normal import.
+"""The cross-check child imports python-control without ``scipy.stats``, matplotlib and
+``control.grid`` until something of them is used (ftc_verify.prestart.defer_modules,
+issue 37 item 3): the stand-in's semantics (a listed ``from`` import does not load the
+package, anything else does and is the real package, submodule imports work, a deferred
+package's deferred submodule is imported for real with it) and the cross-check's numbers,
+those of a normal import.
 
 Each case runs in a fresh interpreter: the stand-in changes ``sys.modules``."""
 
@@ -79,6 +81,31 @@ def test_any_other_name_or_a_submodule_imports_the_real_package() -> None:
     assert sub == {"kind": "module", "same": True, "engine": "Sobol"}
 
 
+_MATPLOTLIB = """
+import json, sys
+from ftc_verify.prestart import CROSS_CHECK_DEFERRED, DeferredModule, defer_modules
+defer_modules(CROSS_CHECK_DEFERRED)
+import matplotlib as mpl
+import matplotlib.pyplot as plt
+before = [type(sys.modules[k]).__name__ for k in ("matplotlib", "matplotlib.pyplot")]
+mpl.use("Agg")
+fig = plt.figure()
+fig.gca().plot([0.0, 1.0], [1.0, 2.0])
+from matplotlib.transforms import Affine2D
+print(json.dumps({"before": before, "after": type(sys.modules["matplotlib.pyplot"]).__name__,
+                  "same": plt.figure is sys.modules["matplotlib.pyplot"].figure,
+                  "lines": len(fig.gca().lines), "scale": Affine2D().scale(2.0).get_matrix()[0][0]}))
+"""
+
+
+def test_a_deferred_package_and_its_deferred_submodules_work_when_used() -> None:
+    """``import matplotlib.pyplot as plt`` gives the stand-in; using it imports the real
+    package and submodules (nothing half-imported)."""
+    out = _run(_MATPLOTLIB)
+    assert out["before"] == ["DeferredModule", "DeferredModule"]
+    assert out == {"before": out["before"], "after": "module", "same": True, "lines": 1, "scale": 2.0}
+
+
 def test_defer_modules_leaves_an_imported_package_alone() -> None:
     import scipy.stats
 
@@ -113,12 +140,18 @@ _STAND_IN = """
 import json, sys
 import numpy, scipy.linalg
 import ftc_verify.analysis.analyze
-from ftc_verify.prestart import CROSS_CHECK_MODULES, _cross_check_prepare
+from ftc_verify.prestart import CROSS_CHECK_DEFERRED, CROSS_CHECK_MODULES, _cross_check_prepare
 import importlib
 _cross_check_prepare()
 for name in CROSS_CHECK_MODULES:
     importlib.import_module(name)
-print(json.dumps({"kind": type(sys.modules["scipy.stats"]).__name__}))
+from ftc_verify.analysis.closedloop import closed_loop
+from ftc_verify.analysis.crossval import cross_validate
+from ftc_verify.cli.common import load
+cross_validate(closed_loop(*load(sys.argv[1], sys.argv[2])))
+print(json.dumps({"kinds": sorted({type(sys.modules[k]).__name__ for k in CROSS_CHECK_DEFERRED}),
+                  "real": sorted(k for k, v in sys.modules.items() if k.startswith(("matplotlib", "mpl_toolkits", "scipy.stats"))
+                                  and type(v).__name__ != "DeferredModule")}))
 """
 
 
@@ -128,10 +161,12 @@ def test_the_cross_check_child_gives_the_numbers_of_a_normal_import() -> None:
     from ftc_verify.analysis.crossval import cross_validate
     from ftc_verify.cli.common import load
 
-    assert _run(_STAND_IN) == {"kind": "DeferredModule"}  # python-control's import left it deferred
     paper, gains_file = str(ROOT / "examples" / "paper.toml"), str(ROOT / "examples" / "paper_gains.toml")
+    # python-control's import and the check itself left every deferred package unimported
+    assert _run(_STAND_IN, paper, gains_file) == {"kinds": ["DeferredModule"], "real": []}
     child = _run(_CHILD, paper, gains_file)
     assert not child["stats_here"]  # the parent never imported it either
+    assert len(prestart.CROSS_CHECK_DEFERRED) == 5
     system, gains = load(paper, gains_file)
     ours = cross_validate(closed_loop(system, gains))
     assert len(child["checks"]) == len(ours) == 4
