@@ -20,15 +20,19 @@ that stand in for the missing docstrings (``pydoc.getdoc``), and with
 ``PYTHONDONTWRITEBYTECODE`` set no ``.opt-2.pyc`` is ever cached (measured, issue 37).
 
 It also imports python-control without the packages it imports but the cross-check
-never uses (:func:`defer_modules`, :data:`CROSS_CHECK_DEFERRED`): ``scipy.stats`` (``scipy.signal``
-takes one function from it at import time, ``scoreatpercentile`` for ``find_peaks_cwt``),
-matplotlib and ``pyplot`` (python-control's plotting modules bind them at import and use
-them only when plotting) and ``control.grid`` (the s- and z-plane grids, whose import
-subclasses an ``mpl_toolkits`` class): in that child they are stand-ins that import the
-real package the first time anything of it is used, so a python-control that does use
-them still gets them. The child's import 0.67 -> 0.19 s of CPU (measured, python-control
-0.10.2, scipy 1.17.1, matplotlib's docstrings switched off in both); the checks' numbers
-are the same (tested: the same python-control functions on the same matrices).
+never uses (:func:`defer_modules`, :data:`CROSS_CHECK_DEFERRED`): ``scipy.signal``,
+``scipy.interpolate`` and ``scipy.integrate`` (python-control takes a few functions and
+classes from them at import time and calls them only for conversions, discretisation,
+frequency data and phase plots), ``scipy.stats`` (``scipy.signal`` takes
+``scoreatpercentile`` from it), matplotlib and ``pyplot`` (python-control's plotting
+modules bind them at import and use them only when plotting) and ``control.grid`` (the
+s- and z-plane grids, whose import subclasses an ``mpl_toolkits`` class): in that child
+they are stand-ins that import the real package the first time anything of it is used,
+so a python-control that does use them still gets them. ``scipy.optimize`` is imported
+(python-control subclasses its ``OptimizeResult`` at import). The child's import 0.67 ->
+0.13 s of CPU (measured, python-control 0.10.2, scipy 1.17.1, matplotlib's docstrings
+switched off in both); the checks' numbers are the same (tested: the same
+python-control functions on the same matrices).
 
 This module imports nothing but the standard library (and nothing of ``ftc_verify``), so
 a caller can fork wherever it likes. Where ``fork`` is missing,
@@ -65,6 +69,9 @@ CROSS_CHECK_MODULES = ("control", "ftc_verify.analysis.crossval")
 #: What the cross-check child imports only when used (:func:`defer_modules`): module, and the
 #: names taken from it by ``from ... import`` while python-control is imported.
 CROSS_CHECK_DEFERRED: dict[str, tuple[str, ...]] = {
+    "scipy.signal": ("StateSpace", "TransferFunction", "cont2discrete", "tf2zpk", "zpk2tf"),
+    "scipy.interpolate": ("splev", "splprep"),
+    "scipy.integrate": ("odeint",),
     "scipy.stats": ("scoreatpercentile",),
     "matplotlib": (),
     "matplotlib.pyplot": (),
@@ -147,7 +154,9 @@ class DeferredModule(types.ModuleType):
     """Stands in for package ``name`` until something of it is used (:func:`defer_modules`).
 
     ``from name import f`` for ``f`` in ``names`` gives a function that imports the real
-    module and calls its ``f`` (the same arguments, the same answer); any other attribute
+    module and calls its ``f`` (the same arguments, the same answer; so only names that
+    the importer uses as callables, never as a base class or in ``isinstance``, may be
+    listed); ``import name.sub as x`` for a stand-in ``name.sub`` gives that stand-in; any other attribute
     imports the real module at once and is the real one; after that every attribute is
     the real module's (copied here, so later lookups are plain). Unlike
     :class:`importlib.util.LazyLoader`, a ``from`` import of a listed name does not load

@@ -1,6 +1,6 @@
-"""The cross-check child imports python-control without ``scipy.stats``, matplotlib and
-``control.grid`` until something of them is used (ftc_verify.prestart.defer_modules,
-issue 37 item 3): the stand-in's semantics (a listed ``from`` import does not load the
+"""The cross-check child imports python-control without ``scipy.signal``, ``scipy.stats``,
+matplotlib, ``control.grid`` (and the rest of CROSS_CHECK_DEFERRED) until something of
+them is used (ftc_verify.prestart.defer_modules, issue 37 item 3): the stand-in's semantics (a listed ``from`` import does not load the
 package, anything else does and is the real package, submodule imports work, a deferred
 package's deferred submodule is imported for real with it) and the cross-check's numbers,
 those of a normal import.
@@ -70,6 +70,23 @@ def test_a_listed_from_import_defers_the_package_and_its_call_is_the_real_functi
     assert out["value"] == float(scipy.stats.scoreatpercentile([1.0, 2.0, 3.0, 4.0], 50))
     assert out["after_call"] == "module"  # the call imported the real package
     assert out["same_module"] and out["norm"] == float(scipy.stats.norm.cdf(1.0))
+
+
+_CLASS = """
+import json, sys
+from ftc_verify.prestart import CROSS_CHECK_DEFERRED, defer_modules
+defer_modules(CROSS_CHECK_DEFERRED)
+from scipy.signal import StateSpace
+before = type(sys.modules["scipy.signal"]).__name__
+made = StateSpace([[-1.0]], [[1.0]], [[2.0]], [[0.0]])
+import scipy.signal
+print(json.dumps({"before": before, "real": isinstance(made, scipy.signal.StateSpace),
+                  "after": type(sys.modules["scipy.signal"]).__name__, "C": made.C.tolist()}))
+"""
+
+
+def test_a_listed_class_called_through_the_stand_in_makes_the_real_class() -> None:
+    assert _run(_CLASS) == {"before": "DeferredModule", "real": True, "after": "module", "C": [[2.0]]}
 
 
 def test_any_other_name_or_a_submodule_imports_the_real_package() -> None:
@@ -149,9 +166,10 @@ from ftc_verify.analysis.closedloop import closed_loop
 from ftc_verify.analysis.crossval import cross_validate
 from ftc_verify.cli.common import load
 cross_validate(closed_loop(*load(sys.argv[1], sys.argv[2])))
+PREFIXES = ("matplotlib", "mpl_toolkits", "scipy.stats", "scipy.signal", "scipy.interpolate", "scipy.integrate")
 print(json.dumps({"kinds": sorted({type(sys.modules[k]).__name__ for k in CROSS_CHECK_DEFERRED}),
-                  "real": sorted(k for k, v in sys.modules.items() if k.startswith(("matplotlib", "mpl_toolkits", "scipy.stats"))
-                                  and type(v).__name__ != "DeferredModule")}))
+                  "real": sorted(k for k, v in sys.modules.items() if k.startswith(PREFIXES)
+                                 and type(v).__name__ != "DeferredModule")}))
 """
 
 
@@ -166,7 +184,7 @@ def test_the_cross_check_child_gives_the_numbers_of_a_normal_import() -> None:
     assert _run(_STAND_IN, paper, gains_file) == {"kinds": ["DeferredModule"], "real": []}
     child = _run(_CHILD, paper, gains_file)
     assert not child["stats_here"]  # the parent never imported it either
-    assert len(prestart.CROSS_CHECK_DEFERRED) == 5
+    assert len(prestart.CROSS_CHECK_DEFERRED) == 8
     system, gains = load(paper, gains_file)
     ours = cross_validate(closed_loop(system, gains))
     assert len(child["checks"]) == len(ours) == 4
