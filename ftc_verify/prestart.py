@@ -161,7 +161,7 @@ class DeferredModule(types.ModuleType):
     the real module's (copied here, so later lookups are plain). Unlike
     :class:`importlib.util.LazyLoader`, a ``from`` import of a listed name does not load
     the module. A submodule import (``import name.sub``) imports the real package first
-    (:class:`_DeferredFinder`).
+    (a meta-path finder, ``_DeferredFinder``).
     """
 
     def __init__(self, name: str, names: Sequence[str]) -> None:
