@@ -6,9 +6,9 @@
    vertices of the rate box (detection rates ``beta`` and, when given, false-alarm
    rates, :mod:`ftc_verify.model.chain`);
 2. the smallest certified nominal gamma (Theorem 3.2) and robust gamma (Lemma 4.1,
-   gains fixed), both over the rate box (Lemma 4.1's program, or without uncertainty
-   channels Theorem 3.2's, runs in a forked child started before step 1, which it does
-   not need; with uncertainty Theorem 3.2 follows step 1 here, beside that child);
+   gains fixed), both over the rate box (each program in a forked child started before
+   step 1, which neither needs; without uncertainty channels Lemma 4.1's program is
+   Theorem 3.2's, solved once);
 3. Theorem 3.1 over the rate box, certified (:func:`~ftc_verify.analysis.lmi_analysis.mes_lmi`),
    first with the ``P`` of step 2 (no solve), solved only when that check fails. When the
    box proof of step 1 would solve this LMI on the whole box (its centre's candidate
@@ -176,35 +176,46 @@ def _analyze(loop: ClosedLoop, solver: str | None, name: str, lmi: bool, lower_b
              check: Any, seconds: dict[str, float]) -> AnalysisReport:
     """The stages of :func:`analyze`; ``check``: the running
     :class:`~ftc_verify.prestart.Prestarted` (``None``: no cross-validation)."""
-    ahead = _gamma_ahead(loop, solver) if lmi else None
+    ahead, nominal_ahead = _gamma_ahead(loop, solver) if lmi else (None, None)
     try:
-        return _stages(loop, solver, name, lmi, lower_bounds, check, seconds, ahead)
+        return _stages(loop, solver, name, lmi, lower_bounds, check, seconds, ahead, nominal_ahead)
     finally:
-        if ahead is not None:
-            ahead.cancel()
+        for call in (ahead, nominal_ahead):
+            if call is not None:
+                call.cancel()
 
 
-def _gamma_ahead(loop: ClosedLoop, solver: str | None) -> ForkedCall | None:
-    """The gamma program that needs nothing of the spectral stage, in a forked child
-    started before it: Theorem 3.2 without uncertainty channels, Lemma 4.1 (the longest
-    program of an uncertain loop) with them; cancelled when the loop is proved
-    unstable. FLINT and Clarabel are imported first so that neither process imports them
-    twice; ``None`` without ``fork``. The child solves the same program as a call here
-    would (no hint, no shared state), so its answer is the same to the last bit."""
+def _gamma_ahead(loop: ClosedLoop, solver: str | None) -> tuple[ForkedCall | None, ForkedCall | None]:
+    """The gamma programs that need nothing of the spectral stage, each in a forked child
+    started before it: Theorem 3.2 without uncertainty channels (``(Theorem 3.2, None)``);
+    with them Lemma 4.1 (the longest program of an uncertain loop) and Theorem 3.2 in a
+    second child (``(Lemma 4.1, Theorem 3.2)``: this process then goes from the spectral
+    stage straight to the lower bounds, which wait only for Theorem 3.2's answer, instead
+    of solving it after the spectral stage: the longest chain of stages one solve
+    shorter, issue 37); cancelled when the loop is proved unstable. FLINT and Clarabel
+    are imported first so that no process imports them twice; ``(None, None)`` without
+    ``fork``. Each child solves the same program as a call here would (no hint, no shared
+    state), so its answer is the same to the last bit."""
     if not hasattr(os, "fork"):
-        return None
+        return None, None
     import clarabel  # noqa: F401
     import flint  # noqa: F401
 
     if loop.uncertain:
-        return ForkedCall(lambda: hinf_gamma(loop, robust=True, solver=solver), "Lemma 4.1")
-    return ForkedCall(lambda: hinf_gamma(loop, robust=False, solver=solver), "Theorem 3.2")
+        robust = ForkedCall(lambda: hinf_gamma(loop, robust=True, solver=solver), "Lemma 4.1")
+        try:
+            return robust, ForkedCall(lambda: hinf_gamma(loop, robust=False, solver=solver), "Theorem 3.2")
+        except BaseException:
+            robust.cancel()
+            raise
+    return ForkedCall(lambda: hinf_gamma(loop, robust=False, solver=solver), "Theorem 3.2"), None
 
 
 def _stages(loop: ClosedLoop, solver: str | None, name: str, lmi: bool, lower_bounds: bool, check: Any,
-            seconds: dict[str, float], ahead: ForkedCall | None) -> AnalysisReport:
-    """The stages of :func:`_analyze`; ``ahead``: the gamma program running beside
-    (:func:`_gamma_ahead`)."""
+            seconds: dict[str, float], ahead: ForkedCall | None,
+            nominal_ahead: ForkedCall | None = None) -> AnalysisReport:
+    """The stages of :func:`_analyze`; ``ahead``, ``nominal_ahead``: the gamma programs
+    running beside (:func:`_gamma_ahead`)."""
     t = time.perf_counter()
     mss = mean_square_stability(loop, root_lmi=not lmi)  # with LMIs the whole box's is stage 3's (ROOT_LMI_DEFERRED)
     seconds["spectral"] = time.perf_counter() - t
@@ -212,7 +223,8 @@ def _stages(loop: ClosedLoop, solver: str | None, name: str, lmi: bool, lower_bo
         mes, nominal, robust = (_not_requested(c, "not solved: the loop is proved NOT mean-square stable, so no "
                                                "certificate exists") for c in ("Theorem 3.1", "Theorem 3.2", "Lemma 4.1"))
     elif lmi:
-        nominal, robust, early, mes_first = _gammas(loop, solver, seconds, mss if lower_bounds else None, ahead)
+        nominal, robust, early, mes_first = _gammas(loop, solver, seconds, mss if lower_bounds else None, ahead,
+                                                     nominal_ahead)
         t = time.perf_counter()
         mes = mes_first or mes_lmi(loop, solver=solver, known=(nominal, robust))
         seconds["theorem_3_1"] = seconds.get("theorem_3_1", 0.0) + time.perf_counter() - t
@@ -267,14 +279,15 @@ def _lower_bounds(loop: ClosedLoop, mss: MSSResult, nominal: LMIResult, robust: 
 
 
 def _gammas(loop: ClosedLoop, solver: str | None, seconds: dict[str, float],
-            mss: MSSResult | None = None,
-            ahead: ForkedCall | None = None) -> tuple[LMIResult, LMIResult, Early, LMIResult | None]:
+            mss: MSSResult | None = None, ahead: ForkedCall | None = None,
+            nominal_ahead: ForkedCall | None = None) -> tuple[LMIResult, LMIResult, Early, LMIResult | None]:
     """The nominal (Theorem 3.2) and robust (Lemma 4.1) gamma programs. ``ahead``: the
     one already running in a forked child since before the spectral stage
     (:func:`_gamma_ahead`; ``None`` without ``fork``: both solved here, the certified
     nominal gamma as the robust program's scale hint). Without uncertainty the robust
-    gamma is the nominal one. With it, Theorem 3.2 runs here while Lemma 4.1 runs in
-    the child (two single-threaded solves on two cores), and, given ``mss`` (lower
+    gamma is the nominal one. With it, Theorem 3.2 comes from ``nominal_ahead`` (its own
+    child, started with Lemma 4.1's; solved here when ``None``) while Lemma 4.1 runs in
+    its child (single-threaded solves on two cores), and, given ``mss`` (lower
     bounds requested), this process goes on with the nominal lower bound and the
     robust one at a constant ``Delta`` (:func:`_nominal_side`), which need only
     the nominal gamma, and with Theorem 3.1 on Theorem 3.2's ``P``
@@ -296,7 +309,7 @@ def _gammas(loop: ClosedLoop, solver: str | None, seconds: dict[str, float],
         robust = hinf_gamma(loop, robust=True, solver=solver, gamma_hint=hint)
         seconds["lemma_4_1"] = time.perf_counter() - t - seconds["theorem_3_2"]
         return nominal, robust, None, None
-    nominal, early, beside = _nominal_side(loop, solver, mss)
+    nominal, early, beside = _nominal_side(loop, solver, mss, nominal_ahead)
     seconds["theorem_3_2"] = time.perf_counter() - t
     if early is not None:
         seconds["lower_bounds_beside"] = beside
@@ -312,12 +325,14 @@ def _gammas(loop: ClosedLoop, solver: str | None, seconds: dict[str, float],
     return nominal, robust, early, mes
 
 
-def _nominal_side(loop: ClosedLoop, solver: str | None, mss: MSSResult | None) -> tuple[LMIResult, Early, float]:
-    """Beside Lemma 4.1's child (:func:`_gammas`): Theorem 3.2, then (given ``mss``, the
+def _nominal_side(loop: ClosedLoop, solver: str | None, mss: MSSResult | None,
+                  nominal_ahead: ForkedCall | None = None) -> tuple[LMIResult, Early, float]:
+    """Beside Lemma 4.1's child (:func:`_gammas`): Theorem 3.2 (``nominal_ahead``'s answer,
+    or solved here without it), then (given ``mss``, the
     nominal gamma certified) the nominal lower bound and the robust one at a constant
     ``Delta`` (``None`` in their place when not computed or when they fail:
     :func:`_lower_bounds` then computes them), and the seconds those took."""
-    nominal = hinf_gamma(loop, robust=False, solver=solver)
+    nominal = nominal_ahead.result() if nominal_ahead is not None else hinf_gamma(loop, robust=False, solver=solver)
     if mss is None or mss.unstable or not nominal.certified:
         return nominal, None, 0.0
     t = time.perf_counter()
