@@ -13,7 +13,14 @@ import os
 
 from .errors import MemoryLimitError, ValidationError
 
-__all__ = ["memory_limit", "check_memory", "format_bytes", "dense_generator_estimate", "GENERATOR_COPIES"]
+__all__ = ["memory_limit", "check_memory", "format_bytes", "dense_generator_estimate", "GENERATOR_COPIES",
+           "CONNECT_TIMEOUT"]
+
+#: Seconds for connecting to a Dask ``--scheduler``, handshake included (the default of
+#: :func:`~ftc_verify.simulation.cluster.open_client`'s ``connect_timeout`` and of the
+#: commands' ``--connect-timeout``; here, not in the cluster module, so that building the
+#: command line's help imports neither asyncio nor Dask).
+CONNECT_TIMEOUT = 10.0
 
 _SUFFIX = {"K": 1024, "M": 1024 ** 2, "G": 1024 ** 3, "T": 1024 ** 4}
 

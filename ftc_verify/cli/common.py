@@ -144,7 +144,7 @@ def seed_int(text: str) -> int:
 
 def add_connect_timeout(parser: argparse.ArgumentParser) -> None:
     """``--connect-timeout SECONDS`` (with ``--scheduler``) on a command's parser."""
-    from ..simulation.cluster import CONNECT_TIMEOUT
+    from ..limits import CONNECT_TIMEOUT
 
     parser.add_argument("--connect-timeout", type=positive, default=None, metavar="SECONDS",
                         help="with --scheduler: refuse the address when connecting to it (handshake included) "
@@ -154,8 +154,8 @@ def add_connect_timeout(parser: argparse.ArgumentParser) -> None:
 def connect_timeout(args: argparse.Namespace) -> float:
     """``--connect-timeout``, refused without ``--scheduler`` (exit 2, naming the option), or
     the default time box of connecting to ``--scheduler``
-    (:data:`~ftc_verify.simulation.cluster.CONNECT_TIMEOUT`)."""
-    from ..simulation.cluster import CONNECT_TIMEOUT
+    (:data:`~ftc_verify.limits.CONNECT_TIMEOUT`)."""
+    from ..limits import CONNECT_TIMEOUT
 
     if args.connect_timeout is not None and not args.scheduler:
         raise bad(f"--connect-timeout {args.connect_timeout:g}: only with --scheduler (the time box of connecting to it)")

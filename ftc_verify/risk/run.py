@@ -51,7 +51,7 @@ from ..errors import ValidationError
 from ..jsonable import fields_dict
 from ..model.system import FTCSystem, JointChain, Matrix
 from ..simulation.batches import fmu_monte_carlo
-from ..simulation.cluster import CONNECT_TIMEOUT
+from ..limits import CONNECT_TIMEOUT
 from ..simulation.paths import ChainPath
 from ..simulation.records import PathRecord
 from ..simulation.reference import simulate_reference

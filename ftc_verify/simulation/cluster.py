@@ -45,15 +45,12 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import ValidationError
-from ..limits import format_bytes, memory_limit
+from ..limits import CONNECT_TIMEOUT, format_bytes, memory_limit
 
 __all__ = ["open_client", "ClusterStart", "check_cluster_options", "max_workers", "dask_setup", "CONNECT_TIMEOUT",
            "CLOSE_TIMEOUT", "WORKERS_PER_CORE", "WORKER_MEMORY", "ALLOWED_FAILURES"]
 
 _INSTALL = "pip install 'ftc-verify[dask]'"
-#: Seconds for connecting to ``--scheduler``, handshake included (the default of
-#: :func:`open_client`'s ``connect_timeout``).
-CONNECT_TIMEOUT = 10.0
 #: Seconds each of the client and the local cluster may take to close.
 CLOSE_TIMEOUT = 10.0
 #: Seconds an interrupted local cluster start may still take, so that it can be shut down.

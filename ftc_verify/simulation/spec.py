@@ -38,7 +38,7 @@ from numpy.typing import ArrayLike
 
 from ..errors import ValidationError
 from ..limits import check_memory
-from .cluster import CONNECT_TIMEOUT
+from ..limits import CONNECT_TIMEOUT
 from .delta import DeltaSchedule
 
 if TYPE_CHECKING:
@@ -193,7 +193,7 @@ class SimulationSpec:
     connect_timeout : float
         Seconds that connecting to ``scheduler`` may take, handshake included, before the
         address is refused (``--connect-timeout``; default
-        :data:`~ftc_verify.simulation.cluster.CONNECT_TIMEOUT`).
+        :data:`~ftc_verify.limits.CONNECT_TIMEOUT`).
 
     Raises
     ------
