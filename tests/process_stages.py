@@ -6,6 +6,11 @@ The long stages of the CLI run in a forked child that leads a process group of i
 (:func:`ftc_verify.analysis.solvers.interruptible`: an analysis, a synthesis, the
 ball-arithmetic retries), while the command waits for it; :func:`working_child` finds that
 child and :func:`cpu_seconds` says how much work it has done.
+
+Polling is cheap: the child found is remembered (per parent pid) and only its own
+``/proc/PID/stat`` is read while it stays that parent's working child; ``/proc`` is scanned
+again only when it is gone. (A scan of every process's ``stat`` costs about 4 ms of CPU
+here, so scanning at every 20 ms poll spent a fifth of a core in the test process.)
 """
 
 from __future__ import annotations
@@ -45,13 +50,29 @@ def children(pid: int) -> set[int]:
     return found
 
 
+def _is_working_child(pid: int, child: int) -> bool:
+    """``child`` is a live child of ``pid`` leading a process group of its own."""
+    fields = _stat(child)
+    return (fields is not None and fields[0] != "Z" and int(fields[1]) == pid
+            and int(fields[2]) == child)  # fields 4 and 5: the parent, the process group
+
+
+#: The working child found last for each parent pid (checked before /proc is scanned again).
+_SEEN: dict[int, int] = {}
+
+
 def working_child(pid: int) -> int | None:
     """The child of ``pid`` that leads a process group of its own (the forked stage of
-    :func:`~ftc_verify.analysis.solvers.interruptible`), or ``None``."""
+    :func:`~ftc_verify.analysis.solvers.interruptible`), or ``None``. The one found last
+    for ``pid`` is checked first (its own ``stat`` only), ``/proc`` scanned when it is gone."""
+    known = _SEEN.get(pid)
+    if known is not None and _is_working_child(pid, known):
+        return known
     for child in sorted(children(pid)):
-        fields = _stat(child)
-        if fields is not None and int(fields[2]) == child:  # field 5: the process group
+        if _is_working_child(pid, child):
+            _SEEN[pid] = child
             return child
+    _SEEN.pop(pid, None)
     return None
 
 
