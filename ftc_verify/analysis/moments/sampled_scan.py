@@ -1,0 +1,251 @@
+r"""The ``h_max`` scan's float64 engine: many periods from a few exponentials, and a cone
+test instead of an eigenvalue problem at most of them.
+
+:func:`~ftc_verify.analysis.moments.sampled.scan_periods` asks, at every period of a grid
+spanning four or more decades and at every rate point of
+:func:`~ftc_verify.analysis.moments.sampled.rate_points`, whether the float64 one-period
+map :math:`T = \mathcal P e^{\mathcal L h} \mathcal R` has :math:`\rho(T) < 1`. Forming
+:math:`T` and its eigenvalues at each of them (an exponential or a product of
+``N x N`` matrices, ``N`` the moment generator's rows, and an eigenvalue problem of
+:math:`T`'s size) was the scan's whole cost. This module needs, per rate point, about
+one product of ``N x N`` matrices per octave, and per period a few matrix-vector products
+and ``S`` eigenvalue problems of size ``r x r`` (``S`` joint states, ``r = n + n_c``).
+
+**Periods** (derived here). Octave :math:`m` starts at :math:`h_m = h_0 2^m`; its
+periods are multiples :math:`h_m + i \delta_m` of :math:`\delta_m = h_m / 16`,
+:math:`i` in :data:`OFFSETS`, chosen so that consecutive periods differ by a ratio of at
+most :math:`2^{1/8}` (as dense as the old geometric grid of 8 periods per octave,
+12 per octave). With :math:`e^{\mathcal L \cdot 2h} = (e^{\mathcal L h})^2` the flows
+:math:`F_j = e^{\mathcal L h_0 2^{j - 4}}` are one exponential and one square each, and
+:math:`e^{\mathcal L (h_m + i \delta_m)} u = F_m^{\,i} F_{m+4} u` (:math:`F_m` is the
+flow over :math:`\delta_m`): the flow at a period is applied to a vector by matrix-vector
+products only.
+
+**Cone test** (derived here). :math:`T` maps stacks of positive semidefinite matrices
+:math:`Y = (Y_s)_s` to such stacks (:mod:`~ftc_verify.analysis.moments.sampled`). For such
+a map and a stack with every :math:`Y_s \succ 0` (an interior point of the cone), the
+Collatz--Wielandt bounds hold:
+
+.. math::
+
+    T(Y) \preceq c\, Y \ \Rightarrow\ \rho(T) \le c, \qquad
+    T(Y) \succeq c\, Y,\ Y \ne 0 \ \Rightarrow\ \rho(T) \ge c,
+
+(the first: :math:`T^k(Y) \preceq c^k Y` and every stack lies below a multiple of
+:math:`Y`; the second: Krein--Rutman). The smallest :math:`c` of the first is
+:math:`c_+ = \max_s \lambda_{\max}(Y_s^{-1/2} T(Y)_s Y_s^{-1/2})`, the largest of the
+second :math:`c_- = \min_s \lambda_{\min}(\cdot)`: one application of :math:`T` and
+``S`` symmetric ``r x r`` eigenvalue problems (after a Cholesky factor of each
+:math:`Y_s`). The scan decides :math:`\rho < 1` when :math:`c_+ < 1 - \tau` and
+:math:`\rho \ge 1` when :math:`c_- > 1 + \tau` (:data:`MARGIN`); otherwise, and when
+a vector is not finite, it computes :math:`T` by one exponential and its eigenvalues as
+before, and takes the Perron eigenvector of :math:`T` (the eigenvalue of largest real
+part is :math:`\rho`) as the next test stack of that rate point (made positive definite
+by a small shift). Near :math:`h \to 0`, :math:`T \approx I + h \mathcal L_{cl}` and
+the test passes with a stack of the continuous loop's (:math:`\mathcal L_{cl}(Y) \prec 0`),
+so the Perron vector of a small period serves a whole decade.
+
+**Float error relied on.** :math:`T(Y)` is computed with an error of about
+:math:`(k + N)\, \epsilon\, \| |\mathcal P| |F_m|^i |F_{m+4}| |\mathcal R| |Y| \|` per
+entry (:math:`\epsilon = 2^{-53}`, :math:`k` the squarings, at most about 20, behind
+:math:`F_{m+4}`, whose own error is amplified by at most
+:math:`\|F_{j-1}\|^2 / \|F_j\|` per square, as in the geometric ring the scan used
+before); :data:`MARGIN` :math:`\tau = 10^{-9}` leaves room for a magnification of
+:math:`10^{4}` of that over the sizes of this module (:math:`N \le` a few hundred), and
+periods with :math:`|c - 1| \le \tau` go to the eigenvalue route. The scan only locates:
+every claim (the verdict at the period, the ``h_max`` bracket) is proved afterwards in
+ball arithmetic (:mod:`~ftc_verify.analysis.moments.sampled_proof`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.linalg
+
+from ...model.system import Matrix
+from .sampled import SampledLoop, assemble_map, rate_points
+from .stability import vech_order
+
+__all__ = ["OFFSETS", "MARGIN", "POWER", "SHIFT", "ScanCount", "scan_grid", "cone_bounds", "perron_stack", "scan"]
+
+#: Multiples of :math:`\delta_m = h_m / 16` scanned in octave :math:`m` (module
+#: docstring): each at most :math:`2^{1/8}` times the one before (and ``32`` at most
+#: that times ``31``).
+OFFSETS = (16, 17, 18, 19, 20, 21, 22, 23, 25, 27, 29, 31)
+#: :math:`\tau`: the cone test decides only when its bound is this far from 1.
+MARGIN = 1e-9
+#: Power steps :math:`Y \\leftarrow T(Y)` tried when the cone test does not decide, before
+#: the eigenvalue route.
+POWER = 3
+#: The shift, relative to the largest block's trace, that makes a Perron stack positive definite.
+SHIFT = 1e-6
+
+
+@dataclass
+class ScanCount:
+    """What the scan did (for benchmarks and tests): periods, rate-point evaluations,
+    how many the cone test decided, and the exponentials, squares and eigenvalue
+    problems of ``N x N`` / map size it computed."""
+
+    periods: int = 0
+    evaluations: int = 0
+    cone: int = 0
+    exponentials: int = 0
+    squares: int = 0
+    eigen: int = 0
+    fallback_periods: list[float] = field(default_factory=list)
+
+
+def scan_grid(lo: float, hi: float) -> tuple[Matrix, Matrix, Matrix]:
+    """``(hs, octave, offset)``: the periods of the module docstring from ``lo`` until the
+    first at or above ``hi`` (``hs = lo 2^octave offset / 16``)."""
+    hs, octs, offs = [], [], []
+    m = 0
+    while True:
+        for i in OFFSETS:
+            h = lo * 2.0 ** m * i / 16
+            hs.append(h)
+            octs.append(m)
+            offs.append(i)
+            if h >= hi and len(hs) > 1:
+                return np.array(hs), np.array(octs), np.array(offs)
+        m += 1
+
+
+def _stack(loop: SampledLoop, y: Matrix) -> Matrix:
+    """The ``(S, r, r)`` symmetric blocks of a stacked ``vech`` vector."""
+    rows, cols = vech_order(loop.r)
+    blocks = np.zeros((loop.states, loop.r, loop.r))
+    v = y.reshape(loop.states, -1)
+    blocks[:, rows, cols] = v
+    blocks[:, cols, rows] = v
+    return blocks
+
+
+def cone_bounds(loop: SampledLoop, Y: Matrix, TY: Matrix) -> tuple[float, float]:
+    """:math:`(c_-, c_+)` of the module docstring for stacks ``Y`` (each block positive
+    definite) and ``TY`` (``(S, r, r)`` arrays); ``(-inf, inf)`` when a block of ``Y``
+    has no Cholesky factor or ``TY`` is not finite."""
+    if not np.all(np.isfinite(TY)):
+        return -math.inf, math.inf
+    try:
+        L = np.linalg.cholesky(Y)
+    except np.linalg.LinAlgError:
+        return -math.inf, math.inf
+    X = np.linalg.solve(L, TY)
+    M = np.linalg.solve(L, X.transpose(0, 2, 1))
+    lam = np.linalg.eigvalsh(0.5 * (M + M.transpose(0, 2, 1)))
+    return float(lam.min()), float(lam.max())
+
+
+def perron_stack(loop: SampledLoop, T: Matrix) -> tuple[float, Matrix | None]:
+    """``(rho, Y)``: the float64 spectral radius of ``T`` and its Perron eigenvector as a
+    stack of ``r x r`` blocks made positive definite (:data:`SHIFT`), ``None`` if that
+    fails (the eigenvalue route alone then decides)."""
+    lam, vec = scipy.linalg.eig(T, check_finite=False)
+    rho = float(np.max(np.abs(lam)))
+    v = vec[:, int(np.argmax(lam.real))]
+    v = v * np.conj(v[int(np.argmax(np.abs(v)))])
+    Y = _stack(loop, np.real(v))
+    Y = _positive(loop, Y)  # the sign too: trace 1
+    try:
+        np.linalg.cholesky(Y)
+    except np.linalg.LinAlgError:
+        return rho, None
+    return rho, Y
+
+
+def _positive(loop: SampledLoop, Y: Matrix) -> Matrix:
+    """``Y`` scaled to trace 1 and shifted (:data:`SHIFT`) into the cone's interior."""
+    Y = Y / float(np.trace(Y, axis1=1, axis2=2).sum())
+    return Y + SHIFT * float(np.max(np.abs(np.trace(Y, axis1=1, axis2=2)))) * np.eye(loop.r)
+
+
+def _apply(loop: SampledLoop, lifts: Matrix, Y: Matrix) -> Matrix:
+    """:math:`\\mathcal R Y` (the stacked ``vech`` of the reset moments, length ``S vd``)."""
+    rows, cols = vech_order(loop.r)
+    return np.einsum("sab,sb->sa", lifts, Y[:, rows, cols]).ravel()
+
+
+def _restrict(loop: SampledLoop, w: Matrix) -> Matrix:
+    """:math:`\\mathcal P w` as ``(S, r, r)`` blocks."""
+    return _stack(loop, (w.reshape(loop.states, -1) @ loop.restrict_map.T).ravel())
+
+
+def scan(loop: SampledLoop, lo: float, hi: float, points: Sequence[Matrix] | None = None,
+         count: ScanCount | None = None) -> tuple[Matrix, Matrix]:
+    """``(hs, rho)``: :func:`scan_grid`'s periods and at each a worst float64 value of
+    :math:`\\rho(T)` over ``points`` (default :func:`rate_points`) as far as it decides
+    :math:`\\rho < 1`: where every point's cone test passes, the largest bound
+    :math:`c_+ < 1`; at the first point found unstable (tried first at the next period),
+    a value ``>= 1`` (:math:`c_-` or the eigenvalue radius; ``inf`` on overflow); where
+    the test cannot decide, the eigenvalue radius as before."""
+    pts = list(rate_points(loop.chain) if points is None else points)
+    count = ScanCount() if count is None else count
+    hs, octs, offs = scan_grid(lo, hi)
+    vd = loop.d * (loop.d + 1) // 2
+    gens = [loop.modes_part + np.kron(loop.chain.generator(p).T, np.eye(vd)) for p in pts]
+    levels = int(octs[-1]) + 5
+    ladders: list[list[Matrix]] = []
+    with np.errstate(over="ignore", invalid="ignore"):
+        for G in gens:  # F_j = exp(L lo 2^(j - 4)), j = 0 .. levels - 1
+            F = [scipy.linalg.expm(G * (lo / 16))]
+            for _ in range(levels - 1):
+                F.append(F[-1] @ F[-1])
+            ladders.append(F)
+        count.exponentials += len(gens)
+        count.squares += len(gens) * (levels - 1)
+        tests: list[Matrix | None] = [None] * len(pts)
+        rho = np.zeros(hs.size)
+        order = list(range(len(pts)))
+        for k, (h, m, i) in enumerate(zip(hs, octs, offs)):
+            count.periods += 1
+            lifts = loop.lifts(float(h))
+            worst = -1.0
+            for idx in list(order):
+                count.evaluations += 1
+                value = _evaluate(loop, pts, gens, ladders, tests, idx, float(h), int(m), int(i), lifts, count)
+                worst = max(worst, value)
+                if not value < 1.0:
+                    order.remove(idx)
+                    order.insert(0, idx)
+                    break
+            rho[k] = worst
+    return hs, rho
+
+
+def _evaluate(loop: SampledLoop, pts: Sequence[Matrix], gens: Sequence[Matrix], ladders: Sequence[list[Matrix]],
+              tests: list[Matrix | None], idx: int, h: float, m: int, i: int, lifts: Matrix,
+              count: ScanCount) -> float:
+    """One rate point at one period: the cone test with the point's stack (or the last
+    refreshed one), else the eigenvalue route, which refreshes the stack."""
+    Y = tests[idx] if tests[idx] is not None else next((t for t in tests if t is not None), None)
+    F, E = ladders[idx][m + 4], ladders[idx][m]
+    for _ in range(POWER + 1 if Y is not None else 0):
+        assert Y is not None
+        w = F @ _apply(loop, lifts, Y)
+        for _ in range(i - 16):
+            w = E @ w
+        TY = _restrict(loop, w)
+        c_lo, c_hi = cone_bounds(loop, Y, TY)
+        if c_hi < 1.0 - MARGIN or c_lo > 1.0 + MARGIN:
+            count.cone += 1
+            tests[idx] = Y
+            return c_hi if c_hi < 1.0 else c_lo
+        if not math.isfinite(c_hi):
+            break
+        Y = _positive(loop, TY)  # a power step towards the Perron stack
+    count.exponentials += 1
+    count.eigen += 1
+    count.fallback_periods.append(h)
+    T = assemble_map(loop, scipy.linalg.expm(gens[idx] * h), h)
+    if not np.all(np.isfinite(T)):
+        return math.inf
+    rho, Y = perron_stack(loop, T)
+    if Y is not None:
+        tests[idx] = Y
+    return rho
