@@ -342,8 +342,7 @@ def worst_radius(loop: SampledLoop, h: float, points: Sequence[Matrix]) -> tuple
     return best, where
 
 
-#: The scan's density (:func:`scan_periods`): consecutive periods at most
-#: :math:`2^{1/8}` apart.
+#: Periods per octave of the scan (:func:`scan_periods`).
 SCAN_PER_OCTAVE = 8
 
 
@@ -360,16 +359,15 @@ def assemble_map(loop: SampledLoop, F: Matrix, h: float) -> Matrix:
 
 
 def scan_periods(loop: SampledLoop, lo: float, hi: float) -> tuple[Matrix, Matrix]:
-    r"""``(hs, rho)``: periods from ``lo`` to at least ``hi``, consecutive ones at most
-    :math:`2^{1/8}` apart (:data:`SCAN_PER_OCTAVE`; 12 per octave, multiples of a sixteenth
-    of the octave's start: :func:`~ftc_verify.analysis.moments.sampled_scan.scan_grid`),
-    and a worst float64 :math:`\rho(T)` over :func:`rate_points` at each as far as
-    :func:`stability_intervals` reads it (``< 1`` exactly where every point has
-    :math:`\rho < 1`; once some point has :math:`\rho \ge 1` the others are not
-    evaluated there). The flows come from one exponential per rate point and one square
-    per octave, applied to vectors; most periods are decided by a Collatz--Wielandt cone
-    test instead of eigenvalues (:mod:`~ftc_verify.analysis.moments.sampled_scan`, where
-    the float error relied on is stated)."""
+    r"""``(hs, rho)``: periods from ``lo`` to at least ``hi``, :data:`SCAN_PER_OCTAVE` per
+    octave (``h_k = lo 2^{k/8}``), and a worst float64 :math:`\rho(T)` over
+    :func:`rate_points` at each as far as :func:`stability_intervals` reads it (``< 1``
+    exactly where every point has :math:`\rho < 1`; once some point has
+    :math:`\rho \ge 1` the others are not evaluated there). The flows are products of a
+    ladder of squares (one exponential per rate point) applied to vectors, and most
+    periods are decided by a Collatz--Wielandt cone test instead of eigenvalues
+    (:mod:`~ftc_verify.analysis.moments.sampled_scan`, where the float error relied on is
+    stated): the same periods and verdicts as the eigenvalues of the map."""
     from .sampled_scan import scan
 
     return scan(loop, lo, hi)

@@ -8,18 +8,29 @@ map :math:`T = \mathcal P e^{\mathcal L h} \mathcal R` has :math:`\rho(T) < 1`. 
 :math:`T` and its eigenvalues at each of them (an exponential or a product of
 ``N x N`` matrices, ``N`` the moment generator's rows, and an eigenvalue problem of
 :math:`T`'s size) was the scan's whole cost. This module needs, per rate point, about
-one product of ``N x N`` matrices per octave, and per period a few matrix-vector products
-and ``S`` eigenvalue problems of size ``r x r`` (``S`` joint states, ``r = n + n_c``).
+30 products of ``N x N`` matrices in all, and per period and rate point a few dozen
+matrix-vector products and ``S`` eigenvalue problems of size ``r x r`` (``S`` joint
+states, ``r = n + n_c``).
 
-**Periods** (derived here). Octave :math:`m` starts at :math:`h_m = h_0 2^m`; its
-periods are multiples :math:`h_m + i \delta_m` of :math:`\delta_m = h_m / 16`,
-:math:`i` in :data:`OFFSETS`, chosen so that consecutive periods differ by a ratio of at
-most :math:`2^{1/8}` (as dense as the old geometric grid of 8 periods per octave,
-12 per octave). With :math:`e^{\mathcal L \cdot 2h} = (e^{\mathcal L h})^2` the flows
-:math:`F_j = e^{\mathcal L h_0 2^{j - 4}}` are one exponential and one square each, and
-:math:`e^{\mathcal L (h_m + i \delta_m)} u = F_m^{\,i} F_{m+4} u` (:math:`F_m` is the
-flow over :math:`\delta_m`): the flow at a period is applied to a vector by matrix-vector
-products only.
+**Periods** (derived here). The scan's periods stay
+:math:`h_k = h_0 2^{k/8}` (:data:`~ftc_verify.analysis.moments.sampled.SCAN_PER_OCTAVE`),
+so the scan, its stability intervals and the ``h_max`` bracket seeded from it are those
+of the eigenvalue scan before, number for number (where the verdicts agree: everywhere
+but at ties within :data:`MARGIN` of 1). Write :math:`h / h_0 = 2^m (1.b_1 b_2 \ldots)`
+in binary and cut it after :data:`BITS` places: :math:`h = h_0 \sum_{l \in \Lambda}
+2^{l - B} + \varepsilon` with :math:`0 \le \varepsilon < h 2^{-B}`
+(:func:`binary_pieces`). With the ladder :math:`F_l = e^{\mathcal L h_0 2^{l - B}}`
+(one exponential at :math:`h_0 2^{-B}` and one square per level, per rate point: about
+30 squares of ``N x N`` matrices where the geometric ring needed eight per octave),
+
+.. math::
+
+    e^{\mathcal L h} u = \Bigl(\sum_{j \ge 0} \frac{(\varepsilon \mathcal L)^j}{j!}\Bigr)
+    \prod_{l \in \Lambda} F_l\, u
+
+(the factors commute), about ``B / 2`` matrix-vector products and a few Taylor terms,
+stopped when a term is below ``1e-17`` of the sum (at most :data:`TAYLOR`; else the
+eigenvalue route below).
 
 **Cone test** (derived here). :math:`T` maps stacks of positive semidefinite matrices
 :math:`Y = (Y_s)_s` to such stacks (:mod:`~ftc_verify.analysis.moments.sampled`). For such
@@ -46,12 +57,12 @@ the test passes with a stack of the continuous loop's (:math:`\mathcal L_{cl}(Y)
 so the Perron vector of a small period serves a whole decade.
 
 **Float error relied on.** :math:`T(Y)` is computed with an error of about
-:math:`(k + N)\, \epsilon\, \| |\mathcal P| |F_m|^i |F_{m+4}| |\mathcal R| |Y| \|` per
-entry (:math:`\epsilon = 2^{-53}`, :math:`k` the squarings, at most about 20, behind
-:math:`F_{m+4}`, whose own error is amplified by at most
-:math:`\|F_{j-1}\|^2 / \|F_j\|` per square, as in the geometric ring the scan used
-before); :data:`MARGIN` :math:`\tau = 10^{-9}` leaves room for a magnification of
-:math:`10^{4}` of that over the sizes of this module (:math:`N \le` a few hundred), and
+:math:`(k + N B)\, \epsilon\, \| |\mathcal P| \prod_{l \in \Lambda} |F_l|\, |\mathcal R|
+|Y| \|` per entry (:math:`\epsilon = 2^{-53}`, :math:`k` the squarings behind the ladder's flows, at most
+about 35, each amplifying the error of the one before by at most
+:math:`\|F_{l-1}\|^2 / \|F_l\|`, as in the geometric ring of squares the scan used
+before; the Taylor tail below ``1e-17``); :data:`MARGIN` :math:`\tau = 10^{-9}` leaves
+room for a magnification of :math:`10^{3}` of that over the sizes of this module (:math:`N \le` a few hundred), and
 periods with :math:`|c - 1| \le \tau` go to the eigenvalue route. The scan only locates:
 every claim (the verdict at the period, the ``h_max`` bracket) is proved afterwards in
 ball arithmetic (:mod:`~ftc_verify.analysis.moments.sampled_proof`).
@@ -67,15 +78,17 @@ import numpy as np
 import scipy.linalg
 
 from ...model.system import Matrix
-from .sampled import SampledLoop, assemble_map, rate_points
+from .sampled import SCAN_PER_OCTAVE, SampledLoop, assemble_map, rate_points
 from .stability import vech_order
 
-__all__ = ["OFFSETS", "MARGIN", "POWER", "SHIFT", "ScanCount", "scan_grid", "cone_bounds", "perron_stack", "scan"]
+__all__ = ["BITS", "TAYLOR", "MARGIN", "POWER", "SHIFT", "ScanCount", "Flow", "scan_grid", "binary_pieces",
+           "cone_bounds", "perron_stack", "scan"]
 
-#: Multiples of :math:`\delta_m = h_m / 16` scanned in octave :math:`m` (module
-#: docstring): each at most :math:`2^{1/8}` times the one before (and ``32`` at most
-#: that times ``31``).
-OFFSETS = (16, 17, 18, 19, 20, 21, 22, 23, 25, 27, 29, 31)
+#: Binary places of ``h / lo`` below its leading one taken from the ladder of squares
+#: (:func:`binary_pieces`); the rest, below ``2^-BITS`` of the period, by a Taylor series.
+BITS = 16
+#: The most terms of that Taylor series before the eigenvalue route is taken instead.
+TAYLOR = 12
 #: :math:`\tau`: the cone test decides only when its bound is this far from 1.
 MARGIN = 1e-9
 #: Power steps :math:`Y \\leftarrow T(Y)` tried when the cone test does not decide, before
@@ -100,20 +113,27 @@ class ScanCount:
     fallback_periods: list[float] = field(default_factory=list)
 
 
-def scan_grid(lo: float, hi: float) -> tuple[Matrix, Matrix, Matrix]:
-    """``(hs, octave, offset)``: the periods of the module docstring from ``lo`` until the
-    first at or above ``hi`` (``hs = lo 2^octave offset / 16``)."""
-    hs, octs, offs = [], [], []
-    m = 0
-    while True:
-        for i in OFFSETS:
-            h = lo * 2.0 ** m * i / 16
-            hs.append(h)
-            octs.append(m)
-            offs.append(i)
-            if h >= hi and len(hs) > 1:
-                return np.array(hs), np.array(octs), np.array(offs)
+def scan_grid(lo: float, hi: float) -> Matrix:
+    """The scan's periods: ``lo 2^{k/8}`` (:data:`~ftc_verify.analysis.moments.sampled.SCAN_PER_OCTAVE`
+    per octave) up to the first at or above ``hi``, at least one octave."""
+    K = SCAN_PER_OCTAVE
+    count = max(K + 1, math.ceil(K * math.log2(hi / lo)) + 1)
+    return np.asarray(lo * 2.0 ** (np.arange(count) / K))
+
+
+def binary_pieces(h: float, lo: float) -> tuple[list[int], float]:
+    """``(levels, rest)``: ``h = lo (sum_{l in levels} 2^{l - BITS}) + rest`` with the
+    levels the binary digits of ``h / lo`` down to :data:`BITS` places below its leading
+    one and ``0 <= rest < lo 2^{m - BITS}`` (up to rounding), ``2^m <= h / lo < 2^{m+1}``."""
+    s = h / lo
+    m = math.floor(math.log2(s))
+    while 2.0 ** m > s:
+        m -= 1
+    while 2.0 ** (m + 1) <= s:
         m += 1
+    q = math.floor(math.ldexp(s, BITS - m))
+    levels = [m + k for k in range(BITS + 1) if (q >> k) & 1]
+    return levels, h - lo * math.ldexp(q, m - BITS)
 
 
 def _stack(loop: SampledLoop, y: Matrix) -> Matrix:
@@ -186,29 +206,31 @@ def scan(loop: SampledLoop, lo: float, hi: float, points: Sequence[Matrix] | Non
     the test cannot decide, the eigenvalue radius as before."""
     pts = list(rate_points(loop.chain) if points is None else points)
     count = ScanCount() if count is None else count
-    hs, octs, offs = scan_grid(lo, hi)
+    hs = scan_grid(lo, hi)
     vd = loop.d * (loop.d + 1) // 2
     gens = [loop.modes_part + np.kron(loop.chain.generator(p).T, np.eye(vd)) for p in pts]
-    levels = int(octs[-1]) + 5
+    top = max(binary_pieces(float(hs[-1]), lo)[0]) + 1
     ladders: list[list[Matrix]] = []
     with np.errstate(over="ignore", invalid="ignore"):
-        for G in gens:  # F_j = exp(L lo 2^(j - 4)), j = 0 .. levels - 1
-            F = [scipy.linalg.expm(G * (lo / 16))]
-            for _ in range(levels - 1):
+        for G in gens:  # F_l = exp(L lo 2^(l - BITS)), l = 0 .. top - 1
+            F = [scipy.linalg.expm(G * math.ldexp(lo, -BITS))]
+            for _ in range(top - 1):
                 F.append(F[-1] @ F[-1])
             ladders.append(F)
         count.exponentials += len(gens)
-        count.squares += len(gens) * (levels - 1)
+        count.squares += len(gens) * (top - 1)
         tests: list[Matrix | None] = [None] * len(pts)
         rho = np.zeros(hs.size)
         order = list(range(len(pts)))
-        for k, (h, m, i) in enumerate(zip(hs, octs, offs)):
+        for k, h in enumerate(hs):
             count.periods += 1
             lifts = loop.lifts(float(h))
+            pieces = binary_pieces(float(h), lo)
             worst = -1.0
             for idx in list(order):
                 count.evaluations += 1
-                value = _evaluate(loop, pts, gens, ladders, tests, idx, float(h), int(m), int(i), lifts, count)
+                flow = Flow(gens[idx], ladders[idx], *pieces)
+                value = _evaluate(loop, flow, tests, idx, float(h), lifts, count)
                 worst = max(worst, value)
                 if not value < 1.0:
                     order.remove(idx)
@@ -218,18 +240,42 @@ def scan(loop: SampledLoop, lo: float, hi: float, points: Sequence[Matrix] | Non
     return hs, rho
 
 
-def _evaluate(loop: SampledLoop, pts: Sequence[Matrix], gens: Sequence[Matrix], ladders: Sequence[list[Matrix]],
-              tests: list[Matrix | None], idx: int, h: float, m: int, i: int, lifts: Matrix,
+@dataclass(frozen=True)
+class Flow:
+    """:math:`e^{\\mathcal L h}` at one rate point as the product of the ladder's flows at
+    ``levels`` and the exponential of the ``rest`` (:func:`binary_pieces`), applied to vectors."""
+
+    generator: Matrix
+    ladder: Sequence[Matrix]
+    levels: Sequence[int]
+    rest: float
+
+    def apply(self, u: Matrix) -> Matrix | None:
+        """:math:`e^{\\mathcal L h} u`; ``None`` when the Taylor series of the rest's
+        exponential does not reach float64 accuracy in :data:`TAYLOR` terms."""
+        w = u
+        for level in self.levels:
+            w = self.ladder[level] @ w
+        term, total = w, w
+        for k in range(1, TAYLOR + 1):
+            term = (self.rest / k) * (self.generator @ term)
+            total = total + term
+            if not np.linalg.norm(term) > 1e-17 * np.linalg.norm(total):
+                return total
+        return None
+
+
+def _evaluate(loop: SampledLoop, flow: Flow, tests: list[Matrix | None], idx: int, h: float, lifts: Matrix,
               count: ScanCount) -> float:
     """One rate point at one period: the cone test with the point's stack (or the last
-    refreshed one), else the eigenvalue route, which refreshes the stack."""
+    refreshed one) and up to :data:`POWER` power steps, else the eigenvalue route, which
+    refreshes the stack."""
     Y = tests[idx] if tests[idx] is not None else next((t for t in tests if t is not None), None)
-    F, E = ladders[idx][m + 4], ladders[idx][m]
     for _ in range(POWER + 1 if Y is not None else 0):
         assert Y is not None
-        w = F @ _apply(loop, lifts, Y)
-        for _ in range(i - 16):
-            w = E @ w
+        w = flow.apply(_apply(loop, lifts, Y))
+        if w is None:
+            break
         TY = _restrict(loop, w)
         c_lo, c_hi = cone_bounds(loop, Y, TY)
         if c_hi < 1.0 - MARGIN or c_lo > 1.0 + MARGIN:
@@ -242,7 +288,7 @@ def _evaluate(loop: SampledLoop, pts: Sequence[Matrix], gens: Sequence[Matrix], 
     count.exponentials += 1
     count.eigen += 1
     count.fallback_periods.append(h)
-    T = assemble_map(loop, scipy.linalg.expm(gens[idx] * h), h)
+    T = assemble_map(loop, scipy.linalg.expm(flow.generator * h), h)
     if not np.all(np.isfinite(T)):
         return math.inf
     rho, Y = perron_stack(loop, T)
