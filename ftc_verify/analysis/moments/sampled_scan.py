@@ -81,8 +81,8 @@ from ...model.system import Matrix
 from .sampled import SCAN_PER_OCTAVE, SampledLoop, assemble_map, rate_points
 from .stability import vech_order
 
-__all__ = ["BITS", "TAYLOR", "MARGIN", "POWER", "SHIFT", "ScanCount", "Flow", "scan_grid", "binary_pieces",
-           "cone_bounds", "perron_stack", "scan"]
+__all__ = ["BITS", "TAYLOR", "MARGIN", "DENSE_SIZE", "POWER", "SHIFT", "ScanCount", "Flow", "scan_grid",
+           "binary_pieces", "cone_bounds", "perron_stack", "scan", "ring_scan"]
 
 #: Binary places of ``h / lo`` below its leading one taken from the ladder of squares
 #: (:func:`binary_pieces`); the rest, below ``2^-BITS`` of the period, by a Taylor series.
@@ -91,6 +91,10 @@ BITS = 16
 TAYLOR = 12
 #: :math:`\tau`: the cone test decides only when its bound is this far from 1.
 MARGIN = 1e-9
+#: Maps with at most this many rows are scanned by eigenvalues (:func:`ring_scan`):
+#: there an eigenvalue problem costs less than the cone test's few small ones (the paper
+#: loop's map has 12 rows, the random ``n = 4, m = 3`` loop's 90).
+DENSE_SIZE = 32
 #: Power steps :math:`Y \\leftarrow T(Y)` tried when the cone test does not decide, before
 #: the eigenvalue route.
 POWER = 3
@@ -206,6 +210,8 @@ def scan(loop: SampledLoop, lo: float, hi: float, points: Sequence[Matrix] | Non
     the test cannot decide, the eigenvalue radius as before."""
     pts = list(rate_points(loop.chain) if points is None else points)
     count = ScanCount() if count is None else count
+    if loop.size <= DENSE_SIZE:
+        return ring_scan(loop, lo, hi, pts, count)
     hs = scan_grid(lo, hi)
     vd = loop.d * (loop.d + 1) // 2
     gens = [loop.modes_part + np.kron(loop.chain.generator(p).T, np.eye(vd)) for p in pts]
@@ -237,6 +243,38 @@ def scan(loop: SampledLoop, lo: float, hi: float, points: Sequence[Matrix] | Non
                     order.insert(0, idx)
                     break
             rho[k] = worst
+    return hs, rho
+
+
+def ring_scan(loop: SampledLoop, lo: float, hi: float, pts: Sequence[Matrix], count: ScanCount) -> tuple[Matrix, Matrix]:
+    """:func:`scan` for a small map (at most :data:`DENSE_SIZE` rows), as the scan was
+    before this module: the flows of the first octave are exponentials, every later one
+    the square of the one an octave before, and the eigenvalues of :math:`T` decide."""
+    K = SCAN_PER_OCTAVE
+    hs = scan_grid(lo, hi)
+    vd = loop.d * (loop.d + 1) // 2
+    rho = np.zeros(hs.size)
+    gens = [loop.modes_part + np.kron(loop.chain.generator(p).T, np.eye(vd)) for p in pts]
+    rings: list[list[Matrix]] = [[] for _ in gens]  # the last octave's flows, flow k at k % K
+    with np.errstate(over="ignore", invalid="ignore"):  # an overflow is a result: rho inf
+        for k, h in enumerate(hs):
+            count.periods += 1
+            for G, ring in zip(gens, rings):
+                if k < K:
+                    F = scipy.linalg.expm(G * float(h))
+                    ring.append(F)
+                    count.exponentials += 1
+                else:
+                    F = ring[k % K] @ ring[k % K]
+                    ring[k % K] = F
+                    count.squares += 1
+                if rho[k] >= 1.0:
+                    continue  # unstable at this period already: the other points cannot change that
+                count.evaluations += 1
+                count.eigen += 1
+                T = assemble_map(loop, F, float(h))
+                r = float(np.max(np.abs(scipy.linalg.eigvals(T, check_finite=False)))) if np.all(np.isfinite(T)) else math.inf
+                rho[k] = max(rho[k], r)
     return hs, rho
 
 
