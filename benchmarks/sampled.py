@@ -14,6 +14,10 @@ Usage::
 
     python benchmarks/sampled.py                 # writes benchmarks/results/sampled.csv
     python benchmarks/sampled.py --out x.csv --seed 3
+    python benchmarks/sampled.py --exp float64-balls --case sys.toml K.toml 0.6722 --only-cases
+
+``--case SYSTEM GAINS PERIOD`` (repeatable) adds a loop from files (named by the system
+file), ``--only-cases`` runs those alone.
 """
 
 from __future__ import annotations
@@ -75,6 +79,9 @@ def main() -> None:
     p.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "sampled.csv"))
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--exp", choices=["both", "float64-balls", "arb"], default="both")
+    p.add_argument("--case", nargs=3, action="append", default=[], metavar=("SYSTEM", "GAINS", "PERIOD"),
+                   help="also run this loop (system file, controller file, period)")
+    p.add_argument("--only-cases", action="store_true", help="run the --case loops only")
     args = p.parse_args()
     rng = np.random.default_rng(args.seed)
     cases = [("paper", load_system(ROOT / "examples" / "paper.toml"),
@@ -82,6 +89,10 @@ def main() -> None:
     for n, m in ((2, 2), (4, 3)):
         system, controller = lqr_case(n, m, rng)
         cases.append((f"random n={n} m={m}", system, controller, 0.01))
+    if args.only_cases:
+        cases = []
+    for sys_path, gains_path, period in args.case:
+        cases.append((Path(sys_path).stem, load_system(sys_path), load_controller(gains_path), float(period)))
     rows = []
     kinds = ["float64-balls", "arb"] if args.exp == "both" else [args.exp]
     for name, system, controller, h in cases:

@@ -359,35 +359,18 @@ def assemble_map(loop: SampledLoop, F: Matrix, h: float) -> Matrix:
 
 
 def scan_periods(loop: SampledLoop, lo: float, hi: float) -> tuple[Matrix, Matrix]:
-    """``(hs, rho)``: periods from ``lo`` to at least ``hi``, :data:`SCAN_PER_OCTAVE` per
-    octave (``h_k = lo 2^{k/8}``), and the worst float64 :math:`\\rho(T)` over
-    :func:`rate_points` at each (once some point has :math:`\\rho \\ge 1` at a period,
-    the others are not evaluated there: ``rho`` is then a value ``>= 1`` of some point,
-    which is all :func:`stability_intervals` reads). The flows of the first octave are exponentials; every
-    later one is the square of the one an octave before (:math:`e^{\\mathcal L 2h} =
-    (e^{\\mathcal L h})^2`), one product instead of an exponential."""
-    K = SCAN_PER_OCTAVE
-    count = max(K + 1, math.ceil(K * math.log2(hi / lo)) + 1)
-    hs = lo * 2.0 ** (np.arange(count) / K)
-    vd = loop.d * (loop.d + 1) // 2
-    rho = np.zeros(count)
-    gens = [loop.modes_part + np.kron(loop.chain.generator(p).T, np.eye(vd)) for p in rate_points(loop.chain)]
-    rings: list[list[Matrix]] = [[] for _ in gens]  # the last octave's flows, flow k at k % K
-    with np.errstate(over="ignore", invalid="ignore"):  # an overflow is a result: rho inf
-        for k, h in enumerate(hs):
-            for G, ring in zip(gens, rings):
-                if k < K:
-                    F = scipy.linalg.expm(G * float(h))
-                    ring.append(F)
-                else:
-                    F = ring[k % K] @ ring[k % K]
-                    ring[k % K] = F
-                if rho[k] >= 1.0:
-                    continue  # unstable at this period already: the other points cannot change that
-                T = assemble_map(loop, F, float(h))
-                r = float(np.max(np.abs(scipy.linalg.eigvals(T, check_finite=False)))) if np.all(np.isfinite(T)) else math.inf
-                rho[k] = max(rho[k], r)
-    return hs, rho
+    r"""``(hs, rho)``: periods from ``lo`` to at least ``hi``, :data:`SCAN_PER_OCTAVE` per
+    octave (``h_k = lo 2^{k/8}``), and a worst float64 :math:`\rho(T)` over
+    :func:`rate_points` at each as far as :func:`stability_intervals` reads it (``< 1``
+    exactly where every point has :math:`\rho < 1`; once some point has
+    :math:`\rho \ge 1` the others are not evaluated there). The flows are products of a
+    ladder of squares (one exponential per rate point) applied to vectors, and most
+    periods are decided by a Collatz--Wielandt cone test instead of eigenvalues
+    (:mod:`~ftc_verify.analysis.moments.sampled_scan`, where the float error relied on is
+    stated): the same periods and verdicts as the eigenvalues of the map."""
+    from .sampled_scan import scan
+
+    return scan(loop, lo, hi)
 
 
 def crossing(loop: SampledLoop, a: float, b: float, stable_at_a: bool, rtol: float,
