@@ -49,10 +49,11 @@ def test_rightmost_is_scipy_eig_bit_for_bit() -> None:
     assert complex_seen > 50  # the conjugate-pair columns were exercised
 
 
-def test_not_finite_is_left_to_scipy() -> None:
+def test_not_finite_or_not_float64_is_left_to_scipy() -> None:
     G = np.eye(3)
     G[0, 1] = np.nan
     assert rightmost(G, True) is None and rightmost(G, False) is None
+    assert rightmost(np.eye(3, dtype=complex), True) is None and rightmost(np.eye(3, dtype=np.float32), False) is None
 
 
 def test_descent_objective_equals_the_scipy_one() -> None:

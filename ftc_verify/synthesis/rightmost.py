@@ -47,9 +47,9 @@ def rightmost(G: Matrix, vectors: bool) -> tuple[float, Matrix | None, Matrix | 
     of ``scipy.linalg.eig`` (same routine and workspace; its complex eigenvectors are
     ``vr[:, k] +- i vr[:, k + 1]`` for a conjugate pair, rebuilt here for the one column
     needed instead of for all). ``None`` (the caller then asks ``scipy.linalg.eig``) when
-    ``G`` is not finite, LAPACK reports a failure, or the pairs are not in LAPACK's
-    documented order."""
-    if not np.all(np.isfinite(G)):
+    ``G`` is not a finite float64 matrix, LAPACK reports a failure, or the pairs are not
+    in LAPACK's documented order."""
+    if G.dtype != np.float64 or not np.all(np.isfinite(G)):
         return None
     geev, lwork = _geev(G.shape[0], vectors)
     wr, wi, vl, vr, info = geev(G, lwork=lwork, compute_vl=int(vectors), compute_vr=int(vectors))
