@@ -191,24 +191,32 @@ def abscissa_gradient(A: Sequence[Matrix], Q: Matrix) -> tuple[float, list[Matri
 
 
 def worst_abscissa(par: Parametrisation, chain: JointChain, theta: Matrix,
-                   vertices: Sequence[int] | None = None) -> tuple[float, Matrix]:
+                   vertices: Sequence[int] | None = None,
+                   generators: Sequence[Matrix] | None = None) -> tuple[float, Matrix]:
     """``(f, grad f)``: the worst abscissa over the vertices of ``chain``'s rate box
     (or over the vertex indices ``vertices`` of :meth:`JointChain.vertices`) and its
     gradient in ``theta`` (module docstring; the sum over :math:`i` there runs over every
     joint state of FDI mode :math:`j`, all phases). ``chain`` has the joint states of
-    ``par.system.chain`` (the continuation only scales its rates)."""
+    ``par.system.chain`` (the continuation only scales its rates). ``generators``: the
+    generators :meth:`JointChain.generator` of every vertex, when already computed (a
+    BFGS run asks for the same ones at every evaluation)."""
     A = par.loop_matrices(theta)
-    betas = list(chain.vertices())
-    ks = list(range(len(betas)) if vertices is None else vertices)
+    if generators is None:
+        betas = list(chain.vertices())
+        ks = list(range(len(betas)) if vertices is None else vertices)
+        Q: Callable[[int], Matrix] = lambda k: chain.generator(betas[k])  # noqa: E731
+    else:
+        ks = list(range(len(generators)) if vertices is None else vertices)
+        Q = generators.__getitem__
     if len(ks) > 1:  # the worst vertex by eigenvalues alone; eigenvectors only there (the same vertex, first of equals)
         worst: tuple[int, float] | None = None
         for k in ks:
-            mu = abscissa(A, chain.generator(betas[k]))
+            mu = abscissa(A, Q(k))
             if worst is None or mu > worst[1]:
                 worst = (k, mu)
         assert worst is not None
         ks = [worst[0]]
-    mu, grads = abscissa_gradient(A, chain.generator(betas[ks[0]]))
+    mu, grads = abscissa_gradient(A, Q(ks[0]))
     r, c = par.shape
     gK = np.zeros((par.system.m, r, c))
     for s, (i, j) in enumerate(chain.joint_modes):  # every state of the pair (i, j): its phases
@@ -222,16 +230,18 @@ def _minimise(par: Parametrisation, chain: JointChain, x0: Matrix, *, target: fl
     with the worst vertex at ``x0``; after each run every vertex is evaluated, and a
     vertex worse than the set's maximum joins it and the run continues (so the answer is
     the maximum over all vertices, at a fraction of the cost when the box has many)."""
+    generators = [chain.generator(b) for b in chain.vertices()]  # the same at every evaluation
+
     def values(x: Matrix) -> list[float]:
         A = par.loop_matrices(x)
-        return [abscissa(A, chain.generator(b)) for b in chain.vertices()]
+        return [abscissa(A, Q) for Q in generators]
 
     x = project(np.asarray(x0, dtype=float))
     every = values(x)
     active = {int(np.argmax(every))}
     evals = len(every)
     for _ in range(2 * len(every)):
-        x, f, e = bfgs(lambda z: worst_abscissa(par, chain, z, sorted(active)), x, target=target,
+        x, f, e = bfgs(lambda z: worst_abscissa(par, chain, z, sorted(active), generators), x, target=target,
                        max_iter=max_iter, project=project)
         every = values(x)
         evals += e * len(active) + len(every)
