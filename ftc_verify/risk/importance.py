@@ -134,28 +134,39 @@ def sample_tilted(chain: JointChain, keys: RateKeys, tilt: np.ndarray, beta: Mat
     logw, jumps, expo = np.zeros(len(streams)), np.zeros((len(streams), R)), np.zeros((len(streams), R))
     table = _JumpTable.build(keys, tilt, q, qt, exit_t)
     rates, drift = exit_t.tolist(), (exit_q - exit_t).tolist()
+    out_rows = out_a.tolist()
+    share_rows = [{t: v.tolist() for t, v in row.items()} for row in table.shares]
+    pairs = list(zip(true_of.tolist(), fdi_of.tolist()))
+    keys_r = range(R)
     paths = []
     for p, stream in enumerate(streams):
         gen = np.random.default_rng(stream)
         s, t, lw = start, 0.0, 0.0
+        # the per-key sums in Python floats, added in the path's order: the same IEEE
+        # double operations as the former row updates ``expo[p] += out_a[s] * stay``
+        ex, ju = [0.0] * R, [0.0] * R
         times, states = [0.0], [start]
         while True:
             rate = rates[s]
             dt = gen.standard_exponential() / rate if rate > 0 else math.inf
             stay = min(dt, horizon - t)
             lw -= drift[s] * stay
-            expo[p] += out_a[s] * stay
+            row = out_rows[s]
+            for r in keys_r:
+                ex[r] += row[r] * stay
             if t + dt >= horizon:
                 break
             t += dt
             nxt = table.next_state(s, gen.random())
             lw += table.log_ratio[s][nxt]
-            jumps[p] += table.shares[s][nxt]
+            share = share_rows[s][nxt]
+            for r in keys_r:
+                ju[r] += share[r]
             s = nxt
             times.append(t)
             states.append(s)
-        logw[p] = lw
-        paths.append(_chain_path(np.array(times), true_of[states], fdi_of[states], beta, horizon, stream))
+        logw[p], expo[p], jumps[p] = lw, ex, ju
+        paths.append(_chain_path(times, [pairs[x] for x in states], beta, horizon, stream))
     return TiltedPaths(tuple(paths), logw, jumps, expo)
 
 
@@ -192,13 +203,15 @@ class _JumpTable:
         return nxt
 
 
-def _chain_path(times: np.ndarray, true: np.ndarray, fdi: np.ndarray, beta: Matrix, horizon: float,
+def _chain_path(times: list[float], modes: list[tuple[int, int]], beta: Matrix, horizon: float,
                 stream: np.random.SeedSequence) -> ChainPath:
-    """The :class:`ChainPath` of a state sequence: consecutive equal ``(true, fdi)`` merged
-    (a detection phase is not a mode switch), as :func:`~ftc_verify.simulation.paths.sample_paths` does."""
-    keep = np.ones(times.size, dtype=bool)
-    keep[1:] = (true[1:] != true[:-1]) | (fdi[1:] != fdi[:-1])
-    return ChainPath(times[keep], true[keep], fdi[keep], np.array(beta, dtype=float), horizon, stream)
+    """The :class:`ChainPath` of a state sequence (its jump ``times`` and ``(true, fdi)``
+    per segment): consecutive equal ``(true, fdi)`` merged (a detection phase is not a
+    mode switch), as :func:`~ftc_verify.simulation.paths.sample_paths` does."""
+    keep = [0] + [k for k in range(1, len(modes)) if modes[k] != modes[k - 1]]
+    return ChainPath(np.array([times[k] for k in keep]), np.array([modes[k][0] for k in keep], dtype=np.int64),
+                     np.array([modes[k][1] for k in keep], dtype=np.int64), np.array(beta, dtype=float), horizon,
+                     stream)
 
 
 def cross_entropy_tilt(sample: TiltedPaths, elite: np.ndarray, previous: np.ndarray, smoothing: float = 0.7
