@@ -51,14 +51,14 @@ def _gap(lo: float | None, hi: float | None) -> float | None:
     return None if lo is None or hi is None else (hi - lo) / hi
 
 
-def _row(n: int, m: int, seed: int, period: float, work: float) -> dict[str, Any]:
+def _row(n: int, m: int, seed: int, period: float, work: float, max_seconds: float) -> dict[str, Any]:
     from ftc_verify.analysis.moments.sampled import sampled_analysis
     from ftc_verify.analysis.moments.sampled_refine import refine_result
 
     system, controller = draw(n, m, seed)
     load = os.getloadavg()[0]
     t, c = time.perf_counter(), _cpu()
-    res = sampled_analysis(system, controller, period)
+    res = sampled_analysis(system, controller, period, max_seconds=max_seconds)
     wall, cpu = time.perf_counter() - t, _cpu() - c
     row: dict[str, Any] = {"n": n, "m": m, "seed": seed, "load": round(load, 2), "h_max": res.h_max,
                            "h_max_unstable": res.h_max_unstable, "bracket": _gap(res.h_max, res.h_max_unstable),
@@ -92,6 +92,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seeds", type=int, nargs="+", default=[9, 13, 17, 26])
     p.add_argument("--period", type=float, default=0.01, help="the analysed period (default 0.01)")
     p.add_argument("--work", type=float, default=0.0, help="refinement budget in work units (default 0: none)")
+    p.add_argument("--max-seconds", type=float, default=600.0,
+                   help="sampled_analysis's wall-time safety valve (default 600: under load the CLI's 60 s "
+                        "can cut the bracket short; its budget is otherwise in work units)")
     p.add_argument("--find", action="store_true", help="only list the seeds whose loop has an h_max")
     p.add_argument("--out", default="benchmarks/results/h_max_heldout.csv")
     args = p.parse_args(argv)
@@ -102,7 +105,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     rows = []
     for s in args.seeds:
-        rows.append(_row(args.n, args.m, s, args.period, args.work))
+        rows.append(_row(args.n, args.m, s, args.period, args.work, args.max_seconds))
         r = rows[-1]
         print(f"n={r['n']} m={r['m']} seed {s}: h_max {r['h_max']} unstable {r['h_max_unstable']} bracket "
               f"{r['bracket'] if r['bracket'] is None else format(r['bracket'], '.1e')} cpu {r['cpu_s']} wall "

@@ -95,6 +95,12 @@ def test_refine_result_only_when_wider_than_rtol(monkeypatch: pytest.MonkeyPatch
     got = refine_result(system, controller, wide, 1e9)
     assert got.h_max == pytest.approx(PAPER_UNSTABLE * 0.99) and "refinement (--h-max-work" in got.h_max_note
     assert "with 8 pieces" in got.h_max_note  # 4 at 2 % proved, 8 at 1 % proved, 16 at 0.5 % not
+    fake.asked.clear()
+    none = dataclasses.replace(base, h_max=None, h_max_note="not proved (time budget spent)")
+    got = refine_result(system, controller, none, 2 * clock_work(_paper(), 4))
+    assert fake.asked == [(4, pytest.approx(PAPER_UNSTABLE * 0.75))]  # from a 50 % bracket
+    assert got.h_max == pytest.approx(PAPER_UNSTABLE * 0.75)
+    assert refine_result(system, controller, dataclasses.replace(none, h_max_unstable=None), 1e9).h_max is None
 
 
 @pytest.mark.parametrize(("argv", "needle"), [

@@ -172,12 +172,16 @@ def refine_result(system: FTCSystem, controller: Controller, result: SampledResu
                   rtol: float = H_MAX_RTOL) -> SampledResult:
     """``result`` (of :func:`~ftc_verify.analysis.moments.sampled.sampled_analysis`) with
     its ``h_max`` refined by :func:`refine_h_max` within ``work`` units when its bracket
-    is wider than ``rtol`` (unchanged otherwise); the note says what was done."""
+    is wider than ``rtol``, or has no stable end (then from ``h_max_unstable / 2``: the
+    ladder starts 25 % below the unstable end); unchanged otherwise. The note says what
+    was done."""
     from .sampled_conditioned import conditioned
 
     hm, hu = result.h_max, result.h_max_unstable
-    if hm is None or hu is None or (hu - hm) / hu <= rtol or work <= 0:
+    if hu is None or (hm is not None and (hu - hm) / hu <= rtol) or work <= 0:
         return result
+    if hm is None:  # no stable end proved (e.g. the wall-time valve): start from a 50 % bracket
+        hm = 0.5 * hu
     loop = conditioned(dataclasses.replace(SampledLoop.build(system, controller), written=(float(result.period),)))
     ref = refine_h_max(loop, hm, hu, work)
     note = (f"; refinement (--h-max-work {work:g}): {len(ref.tried)} clock attempt(s), {ref.work:.0f} units, "
