@@ -122,3 +122,17 @@ def test_memory_limit_is_a_plan_property() -> None:
     loop = _paper()
     big = refine_plan(loop, 1.0, 1e13)
     assert max(clock_memory(loop, n) for n, _ in big) > REFINE_MEMORY
+
+
+def test_text_output_names_the_refinement(capsys: pytest.CaptureFixture[str]) -> None:
+    from ftc_verify.analysis.moments.sampled import SampledResult
+    from ftc_verify.cli.sampled_lines import print_sampled
+
+    res = SampledResult(0.05, "stable", 0.5, [[0.0]], "by test", 0, 0.08, 0.0843,
+                        "wide; refinement (--h-max-work 5000): 2 clock attempt(s), 4000 units, proved stable",
+                        (), (0.01, 1.0), 0.0)
+    print_sampled(res)
+    out = capsys.readouterr().out
+    assert "      refinement (--h-max-work 5000): 2 clock attempt(s)" in out
+    print_sampled(dataclasses.replace(res, h_max_note="narrow"))
+    assert "refinement" not in capsys.readouterr().out
