@@ -66,6 +66,8 @@ def print_sampled(res: Any) -> None:
     if res.h_max is not None and res.h_max_unstable is not None:
         print(f"    h_max {res.h_max:.6g}: proved stable over the rate box there, proved unstable at "
               f"{res.h_max_unstable:.6g}")
+        if "; refinement (" in res.h_max_note:  # analyze --h-max-work
+            print(f"      {res.h_max_note.split('; ', 1)[1]}")
     else:
         print(f"    h_max not found: {res.h_max_note}")
     intervals = ", ".join(f"[{a:.4g}, {b:.4g}]" for a, b in res.stability_intervals) or "none"
