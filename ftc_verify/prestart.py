@@ -167,6 +167,7 @@ class DeferredModule(types.ModuleType):
     def __init__(self, name: str, names: Sequence[str]) -> None:
         super().__init__(name, f"stand-in for {name}, imported on first use (ftc_verify.prestart)")
         self.__dict__["__path__"] = []  # a package: ``from name import f`` asks for ``f`` (no submodule search)
+        self.__dict__["__spec__"] = importlib.machinery.ModuleSpec(name, None)  # find_spec(name) answers, no error
         self.__dict__["_deferred_names"] = frozenset(names)
         self.__dict__["_deferred_real"] = None
 
@@ -237,6 +238,14 @@ def defer_modules(deferred: Mapping[str, Sequence[str]]) -> None:
             sys.modules[name] = DeferredModule(name, names)
 
 
+def _deferring() -> bool:
+    """Whether :func:`defer_modules` ran in this process (its finder is installed): a job
+    that failed here may have failed on a stand-in (a listed class used as a class, a
+    python-control version that imports differently), so the parent runs it again with
+    the real modules instead of raising its exception."""
+    return any(isinstance(f, _DeferredFinder) for f in sys.meta_path)
+
+
 def _cross_check_prepare() -> None:
     """The cross-check child's preparation: no generated docstrings
     (:func:`skip_docstring_generation`), :data:`CROSS_CHECK_DEFERRED` imported on first use."""
@@ -267,8 +276,9 @@ def _child(modules: Sequence[str], job_fd: int, answer_fd: int, prepare: Callabl
             value = fn(arg)
             spans["run"] = (t1, time.perf_counter())
             payload = ("ok", value, seconds | {"run": spans["run"][1] - t1}, spans)
-        except Exception as exc:  # the job's own exception: raised again in the parent
-            payload = ("raised", exc, seconds, spans)
+        except Exception as exc:  # the job's own exception: raised again in the parent -- unless
+            # stand-ins were in place (defer_modules): then the parent runs it with the real modules
+            payload = ("error", repr(exc), seconds, spans) if _deferring() else ("raised", exc, seconds, spans)
     except Exception as exc:  # an import failed: the parent runs the job itself
         payload = ("error", repr(exc), {}, {})
     data = pickle.dumps(payload, protocol=pickle.HIGHEST_PROTOCOL)
