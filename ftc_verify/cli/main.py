@@ -27,7 +27,7 @@ import sys
 import threading
 import warnings
 from collections.abc import Iterator, Sequence
-from contextlib import AbstractContextManager, contextmanager, nullcontext
+from contextlib import contextmanager, nullcontext
 from typing import Any, NoReturn
 
 from .. import __version__
@@ -241,8 +241,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         from .working import working
 
         own_bars = args.command in ("simulate", "verify")  # tqdm bars over their paths
-        with _sigterm_raises(), warnings.catch_warnings(), nullcontext() if own_bars else working(args.command), \
-                _worker_start(args):
+        with _sigterm_raises(), warnings.catch_warnings(), nullcontext() if own_bars else working(args.command):
             warnings.simplefilter("ignore")  # solver chatter; statuses are reported in the results
             code = int(args.func(args))
             sys.stdout.flush()
@@ -271,16 +270,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_BAD_INPUT
     except Exception as exc:  # a bug: one line, never a traceback, never exit 0 or 1
         return _internal(exc)
-
-
-def _worker_start(args: argparse.Namespace) -> AbstractContextManager[None]:
-    """``--workers N``: the local workers start from a fork server
-    (:func:`ftc_verify.simulation.cluster.worker_start`; this process ends after the run)."""
-    if not getattr(args, "workers", None):
-        return nullcontext()
-    from ..simulation.cluster import worker_start
-
-    return worker_start()
 
 
 def _limit_text() -> str:

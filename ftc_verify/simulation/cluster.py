@@ -23,16 +23,6 @@ The contract:
   lines, bounded by :data:`CLOSE_TIMEOUT`) and lets the interrupting exception propagate
   unchanged. Worker processes ignore SIGINT (:func:`dask_setup`, their preload): a Ctrl-C
   in a terminal reaches the whole process group, and the client tears them down anyway.
-* Within :func:`worker_start` (the command line's ``--workers`` runs), local workers start
-  from a fork server instead of as fresh interpreters: one process imports ``distributed``
-  and the batch modules (:data:`WORKER_MODULES`) once, and every worker -- the first ones
-  and each one a nanny starts in place of a lost worker -- is a fork of it (about 1 s of CPU
-  less per worker start). A worker's environment is the client's at the cluster's start
-  (passed to the nanny) with either start method. Outside it, and when the user configured
-  a start method (``distributed.worker.multiprocessing-method`` other than Dask's default
-  ``spawn``), Dask's method is used: a fork server is a process-wide service whose socket
-  folder (Python's ``pymp-*``) stays in the temporary folder until the process exits, which
-  a command's exit removes but a library caller's run folder contract would not.
 """
 
 from __future__ import annotations
@@ -57,9 +47,8 @@ from typing import Any
 from ..errors import ValidationError
 from ..limits import CONNECT_TIMEOUT, format_bytes, memory_limit
 
-__all__ = ["open_client", "ClusterStart", "check_cluster_options", "max_workers", "dask_setup", "worker_start",
-           "CONNECT_TIMEOUT", "CLOSE_TIMEOUT", "WORKERS_PER_CORE", "WORKER_MEMORY", "ALLOWED_FAILURES",
-           "WORKER_MODULES"]
+__all__ = ["open_client", "ClusterStart", "check_cluster_options", "max_workers", "dask_setup", "CONNECT_TIMEOUT",
+           "CLOSE_TIMEOUT", "WORKERS_PER_CORE", "WORKER_MEMORY", "ALLOWED_FAILURES"]
 
 _INSTALL = "pip install 'ftc-verify[dask]'"
 #: Seconds each of the client and the local cluster may take to close.
@@ -77,11 +66,6 @@ WORKER_MEMORY = 256 * 1024 ** 2
 #: Deaths of the worker running a task before the local scheduler gives the task up
 #: (``KilledWorker``): a lost worker is retried twice, a crashing plant FMU is found fast.
 ALLOWED_FAILURES = 2
-#: Imported once by the fork server the local workers start from (:func:`worker_start`), so
-#: that no worker imports them again: Dask's worker and the batch code of both backends
-#: (a spawned worker spent about 1 s of CPU importing them, and a replacement worker again).
-WORKER_MODULES = ("distributed", "ftc_verify.simulation.cluster", "ftc_verify.simulation.streaming",
-                  "ftc_verify.simulation.fmu_workers")
 _PROTOCOLS = ("tcp", "tls", "ws", "wss", "ucx")
 _ADDRESS = re.compile(r"^(?:(?P<protocol>[A-Za-z][A-Za-z0-9+.-]*)://)?(?P<host>\[[0-9A-Fa-f:.]+\]|[^\s:/\[\]]+)"
                       r":(?P<port>[0-9]{1,5})/?$")
@@ -148,32 +132,6 @@ def dask_setup(worker: Any) -> None:
     group; the client shuts the workers down itself."""
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.SIG_IGN)
-    tempfile.tempdir = None  # a fork's cached temporary folder: the worker's TMPDIR (its run folder) instead
-
-
-@contextmanager
-def worker_start() -> Iterator[None]:
-    """Within the block, local Dask workers start as forks of a fork server that has
-    imported :data:`WORKER_MODULES` (Dask's ``forkserver`` start method; the server is
-    started by the first worker and lives as long as this process, its socket in a
-    ``pymp-*`` folder of the temporary folder until then), unless the user configured a
-    start method other than Dask's default ``spawn`` or Dask is not installed. For a
-    process that ends after its run: the command line wraps its ``--workers`` runs in it.
-    Dask reads the method at every worker start, so the block covers the cluster's whole
-    life (the nannies' restarts of lost workers too); the configuration is restored on exit."""
-    if importlib.util.find_spec("distributed") is None:
-        yield
-        return
-    import dask
-    from distributed.utils import get_mp_context
-
-    if dask.config.get("distributed.worker.multiprocessing-method") != "spawn":
-        yield
-        return
-    with dask.config.set({"distributed.worker.multiprocessing-method": "forkserver"}):
-        get_mp_context()  # Dask sets its own preload list once per process: before ours, not after it
-        multiprocessing.get_context("forkserver").set_forkserver_preload(list(WORKER_MODULES))
-        yield
 
 
 @contextmanager
@@ -297,8 +255,7 @@ class ClusterStart:
             try:
                 self._box["cluster"] = LocalCluster(
                     n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                    silence_logs=logging.CRITICAL, local_directory=str(folder),
-                    env=dict(os.environ) | {"TMPDIR": str(folder)},
+                    silence_logs=logging.CRITICAL, local_directory=str(folder), env={"TMPDIR": str(folder)},
                     preload=[__name__],
                     scheduler_kwargs={"local_directory": str(folder), "allowed_failures": ALLOWED_FAILURES})
             except BaseException as exc:  # handed to the main thread
