@@ -162,7 +162,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with a period: refine the proved h_max bracket when it is wider than 1e-3, with "
                         "clock-dependent certificates of 4, 8, 16, ... pieces within UNITS work units (about "
                         "a millisecond of one core each; e.g. 70000: about a minute); refused when the "
-                        "largest planned program's memory estimate is over 4 GB")
+                        "largest planned program's memory estimate is over 4 GB or the memory limit")
     a.set_defaults(func=_cmd_analyze)
 
     from .run_commands import add_run_commands

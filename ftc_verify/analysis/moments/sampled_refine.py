@@ -56,7 +56,8 @@ __all__ = ["REFINE_START", "REFINE_MEMORY", "Refinement", "clock_work", "clock_m
 
 #: Quadratic pieces of the first rung (the default bracket's clock rung has 2).
 REFINE_START = 4
-#: The largest estimated memory (bytes) of a planned clock program.
+#: The largest estimated memory (bytes) of a planned clock program (or
+#: :func:`~ftc_verify.limits.memory_limit` when that is lower).
 REFINE_MEMORY = 4.0e9
 
 
@@ -113,16 +114,19 @@ def check_refine(system: FTCSystem, controller: Controller, period: float | None
     if period is None:
         raise ValidationError(f"--h-max-work {work:g}: refines the sampled loop's h_max bracket; give --period "
                               "(or a period in the controller file)")
+    from ...limits import memory_limit
+
+    limit = min(REFINE_MEMORY, memory_limit())  # FTC_VERIFY_MEMORY_LIMIT or 80 % of the free memory, if lower
     loop = SampledLoop.build(system, controller)
     need = refine_memory(loop, 1.0, work)
-    if need > REFINE_MEMORY:
-        fit = [n for n, _ in refine_plan(loop, 1.0, work) if clock_memory(loop, n) <= REFINE_MEMORY]
+    if need > limit:
+        fit = [n for n, _ in refine_plan(loop, 1.0, work) if clock_memory(loop, n) <= limit]
         most = 2.0 * sum(clock_work(loop, n) for n in fit)
         if not fit:
             raise ValidationError(f"--h-max-work {work:g}: even the first clock program ({REFINE_START} pieces) "
-                                  f"needs about {need / 1e9:.1f} GB, over the {REFINE_MEMORY / 1e9:.0f} GB limit")
+                                  f"needs about {need / 1e9:.1f} GB, over the {limit / 1e9:.1f} GB limit")
         raise ValidationError(f"--h-max-work {work:g}: its largest clock program needs about {need / 1e9:.1f} GB, "
-                              f"over the {REFINE_MEMORY / 1e9:.0f} GB limit; give at most {math.floor(most):d}")
+                              f"over the {limit / 1e9:.1f} GB limit; give at most {math.floor(most):d}")
 
 
 @dataclass(frozen=True)
