@@ -11,7 +11,7 @@ The contract:
   :func:`max_workers` (cores and memory) and a scheduler address that is not
   ``[PROTOCOL://]HOST:PORT``; it needs no Dask.
 * Connecting to ``--scheduler`` is time-boxed (``connect_timeout`` seconds of
-  :func:`open_client`, :data:`CONNECT_TIMEOUT` by default; connection and handshake
+  :func:`open_client`, :data:`~ftc_verify.limits.CONNECT_TIMEOUT` by default; connection and handshake
   together): a closed port, a silent server or a server that is not a Dask scheduler (an
   HTTP server) is one :class:`~ftc_verify.errors.ValidationError`.
 * A local cluster lives in one run folder (``ftc-verify-cluster-*`` in the temporary
@@ -301,7 +301,7 @@ def open_client(workers: int | None = None, scheduler: str | None = None, wait: 
     given (module docstring for the contract). ``wait=False``: a local cluster is yielded
     as its :class:`ClusterStart`, still starting, so that the caller works meanwhile.
     ``connect_timeout``: the seconds that connecting to ``scheduler`` may take, handshake
-    included (a positive finite number; :data:`CONNECT_TIMEOUT` by default), after which
+    included (a positive finite number; :data:`~ftc_verify.limits.CONNECT_TIMEOUT` by default), after which
     the address is refused.
 
     The options are checked first (:func:`check_cluster_options`). The local cluster is
