@@ -15,6 +15,7 @@ from ftc_verify.analysis.moments.sampled import SampledLoop, spectral_radius
 from ftc_verify.analysis.moments.sampled_bracket import CLOCK_FALLBACK, CLOCK_LADDER, CLOCK_SPLIT, clock_below
 from ftc_verify.controllers.files import load_controller
 from ftc_verify.model.files import load_system
+from clock_stand_in import ProvedUpTo
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -22,22 +23,6 @@ ROOT = Path(__file__).resolve().parents[1]
 def _paper() -> SampledLoop:
     return SampledLoop.build(load_system(ROOT / "examples" / "paper.toml"),
                              load_controller(ROOT / "examples" / "paper_gains.toml"))
-
-
-class _Proved:
-    """A stand-in for :func:`clock_stable` proving every period at most ``limit``."""
-
-    def __init__(self, limit: float) -> None:
-        self.limit = limit
-        self.asked: list[float] = []
-
-    def __call__(self, loop: SampledLoop, h: float, pieces: int, quadratic: bool) -> object:
-        self.asked.append(h)
-
-        class Cert:
-            proved = h <= self.limit
-
-        return Cert()
 
 
 @pytest.mark.parametrize(("limit_f", "expected_f", "tried"), [
@@ -60,7 +45,7 @@ def test_split_after_the_fallback(monkeypatch: pytest.MonkeyPatch, limit_f: floa
     attempt, never after the ladder's own rungs."""
     assert CLOCK_LADDER == (0.02, 0.01, 3e-3) and CLOCK_FALLBACK == (0.03, 0.1, 0.3, 0.5) and CLOCK_SPLIT == 2.0
     a = 0.7
-    fake = _Proved(a * (1 - limit_f))
+    fake = ProvedUpTo(a * (1 - limit_f))
     monkeypatch.setattr(sampled_bracket, "clock_stable", fake)
     got = clock_below(_paper(), a)
     assert fake.asked == pytest.approx([a * (1 - f) for f in tried])
@@ -70,7 +55,7 @@ def test_split_after_the_fallback(monkeypatch: pytest.MonkeyPatch, limit_f: floa
 
 def test_split_not_started_after_the_deadline(monkeypatch: pytest.MonkeyPatch) -> None:
     """A deadline already passed starts no attempt at all (the split included)."""
-    fake = _Proved(0.5)
+    fake = ProvedUpTo(0.5)
     monkeypatch.setattr(sampled_bracket, "clock_stable", fake)
     assert clock_below(_paper(), 1.0, deadline=-math.inf) is None
     assert fake.asked == []

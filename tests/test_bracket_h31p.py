@@ -15,6 +15,7 @@ from ftc_verify.analysis.moments.sampled import SampledLoop, spectral_radius
 from ftc_verify.analysis.moments.sampled_bracket import CLOCK_FALLBACK, CLOCK_LADDER, clock_below
 from ftc_verify.controllers.files import load_controller
 from ftc_verify.model.files import load_system
+from clock_stand_in import ProvedUpTo
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER_CROSSING = 0.08426  # float64 crossing of the paper loop's worst vertex (h31c)
@@ -23,23 +24,6 @@ PAPER_CROSSING = 0.08426  # float64 crossing of the paper loop's worst vertex (h
 def _paper() -> SampledLoop:
     return SampledLoop.build(load_system(ROOT / "examples" / "paper.toml"),
                              load_controller(ROOT / "examples" / "paper_gains.toml"))
-
-
-class _Proved:
-    """A stand-in for :func:`clock_stable` that proves every period at most ``limit`` and
-    records the periods asked."""
-
-    def __init__(self, limit: float) -> None:
-        self.limit = limit
-        self.asked: list[float] = []
-
-    def __call__(self, loop: SampledLoop, h: float, pieces: int, quadratic: bool) -> object:
-        self.asked.append(h)
-
-        class Cert:
-            proved = h <= self.limit
-
-        return Cert()
 
 
 @pytest.mark.parametrize(("limit_f", "expected_f", "tried"), [
@@ -56,7 +40,7 @@ def test_ladder_order_and_fallback(monkeypatch: pytest.MonkeyPatch, limit_f: flo
     nothing after the first failure or the first proved fallback."""
     assert CLOCK_LADDER == (0.02, 0.01, 3e-3) and CLOCK_FALLBACK == (0.03, 0.1, 0.3, 0.5)  # the table assumes them
     a = 1.0
-    fake = _Proved(a * (1 - limit_f))
+    fake = ProvedUpTo(a * (1 - limit_f))
     monkeypatch.setattr(sampled_bracket, "clock_stable", fake)
     got = clock_below(_paper(), a)
     assert fake.asked == pytest.approx([a * (1 - f) for f in tried])
