@@ -37,8 +37,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..errors import ValidationError
-from ..limits import check_memory
-from ..limits import CONNECT_TIMEOUT
+from ..limits import CONNECT_TIMEOUT, check_memory
 from .delta import DeltaSchedule
 
 if TYPE_CHECKING:

@@ -201,22 +201,17 @@ def worst_abscissa(par: Parametrisation, chain: JointChain, theta: Matrix,
     generators :meth:`JointChain.generator` of every vertex, when already computed (a
     BFGS run asks for the same ones at every evaluation)."""
     A = par.loop_matrices(theta)
-    if generators is None:
-        betas = list(chain.vertices())
-        ks = list(range(len(betas)) if vertices is None else vertices)
-        Q: Callable[[int], Matrix] = lambda k: chain.generator(betas[k])  # noqa: E731
-    else:
-        ks = list(range(len(generators)) if vertices is None else vertices)
-        Q = generators.__getitem__
+    Q = generators if generators is not None else [chain.generator(b) for b in chain.vertices()]
+    ks = list(range(len(Q)) if vertices is None else vertices)
     if len(ks) > 1:  # the worst vertex by eigenvalues alone; eigenvectors only there (the same vertex, first of equals)
         worst: tuple[int, float] | None = None
         for k in ks:
-            mu = abscissa(A, Q(k))
+            mu = abscissa(A, Q[k])
             if worst is None or mu > worst[1]:
                 worst = (k, mu)
         assert worst is not None
         ks = [worst[0]]
-    mu, grads = abscissa_gradient(A, Q(ks[0]))
+    mu, grads = abscissa_gradient(A, Q[ks[0]])
     r, c = par.shape
     gK = np.zeros((par.system.m, r, c))
     for s, (i, j) in enumerate(chain.joint_modes):  # every state of the pair (i, j): its phases

@@ -163,8 +163,8 @@ def refine_h_max(loop: SampledLoop, h_max: float, h_max_unstable: float, work: f
         if proved(n, f):
             best, last = (f, n), f
             continue
-        mid = math.sqrt(f * last)
-        if mid < last and proved(n, mid):
+        mid = math.sqrt(f * last)  # between the failed f and the last proved distance (f halves: f < last)
+        if proved(n, mid):
             best = (mid, n)
         break
     if best is None:
