@@ -122,7 +122,7 @@ def gain_step(
     gamma: float | None = None,
     measurement: list[Matrix] | None = None,
 ) -> tuple[Matrix | None, float | None, str]:
-    """Eq. (18): with ``P_s`` and multipliers fixed, the gain ``K_j`` of FDI mode ``j``
+    r"""Eq. (18): with ``P_s`` and multipliers fixed, the gain ``K_j`` of FDI mode ``j``
     over all true modes and rate ends; returns ``(K, gamma, status)``.
 
     With ``gamma=None`` gamma is minimised; with ``gamma`` given, the gain of smallest
@@ -132,20 +132,17 @@ def gain_step(
     :mod:`ftc_verify.synthesis.output_feedback`, with ``M_i = Cbar_i``); the block stays
     linear in ``K_j`` since ``P`` and the multipliers are fixed.
 
-    The program: variables :math:`x = (\operatorname{vec} K_j, g[, k])` (``K_j`` row by
-    row), every block :func:`~ftc_verify.analysis.lmi.lyapunov_block` of FDI mode ``j``
-    (Schur form in :math:`F`) :math:`\preceq 0`, evaluated on
-    :class:`~ftc_verify.analysis.conic.Affine` matrices and handed to the solver in conic
-    form (:meth:`~ftc_verify.synthesis.results.SolverCalls.run_conic`; cvxpy's
-    canonicalisation was 97 % of a call's time), :math:`g \ge 0`, the gain bound
-    :func:`~ftc_verify.synthesis.xy_design.gain_bound_block` with ``k_max``; with
-    ``gamma``: :math:`g \le \gamma^2`, :math:`k \ge 0`, :math:`\|K_j\|_2 \le k`,
-    minimise :math:`k`; else minimise :math:`g`.
+    Variables :math:`(\operatorname{vec} K_j, g[, k])`: the blocks
+    :func:`~ftc_verify.analysis.lmi.lyapunov_block` of FDI mode ``j`` (Schur form in
+    :math:`F`) :math:`\preceq 0` on :class:`~ftc_verify.analysis.conic.Affine` matrices,
+    solved in conic form (:meth:`~ftc_verify.synthesis.results.SolverCalls.run_conic`;
+    no cvxpy), :math:`g \ge 0`, :func:`~ftc_verify.synthesis.xy_design.gain_bound_block`
+    with ``k_max``; with ``gamma``: :math:`g \le \gamma^2`, :math:`\|K_j\|_2 \le k`, min :math:`k`.
     """
     m, (n, nu, _, _) = system.m, system.dims
     cols = n if measurement is None else measurement[0].shape[0]
     size = nu * cols + (1 if gamma is None else 2)
-    every = np.arange(size)
+    every = np.arange(size).astype(int)
     K = matrix_variable(nu, cols, 0, size)
     g = scalar_variable(nu * cols, size)
     gains: list[Any]
@@ -161,12 +158,9 @@ def gain_step(
             rows.lmi(lyapunov_block(loop, spec, P, lam[spec.s], g, affine_bmat, schur_F=True), every)
     if k_max is not None:
         rows.lmi(-gain_bound_block(K, k_max, 1.0, affine_bmat), every)
-    c = np.zeros(size)
+    c = np.eye(size)[nu * cols if gamma is None else -1]  # min g, or min k
     rows.nonneg(-np.eye(size)[nu * cols:], np.zeros(size - nu * cols))  # g >= 0 (and k >= 0)
-    if gamma is None:
-        c[nu * cols] = 1.0
-    else:
-        c[-1] = 1.0
+    if gamma is not None:
         rows.nonneg(np.eye(size)[nu * cols], [gamma ** 2])
         rows.lmi(-gain_bound_block(K, 1.0, scalar_variable(size - 1, size), affine_bmat), every)
     out, x = calls.run_conic(rows.problem(c))

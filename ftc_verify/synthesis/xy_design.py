@@ -145,7 +145,8 @@ def _xy_rows(system: FTCSystem, kind: str, lay: _XYLayout, k_max: float | None) 
         s = spec.s
         states = [s] + ([] if q_row is None else [t for t, q in enumerate(q_row) if t != s and q > 0])
         xs = list(dict.fromkeys(lay.groups[t] for t in states))
-        pieces = [("sym", lay.x(k), (n,)) for k in xs] + ([("mat", lay.y(lay.groups[s]), (nu, n))] if lay.with_y else [])
+        pieces: list[tuple[str, int, tuple[int, ...]]] = [("sym", lay.x(k), (n,)) for k in xs]
+        pieces += [("mat", lay.y(lay.groups[s]), (nu, n))] if lay.with_y else []
         pieces += [("scalar", col, ()) for col in (lay.eps(s), lay.delta(s), lay.g, lay.t)]
         var, columns = local_variables(pieces)
         X: list[Any] = [None] * len(lay.groups)
@@ -162,14 +163,37 @@ def _xy_rows(system: FTCSystem, kind: str, lay: _XYLayout, k_max: float | None) 
         rows.lmi(M + t_var * np.eye(M.shape[0]), columns)
     eye = np.eye(n)
     for k in range(lay.n_groups):
-        (X, t_var), columns = local_variables([("sym", lay.x(k), (n,)), ("scalar", lay.t, ())])
-        rows.lmi(t_var * eye - X, columns)
+        (Xk, t_var), columns = local_variables([("sym", lay.x(k), (n,)), ("scalar", lay.t, ())])
+        rows.lmi(t_var * eye - Xk, columns)
         if k_max is not None and lay.with_y:
-            (X, Y, mu), columns = local_variables([("sym", lay.x(k), (n,)), ("mat", lay.y(k), (nu, n)),
-                                                   ("scalar", lay.mu, ())])
-            rows.lmi(mu * eye - X, columns)
-            rows.lmi(-gain_bound_block(Y, k_max, mu, affine_bmat), columns)
+            (Xk, Yk, mu), columns = local_variables([("sym", lay.x(k), (n,)), ("mat", lay.y(k), (nu, n)),
+                                                     ("scalar", lay.mu, ())])
+            rows.lmi(mu * eye - Xk, columns)
+            rows.lmi(-gain_bound_block(Yk, k_max, mu, affine_bmat), columns)
     return rows
+
+
+def _xy_objective(kind: str, lay: _XYLayout) -> Matrix:
+    """The cost (minimised) of the centred problem: ``-t``, for ``projected`` plus
+    ``CENTRE_WEIGHT`` times the mean of ``trace(X_k) / n`` and of the multipliers.
+
+    The margin is capped (t <= 1) to keep the problem bounded; once the cap binds, the
+    maximiser is not unique and an interior-point method drifts to huge X, eps, delta
+    (measured: 1e5-4e6 at gamma = 10, after which step 2 failed). The small penalty
+    selects a bounded point without changing which t is reachable. Only step 1 of
+    two-step showed it; the baselines' re-centred margins on degenerate plants are
+    ~1e-7, which the penalty would swamp, so they keep the plain objective."""
+    objective = np.zeros(lay.K)
+    objective[lay.t] = -1.0
+    if kind == "projected":
+        n, S = lay.n, len(lay.groups)
+        r, c, _ = svec_index(n)
+        diag = np.where(r == c)[0]
+        for k in range(lay.n_groups):
+            objective[lay.x(k) + diag] += CENTRE_WEIGHT / (lay.n_groups * n)
+        for s in range(S):
+            objective[[lay.eps(s), lay.delta(s)]] += CENTRE_WEIGHT / (2 * S)
+    return objective
 
 
 def xy_solver(system: FTCSystem, kind: str, calls: Any,
@@ -200,21 +224,7 @@ def xy_solver(system: FTCSystem, kind: str, calls: Any,
     lay = _XYLayout(n, nu, tuple(_variable_groups(system, kind)), kind != "projected",
                     k_max is not None and kind != "projected")
     rows = _xy_rows(system, kind, lay, k_max)
-    # The margin is capped (t <= 1) to keep the problem bounded; once the cap binds, the
-    # maximiser is not unique and an interior-point method drifts to huge X, eps, delta
-    # (measured: 1e5-4e6 at gamma = 10, after which step 2 failed). A small penalty on
-    # trace(X) and the multipliers selects a bounded point without changing which t is reachable.
-    # Only step 1 of two-step showed it; the baselines' re-centred margins on degenerate
-    # plants are ~1e-7, which the penalty would swamp, so they keep the plain objective.
-    objective = np.zeros(lay.K)  # minimised: -t (+ CENTRE_WEIGHT * size)
-    objective[lay.t] = -1.0
-    if kind == "projected":
-        r, c, w = svec_index(n)
-        diag = np.where(r == c)[0]
-        for k in range(lay.n_groups):
-            objective[lay.x(k) + diag] += CENTRE_WEIGHT / (lay.n_groups * n)
-        for s in range(S):
-            objective[[lay.eps(s), lay.delta(s)]] += CENTRE_WEIGHT / (2 * S)
+    objective = _xy_objective(kind, lay)
     used = np.zeros(lay.K, dtype=bool)
     for block in rows.blocks:
         used[block[2].indices] = True
