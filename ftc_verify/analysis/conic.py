@@ -41,7 +41,7 @@ from numpy.typing import ArrayLike
 from ..model.system import Matrix
 
 __all__ = ["Affine", "affine_bmat", "svec_index", "sym_variable", "scalar_variable", "matrix_variable",
-           "local_variables", "evaluate", "Rows", "ConicProblem", "solve_clarabel", "solve_clarabel_dual", "to_cvxpy"]
+           "local_variables", "evaluate", "Columns", "Rows", "ConicProblem", "solve_clarabel", "solve_clarabel_dual", "to_cvxpy"]
 
 _R2 = math.sqrt(2.0)
 
@@ -186,6 +186,26 @@ def evaluate(M: Affine, x: Matrix) -> Matrix:
     return M.const + M.lin @ np.asarray(x, dtype=float)
 
 
+class Columns:
+    """Named runs of program columns, allocated in order: :meth:`add` ``count``
+    variables of ``size`` columns each under ``name``; :meth:`at` the first column of
+    the ``k``-th; ``K`` the columns so far."""
+
+    def __init__(self) -> None:
+        self.K = 0
+        self.runs: dict[str, tuple[int, int]] = {}
+
+    def add(self, name: str, count: int, size: int) -> None:
+        """Allocate ``count`` variables of ``size`` columns under ``name``."""
+        self.runs[name] = (self.K, size)
+        self.K += count * size
+
+    def at(self, name: str, k: int = 0) -> int:
+        """First column of variable ``k`` of ``name``."""
+        first, size = self.runs[name]
+        return first + k * size
+
+
 class Rows:
     """Builder of the constraint rows ``A x + s = b`` cone by cone."""
 
@@ -207,6 +227,14 @@ class Rows:
         local = sp.coo_matrix(lin[r, c, :] * w[:, None])
         A = sp.csr_matrix((local.data, (local.row, np.asarray(columns)[local.col])), shape=(len(r), self.K))
         self.blocks.append(("psd", const.shape[0], A, -const[r, c] * w))
+
+    def used(self) -> np.ndarray:
+        """Which columns some row added so far involves (a variable no constraint
+        involves is left out of a program, as cvxpy leaves it out: :meth:`ConicProblem.restrict`)."""
+        out = np.zeros(self.K, dtype=bool)
+        for block in self.blocks:
+            out[block[2].indices] = True
+        return out
 
     def extended(self, A: Matrix, b: ArrayLike) -> Rows:
         """A copy with the rows ``b - A x >= 0`` added."""
@@ -239,6 +267,11 @@ class ConicProblem:
         keep = np.arange(self.A.shape[1]) != index
         b = self.b - value * self.A[:, index].toarray().ravel()
         return ConicProblem(self.c[keep], self.A[:, keep].tocsc(), b, self.cones)
+
+    def restrict(self, keep: np.ndarray) -> ConicProblem:
+        """The program in the columns where ``keep`` (a boolean mask) holds, the others
+        fixed at zero."""
+        return ConicProblem(self.c[keep], self.A[:, keep].tocsc(), self.b, self.cones)
 
     def slack(self, x: Matrix) -> Matrix:
         """``b - A x`` (for tests and diagnostics)."""
