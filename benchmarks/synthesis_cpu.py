@@ -1,8 +1,8 @@
 #!/usr/bin/env python
 """CPU per ``ftc-verify synthesize`` command, two checkouts side by side.
 
-Runs each command of :data:`COMMANDS` as a subprocess (``python -m ftc_verify``) with
-``PYTHONPATH`` set to each checkout given, interleaved (checkout A, checkout B, A, B, ...
+Runs each command of :data:`COMMANDS` as a subprocess (``python -m ftc_verify``) in each
+checkout given, with ``PYTHONPATH`` set to it (its ``examples/`` are the inputs), interleaved (checkout A, checkout B, A, B, ...
 per round), and records the CPU seconds of the process and every child it waited for
 (``os.wait4``: user + sys), the wall seconds, the exit code, the load average at the
 start, and from ``--json`` the certified robust and nominal gamma, the method and the
@@ -44,14 +44,16 @@ COMMANDS = {
 }
 
 
-def run(tree: Path, args: list[str], repo: Path) -> dict[str, object]:
-    """One command with ``PYTHONPATH=tree``: CPU, wall, exit code and the JSON's numbers."""
+def run(tree: Path, args: list[str]) -> dict[str, object]:
+    """One command in the folder ``tree`` with ``PYTHONPATH=tree`` (``python -m`` puts the
+    working folder first on ``sys.path``, so the folder must be the checkout measured):
+    CPU, wall, exit code and the JSON's numbers."""
     env = dict(os.environ, PYTHONPATH=str(tree))
     with tempfile.TemporaryDirectory() as tmp:
         cmd = [sys.executable, "-m", "ftc_verify", "synthesize", *args, "-o", str(Path(tmp) / "K.toml"), "--json"]
         load = os.getloadavg()[0]
         t0 = time.perf_counter()
-        proc = subprocess.Popen(cmd, cwd=repo, env=env, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+        proc = subprocess.Popen(cmd, cwd=tree, env=env, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
         out = proc.stdout.read() if proc.stdout is not None else b""
         _, status, usage = os.wait4(proc.pid, 0)
         wall = time.perf_counter() - t0
@@ -75,13 +77,12 @@ def main() -> None:
     ap.add_argument("--only", nargs="*", default=None, choices=sorted(COMMANDS), help="commands to run")
     ap.add_argument("--out", default="benchmarks/results/synthesis_cpu.csv")
     args = ap.parse_args()
-    repo = Path(__file__).resolve().parent.parent
     names = args.only or list(COMMANDS)
     rows = []
     for r in range(args.rounds):
         for name in names:
             for tree in args.trees:
-                row = {"round": r + 1, "command": name, "tree": tree} | run(Path(tree).resolve(), COMMANDS[name], repo)
+                row = {"round": r + 1, "command": name, "tree": tree} | run(Path(tree).resolve(), COMMANDS[name])
                 rows.append(row)
                 print(f"{r + 1} {name:22s} {tree:24s} cpu {row['cpu_s']:8.2f} wall {row['wall_s']:8.2f} "
                       f"exit {row['exit']} gamma {row.get('gamma_certified')} load {row['load']:.1f}", flush=True)
