@@ -244,8 +244,11 @@ def _blocks(ops: _Ops, aug: ClosedLoop, restriction: Matrix, Q: Any, h: Any, del
                     V.value[s * vd + k, t * vd + k] += Q[t, s]
     else:
         V = V + np.kron(np.asarray(Q).T, np.eye(vd))
-    # exp([[0, ell], [0, V]] h) = [[1, ell G], [0, F]]: size N + 1, not the 2N of [[V, I], [0, 0]]
-    E = ops.expm(ops.bmat([[np.zeros((1, 1)), ops.bmat([ell])], [np.zeros((N, 1)), V]]), h)
+    # exp([[0, ell], [0, V]] h) = [[1, ell G], [0, F]]: size N + 1, not the 2N of [[V, I], [0, 0]];
+    # on balls with the row ell scaled by 2^-k (exact; module docstring, *The output row*)
+    lrow = ops.bmat([ell])
+    k = _row_shift(ops, lrow, V, h) if ops.balls else 0
+    E = ops.expm(ops.bmat([[np.zeros((1, 1)), lrow * 2.0 ** -k if k else lrow], [np.zeros((N, 1)), V]]), h)
     Pz = np.zeros((r, dd))
     Pz[:, :d] = restriction
     rows_d, cols_d = vech_order(dd)
@@ -253,8 +256,23 @@ def _blocks(ops: _Ops, aug: ClosedLoop, restriction: Matrix, Q: Any, h: Any, del
     z0[d] = 1.0
     m0 = np.zeros((N, 1))
     m0[:vd, 0] = np.outer(z0, z0)[rows_d, cols_d]  # the initial joint state 0
-    return _Blocks(ops.block(E, 1, N + 1, 1, N + 1), ops.block(E, 0, 1, 1, N + 1),
+    lg = ops.block(E, 0, 1, 1, N + 1)
+    return _Blocks(ops.block(E, 1, N + 1, 1, N + 1), lg * 2.0 ** k if k else lg,
                    ops.mat(np.kron(np.eye(states), Lr @ np.kron(Pz, Pz) @ Dd)), m0, Dr, Ld)
+
+
+def _row_shift(ops: _Ops, lrow: Any, V: Any, h: Any) -> int:
+    r"""The ``k >= 0`` with :math:`2^{-k}\|\ell h\|_1` at most the largest absolute row sum of
+    :math:`V h` (at least 1/4): from the balls' midpoints (any ``k`` is exact; it only
+    decides the exponential's work and width)."""
+    from .fast_balls import from_arb
+
+    hm = abs(float(h.mid())) if hasattr(h, "mid") else abs(float(h))
+    lsum = float(np.abs(from_arb(lrow.value)[0]).sum()) * hm
+    vsum = max(float(np.max(np.abs(from_arb(V.value)[0]).sum(axis=1))) * hm, 0.25) if V.shape[0] else 0.25
+    if not (math.isfinite(lsum) and lsum > vsum):
+        return 0
+    return min(1000, math.ceil(math.log2(lsum / vsum)))
 
 
 def _ratio(ops: _Ops, b: _Blocks, resets: Sequence[Any], F: Sequence[Matrix], h: Any,
