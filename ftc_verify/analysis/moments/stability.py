@@ -89,13 +89,20 @@ def second_moment_generator(loop: ClosedLoop, beta: Matrix) -> Matrix:
 
 def second_moment_matrix(A: Sequence[Matrix], Q: Matrix) -> Matrix:
     """:math:`\\mathcal{L}` of the module docstring for the joint-mode matrices ``A`` and
-    the joint generator ``Q``."""
-    n = A[0].shape[0]
+    the joint generator ``Q``: block :math:`(s, t)` is :math:`q_{ts} I` off the diagonal
+    and :math:`q_{ss} I + L_n(I \\otimes A_s + A_s \\otimes I)D_n` on it (:func:`lyapunov_vech`,
+    one matrix product for every joint state; the entries are those of
+    ``kron(Q.T, I) + blockdiag(lyapunov_vech(A_s))`` to the last bit)."""
+    n, S = A[0].shape[0], len(A)
     h = n * (n + 1) // 2
-    out: Matrix = np.kron(np.asarray(Q, dtype=float).T, np.eye(h))
-    for s, a in enumerate(A):
-        out[s * h:(s + 1) * h, s * h:(s + 1) * h] += lyapunov_vech(a)
-    return out
+    Qa = np.asarray(Q, dtype=float)
+    blocks = _lyapunov_vech_stack(np.asarray(A, dtype=float))
+    out: Matrix = np.zeros((S, h, S, h))
+    idx = np.arange(h)
+    for s in range(S):
+        out[s, :, s, :] = blocks[s]
+        out[s, idx, :, idx] += Qa[:, s]  # q_ts on the diagonal of block (s, t); q_ss + L_s on block (s, s)
+    return out.reshape(S * h, S * h)
 
 
 @functools.lru_cache(maxsize=64)
@@ -128,6 +135,28 @@ def lyapunov_vech(A: Matrix) -> Matrix:
     return out
 
 
+@functools.lru_cache(maxsize=64)
+def _vech_operator(n: int) -> np.ndarray:
+    """The ``(h^2, n^2)`` 0/1/2 matrix taking ``vec(A)`` (row-major) to the row-major
+    :func:`lyapunov_vech` of ``A`` (``h = n (n + 1) / 2``; memoised, read-only)."""
+    k, j1, r, p, j2, c = _vech_index(n)
+    h = n * (n + 1) // 2
+    out = np.zeros((h * h, n * n))
+    np.add.at(out, (k * h + j1, r * n + p), 1.0)
+    np.add.at(out, (k * h + j2, c * n + p), 1.0)
+    out.flags.writeable = False
+    return out
+
+
+def _lyapunov_vech_stack(A: np.ndarray) -> np.ndarray:
+    """:func:`lyapunov_vech` of every matrix of the stack ``A`` (shape ``(S, n, n)``) by
+    one product with :func:`_vech_operator`: every entry is a sum of at most two entries
+    of ``A`` (weights 1, or 2 on the diagonal), so the same numbers to the last bit."""
+    S, n = A.shape[0], A.shape[1]
+    h = n * (n + 1) // 2
+    return (A.reshape(S, n * n) @ _vech_operator(n).T).reshape(S, h, h)
+
+
 def lyapunov_stack_solution(A: Sequence[Matrix], Q: Matrix, R: Sequence[Matrix] | None = None) -> np.ndarray | None:
     r"""The float stack :math:`X` with :math:`A_s X_s + X_s A_s^T + \sum_t Q_{ts} X_t = -R_s`
     for every joint state (:math:`\mathcal L(X) = -R` of the module docstring; ``R = I``
@@ -153,12 +182,24 @@ def lyapunov_stack_solution(A: Sequence[Matrix], Q: Matrix, R: Sequence[Matrix] 
         else:
             with warnings.catch_warnings():  # an ill-conditioned solve is expected near mu = 0; callers judge it
                 warnings.simplefilter("ignore", scipy.linalg.LinAlgWarning)
-                v = scipy.linalg.solve(second_moment_matrix(A, Q), rhs, check_finite=False)
+                v = _dense_solve(second_moment_matrix(A, Q), rhs)
     except (RuntimeError, ValueError, np.linalg.LinAlgError, scipy.linalg.LinAlgError):
         return None
     if not np.all(np.isfinite(v)):
         return None
     return unvech_stack(v, modes, n)
+
+
+def _dense_solve(G: Matrix, rhs: Matrix) -> Matrix:
+    """``G^{-1} rhs`` by LAPACK's ``gesv`` (LU with partial pivoting), the routine
+    ``scipy.linalg.solve`` calls, without its condition estimate and checks (a third of
+    its time at 324 rows; the same numbers); ``LinAlgError`` when ``G`` is singular."""
+    from scipy.linalg import lapack
+
+    _, _, x, info = lapack.dgesv(G, rhs, overwrite_a=True, overwrite_b=False)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"gesv: info {info}")
+    return x
 
 
 def unvech_stack(v: Matrix, modes: int, n: int) -> Matrix:
