@@ -378,11 +378,16 @@ def abscissa_near(loop: ClosedLoop, beta: Matrix, level: float, *, modes_part: A
     return None
 
 
+@functools.lru_cache(maxsize=64)
 def vech_order(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """``(rows, cols)`` of ``vech``: the lower triangle column by column."""
+    """``(rows, cols)`` of ``vech``: the lower triangle column by column (memoised, a pure
+    function of ``n``: the arrays are read-only)."""
     rows, cols = np.tril_indices(n)
     order = np.lexsort((rows, cols))
-    return rows[order], cols[order]
+    out = rows[order], cols[order]
+    for arr in out:
+        arr.flags.writeable = False
+    return out
 
 
 @dataclass(frozen=True, eq=False)
