@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from ftc_verify.analysis.moments.stability import lyapunov_stack_solution, lyapunov_vech, second_moment_matrix
+from ftc_verify.analysis.moments.stability import lyapunov_stack_solution
+from ftc_verify.analysis.moments.vech import lyapunov_vech, second_moment_matrix
 
 
 def _case(rng: np.random.Generator, n: int, S: int) -> tuple[list[np.ndarray], np.ndarray]:
