@@ -62,7 +62,7 @@ from typing import Any
 from .interrupts import die_with_parent
 
 __all__ = ["Prestarted", "cross_check", "skip_docstring_generation", "defer_modules", "DeferredModule",
-           "CROSS_CHECK_MODULES", "CROSS_CHECK_DEFERRED"]
+           "CROSS_CHECK_MODULES", "CROSS_CHECK_DEFERRED", "defer_numpy_tools", "NUMPY_TOOLS"]
 
 #: What the cross-check child imports first (python-control, then the check itself).
 CROSS_CHECK_MODULES = ("control", "ftc_verify.analysis.crossval")
@@ -236,6 +236,32 @@ def defer_modules(deferred: Mapping[str, Sequence[str]]) -> None:
     for name, names in deferred.items():
         if name not in sys.modules:
             sys.modules[name] = DeferredModule(name, names)
+
+
+#: numpy's submodules that scipy's ``array_api_compat.numpy`` imports when it copies the
+#: ``numpy`` namespace (``clone_module``: every name of ``dir(numpy)``, the lazily loaded
+#: submodules too) and that nothing of ``ftc_verify`` uses: the Fortran wrapper generator
+#: and the test helpers (with ``charset_normalizer``, ``email``, ``importlib.metadata``).
+NUMPY_TOOLS = ("f2py", "testing")
+
+
+def defer_numpy_tools() -> None:
+    """Stand-ins (:class:`DeferredModule`) for :data:`NUMPY_TOOLS` not imported yet, in
+    ``sys.modules`` and as attributes of ``numpy`` (numpy's module ``__getattr__`` imports
+    them on first access, and ``import numpy.f2py as f2py`` would otherwise ask it again
+    for the stand-in: an endless recursion), and the finder that imports the real package
+    before any submodule of a stand-in. For a command that only computes (``analyze``,
+    called before scipy is imported): scipy's import of ``scipy.linalg`` copies them
+    without using them, about 0.07 s of CPU on the way to the first fork. Anything that
+    uses one (an attribute, a submodule) gets the real package, imported then; the same
+    numbers."""
+    import numpy
+
+    defer_modules({f"numpy.{name}": () for name in NUMPY_TOOLS})
+    for name in NUMPY_TOOLS:
+        stand_in = sys.modules.get(f"numpy.{name}")
+        if isinstance(stand_in, DeferredModule) and name not in vars(numpy):
+            setattr(numpy, name, stand_in)
 
 
 def _deferring() -> bool:

@@ -410,7 +410,7 @@ def bounded_real_solution(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequenc
         with np.errstate(all="ignore"):
             At = [a + b @ f for a, b, f in zip(A, Bw, F)]
             R = [r + e - g2 * f.T @ f for r, e, f in zip(base, E, F)]
-        if not all(np.all(np.isfinite(x)) for x in (*At, *R)):
+        if not (np.isfinite(np.asarray(At)).all() and np.isfinite(np.asarray(R)).all()):
             return None
         P = (solve or (_policy_solve if rtol >= SEARCH_RTOL else _schur_solve))(At, Q, R, P_old)
         if P is None:

@@ -55,8 +55,10 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _cmd_analyze(args: argparse.Namespace) -> int:
+    from ..prestart import defer_numpy_tools
     from .common import with_cross_check
 
+    defer_numpy_tools()  # numpy.f2py, numpy.testing: imported by scipy, used by nobody here (issue 37)
     return with_cross_check(args, _analyze_command, "ftc_verify.analysis.analyze")
 
 

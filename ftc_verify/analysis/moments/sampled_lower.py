@@ -65,10 +65,14 @@ the numbers as written (:func:`~ftc_verify.analysis.moments.sampled_gamma.augmen
 the resets of a dynamic controller by Arb's rigorous exponential), the period is the
 float given; :math:`\mathcal F`, :math:`\mathcal G` by a rigorous ball exponential
 (:func:`~ftc_verify.analysis.moments.fast_balls.arb_expm`: float64 midpoint-radius
-arithmetic with its error analysis, Arb's exponential when a number overflows), the
-doubling in 64-bit Arb ball arithmetic (:data:`PROOF_BITS`); when the doublings widen
-that enclosure (its lower end more than :data:`PROOF_RTOL` below the float64 value),
-everything again at 128 bits with Arb's exponential. The bound is the lower end of the
+arithmetic with its error analysis, Arb's exponential when a number overflows) of the
+Van Loan matrix with its output row scaled by a power of two (exact; it set the norm, so
+the squarings: :mod:`~ftc_verify.analysis.moments.sampled_lower_ops`), the doubling in
+64-bit Arb ball arithmetic (:data:`PROOF_BITS`), both as written and in the float
+eigenbasis of :math:`T` (:func:`~ftc_verify.analysis.moments.sampled_lower_ops.eigen_sums`:
+no wrapping), every level a bound of its own; when the enclosure still loses more than
+:data:`PROOF_RTOL` below the float64 value, everything again at 128 bits with Arb's
+exponential. The bound is the lower end of the
 enclosure of the ratio (rounded down): a **proved** lower bound of the sampled loop's nominal (robust)
 gain at this period.
 """
@@ -81,7 +85,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import scipy.linalg
 
 from ...controllers.controller import Controller, check_period
 from ...model.system import FTCSystem, Matrix
@@ -89,6 +92,7 @@ from ..closedloop import ClosedLoop, closed_loop
 from ..lower_bound import float_gain
 from .sampled import SampledLoop, rate_points
 from .sampled_energy import DECAY, OMEGAS, gain_lower_estimate
+from .sampled_lower_ops import MomentOps, trace_weights
 from .stability import duplication_matrix, vech_order
 
 __all__ = ["SCALES", "HORIZON", "SPAN_TIMES", "PROOF_BITS", "PROOF_RTOL", "SampledLowerBound", "sampled_lower_bound",
@@ -127,80 +131,8 @@ class SampledLowerBound:
     float_value: float | None
 
 
-def _weights(W: Matrix) -> Matrix:
-    rows, cols = vech_order(W.shape[0])
-    return np.where(rows == cols, 1.0, 2.0) * W[rows, cols]
-
-
-class _Ops:
-    """float64 or ball versions of the few operations the moment computation uses."""
-
-    def __init__(self, balls: bool) -> None:
-        self.balls = balls
-
-    def mat(self, M: Any) -> Any:
-        if not self.balls:
-            return np.asarray(M, dtype=float)
-        from ..rigorous import ball
-
-        return ball(M)
-
-    def kron(self, A: Any, B: Any) -> Any:
-        if not self.balls:
-            return np.kron(A, B)
-        from .sampled_balls import ball_kron
-
-        return ball_kron(A, B)
-
-    def diag(self, blocks: Sequence[Any]) -> Any:
-        if not self.balls:
-            return scipy.linalg.block_diag(*blocks)
-        from .sampled_balls import ball_block_diag
-
-        return ball_block_diag(blocks)
-
-    def bmat(self, rows: Sequence[Sequence[Any]]) -> Any:
-        if not self.balls:
-            return np.block([[np.asarray(b, dtype=float) for b in row] for row in rows])
-        from ..rigorous import ball_bmat
-
-        return ball_bmat(rows)
-
-    def expm(self, M: Any, h: Any) -> Any:
-        if not self.balls:
-            return scipy.linalg.expm(M * h)
-        from ..rigorous import Ball
-        from .fast_balls import arb_expm
-
-        return Ball(arb_expm(M.value * h))
-
-    def weights(self, W: Any) -> Any:
-        """The row ``w`` with ``w . vech(X) = tr(W X)`` for symmetric ``X``."""
-        if not self.balls:
-            return _weights(W)[None, :]
-        import flint
-
-        from ..rigorous import Ball
-
-        rows, cols = vech_order(W.shape[0])
-        out = flint.arb_mat(1, rows.size)
-        for k, (i, j) in enumerate(zip(rows, cols)):
-            out[0, k] = W.value[int(i), int(j)] * (1 if i == j else 2)
-        return Ball(out)
-
-    def block(self, M: Any, r0: int, r1: int, c0: int, c1: int) -> Any:
-        if not self.balls:
-            return M[r0:r1, c0:c1]
-        import flint
-
-        from ..rigorous import Ball
-
-        out = flint.arb_mat(r1 - r0, c1 - c0)
-        v = M.value
-        for i in range(r1 - r0):
-            for j in range(c1 - c0):
-                out[i, j] = v[r0 + i, c0 + j]
-        return Ball(out)
+_weights = trace_weights
+_Ops = MomentOps
 
 
 @dataclass(frozen=True, eq=False)
@@ -244,8 +176,17 @@ def _blocks(ops: _Ops, aug: ClosedLoop, restriction: Matrix, Q: Any, h: Any, del
                     V.value[s * vd + k, t * vd + k] += Q[t, s]
     else:
         V = V + np.kron(np.asarray(Q).T, np.eye(vd))
-    # exp([[0, ell], [0, V]] h) = [[1, ell G], [0, F]]: size N + 1, not the 2N of [[V, I], [0, 0]]
-    E = ops.expm(ops.bmat([[np.zeros((1, 1)), ops.bmat([ell])], [np.zeros((N, 1)), V]]), h)
+    # exp([[0, ell], [0, V]] h) = [[1, ell G], [0, F]]: size N + 1, not the 2N of [[V, I], [0, 0]];
+    # on balls with the row ell scaled by 2^-k (exact: sampled_lower_ops' module docstring)
+    lrow, k = ops.bmat([ell]), 0
+    if ops.balls:
+        from .fast_balls import from_arb
+        from .sampled_lower_ops import row_exponent
+
+        hm = abs(float(h.mid() if hasattr(h, "mid") else h))
+        k = row_exponent(float(np.abs(from_arb(lrow.value)[0]).sum()) * hm,
+                         float(np.max(np.abs(from_arb(V.value)[0]).sum(axis=1))) * hm)
+    E = ops.expm(ops.bmat([[np.zeros((1, 1)), lrow * 2.0 ** -k if k else lrow], [np.zeros((N, 1)), V]]), h)
     Pz = np.zeros((r, dd))
     Pz[:, :d] = restriction
     rows_d, cols_d = vech_order(dd)
@@ -253,7 +194,8 @@ def _blocks(ops: _Ops, aug: ClosedLoop, restriction: Matrix, Q: Any, h: Any, del
     z0[d] = 1.0
     m0 = np.zeros((N, 1))
     m0[:vd, 0] = np.outer(z0, z0)[rows_d, cols_d]  # the initial joint state 0
-    return _Blocks(ops.block(E, 1, N + 1, 1, N + 1), ops.block(E, 0, 1, 1, N + 1),
+    lg = ops.block(E, 0, 1, 1, N + 1)
+    return _Blocks(ops.block(E, 1, N + 1, 1, N + 1), lg * 2.0 ** k if k else lg,
                    ops.mat(np.kron(np.eye(states), Lr @ np.kron(Pz, Pz) @ Dd)), m0, Dr, Ld)
 
 
@@ -268,15 +210,11 @@ def _ratios(ops: _Ops, b: _Blocks, resets: Sequence[Any], F: Sequence[Matrix], h
             doublings: int) -> list[tuple[Any, Any]]:
     """:func:`_ratio` at every :math:`p' \\le p` (``out[p']``, :math:`K = 2^{p'} + 1`), from
     the one pass of doublings: each is a lower bound of its own."""
-    lifts = []
-    for R, Fs in zip(resets, F):
-        Rh = ops.bmat([[R], [Fs]])
-        lifts.append(ops.mat(b.Ld) @ ops.kron(Rh, Rh) @ ops.mat(b.Dr))
-    lift = ops.diag(lifts)
+    lift, f = _lift(ops, b, resets, F)
     T = b.restrict @ b.Fm @ lift
     Sm = b.restrict @ (b.Fm @ b.m0)  # v_1: one term
     Pw = T
-    f, num0 = ops.mat(np.concatenate([_weights(Fs.T @ Fs) for Fs in F])[None, :]), b.lg @ b.m0
+    num0 = b.lg @ b.m0
     out = []
     for k in range(doublings + 1):  # S_{2m} = S_m + T^m S_m, T^{2m} = (T^m)^2
         if k:
@@ -284,6 +222,28 @@ def _ratios(ops: _Ops, b: _Blocks, resets: Sequence[Any], F: Sequence[Matrix], h
             Pw = Pw @ Pw if k < doublings else Pw
         out.append((num0 + b.lg @ (lift @ Sm), (f @ Sm + 1.0) * h))
     return out
+
+
+def _lift(ops: _Ops, b: _Blocks, resets: Sequence[Any], F: Sequence[Matrix]) -> tuple[Any, Any]:
+    r"""The reset of the moments :math:`\hat{\mathcal R}` and the row :math:`f`."""
+    lifts = []
+    for R, Fs in zip(resets, F):
+        Rh = ops.bmat([[R], [Fs]])
+        lifts.append(ops.mat(b.Ld) @ ops.kron(Rh, Rh) @ ops.mat(b.Dr))
+    return ops.diag(lifts), ops.mat(np.concatenate([_weights(Fs.T @ Fs) for Fs in F])[None, :])
+
+
+def _eigen_levels(ops: _Ops, b: _Blocks, resets: Sequence[Any], F: Sequence[Matrix], h: Any,
+                  doublings: int) -> list[tuple[Any, Any]]:
+    """:func:`_ratios` on balls (Arb numbers) with the doublings in the eigenbasis of
+    :math:`T` (:func:`~ftc_verify.analysis.moments.sampled_lower_ops.eigen_sums`; ``[]`` when unusable)."""
+    from .sampled_lower_ops import eigen_sums
+
+    lift, f = _lift(ops, b, resets, F)
+    found = eigen_sums((b.restrict @ b.Fm @ lift).value, (b.restrict @ (b.Fm @ b.m0)).value,
+                       (b.lg @ lift).value, f.value, doublings)
+    num0 = (b.lg @ b.m0).value[0, 0]
+    return [(num0 + gS, (fS + 1) * h) for gS, fS in found]
 
 
 class _FloatRatio:
@@ -546,9 +506,12 @@ def _prove_at(system: FTCSystem, loop: SampledLoop, h: float, rates: Matrix, del
         Q = ball_generator(system.chain, rates, rates, loop.literals).value
         hb = loop.period_ball(h)
         ops = _Ops(True)
-        levels = _ratios(ops, _blocks(ops, aug, P, Q, hb, delta, system.dims[3]), resets, F, hb, doublings)
-        for level, (num, den) in enumerate(levels):
-            ratio = num.value[0, 0] / den.value[0, 0]
+        blocks = _blocks(ops, aug, P, Q, hb, delta, system.dims[3])
+        levels = [(num.value[0, 0], den.value[0, 0]) for num, den in _ratios(ops, blocks, resets, F, hb, doublings)]
+        levels += _eigen_levels(ops, blocks, resets, F, hb, doublings)  # the same p' again, each a bound
+        for at, (num, den) in enumerate(levels):
+            level = at % (doublings + 1)
+            ratio = num / den
             if not ratio > 0:
                 continue
             root = ratio.sqrt()

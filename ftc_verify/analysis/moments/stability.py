@@ -23,7 +23,6 @@ is attained at a positive semidefinite eigenvector.
 
 from __future__ import annotations
 
-import functools
 import itertools
 import math
 from collections.abc import Sequence
@@ -37,6 +36,7 @@ from ..closedloop import ClosedLoop
 from ..conditioning import Similarity, conditioning_transform
 from ..box import BOX_BUDGET_SECONDS, RegionVerdict, box_stability
 from ...model.system import Matrix
+from .vech import dense_solve, duplication_matrix, lyapunov_vech, second_moment_matrix, unvech_stack, vech_order
 
 __all__ = [
     "MSSResult",
@@ -46,6 +46,8 @@ __all__ = [
     "unvech_stack",
     "lyapunov_stack_solution",
     "vech_order",
+    "dense_solve",
+    "SHIFT_DENSE_ROWS",
     "sparse_mode_blocks",
     "spectral_abscissa",
     "generator_size",
@@ -66,66 +68,10 @@ __all__ = [
 DENSE_LIMIT = 1500
 
 
-def duplication_matrix(n: int) -> tuple[Matrix, Matrix]:
-    """``(D, L)``: ``vec(X) = D vech(X)`` for symmetric ``X`` and ``vech(X) = L vec(X)``.
-
-    ``vech`` stacks the lower triangle column by column (column-major ``vec``).
-    """
-    pairs = [(r, c) for c in range(n) for r in range(c, n)]
-    D = np.zeros((n * n, len(pairs)))
-    L = np.zeros((len(pairs), n * n))
-    for k, (r, c) in enumerate(pairs):
-        D[c * n + r, k] = 1.0
-        D[r * n + c, k] = 1.0
-        L[k, c * n + r] = 1.0
-    return D, L
-
-
 def second_moment_generator(loop: ClosedLoop, beta: Matrix) -> Matrix:
     """The matrix :math:`\\mathcal{L}` of the module docstring for the rate array ``beta``
     (shape :attr:`JointChain.rate_shape`)."""
     return second_moment_matrix(loop.A, loop.chain.generator(beta))
-
-
-def second_moment_matrix(A: Sequence[Matrix], Q: Matrix) -> Matrix:
-    """:math:`\\mathcal{L}` of the module docstring for the joint-mode matrices ``A`` and
-    the joint generator ``Q``."""
-    n = A[0].shape[0]
-    h = n * (n + 1) // 2
-    out: Matrix = np.kron(np.asarray(Q, dtype=float).T, np.eye(h))
-    for s, a in enumerate(A):
-        out[s * h:(s + 1) * h, s * h:(s + 1) * h] += lyapunov_vech(a)
-    return out
-
-
-@functools.lru_cache(maxsize=64)
-def _vech_index(n: int) -> tuple[np.ndarray, ...]:
-    """Index arrays of :func:`lyapunov_vech`: row ``(r, c)`` of ``vech(A X + X A')``
-    takes ``A[r, p]`` at ``X[p, c]`` and ``A[c, p]`` at ``X[r, p]`` (``X`` symmetric).
-    Memoised (a pure function of ``n``; the arrays are read-only)."""
-    rows, cols = vech_order(n)
-    index = np.zeros((n, n), dtype=int)
-    index[rows, cols] = np.arange(rows.size)
-    index[cols, rows] = np.arange(rows.size)
-    k = np.repeat(np.arange(rows.size), n)
-    r = np.repeat(rows, n)
-    c = np.repeat(cols, n)
-    p = np.tile(np.arange(n), rows.size)
-    out = (k, index[p, c], r, p, index[r, p], c)
-    for arr in out:
-        arr.flags.writeable = False
-    return out
-
-
-def lyapunov_vech(A: Matrix) -> Matrix:
-    r"""The matrix of :math:`X \mapsto A X + X A^T` on ``vech`` coordinates
-    (:math:`L_n (I \otimes A + A \otimes I) D_n`), assembled from index arrays."""
-    n = A.shape[0]
-    k, j1, r, p, j2, c = _vech_index(n)
-    out = np.zeros((n * (n + 1) // 2,) * 2)
-    np.add.at(out, (k, j1), A[r, p])
-    np.add.at(out, (k, j2), A[c, p])
-    return out
 
 
 def lyapunov_stack_solution(A: Sequence[Matrix], Q: Matrix, R: Sequence[Matrix] | None = None) -> np.ndarray | None:
@@ -153,22 +99,12 @@ def lyapunov_stack_solution(A: Sequence[Matrix], Q: Matrix, R: Sequence[Matrix] 
         else:
             with warnings.catch_warnings():  # an ill-conditioned solve is expected near mu = 0; callers judge it
                 warnings.simplefilter("ignore", scipy.linalg.LinAlgWarning)
-                v = scipy.linalg.solve(second_moment_matrix(A, Q), rhs, check_finite=False)
+                v = dense_solve(second_moment_matrix(A, Q), rhs)
     except (RuntimeError, ValueError, np.linalg.LinAlgError, scipy.linalg.LinAlgError):
         return None
     if not np.all(np.isfinite(v)):
         return None
     return unvech_stack(v, modes, n)
-
-
-def unvech_stack(v: Matrix, modes: int, n: int) -> Matrix:
-    """The stack of ``modes`` symmetric ``n x n`` matrices whose ``vech`` (lower triangle
-    column by column) are the consecutive pieces of ``v``."""
-    rows, cols = vech_order(n)
-    X = np.zeros((modes, n, n), dtype=np.asarray(v).dtype)
-    X[:, rows, cols] = np.asarray(v).reshape(modes, -1)
-    X[:, cols, rows] = X[:, rows, cols]
-    return X
 
 
 def spectral_abscissa(loop: ClosedLoop, beta: Matrix) -> float:
@@ -199,6 +135,9 @@ def generator_size(loop: ClosedLoop) -> int:
 #: :data:`DENSE_LIMIT` rows, GMRES above); outside this range every vertex is evaluated by
 #: :func:`spectral_abscissa` (below, dense eigenvalues cost less than the test).
 SHIFT_TEST_MIN, SHIFT_TEST_LIMIT = 100, 20_000
+#: Generators (rows) up to which the shift test factors the dense matrix (LAPACK ``gesv``:
+#: 1 ms at 324 rows, against 3-5 ms for SuperLU and its sparse assembly), sparse above.
+SHIFT_DENSE_ROWS = 600
 #: GMRES's relative residual in the shift test above :data:`DENSE_LIMIT` rows: the test
 #: recomputes the residual from :math:`X` and needs it only within a fraction of
 #: :math:`I`, so a loose solve decides the same (and converges far sooner near :math:`\mu`).
@@ -218,7 +157,8 @@ def sparse_mode_blocks(loop: ClosedLoop) -> Any:
     return sp.block_diag([sp.csr_matrix(L @ (np.kron(eye, A) + np.kron(A, eye)) @ D) for A in loop.A], format="csc")
 
 
-def abscissa_below(loop: ClosedLoop, beta: Matrix, sigma: float, *, modes_part: Any = None) -> bool:
+def abscissa_below(loop: ClosedLoop, beta: Matrix, sigma: float, *, modes_part: Any = None,
+                   norms: Sequence[float] | None = None) -> bool:
     r"""Certified test: ``True`` only if the spectral abscissa at ``beta`` is ``< sigma``.
 
     Solves :math:`\mathcal L(X) - \sigma X = -I` (every joint mode; sparse LU up to
@@ -234,6 +174,9 @@ def abscissa_below(loop: ClosedLoop, beta: Matrix, sigma: float, *, modes_part: 
     :math:`Z \ne 0`, with :math:`\mathcal L^*(Z) = \mu Z` (Krein-Rutman), so
     :math:`0 > \langle \mathcal L(X) - \sigma X, Z\rangle = (\mu - \sigma)\langle X, Z\rangle`
     with :math:`\langle X, Z\rangle > 0`. ``False`` means "not shown", not "above".
+    Up to :data:`SHIFT_DENSE_ROWS` rows the LU is LAPACK's dense one (how :math:`X` was
+    found does not matter); ``norms``: the spectral norms of ``loop.A`` (computed here
+    when ``None``; the same at every vertex).
     """
     n, modes = loop.n, len(loop.A)
     Q = loop.chain.generator(beta)
@@ -246,6 +189,17 @@ def abscissa_below(loop: ClosedLoop, beta: Matrix, sigma: float, *, modes_part: 
         if found is None:
             return False
         X = np.array(found)
+    elif generator_size(loop) <= SHIFT_DENSE_ROWS:
+        G = second_moment_matrix(loop.A, Q)
+        G[np.diag_indices_from(G)] -= sigma
+        rows, cols = vech_order(n)
+        try:
+            v = dense_solve(G, np.tile(-(rows == cols).astype(float), modes))
+        except np.linalg.LinAlgError:  # exactly singular
+            return False
+        if not np.all(np.isfinite(v)):
+            return False
+        X = unvech_stack(v, modes, n)
     else:
         import scipy.sparse as sp
         from scipy.sparse.linalg import splu
@@ -263,9 +217,10 @@ def abscissa_below(loop: ClosedLoop, beta: Matrix, sigma: float, *, modes_part: 
         X = unvech_stack(v, modes, n)
     coupled = np.einsum("ts,tij->sij", Q, X)
     x_norm = 64 * n * np.finfo(float).eps * np.linalg.norm(X, 2, axis=(1, 2)).max()
+    a_norms = [np.linalg.norm(A, 2) for A in loop.A] if norms is None else norms
     for s, A in enumerate(loop.A):
         Y = A @ X[s] + X[s] @ A.T + coupled[s] - sigma * X[s]
-        bound = x_norm * (2 * np.linalg.norm(A, 2) + abs(sigma) + np.abs(Q).sum())  # rounding in Y
+        bound = x_norm * (2 * a_norms[s] + abs(sigma) + np.abs(Q).sum())  # rounding in Y
         try:
             np.linalg.cholesky(X[s])
             np.linalg.cholesky(-Y - bound * np.eye(n))
@@ -275,7 +230,7 @@ def abscissa_below(loop: ClosedLoop, beta: Matrix, sigma: float, *, modes_part: 
 
 
 def abscissa_near(loop: ClosedLoop, beta: Matrix, level: float, *, modes_part: Any = None,
-                  rtol: float = 1e-12, max_steps: int = 80) -> float | None:
+                  rtol: float = 1e-12, max_steps: int = 80, norms: Sequence[float] | None = None) -> float | None:
     r"""The spectral abscissa :math:`\mu` at ``beta`` when it is known to lie near
     ``level`` (a vertex close to one already evaluated), without dense eigenvalues.
 
@@ -296,7 +251,7 @@ def abscissa_near(loop: ClosedLoop, beta: Matrix, level: float, *, modes_part: A
     moves to the bracket's top plus its width (still above :math:`\mu`), so the
     iteration converges fast. Returns the bracket's midpoint once its width is at most
     ``rtol * max(1, |mu|)``; ``None`` when no shift is proved or the iteration stalls
-    (the caller then uses dense eigenvalues).
+    (the caller then uses dense eigenvalues). ``norms``: as in :func:`abscissa_below`.
     """
     import scipy.linalg
     import scipy.sparse as sp
@@ -307,7 +262,7 @@ def abscissa_near(loop: ClosedLoop, beta: Matrix, level: float, *, modes_part: A
     G = base + sp.kron(loop.chain.generator(beta).T, sp.identity(n * (n + 1) // 2), format="csc")
     eye = sp.identity(G.shape[0], format="csc")
     sigma = next((level + d * (1 + abs(level)) for d in (0.01, 0.04, 0.16, 0.64)
-                  if abscissa_below(loop, beta, level + d * (1 + abs(level)), modes_part=base)), None)
+                  if abscissa_below(loop, beta, level + d * (1 + abs(level)), modes_part=base, norms=norms)), None)
     if sigma is None:
         return None
     rows, cols = vech_order(n)
@@ -335,13 +290,6 @@ def abscissa_near(loop: ClosedLoop, beta: Matrix, level: float, *, modes_part: A
             X = Y / np.abs(Y).max()
         sigma = upper + max(upper - lower, rtol * max(1.0, abs(upper)))
     return None
-
-
-def vech_order(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """``(rows, cols)`` of ``vech``: the lower triangle column by column."""
-    rows, cols = np.tril_indices(n)
-    order = np.lexsort((rows, cols))
-    return rows[order], cols[order]
 
 
 @dataclass(frozen=True, eq=False)
@@ -477,7 +425,7 @@ def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256,
     """
     sim = conditioning_transform(loop.nominal())
     nominal = sim.apply(loop.nominal())
-    chain = loop.chain
+    chain, norms = loop.chain, [float(np.linalg.norm(a, 2)) for a in nominal.A]  # norms: the shift test's margin
     prune = SHIFT_TEST_MIN <= generator_size(nominal) <= SHIFT_TEST_LIMIT
     modes_part = sparse_mode_blocks(nominal) if prune and generator_size(nominal) <= DENSE_LIMIT else None
     exact: dict[tuple[bool, ...], float] = {}
@@ -495,7 +443,7 @@ def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256,
         seen.add(bits)
         if bits not in exact:
             mu = None if near is None or modes_part is None else abscissa_near(nominal, vertex(bits), near,
-                                                                               modes_part=modes_part)
+                                                                               modes_part=modes_part, norms=norms)
             exact[bits] = spectral_abscissa(nominal, vertex(bits)) if mu is None else mu
         return exact[bits]
 
@@ -505,7 +453,7 @@ def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256,
         seen.add(bits)
         if bits in exact or not (prune and math.isfinite(level)):
             return value(bits) > level
-        if abscissa_below(nominal, vertex(bits), level, modes_part=modes_part):
+        if abscissa_below(nominal, vertex(bits), level, modes_part=modes_part, norms=norms):
             return False
         return value(bits, near=level) > level
 
