@@ -40,8 +40,8 @@ from numpy.typing import ArrayLike
 
 from ..model.system import Matrix
 
-__all__ = ["Affine", "affine_bmat", "svec_index", "sym_variable", "scalar_variable", "Rows", "ConicProblem",
-           "solve_clarabel", "solve_clarabel_dual", "to_cvxpy"]
+__all__ = ["Affine", "affine_bmat", "svec_index", "sym_variable", "scalar_variable", "matrix_variable",
+           "local_variables", "evaluate", "Columns", "Rows", "ConicProblem", "solve_clarabel", "solve_clarabel_dual", "to_cvxpy"]
 
 _R2 = math.sqrt(2.0)
 
@@ -51,7 +51,7 @@ class Affine:
 
     ``const`` has the matrix's shape; ``lin`` has one more axis of length ``K``. Supports
     what the LMI blocks use: ``+``, ``-``, ``@`` with constant matrices, products with
-    numbers (and a scalar :class:`Affine` times a constant matrix), ``.T``.
+    (and division by) numbers (and a scalar :class:`Affine` times a constant matrix), ``.T``.
     """
 
     __array_ufunc__ = None  # numpy defers ``ndarray @ Affine`` to __rmatmul__
@@ -95,6 +95,9 @@ class Affine:
         return Affine(self.const * value, value[..., None] * self.lin)
 
     __rmul__ = __mul__
+
+    def __truediv__(self, other: float) -> Affine:
+        return Affine(self.const / float(other), self.lin / float(other))
 
     def __matmul__(self, other: Matrix) -> Affine:
         M = np.asarray(other, dtype=float)
@@ -145,6 +148,64 @@ def scalar_variable(index: int, K: int) -> Affine:
     return Affine(np.zeros(()), lin)
 
 
+def matrix_variable(rows: int, cols: int, first: int, K: int) -> Affine:
+    """The general ``rows x cols`` matrix whose entries, row by row, are variables
+    ``first, ..., first + rows * cols - 1`` of ``K``."""
+    lin = np.zeros((rows, cols, K))
+    r, c = np.divmod(np.arange(rows * cols), cols)
+    lin[r, c, first + np.arange(rows * cols)] = 1.0
+    return Affine(np.zeros((rows, cols)), lin)
+
+
+def local_variables(pieces: Sequence[tuple[str, int, tuple[int, ...]]]) -> tuple[list[Affine], Matrix]:
+    """The variables one constraint uses, on columns of their own: ``pieces`` lists
+    ``(kind, first global column, shape)`` with ``kind`` ``"sym"`` (shape ``(n,)``: a
+    symmetric matrix in ``svec`` coordinates, :func:`sym_variable`), ``"mat"`` (shape
+    ``(rows, cols)``, :func:`matrix_variable`) or ``"scalar"`` (shape ``()``). Returns the
+    :class:`Affine` of each piece over the local columns and the global column of each
+    local one (the ``columns`` of :meth:`Rows.lmi`). Building a block on its own few
+    columns keeps the ``lin`` arrays small when the program has many variables."""
+    sizes = [shape[0] * (shape[0] + 1) // 2 if kind == "sym" else int(np.prod(shape)) for kind, _, shape in pieces]
+    K = sum(sizes)
+    out: list[Affine] = []
+    pos = 0
+    for (kind, _, shape), size in zip(pieces, sizes):
+        if kind == "sym":
+            out.append(sym_variable(shape[0], pos, K))
+        elif kind == "mat":
+            out.append(matrix_variable(shape[0], shape[1], pos, K))
+        else:
+            out.append(scalar_variable(pos, K))
+        pos += size
+    columns = np.concatenate([np.arange(first, first + size) for (_, first, _), size in zip(pieces, sizes)])
+    return out, columns.astype(int)
+
+
+def evaluate(M: Affine, x: Matrix) -> Matrix:
+    """The value :math:`M_0 + \\sum_k x_k M_k` of ``M`` at the point ``x``."""
+    return M.const + M.lin @ np.asarray(x, dtype=float)
+
+
+class Columns:
+    """Named runs of program columns, allocated in order: :meth:`add` ``count``
+    variables of ``size`` columns each under ``name``; :meth:`at` the first column of
+    the ``k``-th; ``K`` the columns so far."""
+
+    def __init__(self) -> None:
+        self.K = 0
+        self.runs: dict[str, tuple[int, int]] = {}
+
+    def add(self, name: str, count: int, size: int) -> None:
+        """Allocate ``count`` variables of ``size`` columns under ``name``."""
+        self.runs[name] = (self.K, size)
+        self.K += count * size
+
+    def at(self, name: str, k: int = 0) -> int:
+        """First column of variable ``k`` of ``name``."""
+        first, size = self.runs[name]
+        return first + k * size
+
+
 class Rows:
     """Builder of the constraint rows ``A x + s = b`` cone by cone."""
 
@@ -166,6 +227,14 @@ class Rows:
         local = sp.coo_matrix(lin[r, c, :] * w[:, None])
         A = sp.csr_matrix((local.data, (local.row, np.asarray(columns)[local.col])), shape=(len(r), self.K))
         self.blocks.append(("psd", const.shape[0], A, -const[r, c] * w))
+
+    def used(self) -> np.ndarray:
+        """Which columns some row added so far involves (a variable no constraint
+        involves is left out of a program, as cvxpy leaves it out: :meth:`ConicProblem.restrict`)."""
+        out = np.zeros(self.K, dtype=bool)
+        for block in self.blocks:
+            out[block[2].indices] = True
+        return out
 
     def extended(self, A: Matrix, b: ArrayLike) -> Rows:
         """A copy with the rows ``b - A x >= 0`` added."""
@@ -198,6 +267,11 @@ class ConicProblem:
         keep = np.arange(self.A.shape[1]) != index
         b = self.b - value * self.A[:, index].toarray().ravel()
         return ConicProblem(self.c[keep], self.A[:, keep].tocsc(), b, self.cones)
+
+    def restrict(self, keep: np.ndarray) -> ConicProblem:
+        """The program in the columns where ``keep`` (a boolean mask) holds, the others
+        fixed at zero."""
+        return ConicProblem(self.c[keep], self.A[:, keep].tocsc(), self.b, self.cones)
 
     def slack(self, x: Matrix) -> Matrix:
         """``b - A x`` (for tests and diagnostics)."""

@@ -40,9 +40,10 @@ from typing import Any
 import numpy as np
 
 from ..analysis.closedloop import gain_loop
+from ..analysis.conic import Columns, ConicProblem, Rows, affine_bmat, evaluate, local_variables
 from ..analysis.lmi import block_specs, dilated_block, xy_block
 from ..model.system import FTCSystem, Matrix
-from .xy_design import gain_bound
+from .xy_design import gain_bound_block
 
 __all__ = ["TAU_GRID", "GOLDEN_STEPS", "dilated_problem", "dilated_solve", "dilated_design", "true_mode_reference"]
 
@@ -52,62 +53,111 @@ TAU_GRID = (1e-3, 1e-2, 1e-1, 1.0, 10.0)
 GOLDEN_STEPS = 4
 
 
-def dilated_problem(system: FTCSystem, k_max: float | None) -> tuple[Any, Any, dict[str, list[Any]]]:
-    """The dilated blocks with ``tau`` a cvxpy parameter (compiled once, solved per ``tau``):
-    ``(problem minimising g, tau, variables)``."""
-    import cvxpy as cp
-
+def _dilated_columns(system: FTCSystem, k_max: float | None) -> Columns:
+    """Columns of the dilated program: ``X_s`` (``svec``) per joint state, ``G_j`` and
+    ``Y_j`` (row by row) per FDI mode, ``g``, ``mu`` (with ``k_max``), ``eps_s``, ``delta_s``."""
     n, nu = system.dims[0], system.dims[1]
     S, m = system.chain.n_states, system.m
-    X = [cp.Variable((n, n), symmetric=True) for _ in range(S)]
-    G = [cp.Variable((n, n)) for _ in range(m)]
-    Y = [cp.Variable((nu, n)) for _ in range(m)]
-    eps = [cp.Variable(nonneg=True) for _ in range(S)]
-    dlt = [cp.Variable(nonneg=True) for _ in range(S)]
-    g = cp.Variable(nonneg=True)
-    tau = cp.Parameter(pos=True)
-    cons = [x >> 0 for x in X]
+    cols = Columns()
+    cols.add("X", S, n * (n + 1) // 2)
+    cols.add("G", m, n * n)
+    cols.add("Y", m, nu * n)
+    cols.add("g", 1, 1)
+    cols.add("mu", 1 if k_max is not None else 0, 1)
+    cols.add("eps", S, 1)
+    cols.add("delta", S, 1)
+    return cols
+
+
+def dilated_problem(system: FTCSystem, k_max: float | None, tau: float) -> tuple[ConicProblem, Columns, Matrix]:
+    r"""The dilated blocks at one ``tau`` in conic form (:mod:`ftc_verify.analysis.conic`,
+    each block on its own variables): minimise ``g`` subject to every
+    :func:`~ftc_verify.analysis.lmi.dilated_block` :math:`\preceq 0`, :math:`X_s \succeq 0`,
+    ``g, eps, delta >= 0`` and the gain bound of the module docstring. Returns the
+    program, its columns and the mask of the columns kept (the multipliers no block
+    involves are left out)."""
+    n, nu = system.dims[0], system.dims[1]
+    S, m = system.chain.n_states, system.m
+    cols = _dilated_columns(system, k_max)
+    rows = Rows(cols.K)
+    for s in range(S):
+        (Xs,), at = local_variables([("sym", cols.at("X", s), (n,))])
+        rows.lmi(-Xs, at)
     probe = gain_loop(system, [np.zeros((nu, n))] * m, "probe")
     for spec in block_specs(probe):
-        M = dilated_block(system.modes[spec.true], X, G[spec.fdi], spec.s, Y[spec.fdi], eps[spec.s], dlt[spec.s], g,
-                          spec.q_row, tau, cp.bmat)
-        cons.append(0.5 * (M + M.T) << 0)
+        s, j = spec.s, spec.fdi
+        states = [s] + [t for t, q in enumerate(spec.q_row) if t != s and q > 0]
+        pieces: list[tuple[str, int, tuple[int, ...]]] = [("sym", cols.at("X", t), (n,)) for t in states]
+        pieces += [("mat", cols.at("G", j), (n, n)), ("mat", cols.at("Y", j), (nu, n))]
+        pieces += [("scalar", cols.at(name, k), ()) for name, k in (("eps", s), ("delta", s), ("g", 0))]
+        var, at = local_variables(pieces)
+        X: list[Any] = [None] * S
+        for pos, t in enumerate(states):
+            X[t] = var[pos]
+        G, Y, eps, dlt, g = var[len(states):]
+        rows.lmi(dilated_block(system.modes[spec.true], X, G, s, Y, eps, dlt, g, spec.q_row, tau, affine_bmat), at)
     if k_max is not None:
-        mu = cp.Variable(nonneg=True)
-        for Gj, Yj in zip(G, Y):
-            cons += [Gj + Gj.T >> 2 * mu * np.eye(n), gain_bound(Yj, k_max, mu)]
-    return cp.Problem(cp.Minimize(g), cons), tau, {"G": G, "Y": Y, "g": [g]}
+        for j in range(m):
+            (G, Y, mu), at = local_variables([("mat", cols.at("G", j), (n, n)), ("mat", cols.at("Y", j), (nu, n)),
+                                              ("scalar", cols.at("mu"), ())])
+            rows.lmi(2 * mu * np.eye(n) - (G + G.T), at)
+            rows.lmi(-gain_bound_block(Y, k_max, mu, affine_bmat), at)
+    return _min_g(rows, cols)
 
 
-def dilated_solve(problem: tuple[Any, Any, dict[str, list[Any]]], tau: float, calls: Any) -> dict[str, Any] | None:
+def _min_g(rows: Rows, cols: Columns) -> tuple[ConicProblem, Columns, Matrix]:
+    """``min g`` over ``rows`` with the scalars from ``g`` on nonnegative, the columns no
+    row involves left out: ``(program, cols, kept mask)``."""
+    keep = rows.used()
+    scalars = [k for k in range(cols.at("g"), cols.K) if keep[k]]
+    rows.nonneg(-np.eye(cols.K)[scalars], np.zeros(len(scalars)))
+    c = np.zeros(cols.K)
+    c[cols.at("g")] = 1.0
+    keep[cols.at("g")] = True
+    return rows.problem(c).restrict(keep), cols, keep
+
+
+def _point(x: Matrix | None, keep: Matrix) -> Matrix | None:
+    """The solver's point in every column of the program (``nan`` where left out)."""
+    if x is None:
+        return None
+    full = np.full(len(keep), math.nan)
+    full[keep] = x
+    return full
+
+
+def _matrix(x: Matrix, first: int, shape: tuple[int, int]) -> Matrix:
+    return x[first:first + shape[0] * shape[1]].reshape(shape)
+
+
+def dilated_solve(system: FTCSystem, k_max: float | None, tau: float, calls: Any) -> dict[str, Any] | None:
     """Minimise gamma over the dilated blocks of :func:`dilated_problem` at one ``tau``;
     ``{"gains", "gamma", "tau"}`` (one :math:`K_j = Y_j G_j^{-1}` per FDI mode) or ``None``
     when the solver gave no point."""
-    prob, tau_par, var = problem
-    tau_par.value = tau
-    out = calls.run(prob)
-    g = var["g"][0]
-    if not out.solved or g.value is None or any(v.value is None for v in var["G"] + var["Y"]):
+    problem, cols, keep = dilated_problem(system, k_max, tau)
+    out, x = calls.run_conic(problem)
+    x = _point(x, keep)
+    if not out.solved or x is None:
         return None
+    n, nu = system.dims[0], system.dims[1]
     gains = []
-    for Gj, Yj in zip(var["G"], var["Y"]):
-        Gv = np.array(Gj.value)
+    for j in range(system.m):
+        Gv = _matrix(x, cols.at("G", j), (n, n))
         if not np.all(np.isfinite(Gv)) or np.linalg.cond(Gv) > 1e12:
             return None
-        gains.append(np.linalg.solve(Gv.T, np.array(Yj.value).T).T)
-    return {"gains": gains, "gamma": math.sqrt(max(float(g.value), 0.0)), "tau": tau}
+        gains.append(np.linalg.solve(Gv.T, _matrix(x, cols.at("Y", j), (nu, n)).T).T)
+    return {"gains": gains, "gamma": math.sqrt(max(float(x[cols.at("g")]), 0.0)), "tau": tau}
 
 
 def dilated_design(system: FTCSystem, calls: Any, k_max: float | None) -> dict[str, Any] | None:
     """The dilated design with the line search on ``tau`` of the module docstring: the
     solution of smallest synthesis gamma (``None`` when no ``tau`` gave one)."""
     rho = max([1.0] + [float(np.linalg.norm(md.A, 2)) for md in system.modes])
-    problem = dilated_problem(system, k_max)
     found: dict[float, dict[str, Any] | None] = {}
 
     def at(log_tau: float) -> float:
         if log_tau not in found:
-            found[log_tau] = dilated_solve(problem, 10.0 ** log_tau / rho, calls)
+            found[log_tau] = dilated_solve(system, k_max, 10.0 ** log_tau / rho, calls)
         sol = found[log_tau]
         return math.inf if sol is None else float(sol["gamma"])
 
@@ -132,21 +182,36 @@ def dilated_design(system: FTCSystem, calls: Any, k_max: float | None) -> dict[s
 def true_mode_reference(system: FTCSystem, calls: Any) -> dict[str, Any] | None:
     """The true-mode (classical MJLS) design of the module docstring: ``{"gamma", "gains"}``
     with one gain per true mode, or ``None`` when the LMI gave no point."""
-    import cvxpy as cp
-
     n, nu, m = system.dims[0], system.dims[1], system.m
-    X = [cp.Variable((n, n), symmetric=True) for _ in range(m)]
-    Y = [cp.Variable((nu, n)) for _ in range(m)]
-    eps = [cp.Variable(nonneg=True) for _ in range(m)]
-    dlt = [cp.Variable(nonneg=True) for _ in range(m)]
-    g = cp.Variable(nonneg=True)
-    cons = [x >> 0 for x in X]
+    cols = Columns()
+    cols.add("X", m, n * (n + 1) // 2)
+    cols.add("Y", m, nu * n)
+    cols.add("g", 1, 1)
+    cols.add("eps", m, 1)
+    cols.add("delta", m, 1)
+    rows = Rows(cols.K)
     alpha = np.asarray(system.chain.alpha, dtype=float)
     for i, md in enumerate(system.modes):
-        M = xy_block(md, X, i, Y[i], eps[i], dlt[i], g, alpha[i], cp.bmat)
-        cons.append(0.5 * (M + M.T) << 0)
-    out = calls.run(cp.Problem(cp.Minimize(g), cons))
-    if not out.solved or g.value is None or any(v.value is None for v in X + Y):
+        (Xi,), at = local_variables([("sym", cols.at("X", i), (n,))])
+        rows.lmi(-Xi, at)
+        states = [i] + [t for t, q in enumerate(alpha[i]) if t != i and q > 0]
+        pieces: list[tuple[str, int, tuple[int, ...]]] = [("sym", cols.at("X", t), (n,)) for t in states]
+        pieces += [("mat", cols.at("Y", i), (nu, n))]
+        pieces += [("scalar", cols.at(name, k), ()) for name, k in (("eps", i), ("delta", i), ("g", 0))]
+        var, at = local_variables(pieces)
+        X: list[Any] = [None] * m
+        for pos, t in enumerate(states):
+            X[t] = var[pos]
+        Y, eps, dlt, g = var[len(states):]
+        rows.lmi(xy_block(md, X, i, Y, eps, dlt, g, alpha[i], affine_bmat), at)
+    problem, cols, keep = _min_g(rows, cols)
+    out, x = calls.run_conic(problem)
+    x = _point(x, keep)
+    if not out.solved or x is None:
         return None
-    gains: list[Matrix] = [np.array(Yi.value) @ np.linalg.inv(np.array(Xi.value)) for Xi, Yi in zip(X, Y)]
-    return {"gamma": math.sqrt(max(float(g.value), 0.0)), "gains": gains}
+    gains: list[Matrix] = []
+    for i in range(m):
+        (Xi,), _ = local_variables([("sym", 0, (n,))])
+        Xv = evaluate(Xi, x[cols.at("X", i):cols.at("X", i) + n * (n + 1) // 2])
+        gains.append(_matrix(x, cols.at("Y", i), (nu, n)) @ np.linalg.inv(Xv))
+    return {"gamma": math.sqrt(max(float(x[cols.at("g")]), 0.0)), "gains": gains}

@@ -28,7 +28,7 @@ Methods:
 ``ccl`` (the paper's Theorem 5.1)
     At a fixed gamma: find :math:`P_s`, :math:`X_s = P_s^{-1}`, multipliers
     :math:`\lambda_{s,k}` and :math:`\varepsilon_{s,k} = \lambda_{s,k}^{-1}` satisfying the two
-    projected conditions (:func:`ccl_constraints`), by cone complementarity
+    projected conditions (:func:`~ftc_verify.synthesis.ccl.ccl_blocks`), by cone complementarity
     linearisation; then, with ``P`` and the multipliers fixed, the controller of each FDI
     mode from the LMI in :math:`\mathcal K_j` over all true modes and ``beta`` ends
     (:func:`~ftc_verify.synthesis.state_feedback.gain_step` on the augmented plant).
@@ -59,13 +59,11 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
 
-from ..analysis.closedloop import closed_loop, gain_loop
-from ..analysis.lmi import block_specs, lyapunov_block, projection, xy_block
+from ..analysis.closedloop import closed_loop
 from ..analysis.lmi_analysis import hinf_gamma
 from ..controllers.controller import Controller
-from ..errors import SolverError, ValidationError
+from ..errors import ValidationError
 from ..limits import check_memory, dense_generator_estimate
 from ..model.system import FTCSystem, Matrix
 from .descent import accepted_gamma, descent_route
@@ -74,187 +72,13 @@ from .of_blocks import augmented_system, bounded_blocks, controller_blocks, cont
 from .starts import certify_start
 from .results import SolverCalls, SynthesisResult, verify_controller
 from .state_feedback import descend, gain_step, synthesize
+from .ccl import CCL_MAX_ITER, CCL_TOL, ccl, ccl_blocks
 
-__all__ = ["OF_METHODS", "ccl_constraints", "ccl", "synthesize_output_feedback", "CCL_MAX_ITER", "CCL_TOL"]
+__all__ = ["OF_METHODS", "ccl_blocks", "ccl", "synthesize_output_feedback", "CCL_MAX_ITER", "CCL_TOL"]
 
 OF_METHODS = ("ccl", "observer", "vk", "descent", "hinf")
-#: Iteration limit of the cone complementarity linearisation.
-CCL_MAX_ITER = 30
-#: CCL stops when ``sum(trace(P X)) - n_total + sum(lam eps - 1)`` is below this times
-#: ``n_total`` (and a controller step at those ``P`` is tried after every iteration).
-CCL_TOL = 1e-6
 #: Gain bound of the baseline's second state-feedback design when none is given.
 OBSERVER_K_MAX = 30.0
-
-
-def ccl_constraints(aug: FTCSystem, cbars: list[Matrix], P: list[Any], X: list[Any], lam: list[list[Any]],
-                    eps: list[list[Any]], g: float, margin: float) -> list[Any]:
-    r"""The two conditions of Theorem 5.1, re-derived for the augmented plant, and the
-    complementarity cones; cvxpy constraints.
-
-    The Lemma 4.1 block of the loop (Schur form in the channel outputs,
-    :func:`~ftc_verify.analysis.lmi.lyapunov_block` with ``schur_F=True``) is
-    :math:`M_0 + U^T \mathcal K_j V + V^T \mathcal K_j^T U` with
-    :math:`V = [\bar C_i \; 0 \cdots 0]`: the controller enters through
-    :math:`P \bar B_{0i} \mathcal K_j \bar C_i` and the channel output
-    :math:`\bar B_{2i} \mathcal K_j \bar C_i`. By the projection lemma a :math:`\mathcal K_j`
-    exists for this one block iff
-
-    * eq. (22): :math:`N_V^T M_0 N_V < 0`, :math:`N_V = \operatorname{diag}(W_{3i}, I)`,
-      :math:`W_{3i}` a basis of :math:`\ker \bar C_i` (``Cbar`` built with ``Cy``); by a
-      Schur complement on the channel rows this is the plain Lemma 4.1 block of the
-      open augmented loop (:math:`\lambda_k F_k^T F_k` in the corner, linear in
-      :math:`P, \lambda`), projected;
-    * eq. (23): the same block after the congruence with :math:`X = P^{-1}` and projected
-      onto :math:`\ker [\bar B_{0i}^T \; \bar B_{2i}^T]`: exactly step 1 of the
-      state-feedback Theorem 4.1 for the augmented plant (:func:`xy_block` and
-      :func:`projection`), linear in :math:`X, \varepsilon`.
-
-    Slips corrected against the printed (21)-(23) (READING-NOTES): the missing ``+``
-    before :math:`\bar C_{1i}^T \bar C_{1i}` in (21); the coupling in (23) is
-    :math:`X(\sum_{s'} q_{ss'} P_{s'})X`, written with Schur complements in
-    :math:`X_{s'}` (the printed :math:`M_{6ij}` keeps only the diagonal rate); the
-    measured output is ``Cy`` (the paper uses ``C`` for both). The two conditions are only
-    necessary for one :math:`\mathcal K_j` serving every true mode ``i``; the controller
-    step decides. Cones: :math:`[[P_s, I], [I, X_s]] \ge 0` and
-    :math:`[[\lambda, 1], [1, \varepsilon]] \ge 0` per channel, so that the linearised
-    objective's minimum :math:`\operatorname{tr}(P X) = n`, :math:`\lambda\varepsilon = 1`
-    means :math:`X = P^{-1}`, :math:`\varepsilon = \lambda^{-1}`.
-    """
-    import cvxpy as cp
-    import scipy.linalg
-
-    m = aug.m
-    loop0 = gain_loop(aug, [np.zeros(aug.modes[0].B.T.shape)] * (m * m), "open augmented loop")
-    cons: list[Any] = []
-    for spec in block_specs(loop0):
-        i, s = spec.true, spec.s
-        M = lyapunov_block(loop0, spec, P, lam[s], g, cp.bmat)
-        W3 = scipy.linalg.null_space(cbars[i])
-        size = M.shape[0]
-        nb = W3.shape[0]
-        N = scipy.linalg.block_diag(W3, np.eye(size - nb))
-        cons.append(0.5 * (N.T @ M @ N + (N.T @ M @ N).T) << -margin * np.eye(N.shape[1]))
-        mode = aug.modes[i]
-        ch_eps = list(eps[s])
-        e_a = ch_eps.pop(0) if mode.A1 is not None else None
-        e_b = ch_eps.pop(0) if mode.B1 is not None else None
-        Mx = xy_block(mode, X, s, None, e_a, e_b, g, spec.q_row, cp.bmat)
-        coupled = sum(1 for k, q in enumerate(spec.q_row) if k != s and q > 0)
-        Nx = projection(mode, coupled)
-        if Nx.shape[1]:
-            cons.append(0.5 * (Nx.T @ Mx @ Nx + (Nx.T @ Mx @ Nx).T) << -margin * np.eye(Nx.shape[1]))
-    nb = aug.dims[0]
-    for s in range(aug.chain.n_states):
-        cons.append(cp.bmat([[P[s], np.eye(nb)], [np.eye(nb), X[s]]]) >> 0)
-        cons.append(cp.Constant(np.eye(nb)) @ X[s] >> margin * np.eye(nb))  # (also when X holds numbers)
-        for la, ep in zip(lam[s], eps[s]):
-            one = np.ones((1, 1))
-            cons.append(cp.bmat([[cp.reshape(la, (1, 1), order="C"), one], [one, cp.reshape(ep, (1, 1), order="C")]])
-                        >> 0)
-    return cons
-
-
-def _channel_count(aug: FTCSystem, i: int) -> int:
-    md = aug.modes[i]
-    return int(md.A1 is not None) + int(md.B1 is not None)
-
-
-def ccl(system: FTCSystem, gamma: float, calls: SolverCalls, k_max: float | None, *, max_iter: int = CCL_MAX_ITER,
-        tol: float = CCL_TOL, start: tuple[Any, Any] | None = None,
-        ) -> tuple[list[Matrix] | None, list[float], str, float | None]:
-    r"""Theorem 5.1 at ``gamma`` by cone complementarity linearisation (module docstring):
-    ``(controller blocks or None, residual history, message, the controller step's gamma)``.
-
-    The first linearisation point is the minimum of :math:`\sum \operatorname{tr}(P + X) +
-    \sum(\lambda + \varepsilon)` under the constraints, or ``start = (P, lambda)``, the
-    certificate of a certified controller (with :math:`X = P^{-1}`,
-    :math:`\varepsilon = \lambda^{-1}`: a warm start from a design known to work at a higher
-    level). Each iteration minimises :math:`\sum \operatorname{tr}(P_k X + X_k P) +
-    \lambda_k \varepsilon + \varepsilon_k \lambda` at the last point. After each point the
-    controller step is tried with its ``P`` and multipliers; the first success at ``gamma``
-    ends the run. Stopping rule: the residual :math:`\sum_s \operatorname{tr}(P_s X_s) -
-    \bar n S + \sum(\lambda \varepsilon - 1) \ge 0` of an iterate below ``tol`` times
-    :math:`\bar n S` (the conditions hold with :math:`X = P^{-1}`, yet no controller fits),
-    a solver failure, or ``max_iter``."""
-    import cvxpy as cp
-
-    aug, cbars = augmented_system(system)
-    nb = aug.dims[0]
-    S = aug.chain.n_states  # one P_s, X_s per joint state
-    P = [cp.Variable((nb, nb), symmetric=True) for _ in range(S)]
-    X = [cp.Variable((nb, nb), symmetric=True) for _ in range(S)]
-    chans = [_channel_count(aug, i) for i, _ in aug.chain.joint_modes]
-    lam = [[cp.Variable(nonneg=True) for _ in range(c)] for c in chans]
-    eps = [[cp.Variable(nonneg=True) for _ in range(c)] for c in chans]
-    cons = ccl_constraints(aug, cbars, P, X, lam, eps, gamma ** 2, 1e-7)
-    flat = [(a, b) for ls, es in zip(lam, eps) for a, b in zip(ls, es)]
-
-    def solved(v: cp.Variable) -> np.ndarray:
-        if v.value is None:
-            raise SolverError("CCL: a variable has no value after a solved step")
-        return v.value
-
-    def current() -> tuple[list[Matrix], list[Matrix], list[list[float]], list[float]]:
-        return ([0.5 * (solved(p) + solved(p).T) for p in P], [0.5 * (solved(x) + solved(x).T) for x in X],
-                [[float(solved(a)) for a in ls] for ls in lam], [float(solved(b)) for _, b in flat])
-
-    if start is None:
-        size = sum(cp.trace(p) + cp.trace(x) for p, x in zip(P, X)) + sum(a + b for a, b in flat)
-        out = calls.run(cp.Problem(cp.Minimize(size), cons))
-        if not out.solved or P[0].value is None:
-            msg = f"Theorem 5.1 conditions infeasible at gamma {gamma:.6g} (solver status {out.status})"
-            return None, [], msg, None
-        point = current()
-    else:
-        P0 = [0.5 * (np.asarray(p) + np.asarray(p).T) for p in start[0]]
-        lam0 = [list(map(float, r)) for r in start[1]]
-        X0 = [np.linalg.inv(p) for p in P0]
-        point = (P0, [0.5 * (x + x.T) for x in X0], lam0, [1.0 / v for r in lam0 for v in r])
-    Pk = [cp.Parameter((nb, nb), symmetric=True) for _ in range(S)]
-    Xk = [cp.Parameter((nb, nb), symmetric=True) for _ in range(S)]
-    lk = [cp.Parameter(nonneg=True) for _ in flat]
-    ek = [cp.Parameter(nonneg=True) for _ in flat]
-    lin = (sum(cp.trace(pk @ x) + cp.trace(xk @ p) for pk, xk, p, x in zip(Pk, Xk, P, X))
-           + sum(lp * b + ep * a for lp, ep, (a, b) in zip(lk, ek, flat)))
-    linearised = cp.Problem(cp.Minimize(lin), cons)
-    history: list[float] = []
-    for k in range(max_iter):
-        Pv, Xv, lv, ev = point
-        residual = float(sum(np.trace(p @ x) for p, x in zip(Pv, Xv)) - nb * S
-                         + sum(a * b - 1.0 for a, b in zip((v for r in lv for v in r), ev)))
-        history.append(residual)
-        blocks, reached = _controller_step(aug, cbars, Pv, lv, gamma, calls, k_max)
-        if blocks is not None:
-            return blocks, history, f"CCL: controller step succeeded after {len(history)} point(s)", reached
-        if residual <= tol * nb * S and (start is None or k > 0):
-            return None, history, (f"CCL converged (residual {residual:.3g}) but the controller step failed at "
-                                   f"gamma {gamma:.6g}: the necessary conditions hold, one controller per FDI mode "
-                                   "does not fit every true mode"), None
-        for par, v in zip(Pk + Xk, Pv + Xv):
-            par.value = v
-        for par, val in zip(lk + ek, [v for r in lv for v in r] + ev):
-            par.value = max(val, 0.0)
-        out = calls.run(linearised)
-        if not out.solved or P[0].value is None:
-            return None, history, (f"CCL iteration {len(history)} failed (solver status {out.status}; residual "
-                                   f"{history[-1]:.3g} before it)"), None
-        point = current()
-    return None, history, f"CCL: iteration limit {max_iter} reached (residual {history[-1]:.3g})", None
-
-
-def _controller_step(aug: FTCSystem, cbars: list[Matrix], P: list[Matrix], lam: list[list[float]],
-                     gamma: float, calls: SolverCalls, k_max: float | None) -> tuple[list[Matrix] | None, float | None]:
-    """Controller blocks ``K_j`` with ``P`` and the multipliers fixed, each reaching
-    ``gamma`` over every true mode and ``beta`` end, and the largest gamma they reach."""
-    blocks, worst = [], 0.0
-    for j in range(aug.m):
-        K, gj, _ = gain_step(aug, P, lam, j, calls, k_max, measurement=cbars)
-        if K is None or gj is None or gj > gamma * (1 + 1e-6):
-            return None, None
-        blocks.append(K)
-        worst = max(worst, gj)
-    return blocks, worst
 
 
 def _observer_rows(system: FTCSystem, k_max: float | None, solver: str, calls: SolverCalls) -> list[dict[str, Any]]:

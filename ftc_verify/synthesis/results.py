@@ -16,7 +16,8 @@ import numpy as np
 
 from ..analysis.analyze import AnalysisReport, analyze, json_ready
 from ..analysis.closedloop import closed_loop
-from ..analysis.solvers import SolveOutcome, solve
+from ..analysis.conic import ConicProblem
+from ..analysis.solvers import SolveOutcome, solve, solve_conic
 from ..controllers.controller import Controller
 from ..model.system import FTCSystem, Matrix
 
@@ -155,7 +156,7 @@ class SynthesisResult:
 class SolverCalls:
     """The solver calls of one synthesis run: how many and how long.
 
-    Every convex program of a run goes through :meth:`run`; the attempts of the core's
+    Every convex program of a run goes through :meth:`run` (cvxpy) or :meth:`run_conic`; the attempts of the core's
     certifications are appended to ``outcomes`` by the caller, and the totals of a
     nested run (the seeds of ``iterative``, the state-feedback designs under the
     observers) are added by :meth:`absorb`.
@@ -186,6 +187,15 @@ class SolverCalls:
         out = solve(problem, self.solver)
         self.outcomes.append(out)
         return out
+
+    def run_conic(self, problem: ConicProblem) -> tuple[SolveOutcome, Matrix | None]:
+        """Solve a :class:`~ftc_verify.analysis.conic.ConicProblem` by
+        :func:`~ftc_verify.analysis.solvers.solve_conic` (Clarabel natively, the other
+        solvers through cvxpy from the same numbers) and log it; ``(outcome, x)``, ``x``
+        ``None`` unless the solver returned a finite point."""
+        out, x = solve_conic(problem, self.solver)
+        self.outcomes.append(out)
+        return out, x
 
     def absorb(self, other: SynthesisResult) -> None:
         """Count the calls of a nested synthesis."""

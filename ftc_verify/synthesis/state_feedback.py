@@ -90,6 +90,7 @@ import numpy as np
 from ..controllers.controller import Controller
 from ..analysis.analyze import AnalysisReport
 from ..analysis.closedloop import gain_loop, state_feedback_loop
+from ..analysis.conic import Rows, affine_bmat, matrix_variable, scalar_variable
 from ..errors import ValidationError
 from ..analysis.lmi import block_specs, lyapunov_block
 from ..analysis.lmi_analysis import hinf_gamma
@@ -98,7 +99,7 @@ from ..analysis.solvers import ForkedCall, choose_solver
 from .starts import candidates, certify_start, diagnose
 from .results import SolverCalls, SynthesisResult, verify_controller
 from .convex_designs import dilated_design, true_mode_reference
-from .xy_design import gain_bound, xy_solve, xy_solver
+from .xy_design import gain_bound_block, xy_solve, xy_solver
 
 __all__ = ["METHODS", "SynthesisResult", "synthesize", "two_step", "gain_step", "descend"]
 
@@ -121,7 +122,7 @@ def gain_step(
     gamma: float | None = None,
     measurement: list[Matrix] | None = None,
 ) -> tuple[Matrix | None, float | None, str]:
-    """Eq. (18): with ``P_s`` and multipliers fixed, the gain ``K_j`` of FDI mode ``j``
+    r"""Eq. (18): with ``P_s`` and multipliers fixed, the gain ``K_j`` of FDI mode ``j``
     over all true modes and rate ends; returns ``(K, gamma, status)``.
 
     With ``gamma=None`` gamma is minimised; with ``gamma`` given, the gain of smallest
@@ -130,13 +131,20 @@ def gain_step(
     ``u = K_j M_i x`` (the controller step of output feedback on the augmented plant of
     :mod:`ftc_verify.synthesis.output_feedback`, with ``M_i = Cbar_i``); the block stays
     linear in ``K_j`` since ``P`` and the multipliers are fixed.
-    """
-    import cvxpy as cp
 
+    Variables :math:`(\operatorname{vec} K_j, g[, k])`: the blocks
+    :func:`~ftc_verify.analysis.lmi.lyapunov_block` of FDI mode ``j`` (Schur form in
+    :math:`F`) :math:`\preceq 0` on :class:`~ftc_verify.analysis.conic.Affine` matrices,
+    solved in conic form (:meth:`~ftc_verify.synthesis.results.SolverCalls.run_conic`;
+    no cvxpy), :math:`g \ge 0`, :func:`~ftc_verify.synthesis.xy_design.gain_bound_block`
+    with ``k_max``; with ``gamma``: :math:`g \le \gamma^2`, :math:`\|K_j\|_2 \le k`, min :math:`k`.
+    """
     m, (n, nu, _, _) = system.m, system.dims
-    K = cp.Variable((nu, n if measurement is None else measurement[0].shape[0]))
-    g = cp.Variable(nonneg=True)
-    k = cp.Variable(nonneg=True)
+    cols = n if measurement is None else measurement[0].shape[0]
+    size = nu * cols + (1 if gamma is None else 2)
+    every = np.arange(size).astype(int)
+    K = matrix_variable(nu, cols, 0, size)
+    g = scalar_variable(nu * cols, size)
     gains: list[Any]
     if measurement is None:
         gains = [np.zeros((nu, n))] * m
@@ -144,21 +152,21 @@ def gain_step(
     else:
         gains = [K @ measurement[i] if jj == j else np.zeros((nu, n)) for i in range(m) for jj in range(m)]
     loop = gain_loop(system, gains, "gain step")
-    cons = []
+    rows = Rows(size)
     for spec in block_specs(loop):
         if spec.fdi == j:
-            M = lyapunov_block(loop, spec, P, lam[spec.s], g, cp.bmat, schur_F=True)
-            cons.append(0.5 * (M + M.T) << 0)
+            rows.lmi(lyapunov_block(loop, spec, P, lam[spec.s], g, affine_bmat, schur_F=True), every)
     if k_max is not None:
-        cons.append(gain_bound(K, k_max))
-    if gamma is None:
-        problem = cp.Problem(cp.Minimize(g), cons)
-    else:
-        problem = cp.Problem(cp.Minimize(k), cons + [g <= gamma ** 2, gain_bound(K, 1.0, k)])
-    out = calls.run(problem)
-    if not out.solved or K.value is None or g.value is None:
+        rows.lmi(-gain_bound_block(K, k_max, 1.0, affine_bmat), every)
+    c = np.eye(size)[nu * cols if gamma is None else -1]  # min g, or min k
+    rows.nonneg(-np.eye(size)[nu * cols:], np.zeros(size - nu * cols))  # g >= 0 (and k >= 0)
+    if gamma is not None:
+        rows.nonneg(np.eye(size)[nu * cols], [gamma ** 2])
+        rows.lmi(-gain_bound_block(K, 1.0, scalar_variable(size - 1, size), affine_bmat), every)
+    out, x = calls.run_conic(rows.problem(c))
+    if not out.solved or x is None:
         return None, None, out.status
-    return np.array(K.value), math.sqrt(max(float(g.value), 0.0)), out.status
+    return x[:nu * cols].reshape(nu, cols), math.sqrt(max(float(x[nu * cols]), 0.0)), out.status
 
 
 def _multipliers(system: FTCSystem, eps: list[float], delta: list[float]) -> list[list[float]]:

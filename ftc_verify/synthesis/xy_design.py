@@ -13,16 +13,18 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from ..analysis.closedloop import gain_loop
+from ..analysis.conic import ConicProblem, Rows, affine_bmat, evaluate, local_variables, svec_index
 from ..analysis.lmi import block_specs, projection, xy_block
 from ..analysis.lmi_analysis import GAMMA_LADDER
-from ..model.system import FTCSystem
+from ..model.system import FTCSystem, Matrix
 
-__all__ = ["MARGIN_TOL", "CENTRE_WEIGHT", "gain_bound", "xy_solve", "xy_solver"]
+__all__ = ["MARGIN_TOL", "CENTRE_WEIGHT", "gain_bound", "gain_bound_block", "xy_solve", "xy_solver"]
 
 #: An (X, Y) problem counts as strictly feasible when its maximised margin exceeds this
 #: (a heuristic only: every result is certified by the core analysis afterwards).
@@ -31,17 +33,25 @@ MARGIN_TOL = 1e-10
 CENTRE_WEIGHT = 1e-6
 
 
+def gain_bound_block(K: Any, k_max: float, mu: Any, bmat: Any) -> Any:
+    r"""The matrix :math:`[[\mu I, K^T/k], [K/k, \mu I]]` whose semidefiniteness is
+    :math:`\|K\|_2 \le k \mu` (:func:`gain_bound`), built with ``bmat`` (``cvxpy.bmat``
+    or :func:`~ftc_verify.analysis.conic.affine_bmat`)."""
+    nu, n = K.shape
+    return bmat([[mu * np.eye(n), K.T / k_max], [K / k_max, mu * np.eye(nu)]])
+
+
 def gain_bound(K: Any, k_max: float, mu: Any = 1.0) -> Any:
-    r"""``||K||_2 <= k_max * mu`` as the LMI :math:`[[\mu I, K^T/k], [K/k, \mu I]] \succeq 0`.
+    r"""``||K||_2 <= k_max * mu`` as the LMI :math:`[[\mu I, K^T/k], [K/k, \mu I]] \succeq 0`
+    (a cvxpy constraint; the matrix is :func:`gain_bound_block`).
 
     Dividing ``K`` by the bound (rather than writing ``k I`` on the diagonal) keeps the
     problem scaled: a huge bound such as ``1e300`` becomes a vanishing coupling, i.e. no
     bound, instead of a diagonal that swamps every other entry of the LMI.
     """
-    nu, n = K.shape
     import cvxpy as cp
 
-    return cp.bmat([[mu * np.eye(n), K.T / k_max], [K / k_max, mu * np.eye(nu)]]) >> 0
+    return gain_bound_block(K, k_max, mu, cp.bmat) >> 0
 
 
 def _variable_groups(system: FTCSystem, kind: str) -> list[int]:
@@ -64,16 +74,50 @@ def _variable_groups(system: FTCSystem, kind: str) -> list[int]:
     return list(range(chain.n_states))
 
 
-def _xy_variables(system: FTCSystem, kind: str) -> tuple[list[Any], list[Any]]:
-    """``X`` and ``Y`` (``None`` for ``projected``) of every joint state, one cvxpy variable
-    per group of ``_variable_groups`` (all ``X`` created first, then all ``Y``)."""
-    import cvxpy as cp
+@dataclass(frozen=True)
+class _XYLayout:
+    """Columns of the (X, Y) program: the ``svec`` of each group's ``X``, each group's
+    ``Y`` (row by row; none for ``projected``), ``g``, the margin ``t``, ``mu`` (with
+    ``k_max``), then ``eps`` and ``delta`` of every joint state (last, so that dropping
+    the unused ones moves no other column)."""
 
-    n, nu = system.dims[0], system.dims[1]
-    group = _variable_groups(system, kind)
-    Xg = [cp.Variable((n, n), symmetric=True) for _ in range(max(group) + 1)]
-    Yg = [None] * len(Xg) if kind == "projected" else [cp.Variable((nu, n)) for _ in Xg]
-    return [Xg[k] for k in group], [Yg[k] for k in group]
+    n: int
+    nu: int
+    groups: tuple[int, ...]
+    with_y: bool
+    with_mu: bool
+
+    @property
+    def n_groups(self) -> int:
+        return max(self.groups) + 1
+
+    def x(self, k: int) -> int:
+        return k * (self.n * (self.n + 1) // 2)
+
+    def y(self, k: int) -> int:
+        return self.n_groups * (self.n * (self.n + 1) // 2) + k * self.nu * self.n
+
+    @property
+    def g(self) -> int:
+        return self.y(self.n_groups) if self.with_y else self.x(self.n_groups)
+
+    @property
+    def t(self) -> int:
+        return self.g + 1
+
+    @property
+    def mu(self) -> int:
+        return self.g + 2
+
+    def eps(self, s: int) -> int:
+        return self.g + 2 + self.with_mu + s
+
+    def delta(self, s: int) -> int:
+        return self.eps(len(self.groups)) + s
+
+    @property
+    def K(self) -> int:
+        return self.delta(len(self.groups))
 
 
 def xy_solve(system: FTCSystem, kind: str, gamma: float | None, calls: Any, k_max: float | None) -> dict[str, Any] | None:
@@ -82,15 +126,14 @@ def xy_solve(system: FTCSystem, kind: str, gamma: float | None, calls: Any, k_ma
     return xy_solver(system, kind, calls, k_max)(gamma)
 
 
-def _xy_constraints(system: FTCSystem, kind: str, variables: tuple[Any, Any, Any, Any], gval: Any, margin: Any,
-                    k_max: float | None) -> list[Any]:
-    """The constraints of :func:`xy_solver` at ``g = gval`` with the margin ``margin``."""
-    import cvxpy as cp
-
-    Xv, Yv, eps, dlt = variables
-    n, nu = system.dims[0], system.dims[1]
+def _xy_rows(system: FTCSystem, kind: str, lay: _XYLayout, k_max: float | None) -> Rows:
+    """The constraints of :func:`xy_solver` with ``g`` and the margin ``t`` variables:
+    every block ``+ t I <= 0`` (projected for ``projected``), ``X_k >= t I``, with
+    ``k_max`` ``X_k >= mu I`` and :func:`gain_bound_block` of ``Y_k`` with ``mu``. Each
+    block is built on its own variables (:func:`~ftc_verify.analysis.conic.local_variables`)."""
+    n, nu = lay.n, lay.nu
     common = kind == "common"
-    cons = []
+    rows = Rows(lay.K)
     seen: set[int] = set()
     probe = gain_loop(system, [np.zeros((nu, n))] * system.m, "probe")
     for spec in block_specs(probe):
@@ -99,22 +142,58 @@ def _xy_constraints(system: FTCSystem, kind: str, variables: tuple[Any, Any, Any
         seen.add(spec.true)
         mode = system.modes[spec.true]
         q_row = None if common else spec.q_row
-        M = xy_block(mode, Xv, spec.s, Yv[spec.s], eps[spec.s], dlt[spec.s], gval, q_row, cp.bmat)
+        s = spec.s
+        states = [s] + ([] if q_row is None else [t for t, q in enumerate(q_row) if t != s and q > 0])
+        xs = list(dict.fromkeys(lay.groups[t] for t in states))
+        pieces: list[tuple[str, int, tuple[int, ...]]] = [("sym", lay.x(k), (n,)) for k in xs]
+        pieces += [("mat", lay.y(lay.groups[s]), (nu, n))] if lay.with_y else []
+        pieces += [("scalar", col, ()) for col in (lay.eps(s), lay.delta(s), lay.g, lay.t)]
+        var, columns = local_variables(pieces)
+        X: list[Any] = [None] * len(lay.groups)
+        for t in states:
+            X[t] = var[xs.index(lay.groups[t])]
+        eps, dlt, g, t_var = var[-4:]
+        M = xy_block(mode, X, s, var[len(xs)] if lay.with_y else None, eps, dlt, g, q_row, affine_bmat)
         if kind == "projected":
-            coupled = sum(1 for k, q in enumerate(spec.q_row) if k != spec.s and q > 0)
+            coupled = sum(1 for k, q in enumerate(spec.q_row) if k != s and q > 0)
             N = projection(mode, coupled)
             if N.shape[1] == 0:
                 continue
             M = N.T @ M @ N
-        M = 0.5 * (M + M.T)
-        cons.append(M << -margin * np.eye(M.shape[0]))
-    for X in {id(x): x for x in Xv}.values():
-        cons.append(X >> margin * np.eye(n))
-    if k_max is not None and kind != "projected":
-        mu = cp.Variable(nonneg=True)
-        for X, Y in {id(x): (x, y) for x, y in zip(Xv, Yv)}.values():
-            cons += [X >> mu * np.eye(n), gain_bound(Y, k_max, mu)]
-    return cons
+        rows.lmi(M + t_var * np.eye(M.shape[0]), columns)
+    eye = np.eye(n)
+    for k in range(lay.n_groups):
+        (Xk, t_var), columns = local_variables([("sym", lay.x(k), (n,)), ("scalar", lay.t, ())])
+        rows.lmi(t_var * eye - Xk, columns)
+        if k_max is not None and lay.with_y:
+            (Xk, Yk, mu), columns = local_variables([("sym", lay.x(k), (n,)), ("mat", lay.y(k), (nu, n)),
+                                                     ("scalar", lay.mu, ())])
+            rows.lmi(mu * eye - Xk, columns)
+            rows.lmi(-gain_bound_block(Yk, k_max, mu, affine_bmat), columns)
+    return rows
+
+
+def _xy_objective(kind: str, lay: _XYLayout) -> Matrix:
+    """The cost (minimised) of the centred problem: ``-t``, for ``projected`` plus
+    ``CENTRE_WEIGHT`` times the mean of ``trace(X_k) / n`` and of the multipliers.
+
+    The margin is capped (t <= 1) to keep the problem bounded; once the cap binds, the
+    maximiser is not unique and an interior-point method drifts to huge X, eps, delta
+    (measured: 1e5-4e6 at gamma = 10, after which step 2 failed). The small penalty
+    selects a bounded point without changing which t is reachable. Only step 1 of
+    two-step showed it; the baselines' re-centred margins on degenerate plants are
+    ~1e-7, which the penalty would swamp, so they keep the plain objective."""
+    objective = np.zeros(lay.K)
+    objective[lay.t] = -1.0
+    if kind == "projected":
+        n, S = lay.n, len(lay.groups)
+        r, c, _ = svec_index(n)
+        diag = np.where(r == c)[0]
+        for k in range(lay.n_groups):
+            objective[lay.x(k) + diag] += CENTRE_WEIGHT / (lay.n_groups * n)
+        for s in range(S):
+            objective[[lay.eps(s), lay.delta(s)]] += CENTRE_WEIGHT / (2 * S)
+    return objective
 
 
 def xy_solver(system: FTCSystem, kind: str, calls: Any,
@@ -122,77 +201,79 @@ def xy_solver(system: FTCSystem, kind: str, calls: Any,
     """The (X, Y) inequality of :func:`~ftc_verify.analysis.lmi.xy_block`, built once and
     solved at any level: a function ``gamma -> numbers`` (below).
 
-    The centred problem is built on its first use with ``g = gamma**2`` a cvxpy
-    parameter, so later levels (the bisection of ``two-step``) re-use its
-    canonicalisation: the solver receives the same data as from a problem built anew at
-    that level, so the answers are the same; only the building, most of a call's time,
-    is saved.
+    The blocks are evaluated once on :class:`~ftc_verify.analysis.conic.Affine`
+    matrices with ``g = gamma**2`` and the margin ``t`` variables, written in conic form
+    (:mod:`ftc_verify.analysis.conic`) and solved by
+    :meth:`~ftc_verify.synthesis.results.SolverCalls.run_conic`; a level fixes ``g``
+    (:meth:`~ftc_verify.analysis.conic.ConicProblem.fix`), so the bisection of
+    ``two-step`` re-uses the whole construction (cvxpy's canonicalisation was most of a
+    call's time).
 
     ``kind``: ``"projected"`` (step 1 of Theorem 4.1, no ``Y``; one ``X`` per joint
     state), ``"full-info"`` (one ``X, Y`` per pair ``(true, fdi)``, shared by its phases:
     ``_variable_groups``), ``"common-fdi"`` (one ``X, Y`` per FDI mode) or ``"common"`` (one ``X, Y``). The blocks are
     one per joint state and vertex of its row's rates (:func:`~ftc_verify.analysis.lmi.block_specs`); ``X``,
-    ``Y`` and the multipliers are returned per joint state. With ``gamma``
+    ``Y`` and the multipliers are returned per joint state (``nan`` for a multiplier no
+    block uses: ``common`` writes one block per true mode). With ``gamma``
     given the margin ``t`` is maximised at ``g = gamma**2``; with ``gamma=None`` gamma is
-    minimised first and the problem re-centred at ``gamma* (1 + 1e-3)``. Returns the
+    minimised first (``t = 0``) and the problem re-centred at ``gamma* (1 + 1e-3)``. Returns the
     numbers, or ``None`` when the solver returned no point or no positive margin.
     """
-    import cvxpy as cp
-
     S = system.chain.n_states
-    n = system.dims[0]
-    Xv, Yv = _xy_variables(system, kind)
-    eps = [cp.Variable(nonneg=True) for _ in range(S)]
-    dlt = [cp.Variable(nonneg=True) for _ in range(S)]
-    g = cp.Variable(nonneg=True)
-    t = cp.Variable()
-    g_par = cp.Parameter(nonneg=True)
+    n, nu = system.dims[0], system.dims[1]
+    lay = _XYLayout(n, nu, tuple(_variable_groups(system, kind)), kind != "projected",
+                    k_max is not None and kind != "projected")
+    rows = _xy_rows(system, kind, lay, k_max)
+    objective = _xy_objective(kind, lay)
+    used = np.zeros(lay.K, dtype=bool)
+    for block in rows.blocks:
+        used[block[2].indices] = True
+    unused = [col for col in range(lay.eps(0), lay.K) if not used[col] and objective[col] == 0.0]
+    rows.nonneg(-np.eye(lay.K)[[col for col in range(lay.g, lay.K) if col != lay.t and col not in unused]],
+                np.zeros(lay.K - lay.g - 1 - len(unused)))  # g, mu, eps, delta >= 0
 
-    def constraints(gval: Any, margin: Any) -> list[Any]:
-        return _xy_constraints(system, kind, (Xv, Yv, eps, dlt), gval, margin, k_max)
+    def drop(problem: ConicProblem) -> ConicProblem:
+        for col in sorted(unused, reverse=True):
+            problem = problem.fix(col, 0.0)
+        return problem
 
-    # The margin is capped (t <= 1) to keep the problem bounded; once the cap binds, the
-    # maximiser is not unique and an interior-point method drifts to huge X, eps, delta
-    # (measured: 1e5-4e6 at gamma = 10, after which step 2 failed). A small penalty on
-    # trace(X) and the multipliers selects a bounded point without changing which t is reachable.
-    # Only step 1 of two-step showed it; the baselines' re-centred margins on degenerate
-    # plants are ~1e-7, which the penalty would swamp, so they keep the plain objective.
-    objective: Any = t
-    if kind == "projected":
-        unique_x = list({id(x): x for x in Xv}.values())
-        size = sum(cp.trace(x) for x in unique_x) / (len(unique_x) * n) + (sum(eps) + sum(dlt)) / (2 * S)
-        objective = t - CENTRE_WEIGHT * size
-    built: list[Any] = []
+    e_g = np.zeros(lay.K)
+    e_g[lay.g] = 1.0
+    capped = drop(rows.extended(np.eye(lay.K)[[lay.t]], [1.0]).problem(objective))
 
-    def num(v: Any) -> float:
-        return math.nan if v.value is None else float(v.value)  # unused multipliers (common X)
+    def num(x: Matrix, col: int) -> float:
+        return math.nan if col in unused else float(x[col])
 
     def solve_at(gamma: float | None) -> dict[str, Any] | None:
         """The numbers at ``gamma`` (or minimised and re-centred: ``gamma=None``), or ``None``."""
         if gamma is None:
-            out = calls.run(cp.Problem(cp.Minimize(g), constraints(g, 0.0)))
-            if not out.solved or g.value is None:
+            out, x = calls.run_conic(drop(rows.problem(e_g)).fix(lay.t, 0.0))
+            if not out.solved or x is None:
                 return None
-            value = math.sqrt(max(float(g.value), 0.0))
+            value = math.sqrt(max(float(x[lay.g]), 0.0))
             ladder = [value * (1.0 + rho) + 1e-7 for rho in GAMMA_LADDER]
         else:
             ladder = [gamma]
-        if not built:
-            built.append(cp.Problem(cp.Maximize(objective), constraints(g_par, t) + [t <= 1.0]))
         for level in ladder:
-            g_par.value = level ** 2
-            out = calls.run(built[0])
-            if out.solved and t.value is not None and float(t.value) > MARGIN_TOL:
+            out, x = calls.run_conic(capped.fix(lay.g, level ** 2))
+            if out.solved and x is not None and float(x[lay.t - 1]) > MARGIN_TOL:
                 break
         else:
             return None
+        x = np.insert(x, lay.g, level ** 2)
+        for col in sorted(unused):
+            x = np.insert(x, col, math.nan)
+        var, _ = local_variables([("sym", lay.x(k), (n,)) for k in range(lay.n_groups)]
+                                 + [("mat", lay.y(k), (nu, n)) for k in range(lay.n_groups) if lay.with_y])
+        values = [evaluate(v, x[:lay.g]) for v in var]
+        Xs, Ys = values[:lay.n_groups], values[lay.n_groups:]
         return {
-            "X": [np.array(X.value) for X in Xv],
-            "Y": None if kind == "projected" else [np.array(Y.value) for Y in Yv],
-            "eps": [num(e) for e in eps],
-            "delta": [num(d) for d in dlt],
+            "X": [Xs[k] for k in lay.groups],
+            "Y": None if kind == "projected" else [Ys[k] for k in lay.groups],
+            "eps": [num(x, lay.eps(s)) for s in range(S)],
+            "delta": [num(x, lay.delta(s)) for s in range(S)],
             "gamma": level,
-            "margin": float(t.value),
+            "margin": float(x[lay.t]),
         }
 
     return solve_at
