@@ -54,6 +54,7 @@ import os
 import pickle
 import struct
 import sys
+import threading
 import time
 import types
 from collections.abc import Callable, Mapping, Sequence
@@ -63,6 +64,9 @@ from .interrupts import die_with_parent
 
 __all__ = ["Prestarted", "cross_check", "skip_docstring_generation", "defer_modules", "DeferredModule",
            "CROSS_CHECK_MODULES", "CROSS_CHECK_DEFERRED", "defer_numpy_tools", "NUMPY_TOOLS"]
+
+#: Held while a :class:`DeferredModule` imports its real package.
+_LOAD_LOCK = threading.RLock()
 
 #: What the cross-check child imports first (python-control, then the check itself).
 CROSS_CHECK_MODULES = ("control", "ftc_verify.analysis.crossval")
@@ -172,7 +176,12 @@ class DeferredModule(types.ModuleType):
         self.__dict__["_deferred_real"] = None
 
     def _deferred_load(self) -> types.ModuleType:
-        """The real module (imported now, once), its attributes copied here."""
+        """The real module (imported now, once), its attributes copied here (under
+        :data:`_LOAD_LOCK`: threads of an in-process caller see one import)."""
+        with _LOAD_LOCK:
+            return self._deferred_load_locked()
+
+    def _deferred_load_locked(self) -> types.ModuleType:
         real = self.__dict__["_deferred_real"]
         if real is None:
             for name in [k for k, v in sys.modules.items() if v is self or (  # its stand-in submodules too:
@@ -210,7 +219,11 @@ class _Present(importlib.abc.Loader):
 
 class _DeferredFinder(importlib.abc.MetaPathFinder):
     """``import name.sub`` while ``name`` is a :class:`DeferredModule`: the real package
-    first, then ``name.sub`` as usual (or as the real package already imported it)."""
+    first, then ``name.sub`` as usual (or as the real package already imported it).
+    ``rerun``: a stand-in with listed names was installed (:func:`_deferring`)."""
+
+    def __init__(self) -> None:
+        self.rerun = False
 
     def find_spec(self, fullname: str, path: Sequence[str] | None,
                   target: types.ModuleType | None = None) -> importlib.machinery.ModuleSpec | None:
@@ -231,8 +244,11 @@ def defer_modules(deferred: Mapping[str, Sequence[str]]) -> None:
     package imported by a dependency but never used by the job costs no import; if the
     job does use it, it is imported then, and is the real package.
     """
-    if not any(isinstance(f, _DeferredFinder) for f in sys.meta_path):
-        sys.meta_path.insert(0, _DeferredFinder())
+    finder = next((f for f in sys.meta_path if isinstance(f, _DeferredFinder)), None)
+    if finder is None:
+        finder = _DeferredFinder()
+        sys.meta_path.insert(0, finder)
+    finder.rerun = finder.rerun or any(deferred.values())
     for name, names in deferred.items():
         if name not in sys.modules:
             sys.modules[name] = DeferredModule(name, names)
@@ -254,7 +270,9 @@ def defer_numpy_tools() -> None:
     called before scipy is imported): scipy's import of ``scipy.linalg`` copies them
     without using them, about 0.07 s of CPU on the way to the first fork. Anything that
     uses one (an attribute, a submodule) gets the real package, imported then; the same
-    numbers."""
+    numbers. It changes the interpreter for good (``sys.modules``, ``numpy``'s attributes,
+    ``sys.meta_path``), so :func:`ftc_verify.cli.main` calls it only for its own process's
+    command line, never for an in-process caller."""
     import numpy
 
     defer_modules({f"numpy.{name}": () for name in NUMPY_TOOLS})
@@ -265,11 +283,12 @@ def defer_numpy_tools() -> None:
 
 
 def _deferring() -> bool:
-    """Whether :func:`defer_modules` ran in this process (its finder is installed): a job
-    that failed here may have failed on a stand-in (a listed class used as a class, a
-    python-control version that imports differently), so the parent runs it again with
-    the real modules instead of raising its exception."""
-    return any(isinstance(f, _DeferredFinder) for f in sys.meta_path)
+    """Whether :func:`defer_modules` installed a stand-in with listed names in this process
+    (its finder says so): a job that failed here may have failed on one (a listed class
+    used as a class, a python-control version that imports differently), so the parent
+    runs it again with the real modules instead of raising its exception. Stand-ins
+    without listed names (:func:`defer_numpy_tools`) load the real package on any use."""
+    return any(isinstance(f, _DeferredFinder) and f.rerun for f in sys.meta_path)
 
 
 def _cross_check_prepare() -> None:
@@ -372,8 +391,6 @@ class Prestarted:
         if len(data) < _PIPE_BYTES:
             send()
         else:  # more than a pipe holds: written while the child still imports, never waited for here
-            import threading
-
             threading.Thread(target=send, name="ftc-verify-prestarted", daemon=True).start()
 
     def result(self) -> Any:

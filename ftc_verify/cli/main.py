@@ -55,10 +55,8 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _cmd_analyze(args: argparse.Namespace) -> int:
-    from ..prestart import defer_numpy_tools
     from .common import with_cross_check
 
-    defer_numpy_tools()  # numpy.f2py, numpy.testing: imported by scipy, used by nobody here (issue 37)
     return with_cross_check(args, _analyze_command, "ftc_verify.analysis.analyze")
 
 
@@ -239,6 +237,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, "1")
     args = build_parser().parse_args(argv)
+    if argv is None and args.command == "analyze":  # this process's own command line only:
+        from ..prestart import defer_numpy_tools  # it changes the interpreter for good
+
+        defer_numpy_tools()  # numpy.f2py, numpy.testing: imported by scipy, used by nobody here
     try:
         from .working import working
 

@@ -207,12 +207,11 @@ def _ratio(ops: _Ops, b: _Blocks, resets: Sequence[Any], F: Sequence[Matrix], h:
 
 
 def _ratios(ops: _Ops, b: _Blocks, resets: Sequence[Any], F: Sequence[Matrix], h: Any,
-            doublings: int) -> list[tuple[Any, Any]]:
+            doublings: int, terms: tuple[Any, Any, Any, Any] | None = None) -> list[tuple[Any, Any]]:
     """:func:`_ratio` at every :math:`p' \\le p` (``out[p']``, :math:`K = 2^{p'} + 1`), from
-    the one pass of doublings: each is a lower bound of its own."""
-    lift, f = _lift(ops, b, resets, F)
-    T = b.restrict @ b.Fm @ lift
-    Sm = b.restrict @ (b.Fm @ b.m0)  # v_1: one term
+    the one pass of doublings: each is a lower bound of its own. ``terms``: :func:`_terms`
+    when already computed."""
+    lift, f, T, Sm = _terms(ops, b, resets, F) if terms is None else terms
     Pw = T
     num0 = b.lg @ b.m0
     out = []
@@ -233,15 +232,21 @@ def _lift(ops: _Ops, b: _Blocks, resets: Sequence[Any], F: Sequence[Matrix]) -> 
     return ops.diag(lifts), ops.mat(np.concatenate([_weights(Fs.T @ Fs) for Fs in F])[None, :])
 
 
-def _eigen_levels(ops: _Ops, b: _Blocks, resets: Sequence[Any], F: Sequence[Matrix], h: Any,
+def _terms(ops: _Ops, b: _Blocks, resets: Sequence[Any], F: Sequence[Matrix]) -> tuple[Any, Any, Any, Any]:
+    r"""``(lift, f, T, v_1)``: :func:`_lift`, the one-period map :math:`T` and :math:`v_1`."""
+    lift, f = _lift(ops, b, resets, F)
+    return lift, f, b.restrict @ b.Fm @ lift, b.restrict @ (b.Fm @ b.m0)
+
+
+def _eigen_levels(b: _Blocks, terms: tuple[Any, Any, Any, Any], h: Any,
                   doublings: int) -> list[tuple[Any, Any]]:
     """:func:`_ratios` on balls (Arb numbers) with the doublings in the eigenbasis of
-    :math:`T` (:func:`~ftc_verify.analysis.moments.sampled_lower_ops.eigen_sums`; ``[]`` when unusable)."""
+    :math:`T` (:func:`~ftc_verify.analysis.moments.sampled_lower_ops.eigen_sums`; ``[]`` when
+    unusable); ``terms`` from :func:`_terms`."""
     from .sampled_lower_ops import eigen_sums
 
-    lift, f = _lift(ops, b, resets, F)
-    found = eigen_sums((b.restrict @ b.Fm @ lift).value, (b.restrict @ (b.Fm @ b.m0)).value,
-                       (b.lg @ lift).value, f.value, doublings)
+    lift, f, T, v1 = terms
+    found = eigen_sums(T.value, v1.value, (b.lg @ lift).value, f.value, doublings)
     num0 = (b.lg @ b.m0).value[0, 0]
     return [(num0 + gS, (fS + 1) * h) for gS, fS in found]
 
@@ -507,8 +512,10 @@ def _prove_at(system: FTCSystem, loop: SampledLoop, h: float, rates: Matrix, del
         hb = loop.period_ball(h)
         ops = _Ops(True)
         blocks = _blocks(ops, aug, P, Q, hb, delta, system.dims[3])
-        levels = [(num.value[0, 0], den.value[0, 0]) for num, den in _ratios(ops, blocks, resets, F, hb, doublings)]
-        levels += _eigen_levels(ops, blocks, resets, F, hb, doublings)  # the same p' again, each a bound
+        terms = _terms(ops, blocks, resets, F)
+        levels = [(num.value[0, 0], den.value[0, 0])
+                  for num, den in _ratios(ops, blocks, resets, F, hb, doublings, terms)]
+        levels += _eigen_levels(blocks, terms, hb, doublings)  # the same p' again, each a bound
         for at, (num, den) in enumerate(levels):
             level = at % (doublings + 1)
             ratio = num / den

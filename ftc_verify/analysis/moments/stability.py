@@ -80,8 +80,6 @@ def lyapunov_stack_solution(A: Sequence[Matrix], Q: Matrix, R: Sequence[Matrix] 
     by default), as symmetric matrices: dense up to :data:`DENSE_LIMIT` rows, sparse LU
     above. The adjoint :math:`\mathcal L^*(P) = -R` is this with every :math:`A_s` and
     :math:`Q` transposed. ``None`` when the solve fails or is not finite."""
-    import warnings
-
     import scipy.sparse as sp
     from scipy.sparse.linalg import splu
 
@@ -97,9 +95,7 @@ def lyapunov_stack_solution(A: Sequence[Matrix], Q: Matrix, R: Sequence[Matrix] 
                 np.asarray(Q).T, sp.identity(len(rows)))
             v = splu(G.tocsc()).solve(rhs)
         else:
-            with warnings.catch_warnings():  # an ill-conditioned solve is expected near mu = 0; callers judge it
-                warnings.simplefilter("ignore", scipy.linalg.LinAlgWarning)
-                v = dense_solve(second_moment_matrix(A, Q), rhs)
+            v = dense_solve(second_moment_matrix(A, Q), rhs)  # no condition warning: callers judge it
     except (RuntimeError, ValueError, np.linalg.LinAlgError, scipy.linalg.LinAlgError):
         return None
     if not np.all(np.isfinite(v)):
@@ -175,10 +171,13 @@ def abscissa_below(loop: ClosedLoop, beta: Matrix, sigma: float, *, modes_part: 
     :math:`0 > \langle \mathcal L(X) - \sigma X, Z\rangle = (\mu - \sigma)\langle X, Z\rangle`
     with :math:`\langle X, Z\rangle > 0`. ``False`` means "not shown", not "above".
     Up to :data:`SHIFT_DENSE_ROWS` rows the LU is LAPACK's dense one (how :math:`X` was
-    found does not matter); ``norms``: the spectral norms of ``loop.A`` (computed here
-    when ``None``; the same at every vertex).
+    found does not matter); ``norms``: the spectral norms of ``loop.A``, or upper bounds
+    of them (computed here when ``None``; the same at every vertex). They enter the
+    rounding bound of the proof: numbers below the true norms would make it unsound.
     """
     n, modes = loop.n, len(loop.A)
+    if norms is not None and len(norms) != modes:
+        raise ValueError(f"abscissa_below: {len(norms)} norms for {modes} joint-state matrices")
     Q = loop.chain.generator(beta)
     if generator_size(loop) > DENSE_LIMIT:
         from ..bounded_real import coupled_lyapunov

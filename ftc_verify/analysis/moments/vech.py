@@ -117,7 +117,8 @@ def _lyapunov_vech_stack(A: np.ndarray) -> np.ndarray:
 def dense_solve(G: Matrix, rhs: Matrix) -> Matrix:
     """``G^{-1} rhs`` by LAPACK's ``gesv`` (LU with partial pivoting), the routine
     ``scipy.linalg.solve`` calls, without its condition estimate and checks (a third of
-    its time at 324 rows; the same numbers); ``LinAlgError`` when ``G`` is singular."""
+    its time at 324 rows; the same numbers); ``LinAlgError`` when ``G`` is singular.
+    ``G`` is overwritten by its LU factors (pass a copy to keep it)."""
     from scipy.linalg import lapack
 
     _, _, x, info = lapack.dgesv(G, rhs, overwrite_a=True, overwrite_b=False)
