@@ -119,7 +119,11 @@ def test_bad_synthesize_options_exit_2_naming_the_option(tmp_path: Path, option:
     assert says in res.stderr and "internal error" not in res.stderr and len(res.stderr.strip().splitlines()) == 1
 
 
-@pytest.mark.parametrize("code", [errno.ENOSPC, errno.EACCES, errno.EDQUOT])
+# The ENOSPC case is marked slow (it builds the shared design: 6-10 s on 2 busy cores) so that it runs
+# among the long tests, well before the other two: next to each other, pytest-xdist gave them to both
+# workers at once and the second waited on the design's lock with its core idle (7 s in a CI rehearsal).
+@pytest.mark.parametrize("code", [pytest.param(errno.ENOSPC, marks=pytest.mark.slow(6)), errno.EACCES,
+                                  errno.EDQUOT])
 def test_output_refused_by_the_environment_exits_2_with_the_path(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                                                   capsys: pytest.CaptureFixture[str],
                                                                   code: int, shared_tmp: Path) -> None:
