@@ -25,6 +25,7 @@ from typing import Any
 
 import cli_inprocess
 import pytest
+from plant_stages import wait_for_fmu_steps
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = str(ROOT / "examples" / "paper.toml")
@@ -186,12 +187,7 @@ def test_sigterm_cleans_up_like_ctrl_c(tmp_path: Path) -> None:
     proc = subprocess.Popen([sys.executable, "-m", "ftc_verify", "verify", PAPER, "--gains", GAINS,
                              "--paths", "3000", "--horizon", "30", "--out", "rep"],
                             cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 120
-    while not any((tmp_path / ".tmp").rglob("ftc-verify-fmu-*")) and time.monotonic() < deadline:
-        assert proc.poll() is None, proc.communicate()
-        time.sleep(0.05)
-    assert any((tmp_path / ".tmp").rglob("ftc-verify-fmu-*")), "the FMU was never extracted"
-    time.sleep(0.5)
+    wait_for_fmu_steps(proc, tmp_path / ".tmp", 0.1)  # the FMU extracted and stepping (a 0.5 s sleep before)
     proc.send_signal(signal.SIGTERM)
     out, err = proc.communicate(timeout=60)
     assert proc.returncode == 143, (out, err)

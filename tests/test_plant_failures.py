@@ -24,13 +24,13 @@ import shutil
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import cli_inprocess
 import numpy as np
 import pytest
 
+from plant_stages import wait_for_fmu_steps
 from session_cache import copied_plants
 from ftc_verify.controllers import load_controller
 from ftc_verify.errors import PlantRunError
@@ -114,7 +114,8 @@ def test_a_signal_during_an_fmu_monte_carlo_ends_it(plants: dict[str, Path], tmp
                                                     line: str) -> None:
     """``simulate --plant`` on the stiff plant (about 1 s of FMU time per 10 s of horizon):
     the signal (to the process group, as a terminal's Ctrl-C, or SIGTERM to the process)
-    ends it with the documented code, one line, no JSON, nothing in the temporary folder."""
+    ends it with the documented code, one line, no JSON, nothing in the temporary folder.
+    Sent once the plant process has stepped the FMU for 0.2 s of CPU (``tests/plant_stages.py``)."""
     for name in ("plant.fmu", "plant.toml", "system.toml", "K.toml"):
         shutil.copy(plants["stiff"] / name, tmp_path / name)
     (tmp_path / ".tmp").mkdir()
@@ -122,11 +123,7 @@ def test_a_signal_during_an_fmu_monte_carlo_ends_it(plants: dict[str, Path], tmp
                              "--plant", "plant.toml", "--paths", "40", "--horizon", "30", "--seed", "1", "--json"],
                             cwd=tmp_path, env=os.environ | {"TMPDIR": str(tmp_path / ".tmp")},
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
-    deadline = time.monotonic() + 120
-    while not any((tmp_path / ".tmp").rglob("ftc-verify-fmu-*")) and time.monotonic() < deadline:
-        assert proc.poll() is None, proc.communicate()
-        time.sleep(0.05)
-    time.sleep(1.0)  # inside the Monte Carlo, the FMU stepping
+    wait_for_fmu_steps(proc, tmp_path / ".tmp", 0.2)  # inside the Monte Carlo, the FMU stepping (a 1 s sleep before)
     assert proc.poll() is None
     if sig == signal.SIGINT:
         os.killpg(proc.pid, sig)
