@@ -25,9 +25,16 @@ from ftc_verify.controllers.files import load_gains
 from ftc_verify.model.files import load_system
 from ftc_verify.synthesis.results import SolverCalls
 from ftc_verify.synthesis.state_feedback import gain_step
-from ftc_verify.synthesis.xy_design import CENTRE_WEIGHT, gain_bound, xy_solver
+from ftc_verify.synthesis.xy_design import CENTRE_WEIGHT, gain_bound_block, xy_solver
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+
+
+def gain_bound(K, k_max, mu=1.0):  # type: ignore[no-untyped-def]
+    """``||K||_2 <= k_max * mu`` as a cvxpy constraint (the former ``xy_design.gain_bound``)."""
+    import cvxpy as cp
+
+    return gain_bound_block(K, k_max, mu, cp.bmat) >> 0
 
 
 @pytest.fixture(scope="module")
