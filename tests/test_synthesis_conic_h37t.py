@@ -18,12 +18,15 @@ import numpy as np
 import pytest
 
 from ftc_verify.analysis.closedloop import gain_loop, state_feedback_loop
-from ftc_verify.analysis.conic import Affine, ConicProblem, Rows, evaluate, local_variables, matrix_variable, sym_variable
-from ftc_verify.analysis.lmi import block_specs, lyapunov_block, projection, xy_block
+from ftc_verify.analysis.conic import (Affine, ConicProblem, Rows, evaluate, local_variables, matrix_variable,
+                                      solve_clarabel, sym_variable)
+from ftc_verify.analysis.lmi import block_specs, dilated_block, lyapunov_block, projection, xy_block
 from ftc_verify.analysis.lmi_analysis import hinf_gamma
 from ftc_verify.controllers.files import load_gains
 from ftc_verify.model.files import load_system
+from ftc_verify.model.system import FTCSystem
 from ftc_verify.synthesis.ccl import ccl, ccl_blocks
+from ftc_verify.synthesis.convex_designs import dilated_problem, true_mode_reference
 from ftc_verify.synthesis.of_blocks import augmented_system
 from ftc_verify.synthesis.results import SolverCalls
 from ftc_verify.synthesis.state_feedback import gain_step
@@ -258,3 +261,130 @@ def test_ccl_programs_are_the_cvxpy_programs() -> None:
     # optimum (measured apart: 8e-8 and 2e-6)
     assert _value(*progs[0]) == pytest.approx(size_ref, rel=1e-4)
     assert _value(*progs[1]) == pytest.approx(lin_ref, rel=1e-4)
+
+
+@pytest.fixture(scope="module")
+def small() -> FTCSystem:
+    """The paper's chain and uncertainty on a plant with one input that cannot meet the
+    disturbance (``B = [0; b]``, ``D = [1; d]``, ``C = I``): its optimal gammas are of
+    order 1 (the paper plant's minimal gamma is ~1e-3, at the solvers' absolute
+    tolerances), so optimal values can be compared relatively."""
+    p = load_system(EXAMPLES / "paper.toml")
+    modes = []
+    for k, (b, d) in enumerate((([[0.0], [1.0]], [[1.0], [0.0]]), ([[0.0], [0.2]], [[1.0], [0.5]]))):
+        modes.append(dict(A=[[-1.0, 1.0], [0.0, 0.8 - 0.5 * k]], B=b, C=np.eye(2), D=d, A1=0.1 * np.eye(2),
+                          A2=0.1 * np.eye(2), B1=[[0.1], [0.1]], B2=[[0.1]]))
+    return FTCSystem.from_arrays(name="small", modes=modes, alpha=p.chain.alpha, beta_min=p.chain.beta_min,
+                                 beta_max=p.chain.beta_max)
+
+
+def _cvxpy_dilated_value(system, k_max, tau):  # type: ignore[no-untyped-def]
+    """The dilated program written with cvxpy: min g s.t. every ``dilated_block`` <= 0,
+    ``X_s >= 0``, and with ``k_max``: ``G_j + G_j' >= 2 mu I``, ``||Y_j|| <= k_max mu``."""
+    import cvxpy as cp
+
+    n, nu = system.dims[0], system.dims[1]
+    S, m = system.chain.n_states, system.m
+    X = [cp.Variable((n, n), symmetric=True) for _ in range(S)]
+    G = [cp.Variable((n, n)) for _ in range(m)]
+    Y = [cp.Variable((nu, n)) for _ in range(m)]
+    eps = [cp.Variable(nonneg=True) for _ in range(S)]
+    dlt = [cp.Variable(nonneg=True) for _ in range(S)]
+    g = cp.Variable(nonneg=True)
+    cons = [x >> 0 for x in X]
+    for spec in block_specs(gain_loop(system, [np.zeros((nu, n))] * m, "probe")):
+        s, j = spec.s, spec.fdi
+        M = dilated_block(system.modes[spec.true], X, G[j], s, Y[j], eps[s], dlt[s], g, spec.q_row, tau, cp.bmat)
+        cons.append(0.5 * (M + M.T) << 0)
+    if k_max is not None:
+        mu = cp.Variable(nonneg=True)
+        for j in range(m):
+            cons += [G[j] + G[j].T >> 2 * mu * np.eye(n), gain_bound(Y[j], k_max, mu)]
+    return _solve_cvxpy(g, cons)
+
+
+@pytest.mark.parametrize("k_max", [None, 2.0])
+def test_dilated_program_is_the_cvxpy_program(small, k_max) -> None:  # type: ignore[no-untyped-def]
+    """``dilated_problem`` at tau = 0.1 (``k_max = 2`` binds: g 0.52 -> 11.6): its optimal
+    value is the cvxpy program's (measured apart: 8e-7, 2e-7 relative)."""
+    problem, _, _ = dilated_problem(small, k_max, 0.1)
+    status, _, x = solve_clarabel(problem, {})
+    assert status == "optimal"
+    assert _value(problem, x) == pytest.approx(_cvxpy_dilated_value(small, k_max, 0.1), rel=1e-5)
+
+
+def test_true_mode_reference_is_the_cvxpy_program(small) -> None:  # type: ignore[no-untyped-def]
+    """min g over ``xy_block`` per true mode with the row alpha_i, ``X_i >= 0``, written with cvxpy."""
+    import cvxpy as cp
+
+    system = small
+    n, nu, m = system.dims[0], system.dims[1], system.m
+    X = [cp.Variable((n, n), symmetric=True) for _ in range(m)]
+    Y = [cp.Variable((nu, n)) for _ in range(m)]
+    eps = [cp.Variable(nonneg=True) for _ in range(m)]
+    dlt = [cp.Variable(nonneg=True) for _ in range(m)]
+    g = cp.Variable(nonneg=True)
+    alpha = np.asarray(system.chain.alpha, dtype=float)
+    cons = [x >> 0 for x in X]
+    for i, md in enumerate(system.modes):
+        M = xy_block(md, X, i, Y[i], eps[i], dlt[i], g, alpha[i], cp.bmat)
+        cons.append(0.5 * (M + M.T) << 0)
+    sol = true_mode_reference(system, SolverCalls("clarabel"))
+    assert sol is not None
+    assert sol["gamma"] ** 2 == pytest.approx(_solve_cvxpy(g, cons), rel=1e-5)
+
+
+def _groups(system, kind):  # type: ignore[no-untyped-def]
+    """The Lyapunov variable of each joint state per kind (``xy_solver``'s docstring)."""
+    joint = system.chain.joint_modes
+    return {"common": [0] * len(joint), "common-fdi": [j for _, j in joint],
+            "full-info": [i * system.m + j for i, j in joint], "projected": list(range(len(joint)))}[kind]
+
+
+def _cvxpy_min_g(system, kind, k_max):  # type: ignore[no-untyped-def]
+    """``xy_solver``'s first program at ``gamma=None`` with cvxpy: min g at margin ``t = 0``."""
+    import cvxpy as cp
+
+    n, nu, S = system.dims[0], system.dims[1], system.chain.n_states
+    groups = _groups(system, kind)
+    Xg = [cp.Variable((n, n), symmetric=True) for _ in range(max(groups) + 1)]
+    Yg = [cp.Variable((nu, n)) for _ in Xg]
+    X = [Xg[k] for k in groups]
+    eps = [cp.Variable(nonneg=True) for _ in range(S)]
+    dlt = [cp.Variable(nonneg=True) for _ in range(S)]
+    g = cp.Variable(nonneg=True)
+    cons = [x >> 0 for x in Xg]
+    seen = set()
+    for spec in block_specs(gain_loop(system, [np.zeros((nu, n))] * system.m, "probe")):
+        if kind == "common" and spec.true in seen:
+            continue
+        seen.add(spec.true)
+        mode, s = system.modes[spec.true], spec.s
+        q_row = None if kind == "common" else spec.q_row
+        M = xy_block(mode, X, s, None if kind == "projected" else Yg[groups[s]], eps[s], dlt[s], g, q_row, cp.bmat)
+        if kind == "projected":
+            N = projection(mode, sum(1 for k, q in enumerate(spec.q_row) if k != s and q > 0))
+            if N.shape[1] == 0:
+                continue
+            M = N.T @ M @ N
+        cons.append(0.5 * (M + M.T) << 0)
+    if k_max is not None and kind != "projected":
+        mu = cp.Variable(nonneg=True)
+        for Xk, Yk in zip(Xg, Yg):
+            cons += [Xk >> mu * np.eye(n), gain_bound(Yk, k_max, mu)]
+    return _solve_cvxpy(g, cons)
+
+
+@pytest.mark.parametrize(("kind", "k_max"), [("projected", None), ("full-info", None), ("common-fdi", None),
+                                             ("common", None), ("common-fdi", 2.0)])
+def test_xy_minimal_gamma_is_the_cvxpy_program(small, kind, k_max) -> None:  # type: ignore[no-untyped-def]
+    """``gamma=None``: the first program (min g, ``t = 0``) has the cvxpy program's value,
+    and the level returned is its re-centred gamma above it. The optimum has a singular
+    ``X`` (``t = 0``), where Clarabel stops further from it than its 1e-8 gap: measured
+    apart up to 2e-6 relative (8e-6 with ``k_max = 2``, which binds: g 0.53 -> 112)."""
+    calls = _Recorded()
+    sol = xy_solver(small, kind, calls, k_max)(None)
+    assert sol is not None
+    g_min = _value(*calls.programs[0])
+    assert g_min == pytest.approx(_cvxpy_min_g(small, kind, k_max), rel=5e-5)
+    assert sol["gamma"] >= math.sqrt(g_min) and sol["margin"] > 0
