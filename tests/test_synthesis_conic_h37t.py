@@ -288,19 +288,31 @@ def test_ccl_programs_are_the_cvxpy_programs() -> None:
     assert _value(*progs[1]) == pytest.approx(lin_ref, rel=1e-4)
 
 
-@pytest.fixture(scope="module")
-def small() -> FTCSystem:
+#: The second mode of the two small plants (``A``, ``B``, ``D``): of ``small`` and of
+#: ``apart``, where an ``X`` per FDI mode gives a lower gamma than one ``X`` (1.1412 against
+#: 1.1461), so that ``common-fdi`` and ``common`` differ.
+SECOND_MODES = {"small": ([[-1.0, 1.0], [0.0, 0.3]], [[0.0], [0.2]], [[1.0], [0.5]]),
+                "apart": ([[0.5, 1.0], [0.0, -1.0]], [[1.0], [0.0]], [[0.0], [1.0]])}
+
+
+def _small_plant(which: str) -> FTCSystem:
     """The paper's chain and uncertainty on a plant with one input that cannot meet the
-    disturbance (``B = [0; b]``, ``D = [1; d]``, ``C = I``): its optimal gammas are of
+    disturbance (``B`` and ``D`` on different states, ``C = I``): its optimal gammas are of
     order 1 (the paper plant's minimal gamma is ~1e-3, at the solvers' absolute
     tolerances), so optimal values can be compared relatively."""
     p = load_system(EXAMPLES / "paper.toml")
     modes = []
-    for k, (b, d) in enumerate((([[0.0], [1.0]], [[1.0], [0.0]]), ([[0.0], [0.2]], [[1.0], [0.5]]))):
-        modes.append(dict(A=[[-1.0, 1.0], [0.0, 0.8 - 0.5 * k]], B=b, C=np.eye(2), D=d, A1=0.1 * np.eye(2),
-                          A2=0.1 * np.eye(2), B1=[[0.1], [0.1]], B2=[[0.1]]))
-    return FTCSystem.from_arrays(name="small", modes=modes, alpha=p.chain.alpha, beta_min=p.chain.beta_min,
+    for A, b, d in (([[-1.0, 1.0], [0.0, 0.8]], [[0.0], [1.0]], [[1.0], [0.0]]), SECOND_MODES[which]):
+        modes.append(dict(A=A, B=b, C=np.eye(2), D=d, A1=0.1 * np.eye(2), A2=0.1 * np.eye(2), B1=[[0.1], [0.1]],
+                          B2=[[0.1]]))
+    return FTCSystem.from_arrays(name=which, modes=modes, alpha=p.chain.alpha, beta_min=p.chain.beta_min,
                                  beta_max=p.chain.beta_max)
+
+
+@pytest.fixture(scope="module")
+def small() -> FTCSystem:
+    """:func:`_small_plant` ``"small"``."""
+    return _small_plant("small")
 
 
 def _cvxpy_dilated_value(system, k_max, tau):  # type: ignore[no-untyped-def]
@@ -400,16 +412,18 @@ def _cvxpy_min_g(system, kind, k_max):  # type: ignore[no-untyped-def]
     return _solve_cvxpy(g, cons)
 
 
-@pytest.mark.parametrize(("kind", "k_max"), [("projected", None), ("full-info", None), ("common-fdi", None),
-                                             ("common", None), ("common-fdi", 2.0)])
-def test_xy_minimal_gamma_is_the_cvxpy_program(small, kind, k_max) -> None:  # type: ignore[no-untyped-def]
+@pytest.mark.parametrize(("plant", "kind", "k_max"), [
+    ("small", "projected", None), ("small", "full-info", None), ("small", "common-fdi", None),
+    ("small", "common", None), ("small", "common-fdi", 2.0), ("apart", "common-fdi", None), ("apart", "common", None)])
+def test_xy_minimal_gamma_is_the_cvxpy_program(plant, kind, k_max) -> None:  # type: ignore[no-untyped-def]
     """``gamma=None``: the first program (min g, ``t = 0``) has the cvxpy program's value,
     and the level returned is its re-centred gamma above it. The optimum has a singular
     ``X`` (``t = 0``), where Clarabel stops further from it than its 1e-8 gap: measured
     apart up to 2e-6 relative (8e-6 with ``k_max = 2``, which binds: g 0.53 -> 112)."""
+    system = _small_plant(plant)
     calls = _Recorded()
-    sol = xy_solver(small, kind, calls, k_max)(None)
+    sol = xy_solver(system, kind, calls, k_max)(None)
     assert sol is not None
     g_min = _value(*calls.programs[0])
-    assert g_min == pytest.approx(_cvxpy_min_g(small, kind, k_max), rel=5e-5)
+    assert g_min == pytest.approx(_cvxpy_min_g(system, kind, k_max), rel=5e-5)
     assert sol["gamma"] >= math.sqrt(g_min) and sol["margin"] > 0
