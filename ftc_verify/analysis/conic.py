@@ -41,7 +41,7 @@ from numpy.typing import ArrayLike
 from ..model.system import Matrix
 
 __all__ = ["Affine", "affine_bmat", "svec_index", "sym_variable", "scalar_variable", "matrix_variable",
-           "local_variables", "evaluate", "Columns", "Rows", "ConicProblem", "solve_clarabel", "solve_clarabel_dual", "to_cvxpy"]
+           "local_variables", "evaluate", "unit_rows", "Columns", "Rows", "ConicProblem", "solve_clarabel", "solve_clarabel_dual", "to_cvxpy"]
 
 _R2 = math.sqrt(2.0)
 
@@ -186,6 +186,14 @@ def evaluate(M: Affine, x: Matrix) -> Matrix:
     return M.const + M.lin @ np.asarray(x, dtype=float)
 
 
+def unit_rows(K: int, columns: Sequence[int] | np.ndarray, value: float = -1.0) -> sp.csr_matrix:
+    """The rows ``value * e_k^T``, one per ``k`` in ``columns``, of a program of ``K``
+    columns, as a sparse matrix (for :meth:`Rows.nonneg`: ``value = -1`` makes
+    ``x_k >= 0``); rows of a dense ``numpy.eye(K)`` cost ``K**2`` memory."""
+    idx = np.asarray(columns, dtype=int).ravel()
+    return sp.csr_matrix((np.full(idx.size, float(value)), (np.arange(idx.size), idx)), shape=(idx.size, K))
+
+
 class Columns:
     """Named runs of program columns, allocated in order: :meth:`add` ``count``
     variables of ``size`` columns each under ``name``; :meth:`at` the first column of
@@ -213,10 +221,14 @@ class Rows:
         self.K = K
         self.blocks: list[tuple[str, int, sp.csr_matrix, Matrix]] = []
 
-    def nonneg(self, A: Matrix, b: ArrayLike) -> None:
-        """``b - A x >= 0`` elementwise."""
-        A = np.atleast_2d(np.asarray(A, dtype=float))
-        self.blocks.append(("nonneg", A.shape[0], sp.csr_matrix(A), np.asarray(b, dtype=float).ravel()))
+    def nonneg(self, A: Matrix | sp.spmatrix, b: ArrayLike) -> None:
+        """``b - A x >= 0`` elementwise; ``A`` dense or a scipy.sparse matrix (e.g.
+        :func:`unit_rows`)."""
+        if sp.issparse(A):
+            A_rows = sp.csr_matrix(A, dtype=float)
+        else:
+            A_rows = sp.csr_matrix(np.atleast_2d(np.asarray(A, dtype=float)))
+        self.blocks.append(("nonneg", A_rows.shape[0], A_rows, np.asarray(b, dtype=float).ravel()))
 
     def lmi(self, M: Affine, columns: Matrix) -> None:
         """``M(x) <= 0`` in the semidefinite order (``M`` symmetrised first); variable
@@ -236,7 +248,7 @@ class Rows:
             out[block[2].indices] = True
         return out
 
-    def extended(self, A: Matrix, b: ArrayLike) -> Rows:
+    def extended(self, A: Matrix | sp.spmatrix, b: ArrayLike) -> Rows:
         """A copy with the rows ``b - A x >= 0`` added."""
         out = Rows(self.K)
         out.blocks = list(self.blocks)

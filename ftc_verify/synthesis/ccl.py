@@ -19,7 +19,7 @@ import numpy as np
 import scipy.linalg
 
 from ..analysis.closedloop import gain_loop
-from ..analysis.conic import Columns, Rows, affine_bmat, evaluate, local_variables, svec_index
+from ..analysis.conic import Columns, Rows, affine_bmat, evaluate, local_variables, svec_index, unit_rows
 from ..analysis.lmi import BlockSpec, block_specs, lyapunov_block, projection, xy_block
 from ..model.system import FTCSystem, Matrix
 from .of_blocks import augmented_system
@@ -152,7 +152,7 @@ def _ccl_rows(aug: FTCSystem, cbars: list[Matrix], cols: Columns, chans: list[in
         for M in ccl_state_blocks(var[0], var[1], var[2:2 + chans[s]], var[2 + chans[s]:], margin, affine_bmat):
             rows.lmi(-M, at)
     total = int(first[-1])
-    rows.nonneg(-np.eye(cols.K)[cols.at("lam"):], np.zeros(2 * total))
+    rows.nonneg(unit_rows(cols.K, range(cols.at("lam"), cols.K)), np.zeros(2 * total))
     return rows
 
 

@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from ..analysis.closedloop import gain_loop
-from ..analysis.conic import Columns, ConicProblem, Rows, affine_bmat, evaluate, local_variables
+from ..analysis.conic import Columns, ConicProblem, Rows, affine_bmat, evaluate, local_variables, unit_rows
 from ..analysis.lmi import block_specs, dilated_block, xy_block
 from ..model.system import FTCSystem, Matrix
 from .xy_design import gain_bound_block
@@ -110,7 +110,7 @@ def _min_g(rows: Rows, cols: Columns) -> tuple[ConicProblem, Columns, Matrix]:
     row involves left out: ``(program, cols, kept mask)``."""
     keep = rows.used()
     scalars = [k for k in range(cols.at("g"), cols.K) if keep[k]]
-    rows.nonneg(-np.eye(cols.K)[scalars], np.zeros(len(scalars)))
+    rows.nonneg(unit_rows(cols.K, scalars), np.zeros(len(scalars)))
     c = np.zeros(cols.K)
     c[cols.at("g")] = 1.0
     keep[cols.at("g")] = True

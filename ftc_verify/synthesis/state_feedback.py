@@ -90,7 +90,7 @@ import numpy as np
 from ..controllers.controller import Controller
 from ..analysis.analyze import AnalysisReport
 from ..analysis.closedloop import gain_loop, state_feedback_loop
-from ..analysis.conic import Rows, affine_bmat, matrix_variable, scalar_variable
+from ..analysis.conic import Rows, affine_bmat, matrix_variable, scalar_variable, unit_rows
 from ..errors import ValidationError
 from ..analysis.lmi import block_specs, lyapunov_block
 from ..analysis.lmi_analysis import hinf_gamma
@@ -159,9 +159,9 @@ def gain_step(
     if k_max is not None:
         rows.lmi(-gain_bound_block(K, k_max, 1.0, affine_bmat), every)
     c = np.eye(size)[nu * cols if gamma is None else -1]  # min g, or min k
-    rows.nonneg(-np.eye(size)[nu * cols:], np.zeros(size - nu * cols))  # g >= 0 (and k >= 0)
+    rows.nonneg(unit_rows(size, range(nu * cols, size)), np.zeros(size - nu * cols))  # g >= 0 (and k >= 0)
     if gamma is not None:
-        rows.nonneg(np.eye(size)[nu * cols], [gamma ** 2])
+        rows.nonneg(unit_rows(size, [nu * cols], 1.0), [gamma ** 2])
         rows.lmi(-gain_bound_block(K, 1.0, scalar_variable(size - 1, size), affine_bmat), every)
     out, x = calls.run_conic(rows.problem(c))
     if not out.solved or x is None:

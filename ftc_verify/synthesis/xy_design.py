@@ -19,12 +19,12 @@ from typing import Any
 import numpy as np
 
 from ..analysis.closedloop import gain_loop
-from ..analysis.conic import ConicProblem, Rows, affine_bmat, evaluate, local_variables, svec_index
+from ..analysis.conic import ConicProblem, Rows, affine_bmat, evaluate, local_variables, svec_index, unit_rows
 from ..analysis.lmi import block_specs, projection, xy_block
 from ..analysis.lmi_analysis import GAMMA_LADDER
 from ..model.system import FTCSystem, Matrix
 
-__all__ = ["MARGIN_TOL", "CENTRE_WEIGHT", "gain_bound", "gain_bound_block", "xy_solve", "xy_solver"]
+__all__ = ["MARGIN_TOL", "CENTRE_WEIGHT", "gain_bound_block", "xy_solve", "xy_solver"]
 
 #: An (X, Y) problem counts as strictly feasible when its maximised margin exceeds this
 #: (a heuristic only: every result is certified by the core analysis afterwards).
@@ -35,23 +35,14 @@ CENTRE_WEIGHT = 1e-6
 
 def gain_bound_block(K: Any, k_max: float, mu: Any, bmat: Any) -> Any:
     r"""The matrix :math:`[[\mu I, K^T/k], [K/k, \mu I]]` whose semidefiniteness is
-    :math:`\|K\|_2 \le k \mu` (:func:`gain_bound`), built with ``bmat`` (``cvxpy.bmat``
-    or :func:`~ftc_verify.analysis.conic.affine_bmat`)."""
-    nu, n = K.shape
-    return bmat([[mu * np.eye(n), K.T / k_max], [K / k_max, mu * np.eye(nu)]])
-
-
-def gain_bound(K: Any, k_max: float, mu: Any = 1.0) -> Any:
-    r"""``||K||_2 <= k_max * mu`` as the LMI :math:`[[\mu I, K^T/k], [K/k, \mu I]] \succeq 0`
-    (a cvxpy constraint; the matrix is :func:`gain_bound_block`).
+    :math:`\|K\|_2 \le k \mu`, built with ``bmat`` (``cvxpy.bmat``
+    or :func:`~ftc_verify.analysis.conic.affine_bmat`).
 
     Dividing ``K`` by the bound (rather than writing ``k I`` on the diagonal) keeps the
     problem scaled: a huge bound such as ``1e300`` becomes a vanishing coupling, i.e. no
-    bound, instead of a diagonal that swamps every other entry of the LMI.
-    """
-    import cvxpy as cp
-
-    return gain_bound_block(K, k_max, mu, cp.bmat) >> 0
+    bound, instead of a diagonal that swamps every other entry of the LMI."""
+    nu, n = K.shape
+    return bmat([[mu * np.eye(n), K.T / k_max], [K / k_max, mu * np.eye(nu)]])
 
 
 def _variable_groups(system: FTCSystem, kind: str) -> list[int]:
@@ -229,8 +220,8 @@ def xy_solver(system: FTCSystem, kind: str, calls: Any,
     for block in rows.blocks:
         used[block[2].indices] = True
     unused = [col for col in range(lay.eps(0), lay.K) if not used[col] and objective[col] == 0.0]
-    rows.nonneg(-np.eye(lay.K)[[col for col in range(lay.g, lay.K) if col != lay.t and col not in unused]],
-                np.zeros(lay.K - lay.g - 1 - len(unused)))  # g, mu, eps, delta >= 0
+    scalars = [col for col in range(lay.g, lay.K) if col != lay.t and col not in unused]
+    rows.nonneg(unit_rows(lay.K, scalars), np.zeros(len(scalars)))  # g, mu, eps, delta >= 0
 
     def drop(problem: ConicProblem) -> ConicProblem:
         for col in sorted(unused, reverse=True):
@@ -239,7 +230,7 @@ def xy_solver(system: FTCSystem, kind: str, calls: Any,
 
     e_g = np.zeros(lay.K)
     e_g[lay.g] = 1.0
-    capped = drop(rows.extended(np.eye(lay.K)[[lay.t]], [1.0]).problem(objective))
+    capped = drop(rows.extended(unit_rows(lay.K, [lay.t], 1.0), [1.0]).problem(objective))
 
     def num(x: Matrix, col: int) -> float:
         return math.nan if col in unused else float(x[col])
