@@ -17,8 +17,9 @@ change in time inside it, and near ``h_max`` those can be worse than any constan
 (seed-1 ``n = 4, m = 3`` loop: whole box 1.5e-3 below the crossing with four cubic
 pieces, the worst vertex alone 5e-4, the sub-box of half the widths at that vertex 9e-4;
 ``benchmarks/results/h31r.md``). A cover is built depth first: a sub-box whose
-certificate is not found or not proved is split in half along its widest rate (relative
-to the box), at most :data:`COVER_DEPTH` times along a path.
+certificate is not found or not proved is split in half along the rate that moves the
+float64 radius most near the box's worst vertex (:func:`_split`), at most
+:data:`COVER_DEPTH` times along a path.
 
 **The ladder.** Rungs ``f = g/4, g/16, ...`` (``g`` the default bracket's relative width)
 down to the target ``0.9 rtol``, easy first; each rung starts from the previous rung's
@@ -37,7 +38,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...model.system import Matrix
-from .sampled import SampledLoop
+from .sampled import SampledLoop, rate_points, spectral_radius
+from .sampled_bracket import worst_vertex
 from .sampled_cubic import cubic_size, cubic_stable
 
 __all__ = ["COVER_DEPTH", "COARSE_PIECES", "FINE_PIECES", "FINE_FROM", "CoverResult", "cubic_work", "cubic_memory",
@@ -102,14 +104,25 @@ class CoverResult:
 Box = tuple[Matrix, Matrix, int]
 
 
-def _split(loop: SampledLoop, lo: Matrix, hi: Matrix, depth: int) -> tuple[Box, Box]:
-    """The two halves of ``[lo, hi]`` along its widest rate relative to the box (the first
-    such rate on ties)."""
+def _split(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, depth: int, worst: Matrix) -> tuple[Box, Box]:
+    """The two halves of ``[lo, hi]`` along the rate that moves the float64 radius most:
+    at ``v``, the sub-box's corner nearest to ``worst`` (the worst vertex of the box),
+    each rate flipped to the sub-box's other end in turn, the largest change of
+    :math:`\rho` (the widest rate relative to the box on ties: all changes 0). Only the
+    order of the splits depends on it; every sub-box is proved in ball arithmetic."""
     chain = loop.chain
-    full_lo, full_hi = chain.rate_min, chain.rate_max
-    widths = [(hi[r] - lo[r]) / (full_hi[r] - full_lo[r]) if full_hi[r] > full_lo[r] else 0.0
-              for r in chain.rate_indices]
-    r = chain.rate_indices[int(np.argmax(widths))]
+    free = [r for r in chain.rate_indices if hi[r] > lo[r]]
+    v = np.where(np.abs(worst - lo) <= np.abs(worst - hi), lo, hi)
+    base = spectral_radius(loop, h, v)
+    full = chain.rate_max - chain.rate_min
+
+    def score(r: tuple[int, ...]) -> tuple[float, float]:
+        p = v.copy()
+        p[r] = hi[r] if v[r] == lo[r] else lo[r]
+        change = abs(spectral_radius(loop, h, p) - base)
+        return (change if np.isfinite(change) else 0.0, (hi[r] - lo[r]) / full[r])
+
+    r = max(free, key=score)
     mid = 0.5 * (lo[r] + hi[r])
     lo2, hi1 = lo.copy(), hi.copy()
     hi1[r] = mid
@@ -118,10 +131,11 @@ def _split(loop: SampledLoop, lo: Matrix, hi: Matrix, depth: int) -> tuple[Box, 
 
 
 def cover_box(loop: SampledLoop, h: float, pieces: int, boxes: list[Box],
-              budget: float) -> tuple[list[Box] | None, float, int]:
+              budget: float, worst: Matrix | None = None) -> tuple[list[Box] | None, float, int]:
     """A cover of the union of ``boxes`` at period ``h`` (module docstring), depth first:
     ``(sub-boxes, units charged, attempts)``, the sub-boxes ``None`` when the budget or
-    :data:`COVER_DEPTH` ran out first."""
+    :data:`COVER_DEPTH` ran out first. ``worst``: the box's worst vertex (float64, found
+    here when not given), which orders the splits (:func:`_split`)."""
     cost = cubic_work(loop, pieces)
     stack = list(reversed(boxes))
     leaves: list[Box] = []
@@ -138,7 +152,9 @@ def cover_box(loop: SampledLoop, h: float, pieces: int, boxes: list[Box],
             continue
         if depth >= COVER_DEPTH or not any(hi[r] > lo[r] for r in loop.chain.rate_indices):
             return None, spent, attempts
-        first, second = _split(loop, lo, hi, depth)
+        if worst is None:
+            worst = worst_vertex(loop, h, rate_points(loop.chain))[1]
+        first, second = _split(loop, h, lo, hi, depth, worst)
         stack.append(second)
         stack.append(first)
     return leaves, spent, attempts
@@ -153,10 +169,11 @@ def cover_h_max(loop: SampledLoop, h_max: float, h_max_unstable: float, work: fl
     spent, attempts = 0.0, 0
     best: tuple[float, int, int] | None = None
     rungs: list[tuple[float, bool]] = []
+    worst = worst_vertex(loop, h_max_unstable, rate_points(loop.chain))[1]
     for f in cover_rungs(gap, rtol):
         pieces = COARSE_PIECES if f >= FINE_FROM else FINE_PIECES
         h = h_max_unstable * (1.0 - f)
-        leaves, used, n = cover_box(loop, h, pieces, boxes, work - spent)
+        leaves, used, n = cover_box(loop, h, pieces, boxes, work - spent, worst)
         spent += used
         attempts += n
         rungs.append((h, leaves is not None))
