@@ -16,7 +16,8 @@ import pytest
 
 from ftc_verify.analysis.moments import sampled_cover
 from ftc_verify.analysis.moments.sampled import SampledLoop, SampledResult
-from ftc_verify.analysis.moments.sampled_cover import COVER_DEPTH, cover_box, cover_h_max, cover_rungs, cubic_work
+from ftc_verify.analysis.moments.sampled_cover import (COVER_DEPTH, cover_box, cover_h_max, cover_rungs, cubic_work,
+                                                       rung_pieces)
 from ftc_verify.analysis.moments.sampled_cubic import cubic_stable, prove_cubic
 from ftc_verify.analysis.moments.sampled_proof import box_verdict
 from ftc_verify.analysis.moments.sampled_refine import refine_result
@@ -112,9 +113,37 @@ def test_ladder_reuses_the_previous_cover(monkeypatch: pytest.MonkeyPatch) -> No
     got = cover_h_max(loop, hu * (1 - 0.02), hu, 1e12, 1e-3)
     assert got.h_max == pytest.approx(hu * (1 - 0.0009)) and got.boxes == 4
     assert [ok for _, ok in got.rungs] == [True, True, True]
-    # the first rung split the box (7 attempts); the next two start from its 4 leaves
-    assert got.attempts == 7 + 4 + 4
-    assert [p for _, p, _ in fake.asked] == [2] * 7 + [4] * 8
+    # each rung: the worst vertex alone (1 attempt), then the first split the box (7
+    # attempts); the next two start from its 4 leaves
+    assert got.attempts == (1 + 7) + (1 + 4) + (1 + 4)
+    assert [p for _, p, _ in fake.asked] == [2] * 18
+
+
+class _Pieces(_Cubic):
+    """Proves a single rate array only with at least ``least`` pieces, any sub-box of
+    width ``share`` with any pieces."""
+
+    def __init__(self, share: float, least: int) -> None:
+        super().__init__(share)
+        self.least = least
+
+    def __call__(self, loop: SampledLoop, h: float, pieces: int, lo: np.ndarray, hi: np.ndarray) -> object:
+        cert = super().__call__(loop, h, pieces, lo, hi)
+        if np.array_equal(lo, hi) and pieces < self.least:
+            return type("Cert", (), {"proved": False})()
+        return cert
+
+
+def test_rung_pieces_from_the_worst_vertex(monkeypatch: pytest.MonkeyPatch) -> None:
+    loop = _paper()
+    worst = loop.chain.rate_max.copy()
+    monkeypatch.setattr(sampled_cover, "cubic_stable", _Pieces(1.0, 4))
+    assert rung_pieces(loop, 0.08, worst, 2, 1e12) == (4, pytest.approx(cubic_work(loop, 2) + cubic_work(loop, 4)), 2)
+    assert rung_pieces(loop, 0.08, worst, 4, 1e12)[0] == 4  # never fewer than the last rung's
+    assert rung_pieces(loop, 0.08, worst, 2, 1.5 * cubic_work(loop, 2))[0] is None  # the budget first
+    monkeypatch.setattr(sampled_cover, "cubic_stable", _Pieces(1.0, 16))
+    got = cover_h_max(loop, 0.0843 * 0.98, 0.0843, 1e12, 1e-3)
+    assert got.h_max is None and got.rungs == ((pytest.approx(0.0843 * 0.995), False),)
 
 
 def test_refine_result_only_when_wider_than_rtol(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -128,9 +157,9 @@ def test_refine_result_only_when_wider_than_rtol(monkeypatch: pytest.MonkeyPatch
     wide = dataclasses.replace(base, h_max=PAPER_UNSTABLE * 0.96, h_max_note="wide")
     got = refine_result(system, controller, wide, 1e9)
     assert got.h_max == pytest.approx(PAPER_UNSTABLE * 0.9991) and "refinement (--h-max-work" in got.h_max_note
-    assert "by 1 sub-box(es) of 4 cubic pieces" in got.h_max_note
+    assert "by 1 sub-box(es) of 2 cubic pieces" in got.h_max_note
     none = dataclasses.replace(base, h_max=None, h_max_note="not proved")
-    got = refine_result(system, controller, none, cubic_work(_paper(), 2) * 1.5)
+    got = refine_result(system, controller, none, cubic_work(_paper(), 2) * 2.5)  # the vertex, then the box
     assert got.h_max == pytest.approx(PAPER_UNSTABLE * (1 - 0.125))  # from a 50 % bracket: g / 4
     monkeypatch.setattr(sampled_cover, "cubic_stable", _Cubic(0.0))
     assert refine_result(system, controller, wide, 1e5).h_max == wide.h_max  # nothing proved: unchanged

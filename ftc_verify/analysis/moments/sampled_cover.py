@@ -23,8 +23,10 @@ float64 radius most near the box's worst vertex (:func:`_split`), at most
 
 **The ladder.** Rungs ``f = g/4, g/16, ...`` (``g`` the default bracket's relative width)
 down to the target ``0.9 rtol``, easy first; each rung starts from the previous rung's
-cover (its sub-boxes, not the whole box again), with :data:`COARSE_PIECES` pieces while
-``f >= FINE_FROM`` and :data:`FINE_PIECES` below. It stops at the first rung not covered
+cover (its sub-boxes, not the whole box again), with the fewest pieces of :data:`PIECES`
+(at least the last rung's) that prove the worst vertex alone (:func:`rung_pieces`:
+splitting the rates cannot make up for too few pieces in the clock; on the seed-1 loop
+two pieces reach 2.5e-3, four 5e-4 there). It stops at the first rung not covered
 within the budget or the depth; the result is the last rung covered. Every attempt is
 charged :func:`cubic_work` units *before* it is solved (from the program's size only),
 and none is started that the budget cannot pay: the same loop and budget give the same
@@ -42,17 +44,13 @@ from .sampled import SampledLoop, rate_points, spectral_radius
 from .sampled_bracket import worst_vertex
 from .sampled_cubic import cubic_size, cubic_stable
 
-__all__ = ["COVER_DEPTH", "COARSE_PIECES", "FINE_PIECES", "FINE_FROM", "CoverResult", "cubic_work", "cubic_memory",
-           "cover_rungs", "cover_box", "cover_h_max"]
+__all__ = ["COVER_DEPTH", "PIECES", "CoverResult", "cubic_work", "cubic_memory", "cover_rungs", "rung_pieces",
+           "cover_box", "cover_h_max"]
 
 #: The most halvings of the box along one path of the cover.
 COVER_DEPTH = 10
-#: Cubic pieces of the rungs at ``f >= FINE_FROM`` (two reach 2.5e-3 on the seed-1 loop).
-COARSE_PIECES = 2
-#: Cubic pieces of the rungs below (four reach 1.5e-3 on the whole box, 9e-4 on sub-boxes).
-FINE_PIECES = 4
-#: The distance below which the rungs use :data:`FINE_PIECES`.
-FINE_FROM = 3e-3
+#: The cubic pieces a rung may use, fewest first (:func:`rung_pieces`).
+PIECES = (2, 4, 8)
 
 
 def cubic_work(loop: SampledLoop, pieces: int) -> float:
@@ -60,11 +58,12 @@ def cubic_work(loop: SampledLoop, pieces: int) -> float:
     program of ``V`` variables (:func:`~ftc_verify.analysis.moments.sampled_cubic.cubic_size`),
     about a millisecond of one core each (seed-1 loop: two pieces ``V = 3483``, 4 CPU s,
     6000 units; four ``V = 6777``, 10-13 CPU s, 14300 units; ``benchmarks/results/h31r.md``).
-    Every sub-box has as many row vertices as the box, so the same size."""
+    Every sub-box has as many row vertices as the box, so the same size (a single rate
+    array is charged as much)."""
     return 0.15 * float(cubic_size(loop, pieces)) ** 1.3
 
 
-def cubic_memory(loop: SampledLoop, pieces: int = FINE_PIECES) -> float:
+def cubic_memory(loop: SampledLoop, pieces: int = PIECES[-1]) -> float:
     """Estimated peak memory (bytes) of one attempt, as
     :func:`~ftc_verify.analysis.moments.sampled_refine.clock_memory` from the program's
     size (``2.8e9 (V / 22365)^2.2 + 2e8``); the cover never holds two programs at once, so
@@ -84,6 +83,24 @@ def cover_rungs(gap: float, rtol: float) -> tuple[float, ...]:
     if gap > target:
         out.append(target)
     return tuple(out)
+
+
+def rung_pieces(loop: SampledLoop, h: float, worst: Matrix, fewest: int, budget: float) -> tuple[int | None, float, int]:
+    """The fewest cubic pieces of :data:`PIECES`, at least ``fewest``, whose certificate
+    is found and proved at the worst vertex ``worst`` alone at period ``h``: what the
+    clock needs there (a cover cannot do with fewer); ``(pieces or None, units charged,
+    attempts)``, ``None`` when none is (or the budget ran out): the rung is out of reach."""
+    spent, attempts = 0.0, 0
+    for n in [n for n in PIECES if n >= fewest]:
+        cost = cubic_work(loop, n)
+        if spent + cost > budget:
+            break
+        spent += cost
+        attempts += 1
+        cert = cubic_stable(loop, h, n, worst, worst)
+        if cert is not None and cert.proved:
+            return n, spent, attempts
+    return None, spent, attempts
 
 
 @dataclass(frozen=True)
@@ -170,12 +187,18 @@ def cover_h_max(loop: SampledLoop, h_max: float, h_max_unstable: float, work: fl
     best: tuple[float, int, int] | None = None
     rungs: list[tuple[float, bool]] = []
     worst = worst_vertex(loop, h_max_unstable, rate_points(loop.chain))[1]
+    pieces = PIECES[0]
     for f in cover_rungs(gap, rtol):
-        pieces = COARSE_PIECES if f >= FINE_FROM else FINE_PIECES
         h = h_max_unstable * (1.0 - f)
-        leaves, used, n = cover_box(loop, h, pieces, boxes, work - spent, worst)
+        found, used, n = rung_pieces(loop, h, worst, pieces, work - spent)
         spent += used
         attempts += n
+        leaves = None
+        if found is not None:
+            pieces = found
+            leaves, used, n = cover_box(loop, h, pieces, boxes, work - spent, worst)
+            spent += used
+            attempts += n
         rungs.append((h, leaves is not None))
         if leaves is None:
             break

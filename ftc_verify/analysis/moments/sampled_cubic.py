@@ -94,13 +94,13 @@ def box_specs(loop: SampledLoop, lo: Matrix, hi: Matrix) -> list[tuple[int, Matr
     """``(s, point)`` at every vertex of the rates of row ``s`` in ``[lo, hi]`` (the other
     rates at the sub-box's midpoint; row ``s`` of the generator depends on its own only),
     for every joint state: :meth:`~ftc_verify.model.chain.JointChain.row_rate_points` of a
-    sub-box."""
+    sub-box; a rate with ``lo = hi`` gives one point, not two)."""
     chain = loop.chain
     mid = 0.5 * (np.asarray(lo, dtype=float) + np.asarray(hi, dtype=float))
     out = []
     for s in range(loop.states):
         indices = chain.row_rates(s)
-        for combo in itertools.product(*[(lo[r], hi[r]) for r in indices]):
+        for combo in itertools.product(*[sorted({float(lo[r]), float(hi[r])}) for r in indices]):
             point = mid.copy()
             for r, v in zip(indices, combo):
                 point[r] = v
