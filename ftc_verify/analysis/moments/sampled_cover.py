@@ -18,7 +18,7 @@ change in time inside it, and near ``h_max`` those can be worse than any constan
 pieces, the worst vertex alone 5e-4, the sub-box of half the widths at that vertex 9e-4;
 ``benchmarks/results/h31r.md``). A cover is built depth first: a sub-box whose
 certificate is not found or not proved is split in half along the rate that moves the
-float64 radius most near the box's worst vertex (:func:`_split`), at most
+float64 radius most near the box's worst vertex (the order of the splits only), at most
 :data:`COVER_DEPTH` times along a path.
 
 **The ladder.** Rungs ``f = g/4, g/16, ...`` (``g`` the default bracket's relative width)
@@ -64,10 +64,11 @@ def cubic_work(loop: SampledLoop, pieces: int) -> float:
 
 
 def cubic_memory(loop: SampledLoop, pieces: int = PIECES[-1]) -> float:
-    """Estimated peak memory (bytes) of one attempt, as
-    :func:`~ftc_verify.analysis.moments.sampled_refine.clock_memory` from the program's
-    size (``2.8e9 (V / 22365)^2.2 + 2e8``); the cover never holds two programs at once, so
-    this is the stage's peak whatever the budget."""
+    """Estimated peak memory (bytes) of one attempt from the program's size, as measured
+    for the quadratic clock programs (``2.8e9 (V / 22365)^2.2 + 2e8``: 2.8 GB at ``V =
+    22365``, ``benchmarks/results/h31e.md``; four cubic pieces on ``n = 4, m = 3``, ``V =
+    6777``: estimated 0.40 GB, measured 0.43 GB peak for the whole process); the cover
+    never holds two programs at once, so this is the stage's peak whatever the budget."""
     return 2.8e9 * (float(cubic_size(loop, pieces)) / 22365.0) ** 2.2 + 2.0e8
 
 
@@ -152,7 +153,7 @@ def cover_box(loop: SampledLoop, h: float, pieces: int, boxes: list[Box],
     """A cover of the union of ``boxes`` at period ``h`` (module docstring), depth first:
     ``(sub-boxes, units charged, attempts)``, the sub-boxes ``None`` when the budget or
     :data:`COVER_DEPTH` ran out first. ``worst``: the box's worst vertex (float64, found
-    here when not given), which orders the splits (:func:`_split`)."""
+    here when not given), which orders the splits (module docstring)."""
     cost = cubic_work(loop, pieces)
     stack = list(reversed(boxes))
     leaves: list[Box] = []
