@@ -204,3 +204,34 @@ def test_text_output_names_the_refinement(capsys: pytest.CaptureFixture[str]) ->
     assert "      refinement (--h-max-work 5000): 2 cubic clock certificate(s)" in capsys.readouterr().out
     print_sampled(dataclasses.replace(res, h_max_note="narrow"))
     assert "refinement" not in capsys.readouterr().out
+
+
+def test_verify_stage_refines_with_the_loop_built_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``verify --h-max-work``: the sampled stage hands the budget to the same refinement
+    as ``analyze``, with the loop it built (once) for its size check and the analysis."""
+    from ftc_verify.analysis.moments import sampled_refine
+    from ftc_verify.verification.sampled_stage import sampled_stage
+
+    system = load_system(ROOT / "examples" / "paper.toml")
+    controller = load_controller(ROOT / "examples" / "paper_gains.toml")
+    builds: list[SampledLoop] = []
+    build = SampledLoop.build
+
+    def counted(system: Any, controller: Any) -> SampledLoop:
+        builds.append(build(system, controller))
+        return builds[-1]
+
+    calls: list[tuple[float, Any]] = []
+
+    def refine(system: Any, controller: Any, result: SampledResult, work: float, *, loop: Any = None) -> SampledResult:
+        calls.append((work, loop))
+        return dataclasses.replace(result, h_max_note=result.h_max_note + "; refined by test")
+
+    monkeypatch.setattr(SampledLoop, "build", staticmethod(counted))
+    monkeypatch.setattr(sampled_refine, "refine_result", refine)
+    res, check = sampled_stage(system, controller, 0.05, here=True, h_max_work=1234.0)
+    assert res is not None and res.h_max_note.endswith("; refined by test") and check.ok
+    assert len(builds) == 1 and calls == [(1234.0, builds[0])]
+    calls.clear()
+    res, _ = sampled_stage(system, controller, 0.05, here=True)
+    assert res is not None and calls == []
