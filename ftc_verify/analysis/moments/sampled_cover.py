@@ -17,9 +17,9 @@ change in time inside it, and near ``h_max`` those can be worse than any constan
 (seed-1 ``n = 4, m = 3`` loop: whole box 1.5e-3 below the crossing with four cubic
 pieces, the worst vertex alone 5e-4, the sub-box of half the widths at that vertex 9e-4;
 ``benchmarks/results/h31r.md``). A cover is built depth first: a sub-box whose
-certificate is not found or not proved is split in half along the rate that moves the
-float64 radius most near the box's worst vertex (the order of the splits only), at most
-:data:`COVER_DEPTH` times along a path.
+certificate is not found or not proved is split in half along its widest rate (relative
+to the box; on ties the one that moves the float64 radius most near the box's worst
+vertex), at most :data:`COVER_DEPTH` times along a path.
 
 **The ladder.** Rungs ``f = g/4, g/16, ...`` (``g`` the default bracket's relative width)
 down to the target ``0.9 rtol``, easy first; each rung starts from the previous rung's
@@ -123,11 +123,12 @@ Box = tuple[Matrix, Matrix, int]
 
 
 def _split(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, depth: int, worst: Matrix) -> tuple[Box, Box]:
-    """The two halves of ``[lo, hi]`` along the rate that moves the float64 radius most:
-    at ``v``, the sub-box's corner nearest to ``worst`` (the worst vertex of the box),
-    each rate flipped to the sub-box's other end in turn, the largest change of
-    :math:`\rho` (the widest rate relative to the box on ties: all changes 0). Only the
-    order of the splits depends on it; every sub-box is proved in ball arithmetic."""
+    """The two halves of ``[lo, hi]`` along its widest rate relative to the box, among
+    those the one that moves the float64 radius most: at ``v``, the sub-box's corner
+    nearest to ``worst`` (the worst vertex of the box), the rate flipped to the sub-box's
+    other end. Only the order of the splits depends on it (splitting the same two
+    radius-moving rates again and again left a held-out loop's sub-box unproved: the
+    rates that vary in time matter too); every sub-box is proved in ball arithmetic."""
     chain = loop.chain
     free = [r for r in chain.rate_indices if hi[r] > lo[r]]
     v = np.where(np.abs(worst - lo) <= np.abs(worst - hi), lo, hi)
@@ -138,7 +139,7 @@ def _split(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, depth: int, wors
         p = v.copy()
         p[r] = hi[r] if v[r] == lo[r] else lo[r]
         change = abs(spectral_radius(loop, h, p) - base)
-        return (change if np.isfinite(change) else 0.0, (hi[r] - lo[r]) / full[r])
+        return (round(float((hi[r] - lo[r]) / full[r]), 12), change if np.isfinite(change) else 0.0)
 
     r = max(free, key=score)
     mid = 0.5 * (lo[r] + hi[r])
