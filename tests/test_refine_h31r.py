@@ -86,23 +86,21 @@ def test_cover_splits_until_proved_and_covers_the_box(monkeypatch: pytest.Monkey
     fake = _Cubic(0.5)
     monkeypatch.setattr(sampled_cover, "cubic_stable", fake)
     start = [(loop.chain.rate_min.copy(), loop.chain.rate_max.copy(), 0)]
-    leaves, spent, attempts, most = cover_box(loop, 0.08, 4, start, 1e12)
-    assert leaves is not None and most == 4
-    # two rates, each halved once: 4 leaves; the box and its halves tried with 4 and 8
-    # pieces before each split, the quarters proved with 4; their volumes fill the box
-    assert len(leaves) == 4 and attempts == 2 + 4 + 4
-    assert spent == pytest.approx(7 * cubic_work(loop, 4) + 3 * cubic_work(loop, 8))
+    leaves, spent, attempts = cover_box(loop, 0.08, 4, start, 1e12)
+    assert leaves is not None
+    # two rates, each halved once: 4 leaves after 1 + 2 + 4 attempts; their volumes fill the box
+    assert len(leaves) == 4 and attempts == 7 and spent == pytest.approx(7 * cubic_work(loop, 4))
     idx = loop.chain.rate_indices
     vol = sum(float(np.prod([hi[r] - lo[r] for r in idx])) for lo, hi, _ in leaves)
     assert vol == pytest.approx(float(np.prod([loop.chain.rate_max[r] - loop.chain.rate_min[r] for r in idx])))
     # the budget is charged before each solve: none is started that it cannot pay
     fake.asked.clear()
-    leaves, spent, attempts, _ = cover_box(loop, 0.08, 4, start, 1.5 * cubic_work(loop, 4) + cubic_work(loop, 8))
+    leaves, spent, attempts = cover_box(loop, 0.08, 4, start, 2.5 * cubic_work(loop, 4))
     assert leaves is None and attempts == 2 and len(fake.asked) == 2
     # a sub-box never proved: stopped at the depth limit
     monkeypatch.setattr(sampled_cover, "cubic_stable", _Cubic(0.0))
-    leaves, _, attempts, _ = cover_box(loop, 0.08, 4, start, 1e12)
-    assert leaves is None and attempts == 2 * (COVER_DEPTH + 1)
+    leaves, _, attempts = cover_box(loop, 0.08, 4, start, 1e12)
+    assert leaves is None and attempts == COVER_DEPTH + 1
 
 
 def test_ladder_reuses_the_previous_cover(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -115,10 +113,10 @@ def test_ladder_reuses_the_previous_cover(monkeypatch: pytest.MonkeyPatch) -> No
     got = cover_h_max(loop, hu * (1 - 0.02), hu, 1e12, 1e-3)
     assert got.h_max == pytest.approx(hu * (1 - 0.0009)) and got.boxes == 4
     assert [ok for _, ok in got.rungs] == [True, True, True]
-    # each rung: the worst vertex alone (1 attempt), then the first split the box (each
-    # failed box also tried with 4 pieces); the next two start from its 4 leaves
-    assert got.attempts == (1 + 10) + (1 + 4) + (1 + 4)
-    assert [p for _, p, _ in fake.asked] == [2, 2, 4, 2, 4, 2, 2, 2, 4, 2, 2] + [2] * 10
+    # each rung: the worst vertex alone (1 attempt), then the first split the box (7
+    # attempts); the next two start from its 4 leaves
+    assert got.attempts == (1 + 7) + (1 + 4) + (1 + 4)
+    assert [p for _, p, _ in fake.asked] == [2] * 18
 
 
 class _Pieces(_Cubic):

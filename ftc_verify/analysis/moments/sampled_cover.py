@@ -107,7 +107,7 @@ def rung_pieces(loop: SampledLoop, h: float, worst: Matrix, fewest: int, budget:
 @dataclass(frozen=True)
 class CoverResult:
     """What :func:`cover_h_max` did: ``h_max`` the closest period covered (``None``: no
-    rung), ``boxes`` the sub-boxes of its cover, ``pieces`` the most pieces of their certificates,
+    rung), ``boxes`` the sub-boxes of its cover, ``pieces`` their certificates' pieces,
     ``work`` the units charged, ``attempts`` the certificates tried, ``rungs`` one
     ``(period, covered)`` per rung tried."""
 
@@ -150,41 +150,33 @@ def _split(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, depth: int, wors
 
 
 def cover_box(loop: SampledLoop, h: float, pieces: int, boxes: list[Box],
-              budget: float, worst: Matrix | None = None) -> tuple[list[Box] | None, float, int, int]:
+              budget: float, worst: Matrix | None = None) -> tuple[list[Box] | None, float, int]:
     """A cover of the union of ``boxes`` at period ``h`` (module docstring), depth first:
-    ``(sub-boxes, units charged, attempts, most pieces used)``, the sub-boxes ``None``
-    when the budget or :data:`COVER_DEPTH` ran out first. A sub-box not proved with
-    ``pieces`` is tried once with the next of :data:`PIECES` before it is split (the
-    worst vertex alone can need fewer pieces than a sub-box around it). ``worst``: the
-    box's worst vertex (float64, found here when not given), which orders the splits."""
-    more = [n for n in PIECES if n > pieces][:1]
+    ``(sub-boxes, units charged, attempts)``, the sub-boxes ``None`` when the budget or
+    :data:`COVER_DEPTH` ran out first. ``worst``: the box's worst vertex (float64, found
+    here when not given), which orders the splits (module docstring)."""
+    cost = cubic_work(loop, pieces)
     stack = list(reversed(boxes))
     leaves: list[Box] = []
-    spent, attempts, most = 0.0, 0, pieces
+    spent, attempts = 0.0, 0
     while stack:
         lo, hi, depth = stack.pop()
-        proved = False
-        for n in [pieces] + more:
-            cost = cubic_work(loop, n)
-            if spent + cost > budget:
-                return None, spent, attempts, most
-            spent += cost
-            attempts += 1
-            cert = cubic_stable(loop, h, n, lo, hi)
-            if cert is not None and cert.proved:
-                proved, most = True, max(most, n)
-                break
-        if proved:
+        if spent + cost > budget:
+            return None, spent, attempts
+        spent += cost
+        attempts += 1
+        cert = cubic_stable(loop, h, pieces, lo, hi)
+        if cert is not None and cert.proved:
             leaves.append((lo, hi, depth))
             continue
         if depth >= COVER_DEPTH or not any(hi[r] > lo[r] for r in loop.chain.rate_indices):
-            return None, spent, attempts, most
+            return None, spent, attempts
         if worst is None:
             worst = worst_vertex(loop, h, rate_points(loop.chain))[1]
         first, second = _split(loop, h, lo, hi, depth, worst)
         stack.append(second)
         stack.append(first)
-    return leaves, spent, attempts, most
+    return leaves, spent, attempts
 
 
 def cover_h_max(loop: SampledLoop, h_max: float, h_max_unstable: float, work: float, rtol: float) -> CoverResult:
@@ -206,13 +198,13 @@ def cover_h_max(loop: SampledLoop, h_max: float, h_max_unstable: float, work: fl
         leaves = None
         if found is not None:
             pieces = found
-            leaves, used, n, most = cover_box(loop, h, found, boxes, work - spent, worst)
+            leaves, used, n = cover_box(loop, h, pieces, boxes, work - spent, worst)
             spent += used
             attempts += n
         rungs.append((h, leaves is not None))
         if leaves is None:
             break
-        best, boxes = (h, len(leaves), most), leaves
+        best, boxes = (h, len(leaves), pieces), leaves
     if best is None:
         return CoverResult(None, 0, 0, spent, attempts, tuple(rungs))
     return CoverResult(best[0], best[1], best[2], spent, attempts, tuple(rungs))
