@@ -114,9 +114,9 @@ def test_ladder_reuses_the_previous_cover(monkeypatch: pytest.MonkeyPatch) -> No
     assert got.h_max == pytest.approx(hu * (1 - 0.0009)) and got.boxes == 4
     assert [ok for _, ok in got.rungs] == [True, True, True]
     # each rung: the worst vertex alone (1 attempt), then the first split the box (7
-    # attempts); the next two start from its 4 leaves
-    assert got.attempts == (1 + 7) + (1 + 4) + (1 + 4)
-    assert [p for _, p, _ in fake.asked] == [2] * 18
+    # attempts); the next two start from its 4 leaves, with 4 pieces (below FINE_FROM)
+    assert got.attempts == (1 + 7) + (1 + 4) + (1 + 4) and got.pieces == 4
+    assert [p for _, p, _ in fake.asked] == [2] * 8 + [4] * 10
 
 
 class _Pieces(_Cubic):
@@ -157,7 +157,7 @@ def test_refine_result_only_when_wider_than_rtol(monkeypatch: pytest.MonkeyPatch
     wide = dataclasses.replace(base, h_max=PAPER_UNSTABLE * 0.96, h_max_note="wide")
     got = refine_result(system, controller, wide, 1e9)
     assert got.h_max == pytest.approx(PAPER_UNSTABLE * 0.9991) and "refinement (--h-max-work" in got.h_max_note
-    assert "by 1 sub-box(es) of 2 cubic pieces" in got.h_max_note
+    assert "by 1 sub-box(es) of 4 cubic pieces" in got.h_max_note
     none = dataclasses.replace(base, h_max=None, h_max_note="not proved")
     got = refine_result(system, controller, none, cubic_work(_paper(), 2) * 2.5)  # the vertex, then the box
     assert got.h_max == pytest.approx(PAPER_UNSTABLE * (1 - 0.125))  # from a 50 % bracket: g / 4

@@ -24,7 +24,7 @@ vertex), at most :data:`COVER_DEPTH` times along a path.
 **The ladder.** Rungs ``f = g/4, g/16, ...`` (``g`` the default bracket's relative width)
 down to the target ``0.9 rtol``, easy first; each rung starts from the previous rung's
 cover (its sub-boxes, not the whole box again), with the fewest pieces of :data:`PIECES`
-(at least the last rung's) that prove the worst vertex alone (:func:`rung_pieces`:
+(at least the last rung's, and 4 below :data:`FINE_FROM`) that prove the worst vertex alone (:func:`rung_pieces`:
 splitting the rates cannot make up for too few pieces in the clock; on the seed-1 loop
 two pieces reach 2.5e-3, four 5e-4 there). It stops at the first rung not covered
 within the budget or the depth; the result is the last rung covered. Every attempt is
@@ -44,13 +44,16 @@ from .sampled import SampledLoop, rate_points, spectral_radius
 from .sampled_bracket import worst_vertex
 from .sampled_cubic import cubic_size, cubic_stable
 
-__all__ = ["COVER_DEPTH", "PIECES", "CoverResult", "cubic_work", "cubic_memory", "cover_rungs", "rung_pieces",
+__all__ = ["COVER_DEPTH", "PIECES", "FINE_FROM", "CoverResult", "cubic_work", "cubic_memory", "cover_rungs", "rung_pieces",
            "cover_box", "cover_h_max"]
 
 #: The most halvings of the box along one path of the cover.
 COVER_DEPTH = 10
 #: The cubic pieces a rung may use, fewest first (:func:`rung_pieces`).
 PIECES = (2, 4, 8)
+#: Below this distance a rung uses at least 4 pieces: the seed-1 loop's sub-boxes needed 4
+#: at 1.25e-3 and 9e-4 where 2 sufficed for the worst vertex alone.
+FINE_FROM = 3e-3
 
 
 def cubic_work(loop: SampledLoop, pieces: int) -> float:
@@ -192,7 +195,7 @@ def cover_h_max(loop: SampledLoop, h_max: float, h_max_unstable: float, work: fl
     pieces = PIECES[0]
     for f in cover_rungs(gap, rtol):
         h = h_max_unstable * (1.0 - f)
-        found, used, n = rung_pieces(loop, h, worst, pieces, work - spent)
+        found, used, n = rung_pieces(loop, h, worst, max(pieces, 4 if f < FINE_FROM else 2), work - spent)
         spent += used
         attempts += n
         leaves = None
