@@ -72,10 +72,13 @@ def _analyze_command(args: argparse.Namespace, watch: Any, check: Any) -> int:
 
     system, controller = load(args.system, args.controller)
     period = args.period if args.period is not None else controller.period
+    sampled_loop = None  # built once for the check, the analysis and the refinement
     if args.h_max_work is not None:  # refused before any work (issue 31 item 2)
+        from ..analysis.moments.sampled import SampledLoop
         from ..analysis.moments.sampled_refine import check_refine
 
-        check_refine(system, controller, period, args.h_max_work)
+        sampled_loop = None if period is None else SampledLoop.build(system, controller)
+        check_refine(system, controller, period, args.h_max_work, loop=sampled_loop)
     loop = closed_loop(system, controller)
     check.submit(cross_validate, loop)
     watch.mark("imports_and_load")
@@ -86,12 +89,13 @@ def _analyze_command(args: argparse.Namespace, watch: Any, check: Any) -> int:
     if period is not None:  # the loop that runs: sampled every period, output held
         from ..analysis.moments.sampled import sampled_analysis
 
-        sampled = interruptible(lambda: sampled_analysis(system, controller, period), "the sampled-data analysis")
+        sampled = interruptible(lambda: sampled_analysis(system, controller, period, loop=sampled_loop),
+                                "the sampled-data analysis")
         if args.h_max_work is not None:
             from ..analysis.moments.sampled_refine import refine_result
 
             first = sampled
-            sampled = interruptible(lambda: refine_result(system, controller, first, args.h_max_work),
+            sampled = interruptible(lambda: refine_result(system, controller, first, args.h_max_work, loop=sampled_loop),
                                     "the h_max refinement")
         if not args.no_lmi:  # its proved gains (issue 31 item 3)
             from ..analysis.moments.sampled_gamma import attach_performance
@@ -158,11 +162,9 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--period", type=positive, default=None,
                    help="sampling period H of the digital controller (default: the controller file's period, "
                         "else continuous time): proves the sampled loop's mean-square stability and h_max")
-    a.add_argument("--h-max-work", type=positive, default=None, metavar="UNITS",
-                   help="with a period: refine the proved h_max bracket when it is wider than 1e-3, with "
-                        "clock-dependent certificates of 4, 8, 16, ... pieces within UNITS work units (about "
-                        "a millisecond of one core each; e.g. 70000: about a minute); refused when the "
-                        "largest planned program's memory estimate is over 4 GB or the memory limit")
+    from .sampled_lines import add_h_max_work_option
+
+    add_h_max_work_option(a)
     a.set_defaults(func=_cmd_analyze)
 
     from .run_commands import add_run_commands

@@ -270,6 +270,10 @@ def _verify_command(args: argparse.Namespace, watch: Any, check: Any, procs: lis
                           connect_timeout=connect_timeout(args))
     if controller is not None:
         spec.check_memory(system, controller, args.paths)
+    if args.h_max_work is not None and controller is not None:  # refused before any work, as analyze
+        from ..analysis.moments.sampled_refine import check_refine
+
+        check_refine(system, controller, args.step, args.h_max_work)
     k_max = None if args.no_gain_bound else args.k_max
     watch.mark("imports_and_load")
     figures = EarlyFigures(args.out)  # drawn while the sampled-loop stages finish in their child
@@ -279,7 +283,7 @@ def _verify_command(args: argparse.Namespace, watch: Any, check: Any, procs: lis
             rep = run_verify(system, gamma=args.gamma, method=args.method, k_max=k_max, controller=controller,
                              spec=spec, solver=args.solver, progress=sys.stderr.isatty(), plant=plant,
                              fmu_log=_fmu_logger(args), measure=args.measure, client=client, cross_check=check,
-                             risk=_risk_stage(), meanwhile=figures, processes=procs)
+                             risk=_risk_stage(), meanwhile=figures, processes=procs, h_max_work=args.h_max_work)
             watch.mark("stages")
         watch.mark("cluster_stop")
         written = write_report(rep, args.out, watch, figures)
@@ -366,6 +370,9 @@ def add_run_commands(sub: Any) -> None:
                    help="Monte Carlo ratio of the real paths (total, default) or of each path's response to w "
                         "alone, y(w) - y(w = 0) on the same path (incremental: for plants whose faults move the "
                         "equilibrium)")
+    from .sampled_lines import add_h_max_work_option
+
+    add_h_max_work_option(v)
     _plant_options(v)
     add_controller_fmu_option(v)
     _cluster_options(v)

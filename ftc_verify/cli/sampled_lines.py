@@ -13,9 +13,21 @@ from typing import Any
 from .common import EXIT_NEGATIVE, EXIT_OK, EXIT_UNCERTIFIED, EXIT_UNDECIDED, bad
 from .export_commands import DEFAULT_STEP  # the simulators' step when no period or step is given
 
-__all__ = ["check_period_option", "resolve_step", "sampled_exit", "print_sampled",
+__all__ = ["add_h_max_work_option", "check_period_option", "resolve_step", "sampled_exit", "print_sampled",
            "print_period_design", "warn_short_h_max"]
 
+
+
+def add_h_max_work_option(parser: argparse.ArgumentParser) -> None:
+    """``--h-max-work UNITS`` (``analyze`` and ``verify``: the same option, the same checks,
+    the same stage, :func:`~ftc_verify.analysis.moments.sampled_refine.refine_result`)."""
+    from .common import positive
+
+    parser.add_argument("--h-max-work", type=positive, default=None, metavar="UNITS",
+                        help="with a period: refine the proved h_max bracket when it is wider than 1e-3, with "
+                             "covers of the rate box by cubic clock-dependent certificates within UNITS work "
+                             "units (about a millisecond of one core each; e.g. 200000: a few minutes); refused "
+                             "when the program's memory estimate is over 4 GB or the memory limit")
 
 
 def check_period_option(args: argparse.Namespace) -> None:

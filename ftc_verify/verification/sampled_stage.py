@@ -43,12 +43,14 @@ MC_MIN_JUMPED = 10
 
 
 def sampled_stage(system: FTCSystem, controller: Controller, step: float,
-                  here: bool = False) -> tuple[SampledResult | None, Check]:
+                  here: bool = False, h_max_work: float | None = None) -> tuple[SampledResult | None, Check]:
     """``(result, check)`` of the sampled loop at period ``step``: the check passes when
     mean-square stability over the whole rate box is proved; a loop above
     :data:`SAMPLED_LIMIT` is not analysed (said in the check, which then passes as
     before this stage existed and names what it does not cover). The analysis runs in a
-    killable child (:func:`~ftc_verify.analysis.solvers.interruptible`) unless ``here``."""
+    killable child (:func:`~ftc_verify.analysis.solvers.interruptible`) unless ``here``.
+    ``h_max_work``: ``verify --h-max-work``, the bracket then refined
+    (:func:`~ftc_verify.analysis.moments.sampled_refine.refine_result`) as by ``analyze``."""
     from .verify import Check
 
     loop = SampledLoop.build(system, controller)
@@ -59,7 +61,11 @@ def sampled_stage(system: FTCSystem, controller: Controller, step: float,
         return None, Check(name, True, f"NOT analysed: its moment generator has {rows} rows (limit {SAMPLED_LIMIT}); "
                                        "the certificates above are those of the continuous-time loop")
     def run() -> SampledResult:
-        return sampled_analysis(system, controller, step, max_seconds=30.0)
+        res = sampled_analysis(system, controller, step, max_seconds=30.0, loop=loop)
+        if h_max_work is None:
+            return res
+        from ..analysis.moments.sampled_refine import refine_result
+        return refine_result(system, controller, res, h_max_work, loop=loop)
 
     res = run() if here else interruptible(run, "the sampled-data analysis")
     if res.h_max is None or res.h_max_unstable is None:
@@ -172,7 +178,8 @@ def sampled_mc_stage(system: FTCSystem, controller: Controller, step: float, hor
 
 def sampled_stages(system: FTCSystem, controller: Controller, step: float, g2: float, checks: list[Check],
                    seconds: dict[str, float], mc: tuple[float, int, int] | None = None,
-                   spans: dict[str, tuple[float, float]] | None = None, here: bool = False) -> dict[str, Any]:
+                   spans: dict[str, tuple[float, float]] | None = None, here: bool = False,
+                   h_max_work: float | None = None) -> dict[str, Any]:
     """Both stages of ``verify`` on the sampled loop (:func:`sampled_stage`, then
     :func:`sampled_energy_stage` at the rate vertices up to
     :data:`~ftc_verify.verification.verify.MAX_EXACT_VERTICES`): their checks appended
@@ -181,7 +188,7 @@ def sampled_stages(system: FTCSystem, controller: Controller, step: float, g2: f
     ``mc = (horizon, paths, seed)`` also :func:`sampled_mc_stage` (``sampled_mc``). Returns
     the report's ``sampled``, ``sampled_exact`` (and ``sampled_mc``). ``here``: the
     analysis runs in this process (already a child, :class:`SampledRun`), not in a child
-    of its own."""
+    of its own. ``h_max_work``: passed to :func:`sampled_stage`."""
     from .verify import MAX_EXACT_VERTICES
 
     spans = {} if spans is None else spans
@@ -191,7 +198,7 @@ def sampled_stages(system: FTCSystem, controller: Controller, step: float, g2: f
         seconds[name] = spans[name][1] - t0
 
     t = time.perf_counter()
-    res, check = sampled_stage(system, controller, step, here)
+    res, check = sampled_stage(system, controller, step, here, h_max_work)
     checks.append(check)
     done("sampled", t)
     # after the analysis, so that it runs alone as before (its h_max bracket has a wall-time valve)
@@ -265,13 +272,14 @@ class SampledRun:
     a child still running. Without ``fork`` the stages run in :meth:`join`."""
 
     def __init__(self, system: FTCSystem, controller: Controller, step: float, g2: float,
-                 mc: tuple[float, int, int] | None, at: int) -> None:
+                 mc: tuple[float, int, int] | None, at: int, h_max_work: float | None = None) -> None:
         import os
 
         from ..analysis.solvers import ForkedCall
 
         self.at = at
         self._args = (system, controller, step, g2, mc)
+        self._h_max_work = h_max_work
         self._child = ForkedCall(self._run, "the sampled-loop stages", group=True) if hasattr(os, "fork") else None
 
     def _run(self, here: bool = True) -> tuple[dict[str, Any], list[Check], dict[str, float],
@@ -280,7 +288,8 @@ class SampledRun:
         seconds: dict[str, float] = {}
         spans: dict[str, tuple[float, float]] = {}
         system, controller, step, g2, mc = self._args
-        found = sampled_stages(system, controller, step, g2, checks, seconds, mc, spans, here=here)
+        found = sampled_stages(system, controller, step, g2, checks, seconds, mc, spans, here=here,
+                               h_max_work=self._h_max_work)
         return found, checks, seconds, spans
 
     def join(self, checks: list[Check], seconds: dict[str, float],

@@ -395,6 +395,7 @@ def run_verify(
     solver: str | None = None, progress: bool = False, plant: Any = None, fmu_log: Any = None,
     measure: str = "total", client: Any = None, cross_check: Any = None, risk: RiskStage | None = None,
     meanwhile: Callable[[VerifyReport], Any] | None = None, processes: list[Any] | None = None,
+    h_max_work: float | None = None,
 ) -> VerifyReport:
     """Run every stage of the module docstring and collect the checks.
 
@@ -418,7 +419,9 @@ def run_verify(
     Monte Carlo's plant processes (:func:`~ftc_verify.simulation.isolated.plant_processes`)
     started by the caller (the CLI starts them first, so their interpreters start beside its
     own imports); by default started here, before the synthesis, when the Monte Carlo runs
-    isolated in this machine (no cluster); closed here either way."""
+    isolated in this machine (no cluster); closed here either way. ``h_max_work``: the
+    sampled loop's ``h_max`` bracket refined within that many work units (``verify
+    --h-max-work``, :func:`~ftc_verify.analysis.moments.sampled_refine.refine_result`)."""
     if measure not in ("total", "incremental"):
         raise ValidationError(f"measure: {measure!r} is not 'total' or 'incremental'")
     spec = _verify_spec(spec, {"n_paths": paths, "step": step, "horizon": horizon, "seed": seed})
@@ -438,7 +441,7 @@ def run_verify(
 
             procs = plant_processes()  # their interpreters start beside the synthesis and analysis
         return _run_verify(system, gamma, method, k_max, controller, spec, solver, progress, plant, fmu_log,
-                           measure, client, cross_check, procs, sampled, risk, meanwhile)
+                           measure, client, cross_check, procs, sampled, risk, meanwhile, h_max_work)
     finally:
         cross_check.cancel()
         for run in sampled:
@@ -451,7 +454,7 @@ def _run_verify(system: FTCSystem, gamma: float | None, method: str, k_max: floa
                 controller: Controller | None, spec: SimulationSpec, solver: str | None, progress: bool,
                 plant: Any, fmu_log: Any, measure: str, client: Any, cross_check: Any,
                 procs: list[Any], sampled: list[Any], risk: RiskStage | None = None,
-                meanwhile: Callable[[VerifyReport], Any] | None = None) -> VerifyReport:
+                meanwhile: Callable[[VerifyReport], Any] | None = None, h_max_work: float | None = None) -> VerifyReport:
     """The stages of :func:`run_verify`, with its running ``cross_check`` and the plant
     processes ``procs`` started for the Monte Carlo
     (:func:`~ftc_verify.simulation.isolated.plant_processes`; none on a cluster);
@@ -517,7 +520,7 @@ def _run_verify(system: FTCSystem, gamma: float | None, method: str, k_max: floa
     g2 = gamma_cert ** 2
     exact = timed("exact_energy", lambda: _exact_energies(system, loop, g2))
     # the sampled loop's stages in a child beside the Monte Carlo; their checks go here (report() joins them)
-    sampled.append(SampledRun(system, controller, spec.step, g2, (spec.horizon, spec.n_paths, seed), len(checks)))
+    sampled.append(SampledRun(system, controller, spec.step, g2, (spec.horizon, spec.n_paths, seed), len(checks), h_max_work))
     timed("gamma_bracket", functools.partial(_bracket, analysis, gamma_cert))
     t = time.perf_counter()
     spec, options["delta"] = spec.resolve_delta(system, plant)

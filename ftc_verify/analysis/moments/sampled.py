@@ -498,7 +498,7 @@ def scan_range(loop: SampledLoop, period: float | None = None) -> tuple[float, f
 
 
 def sampled_analysis(system: FTCSystem, controller: Controller, period: float, *, max_boxes: int = 64,
-                     h_max: bool = True, max_seconds: float = 60.0) -> SampledResult:
+                     h_max: bool = True, max_seconds: float = 60.0, loop: SampledLoop | None = None) -> SampledResult:
     """Mean-square stability of the sampled loop at ``period`` over the rate box (sub-box
     proofs, at most ``max_boxes``, and a clock-dependent certificate of the whole box:
     :func:`~ftc_verify.analysis.moments.sampled_clock.period_verdict`), and the proved
@@ -506,13 +506,15 @@ def sampled_analysis(system: FTCSystem, controller: Controller, period: float, *
     the smallest scanned period, ``None`` when the loop is unstable there or stable over
     the whole scanned range (``h_max_note`` says which). Its proofs' budget is fixed by the
     problem's sizes (:func:`~ftc_verify.analysis.moments.sampled_bracket.box_work`); ``max_seconds``
-    (wall) is a safety valve: the sub-box proofs at the period get a third of it."""
+    (wall) is a safety valve: the sub-box proofs at the period get a third of it. ``loop``:
+    the sampled loop of ``system`` and ``controller`` when the caller has built it
+    (:meth:`SampledLoop.build`; built here otherwise)."""
     from .sampled_clock import period_verdict
     from .sampled_conditioned import conditioned
 
     period = check_period(period, "period")
     t0 = time.perf_counter()
-    loop = dataclasses.replace(SampledLoop.build(system, controller), written=(float(period),))
+    loop = dataclasses.replace(SampledLoop.build(system, controller) if loop is None else loop, written=(float(period),))
     rho, where = worst_radius(loop, period, rate_points(loop.chain))
     verdict = period_verdict(loop, period, rho, max_boxes=max_boxes, max_seconds=max_seconds / 3)
     if verdict.verdict == "undecided" and not math.isfinite(rho):  # the map overflows float64: decide it in Arb

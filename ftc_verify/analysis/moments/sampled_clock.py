@@ -71,7 +71,7 @@ from ..solvers import solve_conic
 from .sampled import SampledLoop
 from .sampled_proof import BoxVerdict, box_verdict
 
-__all__ = ["ClockCertificate", "clock_program", "clock_certificate", "prove_clock", "clock_stable", "clock_size", "clock_verdict", "period_verdict",
+__all__ = ["ClockCertificate", "adjoint", "clock_program", "clock_certificate", "prove_clock", "clock_stable", "clock_size", "clock_verdict", "period_verdict",
            "TIME_OCTAVES", "time_unit", "frame_scale"]
 
 
@@ -99,7 +99,7 @@ def _specs(loop: SampledLoop) -> list[tuple[int, Matrix, Matrix]]:
             for point in chain.row_rate_points(s)]
 
 
-def _adjoint(A: Any, Ys: list[Any], s: int, q_row: Any) -> Any:
+def adjoint(A: Any, Ys: list[Any], s: int, q_row: Any) -> Any:
     r"""Block ``s`` of :math:`\mathcal L^* Y`: :math:`A^T Y_s + Y_s A + \sum_{t \ne s}
     q_{st} (Y_t - Y_s)` (a generator row sums to zero)."""
     out = A.T @ Ys[s] + Ys[s] @ A
@@ -120,11 +120,11 @@ def _piece_parts(A: Any, Y0: list[Any], Y1: list[Any], C: list[Any] | None, s: i
     :math:`F_2 = -\mathcal L^*(C)`."""
     E = [b - a for a, b in zip(Y0, Y1)]
     if C is None:
-        return (E[s] * rate + _adjoint(A, Y0, s, q_row), _adjoint(A, E, s, q_row), None)
+        return (E[s] * rate + adjoint(A, Y0, s, q_row), adjoint(A, E, s, q_row), None)
     EC = [e + c for e, c in zip(E, C)]
-    F0 = EC[s] * rate + _adjoint(A, Y0, s, q_row)
-    F1 = C[s] * (-2.0 * rate) + _adjoint(A, EC, s, q_row)
-    F2 = -_adjoint(A, C, s, q_row)
+    F0 = EC[s] * rate + adjoint(A, Y0, s, q_row)
+    F1 = C[s] * (-2.0 * rate) + adjoint(A, EC, s, q_row)
+    F2 = -adjoint(A, C, s, q_row)
     return F0, F1, F2
 
 

@@ -1,0 +1,213 @@
+r"""The ``h_max`` refinement by cubic clock certificates on sub-boxes of the rates: the
+stage behind ``analyze --h-max-work`` and ``verify --h-max-work``
+(:func:`~ftc_verify.analysis.moments.sampled_refine.refine_result`).
+
+**A rung** is a period :math:`h = h_u (1 - f)`, :math:`h_u` the proved-unstable end of
+the bracket, proved mean-square stable for every rate array of the box by a *cover*: a
+list of sub-boxes whose union is the box, each with its own cubic clock certificate
+(:func:`~ftc_verify.analysis.moments.sampled_cubic.cubic_stable`, proved in ball
+arithmetic). Every constant rate array lies in some sub-box, whose certificate proves the
+spectral radius of its one-period map below 1 (module docstring of
+:mod:`~ftc_verify.analysis.moments.sampled_cubic`); where two sub-boxes meet, both cover
+the shared face (the conditions are affine in the rates and proved at the vertices of
+each, the shared split value enclosed by the same ball in both).
+
+**Why sub-boxes.** A certificate common to the whole box also holds for rates that
+change in time inside it, and near ``h_max`` those can be worse than any constant rate
+(seed-1 ``n = 4, m = 3`` loop: whole box 1.5e-3 below the crossing with four cubic
+pieces, the worst vertex alone 5e-4, the sub-box of half the widths at that vertex 9e-4;
+``benchmarks/results/h31r.md``). A cover is built depth first: a sub-box whose
+certificate is not found or not proved is split in half along its widest rate (relative
+to the box; on ties the one that moves the float64 radius most near the box's worst
+vertex), at most :data:`COVER_DEPTH` times along a path.
+
+**The ladder.** Rungs ``f = g/4, g/16, ...`` (``g`` the default bracket's relative width)
+down to the target ``0.9 rtol``, easy first; each rung starts from the previous rung's
+cover (its sub-boxes, not the whole box again), with the fewest pieces of :data:`PIECES`
+(at least the last rung's, and 4 below :data:`FINE_FROM`) that prove the worst vertex alone (:func:`rung_pieces`:
+splitting the rates cannot make up for too few pieces in the clock; on the seed-1 loop
+two pieces reach 2.5e-3, four 5e-4 there). It stops at the first rung not covered
+within the budget or the depth; the result is the last rung covered. Every attempt is
+charged :func:`cubic_work` units *before* it is solved (from the program's size only),
+and none is started that the budget cannot pay: the same loop and budget give the same
+bracket on every machine.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...model.system import Matrix
+from .sampled import SampledLoop, rate_points, spectral_radius
+from .sampled_bracket import worst_vertex
+from .sampled_cubic import cubic_size, cubic_stable
+
+__all__ = ["COVER_DEPTH", "PIECES", "FINE_FROM", "CoverResult", "cubic_work", "cubic_memory", "cover_rungs", "rung_pieces",
+           "cover_box", "cover_h_max"]
+
+#: The most halvings of the box along one path of the cover.
+COVER_DEPTH = 10
+#: The cubic pieces a rung may use, fewest first (:func:`rung_pieces`).
+PIECES = (2, 4, 8)
+#: Below this distance a rung uses at least 4 pieces: the seed-1 loop's sub-boxes needed 4
+#: at 1.25e-3 and 9e-4 where 2 sufficed for the worst vertex alone.
+FINE_FROM = 3e-3
+
+
+def cubic_work(loop: SampledLoop, pieces: int) -> float:
+    """The units one attempt (program, solve and proof) is charged: ``0.15 V^1.3`` for a
+    program of ``V`` variables (:func:`~ftc_verify.analysis.moments.sampled_cubic.cubic_size`),
+    about a millisecond of one core each (seed-1 loop: two pieces ``V = 3483``, 4 CPU s,
+    6000 units; four ``V = 6777``, 10-13 CPU s, 14300 units; ``benchmarks/results/h31r.md``).
+    Every sub-box has as many row vertices as the box, so the same size (a single rate
+    array is charged as much)."""
+    return 0.15 * float(cubic_size(loop, pieces)) ** 1.3
+
+
+def cubic_memory(loop: SampledLoop, pieces: int = PIECES[-1]) -> float:
+    """Estimated peak memory (bytes) of one attempt from the program's size, as measured
+    for the quadratic clock programs (``2.8e9 (V / 22365)^2.2 + 2e8``: 2.8 GB at ``V =
+    22365``, ``benchmarks/results/h31e.md``; four cubic pieces on ``n = 4, m = 3``, ``V =
+    6777``: estimated 0.40 GB, measured 0.43 GB peak for the whole process); the cover
+    never holds two programs at once, so this is the stage's peak whatever the budget."""
+    return 2.8e9 * (float(cubic_size(loop, pieces)) / 22365.0) ** 2.2 + 2.0e8
+
+
+def cover_rungs(gap: float, rtol: float) -> tuple[float, ...]:
+    """The distances ``f`` of the ladder (module docstring) from a default bracket of
+    relative width ``gap``: ``gap / 4^k`` while above ``0.9 rtol``, then ``0.9 rtol``."""
+    target = 0.9 * rtol
+    out: list[float] = []
+    f = gap / 4.0
+    while f > target:
+        out.append(f)
+        f /= 4.0
+    if gap > target:
+        out.append(target)
+    return tuple(out)
+
+
+def rung_pieces(loop: SampledLoop, h: float, worst: Matrix, fewest: int, budget: float) -> tuple[int | None, float, int]:
+    """The fewest cubic pieces of :data:`PIECES`, at least ``fewest``, whose certificate
+    is found and proved at the worst vertex ``worst`` alone at period ``h``: what the
+    clock needs there (a cover cannot do with fewer); ``(pieces or None, units charged,
+    attempts)``, ``None`` when none is (or the budget ran out): the rung is out of reach."""
+    spent, attempts = 0.0, 0
+    for n in [n for n in PIECES if n >= fewest]:
+        cost = cubic_work(loop, n)
+        if spent + cost > budget:
+            break
+        spent += cost
+        attempts += 1
+        cert = cubic_stable(loop, h, n, worst, worst)
+        if cert is not None and cert.proved:
+            return n, spent, attempts
+    return None, spent, attempts
+
+
+@dataclass(frozen=True)
+class CoverResult:
+    """What :func:`cover_h_max` did: ``h_max`` the closest period covered (``None``: no
+    rung), ``boxes`` the sub-boxes of its cover, ``pieces`` their certificates' pieces,
+    ``work`` the units charged, ``attempts`` the certificates tried, ``rungs`` one
+    ``(period, covered)`` per rung tried."""
+
+    h_max: float | None
+    boxes: int
+    pieces: int
+    work: float
+    attempts: int
+    rungs: tuple[tuple[float, bool], ...]
+
+
+Box = tuple[Matrix, Matrix, int]
+
+
+def _split(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, depth: int, worst: Matrix) -> tuple[Box, Box]:
+    """The two halves of ``[lo, hi]`` along its widest rate relative to the box, among
+    those the one that moves the float64 radius most: at ``v``, the sub-box's corner
+    nearest to ``worst`` (the worst vertex of the box), the rate flipped to the sub-box's
+    other end. Only the order of the splits depends on it (splitting the same two
+    radius-moving rates again and again left a held-out loop's sub-box unproved: the
+    rates that vary in time matter too); every sub-box is proved in ball arithmetic."""
+    chain = loop.chain
+    free = [r for r in chain.rate_indices if hi[r] > lo[r]]
+    v = np.where(np.abs(worst - lo) <= np.abs(worst - hi), lo, hi)
+    base = spectral_radius(loop, h, v)
+    full = chain.rate_max - chain.rate_min
+
+    def score(r: tuple[int, ...]) -> tuple[float, float]:
+        p = v.copy()
+        p[r] = hi[r] if v[r] == lo[r] else lo[r]
+        change = abs(spectral_radius(loop, h, p) - base)
+        return (round(float((hi[r] - lo[r]) / full[r]), 12), change if np.isfinite(change) else 0.0)
+
+    r = max(free, key=score)
+    mid = 0.5 * (lo[r] + hi[r])
+    lo2, hi1 = lo.copy(), hi.copy()
+    hi1[r] = mid
+    lo2[r] = mid
+    return (lo, hi1, depth + 1), (lo2, hi, depth + 1)
+
+
+def cover_box(loop: SampledLoop, h: float, pieces: int, boxes: list[Box],
+              budget: float, worst: Matrix | None = None) -> tuple[list[Box] | None, float, int]:
+    """A cover of the union of ``boxes`` at period ``h`` (module docstring), depth first:
+    ``(sub-boxes, units charged, attempts)``, the sub-boxes ``None`` when the budget or
+    :data:`COVER_DEPTH` ran out first. ``worst``: the box's worst vertex (float64, found
+    here when not given), which orders the splits (module docstring)."""
+    cost = cubic_work(loop, pieces)
+    stack = list(reversed(boxes))
+    leaves: list[Box] = []
+    spent, attempts = 0.0, 0
+    while stack:
+        lo, hi, depth = stack.pop()
+        if spent + cost > budget:
+            return None, spent, attempts
+        spent += cost
+        attempts += 1
+        cert = cubic_stable(loop, h, pieces, lo, hi)
+        if cert is not None and cert.proved:
+            leaves.append((lo, hi, depth))
+            continue
+        if depth >= COVER_DEPTH or not any(hi[r] > lo[r] for r in loop.chain.rate_indices):
+            return None, spent, attempts
+        if worst is None:
+            worst = worst_vertex(loop, h, rate_points(loop.chain))[1]
+        first, second = _split(loop, h, lo, hi, depth, worst)
+        stack.append(second)
+        stack.append(first)
+    return leaves, spent, attempts
+
+
+def cover_h_max(loop: SampledLoop, h_max: float, h_max_unstable: float, work: float, rtol: float) -> CoverResult:
+    """A period closer to ``h_max_unstable`` than ``h_max``, proved mean-square stable
+    for every rate of the box by a cover of cubic clock certificates (module docstring),
+    within ``work`` units; deterministic."""
+    gap = (h_max_unstable - h_max) / h_max_unstable
+    boxes: list[Box] = [(np.array(loop.chain.rate_min, dtype=float), np.array(loop.chain.rate_max, dtype=float), 0)]
+    spent, attempts = 0.0, 0
+    best: tuple[float, int, int] | None = None
+    rungs: list[tuple[float, bool]] = []
+    worst = worst_vertex(loop, h_max_unstable, rate_points(loop.chain))[1]
+    pieces = PIECES[0]
+    for f in cover_rungs(gap, rtol):
+        h = h_max_unstable * (1.0 - f)
+        found, used, n = rung_pieces(loop, h, worst, max(pieces, 4 if f < FINE_FROM else 2), work - spent)
+        spent += used
+        attempts += n
+        leaves = None
+        if found is not None:
+            pieces = found
+            leaves, used, n = cover_box(loop, h, pieces, boxes, work - spent, worst)
+            spent += used
+            attempts += n
+        rungs.append((h, leaves is not None))
+        if leaves is None:
+            break
+        best, boxes = (h, len(leaves), pieces), leaves
+    if best is None:
+        return CoverResult(None, 0, 0, spent, attempts, tuple(rungs))
+    return CoverResult(best[0], best[1], best[2], spent, attempts, tuple(rungs))
