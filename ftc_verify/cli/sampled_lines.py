@@ -70,16 +70,19 @@ def sampled_exit(code: int, sampled: Any) -> int:
 
 def print_sampled(res: Any) -> None:
     """The sampled loop's lines of ``analyze``."""
+    from ..analysis.moments.sampled_refine import period_text, refinement_note
+
     word = {"stable": "stable", "not stable": "NOT stable", "undecided": "UNDECIDED"}[res.verdict]
     print(f"  sampled loop, period h = {res.period:g} (controller reads x and the FDI report every h, holds u)")
     rho = f"{res.spectral_radius:.6g}" + ("" if res.spectral_radius < float("inf") else " (overflows float64)")
     print(f"    mean-square stability  spectral radius of the one-period map {rho}: {word}")
     print(f"      {'not proved' if res.verdict == 'undecided' else 'proved'}: {res.proof}")
     if res.h_max is not None and res.h_max_unstable is not None:
-        print(f"    h_max {res.h_max:.6g}: proved stable over the rate box there, proved unstable at "
-              f"{res.h_max_unstable:.6g}")
-        if "; refinement (" in res.h_max_note:  # analyze --h-max-work
-            print(f"      {res.h_max_note.split('; ', 1)[1]}")
+        print(f"    h_max {period_text(res.h_max, down=True)}: proved stable over the rate box there, proved "
+              f"unstable at {period_text(res.h_max_unstable, down=False)}")
+        refined = refinement_note(res)  # analyze --h-max-work
+        if refined is not None:
+            print(f"      {refined}")
     else:
         print(f"    h_max not found: {res.h_max_note}")
     intervals = ", ".join(f"[{a:.4g}, {b:.4g}]" for a, b in res.stability_intervals) or "none"

@@ -87,7 +87,7 @@ import numpy as np
 
 from ..analysis.closedloop import ClosedLoop
 from ..analysis.conditioning import conditioning_transform
-from ..analysis.conic import Rows, affine_bmat, scalar_variable, svec_index, sym_variable
+from ..analysis.conic import Rows, affine_bmat, scalar_variable, svec_index, sym_variable, unit_rows
 from ..analysis.lmi import block_specs, check_certificate, lyapunov_block
 from ..analysis.lmi_analysis import LMIResult, hinf_gamma, mes_lmi
 from ..analysis.solvers import solve_conic
@@ -271,10 +271,12 @@ def _optimised(loop: ClosedLoop, checked: list[tuple[list[Matrix], float]], x: M
                 Ht = H @ sim.T
                 rows.lmi(-affine_bmat([[P[s], Ht.T], [Ht, OPTIMISE_KAPPA * limit ** 2 * np.eye(H.shape[0])]]), every)
     if gi < K or robust:
-        rows.nonneg(-np.eye(K)[S * per_p:], np.zeros(K - S * per_p))
+        rows.nonneg(unit_rows(K, range(S * per_p, K)), np.zeros(K - S * per_p))
     xc = (sim.T_inv @ x)[None, :]
     cost = sum(float(p) * (xc @ P[s] @ xc.T).lin[0, 0] for s, p in enumerate(p0) if p > 0)
-    c = np.asarray(cost, dtype=float) + (energy * np.eye(K)[gi] if gi < K else 0.0)
+    c = np.zeros(K) + np.asarray(cost, dtype=float)
+    if gi < K:
+        c[gi] += energy
     outcome, sol = solve_conic(rows.problem(c), "clarabel")
     if sol is None:
         return None

@@ -10,6 +10,7 @@ certificates of the other stages are its :math:`h \\to 0` limit.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import time
 from typing import TYPE_CHECKING, Any
 
@@ -18,7 +19,7 @@ import numpy as np
 from ..analysis.moments.sampled import SampledLoop, SampledResult, sampled_analysis
 from ..analysis.solvers import interruptible
 from ..controllers.controller import Controller
-from ..errors import FTCError
+from ..errors import FTCError, ValidationError
 from ..model.system import FTCSystem
 
 if TYPE_CHECKING:
@@ -60,18 +61,31 @@ def sampled_stage(system: FTCSystem, controller: Controller, step: float,
     if rows > SAMPLED_LIMIT:
         return None, Check(name, True, f"NOT analysed: its moment generator has {rows} rows (limit {SAMPLED_LIMIT}); "
                                        "the certificates above are those of the continuous-time loop")
+    from ..analysis.moments.sampled_refine import check_refine, period_text, refinement_note, refine_result
+
+    refused = ""
+    if h_max_work is not None:  # a synthesized controller is checked here, a given one before any work too
+        try:
+            check_refine(system, controller, step, h_max_work, loop=loop)
+        except ValidationError as exc:
+            refused, h_max_work = f"; refinement not run: {exc}", None
+
     def run() -> SampledResult:
         res = sampled_analysis(system, controller, step, max_seconds=30.0, loop=loop)
         if h_max_work is None:
             return res
-        from ..analysis.moments.sampled_refine import refine_result
         return refine_result(system, controller, res, h_max_work, loop=loop)
 
     res = run() if here else interruptible(run, "the sampled-data analysis")
+    if refused:
+        res = dataclasses.replace(res, h_max_note=res.h_max_note + refused)
     if res.h_max is None or res.h_max_unstable is None:
         bracket = "h_max not found: " + res.h_max_note
     else:
-        bracket = f"h_max {res.h_max:.6g} (proved stable; unstable at {res.h_max_unstable:.6g})"
+        bracket = (f"h_max {period_text(res.h_max, down=True)} (proved stable; unstable at "
+                   f"{period_text(res.h_max_unstable, down=False)})")
+        refined = refinement_note(res) or refused.lstrip("; ")
+        bracket += f"; {refined}" if refined else ""
     word = {"stable": "mean-square stable", "not stable": "NOT mean-square stable",
             "undecided": "UNDECIDED"}[res.verdict]
     return res, Check(name, res.stable, f"{word}: spectral radius of the one-period map {res.spectral_radius:.6g}; "
@@ -253,8 +267,6 @@ def _attach_gains(res: SampledResult, system: FTCSystem, controller: Controller,
     """``res`` with its gains (:func:`~ftc_verify.analysis.moments.sampled_gamma.attach_performance`):
     the child's answer when one was started (:func:`_has_gains`: what ``attach_performance``
     computes then), else ``attach_performance`` in turn."""
-    import dataclasses
-
     from ..analysis.moments.sampled_gamma import attach_performance
 
     if gains is None:

@@ -1,8 +1,11 @@
 r"""A refinement of the proved ``h_max`` bracket that the user asks for (``analyze
 --h-max-work UNITS``, ``verify --h-max-work UNITS``), after the scan and the default
 bracket of :func:`~ftc_verify.analysis.moments.sampled_bracket.h_max_bracket`, with its
-own budget of work units (never seconds: the same loop and budget give the same bracket
-on every machine).
+own budget of work units (never seconds: from the same starting bracket, the same loop
+and budget give the same refinement on every machine). The starting bracket is the
+default one, whose proofs also have a wall-clock safety valve (60 s in ``analyze``, 30 s
+in ``verify``): where that valve stops them on a slow machine, the ladder starts from a
+different bracket.
 
 **Why a separate stage.** On loops with many uncertain rates the default bracket stops
 short of ``rtol`` (random ``n = 4, m = 3`` loops of ``benchmarks/sampled.py``'s draw:
@@ -35,12 +38,14 @@ if TYPE_CHECKING:
     from ...model.system import FTCSystem
     from .sampled import SampledResult
 
-__all__ = ["REFINE_MEMORY", "check_refine", "refine_result"]
+__all__ = ["REFINE_MEMORY", "check_refine", "refine_result", "refinement_note", "period_text"]
 
 #: The largest estimated memory (bytes) of a refinement's program (or
 #: :func:`~ftc_verify.limits.memory_limit` when that is lower).
 REFINE_MEMORY = 4.0e9
 
+
+_NOTE_HEAD = "; refinement ("
 
 def check_refine(system: FTCSystem, controller: Controller, period: float | None, work: float, *,
                  loop: SampledLoop | None = None) -> None:
@@ -81,10 +86,30 @@ def refine_result(system: FTCSystem, controller: Controller, result: SampledResu
         hm = 0.5 * hu
     base = SampledLoop.build(system, controller) if loop is None else loop
     ref = cover_h_max(conditioned(dataclasses.replace(base, written=(float(result.period),))), hm, hu, work, rtol)
-    note = (f"; refinement (--h-max-work {work:g}): {ref.attempts} cubic clock certificate(s), {ref.work:.0f} units, "
+    note = (f"{_NOTE_HEAD}--h-max-work {work:g}): {ref.attempts} cubic clock certificate(s), {ref.work:.0f} units, "
             + ("no closer period proved" if ref.h_max is None else
-               f"proved stable over the rate box at {ref.h_max:.6g} by {ref.boxes} sub-box(es) of "
+               f"proved stable over the rate box at {period_text(ref.h_max, down=True)} by {ref.boxes} sub-box(es) of "
                f"{ref.pieces} cubic pieces (relative gap {(hu - ref.h_max) / hu:.1e})"))
     better = ref.h_max is not None and (result.h_max is None or ref.h_max > result.h_max)
     return dataclasses.replace(result, h_max=ref.h_max if better else result.h_max,
                                h_max_note=result.h_max_note + note)
+
+
+def refinement_note(result: SampledResult) -> str | None:
+    """The part of ``result.h_max_note`` that :func:`refine_result` wrote (what the
+    refinement did and cost), ``None`` when it did not run."""
+    _, found, after = result.h_max_note.partition(_NOTE_HEAD)
+    return (_NOTE_HEAD + after).lstrip("; ") if found else None
+
+
+def period_text(h: float, *, down: bool) -> str:
+    """``h`` to 6 significant digits, rounded down (``down``: a proved-stable period,
+    never printed above the one proved) or up (a proved-unstable one), so that the
+    printed number keeps the claim."""
+    from decimal import ROUND_CEILING, ROUND_FLOOR, Decimal
+
+    exact = Decimal(h)
+    if not exact.is_finite() or exact == 0:
+        return f"{h:.6g}"
+    q = exact.quantize(Decimal(1).scaleb(exact.adjusted() - 5), rounding=ROUND_FLOOR if down else ROUND_CEILING)
+    return f"{float(q):.6g}"
