@@ -65,7 +65,7 @@ from ..solvers import solve_conic
 from .sampled import SampledLoop
 from .sampled_clock import adjoint, frame_scale, time_unit
 
-__all__ = ["CubicCertificate", "box_specs", "cubic_parts", "cubic_size", "cubic_program", "cubic_certificate",
+__all__ = ["CubicCertificate", "box_specs", "cubic_parts", "piece_blocks", "cubic_size", "cubic_program", "cubic_certificate",
            "prove_cubic", "cubic_stable"]
 
 
@@ -128,6 +128,17 @@ def _grams(P: tuple[Any, Any, Any, Any], B2: Any, C2: Any, K: Any) -> tuple[list
     B2s = B2 + B2.T
     B1 = (P2 - C2 + B2s) * 0.5 + K
     return [[P0, B2], [B2.T, C2]], [[P1 + P0 - B2s, B1], [B1.T, P3 + C2]]
+
+
+def piece_blocks(A: Any, Yk: list[Any], Yk1: list[Any], C: list[Any], W: list[Any], s: int, q_row: Any, rate: Any,
+                 gram: tuple[Any, Any, Any]) -> tuple[list[list[Any]], list[list[Any]]]:
+    r"""The blocks of :math:`M_2` and :math:`M_1` (module docstring) of row ``s`` on a
+    piece, from :math:`P = -F` (:func:`cubic_parts`) and the free parts ``gram`` :math:`=
+    (B_2, C_2, K)`: the one assembly of the program (:class:`~ftc_verify.analysis.conic.Affine`)
+    and of the proof (balls); in float it lets a test check :math:`-F(t) = t\sigma_1(t) +
+    (1 - t)\sigma_2(t)` against :math:`F` written out from its definition."""
+    F = cubic_parts(A, Yk, Yk1, C, W, s, q_row, rate)
+    return _grams((-F[0], -F[1], -F[2], -F[3]), *gram)
 
 
 def _layout(loop: SampledLoop, pieces: int, n_specs: int) -> tuple[int, int, int, int]:
@@ -195,8 +206,8 @@ def cubic_program(loop: SampledLoop, h: float, pieces: int, lo: Matrix, hi: Matr
     for k in range(pieces):
         for i, (s, point) in enumerate(specs):
             q = [float(v) * unit for v in loop.chain.row_generator(s, point)]
-            F = cubic_parts(flows[s], Y[k], Y[k + 1], C[k], W[k], s, q, pieces * unit / h)
-            M2, M1 = _grams((-F[0], -F[1], -F[2], -F[3]), *_gram_vars(d, gram + (k * len(specs) + i) * per, K))
+            M2, M1 = piece_blocks(flows[s], Y[k], Y[k + 1], C[k], W[k], s, q, pieces * unit / h,
+                                  _gram_vars(d, gram + (k * len(specs) + i) * per, K))
             rows.lmi(eye2 - affine_bmat(M2), cols)
             rows.lmi(eye2 - affine_bmat(M1), cols)
     P = loop.restriction()
@@ -290,9 +301,8 @@ def prove_cubic(loop: SampledLoop, cert: CubicCertificate) -> bool:
         for i, (s, beta) in enumerate(box_specs(loop, cert.lo, cert.hi)):
             row = [q * unit for q in ball_generator(loop.chain, beta, loop.literals)[s]]
             for k in range(pieces):
-                F = cubic_parts(flows[s], Yb[k], Yb[k + 1], Cb[k], Wb[k], s, row, rate)
                 B2, C2, Ks = (ball(v) for v in cert.grams[k][i])
-                for M in _grams((-F[0], -F[1], -F[2], -F[3]), B2, C2, Ks):
+                for M in piece_blocks(flows[s], Yb[k], Yb[k + 1], Cb[k], Wb[k], s, row, rate, (B2, C2, Ks)):
                     if not proven_positive_definite(ball_bmat(M)):
                         return False
     return True
