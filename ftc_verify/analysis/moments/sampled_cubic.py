@@ -63,7 +63,7 @@ from ...model.system import Matrix
 from ..conic import Affine, Rows, affine_bmat, sym_variable
 from ..solvers import solve_conic
 from .sampled import SampledLoop
-from .sampled_clock import adjoint, frame_scale, time_unit
+from .sampled_clock import adjoint, frame_scale, node_jump_rows, proof_start, time_unit, unpack_sym
 
 __all__ = ["CubicCertificate", "box_specs", "cubic_parts", "piece_blocks", "cubic_size", "cubic_program", "cubic_certificate",
            "prove_cubic", "cubic_stable"]
@@ -196,12 +196,10 @@ def cubic_program(loop: SampledLoop, h: float, pieces: int, lo: Matrix, hi: Matr
     W = [[sym_variable(d, cub + (k * S + s) * m, K) for s in range(S)] for k in range(pieces)]
     cols: Any = np.arange(K)
     rows = Rows(K)
-    eye, eye2 = np.eye(d), np.eye(2 * d)
-    for row in Y:
-        for y in row:
-            rows.lmi(eye - y, cols)
+    eye2 = np.eye(2 * d)
     unit = time_unit(loop)
     D = frame_scale(loop, h)
+    node_jump_rows(loop, h, rows, Y, D)
     flows = [F * unit / D[:, None] * D[None, :] for F in loop.flow]
     for k in range(pieces):
         for i, (s, point) in enumerate(specs):
@@ -210,25 +208,12 @@ def cubic_program(loop: SampledLoop, h: float, pieces: int, lo: Matrix, hi: Matr
                                   _gram_vars(d, gram + (k * len(specs) + i) * per, K))
             rows.lmi(eye2 - affine_bmat(M2), cols)
             rows.lmi(eye2 - affine_bmat(M1), cols)
-    P = loop.restriction()
-    for s, R in enumerate(loop.resets(h)):
-        J = R @ P / D[:, None] * D[None, :]
-        rows.lmi(J.T @ Y[0][s] @ J - Y[pieces][s] + eye, cols)
     c = np.zeros(K)
     r, cl = np.tril_indices(d)
     diag = np.flatnonzero(r == cl)
     for s in range(S):
         c[(pieces * S + s) * m + diag] = 1.0
     return rows, K, c
-
-
-def _unpack(v: Matrix, d: int, first: int, count: int, K: int) -> list[Matrix]:
-    m = d * (d + 1) // 2
-    out = []
-    for j in range(count):
-        x = np.einsum("ijk,k->ij", sym_variable(d, first + j * m, K).lin, v)
-        out.append(0.5 * (x + x.T))
-    return out
 
 
 def cubic_certificate(loop: SampledLoop, h: float, pieces: int, lo: Matrix, hi: Matrix) -> CubicCertificate | None:
@@ -245,7 +230,7 @@ def cubic_certificate(loop: SampledLoop, h: float, pieces: int, lo: Matrix, hi: 
     w = 1.0 / frame_scale(loop, h)
 
     def split(first: int, count: int) -> tuple[tuple[Matrix, ...], ...]:
-        flat = [Y * w[:, None] * w[None, :] for Y in _unpack(x, d, first, count * S, K)]
+        flat = [Y * w[:, None] * w[None, :] for Y in unpack_sym(x, d, first, count * S, K)]
         return tuple(tuple(flat[k * S:(k + 1) * S]) for k in range(count))
 
     per = d * d + m + d * (d - 1) // 2
@@ -271,32 +256,17 @@ def prove_cubic(loop: SampledLoop, cert: CubicCertificate) -> bool:
     t)\\sigma_2` holds for every element of the balls)."""
     from ..exact import ball_generator
     from ..rigorous import ball, ball_bmat, precision, proven_positive_definite
-    from .sampled_conditioned import ConditionedLoop, written_data
-    from .sampled_gamma import sample_jumps
-    from .sampled_proof import written_flow
 
     h, pieces = cert.h, cert.pieces
     with precision():
-        if isinstance(loop, ConditionedLoop):
-            flows, resets = written_data(loop, h)
-            jumps = [R @ ball(loop.restriction()) for R in resets]
-        else:
-            flows = [written_flow(loop, A) for A in loop.flow]
-            jumps = sample_jumps(loop, h, balls=True, literals=loop.literals)
         D = frame_scale(loop, h)  # powers of two: exact
-        Yb = [[ball(y * D[:, None] * D[None, :]) for y in row] for row in cert.nodes]
+        start = proof_start(loop, h, cert.nodes, D)
+        if start is None:
+            return False
+        flows, Yb = start
         Cb = [[ball(y * D[:, None] * D[None, :]) for y in row] for row in cert.curvatures]
         Wb = [[ball(y * D[:, None] * D[None, :]) for y in row] for row in cert.cubics]
-        if not all(proven_positive_definite(y) for row in Yb for y in row):
-            return False
-        Db = ball(np.diag(D))
-        Dinv = ball(np.diag(1.0 / D))
-        for s, J in enumerate(jumps):
-            Jf = Dinv @ J @ Db  # the program's frame: D^-1 J D
-            if not proven_positive_definite(Yb[pieces][s] - Jf.T @ Yb[0][s] @ Jf):
-                return False
         unit = time_unit(loop)
-        flows = [Dinv @ (F * unit) @ Db for F in flows]  # D^-1 A D, times the time unit
         rate = pieces * unit / loop.period_ball(h)
         for i, (s, beta) in enumerate(box_specs(loop, cert.lo, cert.hi)):
             row = [q * unit for q in ball_generator(loop.chain, beta, loop.literals)[s]]
