@@ -81,6 +81,34 @@ class _Cubic:
         return type("Cert", (), {"proved": ok})()
 
 
+def _assert_exact_cover(loop: SampledLoop, leaves: list[Any]) -> None:
+    """The leaves' union is the box, exactly in the floats: every leaf inside it, no two
+    overlapping (in some rate one ends where the other starts, at the same float), and
+    their volumes summing to the box's in exact rationals (closed boxes with disjoint
+    interiors inside the box and the box's volume: their union is the box)."""
+    from fractions import Fraction
+
+    lo0, hi0 = loop.chain.rate_min, loop.chain.rate_max
+    idx = loop.chain.rate_indices
+    for lo, hi, _ in leaves:
+        assert all(lo0[r] <= lo[r] < hi[r] <= hi0[r] for r in idx)
+    for a, (la, ha, _) in enumerate(leaves):
+        for lb, hb, _ in leaves[a + 1:]:
+            assert any(ha[r] <= lb[r] or hb[r] <= la[r] for r in idx)
+    # the shared faces: every split value is the end of one leaf and the start of another
+    for r in idx:
+        ends = {float(hi[r]) for _, hi, _ in leaves} - {float(hi0[r])}
+        assert ends == {float(lo[r]) for lo, _, _ in leaves} - {float(lo0[r])}
+
+    def volume(lo: Any, hi: Any) -> Fraction:
+        out = Fraction(1)
+        for r in idx:
+            out *= Fraction(float(hi[r])) - Fraction(float(lo[r]))
+        return out
+
+    assert sum((volume(lo, hi) for lo, hi, _ in leaves), Fraction(0)) == volume(lo0, hi0)
+
+
 def test_cover_splits_until_proved_and_covers_the_box(monkeypatch: pytest.MonkeyPatch) -> None:
     loop = _paper()
     fake = _Cubic(0.5)
@@ -88,11 +116,9 @@ def test_cover_splits_until_proved_and_covers_the_box(monkeypatch: pytest.Monkey
     start = [(loop.chain.rate_min.copy(), loop.chain.rate_max.copy(), 0)]
     leaves, spent, attempts = cover_box(loop, 0.08, 4, start, 1e12)
     assert leaves is not None
-    # two rates, each halved once: 4 leaves after 1 + 2 + 4 attempts; their volumes fill the box
+    # two rates, each halved once: 4 leaves after 1 + 2 + 4 attempts, exactly the box
     assert len(leaves) == 4 and attempts == 7 and spent == pytest.approx(7 * cubic_work(loop, 4))
-    idx = loop.chain.rate_indices
-    vol = sum(float(np.prod([hi[r] - lo[r] for r in idx])) for lo, hi, _ in leaves)
-    assert vol == pytest.approx(float(np.prod([loop.chain.rate_max[r] - loop.chain.rate_min[r] for r in idx])))
+    _assert_exact_cover(loop, leaves)
     # the budget is charged before each solve: none is started that it cannot pay
     fake.asked.clear()
     leaves, spent, attempts = cover_box(loop, 0.08, 4, start, 2.5 * cubic_work(loop, 4))

@@ -72,7 +72,7 @@ from .sampled import SampledLoop
 from .sampled_proof import BoxVerdict, box_verdict
 
 __all__ = ["ClockCertificate", "adjoint", "clock_program", "clock_certificate", "prove_clock", "clock_stable", "clock_size", "clock_verdict", "period_verdict",
-           "TIME_OCTAVES", "time_unit", "frame_scale"]
+           "TIME_OCTAVES", "time_unit", "frame_scale", "node_jump_rows", "unpack_sym", "proof_start"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -197,11 +197,9 @@ def clock_program(loop: SampledLoop, h: float, pieces: int, quadratic: bool = Fa
     cols: Any = np.arange(K)
     rows = Rows(K)
     eye = np.eye(d)
-    for row in Y:
-        for y in row:
-            rows.lmi(eye - y, cols)
     unit = time_unit(loop)  # t = unit t': the flows and rates times unit, the period over it
     D = frame_scale(loop, h)  # z = diag(D) z' (powers of two)
+    node_jump_rows(loop, h, rows, Y, D)
     for k in range(pieces):
         for i, (s, _, q_row) in enumerate(specs):
             q = [float(v) * unit for v in q_row]
@@ -215,14 +213,29 @@ def clock_program(loop: SampledLoop, h: float, pieces: int, quadratic: bool = Fa
             rows.lmi(eye - G, cols)
             half = (F1 + G) * 0.5
             rows.lmi(affine_bmat([[F0, half], [half, F2 - G]]) + np.eye(2 * d), cols)
-    P = loop.restriction()
-    for s, R in enumerate(loop.resets(h)):
-        J = R @ P / D[:, None] * D[None, :]
-        rows.lmi(J.T @ Y[0][s] @ J - Y[pieces][s] + eye, cols)
     return rows, K
 
 
-def _unpack(x: Matrix, d: int, first: int, count: int, K: int) -> list[Matrix]:
+def node_jump_rows(loop: SampledLoop, h: float, rows: Rows, Y: list[list[Any]], D: Matrix) -> None:
+    r"""Add to ``rows`` the rows shared by the clock programs (this module's and
+    :mod:`~ftc_verify.analysis.moments.sampled_cubic`'s): every node :math:`Y_s^k \succeq
+    I` and the sample :math:`J_s^T Y_s^0 J_s - Y_s^N \preceq -I`, in the frame
+    :math:`D` of :func:`frame_scale` (:math:`J' = D^{-1} J D`); ``Y[k][s]`` the nodes'
+    variables (the last row: :math:`Y^N`)."""
+    eye = np.eye(loop.d)
+    cols: Any = np.arange(rows.K)
+    for row in Y:
+        for y in row:
+            rows.lmi(eye - y, cols)
+    P = loop.restriction()
+    for s, R in enumerate(loop.resets(h)):
+        J = R @ P / D[:, None] * D[None, :]
+        rows.lmi(J.T @ Y[0][s] @ J - Y[-1][s] + eye, cols)
+
+
+def unpack_sym(x: Matrix, d: int, first: int, count: int, K: int) -> list[Matrix]:
+    """``count`` symmetric ``d x d`` matrices of the solution ``x`` (``K`` variables), the
+    ``svec`` of the first from variable ``first`` on (:func:`~ftc_verify.analysis.conic.sym_variable`)."""
     m = d * (d + 1) // 2
     out = []
     for j in range(count):
@@ -248,14 +261,14 @@ def clock_certificate(loop: SampledLoop, h: float, pieces: int = 4,
     if x is None or not outcome.solved:
         return None
     w = 1.0 / frame_scale(loop, h)  # back to the loop's coordinates: Y = D^-1 Y' D^-1 (exact)
-    flat = [Y * w[:, None] * w[None, :] for Y in _unpack(x, d, 0, (pieces + 1) * S, K)]
+    flat = [Y * w[:, None] * w[None, :] for Y in unpack_sym(x, d, 0, (pieces + 1) * S, K)]
     nodes = tuple(tuple(flat[k * S:(k + 1) * S]) for k in range(pieces + 1))
     if not quadratic:
         return ClockCertificate(float(h), pieces, nodes, False)
-    flat = [Y * w[:, None] * w[None, :] for Y in _unpack(x, d, curv, pieces * S, K)]
+    flat = [Y * w[:, None] * w[None, :] for Y in unpack_sym(x, d, curv, pieces * S, K)]
     curvs = tuple(tuple(flat[k * S:(k + 1) * S]) for k in range(pieces))
     n_spec = len(_specs(loop))
-    flat = [Y * w[:, None] * w[None, :] for Y in _unpack(x, d, mult, pieces * n_spec, K)]
+    flat = [Y * w[:, None] * w[None, :] for Y in unpack_sym(x, d, mult, pieces * n_spec, K)]
     mults = tuple(tuple(flat[k * n_spec:(k + 1) * n_spec]) for k in range(pieces))
     return ClockCertificate(float(h), pieces, nodes, False, curvs, mults)
 
@@ -269,27 +282,15 @@ def prove_clock(loop: SampledLoop, cert: ClockCertificate) -> bool:
     :meth:`~ftc_verify.analysis.moments.sampled.SampledLoop.period_ball`."""
     from ..exact import ball_generator
     from ..rigorous import ball, ball_bmat, precision, proven_positive_definite
-    from .sampled_conditioned import ConditionedLoop, written_data
-    from .sampled_gamma import sample_jumps
-    from .sampled_proof import written_flow
 
     h, pieces, quadratic = cert.h, cert.pieces, bool(cert.curvatures)
     with precision():
-        if isinstance(loop, ConditionedLoop):  # the moved data from the written balls
-            flows, resets = written_data(loop, h)
-            jumps = [R @ ball(loop.restriction()) for R in resets]
-        else:
-            flows = [written_flow(loop, A) for A in loop.flow]
-            jumps = sample_jumps(loop, h, balls=True, literals=loop.literals)
-        Yb = [[ball(y) for y in row] for row in cert.nodes]
-        Cb = [[ball(c) for c in row] for row in cert.curvatures]
-        if not all(proven_positive_definite(y) for row in Yb for y in row):
+        start = proof_start(loop, h, cert.nodes, None)
+        if start is None:
             return False
-        for s, J in enumerate(jumps):
-            if not proven_positive_definite(Yb[pieces][s] - J.T @ Yb[0][s] @ J):
-                return False
-        unit = time_unit(loop)  # a power of two: the program's frame, scaled exactly
-        flows = [F * unit for F in flows]
+        flows, Yb = start
+        Cb = [[ball(c) for c in row] for row in cert.curvatures]
+        unit = time_unit(loop)
         rate = pieces * unit / loop.period_ball(h)
         for i, (s, beta, _) in enumerate(_specs(loop)):
             row = [q * unit for q in ball_generator(loop.chain, beta, loop.literals)[s]]
@@ -304,6 +305,48 @@ def prove_clock(loop: SampledLoop, cert: ClockCertificate) -> bool:
                 if not (proven_positive_definite(G) and proven_positive_definite(-ball_bmat([[F0, half], [half, F2 - G]]))):
                     return False
     return True
+
+
+def proof_start(loop: SampledLoop, h: float, nodes: tuple[tuple[Matrix, ...], ...],
+                D: Matrix | None) -> tuple[list[Any], list[list[Any]]] | None:
+    r"""The start shared by the clock proofs (:func:`prove_clock`,
+    :func:`~ftc_verify.analysis.moments.sampled_cubic.prove_cubic`; call it inside
+    :func:`~ftc_verify.analysis.rigorous.precision`): the flows as written
+    (:func:`~ftc_verify.analysis.moments.sampled_proof.written_flow`, or the moved ones of a
+    :class:`~ftc_verify.analysis.moments.sampled_conditioned.ConditionedLoop`) and the
+    jumps :math:`J_s = R_s P` of the gains as written
+    (:func:`~ftc_verify.analysis.moments.sampled_gamma.sample_jumps`), as balls; then the
+    nodes :math:`Y^k_s \succ 0` and the sample :math:`Y_s^N - J_s^T Y_s^0 J_s \succ 0`
+    proved. With ``D`` (:func:`frame_scale`, powers of two: exact) it is done in the
+    program's frame (:math:`Y' = D Y D`, :math:`J' = D^{-1} J D`); ``None``: the loop's
+    coordinates. Returns the flows times :func:`time_unit` (:math:`D^{-1} A D` with ``D``)
+    and the nodes as balls, or ``None`` when a condition is not proved."""
+    from ..rigorous import ball, proven_positive_definite
+    from .sampled_conditioned import ConditionedLoop, written_data
+    from .sampled_gamma import sample_jumps
+    from .sampled_proof import written_flow
+
+    if isinstance(loop, ConditionedLoop):  # the moved data from the written balls
+        flows, resets = written_data(loop, h)
+        jumps = [R @ ball(loop.restriction()) for R in resets]
+    else:
+        flows = [written_flow(loop, A) for A in loop.flow]
+        jumps = sample_jumps(loop, h, balls=True, literals=loop.literals)
+    unit = time_unit(loop)  # a power of two: the program's frame, scaled exactly
+    if D is None:
+        Yb = [[ball(y) for y in row] for row in nodes]
+        flows = [F * unit for F in flows]
+    else:
+        Yb = [[ball(y * D[:, None] * D[None, :]) for y in row] for row in nodes]
+        Db, Dinv = ball(np.diag(D)), ball(np.diag(1.0 / D))
+        jumps = [Dinv @ J @ Db for J in jumps]
+        flows = [Dinv @ (F * unit) @ Db for F in flows]
+    if not all(proven_positive_definite(y) for row in Yb for y in row):
+        return None
+    for s, J in enumerate(jumps):
+        if not proven_positive_definite(Yb[-1][s] - J.T @ Yb[0][s] @ J):
+            return None
+    return flows, Yb
 
 
 def clock_stable(loop: SampledLoop, h: float, pieces: int = 4, quadratic: bool = False) -> ClockCertificate | None:

@@ -63,9 +63,9 @@ from ...model.system import Matrix
 from ..conic import Affine, Rows, affine_bmat, sym_variable
 from ..solvers import solve_conic
 from .sampled import SampledLoop
-from .sampled_clock import adjoint, frame_scale, time_unit
+from .sampled_clock import adjoint, frame_scale, node_jump_rows, proof_start, time_unit, unpack_sym
 
-__all__ = ["CubicCertificate", "box_specs", "cubic_parts", "cubic_size", "cubic_program", "cubic_certificate",
+__all__ = ["CubicCertificate", "box_specs", "cubic_parts", "piece_blocks", "cubic_size", "cubic_program", "cubic_certificate",
            "prove_cubic", "cubic_stable"]
 
 
@@ -130,6 +130,17 @@ def _grams(P: tuple[Any, Any, Any, Any], B2: Any, C2: Any, K: Any) -> tuple[list
     return [[P0, B2], [B2.T, C2]], [[P1 + P0 - B2s, B1], [B1.T, P3 + C2]]
 
 
+def piece_blocks(A: Any, Yk: list[Any], Yk1: list[Any], C: list[Any], W: list[Any], s: int, q_row: Any, rate: Any,
+                 gram: tuple[Any, Any, Any]) -> tuple[list[list[Any]], list[list[Any]]]:
+    r"""The blocks of :math:`M_2` and :math:`M_1` (module docstring) of row ``s`` on a
+    piece, from :math:`P = -F` (:func:`cubic_parts`) and the free parts ``gram`` :math:`=
+    (B_2, C_2, K)`: the one assembly of the program (:class:`~ftc_verify.analysis.conic.Affine`)
+    and of the proof (balls); in float it lets a test check :math:`-F(t) = t\sigma_1(t) +
+    (1 - t)\sigma_2(t)` against :math:`F` written out from its definition."""
+    F = cubic_parts(A, Yk, Yk1, C, W, s, q_row, rate)
+    return _grams((-F[0], -F[1], -F[2], -F[3]), *gram)
+
+
 def _layout(loop: SampledLoop, pieces: int, n_specs: int) -> tuple[int, int, int, int]:
     """``(m, first curvature, first cubic term, first Gram part)``; each Gram part has
     ``d^2 + m + d (d - 1) / 2`` variables (``B_2``, ``C_2``, ``K``)."""
@@ -185,39 +196,24 @@ def cubic_program(loop: SampledLoop, h: float, pieces: int, lo: Matrix, hi: Matr
     W = [[sym_variable(d, cub + (k * S + s) * m, K) for s in range(S)] for k in range(pieces)]
     cols: Any = np.arange(K)
     rows = Rows(K)
-    eye, eye2 = np.eye(d), np.eye(2 * d)
-    for row in Y:
-        for y in row:
-            rows.lmi(eye - y, cols)
+    eye2 = np.eye(2 * d)
     unit = time_unit(loop)
     D = frame_scale(loop, h)
+    node_jump_rows(loop, h, rows, Y, D)
     flows = [F * unit / D[:, None] * D[None, :] for F in loop.flow]
     for k in range(pieces):
         for i, (s, point) in enumerate(specs):
             q = [float(v) * unit for v in loop.chain.row_generator(s, point)]
-            F = cubic_parts(flows[s], Y[k], Y[k + 1], C[k], W[k], s, q, pieces * unit / h)
-            M2, M1 = _grams((-F[0], -F[1], -F[2], -F[3]), *_gram_vars(d, gram + (k * len(specs) + i) * per, K))
+            M2, M1 = piece_blocks(flows[s], Y[k], Y[k + 1], C[k], W[k], s, q, pieces * unit / h,
+                                  _gram_vars(d, gram + (k * len(specs) + i) * per, K))
             rows.lmi(eye2 - affine_bmat(M2), cols)
             rows.lmi(eye2 - affine_bmat(M1), cols)
-    P = loop.restriction()
-    for s, R in enumerate(loop.resets(h)):
-        J = R @ P / D[:, None] * D[None, :]
-        rows.lmi(J.T @ Y[0][s] @ J - Y[pieces][s] + eye, cols)
     c = np.zeros(K)
     r, cl = np.tril_indices(d)
     diag = np.flatnonzero(r == cl)
     for s in range(S):
         c[(pieces * S + s) * m + diag] = 1.0
     return rows, K, c
-
-
-def _unpack(v: Matrix, d: int, first: int, count: int, K: int) -> list[Matrix]:
-    m = d * (d + 1) // 2
-    out = []
-    for j in range(count):
-        x = np.einsum("ijk,k->ij", sym_variable(d, first + j * m, K).lin, v)
-        out.append(0.5 * (x + x.T))
-    return out
 
 
 def cubic_certificate(loop: SampledLoop, h: float, pieces: int, lo: Matrix, hi: Matrix) -> CubicCertificate | None:
@@ -234,7 +230,7 @@ def cubic_certificate(loop: SampledLoop, h: float, pieces: int, lo: Matrix, hi: 
     w = 1.0 / frame_scale(loop, h)
 
     def split(first: int, count: int) -> tuple[tuple[Matrix, ...], ...]:
-        flat = [Y * w[:, None] * w[None, :] for Y in _unpack(x, d, first, count * S, K)]
+        flat = [Y * w[:, None] * w[None, :] for Y in unpack_sym(x, d, first, count * S, K)]
         return tuple(tuple(flat[k * S:(k + 1) * S]) for k in range(count))
 
     per = d * d + m + d * (d - 1) // 2
@@ -260,39 +256,23 @@ def prove_cubic(loop: SampledLoop, cert: CubicCertificate) -> bool:
     t)\\sigma_2` holds for every element of the balls)."""
     from ..exact import ball_generator
     from ..rigorous import ball, ball_bmat, precision, proven_positive_definite
-    from .sampled_conditioned import ConditionedLoop, written_data
-    from .sampled_gamma import sample_jumps
-    from .sampled_proof import written_flow
 
     h, pieces = cert.h, cert.pieces
     with precision():
-        if isinstance(loop, ConditionedLoop):
-            flows, resets = written_data(loop, h)
-            jumps = [R @ ball(loop.restriction()) for R in resets]
-        else:
-            flows = [written_flow(loop, A) for A in loop.flow]
-            jumps = sample_jumps(loop, h, balls=True, literals=loop.literals)
         D = frame_scale(loop, h)  # powers of two: exact
-        Yb = [[ball(y * D[:, None] * D[None, :]) for y in row] for row in cert.nodes]
+        start = proof_start(loop, h, cert.nodes, D)
+        if start is None:
+            return False
+        flows, Yb = start
         Cb = [[ball(y * D[:, None] * D[None, :]) for y in row] for row in cert.curvatures]
         Wb = [[ball(y * D[:, None] * D[None, :]) for y in row] for row in cert.cubics]
-        if not all(proven_positive_definite(y) for row in Yb for y in row):
-            return False
-        Db = ball(np.diag(D))
-        Dinv = ball(np.diag(1.0 / D))
-        for s, J in enumerate(jumps):
-            Jf = Dinv @ J @ Db  # the program's frame: D^-1 J D
-            if not proven_positive_definite(Yb[pieces][s] - Jf.T @ Yb[0][s] @ Jf):
-                return False
         unit = time_unit(loop)
-        flows = [Dinv @ (F * unit) @ Db for F in flows]  # D^-1 A D, times the time unit
         rate = pieces * unit / loop.period_ball(h)
         for i, (s, beta) in enumerate(box_specs(loop, cert.lo, cert.hi)):
             row = [q * unit for q in ball_generator(loop.chain, beta, loop.literals)[s]]
             for k in range(pieces):
-                F = cubic_parts(flows[s], Yb[k], Yb[k + 1], Cb[k], Wb[k], s, row, rate)
                 B2, C2, Ks = (ball(v) for v in cert.grams[k][i])
-                for M in _grams((-F[0], -F[1], -F[2], -F[3]), B2, C2, Ks):
+                for M in piece_blocks(flows[s], Yb[k], Yb[k + 1], Cb[k], Wb[k], s, row, rate, (B2, C2, Ks)):
                     if not proven_positive_definite(ball_bmat(M)):
                         return False
     return True
