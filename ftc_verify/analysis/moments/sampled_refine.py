@@ -48,7 +48,9 @@ __all__ = ["REFINE_MEMORY", "check_refine", "refine_result", "refinement_note", 
 REFINE_MEMORY = 4.0e9
 
 
+#: How the refinement's part of ``h_max_note`` starts (:func:`refinement_note`).
 _NOTE_HEAD = "; refinement ("
+
 
 def check_refine(system: FTCSystem, controller: Controller, period: float | None, work: float, *,
                  loop: SampledLoop | None = None) -> None:
