@@ -18,10 +18,11 @@ from hypothesis import HealthCheck, assume, given, settings
 from ftc_verify.analysis.closedloop import closed_loop
 from ftc_verify.analysis.lmi_analysis import hinf_gamma
 from ftc_verify.analysis.moments.sampled import sampled_analysis
-from ftc_verify.analysis.moments.sampled_gamma import (attach_performance, gain_lower_estimate, performance_lines,
+from ftc_verify.analysis.moments.sampled_gamma import (attach_performance, gain_lower_estimate,
                                                        sampled_gamma)
 from ftc_verify.analysis.moments.sampled_lower import _Blocks, _blocks, _Ops, _ratio, sampled_lower_bound
 from ftc_verify.cli.main import main
+from ftc_verify.cli.sampled_lines import performance_lines
 from ftc_verify.controllers.controller import Controller
 from ftc_verify.controllers.files import load_controller
 from ftc_verify.model.files import load_system

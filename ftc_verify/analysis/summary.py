@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+from ..claimtext import lower_text, upper_text
+
 if TYPE_CHECKING:
     from .analyze import AnalysisReport
 
@@ -50,7 +52,7 @@ def analysis_summary(rep: AnalysisReport, *, fdi_model: str | None = None) -> st
         lines.append("  LMI certificates         not requested (--no-lmi)")
     for label, res in (("Theorem 3.1 LMI", rep.mes_lmi), ("nominal gamma (Th. 3.2)", rep.nominal),
                        ("robust gamma (Lem. 4.1)", rep.robust)) if lmi else ():
-        value = "" if res.gamma is None or label.startswith("Theorem") else f"{res.gamma:.6g}  "
+        value = "" if res.gamma is None or label.startswith("Theorem") else f"{upper_text(res.gamma)}  "
         status = res.outcome + (f" ({res.solver}, status {res.solver_status})" if res.solver else "")
         lines.append(f"  {label:<24} {value}{status}")
         if not res.certified and res.message:
@@ -87,4 +89,4 @@ def _bracket_text(low: dict[str, Any]) -> str:
         return f"lower bound: none proved ({low['method']}); float estimate {low['estimate']:.6g} at {where}"
     ratio = "" if low["ratio"] is None else f"; certified / lower = {low['ratio']:.6g}"
     flag = " (LOOSE: above 1.05)" if low["loose"] else ""
-    return f"proved lower bound {low['value']:.6g} at {where}{ratio}{flag}"
+    return f"proved lower bound {lower_text(low['value'])} at {where}{ratio}{flag}"

@@ -10,11 +10,12 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from ..claimtext import lower_text, upper_text
 from .common import EXIT_NEGATIVE, EXIT_OK, EXIT_UNCERTIFIED, EXIT_UNDECIDED, bad
 from .export_commands import DEFAULT_STEP  # the simulators' step when no period or step is given
 
 __all__ = ["add_h_max_work_option", "check_period_option", "resolve_step", "sampled_exit", "print_sampled",
-           "print_period_design", "warn_short_h_max"]
+           "print_period_design", "warn_short_h_max", "performance_lines"]
 
 
 
@@ -91,8 +92,6 @@ def print_sampled(res: Any) -> None:
                "not stable": "NOT mean-square stable (proved)",
                "undecided": "UNDECIDED (neither stability nor instability proved)"}[res.verdict]
     if res.performance is not None:  # analysis.moments.sampled_gamma
-        from ..analysis.moments.sampled_gamma import performance_lines
-
         print("\n".join(performance_lines(res.performance)))
     print(f"  verdict at period h = {res.period:g}: the sampled loop is {verdict}")
 
@@ -102,9 +101,9 @@ def print_period_design(design: Any, period: float) -> None:
     print(f"  designed for the sampled loop at period h = {period:g} (gain bounds tried, largest first):")
     for row in design.attempts:
         bound = "none" if row["k_max"] is None else f"{row['k_max']:g}"
-        gamma = "not certified" if not row["certified"] else f"certified gamma {row['gamma_certified']:.6g}"
+        gamma = "not certified" if not row["certified"] else f"certified gamma {upper_text(row['gamma_certified'])}"
         sampled = "" if row["sampled_verdict"] is None else f"; sampled loop {row['sampled_verdict']}"
-        h_max = "" if row["h_max"] is None else f" (h_max {row['h_max']:.6g})"
+        h_max = "" if row["h_max"] is None else f" (h_max {lower_text(row['h_max'])})"
         print(f"    k_max {bound:>6}: {gamma}{sampled}{h_max}")
     if design.found and design.sampled is not None:
         print(f"  sampled loop at h = {period:g}: {design.sampled.proof}")
@@ -134,3 +133,23 @@ def warn_short_h_max(system: Any, controller: Any) -> None:
                   f"the simulator's default step; check the period it will run at with analyze --period, or "
                   f"design for it with synthesize --period", file=sys.stderr)
             return
+
+
+def performance_lines(perf: Any) -> list[str]:
+    """The report lines of ``analyze --period`` for ``perf``
+    (:class:`~ftc_verify.analysis.moments.sampled_gamma.SampledPerformance`): each proved gamma
+    rounded up, each proved lower bound rounded down (:mod:`ftc_verify.claimtext`)."""
+    out = []
+    rows = [("nominal", perf.nominal, perf.nominal_lower, perf.nominal_lower_kind)]
+    if perf.robust is not None:
+        rows.append(("robust", perf.robust, perf.robust_lower, perf.robust_lower_kind))
+    for name, cert, lower, kind in rows:
+        low = "n/a" if lower is None else (lower_text(lower) if kind == "proved" else f"{lower:.6g}")
+        low += " (proved)" if kind == "proved" else " (float64, not proved)"
+        if cert.gamma is None:
+            out.append(f"    {name} gain (sampled, between samples included)  NOT certified: {cert.note}; "
+                       f"lower bound {low}")
+        else:
+            out.append(f"    {name} gain (sampled, between samples included)  gamma <= {upper_text(cert.gamma)} (proved, "
+                       f"N = {cert.pieces} {'affine' if cert.degree == 1 else 'quadratic'}); lower bound {low}")
+    return out

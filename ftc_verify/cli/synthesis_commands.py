@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from ..claimtext import upper_text
 from ..jsonable import dumps
 from .common import EXIT_NEGATIVE, EXIT_OK, bad, check_output_file, fmt, positive, seed_int
 
@@ -22,7 +23,7 @@ def _print_synthesis(res: Any) -> None:
           f"{res.solve_seconds:.2f} s solving, {res.wall_seconds:.2f} s wall)")
     print(f"  {res.message}")
     for row in d["starts"]:
-        found = (f"certified gamma {row['gamma_certified']:.6g}" if row["gamma_certified"] is not None
+        found = (f"certified gamma {upper_text(row['gamma_certified'])}" if row["gamma_certified"] is not None
                  else f"not counted: {row['reason']}")
         mark = "*" if row["name"] == res.start else " "
         took = f" [{row['seconds']:.2f} s]" if row.get("seconds") is not None else ""

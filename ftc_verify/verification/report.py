@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from ..claimtext import upper_text
 from ..errors import ProblemFileError
 from ..jsonable import dumps
 from .verify import VerifyReport
@@ -90,7 +91,7 @@ def render_markdown(rep: VerifyReport) -> str:
         f"# ftc-verify report: {rep.system.name}",
         "",
         f"**Verdict: {d['verdict'].upper()}** -- certified robust gamma "
-        f"{'-' if d['gamma_certified'] is None else format(d['gamma_certified'], '.6g')}",
+        f"{'-' if d['gamma_certified'] is None else upper_text(d['gamma_certified'])}",
         "",
         f"{d['options']['fdi_model']}.",
         "",

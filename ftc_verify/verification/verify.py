@@ -67,6 +67,7 @@ from ..simulation.spec import SimulationSpec, spec_from
 from ..analysis.solvers import interruptible
 from ..synthesis.state_feedback import SynthesisResult, synthesize
 from ..analysis.moments.energy import exact_energy
+from ..claimtext import lower_text, upper_text
 from .agreement import EarlyReference, against_reference
 from .montecarlo import MCEstimate, estimate
 from .sampled_stage import SampledRun
@@ -180,11 +181,11 @@ def _certify(analysis: AnalysisReport, gamma: float | None) -> tuple[float | Non
     ok = analysis.robust.certified and analysis.certified_stable
     gamma_cert = analysis.robust.gamma if ok else None
     checks = [Check("certified", gamma_cert is not None,
-                    f"robust gamma {gamma_cert:.6g} (Lemma 4.1), spectral abscissa {analysis.mss.spectral_abscissa:.4g}"
+                    f"robust gamma {upper_text(gamma_cert)} (Lemma 4.1), spectral abscissa {analysis.mss.spectral_abscissa:.4g}"
                     if gamma_cert is not None else
                     f"not certified: mean-square stability {analysis.mss.verdict}; {analysis.robust.message}")]
     if gamma is not None and gamma_cert is not None:
-        checks.append(Check("requested gamma", gamma_cert <= gamma, f"certified {gamma_cert:.6g} vs requested {gamma:.6g}"))
+        checks.append(Check("requested gamma", gamma_cert <= gamma, f"certified {upper_text(gamma_cert)} vs requested {gamma:.6g}"))
     return gamma_cert, checks
 
 
@@ -307,9 +308,9 @@ def _bracket(analysis: AnalysisReport, gamma_cert: float) -> tuple[None, Check]:
     low = bracket(analysis.robust, analysis.robust_lower)
     if low is None or low["value"] is None:
         why = "no candidate loop was stable" if low is None else low["method"]
-        return None, Check("gamma bracket", True, f"certified {gamma_cert:.6g}; no lower bound proved ({why})")
+        return None, Check("gamma bracket", True, f"certified {upper_text(gamma_cert)}; no lower bound proved ({why})")
     return None, Check("gamma bracket", low["value"] <= gamma_cert,
-                       f"proved lower bound {low['value']:.6g} <= certified {gamma_cert:.6g} (ratio "
+                       f"proved lower bound {lower_text(low['value'])} <= certified {upper_text(gamma_cert)} (ratio "
                        f"{gamma_cert / low['value']:.6g}{', LOOSE' if low['loose'] else ''}; {low['delta']}, "
                        f"rates {low['rates']}, w = F x + e cos({low['frequency']:.4g} t))")
 

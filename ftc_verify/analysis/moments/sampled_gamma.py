@@ -110,7 +110,7 @@ from .sampled_frame import Coordinates, float_frame, io_scales
 
 __all__ = ["MARGIN_TAU", "PIECES", "clock_instance", "MAX_ROWS", "GAP_RTOL", "GAIN_RTOL", "OMEGAS", "augmented_loop",
            "io_scale", "sample_jumps", "SampledGamma", "SampledPerformance", "sampled_gamma", "gain_lower_estimate",
-           "sampled_performance", "attach_performance", "performance_lines"]
+           "sampled_performance", "attach_performance"]
 
 #: First margin of the program (every instance ``<= -t I``); raised 100x when the proof fails.
 MARGIN_TAU = 1e-7
@@ -540,21 +540,3 @@ def attach_performance(result: Any, system: FTCSystem, controller: Controller) -
     else:
         perf = sampled_performance(system, controller, h)
     return replace(result, performance=perf)
-
-
-def performance_lines(perf: SampledPerformance) -> list[str]:
-    """The report lines of ``analyze --period`` for ``perf``."""
-    out = []
-    rows = [("nominal", perf.nominal, perf.nominal_lower, perf.nominal_lower_kind)]
-    if perf.robust is not None:
-        rows.append(("robust", perf.robust, perf.robust_lower, perf.robust_lower_kind))
-    for name, cert, lower, kind in rows:
-        low = "n/a" if lower is None else f"{lower:.6g}"
-        low += " (proved)" if kind == "proved" else " (float64, not proved)"
-        if cert.gamma is None:
-            out.append(f"    {name} gain (sampled, between samples included)  NOT certified: {cert.note}; "
-                       f"lower bound {low}")
-        else:
-            out.append(f"    {name} gain (sampled, between samples included)  gamma <= {cert.gamma:.6g} (proved, "
-                       f"N = {cert.pieces} {'affine' if cert.degree == 1 else 'quadratic'}); lower bound {low}")
-    return out
