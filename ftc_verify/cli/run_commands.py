@@ -268,12 +268,18 @@ def _verify_command(args: argparse.Namespace, watch: Any, check: Any, procs: lis
     spec = SimulationSpec(step=args.step, horizon=args.horizon, n_paths=args.paths, seed=args.seed,
                           delta="random", delta_explicit=False, workers=args.workers, scheduler=args.scheduler,
                           connect_timeout=connect_timeout(args))
-    if controller is not None:
-        spec.check_memory(system, controller, args.paths)
     if args.h_max_work is not None and controller is not None:  # refused before any work, as analyze
+        from ..analysis.moments.sampled import SampledLoop
+        from ..analysis.moments.sampled_cover import cubic_memory
         from ..analysis.moments.sampled_refine import check_refine
 
-        check_refine(system, controller, args.step, args.h_max_work)
+        sampled_loop = SampledLoop.build(system, controller)
+        check_refine(system, controller, args.step, args.h_max_work, loop=sampled_loop)
+        # the refinement runs in the sampled-loop child while the Monte Carlo keeps its records
+        spec.check_memory(system, controller, args.paths,
+                          beside=(cubic_memory(sampled_loop), "the h_max refinement's clock program beside them"))
+    elif controller is not None:
+        spec.check_memory(system, controller, args.paths)
     k_max = None if args.no_gain_bound else args.k_max
     watch.mark("imports_and_load")
     figures = EarlyFigures(args.out)  # drawn while the sampled-loop stages finish in their child

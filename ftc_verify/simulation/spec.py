@@ -336,27 +336,38 @@ class SimulationSpec:
         return self, f"{requested} (the system's norm-bounded uncertainty, Delta, drawn as {requested!r})"
 
     # -------------------------------------------------------------------- resources
-    def check_memory(self, system: FTCSystem, controller: Controller, count: int,
-                     horizon: float | None = None) -> None:
-        """Refuse before simulating when ``count`` kept path records of ``horizon``
-        (default ``horizon``) would not fit in memory
-        (:func:`~ftc_verify.limits.check_memory`): grid points per path ``horizon / step``
+    def records_memory(self, system: FTCSystem, controller: Controller, count: int,
+                       horizon: float | None = None) -> tuple[float, float]:
+        """``(bytes, points)``: the estimated memory of ``count`` kept path records of
+        ``horizon`` (default ``horizon``) and the grid points of each: ``horizon / step``
         plus twice the expected jumps at the largest rate of the chain, each point
-        :data:`RECORD_BYTES_PER_NUMBER` bytes per recorded number.
+        :data:`RECORD_BYTES_PER_NUMBER` bytes per recorded number."""
+        horizon = self.horizon if horizon is None else float(horizon)
+        n, nu, ny, nw = system.dims
+        jumps = 2.0 * horizon * float(max(-system.chain.alpha.min(), system.chain.rate_max.max()))
+        points = horizon / self.step + jumps + 2
+        numbers = n + nu + ny + nw + controller.n_c + controller.n_v + 3
+        return count * points * numbers * RECORD_BYTES_PER_NUMBER, points
+
+    def check_memory(self, system: FTCSystem, controller: Controller, count: int,
+                     horizon: float | None = None, *, beside: tuple[float, str] | None = None) -> None:
+        """Refuse before simulating when ``count`` kept path records of ``horizon``
+        (default ``horizon``; :meth:`records_memory`) would not fit in memory
+        (:func:`~ftc_verify.limits.check_memory`), with ``beside = (bytes, what)`` another
+        stage's memory held at the same time (``verify --h-max-work``: the refinement's
+        program in the sampled-loop child) added to the estimate and named.
 
         Raises
         ------
         MemoryLimitError
             Naming the paths, the grid points, the estimate and the limit.
         """
-        horizon = self.horizon if horizon is None else float(horizon)
-        n, nu, ny, nw = system.dims
-        jumps = 2.0 * horizon * float(max(-system.chain.alpha.min(), system.chain.rate_max.max()))
-        points = horizon / self.step + jumps + 2
-        numbers = n + nu + ny + nw + controller.n_c + controller.n_v + 3
-        check_memory(count * points * numbers * RECORD_BYTES_PER_NUMBER,
-                     f"{count} recorded paths of about {points:.3g} grid points each",
-                     hint="use fewer --paths, a shorter --horizon or a larger --step")
+        need, points = self.records_memory(system, controller, count, horizon)
+        extra, what = beside if beside is not None else (0.0, "")
+        check_memory(need + extra, f"{count} recorded paths of about {points:.3g} grid points each"
+                     + (f" and {what}" if what else ""),
+                     hint="use fewer --paths, a shorter --horizon or a larger --step"
+                     + (" (or drop --h-max-work)" if what else ""))
 
     @contextmanager
     def client(self, given: Any = None, wait: bool = True) -> Iterator[Any]:

@@ -19,7 +19,8 @@ import numpy as np
 from ..analysis.moments.sampled import SampledLoop, SampledResult, sampled_analysis
 from ..analysis.solvers import interruptible
 from ..controllers.controller import Controller
-from ..errors import FTCError, ValidationError
+from ..errors import FTCError, MemoryLimitError, ValidationError
+from ..limits import check_memory, format_bytes
 from ..model.system import FTCSystem
 
 if TYPE_CHECKING:
@@ -43,15 +44,18 @@ MC_MIN_PATHS = 1000
 MC_MIN_JUMPED = 10
 
 
-def sampled_stage(system: FTCSystem, controller: Controller, step: float,
-                  here: bool = False, h_max_work: float | None = None) -> tuple[SampledResult | None, Check]:
+def sampled_stage(system: FTCSystem, controller: Controller, step: float, here: bool = False,
+                  h_max_work: float | None = None, reserved: float = 0.0) -> tuple[SampledResult | None, Check]:
     """``(result, check)`` of the sampled loop at period ``step``: the check passes when
     mean-square stability over the whole rate box is proved; a loop above
     :data:`SAMPLED_LIMIT` is not analysed (said in the check, which then passes as
     before this stage existed and names what it does not cover). The analysis runs in a
     killable child (:func:`~ftc_verify.analysis.solvers.interruptible`) unless ``here``.
     ``h_max_work``: ``verify --h-max-work``, the bracket then refined
-    (:func:`~ftc_verify.analysis.moments.sampled_refine.refine_result`) as by ``analyze``."""
+    (:func:`~ftc_verify.analysis.moments.sampled_refine.refine_result`) as by ``analyze``,
+    unless its program's memory estimate plus ``reserved`` (bytes held meanwhile by the
+    caller: ``verify``'s Monte Carlo records) is above the memory limit -- then the check
+    says that the refinement was not run and why."""
     from .verify import Check
 
     loop = SampledLoop.build(system, controller)
@@ -61,13 +65,16 @@ def sampled_stage(system: FTCSystem, controller: Controller, step: float,
     if rows > SAMPLED_LIMIT:
         return None, Check(name, True, f"NOT analysed: its moment generator has {rows} rows (limit {SAMPLED_LIMIT}); "
                                        "the certificates above are those of the continuous-time loop")
+    from ..analysis.moments.sampled_cover import cubic_memory
     from ..analysis.moments.sampled_refine import check_refine, period_text, refinement_note, refine_result
 
     refused = ""
     if h_max_work is not None:  # a synthesized controller is checked here, a given one before any work too
         try:
             check_refine(system, controller, step, h_max_work, loop=loop)
-        except ValidationError as exc:
+            check_memory(cubic_memory(loop) + reserved, "the h_max refinement's clock program beside "
+                         f"the Monte Carlo's records ({format_bytes(reserved)})", hint="lower --paths or drop --h-max-work")
+        except (ValidationError, MemoryLimitError) as exc:
             refused, h_max_work = f"; refinement not run: {exc}", None
 
     def run() -> SampledResult:
@@ -193,7 +200,7 @@ def sampled_mc_stage(system: FTCSystem, controller: Controller, step: float, hor
 def sampled_stages(system: FTCSystem, controller: Controller, step: float, g2: float, checks: list[Check],
                    seconds: dict[str, float], mc: tuple[float, int, int] | None = None,
                    spans: dict[str, tuple[float, float]] | None = None, here: bool = False,
-                   h_max_work: float | None = None) -> dict[str, Any]:
+                   h_max_work: float | None = None, reserved: float = 0.0) -> dict[str, Any]:
     """Both stages of ``verify`` on the sampled loop (:func:`sampled_stage`, then
     :func:`sampled_energy_stage` at the rate vertices up to
     :data:`~ftc_verify.verification.verify.MAX_EXACT_VERTICES`): their checks appended
@@ -202,7 +209,7 @@ def sampled_stages(system: FTCSystem, controller: Controller, step: float, g2: f
     ``mc = (horizon, paths, seed)`` also :func:`sampled_mc_stage` (``sampled_mc``). Returns
     the report's ``sampled``, ``sampled_exact`` (and ``sampled_mc``). ``here``: the
     analysis runs in this process (already a child, :class:`SampledRun`), not in a child
-    of its own. ``h_max_work``: passed to :func:`sampled_stage`."""
+    of its own. ``h_max_work``, ``reserved``: passed to :func:`sampled_stage`."""
     from .verify import MAX_EXACT_VERTICES
 
     spans = {} if spans is None else spans
@@ -212,7 +219,7 @@ def sampled_stages(system: FTCSystem, controller: Controller, step: float, g2: f
         seconds[name] = spans[name][1] - t0
 
     t = time.perf_counter()
-    res, check = sampled_stage(system, controller, step, here, h_max_work)
+    res, check = sampled_stage(system, controller, step, here, h_max_work, reserved)
     checks.append(check)
     done("sampled", t)
     # after the analysis, so that it runs alone as before (its h_max bracket has a wall-time valve)
@@ -284,14 +291,15 @@ class SampledRun:
     a child still running. Without ``fork`` the stages run in :meth:`join`."""
 
     def __init__(self, system: FTCSystem, controller: Controller, step: float, g2: float,
-                 mc: tuple[float, int, int] | None, at: int, h_max_work: float | None = None) -> None:
+                 mc: tuple[float, int, int] | None, at: int, h_max_work: float | None = None,
+                 reserved: float = 0.0) -> None:
         import os
 
         from ..analysis.solvers import ForkedCall
 
         self.at = at
         self._args = (system, controller, step, g2, mc)
-        self._h_max_work = h_max_work
+        self._h_max_work, self._reserved = h_max_work, reserved
         self._child = ForkedCall(self._run, "the sampled-loop stages", group=True) if hasattr(os, "fork") else None
 
     def _run(self, here: bool = True) -> tuple[dict[str, Any], list[Check], dict[str, float],
@@ -301,7 +309,7 @@ class SampledRun:
         spans: dict[str, tuple[float, float]] = {}
         system, controller, step, g2, mc = self._args
         found = sampled_stages(system, controller, step, g2, checks, seconds, mc, spans, here=here,
-                               h_max_work=self._h_max_work)
+                               h_max_work=self._h_max_work, reserved=self._reserved)
         return found, checks, seconds, spans
 
     def join(self, checks: list[Check], seconds: dict[str, float],
