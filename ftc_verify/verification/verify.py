@@ -509,7 +509,6 @@ def _run_verify(system: FTCSystem, gamma: float | None, method: str, k_max: floa
     loop = closed_loop(system, controller.check(system))
     cross_check.submit(cross_validate, loop)
     spec.check_memory(system, controller, spec.n_paths)
-    records, _ = spec.records_memory(system, controller, spec.n_paths)  # held while the sampled child refines
     t = time.perf_counter()
     analysis = synthesis.report if synthesis is not None and synthesis.report is not None else interruptible(
         lambda: analyze(loop, solver=solver, name=system.name, cross_validation=False), "the analysis")
@@ -521,9 +520,8 @@ def _run_verify(system: FTCSystem, gamma: float | None, method: str, k_max: floa
         return report(analysis=analysis)
     g2 = gamma_cert ** 2
     exact = timed("exact_energy", lambda: _exact_energies(system, loop, g2))
-    # the sampled loop's stages in a child beside the Monte Carlo; their checks go here (report() joins them)
     sampled.append(SampledRun(system, controller, spec.step, g2, (spec.horizon, spec.n_paths, seed), len(checks),
-                              h_max_work, records))
+                              h_max_work, spec.records_memory(system, controller, spec.n_paths)[0]))  # beside the MC
     timed("gamma_bracket", functools.partial(_bracket, analysis, gamma_cert))
     t = time.perf_counter()
     spec, options["delta"] = spec.resolve_delta(system, plant)
