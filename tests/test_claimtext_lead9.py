@@ -87,3 +87,9 @@ def test_sampled_performance_lines_round_outward() -> None:
     estimate = SimpleNamespace(nominal=cert, nominal_lower=0.4980006, nominal_lower_kind="float64", robust=None)
     (line,) = performance_lines(estimate)
     assert "lower bound 0.498001 (float64, not proved)" in line  # an estimate: to nearest
+
+
+def test_report_table_rounds_bounds_outward() -> None:
+    report = importlib.import_module("ftc_verify.verification.report")
+    assert report._bound(0.4980004, "up") == "0.498001" and report._bound(0.4980006, "down") == "0.498"
+    assert report._bound(None, "up") == "-"

@@ -63,6 +63,7 @@ from typing import Any
 from ..analysis.closedloop import closed_loop
 from ..analysis.lmi_analysis import hinf_gamma
 from ..controllers.controller import Controller
+from ..claimtext import upper_text
 from ..errors import ValidationError
 from ..limits import check_memory, dense_generator_estimate
 from ..model.system import FTCSystem, Matrix
@@ -228,7 +229,7 @@ def synthesize_output_feedback(
     if gamma is not None:  # --gamma is a requirement for every method
         outcomes = [o if o.gamma is None or o.gamma <= gamma * (1 + 1e-9) else
                     _Outcome(o.route, None, None, o.synthesis_gamma, o.history, o.ccl_history,
-                             f"{o.message}; certified gamma {o.gamma:.6g} is above the requested {gamma:.6g}")
+                             f"{o.message}; certified gamma {upper_text(o.gamma)} is above the requested {gamma:.6g}")
                     for o in outcomes]
     certified = [o for o in outcomes if o.gamma is not None]
     chosen = min(certified, key=lambda o: o.rank) if certified else outcomes[-1]
@@ -340,7 +341,7 @@ def _run_route(route: str, system: FTCSystem, rows: list[dict[str, Any]], gamma:
                 lambda P, lam, j: gain_step(aug, P, lam, j, calls, k_max, measurement=cbars), system.m,
                 list(best["gains"]), calls, name, max_iter, tol, best.get("lmi"))
             gsyn = history[-1] if history else None
-            msg = f"V-K iteration from {best['name']} (certified gamma {best['gamma_certified']:.6g}); {msg}"
+            msg = f"V-K iteration from {best['name']} (certified gamma {upper_text(best['gamma_certified'])}); {msg}"
     else:
         blocks, gsyn, ccl_history, msg = _ccl_ladder(system, gamma, None if best is None else best["gamma_certified"],
                                                      calls, k_max, None if best is None else best.get("lmi"))

@@ -91,6 +91,7 @@ from ..controllers.controller import Controller
 from ..analysis.analyze import AnalysisReport
 from ..analysis.closedloop import gain_loop, state_feedback_loop
 from ..analysis.conic import Rows, affine_bmat, matrix_variable, scalar_variable, unit_rows
+from ..claimtext import upper_text
 from ..errors import ValidationError
 from ..analysis.lmi import block_specs, lyapunov_block
 from ..analysis.lmi_analysis import hinf_gamma
@@ -426,7 +427,7 @@ def _best(system: FTCSystem, gamma: float | None, k_max: float | None, solver: s
         calls.outcomes.extend(outcomes)
     win = min((r for r in rows if r["gamma_certified"] is not None), key=lambda r: r["gamma_certified"])
     history = list(win.get("history") or [win["gamma_certified"]])
-    return list(win["gains"]), history, f"best certified route: {win['name']} (gamma {win['gamma_certified']:.6g})", \
+    return list(win["gains"]), history, f"best certified route: {win['name']} (gamma {upper_text(win['gamma_certified'])})", \
         win["name"], rows
 
 
@@ -467,7 +468,7 @@ def _iterative(system: FTCSystem, gamma: float | None, k_max: float | None, solv
         calls.outcomes.extend(early["calls"].outcomes)
     else:
         gains, history, msg = descent(best, calls)
-    return gains, history, f"start {best['name']} (certified gamma {best['gamma_certified']:.6g}); {msg}", \
+    return gains, history, f"start {best['name']} (certified gamma {upper_text(best['gamma_certified'])}); {msg}", \
         best["name"], rows, report
 
 

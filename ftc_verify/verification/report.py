@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from ..claimtext import upper_text
+from ..claimtext import lower_text, upper_text
 from ..errors import ProblemFileError
 from ..jsonable import dumps
 from .verify import VerifyReport
@@ -36,6 +36,13 @@ REPORT_FILES = frozenset({"report.json", "report.md", "fig1_path.png", "ratio_di
 def _num(value: float | None, spec: str = ".6g") -> str:
     """A number for the report, or "-" where JSON has null (infinite, diverged, not computed)."""
     return "-" if value is None else format(value, spec)
+
+
+def _bound(value: float | None, side: str) -> str:
+    """A proved bound for the report, rounded outward (``side`` "up" or "down"), or "-"."""
+    if value is None:
+        return "-"
+    return upper_text(value) if side == "up" else lower_text(value)
 
 
 def _nums(values: Any, spec: str = ".4g") -> str:
@@ -103,18 +110,19 @@ def render_markdown(rep: VerifyReport) -> str:
         lines += ["", f"Delta in the Monte Carlo: {d['options']['delta']}."]
     lines += ["", "## Numbers", ""]
     mc = d["mc"] or {}
-    rows = [
-        ("certified robust gamma (Lemma 4.1)", d["gamma_certified"]),
-        ("certified nominal gamma (Theorem 3.2)", d["gamma_nominal_certified"]),
+    up, down = "up", "down"  # proved bounds rounded outward (ftc_verify.claimtext)
+    rows: list[tuple[str, Any] | tuple[str, Any, str]] = [
+        ("certified robust gamma (Lemma 4.1)", d["gamma_certified"], up),
+        ("certified nominal gamma (Theorem 3.2)", d["gamma_nominal_certified"], up),
         ("spectral abscissa (float estimate, worst rate vertex or witness)", d["spectral_abscissa"]),
         ("exact E||y||^2/||w||^2, worst case over beta vertices and Delta", d["exact_energy_ratio"]),
-        ("proved lower bound of the robust gain", (d["gamma_lower_bound"] or {}).get("value")),
+        ("proved lower bound of the robust gain", (d["gamma_lower_bound"] or {}).get("value"), down),
         ("Monte Carlo mean ratio (FMU)", mc.get("mean_ratio")),
         ("Monte Carlo one-sided upper bound (alpha 1e-6)", mc.get("upper_bound")),
         ("Monte Carlo paths", mc.get("paths")),
     ]
     lines += ["| quantity | value |", "|---|---|"]
-    lines += [table_row(k, _num(v)) for k, v in rows]
+    lines += [table_row(row[0], _bound(row[1], row[2]) if len(row) == 3 else _num(row[1])) for row in rows]
     failure = d.get("plant_failure")
     if failure:
         lines += ["", "## The plant FMU failed", "",
