@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import ctypes
 import hashlib
-import importlib.util
 import itertools
 import math
 import os
@@ -53,8 +52,9 @@ from xml.etree import ElementTree as ET
 from .. import __version__
 from ..errors import FMUError, ValidationError
 from .model_description import add_description_elements
-from .build import (CFLAGS, FMI2_HEADERS, binary_platform, build_lock, cache_dir, compiler_identity, file_hash,
-                    find_gcc, fmi2_include_dir, is_cached, link_flags, record_hash, run_compiler, write_zip)
+from .build import (CFLAGS, COMMON_FILES, FMI2_HEADERS, binary_platform, build_lock, cache_dir, common_source_dir,
+                    compiler_identity, file_hash, find_gcc, fmi2_include_dir, fmu_destination, fmus_folder, hash_files,
+                    is_cached, link_flags, record_hash, run_compiler, source_members, write_zip)
 
 __all__ = ["DEFAULT_RTOL", "GLUE_FILES", "VARIABLE_GROUPS", "OdeVariable", "OdeFmuSpec", "ode_source_dir",
            "ode_spec_header", "ode_model_description", "value_reference_groups", "add_description_basics", "build_ode_binary", "compile_ode_binary", "build_ode_fmu",
@@ -199,23 +199,18 @@ def ode_source_dir() -> Path:
     package data ``ftc_verify._fmus`` (the way
     :func:`~ftc_verify.plants.linear_jump.source_dir` finds its sources).
     """
-    candidates = [Path(__file__).resolve().parents[2] / "fmus" / "ode"]
-    try:
-        found = importlib.util.find_spec("ftc_verify._fmus")
-    except (ImportError, ValueError):
-        found = None
-    if found is not None and found.submodule_search_locations:
-        candidates += [Path(p) / "ode" for p in found.submodule_search_locations]
-    for path in candidates:
-        if all((path / name).is_file() for name in GLUE_FILES):
-            return path
-    raise FMUError(f"{candidates[0]}: C sources of the ODE FMU glue ({', '.join(GLUE_FILES)}) not found")
+    found, first = fmus_folder("ode", GLUE_FILES)
+    if found is None:
+        raise FMUError(f"{first}: C sources of the ODE FMU glue ({', '.join(GLUE_FILES)}) not found")
+    return found
 
 
 def _guid(spec: OdeFmuSpec, src: Path) -> str:
     h = hashlib.sha256(f"ftc-verify ode fmu {_LAYOUT_VERSION}\0{spec!r}\0".encode())
     for name in GLUE_FILES:
         h.update((src / name).read_bytes())
+    for name in COMMON_FILES:
+        h.update((common_source_dir(src) / name).read_bytes())
     return "{" + str(uuid.UUID(hex=h.hexdigest()[:32], version=5)) + "}"
 
 
@@ -411,16 +406,16 @@ def compile_ode_binary(spec: OdeFmuSpec, guid: str, *, force: bool, hash_tag: st
     compiler; compiled from the model and ``glue_source`` and checked by
     ``probe(lib, spec, guid)`` under the build lock."""
     src = ode_source_dir()
+    common = common_source_dir(src)
     header = ode_spec_header(spec, guid)
     include = fmi2_include_dir()
     gcc = find_gcc(src)
     _, suffix = binary_platform()
     h = hashlib.sha256(f"ftc-verify {hash_tag} {_LAYOUT_VERSION}\0".encode())
-    for name in glue_files:
-        h.update(name.encode() + b"\0" + (src / name).read_bytes() + b"\0")
+    hash_files(h, src, glue_files)
+    hash_files(h, common, COMMON_FILES)
     h.update(header.encode() + b"\0" + spec.c_source.encode() + b"\0")
-    for name in headers:
-        h.update(name.encode() + b"\0" + (include / name).read_bytes() + b"\0")
+    hash_files(h, include, headers)
     h.update(" ".join(CFLAGS + link_flags()).encode() + b"\0" + compiler_identity(gcc).encode())
     target = cache_dir() / f"{stem}-{h.hexdigest()[:20]}{suffix}"
     with build_lock(target):
@@ -432,7 +427,7 @@ def compile_ode_binary(spec: OdeFmuSpec, guid: str, *, force: bool, hash_tag: st
             model = tmp / f"{spec.model_name}.c"
             model.write_text(spec.c_source, encoding="utf-8")
             lib = tmp / f"{spec.model_name}{suffix}"
-            _compile(gcc, spec, [model, src / glue_source], [tmp, src, include], lib)
+            _compile(gcc, spec, [model, src / glue_source], [tmp, src, common, include], lib)
             probe(lib, spec, guid)
             os.chmod(lib, 0o755)
             record_hash(target, file_hash(lib))
@@ -488,13 +483,8 @@ def package_ode_fmu(spec: OdeFmuSpec, *, guid: str, binary: Path, platform: str,
         ("sources/ode_spec.h", ode_spec_header(spec, guid).encode(), 0o644),
         (f"sources/{spec.model_name}.c", spec.c_source.encode(), 0o644),
     ]
-    members += [(f"sources/{name}", (src / name).read_bytes(), 0o644) for name in glue_files]
-    if dest is None:
-        path = cache_dir() / f"{cache_stem}.fmu"
-    else:
-        path = Path(dest)
-        if path.is_dir():
-            path = path / f"{spec.model_name}.fmu"
+    members += source_members(src, glue_files) + source_members(common_source_dir(src), COMMON_FILES)
+    path = fmu_destination(dest, cache_dir() / f"{cache_stem}.fmu", spec.model_name)
     write_zip(path, members)
     return path
 

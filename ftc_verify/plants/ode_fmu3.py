@@ -20,7 +20,7 @@ from xml.etree import ElementTree as ET
 
 from .. import __version__
 from ..errors import FMUError, ValidationError
-from .build import FMI2_HEADERS, fmi2_include_dir
+from .build import COMMON_FILES, FMI2_HEADERS, common_source_dir, fmi2_include_dir
 from .ode_fmu import (GLUE_FILES, OdeFmuSpec, add_description_basics, compile_ode_binary, ode_source_dir,
                       package_ode_fmu, value_reference_groups)
 
@@ -37,6 +37,8 @@ def _guid3(spec: OdeFmuSpec, src: Path) -> str:
     h = hashlib.sha256(f"ftc-verify ode fmu3 {_LAYOUT_VERSION}\0{spec!r}\0".encode())
     for name in GLUE3_FILES:
         h.update((src / name).read_bytes())
+    for name in COMMON_FILES:
+        h.update((common_source_dir(src) / name).read_bytes())
     return "{" + str(uuid.UUID(hex=h.hexdigest()[:32], version=5)) + "}"
 
 
