@@ -37,11 +37,20 @@ typedef struct {
 } Instance;
 
 /* The glue shared with the other FMUs (../common/fmi2_common.h): logging, FAIL and the
- * CHECK_* macros, version, debug logging, the status functions. */
+ * CHECK_* macros, version, debug logging, the status functions, freeing and serializing
+ * FMU states. */
 #define FMI2_COMMON_MODEL_NAME "LinearJumpPlant"
 #define FMI2_COMMON_PHASE(c) ((c)->phase)
 #define FMI2_COMMON_LAST_TIME(c) ((c)->model.time)
 #define FMI2_COMMON_INTERPOLATE_NOTE "; inputs are held constant over a step"
+/* An FMU state: its serialization (below) behind its size. */
+typedef struct {
+    size_t size;
+    unsigned char data[];
+} StateBlob;
+#define FMI2_COMMON_STATE_SIZE(state) (((const StateBlob *)(state))->size)
+#define FMI2_COMMON_STATE_BYTES(state) (((const StateBlob *)(state))->data)
+#define FMI2_COMMON_STATE_FREE(c, p) ((c)->al.release(p))
 #include "fmi2_common.h"
 
 /* ---------------------------------------------------------------------------------------
@@ -427,11 +436,6 @@ fmi2Status fmi2SetString(fmi2Component comp, const fmi2ValueReference vr[], size
  * into an instance that uses the same system matrices (same fingerprint).
  * ------------------------------------------------------------------------------------- */
 
-typedef struct {
-    size_t size;
-    unsigned char data[];
-} StateBlob;
-
 static const char STATE_MAGIC[8] = {'L', 'J', 'P', 'S', 'T', 'A', 'T', 'E'};
 #define STATE_HEADER (8 + 4 + 4 + 8 + 9 * 4 + 4 + 4 + 8 + 8)
 
@@ -589,35 +593,6 @@ fmi2Status fmi2SetFMUstate(fmi2Component comp, fmi2FMUstate FMUstate) {
     if (!b) FAIL(c, "fmi2SetFMUstate: FMUstate is NULL");
     if (state_check(c, b->data, b->size, 1, "fmi2SetFMUstate") != fmi2OK) return fmi2Error;
     return state_apply(c, b->data);
-}
-
-fmi2Status fmi2FreeFMUstate(fmi2Component comp, fmi2FMUstate *FMUstate) {
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    if (!FMUstate) return fmi2OK;
-    if (*FMUstate) c->al.release(*FMUstate);
-    *FMUstate = NULL;
-    return fmi2OK;
-}
-
-fmi2Status fmi2SerializedFMUstateSize(fmi2Component comp, fmi2FMUstate FMUstate, size_t *size) {
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    if (!FMUstate || !size) FAIL(c, "fmi2SerializedFMUstateSize: NULL argument");
-    *size = ((StateBlob *)FMUstate)->size;
-    return fmi2OK;
-}
-
-fmi2Status fmi2SerializeFMUstate(fmi2Component comp, fmi2FMUstate FMUstate,
-                                 fmi2Byte serializedState[], size_t size) {
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    if (!FMUstate || !serializedState) FAIL(c, "fmi2SerializeFMUstate: NULL argument");
-    const StateBlob *b = (const StateBlob *)FMUstate;
-    if (size < b->size)
-        FAIL(c, "fmi2SerializeFMUstate: buffer of %zu bytes is too small (need %zu)", size, b->size);
-    memcpy(serializedState, b->data, b->size);
-    return fmi2OK;
 }
 
 fmi2Status fmi2DeSerializeFMUstate(fmi2Component comp, const fmi2Byte serializedState[],

@@ -2,8 +2,9 @@
  * The FMI 2.0 glue every FMU of ftc-verify shares: logging, the argument and phase checks,
  * the version and debug-logging functions, the checks of fmi2SetupExperiment and
  * fmi2DoStep, fmi2EnterInitializationMode, the status functions and the unsupported
- * input/output derivatives; with FMI2_COMMON_FLAT_STATE also instance creation, fmi2Reset
- * and the six FMU state functions of an instance whose whole state is one flat struct.
+ * input/output derivatives, freeing and serializing FMU states; with FMI2_COMMON_FLAT_STATE
+ * also instance creation, fmi2Reset and the other FMU state functions of an instance whose
+ * whole state is one flat struct.
  *
  * Included (once, as a part of the glue's translation unit: every function is static or
  * one of the exported fmi2* functions) by
@@ -20,16 +21,22 @@
  * and optionally:
  *   FMI2_COMMON_INTERPOLATE_NOTE    text after "canInterpolateInputs=false" in the message of
  *                                   fmi2SetRealInputDerivatives (default: none)
- *   FMI2_COMMON_FLAT_STATE          the type of the flat state, held in the instance as c->s
- *                                     (members char magic[8], uint32_t endian, char guid[64],
- *                                     phase); the glue then also defines
- *   FMI2_COMMON_GUID                its GUID (a string)
+ * and either (an FMU state of any layout, its own serialization)
+ *   FMI2_COMMON_STATE_SIZE(state)   the size in bytes of the serialization of an fmi2FMUstate
+ *   FMI2_COMMON_STATE_BYTES(state)  its first byte
+ *   FMI2_COMMON_STATE_FREE(c, p)    frees an fmi2FMUstate p of instance c
+ * or (an instance in one allocation whose whole state c->s is one flat struct)
+ *   FMI2_COMMON_FLAT_STATE          the type of c->s (members char magic[8],
+ *                                     uint32_t endian, char guid[64], phase); then also
+ *   FMI2_COMMON_GUID                the GUID (a string)
  *   FMI2_COMMON_STATE_MAGIC         the 8 bytes that start its FMU states (a char array)
- *   FMI2_COMMON_AFTER_SET_STATE(c)  what fmi2SetFMUstate does after restoring (may be empty)
- * and, before including this file, declares
+ *   FMI2_COMMON_AFTER_SET_STATE(c)  what fmi2SetFMUstate does after restoring c->s
+ * and declares before including this file
  *     static void reset_values(Instance *c);
  *     static fmi2Status state_check(Instance *c, const FMI2_COMMON_FLAT_STATE *b,
  *                                   size_t size, const char *fname);
+ * (the flat case adds instance creation helpers, fmi2FreeInstance, fmi2Reset and the other
+ * three FMU state functions).
  *
  * The FMU archives carry this file in sources/ beside the glue, so a source FMU still
  * compiles alone: cc -I <fmi2 headers> -I sources sources/<glue>.c ...
@@ -227,45 +234,68 @@ fmi2Status fmi2CancelStep(fmi2Component comp) {
     FAIL(c, "fmi2CancelStep: fmi2DoStep never returns fmi2Pending in this FMU");
 }
 
-fmi2Status fmi2GetStatus(fmi2Component comp, const fmi2StatusKind s, fmi2Status *value) {
-    (void)s, (void)value;
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    FAIL(c, "fmi2GetStatus: no asynchronous step is pending (fmi2DoStep is synchronous)");
-}
-
-fmi2Status fmi2GetRealStatus(fmi2Component comp, const fmi2StatusKind s, fmi2Real *value) {
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    if (s == fmi2LastSuccessfulTime && value) {
-        *value = FMI2_COMMON_LAST_TIME(c);
-        return fmi2OK;
+/* A status function that answers the kind KIND with VALUE and fails for every other kind
+ * (KIND -1: for every kind) with the message MSG. */
+#define STATUS_FUNCTION(NAME, CTYPE, KIND, VALUE, MSG)                                    \
+    fmi2Status NAME(fmi2Component comp, const fmi2StatusKind s, CTYPE *value) {           \
+        Instance *c = (Instance *)comp;                                                   \
+        CHECK_INSTANCE(c);                                                                \
+        if ((int)s == (KIND) && value) {                                                  \
+            *value = (VALUE);                                                             \
+            return fmi2OK;                                                                \
+        }                                                                                 \
+        FAIL(c, MSG);                                                                     \
     }
-    FAIL(c, "fmi2GetRealStatus: only fmi2LastSuccessfulTime is available");
-}
 
-fmi2Status fmi2GetIntegerStatus(fmi2Component comp, const fmi2StatusKind s, fmi2Integer *value) {
-    (void)s, (void)value;
+STATUS_FUNCTION(fmi2GetStatus, fmi2Status, -1, fmi2OK,
+                "fmi2GetStatus: no asynchronous step is pending (fmi2DoStep is synchronous)")
+STATUS_FUNCTION(fmi2GetRealStatus, fmi2Real, fmi2LastSuccessfulTime, FMI2_COMMON_LAST_TIME(c),
+                "fmi2GetRealStatus: only fmi2LastSuccessfulTime is available")
+STATUS_FUNCTION(fmi2GetIntegerStatus, fmi2Integer, -1, 0,
+                "fmi2GetIntegerStatus: no integer status is defined")
+/* the FMU never asks to terminate the simulation */
+STATUS_FUNCTION(fmi2GetBooleanStatus, fmi2Boolean, fmi2Terminated, fmi2False,
+                "fmi2GetBooleanStatus: only fmi2Terminated is available")
+STATUS_FUNCTION(fmi2GetStringStatus, fmi2String, -1, NULL,
+                "fmi2GetStringStatus: no string status is defined")
+
+/* ---------------------------------------------------------------------------------------
+ * FMU state: freeing, serializing (an FMU state is its own serialization)
+ * ------------------------------------------------------------------------------------- */
+
+#ifdef FMI2_COMMON_FLAT_STATE
+typedef FMI2_COMMON_FLAT_STATE FlatState;
+#define FMI2_COMMON_STATE_SIZE(state) sizeof(FlatState)
+#define FMI2_COMMON_STATE_BYTES(state) ((const void *)(state))
+#define FMI2_COMMON_STATE_FREE(c, p) ((c)->cb.freeMemory(p))
+#endif
+
+fmi2Status fmi2FreeFMUstate(fmi2Component comp, fmi2FMUstate *FMUstate) {
     Instance *c = (Instance *)comp;
     CHECK_INSTANCE(c);
-    FAIL(c, "fmi2GetIntegerStatus: no integer status is defined");
+    if (FMUstate && *FMUstate) FMI2_COMMON_STATE_FREE(c, *FMUstate);
+    if (FMUstate) *FMUstate = NULL;
+    return fmi2OK;
 }
 
-fmi2Status fmi2GetBooleanStatus(fmi2Component comp, const fmi2StatusKind s, fmi2Boolean *value) {
+fmi2Status fmi2SerializedFMUstateSize(fmi2Component comp, fmi2FMUstate FMUstate, size_t *size) {
     Instance *c = (Instance *)comp;
     CHECK_INSTANCE(c);
-    if (s == fmi2Terminated && value) {
-        *value = fmi2False; /* the FMU never asks to terminate the simulation */
-        return fmi2OK;
-    }
-    FAIL(c, "fmi2GetBooleanStatus: only fmi2Terminated is available");
+    if (!FMUstate || !size) FAIL(c, "fmi2SerializedFMUstateSize: NULL argument");
+    *size = FMI2_COMMON_STATE_SIZE(FMUstate);
+    return fmi2OK;
 }
 
-fmi2Status fmi2GetStringStatus(fmi2Component comp, const fmi2StatusKind s, fmi2String *value) {
-    (void)s, (void)value;
+fmi2Status fmi2SerializeFMUstate(fmi2Component comp, fmi2FMUstate FMUstate,
+                                 fmi2Byte serializedState[], size_t size) {
     Instance *c = (Instance *)comp;
     CHECK_INSTANCE(c);
-    FAIL(c, "fmi2GetStringStatus: no string status is defined");
+    if (!FMUstate || !serializedState) FAIL(c, "fmi2SerializeFMUstate: NULL argument");
+    const size_t need = FMI2_COMMON_STATE_SIZE(FMUstate);
+    if (size < need)
+        FAIL(c, "fmi2SerializeFMUstate: buffer of %zu bytes is too small (need %zu)", size, need);
+    memcpy(serializedState, FMI2_COMMON_STATE_BYTES(FMUstate), need);
+    return fmi2OK;
 }
 
 #ifdef FMI2_COMMON_FLAT_STATE
@@ -274,7 +304,6 @@ fmi2Status fmi2GetStringStatus(fmi2Component comp, const fmi2StatusKind s, fmi2S
  * serialization, in native byte order)
  * ------------------------------------------------------------------------------------- */
 
-typedef FMI2_COMMON_FLAT_STATE FlatState;
 
 /* Whether the importer gave the memory callbacks (logged when not). */
 static int callbacks_ok(const fmi2CallbackFunctions *functions, fmi2String instanceName) {
@@ -351,35 +380,6 @@ fmi2Status fmi2SetFMUstate(fmi2Component comp, fmi2FMUstate FMUstate) {
     FMI2_COMMON_AFTER_SET_STATE(c);
     return fmi2OK;
 }
-
-fmi2Status fmi2FreeFMUstate(fmi2Component comp, fmi2FMUstate *FMUstate) {
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    if (FMUstate && *FMUstate) c->cb.freeMemory(*FMUstate);
-    if (FMUstate) *FMUstate = NULL;
-    return fmi2OK;
-}
-
-fmi2Status fmi2SerializedFMUstateSize(fmi2Component comp, fmi2FMUstate FMUstate, size_t *size) {
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    if (!FMUstate || !size) FAIL(c, "fmi2SerializedFMUstateSize: NULL argument");
-    *size = sizeof(FlatState);
-    return fmi2OK;
-}
-
-fmi2Status fmi2SerializeFMUstate(fmi2Component comp, fmi2FMUstate FMUstate,
-                                 fmi2Byte serializedState[], size_t size) {
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    if (!FMUstate || !serializedState) FAIL(c, "fmi2SerializeFMUstate: NULL argument");
-    if (size < sizeof(FlatState))
-        FAIL(c, "fmi2SerializeFMUstate: buffer of %zu bytes is too small (need %zu)", size,
-             sizeof(FlatState));
-    memcpy(serializedState, FMUstate, sizeof(FlatState));
-    return fmi2OK;
-}
-
 fmi2Status fmi2DeSerializeFMUstate(fmi2Component comp, const fmi2Byte serializedState[],
                                    size_t size, fmi2FMUstate *FMUstate) {
     Instance *c = (Instance *)comp;
