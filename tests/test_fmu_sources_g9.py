@@ -11,6 +11,7 @@ shared functions are those each FMU had before (one per FMU, read through the FM
 from __future__ import annotations
 
 import ctypes
+import dataclasses
 import shutil
 import subprocess
 import zipfile
@@ -23,6 +24,7 @@ import ftc_verify.export.controller_fmu as controller_fmu
 import ftc_verify.plants.ode_fmu as ode_fmu
 import ftc_verify.plants.ode_fmu3 as ode_fmu3
 from ftc_verify.controllers.files import load_controller
+from ftc_verify.errors import FMUError
 from ftc_verify.export.ccode import controller_c_source, controller_tables
 from ftc_verify.model.files import load_system
 from ftc_verify.plants.build import CFLAGS, COMMON_FILES, common_source_dir, fmi2_include_dir, link_flags
@@ -215,3 +217,11 @@ def test_shared_functions_answer_as_before(kind: str, fmus: dict[str, Path], tmp
         "fmi2SetupExperiment: startTime nan is not finite",
         "fmi2EnterInitializationMode must not be called in Initialization Mode",
     ]
+
+
+@pytest.mark.parametrize("build", [ode_fmu.build_ode_binary, ode_fmu3.build_ode_binary3])
+def test_the_probe_of_either_fmi_version_names_the_mismatch(build: Callable[..., Path]) -> None:
+    spec = dataclasses.replace(ode_fmu.motor_spec(), model_name="MismatchG9", states=(ode_fmu.OdeVariable("omega"),))
+    with pytest.raises(FMUError, match=r"^MismatchG9\.c: the model file does not match its OdeFmuSpec: .*"
+                                       r"ODE_NX \(states\) = 2 but the FMU spec has 1"):
+        build(spec)

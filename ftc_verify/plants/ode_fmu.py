@@ -58,7 +58,7 @@ from .build import (CFLAGS, COMMON_FILES, FMI2_HEADERS, binary_platform, build_l
 
 __all__ = ["DEFAULT_RTOL", "GLUE_FILES", "VARIABLE_GROUPS", "OdeVariable", "OdeFmuSpec", "ode_source_dir",
            "ode_spec_header", "ode_model_description", "value_reference_groups", "add_description_basics", "build_ode_binary", "compile_ode_binary", "build_ode_fmu",
-           "package_ode_fmu",
+           "package_ode_fmu", "probe_binary",
            "motor_spec"]
 
 #: Relative tolerance of ``fmi2DoStep`` when ``fmi2SetupExperiment`` defines none.
@@ -343,10 +343,34 @@ def _compile(gcc: str, spec: OdeFmuSpec, sources: list[Path], includes: list[Pat
         )
 
 
+def probe_binary(lib: Path, spec: OdeFmuSpec, *, what: str, call: str, argtypes: list[Any], args: tuple[Any, ...],
+                 free: str, messages: list[str]) -> None:
+    """Load the fresh binary ``lib`` (``what``: how messages name it), create one instance by
+    ``dll.<call>(*args)`` and free it by ``dll.<free>``. The glue then compares ``ODE_NX``,
+    ``ODE_NU``, ``ODE_NP``, ``ODE_NY`` and ``ODE_HAS_JACOBIAN`` of the model file with the
+    spec; when no instance is created, :class:`FMUError` carries the glue's ``messages``
+    (collected by the caller's logger)."""
+    from fmpy import freeLibrary
+
+    try:
+        dll = ctypes.CDLL(str(lib))
+    except OSError as exc:
+        raise FMUError(f"{lib}: cannot load the compiled {what} binary: {exc}") from None
+    try:
+        create, release = getattr(dll, call), getattr(dll, free)
+        create.restype, create.argtypes, release.argtypes = ctypes.c_void_p, argtypes, [ctypes.c_void_p]
+        comp = create(*args)
+        if not comp:
+            raise FMUError(f"{spec.model_name}.c: the model file does not match its OdeFmuSpec: "
+                           + ("; ".join(messages) or f"{call} failed"))
+        release(comp)
+    finally:
+        freeLibrary(dll._handle)
+
+
 def _probe(lib: Path, spec: OdeFmuSpec, guid: str) -> None:
-    """Instantiate the fresh binary once: the glue then compares ``ODE_NX``, ``ODE_NU``,
-    ``ODE_NP``, ``ODE_NY`` and ``ODE_HAS_JACOBIAN`` of the model file with the spec."""
-    from fmpy import calloc, free, freeLibrary
+    """Instantiate the fresh binary once (:func:`probe_binary`, FMI 2.0 Co-Simulation)."""
+    from fmpy import calloc, free
     from fmpy.fmi2 import (fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE, fmi2CallbackFunctions,
                            fmi2CallbackLoggerTYPE)
 
@@ -359,22 +383,11 @@ def _probe(lib: Path, spec: OdeFmuSpec, guid: str) -> None:
     cb.logger = fmi2CallbackLoggerTYPE(logger)
     cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
     cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-    try:
-        dll = ctypes.CDLL(str(lib))
-    except OSError as exc:
-        raise FMUError(f"{lib}: cannot load the compiled ODE FMU binary: {exc}") from None
-    try:
-        dll.fmi2Instantiate.restype = ctypes.c_void_p
-        dll.fmi2Instantiate.argtypes = [ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_char_p,
-                                        ctypes.POINTER(fmi2CallbackFunctions), ctypes.c_int, ctypes.c_int]
-        dll.fmi2FreeInstance.argtypes = [ctypes.c_void_p]
-        comp = dll.fmi2Instantiate(b"probe", 0, guid.encode(), b"", ctypes.byref(cb), 0, 0)
-        if not comp:
-            raise FMUError(f"{spec.model_name}.c: the model file does not match its OdeFmuSpec: "
-                           + ("; ".join(messages) or "fmi2Instantiate failed"))
-        dll.fmi2FreeInstance(comp)
-    finally:
-        freeLibrary(dll._handle)
+    probe_binary(lib, spec, what="ODE FMU", call="fmi2Instantiate",
+                 argtypes=[ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_char_p,
+                           ctypes.POINTER(fmi2CallbackFunctions), ctypes.c_int, ctypes.c_int],
+                 args=(b"probe", 0, guid.encode(), b"", ctypes.byref(cb), 0, 0), free="fmi2FreeInstance",
+                 messages=messages)
 
 
 def build_ode_binary(spec: OdeFmuSpec, force: bool = False) -> Path:
