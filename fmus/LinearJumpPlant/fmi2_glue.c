@@ -268,14 +268,6 @@ fmi2Status fmi2ExitInitializationMode(fmi2Component comp) {
     return fmi2OK;
 }
 
-fmi2Status fmi2Terminate(fmi2Component comp) {
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    CHECK_PHASE(c, M_INIT | M_STEP | M_TERM | M_ERR, "fmi2Terminate");
-    c->phase = PH_TERM;
-    return fmi2OK;
-}
-
 fmi2Status fmi2Reset(fmi2Component comp) {
     Instance *c = (Instance *)comp;
     CHECK_INSTANCE(c);

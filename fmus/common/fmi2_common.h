@@ -1,7 +1,7 @@
 /*
  * The FMI 2.0 glue every FMU of ftc-verify shares: logging, the argument and phase checks,
  * the version and debug-logging functions, the checks of fmi2SetupExperiment and
- * fmi2DoStep, fmi2EnterInitializationMode, the status functions and the unsupported
+ * fmi2DoStep, fmi2EnterInitializationMode, fmi2Terminate, the status functions and the unsupported
  * input/output derivatives, freeing and serializing FMU states; with FMI2_COMMON_FLAT_STATE
  * also instance creation, fmi2Reset and the other FMU state functions of an instance whose
  * whole state is one flat struct.
@@ -21,6 +21,8 @@
  * and optionally:
  *   FMI2_COMMON_INTERPOLATE_NOTE    text after "canInterpolateInputs=false" in the message of
  *                                   fmi2SetRealInputDerivatives (default: none)
+ *   FMI2_COMMON_TERMINATE_PHASES    the phases fmi2Terminate may be called in (a mask of
+ *                                   M_* bits; default: every phase but Instantiated)
  * and either (an FMU state of any layout, its own serialization)
  *   FMI2_COMMON_STATE_SIZE(state)   the size in bytes of the serialization of an fmi2FMUstate
  *   FMI2_COMMON_STATE_BYTES(state)  its first byte
@@ -55,6 +57,9 @@
 
 #ifndef FMI2_COMMON_INTERPOLATE_NOTE
 #define FMI2_COMMON_INTERPOLATE_NOTE ""
+#endif
+#ifndef FMI2_COMMON_TERMINATE_PHASES
+#define FMI2_COMMON_TERMINATE_PHASES (~M_INST) /* every phase but Instantiated */
 #endif
 
 enum { LOG_EVENTS = 1, LOG_WARNING = 2, LOG_ERROR = 4, LOG_ALL = 7 };
@@ -189,6 +194,14 @@ fmi2Status fmi2EnterInitializationMode(fmi2Component comp) {
     CHECK_INSTANCE(c);
     CHECK_PHASE(c, M_INST, "fmi2EnterInitializationMode");
     FMI2_COMMON_PHASE(c) = PH_INIT;
+    return fmi2OK;
+}
+
+fmi2Status fmi2Terminate(fmi2Component comp) {
+    Instance *c = (Instance *)comp;
+    CHECK_INSTANCE(c);
+    CHECK_PHASE(c, FMI2_COMMON_TERMINATE_PHASES, "fmi2Terminate");
+    FMI2_COMMON_PHASE(c) = PH_TERM;
     return fmi2OK;
 }
 

@@ -70,6 +70,7 @@ static fmi2Status state_check(Instance *c, const CtrlState *b, size_t size, cons
 #define FMI2_COMMON_GUID CTRL_GUID
 #define FMI2_COMMON_STATE_MAGIC STATE_MAGIC
 #define FMI2_COMMON_AFTER_SET_STATE(c) ((void)(c))
+#define FMI2_COMMON_TERMINATE_PHASES (~0u) /* in any phase */
 #include "fmi2_common.h"
 
 #define M_SETTABLE (M_INST | M_INIT | M_STEP)
@@ -119,13 +120,6 @@ fmi2Status fmi2ExitInitializationMode(fmi2Component comp) {
     CHECK_INSTANCE(c);
     CHECK_PHASE(c, M_INIT, "fmi2ExitInitializationMode");
     c->s.phase = PH_STEP;
-    return fmi2OK;
-}
-
-fmi2Status fmi2Terminate(fmi2Component comp) {
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    c->s.phase = PH_TERM;
     return fmi2OK;
 }
 

@@ -3,8 +3,10 @@ r"""Co-simulation FMUs (FMI 2.0 and 3.0, source code and a binary) of an FDI-swi
 The controller of :mod:`ftc_verify.export.ccode` -- per FDI mode :math:`l`,
 :math:`u_k = C_{c,l} x_{c,k} + D_{c,l} v_k`, :math:`x_{c,k+1} = \Phi_{c,l} x_{c,k} +
 \Gamma_{c,l} v_k` with the sampled matrices of period :math:`h` -- behind the FMI
-glue ``fmus/controller/ctrl_glue.c`` (FMI 2.0 Co-Simulation) or ``ctrl_glue3.c`` (FMI 3.0:
-the ODE FMUs' FMI 3.0 glue ``fmus/ode/ode_glue3.c`` around the FMI 2.0 glue). Built with
+glue ``fmus/controller/ctrl_glue.c`` (FMI 2.0 Co-Simulation; with the FMI 2.0 glue every
+FMU shares, ``fmus/common/fmi2_common.h``) or ``ctrl_glue3.c`` (FMI 3.0: the ODE FMUs' FMI
+3.0 glue ``fmus/ode/ode_glue3.c`` around the FMI 2.0 glue). Every file compiled in travels in
+the archive's ``sources/`` and enters the GUID. Built with
 the package's toolchain (:mod:`ftc_verify.plants.build`: gcc, the FMI headers of fmpy,
 the flags, the atomic reproducible archive) and the model-description elements of the ODE
 FMUs (:func:`~ftc_verify.plants.model_description.add_description_elements`).

@@ -9,8 +9,8 @@ mode ``r`` (an Integer input), with the uncertainties as inputs::
 (zero-order hold) via the matrix exponential of an augmented matrix; see
 ``fmus/README.md`` for the variables, the resource format and the error bound.
 
-One compiled binary serves every system: the C sources in ``fmus/LinearJumpPlant`` are
-compiled once with gcc into a cache folder (``$FTC_VERIFY_CACHE/fmus``, default
+One compiled binary serves every system: the C sources in ``fmus/LinearJumpPlant`` (and
+the FMI 2.0 glue every FMU shares, ``fmus/common/fmi2_common.h``) are compiled once with gcc into a cache folder (``$FTC_VERIFY_CACHE/fmus``, default
 ``~/.cache/ftc-verify/fmus``; the file name carries a hash of the sources, the FMI headers,
 the compiler flags and the compiler version, so a stale binary is never reused; the
 toolchain is :mod:`ftc_verify.plants.build`), and

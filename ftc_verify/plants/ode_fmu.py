@@ -8,7 +8,8 @@ The model
 
 with states :math:`x`, Real inputs :math:`u`, Real parameters :math:`p` and Real outputs
 :math:`y` is one C file (contract and value-reference layout: ``fmus/ode/ode_model.h``)
-compiled together with the generic glue ``fmus/ode/ode_glue.c`` and a header
+compiled together with the generic glue ``fmus/ode/ode_glue.c`` (which includes the FMI 2.0
+glue every FMU of the package shares, ``fmus/common/fmi2_common.h``) and a header
 ``ode_spec.h`` generated from an :class:`OdeFmuSpec` (names, start values, GUID,
 ``ODE_SPEC_HAS_JACOBIAN``). Value references are consecutive from 1: states, their
 derivatives ``der(x)``, inputs, parameters, outputs.
@@ -29,7 +30,7 @@ Model Exchange leaves integration to the importer. With ``has_jacobian`` the mod
 Jacobians serve ``fmi2GetDirectionalDerivative``.
 
 The binary is cached in :func:`~ftc_verify.plants.build.cache_dir` under a name
-carrying the SHA-256 of the glue, the model source, the generated header, the FMI headers,
+carrying the SHA-256 of the glue (the shared file included), the model source, the generated header, the FMI headers,
 the compiler flags and the compiler's identity, and is checked once after compiling by
 instantiating it (the model's ``ODE_NX``.. and ``ODE_HAS_JACOBIAN`` must match the spec).
 """
@@ -58,7 +59,7 @@ from .build import (CFLAGS, COMMON_FILES, FMI2_HEADERS, binary_platform, build_l
 
 __all__ = ["DEFAULT_RTOL", "GLUE_FILES", "VARIABLE_GROUPS", "OdeVariable", "OdeFmuSpec", "ode_source_dir",
            "ode_spec_header", "ode_model_description", "value_reference_groups", "add_description_basics", "build_ode_binary", "compile_ode_binary", "build_ode_fmu",
-           "package_ode_fmu", "probe_binary",
+           "package_ode_fmu", "probe_binary", "spec_guid",
            "motor_spec"]
 
 #: Relative tolerance of ``fmi2DoStep`` when ``fmi2SetupExperiment`` defines none.
@@ -205,13 +206,16 @@ def ode_source_dir() -> Path:
     return found
 
 
-def _guid(spec: OdeFmuSpec, src: Path) -> str:
-    h = hashlib.sha256(f"ftc-verify ode fmu {_LAYOUT_VERSION}\0{spec!r}\0".encode())
-    for name in GLUE_FILES:
+def spec_guid(tag: str, spec: OdeFmuSpec, src: Path, glue_files: tuple[str, ...]) -> str:
+    """The GUID of an ODE FMU of either FMI version: a UUID from the SHA-256 of ``tag``, the
+    spec, the ``glue_files`` of ``src`` and the shared glue (:data:`~ftc_verify.plants.build.COMMON_FILES`)."""
+    h = hashlib.sha256(f"ftc-verify {tag}\0{spec!r}\0".encode())
+    for name in glue_files:
         h.update((src / name).read_bytes())
     for name in COMMON_FILES:
         h.update((common_source_dir(src) / name).read_bytes())
     return "{" + str(uuid.UUID(hex=h.hexdigest()[:32], version=5)) + "}"
+
 
 
 def ode_spec_header(spec: OdeFmuSpec, guid: str) -> str:
@@ -404,7 +408,7 @@ def build_ode_binary(spec: OdeFmuSpec, force: bool = False) -> Path:
     if not isinstance(spec, OdeFmuSpec):
         raise ValidationError(f"build_ode_binary: expected an OdeFmuSpec, got {type(spec).__name__}")
     src = ode_source_dir()
-    guid = _guid(spec, src)
+    guid = spec_guid(f"ode fmu {_LAYOUT_VERSION}", spec, src, GLUE_FILES)
     return compile_ode_binary(spec, guid, force=force, hash_tag="ode binary", stem=spec.model_name,
                               glue_files=GLUE_FILES, glue_source="ode_glue.c", headers=FMI2_HEADERS,
                               probe=_probe)
@@ -476,7 +480,7 @@ def build_ode_fmu(spec: OdeFmuSpec, dest: Path | None = None, *, fmi_version: st
         raise ValidationError(f"build_ode_fmu: fmi_version must be \"2.0\" or \"3.0\", got {fmi_version!r}")
     binary = build_ode_binary(spec)
     src = ode_source_dir()
-    guid = _guid(spec, src)
+    guid = spec_guid(f"ode fmu {_LAYOUT_VERSION}", spec, src, GLUE_FILES)
     return package_ode_fmu(spec, guid=guid, binary=binary, platform=binary_platform()[0],
                            model_description=ode_model_description(spec, guid), glue_files=GLUE_FILES,
                            dest=dest, cache_stem=f"{spec.model_name}-{guid[1:13]}")

@@ -13,16 +13,15 @@ Only Co-Simulation is served.
 from __future__ import annotations
 
 import ctypes
-import hashlib
-import uuid
 from pathlib import Path
 from xml.etree import ElementTree as ET
 
 from .. import __version__
 from ..errors import FMUError, ValidationError
-from .build import COMMON_FILES, FMI2_HEADERS, common_source_dir, fmi2_include_dir
+from .build import FMI2_HEADERS, fmi2_include_dir
 from .ode_fmu import (GLUE_FILES, OdeFmuSpec, add_description_basics, compile_ode_binary, ode_source_dir,
-                      package_ode_fmu, probe_binary, value_reference_groups)
+                      package_ode_fmu, probe_binary, spec_guid,
+                      value_reference_groups)
 
 __all__ = ["GLUE3_FILES", "FMI3_HEADERS", "ode_model_description3", "build_ode_binary3", "build_ode_fmu3"]
 
@@ -34,12 +33,7 @@ _LAYOUT_VERSION = "1"
 
 
 def _guid3(spec: OdeFmuSpec, src: Path) -> str:
-    h = hashlib.sha256(f"ftc-verify ode fmu3 {_LAYOUT_VERSION}\0{spec!r}\0".encode())
-    for name in GLUE3_FILES:
-        h.update((src / name).read_bytes())
-    for name in COMMON_FILES:
-        h.update((common_source_dir(src) / name).read_bytes())
-    return "{" + str(uuid.UUID(hex=h.hexdigest()[:32], version=5)) + "}"
+    return spec_guid(f"ode fmu3 {_LAYOUT_VERSION}", spec, src, GLUE3_FILES)
 
 
 def _variables(spec: OdeFmuSpec) -> list[dict[str, str]]:
