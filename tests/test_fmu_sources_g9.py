@@ -70,10 +70,21 @@ def cache(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
         yield root
 
 
+class Built(dict[str, Path]):
+    """The FMU of each kind, built on first use (so that no one test pays for all five)."""
+
+    def __init__(self, folder: Path) -> None:
+        super().__init__()
+        self.folder = folder
+
+    def __missing__(self, kind: str) -> Path:
+        self[kind] = BUILDERS[kind](self.folder)
+        return self[kind]
+
+
 @pytest.fixture(scope="module")
-def fmus(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    folder = tmp_path_factory.mktemp("g9-fmus")
-    return {kind: build(folder) for kind, build in BUILDERS.items()}
+def fmus(tmp_path_factory: pytest.TempPathFactory) -> Built:
+    return Built(tmp_path_factory.mktemp("g9-fmus"))
 
 
 def _exports(lib: Path) -> set[str]:
