@@ -15,23 +15,15 @@
 #include "fmi2Functions.h"
 #include "model.h"
 
-typedef enum {
-    PHASE_INSTANTIATED = 0,
-    PHASE_INIT = 1,
-    PHASE_STEP = 2,
-    PHASE_TERMINATED = 3,
-    PHASE_ERROR = 4
-} Phase;
+typedef enum { PH_INST = 0, PH_INIT = 1, PH_STEP = 2, PH_TERM = 3, PH_ERROR = 4 } Phase;
 
 static const char *PHASE_NAMES[] = {"Instantiated", "Initialization Mode", "Step Mode",
                                     "Terminated", "Error"};
 
-enum { LOG_EVENTS = 1, LOG_WARNING = 2, LOG_ERROR = 4, LOG_ALL = 7 };
-
 typedef struct {
     fmi2CallbackFunctions cb;
     LJP_Allocator al;
-    char *instance_name;
+    char *name;          /* the instance name */
     char *resource_file; /* <resources>/system.txt */
     char *system_file;   /* value of the String parameter systemFile ("" when unset) */
     int logging_on;
@@ -44,8 +36,25 @@ typedef struct {
     LJP_Model model;
 } Instance;
 
+/* The glue shared with the other FMUs (../common/fmi2_common.h): logging, FAIL and the
+ * CHECK_* macros, version, debug logging, the status functions, freeing and serializing
+ * FMU states. */
+#define FMI2_COMMON_MODEL_NAME "LinearJumpPlant"
+#define FMI2_COMMON_PHASE(c) ((c)->phase)
+#define FMI2_COMMON_LAST_TIME(c) ((c)->model.time)
+#define FMI2_COMMON_INTERPOLATE_NOTE "; inputs are held constant over a step"
+/* An FMU state: its serialization (below) behind its size. */
+typedef struct {
+    size_t size;
+    unsigned char data[];
+} StateBlob;
+#define FMI2_COMMON_STATE_SIZE(state) (((const StateBlob *)(state))->size)
+#define FMI2_COMMON_STATE_BYTES(state) (((const StateBlob *)(state))->data)
+#define FMI2_COMMON_STATE_FREE(c, p) ((c)->al.release(p))
+#include "fmi2_common.h"
+
 /* ---------------------------------------------------------------------------------------
- * Memory and logging
+ * Memory
  * ------------------------------------------------------------------------------------- */
 
 static void *std_calloc(size_t nobj, size_t size) { return calloc(nobj, size); }
@@ -58,63 +67,6 @@ static char *dup_string(const LJP_Allocator *al, const char *s) {
     if (d) memcpy(d, s, len + 1);
     return d;
 }
-
-/* The logger formats its message like printf: double every '%'. */
-static void emit(const fmi2CallbackFunctions *cb, const char *instance_name, fmi2Status status,
-                 const char *category, const char *msg) {
-    if (!cb || !cb->logger) return;
-    char esc[4096];
-    size_t k = 0;
-    for (const char *p = msg; *p && k + 2 < sizeof esc; p++) {
-        if (*p == '%') esc[k++] = '%';
-        esc[k++] = *p;
-    }
-    esc[k] = '\0';
-    cb->logger(cb->componentEnvironment, instance_name ? instance_name : "LinearJumpPlant",
-               status, category, esc);
-}
-
-static void logf_(Instance *c, fmi2Status status, const char *fmt, ...) {
-    const char *category;
-    unsigned bit;
-    switch (status) {
-    case fmi2OK: category = "logEvents"; bit = LOG_EVENTS; break;
-    case fmi2Warning: category = "logStatusWarning"; bit = LOG_WARNING; break;
-    default: category = "logStatusError"; bit = LOG_ERROR; break;
-    }
-    /* errors and warnings are always reported, information only when logging is on */
-    if (status == fmi2OK && !(c->logging_on && (c->log_categories & bit))) return;
-    char msg[2048];
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(msg, sizeof msg, fmt, ap);
-    va_end(ap);
-    emit(&c->cb, c->instance_name, status, category, msg);
-}
-
-#define FAIL(c, ...)                                                                      \
-    do {                                                                                  \
-        logf_((c), fmi2Error, __VA_ARGS__);                                               \
-        return fmi2Error;                                                                 \
-    } while (0)
-
-static int phase_in(const Instance *c, unsigned mask) { return (mask >> c->phase) & 1u; }
-#define M_INST (1u << PHASE_INSTANTIATED)
-#define M_INIT (1u << PHASE_INIT)
-#define M_STEP (1u << PHASE_STEP)
-#define M_TERM (1u << PHASE_TERMINATED)
-#define M_ERR (1u << PHASE_ERROR)
-
-#define CHECK_INSTANCE(c)                                                                 \
-    do {                                                                                  \
-        if (!(c)) return fmi2Error;                                                       \
-    } while (0)
-
-#define CHECK_PHASE(c, mask, fname)                                                       \
-    do {                                                                                  \
-        if (!phase_in((c), (mask)))                                                       \
-            FAIL((c), "%s must not be called in %s", (fname), PHASE_NAMES[(c)->phase]);    \
-    } while (0)
 
 /* ---------------------------------------------------------------------------------------
  * Paths
@@ -165,37 +117,6 @@ static char *location_to_path(const LJP_Allocator *al, const char *loc, const ch
 }
 
 /* ---------------------------------------------------------------------------------------
- * Inquire version numbers and set logging status
- * ------------------------------------------------------------------------------------- */
-
-const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
-
-const char *fmi2GetVersion(void) { return fmi2Version; }
-
-fmi2Status fmi2SetDebugLogging(fmi2Component comp, fmi2Boolean loggingOn, size_t nCategories,
-                               const fmi2String categories[]) {
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    c->logging_on = loggingOn ? 1 : 0;
-    if (nCategories == 0) {
-        c->log_categories = LOG_ALL;
-        return fmi2OK;
-    }
-    if (!categories) FAIL(c, "fmi2SetDebugLogging: categories is NULL");
-    unsigned mask = 0;
-    for (size_t i = 0; i < nCategories; i++) {
-        const char *cat = categories[i] ? categories[i] : "";
-        if (strcmp(cat, "logEvents") == 0) mask |= LOG_EVENTS;
-        else if (strcmp(cat, "logStatusWarning") == 0) mask |= LOG_WARNING;
-        else if (strcmp(cat, "logStatusError") == 0) mask |= LOG_ERROR;
-        else if (strcmp(cat, "logAll") == 0) mask |= LOG_ALL;
-        else FAIL(c, "fmi2SetDebugLogging: unknown log category '%s'", cat);
-    }
-    c->log_categories = mask;
-    return fmi2OK;
-}
-
-/* ---------------------------------------------------------------------------------------
  * Creation and destruction of instances
  * ------------------------------------------------------------------------------------- */
 
@@ -205,7 +126,7 @@ static void free_instance(Instance *c) {
     ljp_model_free(&c->model);
     ljp_system_free(&al, &c->res_sys);
     if (c->have_file_sys) ljp_system_free(&al, &c->file_sys);
-    if (c->instance_name) al.release(c->instance_name);
+    if (c->name) al.release(c->name);
     if (c->resource_file) al.release(c->resource_file);
     if (c->system_file) al.release(c->system_file);
     al.release(c);
@@ -240,11 +161,11 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     c->al = al;
     c->logging_on = loggingOn ? 1 : 0;
     c->log_categories = LOG_ALL;
-    c->phase = PHASE_INSTANTIATED;
-    c->instance_name = dup_string(&al, instanceName ? instanceName : "LinearJumpPlant");
+    c->phase = PH_INST;
+    c->name = dup_string(&al, instanceName ? instanceName : "LinearJumpPlant");
     c->system_file = dup_string(&al, "");
     c->resource_file = location_to_path(&al, fmuResourceLocation, "system.txt");
-    if (!c->instance_name || !c->system_file) {
+    if (!c->name || !c->system_file) {
         emit(functions, instanceName, fmi2Error, "logStatusError", "out of memory");
         free_instance(c);
         return NULL;
@@ -290,21 +211,11 @@ void fmi2FreeInstance(fmi2Component comp) { free_instance((Instance *)comp); }
 fmi2Status fmi2SetupExperiment(fmi2Component comp, fmi2Boolean toleranceDefined,
                                fmi2Real tolerance, fmi2Real startTime,
                                fmi2Boolean stopTimeDefined, fmi2Real stopTime) {
-    (void)toleranceDefined, (void)tolerance, (void)stopTimeDefined, (void)stopTime;
+    (void)toleranceDefined, (void)tolerance;
     Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    CHECK_PHASE(c, M_INST, "fmi2SetupExperiment");
-    if (!isfinite(startTime)) FAIL(c, "fmi2SetupExperiment: startTime %g is not finite", startTime);
+    if (setup_checks(c, startTime, 0, stopTimeDefined, stopTime) != fmi2OK) return fmi2Error;
     c->start_time = startTime;
     c->model.time = startTime;
-    return fmi2OK;
-}
-
-fmi2Status fmi2EnterInitializationMode(fmi2Component comp) {
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    CHECK_PHASE(c, M_INST, "fmi2EnterInitializationMode");
-    c->phase = PHASE_INIT;
     return fmi2OK;
 }
 
@@ -353,15 +264,7 @@ fmi2Status fmi2ExitInitializationMode(fmi2Component comp) {
     LJP_Model *m = &c->model;
     memcpy(m->x, m->x0, (size_t)m->sys->n * sizeof(double));
     m->time = c->start_time;
-    c->phase = PHASE_STEP;
-    return fmi2OK;
-}
-
-fmi2Status fmi2Terminate(fmi2Component comp) {
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    CHECK_PHASE(c, M_INIT | M_STEP | M_TERM | M_ERR, "fmi2Terminate");
-    c->phase = PHASE_TERMINATED;
+    c->phase = PH_STEP;
     return fmi2OK;
 }
 
@@ -376,18 +279,13 @@ fmi2Status fmi2Reset(fmi2Component comp) {
     ljp_model_reset(&c->model);
     c->system_file[0] = '\0';
     c->start_time = 0.0;
-    c->phase = PHASE_INSTANTIATED;
+    c->phase = PH_INST;
     return fmi2OK;
 }
 
 /* ---------------------------------------------------------------------------------------
  * Getting and setting variable values
  * ------------------------------------------------------------------------------------- */
-
-#define CHECK_ARRAYS(c, vr, nvr, value, fname)                                            \
-    do {                                                                                  \
-        if ((nvr) > 0 && (!(vr) || !(value))) FAIL((c), "%s: NULL argument", (fname));    \
-    } while (0)
 
 fmi2Status fmi2GetReal(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr,
                        fmi2Real value[]) {
@@ -426,14 +324,7 @@ fmi2Status fmi2GetInteger(fmi2Component comp, const fmi2ValueReference vr[], siz
     return fmi2OK;
 }
 
-fmi2Status fmi2GetBoolean(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr,
-                          fmi2Boolean value[]) {
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    (void)vr, (void)value;
-    if (nvr > 0) FAIL(c, "fmi2GetBoolean: this FMU has no Boolean variables");
-    return fmi2OK;
-}
+NO_VARIABLES(Boolean, fmi2Boolean, const)
 
 fmi2Status fmi2GetString(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr,
                          fmi2String value[]) {
@@ -455,8 +346,8 @@ fmi2Status fmi2SetReal(fmi2Component comp, const fmi2ValueReference vr[], size_t
     CHECK_INSTANCE(c);
     CHECK_ARRAYS(c, vr, nvr, value, "fmi2SetReal");
     LJP_Model *m = &c->model;
-    const int can_set_params = phase_in(c, M_INST | M_INIT);
-    const int can_set_inputs = phase_in(c, M_INST | M_INIT | M_STEP);
+    const int can_set_params = IN_PHASE(c, M_INST | M_INIT);
+    const int can_set_inputs = IN_PHASE(c, M_INST | M_INIT | M_STEP);
     for (size_t i = 0; i < nvr; i++) {
         unsigned k;
         LJP_VarKind kind = ljp_var_kind(&m->lay, vr[i], &k);
@@ -506,15 +397,6 @@ fmi2Status fmi2SetInteger(fmi2Component comp, const fmi2ValueReference vr[], siz
     return fmi2OK;
 }
 
-fmi2Status fmi2SetBoolean(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr,
-                          const fmi2Boolean value[]) {
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    (void)vr, (void)value;
-    if (nvr > 0) FAIL(c, "fmi2SetBoolean: this FMU has no Boolean variables");
-    return fmi2OK;
-}
-
 fmi2Status fmi2SetString(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr,
                          const fmi2String value[]) {
     Instance *c = (Instance *)comp;
@@ -524,7 +406,7 @@ fmi2Status fmi2SetString(fmi2Component comp, const fmi2ValueReference vr[], size
         unsigned k;
         if (ljp_var_kind(&c->model.lay, vr[i], &k) != LJP_VAR_SYSTEM_FILE)
             FAIL(c, "fmi2SetString: %u is not the value reference of a String variable", vr[i]);
-        if (!phase_in(c, M_INST | M_INIT))
+        if (!IN_PHASE(c, M_INST | M_INIT))
             FAIL(c, "fmi2SetString: systemFile is a fixed parameter and cannot be set in %s",
                  PHASE_NAMES[c->phase]);
         char *s = dup_string(&c->al, value[i]);
@@ -545,11 +427,6 @@ fmi2Status fmi2SetString(fmi2Component comp, const fmi2ValueReference vr[], size
  * Native byte order (the endianness marker is checked); a state can be restored only
  * into an instance that uses the same system matrices (same fingerprint).
  * ------------------------------------------------------------------------------------- */
-
-typedef struct {
-    size_t size;
-    unsigned char data[];
-} StateBlob;
 
 static const char STATE_MAGIC[8] = {'L', 'J', 'P', 'S', 'T', 'A', 'T', 'E'};
 #define STATE_HEADER (8 + 4 + 4 + 8 + 9 * 4 + 4 + 4 + 8 + 8)
@@ -635,7 +512,7 @@ static fmi2Status state_check(Instance *c, const unsigned char *buf, size_t size
     if (check_fingerprint && fp != s->fingerprint)
         FAIL(c, "%s: FMU state belongs to other system matrices than this instance uses "
                 "(different systemFile?)", fname);
-    if (phase < PHASE_INSTANTIATED || phase > PHASE_ERROR)
+    if (phase < PH_INST || phase > PH_ERROR)
         FAIL(c, "%s: FMU state has an invalid phase %d", fname, (int)phase);
     if (mode < 1 || mode > s->m) FAIL(c, "%s: FMU state has an invalid mode %d", fname, (int)mode);
     size_t nd = (size_t)2 * s->n + s->nu + s->nw + (size_t)s->q1 * s->p1 + (size_t)s->q2 * s->p2;
@@ -708,35 +585,6 @@ fmi2Status fmi2SetFMUstate(fmi2Component comp, fmi2FMUstate FMUstate) {
     if (!b) FAIL(c, "fmi2SetFMUstate: FMUstate is NULL");
     if (state_check(c, b->data, b->size, 1, "fmi2SetFMUstate") != fmi2OK) return fmi2Error;
     return state_apply(c, b->data);
-}
-
-fmi2Status fmi2FreeFMUstate(fmi2Component comp, fmi2FMUstate *FMUstate) {
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    if (!FMUstate) return fmi2OK;
-    if (*FMUstate) c->al.release(*FMUstate);
-    *FMUstate = NULL;
-    return fmi2OK;
-}
-
-fmi2Status fmi2SerializedFMUstateSize(fmi2Component comp, fmi2FMUstate FMUstate, size_t *size) {
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    if (!FMUstate || !size) FAIL(c, "fmi2SerializedFMUstateSize: NULL argument");
-    *size = ((StateBlob *)FMUstate)->size;
-    return fmi2OK;
-}
-
-fmi2Status fmi2SerializeFMUstate(fmi2Component comp, fmi2FMUstate FMUstate,
-                                 fmi2Byte serializedState[], size_t size) {
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    if (!FMUstate || !serializedState) FAIL(c, "fmi2SerializeFMUstate: NULL argument");
-    const StateBlob *b = (const StateBlob *)FMUstate;
-    if (size < b->size)
-        FAIL(c, "fmi2SerializeFMUstate: buffer of %zu bytes is too small (need %zu)", size, b->size);
-    memcpy(serializedState, b->data, b->size);
-    return fmi2OK;
 }
 
 fmi2Status fmi2DeSerializeFMUstate(fmi2Component comp, const fmi2Byte serializedState[],
@@ -833,26 +681,6 @@ fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component comp, fmi2Real x_nomi
  * Co-Simulation
  * ------------------------------------------------------------------------------------- */
 
-fmi2Status fmi2SetRealInputDerivatives(fmi2Component comp, const fmi2ValueReference vr[],
-                                       size_t nvr, const fmi2Integer order[],
-                                       const fmi2Real value[]) {
-    (void)vr, (void)order, (void)value;
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    if (nvr == 0) return fmi2OK;
-    FAIL(c, "fmi2SetRealInputDerivatives is not supported (canInterpolateInputs=false; inputs "
-            "are held constant over a step)");
-}
-
-fmi2Status fmi2GetRealOutputDerivatives(fmi2Component comp, const fmi2ValueReference vr[],
-                                        size_t nvr, const fmi2Integer order[], fmi2Real value[]) {
-    (void)vr, (void)order, (void)value;
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    if (nvr == 0) return fmi2OK;
-    FAIL(c, "fmi2GetRealOutputDerivatives is not supported (maxOutputDerivativeOrder=0)");
-}
-
 fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real currentCommunicationPoint,
                       fmi2Real communicationStepSize,
                       fmi2Boolean noSetFMUStatePriorToCurrentPoint) {
@@ -862,11 +690,7 @@ fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real currentCommunicationPoint,
     CHECK_PHASE(c, M_STEP, "fmi2DoStep");
     LJP_Model *m = &c->model;
     const double t = currentCommunicationPoint, h = communicationStepSize;
-    if (!isfinite(h) || h < 0.0)
-        FAIL(c, "fmi2DoStep: communicationStepSize %g must be finite and >= 0", h);
-    if (!isfinite(t) || fabs(t - m->time) > 1e-9 * (1.0 + fabs(m->time)))
-        FAIL(c, "fmi2DoStep: currentCommunicationPoint %.17g differs from the FMU's time %.17g",
-             t, m->time);
+    if (step_checks(c, t, h, 1, m->time) != fmi2OK) return fmi2Error;
     if (h == 0.0) return fmi2OK;
     const unsigned long before = m->n_expm;
     char err[512];
@@ -877,51 +701,4 @@ fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real currentCommunicationPoint,
                          "(discretisations so far: %lu)",
               m->mode, h, m->n_expm);
     return fmi2OK;
-}
-
-fmi2Status fmi2CancelStep(fmi2Component comp) {
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    FAIL(c, "fmi2CancelStep: fmi2DoStep never returns fmi2Pending in this FMU");
-}
-
-fmi2Status fmi2GetStatus(fmi2Component comp, const fmi2StatusKind s, fmi2Status *value) {
-    (void)s, (void)value;
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    FAIL(c, "fmi2GetStatus: no asynchronous step is pending (fmi2DoStep is synchronous)");
-}
-
-fmi2Status fmi2GetRealStatus(fmi2Component comp, const fmi2StatusKind s, fmi2Real *value) {
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    if (s == fmi2LastSuccessfulTime && value) {
-        *value = c->model.time;
-        return fmi2OK;
-    }
-    FAIL(c, "fmi2GetRealStatus: only fmi2LastSuccessfulTime is available");
-}
-
-fmi2Status fmi2GetIntegerStatus(fmi2Component comp, const fmi2StatusKind s, fmi2Integer *value) {
-    (void)s, (void)value;
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    FAIL(c, "fmi2GetIntegerStatus: no integer status is defined");
-}
-
-fmi2Status fmi2GetBooleanStatus(fmi2Component comp, const fmi2StatusKind s, fmi2Boolean *value) {
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    if (s == fmi2Terminated && value) {
-        *value = fmi2False; /* the FMU never asks to terminate the simulation */
-        return fmi2OK;
-    }
-    FAIL(c, "fmi2GetBooleanStatus: only fmi2Terminated is available");
-}
-
-fmi2Status fmi2GetStringStatus(fmi2Component comp, const fmi2StatusKind s, fmi2String *value) {
-    (void)s, (void)value;
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    FAIL(c, "fmi2GetStringStatus: no string status is defined");
 }

@@ -52,16 +52,10 @@
 typedef enum { PH_INST = 0, PH_INIT, PH_EVENT, PH_CONT, PH_STEP, PH_TERM, PH_ERROR } Phase;
 static const char *PHASE_NAMES[] = {"Instantiated", "Initialization Mode", "Event Mode",
                                     "Continuous-Time Mode", "Step Mode", "Terminated", "Error"};
-#define M_INST (1u << PH_INST)
-#define M_INIT (1u << PH_INIT)
 #define M_EVENT (1u << PH_EVENT)
 #define M_CONT (1u << PH_CONT)
-#define M_STEP (1u << PH_STEP)
-#define M_TERM (1u << PH_TERM)
-#define M_ERR (1u << PH_ERROR)
 #define M_ANY 0x7Fu
 
-enum { LOG_EVENTS = 1, LOG_WARNING = 2, LOG_ERROR = 4, LOG_ALL = 7 };
 typedef enum { K_NONE = 0, K_X, K_DX, K_U, K_P, K_Y } Kind;
 
 /* Everything fmi2GetFMUstate saves: a flat struct, its own serialization. */
@@ -90,62 +84,28 @@ typedef struct {
 static const char STATE_MAGIC[8] = {'O', 'D', 'E', 'S', 'T', 'A', 'T', '1'};
 
 /* ---------------------------------------------------------------------------------------
- * Logging
+ * The glue shared with the other FMUs (../common/fmi2_common.h): logging, FAIL and the
+ * CHECK_* macros, version, debug logging, status functions, instances, fmi2Reset, FMU state
  * ------------------------------------------------------------------------------------- */
 
-/* The logger formats its message like printf: double every '%'. */
-static void emit(const fmi2CallbackFunctions *cb, const char *name, fmi2Status status,
-                 const char *category, const char *msg) {
-    if (!cb || !cb->logger) return;
-    char esc[4096];
-    size_t k = 0;
-    for (const char *p = msg; *p && k + 2 < sizeof esc; p++) {
-        if (*p == '%') esc[k++] = '%';
-        esc[k++] = *p;
-    }
-    esc[k] = '\0';
-    cb->logger(cb->componentEnvironment, name ? name : ODE_SPEC_MODEL_NAME, status, category, esc);
-}
+static void reset_values(Instance *c);
+static void invalidate(Instance *c);
+static fmi2Status state_check(Instance *c, const OdeState *b, size_t size, const char *fname);
+#define FMI2_COMMON_MODEL_NAME ODE_SPEC_MODEL_NAME
+#define FMI2_COMMON_PHASE(c) ((c)->s.phase)
+#define FMI2_COMMON_LAST_TIME(c) ((c)->s.last_ok_time)
+#define FMI2_COMMON_FLAT_STATE OdeState
+#define FMI2_COMMON_GUID ODE_SPEC_GUID
+#define FMI2_COMMON_STATE_MAGIC STATE_MAGIC
+#define FMI2_COMMON_AFTER_SET_STATE(c) invalidate(c)
+#include "fmi2_common.h"
 
-static void logf_(Instance *c, fmi2Status status, const char *fmt, ...) {
-    const char *category = "logEvents";
-    unsigned bit = LOG_EVENTS;
-    if (status == fmi2Warning) category = "logStatusWarning", bit = LOG_WARNING;
-    if (status > fmi2Warning) category = "logStatusError", bit = LOG_ERROR;
-    /* errors and warnings are always reported, information only when logging is on */
-    if (status == fmi2OK && !(c->logging_on && (c->log_categories & bit))) return;
-    char msg[2048];
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(msg, sizeof msg, fmt, ap);
-    va_end(ap);
-    emit(&c->cb, c->name, status, category, msg);
-}
-
-#define FAIL(c, ...)                                                                      \
-    do {                                                                                  \
-        logf_((c), fmi2Error, __VA_ARGS__);                                               \
-        return fmi2Error;                                                                 \
-    } while (0)
-#define CHECK_INSTANCE(c)                                                                 \
-    do {                                                                                  \
-        if (!(c)) return fmi2Error;                                                       \
-    } while (0)
-#define CHECK_PHASE(c, mask, fname)                                                       \
-    do {                                                                                  \
-        if (!(((mask) >> (c)->s.phase) & 1u))                                             \
-            FAIL((c), "%s must not be called in %s", (fname), PHASE_NAMES[(c)->s.phase]);  \
-    } while (0)
 #define CHECK_TYPE(c, type, fname)                                                        \
     do {                                                                                  \
         if ((c)->s.fmu_type != (type))                                                    \
             FAIL((c), "%s is a %s function; this instance is %s", (fname),                \
                  (type) == fmi2ModelExchange ? "Model Exchange" : "Co-Simulation",        \
                  (type) == fmi2ModelExchange ? "Co-Simulation" : "Model Exchange");       \
-    } while (0)
-#define CHECK_ARRAYS(c, vr, nvr, value, fname)                                            \
-    do {                                                                                  \
-        if ((nvr) > 0 && (!(vr) || !(value))) FAIL((c), "%s: NULL argument", (fname));    \
     } while (0)
 
 /* ---------------------------------------------------------------------------------------
@@ -210,33 +170,6 @@ static fmi2Status outputs(Instance *c, const char *fname) {
  * Version, logging, instances, initialization
  * ------------------------------------------------------------------------------------- */
 
-const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
-
-const char *fmi2GetVersion(void) { return fmi2Version; }
-
-fmi2Status fmi2SetDebugLogging(fmi2Component comp, fmi2Boolean loggingOn, size_t nCategories,
-                               const fmi2String categories[]) {
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    c->logging_on = loggingOn ? 1 : 0;
-    if (nCategories == 0) {
-        c->log_categories = LOG_ALL;
-        return fmi2OK;
-    }
-    if (!categories) FAIL(c, "fmi2SetDebugLogging: categories is NULL");
-    unsigned mask = 0;
-    for (size_t i = 0; i < nCategories; i++) {
-        const char *cat = categories[i] ? categories[i] : "";
-        if (strcmp(cat, "logEvents") == 0) mask |= LOG_EVENTS;
-        else if (strcmp(cat, "logStatusWarning") == 0) mask |= LOG_WARNING;
-        else if (strcmp(cat, "logStatusError") == 0) mask |= LOG_ERROR;
-        else if (strcmp(cat, "logAll") == 0) mask |= LOG_ALL;
-        else FAIL(c, "fmi2SetDebugLogging: unknown log category '%s'", cat);
-    }
-    c->log_categories = mask;
-    return fmi2OK;
-}
-
 /* Start values, time 0, default tolerance, phase Instantiated. */
 static void reset_values(Instance *c) {
     OdeState *s = &c->s;
@@ -278,65 +211,35 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     (void)visible, (void)fmuResourceLocation;
     char msg[600];
     if (!functions) return NULL;
-    if (!functions->allocateMemory || !functions->freeMemory) {
-        emit(functions, instanceName, fmi2Error, "logStatusError",
-             "fmi2Instantiate: allocateMemory and freeMemory callbacks are required");
-        return NULL;
-    }
+    if (!callbacks_ok(functions, instanceName)) return NULL;
     if (fmuType != fmi2ModelExchange && fmuType != fmi2CoSimulation) {
         snprintf(msg, sizeof msg, "fmi2Instantiate: fmuType %d is neither fmi2ModelExchange "
                  "nor fmi2CoSimulation", (int)fmuType);
         emit(functions, instanceName, fmi2Error, "logStatusError", msg);
         return NULL;
     }
-    if (!fmuGUID || strcmp(fmuGUID, ODE_SPEC_GUID) != 0) {
-        snprintf(msg, sizeof msg, "fmi2Instantiate: fmuGUID %s does not match this binary's "
-                 "GUID %s (modelDescription.xml and binary come from different builds)",
-                 fmuGUID ? fmuGUID : "(NULL)", ODE_SPEC_GUID);
-        emit(functions, instanceName, fmi2Error, "logStatusError", msg);
-        return NULL;
-    }
+    if (!guid_ok(functions, instanceName, fmuGUID)) return NULL;
     char bad[400];
     if (contract_error(bad, sizeof bad)) {
         snprintf(msg, sizeof msg, "fmi2Instantiate: %s: %s", ODE_SPEC_MODEL_NAME, bad);
         emit(functions, instanceName, fmi2Error, "logStatusError", msg);
         return NULL;
     }
-    Instance *c = (Instance *)functions->allocateMemory(1, sizeof(Instance));
-    if (!c) {
-        emit(functions, instanceName, fmi2Error, "logStatusError", "fmi2Instantiate: out of memory");
-        return NULL;
-    }
-    memset(c, 0, sizeof *c);
-    c->cb = *functions;
-    snprintf(c->name, sizeof c->name, "%s", instanceName ? instanceName : ODE_SPEC_MODEL_NAME);
-    c->logging_on = loggingOn ? 1 : 0;
-    c->log_categories = LOG_ALL;
-    memcpy(c->s.magic, STATE_MAGIC, 8);
-    c->s.endian = 0x01020304u;
+    Instance *c = instance_new(functions, instanceName, loggingOn);
+    if (!c) return NULL;
     c->s.fmu_type = (int32_t)fmuType;
     c->s.dims[0] = NX, c->s.dims[1] = NU, c->s.dims[2] = NP, c->s.dims[3] = NY;
-    snprintf(c->s.guid, sizeof c->s.guid, "%s", ODE_SPEC_GUID);
     reset_values(c);
     logf_(c, fmi2OK, "instantiated %s for %s (NX=%d NU=%d NP=%d NY=%d)", ODE_SPEC_MODEL_NAME,
           fmuType == fmi2ModelExchange ? "Model Exchange" : "Co-Simulation", NX, NU, NP, NY);
     return c;
 }
 
-void fmi2FreeInstance(fmi2Component comp) {
-    Instance *c = (Instance *)comp;
-    if (c) c->cb.freeMemory(c);
-}
-
 fmi2Status fmi2SetupExperiment(fmi2Component comp, fmi2Boolean toleranceDefined,
                                fmi2Real tolerance, fmi2Real startTime,
                                fmi2Boolean stopTimeDefined, fmi2Real stopTime) {
     Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    CHECK_PHASE(c, M_INST, "fmi2SetupExperiment");
-    if (!isfinite(startTime)) FAIL(c, "fmi2SetupExperiment: startTime %g is not finite", startTime);
-    if (stopTimeDefined && !(stopTime >= startTime))
-        FAIL(c, "fmi2SetupExperiment: stopTime %g is before startTime %g", stopTime, startTime);
+    if (setup_checks(c, startTime, 1, stopTimeDefined, stopTime) != fmi2OK) return fmi2Error;
     fmi2Status status = fmi2OK;
     if (toleranceDefined) {
         if (!isfinite(tolerance) || tolerance <= 0.0)
@@ -355,14 +258,6 @@ fmi2Status fmi2SetupExperiment(fmi2Component comp, fmi2Boolean toleranceDefined,
     return status;
 }
 
-fmi2Status fmi2EnterInitializationMode(fmi2Component comp) {
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    CHECK_PHASE(c, M_INST, "fmi2EnterInitializationMode");
-    c->s.phase = PH_INIT;
-    return fmi2OK;
-}
-
 fmi2Status fmi2ExitInitializationMode(fmi2Component comp) {
     Instance *c = (Instance *)comp;
     CHECK_INSTANCE(c);
@@ -370,22 +265,6 @@ fmi2Status fmi2ExitInitializationMode(fmi2Component comp) {
     if (derivatives(c, "fmi2ExitInitializationMode") != fmi2OK) return fmi2Error;
     c->s.phase = c->s.fmu_type == fmi2ModelExchange ? PH_EVENT : PH_STEP;
     c->s.h_last = 0.0;
-    return fmi2OK;
-}
-
-fmi2Status fmi2Terminate(fmi2Component comp) {
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    CHECK_PHASE(c, M_INIT | M_EVENT | M_CONT | M_STEP | M_TERM | M_ERR, "fmi2Terminate");
-    c->s.phase = PH_TERM;
-    return fmi2OK;
-}
-
-fmi2Status fmi2Reset(fmi2Component comp) {
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    reset_values(c);
-    logf_(c, fmi2OK, "fmi2Reset: start values restored");
     return fmi2OK;
 }
 
@@ -468,24 +347,6 @@ fmi2Status fmi2SetReal(fmi2Component comp, const fmi2ValueReference vr[], size_t
     return fmi2OK;
 }
 
-#define NO_VARIABLES(TYPE, CTYPE, CONST)                                                  \
-    fmi2Status fmi2Get##TYPE(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, \
-                             CTYPE value[]) {                                             \
-        Instance *c = (Instance *)comp;                                                   \
-        (void)vr, (void)value;                                                            \
-        CHECK_INSTANCE(c);                                                                \
-        if (nvr > 0) FAIL(c, "fmi2Get" #TYPE ": this FMU has no " #TYPE " variables");    \
-        return fmi2OK;                                                                    \
-    }                                                                                     \
-    fmi2Status fmi2Set##TYPE(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, \
-                             CONST CTYPE value[]) {                                       \
-        Instance *c = (Instance *)comp;                                                   \
-        (void)vr, (void)value;                                                            \
-        CHECK_INSTANCE(c);                                                                \
-        if (nvr > 0) FAIL(c, "fmi2Set" #TYPE ": this FMU has no " #TYPE " variables");    \
-        return fmi2OK;                                                                    \
-    }
-
 NO_VARIABLES(Integer, fmi2Integer, const)
 NO_VARIABLES(Boolean, fmi2Boolean, const)
 NO_VARIABLES(String, fmi2String, const)
@@ -506,75 +367,6 @@ static fmi2Status state_check(Instance *c, const OdeState *b, size_t size, const
         FAIL(c, "%s: FMU state of a %s instance", fname,
              b->fmu_type == fmi2ModelExchange ? "Model Exchange" : "Co-Simulation");
     if (b->phase < PH_INST || b->phase > PH_ERROR) FAIL(c, "%s: invalid phase %d", fname, (int)b->phase);
-    return fmi2OK;
-}
-
-fmi2Status fmi2GetFMUstate(fmi2Component comp, fmi2FMUstate *FMUstate) {
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    if (!FMUstate) FAIL(c, "fmi2GetFMUstate: FMUstate is NULL");
-    OdeState *b = (OdeState *)*FMUstate;
-    if (!b) b = (OdeState *)c->cb.allocateMemory(1, sizeof(OdeState));
-    if (!b) FAIL(c, "fmi2GetFMUstate: out of memory");
-    *b = c->s;
-    *FMUstate = b;
-    return fmi2OK;
-}
-
-fmi2Status fmi2SetFMUstate(fmi2Component comp, fmi2FMUstate FMUstate) {
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    if (!FMUstate) FAIL(c, "fmi2SetFMUstate: FMUstate is NULL");
-    if (state_check(c, (const OdeState *)FMUstate, sizeof(OdeState), "fmi2SetFMUstate") != fmi2OK)
-        return fmi2Error;
-    c->s = *(const OdeState *)FMUstate;
-    invalidate(c);
-    return fmi2OK;
-}
-
-fmi2Status fmi2FreeFMUstate(fmi2Component comp, fmi2FMUstate *FMUstate) {
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    if (FMUstate && *FMUstate) c->cb.freeMemory(*FMUstate);
-    if (FMUstate) *FMUstate = NULL;
-    return fmi2OK;
-}
-
-fmi2Status fmi2SerializedFMUstateSize(fmi2Component comp, fmi2FMUstate FMUstate, size_t *size) {
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    if (!FMUstate || !size) FAIL(c, "fmi2SerializedFMUstateSize: NULL argument");
-    *size = sizeof(OdeState);
-    return fmi2OK;
-}
-
-fmi2Status fmi2SerializeFMUstate(fmi2Component comp, fmi2FMUstate FMUstate,
-                                 fmi2Byte serializedState[], size_t size) {
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    if (!FMUstate || !serializedState) FAIL(c, "fmi2SerializeFMUstate: NULL argument");
-    if (size < sizeof(OdeState))
-        FAIL(c, "fmi2SerializeFMUstate: buffer of %zu bytes is too small (need %zu)", size,
-             sizeof(OdeState));
-    memcpy(serializedState, FMUstate, sizeof(OdeState));
-    return fmi2OK;
-}
-
-fmi2Status fmi2DeSerializeFMUstate(fmi2Component comp, const fmi2Byte serializedState[],
-                                   size_t size, fmi2FMUstate *FMUstate) {
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    if (!serializedState || !FMUstate) FAIL(c, "fmi2DeSerializeFMUstate: NULL argument");
-    OdeState tmp;
-    if (size != sizeof(OdeState))
-        FAIL(c, "fmi2DeSerializeFMUstate: %zu bytes, expected %zu", size, sizeof(OdeState));
-    memcpy(&tmp, serializedState, sizeof tmp);
-    if (state_check(c, &tmp, size, "fmi2DeSerializeFMUstate") != fmi2OK) return fmi2Error;
-    OdeState *b = (OdeState *)*FMUstate;
-    if (!b) b = (OdeState *)c->cb.allocateMemory(1, sizeof(OdeState));
-    if (!b) FAIL(c, "fmi2DeSerializeFMUstate: out of memory");
-    *b = tmp;
-    *FMUstate = b;
     return fmi2OK;
 }
 
@@ -874,11 +666,7 @@ fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real currentCommunicationPoint,
     CHECK_TYPE(c, fmi2CoSimulation, "fmi2DoStep");
     CHECK_PHASE(c, M_STEP, "fmi2DoStep");
     const double t = currentCommunicationPoint, H = communicationStepSize;
-    if (!isfinite(H) || H < 0.0)
-        FAIL(c, "fmi2DoStep: communicationStepSize %g must be finite and >= 0", H);
-    if (!isfinite(t) || fabs(t - c->s.time) > 1e-9 * (1.0 + fabs(c->s.time)))
-        FAIL(c, "fmi2DoStep: currentCommunicationPoint %.17g differs from the FMU's time %.17g",
-             t, c->s.time);
+    if (step_checks(c, t, H, 1, c->s.time) != fmi2OK) return fmi2Error;
     c->s.time = t;
     if (H == 0.0) return fmi2OK;
     const unsigned long acc = c->n_accepted, rej = c->n_rejected;
@@ -897,70 +685,4 @@ fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real currentCommunicationPoint,
     logf_(c, fmi2OK, "fmi2DoStep to t = %.17g: %lu accepted, %lu rejected internal steps, next "
           "h = %g", c->s.time, c->n_accepted - acc, c->n_rejected - rej, c->s.h_last);
     return fmi2OK;
-}
-
-fmi2Status fmi2SetRealInputDerivatives(fmi2Component comp, const fmi2ValueReference vr[],
-                                       size_t nvr, const fmi2Integer order[],
-                                       const fmi2Real value[]) {
-    (void)vr, (void)order, (void)value;
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    if (nvr == 0) return fmi2OK;
-    FAIL(c, "fmi2SetRealInputDerivatives is not supported (canInterpolateInputs=false)");
-}
-
-fmi2Status fmi2GetRealOutputDerivatives(fmi2Component comp, const fmi2ValueReference vr[],
-                                        size_t nvr, const fmi2Integer order[], fmi2Real value[]) {
-    (void)vr, (void)order, (void)value;
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    if (nvr == 0) return fmi2OK;
-    FAIL(c, "fmi2GetRealOutputDerivatives is not supported (maxOutputDerivativeOrder=0)");
-}
-
-fmi2Status fmi2CancelStep(fmi2Component comp) {
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    FAIL(c, "fmi2CancelStep: fmi2DoStep never returns fmi2Pending in this FMU");
-}
-
-fmi2Status fmi2GetStatus(fmi2Component comp, const fmi2StatusKind s, fmi2Status *value) {
-    (void)s, (void)value;
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    FAIL(c, "fmi2GetStatus: no asynchronous step is pending (fmi2DoStep is synchronous)");
-}
-
-fmi2Status fmi2GetRealStatus(fmi2Component comp, const fmi2StatusKind s, fmi2Real *value) {
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    if (s == fmi2LastSuccessfulTime && value) {
-        *value = c->s.last_ok_time;
-        return fmi2OK;
-    }
-    FAIL(c, "fmi2GetRealStatus: only fmi2LastSuccessfulTime is available");
-}
-
-fmi2Status fmi2GetIntegerStatus(fmi2Component comp, const fmi2StatusKind s, fmi2Integer *value) {
-    (void)s, (void)value;
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    FAIL(c, "fmi2GetIntegerStatus: no integer status is defined");
-}
-
-fmi2Status fmi2GetBooleanStatus(fmi2Component comp, const fmi2StatusKind s, fmi2Boolean *value) {
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    if (s == fmi2Terminated && value) {
-        *value = fmi2False; /* the FMU never asks to terminate the simulation */
-        return fmi2OK;
-    }
-    FAIL(c, "fmi2GetBooleanStatus: only fmi2Terminated is available");
-}
-
-fmi2Status fmi2GetStringStatus(fmi2Component comp, const fmi2StatusKind s, fmi2String *value) {
-    (void)s, (void)value;
-    Instance *c = (Instance *)comp;
-    CHECK_INSTANCE(c);
-    FAIL(c, "fmi2GetStringStatus: no string status is defined");
 }

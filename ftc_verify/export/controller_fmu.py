@@ -3,8 +3,10 @@ r"""Co-simulation FMUs (FMI 2.0 and 3.0, source code and a binary) of an FDI-swi
 The controller of :mod:`ftc_verify.export.ccode` -- per FDI mode :math:`l`,
 :math:`u_k = C_{c,l} x_{c,k} + D_{c,l} v_k`, :math:`x_{c,k+1} = \Phi_{c,l} x_{c,k} +
 \Gamma_{c,l} v_k` with the sampled matrices of period :math:`h` -- behind the FMI
-glue ``fmus/controller/ctrl_glue.c`` (FMI 2.0 Co-Simulation) or ``ctrl_glue3.c`` (FMI 3.0:
-the ODE FMUs' FMI 3.0 glue ``fmus/ode/ode_glue3.c`` around the FMI 2.0 glue). Built with
+glue ``fmus/controller/ctrl_glue.c`` (FMI 2.0 Co-Simulation; with the FMI 2.0 glue every
+FMU shares, ``fmus/common/fmi2_common.h``) or ``ctrl_glue3.c`` (FMI 3.0: the ODE FMUs' FMI
+3.0 glue ``fmus/ode/ode_glue3.c`` around the FMI 2.0 glue). Every file compiled in travels in
+the archive's ``sources/`` and enters the GUID. Built with
 the package's toolchain (:mod:`ftc_verify.plants.build`: gcc, the FMI headers of fmpy,
 the flags, the atomic reproducible archive) and the model-description elements of the ODE
 FMUs (:func:`~ftc_verify.plants.model_description.add_description_elements`).
@@ -39,8 +41,8 @@ from xml.etree import ElementTree as ET
 
 from .. import __version__
 from ..errors import FMUError, ValidationError
-from ..plants.build import (CFLAGS, binary_platform, find_gcc, fmi2_include_dir, fmi3_platform_tuple, link_flags,
-                            run_compiler, write_zip)
+from ..plants.build import (CFLAGS, COMMON_FILES, binary_platform, common_source_dir, find_gcc, fmi2_include_dir,
+                            fmi3_platform_tuple, link_flags, run_compiler, source_members, write_zip)
 from ..plants.model_description import add_description_elements
 from ..plants.ode_fmu import ode_source_dir
 from .ccode import ControllerTables
@@ -88,6 +90,8 @@ def controller_guid(c_source: str, identifier: str, fmi_version: str) -> str:
         h.update((src / name).read_bytes())
     if fmi_version == "3.0":
         h.update((ode_source_dir() / "ode_glue3.c").read_bytes())
+    for name in COMMON_FILES:
+        h.update((common_source_dir(src) / name).read_bytes())
     return "{" + str(uuid.UUID(hex=h.hexdigest()[:32], version=5)) + "}"
 
 
@@ -203,7 +207,8 @@ def _compile(c_source: str, spec_header: str, fmi_version: str, identifier: str,
     tmp = out.parent
     (tmp / CONTROLLER_SOURCE).write_text(c_source, encoding="utf-8")
     (tmp / "ctrl_spec.h").write_text(spec_header, encoding="utf-8")
-    cmd = [gcc, *CFLAGS, "-Werror", "-I", str(tmp), "-I", str(src), "-I", str(ode_source_dir()), "-I", str(include),
+    includes = (tmp, src, ode_source_dir(), common_source_dir(src), include)
+    cmd = [gcc, *CFLAGS, "-Werror", *(a for d in includes for a in ("-I", str(d))),
            str(src / _GLUE[fmi_version][-1]), "-o", str(out), *link_flags()]
     proc = run_compiler(cmd, CONTROLLER_SOURCE)
     if proc.returncode != 0:
@@ -260,9 +265,9 @@ def build_controller_fmu(tables: ControllerTables, c_source: str, dest: Path, *,
                                       description=description, certificate=certificate)
     members = [("modelDescription.xml", md.encode(), 0o644), (f"binaries/{folder}/{identifier}{suffix}", binary, 0o755),
                (f"sources/{CONTROLLER_SOURCE}", c_source.encode(), 0o644), ("sources/ctrl_spec.h", header.encode(), 0o644)]
-    members += [(f"sources/{name}", (src / name).read_bytes(), 0o644) for name in _GLUE[fmi_version]]
+    members += source_members(src, _GLUE[fmi_version]) + source_members(common_source_dir(src), COMMON_FILES)
     if fmi_version == "3.0":
-        members.append(("sources/ode_glue3.c", (ode_source_dir() / "ode_glue3.c").read_bytes(), 0o644))
+        members += source_members(ode_source_dir(), ("ode_glue3.c",))
     members += [(f"resources/{name}", text.encode(), 0o644) for name, text in sorted(resources.items())]
     write_zip(Path(dest), members)
     return Path(dest)

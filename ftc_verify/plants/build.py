@@ -8,6 +8,9 @@ and archives with the functions of this module:
   :func:`link_flags`: the compiler, its identity (a part of every cache key), one
   compiler run in its own process group, and the flags;
 * :func:`fmi2_include_dir`: the FMI headers shipped with fmpy (:data:`FMI2_HEADERS`);
+* :func:`fmus_folder`, :func:`common_source_dir` (:data:`COMMON_FILES`, the C glue every FMU
+  shares), :func:`hash_files`, :func:`source_members` and :func:`fmu_destination`: the C
+  sources of the FMUs, their part of the cache keys, of the archives and where they go;
 * :func:`cache_dir`, :func:`build_lock`, :func:`file_hash`, :func:`record_hash`,
   :func:`recorded_hash` and :func:`is_cached`: the cache of compiled binaries, each
   reused while the SHA-256 recorded beside it at compile time still matches;
@@ -31,12 +34,16 @@ from pathlib import Path
 
 from ..errors import FMUError
 
-__all__ = ["FMI2_HEADERS", "CFLAGS", "ZIP_DATE", "fmi2_include_dir", "cache_dir", "binary_platform", "fmi3_platform_tuple", "find_gcc",
+__all__ = ["FMI2_HEADERS", "COMMON_FILES", "CFLAGS", "ZIP_DATE", "fmi2_include_dir", "fmus_folder", "common_source_dir",
+           "hash_files", "source_members", "fmu_destination", "cache_dir", "binary_platform", "fmi3_platform_tuple", "find_gcc",
            "run_compiler", "compiler_identity", "link_flags", "build_lock", "file_hash", "hash_record_path",
            "recorded_hash", "record_hash", "is_cached", "write_zip"]
 
 #: FMI 2.0 headers (from fmpy) the sources include; their content enters the cache keys.
 FMI2_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
+#: The C glue every FMU shares (``fmus/common``): compiled in through the include path, packed
+#: into each FMU's ``sources/`` and hashed into every cache key.
+COMMON_FILES = ("fmi2_common.h",)
 #: Compiler flags (the cache keys cover them).
 CFLAGS = ("-std=c99", "-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-Wall", "-Wextra")
 #: The timestamp of every archive member: the same inputs give the same ``.fmu`` bytes.
@@ -70,6 +77,65 @@ def fmi2_include_dir() -> Path:
     if missing:
         raise FMUError(f"{path}: FMI 2.0 header(s) {missing} not found in the fmpy package")
     return path
+
+
+def fmus_folder(sub: str, files: tuple[str, ...]) -> tuple[Path | None, Path]:
+    """The folder ``sub`` of the FMUs' C sources that holds every one of ``files``.
+
+    ``<repository>/fmus/<sub>`` in a source checkout (or an editable install), else
+    ``<sub>`` of the package data ``ftc_verify._fmus`` (``pyproject.toml`` maps it onto
+    ``fmus/``). Returns ``(found or None, the first candidate)`` (the latter for messages).
+    """
+    import importlib.util
+
+    candidates = [Path(__file__).resolve().parents[2] / "fmus" / sub]
+    try:
+        spec = importlib.util.find_spec("ftc_verify._fmus")
+    except (ImportError, ValueError):
+        spec = None
+    if spec is not None and spec.submodule_search_locations:
+        candidates += [Path(p) / sub for p in spec.submodule_search_locations]
+    found = next((path for path in candidates if all((path / name).is_file() for name in files)), None)
+    return found, candidates[0]
+
+
+def common_source_dir(beside: Path | None = None) -> Path:
+    """The folder of :data:`COMMON_FILES` a glue in ``beside`` compiles with.
+
+    ``beside`` itself when it holds them (a quoted ``#include`` finds the copy beside the
+    glue first: an unpacked ``sources/``), else ``fmus/common`` (:func:`fmus_folder`).
+
+    Raises
+    ------
+    FMUError
+        When the files are nowhere.
+    """
+    if beside is not None and all((Path(beside) / name).is_file() for name in COMMON_FILES):
+        return Path(beside)
+    found, first = fmus_folder("common", COMMON_FILES)
+    if found is None:
+        raise FMUError(f"{first}: the C glue every FMU shares ({', '.join(COMMON_FILES)}) not found")
+    return found
+
+
+def hash_files(h: hashlib._Hash, folder: Path, names: tuple[str, ...]) -> None:
+    """Feed ``name NUL content NUL`` of each file into the hash ``h`` (a part of a cache key)."""
+    for name in names:
+        h.update(name.encode() + b"\0" + (folder / name).read_bytes() + b"\0")
+
+
+def source_members(folder: Path, names: tuple[str, ...]) -> list[tuple[str, bytes, int]]:
+    """The archive members ``sources/<name>`` of the files ``names`` in ``folder`` (for :func:`write_zip`)."""
+    return [(f"sources/{name}", (folder / name).read_bytes(), 0o644) for name in names]
+
+
+def fmu_destination(dest: Path | None, default: Path, name: str) -> Path:
+    """Where a builder writes its ``.fmu``: ``default`` when ``dest`` is None, ``<dest>/<name>.fmu``
+    when ``dest`` is an existing folder, else ``dest``."""
+    if dest is None:
+        return default
+    path = Path(dest)
+    return path / f"{name}.fmu" if path.is_dir() else path
 
 
 def cache_dir() -> Path:

@@ -9,8 +9,8 @@ mode ``r`` (an Integer input), with the uncertainties as inputs::
 (zero-order hold) via the matrix exponential of an augmented matrix; see
 ``fmus/README.md`` for the variables, the resource format and the error bound.
 
-One compiled binary serves every system: the C sources in ``fmus/LinearJumpPlant`` are
-compiled once with gcc into a cache folder (``$FTC_VERIFY_CACHE/fmus``, default
+One compiled binary serves every system: the C sources in ``fmus/LinearJumpPlant`` (and
+the FMI 2.0 glue every FMU shares, ``fmus/common/fmi2_common.h``) are compiled once with gcc into a cache folder (``$FTC_VERIFY_CACHE/fmus``, default
 ``~/.cache/ftc-verify/fmus``; the file name carries a hash of the sources, the FMI headers,
 the compiler flags and the compiler version, so a stale binary is never reused; the
 toolchain is :mod:`ftc_verify.plants.build`), and
@@ -31,7 +31,6 @@ Functions
 from __future__ import annotations
 
 import hashlib
-import importlib.util
 import os
 import re
 import tempfile
@@ -41,8 +40,9 @@ from pathlib import Path
 
 from ..errors import FMUError, ValidationError
 from ..model.system import FTCSystem
-from .build import (CFLAGS, FMI2_HEADERS, binary_platform, build_lock, cache_dir, compiler_identity, file_hash,
-                    find_gcc, fmi2_include_dir, is_cached, link_flags, record_hash, run_compiler, write_zip)
+from .build import (CFLAGS, COMMON_FILES, FMI2_HEADERS, binary_platform, build_lock, cache_dir, common_source_dir,
+                    compiler_identity, file_hash, find_gcc, fmi2_include_dir, fmu_destination, fmus_folder, hash_files,
+                    is_cached, link_flags, record_hash, run_compiler, source_members, write_zip)
 from .plant_map import linear_jump_plant_map, map_path_for, save_plant_map
 from .model_description import SOURCE_FILES, model_description, variable_names
 from .system_text import FORMAT_VERSION, MODEL_IDENTIFIER, FMUDims, fmu_dims, parse_system_text, system_text
@@ -80,18 +80,11 @@ def source_dir() -> Path:
     otherwise the package data ``ftc_verify._fmus/LinearJumpPlant`` if the installed
     package ships ``fmus/`` under that name (see ``fmus/README.md``).
     """
-    candidates = [Path(__file__).resolve().parents[2] / "fmus" / MODEL_IDENTIFIER]
-    try:
-        spec = importlib.util.find_spec("ftc_verify._fmus")
-    except (ImportError, ValueError):
-        spec = None
-    if spec is not None and spec.submodule_search_locations:
-        candidates += [Path(p) / MODEL_IDENTIFIER for p in spec.submodule_search_locations]
-    for path in candidates:
-        if all((path / name).is_file() for name in SOURCE_FILES):
-            return path
+    found, first = fmus_folder(MODEL_IDENTIFIER, SOURCE_FILES)
+    if found is not None:
+        return found
     raise FMUError(
-        f"{candidates[0]}: C sources of the {MODEL_IDENTIFIER} FMU ({', '.join(SOURCE_FILES)}) "
+        f"{first}: C sources of the {MODEL_IDENTIFIER} FMU ({', '.join(SOURCE_FILES)}) "
         "not found; they ship with the source checkout of ftc-verify, in fmus/"
     )
 
@@ -119,33 +112,33 @@ def build_binary(force: bool = False, *, sources: Path | None = None) -> Path:
         if not (src / name).is_file():
             raise FMUError(f"{src / name}: C source of the {MODEL_IDENTIFIER} FMU not found")
     include = fmi2_include_dir()
+    common = common_source_dir(src)
     gcc = find_gcc(src)
     _, suffix = binary_platform()
     flags = CFLAGS + link_flags()
 
     h = hashlib.sha256()
     h.update(f"ftc-verify {MODEL_IDENTIFIER} binary\0".encode())
-    for name in SOURCE_FILES:
-        h.update(name.encode() + b"\0" + (src / name).read_bytes() + b"\0")
-    for name in FMI2_HEADERS:
-        h.update(name.encode() + b"\0" + (include / name).read_bytes() + b"\0")
+    hash_files(h, src, SOURCE_FILES)
+    hash_files(h, common, COMMON_FILES)
+    hash_files(h, include, FMI2_HEADERS)
     h.update(" ".join(flags).encode() + b"\0")
     h.update(compiler_identity(gcc).encode())
     target = cache_dir() / f"{MODEL_IDENTIFIER}-{h.hexdigest()[:20]}{suffix}"
     with build_lock(target):
         if not force and is_cached(target):
             return target  # else missing, forced, or corrupted (hash changed): compiled again
-        _compile_binary(gcc, src, include, target)
+        _compile_binary(gcc, src, [include, src, common], target)
     return target
 
 
-def _compile_binary(gcc: str, src: Path, include: Path, target: Path) -> None:
+def _compile_binary(gcc: str, src: Path, includes: list[Path], target: Path) -> None:
     """gcc into a temporary file beside ``target``, its hash recorded, renamed into place."""
     fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
     os.close(fd)
     tmp = Path(tmp_name)
     cmd = [
-        gcc, *CFLAGS, "-I", str(include), "-I", str(src),
+        gcc, *CFLAGS, *(a for d in includes for a in ("-I", str(d))),
         *(str(src / name) for name in SOURCE_FILES if name.endswith(".c")),
         "-o", str(tmp), *link_flags(),
     ]
@@ -199,14 +192,8 @@ def build_fmu(system: FTCSystem, dest: Path | None = None) -> Path:
         (f"binaries/{platform}/{MODEL_IDENTIFIER}{suffix}", binary.read_bytes(), 0o755),
         ("resources/system.txt", system_text(system, guid).encode(), 0o644),
     ]
-    members += [(f"sources/{name}", (src / name).read_bytes(), 0o644) for name in SOURCE_FILES]
-
-    if dest is None:
-        path = cache_dir() / f"{_slug(system.name)}-{digest[:12]}.fmu"
-    else:
-        path = Path(dest)
-        if path.is_dir():
-            path = path / f"{_slug(system.name)}.fmu"
+    members += source_members(src, SOURCE_FILES) + source_members(common_source_dir(src), COMMON_FILES)
+    path = fmu_destination(dest, cache_dir() / f"{_slug(system.name)}-{digest[:12]}.fmu", _slug(system.name))
     write_zip(path, members)
     save_plant_map(linear_jump_plant_map(system, path), map_path_for(path))
     return path

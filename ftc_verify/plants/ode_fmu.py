@@ -8,7 +8,8 @@ The model
 
 with states :math:`x`, Real inputs :math:`u`, Real parameters :math:`p` and Real outputs
 :math:`y` is one C file (contract and value-reference layout: ``fmus/ode/ode_model.h``)
-compiled together with the generic glue ``fmus/ode/ode_glue.c`` and a header
+compiled together with the generic glue ``fmus/ode/ode_glue.c`` (which includes the FMI 2.0
+glue every FMU of the package shares, ``fmus/common/fmi2_common.h``) and a header
 ``ode_spec.h`` generated from an :class:`OdeFmuSpec` (names, start values, GUID,
 ``ODE_SPEC_HAS_JACOBIAN``). Value references are consecutive from 1: states, their
 derivatives ``der(x)``, inputs, parameters, outputs.
@@ -29,7 +30,7 @@ Model Exchange leaves integration to the importer. With ``has_jacobian`` the mod
 Jacobians serve ``fmi2GetDirectionalDerivative``.
 
 The binary is cached in :func:`~ftc_verify.plants.build.cache_dir` under a name
-carrying the SHA-256 of the glue, the model source, the generated header, the FMI headers,
+carrying the SHA-256 of the glue (the shared file included), the model source, the generated header, the FMI headers,
 the compiler flags and the compiler's identity, and is checked once after compiling by
 instantiating it (the model's ``ODE_NX``.. and ``ODE_HAS_JACOBIAN`` must match the spec).
 """
@@ -38,7 +39,6 @@ from __future__ import annotations
 
 import ctypes
 import hashlib
-import importlib.util
 import itertools
 import math
 import os
@@ -53,12 +53,13 @@ from xml.etree import ElementTree as ET
 from .. import __version__
 from ..errors import FMUError, ValidationError
 from .model_description import add_description_elements
-from .build import (CFLAGS, FMI2_HEADERS, binary_platform, build_lock, cache_dir, compiler_identity, file_hash,
-                    find_gcc, fmi2_include_dir, is_cached, link_flags, record_hash, run_compiler, write_zip)
+from .build import (CFLAGS, COMMON_FILES, FMI2_HEADERS, binary_platform, build_lock, cache_dir, common_source_dir,
+                    compiler_identity, file_hash, find_gcc, fmi2_include_dir, fmu_destination, fmus_folder, hash_files,
+                    is_cached, link_flags, record_hash, run_compiler, source_members, write_zip)
 
 __all__ = ["DEFAULT_RTOL", "GLUE_FILES", "VARIABLE_GROUPS", "OdeVariable", "OdeFmuSpec", "ode_source_dir",
            "ode_spec_header", "ode_model_description", "value_reference_groups", "add_description_basics", "build_ode_binary", "compile_ode_binary", "build_ode_fmu",
-           "package_ode_fmu",
+           "package_ode_fmu", "probe_binary", "spec_guid",
            "motor_spec"]
 
 #: Relative tolerance of ``fmi2DoStep`` when ``fmi2SetupExperiment`` defines none.
@@ -199,24 +200,22 @@ def ode_source_dir() -> Path:
     package data ``ftc_verify._fmus`` (the way
     :func:`~ftc_verify.plants.linear_jump.source_dir` finds its sources).
     """
-    candidates = [Path(__file__).resolve().parents[2] / "fmus" / "ode"]
-    try:
-        found = importlib.util.find_spec("ftc_verify._fmus")
-    except (ImportError, ValueError):
-        found = None
-    if found is not None and found.submodule_search_locations:
-        candidates += [Path(p) / "ode" for p in found.submodule_search_locations]
-    for path in candidates:
-        if all((path / name).is_file() for name in GLUE_FILES):
-            return path
-    raise FMUError(f"{candidates[0]}: C sources of the ODE FMU glue ({', '.join(GLUE_FILES)}) not found")
+    found, first = fmus_folder("ode", GLUE_FILES)
+    if found is None:
+        raise FMUError(f"{first}: C sources of the ODE FMU glue ({', '.join(GLUE_FILES)}) not found")
+    return found
 
 
-def _guid(spec: OdeFmuSpec, src: Path) -> str:
-    h = hashlib.sha256(f"ftc-verify ode fmu {_LAYOUT_VERSION}\0{spec!r}\0".encode())
-    for name in GLUE_FILES:
+def spec_guid(tag: str, spec: OdeFmuSpec, src: Path, glue_files: tuple[str, ...]) -> str:
+    """The GUID of an ODE FMU of either FMI version: a UUID from the SHA-256 of ``tag``, the
+    spec, the ``glue_files`` of ``src`` and the shared glue (:data:`~ftc_verify.plants.build.COMMON_FILES`)."""
+    h = hashlib.sha256(f"ftc-verify {tag}\0{spec!r}\0".encode())
+    for name in glue_files:
         h.update((src / name).read_bytes())
+    for name in COMMON_FILES:
+        h.update((common_source_dir(src) / name).read_bytes())
     return "{" + str(uuid.UUID(hex=h.hexdigest()[:32], version=5)) + "}"
+
 
 
 def ode_spec_header(spec: OdeFmuSpec, guid: str) -> str:
@@ -348,10 +347,34 @@ def _compile(gcc: str, spec: OdeFmuSpec, sources: list[Path], includes: list[Pat
         )
 
 
+def probe_binary(lib: Path, spec: OdeFmuSpec, *, what: str, call: str, argtypes: list[Any], args: tuple[Any, ...],
+                 free: str, messages: list[str]) -> None:
+    """Load the fresh binary ``lib`` (``what``: how messages name it), create one instance by
+    ``dll.<call>(*args)`` and free it by ``dll.<free>``. The glue then compares ``ODE_NX``,
+    ``ODE_NU``, ``ODE_NP``, ``ODE_NY`` and ``ODE_HAS_JACOBIAN`` of the model file with the
+    spec; when no instance is created, :class:`FMUError` carries the glue's ``messages``
+    (collected by the caller's logger)."""
+    from fmpy import freeLibrary
+
+    try:
+        dll = ctypes.CDLL(str(lib))
+    except OSError as exc:
+        raise FMUError(f"{lib}: cannot load the compiled {what} binary: {exc}") from None
+    try:
+        create, release = getattr(dll, call), getattr(dll, free)
+        create.restype, create.argtypes, release.argtypes = ctypes.c_void_p, argtypes, [ctypes.c_void_p]
+        comp = create(*args)
+        if not comp:
+            raise FMUError(f"{spec.model_name}.c: the model file does not match its OdeFmuSpec: "
+                           + ("; ".join(messages) or f"{call} failed"))
+        release(comp)
+    finally:
+        freeLibrary(dll._handle)
+
+
 def _probe(lib: Path, spec: OdeFmuSpec, guid: str) -> None:
-    """Instantiate the fresh binary once: the glue then compares ``ODE_NX``, ``ODE_NU``,
-    ``ODE_NP``, ``ODE_NY`` and ``ODE_HAS_JACOBIAN`` of the model file with the spec."""
-    from fmpy import calloc, free, freeLibrary
+    """Instantiate the fresh binary once (:func:`probe_binary`, FMI 2.0 Co-Simulation)."""
+    from fmpy import calloc, free
     from fmpy.fmi2 import (fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE, fmi2CallbackFunctions,
                            fmi2CallbackLoggerTYPE)
 
@@ -364,22 +387,11 @@ def _probe(lib: Path, spec: OdeFmuSpec, guid: str) -> None:
     cb.logger = fmi2CallbackLoggerTYPE(logger)
     cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
     cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-    try:
-        dll = ctypes.CDLL(str(lib))
-    except OSError as exc:
-        raise FMUError(f"{lib}: cannot load the compiled ODE FMU binary: {exc}") from None
-    try:
-        dll.fmi2Instantiate.restype = ctypes.c_void_p
-        dll.fmi2Instantiate.argtypes = [ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_char_p,
-                                        ctypes.POINTER(fmi2CallbackFunctions), ctypes.c_int, ctypes.c_int]
-        dll.fmi2FreeInstance.argtypes = [ctypes.c_void_p]
-        comp = dll.fmi2Instantiate(b"probe", 0, guid.encode(), b"", ctypes.byref(cb), 0, 0)
-        if not comp:
-            raise FMUError(f"{spec.model_name}.c: the model file does not match its OdeFmuSpec: "
-                           + ("; ".join(messages) or "fmi2Instantiate failed"))
-        dll.fmi2FreeInstance(comp)
-    finally:
-        freeLibrary(dll._handle)
+    probe_binary(lib, spec, what="ODE FMU", call="fmi2Instantiate",
+                 argtypes=[ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_char_p,
+                           ctypes.POINTER(fmi2CallbackFunctions), ctypes.c_int, ctypes.c_int],
+                 args=(b"probe", 0, guid.encode(), b"", ctypes.byref(cb), 0, 0), free="fmi2FreeInstance",
+                 messages=messages)
 
 
 def build_ode_binary(spec: OdeFmuSpec, force: bool = False) -> Path:
@@ -396,7 +408,7 @@ def build_ode_binary(spec: OdeFmuSpec, force: bool = False) -> Path:
     if not isinstance(spec, OdeFmuSpec):
         raise ValidationError(f"build_ode_binary: expected an OdeFmuSpec, got {type(spec).__name__}")
     src = ode_source_dir()
-    guid = _guid(spec, src)
+    guid = spec_guid(f"ode fmu {_LAYOUT_VERSION}", spec, src, GLUE_FILES)
     return compile_ode_binary(spec, guid, force=force, hash_tag="ode binary", stem=spec.model_name,
                               glue_files=GLUE_FILES, glue_source="ode_glue.c", headers=FMI2_HEADERS,
                               probe=_probe)
@@ -411,16 +423,16 @@ def compile_ode_binary(spec: OdeFmuSpec, guid: str, *, force: bool, hash_tag: st
     compiler; compiled from the model and ``glue_source`` and checked by
     ``probe(lib, spec, guid)`` under the build lock."""
     src = ode_source_dir()
+    common = common_source_dir(src)
     header = ode_spec_header(spec, guid)
     include = fmi2_include_dir()
     gcc = find_gcc(src)
     _, suffix = binary_platform()
     h = hashlib.sha256(f"ftc-verify {hash_tag} {_LAYOUT_VERSION}\0".encode())
-    for name in glue_files:
-        h.update(name.encode() + b"\0" + (src / name).read_bytes() + b"\0")
+    hash_files(h, src, glue_files)
+    hash_files(h, common, COMMON_FILES)
     h.update(header.encode() + b"\0" + spec.c_source.encode() + b"\0")
-    for name in headers:
-        h.update(name.encode() + b"\0" + (include / name).read_bytes() + b"\0")
+    hash_files(h, include, headers)
     h.update(" ".join(CFLAGS + link_flags()).encode() + b"\0" + compiler_identity(gcc).encode())
     target = cache_dir() / f"{stem}-{h.hexdigest()[:20]}{suffix}"
     with build_lock(target):
@@ -432,7 +444,7 @@ def compile_ode_binary(spec: OdeFmuSpec, guid: str, *, force: bool, hash_tag: st
             model = tmp / f"{spec.model_name}.c"
             model.write_text(spec.c_source, encoding="utf-8")
             lib = tmp / f"{spec.model_name}{suffix}"
-            _compile(gcc, spec, [model, src / glue_source], [tmp, src, include], lib)
+            _compile(gcc, spec, [model, src / glue_source], [tmp, src, common, include], lib)
             probe(lib, spec, guid)
             os.chmod(lib, 0o755)
             record_hash(target, file_hash(lib))
@@ -468,7 +480,7 @@ def build_ode_fmu(spec: OdeFmuSpec, dest: Path | None = None, *, fmi_version: st
         raise ValidationError(f"build_ode_fmu: fmi_version must be \"2.0\" or \"3.0\", got {fmi_version!r}")
     binary = build_ode_binary(spec)
     src = ode_source_dir()
-    guid = _guid(spec, src)
+    guid = spec_guid(f"ode fmu {_LAYOUT_VERSION}", spec, src, GLUE_FILES)
     return package_ode_fmu(spec, guid=guid, binary=binary, platform=binary_platform()[0],
                            model_description=ode_model_description(spec, guid), glue_files=GLUE_FILES,
                            dest=dest, cache_stem=f"{spec.model_name}-{guid[1:13]}")
@@ -488,13 +500,8 @@ def package_ode_fmu(spec: OdeFmuSpec, *, guid: str, binary: Path, platform: str,
         ("sources/ode_spec.h", ode_spec_header(spec, guid).encode(), 0o644),
         (f"sources/{spec.model_name}.c", spec.c_source.encode(), 0o644),
     ]
-    members += [(f"sources/{name}", (src / name).read_bytes(), 0o644) for name in glue_files]
-    if dest is None:
-        path = cache_dir() / f"{cache_stem}.fmu"
-    else:
-        path = Path(dest)
-        if path.is_dir():
-            path = path / f"{spec.model_name}.fmu"
+    members += source_members(src, glue_files) + source_members(common_source_dir(src), COMMON_FILES)
+    path = fmu_destination(dest, cache_dir() / f"{cache_stem}.fmu", spec.model_name)
     write_zip(path, members)
     return path
 

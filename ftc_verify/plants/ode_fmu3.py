@@ -13,8 +13,6 @@ Only Co-Simulation is served.
 from __future__ import annotations
 
 import ctypes
-import hashlib
-import uuid
 from pathlib import Path
 from xml.etree import ElementTree as ET
 
@@ -22,7 +20,8 @@ from .. import __version__
 from ..errors import FMUError, ValidationError
 from .build import FMI2_HEADERS, fmi2_include_dir
 from .ode_fmu import (GLUE_FILES, OdeFmuSpec, add_description_basics, compile_ode_binary, ode_source_dir,
-                      package_ode_fmu, value_reference_groups)
+                      package_ode_fmu, probe_binary, spec_guid,
+                      value_reference_groups)
 
 __all__ = ["GLUE3_FILES", "FMI3_HEADERS", "ode_model_description3", "build_ode_binary3", "build_ode_fmu3"]
 
@@ -34,10 +33,7 @@ _LAYOUT_VERSION = "1"
 
 
 def _guid3(spec: OdeFmuSpec, src: Path) -> str:
-    h = hashlib.sha256(f"ftc-verify ode fmu3 {_LAYOUT_VERSION}\0{spec!r}\0".encode())
-    for name in GLUE3_FILES:
-        h.update((src / name).read_bytes())
-    return "{" + str(uuid.UUID(hex=h.hexdigest()[:32], version=5)) + "}"
+    return spec_guid(f"ode fmu3 {_LAYOUT_VERSION}", spec, src, GLUE3_FILES)
 
 
 def _variables(spec: OdeFmuSpec) -> list[dict[str, str]]:
@@ -96,30 +92,17 @@ def ode_model_description3(spec: OdeFmuSpec, guid: str) -> str:
 
 
 def _probe3(lib: Path, spec: OdeFmuSpec, guid: str) -> None:
-    """Instantiate the fresh binary once (the glue checks the model file against the spec)."""
-    from fmpy import freeLibrary
-
+    """Instantiate the fresh binary once (:func:`~ftc_verify.plants.ode_fmu.probe_binary`:
+    the glue checks the model file against the spec)."""
     messages: list[str] = []
     log_type = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_char_p)
     logger = log_type(lambda env, status, cat, msg: messages.append((msg or b"").decode("utf-8", "replace")))
-    try:
-        dll = ctypes.CDLL(str(lib))
-    except OSError as exc:
-        raise FMUError(f"{lib}: cannot load the compiled FMI 3.0 ODE FMU binary: {exc}") from None
-    try:
-        inst = dll.fmi3InstantiateCoSimulation
-        inst.restype = ctypes.c_void_p
-        inst.argtypes = [ctypes.c_char_p, ctypes.c_char_p, ctypes.c_char_p, ctypes.c_bool, ctypes.c_bool,
-                         ctypes.c_bool, ctypes.c_bool, ctypes.c_void_p, ctypes.c_size_t, ctypes.c_void_p,
-                         log_type, ctypes.c_void_p]
-        dll.fmi3FreeInstance.argtypes = [ctypes.c_void_p]
-        comp = inst(b"probe", guid.encode(), b"", False, False, False, False, None, 0, None, logger, None)
-        if not comp:
-            raise FMUError(f"{spec.model_name}.c: the model file does not match its OdeFmuSpec: "
-                           + ("; ".join(messages) or "fmi3InstantiateCoSimulation failed"))
-        dll.fmi3FreeInstance(comp)
-    finally:
-        freeLibrary(dll._handle)
+    probe_binary(lib, spec, what="FMI 3.0 ODE FMU", call="fmi3InstantiateCoSimulation",
+                 argtypes=[ctypes.c_char_p, ctypes.c_char_p, ctypes.c_char_p, ctypes.c_bool, ctypes.c_bool,
+                           ctypes.c_bool, ctypes.c_bool, ctypes.c_void_p, ctypes.c_size_t, ctypes.c_void_p,
+                           log_type, ctypes.c_void_p],
+                 args=(b"probe", guid.encode(), b"", False, False, False, False, None, 0, None, logger, None),
+                 free="fmi3FreeInstance", messages=messages)
 
 
 def build_ode_binary3(spec: OdeFmuSpec, force: bool = False) -> Path:
