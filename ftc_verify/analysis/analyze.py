@@ -32,6 +32,7 @@ from __future__ import annotations
 import os
 import time
 from dataclasses import dataclass
+from collections.abc import Callable
 from typing import Any
 
 from .box import ROOT_LMI_DEFERRED
@@ -202,13 +203,42 @@ def _gamma_ahead(loop: ClosedLoop, solver: str | None) -> tuple[ForkedCall | Non
     import flint  # noqa: F401
 
     if loop.uncertain:
-        robust = ForkedCall(lambda: hinf_gamma(loop, robust=True, solver=solver), "Lemma 4.1")
+        gate, opener = os.pipe()  # Lemma 4.1's child starts when Theorem 3.2's has its answer (_after)
         try:
-            return robust, ForkedCall(lambda: hinf_gamma(loop, robust=False, solver=solver), "Theorem 3.2")
-        except BaseException:
-            robust.cancel()
-            raise
+            robust = ForkedCall(_after(gate, opener, lambda: hinf_gamma(loop, robust=True, solver=solver)), "Lemma 4.1")
+            try:
+                return robust, ForkedCall(_after(None, gate, lambda: hinf_gamma(loop, robust=False, solver=solver),
+                                                 opener), "Theorem 3.2")
+            except BaseException:
+                robust.cancel()
+                raise
+        finally:
+            os.close(gate)
+            os.close(opener)
     return ForkedCall(lambda: hinf_gamma(loop, robust=False, solver=solver), "Theorem 3.2"), None
+
+
+def _after(gate: int | None, unused: int, fn: Callable[[], Any], opens: int | None = None) -> Callable[[], Any]:
+    """``fn`` for a forked child of :func:`_gamma_ahead`: the pipe end ``unused`` closed
+    first; with ``gate`` (a read end), ``fn`` starts at its end of file, i.e. once every
+    write end is closed; ``opens`` (a write end) is closed as soon as ``fn`` returns.
+    Lemma 4.1's child waits so for Theorem 3.2's: one core solves Theorem 3.2, then Lemma
+    4.1, while the other runs the spectral stage and the lower bounds alone, which wait
+    for Theorem 3.2's answer only (the longest chain of stages, issue 37: on two cores the
+    four processes started at once shared them, and that chain got half a core at first).
+    Lemma 4.1's answer is not needed before the end of that chain; a Theorem 3.2 child
+    that dies or is cancelled opens the gate too."""
+    def run() -> Any:
+        os.close(unused)
+        if gate is not None:
+            while os.read(gate, 1):
+                pass
+        try:
+            return fn()
+        finally:
+            if opens is not None:
+                os.close(opens)
+    return run
 
 
 def _stages(loop: ClosedLoop, solver: str | None, name: str, lmi: bool, lower_bounds: bool, check: Any,
