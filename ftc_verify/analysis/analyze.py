@@ -7,8 +7,8 @@
    rates, :mod:`ftc_verify.model.chain`);
 2. the smallest certified nominal gamma (Theorem 3.2) and robust gamma (Lemma 4.1,
    gains fixed), both over the rate box (each program in a forked child started before
-   step 1, which neither needs; without uncertainty channels Lemma 4.1's program is
-   Theorem 3.2's, solved once);
+   step 1, which neither needs, Lemma 4.1's solve once Theorem 3.2's has its answer;
+   without uncertainty channels Lemma 4.1's program is Theorem 3.2's, solved once);
 3. Theorem 3.1 over the rate box, certified (:func:`~ftc_verify.analysis.lmi_analysis.mes_lmi`),
    first with the ``P`` of step 2 (no solve), solved only when that check fails. When the
    box proof of step 1 would solve this LMI on the whole box (its centre's candidate
@@ -189,11 +189,11 @@ def _analyze(loop: ClosedLoop, solver: str | None, name: str, lmi: bool, lower_b
 def _gamma_ahead(loop: ClosedLoop, solver: str | None) -> tuple[ForkedCall | None, ForkedCall | None]:
     """The gamma programs that need nothing of the spectral stage, each in a forked child
     started before it: Theorem 3.2 without uncertainty channels (``(Theorem 3.2, None)``);
-    with them Lemma 4.1 (the longest program of an uncertain loop) and Theorem 3.2 in a
-    second child (``(Lemma 4.1, Theorem 3.2)``: this process then goes from the spectral
-    stage straight to the lower bounds, which wait only for Theorem 3.2's answer, instead
-    of solving it after the spectral stage: the longest chain of stages one solve
-    shorter, issue 37); cancelled when the loop is proved unstable. FLINT and Clarabel
+    with them Lemma 4.1 and Theorem 3.2 in a second child, Lemma 4.1's solve started when
+    Theorem 3.2's child has its answer (:func:`_after`) (``(Lemma 4.1, Theorem 3.2)``:
+    this process then goes from the spectral stage straight to the lower bounds, which
+    wait only for Theorem 3.2's answer, instead of solving it after the spectral stage:
+    the longest chain of stages one solve shorter, issue 37); cancelled when the loop is proved unstable. FLINT and Clarabel
     are imported first so that no process imports them twice; ``(None, None)`` without
     ``fork``. Each child solves the same program as a call here would (no hint, no shared
     state), so its answer is the same to the last bit."""
