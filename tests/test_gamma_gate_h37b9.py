@@ -36,13 +36,32 @@ def test_lemma_4_1_starts_after_theorem_3_2_has_its_answer(paper_loop: Any, tmp_
 
     monkeypatch.setattr(analyze_module, "hinf_gamma", timed)
     assert paper_loop.uncertain
-    rep = analyze_module.analyze(paper_loop, cross_validation=False, lower_bounds=False)
+    rep = analyze_module.analyze(paper_loop, cross_validation=False)
     calls = {c["robust"]: c for c in map(json.loads, log.read_text().splitlines())}
     assert set(calls) == {False, True} and len({c["pid"] for c in calls.values()} | {os.getpid()}) == 3
     assert calls[True]["start"] >= calls[False]["end"]
     monkeypatch.undo()
     assert rep.robust.gamma == hinf_gamma(paper_loop, robust=True).gamma
     assert rep.nominal.gamma == hinf_gamma(paper_loop, robust=False).gamma
+
+
+@pytest.mark.parametrize("lower_bounds", [True, False])
+def test_gated_only_when_the_lower_bounds_run(paper_loop: Any, lower_bounds: bool,
+                                             monkeypatch: pytest.MonkeyPatch) -> None:
+    """Without the lower bounds (or above the size where they are computed) Lemma 4.1's
+    solve is the longest chain and starts at once: no gate."""
+    gates: list[bool] = []
+    after = analyze_module._after
+
+    def spy(gate: int | None, *args: Any) -> Any:
+        gates.append(gate is not None)
+        return after(gate, *args)
+
+    monkeypatch.setattr(analyze_module, "_after", spy)
+    rep = analyze_module.analyze(paper_loop, cross_validation=False, lower_bounds=lower_bounds)
+    assert gates == [lower_bounds, False]  # Lemma 4.1's, then Theorem 3.2's (never gated)
+    assert rep.robust.certified and analyze_module.within_solve_limit(paper_loop)
+    assert (rep.robust_lower is not None) == lower_bounds
 
 
 def test_a_killed_opener_opens_the_gate() -> None:

@@ -42,7 +42,7 @@ from .crossval import ModeCheck, cross_validate
 from ..limits import check_memory, dense_generator_estimate
 from .lmi_analysis import LMIResult, hinf_gamma, mes_known, mes_lmi
 from .lmi_size import check_lmi_memory
-from .lower_bound import GainLowerBound, gain_lower_bound
+from .lower_bound import GainLowerBound, gain_lower_bound, within_solve_limit
 from .worst_delta import robust_lower_bound
 from .solvers import ForkedCall
 from .moments.stability import MSSResult, mean_square_stability
@@ -177,7 +177,7 @@ def _analyze(loop: ClosedLoop, solver: str | None, name: str, lmi: bool, lower_b
              check: Any, seconds: dict[str, float]) -> AnalysisReport:
     """The stages of :func:`analyze`; ``check``: the running
     :class:`~ftc_verify.prestart.Prestarted` (``None``: no cross-validation)."""
-    ahead, nominal_ahead = _gamma_ahead(loop, solver) if lmi else (None, None)
+    ahead, nominal_ahead = _gamma_ahead(loop, solver, lower_bounds and within_solve_limit(loop)) if lmi else (None, None)
     try:
         return _stages(loop, solver, name, lmi, lower_bounds, check, seconds, ahead, nominal_ahead)
     finally:
@@ -186,17 +186,20 @@ def _analyze(loop: ClosedLoop, solver: str | None, name: str, lmi: bool, lower_b
                 call.cancel()
 
 
-def _gamma_ahead(loop: ClosedLoop, solver: str | None) -> tuple[ForkedCall | None, ForkedCall | None]:
+def _gamma_ahead(loop: ClosedLoop, solver: str | None,
+                 gated: bool = True) -> tuple[ForkedCall | None, ForkedCall | None]:
     """The gamma programs that need nothing of the spectral stage, each in a forked child
     started before it: Theorem 3.2 without uncertainty channels (``(Theorem 3.2, None)``);
-    with them Lemma 4.1 and Theorem 3.2 in a second child, Lemma 4.1's solve started when
-    Theorem 3.2's child has its answer (:func:`_after`) (``(Lemma 4.1, Theorem 3.2)``:
+    with them Lemma 4.1 and Theorem 3.2 in a second child (``(Lemma 4.1, Theorem 3.2)``:
     this process then goes from the spectral stage straight to the lower bounds, which
     wait only for Theorem 3.2's answer, instead of solving it after the spectral stage:
-    the longest chain of stages one solve shorter, issue 37); cancelled when the loop is proved unstable. FLINT and Clarabel
-    are imported first so that no process imports them twice; ``(None, None)`` without
-    ``fork``. Each child solves the same program as a call here would (no hint, no shared
-    state), so its answer is the same to the last bit."""
+    the longest chain of stages one solve shorter, issue 37). ``gated``: Lemma 4.1's solve
+    starts when Theorem 3.2's child has its answer (:func:`_after`); ``analyze`` gates it
+    when the lower bounds run, which are then the longest chain (n = 8, m = 3), not
+    without them, when Lemma 4.1's solve is (n = 12, m = 4). Cancelled when the loop is
+    proved unstable. FLINT and Clarabel are imported first so that no process imports
+    them twice; ``(None, None)`` without ``fork``. Each child solves the same program as a
+    call here would (no hint, no shared state), so its answer is the same to the last bit."""
     if not hasattr(os, "fork"):
         return None, None
     import clarabel  # noqa: F401
@@ -205,7 +208,8 @@ def _gamma_ahead(loop: ClosedLoop, solver: str | None) -> tuple[ForkedCall | Non
     if loop.uncertain:
         gate, opener = os.pipe()  # Lemma 4.1's child starts when Theorem 3.2's has its answer (_after)
         try:
-            robust = ForkedCall(_after(gate, opener, lambda: hinf_gamma(loop, robust=True, solver=solver)), "Lemma 4.1")
+            robust = ForkedCall(_after(gate if gated else None, opener, lambda: hinf_gamma(loop, robust=True, solver=solver)),
+                                "Lemma 4.1")
             try:
                 return robust, ForkedCall(_after(None, gate, lambda: hinf_gamma(loop, robust=False, solver=solver),
                                                  opener), "Theorem 3.2")
