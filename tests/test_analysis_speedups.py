@@ -116,7 +116,7 @@ def test_a_failing_margin_certificate_falls_back_to_the_ladder(loop, monkeypatch
 
 
 def test_margin_solver_failure_falls_back(loop, monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(la, "solve_conic_dual", lambda problem: (SolveOutcome("clarabel", "error", 0.0, "boom"), None, None))
+    monkeypatch.setattr(la, "solve_conic_dual", lambda problem, settings=None: (SolveOutcome("clarabel", "error", 0.0, "boom"), None, None))
     res = la.hinf_gamma(loop, robust=True, solver="clarabel")
     assert res.certified and res.attempts[0].status == "error" and "from step 1" in res.message
 
@@ -124,8 +124,8 @@ def test_margin_solver_failure_falls_back(loop, monkeypatch: pytest.MonkeyPatch)
 def test_inaccurate_status_is_reported_not_hidden(loop, monkeypatch: pytest.MonkeyPatch) -> None:
     real = solvers.solve_conic_dual
 
-    def inaccurate(problem):
-        out, x, z = real(problem)
+    def inaccurate(problem, settings=None):
+        out, x, z = real(problem, settings)
         return SolveOutcome("clarabel", "optimal_inaccurate", out.seconds), x, z
 
     monkeypatch.setattr(la, "solve_conic_dual", inaccurate)

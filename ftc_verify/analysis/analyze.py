@@ -7,8 +7,8 @@
    rates, :mod:`ftc_verify.model.chain`);
 2. the smallest certified nominal gamma (Theorem 3.2) and robust gamma (Lemma 4.1,
    gains fixed), both over the rate box (each program in a forked child started before
-   step 1, which neither needs; without uncertainty channels Lemma 4.1's program is
-   Theorem 3.2's, solved once);
+   step 1, which neither needs, Lemma 4.1's solve once Theorem 3.2's has its answer;
+   without uncertainty channels Lemma 4.1's program is Theorem 3.2's, solved once);
 3. Theorem 3.1 over the rate box, certified (:func:`~ftc_verify.analysis.lmi_analysis.mes_lmi`),
    first with the ``P`` of step 2 (no solve), solved only when that check fails. When the
    box proof of step 1 would solve this LMI on the whole box (its centre's candidate
@@ -32,6 +32,7 @@ from __future__ import annotations
 import os
 import time
 from dataclasses import dataclass
+from collections.abc import Callable
 from typing import Any
 
 from .box import ROOT_LMI_DEFERRED
@@ -41,7 +42,7 @@ from .crossval import ModeCheck, cross_validate
 from ..limits import check_memory, dense_generator_estimate
 from .lmi_analysis import LMIResult, hinf_gamma, mes_known, mes_lmi
 from .lmi_size import check_lmi_memory
-from .lower_bound import GainLowerBound, gain_lower_bound
+from .lower_bound import GainLowerBound, gain_lower_bound, within_solve_limit
 from .worst_delta import robust_lower_bound
 from .solvers import ForkedCall
 from .moments.stability import MSSResult, mean_square_stability
@@ -176,7 +177,7 @@ def _analyze(loop: ClosedLoop, solver: str | None, name: str, lmi: bool, lower_b
              check: Any, seconds: dict[str, float]) -> AnalysisReport:
     """The stages of :func:`analyze`; ``check``: the running
     :class:`~ftc_verify.prestart.Prestarted` (``None``: no cross-validation)."""
-    ahead, nominal_ahead = _gamma_ahead(loop, solver) if lmi else (None, None)
+    ahead, nominal_ahead = _gamma_ahead(loop, solver, lower_bounds and within_solve_limit(loop)) if lmi else (None, None)
     try:
         return _stages(loop, solver, name, lmi, lower_bounds, check, seconds, ahead, nominal_ahead)
     finally:
@@ -185,30 +186,63 @@ def _analyze(loop: ClosedLoop, solver: str | None, name: str, lmi: bool, lower_b
                 call.cancel()
 
 
-def _gamma_ahead(loop: ClosedLoop, solver: str | None) -> tuple[ForkedCall | None, ForkedCall | None]:
+def _gamma_ahead(loop: ClosedLoop, solver: str | None,
+                 gated: bool = True) -> tuple[ForkedCall | None, ForkedCall | None]:
     """The gamma programs that need nothing of the spectral stage, each in a forked child
     started before it: Theorem 3.2 without uncertainty channels (``(Theorem 3.2, None)``);
-    with them Lemma 4.1 (the longest program of an uncertain loop) and Theorem 3.2 in a
-    second child (``(Lemma 4.1, Theorem 3.2)``: this process then goes from the spectral
-    stage straight to the lower bounds, which wait only for Theorem 3.2's answer, instead
-    of solving it after the spectral stage: the longest chain of stages one solve
-    shorter, issue 37); cancelled when the loop is proved unstable. FLINT and Clarabel
-    are imported first so that no process imports them twice; ``(None, None)`` without
-    ``fork``. Each child solves the same program as a call here would (no hint, no shared
-    state), so its answer is the same to the last bit."""
+    with them Lemma 4.1 and Theorem 3.2 in a second child (``(Lemma 4.1, Theorem 3.2)``:
+    this process then goes from the spectral stage straight to the lower bounds, which
+    wait only for Theorem 3.2's answer, instead of solving it after the spectral stage:
+    the longest chain of stages one solve shorter, issue 37). ``gated``: Lemma 4.1's solve
+    starts when Theorem 3.2's child has its answer (:func:`_after`); ``analyze`` gates it
+    when the lower bounds run, which are then the longest chain (n = 8, m = 3), not
+    without them, when Lemma 4.1's solve is (n = 12, m = 4). Cancelled when the loop is
+    proved unstable. FLINT and Clarabel are imported first so that no process imports
+    them twice; ``(None, None)`` without ``fork``. Each child solves the same program as a
+    call here would (no hint, no shared state), so its answer is the same to the last bit."""
     if not hasattr(os, "fork"):
         return None, None
     import clarabel  # noqa: F401
     import flint  # noqa: F401
 
     if loop.uncertain:
-        robust = ForkedCall(lambda: hinf_gamma(loop, robust=True, solver=solver), "Lemma 4.1")
+        gate, opener = os.pipe()  # Lemma 4.1's child starts when Theorem 3.2's has its answer (_after)
         try:
-            return robust, ForkedCall(lambda: hinf_gamma(loop, robust=False, solver=solver), "Theorem 3.2")
-        except BaseException:
-            robust.cancel()
-            raise
+            robust = ForkedCall(_after(gate if gated else None, opener, lambda: hinf_gamma(loop, robust=True, solver=solver)),
+                                "Lemma 4.1")
+            try:
+                return robust, ForkedCall(_after(None, gate, lambda: hinf_gamma(loop, robust=False, solver=solver),
+                                                 opener), "Theorem 3.2")
+            except BaseException:
+                robust.cancel()
+                raise
+        finally:
+            os.close(gate)
+            os.close(opener)
     return ForkedCall(lambda: hinf_gamma(loop, robust=False, solver=solver), "Theorem 3.2"), None
+
+
+def _after(gate: int | None, unused: int, fn: Callable[[], Any], opens: int | None = None) -> Callable[[], Any]:
+    """``fn`` for a forked child of :func:`_gamma_ahead`: the pipe end ``unused`` closed
+    first; with ``gate`` (a read end), ``fn`` starts at its end of file, i.e. once every
+    write end is closed; ``opens`` (a write end) is closed as soon as ``fn`` returns.
+    Lemma 4.1's child waits so for Theorem 3.2's: one core solves Theorem 3.2, then Lemma
+    4.1, while the other runs the spectral stage and the lower bounds alone, which wait
+    for Theorem 3.2's answer only (the longest chain of stages, issue 37: on two cores the
+    four processes started at once shared them, and that chain got half a core at first).
+    Lemma 4.1's answer is not needed before the end of that chain; a Theorem 3.2 child
+    that dies or is cancelled opens the gate too."""
+    def run() -> Any:
+        os.close(unused)
+        if gate is not None:
+            while os.read(gate, 1):
+                pass
+        try:
+            return fn()
+        finally:
+            if opens is not None:
+                os.close(opens)
+    return run
 
 
 def _stages(loop: ClosedLoop, solver: str | None, name: str, lmi: bool, lower_bounds: bool, check: Any,

@@ -75,7 +75,7 @@ from .robust_riccati import robust_riccati_candidate
 from .shared_channels import ChannelGroup, group_cones, merged_first, merged_loop, shared_input_groups
 from .lmi_size import (RICCATI_FIRST_SIZE, RICCATI_FIRST_STATES, SDP_FALLBACK_LIMIT, check_size, decision_size,
                        sdp_fallback_refusal)
-from .solvers import SETTINGS, SolveOutcome, choose_solver, second_solver, solve_conic, solve_conic_dual
+from .solvers import LEAN_SETTINGS, SETTINGS, SolveOutcome, choose_solver, second_solver, solve_conic, solve_conic_dual
 
 __all__ = ["GAMMA_LADDER", "ROUTES", "LMIResult", "mes_lmi", "mes_known", "hinf_gamma"]
 
@@ -140,8 +140,7 @@ class LMIResult:
 
 
 def _conditioned(loop: ClosedLoop) -> tuple[ClosedLoop, Similarity]:
-    sim = conditioning_transform(loop)
-    return sim.apply(loop), sim
+    return (sim := conditioning_transform(loop)).apply(loop), sim
 
 
 def _map_back(result: LMIResult, sim: Similarity) -> LMIResult:
@@ -396,8 +395,7 @@ def hinf_gamma(loop: ClosedLoop, *, robust: bool, solver: str | None = None,
 
 
 def _two_step_status(step1: SolveOutcome, step2: SolveOutcome) -> str:
-    """The status reported for a two-step answer: step 2's, or step 1's when step 2 was
-    ``optimal`` (so an ``optimal_inaccurate`` in either step is never hidden)."""
+    """The status of a two-step answer: step 2's, or step 1's when step 2 was ``optimal`` (none hidden)."""
     return step2.status if step2.status != "optimal" else step1.status
 
 
@@ -426,21 +424,20 @@ def _margin_problem(target: ClosedLoop, lay: _Layout, robust: bool, gamma_hat: f
 
 def _margin_gamma(original: ClosedLoop, target: ClosedLoop, sim: Similarity, robust: bool, gamma_hint: float | None,
                   attempts: list[SolveOutcome], merge: bool = False, ended: list[bool] | None = None) -> LMIResult | None:
-    r"""The certified gamma in (usually) one Clarabel solve, ``None`` when this path
-    gives no certificate (the caller then runs the two-step ladder); ``merge``: the program
-    of :func:`_layout` with ``merge``; ``True`` appended to ``ended`` when it ended cleanly.
+    r"""The certified gamma in (usually) one Clarabel solve, ``None`` when this path gives no certificate (the
+    caller then runs the two-step ladder); ``merge``: the program of :func:`_layout` with ``merge``; ``True``
+    appended to ``ended`` when it ended cleanly.
 
-    Minimise ``g`` with every block :math:`\preceq -\tau I` and :math:`P_s \succeq \tau I`
-    (``MARGIN_TAU``; ``Bw / gamma_hat`` as in step 2 of the ladder, ``gamma_hat``
-    the hint, else 1): the optimum is interior by :math:`\tau`, so its certificate
-    passes where the plain minimum's cannot, and ``-b' z`` at the dual point ``z`` bounds
-    the :math:`\tau = 0` minimum from below (the dual constraints do not depend on
-    :math:`\tau`). When the certified gamma is more than ``MARGIN_GAP`` above that
-    bound, the program is re-solved scaled by the certified gamma with :math:`\tau` cut
-    in proportion; when the certificate fails, with :math:`100\tau`. At most
-    ``MARGIN_SOLVES`` solves; the smallest certified gamma is kept; clean: the last one
-    ``optimal`` within ``MARGIN_GAP``. The certificate is the proof; the bound is only
-    the reported minimum (as step 1's)."""
+    Minimise ``g`` with every block :math:`\preceq -\tau I` and :math:`P_s \succeq \tau I` (``MARGIN_TAU``;
+    ``Bw / gamma_hat`` as in step 2 of the ladder, ``gamma_hat`` the hint, else 1): the optimum is interior by
+    :math:`\tau`, so its certificate passes where the plain minimum's cannot, and ``-b' z`` at the dual point
+    ``z`` bounds the :math:`\tau = 0` minimum from below (the dual constraints do not depend on :math:`\tau`).
+    When the certified gamma is more than ``MARGIN_GAP`` above that bound, the program is re-solved scaled by
+    the certified gamma with :math:`\tau` cut in proportion; when the certificate fails, with :math:`100\tau`.
+    At most ``MARGIN_SOLVES`` solves (each with Clarabel's :data:`~ftc_verify.analysis.solvers.LEAN_SETTINGS`,
+    again with the full settings when that gives no point or no certificate); the smallest certified gamma is
+    kept; clean: the last one ``optimal`` within ``MARGIN_GAP``. The certificate is the proof; the bound is
+    only the reported minimum (as step 1's)."""
     condition = "lemma-4.1" if robust else "theorem-3.2"
     lay = _layout(target, robust, merge)
     gamma_hat = gamma_hint if gamma_hint is not None and math.isfinite(gamma_hint) and gamma_hint > 0 else 1.0
@@ -448,15 +445,18 @@ def _margin_gamma(original: ClosedLoop, target: ClosedLoop, sim: Similarity, rob
     best: LMIResult | None = None
     for _ in range(MARGIN_SOLVES):
         problem = _margin_problem(target, lay, robust, gamma_hat)
-        out, x, z = solve_conic_dual(problem.fix(lay.t, tau))
-        attempts.append(out)
+        for settings in (LEAN_SETTINGS, None):  # lean first; the full settings when it gives no certificate
+            out, x, z = solve_conic_dual(problem.fix(lay.t, tau), settings)
+            attempts.append(out)
+            if x is not None and z is not None:
+                x = np.insert(x, lay.t, tau)
+                gamma, bound = (gamma_hat * math.sqrt(max(v, 0.0)) for v in (float(x[lay.g]), -float(problem.b @ z)))
+                Pv, lv = lay.values(x, robust)
+                cert = check_certificate(original, condition, Pv, lv, gamma ** 2, similarity=sim)
+                if cert.ok:
+                    break
         if x is None or z is None:
             break
-        x = np.insert(x, lay.t, tau)
-        gamma = gamma_hat * math.sqrt(max(float(x[lay.g]), 0.0))
-        bound = gamma_hat * math.sqrt(max(-float(problem.b @ z), 0.0))
-        Pv, lv = lay.values(x, robust)
-        cert = check_certificate(original, condition, Pv, lv, gamma ** 2, similarity=sim)
         if not cert.ok:
             if best is not None:
                 break

@@ -89,7 +89,7 @@ from .moments.stability import lyapunov_stack_solution
 from .verdict import SOLVE_LIMIT, StabilityProver, ball_lyapunov_solution
 
 __all__ = ["GainLowerBound", "gain_lower_bound", "float_gain", "worst_case_feedback", "exceeds", "FALL_TOL",
-           "BISECTION_RTOL"]
+           "BISECTION_RTOL", "within_solve_limit"]
 
 #: Relative width of the float bisection on the gain.
 BISECTION_RTOL = 1e-5
@@ -471,6 +471,12 @@ REFINE_ROWS = 120
 REFINE_RTOL = 1e-8
 
 
+def within_solve_limit(loop: ClosedLoop) -> bool:
+    """The second moments (``S n (n + 1) / 2`` rows) and the first (``2 S n``) within
+    :data:`~ftc_verify.analysis.verdict.SOLVE_LIMIT`: :func:`gain_lower_bound` computes a bound."""
+    return len(loop.A) * loop.n * (loop.n + 1) // 2 <= SOLVE_LIMIT and 2 * len(loop.A) * loop.n <= SOLVE_LIMIT
+
+
 def gain_lower_bound(loop: ClosedLoop, *, deltas: Sequence[tuple[str, dict[str, Matrix]]] = (("Delta=0", {}),),
                      worst_rates: Matrix | None = None, upper: float | None = None) -> GainLowerBound | None:
     """The proved lower bound of the worst-case gain of ``loop`` (module docstring).
@@ -486,7 +492,7 @@ def gain_lower_bound(loop: ClosedLoop, *, deltas: Sequence[tuple[str, dict[str, 
     rows (no proof would fit: nothing is computed)."""
     start = time.perf_counter()
     nominal = loop.nominal()
-    if len(loop.A) * loop.n * (loop.n + 1) // 2 > SOLVE_LIMIT or 2 * len(loop.A) * loop.n > SOLVE_LIMIT:
+    if not within_solve_limit(loop):
         return None
     gamma_f = None if upper is None else upper * ABOVE_CERTIFIED
     best: tuple[float, str, dict[str, Matrix], Matrix, tuple[Matrix, ...], float, Matrix, float, Matrix] | None = None

@@ -49,6 +49,7 @@ from .conic import ConicProblem, solve_clarabel, solve_clarabel_dual, to_cvxpy
 __all__ = [
     "SOLVERS",
     "SETTINGS",
+    "LEAN_SETTINGS",
     "SolveOutcome",
     "ForkedCall",
     "interruptible",
@@ -69,6 +70,16 @@ SETTINGS: dict[str, dict[str, Any]] = {
     "sdpa": {},
     "scs": {"eps_abs": 1e-8, "eps_rel": 1e-8, "max_iters": 200_000},
 }
+#: Clarabel's settings of the one-solve margin programs of
+#: :func:`~ftc_verify.analysis.lmi_analysis.hinf_gamma` (issue 37): :data:`SETTINGS`
+#: without iterative refinement of the KKT solves and without equilibration. On the
+#: Lemma 4.1 programs of random n = 8, 3 modes (9 seeds) and n = 12, 4 modes the same
+#: number of iterations or fewer (22 -> 17), 0.50 -> 0.25 s and 6.8 -> 3.6 s of CPU, the
+#: certified gammas within 3e-8 relative (``benchmarks/results/h37b9.md``). A margin
+#: program's answer stands only by its certificate; when a lean solve gives no point or
+#: no certificate, the program is solved again with :data:`SETTINGS`.
+LEAN_SETTINGS: dict[str, Any] = SETTINGS["clarabel"] | {"iterative_refinement_enable": False,
+                                                        "equilibrate_enable": False}
 #: Solvers run in a child process (their native code has ended the process itself).
 ISOLATED = frozenset({"sdpa"})
 
@@ -212,8 +223,10 @@ def _solve_isolated(problem: Any, solver: str) -> tuple[str, str]:
     return status, message
 
 
-def _clarabel_guarded(call: Any, problem: ConicProblem) -> tuple[SolveOutcome, tuple[Any, ...]]:
-    """Run ``call(problem, SETTINGS["clarabel"])`` (``(status, message, *arrays)``);
+def _clarabel_guarded(call: Any, problem: ConicProblem,
+                      settings: dict[str, Any] | None = None) -> tuple[SolveOutcome, tuple[Any, ...]]:
+    """Run ``call(problem, settings)`` (``(status, message, *arrays)``; ``None``:
+    ``SETTINGS["clarabel"]``);
     anything it raises, a Rust panic (a ``BaseException``) included, becomes status
     ``"error"`` and arrays ``None``. SIGINT and SIGTERM are held during the call and
     delivered after it (:func:`~ftc_verify.interrupts.deferred_signals`): raised inside
@@ -221,11 +234,14 @@ def _clarabel_guarded(call: Any, problem: ConicProblem) -> tuple[SolveOutcome, t
     start = time.perf_counter()
     try:
         with deferred_signals():
-            status, message, *arrays = call(problem, SETTINGS["clarabel"])
+            status, message, *arrays = call(problem, SETTINGS["clarabel"] if settings is None else settings)
     except BaseException as exc:  # pyo3's PanicException is a BaseException
         if not isinstance(exc, Exception) and type(exc).__name__ != "PanicException":
             raise  # Ctrl-C, SIGTERM (the CLI's own BaseException), SystemExit: never a solver failure
         status, message, arrays = "error", f"clarabel raised {type(exc).__name__}: {exc}", []
+    if settings is not None:  # the attempt names the settings it changed (the report's JSON shows them)
+        changed = ", ".join(f"{k}={v}" for k, v in settings.items() if SETTINGS["clarabel"].get(k) != v)
+        message = "; ".join(part for part in (message, f"settings {changed}" if changed else "") if part)
     outcome = SolveOutcome("clarabel", status, time.perf_counter() - start, message)
     usable = outcome.solved and arrays and all(a is not None and np.all(np.isfinite(a)) for a in arrays)
     return outcome, tuple(arrays) if usable else (None,) * 2
@@ -248,11 +264,13 @@ def solve_conic(problem: ConicProblem, solver: str) -> tuple[SolveOutcome, Matri
     return outcome, x
 
 
-def solve_conic_dual(problem: ConicProblem) -> tuple[SolveOutcome, Matrix | None, Matrix | None]:
+def solve_conic_dual(problem: ConicProblem,
+                     settings: dict[str, Any] | None = None) -> tuple[SolveOutcome, Matrix | None, Matrix | None]:
     """Clarabel on ``problem`` with the dual point: ``(outcome, x, z)``, both ``None``
     unless finite ones were returned (:func:`~ftc_verify.analysis.conic.solve_clarabel_dual`);
-    nothing raised escapes, as in :func:`solve_conic`."""
-    outcome, (x, z) = _clarabel_guarded(solve_clarabel_dual, problem)
+    nothing raised escapes, as in :func:`solve_conic`. ``settings``: Clarabel's
+    (``None``: ``SETTINGS["clarabel"]``; :data:`LEAN_SETTINGS`)."""
+    outcome, (x, z) = _clarabel_guarded(solve_clarabel_dual, problem, settings)
     return outcome, x, z
 
 

@@ -1,0 +1,65 @@
+"""Clarabel's lean settings on hinf_gamma's one-solve path (analysis.solvers.LEAN_SETTINGS):
+the certified gammas those solves give are the full settings' to well under 1e-3 relative,
+still certified, and a lean solve that gives no point or no certificate is solved again
+with the full settings (issue 37 item 3)."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import pytest
+
+from ftc_verify.analysis import lmi_analysis, solvers
+from ftc_verify.analysis.lmi_analysis import hinf_gamma
+
+
+def _full(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The one-solve path with the full settings (no lean solve at all)."""
+    monkeypatch.setattr(lmi_analysis, "LEAN_SETTINGS", solvers.SETTINGS["clarabel"])
+
+
+@pytest.mark.parametrize("robust", [False, True])
+def test_lean_gammas_are_the_full_settings_ones_and_certified(paper_loop: Any, robust: bool,
+                                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    lean = hinf_gamma(paper_loop, robust=robust)
+    assert lean.certified and lean.certificate is not None and lean.certificate.ok
+    assert len(lean.attempts) == 1 and "iterative_refinement_enable=False" in lean.attempts[0].message
+    _full(monkeypatch)
+    full = hinf_gamma(paper_loop, robust=robust)
+    assert full.certified and full.attempts[0].message == ""
+    assert lean.gamma is not None and full.gamma is not None
+    assert abs(lean.gamma - full.gamma) <= 1e-6 * full.gamma
+
+
+def test_a_failed_lean_solve_is_solved_again_with_the_full_settings(paper_loop: Any,
+                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    """A lean solve stopped after one iteration gives no point (``user_limit``): the same
+    program is solved again with the full settings, whose answer is the full path's own."""
+    _full(monkeypatch)
+    full = hinf_gamma(paper_loop, robust=True)
+    monkeypatch.setattr(lmi_analysis, "LEAN_SETTINGS", solvers.SETTINGS["clarabel"] | {"max_iter": 1})
+    again = hinf_gamma(paper_loop, robust=True)
+    assert [a.status for a in again.attempts] == ["user_limit", "optimal"]
+    assert "max_iter=1" in again.attempts[0].message and again.attempts[1].message == ""
+    assert again.certified and again.gamma == full.gamma
+
+
+def test_a_lean_point_without_certificate_is_solved_again(paper_loop: Any, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The first certificate check (the lean point's) refused: the full settings' point is
+    checked and kept, the margin unchanged (no ``100 tau`` step)."""
+    _full(monkeypatch)
+    full = hinf_gamma(paper_loop, robust=False)
+    monkeypatch.undo()
+    check = lmi_analysis.check_certificate
+    calls: list[float] = []
+
+    def refuse_first(*args: Any, **kwargs: Any) -> Any:
+        cert = check(*args, **kwargs)
+        calls.append(args[4])
+        return cert if len(calls) > 1 else dataclasses.replace(cert, ok=False)
+
+    monkeypatch.setattr(lmi_analysis, "check_certificate", refuse_first)
+    again = hinf_gamma(paper_loop, robust=False)
+    assert len(again.attempts) == 2 and "settings" in again.attempts[0].message and again.attempts[1].message == ""
+    assert again.certified and again.gamma == full.gamma and len(calls) == 2
