@@ -301,7 +301,7 @@ def abscissa_near(loop: ClosedLoop, beta: Matrix, level: float, *, modes_part: A
             lower, upper = max(lower, sigma - 1.0 / lo), min(upper, sigma - 1.0 / hi)
             if upper - lower <= rtol * max(1.0, abs(upper)):
                 return 0.5 * (lower + upper)
-            first = min(first, upper - lower)
+            first = upper - lower if first == np.inf else first
             X = Y / np.abs(Y).max()
         if upper - lower > NEAR_ROUND_SHRINK * first:  # stalled (docstring): dense eigenvalues instead
             return None
