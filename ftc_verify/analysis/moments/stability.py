@@ -60,6 +60,7 @@ __all__ = [
     "SHIFT_GMRES_RTOL",
     "SHIFT_GMRES_RESTARTS",
     "NEAR_ROUND_SHRINK",
+    "communicating_classes",
 ]
 
 
@@ -120,7 +121,34 @@ def spectral_abscissa(loop: ClosedLoop, beta: Matrix) -> float:
         from .matrix_free import matrix_free_abscissa
 
         return matrix_free_abscissa(loop, beta)
-    return float(np.max(scipy.linalg.eigvals(second_moment_generator(loop, beta), check_finite=False).real))
+    Q = loop.chain.generator(beta)
+    return max(float(np.max(scipy.linalg.eigvals(second_moment_matrix([loop.A[s] for s in c], Q[np.ix_(c, c)]),
+                                                 check_finite=False).real)) for c in communicating_classes(Q))
+
+
+def communicating_classes(Q: Matrix) -> list[np.ndarray]:
+    r"""The joint states of the generator ``Q`` grouped into its communicating classes
+    (the strongly connected components of the graph of its nonzero off-diagonal rates),
+    each class's states ascending (the classes in scipy's order).
+
+    :math:`\mathcal L` couples :math:`X_s` to :math:`X_t` only through :math:`q_{ts}`
+    (module docstring), so with the joint states ordered class by class (a class before those it
+    reaches) it is block triangular, and its eigenvalues are those of its diagonal blocks together: the block of
+    a class :math:`C` is ``second_moment_matrix(A[C], Q[C, C])`` (the rates leaving
+    :math:`C` stay on the diagonal). One class (an irreducible chain) is the whole
+    generator. The three-tank observer loop at a rate vertex: a class of 10 joint states
+    and 6 unreachable ones, eigenvalues of 210 + 6 x 21 rows instead of 336 (a quarter of
+    the flops).
+    """
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    graph = np.asarray(Q, dtype=float) != 0.0
+    np.fill_diagonal(graph, False)
+    count, labels = connected_components(sp.csr_matrix(graph), directed=True, connection="strong")
+    if count == 1:
+        return [np.arange(len(labels))]
+    return [np.flatnonzero(labels == k) for k in range(count)]
 
 
 def generator_size(loop: ClosedLoop) -> int:
