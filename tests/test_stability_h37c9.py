@@ -1,16 +1,21 @@
-"""``abscissa_near`` on a reducible chain (a permanent fault): the power iteration's
-bracket cannot close there, and it gives up after one round instead of 80 steps."""
+"""The spectral stage and the exact energy with less work, the same answers:
+``abscissa_near`` on a reducible chain (a permanent fault), where the power iteration's
+bracket cannot close, gives up after one round instead of 80 steps; the dense abscissa by
+communicating classes; the infinite-horizon energy's Hurwitz condition by the shift test."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 import scipy.sparse.linalg
+from box_systems import shifted
 
 from ftc_verify.analysis.closedloop import ClosedLoop, state_feedback_loop
 from ftc_verify.analysis.moments.stability import (abscissa_near, communicating_classes, generator_size,
                                                    mean_square_stability, second_moment_generator,
                                                    spectral_abscissa)
+from ftc_verify.analysis.moments.energy import exact_energy
+from ftc_verify.errors import ValidationError
 from ftc_verify.model.system import FTCSystem
 
 
@@ -70,3 +75,20 @@ def test_the_abscissa_by_communicating_classes_is_the_whole_generators() -> None
         assert sorted(np.concatenate(classes).tolist()) == list(range(len(loop.A)))
         whole = float(np.max(np.linalg.eigvals(second_moment_generator(loop, beta)).real))
         assert spectral_abscissa(loop, beta) == pytest.approx(whole, rel=1e-12, abs=1e-14)
+
+
+def test_infinite_horizon_energy_proved_without_eigenvalues(paper_loop: ClosedLoop,
+                                                            monkeypatch: pytest.MonkeyPatch) -> None:
+    """The paper loop's infinite-horizon energy needs no eigenvalue problem (the shift test
+    proves the augmented generator Hurwitz) and is the finite-horizon energy's limit; a
+    non-decaying disturbance and an unstable loop are still refused (the shift test does
+    not show them, the eigenvalues decide)."""
+    beta = next(iter(paper_loop.chain.vertices()))
+    finite = exact_energy(paper_loop, beta=beta, horizon=400.0)
+    monkeypatch.setattr(np.linalg, "eigvals", lambda *a, **k: pytest.fail("eigenvalues computed"))
+    infinite = exact_energy(paper_loop, beta=beta)
+    assert infinite.y_energy == pytest.approx(finite.y_energy, rel=1e-9)
+    monkeypatch.undo()
+    for loop, disturbance in ((paper_loop, "sine"), (paper_loop, "step"), (shifted(paper_loop, -50.0), "paper")):
+        with pytest.raises(ValidationError, match="infinite horizon needs"):
+            exact_energy(loop, beta=beta, disturbance=disturbance)
