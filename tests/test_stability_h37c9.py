@@ -11,7 +11,8 @@ import scipy.sparse.linalg
 from box_systems import shifted
 
 from ftc_verify.analysis.closedloop import ClosedLoop, state_feedback_loop
-from ftc_verify.analysis.moments.stability import (abscissa_near, communicating_classes, generator_size,
+from ftc_verify.analysis.moments.stability import (CLASS_SPLIT_ROWS, abscissa_near, communicating_classes,
+                                                   generator_size,
                                                    mean_square_stability, second_moment_generator,
                                                    spectral_abscissa)
 from ftc_verify.analysis.moments.energy import exact_energy
@@ -67,7 +68,8 @@ def test_the_abscissa_by_communicating_classes_is_the_whole_generators() -> None
     (the block of a class keeps the rates that leave it on its diagonal: blocks built
     from the classes' own generators, the leaving rates dropped, are 0.5 higher at two of the four vertices). The
     nominal dynamics the slower ones, so that the transient class decides."""
-    loop = permanent_fault_loop(4, decay=(1.0, 3.0))
+    loop = permanent_fault_loop(7, decay=(1.0, 3.0))
+    assert generator_size(loop) >= CLASS_SPLIT_ROWS
     for beta in loop.chain.vertices():
         Q = loop.chain.generator(beta)
         classes = communicating_classes(Q)
