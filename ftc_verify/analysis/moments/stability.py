@@ -476,9 +476,8 @@ def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256,
     ``max_vertices``, else a greedy vertex ascent with that budget; a vertex that
     :func:`abscissa_below` shows below the worst value so far needs no eigenvalues, the
     others get :func:`abscissa_near` (:func:`spectral_abscissa` at the first vertex, when
-    that fails, and at once where the joint chain at the vertex is reducible -- more than
-    one of :func:`communicating_classes` -- whose Collatz-Wielandt bracket stalls, see
-    :func:`abscissa_near`). An instability the box proof finds raises the estimate to it.
+    that fails, and where the chain at the vertex has several :func:`communicating_classes`:
+    the bracket stalls there). An instability the box proof finds raises the estimate to it.
     """
     sim = conditioning_transform(loop.nominal())
     nominal = sim.apply(loop.nominal())
@@ -496,14 +495,11 @@ def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256,
             b[idx] = hi[idx] if up else lo[idx]
         return b
 
-    def irreducible(bits: tuple[bool, ...]) -> bool:
-        return len(communicating_classes(chain.generator(vertex(bits)))) == 1
-
     def value(bits: tuple[bool, ...], near: float | None = None) -> float:
         seen.add(bits)
         if bits not in exact:
-            mu = None if near is None or modes_part is None or not irreducible(bits) else abscissa_near(
-                nominal, vertex(bits), near, modes_part=modes_part, norms=norms)
+            mu = None if near is None or modes_part is None or len(communicating_classes(chain.generator(
+                vertex(bits)))) > 1 else abscissa_near(nominal, vertex(bits), near, modes_part=modes_part, norms=norms)
             exact[bits] = spectral_abscissa(nominal, vertex(bits)) if mu is None else mu
         return exact[bits]
 
