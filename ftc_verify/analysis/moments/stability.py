@@ -466,18 +466,16 @@ def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256,
     and ``root_lmi``) and the float estimate of the worst spectral abscissa over its vertices.
 
     At a detection rate 0 (a missed detection) the verdict is about an FDI that never
-    detects that fault (:mod:`ftc_verify.analysis.lmi`).
-
-    The loop is first moved to the coordinates of
+    detects that fault (:mod:`ftc_verify.analysis.lmi`). The loop is first moved to the coordinates of
     :func:`~ftc_verify.analysis.conditioning.conditioning_transform`. Above
     :data:`DENSE_LIMIT` rows (ARPACK, seconds per vertex) the estimate is the vertex
     ascent of :func:`~ftc_verify.analysis.moments.matrix_free.linearised_ascent`
     (``exhaustive=False``). Otherwise every vertex is evaluated when there are at most
     ``max_vertices``, else a greedy vertex ascent with that budget; a vertex that
     :func:`abscissa_below` shows below the worst value so far needs no eigenvalues, the
-    others get :func:`abscissa_near` (:func:`spectral_abscissa` at the first vertex, when
-    that fails, and where the chain at the vertex has several :func:`communicating_classes`:
-    the bracket stalls there). An instability the box proof finds raises the estimate to it.
+    others get :func:`abscissa_near` (:func:`spectral_abscissa` at the first vertex, when that
+    fails, and where the chain has several :func:`communicating_classes`: it stalls there).
+    An instability the box proof finds raises the estimate to it.
     """
     sim = conditioning_transform(loop.nominal())
     nominal = sim.apply(loop.nominal())
