@@ -82,10 +82,11 @@ import scipy.linalg
 
 from ...model.system import Matrix
 from .sampled import SCAN_PER_OCTAVE, SampledLoop, assemble_map, rate_points
+from .sampled_taylor import float_pd, identity_stack
 from .stability import vech_order
 
 __all__ = ["BITS", "TAYLOR", "MARGIN", "DENSE_SIZE", "POWER", "SHIFT", "ScanCount", "Flow", "scan_grid",
-           "binary_pieces", "ladder", "cone_bounds", "perron_stack", "scan", "ring_scan"]
+           "binary_pieces", "ladder", "cone_bounds", "perron_stack", "scan", "ring_scan", "octave_verdicts"]
 
 #: Binary places of ``h / lo`` below its leading one taken from the ladder of squares
 #: (:func:`binary_pieces`); the rest, below ``2^-BITS`` of the period, by a Taylor series.
@@ -343,3 +344,43 @@ def _evaluate(loop: SampledLoop, flow: Flow, tests: list[Matrix | None], idx: in
     if Y is not None:
         tests[idx] = Y
     return rho
+
+
+def octave_verdicts(loop: SampledLoop, hi: float, octaves: int) -> list[tuple[float, bool]]:
+    r"""Float64 verdicts at the periods :math:`h_k = hi\, 2^{-k}`, ``k = octaves, ..., 0``
+    (smallest first): ``True`` where every rate point of
+    :func:`~ftc_verify.analysis.moments.sampled.rate_points` passes the test below. A
+    screen for warnings (``synthesize`` without ``--period``), never a claim.
+
+    Per rate point one exponential at the smallest period and one square per octave
+    (:math:`e^{\mathcal L 2h} = (e^{\mathcal L h})^2`); per period, instead of the
+    eigenvalues of :math:`T`, one LU: :math:`Y = (I - T)^{-1} I` with every block
+    :math:`Y_s \succ 0` (float64). Derived here: then :math:`Y - T(Y) = I \succ 0`, so
+    :math:`
+ho(T) < 1` (the "Stable" argument of
+    :mod:`~ftc_verify.analysis.moments.sampled_proof`); conversely :math:`
+ho(T) < 1`
+    gives :math:`Y = \sum_k T^k(I) \succeq I \succ 0` (:math:`T` maps positive
+    semidefinite stacks to such stacks). On slow plants, whose :math:`
+ho` at short
+    periods is within ``1e-6`` of 1, :func:`scan`'s cone test cannot decide and every
+    period costs an eigenvalue problem; this test does not depend on that margin.
+    """
+    hs = [math.ldexp(hi, -k) for k in range(octaves, -1, -1)]
+    stable = [True] * len(hs)
+    vd = loop.d * (loop.d + 1) // 2
+    eye = identity_stack(loop.states, loop.r)
+    with np.errstate(over="ignore", invalid="ignore"):  # an overflow is a result: not stable
+        for p in rate_points(loop.chain):
+            F = scipy.linalg.expm((loop.modes_part + np.kron(loop.chain.generator(p).T, np.eye(vd))) * hs[0])
+            for k, h in enumerate(hs):
+                if k:
+                    F = F @ F
+                if stable[k]:
+                    T = assemble_map(loop, F, h)
+                    try:
+                        y: Matrix | None = np.asarray(np.linalg.solve(np.eye(T.shape[0]) - T, eye), dtype=np.float64)
+                    except np.linalg.LinAlgError:
+                        y = None
+                    stable[k] = y is not None and bool(np.all(np.isfinite(y))) and float_pd(y, loop.states, loop.r)
+    return list(zip(hs, stable))
