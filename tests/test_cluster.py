@@ -28,7 +28,7 @@ from paper_run import PAPER_VERIFY_OPTIONS
 from ftc_verify.controllers import load_controller
 from ftc_verify.model.files import load_system
 from ftc_verify.simulation.batches import fmu_monte_carlo
-from ftc_verify.simulation.cluster import open_client
+from ftc_verify.simulation.cluster import open_client, start_fork_server
 from ftc_verify.simulation.delta import DeltaSchedule
 from ftc_verify.simulation.paths import sample_paths
 from ftc_verify.simulation.streaming import simulate_streaming
@@ -224,7 +224,10 @@ def _arm(marker: str, phase: str) -> None:
 def _fmu_run_with_losses(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, phase: str, kill_first: bool) -> None:
     """The FMU backend on two workers armed with :func:`_arm` (``phase``), one of them
     SIGKILLed before the run with ``kill_first``: the marker is taken (a worker died in
-    that phase), the records equal a serial run's and the temporary folder is empty."""
+    that phase), the records equal a serial run's and the temporary folder is empty (the
+    process's fork server for local workers, whose socket ``multiprocessing`` keeps in a
+    folder of the temporary folder of the moment for the life of the process, started first)."""
+    start_fork_server()
     tmp = tmp_path / "tmp"
     tmp.mkdir()
     monkeypatch.setenv("TMPDIR", str(tmp))
