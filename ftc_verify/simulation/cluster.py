@@ -142,7 +142,7 @@ def dask_setup(worker: Any) -> None:
 
 
 def _fork_server_used() -> bool:
-    """Local workers are forked from a fork server: the platform has one and Dask's
+    """Local workers may be forked from a fork server: the platform has one and Dask's
     ``distributed.worker.multiprocessing-method`` is its default, ``spawn``."""
     import dask
     import distributed  # noqa: F401  (registers the ``distributed.*`` settings' defaults)
@@ -177,9 +177,13 @@ def start_fork_server() -> bool:
     Returns
     -------
     bool
-        Whether local workers are forked from it: False (nothing started) where the platform
-        has no ``forkserver`` or Dask's ``distributed.worker.multiprocessing-method`` is not its
-        default ``spawn`` (a user's choice is kept; the workers are then started that way).
+        Whether local workers are forked from it. False (nothing started; the workers are
+        started Dask's way) where the platform has no ``forkserver``, where Dask's
+        ``distributed.worker.multiprocessing-method`` is not its default ``spawn`` (a user's
+        choice is kept), and where the server is not running and its socket cannot be made
+        (``OSError``): a temporary folder whose path leaves no room for the socket's name
+        (a Unix socket's path has at most 107 bytes on Linux; Python 3.11 puts it at
+        ``TMP/pymp-XXXXXXXX/listener-XXXXXXXX``), or one it cannot write.
     """
     if not _fork_server_used():
         return False
@@ -191,7 +195,10 @@ def start_fork_server() -> bool:
     with dask.config.set({_START_METHOD: "forkserver"}):
         get_mp_context().set_forkserver_preload(list(WORKER_PRELOAD))  # read when the server starts
     _pre_spawn_environment()
-    forkserver.ensure_running()
+    try:
+        forkserver.ensure_running()
+    except OSError:  # its socket cannot be made there (a path too long, a folder not writable): spawn
+        return False
     return True
 
 
