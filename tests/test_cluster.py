@@ -6,7 +6,6 @@ reference backend and on FMUs loaded once per worker; misuse is one error, exit 
 from __future__ import annotations
 
 import json
-import logging
 import os
 import signal
 import subprocess
@@ -67,10 +66,11 @@ def scheduler() -> Iterator[str]:
     """The address of an existing 2-worker cluster, started once for the tests that reach
     it by ``--scheduler`` (each command connects as a new client). Module-scoped, not one
     per session: an idle 2-worker cluster costs about 12 % of a core (3.5 s of CPU per
-    30 s, measured), which over a session outweighs the 2-3 s of CPU of a start."""
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
-                                  silence_logs=logging.ERROR) as cluster:
-        yield cluster.scheduler_address
+    30 s, measured), which over a session outweighs the 2-3 s of CPU of a start. Started
+    by ``open_client`` (no client of its own: ``wait=False``), so its workers are forked
+    from the test process's fork server like every local cluster's here."""
+    with open_client(workers=2, wait=False) as start:
+        yield start.cluster().scheduler_address
 
 
 @pytest.mark.slow(6)  # seconds on 2 busy cores (--durations at load 9, / 4): scheduled first

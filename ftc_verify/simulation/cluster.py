@@ -23,6 +23,10 @@ The contract:
   lines, bounded by :data:`CLOSE_TIMEOUT`) and lets the interrupting exception propagate
   unchanged. Worker processes ignore SIGINT (:func:`dask_setup`, their preload): a Ctrl-C
   in a terminal reaches the whole process group, and the client tears them down anyway.
+* Local workers are forked from this process's fork server (:func:`start_fork_server`,
+  preloaded with :data:`WORKER_PRELOAD`) where it can be used, else spawned (Dask's
+  default); either way a worker gets this process's environment as it is when its cluster
+  starts, and its run folder as ``TMPDIR``.
 """
 
 from __future__ import annotations
