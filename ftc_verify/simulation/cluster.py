@@ -49,6 +49,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import ValidationError
+from ..interrupts import deferred_signals
 from ..limits import CONNECT_TIMEOUT, format_bytes, memory_limit
 
 __all__ = ["open_client", "ClusterStart", "start_fork_server", "check_cluster_options", "max_workers", "dask_setup", "CONNECT_TIMEOUT",
@@ -416,8 +417,12 @@ def open_client(workers: int | None = None, scheduler: str | None = None, wait: 
     folder: Path | None = None
     with _forked_workers():
         try:
-            folder = Path(tempfile.mkdtemp(prefix="ftc-verify-cluster-"))
-            start = ClusterStart(int(workers), folder)
+            # SIGTERM/SIGINT held until both exist: a signal inside ClusterStart (its thread
+            # started, the object not yet returned) left a start nobody shut down, which
+            # wrote into the removed run folder as the process exited
+            with deferred_signals():
+                folder = Path(tempfile.mkdtemp(prefix="ftc-verify-cluster-"))
+                start = ClusterStart(int(workers), folder)
             yield start if not wait else start.client()
         finally:
             if start is not None:
