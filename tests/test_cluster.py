@@ -6,7 +6,6 @@ reference backend and on FMUs loaded once per worker; misuse is one error, exit 
 from __future__ import annotations
 
 import json
-import logging
 import os
 import signal
 import subprocess
@@ -28,7 +27,7 @@ from paper_run import PAPER_VERIFY_OPTIONS
 from ftc_verify.controllers import load_controller
 from ftc_verify.model.files import load_system
 from ftc_verify.simulation.batches import fmu_monte_carlo
-from ftc_verify.simulation.cluster import open_client
+from ftc_verify.simulation.cluster import open_client, start_fork_server
 from ftc_verify.simulation.delta import DeltaSchedule
 from ftc_verify.simulation.paths import sample_paths
 from ftc_verify.simulation.streaming import simulate_streaming
@@ -67,10 +66,11 @@ def scheduler() -> Iterator[str]:
     """The address of an existing 2-worker cluster, started once for the tests that reach
     it by ``--scheduler`` (each command connects as a new client). Module-scoped, not one
     per session: an idle 2-worker cluster costs about 12 % of a core (3.5 s of CPU per
-    30 s, measured), which over a session outweighs the 2-3 s of CPU of a start."""
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
-                                  silence_logs=logging.ERROR) as cluster:
-        yield cluster.scheduler_address
+    30 s, measured), which over a session outweighs the 2-3 s of CPU of a start. Started
+    by ``open_client`` (no client of its own: ``wait=False``), so its workers are forked
+    from the test process's fork server like every local cluster's here."""
+    with open_client(workers=2, wait=False) as start:
+        yield start.cluster().scheduler_address
 
 
 @pytest.mark.slow(6)  # seconds on 2 busy cores (--durations at load 9, / 4): scheduled first
@@ -224,7 +224,10 @@ def _arm(marker: str, phase: str) -> None:
 def _fmu_run_with_losses(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, phase: str, kill_first: bool) -> None:
     """The FMU backend on two workers armed with :func:`_arm` (``phase``), one of them
     SIGKILLed before the run with ``kill_first``: the marker is taken (a worker died in
-    that phase), the records equal a serial run's and the temporary folder is empty."""
+    that phase), the records equal a serial run's and the temporary folder is empty (the
+    process's fork server for local workers, whose socket ``multiprocessing`` keeps in a
+    folder of the temporary folder of the moment for the life of the process, started first)."""
+    start_fork_server()
     tmp = tmp_path / "tmp"
     tmp.mkdir()
     monkeypatch.setenv("TMPDIR", str(tmp))

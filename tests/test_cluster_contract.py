@@ -56,7 +56,11 @@ def _free_port() -> int:
 
 @pytest.fixture
 def temp_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
-    """This test's temporary folder for this process (``tempfile``) and its children."""
+    """This test's temporary folder for this process (``tempfile``) and its children. The
+    process's fork server for local workers is started first (``cluster.start_fork_server``):
+    ``multiprocessing`` keeps its socket in a folder of the temporary folder of that moment
+    for the life of the process, which is not what a run leaves behind."""
+    cluster.start_fork_server()
     folder = tmp_path / "tmp"
     folder.mkdir()
     monkeypatch.setenv("TMPDIR", str(folder))

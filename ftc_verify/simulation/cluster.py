@@ -23,6 +23,10 @@ The contract:
   lines, bounded by :data:`CLOSE_TIMEOUT`) and lets the interrupting exception propagate
   unchanged. Worker processes ignore SIGINT (:func:`dask_setup`, their preload): a Ctrl-C
   in a terminal reaches the whole process group, and the client tears them down anyway.
+* Local workers are forked from this process's fork server (:func:`start_fork_server`,
+  preloaded with :data:`WORKER_PRELOAD`) where it can be used, else spawned (Dask's
+  default); either way a worker gets this process's environment as it is when its cluster
+  starts, and its run folder as ``TMPDIR``.
 """
 
 from __future__ import annotations
@@ -45,10 +49,11 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import ValidationError
+from ..interrupts import deferred_signals
 from ..limits import CONNECT_TIMEOUT, format_bytes, memory_limit
 
-__all__ = ["open_client", "ClusterStart", "check_cluster_options", "max_workers", "dask_setup", "CONNECT_TIMEOUT",
-           "CLOSE_TIMEOUT", "WORKERS_PER_CORE", "WORKER_MEMORY", "ALLOWED_FAILURES"]
+__all__ = ["open_client", "ClusterStart", "start_fork_server", "check_cluster_options", "max_workers", "dask_setup", "CONNECT_TIMEOUT",
+           "CLOSE_TIMEOUT", "WORKERS_PER_CORE", "WORKER_MEMORY", "ALLOWED_FAILURES", "WORKER_PRELOAD"]
 
 _INSTALL = "pip install 'ftc-verify[dask]'"
 #: Seconds each of the client and the local cluster may take to close.
@@ -66,6 +71,13 @@ WORKER_MEMORY = 256 * 1024 ** 2
 #: Deaths of the worker running a task before the local scheduler gives the task up
 #: (``KilledWorker``): a lost worker is retried twice, a crashing plant FMU is found fast.
 ALLOWED_FAILURES = 2
+#: Modules imported once by the fork server that local worker processes are forked from (where
+#: the platform has one: :func:`start_fork_server`), so that each worker starts with them loaded
+#: instead of importing them itself: Dask and numpy, the reference and FMU batch code (which
+#: pulls in the simulation and analysis packages) and FMPy's FMI 2 module (skipped if absent).
+WORKER_PRELOAD = ("distributed", "numpy", "ftc_verify.simulation.cluster", "ftc_verify.simulation.streaming",
+                  "ftc_verify.simulation.fmu_workers", "fmpy.fmi2")
+_START_METHOD = "distributed.worker.multiprocessing-method"
 _PROTOCOLS = ("tcp", "tls", "ws", "wss", "ucx")
 _ADDRESS = re.compile(r"^(?:(?P<protocol>[A-Za-z][A-Za-z0-9+.-]*)://)?(?P<host>\[[0-9A-Fa-f:.]+\]|[^\s:/\[\]]+)"
                       r":(?P<port>[0-9]{1,5})/?$")
@@ -132,6 +144,80 @@ def dask_setup(worker: Any) -> None:
     group; the client shuts the workers down itself."""
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _fork_server_used() -> bool:
+    """Local workers may be forked from a fork server: the platform has one and Dask's
+    ``distributed.worker.multiprocessing-method`` is its default, ``spawn``."""
+    import dask
+    import distributed  # noqa: F401  (registers the ``distributed.*`` settings' defaults)
+
+    return dask.config.get(_START_METHOD) == "spawn" and "forkserver" in multiprocessing.get_all_start_methods()
+
+
+def _pre_spawn_environment() -> None:
+    """Set in this process's environment what Dask's nanny sets in it before it starts
+    each worker process (``distributed.nanny.pre-spawn-environ``: one BLAS thread, glibc's
+    trim threshold; ``PYTHONHASHSEED`` 6640 unless configured), a variable already set kept
+    as the nanny keeps it: the fork server, started before any nanny, inherits them."""
+    import dask
+
+    wanted = {k: os.environ.get(k, str(v)) for k, v in dask.config.get("distributed.nanny.pre-spawn-environ").items()
+              if v is not None}
+    if wanted.get("PYTHONHASHSEED") in (None, "0"):
+        wanted["PYTHONHASHSEED"] = "6640"
+    os.environ.update(wanted)
+
+
+def start_fork_server() -> bool:
+    """Start this process's fork server for local Dask workers now (it is otherwise started
+    by the first local cluster's first worker), preloaded with :data:`WORKER_PRELOAD`.
+
+    A spawned worker is a fresh interpreter importing Dask, numpy and this package (about
+    1 s of CPU each on 2 cores); one forked from the server starts with them loaded. The
+    server serves every later local cluster of this process and every worker a nanny
+    restarts, and ends with the process. ``multiprocessing`` keeps its socket in a folder
+    ``pymp-*`` of the temporary folder of the moment, removed when the process exits.
+
+    Returns
+    -------
+    bool
+        Whether local workers are forked from it. False (nothing started; the workers are
+        started Dask's way) where the platform has no ``forkserver``, where Dask's
+        ``distributed.worker.multiprocessing-method`` is not its default ``spawn`` (a user's
+        choice is kept), and where the server is not running and its socket cannot be made
+        (``OSError``): a temporary folder whose path leaves no room for the socket's name
+        (a Unix socket's path has at most 107 bytes on Linux; Python 3.11 puts it at
+        ``TMP/pymp-XXXXXXXX/listener-XXXXXXXX``), or one it cannot write.
+    """
+    if not _fork_server_used():
+        return False
+    import dask
+    from multiprocessing import forkserver
+
+    from distributed.utils import get_mp_context
+
+    with dask.config.set({_START_METHOD: "forkserver"}):
+        get_mp_context().set_forkserver_preload(list(WORKER_PRELOAD))  # read when the server starts
+    _pre_spawn_environment()
+    try:
+        forkserver.ensure_running()
+    except OSError:  # its socket cannot be made there (a path too long, a folder not writable): spawn
+        return False
+    return True
+
+
+@contextmanager
+def _forked_workers() -> Iterator[None]:
+    """Within the block Dask's nannies start worker processes from :func:`start_fork_server`'s
+    server (started here if need be) instead of spawning them; unchanged where it returns False."""
+    import dask
+
+    if not start_fork_server():
+        yield
+        return
+    with dask.config.set({_START_METHOD: "forkserver"}):
+        yield
 
 
 @contextmanager
@@ -255,7 +341,8 @@ class ClusterStart:
             try:
                 self._box["cluster"] = LocalCluster(
                     n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                    silence_logs=logging.CRITICAL, local_directory=str(folder), env={"TMPDIR": str(folder)},
+                    silence_logs=logging.CRITICAL, local_directory=str(folder),
+                    env=dict(os.environ) | {"TMPDIR": str(folder)},  # forked workers: this process's environment now
                     preload=[__name__],
                     scheduler_kwargs={"local_directory": str(folder), "allowed_failures": ALLOWED_FAILURES})
             except BaseException as exc:  # handed to the main thread
@@ -328,13 +415,18 @@ def open_client(workers: int | None = None, scheduler: str | None = None, wait: 
     earlier = set(multiprocessing.active_children())
     start: ClusterStart | None = None
     folder: Path | None = None
-    try:
-        folder = Path(tempfile.mkdtemp(prefix="ftc-verify-cluster-"))
-        start = ClusterStart(int(workers), folder)
-        yield start if not wait else start.client()
-    finally:
-        if start is not None:
-            start.close()
-        _reap_workers(CLOSE_TIMEOUT, earlier)
-        if folder is not None:
-            shutil.rmtree(folder, ignore_errors=True)
+    with _forked_workers():
+        try:
+            # SIGTERM/SIGINT held until both exist: a signal inside ClusterStart (its thread
+            # started, the object not yet returned) left a start nobody shut down, which
+            # wrote into the removed run folder as the process exited
+            with deferred_signals():
+                folder = Path(tempfile.mkdtemp(prefix="ftc-verify-cluster-"))
+                start = ClusterStart(int(workers), folder)
+            yield start if not wait else start.client()
+        finally:
+            if start is not None:
+                start.close()
+            _reap_workers(CLOSE_TIMEOUT, earlier)
+            if folder is not None:
+                shutil.rmtree(folder, ignore_errors=True)
