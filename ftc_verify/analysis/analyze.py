@@ -208,10 +208,10 @@ def _gamma_ahead(loop: ClosedLoop, solver: str | None,
     if loop.uncertain:
         gate, opener = os.pipe()  # Lemma 4.1's child starts when Theorem 3.2's has its answer (_after)
         try:
-            robust = ForkedCall(_after(gate if gated else None, opener, lambda: hinf_gamma(loop, robust=True, solver=solver)),
+            robust = ForkedCall(_after(gate if gated else None, opener, lambda: hinf_gamma(loop, robust=True, solver=solver, lean=True)),
                                 "Lemma 4.1")
             try:
-                return robust, ForkedCall(_after(None, gate, lambda: hinf_gamma(loop, robust=False, solver=solver),
+                return robust, ForkedCall(_after(None, gate, lambda: hinf_gamma(loop, robust=False, solver=solver, lean=True),
                                                  opener), "Theorem 3.2")
             except BaseException:
                 robust.cancel()
@@ -219,7 +219,7 @@ def _gamma_ahead(loop: ClosedLoop, solver: str | None,
         finally:
             os.close(gate)
             os.close(opener)
-    return ForkedCall(lambda: hinf_gamma(loop, robust=False, solver=solver), "Theorem 3.2"), None
+    return ForkedCall(lambda: hinf_gamma(loop, robust=False, solver=solver, lean=True), "Theorem 3.2"), None
 
 
 def _after(gate: int | None, unused: int, fn: Callable[[], Any], opens: int | None = None) -> Callable[[], Any]:
@@ -333,14 +333,14 @@ def _gammas(loop: ClosedLoop, solver: str | None, seconds: dict[str, float],
     the lower-bound part of :func:`_nominal_side` as ``lower_bounds_beside``)."""
     t = time.perf_counter()
     if not loop.uncertain:
-        nominal = ahead.result() if ahead is not None else hinf_gamma(loop, robust=False, solver=solver)
+        nominal = ahead.result() if ahead is not None else hinf_gamma(loop, robust=False, solver=solver, lean=True)
         seconds["theorem_3_2"] = seconds["lemma_4_1"] = time.perf_counter() - t
         return nominal, nominal, None, None
     if ahead is None:
-        nominal = hinf_gamma(loop, robust=False, solver=solver)
+        nominal = hinf_gamma(loop, robust=False, solver=solver, lean=True)
         seconds["theorem_3_2"] = time.perf_counter() - t
         hint = nominal.gamma if nominal.certified else None  # Lemma 4.1's gamma is at least this
-        robust = hinf_gamma(loop, robust=True, solver=solver, gamma_hint=hint)
+        robust = hinf_gamma(loop, robust=True, solver=solver, gamma_hint=hint, lean=True)
         seconds["lemma_4_1"] = time.perf_counter() - t - seconds["theorem_3_2"]
         return nominal, robust, None, None
     nominal, early, beside = _nominal_side(loop, solver, mss, nominal_ahead)
@@ -366,7 +366,7 @@ def _nominal_side(loop: ClosedLoop, solver: str | None, mss: MSSResult | None,
     nominal gamma certified) the nominal lower bound and the robust one at a constant
     ``Delta`` (``None`` in their place when not computed or when they fail:
     :func:`_lower_bounds` then computes them), and the seconds those took."""
-    nominal = nominal_ahead.result() if nominal_ahead is not None else hinf_gamma(loop, robust=False, solver=solver)
+    nominal = nominal_ahead.result() if nominal_ahead is not None else hinf_gamma(loop, robust=False, solver=solver, lean=True)
     if mss is None or mss.unstable or not nominal.certified:
         return nominal, None, 0.0
     t = time.perf_counter()

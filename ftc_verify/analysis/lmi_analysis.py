@@ -12,26 +12,21 @@ r"""LMI analysis of a fixed closed loop, with independently checked certificates
   ``robust=False``) or of Lemma 4.1 with the gains fixed (``robust=True``; the
   S-procedure multipliers are free, so the problem is convex).
 
-The minimal-:math:`\gamma` optimum lies on the boundary of the feasible set (singular
-Lyapunov matrices), where no certificate can pass. With Clarabel, :func:`hinf_gamma`
-first solves *one* program with the margin built in (``_margin_gamma``): minimise
-:math:`g` with every block :math:`\preceq -\tau I` and :math:`P_s \succeq \tau I`
-(``MARGIN_TAU``, on the blocks with :math:`B_w/\hat\gamma`, :math:`\hat\gamma` a
-hint from below or 1); its optimum is interior, so its certificate passes, and the dual
-point bounds the :math:`\tau = 0` minimum from below, which says how far above the
-minimum the certified gamma is (re-solved, at most ``MARGIN_SOLVES`` times, when more
-than ``MARGIN_GAP``): one solve per certified gamma where the ladder below needs
-two. When that path gives no certificate, and with the other solvers, the
-two-step ladder runs: minimise :math:`g = \gamma^2`, then re-solve at
-:math:`\gamma_1 = \gamma^*(1+\rho)`
-for :math:`\rho` in :data:`GAMMA_LADDER`, maximising a common margin :math:`t` with
-:math:`M_s \preceq -t I`, :math:`P_s \succeq t I` -- on the blocks congruent by
-:math:`\operatorname{diag}(I, \gamma_1^{-1} I, I)`, i.e. with :math:`B_w/\gamma_1` and
-:math:`g = 1`, so that a large :math:`\gamma` does not make the :math:`-gI` row dwarf the
-margin (the same :math:`P` certifies both) -- and reports the first
-:math:`\gamma_1` whose certificate passes -- after ``REFINE_STEPS`` geometric
-bisections of :math:`\rho` between that step and the one before it when the one before
-failed, so that a coarse ladder does not cost up to a factor 10 in :math:`\rho`.
+The minimal-:math:`\gamma` optimum lies on the boundary of the feasible set (singular Lyapunov matrices), where
+no certificate can pass. With Clarabel, :func:`hinf_gamma` first solves *one* program with the margin built in
+(``_margin_gamma``): minimise :math:`g` with every block :math:`\preceq -\tau I` and :math:`P_s \succeq \tau I`
+(``MARGIN_TAU``, on the blocks with :math:`B_w/\hat\gamma`, :math:`\hat\gamma` a hint from below or 1); its
+optimum is interior, so its certificate passes, and the dual point bounds the :math:`\tau = 0` minimum from
+below, which says how far above the minimum the certified gamma is (re-solved, at most ``MARGIN_SOLVES`` times,
+when more than ``MARGIN_GAP``): one solve per certified gamma where the ladder below needs two. When that path
+gives no certificate, and with the other solvers, the two-step ladder runs: minimise :math:`g = \gamma^2`, then
+re-solve at :math:`\gamma_1 = \gamma^*(1+\rho)` for :math:`\rho` in :data:`GAMMA_LADDER`, maximising a common
+margin :math:`t` with :math:`M_s \preceq -t I`, :math:`P_s \succeq t I` -- on the blocks congruent by
+:math:`\operatorname{diag}(I, \gamma_1^{-1} I, I)`, i.e. with :math:`B_w/\gamma_1` and :math:`g = 1`, so that a
+large :math:`\gamma` does not make the :math:`-gI` row dwarf the margin (the same :math:`P` certifies both) --
+and reports the first :math:`\gamma_1` whose certificate passes -- after ``REFINE_STEPS`` geometric bisections
+of :math:`\rho` between that step and the one before it when the one before failed, so that a coarse ladder does
+not cost up to a factor 10 in :math:`\rho`.
 
 Conditioning: before any LMI is built the loop is moved to the coordinates of
 :func:`~ftc_verify.analysis.conditioning.conditioning_transform` (one similarity
@@ -83,10 +78,9 @@ __all__ = ["GAMMA_LADDER", "ROUTES", "LMIResult", "mes_lmi", "mes_known", "hinf_
 GAMMA_LADDER = (1e-5, 1e-4, 1e-3, 1e-2, 5e-2, 0.2, 1.0)
 #: Geometric bisections between the last failing and the first certifying ladder step.
 REFINE_STEPS = 3
-#: Margin of the one-solve program (``_margin_gamma``): blocks <= -tau I, P >= tau I,
-#: in the coordinates where the output row is -I and ``g`` is about 1. Measured on
-#: random n = 8, 3 modes and n = 12, 4 modes: certified at 1e-7 already, gamma
-#: 1e-6 relative above the dual bound at 1e-6.
+#: Margin of the one-solve program (``_margin_gamma``): blocks <= -tau I, P >= tau I, in the coordinates where
+#: the output row is -I and ``g`` is about 1. Measured on random n = 8, 3 modes and n = 12, 4 modes: certified at
+#: 1e-7 already, gamma 1e-6 relative above the dual bound at 1e-6.
 MARGIN_TAU = 1e-6
 #: Routes of :func:`hinf_gamma`.
 ROUTES = ("auto", "sdp", "riccati")
@@ -354,7 +348,7 @@ def _mes_lmi(original: ClosedLoop, nominal: ClosedLoop, sim: Similarity, solver:
 
 
 def hinf_gamma(loop: ClosedLoop, *, robust: bool, solver: str | None = None,
-               gamma_hint: float | None = None, route: str = "auto") -> LMIResult:
+               gamma_hint: float | None = None, route: str = "auto", lean: bool = False) -> LMIResult:
     """Smallest certified gamma: Theorem 3.2 (``robust=False``, eq. (12), Delta = 0) or
     Lemma 4.1 with the gains fixed (``robust=True``, eq. (16) in LMI form), on the
     balanced loop (module docstring).
@@ -362,6 +356,9 @@ def hinf_gamma(loop: ClosedLoop, *, robust: bool, solver: str | None = None,
     ``gamma_hint``: an estimate of the answer, preferably from below (the certified
     nominal gamma for Lemma 4.1, whose blocks contain Theorem 3.2's as leading blocks);
     it only scales the one-solve program (``_margin_gamma``), never the answer.
+
+    ``lean``: the one-solve program first with :data:`~ftc_verify.analysis.solvers.LEAN_SETTINGS` (``analyze``'s
+    calls; the synthesis certifies its iterates with the full settings, whose answers steer its path).
 
     ``route``: ``"auto"`` tries, above :data:`~ftc_verify.analysis.lmi_size.RICCATI_FIRST_SIZE` decision variables
     (with at least :data:`~ftc_verify.analysis.lmi_size.RICCATI_FIRST_STATES` states), the
@@ -390,7 +387,7 @@ def hinf_gamma(loop: ClosedLoop, *, robust: bool, solver: str | None = None,
                                        found.certificate, found.P, found.multipliers, found.message + refused), sim)
         fallback = f"; the Riccati candidate was not used ({found.message}), SDP fallback"
     check_size(loop, robust, "Lemma 4.1" if robust else "Theorem 3.2")
-    result = _hinf_gamma(original, conditioned, sim, robust, solver, gamma_hint)
+    result = _hinf_gamma(original, conditioned, sim, robust, solver, gamma_hint, lean)
     return _map_back(dataclasses.replace(result, message=result.message + fallback), sim)
 
 
@@ -423,10 +420,11 @@ def _margin_problem(target: ClosedLoop, lay: _Layout, robust: bool, gamma_hat: f
 
 
 def _margin_gamma(original: ClosedLoop, target: ClosedLoop, sim: Similarity, robust: bool, gamma_hint: float | None,
-                  attempts: list[SolveOutcome], merge: bool = False, ended: list[bool] | None = None) -> LMIResult | None:
-    r"""The certified gamma in (usually) one Clarabel solve, ``None`` when this path gives no certificate (the
-    caller then runs the two-step ladder); ``merge``: the program of :func:`_layout` with ``merge``; ``True``
-    appended to ``ended`` when it ended cleanly.
+                  attempts: list[SolveOutcome], merge: bool = False, ended: list[bool] | None = None,
+                  lean: bool = False) -> LMIResult | None:
+    r"""The certified gamma in (usually) one Clarabel solve, ``None`` when this path gives no certificate (then
+    the two-step ladder); ``merge``: the program of :func:`_layout` with ``merge``; ``True`` appended to ``ended``
+    when it ended cleanly.
 
     Minimise ``g`` with every block :math:`\preceq -\tau I` and :math:`P_s \succeq \tau I` (``MARGIN_TAU``;
     ``Bw / gamma_hat`` as in step 2 of the ladder, ``gamma_hat`` the hint, else 1): the optimum is interior by
@@ -434,7 +432,7 @@ def _margin_gamma(original: ClosedLoop, target: ClosedLoop, sim: Similarity, rob
     ``z`` bounds the :math:`\tau = 0` minimum from below (the dual constraints do not depend on :math:`\tau`).
     When the certified gamma is more than ``MARGIN_GAP`` above that bound, the program is re-solved scaled by
     the certified gamma with :math:`\tau` cut in proportion; when the certificate fails, with :math:`100\tau`.
-    At most ``MARGIN_SOLVES`` solves (each with Clarabel's :data:`~ftc_verify.analysis.solvers.LEAN_SETTINGS`,
+    At most ``MARGIN_SOLVES`` solves (``lean``: each with Clarabel's :data:`~ftc_verify.analysis.solvers.LEAN_SETTINGS`,
     again with the full settings when that gives no point or no certificate); the smallest certified gamma is
     kept; clean: the last one ``optimal`` within ``MARGIN_GAP``. The certificate is the proof; the bound is
     only the reported minimum (as step 1's)."""
@@ -445,7 +443,7 @@ def _margin_gamma(original: ClosedLoop, target: ClosedLoop, sim: Similarity, rob
     best: LMIResult | None = None
     for _ in range(MARGIN_SOLVES):
         problem = _margin_problem(target, lay, robust, gamma_hat)
-        for settings in (LEAN_SETTINGS, None):  # lean first; the full settings when it gives no certificate
+        for settings in (LEAN_SETTINGS, None) if lean else (None,):  # lean first; full when no certificate
             out, x, z = solve_conic_dual(problem.fix(lay.t, tau), settings)
             attempts.append(out)
             if x is not None and z is not None:
@@ -477,7 +475,7 @@ def _margin_gamma(original: ClosedLoop, target: ClosedLoop, sim: Similarity, rob
 
 
 def _hinf_gamma(original: ClosedLoop, target: ClosedLoop, sim: Similarity, robust: bool,
-                solver: str | None, gamma_hint: float | None = None) -> LMIResult:
+                solver: str | None, gamma_hint: float | None = None, lean: bool = False) -> LMIResult:
     """The one-solve path (Clarabel; the shared channels merged first,
     :func:`~ftc_verify.analysis.shared_channels.merged_first`), else the two steps, on the
     conditioned ``target``; every certificate checked on ``original``."""
@@ -488,7 +486,8 @@ def _hinf_gamma(original: ClosedLoop, target: ClosedLoop, sim: Similarity, robus
     t_build = 0.0
     for name in _solver_order(target, solver, robust):
         t0, before = time.perf_counter(), len(attempts)
-        fast = merged_first(lambda merge, ended: _margin_gamma(original, target, sim, robust, gamma_hint, attempts, merge, ended),
+        fast = merged_first(lambda merge, ended: _margin_gamma(original, target, sim, robust, gamma_hint, attempts, merge,
+                                                               ended, lean),
                             robust and bool(shared_input_groups(target))) if name == "clarabel" else None
         t_build += time.perf_counter() - t0 - sum(a.seconds for a in attempts[before:])
         if fast is not None:
