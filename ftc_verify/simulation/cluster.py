@@ -201,10 +201,30 @@ def start_fork_server() -> bool:
         get_mp_context().set_forkserver_preload(list(WORKER_PRELOAD))  # read when the server starts
     _pre_spawn_environment()
     try:
-        forkserver.ensure_running()
+        with _sigint_ignored_at_exec():
+            forkserver.ensure_running()
     except OSError:  # its socket cannot be made there (a path too long, a folder not writable): spawn
         return False
     return True
+
+
+@contextmanager
+def _sigint_ignored_at_exec() -> Iterator[None]:
+    """SIGINT ignored while the fork server is spawned: a new interpreter keeps an ignored
+    disposition across ``exec`` (not a handler), so a Ctrl-C to the process group during its
+    1-2 s of preload imports does not print the server's ``KeyboardInterrupt`` traceback
+    (it ignores SIGINT itself only after them; the client ends it anyway). SIGTERM is held
+    and delivered after (:func:`~ftc_verify.interrupts.deferred_signals`); a SIGINT within
+    the few milliseconds of the spawn itself is ignored."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    with deferred_signals():
+        held = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        try:
+            yield
+        finally:
+            signal.signal(signal.SIGINT, held)
 
 
 @contextmanager
