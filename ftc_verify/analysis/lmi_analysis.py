@@ -59,6 +59,7 @@ from typing import Any
 
 import numpy as np
 
+from ..claimtext import upper_text
 from ..jsonable import fields_dict
 from ..model.system import Matrix
 from .closedloop import ClosedLoop
@@ -462,7 +463,7 @@ def _margin_gamma(original: ClosedLoop, target: ClosedLoop, sim: Similarity, rob
             continue
         gap = gamma / bound - 1.0 if bound > 0 else math.inf
         if best is None or best.gamma is None or gamma < best.gamma:
-            note = (f"minimum {bound:.6g} (dual bound of the margin program); certified at {gamma:.6g} "
+            note = (f"minimum {bound:.6g} (dual bound of the margin program); certified at {upper_text(gamma)} "
                     f"(+{max(gap, 0.0):.3g} relative), margin {tau:.3g}, one-solve path")
             if out.status != "optimal":
                 note += f"; solver status {out.status}, accepted only because the certificate passed"
@@ -545,7 +546,7 @@ def _ladder(original: ClosedLoop, target: ClosedLoop, sim: Similarity, robust: b
                     failed = mid
             gamma1, out2, Pv, lv, cert = found
             status = _two_step_status(out, out2)
-            note = f"minimum {gamma_star:.6g} from step 1; certified at {gamma1:.6g} (+{rho:.3g} relative)"
+            note = f"minimum {gamma_star:.6g} from step 1; certified at {upper_text(gamma1)} (+{rho:.3g} relative)"
             if status != "optimal":
                 note += f"; solver status {status}, accepted only because the certificate passed"
             return LMIResult(condition, "certified", gamma1, name, status, t_build,

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from ..claimtext import upper_text
 from ..errors import PlantRunError
 from ..jsonable import dumps
 from .common import (EXIT_NEGATIVE, EXIT_OK, EXIT_UNDECIDED, PLOT_SUFFIXES, add_connect_timeout, bad, check_output_file,
@@ -22,6 +23,11 @@ __all__ = ["add_risk_command"]
 #: Fewest communication steps a horizon must cover (as ``simulate``).
 MIN_STEPS = 10
 
+
+
+def _up4(x: float | None) -> str:
+    """A proved upper bound to 4 digits, rounded up (:mod:`ftc_verify.claimtext`), ``-`` for none."""
+    return "-" if x is None else upper_text(x, 4)
 
 def _floats(text: str) -> list[float]:
     """Argument type: comma-separated finite numbers."""
@@ -177,7 +183,7 @@ def _print(d: dict[str, Any], args: argparse.Namespace) -> None:
     if d["failed_paths"]:
         print(f"  {d['failed_paths']} paths diverged or their plant failed (counted as leaving)")
     if d["upper_bound"] is not None:
-        print(f"  upper bound: {fmt(d['upper_bound'].get('value'), 4)} ({d['upper_bound'].get('reason', '')})")
+        print(f"  upper bound: {_up4(d['upper_bound'].get('value'))} ({d['upper_bound'].get('reason', '')})")
     if d["timing"] is not None:
         t = d["timing"]
         events = ", ".join(f"{e.get('label')} {fmt(e.get('probability'), 4)}" for e in t.get("events", []))

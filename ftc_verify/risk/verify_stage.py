@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from ..claimtext import upper_text
 from ..controllers.controller import Controller
 from ..model.system import FTCSystem
 from ..simulation.spec import SimulationSpec
@@ -50,7 +51,7 @@ def risk_verdict(result: dict[str, Any], target: float | None) -> tuple[bool | N
     text = (f"P(leave {result['envelope']} within [0, {result['horizon']:g}]) = {result['probability']:.4g}, "
             f"{100 * result['confidence']:g} % interval [{lo:.4g}, {hi:.4g}] ({result['method']}, "
             f"{result['paths']} paths, {result['hits']} left, {result['backend']}); proved upper bound "
-            + ("none" if bound is None else f"{bound:.4g}"))
+            + ("none" if bound is None else upper_text(bound, 4)))
     if target is None:
         return None, text + "; no [risk].target: reported only"
     if bound is not None and bound <= target:

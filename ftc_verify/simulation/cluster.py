@@ -25,8 +25,11 @@ The contract:
   in a terminal reaches the whole process group, and the client tears them down anyway.
 * Local workers are forked from this process's fork server (:func:`start_fork_server`,
   preloaded with :data:`WORKER_PRELOAD`) where it can be used, else spawned (Dask's
-  default); either way a worker gets this process's environment as it is when its cluster
-  starts, and its run folder as ``TMPDIR``.
+  default); either way a worker gets the variables of this process's ``os.environ`` as they
+  are when its cluster starts (a forked worker: those the server had at start-up and were
+  unset since stay set; the interpreter's start-up ones, such as ``PYTHONHASHSEED``, are the
+  server's), and its run folder as ``TMPDIR``. A process killed by SIGKILL leaves the
+  server's ``pymp-*`` folder in the temporary folder.
 """
 
 from __future__ import annotations

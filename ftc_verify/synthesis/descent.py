@@ -61,6 +61,7 @@ import scipy.linalg
 
 from ..analysis.closedloop import barred
 from ..analysis.moments.stability import duplication_matrix, second_moment_matrix
+from ..claimtext import upper_text
 from ..controllers.controller import Controller
 from ..errors import ValidationError
 from ..jsonable import OMIT, fields_dict
@@ -476,7 +477,7 @@ def descent_route(system: FTCSystem, order: int, rows: list[dict[str, Any]], k_m
         history.append(chosen[2])
     kind = "robust" if chosen[1].robust.certified else "nominal (Lemma 4.1 not certified)"
     msg = (f"descent (order {order}) from {best.start}: stabilised at the true rates, then the tuning ladder{note}; "
-           f"best certified {kind} gamma {chosen[2]:.6g}")
+           f"best certified {kind} gamma {upper_text(chosen[2])}")
     return chosen[0], chosen[1], history, msg, public
 
 
@@ -512,7 +513,7 @@ def _alternate(system: FTCSystem, par: Parametrisation, chosen: tuple[Controller
     gamma = accepted_gamma(report, True)
     if gamma is None or gamma >= chosen[2] or (chosen[1].robust.certified and not report.robust.certified):
         return None, f"its answer not certified below the ladder's ({why})"
-    return (ctrl, report, gamma), f"{chosen[2]:.6g} -> {gamma:.6g} ({why})"
+    return (ctrl, report, gamma), f"{upper_text(chosen[2])} -> {upper_text(gamma)} ({why})"
 
 
 

@@ -61,6 +61,7 @@ import numpy as np
 
 from ..analysis.closedloop import closed_loop
 from ..analysis.lmi import block_specs, lyapunov_block
+from ..claimtext import upper_text
 from ..controllers.controller import Controller
 from ..model.system import FTCSystem, Matrix
 from .descent import Parametrisation, bfgs
@@ -270,6 +271,6 @@ def hinf_route(system: FTCSystem, order: int, starts: Sequence[tuple[str, Contro
             return ctrl, report, [r["start_gamma"], gamma], (
                 f"hinf (order {order}): BFGS on the bounded-real level from {r['name']}, "
                 f"{r['start_gamma']:.6g} -> {r['gamma']:.6g}; certified "
-                f"{'robust' if report.robust.certified else 'nominal (Lemma 4.1 not certified)'} gamma {gamma:.6g}"), public
+                f"{'robust' if report.robust.certified else 'nominal (Lemma 4.1 not certified)'} gamma {upper_text(gamma)}"), public
         row["reason"] = "not certified by the core analysis"
     return None, None, [], "hinf: no answer certified by the core analysis", public

@@ -174,7 +174,7 @@ def _ratio_plot(rep: VerifyReport, path: Path) -> None:
     if diverged:
         ax.set_title(f"{diverged} of {len(rep.records)} paths diverged (not shown)")
     if rep.gamma_certified is not None:
-        ax.axvline(rep.gamma_certified, color="tab:red", label=f"certified gamma {rep.gamma_certified:.4g}")
+        ax.axvline(rep.gamma_certified, color="tab:red", label=f"certified gamma {upper_text(rep.gamma_certified, 4)}")
     if rep.mc is not None and math.isfinite(rep.mc.mean_ratio):
         ax.axvline(np.sqrt(rep.mc.mean_ratio), color="k", ls="--", label="sqrt(mean ratio)")
     ax.set_xlabel("||y||_2 / ||w||_2 per path")

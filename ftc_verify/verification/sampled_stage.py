@@ -18,6 +18,7 @@ import numpy as np
 
 from ..analysis.moments.sampled import SampledLoop, SampledResult, sampled_analysis
 from ..analysis.solvers import interruptible
+from ..claimtext import upper_text
 from ..controllers.controller import Controller
 from ..errors import FTCError, MemoryLimitError, ValidationError
 from ..limits import check_memory, format_bytes
@@ -132,7 +133,7 @@ def sampled_energy_stage(system: FTCSystem, controller: Controller, step: float,
     worst = max(out, key=lambda e: e["ratio"])
     return out, Check(name, worst["ratio"] <= g2,
                       f"max E||y||^2/||w||^2 = {worst['ratio']:.6g} ({worst['delta']}, "
-                      f"{system.chain.rate_text(worst['beta'])}) vs gamma^2 = {g2:.6g}, {len(out)} cases, "
+                      f"{system.chain.rate_text(worst['beta'])}) vs gamma^2 = {upper_text(g2)}, {len(out)} cases, "
                       "infinite horizon, u and w held over each period")
 
 

@@ -233,7 +233,7 @@ def _exact_energies(system: FTCSystem, loop: ClosedLoop, g2: float) -> tuple[lis
     return exact, Check("exact energy", worst["ratio"] <= g2,
                         f"max E||y||^2/||w||^2 = {worst['ratio']:.6g} ({worst['delta']}, "
                         f"{system.chain.rate_text(worst['beta'])}) "
-                        f"vs gamma^2 = {g2:.6g}, {len(exact)} cases, infinite horizon")
+                        f"vs gamma^2 = {upper_text(g2)}, {len(exact)} cases, infinite horizon")
 
 
 def _fmu_monte_carlo(system: FTCSystem, controller: Controller, chain_paths: list[ChainPath], spec: SimulationSpec,
@@ -298,7 +298,7 @@ def _mc_check(records: list[PathRecord], gamma_cert: float, seed: int, step: flo
     mc = estimate(y, w, alpha=1e-6, gamma=gamma_cert, seed=seed)
     return mc, Check("Monte Carlo (FMU)", mc.upper_bound <= g2, divergence_note(records) or
                      f"mean ratio {mc.mean_ratio:.6g}, one-sided upper bound {mc.upper_bound:.6g} (alpha 1e-6, "
-                     f"{len(records)} paths) vs gamma^2 = {g2:.6g}; sample-and-hold at h = {step:g}, horizon {horizon:g}"
+                     f"{len(records)} paths) vs gamma^2 = {upper_text(g2)}; sample-and-hold at h = {step:g}, horizon {horizon:g}"
                      + ("; incremental: y(w) - y(w = 0) on the same paths" if incremental else ""))
 
 

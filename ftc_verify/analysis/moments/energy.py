@@ -127,7 +127,7 @@ def exact_energy(
     or ``[beta, false_alarm]``); ``start`` is the initial ``(true, fdi)``, at phase 0.
 
     The infinite horizon's condition, the augmented generator's spectral abscissa below
-    ``-1e-10 max(1, max |L_ij|)``, is first proved by
+    ``-1e-10 max(1, max |L_ij|)``, is first shown (float64, with a rounding margin) by
     :func:`~ftc_verify.analysis.moments.stability.abscissa_below` (a Lyapunov stack
     checked by Cholesky factors); only where that test does not show it are the dense
     eigenvalues computed (the three-tank observer loop: 576 rows, 64 rate vertices, an
@@ -154,7 +154,7 @@ def exact_energy(
     v = np.zeros(L.shape[0])
     v[s0 * size:(s0 + 1) * size] = _vech(np.outer(xz, xz))
     if math.isinf(horizon):
-        # Hurwitz to a margin: proved by the shift test (one solve and Cholesky factors), and
+        # Hurwitz to a margin: shown by the float shift test (one solve and Cholesky factors), and
         # only where it does not show it, decided by the dense eigenvalues as before
         threshold = -1e-10 * max(1.0, float(np.max(np.abs(L))))
         if not abscissa_below(aug, beta, threshold) and np.max(np.linalg.eigvals(L).real) >= threshold:

@@ -356,15 +356,13 @@ def octave_verdicts(loop: SampledLoop, hi: float, octaves: int) -> list[tuple[fl
     (:math:`e^{\mathcal L 2h} = (e^{\mathcal L h})^2`); per period, instead of the
     eigenvalues of :math:`T`, one LU: :math:`Y = (I - T)^{-1} I` with every block
     :math:`Y_s \succ 0` (float64). Derived here: then :math:`Y - T(Y) = I \succ 0`, so
-    :math:`
-ho(T) < 1` (the "Stable" argument of
-    :mod:`~ftc_verify.analysis.moments.sampled_proof`); conversely :math:`
-ho(T) < 1`
+    :math:`\rho(T) < 1` (the "Stable" argument of
+    :mod:`~ftc_verify.analysis.moments.sampled_proof`); conversely :math:`\rho(T) < 1`
     gives :math:`Y = \sum_k T^k(I) \succeq I \succ 0` (:math:`T` maps positive
-    semidefinite stacks to such stacks). On slow plants, whose :math:`
-ho` at short
+    semidefinite stacks to such stacks). On slow plants, whose :math:`\rho` at short
     periods is within ``1e-6`` of 1, :func:`scan`'s cone test cannot decide and every
-    period costs an eigenvalue problem; this test does not depend on that margin.
+    period costs an eigenvalue problem; this test does not depend on that margin. Only the
+    octaves are screened: a loop unstable only between two of them is not seen.
     """
     hs = [math.ldexp(hi, -k) for k in range(octaves, -1, -1)]
     stable = [True] * len(hs)
