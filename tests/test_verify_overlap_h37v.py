@@ -32,7 +32,7 @@ fork_only = pytest.mark.skipif(not hasattr(os, "fork"), reason="POSIX fork")
 
 def _fake_stages(system: Any, controller: Any, step: float, g2: float, checks: list[Check],
                  seconds: dict[str, float], mc: Any = None, spans: Any = None, here: bool = False,
-                 h_max_work: float | None = None) -> dict[str, Any]:
+                 h_max_work: float | None = None, reserved: float = 0.0) -> dict[str, Any]:
     """Stands in for the real stages: says where it ran and appends two checks."""
     t0 = time.perf_counter()
     checks += [Check("first", True, f"pid {os.getpid()}"), Check("second", here, f"step {step}")]
