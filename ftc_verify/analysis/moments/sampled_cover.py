@@ -40,15 +40,22 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...model.system import Matrix
+from ..rigorous import precision
 from .sampled import SampledLoop, rate_points, spectral_radius
-from .sampled_bracket import worst_vertex
+from .sampled_bracket import box_work, worst_vertex
 from .sampled_cubic import cubic_size, cubic_stable
+from .sampled_proof import MapParts, split_rate, subbox_stable
 
-__all__ = ["COVER_DEPTH", "PIECES", "FINE_FROM", "CoverResult", "cubic_work", "cubic_memory", "cover_rungs", "rung_pieces",
+__all__ = ["COVER_DEPTH", "MAP_DEPTH", "PIECES", "FINE_FROM", "CoverResult", "cubic_work", "cubic_memory", "cover_rungs", "rung_pieces",
            "cover_box", "cover_h_max"]
 
-#: The most halvings of the box along one path of the cover.
+#: The most halvings of the box along one path of the cover where cubic certificates are
+#: tried (halving the widest rate); below it only the one-period map's proofs.
 COVER_DEPTH = 10
+#: The most halvings along one path in all (below :data:`COVER_DEPTH` by
+#: :func:`~ftc_verify.analysis.moments.sampled_proof.split_rate`, the rule of the map's
+#: proofs: the rates the radius depends on most).
+MAP_DEPTH = 24
 #: The cubic pieces a rung may use, fewest first (:func:`rung_pieces`).
 PIECES = (2, 4, 8)
 #: Below this distance a rung uses at least 4 pieces: the seed-1 loop's sub-boxes needed 4
@@ -110,41 +117,48 @@ def rung_pieces(loop: SampledLoop, h: float, worst: Matrix, fewest: int, budget:
 @dataclass(frozen=True)
 class CoverResult:
     """What :func:`cover_h_max` did: ``h_max`` the closest period covered (``None``: no
-    rung), ``boxes`` the sub-boxes of its cover, ``pieces`` their certificates' pieces,
-    ``work`` the units charged, ``attempts`` the certificates tried, ``rungs`` one
-    ``(period, covered)`` per rung tried."""
+    rung), ``boxes`` the sub-boxes of its cover, ``pieces`` their cubic certificates'
+    pieces (``None``: the rung's worst vertex was not proved by any, its cover is by the
+    one-period map alone), ``work`` the units charged, ``attempts`` the cubic
+    certificates tried, ``maps`` the sub-boxes tried by their one-period map, ``rungs``
+    one ``(period, covered)`` per rung tried."""
 
     h_max: float | None
     boxes: int
-    pieces: int
+    pieces: int | None
     work: float
     attempts: int
+    maps: int
     rungs: tuple[tuple[float, bool], ...]
 
 
 Box = tuple[Matrix, Matrix, int]
 
 
-def _split(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, depth: int, worst: Matrix) -> tuple[Box, Box]:
-    """The two halves of ``[lo, hi]`` along its widest rate relative to the box, among
-    those the one that moves the float64 radius most: at ``v``, the sub-box's corner
-    nearest to ``worst`` (the worst vertex of the box), the rate flipped to the sub-box's
-    other end. Only the order of the splits depends on it (splitting the same two
-    radius-moving rates again and again left a held-out loop's sub-box unproved: the
-    rates that vary in time matter too); every sub-box is proved in ball arithmetic."""
+def _split(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, depth: int, worst: Matrix,
+           rate: tuple[int, ...] | None = None) -> tuple[Box, Box]:
+    """The two halves of ``[lo, hi]`` along ``rate`` or, not given, its widest rate
+    relative to the box, among those the one that moves the float64 radius most: at
+    ``v``, the sub-box's corner nearest to ``worst`` (the worst vertex of the box), the
+    rate flipped to the sub-box's other end. Only the order of the splits depends on it
+    (splitting the same two radius-moving rates again and again left a held-out loop's
+    sub-box unproved: the rates that vary in time matter too); every sub-box is proved
+    in ball arithmetic."""
     chain = loop.chain
-    free = [r for r in chain.rate_indices if hi[r] > lo[r]]
-    v = np.where(np.abs(worst - lo) <= np.abs(worst - hi), lo, hi)
-    base = spectral_radius(loop, h, v)
-    full = chain.rate_max - chain.rate_min
+    r = rate
+    if r is None:
+        free = [r for r in chain.rate_indices if hi[r] > lo[r]]
+        v = np.where(np.abs(worst - lo) <= np.abs(worst - hi), lo, hi)
+        base = spectral_radius(loop, h, v)
+        full = chain.rate_max - chain.rate_min
 
-    def score(r: tuple[int, ...]) -> tuple[float, float]:
-        p = v.copy()
-        p[r] = hi[r] if v[r] == lo[r] else lo[r]
-        change = abs(spectral_radius(loop, h, p) - base)
-        return (round(float((hi[r] - lo[r]) / full[r]), 12), change if np.isfinite(change) else 0.0)
+        def score(r: tuple[int, ...]) -> tuple[float, float]:
+            p = v.copy()
+            p[r] = hi[r] if v[r] == lo[r] else lo[r]
+            change = abs(spectral_radius(loop, h, p) - base)
+            return (round(float((hi[r] - lo[r]) / full[r]), 12), change if np.isfinite(change) else 0.0)
 
-    r = max(free, key=score)
+        r = max(free, key=score)
     mid = 0.5 * (lo[r] + hi[r])
     lo2, hi1 = lo.copy(), hi.copy()
     hi1[r] = mid
@@ -152,62 +166,78 @@ def _split(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, depth: int, wors
     return (lo, hi1, depth + 1), (lo2, hi, depth + 1)
 
 
-def cover_box(loop: SampledLoop, h: float, pieces: int, boxes: list[Box],
-              budget: float, worst: Matrix | None = None) -> tuple[list[Box] | None, float, int]:
+def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
+              budget: float, worst: Matrix | None = None) -> tuple[list[Box] | None, float, int, int]:
     """A cover of the union of ``boxes`` at period ``h`` (module docstring), depth first:
-    ``(sub-boxes, units charged, attempts)``, the sub-boxes ``None`` when the budget or
-    :data:`COVER_DEPTH` ran out first. ``worst``: the box's worst vertex (float64, found
+    ``(sub-boxes, units charged, cubic attempts, map proofs)``, the sub-boxes ``None``
+    when the budget or :data:`MAP_DEPTH` ran out first, or the float64 radius at a
+    sub-box's midpoint is not below 1. Each sub-box: the one-period map's proof
+    (:func:`~ftc_verify.analysis.moments.sampled_proof.subbox_stable`, charged
+    :func:`~ftc_verify.analysis.moments.sampled_bracket.box_work`), then, up to
+    :data:`COVER_DEPTH` and when ``pieces`` is given and the budget pays it, a cubic
+    certificate of ``pieces`` pieces. ``worst``: the box's worst vertex (float64, found
     here when not given), which orders the splits (module docstring)."""
-    cost = cubic_work(loop, pieces)
+    cost, per_map = (0.0 if pieces is None else cubic_work(loop, pieces)), box_work(loop)
     stack = list(reversed(boxes))
     leaves: list[Box] = []
-    spent, attempts = 0.0, 0
+    spent, attempts, maps = 0.0, 0, 0
+    with precision(64):
+        parts = MapParts.build(loop, h)
     while stack:
         lo, hi, depth = stack.pop()
-        if spent + cost > budget:
-            return None, spent, attempts
-        spent += cost
-        attempts += 1
-        cert = cubic_stable(loop, h, pieces, lo, hi)
-        if cert is not None and cert.proved:
+        if spent + per_map > budget:
+            return None, spent, attempts, maps
+        spent += per_map
+        maps += 1
+        if subbox_stable(loop, h, parts, lo, hi):
             leaves.append((lo, hi, depth))
             continue
-        if depth >= COVER_DEPTH or not any(hi[r] > lo[r] for r in loop.chain.rate_indices):
-            return None, spent, attempts
+        if pieces is not None and depth <= COVER_DEPTH and spent + cost <= budget:
+            spent += cost
+            attempts += 1
+            cert = cubic_stable(loop, h, pieces, lo, hi)
+            if cert is not None and cert.proved:
+                leaves.append((lo, hi, depth))
+                continue
+        if depth >= MAP_DEPTH or spectral_radius(loop, h, 0.5 * (lo + hi)) >= 1.0:
+            return None, spent, attempts, maps
         if worst is None:
             worst = worst_vertex(loop, h, rate_points(loop.chain))[1]
-        first, second = _split(loop, h, lo, hi, depth, worst)
+        idx = None if depth < COVER_DEPTH else split_rate(loop, h, lo, hi)
+        if idx is None and not any(hi[r] > lo[r] for r in loop.chain.rate_indices):
+            return None, spent, attempts, maps
+        first, second = _split(loop, h, lo, hi, depth, worst, idx)
         stack.append(second)
         stack.append(first)
-    return leaves, spent, attempts
+    return leaves, spent, attempts, maps
 
 
 def cover_h_max(loop: SampledLoop, h_max: float, h_max_unstable: float, work: float, rtol: float) -> CoverResult:
     """A period closer to ``h_max_unstable`` than ``h_max``, proved mean-square stable
-    for every rate of the box by a cover of cubic clock certificates (module docstring),
-    within ``work`` units; deterministic."""
+    for every rate of the box by a cover of sub-boxes, each proved by its one-period
+    map or a cubic clock certificate (module docstring), within ``work`` units;
+    deterministic."""
     gap = (h_max_unstable - h_max) / h_max_unstable
     boxes: list[Box] = [(np.array(loop.chain.rate_min, dtype=float), np.array(loop.chain.rate_max, dtype=float), 0)]
-    spent, attempts = 0.0, 0
-    best: tuple[float, int, int] | None = None
+    spent, attempts, maps = 0.0, 0, 0
+    best: tuple[float, int, int | None] | None = None
     rungs: list[tuple[float, bool]] = []
     worst = worst_vertex(loop, h_max_unstable, rate_points(loop.chain))[1]
-    pieces = PIECES[0]
+    pieces: int | None = PIECES[0]
     for f in cover_rungs(gap, rtol):
         h = h_max_unstable * (1.0 - f)
-        found, used, n = rung_pieces(loop, h, worst, max(pieces, 4 if f < FINE_FROM else 2), work - spent)
-        spent += used
-        attempts += n
-        leaves = None
-        if found is not None:
-            pieces = found
-            leaves, used, n = cover_box(loop, h, pieces, boxes, work - spent, worst)
+        if pieces is not None:  # once no pieces prove the worst vertex, none will closer to h_u
+            pieces, used, n = rung_pieces(loop, h, worst, max(pieces, 4 if f < FINE_FROM else 2), work - spent)
             spent += used
             attempts += n
+        leaves, used, n, k = cover_box(loop, h, pieces, boxes, work - spent, worst)
+        spent += used
+        attempts += n
+        maps += k
         rungs.append((h, leaves is not None))
         if leaves is None:
             break
         best, boxes = (h, len(leaves), pieces), leaves
     if best is None:
-        return CoverResult(None, 0, 0, spent, attempts, tuple(rungs))
-    return CoverResult(best[0], best[1], best[2], spent, attempts, tuple(rungs))
+        return CoverResult(None, 0, None, spent, attempts, maps, tuple(rungs))
+    return CoverResult(best[0], best[1], best[2], spent, attempts, maps, tuple(rungs))
