@@ -35,6 +35,7 @@ bracket on every machine.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -55,7 +56,7 @@ COVER_DEPTH = 10
 #: The most halvings along one path in all (below :data:`COVER_DEPTH` by
 #: :func:`~ftc_verify.analysis.moments.sampled_proof.split_rate`, the rule of the map's
 #: proofs: the rates the radius depends on most).
-MAP_DEPTH = 24
+MAP_DEPTH = 32
 #: The cubic pieces a rung may use, fewest first (:func:`rung_pieces`).
 PIECES = (2, 4, 8)
 #: Below this distance a rung uses at least 4 pieces: the seed-1 loop's sub-boxes needed 4
@@ -216,7 +217,8 @@ def cover_h_max(loop: SampledLoop, h_max: float, h_max_unstable: float, work: fl
     """A period closer to ``h_max_unstable`` than ``h_max``, proved mean-square stable
     for every rate of the box by a cover of sub-boxes, each proved by its one-period
     map or a cubic clock certificate (module docstring), within ``work`` units;
-    deterministic."""
+    deterministic. When a rung fails, one more at the geometric mean of its distance
+    and the last covered one (the rungs are 4x apart), then it stops."""
     gap = (h_max_unstable - h_max) / h_max_unstable
     boxes: list[Box] = [(np.array(loop.chain.rate_min, dtype=float), np.array(loop.chain.rate_max, dtype=float), 0)]
     spent, attempts, maps = 0.0, 0, 0
@@ -224,20 +226,26 @@ def cover_h_max(loop: SampledLoop, h_max: float, h_max_unstable: float, work: fl
     rungs: list[tuple[float, bool]] = []
     worst = worst_vertex(loop, h_max_unstable, rate_points(loop.chain))[1]
     pieces: int | None = PIECES[0]
-    for f in cover_rungs(gap, rtol):
+    todo, last, retried = list(cover_rungs(gap, rtol)), gap, False
+    while todo:
+        f = todo.pop(0)
         h = h_max_unstable * (1.0 - f)
-        if pieces is not None:  # once no pieces prove the worst vertex, none will closer to h_u
-            pieces, used, n = rung_pieces(loop, h, worst, max(pieces, 4 if f < FINE_FROM else 2), work - spent)
+        found = pieces
+        if found is not None:  # once no pieces prove the worst vertex, none will closer to h_u
+            found, used, n = rung_pieces(loop, h, worst, max(found, 4 if f < FINE_FROM else 2), work - spent)
             spent += used
             attempts += n
-        leaves, used, n, k = cover_box(loop, h, pieces, boxes, work - spent, worst)
+        leaves, used, n, k = cover_box(loop, h, found, boxes, work - spent, worst)
         spent += used
         attempts += n
         maps += k
         rungs.append((h, leaves is not None))
         if leaves is None:
-            break
-        best, boxes = (h, len(leaves), pieces), leaves
+            if retried or last < 2.0 * f:
+                break
+            todo, retried = [math.sqrt(last * f)], True
+            continue
+        best, boxes, pieces, last = (h, len(leaves), found), leaves, found, f
     if best is None:
         return CoverResult(None, 0, None, spent, attempts, maps, tuple(rungs))
     return CoverResult(best[0], best[1], best[2], spent, attempts, maps, tuple(rungs))
