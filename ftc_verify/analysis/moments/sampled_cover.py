@@ -4,32 +4,46 @@ stage behind ``analyze --h-max-work`` and ``verify --h-max-work``
 
 **A rung** is a period :math:`h = h_u (1 - f)`, :math:`h_u` the proved-unstable end of
 the bracket, proved mean-square stable for every rate array of the box by a *cover*: a
-list of sub-boxes whose union is the box, each with its own cubic clock certificate
-(:func:`~ftc_verify.analysis.moments.sampled_cubic.cubic_stable`, proved in ball
-arithmetic). Every constant rate array lies in some sub-box, whose certificate proves the
-spectral radius of its one-period map below 1 (module docstring of
+list of sub-boxes whose union is the box, each proved in ball arithmetic by any sound
+argument: its own one-period map
+(:func:`~ftc_verify.analysis.moments.sampled_proof.subbox_stable`, the sub-box proof of
+the default bracket: the upper envelope, then the map's polynomial form in the rates
+with a moving certificate), tried first (a few hundred work units), or else its own cubic
+clock certificate (:func:`~ftc_verify.analysis.moments.sampled_cubic.cubic_stable`,
+thousands). Every constant rate array lies in some sub-box, whose proof puts the
+spectral radius of its one-period map below 1 (module docstrings of
+:mod:`~ftc_verify.analysis.moments.sampled_proof`,
 :mod:`~ftc_verify.analysis.moments.sampled_cubic`); where two sub-boxes meet, both cover
-the shared face (the conditions are affine in the rates and proved at the vertices of
-each, the shared split value enclosed by the same ball in both).
+the shared face (each proof holds on its closed sub-box, the shared split value
+enclosed by the same ball in both).
 
 **Why sub-boxes.** A certificate common to the whole box also holds for rates that
 change in time inside it, and near ``h_max`` those can be worse than any constant rate
 (seed-1 ``n = 4, m = 3`` loop: whole box 1.5e-3 below the crossing with four cubic
 pieces, the worst vertex alone 5e-4, the sub-box of half the widths at that vertex 9e-4;
-``benchmarks/results/h31r.md``). A cover is built depth first: a sub-box whose
-certificate is not found or not proved is split in half along its widest rate (relative
-to the box; on ties the one that moves the float64 radius most near the box's worst
-vertex), at most :data:`COVER_DEPTH` times along a path.
+``benchmarks/results/h31r.md``). The map's proof loses margin to first order in the
+sub-box's widths (envelope) or higher (the polynomial forms), so it proves small
+sub-boxes near the worst vertex where no cubic certificate of a sub-box is found
+(held-out seed 13 at 1e-2: ``benchmarks/results/h31t.md``), and the cubic proves the
+large ones far from it. A cover is built depth first: a sub-box not proved is split in
+half along its widest rate (relative to the box; on ties the one that moves the float64
+radius most near the box's worst vertex) up to :data:`COVER_DEPTH` halvings along a
+path (cubic certificates tried), then along the rate of
+:func:`~ftc_verify.analysis.moments.sampled_proof.split_rate` (map proofs only) up to
+:data:`MAP_DEPTH`; it stops where a sub-box's midpoint has a float64 radius >= 1.
 
 **The ladder.** Rungs ``f = g/4, g/16, ...`` (``g`` the default bracket's relative width)
 down to the target ``0.9 rtol``, easy first; each rung starts from the previous rung's
 cover (its sub-boxes, not the whole box again), with the fewest pieces of :data:`PIECES`
 (at least the last rung's, and 4 below :data:`FINE_FROM`) that prove the worst vertex alone (:func:`rung_pieces`:
 splitting the rates cannot make up for too few pieces in the clock; on the seed-1 loop
-two pieces reach 2.5e-3, four 5e-4 there). It stops at the first rung not covered
-within the budget or the depth; the result is the last rung covered. Every attempt is
-charged :func:`cubic_work` units *before* it is solved (from the program's size only),
-and none is started that the budget cannot pay: the same loop and budget give the same
+two pieces reach 2.5e-3, four 5e-4 there; once none proves it, the later rungs are
+covered by map proofs alone). After the first rung not covered within the budget or the
+depth, one more at the geometric mean of its distance and the last covered one, then it
+stops; the result is the last rung covered. Every attempt is charged *before* it is
+solved, from the problem's size only (:func:`cubic_work` per cubic certificate,
+:func:`~ftc_verify.analysis.moments.sampled_bracket.box_work` per map proof), and none
+is started that the budget cannot pay: the same loop and budget give the same
 bracket on every machine.
 """
 
