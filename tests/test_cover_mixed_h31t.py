@@ -116,3 +116,21 @@ def test_map_only_cover_is_the_box_and_confirmed(monkeypatch: pytest.MonkeyPatch
             assert any(ha[r] <= lb[r] or hb[r] <= la[r] for r in idx)
     assert sum((volume(lo, hi) for lo, hi, _ in leaves), Fraction(0)) == volume(loop.chain.rate_min,
                                                                                  loop.chain.rate_max)
+
+
+def test_failed_rung_retried_once_at_the_geometric_mean(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Cubic certificates proving exactly the periods at least 4e-3 below ``hu``, map
+    proofs never: rungs 1e-2 (covered), 2.5e-3 (not), then once 5e-3 (covered), and no
+    rung after the retry."""
+    loop = _paper()
+    hu = PAPER_UNSTABLE
+
+    def cubic(loop: SampledLoop, h: float, pieces: int, lo: np.ndarray, hi: np.ndarray) -> object:
+        return type("Cert", (), {"proved": h <= hu * (1 - 4e-3)})()
+
+    monkeypatch.setattr(sampled_cover, "cubic_stable", cubic)
+    monkeypatch.setattr(sampled_cover, "subbox_stable", lambda *args: False)
+    got = cover_h_max(loop, 0.96 * hu, hu, 1e12, 1e-3)
+    assert [ok for _, ok in got.rungs] == [True, False, True]
+    assert [h for h, _ in got.rungs] == pytest.approx([hu * (1 - 1e-2), hu * (1 - 2.5e-3), hu * (1 - 5e-3)])
+    assert got.h_max == pytest.approx(hu * (1 - 5e-3))
