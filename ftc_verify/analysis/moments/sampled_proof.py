@@ -481,7 +481,7 @@ def split_rate(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix) -> tuple[int
 
 def subbox_stable(loop: SampledLoop, h: float, parts: MapParts, lo: Matrix, hi: Matrix,
                   deadline: float = math.inf) -> bool:
-    """``True`` when :math:`\rho(T(r)) < 1` is proved in ball arithmetic for every rate
+    r"""``True`` when :math:`\rho(T(r)) < 1` is proved in ball arithmetic for every rate
     array ``r`` in ``[lo, hi]`` at period ``h`` (``parts``: :meth:`MapParts.build` at
     ``h``): one sub-box of :func:`box_verdict` (module docstring, "Over the box"; the
     first-order expansion not after ``deadline``, ``time.perf_counter()``)."""
