@@ -69,8 +69,10 @@ __all__ = ["COVER_DEPTH", "MAP_DEPTH", "PIECES", "FINE_FROM", "CoverResult", "cu
 COVER_DEPTH = 10
 #: The most halvings along one path in all (below :data:`COVER_DEPTH` by
 #: :func:`~ftc_verify.analysis.moments.sampled_proof.split_rate`, the rule of the map's
-#: proofs: the rates the radius depends on most).
-MAP_DEPTH = 32
+#: proofs). Small: with 32 a failed rung spent the whole budget on map proofs (the
+#: ``hmax-case`` loop: 642 of them, 200 CPU s instead of 88 for the same bracket;
+#: ``benchmarks/results/h31t.md``).
+MAP_DEPTH = 12
 #: The cubic pieces a rung may use, fewest first (:func:`rung_pieces`).
 PIECES = (2, 4, 8)
 #: Below this distance a rung uses at least 4 pieces: the seed-1 loop's sub-boxes needed 4
