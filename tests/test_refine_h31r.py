@@ -16,8 +16,9 @@ import pytest
 
 from ftc_verify.analysis.moments import sampled_cover
 from ftc_verify.analysis.moments.sampled import SampledLoop, SampledResult
-from ftc_verify.analysis.moments.sampled_cover import (COVER_DEPTH, cover_box, cover_h_max, cover_rungs, cubic_work,
-                                                       rung_pieces)
+from ftc_verify.analysis.moments.sampled_bracket import box_work
+from ftc_verify.analysis.moments.sampled_cover import (COVER_DEPTH, MAP_DEPTH, cover_box, cover_h_max, cover_rungs,
+                                                       cubic_work, rung_pieces)
 from ftc_verify.analysis.moments.sampled_cubic import cubic_stable, prove_cubic
 from ftc_verify.analysis.moments.sampled_proof import box_verdict
 from ftc_verify.analysis.moments.sampled_refine import refine_result
@@ -27,6 +28,13 @@ from ftc_verify.model.files import load_system
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER_UNSTABLE = 0.0843  # above the paper loop's float64 crossing 0.08426 (h31c)
+
+
+@pytest.fixture(autouse=True)
+def _no_map_proofs(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The cover's one-period-map proofs refused, so that these tests count the cubic
+    certificates alone (the mixed cover: ``tests/test_cover_mixed_h31t.py``)."""
+    monkeypatch.setattr(sampled_cover, "subbox_stable", lambda *args: False)
 
 
 def _paper() -> SampledLoop:
@@ -114,19 +122,20 @@ def test_cover_splits_until_proved_and_covers_the_box(monkeypatch: pytest.Monkey
     fake = _Cubic(0.5)
     monkeypatch.setattr(sampled_cover, "cubic_stable", fake)
     start = [(loop.chain.rate_min.copy(), loop.chain.rate_max.copy(), 0)]
-    leaves, spent, attempts = cover_box(loop, 0.08, 4, start, 1e12)
+    leaves, spent, attempts, maps = cover_box(loop, 0.08, 4, start, 1e12)
     assert leaves is not None
     # two rates, each halved once: 4 leaves after 1 + 2 + 4 attempts, exactly the box
-    assert len(leaves) == 4 and attempts == 7 and spent == pytest.approx(7 * cubic_work(loop, 4))
+    assert len(leaves) == 4 and attempts == maps == 7
+    assert spent == pytest.approx(7 * (cubic_work(loop, 4) + box_work(loop)))
     _assert_exact_cover(loop, leaves)
     # the budget is charged before each solve: none is started that it cannot pay
     fake.asked.clear()
-    leaves, spent, attempts = cover_box(loop, 0.08, 4, start, 2.5 * cubic_work(loop, 4))
-    assert leaves is None and attempts == 2 and len(fake.asked) == 2
+    leaves, spent, attempts, _ = cover_box(loop, 0.08, 4, start, 2.5 * cubic_work(loop, 4))
+    assert leaves is None and attempts == 2 and len(fake.asked) == 2 and spent <= 2.5 * cubic_work(loop, 4)
     # a sub-box never proved: stopped at the depth limit
     monkeypatch.setattr(sampled_cover, "cubic_stable", _Cubic(0.0))
-    leaves, _, attempts = cover_box(loop, 0.08, 4, start, 1e12)
-    assert leaves is None and attempts == COVER_DEPTH + 1
+    leaves, _, attempts, maps = cover_box(loop, 0.08, 4, start, 1e12)
+    assert leaves is None and attempts == COVER_DEPTH + 1 and maps == MAP_DEPTH + 1
 
 
 def test_ladder_reuses_the_previous_cover(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -169,7 +178,8 @@ def test_rung_pieces_from_the_worst_vertex(monkeypatch: pytest.MonkeyPatch) -> N
     assert rung_pieces(loop, 0.08, worst, 2, 1.5 * cubic_work(loop, 2))[0] is None  # the budget first
     monkeypatch.setattr(sampled_cover, "cubic_stable", _Pieces(1.0, 16))
     got = cover_h_max(loop, 0.0843 * 0.98, 0.0843, 1e12, 1e-3)
-    assert got.h_max is None and got.rungs == ((pytest.approx(0.0843 * 0.995), False),)
+    # 5e-3 fails, then once the geometric mean of 2e-2 and 5e-3
+    assert got.h_max is None and got.rungs == ((pytest.approx(0.0843 * 0.995), False), (pytest.approx(0.0843 * 0.99), False))
 
 
 def test_refine_result_only_when_wider_than_rtol(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -183,7 +193,7 @@ def test_refine_result_only_when_wider_than_rtol(monkeypatch: pytest.MonkeyPatch
     wide = dataclasses.replace(base, h_max=PAPER_UNSTABLE * 0.96, h_max_note="wide")
     got = refine_result(system, controller, wide, 1e9)
     assert got.h_max == pytest.approx(PAPER_UNSTABLE * 0.9991) and "refinement (--h-max-work" in got.h_max_note
-    assert "by 1 sub-box(es) of 4 cubic pieces" in got.h_max_note
+    assert "by 1 sub-box(es), each by its one-period map or 4 cubic pieces" in got.h_max_note
     none = dataclasses.replace(base, h_max=None, h_max_note="not proved")
     got = refine_result(system, controller, none, cubic_work(_paper(), 2) * 2.5)  # the vertex, then the box
     assert got.h_max == pytest.approx(PAPER_UNSTABLE * (1 - 0.125))  # from a 50 % bracket: g / 4

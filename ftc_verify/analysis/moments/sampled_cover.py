@@ -4,51 +4,75 @@ stage behind ``analyze --h-max-work`` and ``verify --h-max-work``
 
 **A rung** is a period :math:`h = h_u (1 - f)`, :math:`h_u` the proved-unstable end of
 the bracket, proved mean-square stable for every rate array of the box by a *cover*: a
-list of sub-boxes whose union is the box, each with its own cubic clock certificate
-(:func:`~ftc_verify.analysis.moments.sampled_cubic.cubic_stable`, proved in ball
-arithmetic). Every constant rate array lies in some sub-box, whose certificate proves the
-spectral radius of its one-period map below 1 (module docstring of
+list of sub-boxes whose union is the box, each proved in ball arithmetic by any sound
+argument: its own one-period map
+(:func:`~ftc_verify.analysis.moments.sampled_proof.subbox_stable`, the sub-box proof of
+the default bracket: the upper envelope, then the map's polynomial form in the rates
+with a moving certificate), tried first (a few hundred work units), or else its own cubic
+clock certificate (:func:`~ftc_verify.analysis.moments.sampled_cubic.cubic_stable`,
+thousands). Every constant rate array lies in some sub-box, whose proof puts the
+spectral radius of its one-period map below 1 (module docstrings of
+:mod:`~ftc_verify.analysis.moments.sampled_proof`,
 :mod:`~ftc_verify.analysis.moments.sampled_cubic`); where two sub-boxes meet, both cover
-the shared face (the conditions are affine in the rates and proved at the vertices of
-each, the shared split value enclosed by the same ball in both).
+the shared face (each proof holds on its closed sub-box, the shared split value
+enclosed by the same ball in both).
 
 **Why sub-boxes.** A certificate common to the whole box also holds for rates that
 change in time inside it, and near ``h_max`` those can be worse than any constant rate
 (seed-1 ``n = 4, m = 3`` loop: whole box 1.5e-3 below the crossing with four cubic
 pieces, the worst vertex alone 5e-4, the sub-box of half the widths at that vertex 9e-4;
-``benchmarks/results/h31r.md``). A cover is built depth first: a sub-box whose
-certificate is not found or not proved is split in half along its widest rate (relative
-to the box; on ties the one that moves the float64 radius most near the box's worst
-vertex), at most :data:`COVER_DEPTH` times along a path.
+``benchmarks/results/h31r.md``). The map's proof loses margin to first order in the
+sub-box's widths (envelope) or higher (the polynomial forms), so it proves small
+sub-boxes near the worst vertex where no cubic certificate of a sub-box is found
+(held-out seed 13 at 1e-2: ``benchmarks/results/h31t.md``), and the cubic proves the
+large ones far from it. A cover is built depth first: a sub-box not proved is split in
+half along its widest rate (relative to the box; on ties the one that moves the float64
+radius most near the box's worst vertex) up to :data:`COVER_DEPTH` halvings along a
+path (cubic certificates tried), then along the rate of
+:func:`~ftc_verify.analysis.moments.sampled_proof.split_rate` (map proofs only) up to
+:data:`MAP_DEPTH`; it stops where a sub-box's midpoint has a float64 radius >= 1.
 
 **The ladder.** Rungs ``f = g/4, g/16, ...`` (``g`` the default bracket's relative width)
 down to the target ``0.9 rtol``, easy first; each rung starts from the previous rung's
 cover (its sub-boxes, not the whole box again), with the fewest pieces of :data:`PIECES`
 (at least the last rung's, and 4 below :data:`FINE_FROM`) that prove the worst vertex alone (:func:`rung_pieces`:
 splitting the rates cannot make up for too few pieces in the clock; on the seed-1 loop
-two pieces reach 2.5e-3, four 5e-4 there). It stops at the first rung not covered
-within the budget or the depth; the result is the last rung covered. Every attempt is
-charged :func:`cubic_work` units *before* it is solved (from the program's size only),
-and none is started that the budget cannot pay: the same loop and budget give the same
+two pieces reach 2.5e-3, four 5e-4 there; once none proves it, the later rungs are
+covered by map proofs alone). After the first rung not covered within the budget or the
+depth, one more at the geometric mean of its distance and the last covered one, then it
+stops; the result is the last rung covered. Every attempt is charged *before* it is
+solved, from the problem's size only (:func:`cubic_work` per cubic certificate,
+:func:`~ftc_verify.analysis.moments.sampled_bracket.box_work` per map proof), and none
+is started that the budget cannot pay: the same loop and budget give the same
 bracket on every machine.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from ...model.system import Matrix
+from ..rigorous import precision
 from .sampled import SampledLoop, rate_points, spectral_radius
-from .sampled_bracket import worst_vertex
+from .sampled_bracket import box_work, worst_vertex
 from .sampled_cubic import cubic_size, cubic_stable
+from .sampled_proof import MapParts, split_rate, subbox_stable
 
-__all__ = ["COVER_DEPTH", "PIECES", "FINE_FROM", "CoverResult", "cubic_work", "cubic_memory", "cover_rungs", "rung_pieces",
+__all__ = ["COVER_DEPTH", "MAP_DEPTH", "PIECES", "FINE_FROM", "CoverResult", "cubic_work", "cubic_memory", "cover_rungs", "rung_pieces",
            "cover_box", "cover_h_max"]
 
-#: The most halvings of the box along one path of the cover.
+#: The most halvings of the box along one path of the cover where cubic certificates are
+#: tried (halving the widest rate); below it only the one-period map's proofs.
 COVER_DEPTH = 10
+#: The most halvings along one path in all (below :data:`COVER_DEPTH` by
+#: :func:`~ftc_verify.analysis.moments.sampled_proof.split_rate`, the rule of the map's
+#: proofs). Small: with 32 a failed rung spent the whole budget on map proofs (the
+#: ``hmax-case`` loop: 642 of them, 200 CPU s instead of 88 for the same bracket;
+#: ``benchmarks/results/h31t.md``).
+MAP_DEPTH = 12
 #: The cubic pieces a rung may use, fewest first (:func:`rung_pieces`).
 PIECES = (2, 4, 8)
 #: Below this distance a rung uses at least 4 pieces: the seed-1 loop's sub-boxes needed 4
@@ -110,41 +134,48 @@ def rung_pieces(loop: SampledLoop, h: float, worst: Matrix, fewest: int, budget:
 @dataclass(frozen=True)
 class CoverResult:
     """What :func:`cover_h_max` did: ``h_max`` the closest period covered (``None``: no
-    rung), ``boxes`` the sub-boxes of its cover, ``pieces`` their certificates' pieces,
-    ``work`` the units charged, ``attempts`` the certificates tried, ``rungs`` one
-    ``(period, covered)`` per rung tried."""
+    rung), ``boxes`` the sub-boxes of its cover, ``pieces`` their cubic certificates'
+    pieces (``None``: the rung's worst vertex was not proved by any, its cover is by the
+    one-period map alone), ``work`` the units charged, ``attempts`` the cubic
+    certificates tried, ``maps`` the sub-boxes tried by their one-period map, ``rungs``
+    one ``(period, covered)`` per rung tried."""
 
     h_max: float | None
     boxes: int
-    pieces: int
+    pieces: int | None
     work: float
     attempts: int
+    maps: int
     rungs: tuple[tuple[float, bool], ...]
 
 
 Box = tuple[Matrix, Matrix, int]
 
 
-def _split(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, depth: int, worst: Matrix) -> tuple[Box, Box]:
-    """The two halves of ``[lo, hi]`` along its widest rate relative to the box, among
-    those the one that moves the float64 radius most: at ``v``, the sub-box's corner
-    nearest to ``worst`` (the worst vertex of the box), the rate flipped to the sub-box's
-    other end. Only the order of the splits depends on it (splitting the same two
-    radius-moving rates again and again left a held-out loop's sub-box unproved: the
-    rates that vary in time matter too); every sub-box is proved in ball arithmetic."""
+def _split(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, depth: int, worst: Matrix,
+           rate: tuple[int, ...] | None = None) -> tuple[Box, Box]:
+    """The two halves of ``[lo, hi]`` along ``rate`` or, not given, its widest rate
+    relative to the box, among those the one that moves the float64 radius most: at
+    ``v``, the sub-box's corner nearest to ``worst`` (the worst vertex of the box), the
+    rate flipped to the sub-box's other end. Only the order of the splits depends on it
+    (splitting the same two radius-moving rates again and again left a held-out loop's
+    sub-box unproved: the rates that vary in time matter too); every sub-box is proved
+    in ball arithmetic."""
     chain = loop.chain
-    free = [r for r in chain.rate_indices if hi[r] > lo[r]]
-    v = np.where(np.abs(worst - lo) <= np.abs(worst - hi), lo, hi)
-    base = spectral_radius(loop, h, v)
-    full = chain.rate_max - chain.rate_min
+    r = rate
+    if r is None:
+        free = [r for r in chain.rate_indices if hi[r] > lo[r]]
+        v = np.where(np.abs(worst - lo) <= np.abs(worst - hi), lo, hi)
+        base = spectral_radius(loop, h, v)
+        full = chain.rate_max - chain.rate_min
 
-    def score(r: tuple[int, ...]) -> tuple[float, float]:
-        p = v.copy()
-        p[r] = hi[r] if v[r] == lo[r] else lo[r]
-        change = abs(spectral_radius(loop, h, p) - base)
-        return (round(float((hi[r] - lo[r]) / full[r]), 12), change if np.isfinite(change) else 0.0)
+        def score(r: tuple[int, ...]) -> tuple[float, float]:
+            p = v.copy()
+            p[r] = hi[r] if v[r] == lo[r] else lo[r]
+            change = abs(spectral_radius(loop, h, p) - base)
+            return (round(float((hi[r] - lo[r]) / full[r]), 12), change if np.isfinite(change) else 0.0)
 
-    r = max(free, key=score)
+        r = max(free, key=score)
     mid = 0.5 * (lo[r] + hi[r])
     lo2, hi1 = lo.copy(), hi.copy()
     hi1[r] = mid
@@ -152,62 +183,85 @@ def _split(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, depth: int, wors
     return (lo, hi1, depth + 1), (lo2, hi, depth + 1)
 
 
-def cover_box(loop: SampledLoop, h: float, pieces: int, boxes: list[Box],
-              budget: float, worst: Matrix | None = None) -> tuple[list[Box] | None, float, int]:
+def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
+              budget: float, worst: Matrix | None = None) -> tuple[list[Box] | None, float, int, int]:
     """A cover of the union of ``boxes`` at period ``h`` (module docstring), depth first:
-    ``(sub-boxes, units charged, attempts)``, the sub-boxes ``None`` when the budget or
-    :data:`COVER_DEPTH` ran out first. ``worst``: the box's worst vertex (float64, found
+    ``(sub-boxes, units charged, cubic attempts, map proofs)``, the sub-boxes ``None``
+    when the budget or :data:`MAP_DEPTH` ran out first, or the float64 radius at a
+    sub-box's midpoint is not below 1. Each sub-box: the one-period map's proof
+    (:func:`~ftc_verify.analysis.moments.sampled_proof.subbox_stable`, charged
+    :func:`~ftc_verify.analysis.moments.sampled_bracket.box_work`), then, up to
+    :data:`COVER_DEPTH` and when ``pieces`` is given and the budget pays it, a cubic
+    certificate of ``pieces`` pieces. ``worst``: the box's worst vertex (float64, found
     here when not given), which orders the splits (module docstring)."""
-    cost = cubic_work(loop, pieces)
+    cost, per_map = (0.0 if pieces is None else cubic_work(loop, pieces)), box_work(loop)
     stack = list(reversed(boxes))
     leaves: list[Box] = []
-    spent, attempts = 0.0, 0
+    spent, attempts, maps = 0.0, 0, 0
+    with precision(64):
+        parts = MapParts.build(loop, h)
     while stack:
         lo, hi, depth = stack.pop()
-        if spent + cost > budget:
-            return None, spent, attempts
-        spent += cost
-        attempts += 1
-        cert = cubic_stable(loop, h, pieces, lo, hi)
-        if cert is not None and cert.proved:
+        if spent + per_map > budget:
+            return None, spent, attempts, maps
+        spent += per_map
+        maps += 1
+        if subbox_stable(loop, h, parts, lo, hi):
             leaves.append((lo, hi, depth))
             continue
-        if depth >= COVER_DEPTH or not any(hi[r] > lo[r] for r in loop.chain.rate_indices):
-            return None, spent, attempts
+        if pieces is not None and depth <= COVER_DEPTH and spent + cost <= budget:
+            spent += cost
+            attempts += 1
+            cert = cubic_stable(loop, h, pieces, lo, hi)
+            if cert is not None and cert.proved:
+                leaves.append((lo, hi, depth))
+                continue
+        if depth >= MAP_DEPTH or spectral_radius(loop, h, 0.5 * (lo + hi)) >= 1.0:
+            return None, spent, attempts, maps
         if worst is None:
             worst = worst_vertex(loop, h, rate_points(loop.chain))[1]
-        first, second = _split(loop, h, lo, hi, depth, worst)
+        idx = None if depth < COVER_DEPTH else split_rate(loop, h, lo, hi)
+        if idx is None and not any(hi[r] > lo[r] for r in loop.chain.rate_indices):
+            return None, spent, attempts, maps
+        first, second = _split(loop, h, lo, hi, depth, worst, idx)
         stack.append(second)
         stack.append(first)
-    return leaves, spent, attempts
+    return leaves, spent, attempts, maps
 
 
 def cover_h_max(loop: SampledLoop, h_max: float, h_max_unstable: float, work: float, rtol: float) -> CoverResult:
     """A period closer to ``h_max_unstable`` than ``h_max``, proved mean-square stable
-    for every rate of the box by a cover of cubic clock certificates (module docstring),
-    within ``work`` units; deterministic."""
+    for every rate of the box by a cover of sub-boxes, each proved by its one-period
+    map or a cubic clock certificate (module docstring), within ``work`` units;
+    deterministic. When a rung fails, one more at the geometric mean of its distance
+    and the last covered one (the rungs are 4x apart), then it stops."""
     gap = (h_max_unstable - h_max) / h_max_unstable
     boxes: list[Box] = [(np.array(loop.chain.rate_min, dtype=float), np.array(loop.chain.rate_max, dtype=float), 0)]
-    spent, attempts = 0.0, 0
-    best: tuple[float, int, int] | None = None
+    spent, attempts, maps = 0.0, 0, 0
+    best: tuple[float, int, int | None] | None = None
     rungs: list[tuple[float, bool]] = []
     worst = worst_vertex(loop, h_max_unstable, rate_points(loop.chain))[1]
-    pieces = PIECES[0]
-    for f in cover_rungs(gap, rtol):
+    pieces: int | None = PIECES[0]
+    todo, last, retried = list(cover_rungs(gap, rtol)), gap, False
+    while todo:
+        f = todo.pop(0)
         h = h_max_unstable * (1.0 - f)
-        found, used, n = rung_pieces(loop, h, worst, max(pieces, 4 if f < FINE_FROM else 2), work - spent)
-        spent += used
-        attempts += n
-        leaves = None
-        if found is not None:
-            pieces = found
-            leaves, used, n = cover_box(loop, h, pieces, boxes, work - spent, worst)
+        found = pieces
+        if found is not None:  # once no pieces prove the worst vertex, none will closer to h_u
+            found, used, n = rung_pieces(loop, h, worst, max(found, 4 if f < FINE_FROM else 2), work - spent)
             spent += used
             attempts += n
+        leaves, used, n, k = cover_box(loop, h, found, boxes, work - spent, worst)
+        spent += used
+        attempts += n
+        maps += k
         rungs.append((h, leaves is not None))
         if leaves is None:
-            break
-        best, boxes = (h, len(leaves), pieces), leaves
+            if retried or last < 2.0 * f:
+                break
+            todo, retried = [math.sqrt(last * f)], True
+            continue
+        best, boxes, pieces, last = (h, len(leaves), found), leaves, found, f
     if best is None:
-        return CoverResult(None, 0, 0, spent, attempts, tuple(rungs))
-    return CoverResult(best[0], best[1], best[2], spent, attempts, tuple(rungs))
+        return CoverResult(None, 0, None, spent, attempts, maps, tuple(rungs))
+    return CoverResult(best[0], best[1], best[2], spent, attempts, maps, tuple(rungs))

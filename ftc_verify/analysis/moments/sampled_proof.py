@@ -52,11 +52,10 @@ about :math:`h` times the widths of the rates.
 **Over the box** (:func:`box_verdict`): the float64 radius at the vertices and the
 midpoint first; if some point has :math:`\rho \ge 1`, instability is proved there.
 Otherwise the stable proof is tried on the whole box, and a sub-box where it fails is
-halved along the rate the float64 radius depends on most there (``_split_rate``),
-breadth first, until every
-sub-box is proved -- or a sub-box's midpoint is proved unstable, or the budget of
-sub-boxes (or seconds) runs out: then the verdict is ``undecided`` and names the
-sub-box. On each sub-box the upper envelope is tried first, then the enclosure of
+halved along the rate the float64 radius depends on most there (:func:`split_rate`),
+breadth first, until every sub-box is proved -- or a sub-box's midpoint is proved
+unstable, or the budget of sub-boxes (or seconds) runs out: then the verdict is
+``undecided`` and names the sub-box. On each sub-box (:func:`subbox_stable`) the upper envelope is tried first, then the enclosure of
 :math:`T` as a polynomial in the sub-box's rates (second order for small loops,
 :mod:`~ftc_verify.analysis.moments.quad_balls`; affine otherwise,
 :func:`~ftc_verify.analysis.moments.fast_balls.aff_expm`) with a certificate that moves
@@ -107,7 +106,8 @@ from .sampled_taylor import FIRST_ORDER_LIMIT, affine_stable, identity_stack, pe
 from .stability import duplication_matrix, unvech_stack
 
 __all__ = ["FIRST_ORDER_LIMIT", "MapParts", "BoxVerdict", "ball_resets", "ball_one_period_map", "prove_stable", "prove_unstable",
-           "prove_point_unstable", "box_verdict", "SPLIT_WIDTH_WEIGHT", "written_flow", "envelope_stable"]
+           "prove_point_unstable", "box_verdict", "SPLIT_WIDTH_WEIGHT", "written_flow", "envelope_stable",
+           "split_rate", "subbox_stable"]
 
 
 def _flint() -> Any:
@@ -447,25 +447,20 @@ class BoxVerdict:
     where: Any = None
 
 
-#: Weight of a rate's relative width against its change of :math:`\rho` when choosing
-#: the rate to halve (``_split_rate``): at 1 a full-width rate counts as much as the
-#: largest change, so the rates :math:`T` moves mass with (while :math:`\rho` barely
-#: moves) are halved too -- on the random ``n = 4, m = 3`` loop 37 sub-boxes at 3 %
-#: below the crossing instead of 73 with 0.1, on ``n = 2, m = 2`` seed 2 105 at
-#: ``2.5e-4`` instead of 231.
+#: Weight of a rate's relative width against its change of :math:`\rho` in
+#: :func:`split_rate`: at 1 a full-width rate counts as much as the largest change (random
+#: ``n = 4, m = 3`` loop: 37 sub-boxes at 3 % below the crossing instead of 73 with 0.1;
+#: ``n = 2, m = 2`` seed 2: 105 at ``2.5e-4`` instead of 231).
 SPLIT_WIDTH_WEIGHT = 1.0
 
 
-def _split_rate(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix) -> tuple[int, ...] | None:
+def split_rate(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix) -> tuple[int, ...] | None:
     r"""The rate along which a sub-box is halved: the largest score
     :math:`s_a + c\, m\, w_a / W_a` with :math:`s_a = \max_\pm |\rho(r_0 \pm w_a e_a)
-    - \rho(r_0)|` (float64 radii at the midpoint and moved to the sub-box's ends along
-    the rate: the slope and the curvature -- where :math:`\rho` dips in the middle of a
-    rate's range, the difference of its two ends alone would miss it), :math:`m` the
-    largest such change, :math:`w_a / W_a` the relative width (weight
-    :data:`SPLIT_WIDTH_WEIGHT`): the rates the radius depends on most first, every rate
-    in turn as its relative width grows. A
-    heuristic; only where the proofs look next depends on it."""
+    - \rho(r_0)|` (float64 radii at the midpoint and at the sub-box's ends
+    along the rate: slope and curvature), :math:`m` the largest such change,
+    :math:`w_a / W_a` the relative width (weight :data:`SPLIT_WIDTH_WEIGHT`). A
+    heuristic: only where the proofs look next depends on it."""
     chain = loop.chain
     full = chain.rate_max - chain.rate_min
     mid = 0.5 * (lo + hi)
@@ -484,17 +479,37 @@ def _split_rate(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix) -> tuple[in
     return max(rel, key=lambda idx: (change[idx] + SPLIT_WIDTH_WEIGHT * m * rel[idx], rel[idx]))
 
 
+def subbox_stable(loop: SampledLoop, h: float, parts: MapParts, lo: Matrix, hi: Matrix,
+                  deadline: float = math.inf) -> bool:
+    r"""``True`` when :math:`\rho(T(r)) < 1` is proved in ball arithmetic for every rate
+    array ``r`` in ``[lo, hi]`` at period ``h`` (``parts``: :meth:`MapParts.build` at
+    ``h``): one sub-box of :func:`box_verdict` (module docstring, "Over the box"; the
+    first-order expansion not after ``deadline``, ``time.perf_counter()``)."""
+    T_mid = one_period_map(loop, h, 0.5 * (lo + hi), scaled=True)
+    with precision(64):
+        proved = envelope_stable(loop, parts, lo, hi)
+        affine = None if proved else affine_stable(loop, parts, lo, hi)  # None: not applicable
+        proved = proved or bool(affine)
+        if not proved and affine is None and _float_vertices_hold(loop, h, lo, hi, T_mid):
+            T = Ball(parts.map(ball_generator(loop.chain, lo, hi, loop.literals).value))
+            proved = prove_stable(T, T_mid, loop.states, loop.r)
+        if not proved and affine is None and not np.array_equal(lo, hi):
+            proved = perron_first_order_stable(loop, parts, lo, hi, T_mid, deadline)
+    if not proved and np.array_equal(lo, hi):
+        with precision(PRECISION_BITS):
+            proved = prove_stable(ball_one_period_map(loop, h, lo, hi), T_mid, loop.states, loop.r)
+    return proved
+
+
 def box_verdict(loop: SampledLoop, h: float, *, max_boxes: int = 64, max_seconds: float = 20.0,
                 clock: Callable[[], float] = time.perf_counter, stable_only: bool = False) -> BoxVerdict:
     """Mean-square stability of the sampled loop at period ``h`` over the whole rate box
     (module docstring); at most ``max_boxes`` sub-boxes and about ``max_seconds`` seconds
-    of ``clock`` (wall time; ``time.process_time`` for a budget of work that does not
-    shrink with the machine's load)
-    before the verdict is ``undecided``. ``stable_only``: the caller needs only a
-    ``stable`` verdict (the ``h_max`` bracket), so the search stops, ``undecided``, as soon
-    as the sub-boxes left exceed the budget left -- each must be evaluated at least once
-    before the box is proved, so ``stable`` can no longer be reached (a ``not stable``
-    sub-box midpoint it might still have met is not looked for). On
+    of ``clock`` (wall time; ``time.process_time``: a budget that does not shrink with
+    the load) before the verdict is ``undecided``. ``stable_only``: the caller needs only
+    a ``stable`` verdict (the ``h_max`` bracket), so the search stops, ``undecided``, as
+    soon as the sub-boxes left exceed the budget left (``stable`` can no longer be
+    reached; a ``not stable`` sub-box midpoint it might still have met is not looked for). On
     :func:`~ftc_verify.analysis.moments.sampled_conditioned.conditioned` of the loop; when
     that leaves it ``undecided`` (not ``stable_only``), the loop as written gets the budget left."""
     frames, t0 = _frames(loop), clock()
@@ -528,27 +543,14 @@ def _box_verdict(loop: SampledLoop, h: float, max_boxes: int, max_seconds: float
                               f"sub-boxes; not proved on [{text(lo)}] .. [{text(hi)}]", done, (lo, hi))
         done += 1
         mid = 0.5 * (lo + hi)
-        T_mid = one_period_map(loop, h, mid, scaled=True)
-        with precision(64):
-            proved = envelope_stable(loop, parts, lo, hi)
-            affine = None if proved else affine_stable(loop, parts, lo, hi)  # None: not applicable
-            proved = proved or bool(affine)
-            if not proved and affine is None and _float_vertices_hold(loop, h, lo, hi, T_mid):
-                T = Ball(parts.map(ball_generator(chain, lo, hi, loop.literals).value))
-                proved = prove_stable(T, T_mid, loop.states, loop.r)
-            if not proved and affine is None and not np.array_equal(lo, hi):
-                proved = perron_first_order_stable(loop, parts, lo, hi, T_mid, wall + max_seconds)
-        if not proved and np.array_equal(lo, hi):
-            with precision(PRECISION_BITS):
-                proved = prove_stable(ball_one_period_map(loop, h, lo, hi), T_mid, loop.states, loop.r)
-        if proved:
+        if subbox_stable(loop, h, parts, lo, hi, wall + max_seconds):
             continue
         if spectral_radius(loop, h, mid) >= 1.0:
             if prove_point_unstable(loop, h, mid):
                 return BoxVerdict("not stable", f"spectral radius > 1 proved at {text(mid)} (ball arithmetic)",
                                   done, mid)
             return BoxVerdict("undecided", f"float64 spectral radius >= 1 at {text(mid)}, not proved", done, mid)
-        idx = _split_rate(loop, h, lo, hi)
+        idx = split_rate(loop, h, lo, hi)
         if idx is None:
             return BoxVerdict("undecided", f"stability not proved at the rate point {text(lo)}", done, lo)
         left_hi, right_lo = hi.copy(), lo.copy()

@@ -91,10 +91,12 @@ def refine_result(system: FTCSystem, controller: Controller, result: SampledResu
         hm = 0.5 * hu
     base = SampledLoop.build(system, controller) if loop is None else loop
     ref = cover_h_max(conditioned(dataclasses.replace(base, written=(float(result.period),))), hm, hu, work, rtol)
-    note = (f"{_NOTE_HEAD}--h-max-work {work:g}): {ref.attempts} cubic clock certificate(s), {ref.work:.0f} units, "
-            + ("no closer period proved" if ref.h_max is None else
-               f"proved stable over the rate box at {period_text(ref.h_max, down=True)} by {ref.boxes} sub-box(es) of "
-               f"{ref.pieces} cubic pieces (relative gap {(hu - ref.h_max) / hu:.1e})"))
+    how = "one-period map" if ref.pieces is None else f"one-period map or {ref.pieces} cubic pieces"
+    note = (f"{_NOTE_HEAD}--h-max-work {work:g}): {ref.attempts} cubic clock certificate(s), {ref.maps} sub-box map "
+            f"proof(s), {ref.work:.0f} units, " + ("no closer period proved" if ref.h_max is None else
+                                                   f"proved stable over the rate box at {period_text(ref.h_max, down=True)} "
+                                                   f"by {ref.boxes} sub-box(es), each by its {how} (relative gap "
+                                                   f"{(hu - ref.h_max) / hu:.1e})"))
     better = ref.h_max is not None and (result.h_max is None or ref.h_max > result.h_max)
     return dataclasses.replace(result, h_max=ref.h_max if better else result.h_max,
                                h_max_note=result.h_max_note + note)

@@ -1,0 +1,136 @@
+"""The mixed cover of the ``h_max`` refinement (:mod:`ftc_verify.analysis.moments.sampled_cover`):
+each sub-box proved by its one-period map (:func:`~ftc_verify.analysis.moments.sampled_proof.subbox_stable`)
+or by a cubic clock certificate, the map first; below :data:`COVER_DEPTH` the map's proofs
+alone; the real map proofs prove and refuse what they should, and a cover they build is
+exactly the box and confirmed by the independent whole-box verdict."""
+
+from __future__ import annotations
+
+from fractions import Fraction
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from ftc_verify.analysis.moments import sampled_cover
+from ftc_verify.analysis.moments.sampled import SampledLoop
+from ftc_verify.analysis.moments.sampled_bracket import box_work
+from ftc_verify.analysis.moments.sampled_cover import COVER_DEPTH, cover_box, cover_h_max, cubic_work
+from ftc_verify.analysis.moments.sampled_proof import MapParts, box_verdict, subbox_stable
+from ftc_verify.analysis.rigorous import precision
+from ftc_verify.controllers.files import load_controller
+from ftc_verify.model.files import load_system
+
+ROOT = Path(__file__).resolve().parents[1]
+PAPER_UNSTABLE = 0.0843  # above the paper loop's float64 crossing 0.08426 (h31c)
+
+
+def _paper() -> SampledLoop:
+    return SampledLoop.build(load_system(ROOT / "examples" / "paper.toml"),
+                             load_controller(ROOT / "examples" / "paper_gains.toml"))
+
+
+class _Never:
+    """A stand-in for :func:`cubic_stable` that never proves (records the calls)."""
+
+    def __init__(self) -> None:
+        self.calls = 0
+
+    def __call__(self, *args: Any) -> object:
+        self.calls += 1
+        return type("Cert", (), {"proved": False})()
+
+
+def _box(loop: SampledLoop) -> list[tuple[np.ndarray, np.ndarray, int]]:
+    return [(loop.chain.rate_min.copy(), loop.chain.rate_max.copy(), 0)]
+
+
+def test_subbox_proof_proves_below_and_refuses_above_the_crossing() -> None:
+    loop = _paper()
+    lo, hi = loop.chain.rate_min.copy(), loop.chain.rate_max.copy()
+    below, above = PAPER_UNSTABLE * 0.95, PAPER_UNSTABLE * 1.01
+    with precision(64):
+        assert subbox_stable(loop, below, MapParts.build(loop, below), lo, hi)
+        assert not subbox_stable(loop, above, MapParts.build(loop, above), lo, hi)
+        # a single rate array, the worst vertex above the crossing: refused too
+        assert not subbox_stable(loop, above, MapParts.build(loop, above), hi, hi)
+
+
+def test_map_proof_first_then_the_cubic(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Where the map proves the box, no cubic certificate is tried or charged; where it
+    does not, the cubic is, up to :data:`COVER_DEPTH`, and then only map proofs."""
+    loop = _paper()
+    never = _Never()
+    monkeypatch.setattr(sampled_cover, "cubic_stable", never)
+    leaves, spent, attempts, maps = cover_box(loop, PAPER_UNSTABLE * 0.95, 2, _box(loop), 1e12)
+    assert leaves is not None and len(leaves) == 1 and (attempts, maps, never.calls) == (0, 1, 0)
+    assert spent == pytest.approx(box_work(loop))
+    calls: list[int] = []
+
+    def refuse_above(loop: SampledLoop, h: float, parts: Any, lo: np.ndarray, hi: np.ndarray) -> bool:
+        calls.append(1)
+        return False
+
+    monkeypatch.setattr(sampled_cover, "subbox_stable", refuse_above)
+    leaves, spent, attempts, maps = cover_box(loop, PAPER_UNSTABLE * 0.95, 2, _box(loop), 1e12)
+    assert leaves is None and attempts == COVER_DEPTH + 1 == never.calls and maps == len(calls)
+    assert spent == pytest.approx(attempts * cubic_work(loop, 2) + maps * box_work(loop))
+
+
+def test_cover_stops_where_the_float_radius_is_not_below_one(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Above the crossing no sub-box can be proved: the cover stops at the first
+    midpoint with a float64 radius >= 1 instead of splitting to the depth limit."""
+    loop = _paper()
+    monkeypatch.setattr(sampled_cover, "cubic_stable", _Never())
+    leaves, _, attempts, maps = cover_box(loop, PAPER_UNSTABLE * 1.05, None, _box(loop), 1e12)
+    assert leaves is None and attempts == 0 and maps < 5
+
+
+def test_map_only_cover_is_the_box_and_confirmed(monkeypatch: pytest.MonkeyPatch) -> None:
+    """No cubic certificate ever proves (nor the worst vertex, so after the first rung
+    none is tried): the cover by the real map proofs alone still proves a period closer
+    than the bracket's stable end; its leaves are exactly the box, and the whole-box
+    verdict of ``box_verdict`` confirms the period independently of the cover."""
+    loop = _paper()
+    never = _Never()
+    monkeypatch.setattr(sampled_cover, "cubic_stable", never)
+    hu = PAPER_UNSTABLE
+    got = cover_h_max(loop, 0.9 * hu, hu, 1e12, 1e-3)
+    assert got.h_max is not None and 0.9 * hu < got.h_max < hu and got.pieces is None
+    assert never.calls == len(sampled_cover.PIECES)  # the worst vertex once, every number of pieces
+    assert box_verdict(loop, got.h_max, max_boxes=64, max_seconds=float("inf")).verdict == "stable"
+    leaves, _, _, _ = cover_box(loop, got.h_max, None, _box(loop), 1e12)
+    assert leaves is not None and len(leaves) == got.boxes
+    idx = loop.chain.rate_indices
+
+    def volume(lo: Any, hi: Any) -> Fraction:
+        out = Fraction(1)
+        for r in idx:
+            out *= Fraction(float(hi[r])) - Fraction(float(lo[r]))
+        return out
+
+    for a, (la, ha, _) in enumerate(leaves):
+        assert all(loop.chain.rate_min[r] <= la[r] < ha[r] <= loop.chain.rate_max[r] for r in idx)
+        for lb, hb, _ in leaves[a + 1:]:
+            assert any(ha[r] <= lb[r] or hb[r] <= la[r] for r in idx)
+    assert sum((volume(lo, hi) for lo, hi, _ in leaves), Fraction(0)) == volume(loop.chain.rate_min,
+                                                                                 loop.chain.rate_max)
+
+
+def test_failed_rung_retried_once_at_the_geometric_mean(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Cubic certificates proving exactly the periods at least 4e-3 below ``hu``, map
+    proofs never: rungs 1e-2 (covered), 2.5e-3 (not), then once 5e-3 (covered), and no
+    rung after the retry."""
+    loop = _paper()
+    hu = PAPER_UNSTABLE
+
+    def cubic(loop: SampledLoop, h: float, pieces: int, lo: np.ndarray, hi: np.ndarray) -> object:
+        return type("Cert", (), {"proved": h <= hu * (1 - 4e-3)})()
+
+    monkeypatch.setattr(sampled_cover, "cubic_stable", cubic)
+    monkeypatch.setattr(sampled_cover, "subbox_stable", lambda *args: False)
+    got = cover_h_max(loop, 0.96 * hu, hu, 1e12, 1e-3)
+    assert [ok for _, ok in got.rungs] == [True, False, True]
+    assert [h for h, _ in got.rungs] == pytest.approx([hu * (1 - 1e-2), hu * (1 - 2.5e-3), hu * (1 - 5e-3)])
+    assert got.h_max == pytest.approx(hu * (1 - 5e-3))
