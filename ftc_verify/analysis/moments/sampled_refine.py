@@ -112,11 +112,7 @@ def refinement_note(result: SampledResult) -> str | None:
 def period_text(h: float, *, down: bool) -> str:
     """``h`` to 6 significant digits, rounded down (``down``: a proved-stable period,
     never printed above the one proved) or up (a proved-unstable one), so that the
-    printed number keeps the claim."""
-    from decimal import ROUND_CEILING, ROUND_FLOOR, Decimal
+    printed number keeps the claim (:mod:`ftc_verify.claimtext`)."""
+    from ...claimtext import lower_text, upper_text
 
-    exact = Decimal(h)
-    if not exact.is_finite() or exact == 0:
-        return f"{h:.6g}"
-    q = exact.quantize(Decimal(1).scaleb(exact.adjusted() - 5), rounding=ROUND_FLOOR if down else ROUND_CEILING)
-    return f"{float(q):.6g}"
+    return lower_text(h) if down else upper_text(h)
