@@ -180,7 +180,7 @@ def test_the_forked_nominal_program_gives_the_sequential_answer(paper_loop) -> N
 
     rep = analyze(paper_loop, cross_validation=False)
     assert "gammas_wall" in rep.seconds  # the paper's loop is uncertain: the two ran at once
-    alone = hinf_gamma(paper_loop, robust=False, lean=True)  # as analyze's
+    alone = hinf_gamma(paper_loop, robust=False)
     assert rep.nominal.certified and rep.nominal.gamma == pytest.approx(alone.gamma, rel=1e-12)
-    robust = hinf_gamma(paper_loop, robust=True, gamma_hint=alone.gamma, lean=True)
+    robust = hinf_gamma(paper_loop, robust=True, gamma_hint=alone.gamma)
     assert rep.robust.certified and rep.robust.gamma == pytest.approx(robust.gamma, rel=1e-5)

@@ -41,7 +41,7 @@ def test_the_nominal_program_beside_the_spectral_stage_gives_the_answer_solved_h
     loop = paper_loop.nominal()  # no uncertainty channels
     rep = analyze_module.analyze(loop, cross_validation=False, lower_bounds=False)
     assert forked == ["Theorem 3.2"]
-    here = hinf_gamma(loop, robust=False, lean=True)  # as analyze's
+    here = hinf_gamma(loop, robust=False)
     assert rep.nominal.certified and here.certified and rep.nominal.gamma == here.gamma
     assert rep.robust is rep.nominal and rep.certified_stable
     np.testing.assert_array_equal(np.asarray(rep.nominal.P), np.asarray(here.P))
@@ -60,7 +60,7 @@ def test_the_robust_program_beside_the_spectral_stage_gives_the_answers_solved_h
     assert paper_loop.uncertain
     rep = analyze_module.analyze(paper_loop, cross_validation=False)
     assert forked == ["Lemma 4.1", "Theorem 3.2"]  # both programs in children started before the spectral stage
-    nominal, robust = hinf_gamma(paper_loop, robust=False, lean=True), hinf_gamma(paper_loop, robust=True, lean=True)
+    nominal, robust = hinf_gamma(paper_loop, robust=False), hinf_gamma(paper_loop, robust=True)
     for got, here in ((rep.nominal, nominal), (rep.robust, robust)):
         assert got.certified and here.certified and got.gamma == here.gamma
         np.testing.assert_array_equal(np.asarray(got.P), np.asarray(here.P))

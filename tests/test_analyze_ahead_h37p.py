@@ -38,7 +38,7 @@ def test_without_lower_bounds_theorem_3_2_comes_from_its_child(paper_loop: Any, 
     assert paper_loop.uncertain
     rep = analyze_module.analyze(paper_loop, cross_validation=False, lower_bounds=False)
     assert [what for what, _ in forked] == ["Lemma 4.1", "Theorem 3.2"]
-    nominal = hinf_gamma(paper_loop, robust=False, lean=True)  # as analyze's
+    nominal = hinf_gamma(paper_loop, robust=False)
     assert rep.nominal.certified and rep.nominal.gamma == nominal.gamma
     np.testing.assert_array_equal(np.asarray(rep.nominal.P), np.asarray(nominal.P))
     assert rep.nominal.message == nominal.message and rep.certified_stable
@@ -54,7 +54,7 @@ def test_the_lower_bounds_beside_use_the_childs_nominal_gamma(paper_loop: Any, f
     rep = analyze_module.analyze(paper_loop, cross_validation=False)
     assert len(forked) == 2
     mss = mean_square_stability(paper_loop, root_lmi=False)
-    nominal = hinf_gamma(paper_loop, robust=False, lean=True)  # as analyze's
+    nominal = hinf_gamma(paper_loop, robust=False)
     low = gain_lower_bound(paper_loop, worst_rates=mss.worst_beta, upper=nominal.gamma)
     assert low is not None and rep.nominal_lower is not None and rep.nominal_lower.value == low.value
     high = robust_lower_bound(paper_loop, low.rates, worst_rates=mss.worst_beta, upper=nominal.gamma)[1]

@@ -17,11 +17,12 @@ import tempfile
 import time
 from pathlib import Path
 
-import psutil
 import pytest
 
+psutil = pytest.importorskip("psutil")
+pytest.importorskip("distributed")
 ROOT = Path(__file__).resolve().parents[1]
-pytestmark = pytest.mark.skipif(not hasattr(os, "fork"), reason="POSIX process groups")
+pytestmark = pytest.mark.skipif(not hasattr(os, "fork"), reason="POSIX process groups and the fork server")
 
 
 #: CPU seconds of the server's own before the signal: past the interpreter's start (a few

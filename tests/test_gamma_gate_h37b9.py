@@ -41,8 +41,8 @@ def test_lemma_4_1_starts_after_theorem_3_2_has_its_answer(paper_loop: Any, tmp_
     assert set(calls) == {False, True} and len({c["pid"] for c in calls.values()} | {os.getpid()}) == 3
     assert calls[True]["start"] >= calls[False]["end"]
     monkeypatch.undo()
-    assert rep.robust.gamma == hinf_gamma(paper_loop, robust=True, lean=True).gamma
-    assert rep.nominal.gamma == hinf_gamma(paper_loop, robust=False, lean=True).gamma
+    assert rep.robust.gamma == hinf_gamma(paper_loop, robust=True).gamma
+    assert rep.nominal.gamma == hinf_gamma(paper_loop, robust=False).gamma
 
 
 @pytest.mark.parametrize("lower_bounds", [True, False])

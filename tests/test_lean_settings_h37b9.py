@@ -73,3 +73,17 @@ def test_without_lean_only_the_full_settings_run(paper_loop: Any) -> None:
     assert res.certified and all(a.message == "" for a in res.attempts)
     lean = hinf_gamma(paper_loop, robust=True, lean=True)
     assert res.gamma is not None and lean.gamma is not None and abs(res.gamma - lean.gamma) <= 1e-6 * res.gamma
+
+
+def test_only_the_commands_analysis_is_lean(paper_loop: Any) -> None:
+    """``analyze(..., lean=True)`` (the ``analyze`` and ``verify`` commands) names the lean
+    settings in its attempts; the default, as the synthesis's certifications
+    (``synthesis.results.verify_controller``), solves with the full settings only."""
+    from ftc_verify.analysis.analyze import analyze
+
+    lean = analyze(paper_loop, cross_validation=False, lower_bounds=False, lean=True)
+    full = analyze(paper_loop, cross_validation=False, lower_bounds=False)
+    assert any("settings" in a.message for a in lean.robust.attempts + lean.nominal.attempts)
+    assert all(a.message == "" for a in full.robust.attempts + full.nominal.attempts)
+    assert lean.robust.gamma is not None and full.robust.gamma is not None
+    assert abs(lean.robust.gamma - full.robust.gamma) <= 1e-6 * full.robust.gamma

@@ -134,7 +134,7 @@ def bracket(certified: LMIResult, lower: GainLowerBound | None) -> dict[str, Any
 
 
 def analyze(loop: ClosedLoop, *, solver: str | None = None, name: str = "", cross_validation: bool = True,
-            lmi: bool = True, lower_bounds: bool = True) -> AnalysisReport:
+            lmi: bool = True, lower_bounds: bool = True, lean: bool = False) -> AnalysisReport:
     """Run every analysis of the module docstring on ``loop``.
 
     ``solver`` is ``None``/``"auto"`` (by size), ``"clarabel"``, ``"sdpa"`` or ``"scs"``.
@@ -149,7 +149,10 @@ def analyze(loop: ClosedLoop, *, solver: str | None = None, name: str = "", cros
     (:func:`~ftc_verify.analysis.lmi_size.check_lmi_memory`), and so is the lower
     bounds' dense second-moment generator
     (:func:`~ftc_verify.limits.dense_generator_estimate`). ``lower_bounds=False``
-    skips stage 4 (synthesis loops). A loop the spectral test proves NOT stable gets no
+    skips stage 4 (synthesis loops). ``lean``: the gamma programs first with Clarabel's
+    :data:`~ftc_verify.analysis.solvers.LEAN_SETTINGS` (``hinf_gamma(..., lean=lean)``; the
+    ``analyze`` and ``verify`` commands' own analysis; the synthesis certifies with the full
+    settings, whose answers steer its choices). A loop the spectral test proves NOT stable gets no
     LMI solve (outcome ``"skipped"``: no certificate of stability or of a finite gamma
     exists for it).
     """
@@ -167,27 +170,27 @@ def analyze(loop: ClosedLoop, *, solver: str | None = None, name: str = "", cros
         check = start_cross_check()
         check.submit(cross_validate, loop)
     try:
-        return _analyze(loop, solver, name, lmi, lower_bounds, check, seconds)
+        return _analyze(loop, solver, name, lmi, lower_bounds, check, seconds, lean)
     finally:
         if check is not None:
             check.cancel()
 
 
 def _analyze(loop: ClosedLoop, solver: str | None, name: str, lmi: bool, lower_bounds: bool,
-             check: Any, seconds: dict[str, float]) -> AnalysisReport:
+             check: Any, seconds: dict[str, float], lean: bool = False) -> AnalysisReport:
     """The stages of :func:`analyze`; ``check``: the running
     :class:`~ftc_verify.prestart.Prestarted` (``None``: no cross-validation)."""
-    ahead, nominal_ahead = _gamma_ahead(loop, solver, lower_bounds and within_solve_limit(loop)) if lmi else (None, None)
+    ahead, nominal_ahead = _gamma_ahead(loop, solver, lower_bounds and within_solve_limit(loop), lean) if lmi else (None, None)
     try:
-        return _stages(loop, solver, name, lmi, lower_bounds, check, seconds, ahead, nominal_ahead)
+        return _stages(loop, solver, name, lmi, lower_bounds, check, seconds, ahead, nominal_ahead, lean)
     finally:
         for call in (ahead, nominal_ahead):
             if call is not None:
                 call.cancel()
 
 
-def _gamma_ahead(loop: ClosedLoop, solver: str | None,
-                 gated: bool = True) -> tuple[ForkedCall | None, ForkedCall | None]:
+def _gamma_ahead(loop: ClosedLoop, solver: str | None, gated: bool = True,
+                 lean: bool = False) -> tuple[ForkedCall | None, ForkedCall | None]:
     """The gamma programs that need nothing of the spectral stage, each in a forked child
     started before it: Theorem 3.2 without uncertainty channels (``(Theorem 3.2, None)``);
     with them Lemma 4.1 and Theorem 3.2 in a second child (``(Lemma 4.1, Theorem 3.2)``:
@@ -208,10 +211,10 @@ def _gamma_ahead(loop: ClosedLoop, solver: str | None,
     if loop.uncertain:
         gate, opener = os.pipe()  # Lemma 4.1's child starts when Theorem 3.2's has its answer (_after)
         try:
-            robust = ForkedCall(_after(gate if gated else None, opener, lambda: hinf_gamma(loop, robust=True, solver=solver, lean=True)),
+            robust = ForkedCall(_after(gate if gated else None, opener, lambda: hinf_gamma(loop, robust=True, solver=solver, lean=lean)),
                                 "Lemma 4.1")
             try:
-                return robust, ForkedCall(_after(None, gate, lambda: hinf_gamma(loop, robust=False, solver=solver, lean=True),
+                return robust, ForkedCall(_after(None, gate, lambda: hinf_gamma(loop, robust=False, solver=solver, lean=lean),
                                                  opener), "Theorem 3.2")
             except BaseException:
                 robust.cancel()
@@ -219,7 +222,7 @@ def _gamma_ahead(loop: ClosedLoop, solver: str | None,
         finally:
             os.close(gate)
             os.close(opener)
-    return ForkedCall(lambda: hinf_gamma(loop, robust=False, solver=solver, lean=True), "Theorem 3.2"), None
+    return ForkedCall(lambda: hinf_gamma(loop, robust=False, solver=solver, lean=lean), "Theorem 3.2"), None
 
 
 def _after(gate: int | None, unused: int, fn: Callable[[], Any], opens: int | None = None) -> Callable[[], Any]:
@@ -247,7 +250,7 @@ def _after(gate: int | None, unused: int, fn: Callable[[], Any], opens: int | No
 
 def _stages(loop: ClosedLoop, solver: str | None, name: str, lmi: bool, lower_bounds: bool, check: Any,
             seconds: dict[str, float], ahead: ForkedCall | None,
-            nominal_ahead: ForkedCall | None = None) -> AnalysisReport:
+            nominal_ahead: ForkedCall | None = None, lean: bool = False) -> AnalysisReport:
     """The stages of :func:`_analyze`; ``ahead``, ``nominal_ahead``: the gamma programs
     running beside (:func:`_gamma_ahead`)."""
     t = time.perf_counter()
@@ -258,7 +261,7 @@ def _stages(loop: ClosedLoop, solver: str | None, name: str, lmi: bool, lower_bo
                                                "certificate exists") for c in ("Theorem 3.1", "Theorem 3.2", "Lemma 4.1"))
     elif lmi:
         nominal, robust, early, mes_first = _gammas(loop, solver, seconds, mss if lower_bounds else None, ahead,
-                                                     nominal_ahead)
+                                                     nominal_ahead, lean)
         t = time.perf_counter()
         mes = mes_first or mes_lmi(loop, solver=solver, known=(nominal, robust))
         seconds["theorem_3_1"] = seconds.get("theorem_3_1", 0.0) + time.perf_counter() - t
@@ -314,7 +317,8 @@ def _lower_bounds(loop: ClosedLoop, mss: MSSResult, nominal: LMIResult, robust: 
 
 def _gammas(loop: ClosedLoop, solver: str | None, seconds: dict[str, float],
             mss: MSSResult | None = None, ahead: ForkedCall | None = None,
-            nominal_ahead: ForkedCall | None = None) -> tuple[LMIResult, LMIResult, Early, LMIResult | None]:
+            nominal_ahead: ForkedCall | None = None,
+            lean: bool = False) -> tuple[LMIResult, LMIResult, Early, LMIResult | None]:
     """The nominal (Theorem 3.2) and robust (Lemma 4.1) gamma programs. ``ahead``: the
     one already running in a forked child since before the spectral stage
     (:func:`_gamma_ahead`; ``None`` without ``fork``: both solved here, the certified
@@ -333,17 +337,17 @@ def _gammas(loop: ClosedLoop, solver: str | None, seconds: dict[str, float],
     the lower-bound part of :func:`_nominal_side` as ``lower_bounds_beside``)."""
     t = time.perf_counter()
     if not loop.uncertain:
-        nominal = ahead.result() if ahead is not None else hinf_gamma(loop, robust=False, solver=solver, lean=True)
+        nominal = ahead.result() if ahead is not None else hinf_gamma(loop, robust=False, solver=solver, lean=lean)
         seconds["theorem_3_2"] = seconds["lemma_4_1"] = time.perf_counter() - t
         return nominal, nominal, None, None
     if ahead is None:
-        nominal = hinf_gamma(loop, robust=False, solver=solver, lean=True)
+        nominal = hinf_gamma(loop, robust=False, solver=solver, lean=lean)
         seconds["theorem_3_2"] = time.perf_counter() - t
         hint = nominal.gamma if nominal.certified else None  # Lemma 4.1's gamma is at least this
-        robust = hinf_gamma(loop, robust=True, solver=solver, gamma_hint=hint, lean=True)
+        robust = hinf_gamma(loop, robust=True, solver=solver, gamma_hint=hint, lean=lean)
         seconds["lemma_4_1"] = time.perf_counter() - t - seconds["theorem_3_2"]
         return nominal, robust, None, None
-    nominal, early, beside = _nominal_side(loop, solver, mss, nominal_ahead)
+    nominal, early, beside = _nominal_side(loop, solver, mss, nominal_ahead, lean)
     seconds["theorem_3_2"] = time.perf_counter() - t
     if early is not None:
         seconds["lower_bounds_beside"] = beside
@@ -360,13 +364,13 @@ def _gammas(loop: ClosedLoop, solver: str | None, seconds: dict[str, float],
 
 
 def _nominal_side(loop: ClosedLoop, solver: str | None, mss: MSSResult | None,
-                  nominal_ahead: ForkedCall | None = None) -> tuple[LMIResult, Early, float]:
+                  nominal_ahead: ForkedCall | None = None, lean: bool = False) -> tuple[LMIResult, Early, float]:
     """Beside Lemma 4.1's child (:func:`_gammas`): Theorem 3.2 (``nominal_ahead``'s answer,
     or solved here without it), then (given ``mss``, the
     nominal gamma certified) the nominal lower bound and the robust one at a constant
     ``Delta`` (``None`` in their place when not computed or when they fail:
     :func:`_lower_bounds` then computes them), and the seconds those took."""
-    nominal = nominal_ahead.result() if nominal_ahead is not None else hinf_gamma(loop, robust=False, solver=solver, lean=True)
+    nominal = nominal_ahead.result() if nominal_ahead is not None else hinf_gamma(loop, robust=False, solver=solver, lean=lean)
     if mss is None or mss.unstable or not nominal.certified:
         return nominal, None, 0.0
     t = time.perf_counter()

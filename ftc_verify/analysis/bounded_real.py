@@ -107,6 +107,7 @@ import scipy.linalg
 import scipy.linalg.lapack
 import scipy.sparse.linalg
 
+from ..claimtext import upper_text
 from ..model.chain import JointChain
 from ..model.system import Matrix
 from .closedloop import ClosedLoop
@@ -519,12 +520,11 @@ def riccati_candidate(original: ClosedLoop, target: ClosedLoop, similarity: Simi
         if found is None:
             why = f"no Riccati solution at {gamma:.6g} with margin {rho * abs(rho):.1e} |C_z|^2"
             continue
-        P = tuple(found[0])
-        cert = check_certificate(original, "theorem-3.2", P, None, gamma * gamma, similarity=similarity)
+        cert = check_certificate(original, "theorem-3.2", (P := tuple(found[0])), None, gamma * gamma, similarity=similarity)
         if cert.ok:
             return RiccatiCandidate(gamma0, gamma, cert, P, tried,
                                     f"float level {gamma0:.6g} of the box Riccati equations (no SDP); certified at "
-                                    f"{gamma:.6g} (+{2 * rho:.1e} relative), margin {rho * abs(rho):.1e} |C_z|^2")
+                                    f"{upper_text(gamma)} (+{2 * rho:.1e} relative), margin {rho * abs(rho):.1e} |C_z|^2")
         why = cert.reason
     return RiccatiCandidate(gamma0, None, None, None, tried, f"no candidate passed ({tried} tried): {why}")
 

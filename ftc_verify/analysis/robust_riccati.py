@@ -56,6 +56,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from ..claimtext import upper_text
 from ..model.system import Matrix
 from .bounded_real import (CANDIDATE_LADDER, POLICY_GMRES_RESTARTS, SEARCH_RTOL, RateEnvelope, RiccatiCandidate,
                            batched_lyapunov, bounded_real_solution, candidate_margin, coupled_lyapunov)
@@ -208,6 +209,6 @@ def robust_riccati_candidate(original: ClosedLoop, target: ClosedLoop, similarit
         if cert.ok:
             return RiccatiCandidate(gamma0, gamma, cert, candidate, tried,
                                     f"float level {gamma0:.6g} of the augmented Riccati equations (no SDP); certified "
-                                    f"at {gamma:.6g} (+{2 * rho:.1e} relative), margin {rho * abs(rho):.1e} |C_z|^2", multipliers)
+                                    f"at {upper_text(gamma)} (+{2 * rho:.1e} relative), margin {rho * abs(rho):.1e} |C_z|^2", multipliers)
         why = cert.reason
     return RiccatiCandidate(gamma0, None, None, None, tried, f"no candidate passed ({tried} tried): {why}")

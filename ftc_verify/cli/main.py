@@ -83,7 +83,7 @@ def _analyze_command(args: argparse.Namespace, watch: Any, check: Any) -> int:
     check.submit(cross_validate, loop)
     watch.mark("imports_and_load")
     rep = interruptible(lambda: analyze(loop, solver=args.solver, name=system.name, lmi=not args.no_lmi,
-                                        cross_validation=False), "the analysis")
+                                        cross_validation=False, lean=True), "the analysis")
     watch.mark("analysis")
     sampled = None
     if period is not None:  # the loop that runs: sampled every period, output held

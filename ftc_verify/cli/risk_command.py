@@ -24,10 +24,10 @@ __all__ = ["add_risk_command"]
 MIN_STEPS = 10
 
 
-
 def _up4(x: float | None) -> str:
     """A proved upper bound to 4 digits, rounded up (:mod:`ftc_verify.claimtext`), ``-`` for none."""
     return "-" if x is None else upper_text(x, 4)
+
 
 def _floats(text: str) -> list[float]:
     """Argument type: comma-separated finite numbers."""

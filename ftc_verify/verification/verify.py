@@ -511,7 +511,7 @@ def _run_verify(system: FTCSystem, gamma: float | None, method: str, k_max: floa
     spec.check_memory(system, controller, spec.n_paths)
     t = time.perf_counter()
     analysis = synthesis.report if synthesis is not None and synthesis.report is not None else interruptible(
-        lambda: analyze(loop, solver=solver, name=system.name, cross_validation=False), "the analysis")
+        lambda: analyze(loop, solver=solver, name=system.name, cross_validation=False, lean=True), "the analysis")
     gamma_cert, found = _certify(analysis, gamma)
     checks.extend(found)
     stage("analysis", t)

@@ -22,10 +22,12 @@ change in time inside it, and near ``h_max`` those can be worse than any constan
 (seed-1 ``n = 4, m = 3`` loop: whole box 1.5e-3 below the crossing with four cubic
 pieces, the worst vertex alone 5e-4, the sub-box of half the widths at that vertex 9e-4;
 ``benchmarks/results/h31r.md``). The map's proof loses margin to first order in the
-sub-box's widths (envelope) or higher (the polynomial forms), so it proves small
+sub-box's widths (envelope) or higher (the polynomial forms), so it can prove small
 sub-boxes near the worst vertex where no cubic certificate of a sub-box is found
-(held-out seed 13 at 1e-2: ``benchmarks/results/h31t.md``), and the cubic proves the
-large ones far from it. A cover is built depth first: a sub-box not proved is split in
+(held-out seed 13 at 1e-2: 75 map sub-boxes of a vertex box of 1/16 of the widths,
+``benchmarks/results/h31t.md``), and the cubic proves the large ones far from it. With
+:data:`MAP_DEPTH` 12 that deep a vertex box is not reached: on the held-out loops
+measured, no rung was decided by map proofs; the gain there came from the retry rung. A cover is built depth first: a sub-box not proved is split in
 half along its widest rate (relative to the box; on ties the one that moves the float64
 radius most near the box's worst vertex) up to :data:`COVER_DEPTH` halvings along a
 path (cubic certificates tried), then along the rate of
