@@ -134,3 +134,41 @@ def test_failed_rung_retried_once_at_the_geometric_mean(monkeypatch: pytest.Monk
     assert [ok for _, ok in got.rungs] == [True, False, True]
     assert [h for h, _ in got.rungs] == pytest.approx([hu * (1 - 1e-2), hu * (1 - 2.5e-3), hu * (1 - 5e-3)])
     assert got.h_max == pytest.approx(hu * (1 - 5e-3))
+
+
+def test_split_cover_by_real_map_proofs_is_exactly_the_box(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The real map proof refused on every sub-box wider than half the box in some rate
+    (review: the map-only cover above is one leaf): the cover splits, every leaf is one the
+    real proof accepted, the leaves are pairwise disjoint (up to shared faces) and their
+    volumes add up exactly to the box's."""
+    loop = _paper()
+    idx = loop.chain.rate_indices
+    full = {r: float(loop.chain.rate_max[r] - loop.chain.rate_min[r]) for r in idx}
+    proved: list[tuple[bytes, bytes]] = []
+
+    def narrow_only(loop_: SampledLoop, h: float, parts: Any, lo: Any, hi: Any, *rest: Any) -> bool:
+        if any(float(hi[r] - lo[r]) > 0.5 * full[r] for r in idx):
+            return False
+        ok = subbox_stable(loop_, h, parts, lo, hi, *rest)
+        if ok:
+            proved.append((np.asarray(lo).tobytes(), np.asarray(hi).tobytes()))
+        return bool(ok)
+
+    monkeypatch.setattr(sampled_cover, "cubic_stable", _Never())
+    monkeypatch.setattr(sampled_cover, "subbox_stable", narrow_only)
+    leaves, _, attempts, maps = cover_box(loop, 0.9 * PAPER_UNSTABLE, None, _box(loop), 1e12)
+    assert leaves is not None and len(leaves) >= 2 ** len(idx) and attempts == 0 and maps > len(leaves)
+    assert sorted(proved) == sorted((np.asarray(lo).tobytes(), np.asarray(hi).tobytes()) for lo, hi, _ in leaves)
+
+    def volume(lo: Any, hi: Any) -> Fraction:
+        out = Fraction(1)
+        for r in idx:
+            out *= Fraction(float(hi[r])) - Fraction(float(lo[r]))
+        return out
+
+    for a, (la, ha, _) in enumerate(leaves):
+        assert all(loop.chain.rate_min[r] <= la[r] < ha[r] <= loop.chain.rate_max[r] for r in idx)
+        for lb, hb, _ in leaves[a + 1:]:
+            assert any(ha[r] <= lb[r] or hb[r] <= la[r] for r in idx)
+    assert sum((volume(lo, hi) for lo, hi, _ in leaves), Fraction(0)) == volume(loop.chain.rate_min,
+                                                                                 loop.chain.rate_max)
