@@ -211,6 +211,8 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
         if subbox_stable(loop, h, parts, lo, hi):
             leaves.append((lo, hi, depth))
             continue
+        if spectral_radius(loop, h, 0.5 * (lo + hi)) >= 1.0:  # no proof can hold there: before any cubic is paid
+            return None, spent, attempts, maps
         if pieces is not None and depth <= COVER_DEPTH and spent + cost <= budget:
             spent += cost
             attempts += 1
@@ -218,7 +220,7 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
             if cert is not None and cert.proved:
                 leaves.append((lo, hi, depth))
                 continue
-        if depth >= MAP_DEPTH or spectral_radius(loop, h, 0.5 * (lo + hi)) >= 1.0:
+        if depth >= MAP_DEPTH:
             return None, spent, attempts, maps
         if worst is None:
             worst = worst_vertex(loop, h, rate_points(loop.chain))[1]
