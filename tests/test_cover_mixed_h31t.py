@@ -46,6 +46,25 @@ def _box(loop: SampledLoop) -> list[tuple[np.ndarray, np.ndarray, int]]:
     return [(loop.chain.rate_min.copy(), loop.chain.rate_max.copy(), 0)]
 
 
+def _assert_exact_cover(loop: SampledLoop, leaves: Any) -> None:
+    """The leaves lie in the box, are pairwise disjoint up to shared faces, and their
+    volumes (exact rationals of the floats) add up to the box's."""
+    idx = loop.chain.rate_indices
+
+    def volume(lo: Any, hi: Any) -> Fraction:
+        out = Fraction(1)
+        for r in idx:
+            out *= Fraction(float(hi[r])) - Fraction(float(lo[r]))
+        return out
+
+    for a, (la, ha, _) in enumerate(leaves):
+        assert all(loop.chain.rate_min[r] <= la[r] < ha[r] <= loop.chain.rate_max[r] for r in idx)
+        for lb, hb, _ in leaves[a + 1:]:
+            assert any(ha[r] <= lb[r] or hb[r] <= la[r] for r in idx)
+    assert sum((volume(lo, hi) for lo, hi, _ in leaves), Fraction(0)) == volume(loop.chain.rate_min,
+                                                                                 loop.chain.rate_max)
+
+
 def test_subbox_proof_proves_below_and_refuses_above_the_crossing() -> None:
     loop = _paper()
     lo, hi = loop.chain.rate_min.copy(), loop.chain.rate_max.copy()
@@ -102,20 +121,7 @@ def test_map_only_cover_is_the_box_and_confirmed(monkeypatch: pytest.MonkeyPatch
     assert box_verdict(loop, got.h_max, max_boxes=64, max_seconds=float("inf")).verdict == "stable"
     leaves, _, _, _ = cover_box(loop, got.h_max, None, _box(loop), 1e12)
     assert leaves is not None and len(leaves) == got.boxes
-    idx = loop.chain.rate_indices
-
-    def volume(lo: Any, hi: Any) -> Fraction:
-        out = Fraction(1)
-        for r in idx:
-            out *= Fraction(float(hi[r])) - Fraction(float(lo[r]))
-        return out
-
-    for a, (la, ha, _) in enumerate(leaves):
-        assert all(loop.chain.rate_min[r] <= la[r] < ha[r] <= loop.chain.rate_max[r] for r in idx)
-        for lb, hb, _ in leaves[a + 1:]:
-            assert any(ha[r] <= lb[r] or hb[r] <= la[r] for r in idx)
-    assert sum((volume(lo, hi) for lo, hi, _ in leaves), Fraction(0)) == volume(loop.chain.rate_min,
-                                                                                 loop.chain.rate_max)
+    _assert_exact_cover(loop, leaves)
 
 
 def test_failed_rung_retried_once_at_the_geometric_mean(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -159,16 +165,4 @@ def test_split_cover_by_real_map_proofs_is_exactly_the_box(monkeypatch: pytest.M
     leaves, _, attempts, maps = cover_box(loop, 0.9 * PAPER_UNSTABLE, None, _box(loop), 1e12)
     assert leaves is not None and len(leaves) >= 2 ** len(idx) and attempts == 0 and maps > len(leaves)
     assert sorted(proved) == sorted((np.asarray(lo).tobytes(), np.asarray(hi).tobytes()) for lo, hi, _ in leaves)
-
-    def volume(lo: Any, hi: Any) -> Fraction:
-        out = Fraction(1)
-        for r in idx:
-            out *= Fraction(float(hi[r])) - Fraction(float(lo[r]))
-        return out
-
-    for a, (la, ha, _) in enumerate(leaves):
-        assert all(loop.chain.rate_min[r] <= la[r] < ha[r] <= loop.chain.rate_max[r] for r in idx)
-        for lb, hb, _ in leaves[a + 1:]:
-            assert any(ha[r] <= lb[r] or hb[r] <= la[r] for r in idx)
-    assert sum((volume(lo, hi) for lo, hi, _ in leaves), Fraction(0)) == volume(loop.chain.rate_min,
-                                                                                 loop.chain.rate_max)
+    _assert_exact_cover(loop, leaves)
