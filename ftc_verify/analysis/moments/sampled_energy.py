@@ -52,7 +52,7 @@ from ...controllers.controller import Controller
 from ...errors import FTCError, ValidationError
 from ...model.system import FTCSystem, Matrix, Mode
 from .stability import duplication_matrix, second_moment_matrix, vech_order
-from .energy import EXOSYSTEMS, ExactEnergy
+from .energy import EXOSYSTEMS, ExactEnergy, output_blocks
 
 __all__ = ["perturbed_system", "sampled_energy", "sampled_energies", "sample_trapezoid", "OMEGAS", "DECAY", "gain_lower_estimate"]
 
@@ -95,18 +95,9 @@ class _Augmented:
 
     def blocks(self, span: float) -> tuple[Matrix, Matrix]:
         """:math:`(e^{\\mathcal L \\tau}, \\ell^T \\int_0^\\tau e^{\\mathcal L s} ds)` at
-        ``span`` from one exponential of size :math:`N + 1` (not the :math:`2N` of the
-        Van Loan block with the identity): :math:`\\exp\\big(\\big[\\begin{smallmatrix}
-        0 & \\ell^T \\\\ 0 & \\mathcal L\\end{smallmatrix}\\big]\\tau\\big) =
-        \\big[\\begin{smallmatrix} 1 & \\ell^T \\int_0^\\tau e^{\\mathcal L s} ds \\\\ 0 &
-        e^{\\mathcal L \\tau}\\end{smallmatrix}\\big]` (differentiate in :math:`\\tau`: the
-        top-right block :math:`g` obeys :math:`\\dot g = \\ell^T e^{\\mathcal L \\tau}`,
-        :math:`g(0) = 0`). Only :math:`\\ell^T \\mathcal G` is ever used."""
-        N = self.L.shape[0]
-        V = np.zeros((N + 1, N + 1))
-        V[0, 1:], V[1:, 1:] = self.ell, self.L
-        E = scipy.linalg.expm(V * span)
-        return E[1:, 1:], E[0, 1:]
+        ``span`` (:func:`~ftc_verify.analysis.moments.energy.output_blocks`: one exponential
+        of size :math:`N + 1`). Only :math:`\\ell^T \\mathcal G` is ever used."""
+        return output_blocks(self.L, self.ell, span)
 
 
 def _exosystem(disturbance: str, exosystem: tuple[Matrix, Matrix, Matrix] | None) -> tuple[Matrix, Matrix, Matrix]:

@@ -92,7 +92,7 @@ from ..closedloop import ClosedLoop, closed_loop
 from ..lower_bound import float_gain
 from .sampled import SampledLoop, rate_points
 from .sampled_energy import DECAY, OMEGAS, gain_lower_estimate
-from .sampled_lower_ops import MomentOps, trace_weights
+from .sampled_lower_ops import MomentOps, row_exponent, trace_weights
 from .stability import duplication_matrix, vech_order
 
 __all__ = ["SCALES", "HORIZON", "SPAN_TIMES", "PROOF_BITS", "PROOF_RTOL", "SampledLowerBound", "sampled_lower_bound",
@@ -177,15 +177,16 @@ def _blocks(ops: _Ops, aug: ClosedLoop, restriction: Matrix, Q: Any, h: Any, del
     else:
         V = V + np.kron(np.asarray(Q).T, np.eye(vd))
     # exp([[0, ell], [0, V]] h) = [[1, ell G], [0, F]]: size N + 1, not the 2N of [[V, I], [0, 0]];
-    # on balls with the row ell scaled by 2^-k (exact: sampled_lower_ops' module docstring)
-    lrow, k = ops.bmat([ell]), 0
+    # with the row ell scaled by 2^-k (exact: sampled_lower_ops' module docstring)
+    lrow = ops.bmat([ell])
+    hm = abs(float(h.mid() if hasattr(h, "mid") else h))
     if ops.balls:
         from .fast_balls import from_arb
-        from .sampled_lower_ops import row_exponent
 
-        hm = abs(float(h.mid() if hasattr(h, "mid") else h))
-        k = row_exponent(float(np.abs(from_arb(lrow.value)[0]).sum()) * hm,
-                         float(np.max(np.abs(from_arb(V.value)[0]).sum(axis=1))) * hm)
+        row_mid, V_mid = from_arb(lrow.value)[0], from_arb(V.value)[0]
+    else:
+        row_mid, V_mid = np.asarray(lrow), np.asarray(V)
+    k = row_exponent(float(np.abs(row_mid).sum()) * hm, float(np.max(np.abs(V_mid).sum(axis=1))) * hm)
     E = ops.expm(ops.bmat([[np.zeros((1, 1)), lrow * 2.0 ** -k if k else lrow], [np.zeros((N, 1)), V]]), h)
     Pz = np.zeros((r, dd))
     Pz[:, :d] = restriction
