@@ -117,7 +117,7 @@ def test_cli_doubled_rates_certified_by_analyze(tmp_path: Path, monkeypatch: pyt
     """``synthesize --output-feedback`` (every route) at the doubled detection rates writes
     a controller that ``analyze`` certifies stable with Theorem 3.2's gamma.
 
-    The ``hinf`` route's BFGS runs on a wall-clock budget (``HINF_SECONDS``, 40 s; the
+    The ``hinf`` route's BFGS runs on a CPU-time budget (``HINF_SECONDS``, 40 s; the
     first start 60 % of it) and descends until it is spent: here 3 s. Its length is not
     this test's claim: whatever the route answers is certified by the core before it
     counts, and what the command writes is checked by ``analyze`` below

@@ -65,6 +65,7 @@ from ..claimtext import upper_text
 from ..controllers.controller import Controller
 from ..errors import ValidationError
 from ..jsonable import OMIT, fields_dict
+from ..limits import cpu_clock
 from ..model.system import FTCSystem, JointChain, Matrix
 from .results import SolverCalls, verify_controller
 from .rightmost import rightmost
@@ -81,9 +82,9 @@ KAPPAS = (8.0, 4.0, 2.0, 1.4, 1.0)
 LEVELS = (-0.05, -0.1, -0.2, -0.4, -0.8, -1.6)
 #: Gain bounds of the diagnosis scan (:func:`gain_scan`).
 GAIN_SCAN = (1e1, 1e2, 1e3, 1e4)
-#: Seconds after which :func:`stabilise` begins no new start.
+#: CPU seconds (:func:`~ftc_verify.limits.cpu_clock`) after which :func:`stabilise` begins no new start.
 BUDGET_SECONDS = 30.0
-#: Seconds after which the descent route begins no new tuning level and no P-K alternation.
+#: CPU seconds after which the descent route begins no new tuning level and no P-K alternation.
 TUNING_SECONDS = 60.0
 #: Designed starts (observer controllers) tried at most, the most stable first.
 DESIGNED_STARTS = 2
@@ -338,7 +339,7 @@ def stabilise(system: FTCSystem, order: int, *, starts: Sequence[tuple[str, Matr
     controllers, whose gains tend to be large) -- each through the
     continuation ``kappas`` (module docstring); sorted, best (lowest abscissa at the true
     rates) first. A start stops at the true rates once its abscissa is below ``-margin``;
-    no new start begins after ``budget_seconds`` (the first always runs)."""
+    no new start begins after ``budget_seconds`` CPU seconds (the first always runs)."""
     par = Parametrisation.build(system, order)
     rng = np.random.default_rng(seed)
     scale = 1.0 / np.sqrt(max(1, par.shape[0] * par.shape[1]))
@@ -347,9 +348,9 @@ def stabilise(system: FTCSystem, order: int, *, starts: Sequence[tuple[str, Matr
     all_starts += list(starts)  # last: designed starts (observers) tend to have large gains
     project = lambda x: _project(par, x, k_max)  # noqa: E731
     out: list[DescentResult] = []
-    deadline = time.perf_counter() + budget_seconds
+    deadline = cpu_clock() + budget_seconds
     for name, theta in all_starts:
-        if out and time.perf_counter() > deadline:
+        if out and cpu_clock() > deadline:
             break
         t0 = time.perf_counter()
         x = np.asarray(theta, dtype=float)
@@ -450,9 +451,9 @@ def descent_route(system: FTCSystem, order: int, rows: list[dict[str, Any]], k_m
     chosen: tuple[Controller, Any, float] | None = None
     history: list[float] = []
     misses = 0
-    deadline = time.perf_counter() + TUNING_SECONDS
+    deadline = cpu_clock() + TUNING_SECONDS
     for level in LEVELS:
-        if chosen is not None and time.perf_counter() > deadline:
+        if chosen is not None and cpu_clock() > deadline:
             break
         theta, reached = deepen(system, order, theta, level * scale, k_max=k_max)
         ctrl = par.controller(theta, f"{system.name} descent (order {order})")
@@ -469,7 +470,7 @@ def descent_route(system: FTCSystem, order: int, rows: list[dict[str, Any]], k_m
     if chosen is None:
         return None, None, [], (f"descent (order {order}) stabilised (abscissa {best.abscissa:.4g} from "
                                 f"{best.start}) but the core certified no controller of the tuning ladder"), public
-    tuned, why = (_alternate(system, par, chosen, k_max, solver, calls) if time.perf_counter() < deadline
+    tuned, why = (_alternate(system, par, chosen, k_max, solver, calls) if cpu_clock() < deadline
                   else (None, f"not tried (tuning budget of {TUNING_SECONDS:g} s spent)"))
     note = f"; P-K alternation: {why}"
     if tuned is not None:

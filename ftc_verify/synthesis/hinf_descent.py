@@ -63,6 +63,7 @@ from ..analysis.closedloop import closed_loop
 from ..analysis.lmi import block_specs, lyapunov_block
 from ..claimtext import upper_text
 from ..controllers.controller import Controller
+from ..limits import cpu_clock
 from ..model.system import FTCSystem, Matrix
 from .descent import Parametrisation, bfgs
 from .results import SolverCalls
@@ -70,7 +71,7 @@ from .results import SolverCalls
 __all__ = ["HINF_SECONDS", "PERTURBED_STARTS", "FIRST_SHARE", "RESTART_RTOL", "NominalGamma", "minimise_gamma", "hinf_route",
            "within_bound"]
 
-#: Seconds after which :func:`minimise_gamma` begins no new start.
+#: CPU seconds (:func:`~ftc_verify.limits.cpu_clock`) after which :func:`minimise_gamma` begins no new start.
 HINF_SECONDS = 40.0
 #: Seeded perturbations of the best start added to the starts.
 PERTURBED_STARTS = 2
@@ -186,7 +187,7 @@ class _Watched:
         self.best: tuple[float, Matrix] = (math.inf, np.zeros(0))
 
     def __call__(self, theta: Matrix) -> tuple[float, Matrix]:
-        if time.perf_counter() > self.deadline:
+        if cpu_clock() > self.deadline:
             return math.inf, np.zeros(theta.size)
         f, g = self.fun(theta)
         if f < self.best[0]:
@@ -201,7 +202,8 @@ def minimise_gamma(system: FTCSystem, order: int, starts: Sequence[tuple[str, Ma
     :data:`PERTURBED_STARTS` perturbations (relative size 1e-3) of the first one drawn from
     ``numpy.random.default_rng(seed)``. From each start BFGS is restarted (a fresh
     inverse Hessian) where its line search ended, until a restart gains less than
-    :data:`RESTART_RTOL` relative or its share of ``budget_seconds`` is spent (the first
+    :data:`RESTART_RTOL` relative or its share of ``budget_seconds`` (CPU seconds,
+    :func:`~ftc_verify.limits.cpu_clock`, so that a loaded machine does not cut the descent short) is spent (the first
     start :data:`FIRST_SHARE`, each later one an equal part of what is left; its best point
     kept; ``None``: :data:`HINF_SECONDS` as the module holds it when called). Returns one row per start: ``name``, ``theta``, ``gamma`` (the program's value,
     not certified; ``inf`` when none), ``start_gamma``, ``seconds``; best first."""
@@ -214,9 +216,9 @@ def minimise_gamma(system: FTCSystem, order: int, starts: Sequence[tuple[str, Ma
     every = list(starts) + [(f"{starts[0][0]} perturbed {k} (seed {seed})",
                              first * (1.0 + 1e-3 * rng.standard_normal(first.size))) for k in range(PERTURBED_STARTS)]
     rows: list[dict[str, Any]] = []
-    deadline = time.perf_counter() + (HINF_SECONDS if budget_seconds is None else budget_seconds)
+    deadline = cpu_clock() + (HINF_SECONDS if budget_seconds is None else budget_seconds)
     for k, (name, theta) in enumerate(every):
-        t0 = time.perf_counter()
+        t0, wall0 = cpu_clock(), time.perf_counter()
         if rows and t0 > deadline:
             break
         share = FIRST_SHARE if k == 0 and len(every) > 1 else 1.0 / (len(every) - k)
@@ -232,7 +234,7 @@ def minimise_gamma(system: FTCSystem, order: int, starts: Sequence[tuple[str, Ma
                 break
             f = watched.best[0]
         rows.append({"name": name, "theta": watched.best[1] if math.isfinite(watched.best[0]) else x,
-                     "gamma": float(watched.best[0]), "start_gamma": float(f0), "seconds": time.perf_counter() - t0})
+                     "gamma": float(watched.best[0]), "start_gamma": float(f0), "seconds": time.perf_counter() - wall0})
     return sorted(rows, key=lambda r: r["gamma"])
 
 
