@@ -149,19 +149,20 @@ def resolvent_stack(T: Matrix, states: int, r: int, *, margin: float, residual: 
     :math:`Y = (I - T)^{-1} I` (:func:`identity_stack`) when it is finite and every joint
     state's block of :math:`Y` -- and, with ``residual``, of :math:`Y - T Y` -- passes
     :func:`float_pd` with relative ``margin``; else ``None``. :math:`Y \succ 0` and
-    :math:`Y - T Y \succ 0` give :math:`ho(T) < 1`; in exact arithmetic
+    :math:`Y - T Y \succ 0` give :math:`
+ho(T) < 1`; in exact arithmetic
     :math:`Y - T Y = I`, so ``residual`` checks the float solve. A float screen, never a
     proof: ``sampled_scan.octave_verdicts`` takes ``margin=0`` without the residual,
     the ball proofs' float pre-checks ``1e-9`` with it."""
     try:
-        y = np.linalg.solve(np.eye(T.shape[0]) - T, identity_stack(states, r))
+        y = np.asarray(np.linalg.solve(np.eye(T.shape[0]) - T, identity_stack(states, r)), dtype=np.float64)
     except np.linalg.LinAlgError:
         return None
     if not (np.all(np.isfinite(y)) and float_pd(y, states, r, margin=margin)):
         return None
-    if residual and not float_pd(y - T @ y, states, r, margin=margin):
+    if residual and not float_pd(np.asarray(y - T @ y, dtype=np.float64), states, r, margin=margin):
         return None
-    return np.asarray(y, dtype=np.float64)
+    return y
 
 
 def identity_stack(states: int, r: int) -> Matrix:
