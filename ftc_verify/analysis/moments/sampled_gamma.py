@@ -520,17 +520,21 @@ class SampledPerformance:
         }
 
 
-def sampled_performance(system: FTCSystem, controller: Controller, period: float) -> SampledPerformance:
-    """Both certificates and their lower bounds: :func:`~ftc_verify.analysis.moments.sampled_gains.sampled_gains`."""
+def sampled_performance(system: FTCSystem, controller: Controller, period: float, *,
+                        loop: SampledLoop | None = None) -> SampledPerformance:
+    """Both certificates and their lower bounds: :func:`~ftc_verify.analysis.moments.sampled_gains.sampled_gains`
+    (``loop``: :meth:`SampledLoop.build` of ``system, controller`` when the caller has it)."""
     from .sampled_gains import sampled_gains
 
-    return sampled_gains(system, controller, period)
+    return sampled_gains(system, controller, period, loop=loop)
 
 
-def attach_performance(result: Any, system: FTCSystem, controller: Controller) -> Any:
+def attach_performance(result: Any, system: FTCSystem, controller: Controller, *,
+                       loop: SampledLoop | None = None) -> Any:
     """``result`` (a :class:`~ftc_verify.analysis.moments.sampled.SampledResult`) with its
     ``performance`` at ``result.period``; none is sought (the notes say why) when the loop is
-    proved not mean-square stable there or its float64 radius is not below 1 (or overflows)."""
+    proved not mean-square stable there or its float64 radius is not below 1 (or overflows).
+    ``loop``: as for :func:`sampled_performance`."""
     h, rho = result.period, result.spectral_radius
     if result.verdict == "not stable" or not rho < 1.0:
         why = "no certificate: " + ("the sampled loop is proved NOT mean-square stable at this period (infinite gain)"
@@ -538,5 +542,5 @@ def attach_performance(result: Any, system: FTCSystem, controller: Controller) -
         rob = SampledGamma(True, None, 0, 0.0, why, 0.0) if system.uncertain else None
         perf = SampledPerformance(h, SampledGamma(False, None, 0, 0.0, why, 0.0), rob, None, why, None, why)
     else:
-        perf = sampled_performance(system, controller, h)
+        perf = sampled_performance(system, controller, h, loop=loop)
     return replace(result, performance=perf)
