@@ -149,8 +149,7 @@ def resolvent_stack(T: Matrix, states: int, r: int, *, margin: float, residual: 
     :math:`Y = (I - T)^{-1} I` (:func:`identity_stack`) when it is finite and every joint
     state's block of :math:`Y` -- and, with ``residual``, of :math:`Y - T Y` -- passes
     :func:`float_pd` with relative ``margin``; else ``None``. :math:`Y \succ 0` and
-    :math:`Y - T Y \succ 0` give :math:`
-ho(T) < 1`; in exact arithmetic
+    :math:`Y - T Y \succ 0` give :math:`\rho(T) < 1`; in exact arithmetic
     :math:`Y - T Y = I`, so ``residual`` checks the float solve. A float screen, never a
     proof: ``sampled_scan.octave_verdicts`` takes ``margin=0`` without the residual,
     the ball proofs' float pre-checks ``1e-9`` with it."""
