@@ -5,6 +5,8 @@ Usage: python examples/controllers_table.py [--k-max V] [--solver NAME]
 One row per controller: the paper's K1, K2; two-step at gamma = 0.8; two-step minimised;
 iterative; full-info; common. Every gain set is verified by the same core analysis
 (``ftc_verify.analysis.analyze.analyze``); wall time covers synthesis plus verification.
+Certified gammas are printed to 4 digits rounded up (:func:`ftc_verify.claimtext.upper_text`),
+as everywhere else: a printed certificate is never below the one proved.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import numpy as np
 
 from ftc_verify.analysis.analyze import analyze
 from ftc_verify.analysis.closedloop import state_feedback_loop
+from ftc_verify.claimtext import upper_text
 from ftc_verify.model.files import load_system
 from ftc_verify.controllers.files import load_gains
 from ftc_verify.synthesis.state_feedback import synthesize
@@ -51,7 +54,7 @@ def main() -> None:
         d = r.to_dict()
         note = "" if r.certified else r.message
         if method == "iterative" and r.history:
-            note = f"history {' -> '.join(f'{g:.4g}' for g in r.history)}; {r.solver_calls} solver calls"
+            note = f"history {' -> '.join(upper_text(g, 4) for g in r.history)}; {r.solver_calls} solver calls"
         rows.append((label, d["gamma_nominal_certified"], d["gamma_certified"], d["spectral_abscissa"],
                      d["max_gain_norm"], r.wall_seconds, note))
     bound = f", k_max = {args.k_max:g}" if args.k_max else ""
@@ -59,7 +62,7 @@ def main() -> None:
     print("| controller | certified nominal gamma | certified robust gamma | spectral abscissa | max gain norm | wall time (s) | note |")
     print("|---|---|---|---|---|---|---|")
     for label, gn, gr, sa, kn, wall, note in rows:
-        print(f"| {label} | {fmt(gn)} | {fmt(gr)} | {fmt(sa)} | {fmt(kn)} | {wall:.2f} | {note} |")
+        print(f"| {label} | {upper_text(gn, 4)} | {upper_text(gr, 4)} | {fmt(sa)} | {fmt(kn)} | {wall:.2f} | {note} |")
 
 
 if __name__ == "__main__":

@@ -15,6 +15,8 @@ float itself, not of a second rounding of it. JSON keeps the floats as computed.
 '0.498'
 >>> upper_text(2.0)
 '2'
+>>> upper_text(None, 4)
+'-'
 """
 
 from __future__ import annotations
@@ -24,7 +26,9 @@ from decimal import ROUND_CEILING, ROUND_FLOOR, Decimal
 __all__ = ["upper_text", "lower_text"]
 
 
-def _outward(x: float, digits: int, up: bool) -> str:
+def _outward(x: float | None, digits: int, up: bool, missing: str) -> str:
+    if x is None:
+        return missing
     exact = Decimal(x)
     if not exact.is_finite() or exact == 0:
         return f"{x:.{digits}g}"
@@ -35,40 +39,46 @@ def _outward(x: float, digits: int, up: bool) -> str:
     return f"{float(q):.{digits}g}"
 
 
-def upper_text(x: float, digits: int = 6) -> str:
+def upper_text(x: float | None, digits: int = 6, *, missing: str = "-") -> str:
     """``x`` to ``digits`` significant digits, rounded up: for a proved upper bound (a
     certified gamma, a proved-unstable period), never printed below the number proved.
 
     Parameters
     ----------
-    x : float
-        The proved bound (infinite or zero values are printed as they are).
+    x : float or None
+        The proved bound (infinite or zero values are printed as they are; ``None``, no
+        bound, as ``missing``).
     digits : int
         Significant digits (default 6, as every other number of the reports).
+    missing : str
+        The text for ``x = None`` (default ``-``, a table's empty cell).
 
     Returns
     -------
     str
-        The smallest ``digits``-digit decimal not below ``x``.
+        The smallest ``digits``-digit decimal not below ``x`` (``missing`` for ``None``).
     """
-    return _outward(x, digits, True)
+    return _outward(x, digits, True, missing)
 
 
-def lower_text(x: float, digits: int = 6) -> str:
+def lower_text(x: float | None, digits: int = 6, *, missing: str = "-") -> str:
     """``x`` to ``digits`` significant digits, rounded down: for a proved lower bound (a
     proved lower bound of the gain, a proved-stable period ``h_max``), never printed
     above the number proved.
 
     Parameters
     ----------
-    x : float
-        The proved bound (infinite or zero values are printed as they are).
+    x : float or None
+        The proved bound (infinite or zero values are printed as they are; ``None``, no
+        bound, as ``missing``).
     digits : int
         Significant digits (default 6).
+    missing : str
+        The text for ``x = None`` (default ``-``).
 
     Returns
     -------
     str
-        The largest ``digits``-digit decimal not above ``x``.
+        The largest ``digits``-digit decimal not above ``x`` (``missing`` for ``None``).
     """
-    return _outward(x, digits, False)
+    return _outward(x, digits, False, missing)

@@ -48,6 +48,12 @@ def test_rounding_that_would_cross_the_bound() -> None:
     assert upper_text(float("inf")) == "inf" and upper_text(0.0) == "0"
 
 
+def test_missing_bound_text() -> None:
+    assert upper_text(None) == "-" and lower_text(None, 4) == "-"
+    assert upper_text(None, 4, missing="none") == "none" and lower_text(None, missing="n/a") == "n/a"
+    assert upper_text(0.4980004, missing="none") == "0.498001"
+
+
 def _printed_number(line: str, before: str) -> str:
     match = re.search(re.escape(before) + r"\s*([-+0-9.e]+)", line)
     assert match is not None, line

@@ -165,3 +165,22 @@ def test_pruned_vertex_search_equals_the_exhaustive_one(monkeypatch):
     assert pruned.vertices_evaluated == 64 and pruned.exact_evaluations < 64
     assert pruned.spectral_abscissa == pytest.approx(full.spectral_abscissa, rel=1e-10)
     assert np.array_equal(pruned.worst_beta, full.worst_beta)
+
+
+def test_keyed_variables_read_their_columns():
+    """``KeyedVariables`` (the sampled certificates' constraints): each key once, in order,
+    its symmetric matrix read from the program's columns at ``first(*key)``, then the
+    extra columns as scalars and as a symmetric block."""
+    from ftc_verify.analysis.conic import KeyedVariables, evaluate
+
+    first = {(0, 1): 10, (1, 0): 3}
+    v = KeyedVariables(2, lambda *key: first[key], [(0, 1), (1, 0), (0, 1)], [30, 31, 32, 40])
+    assert v.keys == [(0, 1), (1, 0)]
+    assert list(v.columns) == [10, 11, 12, 3, 4, 5, 30, 31, 32, 40] and v.K == 10
+    x = np.random.default_rng(1).normal(size=50)
+    local = x[v.columns]
+    for key, start in first.items():
+        X = evaluate(v.var[key], local)
+        assert np.allclose(svec(X), x[start:start + 3], rtol=1e-15, atol=0)
+    assert evaluate(v.scalar(3), local) == x[40]
+    assert np.allclose(svec(evaluate(v.sym(0, 2), local)), x[30:33], rtol=1e-15, atol=0)

@@ -14,7 +14,7 @@ from ftc_verify.model import files as problem_files
 from ftc_verify.errors import ProblemFileError, ValidationError
 from ftc_verify.model.system import FTCSystem, JointChain
 from ftc_verify.model.files import dump_system, load_system, save_system
-from ftc_verify.controllers.files import check_gains, load_gains, save_gains
+from ftc_verify.controllers.files import check_gains, load_controller, load_gains, save_gains
 
 MODE_KEYS = ("A", "B", "C", "D", "A1", "A2", "B1", "B2")
 
@@ -243,6 +243,17 @@ def test_gains_file_without_gain_tables(tmp_path):
 
 def test_name_must_be_string(tmp_path):
     expect_file_error(load_system, write_doc(tmp_path / "n.toml", doc(name=3)), "name", "3")
+    expect_file_error(load_gains, write_doc(tmp_path / "g.toml", GAINS_DOC | {"name": 3}), "name", "3")
+
+
+def test_controller_file_records_its_literals_and_default_name(tmp_path):
+    """Both loaders read through ``model.files.read_named``: the decimal texts kept, the
+    stem the default name."""
+    d = {key: value for key, value in GAINS_DOC.items() if key != "name"}
+    p = tmp_path / "stem.toml"
+    p.write_text(tomli_w.dumps(d).replace("2.0", "2.00"), encoding="utf-8")
+    ctrl = load_controller(p)
+    assert ctrl.name == "stem" and ctrl.literals[2.0] == ("2.00",)
 
 
 # ============================================================================ unreadable files

@@ -32,7 +32,7 @@ fork_only = pytest.mark.skipif(not hasattr(os, "fork"), reason="POSIX fork")
 
 def _fake_stages(system: Any, controller: Any, step: float, g2: float, checks: list[Check],
                  seconds: dict[str, float], mc: Any = None, spans: Any = None, here: bool = False,
-                 h_max_work: float | None = None, reserved: float = 0.0) -> dict[str, Any]:
+                 h_max_work: float | None = None, reserved: float = 0.0, loop: Any = None) -> dict[str, Any]:
     """Stands in for the real stages: says where it ran and appends two checks."""
     t0 = time.perf_counter()
     checks += [Check("first", True, f"pid {os.getpid()}"), Check("second", here, f"step {step}")]
@@ -196,7 +196,7 @@ def test_cancel_ends_the_gains_grandchild_too(monkeypatch: pytest.MonkeyPatch, t
     marker = tmp_path / "grandchild.pid"
 
     def stages(*args: Any, **kwargs: Any) -> dict[str, Any]:
-        gains = sampled_stage._gains_child(None, None, 0.01)  # type: ignore[arg-type]
+        gains = sampled_stage._gains_child(None, None, 0.01, None)  # type: ignore[arg-type]
         marker.write_text(str(gains.pid))
         time.sleep(60)
         return {}

@@ -30,7 +30,7 @@ importing it costs 0.7 s per command (``benchmarks/analysis.py``). The other sol
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -41,7 +41,7 @@ from numpy.typing import ArrayLike
 from ..model.system import Matrix
 
 __all__ = ["Affine", "affine_bmat", "svec_index", "sym_variable", "scalar_variable", "matrix_variable",
-           "local_variables", "evaluate", "unit_rows", "Columns", "Rows", "ConicProblem", "solve_clarabel", "solve_clarabel_dual", "to_cvxpy"]
+           "local_variables", "KeyedVariables", "evaluate", "unit_rows", "Columns", "Rows", "ConicProblem", "solve_clarabel", "solve_clarabel_dual", "to_cvxpy"]
 
 _R2 = math.sqrt(2.0)
 
@@ -179,6 +179,33 @@ def local_variables(pieces: Sequence[tuple[str, int, tuple[int, ...]]]) -> tuple
         pos += size
     columns = np.concatenate([np.arange(first, first + size) for (_, first, _), size in zip(pieces, sizes)])
     return out, columns.astype(int)
+
+
+class KeyedVariables:
+    """The variables one constraint uses, on columns of their own, by key: for each key of
+    ``keys`` (once, in their order) the symmetric ``d x d`` matrix ``var[key]`` whose
+    ``svec`` starts at the program's column ``first(*key)``, then the program's columns
+    ``extra``; ``columns`` maps the constraint's columns to the program's (as
+    :func:`local_variables`), ``K`` counts them. The clock-dependent certificates of the
+    sampled loop (``analysis.moments.sampled_gamma``, ``analysis.moments.sampled_quadratic``)
+    key their storage matrices by piece and joint state."""
+
+    def __init__(self, d: int, first: Callable[..., int], keys: Sequence[tuple[int, ...]], extra: Sequence[int]) -> None:
+        pp = d * (d + 1) // 2
+        self.keys = list(dict.fromkeys(keys))
+        cols = [np.arange(first(*key), first(*key) + pp) for key in self.keys] + [np.asarray(extra, dtype=int)]
+        self.columns = np.concatenate(cols).astype(int)
+        self.K = len(self.columns)
+        self.var = {key: sym_variable(d, pos * pp, self.K) for pos, key in enumerate(self.keys)}
+        self.base = len(self.keys) * pp
+
+    def scalar(self, k: int) -> Affine:
+        """Extra column ``k`` as a scalar :class:`Affine`."""
+        return scalar_variable(self.base + k, self.K)
+
+    def sym(self, first: int, m: int) -> Affine:
+        """The symmetric ``m x m`` matrix whose ``svec`` is extra columns ``first, first + 1, ...``."""
+        return sym_variable(m, self.base + first, self.K)
 
 
 def evaluate(M: Affine, x: Matrix) -> Matrix:

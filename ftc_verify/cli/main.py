@@ -72,12 +72,14 @@ def _analyze_command(args: argparse.Namespace, watch: Any, check: Any) -> int:
 
     system, controller = load(args.system, args.controller)
     period = args.period if args.period is not None else controller.period
-    sampled_loop = None  # built once for the check, the analysis and the refinement
-    if args.h_max_work is not None:  # refused before any work (issue 31 item 2)
+    sampled_loop = None  # built once for the check, the analysis, the refinement and the gains
+    if period is not None:
         from ..analysis.moments.sampled import SampledLoop
+
+        sampled_loop = SampledLoop.build(system, controller)
+    if args.h_max_work is not None:  # refused before any work (issue 31 item 2)
         from ..analysis.moments.sampled_refine import check_refine
 
-        sampled_loop = None if period is None else SampledLoop.build(system, controller)
         check_refine(system, controller, period, args.h_max_work, loop=sampled_loop)
     loop = closed_loop(system, controller)
     check.submit(cross_validate, loop)
@@ -101,7 +103,8 @@ def _analyze_command(args: argparse.Namespace, watch: Any, check: Any) -> int:
             from ..analysis.moments.sampled_gamma import attach_performance
 
             found = sampled
-            sampled = interruptible(lambda: attach_performance(found, system, controller), "the sampled-loop gains")
+            sampled = interruptible(lambda: attach_performance(found, system, controller, loop=sampled_loop),
+                                    "the sampled-loop gains")
         watch.mark("sampled")
     per_mode = check.result()
     watch.mark("cross_validation_wait")

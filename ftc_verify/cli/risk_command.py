@@ -24,11 +24,6 @@ __all__ = ["add_risk_command"]
 MIN_STEPS = 10
 
 
-def _up4(x: float | None) -> str:
-    """A proved upper bound to 4 digits, rounded up (:mod:`ftc_verify.claimtext`), ``-`` for none."""
-    return "-" if x is None else upper_text(x, 4)
-
-
 def _floats(text: str) -> list[float]:
     """Argument type: comma-separated finite numbers."""
     try:
@@ -183,7 +178,7 @@ def _print(d: dict[str, Any], args: argparse.Namespace) -> None:
     if d["failed_paths"]:
         print(f"  {d['failed_paths']} paths diverged or their plant failed (counted as leaving)")
     if d["upper_bound"] is not None:
-        print(f"  upper bound: {_up4(d['upper_bound'].get('value'))} ({d['upper_bound'].get('reason', '')})")
+        print(f"  upper bound: {upper_text(d['upper_bound'].get('value'), 4)} ({d['upper_bound'].get('reason', '')})")
     if d["timing"] is not None:
         t = d["timing"]
         events = ", ".join(f"{e.get('label')} {fmt(e.get('probability'), 4)}" for e in t.get("events", []))

@@ -268,6 +268,7 @@ def _verify_command(args: argparse.Namespace, watch: Any, check: Any, procs: lis
     spec = SimulationSpec(step=args.step, horizon=args.horizon, n_paths=args.paths, seed=args.seed,
                           delta="random", delta_explicit=False, workers=args.workers, scheduler=args.scheduler,
                           connect_timeout=connect_timeout(args))
+    sampled_loop = None  # built once, for the memory check and the sampled stages
     if args.h_max_work is not None and controller is not None:  # refused before any work, as analyze
         from ..analysis.moments.sampled import SampledLoop
         from ..analysis.moments.sampled_cover import cubic_memory
@@ -289,7 +290,8 @@ def _verify_command(args: argparse.Namespace, watch: Any, check: Any, procs: lis
             rep = run_verify(system, gamma=args.gamma, method=args.method, k_max=k_max, controller=controller,
                              spec=spec, solver=args.solver, progress=sys.stderr.isatty(), plant=plant,
                              fmu_log=_fmu_logger(args), measure=args.measure, client=client, cross_check=check,
-                             risk=_risk_stage(), meanwhile=figures, processes=procs, h_max_work=args.h_max_work)
+                             risk=_risk_stage(), meanwhile=figures, processes=procs, h_max_work=args.h_max_work,
+                             sampled_loop=sampled_loop)
             watch.mark("stages")
         watch.mark("cluster_stop")
         written = write_report(rep, args.out, watch, figures)

@@ -17,18 +17,13 @@ from .common import EXIT_NEGATIVE, EXIT_OK, bad, check_output_file, fmt, positiv
 __all__ = ["add_synthesis_command"]
 
 
-def _up(x: float | None) -> str:
-    """A certified gamma rounded up (:mod:`ftc_verify.claimtext`), ``-`` for none."""
-    return "-" if x is None else upper_text(x)
-
-
 def _print_synthesis(res: Any) -> None:
     d = res.to_dict()
     print(f"ftc-verify synthesize: method {res.method} ({res.solver}, {res.solver_calls} solver calls, "
           f"{res.solve_seconds:.2f} s solving, {res.wall_seconds:.2f} s wall)")
     print(f"  {res.message}")
     for row in d["starts"]:
-        found = (f"certified gamma {_up(row['gamma_certified'])}" if row["gamma_certified"] is not None
+        found = (f"certified gamma {upper_text(row['gamma_certified'])}" if row["gamma_certified"] is not None
                  else f"not counted: {row['reason']}")
         mark = "*" if row["name"] == res.start else " "
         took = f" [{row['seconds']:.2f} s]" if row.get("seconds") is not None else ""
@@ -37,7 +32,7 @@ def _print_synthesis(res: Any) -> None:
     ref = d.get("reference")
     if ref:
         found = (f"LMI gamma {fmt(ref['lmi_gamma'])} without a gain bound, its gains certified gamma "
-                 f"{_up(ref['gamma_certified'])}" + (f" ({ref['reason']})" if ref["reason"] else "")
+                 f"{upper_text(ref['gamma_certified'])}" + (f" ({ref['reason']})" if ref["reason"] else "")
                  + (f", max gain norm {ref['max_gain_norm']:.4g}" if ref.get("max_gain_norm") else ""))
         print(f"  reference: {ref['name']}: {found}")
     if res.diagnosis:
@@ -48,10 +43,10 @@ def _print_synthesis(res: Any) -> None:
         print("  no gains")
         return
     print(f"  synthesis-side gamma     {fmt(d['synthesis_gamma'])}")
-    print(f"  certified robust gamma   {_up(d['gamma_certified'])}"
+    print(f"  certified robust gamma   {upper_text(d['gamma_certified'])}"
           + ("  (Lemma 4.1 not certified: the nominal gamma is the certificate)"
              if d["certified_gamma_kind"] == "nominal" else ""))
-    print(f"  certified nominal gamma  {_up(d['gamma_nominal_certified'])}")
+    print(f"  certified nominal gamma  {upper_text(d['gamma_nominal_certified'])}")
     print(f"  spectral abscissa        {fmt(d['spectral_abscissa'])}")
     print(f"  max gain norm            {fmt(d['max_gain_norm'])}" + (f" (bound {res.k_max:g})" if res.k_max else ""))
     if res.history:

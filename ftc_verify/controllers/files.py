@@ -42,7 +42,7 @@ import numpy as np
 import tomli_w
 
 from ..errors import ProblemFileError, ValidationError
-from ..model.files import CONTROLLER_FILE, check_kind, read_toml, tables, tolist, unknown_keys, write_atomic
+from ..model.files import CONTROLLER_FILE, read_named, tables, tolist, unknown_keys, write_atomic
 from ..model.system import FTCSystem, Matrix, as_matrix
 from .controller import Controller, check_period
 
@@ -119,13 +119,7 @@ def load_controller(path: str | os.PathLike[str]) -> Controller:
     """Read a controller file (module docstring); check it against a system with
     :meth:`Controller.check`."""
     p = Path(path)
-    literals: dict[float, tuple[str, ...]] = {}
-    doc = read_toml(p, literals)
-    check_kind(p, doc, CONTROLLER_FILE)
-    unknown_keys(p, "top level", list(doc), _TOP_KEYS)
-    name = doc.get("name", p.stem)
-    if not isinstance(name, str):
-        raise ProblemFileError(f"{p}: name: expected a string, got {name!r}")
+    doc, name, literals = read_named(p, CONTROLLER_FILE, _TOP_KEYS)
     return dataclasses.replace(_controller_tables(p, doc, name), literals=literals)
 
 

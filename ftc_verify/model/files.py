@@ -48,6 +48,7 @@ __all__ = [
     "write_atomic",
     "parse_chain",
     "read_toml",
+    "read_named",
     "unknown_keys",
     "check_kind",
     "SYSTEM_FILE",
@@ -175,16 +176,25 @@ def parse_chain(p: Path, chain_doc: dict[str, Any]) -> JointChain:
         raise ProblemFileError(f"{p}: {exc}") from None
 
 
+def read_named(path: Path, kind: str, top_keys: set[str]) -> tuple[dict[str, Any], str, dict[float, tuple[str, ...]]]:
+    """``(document, name, literals)`` of a system or controller file: read with the
+    decimal texts of its numbers (:func:`read_toml`), refused when it is a file of another
+    kind (:func:`check_kind`) or has top-level keys outside ``top_keys``
+    (:func:`unknown_keys`); ``name`` is its ``name`` string, by default the file's stem."""
+    literals: dict[float, tuple[str, ...]] = {}
+    doc = read_toml(path, literals)
+    check_kind(path, doc, kind)
+    unknown_keys(path, "top level", list(doc), top_keys)
+    name = doc.get("name", path.stem)
+    if not isinstance(name, str):
+        raise ProblemFileError(f"{path}: name: expected a string, got {name!r}")
+    return doc, name, literals
+
+
 def load_system(path: str | os.PathLike[str]) -> FTCSystem:
     """Read and validate an FTC system file (format in the module docstring)."""
     p = Path(path)
-    literals: dict[float, tuple[str, ...]] = {}
-    doc = read_toml(p, literals)
-    check_kind(p, doc, SYSTEM_FILE)
-    unknown_keys(p, "top level", list(doc), _TOP_KEYS)
-    name = doc.get("name", p.stem)
-    if not isinstance(name, str):
-        raise ProblemFileError(f"{p}: name: expected a string, got {name!r}")
+    doc, name, literals = read_named(p, SYSTEM_FILE, _TOP_KEYS)
     chain = parse_chain(p, _table(p, doc, "chain"))
     modes = []
     for k, md in enumerate(tables(p, doc, "mode"), start=1):

@@ -46,7 +46,8 @@ MC_MIN_JUMPED = 10
 
 
 def sampled_stage(system: FTCSystem, controller: Controller, step: float, here: bool = False,
-                  h_max_work: float | None = None, reserved: float = 0.0) -> tuple[SampledResult | None, Check]:
+                  h_max_work: float | None = None, reserved: float = 0.0,
+                  loop: SampledLoop | None = None) -> tuple[SampledResult | None, Check]:
     """``(result, check)`` of the sampled loop at period ``step``: the check passes when
     mean-square stability over the whole rate box is proved; a loop above
     :data:`SAMPLED_LIMIT` is not analysed (said in the check, which then passes as
@@ -56,10 +57,11 @@ def sampled_stage(system: FTCSystem, controller: Controller, step: float, here: 
     (:func:`~ftc_verify.analysis.moments.sampled_refine.refine_result`) as by ``analyze``,
     unless its program's memory estimate plus ``reserved`` (bytes held meanwhile by the
     caller: ``verify``'s Monte Carlo records) is above the memory limit -- then the check
-    says that the refinement was not run and why."""
+    says that the refinement was not run and why. ``loop``: :meth:`SampledLoop.build` of
+    ``system, controller`` when the caller has it (built here otherwise)."""
     from .verify import Check
 
-    loop = SampledLoop.build(system, controller)
+    loop = SampledLoop.build(system, controller) if loop is None else loop
     d = loop.d
     rows = loop.states * d * (d + 1) // 2
     name = f"sampled loop (h = {step:g})"
@@ -201,7 +203,8 @@ def sampled_mc_stage(system: FTCSystem, controller: Controller, step: float, hor
 def sampled_stages(system: FTCSystem, controller: Controller, step: float, g2: float, checks: list[Check],
                    seconds: dict[str, float], mc: tuple[float, int, int] | None = None,
                    spans: dict[str, tuple[float, float]] | None = None, here: bool = False,
-                   h_max_work: float | None = None, reserved: float = 0.0) -> dict[str, Any]:
+                   h_max_work: float | None = None, reserved: float = 0.0,
+                   loop: SampledLoop | None = None) -> dict[str, Any]:
     """Both stages of ``verify`` on the sampled loop (:func:`sampled_stage`, then
     :func:`sampled_energy_stage` at the rate vertices up to
     :data:`~ftc_verify.verification.verify.MAX_EXACT_VERTICES`): their checks appended
@@ -210,7 +213,9 @@ def sampled_stages(system: FTCSystem, controller: Controller, step: float, g2: f
     ``mc = (horizon, paths, seed)`` also :func:`sampled_mc_stage` (``sampled_mc``). Returns
     the report's ``sampled``, ``sampled_exact`` (and ``sampled_mc``). ``here``: the
     analysis runs in this process (already a child, :class:`SampledRun`), not in a child
-    of its own. ``h_max_work``, ``reserved``: passed to :func:`sampled_stage`."""
+    of its own. ``h_max_work``, ``reserved``: passed to :func:`sampled_stage`. ``loop``:
+    :meth:`SampledLoop.build` of ``system, controller`` (built here when ``None``), the one
+    loop of the analysis, its refinement and the gains."""
     from .verify import MAX_EXACT_VERTICES
 
     spans = {} if spans is None else spans
@@ -220,11 +225,12 @@ def sampled_stages(system: FTCSystem, controller: Controller, step: float, g2: f
         seconds[name] = spans[name][1] - t0
 
     t = time.perf_counter()
-    res, check = sampled_stage(system, controller, step, here, h_max_work, reserved)
+    loop = SampledLoop.build(system, controller) if loop is None else loop
+    res, check = sampled_stage(system, controller, step, here, h_max_work, reserved, loop)
     checks.append(check)
     done("sampled", t)
     # after the analysis, so that it runs alone as before (its h_max bracket has a wall-time valve)
-    gains = _gains_child(system, controller, step) if here and res is not None and _has_gains(res) else None
+    gains = _gains_child(system, controller, step, loop) if here and res is not None and _has_gains(res) else None
     try:
         t = time.perf_counter()
         exact, check = sampled_energy_stage(system, controller, step, g2, res, MAX_EXACT_VERTICES)
@@ -238,7 +244,7 @@ def sampled_stages(system: FTCSystem, controller: Controller, step: float, g2: f
             done("sampled_mc", t)
         t = time.perf_counter()
         if res is not None:  # its proved gains, JSON sampled.nominal_gamma / robust_gamma (+ lower estimates)
-            res = _attach_gains(res, system, controller, gains)
+            res = _attach_gains(res, system, controller, gains, loop)
         done("sampled_gains_wait", t)
     finally:
         if gains is not None:
@@ -253,7 +259,7 @@ def _has_gains(res: SampledResult) -> bool:
     return res.verdict != "not stable" and res.spectral_radius < 1.0
 
 
-def _gains_child(system: FTCSystem, controller: Controller, step: float) -> Any:
+def _gains_child(system: FTCSystem, controller: Controller, step: float, loop: SampledLoop) -> Any:
     """The sampled loop's gains at ``step`` (:func:`~ftc_verify.analysis.moments.sampled_gamma.sampled_performance`:
     the proved lower bounds and certificates, which need nothing of the exact energies or the
     Monte Carlo check) started in a forked child (:class:`~ftc_verify.analysis.solvers.ForkedCall`)
@@ -268,17 +274,18 @@ def _gains_child(system: FTCSystem, controller: Controller, step: float) -> Any:
 
     if not hasattr(os, "fork"):
         return None
-    return ForkedCall(lambda: sampled_performance(system, controller, step), "the sampled loop's gains")
+    return ForkedCall(lambda: sampled_performance(system, controller, step, loop=loop), "the sampled loop's gains")
 
 
-def _attach_gains(res: SampledResult, system: FTCSystem, controller: Controller, gains: Any) -> SampledResult:
+def _attach_gains(res: SampledResult, system: FTCSystem, controller: Controller, gains: Any,
+                  loop: SampledLoop) -> SampledResult:
     """``res`` with its gains (:func:`~ftc_verify.analysis.moments.sampled_gamma.attach_performance`):
     the child's answer when one was started (:func:`_has_gains`: what ``attach_performance``
     computes then), else ``attach_performance`` in turn."""
     from ..analysis.moments.sampled_gamma import attach_performance
 
     if gains is None:
-        return attach_performance(res, system, controller)
+        return attach_performance(res, system, controller, loop=loop)
     return dataclasses.replace(res, performance=gains.result())
 
 
@@ -289,18 +296,20 @@ class SampledRun:
     which needs nothing of this stage. :meth:`join` waits for the answer and puts its
     checks at the place they had when computed in turn (``at``, an index into the
     report's checks), so the report is the same; :meth:`cancel` (in a ``finally``) kills
-    a child still running. Without ``fork`` the stages run in :meth:`join`."""
+    a child still running. Without ``fork`` the stages run in :meth:`join`. ``loop``: as
+    for :func:`sampled_stages` (``verify --h-max-work`` with a given controller: the one
+    the CLI built for its memory check)."""
 
     def __init__(self, system: FTCSystem, controller: Controller, step: float, g2: float,
                  mc: tuple[float, int, int] | None, at: int, h_max_work: float | None = None,
-                 reserved: float = 0.0) -> None:
+                 reserved: float = 0.0, loop: SampledLoop | None = None) -> None:
         import os
 
         from ..analysis.solvers import ForkedCall
 
         self.at = at
         self._args = (system, controller, step, g2, mc)
-        self._h_max_work, self._reserved = h_max_work, reserved
+        self._h_max_work, self._reserved, self._loop = h_max_work, reserved, loop
         self._child = ForkedCall(self._run, "the sampled-loop stages", group=True) if hasattr(os, "fork") else None
 
     def _run(self, here: bool = True) -> tuple[dict[str, Any], list[Check], dict[str, float],
@@ -310,7 +319,7 @@ class SampledRun:
         spans: dict[str, tuple[float, float]] = {}
         system, controller, step, g2, mc = self._args
         found = sampled_stages(system, controller, step, g2, checks, seconds, mc, spans, here=here,
-                               h_max_work=self._h_max_work, reserved=self._reserved)
+                               h_max_work=self._h_max_work, reserved=self._reserved, loop=self._loop)
         return found, checks, seconds, spans
 
     def join(self, checks: list[Check], seconds: dict[str, float],

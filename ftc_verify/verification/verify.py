@@ -67,6 +67,7 @@ from ..simulation.spec import SimulationSpec, spec_from
 from ..analysis.solvers import interruptible
 from ..synthesis.state_feedback import SynthesisResult, synthesize
 from ..analysis.moments.energy import exact_energy
+from ..analysis.moments.sampled import SampledLoop
 from ..claimtext import lower_text, upper_text
 from .agreement import EarlyReference, against_reference
 from .montecarlo import MCEstimate, estimate
@@ -396,7 +397,7 @@ def run_verify(
     solver: str | None = None, progress: bool = False, plant: Any = None, fmu_log: Any = None,
     measure: str = "total", client: Any = None, cross_check: Any = None, risk: RiskStage | None = None,
     meanwhile: Callable[[VerifyReport], Any] | None = None, processes: list[Any] | None = None,
-    h_max_work: float | None = None,
+    h_max_work: float | None = None, sampled_loop: SampledLoop | None = None,
 ) -> VerifyReport:
     """Run every stage of the module docstring and collect the checks.
 
@@ -422,7 +423,10 @@ def run_verify(
     own imports); by default started here, before the synthesis, when the Monte Carlo runs
     isolated in this machine (no cluster); closed here either way. ``h_max_work``: the
     sampled loop's ``h_max`` bracket refined within that many work units (``verify
-    --h-max-work``, :func:`~ftc_verify.analysis.moments.sampled_refine.refine_result`)."""
+    --h-max-work``, :func:`~ftc_verify.analysis.moments.sampled_refine.refine_result`).
+    ``sampled_loop``: the :class:`~ftc_verify.analysis.moments.sampled.SampledLoop` of the
+    given ``controller`` when the caller built it (the CLI, for ``--h-max-work``'s memory
+    check); the sampled stages build it otherwise."""
     if measure not in ("total", "incremental"):
         raise ValidationError(f"measure: {measure!r} is not 'total' or 'incremental'")
     spec = _verify_spec(spec, {"n_paths": paths, "step": step, "horizon": horizon, "seed": seed})
@@ -442,7 +446,7 @@ def run_verify(
 
             procs = plant_processes()  # their interpreters start beside the synthesis and analysis
         return _run_verify(system, gamma, method, k_max, controller, spec, solver, progress, plant, fmu_log,
-                           measure, client, cross_check, procs, sampled, risk, meanwhile, h_max_work)
+                           measure, client, cross_check, procs, sampled, risk, meanwhile, h_max_work, sampled_loop)
     finally:
         cross_check.cancel()
         for run in sampled:
@@ -453,13 +457,12 @@ def run_verify(
 
 def _run_verify(system: FTCSystem, gamma: float | None, method: str, k_max: float | None,
                 controller: Controller | None, spec: SimulationSpec, solver: str | None, progress: bool,
-                plant: Any, fmu_log: Any, measure: str, client: Any, cross_check: Any,
-                procs: list[Any], sampled: list[Any], risk: RiskStage | None = None,
-                meanwhile: Callable[[VerifyReport], Any] | None = None, h_max_work: float | None = None) -> VerifyReport:
-    """The stages of :func:`run_verify`, with its running ``cross_check`` and the plant
-    processes ``procs`` started for the Monte Carlo
-    (:func:`~ftc_verify.simulation.isolated.plant_processes`; none on a cluster);
-    ``sampled`` holds the :class:`~ftc_verify.verification.sampled_stage.SampledRun`
+                plant: Any, fmu_log: Any, measure: str, client: Any, cross_check: Any, procs: list[Any],
+                sampled: list[Any], risk: RiskStage | None = None, meanwhile: Callable[[VerifyReport], Any] | None = None,
+                h_max_work: float | None = None, sampled_loop: SampledLoop | None = None) -> VerifyReport:
+    """The stages of :func:`run_verify`, with its running ``cross_check`` and the plant processes
+    ``procs`` started for the Monte Carlo (:func:`~ftc_verify.simulation.isolated.plant_processes`;
+    none on a cluster); ``sampled`` holds the :class:`~ftc_verify.verification.sampled_stage.SampledRun`
     started here until it is joined (the caller cancels what is left)."""
     seconds: dict[str, float] = {}
     spans: dict[str, tuple[float, float]] = {}  # each stage's start and end: stages overlap
@@ -521,7 +524,8 @@ def _run_verify(system: FTCSystem, gamma: float | None, method: str, k_max: floa
     g2 = gamma_cert ** 2
     exact = timed("exact_energy", lambda: _exact_energies(system, loop, g2))
     sampled.append(SampledRun(system, controller, spec.step, g2, (spec.horizon, spec.n_paths, seed), len(checks),
-                              h_max_work, spec.records_memory(system, controller, spec.n_paths)[0]))  # beside the MC
+                              h_max_work, spec.records_memory(system, controller, spec.n_paths)[0],
+                              sampled_loop))  # beside the MC
     timed("gamma_bracket", functools.partial(_bracket, analysis, gamma_cert))
     t = time.perf_counter()
     spec, options["delta"] = spec.resolve_delta(system, plant)

@@ -102,7 +102,7 @@ import numpy as np
 from ...controllers.controller import Controller, check_period
 from ...model.system import FTCSystem, Matrix
 from ..closedloop import Channel, ClosedLoop
-from ..conic import Affine, Rows, affine_bmat, scalar_variable, svec_index, sym_variable
+from ..conic import Affine, KeyedVariables, Rows, affine_bmat, svec_index
 from ..lmi import BlockSpec, block_specs, lyapunov_block
 from .sampled import SampledLoop
 from .sampled_energy import OMEGAS, gain_lower_estimate
@@ -255,16 +255,8 @@ def clock_instance(aug: ClosedLoop, spec: BlockSpec, P: list[Any], D: Any, lam: 
     return M + bmat([[D, np.zeros((d, rest))], [np.zeros((rest, d)), np.zeros((rest, rest))]])
 
 
-class _Local:
-    """The variables one constraint uses, as :class:`Affine` on its own columns."""
-
-    def __init__(self, lay: _Layout, keys: list[tuple[int, int]], extra: list[int]) -> None:
-        self.keys = list(dict.fromkeys(keys))
-        cols = [np.arange(lay.p(*key), lay.p(*key) + lay.pp) for key in self.keys] + [np.asarray(extra, dtype=int)]
-        self.columns = np.concatenate(cols).astype(int)
-        self.K = len(self.columns)
-        self.var = {key: sym_variable(lay.d, pos * lay.pp, self.K) for pos, key in enumerate(self.keys)}
-        self.base = len(self.keys) * lay.pp
+class _Local(KeyedVariables):
+    """The variables one constraint uses, on its own columns, keyed ``(j, s)`` as in :class:`_Layout`."""
 
     def node(self, e: int, t: int, delta: float) -> Affine:
         """:math:`P_t^e = P_t^0 + \\delta \\sum_{j < e} D_t^j`."""
@@ -272,10 +264,6 @@ class _Local:
         for j in range(e):
             out = out + self.var[(j + 1, t)] * delta
         return out
-
-    def scalar(self, k: int) -> Affine:
-        """Extra column ``k``."""
-        return scalar_variable(self.base + k, self.K)
 
 
 def _node_keys(e: int, t: int) -> list[tuple[int, int]]:
@@ -296,7 +284,7 @@ def _rows(aug: ClosedLoop, jumps: list[Matrix], lay: _Layout, h: float, robust: 
                 coupled = [s] + [t for t, q in enumerate(spec.q_row) if q != 0.0 and t != s]
                 nl = lay.channels[s] if robust else 0
                 keys = [key for t in coupled for key in _node_keys(e, t)] + [(k + 1, s)]
-                loc = _Local(lay, keys, list(range(lay.lam(e, s), lay.lam(e, s) + nl)) + [lay.g, lay.g + 1])
+                loc = _Local(lay.d, lay.p, keys, list(range(lay.lam(e, s), lay.lam(e, s) + nl)) + [lay.g, lay.g + 1])
                 P: list[Any] = [None] * lay.states
                 for t in coupled:
                     P[t] = loc.node(e, t, delta)
@@ -304,12 +292,12 @@ def _rows(aug: ClosedLoop, jumps: list[Matrix], lay: _Layout, h: float, robust: 
                 M = clock_instance(aug, spec, P, loc.var[(k + 1, s)], lam, loc.scalar(nl), affine_bmat)
                 rows.lmi(M + loc.scalar(nl + 1) * np.eye(M.shape[0]), loc.columns)
     for s, J in enumerate(jumps):
-        loc = _Local(lay, _node_keys(N, s), [lay.g + 1])
+        loc = _Local(lay.d, lay.p, _node_keys(N, s), [lay.g + 1])
         rows.lmi((J.T @ loc.node(0, s, delta) @ J - loc.node(N, s, delta)) * (1.0 / h)
                  + loc.scalar(0) * np.eye(lay.d), loc.columns)
     for k in range(lay.nodes):
         for s in range(lay.states):
-            loc = _Local(lay, _node_keys(k, s), [lay.g + 1])
+            loc = _Local(lay.d, lay.p, _node_keys(k, s), [lay.g + 1])
             rows.lmi(loc.scalar(0) * np.eye(lay.d) - loc.node(k, s, delta), loc.columns)
     nl = lay.g - lay.lam(0, 0)
     if nl:
@@ -520,17 +508,21 @@ class SampledPerformance:
         }
 
 
-def sampled_performance(system: FTCSystem, controller: Controller, period: float) -> SampledPerformance:
-    """Both certificates and their lower bounds: :func:`~ftc_verify.analysis.moments.sampled_gains.sampled_gains`."""
+def sampled_performance(system: FTCSystem, controller: Controller, period: float, *,
+                        loop: SampledLoop | None = None) -> SampledPerformance:
+    """Both certificates and their lower bounds: :func:`~ftc_verify.analysis.moments.sampled_gains.sampled_gains`
+    (``loop``: :meth:`SampledLoop.build` of ``system, controller`` when the caller has it)."""
     from .sampled_gains import sampled_gains
 
-    return sampled_gains(system, controller, period)
+    return sampled_gains(system, controller, period, loop=loop)
 
 
-def attach_performance(result: Any, system: FTCSystem, controller: Controller) -> Any:
+def attach_performance(result: Any, system: FTCSystem, controller: Controller, *,
+                       loop: SampledLoop | None = None) -> Any:
     """``result`` (a :class:`~ftc_verify.analysis.moments.sampled.SampledResult`) with its
     ``performance`` at ``result.period``; none is sought (the notes say why) when the loop is
-    proved not mean-square stable there or its float64 radius is not below 1 (or overflows)."""
+    proved not mean-square stable there or its float64 radius is not below 1 (or overflows).
+    ``loop``: as for :func:`sampled_performance`."""
     h, rho = result.period, result.spectral_radius
     if result.verdict == "not stable" or not rho < 1.0:
         why = "no certificate: " + ("the sampled loop is proved NOT mean-square stable at this period (infinite gain)"
@@ -538,5 +530,5 @@ def attach_performance(result: Any, system: FTCSystem, controller: Controller) -
         rob = SampledGamma(True, None, 0, 0.0, why, 0.0) if system.uncertain else None
         perf = SampledPerformance(h, SampledGamma(False, None, 0, 0.0, why, 0.0), rob, None, why, None, why)
     else:
-        perf = sampled_performance(system, controller, h)
+        perf = sampled_performance(system, controller, h, loop=loop)
     return replace(result, performance=perf)

@@ -102,12 +102,18 @@ from .fast_balls import MidRad, arb_expm, from_arb, map_ball
 from .sampled_conditioned import ConditionedLoop, conditioned, written_data
 from .sampled_balls import ball_block_diag, ball_generator, ball_kron, envelope_generator
 from .sampled import SampledLoop, assemble_map, one_period_map, rate_points, spectral_radius, worst_radius
-from .sampled_taylor import FIRST_ORDER_LIMIT, affine_stable, identity_stack, perron_first_order_stable, stack_pd
-from .stability import duplication_matrix, unvech_stack
+from .sampled_taylor import (FIRST_ORDER_LIMIT, affine_stable, float_pd, identity_stack, perron_first_order_stable,
+                             resolvent_stack, stack_pd)
+from .stability import duplication_matrix
 
 __all__ = ["FIRST_ORDER_LIMIT", "MapParts", "BoxVerdict", "ball_resets", "ball_one_period_map", "prove_stable", "prove_unstable",
            "prove_point_unstable", "box_verdict", "SPLIT_WIDTH_WEIGHT", "written_flow", "envelope_stable",
-           "split_rate", "subbox_stable"]
+           "split_rate", "subbox_stable", "FLOAT_MARGIN"]
+
+#: The relative margin of the float64 pre-checks of the stable proofs (``_float_stable``,
+#: ``_float_vertices_hold``): a block counts as positive definite there when its smallest
+#: eigenvalue exceeds this times its largest modulus.
+FLOAT_MARGIN = 1e-9
 
 
 def _flint() -> Any:
@@ -310,16 +316,6 @@ def envelope_stable(loop: SampledLoop, parts: MapParts, lo: Matrix, hi: Matrix) 
     return prove_stable(T_up, midpoint(T_up), loop.states, loop.r)
 
 
-def _pd_stack(v: Any, loop: SampledLoop) -> bool:
-    """Every joint state's block of ``v`` positive definite in float64, with a relative
-    margin of ``1e-9``."""
-    for Y in unvech_stack(np.asarray(v, dtype=np.float64), loop.states, loop.r):
-        w = np.linalg.eigvalsh(Y)
-        if not w[0] > 1e-9 * max(abs(w[-1]), 1e-300):
-            return False
-    return True
-
-
 def _float_vertices_hold(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, T_mid: Matrix,
                          limit: int = 16) -> bool:
     """A float64 necessary condition of the direct ball proof on ``[lo, hi]``: with
@@ -329,40 +325,29 @@ def _float_vertices_hold(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, T_
     free = [idx for idx in loop.chain.rate_indices if hi[idx] > lo[idx]]
     if 2 ** len(free) > limit:
         return True
-    N = T_mid.shape[0]
-    try:
-        y = np.linalg.solve(np.eye(N) - T_mid, identity_stack(loop.states, loop.r))
-    except np.linalg.LinAlgError:
-        return False
-    if not (np.all(np.isfinite(y)) and _pd_stack(y, loop)):
+    y = resolvent_stack(T_mid, loop.states, loop.r, margin=FLOAT_MARGIN, residual=False)
+    if y is None:
         return False
     for corner in itertools.product((0, 1), repeat=len(free)):
         r = np.array(lo, dtype=float)
         for k, idx in zip(corner, free):
             r[idx] = hi[idx] if k else lo[idx]
         T = one_period_map(loop, h, r, scaled=True)
-        if not _pd_stack(y - T @ y, loop):
+        if not float_pd(y - T @ y, loop.states, loop.r, margin=FLOAT_MARGIN):
             return False
     return True
 
 
 def _float_stable(loop: SampledLoop, Q: Matrix, h: float) -> bool:
     """The criterion of :func:`prove_stable` in float64 on the map of the generator ``Q``
-    (:math:`Y = (I - T)^{-1} I \\succ 0`, :math:`Y - T Y \\succ 0` per joint state, each
-    with a relative margin of ``1e-9``): a necessary condition of the ball proof, checked
+    (:func:`~ftc_verify.analysis.moments.sampled_taylor.resolvent_stack` with the residual,
+    margin :data:`FLOAT_MARGIN`): a necessary condition of the ball proof, checked
     first because it costs one float exponential instead of a ball one. Skipping a proof
     only ever leaves a box undecided (or split), never proves anything."""
     vd = loop.d * (loop.d + 1) // 2
     F = scipy.linalg.expm((loop.modes_part + np.kron(Q.T, np.eye(vd))) * h)
     T = assemble_map(loop, F, h)
-    N = T.shape[0]
-    try:
-        y = np.linalg.solve(np.eye(N) - T, identity_stack(loop.states, loop.r))
-    except np.linalg.LinAlgError:
-        return False
-    if not np.all(np.isfinite(y)):
-        return False
-    return _pd_stack(y, loop) and _pd_stack(y - T @ y, loop)
+    return resolvent_stack(T, loop.states, loop.r, margin=FLOAT_MARGIN, residual=True) is not None
 
 
 def prove_unstable(T: Ball, T_mid: Matrix, states: int, r: int) -> bool:

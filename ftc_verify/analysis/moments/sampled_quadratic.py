@@ -65,7 +65,7 @@ import numpy as np
 
 from ...model.system import FTCSystem, Matrix
 from ..closedloop import ClosedLoop
-from ..conic import Affine, ConicProblem, Rows, affine_bmat, scalar_variable, svec_index, sym_variable
+from ..conic import Affine, ConicProblem, KeyedVariables, Rows, affine_bmat, svec_index
 from ..lmi import BlockSpec, block_specs
 from .sampled import SampledLoop
 from .sampled_frame import Coordinates
@@ -101,17 +101,9 @@ class QuadraticLayout:
         return self.g0 + k * sum(self.gsz) + sum(self.gsz[:j])
 
 
-class _Vars:
-    """The variables one constraint uses, on its own columns (as in ``sampled_gamma``)."""
-
-    def __init__(self, lay: QuadraticLayout, keys: list[tuple[int, int, int]], extra: list[int]) -> None:
-        self.keys = list(dict.fromkeys(keys))
-        cols = [np.arange(lay.p(*key), lay.p(*key) + lay.pp) for key in self.keys] + [np.asarray(extra, dtype=int)]
-        self.columns = np.concatenate(cols).astype(int)
-        self.K = len(self.columns)
-        self.var = {key: sym_variable(lay.d, pos * lay.pp, self.K) for pos, key in enumerate(self.keys)}
-        self.base = len(self.keys) * lay.pp
-        self.lay = lay
+class _Vars(KeyedVariables):
+    """The variables one constraint uses, on its own columns, keyed ``(kind, k, s)`` as in
+    :meth:`QuadraticLayout.p`."""
 
     def node(self, k: int, t: int, delta: float) -> Affine:
         """:math:`P^k_t = P^0_t + \\delta \\sum_{j<k} (D^j_t + \\tilde E^j_t)`."""
@@ -119,12 +111,6 @@ class _Vars:
         for j in range(k):
             out = out + (self.var[(1, j, t)] + self.var[(2, j, t)]) * delta
         return out
-
-    def scalar(self, i: int) -> Affine:
-        return scalar_variable(self.base + i, self.K)
-
-    def sym(self, first: int, m: int) -> Affine:
-        return sym_variable(m, self.base + first, self.K)
 
 
 def _keys(k: int, t: int) -> list[tuple[int, int, int]]:
@@ -168,7 +154,7 @@ def quadratic_rows(aug: ClosedLoop, jumps: list[Matrix], lay: QuadraticLayout, h
             keys = [key for t in coupled for key in _keys(k, t) + [(1, k, t), (2, k, t)]]
             extra = (list(range(lay.lam(k, s), lay.lam(k, s) + nl)) + list(range(lay.G(k, j), lay.G(k, j) + lay.gsz[j]))
                      + [lay.g, lay.g + 1])
-            v = _Vars(lay, keys, extra)
+            v = _Vars(lay.d, lay.p, keys, extra)
             P0: list[Any] = [None] * lay.states
             D: list[Any] = [None] * lay.states
             E: list[Any] = [None] * lay.states
@@ -189,12 +175,12 @@ def quadratic_rows(aug: ClosedLoop, jumps: list[Matrix], lay: QuadraticLayout, h
             rows.lmi(B + t_ * np.eye(2 * m), v.columns)
             rows.lmi(t_ * np.eye(m) - G, v.columns)
     for s, J in enumerate(jumps):
-        v = _Vars(lay, _keys(N, s), [lay.g + 1])
+        v = _Vars(lay.d, lay.p, _keys(N, s), [lay.g + 1])
         rows.lmi((J.T @ v.node(0, s, delta) @ J - v.node(N, s, delta)) * (1.0 / h) + v.scalar(0) * np.eye(lay.d),
                  v.columns)
     for k in range(N + 1):
         for s in range(lay.states):
-            v = _Vars(lay, _keys(k, s), [lay.g + 1])
+            v = _Vars(lay.d, lay.p, _keys(k, s), [lay.g + 1])
             rows.lmi(v.scalar(0) * np.eye(lay.d) - v.node(k, s, delta), v.columns)
     nl = lay.g0 - lay.lam0
     if nl:

@@ -82,7 +82,7 @@ import scipy.linalg
 
 from ...model.system import Matrix
 from .sampled import SCAN_PER_OCTAVE, SampledLoop, assemble_map, rate_points
-from .sampled_taylor import float_pd, identity_stack
+from .sampled_taylor import resolvent_stack
 from .stability import vech_order
 
 __all__ = ["BITS", "TAYLOR", "MARGIN", "DENSE_SIZE", "POWER", "SHIFT", "ScanCount", "Flow", "scan_grid",
@@ -359,7 +359,9 @@ def octave_verdicts(loop: SampledLoop, hi: float, octaves: int) -> list[tuple[fl
     :math:`\rho(T) < 1` (the "Stable" argument of
     :mod:`~ftc_verify.analysis.moments.sampled_proof`); conversely :math:`\rho(T) < 1`
     gives :math:`Y = \sum_k T^k(I) \succeq I \succ 0` (:math:`T` maps positive
-    semidefinite stacks to such stacks). On slow plants, whose :math:`\rho` at short
+    semidefinite stacks to such stacks). The test is
+    :func:`~ftc_verify.analysis.moments.sampled_taylor.resolvent_stack` with no margin
+    and without the residual :math:`Y - T(Y)`. On slow plants, whose :math:`\rho` at short
     periods is within ``1e-6`` of 1, :func:`scan`'s cone test cannot decide and every
     period costs an eigenvalue problem; this test does not depend on that margin. Only the
     octaves are screened: a loop unstable only between two of them is not seen.
@@ -367,7 +369,6 @@ def octave_verdicts(loop: SampledLoop, hi: float, octaves: int) -> list[tuple[fl
     hs = [math.ldexp(hi, -k) for k in range(octaves, -1, -1)]
     stable = [True] * len(hs)
     vd = loop.d * (loop.d + 1) // 2
-    eye = identity_stack(loop.states, loop.r)
     with np.errstate(over="ignore", invalid="ignore"):  # an overflow is a result: not stable
         for p in rate_points(loop.chain):
             F = scipy.linalg.expm((loop.modes_part + np.kron(loop.chain.generator(p).T, np.eye(vd))) * hs[0])
@@ -376,9 +377,5 @@ def octave_verdicts(loop: SampledLoop, hi: float, octaves: int) -> list[tuple[fl
                     F = F @ F
                 if stable[k]:
                     T = assemble_map(loop, F, h)
-                    try:
-                        y: Matrix | None = np.asarray(np.linalg.solve(np.eye(T.shape[0]) - T, eye), dtype=np.float64)
-                    except np.linalg.LinAlgError:
-                        y = None
-                    stable[k] = y is not None and bool(np.all(np.isfinite(y))) and float_pd(y, loop.states, loop.r)
+                    stable[k] = resolvent_stack(T, loop.states, loop.r, margin=0.0, residual=False) is not None
     return list(zip(hs, stable))

@@ -89,7 +89,7 @@ from .sampled_balls import ball_generator, generator_coefficients
 from .stability import vech_order
 
 __all__ = ["FIRST_ORDER_LIMIT", "AFFINE_RATES", "QUADRATIC_SIZE", "unvech_ball", "stack_pd", "identity_stack", "perron_first_order_stable", "affine_stable",
-           "float_pd", "float_choices", "left_perron", "right_perron", "RHS_MIXES"]
+           "float_pd", "resolvent_stack", "float_choices", "left_perron", "right_perron", "RHS_MIXES"]
 
 #: Largest Van Loan block (rows, twice the moment generator's) the first-order form
 #: exponentiates in ball arithmetic; above it only the direct ball is tried (cost).
@@ -128,14 +128,40 @@ def stack_pd(vec: Any, states: int, r: int) -> bool:
     return all(proven_positive_definite(unvech_ball(vec, s * v, r)) for s in range(states))
 
 
-def float_pd(vec: Matrix, states: int, r: int) -> bool:
-    """Every joint state's block of the float column ``vec`` has a positive float64
-    smallest eigenvalue: a necessary condition of :func:`stack_pd` on a ball around
-    ``vec`` (the ball contains its midpoint), checked first because it is cheap --
-    skipping a proof only ever loses it, never claims one."""
+def float_pd(vec: Matrix, states: int, r: int, *, margin: float = 0.0) -> bool:
+    """Every joint state's block of the float column ``vec`` has a float64 smallest
+    eigenvalue above ``margin`` times its largest modulus (with the default ``0``:
+    positive): a necessary condition of :func:`stack_pd` on a ball around ``vec`` (the
+    ball contains its midpoint), checked first because it is cheap -- skipping a proof
+    only ever loses it, never claims one."""
     from .stability import unvech_stack
 
-    return all(np.linalg.eigvalsh(B)[0] > 0 for B in unvech_stack(np.asarray(vec, dtype=np.float64), states, r))
+    for B in unvech_stack(np.asarray(vec, dtype=np.float64), states, r):
+        w = np.linalg.eigvalsh(B)
+        if not w[0] > margin * max(abs(w[-1]), 1e-300):
+            return False
+    return True
+
+
+def resolvent_stack(T: Matrix, states: int, r: int, *, margin: float, residual: bool) -> Matrix | None:
+    r"""The float64 cone test of a one-period map ``T`` (the stable argument of
+    :mod:`~ftc_verify.analysis.moments.sampled_proof`): the stack
+    :math:`Y = (I - T)^{-1} I` (:func:`identity_stack`) when it is finite and every joint
+    state's block of :math:`Y` -- and, with ``residual``, of :math:`Y - T Y` -- passes
+    :func:`float_pd` with relative ``margin``; else ``None``. :math:`Y \succ 0` and
+    :math:`Y - T Y \succ 0` give :math:`\rho(T) < 1`; in exact arithmetic
+    :math:`Y - T Y = I`, so ``residual`` checks the float solve. A float screen, never a
+    proof: ``sampled_scan.octave_verdicts`` takes ``margin=0`` without the residual,
+    the ball proofs' float pre-checks ``1e-9`` with it."""
+    try:
+        y = np.asarray(np.linalg.solve(np.eye(T.shape[0]) - T, identity_stack(states, r)), dtype=np.float64)
+    except np.linalg.LinAlgError:
+        return None
+    if not (np.all(np.isfinite(y)) and float_pd(y, states, r, margin=margin)):
+        return None
+    if residual and not float_pd(np.asarray(y - T @ y, dtype=np.float64), states, r, margin=margin):
+        return None
+    return y
 
 
 def identity_stack(states: int, r: int) -> Matrix:
