@@ -28,8 +28,10 @@ _SUFFIX = {"K": 1024, "M": 1024 ** 2, "G": 1024 ** 3, "T": 1024 ** 4}
 def cpu_clock() -> float:
     """CPU seconds (user + system) of this process and of its children that ended and were
     waited for (the forked analysis stages): the clock of the synthesis budgets, so that a
-    design does not depend on what else the machine runs (a wall-clock budget gave the
-    descent's ``hinf`` route a third of its iterations at load 14)."""
+    design depends much less on what else the machine runs (a wall-clock budget gave the
+    descent's ``hinf`` route a third of its iterations at load 14). It counts every thread
+    of the process: with a multi-threaded BLAS a budget is spent sooner (the CLI sets one
+    thread)."""
     t = os.times()
     return t.user + t.system + t.children_user + t.children_system
 

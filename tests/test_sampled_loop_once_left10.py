@@ -60,3 +60,21 @@ def test_sampled_stages_build_the_loop_once(monkeypatch: pytest.MonkeyPatch, tmp
     assert _builds(log) == 1
     assert found["sampled"].verdict == "stable" and all(check.ok for check in checks)
     assert found["sampled"].performance is not None and found["sampled"].performance.nominal.gamma is not None
+
+
+def test_a_loop_built_for_another_controller_is_refused() -> None:
+    """A stage given the loop of another controller would prove that loop and report it
+    for this controller (review, round 10): :meth:`SampledLoop.of` refuses it, naming both."""
+    import dataclasses
+
+    import numpy as np
+
+    from ftc_verify.analysis.moments.sampled import sampled_analysis
+    from ftc_verify.errors import ValidationError
+
+    system, gains = load_system(PAPER), load_controller(GAINS)
+    zero = dataclasses.replace(gains, Dc=tuple(np.zeros_like(D) for D in gains.Dc), name="zero gains")
+    loop = SampledLoop.build(system, gains)
+    assert SampledLoop.of(system, gains, loop) is loop
+    with pytest.raises(ValidationError, match="'zero gains'"):
+        sampled_analysis(system, zero, 0.05, loop=loop)

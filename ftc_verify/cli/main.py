@@ -204,21 +204,33 @@ def _no_abbreviations(parser: argparse.ArgumentParser) -> None:
 
 
 @contextmanager
-def _sigterm_raises() -> Iterator[None]:
+def _signals_raise(arrived: list[int]) -> Iterator[None]:
     """While the command runs, SIGTERM raises :class:`_Terminated` in the main thread so
-    that cleanup runs as for Ctrl-C; the previous handler is restored afterwards."""
+    that cleanup runs as for Ctrl-C, and SIGINT raises ``KeyboardInterrupt`` (unless it is
+    ignored); each records its arrival in ``arrived`` first, so that an exception a library
+    swallowed (CPython ignores those raised in a gc callback or a ``__del__``) cannot make
+    the command end as if it had not been signalled. The previous handlers are restored
+    afterwards."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
 
-    def handler(signum: int, frame: Any) -> None:
+    def terminated(signum: int, frame: Any) -> None:
+        arrived.append(signum)
         raise _Terminated()
 
-    previous = signal.signal(signal.SIGTERM, handler)
+    def interrupted(signum: int, frame: Any) -> None:
+        arrived.append(signum)
+        raise KeyboardInterrupt
+
+    previous = {signal.SIGTERM: signal.signal(signal.SIGTERM, terminated)}
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        previous[signal.SIGINT] = signal.signal(signal.SIGINT, interrupted)
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
 
 
 def _closed_pipe() -> int:
@@ -250,11 +262,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         from .working import working
 
         own_bars = args.command in ("simulate", "verify")  # tqdm bars over their paths
-        with _sigterm_raises(), warnings.catch_warnings(), nullcontext() if own_bars else working(args.command):
+        arrived: list[int] = []
+        with _signals_raise(arrived), warnings.catch_warnings(), nullcontext() if own_bars else working(args.command):
             warnings.simplefilter("ignore")  # solver chatter; statuses are reported in the results
             code = int(args.func(args))
             sys.stdout.flush()
-            return code
+        if arrived:  # the signal's exception was swallowed on its way here
+            raise _Terminated() if arrived[0] == signal.SIGTERM else KeyboardInterrupt
+        return code
     except FTCError as exc:
         print(f"ftc-verify: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT

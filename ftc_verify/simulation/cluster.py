@@ -344,6 +344,18 @@ def _connect(address: str, timeout: float) -> Any:
         raise ValidationError(f"{where}: cannot connect ({exc})") from None
 
 
+def _no_gc_diagnosis() -> None:
+    """Remove the garbage-collection callback that the in-process scheduler of a
+    ``LocalCluster`` installs (``distributed.gc``, timing logs only). CPython ignores an
+    exception raised inside a gc callback: a Ctrl-C that landed there was printed as
+    "Exception ignored" and lost, and the command ran on to exit 0."""
+    try:
+        from distributed.gc import disable_gc_diagnosis
+    except ImportError:  # pragma: no cover - an older distributed: its own module name
+        return
+    disable_gc_diagnosis(force=True)
+
+
 class ClusterStart:
     """A ``LocalCluster`` of ``workers`` one-thread worker processes living in ``folder``,
     built in a helper thread from the constructor on (:func:`open_client` with
@@ -368,6 +380,7 @@ class ClusterStart:
                     env=dict(os.environ) | {"TMPDIR": str(folder)},  # forked workers: this process's environment now
                     preload=[__name__],
                     scheduler_kwargs={"local_directory": str(folder), "allowed_failures": ALLOWED_FAILURES})
+                _no_gc_diagnosis()
             except BaseException as exc:  # handed to the main thread
                 self._box["error"] = exc
             finally:

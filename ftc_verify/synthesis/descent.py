@@ -471,7 +471,7 @@ def descent_route(system: FTCSystem, order: int, rows: list[dict[str, Any]], k_m
         return None, None, [], (f"descent (order {order}) stabilised (abscissa {best.abscissa:.4g} from "
                                 f"{best.start}) but the core certified no controller of the tuning ladder"), public
     tuned, why = (_alternate(system, par, chosen, k_max, solver, calls) if cpu_clock() < deadline
-                  else (None, f"not tried (tuning budget of {TUNING_SECONDS:g} s spent)"))
+                  else (None, f"not tried (tuning budget of {TUNING_SECONDS:g} CPU s spent)"))
     note = f"; P-K alternation: {why}"
     if tuned is not None:
         chosen = tuned

@@ -206,7 +206,7 @@ def minimise_gamma(system: FTCSystem, order: int, starts: Sequence[tuple[str, Ma
     :func:`~ftc_verify.limits.cpu_clock`, so that a loaded machine does not cut the descent short) is spent (the first
     start :data:`FIRST_SHARE`, each later one an equal part of what is left; its best point
     kept; ``None``: :data:`HINF_SECONDS` as the module holds it when called). Returns one row per start: ``name``, ``theta``, ``gamma`` (the program's value,
-    not certified; ``inf`` when none), ``start_gamma``, ``seconds``; best first."""
+    not certified; ``inf`` when none), ``start_gamma``, ``seconds`` (wall); best first."""
     if not starts:
         return []
     fun = NominalGamma(system, order, calls)

@@ -61,7 +61,7 @@ def sampled_stage(system: FTCSystem, controller: Controller, step: float, here: 
     ``system, controller`` when the caller has it (built here otherwise)."""
     from .verify import Check
 
-    loop = SampledLoop.build(system, controller) if loop is None else loop
+    loop = SampledLoop.of(system, controller, loop)
     d = loop.d
     rows = loop.states * d * (d + 1) // 2
     name = f"sampled loop (h = {step:g})"
@@ -225,7 +225,7 @@ def sampled_stages(system: FTCSystem, controller: Controller, step: float, g2: f
         seconds[name] = spans[name][1] - t0
 
     t = time.perf_counter()
-    loop = SampledLoop.build(system, controller) if loop is None else loop
+    loop = SampledLoop.of(system, controller, loop)
     res, check = sampled_stage(system, controller, step, here, h_max_work, reserved, loop)
     checks.append(check)
     done("sampled", t)

@@ -46,6 +46,7 @@ __all__ = [
     "EXOSYSTEMS",
     "ExactEnergy",
     "exact_energy",
+    "output_blocks",
     "WorstCase",
     "worst_case_disturbance",
 ]
@@ -84,24 +85,32 @@ def _vech(X: Matrix) -> Matrix:
 
 def output_blocks(L: Matrix, ell: Matrix, tau: float) -> tuple[Matrix, Matrix]:
     r""":math:`(e^{\mathcal L \tau}, \ell^T \int_0^\tau e^{\mathcal L s} ds)` from one
-    exponential of size :math:`N + 1`: :math:`\exp\big(\big[\begin{smallmatrix} 0 &
-    2^{-k}\ell^T \\ 0 & \mathcal L\end{smallmatrix}\big]\tau\big) = \big[\begin{smallmatrix}
-    1 & 2^{-k}\ell^T \int_0^\tau e^{\mathcal L s} ds \\ 0 & e^{\mathcal L
-    \tau}\end{smallmatrix}\big]` (differentiate in :math:`\tau`), the row multiplied back by
-    :math:`2^k` (exact). :math:`k` is
-    :func:`~ftc_verify.analysis.moments.sampled_lower_ops.row_exponent`'s: without it an
-    output row far larger than :math:`\mathcal L` (outputs in physical units, say 1e6) set
-    the exponential's squarings, and the :math:`e^{\mathcal L \tau}` block lost digits
-    with them (1.7e-6 relative on the paper loop with outputs and disturbances scaled by 1e6)."""
+    exponential of size :math:`N + 1`, in balanced coordinates.
+
+    With :math:`D` the diagonal of powers of two that balances :math:`\mathcal L`
+    (``scipy.linalg.matrix_balance``, no permutation) and :math:`B = D^{-1}\mathcal L D`,
+    :math:`e^{\mathcal L\tau} = D e^{B\tau} D^{-1}` and :math:`\ell^T\int_0^\tau e^{\mathcal
+    L s}ds = (\ell^T D)\int_0^\tau e^{Bs}ds\, D^{-1}`; and
+    :math:`\exp\big(\big[\begin{smallmatrix} 0 & 2^{-k} r^T \\ 0 & B\end{smallmatrix}\big]\tau\big)
+    = \big[\begin{smallmatrix} 1 & 2^{-k} r^T \int_0^\tau e^{B s} ds \\ 0 & e^{B
+    \tau}\end{smallmatrix}\big]` (differentiate in :math:`\tau`) for the row :math:`r^T =
+    \ell^T D`, multiplied back by :math:`2^k`. Every scaling is a power of two, so exact; :math:`k`
+    is :func:`~ftc_verify.analysis.moments.sampled_lower_ops.row_exponent`'s. Without them,
+    loops in physical units lost digits: disturbances and outputs scaled by 1e6 put
+    entries of very different sizes into :math:`\mathcal L` and the row, which set the
+    exponential's squarings (the paper loop's sampled energy 1.7e-6 relative from the
+    unscaled loop's; 1.4e-10 balanced)."""
     from .sampled_lower_ops import row_exponent
 
     N = L.shape[0]
-    row = np.asarray(ell, dtype=float).reshape(-1)
-    k = row_exponent(float(np.abs(row).sum()) * abs(tau), float(np.max(np.abs(L).sum(axis=1), initial=0.0)) * abs(tau))
+    _, (d, _) = scipy.linalg.matrix_balance(L, permute=False, separate=True)
+    B = L / d[:, None] * d[None, :]
+    row = np.asarray(ell, dtype=float).reshape(-1) * d
+    k = row_exponent(float(np.abs(row).sum()) * abs(tau), float(np.max(np.abs(B).sum(axis=1), initial=0.0)) * abs(tau))
     M = np.zeros((N + 1, N + 1))
-    M[0, 1:], M[1:, 1:] = row * 2.0 ** -k, L
+    M[0, 1:], M[1:, 1:] = row * 2.0 ** -k, B
     E = scipy.linalg.expm(M * tau)
-    return E[1:, 1:], E[0, 1:] * 2.0 ** k
+    return d[:, None] * E[1:, 1:] / d[None, :], E[0, 1:] * 2.0 ** k / d
 
 
 def _propagate(L: Matrix, ell: Matrix, v0: Matrix, horizon: float) -> tuple[Matrix, float]:

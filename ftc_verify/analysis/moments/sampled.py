@@ -76,6 +76,7 @@ import numpy as np
 import scipy.linalg
 
 from ...controllers.controller import Controller, check_period
+from ...errors import ValidationError
 from ...limits import check_memory, dense_generator_estimate
 from ...model.chain import JointChain
 from ...model.system import FTCSystem, Matrix
@@ -149,6 +150,19 @@ class SampledLoop:
     literals: Mapping[float, tuple[str, ...]] | None = None
     written: tuple[float, ...] = ()
     memo: dict[Any, Any] = dataclasses.field(default_factory=dict, init=False, repr=False, compare=False)
+
+    @classmethod
+    def of(cls, system: FTCSystem, controller: Controller, loop: SampledLoop | None) -> SampledLoop:
+        """``loop`` when it was built for ``controller`` (the same object), a new
+        :meth:`build` when ``None``; a loop built for another controller is refused
+        (:class:`~ftc_verify.errors.ValidationError`): a stage given it would prove that
+        controller's loop and report it for this one."""
+        if loop is None:
+            return cls.build(system, controller)
+        if loop.controller is not controller:
+            raise ValidationError(f"loop: built for the controller {loop.controller.name!r}, "
+                                  f"not for {controller.name!r}")
+        return loop
 
     @classmethod
     def build(cls, system: FTCSystem, controller: Controller) -> SampledLoop:
@@ -509,14 +523,15 @@ def sampled_analysis(system: FTCSystem, controller: Controller, period: float, *
     (wall) is a safety valve: the sub-box proofs at the period get a third of it. ``loop``:
     the sampled loop of ``system`` and ``controller`` when the caller has built it
     (:meth:`SampledLoop.build`; built here otherwise)."""
+    from .sampled_bracket import period_worst
     from .sampled_clock import period_verdict
     from .sampled_conditioned import conditioned
 
     period = check_period(period, "period")
     t0 = time.perf_counter()
-    loop = dataclasses.replace(SampledLoop.build(system, controller) if loop is None else loop, written=(float(period),))
-    rho, where = worst_radius(loop, period, rate_points(loop.chain))
-    verdict = period_verdict(loop, period, rho, max_boxes=max_boxes, max_seconds=max_seconds / 3)
+    loop = dataclasses.replace(SampledLoop.of(system, controller, loop), written=(float(period),))
+    rho, where = period_worst(loop, period)
+    verdict = period_verdict(loop, period, rho, max_boxes=max_boxes, max_seconds=max_seconds / 3, where=where)
     if verdict.verdict == "undecided" and not math.isfinite(rho):  # the map overflows float64: decide it in Arb
         from .sampled_overflow import overflow_verdict
         verdict = overflow_verdict(loop, period, where) or verdict

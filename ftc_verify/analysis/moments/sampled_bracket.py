@@ -34,7 +34,7 @@ from .sampled_clock import clock_size, clock_stable
 from .sampled_proof import box_verdict, prove_point_unstable
 
 __all__ = ["LADDER", "COARSE", "TIGHT", "BRACKET_WORK", "CLOCK_LADDER", "CLOCK_FALLBACK", "CLOCK_SPLIT", "CLOCK_PIECES", "CLOCK_SIZE", "CLOCK_WORK",
-           "box_work", "prove_below", "clock_below", "worst_vertex", "worst_crossing", "h_max_bracket"]
+           "box_work", "prove_below", "clock_below", "worst_vertex", "period_worst", "worst_crossing", "h_max_bracket"]
 
 #: Relative distances below the crossing tried after the tight one fails, easy first.
 LADDER = (0.1, 0.03, 0.01, 3e-3)
@@ -211,6 +211,21 @@ def worst_vertex(loop: SampledLoop, h: float, points: Sequence[Matrix]) -> tuple
             break
         best, where = rho, p
     return best, where
+
+
+def period_worst(loop: SampledLoop, h: float) -> tuple[float, Matrix]:
+    """The largest float64 :math:`\\rho(T)` at period ``h`` and where: over
+    :func:`~ftc_verify.analysis.moments.sampled.rate_points` and, when those are not every
+    vertex (more than 16), the vertex ascent of :func:`worst_vertex` from them (a random
+    ``n = 2, m = 3`` loop with 64 vertices: 0.8702 at a corner, 0.8741 at an inner vertex;
+    above 1 there at a period where the corners were below it)."""
+    points = list(rate_points(loop.chain))
+    rho, where = worst_radius(loop, h, points)
+    if math.isfinite(rho) and loop.chain.vertex_count() > len(points) - 1:
+        ascent, vertex = worst_vertex(loop, h, points)
+        if ascent > rho:
+            rho, where = ascent, vertex
+    return rho, where
 
 
 def worst_crossing(loop: SampledLoop, stable_h: float, a: float, rtol: float, points: list[Matrix],

@@ -69,7 +69,7 @@ from ...model.system import Matrix
 from ..conic import Rows, affine_bmat, sym_variable
 from ..solvers import solve_conic
 from .sampled import SampledLoop
-from .sampled_proof import BoxVerdict, box_verdict
+from .sampled_proof import BoxVerdict, box_verdict, prove_point_unstable
 
 __all__ = ["ClockCertificate", "adjoint", "clock_program", "clock_certificate", "prove_clock", "clock_stable", "clock_size", "clock_verdict", "period_verdict",
            "TIME_OCTAVES", "time_unit", "frame_scale", "node_jump_rows", "unpack_sym", "proof_start"]
@@ -364,11 +364,13 @@ def clock_stable(loop: SampledLoop, h: float, pieces: int = 4, quadratic: bool =
     return dataclasses.replace(cert, proved=prove_clock(loop, cert))
 
 
-def period_verdict(loop: SampledLoop, h: float, rho: float, *, max_boxes: int, max_seconds: float) -> BoxVerdict:
+def period_verdict(loop: SampledLoop, h: float, rho: float, *, max_boxes: int, max_seconds: float,
+                   where: Matrix | None = None) -> BoxVerdict:
     """Mean-square stability of the sampled loop at period ``h`` over the whole rate box
-    (``rho``: the largest float64 spectral radius of the one-period map at the rate points
-    of :func:`~ftc_verify.analysis.moments.sampled.rate_points`). In order, the first that
-    decides: the sub-box proofs
+    (``rho``: the largest float64 spectral radius of the one-period map found, at the rate
+    array ``where``: :func:`~ftc_verify.analysis.moments.sampled_bracket.period_worst`). In
+    order, the first that decides: ``rho > 1`` proved at ``where``
+    (:func:`~ftc_verify.analysis.moments.sampled_proof.prove_point_unstable`); the sub-box proofs
     (:func:`~ftc_verify.analysis.moments.sampled_proof.box_verdict`) on the whole box
     alone; when ``rho < 1``, one clock-dependent certificate of the whole box
     (:func:`clock_verdict`); the sub-box proofs with up to ``max_boxes`` sub-boxes. ``max_seconds`` of
@@ -383,6 +385,9 @@ def period_verdict(loop: SampledLoop, h: float, rho: float, *, max_boxes: int, m
     0.85, undecided after 17 sub-boxes and 20 s, proved by the clock in 0.9 CPU s), and
     its verdict does not depend on the machine's speed."""
     t0 = time.perf_counter()
+    if where is not None and math.isfinite(rho) and rho > 1 and prove_point_unstable(loop, h, where):
+        return BoxVerdict("not stable", f"spectral radius {rho:.6g} > 1 proved at {loop.chain.rate_text(where)} "
+                          "(ball arithmetic)", 1, where)
     first = box_verdict(loop, h, max_boxes=1, max_seconds=max_seconds)
     if first.verdict != "undecided":
         return first

@@ -79,7 +79,7 @@ def sampled_gains(system: FTCSystem, controller: Controller, period: float, *,
     admissible). The lower bounds come first: proved, they are the certificates'
     ``target`` (:func:`~ftc_verify.analysis.moments.sampled_gamma.sampled_gamma`).
     ``loop``: :meth:`SampledLoop.build` of ``system, controller`` (built here when ``None``)."""
-    loop = SampledLoop.build(system, controller) if loop is None else loop
+    loop = SampledLoop.of(system, controller, loop)
     (lo_n, where_n, kind_n), (lo_r, where_r, kind_r) = _lowers(system, controller, period, loop)
     if kind_n == kind_r == "proved" and lo_r is not None and lo_n is not None and lo_n > lo_r:
         lo_r, where_r = lo_n, f"Delta = 0 (admissible): {where_n}"

@@ -430,7 +430,7 @@ def sampled_gamma(system: FTCSystem, controller: Controller, period: float, *, r
 
     h = check_period(period, "period")
     t0 = time.process_time()
-    loop = SampledLoop.build(system, controller) if loop is None else loop
+    loop = SampledLoop.of(system, controller, loop)
     coords = (frame := float_frame(loop, system, h)).coords  # shared with the lower bound (sampled_lower)
     aug = coords.loop(augmented_loop(loop, system, w_scale=coords.w_scale, z_scale=coords.z_scale))
     robust = robust and aug.uncertain

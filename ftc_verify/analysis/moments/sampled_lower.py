@@ -447,7 +447,7 @@ def sampled_lower_bound(system: FTCSystem, controller: Controller, period: float
     ``period`` (module docstring): the best float64 ratio over the feedback scales, rate
     arrays, initial joint state 0 and (robust) ``Delta``, proved in ball arithmetic."""
     h = check_period(period, "period")
-    loop = SampledLoop.build(system, controller) if loop is None else loop
+    loop = SampledLoop.of(system, controller, loop)
     robust = robust and system.uncertain
     found = _search(system, controller, loop, h, (0.0, 1.0, -1.0) if robust else (0.0,), scales)
     return _finish(system, loop, h, max(found.values(), key=lambda c: c[0], default=None), robust)
@@ -461,7 +461,7 @@ def sampled_lower_bounds(system: FTCSystem, controller: Controller, period: floa
     (``Delta = 0``) are among the robust ones, so they are computed once; when the
     robust search's best is ``Delta = 0`` the nominal bound is reused (the same proof)."""
     h = check_period(period, "period")
-    loop = SampledLoop.build(system, controller) if loop is None else loop
+    loop = SampledLoop.of(system, controller, loop)
     robust = system.uncertain
     found = _search(system, controller, loop, h, (0.0, 1.0, -1.0) if robust else (0.0,), scales)
     nominal = _finish(system, loop, h, found.get(0.0), False)

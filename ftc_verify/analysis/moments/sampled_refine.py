@@ -68,7 +68,7 @@ def check_refine(system: FTCSystem, controller: Controller, period: float | None
     from ...limits import memory_limit
 
     limit = min(REFINE_MEMORY, memory_limit())  # FTC_VERIFY_MEMORY_LIMIT or 80 % of the free memory, if lower
-    need = cubic_memory(SampledLoop.build(system, controller) if loop is None else loop)
+    need = cubic_memory(SampledLoop.of(system, controller, loop))
     if need > limit:
         raise ValidationError(f"--h-max-work {work:g}: the refinement's clock program needs about {need / 1e9:.1f} GB, "
                               f"over the {limit / 1e9:.1f} GB limit")
@@ -89,7 +89,7 @@ def refine_result(system: FTCSystem, controller: Controller, result: SampledResu
         return result
     if hm is None:  # no stable end proved (e.g. the wall-time valve): start from a 50 % bracket
         hm = 0.5 * hu
-    base = SampledLoop.build(system, controller) if loop is None else loop
+    base = SampledLoop.of(system, controller, loop)
     ref = cover_h_max(conditioned(dataclasses.replace(base, written=(float(result.period),))), hm, hu, work, rtol)
     how = "one-period map" if ref.pieces is None else f"one-period map or {ref.pieces} cubic pieces"
     note = (f"{_NOTE_HEAD}--h-max-work {work:g}): {ref.attempts} cubic clock certificate(s), {ref.maps} sub-box map "
