@@ -119,12 +119,20 @@ def test_full_info_relaxes_every_fdi_only_design(system: FTCSystem, method: str)
        perm=st.permutations([0, 1, 2]))
 def test_relabelling_modes_keeps_two_step_feasibility(system: FTCSystem, perm: list[int]) -> None:
     """Relabelling the modes leaves step 1 of two-step (a convex problem) with the same
-    optimal margin, and when both labellings succeed the certified gammas agree (1e-3).
+    optimal margin; when both labellings succeed, both certified gammas are at most the
+    requested gamma (Theorem 4.1), and they agree (1e-3) where step 1's margin is below
+    its cap of 1.
 
     Whether step 2 then succeeds is decided by a solver at the boundary of its feasible
     set; the suite found draws where it differed between labellings inside one pytest
     process but not in another (order-dependent solver numerics), so a difference there is
-    recorded as an event, not asserted."""
+    recorded as an event, not asserted. Where the cap binds, step 1's maximiser is not
+    unique (``xy_design._xy_objective``): its point is chosen by a penalty of weight
+    ``CENTRE_WEIGHT`` = 1e-6, within the solver's tolerance, and the gains follow it. A
+    draw the suite makes under ``OPENBLAS_CORETYPE=Prescott`` (margin 1 in both
+    labellings): X's largest eigenvalue 220 against 403, certified gammas 0.2553 against
+    0.2780 (Haswell kernels), 0.2662 against 0.2600 (Prescott); a gamma difference there
+    is recorded as an event."""
     from ftc_verify.synthesis.results import SolverCalls
     from ftc_verify.synthesis.xy_design import xy_solve
 
@@ -140,7 +148,12 @@ def test_relabelling_modes_keeps_two_step_feasibility(system: FTCSystem, perm: l
         event("two-step step 2 outcome differed between labellings")
     if a.certified and b.certified:
         assert a.gamma_certified is not None and b.gamma_certified is not None
-        assert abs(a.gamma_certified - b.gamma_certified) <= RTOL * max(a.gamma_certified, b.gamma_certified) + 1e-6
+        assert max(a.gamma_certified, b.gamma_certified) <= 5.0 * (1 + RTOL)
+        agree = abs(a.gamma_certified - b.gamma_certified) <= RTOL * max(a.gamma_certified, b.gamma_certified) + 1e-6
+        if a1 is not None and a1["margin"] < 1.0 - 1e-6:  # a unique maximiser: the same design
+            assert agree
+        elif not agree:
+            event("two-step certified gammas differed between labellings (step-1 margin at its cap)")
 
 
 def textbook_lqr(system: FTCSystem) -> list[np.ndarray] | None:

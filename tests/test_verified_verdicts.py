@@ -2,8 +2,9 @@
 
 * a stable n = 7 loop under a similarity of condition 1e6, which the float64
   eigenvalues of the raw generator call unstable, is *proved* stable;
-* an unstable loop (true abscissa +0.04) under the same kind of similarity, which the
-  float64 eigenvalues call stable, is *proved* not stable;
+* an unstable loop (true abscissa +0.01) under the same kind of similarity, which the
+  float64 eigenvalues call stable (on this machine's BLAS kernels: the test picks such a
+  loop), is *proved* not stable;
 * a loop whose abscissa is exactly 0 is never called stable: "undecided" (exit 5);
 * the ball-arithmetic proofs themselves refuse what is false;
 * H-infinity certificates on loops in physical units reach SLICOT's ``ab13dd`` within
@@ -58,9 +59,24 @@ def test_stable_loop_that_float64_calls_unstable_is_proved_stable() -> None:
     assert np.all(lo <= chain.rate_min) and np.all(hi >= chain.rate_max)  # the regions cover the box
 
 
+def _called_stable_by_float64(n: int, condition: float, target: float, seeds: range):
+    """The first of the shifted loops (true abscissa ``target`` > 0) whose raw float64
+    abscissa, as this machine's BLAS kernels round it, is negative.
+
+    Which loops the float64 eigenvalues get wrong depends on the kernels OpenBLAS picks
+    at run time (``OPENBLAS_CORETYPE``): at n = 7, condition 1e6, target 0.01 their error
+    is 0.01-3, mostly upwards, and 3-7 of seeds 0-19 were called stable under each of
+    Haswell, SkylakeX, Sandybridge, Nehalem and Prescott (the first at seeds 0-4), so no
+    such loop among 40 seeds has probability about 0.85^40 = 2e-3 on a new kernel."""
+    for seed in seeds:
+        loop = _shifted(seed, n, condition, target)
+        if spectral_abscissa(loop, loop.chain.midpoint()) < 0:  # the defect: raw float64 says stable
+            return loop
+    raise AssertionError(f"float64 called none of seeds {seeds} stable: the defect is not reproduced")
+
+
 def test_unstable_loop_that_float64_calls_stable_is_proved_not_stable() -> None:
-    loop = _shifted(0, 7, 1e6, 0.04)
-    assert spectral_abscissa(loop, loop.chain.midpoint()) < 0  # the defect: raw float64 says stable
+    loop = _called_stable_by_float64(7, 1e6, 0.01, range(40))
     r = mean_square_stability(loop)
     assert r.verdict == "not stable" and r.unstable and not r.stable
     assert "indefinite" in r.vertex_verdicts[0].method
