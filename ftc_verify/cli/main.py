@@ -258,19 +258,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         from ..prestart import defer_numpy_tools  # it changes the interpreter for good
 
         defer_numpy_tools()  # numpy.f2py, numpy.testing: imported by scipy, used by nobody here
+    arrived: list[int] = []  # signals received (_signals_raise)
     try:
         from .working import working
 
         own_bars = args.command in ("simulate", "verify")  # tqdm bars over their paths
-        arrived: list[int] = []
         with _signals_raise(arrived), warnings.catch_warnings(), nullcontext() if own_bars else working(args.command):
             warnings.simplefilter("ignore")  # solver chatter; statuses are reported in the results
             code = int(args.func(args))
             sys.stdout.flush()
-        if arrived:  # the signal's exception was swallowed on its way here
-            raise _Terminated() if arrived[0] == signal.SIGTERM else KeyboardInterrupt
-        return code
+        return _signalled(arrived) if arrived else code  # a signal whose exception was swallowed
     except FTCError as exc:
+        if arrived:  # the signal's exception became another one on its way here
+            return _signalled(arrived)
         print(f"ftc-verify: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except BrokenPipeError:
@@ -282,6 +282,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("ftc-verify: terminated", file=sys.stderr)
         return EXIT_TERMINATED
     except OSError as exc:
+        if arrived:
+            return _signalled(arrived)
         if exc.errno not in _ENVIRONMENT_ERRNOS:
             return _internal(exc)
         where = f"{exc.filename}: " if exc.filename else ""
@@ -289,11 +291,22 @@ def main(argv: Sequence[str] | None = None) -> int:
               "refused by the operating system; nothing was written)", file=sys.stderr)
         return EXIT_BAD_INPUT
     except MemoryError:
+        if arrived:
+            return _signalled(arrived)
         print(f"ftc-verify: error: out of memory (the problem is too large for this machine; {_limit_text()})",
               file=sys.stderr)
         return EXIT_BAD_INPUT
     except Exception as exc:  # a bug: one line, never a traceback, never exit 0 or 1
-        return _internal(exc)
+        return _signalled(arrived) if arrived else _internal(exc)
+
+
+def _signalled(arrived: list[int]) -> int:
+    """The exit of the first signal received, its line printed."""
+    if arrived[0] == signal.SIGTERM:
+        print("ftc-verify: terminated", file=sys.stderr)
+        return EXIT_TERMINATED
+    print("ftc-verify: interrupted", file=sys.stderr)
+    return EXIT_INTERRUPTED
 
 
 def _limit_text() -> str:

@@ -141,11 +141,14 @@ def check_cluster_options(workers: int | None, scheduler: str | None) -> None:
             raise ValidationError(f"--scheduler {scheduler!r}: port {found['port']} is not in 1..65535")
 
 
-def dask_setup(worker: Any) -> None:
-    """Preload hook of the local cluster's workers (Dask calls it as the worker starts):
-    the worker process ignores SIGINT, which a terminal's Ctrl-C sends to the whole process
-    group; the client shuts the workers down itself."""
-    if threading.current_thread() is threading.main_thread():
+def dask_setup(server: Any) -> None:
+    """Preload hook of the local cluster (Dask calls it as each server starts). Its
+    in-process scheduler: :func:`_no_gc_diagnosis`, before any worker is started. A
+    worker: the worker process ignores SIGINT, which a terminal's Ctrl-C sends to the whole
+    process group; the client shuts the workers down itself."""
+    if type(server).__name__ == "Scheduler":
+        _no_gc_diagnosis()
+    elif threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
@@ -379,8 +382,8 @@ class ClusterStart:
                     silence_logs=logging.CRITICAL, local_directory=str(folder),
                     env=dict(os.environ) | {"TMPDIR": str(folder)},  # forked workers: this process's environment now
                     preload=[__name__],
-                    scheduler_kwargs={"local_directory": str(folder), "allowed_failures": ALLOWED_FAILURES})
-                _no_gc_diagnosis()
+                    scheduler_kwargs={"local_directory": str(folder), "allowed_failures": ALLOWED_FAILURES,
+                                      "preload": [__name__]})
             except BaseException as exc:  # handed to the main thread
                 self._box["error"] = exc
             finally:

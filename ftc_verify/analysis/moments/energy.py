@@ -103,7 +103,8 @@ def output_blocks(L: Matrix, ell: Matrix, tau: float) -> tuple[Matrix, Matrix]:
     from .sampled_lower_ops import row_exponent
 
     N = L.shape[0]
-    _, (d, _) = scipy.linalg.matrix_balance(L, permute=False, separate=True)
+    d = (scipy.linalg.matrix_balance(L, permute=False, separate=True)[1][0] if np.all(np.isfinite(L))
+         else np.ones(N))  # a non-finite generator: its blocks are not finite either
     B = L / d[:, None] * d[None, :]
     row = np.asarray(ell, dtype=float).reshape(-1) * d
     k = row_exponent(float(np.abs(row).sum()) * abs(tau), float(np.max(np.abs(B).sum(axis=1), initial=0.0)) * abs(tau))

@@ -150,18 +150,19 @@ class SampledLoop:
     literals: Mapping[float, tuple[str, ...]] | None = None
     written: tuple[float, ...] = ()
     memo: dict[Any, Any] = dataclasses.field(default_factory=dict, init=False, repr=False, compare=False)
+    system: FTCSystem | None = dataclasses.field(default=None, repr=False, compare=False)  # built from (:meth:`of`)
 
     @classmethod
     def of(cls, system: FTCSystem, controller: Controller, loop: SampledLoop | None) -> SampledLoop:
-        """``loop`` when it was built for ``controller`` (the same object), a new
-        :meth:`build` when ``None``; a loop built for another controller is refused
-        (:class:`~ftc_verify.errors.ValidationError`): a stage given it would prove that
-        controller's loop and report it for this one."""
+        """``loop`` when it was built for ``system`` and ``controller`` (the same objects), a
+        new :meth:`build` when ``None``; a loop built for another system or controller is
+        refused (:class:`~ftc_verify.errors.ValidationError`): a stage given it would prove
+        that loop and report it for this one."""
         if loop is None:
             return cls.build(system, controller)
-        if loop.controller is not controller:
-            raise ValidationError(f"loop: built for the controller {loop.controller.name!r}, "
-                                  f"not for {controller.name!r}")
+        if loop.controller is not controller or loop.system is not system:
+            raise ValidationError(f"loop: built for {getattr(loop.system, 'name', None)!r} under "
+                                  f"{loop.controller.name!r}, not for {system.name!r} under {controller.name!r}")
         return loop
 
     @classmethod
@@ -213,7 +214,7 @@ class SampledLoop:
                 for value, texts in source.items():
                     literals[value] = literals.get(value, ()) + tuple(texts)
         return cls(system.chain, tuple(flows), tuple(meas), tuple(entries), controller, n, nu, modes_part, scale,
-                   max(*rates, 1e-9), literals)
+                   max(*rates, 1e-9), literals, system=system)
 
     def period_ball(self, h: float) -> Any:
         """The period ``h`` as a ball (``flint.arb``): exact for a period the analysis

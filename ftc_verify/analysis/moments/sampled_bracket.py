@@ -218,10 +218,12 @@ def period_worst(loop: SampledLoop, h: float) -> tuple[float, Matrix]:
     :func:`~ftc_verify.analysis.moments.sampled.rate_points` and, when those are not every
     vertex (more than 16), the vertex ascent of :func:`worst_vertex` from them (a random
     ``n = 2, m = 3`` loop with 64 vertices: 0.8702 at a corner, 0.8741 at an inner vertex;
-    above 1 there at a period where the corners were below it)."""
+    above 1 there at a period where the corners were below it). No ascent when a corner is
+    already above 1 (the verdict is then proved there); the ascent evaluates at most
+    ``k (k + 1)`` vertices, ``k`` the uncertain rates."""
     points = list(rate_points(loop.chain))
     rho, where = worst_radius(loop, h, points)
-    if math.isfinite(rho) and loop.chain.vertex_count() > len(points) - 1:
+    if rho < 1 and loop.chain.vertex_count() > len(points) - 1:  # above 1 the corner's radius decides
         ascent, vertex = worst_vertex(loop, h, points)
         if ascent > rho:
             rho, where = ascent, vertex

@@ -68,7 +68,7 @@ import scipy.linalg
 from ...model.system import Matrix
 from ..conic import Rows, affine_bmat, sym_variable
 from ..solvers import solve_conic
-from .sampled import SampledLoop
+from .sampled import SampledLoop, rate_points
 from .sampled_proof import BoxVerdict, box_verdict, prove_point_unstable
 
 __all__ = ["ClockCertificate", "adjoint", "clock_program", "clock_certificate", "prove_clock", "clock_stable", "clock_size", "clock_verdict", "period_verdict",
@@ -385,7 +385,8 @@ def period_verdict(loop: SampledLoop, h: float, rho: float, *, max_boxes: int, m
     0.85, undecided after 17 sub-boxes and 20 s, proved by the clock in 0.9 CPU s), and
     its verdict does not depend on the machine's speed."""
     t0 = time.perf_counter()
-    if where is not None and math.isfinite(rho) and rho > 1 and prove_point_unstable(loop, h, where):
+    if (where is not None and math.isfinite(rho) and rho > 1  # an inner vertex (box_verdict tries rate_points)
+            and not any(np.array_equal(where, p) for p in rate_points(loop.chain)) and prove_point_unstable(loop, h, where)):
         return BoxVerdict("not stable", f"spectral radius {rho:.6g} > 1 proved at {loop.chain.rate_text(where)} "
                           "(ball arithmetic)", 1, where)
     first = box_verdict(loop, h, max_boxes=1, max_seconds=max_seconds)
