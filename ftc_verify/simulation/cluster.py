@@ -143,7 +143,9 @@ def check_cluster_options(workers: int | None, scheduler: str | None) -> None:
 
 def dask_setup(server: Any) -> None:
     """Preload hook of the local cluster (Dask calls it as each server starts). Its
-    in-process scheduler: :func:`_no_gc_diagnosis`, before any worker is started. A
+    in-process scheduler: no gc-timing callback (``distributed.gc``: CPython ignores an
+    exception raised in a gc callback, so a Ctrl-C landing there was lost), removed before
+    any worker is started. A
     worker: the worker process ignores SIGINT, which a terminal's Ctrl-C sends to the whole
     process group; the client shuts the workers down itself."""
     if type(server).__name__ == "Scheduler":
