@@ -276,11 +276,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except BrokenPipeError:
         return _closed_pipe()
     except KeyboardInterrupt:
-        print("ftc-verify: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return _signalled([signal.SIGINT])
     except _Terminated:
-        print("ftc-verify: terminated", file=sys.stderr)
-        return EXIT_TERMINATED
+        return _signalled([signal.SIGTERM])
     except OSError as exc:
         if arrived:
             return _signalled(arrived)
@@ -301,7 +299,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _signalled(arrived: list[int]) -> int:
-    """The exit of the first signal received, its line printed."""
+    """The exit code of the first signal in ``arrived`` (130 / 143), its line printed."""
     if arrived[0] == signal.SIGTERM:
         print("ftc-verify: terminated", file=sys.stderr)
         return EXIT_TERMINATED
