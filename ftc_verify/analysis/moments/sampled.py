@@ -135,6 +135,8 @@ class SampledLoop:
         Float64 work derived from the loop and a period, computed once
         (:func:`~ftc_verify.analysis.moments.sampled_frame.float_frame`); empty in a copy
         made by ``dataclasses.replace``.
+    system : FTCSystem or None
+        The system it was built from (:meth:`build`), checked by :meth:`of`.
     """
 
     chain: JointChain
@@ -150,7 +152,7 @@ class SampledLoop:
     literals: Mapping[float, tuple[str, ...]] | None = None
     written: tuple[float, ...] = ()
     memo: dict[Any, Any] = dataclasses.field(default_factory=dict, init=False, repr=False, compare=False)
-    system: FTCSystem | None = dataclasses.field(default=None, repr=False, compare=False)  # built from (:meth:`of`)
+    system: FTCSystem | None = dataclasses.field(default=None, repr=False, compare=False)
 
     @classmethod
     def of(cls, system: FTCSystem, controller: Controller, loop: SampledLoop | None) -> SampledLoop:
