@@ -40,6 +40,7 @@ import scipy.linalg
 from ..closedloop import ClosedLoop
 from ...errors import ValidationError
 from ...model.system import Matrix
+from .sampled_lower_ops import row_exponent
 from .stability import abscissa_below, duplication_matrix, second_moment_generator
 
 __all__ = [
@@ -100,8 +101,6 @@ def output_blocks(L: Matrix, ell: Matrix, tau: float) -> tuple[Matrix, Matrix]:
     entries of very different sizes into :math:`\mathcal L` and the row, which set the
     exponential's squarings (the paper loop's sampled energy 1.7e-6 relative from the
     unscaled loop's; 1.4e-10 balanced)."""
-    from .sampled_lower_ops import row_exponent
-
     N = L.shape[0]
     d = (scipy.linalg.matrix_balance(L, permute=False, separate=True)[1][0] if np.all(np.isfinite(L))
          else np.ones(N))  # a non-finite generator: its blocks are not finite either
