@@ -114,20 +114,24 @@ def print_period_design(design: Any, period: float) -> None:
 def warn_short_h_max(system: Any, controller: Any) -> None:
     """Without ``--period``: a warning on stderr when the certified controller's sampled
     loop is not stable at some period up to 10 times ``DEFAULT_STEP`` (0.01,
-    ``cli.export_commands``): a float64 screen of the rate vertices and midpoint at the
-    periods ``0.1 / 2^k``, ``k = 7 .. 0``
+    ``cli.export_commands``): a float64 screen of the rate vertices and midpoint (of the
+    corners, the midpoint and the vertex ascent's worst vertex on a box with more than 16
+    vertices) at the periods ``0.1 / 2^k``, ``k = 7 .. 0``
     (:func:`~ftc_verify.analysis.moments.sampled_scan.octave_verdicts`); its ``h_max`` is
-    then below that. A warning, not a certificate -- ``analyze --period`` proves it."""
+    then below that. The radius printed is the worst of those
+    (:func:`~ftc_verify.analysis.moments.sampled_bracket.period_worst`). A warning, not a
+    certificate -- ``analyze --period`` proves it."""
     import sys
 
-    from ..analysis.moments.sampled import SampledLoop, rate_points, worst_radius
+    from ..analysis.moments.sampled import SampledLoop
+    from ..analysis.moments.sampled_bracket import period_worst
     from ..analysis.moments.sampled_scan import octave_verdicts
 
     limit = 10 * DEFAULT_STEP
     loop = SampledLoop.build(system, controller)
     for h, stable in octave_verdicts(loop, limit, 7):
         if not stable:
-            rho = worst_radius(loop, h, rate_points(loop.chain))[0]
+            rho = period_worst(loop, h)[0]
             print(f"ftc-verify synthesize: warning: the sampled loop of this controller is not mean-square stable "
                   f"at period {h:.3g} (float64 spectral radius {rho:.4g}): its h_max is below {limit:g}, 10 times "
                   f"the simulator's default step; check the period it will run at with analyze --period, or "

@@ -82,6 +82,7 @@ import scipy.linalg
 
 from ...model.system import Matrix
 from .sampled import SCAN_PER_OCTAVE, SampledLoop, assemble_map, rate_points
+from .sampled_bracket import period_worst
 from .sampled_taylor import resolvent_stack
 from .stability import vech_order
 
@@ -349,8 +350,9 @@ def _evaluate(loop: SampledLoop, flow: Flow, tests: list[Matrix | None], idx: in
 def octave_verdicts(loop: SampledLoop, hi: float, octaves: int) -> list[tuple[float, bool]]:
     r"""Float64 verdicts at the periods :math:`h_k = hi\, 2^{-k}`, ``k = octaves, ..., 0``
     (smallest first): ``True`` where every rate point of
-    :func:`~ftc_verify.analysis.moments.sampled.rate_points` passes the test below. A
-    screen for warnings (``synthesize`` without ``--period``), never a claim.
+    :func:`~ftc_verify.analysis.moments.sampled.rate_points` passes the test below and, on
+    a box with more than 16 vertices, the vertex ascent finds none unstable (last
+    paragraph). A screen for warnings (``synthesize`` without ``--period``), never a claim.
 
     Per rate point one exponential at the smallest period and one square per octave
     (:math:`e^{\mathcal L 2h} = (e^{\mathcal L h})^2`); per period, instead of the
@@ -365,12 +367,21 @@ def octave_verdicts(loop: SampledLoop, hi: float, octaves: int) -> list[tuple[fl
     periods is within ``1e-6`` of 1, :func:`scan`'s cone test cannot decide and every
     period costs an eigenvalue problem; this test does not depend on that margin. Only the
     octaves are screened: a loop unstable only between two of them is not seen.
+
+    When the rate box has more vertices than :func:`rate_points` lists (more than 16: its
+    corners and midpoint only), a period the LU test passes is also screened by
+    :func:`~ftc_verify.analysis.moments.sampled_bracket.period_worst` (the vertex ascent
+    of the verdict at a period; float64 eigenvalues, at most ``k (k + 1)`` vertices for
+    ``k`` uncertain rates), and is not stable where that radius is ``>= 1``: the worst
+    vertex is often an inner one (``tests/test_octave_left11.py``: a 64-vertex loop
+    unstable at 0.1 only at an inner vertex, every rate point stable there).
     """
     hs = [math.ldexp(hi, -k) for k in range(octaves, -1, -1)]
+    points = rate_points(loop.chain)
     stable = [True] * len(hs)
     vd = loop.d * (loop.d + 1) // 2
     with np.errstate(over="ignore", invalid="ignore"):  # an overflow is a result: not stable
-        for p in rate_points(loop.chain):
+        for p in points:
             F = scipy.linalg.expm((loop.modes_part + np.kron(loop.chain.generator(p).T, np.eye(vd))) * hs[0])
             for k, h in enumerate(hs):
                 if k:
@@ -378,4 +389,6 @@ def octave_verdicts(loop: SampledLoop, hi: float, octaves: int) -> list[tuple[fl
                 if stable[k]:
                     T = assemble_map(loop, F, h)
                     stable[k] = resolvent_stack(T, loop.states, loop.r, margin=0.0, residual=False) is not None
+    if loop.chain.vertex_count() > len(points) - 1:  # rate_points has only the corners and the midpoint
+        stable = [ok and period_worst(loop, h)[0] < 1.0 for h, ok in zip(hs, stable)]
     return list(zip(hs, stable))
