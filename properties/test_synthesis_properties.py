@@ -119,9 +119,25 @@ def test_full_info_relaxes_every_fdi_only_design(system: FTCSystem, method: str)
        perm=st.permutations([0, 1, 2]))
 def test_relabelling_modes_keeps_two_step_feasibility(system: FTCSystem, perm: list[int]) -> None:
     """Relabelling the modes leaves step 1 of two-step (a convex problem) with the same
-    optimal margin; when both labellings succeed, both certified gammas are at most the
-    requested gamma (Theorem 4.1), and they agree (1e-3) where step 1's margin is below
-    its cap of 1.
+    optimal margin; when both labellings succeed, each design meets the requested gamma as
+    far as the code guarantees it (below), and the certified gammas agree (1e-3) where
+    step 1's margin is below its cap of 1.
+
+    What ``synthesize(system, method="two-step", gamma=5.0)`` guarantees about 5 (derived
+    from the code): ``state_feedback.two_step`` returns gains only when every FDI mode's
+    step-2 gamma ``g_j`` (eq. 18 at step 1's ``P``, minimised by the solver) satisfies
+    ``g_j <= 5 (1 + 1e-6)``, an exact float comparison, and ``synthesis_gamma`` is
+    ``max_j g_j``: asserted exactly. ``gamma_certified`` is not that number: it is the
+    core's own result on the gains (``analysis.lmi_analysis.hinf_gamma``, robust), a
+    minimum over ``P`` and the multipliers by another solve, raised by a margin until its
+    certificate passes in ball arithmetic (up to ``MARGIN_GAP`` = 1e-4 above its dual bound
+    on the one-solve path, up to a factor 2 on ``GAMMA_LADDER``). That minimum is at most
+    ``synthesis_gamma`` only up to both solvers' feasibility tolerances (step 2's point is
+    feasible for the core's program only to the solver's tolerance), so the code
+    guarantees no bound ``gamma_certified <= 5 c`` for any ``c`` derived from it; asserted
+    instead what it does guarantee: the certificate behind each ``gamma_certified``, rebuilt
+    from its ``P`` and multipliers, passes at ``gamma_certified`` (ball arithmetic). A
+    certified gamma above ``5 (1 + 1e-6)`` is recorded as an event.
 
     Whether step 2 then succeeds is decided by a solver at the boundary of its feasible
     set; the suite found draws where it differed between labellings inside one pytest
@@ -148,7 +164,15 @@ def test_relabelling_modes_keeps_two_step_feasibility(system: FTCSystem, perm: l
         event("two-step step 2 outcome differed between labellings")
     if a.certified and b.certified:
         assert a.gamma_certified is not None and b.gamma_certified is not None
-        assert max(a.gamma_certified, b.gamma_certified) <= 5.0 * (1 + RTOL)
+        for res, plant in ((a, system), (b, relabelled)):
+            assert res.synthesis_gamma is not None and res.synthesis_gamma <= 5.0 * (1 + 1e-6)
+            robust = res.report.robust if res.report is not None else None
+            assert robust is not None and robust.P is not None and res.controller is not None
+            cert = check_certificate(closed_loop(plant, res.controller), robust.condition, robust.P,
+                                     robust.multipliers, res.gamma_certified ** 2)
+            assert cert.ok, cert.reason
+            if res.gamma_certified > 5.0 * (1 + 1e-6):
+                event("two-step certified gamma above the requested 5 (the core's margin)")
         agree = abs(a.gamma_certified - b.gamma_certified) <= RTOL * max(a.gamma_certified, b.gamma_certified) + 1e-6
         if a1 is not None and a1["margin"] < 1.0 - 1e-6:  # a unique maximiser: the same design
             assert agree
