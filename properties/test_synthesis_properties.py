@@ -135,8 +135,9 @@ def test_relabelling_modes_keeps_two_step_feasibility(system: FTCSystem, perm: l
     ``synthesis_gamma`` only up to both solvers' feasibility tolerances (step 2's point is
     feasible for the core's program only to the solver's tolerance), so the code
     guarantees no bound ``gamma_certified <= 5 c`` for any ``c`` derived from it; asserted
-    instead what it does guarantee: the certificate behind each ``gamma_certified``, rebuilt
-    from its ``P`` and multipliers, passes at ``gamma_certified`` (ball arithmetic). A
+    instead what it does guarantee: the certificate behind each ``gamma_certified`` (its
+    ``P`` in the conditioned coordinates and the similarity, the exact certificate of
+    ``analysis.lmi_analysis``), rebuilt, passes at ``gamma_certified`` (ball arithmetic). A
     certified gamma above ``5 (1 + 1e-6)`` is recorded as an event.
 
     Whether step 2 then succeeds is decided by a solver at the boundary of its feasible
@@ -167,9 +168,9 @@ def test_relabelling_modes_keeps_two_step_feasibility(system: FTCSystem, perm: l
         for res, plant in ((a, system), (b, relabelled)):
             assert res.synthesis_gamma is not None and res.synthesis_gamma <= 5.0 * (1 + 1e-6)
             robust = res.report.robust if res.report is not None else None
-            assert robust is not None and robust.P is not None and res.controller is not None
-            cert = check_certificate(closed_loop(plant, res.controller), robust.condition, robust.P,
-                                     robust.multipliers, res.gamma_certified ** 2)
+            assert robust is not None and robust.P_conditioned is not None and res.controller is not None
+            cert = check_certificate(closed_loop(plant, res.controller), robust.condition, robust.P_conditioned,
+                                     robust.multipliers, res.gamma_certified ** 2, similarity=robust.similarity)
             assert cert.ok, cert.reason
             if res.gamma_certified > 5.0 * (1 + 1e-6):
                 event("two-step certified gamma above the requested 5 (the core's margin)")
