@@ -67,4 +67,4 @@ def test_synthesize_warning_names_the_period_and_a_radius_above_one(case: tuple,
     err = capsys.readouterr().err
     assert "warning: the sampled loop of this controller is not mean-square stable at period 0.1 " in err
     rho = float(err.split("float64 spectral radius ")[1].split(")")[0])
-    assert rho > 1.0  # printed to 7 digits: 1 + 1.1e-7 is not shown as 1
+    assert rho > 1.0  # printed to 9 digits: 1 + 1.1e-7 is not shown as 1

@@ -133,7 +133,7 @@ def warn_short_h_max(system: Any, controller: Any) -> None:
         if not stable:
             rho = period_worst(loop, h)[0]
             print(f"ftc-verify synthesize: warning: the sampled loop of this controller is not mean-square stable "
-                  f"at period {h:.3g} (float64 spectral radius {rho:.7g}): its h_max is below {limit:g}, 10 times "
+                  f"at period {h:.3g} (float64 spectral radius {rho:.9g}): its h_max is below {limit:g}, 10 times "
                   f"the simulator's default step; check the period it will run at with analyze --period, or "
                   f"design for it with synthesize --period", file=sys.stderr)
             return
