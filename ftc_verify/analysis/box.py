@@ -30,7 +30,11 @@ the user wrote it (:func:`~ftc_verify.analysis.exact.exact_loop`, the rates by
 **Not stable** is proved at one rate vector :math:`c` inside the box (a centre where the
 float solution is not positive definite: then :math:`\mu(c) \ge 0` in float64) by
 :meth:`~ftc_verify.analysis.verdict.StabilityProver.certify`, with a proved enclosure of
-the abscissa there when one is found.
+the abscissa there when one is found. A caller that knows a rate vector with
+:math:`\mu \ge 0` in float64 (the vertex search's worst, ``suspect``) has it tried
+first: a loop unstable at a vertex of a wide box, with stable centres, had the whole
+budget spent proving sub-boxes stable and was answered "undecided". Only the proof
+counts; when it fails the branch and bound runs as without it.
 
 When the centre's candidate fails, the Theorem 3.1 LMI is solved on the sub-box
 (Clarabel, :func:`~ftc_verify.analysis.lmi_analysis.mes_lmi`): the best common
@@ -59,7 +63,7 @@ import math
 import time
 from collections import deque
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -192,6 +196,7 @@ class _Checker:
     literals: Any
     row_rates: tuple[tuple[tuple[int, ...], ...], ...]
     column_rates: tuple[tuple[tuple[int, ...], ...], ...]
+    provers: dict[str, StabilityProver] = field(default_factory=dict)  # the point prover, made when first needed
 
     @classmethod
     def build(cls, loop: ClosedLoop, sim: Similarity, uncertain: Sequence[tuple[int, ...]]) -> _Checker:
@@ -209,6 +214,21 @@ class _Checker:
                 columns[s].add(index)
         return cls(nominal, sim.apply(nominal), sim, A, S, literals_of(nominal),
                    tuple(tuple(sorted(r)) for r in rows), tuple(tuple(sorted(c)) for c in columns))
+
+    def prove_point(self, point: Matrix, deadline: float) -> tuple[Any, float, tuple[float, float] | None]:
+        """The verified verdict at the rate vector ``point`` (the float64 abscissa as its
+        estimate) and, when "not stable", a proved enclosure of the abscissa (or ``None``)."""
+        from .moments.stability import spectral_abscissa
+
+        if "point" not in self.provers:
+            self.provers["point"] = StabilityProver.build(self.loop, self.sim)
+        prover = self.provers["point"]
+        estimate = spectral_abscissa(self.conditioned, point)
+        found = prover.certify(point, estimate=estimate, budget_seconds=max(0.0, deadline - time.perf_counter()))
+        if found.verdict != "not stable":
+            return found, estimate, None
+        left = max(0.0, deadline - time.perf_counter())
+        return found, estimate, prover.abscissa_enclosure(point, estimate, budget_seconds=left)
 
     def check(self, lo: Matrix, hi: Matrix) -> tuple[str, set[tuple[int, ...]]]:
         """``("stable", _)`` when the sub-box is proved; ``("unstable-centre", _)`` when
@@ -330,13 +350,15 @@ def _try_precise(checker: _Checker, lo: Matrix, hi: Matrix, proved: list[RegionV
 
 
 def box_stability(loop: ClosedLoop, sim: Similarity, *, budget_seconds: float = BOX_BUDGET_SECONDS,
-                  max_boxes: int = MAX_BOXES, root_lmi: bool = True) -> BoxVerdict:
+                  max_boxes: int = MAX_BOXES, root_lmi: bool = True, suspect: Matrix | None = None) -> BoxVerdict:
     """The verdict of ``loop`` (its nominal part) over the whole rate box (module
     docstring), in the coordinates ``sim`` for the float candidates.
 
     ``root_lmi=False``: when the whole box's centre candidate misses a vertex, "undecided"
     (:data:`ROOT_LMI_DEFERRED`) instead of the whole box's Theorem 3.1 LMI, for a caller
-    that certifies that LMI anyway (:func:`~ftc_verify.analysis.analyze.analyze`)."""
+    that certifies that LMI anyway (:func:`~ftc_verify.analysis.analyze.analyze`).
+
+    ``suspect``: a rate vector whose instability proof is tried first (module docstring)."""
     start = time.perf_counter()
     deadline = start + budget_seconds
     chain = loop.chain
@@ -344,7 +366,6 @@ def box_stability(loop: ClosedLoop, sim: Similarity, *, budget_seconds: float = 
     uncertain = tuple(r for r in chain.rate_indices if root_lo[r] != root_hi[r])
     root_width = {r: float(root_hi[r] - root_lo[r]) for r in uncertain}
     checker = _Checker.build(loop, sim, uncertain)
-    prover: StabilityProver | None = None
     proved: list[RegionVerdict] = []
     queue: deque[tuple[Matrix, Matrix]] = deque([(root_lo, root_hi)])
     boxes = 0
@@ -358,6 +379,17 @@ def box_stability(loop: ClosedLoop, sim: Similarity, *, budget_seconds: float = 
         open_region = region(lo, hi, "undecided", why, 128, t0)
         return BoxVerdict("undecided", (*proved, open_region), boxes, False, time.perf_counter() - start, why)
 
+    def point_verdict(point: Matrix, t0: float) -> tuple[BoxVerdict | None, Any]:
+        found, estimate, enclosure = checker.prove_point(point, deadline)
+        if found.verdict != "not stable":
+            return None, found
+        witness = region(point, point, "not stable", found.method, found.precision_bits, t0, estimate, enclosure)
+        return BoxVerdict("not stable", (witness,), boxes, False, time.perf_counter() - start,
+                          f"instability proved at {chain.rate_text(point)}"), found
+
+    first = None if suspect is None else point_verdict(np.asarray(suspect, dtype=float), time.perf_counter())[0]
+    if first is not None:
+        return first
     while queue:
         lo, hi = queue.popleft()
         t0 = time.perf_counter()
@@ -385,22 +417,11 @@ def box_stability(loop: ClosedLoop, sim: Similarity, *, budget_seconds: float = 
         centre = _centre(lo, hi)
         splittable = [r for r in uncertain if hi[r] - lo[r] > MIN_RELATIVE_WIDTH * root_width[r]]
         if status == "unstable-centre" or not splittable:
-            if prover is None:
-                prover = StabilityProver.build(loop, sim)
-            from .moments.stability import spectral_abscissa
-
-            estimate = spectral_abscissa(checker.conditioned, centre)
-            left = max(0.0, deadline - time.perf_counter())
-            point = prover.certify(centre, estimate=estimate, budget_seconds=left)
-            if point.verdict == "not stable":
-                enclosure = prover.abscissa_enclosure(centre, estimate,
-                                                      budget_seconds=max(0.0, deadline - time.perf_counter()))
-                witness = region(centre, centre, "not stable", point.method, point.precision_bits, t0, estimate,
-                                 enclosure)
-                return BoxVerdict("not stable", (witness,), boxes, False, time.perf_counter() - start,
-                                  f"instability proved at {chain.rate_text(centre)}")
+            unstable, point = point_verdict(centre, t0)
+            if unstable is not None:
+                return unstable
             if not splittable and point.verdict == "stable" and np.array_equal(lo, hi):
-                proved.append(region(lo, hi, "stable", point.method, point.precision_bits, t0, estimate))
+                proved.append(region(lo, hi, "stable", point.method, point.precision_bits, t0, point.estimate))
                 continue
             if point.verdict == "stable" and boxes > 1 and _try_precise(checker, lo, hi, proved, region, t0):
                 continue  # float64 called the centre unstable, the balls proved it stable

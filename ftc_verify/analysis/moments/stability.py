@@ -475,8 +475,8 @@ def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256,
     :func:`abscissa_below` shows below the worst value so far needs no eigenvalues, the
     others get :func:`abscissa_near` (:func:`spectral_abscissa` at the first vertex, when that
     fails, and where the chain has several :func:`communicating_classes`: it stalls there).
-    An instability the box proof finds raises the estimate to it.
-    """
+    The box proof starts at the worst vertex found when its abscissa is not negative (an
+    instability proof there); one it finds elsewhere raises the estimate to it."""
     sim = conditioning_transform(loop.nominal())
     nominal = sim.apply(loop.nominal())
     chain, norms = loop.chain, [float(np.linalg.norm(a, 2)) for a in nominal.A]  # norms: the shift test's margin
@@ -513,8 +513,9 @@ def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256,
 
     def result(worst: tuple[bool, ...], evaluated: list[tuple[bool, ...]], exhaustive: bool) -> MSSResult:
         """The float estimate over the vertices evaluated and the verdict over the box."""
-        box = box_stability(loop, sim, budget_seconds=budget_seconds, root_lmi=root_lmi)
         estimate, where = exact[worst], vertex(worst)
+        box = box_stability(loop, sim, budget_seconds=budget_seconds, root_lmi=root_lmi,
+                            suspect=where if estimate >= 0.0 else None)
         witness = box.witness
         if witness is not None and witness.estimate is not None and witness.estimate > estimate:
             estimate, where = witness.estimate, witness.rate_min
