@@ -101,7 +101,9 @@ class GainLowerBound:
 
     ``value`` is the proved lower bound (``None`` when the proof could not be made:
     ``method`` says why; ``estimate`` is then the float value of the same construction);
-    ``float_gain`` the float worst-case gain at ``rates`` by bisection (not proved);
+    ``float_gain`` the float worst-case gain at ``rates`` by bisection (not proved; the
+    level of the feedback used, ``ABOVE_CERTIFIED`` times the certified gamma, when that
+    bisection failed);
     ``delta`` names the constant uncertainty; ``frequency`` and ``direction`` give
     :math:`v(t) = e\\cos\\omega t`; ``feedback`` the gains :math:`F_s`, one per joint state."""
 
@@ -463,11 +465,13 @@ def exceeds(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], Q: 
 #: The feedback is first taken at the certified gamma times this: when the certificate is
 #: tight (the usual case) that feedback is already nearly the worst case.
 ABOVE_CERTIFIED = 1.0 + 1e-6
-#: Largest second-moment system (rows) whose best candidate's feedback is refined by
-#: bisection on the gain (each step a policy iteration of dense solves of that size; the
-#: ratio approaches the gain about as the square root of the bisection's width).
-REFINE_ROWS = 120
-#: Relative width of that bisection.
+#: Relative width of the bisection on the gain that refines the best candidate's feedback
+#: (each step a policy iteration of dense solves of the moment system's size). Every loop
+#: within :data:`~ftc_verify.analysis.verdict.SOLVE_LIMIT` rows is refined: with the
+#: refinement limited to 120 rows, held-out ``n = 4, 5``, ``m = 3`` loops of 135-315 rows
+#: kept the feedback taken at the certified gamma and proved 0.59-0.90 of their gain at the
+#: candidate rates (3.16 against 1.88 on one), for 0.1-0.5 s less
+#: (``benchmarks/results/lead11.md``).
 REFINE_RTOL = 1e-8
 
 
@@ -485,8 +489,8 @@ def gain_lower_bound(loop: ClosedLoop, *, deltas: Sequence[tuple[str, dict[str, 
     ``{channel name: Delta}``; ``Delta=0`` for the nominal gain) gets the worst-case
     feedback at ``upper * ABOVE_CERTIFIED`` (``upper`` a certified gamma, an upper bound of
     every candidate's gain) and its best excitation; the candidate of the largest float
-    ratio is kept, its feedback refined by bisection on the gain (loops of at most
-    ``REFINE_ROWS`` moment rows), and its ratio proved. Without ``upper``, each candidate's
+    ratio is kept, its feedback refined by bisection on the gain (to
+    :data:`REFINE_RTOL`), and its ratio proved. Without ``upper``, each candidate's
     gain is found by bisection. ``None`` when no candidate loop is mean-square stable, or
     when the moment equations are above :data:`~ftc_verify.analysis.verdict.SOLVE_LIMIT`
     rows (no proof would fit: nothing is computed)."""
@@ -522,8 +526,7 @@ def gain_lower_bound(loop: ClosedLoop, *, deltas: Sequence[tuple[str, dict[str, 
     ratio, label, delta, rates, F, g, pi, omega, e = best
     A = loop.perturbed(delta) if delta else nominal.A
     Q = loop.chain.generator(rates)
-    small = len(loop.A) * loop.n * (loop.n + 1) // 2 <= REFINE_ROWS
-    if gamma_f is not None and small:
+    if gamma_f is not None:
         found = float_gain(A, loop.Bw, loop.Cz, Q, upper=gamma_f, rtol=REFINE_RTOL)
         if found is not None:
             g, F = found
