@@ -87,12 +87,12 @@ class ConditionedLoop(SampledLoop):
 
 def loop_transform(loop: SampledLoop) -> tuple[Matrix, Matrix] | None:
     """``(T_d, T_d^{-1})`` on the balanced augmented state of ``loop`` (module docstring), or
-    ``None`` when the conditioning transform is not formed or has condition at most
-    :data:`~ftc_verify.analysis.moments.sampled_frame.CONDITION` (or above ``1e12``)."""
+    ``None`` when the conditioning transform is not formed or not
+    :func:`~ftc_verify.analysis.moments.sampled_frame.usable`."""
     from ...errors import FTCError
     from ..closedloop import ClosedLoop
     from ..conditioning import conditioning_transform
-    from .sampled_frame import CONDITION
+    from .sampled_frame import usable
 
     n, nu, d = loop.n, loop.nu, loop.d
     sc = loop.scale
@@ -118,7 +118,7 @@ def loop_transform(loop: SampledLoop) -> tuple[Matrix, Matrix] | None:
         sim = conditioning_transform(cl)
     except (np.linalg.LinAlgError, ValueError, FTCError):
         return None
-    if not CONDITION < float(sim.condition) < 1e12:
+    if not usable(sim):
         return None
     T, T_inv = np.eye(d), np.eye(d)
     T[np.ix_(idx, idx)] = np.asarray(sim.T, dtype=float) / sc[idx][:, None]
