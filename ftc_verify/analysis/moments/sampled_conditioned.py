@@ -38,9 +38,13 @@ feedback's own input and output, :math:`B_w = [B_i; 0]`, :math:`C_z = [D_c M_i, 
 both transform with the state (:math:`B \to S B`, :math:`K \to K S^{-1}`), so the
 balanced realisation undoes a similarity of the states, as
 :func:`~ftc_verify.analysis.moments.sampled_frame.loop_similarity` does for the gain.
-It is used when its condition number exceeds
-:data:`~ftc_verify.analysis.moments.sampled_frame.CONDITION` (the same rule): a loop
-written in good coordinates is proved as before, bit for bit.
+It is used when it is
+:func:`~ftc_verify.analysis.moments.sampled_frame.usable` (the same rule: condition number
+above :data:`~ftc_verify.analysis.moments.sampled_frame.CONDITION`, the condition of its
+non-diagonal part below :data:`~ftc_verify.analysis.moments.sampled_frame.LIMIT`): a loop
+written in good coordinates is proved as before, bit for bit; one in units ``1e-6`` and
+``1e6`` (a transform of condition ``1e12``, all but a few units of it an exact diagonal)
+is moved, as one in units ``1e-3`` and ``1e3`` was.
 """
 
 from __future__ import annotations

@@ -14,8 +14,12 @@ the solver (measured, ``tests/test_sampled_scaling_h31s.py``).
 :func:`coordinates` chooses :math:`(s_w, s_z)` (:func:`io_scales`) and :math:`T`: the
 :func:`~ftc_verify.analysis.conditioning.conditioning_transform` of the scaled augmented
 loop (the one the continuous analysis uses: a balanced realisation of the mode-averaged
-loop) when it has condition above :data:`CONDITION` -- the loop's coordinates were badly
-chosen -- else none (a well-conditioned loop is solved as written). **Soundness does not
+loop) when it is :func:`usable` -- condition above :data:`CONDITION` (the loop's
+coordinates were badly chosen) and the condition of its non-diagonal part
+(:func:`essential_condition`) below :data:`LIMIT` -- else none (a well-conditioned loop
+is solved as written). The same rule moves the loop of the stability proofs
+(:mod:`~ftc_verify.analysis.moments.sampled_conditioned`) and the coordinates its speed
+is measured in (:attr:`SampledLoop.speed`). **Soundness does not
 depend on** :math:`T`: the proof builds the transformed loop and jumps in ball arithmetic
 from the balls of the numbers as written, with :math:`T` an exact float matrix and
 :math:`T^{-1}` a ball that contains the exact inverse (Arb's ``arb_mat.inv``), so what is
