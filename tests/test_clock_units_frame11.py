@@ -14,12 +14,15 @@ and proved at :math:`0.8\, h_u / s`, the common cubic one
 (:func:`~ftc_verify.analysis.moments.sampled_cubic.cubic_stable`, 4 pieces) at
 :math:`0.99\, h_u / s`; neither proved at :math:`1.01\, h_u / s` (above the crossing); the
 proved ``h_max`` bracket contains :math:`h_u / s` and has the resolution of the bracket in
-good units. Before: with the states in units ``1e-6`` and ``1e6`` the conditioning
+good units. The same for the loop under a dynamic controller (the gains filtered,
+:math:`\dot x_c = 20 (K x - x_c)`, :math:`u = x_c`) with its states :math:`x_c' = S_c x_c`
+in other units. Before: with the states in units ``1e-6`` and ``1e6`` the conditioning
 transform (condition ``1e12``, nearly all of it the exact diagonal) was refused, the
 loop's speed came out ``4.6e12`` (the 2-norms in the user's coordinates), and neither
 certificate was found even ``1e-2`` below the crossing; the ``h_max`` scan started at
-``2e-16`` and reported the loop "not stable at the smallest scanned period"
-(``benchmarks/results/frame11.md``).
+``2e-16`` and reported the loop "not stable at the smallest scanned period"; with
+:math:`x_c` in units ``1e-3`` the conditioned loop's states were ``1e-3`` apart and the
+bracket ``1e-2`` wide (``8e-4`` in good units) (``benchmarks/results/frame11.md``).
 """
 
 from __future__ import annotations
@@ -57,6 +60,17 @@ FRAMES = [
     Units("similarity of condition 1e4 in units of condition 1e8",
           S=similarity(np.random.default_rng(31), 2, 1e8, 1e4)),
 ]
+
+
+CONTROLLER_FRAMES = [np.eye(2), np.eye(2) * 1e-3, np.eye(2) * 1e6, np.diag([1e-6, 1e6])]
+
+
+def filtered(system: FTCSystem, controller: Controller, Sc: np.ndarray) -> tuple[FTCSystem, Controller]:
+    """``system`` under the state feedback ``controller`` filtered, its states in the units ``Sc``."""
+    Si = np.linalg.inv(Sc)
+    gains = controller.Dc
+    return system, Controller(tuple(Sc @ (-20.0 * np.eye(2)) @ Si for _ in gains), tuple(Sc @ (20.0 * K) for K in gains),
+                              tuple(Si for _ in gains), tuple(np.zeros_like(K) for K in gains), "state", "filtered")
 
 
 @pytest.fixture(scope="module")
@@ -116,4 +130,23 @@ def test_bracket_in_every_frame(case: tuple[FTCSystem, Controller], h_u: float, 
     assert res.h_max is not None and res.h_max_unstable is not None, res.h_max_note
     assert res.h_max <= h_u / u.s * (1 + 1e-9)
     assert res.h_max_unstable >= h_u / u.s * (1 - 1e-9)
+    assert res.h_max_unstable / res.h_max - 1 <= H_MAX_RTOL
+
+
+@pytest.mark.parametrize("Sc", CONTROLLER_FRAMES, ids=["x_c as written", "x_c 1e-3", "x_c 1e6", "x_c 1e-6 and 1e6"])
+def test_controller_states_in_other_units(case: tuple[FTCSystem, Controller], Sc: np.ndarray) -> None:
+    """The clock certificates and the bracket of the filtered loop as in good units."""
+    good = filtered(*case, np.eye(2))
+    h_u = crossing(SampledLoop.build(*good), 1e-3, 10.0, True, 1e-10)
+    system, controller = filtered(*case, Sc)
+    loop = SampledLoop.build(system, controller)
+    clock = clock_stable(loop, 0.8 * h_u, 2, quadratic=True)
+    assert clock is not None and clock.proved
+    cubic = cubic_stable(loop, 0.99 * h_u, 4)
+    assert cubic is not None and cubic.proved
+    above = cubic_stable(loop, 1.01 * h_u, 4)
+    assert above is None or not above.proved
+    res = sampled_analysis(system, controller, 0.05, max_seconds=60.0)
+    assert res.h_max is not None and res.h_max_unstable is not None, res.h_max_note
+    assert res.h_max <= h_u * (1 + 1e-9) <= res.h_max_unstable * (1 + 2e-9)
     assert res.h_max_unstable / res.h_max - 1 <= H_MAX_RTOL
