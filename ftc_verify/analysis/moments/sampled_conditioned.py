@@ -44,7 +44,11 @@ above :data:`~ftc_verify.analysis.moments.sampled_frame.CONDITION`, the conditio
 non-diagonal part below :data:`~ftc_verify.analysis.moments.sampled_frame.LIMIT`): a loop
 written in good coordinates is proved as before, bit for bit; one in units ``1e-6`` and
 ``1e6`` (a transform of condition ``1e12``, all but a few units of it an exact diagonal)
-is moved, as one in units ``1e-3`` and ``1e3`` was.
+is moved, as one in units ``1e-3`` and ``1e3`` was. Two diagonals of powers of two
+(exact) follow the transform: its columns scaled to unit norm (the moved states of
+comparable size: with the controller's states in units ``1e-3`` the transform's columns
+were ``1e-3`` apart and the ``h_max`` bracket ``1e-2`` wide, ``8e-4`` in good units),
+then the held input balanced against the moved states.
 """
 
 from __future__ import annotations
