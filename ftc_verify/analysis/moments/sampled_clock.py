@@ -141,7 +141,13 @@ def time_unit(loop: SampledLoop) -> float:
     :math:`h / c`; every flow condition is :math:`c F` (definiteness unchanged, :math:`c > 0`),
     the nodes and jumps are the same. Without it the flow conditions' margin :math:`-I`
     against data :math:`10^{-6}` times smaller (a plant in microseconds of a slow process)
-    left the solver without a solution (``benchmarks/results/h31r.md``)."""
+    left the solver without a solution (``benchmarks/results/h31r.md``). The speed is
+    measured in the coordinates of
+    :func:`~ftc_verify.analysis.moments.sampled_frame.loop_similarity`, so the units of
+    the states do not move it: with states in units ``1e-6`` and ``1e6`` it was ``4.6e12``
+    (the transform refused for its condition ``1e12``, the exact diagonal's), this unit
+    ``2^-42`` and no certificate found 1e-2 below the crossing
+    (``benchmarks/results/frame11.md``)."""
     e = round(-math.log2(loop.speed)) if math.isfinite(loop.speed) and loop.speed > 0 else 0
     return 1.0 if abs(e) <= TIME_OCTAVES else float(2.0 ** e)
 

@@ -38,9 +38,17 @@ feedback's own input and output, :math:`B_w = [B_i; 0]`, :math:`C_z = [D_c M_i, 
 both transform with the state (:math:`B \to S B`, :math:`K \to K S^{-1}`), so the
 balanced realisation undoes a similarity of the states, as
 :func:`~ftc_verify.analysis.moments.sampled_frame.loop_similarity` does for the gain.
-It is used when its condition number exceeds
-:data:`~ftc_verify.analysis.moments.sampled_frame.CONDITION` (the same rule): a loop
-written in good coordinates is proved as before, bit for bit.
+It is used when it is
+:func:`~ftc_verify.analysis.moments.sampled_frame.usable` (the same rule: condition number
+above :data:`~ftc_verify.analysis.moments.sampled_frame.CONDITION`, the condition of its
+non-diagonal part below :data:`~ftc_verify.analysis.moments.sampled_frame.LIMIT`): a loop
+written in good coordinates is proved as before, bit for bit; one in units ``1e-6`` and
+``1e6`` (a transform of condition ``1e12``, all but a few units of it an exact diagonal)
+is moved, as one in units ``1e-3`` and ``1e3`` was. Two diagonals of powers of two
+(exact) follow the transform: its columns scaled to unit norm (the moved states of
+comparable size: with the controller's states in units ``1e-3`` the transform's columns
+were ``1e-3`` apart and the ``h_max`` bracket ``1e-2`` wide, ``8e-4`` in good units),
+then the held input balanced against the moved states.
 """
 
 from __future__ import annotations
@@ -87,12 +95,12 @@ class ConditionedLoop(SampledLoop):
 
 def loop_transform(loop: SampledLoop) -> tuple[Matrix, Matrix] | None:
     """``(T_d, T_d^{-1})`` on the balanced augmented state of ``loop`` (module docstring), or
-    ``None`` when the conditioning transform is not formed or has condition at most
-    :data:`~ftc_verify.analysis.moments.sampled_frame.CONDITION` (or above ``1e12``)."""
+    ``None`` when the conditioning transform is not formed or not
+    :func:`~ftc_verify.analysis.moments.sampled_frame.usable`."""
     from ...errors import FTCError
     from ..closedloop import ClosedLoop
     from ..conditioning import conditioning_transform
-    from .sampled_frame import CONDITION
+    from .sampled_frame import usable
 
     n, nu, d = loop.n, loop.nu, loop.d
     sc = loop.scale
@@ -118,11 +126,15 @@ def loop_transform(loop: SampledLoop) -> tuple[Matrix, Matrix] | None:
         sim = conditioning_transform(cl)
     except (np.linalg.LinAlgError, ValueError, FTCError):
         return None
-    if not CONDITION < float(sim.condition) < 1e12:
+    if not usable(sim):
         return None
     T, T_inv = np.eye(d), np.eye(d)
     T[np.ix_(idx, idx)] = np.asarray(sim.T, dtype=float) / sc[idx][:, None]
     T_inv[np.ix_(idx, idx)] = np.asarray(sim.T_inv, dtype=float) * sc[idx][None, :]
+    # powers of two: the moved states of comparable size (the transform's columns of unit norm;
+    # exact): the transform chosen in units 1e-3 of x_c had columns 1e-3 apart, the bracket 1e-2 wide
+    cols = 2.0 ** -np.round(np.log2(np.linalg.norm(T, axis=0)))
+    T, T_inv = T * cols[None, :], T_inv / cols[:, None]
     # powers of two: the held input against the moved states (exact)
     pattern = np.eye(d)
     for flow, R in zip(loop.flow, loop.resets(0.0)):

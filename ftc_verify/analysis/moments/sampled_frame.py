@@ -14,8 +14,12 @@ the solver (measured, ``tests/test_sampled_scaling_h31s.py``).
 :func:`coordinates` chooses :math:`(s_w, s_z)` (:func:`io_scales`) and :math:`T`: the
 :func:`~ftc_verify.analysis.conditioning.conditioning_transform` of the scaled augmented
 loop (the one the continuous analysis uses: a balanced realisation of the mode-averaged
-loop) when it has condition above :data:`CONDITION` -- the loop's coordinates were badly
-chosen -- else none (a well-conditioned loop is solved as written). **Soundness does not
+loop) when it is :func:`usable` -- condition above :data:`CONDITION` (the loop's
+coordinates were badly chosen) and the condition of its non-diagonal part
+(:func:`essential_condition`) below :data:`LIMIT` -- else none (a well-conditioned loop
+is solved as written). The same rule moves the loop of the stability proofs
+(:mod:`~ftc_verify.analysis.moments.sampled_conditioned`) and the coordinates its speed
+is measured in (:attr:`SampledLoop.speed`). **Soundness does not
 depend on** :math:`T`: the proof builds the transformed loop and jumps in ball arithmetic
 from the balls of the numbers as written, with :math:`T` an exact float matrix and
 :math:`T^{-1}` a ball that contains the exact inverse (Arb's ``arb_mat.inv``), so what is
@@ -44,10 +48,12 @@ from ...model.system import FTCSystem, Matrix
 from ..closedloop import ClosedLoop
 from .sampled import SampledLoop
 
-__all__ = ["CONDITION", "BAND", "io_scales", "loop_similarity", "Coordinates", "coordinates", "FloatFrame", "float_frame"]
+__all__ = ["CONDITION", "LIMIT", "BAND", "io_scales", "essential_condition", "usable", "loop_similarity", "Coordinates", "coordinates", "FloatFrame", "float_frame"]
 
 #: A similarity is used only when the conditioning transform has a larger condition number.
 CONDITION = 100.0
+#: ... and only when its :func:`essential_condition` is smaller.
+LIMIT = 1e12
 #: A disturbance input or output whose largest norm is outside ``[1/BAND, BAND]`` is scaled.
 BAND = 8.0
 
@@ -115,11 +121,38 @@ class Coordinates:
         return [T_inv @ J @ T for J in jumps]
 
 
+def essential_condition(T: Matrix) -> float:
+    r"""The 2-norm condition number of ``T`` with each row scaled by the power of two nearest
+    its inverse 2-norm: a diagonal factor of powers of two (:math:`T = D T_0`, the first
+    step of :func:`~ftc_verify.analysis.conditioning.conditioning_transform`, a change of
+    units) is exact and moves no rounding -- :math:`|D^{-1} A D| = |D^{-1}||A||D|`, so the
+    rounding of :math:`T^{-1} A T` is that of :math:`T_0^{-1} (D^{-1} A D) T_0` -- only
+    :math:`T_0` does. ``inf`` when ``T`` has a zero or non-finite row."""
+    norms = np.linalg.norm(T, axis=1)
+    if not (np.all(np.isfinite(norms)) and np.all(norms > 0)):
+        return math.inf
+    rows = 2.0 ** -np.round(np.log2(norms))
+    return float(np.linalg.cond(T * rows[:, None]))
+
+
+def usable(sim: Any) -> bool:
+    """The rule for moving a loop by the
+    :func:`~ftc_verify.analysis.conditioning.conditioning_transform` ``sim``: its condition
+    number above :data:`CONDITION` (the loop as written is badly conditioned; else the
+    loop is kept, bit for bit) and its :func:`essential_condition` below :data:`LIMIT` (a
+    similarity the float64 data can carry). The whole condition number was held against
+    ``LIMIT`` before: states in units ``1e-6`` and ``1e6`` (a transform of condition
+    ``1e12``, nearly all of it the exact diagonal) were left as written, the speed
+    (:attr:`SampledLoop.speed`) was ``1e12`` times the loop's and the clock certificates'
+    time unit (:func:`~ftc_verify.analysis.moments.sampled_clock.time_unit`) and the
+    ``h_max`` scan followed it (``benchmarks/results/frame11.md``)."""
+    return CONDITION < float(sim.condition) and essential_condition(np.asarray(sim.T, dtype=float)) < LIMIT
+
+
 def loop_similarity(system: FTCSystem, controller: Controller) -> Any | None:
     """The :func:`~ftc_verify.analysis.conditioning.conditioning_transform` of the continuous
-    closed loop of ``system`` and ``controller`` when its condition number is between
-    :data:`CONDITION` and ``1e12``; ``None`` otherwise (no transform can be formed, or the
-    loop as written is as well conditioned)."""
+    closed loop of ``system`` and ``controller`` when it is :func:`usable`; ``None``
+    otherwise (no transform can be formed, or the loop as written is as well conditioned)."""
     from ..closedloop import closed_loop
     from ..conditioning import conditioning_transform
 
@@ -127,7 +160,7 @@ def loop_similarity(system: FTCSystem, controller: Controller) -> Any | None:
         sim = conditioning_transform(closed_loop(system, controller))
     except (np.linalg.LinAlgError, ValueError, FTCError):  # no transform: the loop as written
         return None
-    return sim if CONDITION < float(sim.condition) < 1e12 else None
+    return sim if usable(sim) else None
 
 
 def coordinates(aug: ClosedLoop, jumps: list[Matrix], loop: SampledLoop, system: FTCSystem) -> Coordinates:
