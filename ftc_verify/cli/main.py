@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import errno
 import os
+import re
 import signal
 import sys
 import threading
@@ -244,6 +245,23 @@ def _closed_pipe() -> int:
     return EXIT_PIPE
 
 
+#: Options whose value is a comma-separated list of numbers (``risk --x0``, ``export-loop --x0``).
+_NUMBER_LISTS = ("--x0",)
+
+
+def _numbers_attached(argv: Sequence[str]) -> list[str]:
+    """``--x0 -1,2`` as ``--x0=-1,2``: argparse takes a value that starts with ``-`` for an
+    option unless it is one plain negative number, so a list starting with a negative
+    number was refused ("expected one argument")."""
+    out: list[str] = []
+    for arg in argv:
+        if out and out[-1] in _NUMBER_LISTS and re.fullmatch(r"-\.?[0-9][0-9eE.+\-]*(,[0-9eE.+\-]*)*", arg):
+            out[-1] = f"{out[-1]}={arg}"
+        else:
+            out.append(arg)
+    return out
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (module docstring).
 
@@ -253,7 +271,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, "1")
-    args = build_parser().parse_args(argv)
+    args = build_parser().parse_args(_numbers_attached(sys.argv[1:] if argv is None else argv))
     if argv is None and args.command == "analyze":  # this process's own command line only:
         from ..prestart import defer_numpy_tools  # it changes the interpreter for good
 
