@@ -28,13 +28,10 @@ tail bound, :math:`s` squarings.
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
-import scipy.sparse
 
 from ...model.system import Matrix
-from .fast_balls import TAYLOR_TERMS, FormArithmetic, MidRad, taylor_expm
+from .fast_balls import SPARSE_SHARE, TAYLOR_TERMS, FormArithmetic, MidRad, sparse_left, taylor_expm, unwide, wide
 
 __all__ = ["Quad", "QUADRATIC", "pairs", "quad_mul", "quad_expm", "quad_map"]
 
@@ -63,31 +60,19 @@ def _sum_abs(x: Matrix) -> Matrix:
 
 def _products(ac: Matrix, al: Matrix, aq: Matrix, bc: Matrix, bl: Matrix,
               bq: Matrix) -> tuple[Matrix, Matrix, Matrix, Matrix]:
-    r"""The float products of :func:`quad_mul`: ``c c'``, ``l_a c' + c l'_a``,
-    ``q_p c' + c q'_p`` and the cross products ``l_a l'_b`` as a ``(K, K, n, m)`` array.
-    When the left factor has no second-order part (the scaled generator of the Taylor
-    polynomial's Horner steps, the restriction :math:`\mathcal P`: sparse, their zeros
-    exact) by sparse products with its nonzeros only: the terms skipped are exactly
-    zero and each inner product has at most ``k`` terms, so Higham's bound of
-    :func:`quad_mul`'s rounding holds as for the dense products (any order of
-    summation); about ten times fewer operations in a Horner step."""
-    if aq.any():
+    """The float products of :func:`quad_mul`: ``c c'``, ``l_a c' + c l'_a``,
+    ``q_p c' + c q'_p`` and the cross products ``l_a l'_b`` as a ``(K, K, n, m)`` array;
+    sparsely (:func:`~ftc_verify.analysis.moments.fast_balls.sparse_left`, same rounding
+    bound) when the left factor has no second-order part and a sparse midpoint (the
+    scaled generator of the Taylor polynomial's Horner steps, the restriction
+    :math:`\\mathcal P`): about ten times fewer operations in a Horner step."""
+    if aq.any() or np.count_nonzero(ac) > SPARSE_SHARE * ac.size:
         return (ac @ bc, np.matmul(al, bc) + np.matmul(ac, bl), np.matmul(aq, bc) + np.matmul(ac, bq),
                 np.matmul(al[:, None], bl[None, :]))
-    n, k = ac.shape
-    m, K, M = bc.shape[1], al.shape[0], bq.shape[0]
-    A = scipy.sparse.csr_matrix(ac)
-    lin = scipy.sparse.csr_matrix(al.reshape(K * n, k))
-
-    def wide(z: Matrix) -> Matrix:  # (S, k, m) -> (k, S m): [z_1 ... z_S]
-        return z.transpose(1, 0, 2).reshape(k, z.shape[0] * m)
-
-    def stack(p: Any, S: int) -> Matrix:  # (n, S m) -> (S, n, m)
-        return np.asarray(p).reshape(n, S, m).transpose(1, 0, 2)
-
-    cl = np.asarray(lin @ bc).reshape(K, n, m) + stack(A @ wide(bl), K)
-    cross = np.asarray(lin @ wide(bl)).reshape(K, n, K, m).transpose(0, 2, 1, 3)
-    return np.asarray(A @ bc), cl, stack(A @ wide(bq), M), cross
+    K = al.shape[0]
+    cc, cl, C, L = sparse_left(ac, al, bc, bl)
+    cross = np.asarray(L @ wide(bl)).reshape(K, ac.shape[0], K, bc.shape[1]).transpose(0, 2, 1, 3)
+    return cc, cl, unwide(C @ wide(bq), bq.shape[0]), cross
 
 
 def quad_mul(x: Quad, y: Quad) -> Quad:
