@@ -23,7 +23,12 @@ which is rounded up by ``_up`` (same lemma). The exponential is that module's on
 :func:`~ftc_verify.analysis.moments.fast_balls.taylor_expm` in this arithmetic
 (:data:`QUADRATIC`): scaling by a power of two so that the norm bound :math:`\nu` of
 every matrix of the set is at most :math:`2^{s - 1}`, Horner's rule with the entrywise
-tail bound, :math:`s` squarings.
+tail bound, :math:`s` squarings. The Horner steps multiply by the scaled generator,
+which has no second-order part and few nonzeros (a sixth at 189 rows): their products
+are formed sparsely (:func:`~ftc_verify.analysis.moments.fast_balls.sparse_left`, the
+same rounding bound), so a step costs a few dense products (the radius) instead of
+:math:`1 + 2K + 2M + K^2` (``M`` the pairs): 0.77 to 0.42 CPU s for ``quad_map`` at
+``K = 6``, 189 rows.
 """
 
 from __future__ import annotations

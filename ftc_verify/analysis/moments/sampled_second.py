@@ -60,6 +60,34 @@ condition reads :math:`\max_\delta (\rho_c + \sum_a \delta_a \partial_a\rho + \t
 :math:`\rho`'s quadratic model over the sub-box, not a vertex bound of :math:`T`'s
 second-order terms. The check of :math:`Y - T Y` is one positive-definiteness proof
 instead of :math:`2^K`.
+
+**Shifted certificate** (derived here; ``shifted=True``, tried first by
+:func:`~ftc_verify.analysis.moments.sampled_taylor.affine_stable`). With the
+Perron-aligned ``b`` the margin :math:`b' - \varphi_{hi} Y_0` is a fraction of
+:math:`v + k I`, nearly singular where a Perron block is (and the identity part of
+:math:`Y_0 = (I - T_c)^{-1}(v + k I)` is not aligned with :math:`v`: on held-out
+``n = 4, m = 3`` loops it made :math:`b' - \varphi_{hi} Y_0` indefinite). Instead take
+:math:`\sigma` with :math:`\rho(T_c) < \sigma < 1` and :math:`(I - T_c / \sigma) Y_0
+= I`, i.e. :math:`Y_0 = \sum_k (T_c / \sigma)^k I \succ 0` (:math:`T_c` is a positive
+map). Then :math:`T_c Y_0 = \sigma (Y_0 - I)` and
+
+.. math::
+
+    b' - \varphi_{hi} Y_0 = Y_0 - T_c Y_0 - \varphi_{hi} Y_0
+    = \sigma I + (1 - \sigma - \varphi_{hi})\, Y_0 \succeq \sigma I
+    \quad \text{when } \sigma \le 1 - \varphi_{hi}:
+
+the remainders are held against :math:`\sigma I`, the whole identity, in every joint
+state. :math:`Y_0` (and with it the remainders, about :math:`|T_r| |Y|` and
+:math:`S(T_a) S(y_p)`) grows like :math:`1 / (\sigma - \rho_c)`, so :math:`\sigma`
+is taken near the largest value allowed, :math:`\sigma = 1 - \varphi_{hi} - k (1 -
+\varphi_{hi} - \rho_c)` with :math:`k =` :data:`SHIFT_BACK`, :math:`\varphi_{hi}` from
+the float :math:`c_a, c_p` of a first Perron-aligned choice (nearly independent of
+:math:`Y_0`: :math:`c_a \approx \partial_a \rho`). All of these are float choices:
+the check above proves whatever they give, with :math:`\varphi_{hi}` recomputed from
+the final :math:`Y_0`. On held-out seed 13, 1 % below the crossing, it proves the
+sub-box of a 16th of every width at the worst vertex where the Perron-aligned one
+needs a 32nd (``benchmarks/results/h31w.md``).
 """
 
 from __future__ import annotations
