@@ -14,7 +14,7 @@ import pytest
 import scipy.optimize
 
 from ftc_verify.analysis.moments import sampled_taylor
-from ftc_verify.analysis.moments.fast_balls import SPARSE_SHARE, aff_mul
+from ftc_verify.analysis.moments.fast_balls import aff_mul, sparse_enough
 from ftc_verify.analysis.moments.quad_balls import pairs, quad_map, quad_mul
 from ftc_verify.analysis.moments.sampled import SampledLoop, rate_points, spectral_radius
 from ftc_verify.analysis.moments.sampled_bracket import worst_vertex
@@ -138,21 +138,21 @@ def test_same_verdicts_in_moved_coordinates(setting: tuple[SampledLoop, float, n
 
 
 def test_sparse_products_give_the_dense_forms(monkeypatch: pytest.MonkeyPatch) -> None:
-    """``aff_mul`` and ``quad_mul`` with a sparse left factor (a tenth nonzero, no
+    """``aff_mul`` and ``quad_mul`` with a sparse left factor (120 rows, a tenth nonzero, no
     second-order part): the same midpoints as the dense products up to their rounding
     (1e-14 relative) and the same radii (same formula); seed 4."""
     rng = np.random.default_rng(4)
-    n, K = 40, 3
+    n, K = 120, 3
     M = len(pairs(K))
     ac = rng.standard_normal((n, n)) * (rng.random((n, n)) < 0.1)
     al = rng.standard_normal((K, n, n)) * (rng.random((K, n, n)) < 0.05)
     x = (ac, al, np.zeros((M, n, n)), np.full((n, n), 1e-12))
     y = (rng.standard_normal((n, n)), rng.standard_normal((K, n, n)), rng.standard_normal((M, n, n)) * 0.1,
          np.full((n, n), 1e-12))
-    assert np.count_nonzero(ac) <= SPARSE_SHARE * ac.size
+    assert sparse_enough(ac)
     sparse = quad_mul(x, y), aff_mul((ac, al, x[3]), (y[0], y[1], y[3]))
-    monkeypatch.setattr("ftc_verify.analysis.moments.fast_balls.SPARSE_SHARE", -1.0)
-    monkeypatch.setattr("ftc_verify.analysis.moments.quad_balls.SPARSE_SHARE", -1.0)
+    monkeypatch.setattr("ftc_verify.analysis.moments.fast_balls.SPARSE_ROWS", 10 ** 9)
+    assert not sparse_enough(ac)
     dense = quad_mul(x, y), aff_mul((ac, al, x[3]), (y[0], y[1], y[3]))
     for s_form, d_form in zip(sparse, dense):
         for s, d in zip(s_form[:-1], d_form[:-1]):

@@ -68,7 +68,7 @@ import scipy.sparse
 from ...model.system import Matrix
 
 __all__ = ["MidRad", "Affine", "ball_expm", "arb_expm", "map_ball", "from_arb", "to_arb", "TAYLOR_TERMS", "aff_mul",
-           "aff_expm", "aff_map", "FormArithmetic", "taylor_expm", "BALLS", "AFFINE", "SPARSE_SHARE", "sparse_left",
+           "aff_expm", "aff_map", "FormArithmetic", "taylor_expm", "BALLS", "AFFINE", "SPARSE_SHARE", "SPARSE_ROWS", "sparse_enough", "sparse_left",
            "wide", "unwide"]
 
 _U = 2.0 ** -53
@@ -263,6 +263,16 @@ def _lin_abs(lin: Matrix) -> Matrix:
 #: steps (a sixth nonzero at 189 rows) and the restriction :math:`\mathcal P`.
 SPARSE_SHARE = 0.25
 
+#: Fewest rows of a left factor formed sparsely (below, the sparse products' overhead
+#: exceeds the dense products: the ``n = 2, m = 2`` loops' 40 rows).
+SPARSE_ROWS = 100
+
+
+def sparse_enough(ac: Matrix) -> bool:
+    """A left factor's midpoint for :func:`sparse_left`: at least :data:`SPARSE_ROWS`
+    rows and at most :data:`SPARSE_SHARE` of its entries nonzero."""
+    return ac.shape[0] >= SPARSE_ROWS and np.count_nonzero(ac) <= SPARSE_SHARE * ac.size
+
 
 def wide(z: Matrix) -> Matrix:
     r"""A stack ``(S, k, m)`` side by side, ``(k, S m)``: :math:`[z_1 \dots z_S]`."""
@@ -297,7 +307,7 @@ def aff_mul(a: Affine, b: Affine) -> Affine:
     is."""
     (ac, al, ar), (bc, bl, br) = a, b
     k, K = ac.shape[1], al.shape[0]
-    if np.count_nonzero(ac) <= SPARSE_SHARE * ac.size:
+    if sparse_enough(ac):
         cc, cl = sparse_left(ac, al, bc, bl)[:2]
     else:
         cc = ac @ bc

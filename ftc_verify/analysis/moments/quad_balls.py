@@ -36,7 +36,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...model.system import Matrix
-from .fast_balls import SPARSE_SHARE, TAYLOR_TERMS, FormArithmetic, MidRad, sparse_left, taylor_expm, unwide, wide
+from .fast_balls import TAYLOR_TERMS, FormArithmetic, MidRad, sparse_enough, sparse_left, taylor_expm, unwide, wide
 
 __all__ = ["Quad", "QUADRATIC", "pairs", "quad_mul", "quad_expm", "quad_map"]
 
@@ -71,7 +71,7 @@ def _products(ac: Matrix, al: Matrix, aq: Matrix, bc: Matrix, bl: Matrix,
     bound) when the left factor has no second-order part and a sparse midpoint (the
     scaled generator of the Taylor polynomial's Horner steps, the restriction
     :math:`\\mathcal P`): about ten times fewer operations in a Horner step."""
-    if aq.any() or np.count_nonzero(ac) > SPARSE_SHARE * ac.size:
+    if aq.any() or not sparse_enough(ac):
         return (ac @ bc, np.matmul(al, bc) + np.matmul(ac, bl), np.matmul(aq, bc) + np.matmul(ac, bq),
                 np.matmul(al[:, None], bl[None, :]))
     K = al.shape[0]

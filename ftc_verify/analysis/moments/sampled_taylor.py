@@ -362,14 +362,12 @@ def affine_stable(loop: SampledLoop, parts: Any, lo: Matrix, hi: Matrix) -> bool
         form = (aff[0], aff[1], np.zeros((0,) + aff[0].shape), aff[2])
     from .sampled_second import certify_second_order
 
-    if certify_second_order(loop, form, shifted=True):
-        return True
     for mix in RHS_MIXES:
         if certify_second_order(loop, form, mix):
             return True
         if _certify(loop, form, pairs(K) if form[2].shape[0] else (), mix):
             return True
-    return False
+    return certify_second_order(loop, form, shifted=True)
 
 
 def _certify(loop: SampledLoop, form: tuple[Matrix, Matrix, Matrix, Matrix], prs: Sequence[tuple[int, int]],
