@@ -271,7 +271,7 @@ SPARSE_ROWS = 100
 def sparse_enough(ac: Matrix) -> bool:
     """A left factor's midpoint for :func:`sparse_left`: at least :data:`SPARSE_ROWS`
     rows and at most :data:`SPARSE_SHARE` of its entries nonzero."""
-    return ac.shape[0] >= SPARSE_ROWS and np.count_nonzero(ac) <= SPARSE_SHARE * ac.size
+    return bool(ac.shape[0] >= SPARSE_ROWS and np.count_nonzero(ac) <= SPARSE_SHARE * ac.size)
 
 
 def wide(z: Matrix) -> Matrix:
