@@ -26,7 +26,8 @@ nearest and then inflated so that they bound the exact radius formula.
   :math:`C_c = fl(A_c B_c)` in any order,
   :math:`|C_c - A_c B_c| \le \gamma_k |A_c||B_c| + k\eta` with
   :math:`\gamma_k = k u / (1 - k u) \le 1.01\, k u` (Higham, *Accuracy and Stability*,
-  Lemma 3.1 and section 3.5), and
+  Lemma 3.1 and section 3.5; also for a sparse product that skips exact zeros,
+  :func:`sparse_left`: fewer terms, fewer roundings), and
   :math:`|\tilde A \tilde B - A_c B_c| \le |A_c| B_r + A_r (|B_c| + B_r)`, so
   :math:`C_r = |A_c| (1.01 k u |B_c| + B_r) + A_r (|B_c| + B_r)`, evaluated with at most
   :math:`k + 4` roundings on each path and bounded by ``_up`` (plus :math:`k\eta`).
