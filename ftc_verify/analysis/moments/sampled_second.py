@@ -104,7 +104,7 @@ from .quad_balls import pairs
 from .sampled import SampledLoop
 from .sampled_taylor import float_choices, float_pd, left_perron, stack_pd
 
-__all__ = ["quadratic_max", "second_order_choices", "certify_second_order"]
+__all__ = ["quadratic_max", "second_order_choices", "certify_second_order", "SHIFT_BACK"]
 
 _U = 2.0 ** -53
 _ETA = 2.0 ** -1022
