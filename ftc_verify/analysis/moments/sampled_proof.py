@@ -61,7 +61,7 @@ is at most :data:`~ftc_verify.analysis.moments.sampled_taylor.QUADRATIC_SIZE`, s
 rates at 189 rows included, :mod:`~ftc_verify.analysis.moments.quad_balls`; affine
 above, :func:`~ftc_verify.analysis.moments.fast_balls.aff_expm`) with a certificate that moves
 with the rates (:func:`~ftc_verify.analysis.moments.sampled_taylor.affine_stable`; the
-shifted one of :mod:`~ftc_verify.analysis.moments.sampled_second` first): the
+shifted one of :mod:`~ftc_verify.analysis.moments.sampled_second` last): the
 rates stay symbols through the exponential, so a transfer of mass between joint states
 is not wrapped into independent entrywise balls, and the sub-boxes need only be about
 :math:`\sqrt{\epsilon}` (second order: :math:`\epsilon^{1/3}`) wide where the margin is

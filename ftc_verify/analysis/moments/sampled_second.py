@@ -61,15 +61,16 @@ condition reads :math:`\max_\delta (\rho_c + \sum_a \delta_a \partial_a\rho + \t
 second-order terms. The check of :math:`Y - T Y` is one positive-definiteness proof
 instead of :math:`2^K`.
 
-**Shifted certificate** (derived here; ``shifted=True``, tried first by
-:func:`~ftc_verify.analysis.moments.sampled_taylor.affine_stable`). With the
+**Shifted certificate** (derived here; ``shifted=True``, tried last by
+:func:`~ftc_verify.analysis.moments.sampled_taylor.affine_stable`, after the ``b`` of
+:data:`~ftc_verify.analysis.moments.sampled_taylor.RHS_MIXES`). With the
 Perron-aligned ``b`` the margin :math:`b' - \varphi_{hi} Y_0` is a fraction of
 :math:`v + k I`, nearly singular where a Perron block is (and the identity part of
 :math:`Y_0 = (I - T_c)^{-1}(v + k I)` is not aligned with :math:`v`: on held-out
 ``n = 4, m = 3`` loops it made :math:`b' - \varphi_{hi} Y_0` indefinite). Instead take
 :math:`\sigma` with :math:`\rho(T_c) < \sigma < 1` and :math:`(I - T_c / \sigma) Y_0
-= I`, i.e. :math:`Y_0 = \sum_k (T_c / \sigma)^k I \succ 0` (:math:`T_c` is a positive
-map). Then :math:`T_c Y_0 = \sigma (Y_0 - I)` and
+= I`, i.e. :math:`Y_0 = \sum_k (T_c / \sigma)^k I \succ 0` when :math:`T_c` is a positive
+map (the exact :math:`T` is; :math:`Y_0` is a float choice, proved positive below). Then :math:`T_c Y_0 = \sigma (Y_0 - I)` and
 
 .. math::
 

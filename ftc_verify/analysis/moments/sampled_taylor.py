@@ -101,7 +101,7 @@ AFFINE_RATES = 10
 #: Largest ``K^2`` times the moment generator's rows for which the second-order forms of
 #: :mod:`~ftc_verify.analysis.moments.quad_balls` are used (above it the affine forms):
 #: ``K = 6`` free rates at 189 rows (random ``n = 4, m = 3`` loops), where a sub-box
-#: proof costs about 2.7 times the affine one and proves sub-boxes 2-4 times wider per
+#: proof costs about 3 times the affine one and proves sub-boxes 2-8 times wider per
 #: rate near the crossing (``benchmarks/results/h31w.md``).
 QUADRATIC_SIZE = 8000
 
