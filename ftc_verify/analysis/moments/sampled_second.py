@@ -70,7 +70,8 @@ Perron-aligned ``b`` the margin :math:`b' - \varphi_{hi} Y_0` is a fraction of
 ``n = 4, m = 3`` loops it made :math:`b' - \varphi_{hi} Y_0` indefinite). Instead take
 :math:`\sigma` with :math:`\rho(T_c) < \sigma < 1` and :math:`(I - T_c / \sigma) Y_0
 = I`, i.e. :math:`Y_0 = \sum_k (T_c / \sigma)^k I \succ 0` when :math:`T_c` is a positive
-map (the exact :math:`T` is; :math:`Y_0` is a float choice, proved positive below). Then :math:`T_c Y_0 = \sigma (Y_0 - I)` and
+map (the exact :math:`T` is; :math:`Y_0` is a float choice, proved positive below).
+Then :math:`T_c Y_0 = \sigma (Y_0 - I)` and
 
 .. math::
 
