@@ -23,16 +23,20 @@ which is rounded up by ``_up`` (same lemma). The exponential is that module's on
 :func:`~ftc_verify.analysis.moments.fast_balls.taylor_expm` in this arithmetic
 (:data:`QUADRATIC`): scaling by a power of two so that the norm bound :math:`\nu` of
 every matrix of the set is at most :math:`2^{s - 1}`, Horner's rule with the entrywise
-tail bound, :math:`s` squarings.
+tail bound, :math:`s` squarings. The Horner steps multiply by the scaled generator,
+which has no second-order part and few nonzeros (a sixth at 189 rows): their products
+are formed sparsely (:func:`~ftc_verify.analysis.moments.fast_balls.sparse_left`, the
+same rounding bound), so a step costs a few dense products (the radius) instead of
+:math:`1 + 2K + 2M + K^2` (``M`` the pairs): 0.77 to 0.42 CPU s for ``quad_map`` at
+``K = 6``, 189 rows.
 """
 
 from __future__ import annotations
 
-
 import numpy as np
 
 from ...model.system import Matrix
-from .fast_balls import TAYLOR_TERMS, FormArithmetic, MidRad, taylor_expm
+from .fast_balls import TAYLOR_TERMS, FormArithmetic, MidRad, sparse_enough, sparse_left, taylor_expm, unwide, wide
 
 __all__ = ["Quad", "QUADRATIC", "pairs", "quad_mul", "quad_expm", "quad_map"]
 
@@ -59,14 +63,28 @@ def _sum_abs(x: Matrix) -> Matrix:
     return _up(np.abs(x).sum(axis=0), x.shape[0] + 1) if x.shape[0] else np.zeros(x.shape[1:])
 
 
+def _products(ac: Matrix, al: Matrix, aq: Matrix, bc: Matrix, bl: Matrix,
+              bq: Matrix) -> tuple[Matrix, Matrix, Matrix, Matrix]:
+    """The float products of :func:`quad_mul`: ``c c'``, ``l_a c' + c l'_a``,
+    ``q_p c' + c q'_p`` and the cross products ``l_a l'_b`` as a ``(K, K, n, m)`` array;
+    sparsely (:func:`~ftc_verify.analysis.moments.fast_balls.sparse_left`, same rounding
+    bound) when the left factor has no second-order part and a sparse midpoint (the
+    scaled generator of the Taylor polynomial's Horner steps, the restriction
+    :math:`\\mathcal P`): about ten times fewer operations in a Horner step."""
+    if aq.any() or not sparse_enough(ac):
+        return (ac @ bc, np.matmul(al, bc) + np.matmul(ac, bl), np.matmul(aq, bc) + np.matmul(ac, bq),
+                np.matmul(al[:, None], bl[None, :]))
+    K = al.shape[0]
+    cc, cl, C, L = sparse_left(ac, al, bc, bl)
+    cross = np.asarray(L @ wide(bl)).reshape(K, ac.shape[0], K, bc.shape[1]).transpose(0, 2, 1, 3)
+    return cc, cl, unwide(C @ wide(bq), bq.shape[0]), cross
+
+
 def quad_mul(x: Quad, y: Quad) -> Quad:
     """The product of two second-order forms over the same symbols (module docstring)."""
     (ac, al, aq, ar), (bc, bl, bq, br) = x, y
     k, K = ac.shape[1], al.shape[0]
-    cc = ac @ bc
-    cl = np.matmul(al, bc) + np.matmul(ac, bl)
-    cq = np.matmul(aq, bc) + np.matmul(ac, bq)
-    cross = np.matmul(al[:, None], bl[None, :])  # (K, K, n, m): l_a l'_b
+    cc, cl, cq, cross = _products(ac, al, aq, bc, bl, bq)
     terms = [cross[a, b] + cross[b, a] if a != b else cross[a, a] for a, b in pairs(K)]
     if terms:
         cq = cq + np.stack(terms)

@@ -60,6 +60,36 @@ condition reads :math:`\max_\delta (\rho_c + \sum_a \delta_a \partial_a\rho + \t
 :math:`\rho`'s quadratic model over the sub-box, not a vertex bound of :math:`T`'s
 second-order terms. The check of :math:`Y - T Y` is one positive-definiteness proof
 instead of :math:`2^K`.
+
+**Shifted certificate** (derived here; ``shifted=True``, tried last by
+:func:`~ftc_verify.analysis.moments.sampled_taylor.affine_stable`, after the ``b`` of
+:data:`~ftc_verify.analysis.moments.sampled_taylor.RHS_MIXES`). With the
+Perron-aligned ``b`` the margin :math:`b' - \varphi_{hi} Y_0` is a fraction of
+:math:`v + k I`, nearly singular where a Perron block is (and the identity part of
+:math:`Y_0 = (I - T_c)^{-1}(v + k I)` is not aligned with :math:`v`: on held-out
+``n = 4, m = 3`` loops it made :math:`b' - \varphi_{hi} Y_0` indefinite). Instead take
+:math:`\sigma` with :math:`\rho(T_c) < \sigma < 1` and :math:`(I - T_c / \sigma) Y_0
+= I`, i.e. :math:`Y_0 = \sum_k (T_c / \sigma)^k I \succ 0` when :math:`T_c` is a positive
+map (the exact :math:`T` is; :math:`Y_0` is a float choice, proved positive below).
+Then :math:`T_c Y_0 = \sigma (Y_0 - I)` and
+
+.. math::
+
+    b' - \varphi_{hi} Y_0 = Y_0 - T_c Y_0 - \varphi_{hi} Y_0
+    = \sigma I + (1 - \sigma - \varphi_{hi})\, Y_0 \succeq \sigma I
+    \quad \text{when } \sigma \le 1 - \varphi_{hi}:
+
+the remainders are held against :math:`\sigma I`, the whole identity, in every joint
+state. :math:`Y_0` (and with it the remainders, about :math:`|T_r| |Y|` and
+:math:`S(T_a) S(y_p)`) grows like :math:`1 / (\sigma - \rho_c)`, so :math:`\sigma`
+is taken near the largest value allowed, :math:`\sigma = 1 - \varphi_{hi} - k (1 -
+\varphi_{hi} - \rho_c)` with :math:`k =` :data:`SHIFT_BACK`, :math:`\varphi_{hi}` from
+the float :math:`c_a, c_p` of a first Perron-aligned choice (nearly independent of
+:math:`Y_0`: :math:`c_a \approx \partial_a \rho`). All of these are float choices:
+the check above proves whatever they give, with :math:`\varphi_{hi}` recomputed from
+the final :math:`Y_0`. On held-out seed 13, 1 % below the crossing, it proves the
+sub-box of a 16th of every width at the worst vertex where the Perron-aligned one
+needs a 32nd (``benchmarks/results/h31w.md``).
 """
 
 from __future__ import annotations
@@ -76,7 +106,7 @@ from .quad_balls import pairs
 from .sampled import SampledLoop
 from .sampled_taylor import float_choices, float_pd, left_perron, stack_pd
 
-__all__ = ["quadratic_max", "second_order_choices", "certify_second_order"]
+__all__ = ["quadratic_max", "second_order_choices", "certify_second_order", "SHIFT_BACK"]
 
 _U = 2.0 ** -53
 _ETA = 2.0 ** -1022
@@ -171,13 +201,50 @@ def second_order_choices(Tc: Matrix, Tl: Matrix, Tq: Matrix, Y0: Matrix, Yl: Mat
     return np.asarray(ys, dtype=np.float64), np.asarray(cs, dtype=np.float64)
 
 
-def certify_second_order(loop: SampledLoop, form: tuple[Matrix, ...], mix: float | None = None) -> bool:
-    """``True`` only if :math:`\\rho(T(\\delta)) < 1` is proved for every
-    :math:`\\delta \\in [-1, 1]^K` of the form ``form`` (``(Tc, Tl, Tq, Tr)`` with ``Tq``
+#: Where the shifted certificate puts :math:`\sigma` (:func:`certify_second_order`):
+#: :math:`\sigma = 1 - \varphi_{hi} - k (1 - \varphi_{hi} - \rho_c)`, this ``k``.
+SHIFT_BACK = 0.05
+
+
+def _certificate(Tc: Matrix, Tl: Matrix, Tq: Matrix, S: int, r: int, mix: float | None,
+                 sigma: float | None) -> tuple[Matrix, Matrix, Matrix, Matrix, Matrix] | None:
+    """``(Y0, Yl, Yq, cq, w)``: the float choices of the module docstring
+    (:func:`~ftc_verify.analysis.moments.sampled_taylor.float_choices` with ``mix`` or
+    ``sigma``, :func:`second_order_choices`); ``None`` when a solve fails."""
+    choice = float_choices(Tc, list(Tl), S, r, mix, sigma)
+    w = left_perron(Tc)
+    if choice is None or w is None:
+        return None
+    Y0, ys = choice
+    Yl = np.stack(ys)
+    second = second_order_choices(Tc, Tl, Tq, Y0, Yl, w)
+    return None if second is None else (Y0, Yl, second[0], second[1], w)
+
+
+def _shift(Tc: Matrix, Tl: Matrix, Y0: Matrix, cq: Matrix, w: Matrix) -> float | None:
+    r""":math:`\sigma` of the shifted certificate (:func:`certify_second_order`) from a
+    first float certificate: :math:`\varphi_{hi}` of its :math:`c_a \approx \langle w,
+    T_a Y_0\rangle / \langle w, Y_0\rangle` and :math:`c_p` (both float estimates, nearly
+    independent of :math:`Y_0`), :math:`\rho_c` the float spectral radius of
+    :math:`T_c`; ``None`` when :math:`\rho_c + \varphi_{hi} \ge 1` (the quadratic
+    model of :math:`\rho` reaches 1: no certificate)."""
+    ca = (Tl @ Y0) @ w / float(w @ Y0)
+    phi = quadratic_max(ca, cq)
+    rho = float(np.max(np.abs(np.linalg.eigvals(Tc))))
+    gap = 1.0 - phi - rho
+    return 1.0 - phi - SHIFT_BACK * gap if gap > 0 and math.isfinite(gap) else None
+
+
+def certify_second_order(loop: SampledLoop, form: tuple[Matrix, ...], mix: float | None = None,
+                         shifted: bool = False) -> bool:
+    r"""``True`` only if :math:`\rho(T(\delta)) < 1` is proved for every
+    :math:`\delta \in [-1, 1]^K` of the form ``form`` (``(Tc, Tl, Tq, Tr)`` with ``Tq``
     over :func:`~ftc_verify.analysis.moments.quad_balls.pairs`, or an affine
     ``(Tc, Tl, Tr)``) by the certificate and check of the module docstring; ``mix``
     chooses the right-hand side ``b``
-    (:func:`~ftc_verify.analysis.moments.sampled_taylor.float_choices`)."""
+    (:func:`~ftc_verify.analysis.moments.sampled_taylor.float_choices`); ``shifted``:
+    :math:`Y_0` from :math:`(I - T_c / \sigma) Y_0 = I` instead, :math:`\sigma` just
+    below :math:`1 - \varphi_{hi}` (module docstring, *Shifted certificate*)."""
     if len(form) == 3:
         Tc, Tl, Tr = form
         Tq = np.zeros((0,) + Tc.shape)
@@ -186,16 +253,13 @@ def certify_second_order(loop: SampledLoop, form: tuple[Matrix, ...], mix: float
     S, r, N, K = loop.states, loop.r, Tc.shape[0], Tl.shape[0]
     prs = pairs(K)
     M = len(prs)
-    choice = float_choices(Tc, list(Tl), S, r, mix)
-    w = left_perron(Tc)
-    if choice is None or w is None:
+    cert = _certificate(Tc, Tl, Tq, S, r, mix, None)
+    if cert is not None and shifted:
+        sigma = _shift(Tc, Tl, cert[0], cert[3], cert[4])
+        cert = None if sigma is None else _certificate(Tc, Tl, Tq, S, r, None, sigma)
+    if cert is None:
         return False
-    Y0, ys = choice
-    Yl = np.stack(ys)
-    second = second_order_choices(Tc, Tl, Tq, Y0, Yl, w)
-    if second is None:
-        return False
-    Yq, cq = second
+    Y0, Yl, Yq, cq, w = cert
     u = _U
     aTc, aY0, aYl, aYq = np.abs(Tc), np.abs(Y0), np.abs(Yl), np.abs(Yq)
     sTl, sYl, sYq = (_up(np.abs(x).sum(axis=0), x.shape[0] + 1) for x in (Tl, Yl, Yq))

@@ -99,9 +99,11 @@ FIRST_ORDER_LIMIT = 256
 AFFINE_RATES = 10
 
 #: Largest ``K^2`` times the moment generator's rows for which the second-order forms of
-#: :mod:`~ftc_verify.analysis.moments.quad_balls` are used (their products cost about
-#: ``K^2`` matrix products; above it the affine forms).
-QUADRATIC_SIZE = 1000
+#: :mod:`~ftc_verify.analysis.moments.quad_balls` are used (above it the affine forms):
+#: ``K = 6`` free rates at 189 rows (random ``n = 4, m = 3`` loops), where a sub-box
+#: proof costs about 3 times the affine one and proves sub-boxes 2-8 times wider per
+#: rate near the crossing (``benchmarks/results/h31w.md``).
+QUADRATIC_SIZE = 8000
 
 
 def _flint() -> Any:
@@ -199,25 +201,33 @@ def right_perron(T: Matrix) -> Matrix | None:
 RHS_MIXES: tuple[float | None, ...] = (None, 0.05)
 
 
-def float_choices(T0: Matrix, J0: list[Matrix], states: int, r: int,
-                   mix: float | None = None) -> tuple[Matrix, list[Matrix]] | None:
+def float_choices(T0: Matrix, J0: list[Matrix], states: int, r: int, mix: float | None = None,
+                  sigma: float | None = None) -> tuple[Matrix, list[Matrix]] | None:
     r"""``(Y_0, [y_a])`` of the module docstring in float64 (``None`` when a solve fails),
     with :math:`(I - T_0) Y_0 = b`: ``b`` the identity stack (``mix`` ``None``) or the
     right Perron stack :math:`v` of :math:`T_0` plus ``mix`` times the identity stack --
     then :math:`Y_0 - T_0 Y_0 \approx v + k I` is aligned with :math:`Y_0 \approx v /
     (1 - \rho)`, and the vertex condition :math:`b - s Y_0 \succ 0` holds up to
     :math:`s \approx 1 - \rho` (with the identity, only up to :math:`1 / \lambda_{max}`
-    of :math:`Y_0`'s blocks, far less when a Perron block is anisotropic)."""
+    of :math:`Y_0`'s blocks, far less when a Perron block is anisotropic). With ``sigma``
+    (:math:`\rho(T_0) < \sigma < 1`; ``mix`` is then ignored) instead
+    :math:`(I - T_0 / \sigma) Y_0 = I`: :math:`Y_0 = \sum_k (T_0/\sigma)^k I \succ 0`
+    and :math:`Y_0 - T_0 Y_0 - s Y_0 = \sigma I + (1 - \sigma - s) Y_0`, positive
+    definite for every :math:`s \le 1 - \sigma`
+    (:func:`~ftc_verify.analysis.moments.sampled_second.certify_second_order` takes
+    :math:`\sigma` just below :math:`1 - s` for the :math:`s` it needs)."""
     N = T0.shape[0]
     A = np.eye(N) - T0
-    rhs = identity_stack(states, r)
-    if mix is not None:
+    rhs, lhs = identity_stack(states, r), A
+    if sigma is not None:
+        lhs = np.eye(N) - T0 / sigma
+    elif mix is not None:
         v = right_perron(T0)
         if v is None:
             return None
         rhs = v + mix * rhs
     try:
-        y0 = np.linalg.solve(A, rhs)
+        y0 = np.linalg.solve(lhs, rhs)
     except np.linalg.LinAlgError:
         return None
     w = left_perron(T0)
@@ -357,7 +367,7 @@ def affine_stable(loop: SampledLoop, parts: Any, lo: Matrix, hi: Matrix) -> bool
             return True
         if _certify(loop, form, pairs(K) if form[2].shape[0] else (), mix):
             return True
-    return False
+    return certify_second_order(loop, form, shifted=True)
 
 
 def _certify(loop: SampledLoop, form: tuple[Matrix, Matrix, Matrix, Matrix], prs: Sequence[tuple[int, int]],
