@@ -272,9 +272,8 @@ def _proved_ratio(loop: ClosedLoop, deltas: dict[str, Matrix], sim: Similarity, 
     import flint
 
     n, S = loop.n, len(loop.A)
-    size = S * n * (n + 1) // 2
-    if size > SOLVE_LIMIT or 2 * S * n > SOLVE_LIMIT:
-        return None, f"not proved: the moment equations ({size} rows) exceed the ball-arithmetic limit ({SOLVE_LIMIT})"
+    if not within_solve_limit(loop):
+        return None, _too_large(loop)
     literals = literals_of(loop)
     made: dict[int, ClosedLoop] = {}
 
@@ -293,12 +292,10 @@ def _proved_ratio(loop: ClosedLoop, deltas: dict[str, Matrix], sim: Similarity, 
         return tuple(a + b @ ball(f) for a, b, f in zip(A, ball_matrices(exact.Bw), F))
 
     with precision(bits):
-        At = enclosures()
-        exact = exact_here()
-        Bw = ball_matrices(exact.Bw)
-        Cz = ball_matrices(exact.Cz)
+        exact, original = exact_here(), enclosures()
+        At, Bw, Cz, Fb = _conditioned(sim, original, ball_matrices(exact.Bw), ball_matrices(exact.Cz), F)
         q = ball_generator(loop.chain, rates, literals)
-    float_loop = replace(loop.nominal(), A=tuple(midpoint(a) for a in At), source=None)
+    float_loop = replace(loop.nominal(), A=tuple(midpoint(a) for a in original), source=None)
     prover = StabilityProver.for_matrices(float_loop, sim, enclosures)
     verdict = prover.certify(rates)
     if verdict.verdict != "stable":
@@ -335,14 +332,37 @@ def _proved_ratio(loop: ClosedLoop, deltas: dict[str, Matrix], sim: Similarity, 
         D = weight * (eb.T @ eb).value[0, 0]
         for s in range(S):
             N += sum((Cz[s] @ X[s] @ Cz[s].T).value[k, k] for k in range(Cz[s].shape[0]))
-            Fb = ball(F[s])
-            D += sum((Fb @ X[s] @ Fb.T).value[k, k] for k in range(Fb.shape[0]))
-            D += 2 * weight * (eb.T @ Fb @ Mr[s]).value[0, 0]
+            D += sum((Fb[s] @ X[s] @ Fb[s].T).value[k, k] for k in range(Fb[s].shape[0]))
+            D += 2 * weight * (eb.T @ Fb[s] @ Mr[s]).value[0, 0]
         if not (D > 0 and N >= 0):
             return None, "not proved: the energy rates could not be enclosed"
         ratio = (N / D).sqrt()
         return float(ratio.lower()), (f"w = F x + e cos({omega:.6g} t): its stationary energy ratio enclosed "
                                       f"({how}), the feedback loop proved mean-square stable")
+
+
+def _too_large(loop: ClosedLoop) -> str:
+    """Why no bound is computed above :data:`~ftc_verify.analysis.verdict.SOLVE_LIMIT` rows."""
+    size = len(loop.A) * loop.n * (loop.n + 1) // 2
+    return f"not computed: the moment equations ({size} rows) exceed the ball-arithmetic limit ({SOLVE_LIMIT})"
+
+
+def _conditioned(sim: Similarity, At: Sequence[Ball], Bw: Sequence[Ball], Cz: Sequence[Ball],
+                 F: Sequence[Matrix]) -> tuple[list[Ball], list[Ball], list[Ball], list[Ball]]:
+    r"""The feedback loop's balls in the coordinates :math:`\tilde x = S x`, :math:`S` the float
+    ``sim.T_inv`` taken exact and :math:`T` a ball enclosing its exact inverse (FLINT):
+    :math:`S A_s T`, :math:`S B_{w,s}`, :math:`C_{z,s} T`, :math:`F_s T`. They enclose an exact
+    similarity of the loop as written, so the moments and energy rates computed from them are
+    the loop's (:math:`\tilde X = S X S^T`, :math:`N` and :math:`D` unchanged); the
+    residual proof and the solves then run well-conditioned. The original coordinates when
+    :math:`S` is not proved invertible. Call inside a precision block."""
+    Sb = ball(sim.T_inv)
+    try:
+        Tb = Ball(Sb.value.inv())
+    except (ZeroDivisionError, ValueError):
+        Sb = Tb = ball(np.eye(At[0].shape[0]))
+    return ([Sb @ a @ Tb for a in At], [Sb @ b for b in Bw], [c @ Tb for c in Cz],
+            [ball(np.asarray(f, dtype=float)) @ Tb for f in F])
 
 
 def _residual_moments(At: Sequence[Ball], q: list[list[Any]], G: Sequence[Ball], Q: Matrix) -> list[Ball] | None:
@@ -481,8 +501,15 @@ def within_solve_limit(loop: ClosedLoop) -> bool:
     return len(loop.A) * loop.n * (loop.n + 1) // 2 <= SOLVE_LIMIT and 2 * len(loop.A) * loop.n <= SOLVE_LIMIT
 
 
+def _unbounded(loop: ClosedLoop, label: str, why: str, start: float) -> GainLowerBound:
+    """A bound not computed, and ``why`` (``value`` ``None``, the float values ``nan``)."""
+    centre = 0.5 * np.add(*written_box(loop.chain.rate_min, loop.chain.rate_max))
+    return GainLowerBound(None, math.nan, math.nan, centre, label, math.nan, np.zeros((loop.Bw[0].shape[1], 1)),
+                          (), why, time.perf_counter() - start)
+
+
 def gain_lower_bound(loop: ClosedLoop, *, deltas: Sequence[tuple[str, dict[str, Matrix]]] = (("Delta=0", {}),),
-                     worst_rates: Matrix | None = None, upper: float | None = None) -> GainLowerBound | None:
+                     worst_rates: Matrix | None = None, upper: float | None = None) -> GainLowerBound:
     """The proved lower bound of the worst-case gain of ``loop`` (module docstring).
 
     Each candidate rate vector and constant uncertainty of ``deltas`` (a label and
@@ -491,49 +518,58 @@ def gain_lower_bound(loop: ClosedLoop, *, deltas: Sequence[tuple[str, dict[str, 
     every candidate's gain) and its best excitation; the candidate of the largest float
     ratio is kept, its feedback refined by bisection on the gain (to
     :data:`REFINE_RTOL`), and its ratio proved. Without ``upper``, each candidate's
-    gain is found by bisection. ``None`` when no candidate loop is mean-square stable, or
-    when the moment equations are above :data:`~ftc_verify.analysis.verdict.SOLVE_LIMIT`
-    rows (no proof would fit: nothing is computed)."""
+    gain is found by bisection. The search runs in the coordinates of
+    :func:`~ftc_verify.analysis.conditioning.conditioning_transform` (its feedback mapped
+    back, :math:`F = \tilde F T^{-1}`). ``value`` is ``None`` and ``method`` says why when no
+    candidate loop is mean-square stable, or when the moment equations are above
+    :data:`~ftc_verify.analysis.verdict.SOLVE_LIMIT` rows (no proof would fit: nothing is
+    computed)."""
     start = time.perf_counter()
-    nominal = loop.nominal()
+    label0 = deltas[0][0] if deltas else "Delta=0"
     if not within_solve_limit(loop):
-        return None
+        return _unbounded(loop, label0, _too_large(loop), start)
+    search = conditioning_transform(loop)
+    work = search.apply(loop)  # the float search, in well-conditioned coordinates
+    nominal = work.nominal()
     gamma_f = None if upper is None else upper * ABOVE_CERTIFIED
     best: tuple[float, str, dict[str, Matrix], Matrix, tuple[Matrix, ...], float, Matrix, float, Matrix] | None = None
     for label, delta in deltas:
-        A = loop.perturbed(delta) if delta else nominal.A
+        A = work.perturbed(delta) if delta else nominal.A
         for rates in _candidate_rates(loop, worst_rates):
             Q = loop.chain.generator(rates)
             pi = _stationary(Q)
             if pi is None:
                 continue
             if gamma_f is None:
-                found = float_gain(A, loop.Bw, loop.Cz, Q)
+                found = float_gain(A, work.Bw, work.Cz, Q)
                 if found is None:
                     continue
                 g, F = found
             else:
-                F_or_none = worst_case_feedback(A, loop.Bw, loop.Cz, Q, gamma_f)
+                F_or_none = worst_case_feedback(A, work.Bw, work.Cz, Q, gamma_f)
                 if F_or_none is None:
                     continue
                 g, F = gamma_f, F_or_none
-            At = [a + b @ f for a, b, f in zip(A, loop.Bw, F)]
-            ratio, omega, e = best_excitation(At, loop.Bw, loop.Cz, F, Q, pi)
+            At = [a + b @ f for a, b, f in zip(A, work.Bw, F)]
+            ratio, omega, e = best_excitation(At, work.Bw, work.Cz, F, Q, pi)
             if best is None or ratio > best[0]:
                 best = (ratio, label, delta, rates, F, g, pi, omega, e)
     if best is None:
-        return None
+        return _unbounded(loop, label0, "not computed: no candidate rate vector gave a mean-square stable loop "
+                          "with a worst-case feedback" + ("" if gamma_f is None else f" at gamma {gamma_f:.6g}"), start)
     ratio, label, delta, rates, F, g, pi, omega, e = best
-    A = loop.perturbed(delta) if delta else nominal.A
+    A = work.perturbed(delta) if delta else nominal.A
     Q = loop.chain.generator(rates)
     if gamma_f is not None:
-        found = float_gain(A, loop.Bw, loop.Cz, Q, upper=gamma_f, rtol=REFINE_RTOL)
+        found = float_gain(A, work.Bw, work.Cz, Q, upper=gamma_f, rtol=REFINE_RTOL)
         if found is not None:
             g, F = found
-            At = [a + b @ f for a, b, f in zip(A, loop.Bw, F)]
-            ratio, omega, e = best_excitation(At, loop.Bw, loop.Cz, F, Q, pi)
-    At = [a + b @ f for a, b, f in zip(A, loop.Bw, F)]
+            At = [a + b @ f for a, b, f in zip(A, work.Bw, F)]
+            ratio, omega, e = best_excitation(At, work.Bw, work.Cz, F, Q, pi)
+    At = [a + b @ f for a, b, f in zip(A, work.Bw, F)]
     estimate = math.sqrt(max(ratio, 0.0))
-    sim = conditioning_transform(replace(nominal, A=tuple(At), source=None))
+    inner = conditioning_transform(replace(nominal, A=tuple(At), source=None))  # of the feedback loop, composed
+    sim = Similarity(search.T @ inner.T, inner.T_inv @ search.T_inv, search.steps + inner.steps)
+    F = tuple(f @ search.T_inv for f in F)  # w = F~ x~ = F~ T^-1 x: the feedback in the user's coordinates
     value, method = _proved_ratio(loop, delta, sim, F, rates, omega, e)
-    return GainLowerBound(value, estimate, g, rates, label, omega, e, tuple(F), method, time.perf_counter() - start)
+    return GainLowerBound(value, estimate, g, rates, label, omega, e, F, method, time.perf_counter() - start)
