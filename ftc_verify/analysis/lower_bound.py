@@ -51,19 +51,25 @@ is the best of :math:`\omega = 0` and the imaginary parts of the rightmost eigen
 :math:`\tilde{\mathcal A}`; :math:`e` is the top generalised eigenvector of the two
 quadratic forms :math:`N(e)`, :math:`D(e)` (:mod:`~ftc_verify.analysis.excitation`).
 The rate vector is the best of the box's centre, its lowest and highest rates and the
-worst spectral-abscissa vertex. The constant :math:`\Delta` of the robust bound, and its
-:math:`\gamma_F`, come from :mod:`~ftc_verify.analysis.worst_delta`.
+worst spectral-abscissa vertex (:mod:`~ftc_verify.analysis.rate_candidates`). The constant
+:math:`\Delta` of the robust bound, and its :math:`\gamma_F`, come from
+:mod:`~ftc_verify.analysis.worst_delta`. This search runs in the coordinates :math:`x = T\tilde x`
+of :func:`~ftc_verify.analysis.conditioning.conditioning_transform` (its feedback :math:`\tilde F`
+used as :math:`F = \tilde F T^{-1}`): the ratio is invariant under a similarity, the float search is not.
 
 **The proof.** :math:`F`, :math:`e`, :math:`\omega`, :math:`\rho` are floats taken as
 exact; the loop is :func:`~ftc_verify.analysis.exact.exact_loop` (the numbers the user
 wrote) plus :math:`B_{w,s}F_s` in ball arithmetic; :math:`\tilde{\mathcal L}` is proved
-stable (:class:`~ftc_verify.analysis.verdict.StabilityProver`); :math:`\pi` and :math:`M`
-are enclosed by FLINT's certified linear solves, :math:`\bar X` by a float64 solve and
-its residual proved in balls (``_residual_moments``; FLINT's solve of the whole
-moment system when that proof fails); the bound is the
-lower end of the enclosure of :math:`\sqrt{N/D}`. Above
+stable (:class:`~ftc_verify.analysis.verdict.StabilityProver`). The moments are then
+enclosed in the coordinates :math:`\tilde x = S x` (``_conditioned``: :math:`S` the float
+``T_inv`` of the search's transform composed with the feedback loop's, taken exact, and a
+ball enclosing its exact inverse, so the balls enclose an exact similarity of the loop
+as written and :math:`N`, :math:`D` are unchanged): :math:`\pi` and :math:`M` by FLINT's
+certified linear solves, :math:`\bar X` by a float64 solve and its residual proved in
+balls (``_residual_moments``; FLINT's solve of the whole moment system when that proof
+fails); the bound is the lower end of the enclosure of :math:`\sqrt{N/D}`. Above
 :data:`~ftc_verify.analysis.verdict.SOLVE_LIMIT` rows no bound is computed (none could be
-proved).
+proved); a bound not computed or not proved says why in its ``method``.
 """
 
 from __future__ import annotations
@@ -82,6 +88,7 @@ from .closedloop import ClosedLoop
 from .bounded_real import POLICY_RTOL, SEARCH_RTOL, RateEnvelope, bounded_real_solution, least_eigenvalue
 from .conditioning import Similarity, conditioning_transform, stationary_distribution
 from .excitation import best_excitation
+from .rate_candidates import candidate_rates
 from .exact import ball_generator, ball_matrices, exact_loop, literals_of, written_box
 from ..interrupts import deferred_signals
 from .rigorous import Ball, ball, midpoint, precision, proven_positive_definite, tight_solve
@@ -459,21 +466,6 @@ def _perturbation(chans: Sequence[Any], deltas: dict[str, Matrix], like: Ball) -
     return out
 
 
-def _candidate_rates(loop: ClosedLoop, worst: Matrix | None) -> list[Matrix]:
-    chain = loop.chain
-    lo, hi = written_box(chain.rate_min, chain.rate_max)
-    inner_lo = np.where(lo < hi, np.nextafter(lo, np.inf), lo)  # strictly inside the box as written
-    inner_hi = np.where(lo < hi, np.nextafter(hi, -np.inf), hi)
-    points = [inner_lo, 0.5 * (lo + hi), inner_hi]
-    if worst is not None:
-        points.append(np.clip(np.asarray(worst, dtype=float), inner_lo, inner_hi))
-    out: list[Matrix] = []
-    for p in points:
-        if not any(np.array_equal(p, o) for o in out):
-            out.append(p)
-    return out
-
-
 def exceeds(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], Q: Matrix, gamma: float,
             start: Sequence[Matrix] | None = None) -> bool:
     """In float64: no stabilising Riccati solution at ``gamma`` (the gain is at least
@@ -486,12 +478,8 @@ def exceeds(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], Q: 
 #: tight (the usual case) that feedback is already nearly the worst case.
 ABOVE_CERTIFIED = 1.0 + 1e-6
 #: Relative width of the bisection on the gain that refines the best candidate's feedback
-#: (each step a policy iteration of dense solves of the moment system's size). Every loop
-#: within :data:`~ftc_verify.analysis.verdict.SOLVE_LIMIT` rows is refined: with the
-#: refinement limited to 120 rows, held-out ``n = 4, 5``, ``m = 3`` loops of 135-315 rows
-#: kept the feedback taken at the certified gamma and proved 0.59-0.90 of their gain at the
-#: candidate rates (3.16 against 1.88 on one), for 0.1-0.5 s less
-#: (``benchmarks/results/lead11.md``).
+#: (each step a policy iteration of dense solves of the moment system's size), on every loop
+#: within :data:`~ftc_verify.analysis.verdict.SOLVE_LIMIT` rows (``benchmarks/results/lead11.md``).
 REFINE_RTOL = 1e-8
 
 
@@ -518,12 +506,9 @@ def gain_lower_bound(loop: ClosedLoop, *, deltas: Sequence[tuple[str, dict[str, 
     every candidate's gain) and its best excitation; the candidate of the largest float
     ratio is kept, its feedback refined by bisection on the gain (to
     :data:`REFINE_RTOL`), and its ratio proved. Without ``upper``, each candidate's
-    gain is found by bisection. The search runs in the coordinates of
-    :func:`~ftc_verify.analysis.conditioning.conditioning_transform` (its feedback mapped
-    back, :math:`F = \tilde F T^{-1}`). ``value`` is ``None`` and ``method`` says why when no
-    candidate loop is mean-square stable, or when the moment equations are above
-    :data:`~ftc_verify.analysis.verdict.SOLVE_LIMIT` rows (no proof would fit: nothing is
-    computed)."""
+    gain is found by bisection (the search in conditioned coordinates). ``value`` is ``None``
+    and ``method`` says why when no candidate loop is mean-square stable, or above
+    :data:`~ftc_verify.analysis.verdict.SOLVE_LIMIT` rows (nothing is computed)."""
     start = time.perf_counter()
     label0 = deltas[0][0] if deltas else "Delta=0"
     if not within_solve_limit(loop):
@@ -535,7 +520,7 @@ def gain_lower_bound(loop: ClosedLoop, *, deltas: Sequence[tuple[str, dict[str, 
     best: tuple[float, str, dict[str, Matrix], Matrix, tuple[Matrix, ...], float, Matrix, float, Matrix] | None = None
     for label, delta in deltas:
         A = work.perturbed(delta) if delta else nominal.A
-        for rates in _candidate_rates(loop, worst_rates):
+        for rates in candidate_rates(loop, worst_rates):
             Q = loop.chain.generator(rates)
             pi = _stationary(Q)
             if pi is None:
