@@ -86,9 +86,9 @@ from ..jsonable import fields_dict
 from ..model.system import Matrix
 from .closedloop import ClosedLoop
 from .bounded_real import POLICY_RTOL, SEARCH_RTOL, RateEnvelope, bounded_real_solution, least_eigenvalue
-from .conditioning import Similarity, conditioning_transform, stationary_distribution
+from .conditioning import Similarity, conditioning_transform
 from .excitation import best_excitation
-from .rate_candidates import candidate_rates
+from .rate_candidates import ASCENT_MARGIN, candidate_rates, stationary_at, vertex_ascent
 from .exact import ball_generator, ball_matrices, exact_loop, literals_of, written_box
 from ..interrupts import deferred_signals
 from .rigorous import Ball, ball, midpoint, precision, proven_positive_definite, tight_solve
@@ -265,12 +265,6 @@ def _feasible(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], Q
         if found is not None:
             return found
     return worst_case_feedback(A, Bw, Cz, Q, gamma, rtol=SEARCH_RTOL)
-
-
-def _stationary(Q: Matrix) -> Matrix | None:
-    """:func:`~ftc_verify.analysis.conditioning.stationary_distribution` if the balance equations hold."""
-    pi = stationary_distribution(Q)
-    return pi if np.all(np.isfinite(pi)) and np.abs(Q.T @ pi).max() < 1e-9 * max(1.0, np.abs(Q).max()) else None
 
 
 def _proved_ratio(loop: ClosedLoop, deltas: dict[str, Matrix], sim: Similarity, F: Sequence[Matrix], rates: Matrix,
@@ -518,11 +512,13 @@ def gain_lower_bound(loop: ClosedLoop, *, deltas: Sequence[tuple[str, dict[str, 
     nominal = work.nominal()
     gamma_f = None if upper is None else upper * ABOVE_CERTIFIED
     best: tuple[float, str, dict[str, Matrix], Matrix, tuple[Matrix, ...], float, Matrix, float, Matrix] | None = None
+    top = -math.inf  # the score of best: its ratio (the ascended vertex: at least its float gain squared)
     for label, delta in deltas:
         A = work.perturbed(delta) if delta else nominal.A
-        for rates in candidate_rates(loop, worst_rates):
+        ascended = vertex_ascent(work, A, worst_rates, gamma_f)  # small loops only: (vertex, float gain)
+        for rates in candidate_rates(loop, worst_rates, ascended):
             Q = loop.chain.generator(rates)
-            pi = _stationary(Q)
+            pi = stationary_at(Q)
             if pi is None:
                 continue
             if gamma_f is None:
@@ -537,8 +533,11 @@ def gain_lower_bound(loop: ClosedLoop, *, deltas: Sequence[tuple[str, dict[str, 
                 g, F = gamma_f, F_or_none
             At = [a + b @ f for a, b, f in zip(A, work.Bw, F)]
             ratio, omega, e = best_excitation(At, work.Bw, work.Cz, F, Q, pi)
-            if best is None or ratio > best[0]:
-                best = (ratio, label, delta, rates, F, g, pi, omega, e)
+            score = ratio
+            if ascended is not None and np.array_equal(rates, ascended[0]):  # ranked by its gain too
+                score = max(ratio, (ascended[1] / (1.0 + ASCENT_MARGIN)) ** 2)
+            if best is None or score > top:
+                best, top = (ratio, label, delta, rates, F, g, pi, omega, e), score
     if best is None:
         return _unbounded(loop, label0, "not computed: no candidate rate vector gave a mean-square stable loop "
                           "with a worst-case feedback" + ("" if gamma_f is None else f" at gamma {gamma_f:.6g}"), start)
