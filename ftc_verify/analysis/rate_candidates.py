@@ -51,7 +51,7 @@ ASCENT_RATES = 16
 ASCENT_PASSES = 2
 #: A flip is taken when the float gain there is above the best so far by this (relative):
 #: a comparison at that level, then a bisection of this width from it.
-ASCENT_MARGIN = 1e-3
+ASCENT_MARGIN = 1e-4
 
 
 def vertex_ascent(loop: ClosedLoop, A: Sequence[Matrix], start: Matrix | None,
