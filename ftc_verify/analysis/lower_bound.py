@@ -499,7 +499,7 @@ def gain_lower_bound(loop: ClosedLoop, *, deltas: Sequence[tuple[str, dict[str, 
     feedback at ``upper * ABOVE_CERTIFIED`` (``upper`` a certified gamma, an upper bound of
     every candidate's gain) and its best excitation; the candidate of the largest float
     ratio is kept, its feedback refined by bisection on the gain (to
-    :data:`REFINE_RTOL`), and its ratio proved. Without ``upper``, each candidate's
+    ``REFINE_RTOL``), and its ratio proved. Without ``upper``, each candidate's
     gain is found by bisection (the search in conditioned coordinates). ``value`` is ``None``
     and ``method`` says why when no candidate loop is mean-square stable, or above
     :data:`~ftc_verify.analysis.verdict.SOLVE_LIMIT` rows (nothing is computed)."""
