@@ -93,6 +93,8 @@ def test_a_bound_not_computed_says_why_in_the_json_and_the_text(monkeypatch: pyt
     loop = _loop("s201sim")
     monkeypatch.setattr(lower_bound, "SOLVE_LIMIT", 10)
     above = gain_lower_bound(loop, upper=1.7)
+    _, robust = robust_lower_bound(loop, above.rates, upper=1.7)  # no search either
+    assert robust is not None and robust.value is None and "exceed the ball-arithmetic limit" in robust.method
     monkeypatch.undo()
     monkeypatch.setattr(lower_bound, "worst_case_feedback", lambda *args, **kwargs: None)
     unstable = gain_lower_bound(loop, upper=1.7)
