@@ -51,19 +51,25 @@ is the best of :math:`\omega = 0` and the imaginary parts of the rightmost eigen
 :math:`\tilde{\mathcal A}`; :math:`e` is the top generalised eigenvector of the two
 quadratic forms :math:`N(e)`, :math:`D(e)` (:mod:`~ftc_verify.analysis.excitation`).
 The rate vector is the best of the box's centre, its lowest and highest rates and the
-worst spectral-abscissa vertex. The constant :math:`\Delta` of the robust bound, and its
-:math:`\gamma_F`, come from :mod:`~ftc_verify.analysis.worst_delta`.
+worst spectral-abscissa vertex (:mod:`~ftc_verify.analysis.rate_candidates`). The constant
+:math:`\Delta` of the robust bound, and its :math:`\gamma_F`, come from
+:mod:`~ftc_verify.analysis.worst_delta`. This search runs in the coordinates :math:`x = T\tilde x`
+of :func:`~ftc_verify.analysis.conditioning.conditioning_transform` (its feedback :math:`\tilde F`
+used as :math:`F = \tilde F T^{-1}`): the ratio is invariant under a similarity, the float search is not.
 
 **The proof.** :math:`F`, :math:`e`, :math:`\omega`, :math:`\rho` are floats taken as
 exact; the loop is :func:`~ftc_verify.analysis.exact.exact_loop` (the numbers the user
 wrote) plus :math:`B_{w,s}F_s` in ball arithmetic; :math:`\tilde{\mathcal L}` is proved
-stable (:class:`~ftc_verify.analysis.verdict.StabilityProver`); :math:`\pi` and :math:`M`
-are enclosed by FLINT's certified linear solves, :math:`\bar X` by a float64 solve and
-its residual proved in balls (``_residual_moments``; FLINT's solve of the whole
-moment system when that proof fails); the bound is the
-lower end of the enclosure of :math:`\sqrt{N/D}`. Above
+stable (:class:`~ftc_verify.analysis.verdict.StabilityProver`). The moments are then
+enclosed in the coordinates :math:`\tilde x = S x` (``_conditioned``: :math:`S` the float
+``T_inv`` of the search's transform composed with the feedback loop's, taken exact, and a
+ball enclosing its exact inverse, so the balls enclose an exact similarity of the loop
+as written and :math:`N`, :math:`D` are unchanged): :math:`\pi` and :math:`M` by FLINT's
+certified linear solves, :math:`\bar X` by a float64 solve and its residual proved in
+balls (``_residual_moments``; FLINT's solve of the whole moment system when that proof
+fails); the bound is the lower end of the enclosure of :math:`\sqrt{N/D}`. Above
 :data:`~ftc_verify.analysis.verdict.SOLVE_LIMIT` rows no bound is computed (none could be
-proved).
+proved); a bound not computed or not proved says why in its ``method``.
 """
 
 from __future__ import annotations
@@ -80,8 +86,9 @@ from ..jsonable import fields_dict
 from ..model.system import Matrix
 from .closedloop import ClosedLoop
 from .bounded_real import POLICY_RTOL, SEARCH_RTOL, RateEnvelope, bounded_real_solution, least_eigenvalue
-from .conditioning import Similarity, conditioning_transform, stationary_distribution
+from .conditioning import Similarity, conditioning_transform
 from .excitation import best_excitation
+from .rate_candidates import ASCENT_MARGIN, candidate_rates, stationary_at, vertex_ascent
 from .exact import ball_generator, ball_matrices, exact_loop, literals_of, written_box
 from ..interrupts import deferred_signals
 from .rigorous import Ball, ball, midpoint, precision, proven_positive_definite, tight_solve
@@ -260,21 +267,14 @@ def _feasible(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], Q
     return worst_case_feedback(A, Bw, Cz, Q, gamma, rtol=SEARCH_RTOL)
 
 
-def _stationary(Q: Matrix) -> Matrix | None:
-    """:func:`~ftc_verify.analysis.conditioning.stationary_distribution` if the balance equations hold."""
-    pi = stationary_distribution(Q)
-    return pi if np.all(np.isfinite(pi)) and np.abs(Q.T @ pi).max() < 1e-9 * max(1.0, np.abs(Q).max()) else None
-
-
 def _proved_ratio(loop: ClosedLoop, deltas: dict[str, Matrix], sim: Similarity, F: Sequence[Matrix], rates: Matrix,
                   omega: float, e: Matrix, bits: int = 128) -> tuple[float | None, str]:
     """The lower end of the enclosure of ``sqrt(N/D)`` (module docstring, the proof)."""
     import flint
 
     n, S = loop.n, len(loop.A)
-    size = S * n * (n + 1) // 2
-    if size > SOLVE_LIMIT or 2 * S * n > SOLVE_LIMIT:
-        return None, f"not proved: the moment equations ({size} rows) exceed the ball-arithmetic limit ({SOLVE_LIMIT})"
+    if not within_solve_limit(loop):
+        return None, _too_large(loop)
     literals = literals_of(loop)
     made: dict[int, ClosedLoop] = {}
 
@@ -293,12 +293,10 @@ def _proved_ratio(loop: ClosedLoop, deltas: dict[str, Matrix], sim: Similarity, 
         return tuple(a + b @ ball(f) for a, b, f in zip(A, ball_matrices(exact.Bw), F))
 
     with precision(bits):
-        At = enclosures()
-        exact = exact_here()
-        Bw = ball_matrices(exact.Bw)
-        Cz = ball_matrices(exact.Cz)
+        exact, original = exact_here(), enclosures()
+        At, Bw, Cz, Fb = _conditioned(sim, original, ball_matrices(exact.Bw), ball_matrices(exact.Cz), F)
         q = ball_generator(loop.chain, rates, literals)
-    float_loop = replace(loop.nominal(), A=tuple(midpoint(a) for a in At), source=None)
+    float_loop = replace(loop.nominal(), A=tuple(midpoint(a) for a in original), source=None)
     prover = StabilityProver.for_matrices(float_loop, sim, enclosures)
     verdict = prover.certify(rates)
     if verdict.verdict != "stable":
@@ -335,14 +333,37 @@ def _proved_ratio(loop: ClosedLoop, deltas: dict[str, Matrix], sim: Similarity, 
         D = weight * (eb.T @ eb).value[0, 0]
         for s in range(S):
             N += sum((Cz[s] @ X[s] @ Cz[s].T).value[k, k] for k in range(Cz[s].shape[0]))
-            Fb = ball(F[s])
-            D += sum((Fb @ X[s] @ Fb.T).value[k, k] for k in range(Fb.shape[0]))
-            D += 2 * weight * (eb.T @ Fb @ Mr[s]).value[0, 0]
+            D += sum((Fb[s] @ X[s] @ Fb[s].T).value[k, k] for k in range(Fb[s].shape[0]))
+            D += 2 * weight * (eb.T @ Fb[s] @ Mr[s]).value[0, 0]
         if not (D > 0 and N >= 0):
             return None, "not proved: the energy rates could not be enclosed"
         ratio = (N / D).sqrt()
         return float(ratio.lower()), (f"w = F x + e cos({omega:.6g} t): its stationary energy ratio enclosed "
                                       f"({how}), the feedback loop proved mean-square stable")
+
+
+def _too_large(loop: ClosedLoop) -> str:
+    """Why no bound is computed above :data:`~ftc_verify.analysis.verdict.SOLVE_LIMIT` rows."""
+    size = len(loop.A) * loop.n * (loop.n + 1) // 2
+    return f"not computed: the moment equations ({size} rows) exceed the ball-arithmetic limit ({SOLVE_LIMIT})"
+
+
+def _conditioned(sim: Similarity, At: Sequence[Ball], Bw: Sequence[Ball], Cz: Sequence[Ball],
+                 F: Sequence[Matrix]) -> tuple[list[Ball], list[Ball], list[Ball], list[Ball]]:
+    r"""The feedback loop's balls in the coordinates :math:`\tilde x = S x`, :math:`S` the float
+    ``sim.T_inv`` taken exact and :math:`T` a ball enclosing its exact inverse (FLINT):
+    :math:`S A_s T`, :math:`S B_{w,s}`, :math:`C_{z,s} T`, :math:`F_s T`. They enclose an exact
+    similarity of the loop as written, so the moments and energy rates computed from them are
+    the loop's (:math:`\tilde X = S X S^T`, :math:`N` and :math:`D` unchanged); the
+    residual proof and the solves then run well-conditioned. The original coordinates when
+    :math:`S` is not proved invertible. Call inside a precision block."""
+    Sb = ball(sim.T_inv)
+    try:
+        Tb = Ball(Sb.value.inv())
+    except (ZeroDivisionError, ValueError):
+        Sb = Tb = ball(np.eye(At[0].shape[0]))
+    return ([Sb @ a @ Tb for a in At], [Sb @ b for b in Bw], [c @ Tb for c in Cz],
+            [ball(np.asarray(f, dtype=float)) @ Tb for f in F])
 
 
 def _residual_moments(At: Sequence[Ball], q: list[list[Any]], G: Sequence[Ball], Q: Matrix) -> list[Ball] | None:
@@ -439,21 +460,6 @@ def _perturbation(chans: Sequence[Any], deltas: dict[str, Matrix], like: Ball) -
     return out
 
 
-def _candidate_rates(loop: ClosedLoop, worst: Matrix | None) -> list[Matrix]:
-    chain = loop.chain
-    lo, hi = written_box(chain.rate_min, chain.rate_max)
-    inner_lo = np.where(lo < hi, np.nextafter(lo, np.inf), lo)  # strictly inside the box as written
-    inner_hi = np.where(lo < hi, np.nextafter(hi, -np.inf), hi)
-    points = [inner_lo, 0.5 * (lo + hi), inner_hi]
-    if worst is not None:
-        points.append(np.clip(np.asarray(worst, dtype=float), inner_lo, inner_hi))
-    out: list[Matrix] = []
-    for p in points:
-        if not any(np.array_equal(p, o) for o in out):
-            out.append(p)
-    return out
-
-
 def exceeds(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], Q: Matrix, gamma: float,
             start: Sequence[Matrix] | None = None) -> bool:
     """In float64: no stabilising Riccati solution at ``gamma`` (the gain is at least
@@ -466,12 +472,8 @@ def exceeds(A: Sequence[Matrix], Bw: Sequence[Matrix], Cz: Sequence[Matrix], Q: 
 #: tight (the usual case) that feedback is already nearly the worst case.
 ABOVE_CERTIFIED = 1.0 + 1e-6
 #: Relative width of the bisection on the gain that refines the best candidate's feedback
-#: (each step a policy iteration of dense solves of the moment system's size). Every loop
-#: within :data:`~ftc_verify.analysis.verdict.SOLVE_LIMIT` rows is refined: with the
-#: refinement limited to 120 rows, held-out ``n = 4, 5``, ``m = 3`` loops of 135-315 rows
-#: kept the feedback taken at the certified gamma and proved 0.59-0.90 of their gain at the
-#: candidate rates (3.16 against 1.88 on one), for 0.1-0.5 s less
-#: (``benchmarks/results/lead11.md``).
+#: (each step a policy iteration of dense solves of the moment system's size), on every loop
+#: within :data:`~ftc_verify.analysis.verdict.SOLVE_LIMIT` rows (``benchmarks/results/lead11.md``).
 REFINE_RTOL = 1e-8
 
 
@@ -481,8 +483,15 @@ def within_solve_limit(loop: ClosedLoop) -> bool:
     return len(loop.A) * loop.n * (loop.n + 1) // 2 <= SOLVE_LIMIT and 2 * len(loop.A) * loop.n <= SOLVE_LIMIT
 
 
+def _unbounded(loop: ClosedLoop, label: str, why: str, start: float) -> GainLowerBound:
+    """A bound not computed, and ``why`` (``value`` ``None``, the float values ``nan``)."""
+    centre = 0.5 * np.add(*written_box(loop.chain.rate_min, loop.chain.rate_max))
+    return GainLowerBound(None, math.nan, math.nan, centre, label, math.nan, np.zeros((loop.Bw[0].shape[1], 1)),
+                          (), why, time.perf_counter() - start)
+
+
 def gain_lower_bound(loop: ClosedLoop, *, deltas: Sequence[tuple[str, dict[str, Matrix]]] = (("Delta=0", {}),),
-                     worst_rates: Matrix | None = None, upper: float | None = None) -> GainLowerBound | None:
+                     worst_rates: Matrix | None = None, upper: float | None = None) -> GainLowerBound:
     """The proved lower bound of the worst-case gain of ``loop`` (module docstring).
 
     Each candidate rate vector and constant uncertainty of ``deltas`` (a label and
@@ -490,50 +499,61 @@ def gain_lower_bound(loop: ClosedLoop, *, deltas: Sequence[tuple[str, dict[str, 
     feedback at ``upper * ABOVE_CERTIFIED`` (``upper`` a certified gamma, an upper bound of
     every candidate's gain) and its best excitation; the candidate of the largest float
     ratio is kept, its feedback refined by bisection on the gain (to
-    :data:`REFINE_RTOL`), and its ratio proved. Without ``upper``, each candidate's
-    gain is found by bisection. ``None`` when no candidate loop is mean-square stable, or
-    when the moment equations are above :data:`~ftc_verify.analysis.verdict.SOLVE_LIMIT`
-    rows (no proof would fit: nothing is computed)."""
+    ``REFINE_RTOL``), and its ratio proved. Without ``upper``, each candidate's
+    gain is found by bisection (the search in conditioned coordinates). ``value`` is ``None``
+    and ``method`` says why when no candidate loop is mean-square stable, or above
+    :data:`~ftc_verify.analysis.verdict.SOLVE_LIMIT` rows (nothing is computed)."""
     start = time.perf_counter()
-    nominal = loop.nominal()
+    label0 = deltas[0][0] if deltas else "Delta=0"
     if not within_solve_limit(loop):
-        return None
+        return _unbounded(loop, label0, _too_large(loop), start)
+    search = conditioning_transform(loop)
+    work = search.apply(loop)  # the float search, in well-conditioned coordinates
+    nominal = work.nominal()
     gamma_f = None if upper is None else upper * ABOVE_CERTIFIED
     best: tuple[float, str, dict[str, Matrix], Matrix, tuple[Matrix, ...], float, Matrix, float, Matrix] | None = None
+    top = -math.inf  # the score of best: its ratio (the ascended vertex: at least its float gain squared)
     for label, delta in deltas:
-        A = loop.perturbed(delta) if delta else nominal.A
-        for rates in _candidate_rates(loop, worst_rates):
+        A = work.perturbed(delta) if delta else nominal.A
+        ascended = vertex_ascent(work, A, worst_rates, gamma_f)  # small loops only: (vertex, float gain)
+        for rates in candidate_rates(loop, worst_rates, ascended):
             Q = loop.chain.generator(rates)
-            pi = _stationary(Q)
+            pi = stationary_at(Q)
             if pi is None:
                 continue
             if gamma_f is None:
-                found = float_gain(A, loop.Bw, loop.Cz, Q)
+                found = float_gain(A, work.Bw, work.Cz, Q)
                 if found is None:
                     continue
                 g, F = found
             else:
-                F_or_none = worst_case_feedback(A, loop.Bw, loop.Cz, Q, gamma_f)
+                F_or_none = worst_case_feedback(A, work.Bw, work.Cz, Q, gamma_f)
                 if F_or_none is None:
                     continue
                 g, F = gamma_f, F_or_none
-            At = [a + b @ f for a, b, f in zip(A, loop.Bw, F)]
-            ratio, omega, e = best_excitation(At, loop.Bw, loop.Cz, F, Q, pi)
-            if best is None or ratio > best[0]:
-                best = (ratio, label, delta, rates, F, g, pi, omega, e)
+            At = [a + b @ f for a, b, f in zip(A, work.Bw, F)]
+            ratio, omega, e = best_excitation(At, work.Bw, work.Cz, F, Q, pi)
+            score = ratio
+            if ascended is not None and np.array_equal(rates, ascended[0]):  # ranked by its gain too
+                score = max(ratio, (ascended[1] / (1.0 + ASCENT_MARGIN)) ** 2)
+            if best is None or score > top:
+                best, top = (ratio, label, delta, rates, F, g, pi, omega, e), score
     if best is None:
-        return None
+        return _unbounded(loop, label0, "not computed: no candidate rate vector gave a mean-square stable loop "
+                          "with a worst-case feedback" + ("" if gamma_f is None else f" at gamma {gamma_f:.6g}"), start)
     ratio, label, delta, rates, F, g, pi, omega, e = best
-    A = loop.perturbed(delta) if delta else nominal.A
+    A = work.perturbed(delta) if delta else nominal.A
     Q = loop.chain.generator(rates)
     if gamma_f is not None:
-        found = float_gain(A, loop.Bw, loop.Cz, Q, upper=gamma_f, rtol=REFINE_RTOL)
+        found = float_gain(A, work.Bw, work.Cz, Q, upper=gamma_f, rtol=REFINE_RTOL)
         if found is not None:
             g, F = found
-            At = [a + b @ f for a, b, f in zip(A, loop.Bw, F)]
-            ratio, omega, e = best_excitation(At, loop.Bw, loop.Cz, F, Q, pi)
-    At = [a + b @ f for a, b, f in zip(A, loop.Bw, F)]
+            At = [a + b @ f for a, b, f in zip(A, work.Bw, F)]
+            ratio, omega, e = best_excitation(At, work.Bw, work.Cz, F, Q, pi)
+    At = [a + b @ f for a, b, f in zip(A, work.Bw, F)]
     estimate = math.sqrt(max(ratio, 0.0))
-    sim = conditioning_transform(replace(nominal, A=tuple(At), source=None))
+    inner = conditioning_transform(replace(nominal, A=tuple(At), source=None))  # of the feedback loop, composed
+    sim = Similarity(search.T @ inner.T, inner.T_inv @ search.T_inv, search.steps + inner.steps)
+    F = tuple(f @ search.T_inv for f in F)  # w = F~ x~ = F~ T^-1 x: the feedback in the user's coordinates
     value, method = _proved_ratio(loop, delta, sim, F, rates, omega, e)
-    return GainLowerBound(value, estimate, g, rates, label, omega, e, tuple(F), method, time.perf_counter() - start)
+    return GainLowerBound(value, estimate, g, rates, label, omega, e, F, method, time.perf_counter() - start)

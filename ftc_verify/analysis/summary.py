@@ -84,6 +84,8 @@ def analysis_summary(rep: AnalysisReport, *, fdi_model: str | None = None) -> st
 
 def _bracket_text(low: dict[str, Any]) -> str:
     """One line: the proved lower bound beside a certified gamma."""
+    if low["estimate"] is None:  # not computed (lower_bound.gain_lower_bound)
+        return f"lower bound: none ({low['method']})"
     where = f"{low['delta']}, rates {low['rates']}, w = F x + e cos({low['frequency']:.4g} t)"
     if low["value"] is None:
         return f"lower bound: none proved ({low['method']}); float estimate {low['estimate']:.6g} at {where}"

@@ -37,7 +37,8 @@ import numpy as np
 
 from ..model.system import Matrix
 from .closedloop import ClosedLoop
-from .lower_bound import GainLowerBound, exceeds, float_gain, gain_lower_bound
+from .conditioning import conditioning_transform
+from .lower_bound import GainLowerBound, exceeds, float_gain, gain_lower_bound, within_solve_limit
 
 __all__ = ["CLIMB", "SEARCH_WIDTH", "worst_constant_delta", "robust_lower_bound"]
 
@@ -103,7 +104,7 @@ def worst_constant_delta(loop: ClosedLoop, rates: Matrix, *, upper: float | None
     most ``passes`` sweeps; a second changed nothing on three random n = 8, m = 3 loops),
     the first gain searched from ``upper`` (module docstring). A search: the bound it leads
     to is proved afterwards. Returns a label and ``{channel name: Delta}``."""
-    delta, _ = _search(loop, rates, upper, passes)
+    delta, _ = _search(conditioning_transform(loop).apply(loop), rates, upper, passes)
     return _label(delta), delta
 
 
@@ -114,8 +115,13 @@ def robust_lower_bound(loop: ClosedLoop, rates: Matrix, *, worst_rates: Matrix |
     lower bound of :func:`~ftc_verify.analysis.lower_bound.gain_lower_bound` at it (the
     candidate rate vectors with ``worst_rates``), its feedback taken at the gain the search
     found (module docstring); the bound is ``None`` when no loop tried was mean-square
-    stable or no candidate could be bounded."""
-    delta, gain = _search(loop, rates, upper, passes)
+    stable. The search runs in the coordinates of
+    :func:`~ftc_verify.analysis.conditioning.conditioning_transform` (a ``Delta``
+    maps channels to channels: it does not depend on the state coordinates); above
+    :data:`~ftc_verify.analysis.verdict.SOLVE_LIMIT` rows there is none (the bound says why)."""
+    if not within_solve_limit(loop):  # no bound would be computed: no search either
+        return ("Delta=0", {}), gain_lower_bound(loop, deltas=[("Delta=0", {})], upper=upper)
+    delta, gain = _search(conditioning_transform(loop).apply(loop), rates, upper, passes)
     labelled = (_label(delta), delta)
     if not math.isfinite(gain):
         return labelled, None
