@@ -34,7 +34,8 @@ the abscissa there when one is found. A caller that knows a rate vector with
 :math:`\mu \ge 0` in float64 (the vertex search's worst, ``suspect``) has it tried
 first: a loop unstable at a vertex of a wide box, with stable centres, had the whole
 budget spent proving sub-boxes stable and was answered "undecided". Only the proof
-counts; when it fails the branch and bound runs as without it.
+counts; when it fails the branch and bound runs as without it (within the same budget:
+none, no proof).
 
 When the centre's candidate fails, the Theorem 3.1 LMI is solved on the sub-box
 (Clarabel, :func:`~ftc_verify.analysis.lmi_analysis.mes_lmi`): the best common
@@ -387,9 +388,9 @@ def box_stability(loop: ClosedLoop, sim: Similarity, *, budget_seconds: float = 
         return BoxVerdict("not stable", (witness,), boxes, False, time.perf_counter() - start,
                           f"instability proved at {chain.rate_text(point)}"), found
 
-    first = None if suspect is None else point_verdict(np.asarray(suspect, dtype=float), time.perf_counter())[0]
-    if first is not None:
-        return first
+    first = None if suspect is None or start >= deadline else point_verdict(np.asarray(suspect, dtype=float), start)
+    if first is not None and first[0] is not None:
+        return first[0]
     while queue:
         lo, hi = queue.popleft()
         t0 = time.perf_counter()
