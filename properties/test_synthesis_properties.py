@@ -120,8 +120,13 @@ def test_full_info_relaxes_every_fdi_only_design(system: FTCSystem, method: str)
 def test_relabelling_modes_keeps_two_step_feasibility(system: FTCSystem, perm: list[int]) -> None:
     """Relabelling the modes leaves step 1 of two-step (a convex problem) with the same
     optimal margin; when both labellings succeed, each design meets the requested gamma as
-    far as the code guarantees it (below), and the certified gammas agree (1e-3) where
-    step 1's margin is below its cap of 1.
+    far as the code guarantees it (below). Their certified gammas are compared but not
+    asserted equal: step 2 at ``gamma = 5`` is a feasibility problem, whose interior point
+    the solver returns from step-1 data equal between labellings only to step 1's
+    tolerance, and nothing bounds how the certified gamma of that point moves with them
+    (a draw of the CI profile, step-1 margin below its cap, had certified gammas more than
+    1e-3 apart; its 8-digit printout gives margins 0.3638668 and 0.3638723, certified gammas
+    0.496715 and 0.496922); a difference above 1e-3 is an event.
 
     What ``synthesize(system, method="two-step", gamma=5.0)`` guarantees about 5 (derived
     from the code): ``state_feedback.two_step`` returns gains only when every FDI mode's
@@ -175,11 +180,12 @@ def test_relabelling_modes_keeps_two_step_feasibility(system: FTCSystem, perm: l
             assert cert.ok, cert.reason
             if gamma > 5.0 * (1 + 1e-6):
                 event("two-step certified gamma above the requested 5 (the core's margin)")
-        agree = abs(a.gamma_certified - b.gamma_certified) <= RTOL * max(a.gamma_certified, b.gamma_certified) + 1e-6
-        if a1 is not None and a1["margin"] < 1.0 - 1e-6:  # a unique maximiser: the same design
-            assert agree
-        elif not agree:
-            event("two-step certified gammas differed between labellings (step-1 margin at its cap)")
+        diff = abs(a.gamma_certified - b.gamma_certified) / max(a.gamma_certified, b.gamma_certified)
+        note(f"certified gammas {a.gamma_certified:.9g} and {b.gamma_certified:.9g} (relative difference {diff:.2e})")
+        if diff > RTOL:
+            cap = a1 is None or a1["margin"] >= 1.0 - 1e-6
+            event("two-step certified gammas differed by more than 1e-3 between labellings"
+                  + (" (step-1 margin at its cap)" if cap else " (step 2 at gamma 5 is a feasibility problem)"))
 
 
 def textbook_lqr(system: FTCSystem) -> list[np.ndarray] | None:
