@@ -63,8 +63,8 @@ from .sampled_bracket import box_work, worst_vertex
 from .sampled_cubic import cubic_size, cubic_stable
 from .sampled_proof import MapParts, split_rate, subbox_stable
 
-__all__ = ["COVER_DEPTH", "MAP_DEPTH", "PIECES", "FINE_FROM", "CoverResult", "cubic_work", "cubic_memory", "cover_rungs", "rung_pieces",
-           "cover_box", "cover_h_max"]
+__all__ = ["COVER_DEPTH", "MAP_DEPTH", "PIECES", "FINE_FROM", "BISECT", "CoverResult", "cubic_work", "cubic_memory",
+           "cover_rungs", "rung_pieces", "probe_box", "cover_box", "cover_h_max"]
 
 #: The most halvings of the box along one path of the cover where cubic certificates are
 #: tried (halving the widest rate); below it only the one-period map's proofs.
@@ -80,6 +80,10 @@ PIECES = (2, 4, 8)
 #: Below this distance a rung uses at least 4 pieces: the seed-1 loop's sub-boxes needed 4
 #: at 1.25e-3 and 9e-4 where 2 sufficed for the worst vertex alone.
 FINE_FROM = 3e-3
+#: After a rung fails, rungs at the geometric mean of the last covered and the closest
+#: failed distance while these are more than this factor apart (4x apart: at most three
+#: more rungs, 2x, 1.4x and 1.19x from the covered one).
+BISECT = 1.25
 
 
 def cubic_work(loop: SampledLoop, pieces: int) -> float:
@@ -115,11 +119,13 @@ def cover_rungs(gap: float, rtol: float) -> tuple[float, ...]:
     return tuple(out)
 
 
-def rung_pieces(loop: SampledLoop, h: float, worst: Matrix, fewest: int, budget: float) -> tuple[int | None, float, int]:
+def rung_pieces(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, fewest: int,
+                budget: float) -> tuple[int | None, float, int]:
     """The fewest cubic pieces of :data:`PIECES`, at least ``fewest``, whose certificate
-    is found and proved at the worst vertex ``worst`` alone at period ``h``: what the
-    clock needs there (a cover cannot do with fewer); ``(pieces or None, units charged,
-    attempts)``, ``None`` when none is (or the budget ran out): the rung is out of reach."""
+    is found and proved for the rates in ``[lo, hi]`` at period ``h`` (the rung's probe,
+    :func:`probe_box`: what the clock needs there; a cover cannot do with fewer, its
+    sub-boxes near the worst vertex are no larger); ``(pieces or None, units charged,
+    attempts)``, ``None`` when none is (or the budget ran out)."""
     spent, attempts = 0.0, 0
     for n in [n for n in PIECES if n >= fewest]:
         cost = cubic_work(loop, n)
@@ -127,7 +133,7 @@ def rung_pieces(loop: SampledLoop, h: float, worst: Matrix, fewest: int, budget:
             break
         spent += cost
         attempts += 1
-        cert = cubic_stable(loop, h, n, worst, worst)
+        cert = cubic_stable(loop, h, n, lo, hi)
         if cert is not None and cert.proved:
             return n, spent, attempts
     return None, spent, attempts
@@ -154,20 +160,25 @@ class CoverResult:
 Box = tuple[Matrix, Matrix, int]
 
 
+def _key(lo: Matrix, hi: Matrix) -> tuple[bytes, bytes]:
+    return np.asarray(lo, dtype=float).tobytes(), np.asarray(hi, dtype=float).tobytes()
+
+
 def _split(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, depth: int, worst: Matrix,
            rate: tuple[int, ...] | None = None) -> tuple[Box, Box]:
     """The two halves of ``[lo, hi]`` along ``rate`` or, not given, its widest rate
     relative to the box, among those the one that moves the float64 radius most: at
     ``v``, the sub-box's corner nearest to ``worst`` (the worst vertex of the box), the
-    rate flipped to the sub-box's other end. Only the order of the splits depends on it
-    (splitting the same two radius-moving rates again and again left a held-out loop's
-    sub-box unproved: the rates that vary in time matter too); every sub-box is proved
-    in ball arithmetic."""
+    rate flipped to the sub-box's other end. The half holding ``v`` first (the harder
+    one: the cover tries it first, so that a rung it cannot cover fails early). Only the
+    order of the splits depends on it (splitting the same two radius-moving rates again
+    and again left a held-out loop's sub-box unproved: the rates that vary in time matter
+    too); every sub-box is proved in ball arithmetic."""
     chain = loop.chain
+    v = np.where(np.abs(worst - lo) <= np.abs(worst - hi), lo, hi)
     r = rate
     if r is None:
         free = [r for r in chain.rate_indices if hi[r] > lo[r]]
-        v = np.where(np.abs(worst - lo) <= np.abs(worst - hi), lo, hi)
         base = spectral_radius(loop, h, v)
         full = chain.rate_max - chain.rate_min
 
@@ -182,28 +193,49 @@ def _split(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, depth: int, wors
     lo2, hi1 = lo.copy(), hi.copy()
     hi1[r] = mid
     lo2[r] = mid
-    return (lo, hi1, depth + 1), (lo2, hi, depth + 1)
+    low, high = (lo, hi1, depth + 1), (lo2, hi, depth + 1)
+    return (low, high) if v[r] == lo[r] else (high, low)
 
 
-def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
-              budget: float, worst: Matrix | None = None) -> tuple[list[Box] | None, float, int, int]:
-    """A cover of the union of ``boxes`` at period ``h`` (module docstring), depth first:
-    ``(sub-boxes, units charged, cubic attempts, map proofs)``, the sub-boxes ``None``
-    when the budget or :data:`MAP_DEPTH` ran out first, or the float64 radius at a
-    sub-box's midpoint is not below 1. Each sub-box: the one-period map's proof
-    (:func:`~ftc_verify.analysis.moments.sampled_proof.subbox_stable`, charged
+def probe_box(loop: SampledLoop, h: float, box: Box, worst: Matrix) -> Box:
+    """The sub-box of ``box`` that the cover reaches first at depth :data:`COVER_DEPTH`
+    (the harder half of every split, :func:`_split`: the corner nearest to ``worst``),
+    ``box`` itself when it is that deep: the hardest sub-box a cubic certificate of the
+    cover must prove below ``box`` (a certificate of a larger sub-box also holds on it),
+    so it is tried first (module docstring, "Hardest first")."""
+    lo, hi, depth = box
+    while depth < COVER_DEPTH and any(hi[r] > lo[r] for r in loop.chain.rate_indices):
+        lo, hi, depth = _split(loop, h, lo, hi, depth, worst)[0]
+    return lo, hi, depth
+
+
+def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box], budget: float,
+              worst: Matrix | None = None,
+              proved: frozenset[tuple[bytes, bytes]] = frozenset()) -> tuple[list[Box] | None, float, int, int]:
+    """A cover of the union of ``boxes`` at period ``h`` (module docstring), depth first,
+    the harder half of each split first: ``(sub-boxes, units charged, cubic attempts, map
+    proofs)``, the sub-boxes ``None`` when the budget or :data:`MAP_DEPTH` ran out first,
+    the float64 radius at a sub-box's midpoint is not below 1, or a sub-box's
+    :func:`probe_box` is not proved by a cubic certificate. Each sub-box: the one-period
+    map's proof (:func:`~ftc_verify.analysis.moments.sampled_proof.subbox_stable`, charged
     :func:`~ftc_verify.analysis.moments.sampled_bracket.box_work`), then, up to
     :data:`COVER_DEPTH` and when ``pieces`` is given and the budget pays it, a cubic
-    certificate of ``pieces`` pieces. ``worst``: the box's worst vertex (float64, found
-    here when not given), which orders the splits (module docstring)."""
+    certificate of ``pieces`` pieces; where that fails, its probe's before its halves.
+    ``worst``: the box's worst vertex (float64, found here when not given), which orders
+    the splits; ``proved``: sub-boxes already proved at ``h`` (by :func:`_key`, exact
+    floats), leaves without a new proof."""
     cost, per_map = (0.0 if pieces is None else cubic_work(loop, pieces)), box_work(loop)
     stack = list(reversed(boxes))
     leaves: list[Box] = []
+    done = set(proved)
     spent, attempts, maps = 0.0, 0, 0
     with precision(64):
         parts = MapParts.build(loop, h)
     while stack:
         lo, hi, depth = stack.pop()
+        if _key(lo, hi) in done:
+            leaves.append((lo, hi, depth))
+            continue
         if spent + per_map > budget:
             return None, spent, attempts, maps
         spent += per_map
@@ -213,6 +245,8 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
             continue
         if spectral_radius(loop, h, 0.5 * (lo + hi)) >= 1.0:  # no proof can hold there: before any cubic is paid
             return None, spent, attempts, maps
+        if worst is None:
+            worst = worst_vertex(loop, h, rate_points(loop.chain))[1]
         if pieces is not None and depth <= COVER_DEPTH and spent + cost <= budget:
             spent += cost
             attempts += 1
@@ -220,10 +254,18 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
             if cert is not None and cert.proved:
                 leaves.append((lo, hi, depth))
                 continue
+            plo, phi, pdepth = probe_box(loop, h, (lo, hi, depth), worst)
+            if pdepth > depth and _key(plo, phi) not in done:  # the hardest sub-box below it first
+                if spent + cost > budget:
+                    return None, spent, attempts, maps
+                spent += cost
+                attempts += 1
+                cert = cubic_stable(loop, h, pieces, plo, phi)
+                if cert is None or not cert.proved:
+                    return None, spent, attempts, maps
+                done.add(_key(plo, phi))
         if depth >= MAP_DEPTH:
             return None, spent, attempts, maps
-        if worst is None:
-            worst = worst_vertex(loop, h, rate_points(loop.chain))[1]
         idx = None if depth < COVER_DEPTH else split_rate(loop, h, lo, hi)
         if idx is None and not any(hi[r] > lo[r] for r in loop.chain.rate_indices):
             return None, spent, attempts, maps
@@ -233,39 +275,55 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
     return leaves, spent, attempts, maps
 
 
+def _next_rung(last: float, failed: float | None, todo: list[float]) -> list[float]:
+    """The distances left to try: the ladder's until a rung fails, then the geometric
+    mean of the last covered distance ``last`` and the closest failed one while they are
+    more than :data:`BISECT` apart."""
+    if failed is None:
+        return todo
+    return [math.sqrt(last * failed)] if last > BISECT * failed else []
+
+
 def cover_h_max(loop: SampledLoop, h_max: float, h_max_unstable: float, work: float, rtol: float) -> CoverResult:
     """A period closer to ``h_max_unstable`` than ``h_max``, proved mean-square stable
     for every rate of the box by a cover of sub-boxes, each proved by its one-period
     map or a cubic clock certificate (module docstring), within ``work`` units;
-    deterministic. When a rung fails, one more at the geometric mean of its distance
-    and the last covered one (the rungs are 4x apart), then it stops."""
+    deterministic. Each rung first proves its probe (:func:`probe_box` of the previous
+    cover's sub-box holding the worst vertex) with the fewest pieces it needs
+    (:func:`rung_pieces`); once a rung fails, the distances are halved geometrically
+    between the last covered and the closest failed one (:func:`_next_rung`)."""
     gap = (h_max_unstable - h_max) / h_max_unstable
     boxes: list[Box] = [(np.array(loop.chain.rate_min, dtype=float), np.array(loop.chain.rate_max, dtype=float), 0)]
     spent, attempts, maps = 0.0, 0, 0
     best: tuple[float, int, int | None] | None = None
     rungs: list[tuple[float, bool]] = []
     worst = worst_vertex(loop, h_max_unstable, rate_points(loop.chain))[1]
-    pieces: int | None = PIECES[0]
-    todo, last, retried = list(cover_rungs(gap, rtol)), gap, False
+    pieces, hopeless = PIECES[0], 0.0  # no pieces proved the probe at distance `hopeless`: none will closer
+    todo, last, failed = list(cover_rungs(gap, rtol)), gap, None
     while todo:
         f = todo.pop(0)
         h = h_max_unstable * (1.0 - f)
-        found = pieces
-        if found is not None:  # once no pieces prove the worst vertex, none will closer to h_u
-            found, used, n = rung_pieces(loop, h, worst, max(found, 4 if f < FINE_FROM else 2), work - spent)
+        found: int | None = None
+        proved: frozenset[tuple[bytes, bytes]] = frozenset()
+        if f > hopeless:
+            home = next(b for b in boxes if np.all((b[0] <= worst) & (worst <= b[1])))
+            plo, phi, _ = probe_box(loop, h, home, worst)
+            found, used, n = rung_pieces(loop, h, plo, phi, max(pieces, 4 if f < FINE_FROM else 2), work - spent)
             spent += used
             attempts += n
-        leaves, used, n, k = cover_box(loop, h, found, boxes, work - spent, worst)
+            proved = frozenset() if found is None else frozenset({_key(plo, phi)})
+            hopeless = f if found is None else hopeless
+        leaves, used, n, k = cover_box(loop, h, found, boxes, work - spent, worst, proved)
         spent += used
         attempts += n
         maps += k
         rungs.append((h, leaves is not None))
         if leaves is None:
-            if retried or last < 2.0 * f:
-                break
-            todo, retried = [math.sqrt(last * f)], True
-            continue
-        best, boxes, pieces, last = (h, len(leaves), found), leaves, found, f
+            failed = f if failed is None else max(failed, f)
+        else:
+            best, boxes, last = (h, len(leaves), found), leaves, f
+            pieces = found if found is not None else pieces
+        todo = _next_rung(last, failed, todo)
     if best is None:
         return CoverResult(None, 0, None, spent, attempts, maps, tuple(rungs))
     return CoverResult(best[0], best[1], best[2], spent, attempts, maps, tuple(rungs))
