@@ -27,22 +27,36 @@ sub-boxes near the worst vertex where no cubic certificate of a sub-box is found
 (held-out seed 13 at 1e-2: 75 map sub-boxes of a vertex box of 1/16 of the widths,
 ``benchmarks/results/h31t.md``), and the cubic proves the large ones far from it. With
 :data:`MAP_DEPTH` 12 that deep a vertex box is not reached: on the held-out loops
-measured, no rung was decided by map proofs; the gain there came from the retry rung. A cover is built depth first: a sub-box not proved is split in
-half along its widest rate (relative to the box; on ties the one that moves the float64
-radius most near the box's worst vertex) up to :data:`COVER_DEPTH` halvings along a
-path (cubic certificates tried), then along the rate of
-:func:`~ftc_verify.analysis.moments.sampled_proof.split_rate` (map proofs only) up to
+measured, no rung was decided by map proofs. A cover is built depth first: a sub-box
+not proved is split in half along its widest rate (relative to the box; on ties the one
+that moves the float64 radius most near the box's worst vertex) up to
+:data:`COVER_DEPTH` halvings along a path (cubic certificates tried), then along the rate
+of :func:`~ftc_verify.analysis.moments.sampled_proof.split_rate` (map proofs only) up to
 :data:`MAP_DEPTH`; it stops where a sub-box's midpoint has a float64 radius >= 1.
+
+**Hardest first.** Of the two halves of a split the one holding the corner nearest to
+the worst vertex is tried first, and a sub-box whose cubic certificate fails first has
+its *probe* tried (:func:`probe_box`: the sub-box the cover would reach first at
+:data:`COVER_DEPTH` below it, at that corner): a certificate of a sub-box also holds on
+each sub-box inside it, so when the probe is not proved neither is any sub-box on the
+path to it, and the rung ends there instead of after a cubic program at every depth of
+that path (held-out seed 13, 1.1e-2 below the crossing: 11 programs and 68,000 units for
+a rung that failed; seed 31, 6.3e-3: 26 programs and 161,000 units; the failing sub-box
+was the last path tried; ``benchmarks/results/h31v.md``). A probe proved is a leaf when
+the cover reaches it (not proved again).
 
 **The ladder.** Rungs ``f = g/4, g/16, ...`` (``g`` the default bracket's relative width)
 down to the target ``0.9 rtol``, easy first; each rung starts from the previous rung's
 cover (its sub-boxes, not the whole box again), with the fewest pieces of :data:`PIECES`
-(at least the last rung's, and 4 below :data:`FINE_FROM`) that prove the worst vertex alone (:func:`rung_pieces`:
-splitting the rates cannot make up for too few pieces in the clock; on the seed-1 loop
-two pieces reach 2.5e-3, four 5e-4 there; once none proves it, the later rungs are
-covered by map proofs alone). After the first rung not covered within the budget or the
-depth, one more at the geometric mean of its distance and the last covered one, then it
-stops; the result is the last rung covered. Every attempt is charged *before* it is
+(at least the last covered rung's, and 4 below :data:`FINE_FROM`) that prove its probe
+below the previous cover's sub-box holding the worst vertex (:func:`rung_pieces`;
+splitting the rates cannot make up for too few pieces in the clock: on the seed-1 loop
+two pieces reach 2.5e-3 at the worst vertex, four 5e-4; when none proves it, the rung and
+the closer ones are covered by map proofs alone). Once a rung is not covered within the
+budget or the depth, the next is at the geometric mean of the last covered and the
+closest failed distance, while these are more than :data:`BISECT` apart (the rung before
+stopped after one such retry with half the budget unspent: seed 13 160,563 units of
+300,000); the result is the last rung covered. Every attempt is charged *before* it is
 solved, from the problem's size only (:func:`cubic_work` per cubic certificate,
 :func:`~ftc_verify.analysis.moments.sampled_bracket.box_work` per map proof), and none
 is started that the budget cannot pay: the same loop and budget give the same
