@@ -104,7 +104,7 @@ def test_map_proof_first_then_the_cubic(monkeypatch: pytest.MonkeyPatch) -> None
     depths: list[int] = []
 
     def probe_only(loop_: SampledLoop, h: float, pieces: int, lo: np.ndarray, hi: np.ndarray) -> object:
-        depths.append(int(round(sum(np.log2(full[r] / (hi[r] - lo[r])) for r in loop_.chain.rate_indices))))
+        depths.append(round(float(sum(np.log2(full[r] / (hi[r] - lo[r])) for r in loop_.chain.rate_indices))))
         return type("Cert", (), {"proved": depths[-1] == COVER_DEPTH and depths.count(COVER_DEPTH) == 1})()
 
     monkeypatch.setattr(sampled_cover, "cubic_stable", probe_only)

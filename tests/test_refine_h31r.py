@@ -17,7 +17,7 @@ import pytest
 from ftc_verify.analysis.moments import sampled_cover
 from ftc_verify.analysis.moments.sampled import SampledLoop, SampledResult
 from ftc_verify.analysis.moments.sampled_bracket import box_work
-from ftc_verify.analysis.moments.sampled_cover import (COVER_DEPTH, MAP_DEPTH, cover_box, cover_h_max, cover_rungs,
+from ftc_verify.analysis.moments.sampled_cover import (MAP_DEPTH, cover_box, cover_h_max, cover_rungs,
                                                        cubic_work, rung_pieces)
 from ftc_verify.analysis.moments.sampled_cubic import cubic_stable, prove_cubic
 from ftc_verify.analysis.moments.sampled_proof import box_verdict
@@ -120,7 +120,7 @@ def _assert_exact_cover(loop: SampledLoop, leaves: list[Any]) -> None:
 def _halvings(loop: SampledLoop, lo: np.ndarray, hi: np.ndarray) -> int:
     """How many halvings of the box give the sub-box ``[lo, hi]``."""
     full = loop.chain.rate_max - loop.chain.rate_min
-    return int(round(sum(np.log2(full[r] / (hi[r] - lo[r])) for r in loop.chain.rate_indices)))
+    return round(float(sum(np.log2(full[r] / (hi[r] - lo[r])) for r in loop.chain.rate_indices)))
 
 
 def test_cover_splits_until_proved_and_covers_the_box(monkeypatch: pytest.MonkeyPatch) -> None:
