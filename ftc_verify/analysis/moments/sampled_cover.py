@@ -211,16 +211,26 @@ def _split(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, depth: int, wors
     return (low, high) if v[r] == lo[r] else (high, low)
 
 
+def _path(loop: SampledLoop, h: float, box: Box, worst: Matrix) -> list[tuple[Box, Box]]:
+    """The splits of ``box`` the cover meets first, down to :data:`COVER_DEPTH`: per
+    halving, ``(the harder half, the other)`` (:func:`_split`), each harder half split
+    next."""
+    out: list[tuple[Box, Box]] = []
+    lo, hi, depth = box
+    while depth < COVER_DEPTH and any(hi[r] > lo[r] for r in loop.chain.rate_indices):
+        out.append(_split(loop, h, lo, hi, depth, worst))
+        lo, hi, depth = out[-1][0]
+    return out
+
+
 def probe_box(loop: SampledLoop, h: float, box: Box, worst: Matrix) -> Box:
     """The sub-box of ``box`` that the cover reaches first at depth :data:`COVER_DEPTH`
     (the harder half of every split, :func:`_split`: the corner nearest to ``worst``),
     ``box`` itself when it is that deep: the hardest sub-box a cubic certificate of the
     cover must prove below ``box`` (a certificate of a larger sub-box also holds on it),
     so it is tried first (module docstring, "Hardest first")."""
-    lo, hi, depth = box
-    while depth < COVER_DEPTH and any(hi[r] > lo[r] for r in loop.chain.rate_indices):
-        lo, hi, depth = _split(loop, h, lo, hi, depth, worst)[0]
-    return lo, hi, depth
+    path = _path(loop, h, box, worst)
+    return path[-1][0] if path else box
 
 
 def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box], budget: float,
@@ -268,16 +278,16 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
             if cert is not None and cert.proved:
                 leaves.append((lo, hi, depth))
                 continue
-            plo, phi, pdepth = probe_box(loop, h, (lo, hi, depth), worst)
-            if pdepth > depth and _key(plo, phi) not in done:  # the hardest sub-box below it first
-                if spent + cost > budget:
+            path = _path(loop, h, (lo, hi, depth), worst)
+            if path:  # the hardest sub-box below it first, then the shallowest one proved on its path
+                found = _shallowest(loop, h, pieces, path, done, budget - spent)
+                spent += cost * found[1]
+                attempts += found[1]
+                if found[0] is None:
                     return None, spent, attempts, maps
-                spent += cost
-                attempts += 1
-                cert = cubic_stable(loop, h, pieces, plo, phi)
-                if cert is None or not cert.proved:
-                    return None, spent, attempts, maps
-                done.add(_key(plo, phi))
+                stack.extend(other for _, other in path[:found[0] + 1])
+                stack.append(path[found[0]][0])
+                continue
         if depth >= MAP_DEPTH:
             return None, spent, attempts, maps
         idx = None if depth < COVER_DEPTH else split_rate(loop, h, lo, hi)
@@ -287,6 +297,38 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
         stack.append(second)
         stack.append(first)
     return leaves, spent, attempts, maps
+
+
+def _shallowest(loop: SampledLoop, h: float, pieces: int, path: list[tuple[Box, Box]], done: set[tuple[bytes, bytes]],
+                budget: float) -> tuple[int | None, int]:
+    """``(i, attempts)``: the harder half ``path[i][0]`` proved by a cubic certificate of
+    ``pieces`` pieces (added to ``done``) with ``i`` found by bisection, the box above the
+    path not proved and the probe ``path[-1][0]`` tried first; ``None`` when the probe is
+    not proved or the budget cannot pay an attempt. A certificate of a sub-box holds on
+    every sub-box inside it, so along the path the proved ones are the deepest: about
+    ``log2`` of the path's length attempts instead of one per halving (the budget spent
+    on the failing halvings near the worst vertex, ``benchmarks/results/h31v.md``)."""
+    cost = cubic_work(loop, pieces)
+    attempts, fail, good, i = 0, -1, None, len(path) - 1
+    while True:
+        lo, hi, _ = path[i][0]
+        proved = _key(lo, hi) in done
+        if not proved:
+            if (attempts + 1) * cost > budget:
+                return None, attempts
+            attempts += 1
+            cert = cubic_stable(loop, h, pieces, lo, hi)
+            proved = cert is not None and cert.proved
+        if proved:
+            done.add(_key(lo, hi))
+            good = i
+        elif good is None:  # the probe
+            return None, attempts
+        else:
+            fail = i
+        if good - fail <= 1:
+            return good, attempts
+        i = (fail + good) // 2
 
 
 def _next_rung(last: float, failed: float | None, todo: list[float]) -> list[float]:
