@@ -52,8 +52,9 @@ class _Narrow:
 
 def test_harder_half_and_probe_first(monkeypatch: pytest.MonkeyPatch) -> None:
     """The box fails, then its probe is asked (COVER_DEPTH halvings down, at the corner of
-    the worst vertex), then the half holding that corner; no sub-box is asked twice and
-    the leaves are exactly the box."""
+    the worst vertex), then the shallowest proved sub-box on the path to it is found by
+    bisection (5, 2, 1 halvings: the last fails), then the other halves along the path,
+    the deepest first; no sub-box is asked twice and the leaves are exactly the box."""
     loop = _paper()
     h = 0.95 * PAPER_UNSTABLE
     worst = worst_vertex(loop, h, rate_points(loop.chain))[1]
@@ -67,12 +68,14 @@ def test_harder_half_and_probe_first(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(sampled_cover, "subbox_stable", lambda *args: False)
     leaves, _, attempts, _ = cover_box(loop, h, 2, [box], 1e12, worst)
     assert leaves is not None and attempts == len(fake.asked)
-    (lo0, hi0), (lo1, hi1), (lo2, hi2) = fake.asked[:3]
-    assert _halvings(loop, lo0, hi0) == 0 and np.array_equal(lo1, plo) and np.array_equal(hi1, phi)
-    assert _halvings(loop, lo2, hi2) == 1 and np.all(lo2 <= worst) and np.all(worst <= hi2)
+    assert np.array_equal(fake.asked[1][0], plo) and np.array_equal(fake.asked[1][1], phi)
+    # the box and its path; the other half at 2 halvings (proved), the one at 1 (not: its
+    # own probe, then its own bisection 5, 3, 2 and the other half at 2)
+    assert [_halvings(loop, lo, hi) for lo, hi in fake.asked] == [0, 10, 5, 2, 1, 2, 1, 10, 5, 3, 2, 2]
     keys = [(lo.tobytes(), hi.tobytes()) for lo, hi in fake.asked]
     assert len(keys) == len(set(keys))
     assert sorted(_halvings(loop, lo, hi) for lo, hi, _ in leaves) == [2, 2, 2, 2]
+    assert any(np.all(lo <= worst) and np.all(worst <= hi) for lo, hi, _ in leaves[:1])
     _assert_union_is_the_box(loop, leaves)
 
 
