@@ -302,15 +302,19 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
 def _shallowest(loop: SampledLoop, h: float, pieces: int, path: list[tuple[Box, Box]], done: set[tuple[bytes, bytes]],
                 budget: float) -> tuple[int | None, int]:
     """``(i, attempts)``: the harder half ``path[i][0]`` proved by a cubic certificate of
-    ``pieces`` pieces (added to ``done``) with ``i`` found by bisection, the box above the
-    path not proved and the probe ``path[-1][0]`` tried first; ``None`` when the probe is
-    not proved or the budget cannot pay an attempt. A certificate of a sub-box holds on
-    every sub-box inside it, so along the path the proved ones are the deepest: about
-    ``log2`` of the path's length attempts instead of one per halving (the budget spent
-    on the failing halvings near the worst vertex, ``benchmarks/results/h31v.md``)."""
+    ``pieces`` pieces (added to ``done``), ``i`` the smallest found: the box above the path
+    is not proved; the probe ``path[-1][0]`` is tried first, then ``path[0][0]`` (where
+    the sub-boxes are easy, one program as the top-down cover), then by bisection; ``None``
+    when the probe is not proved or the budget cannot pay an attempt. A certificate of a
+    sub-box holds on every sub-box inside it, so along the path the proved ones are the
+    deepest: about ``log2`` of the path's length attempts instead of one per halving (the
+    budget spent on the failing halvings near the worst vertex,
+    ``benchmarks/results/h31v.md``)."""
     cost = cubic_work(loop, pieces)
-    attempts, fail, good, i = 0, -1, None, len(path) - 1
+    attempts, fail, good = 0, -1, len(path) - 1
+    order = [good, 0]  # the probe, then the top (where sub-boxes are easy), then bisection
     while True:
+        i = order.pop(0) if order else (fail + good) // 2
         lo, hi, _ = path[i][0]
         proved = _key(lo, hi) in done
         if not proved:
@@ -322,13 +326,12 @@ def _shallowest(loop: SampledLoop, h: float, pieces: int, path: list[tuple[Box, 
         if proved:
             done.add(_key(lo, hi))
             good = i
-        elif good is None:  # the probe
+        elif i == len(path) - 1:  # the probe
             return None, attempts
         else:
             fail = i
         if good - fail <= 1:
             return good, attempts
-        i = (fail + good) // 2
 
 
 def _next_rung(last: float, failed: float | None, todo: list[float]) -> list[float]:
