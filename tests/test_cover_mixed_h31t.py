@@ -97,9 +97,9 @@ def test_map_proof_first_then_the_cubic(monkeypatch: pytest.MonkeyPatch) -> None
     # the box's cubic fails, then its probe (COVER_DEPTH halvings down): the rung ends there
     assert leaves is None and attempts == 2 == never.calls and maps == len(calls) == 1
     assert spent == pytest.approx(attempts * cubic_work(loop, 2) + maps * box_work(loop))
-    # only the box's probe proved: the bisection of its path fails at 5, 7, 8, 9 halvings,
-    # so the probe is the path's leaf; the other half at COVER_DEPTH is tried (its own
-    # probe is itself), then only map proofs below it, to MAP_DEPTH
+    # only the box's probe proved: the top of its path (1 halving) and the bisection (5, 7,
+    # 8, 9 halvings) fail, so the probe is the path's leaf; the other half at COVER_DEPTH
+    # is tried (its own probe is itself), then only map proofs below it, to MAP_DEPTH
     full = loop.chain.rate_max - loop.chain.rate_min
     depths: list[int] = []
 
@@ -110,8 +110,8 @@ def test_map_proof_first_then_the_cubic(monkeypatch: pytest.MonkeyPatch) -> None
     monkeypatch.setattr(sampled_cover, "cubic_stable", probe_only)
     calls.clear()
     leaves, spent, attempts, maps = cover_box(loop, PAPER_UNSTABLE * 0.95, 2, _box(loop), 1e12)
-    assert leaves is None and attempts == len(depths) == 7 and maps == len(calls) == 2 + MAP_DEPTH - COVER_DEPTH
-    assert depths == [0, COVER_DEPTH, 5, 7, 8, 9, COVER_DEPTH]
+    assert leaves is None and attempts == len(depths) == 8 and maps == len(calls) == 2 + MAP_DEPTH - COVER_DEPTH
+    assert depths == [0, COVER_DEPTH, 1, 5, 7, 8, 9, COVER_DEPTH]
 
 
 def test_cover_stops_where_the_float_radius_is_not_below_one(monkeypatch: pytest.MonkeyPatch) -> None:

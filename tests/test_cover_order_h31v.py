@@ -52,9 +52,9 @@ class _Narrow:
 
 def test_harder_half_and_probe_first(monkeypatch: pytest.MonkeyPatch) -> None:
     """The box fails, then its probe is asked (COVER_DEPTH halvings down, at the corner of
-    the worst vertex), then the shallowest proved sub-box on the path to it is found by
-    bisection (5, 2, 1 halvings: the last fails), then the other halves along the path,
-    the deepest first; no sub-box is asked twice and the leaves are exactly the box."""
+    the worst vertex), then the shallowest proved sub-box on the path to it: the top of the
+    path, then by bisection; then the other halves along the path, the deepest first; no
+    sub-box is asked twice and the leaves are exactly the box."""
     loop = _paper()
     h = 0.95 * PAPER_UNSTABLE
     worst = worst_vertex(loop, h, rate_points(loop.chain))[1]
@@ -69,9 +69,10 @@ def test_harder_half_and_probe_first(monkeypatch: pytest.MonkeyPatch) -> None:
     leaves, _, attempts, _ = cover_box(loop, h, 2, [box], 1e12, worst)
     assert leaves is not None and attempts == len(fake.asked)
     assert np.array_equal(fake.asked[1][0], plo) and np.array_equal(fake.asked[1][1], phi)
-    # the box and its path; the other half at 2 halvings (proved), the one at 1 (not: its
-    # own probe, then its own bisection 5, 3, 2 and the other half at 2)
-    assert [_halvings(loop, lo, hi) for lo, hi in fake.asked] == [0, 10, 5, 2, 1, 2, 1, 10, 5, 3, 2, 2]
+    # the box, its probe, the top of its path (1 halving: not proved), the bisection (5, 3,
+    # 2: proved); the other half at 2 halvings (proved), the one at 1 (not: its own probe,
+    # the top of its path at 2, proved, and the other half at 2)
+    assert [_halvings(loop, lo, hi) for lo, hi in fake.asked] == [0, 10, 1, 5, 3, 2, 2, 1, 10, 2, 2]
     keys = [(lo.tobytes(), hi.tobytes()) for lo, hi in fake.asked]
     assert len(keys) == len(set(keys))
     assert sorted(_halvings(loop, lo, hi) for lo, hi, _ in leaves) == [2, 2, 2, 2]

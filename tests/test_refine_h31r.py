@@ -131,12 +131,12 @@ def test_cover_splits_until_proved_and_covers_the_box(monkeypatch: pytest.Monkey
     leaves, spent, attempts, maps = cover_box(loop, 0.08, 4, start, 1e12)
     assert leaves is not None
     # two rates, each halved once: 4 leaves, exactly the box. The box fails: its probe (10
-    # halvings down), then the bisection of the path to it (5, 2 proved, 1 not), the
-    # other half at 2; the other half at 1 fails: its probe, bisection 5, 3, 2, the other
-    # half at 2. Map proofs on the sub-boxes popped (the bisection's are cubic only)
-    assert len(leaves) == 4 and maps == 4 and attempts == 12
-    assert spent == pytest.approx(12 * cubic_work(loop, 4) + 4 * box_work(loop))
-    assert [_halvings(loop, lo, hi) for _, _, (lo, hi) in fake.asked] == [0, 10, 5, 2, 1, 2, 1, 10, 5, 3, 2, 2]
+    # halvings down), the top of the path to it (1: not proved), the bisection (5, 3, 2:
+    # proved), the other half at 2; the other half at 1 fails: its probe, the top of its
+    # path (2: proved), the other half at 2. Map proofs on the sub-boxes popped only
+    assert len(leaves) == 4 and maps == 4 and attempts == 11
+    assert spent == pytest.approx(11 * cubic_work(loop, 4) + 4 * box_work(loop))
+    assert [_halvings(loop, lo, hi) for _, _, (lo, hi) in fake.asked] == [0, 10, 1, 5, 3, 2, 2, 1, 10, 2, 2]
     _assert_exact_cover(loop, leaves)
     # the budget is charged before each solve: none is started that it cannot pay
     fake.asked.clear()
@@ -161,11 +161,12 @@ def test_ladder_reuses_the_previous_cover(monkeypatch: pytest.MonkeyPatch) -> No
     got = cover_h_max(loop, hu * (1 - 0.02), hu, 1e12, 1e-3)
     assert got.h_max == pytest.approx(hu * (1 - 0.0009)) and got.boxes == 4
     assert [ok for _, ok in got.rungs] == [True, True, True]
-    # each rung: its probe (1 attempt), then the first splits the box (11 attempts: the
-    # cover above); the next two start from its 4 leaves, with 4 pieces (below FINE_FROM),
-    # their probe below the leaf holding the worst vertex, then the 4 leaves
-    assert got.attempts == (1 + 11) + (1 + 4) + (1 + 4) and got.pieces == 4
-    assert [p for _, p, _ in fake.asked] == [2] * 12 + [4] * 10
+    # each rung: its probe (1 attempt), then the first splits the box (10 attempts: the
+    # cover above, its probe already proved); the next two start from its 4 leaves, with
+    # 4 pieces (below FINE_FROM), their probe below the leaf holding the worst vertex, then
+    # the 4 leaves
+    assert got.attempts == (1 + 10) + (1 + 4) + (1 + 4) and got.pieces == 4
+    assert [p for _, p, _ in fake.asked] == [2] * 11 + [4] * 10
 
 
 class _Pieces(_Cubic):
