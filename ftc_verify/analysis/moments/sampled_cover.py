@@ -41,9 +41,13 @@ its *probe* tried (:func:`probe_box`: the sub-box the cover would reach first at
 each sub-box inside it, so when the probe is not proved neither is any sub-box on the
 path to it, and the rung ends there instead of after a cubic program at every depth of
 that path (held-out seed 13, 1.1e-2 below the crossing: 11 programs and 68,000 units for
-a rung that failed; seed 31, 6.3e-3: 26 programs and 161,000 units; the failing sub-box
-was the last path tried; ``benchmarks/results/h31v.md``). A probe proved is a leaf when
-the cover reaches it (not proved again).
+a rung that failed; seed 31, 6.3e-3: 27 programs and 161,000 units, the failing sub-box
+on the last path tried; ``benchmarks/results/h31v.md``). When the probe is proved, the
+shallowest proved sub-box on its path is looked for (:func:`_shallowest`: the top of the
+path, then bisection of the depth, about 3 programs where the top-down cover paid one
+per halving), and the cover goes on with it and the other halves along the path, the
+deepest first. A sub-box proved this way is a leaf when the cover reaches it (not
+proved again).
 
 **The ladder.** Rungs ``f = g/4, g/16, ...`` (``g`` the default bracket's relative width)
 down to the target ``0.9 rtol``, easy first; each rung starts from the previous rung's
