@@ -43,7 +43,7 @@ path to it, and the rung ends there instead of after a cubic program at every de
 that path (held-out seed 13, 1.1e-2 below the crossing: 11 programs and 68,000 units for
 a rung that failed; seed 31, 6.3e-3: 27 programs and 161,000 units, the failing sub-box
 on the last path tried; ``benchmarks/results/h31v.md``). When the probe is proved, the
-shallowest proved sub-box on its path is looked for (:func:`_shallowest`: the top of the
+shallowest proved sub-box on its path is looked for (``_shallowest``: the top of the
 path, then bisection of the depth, about 3 programs where the top-down cover paid one
 per halving), and the cover goes on with it and the other halves along the path, the
 deepest first. A sub-box proved this way is a leaf when the cover reaches it (not
@@ -217,7 +217,7 @@ def _split(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, depth: int, wors
 
 def _path(loop: SampledLoop, h: float, box: Box, worst: Matrix) -> list[tuple[Box, Box]]:
     """The splits of ``box`` the cover meets first, down to :data:`COVER_DEPTH`: per
-    halving, ``(the harder half, the other)`` (:func:`_split`), each harder half split
+    halving, ``(the harder half, the other)`` (``_split``), each harder half split
     next."""
     out: list[tuple[Box, Box]] = []
     lo, hi, depth = box
@@ -229,7 +229,7 @@ def _path(loop: SampledLoop, h: float, box: Box, worst: Matrix) -> list[tuple[Bo
 
 def probe_box(loop: SampledLoop, h: float, box: Box, worst: Matrix) -> Box:
     """The sub-box of ``box`` that the cover reaches first at depth :data:`COVER_DEPTH`
-    (the harder half of every split, :func:`_split`: the corner nearest to ``worst``),
+    (the harder half of every split, ``_split``: the corner nearest to ``worst``),
     ``box`` itself when it is that deep: the hardest sub-box a cubic certificate of the
     cover must prove below ``box`` (a certificate of a larger sub-box also holds on it),
     so it is tried first (module docstring, "Hardest first")."""
@@ -250,7 +250,7 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
     :data:`COVER_DEPTH` and when ``pieces`` is given and the budget pays it, a cubic
     certificate of ``pieces`` pieces; where that fails, its probe's before its halves.
     ``worst``: the box's worst vertex (float64, found here when not given), which orders
-    the splits; ``proved``: sub-boxes already proved at ``h`` (by :func:`_key`, exact
+    the splits; ``proved``: sub-boxes already proved at ``h`` (by ``_key``, exact
     floats), leaves without a new proof."""
     cost, per_map = (0.0 if pieces is None else cubic_work(loop, pieces)), box_work(loop)
     stack = list(reversed(boxes))
@@ -354,7 +354,7 @@ def cover_h_max(loop: SampledLoop, h_max: float, h_max_unstable: float, work: fl
     deterministic. Each rung first proves its probe (:func:`probe_box` of the previous
     cover's sub-box holding the worst vertex) with the fewest pieces it needs
     (:func:`rung_pieces`); once a rung fails, the distances are halved geometrically
-    between the last covered and the closest failed one (:func:`_next_rung`)."""
+    between the last covered and the closest failed one (``_next_rung``)."""
     gap = (h_max_unstable - h_max) / h_max_unstable
     boxes: list[Box] = [(np.array(loop.chain.rate_min, dtype=float), np.array(loop.chain.rate_max, dtype=float), 0)]
     spent, attempts, maps = 0.0, 0, 0
