@@ -38,9 +38,10 @@ of :func:`~ftc_verify.analysis.moments.sampled_proof.split_rate` (map proofs onl
 the worst vertex is tried first, and a sub-box whose cubic certificate fails first has
 its *probe* tried (:func:`probe_box`: the sub-box the cover would reach first at
 :data:`COVER_DEPTH` below it, at that corner): a certificate of a sub-box also holds on
-each sub-box inside it, so when the probe is not proved neither is any sub-box on the
-path to it, and the rung ends there instead of after a cubic program at every depth of
-that path (held-out seed 13, 1.1e-2 below the crossing: 11 programs and 68,000 units for
+each sub-box inside it (the sub-box's program is a relaxation), so when none is found
+for the probe none is expected on the path to it, and the rung ends there instead of
+after a cubic program at every depth of that path (only where the search gives up
+depends on this; every sub-box of a cover is proved) (held-out seed 13, 1.1e-2 below the crossing: 11 programs and 68,000 units for
 a rung that failed; seed 31, 6.3e-3: 27 programs and 161,000 units, the failing sub-box
 on the last path tried; ``benchmarks/results/h31v.md``). When the probe is proved, the
 shallowest proved sub-box on its path is looked for (``_shallowest``: the top of the
