@@ -16,7 +16,7 @@ import pytest
 from ftc_verify.analysis.moments import sampled_cover
 from ftc_verify.analysis.moments.sampled import SampledLoop
 from ftc_verify.analysis.moments.sampled_bracket import box_work
-from ftc_verify.analysis.moments.sampled_cover import COVER_DEPTH, cover_box, cover_h_max, cubic_work
+from ftc_verify.analysis.moments.sampled_cover import COVER_DEPTH, MAP_DEPTH, cover_box, cover_h_max, cubic_work
 from ftc_verify.analysis.moments.sampled_proof import MapParts, box_verdict, subbox_stable
 from ftc_verify.analysis.rigorous import precision
 from ftc_verify.controllers.files import load_controller
@@ -78,7 +78,8 @@ def test_subbox_proof_proves_below_and_refuses_above_the_crossing() -> None:
 
 def test_map_proof_first_then_the_cubic(monkeypatch: pytest.MonkeyPatch) -> None:
     """Where the map proves the box, no cubic certificate is tried or charged; where it
-    does not, the cubic is, up to :data:`COVER_DEPTH`, and then only map proofs."""
+    does not, the cubic is (and the probe below it and the bisection of its path), up to
+    :data:`COVER_DEPTH`, and then only map proofs."""
     loop = _paper()
     never = _Never()
     monkeypatch.setattr(sampled_cover, "cubic_stable", never)
@@ -93,8 +94,24 @@ def test_map_proof_first_then_the_cubic(monkeypatch: pytest.MonkeyPatch) -> None
 
     monkeypatch.setattr(sampled_cover, "subbox_stable", refuse_above)
     leaves, spent, attempts, maps = cover_box(loop, PAPER_UNSTABLE * 0.95, 2, _box(loop), 1e12)
-    assert leaves is None and attempts == COVER_DEPTH + 1 == never.calls and maps == len(calls)
+    # the box's cubic fails, then its probe (COVER_DEPTH halvings down): the rung ends there
+    assert leaves is None and attempts == 2 == never.calls and maps == len(calls) == 1
     assert spent == pytest.approx(attempts * cubic_work(loop, 2) + maps * box_work(loop))
+    # only the box's probe proved: the top of its path (1 halving) and the bisection (5, 7,
+    # 8, 9 halvings) fail, so the probe is the path's leaf; the other half at COVER_DEPTH
+    # is tried (its own probe is itself), then only map proofs below it, to MAP_DEPTH
+    full = loop.chain.rate_max - loop.chain.rate_min
+    depths: list[int] = []
+
+    def probe_only(loop_: SampledLoop, h: float, pieces: int, lo: np.ndarray, hi: np.ndarray) -> object:
+        depths.append(round(float(sum(np.log2(full[r] / (hi[r] - lo[r])) for r in loop_.chain.rate_indices))))
+        return type("Cert", (), {"proved": depths[-1] == COVER_DEPTH and depths.count(COVER_DEPTH) == 1})()
+
+    monkeypatch.setattr(sampled_cover, "cubic_stable", probe_only)
+    calls.clear()
+    leaves, spent, attempts, maps = cover_box(loop, PAPER_UNSTABLE * 0.95, 2, _box(loop), 1e12)
+    assert leaves is None and attempts == len(depths) == 8 and maps == len(calls) == 2 + MAP_DEPTH - COVER_DEPTH
+    assert depths == [0, COVER_DEPTH, 1, 5, 7, 8, 9, COVER_DEPTH]
 
 
 def test_cover_stops_where_the_float_radius_is_not_below_one(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -124,10 +141,11 @@ def test_map_only_cover_is_the_box_and_confirmed(monkeypatch: pytest.MonkeyPatch
     _assert_exact_cover(loop, leaves)
 
 
-def test_failed_rung_retried_once_at_the_geometric_mean(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_failed_rung_bisected_geometrically(monkeypatch: pytest.MonkeyPatch) -> None:
     """Cubic certificates proving exactly the periods at least 4e-3 below ``hu``, map
-    proofs never: rungs 1e-2 (covered), 2.5e-3 (not), then once 5e-3 (covered), and no
-    rung after the retry."""
+    proofs never: rungs 1e-2 (covered), 2.5e-3 (not), then at the geometric mean of the
+    last covered and the closest failed distance, 5e-3 (covered), 3.5e-3 (not), 4.2e-3
+    (covered), and none once these are less than ``BISECT`` apart."""
     loop = _paper()
     hu = PAPER_UNSTABLE
 
@@ -137,9 +155,12 @@ def test_failed_rung_retried_once_at_the_geometric_mean(monkeypatch: pytest.Monk
     monkeypatch.setattr(sampled_cover, "cubic_stable", cubic)
     monkeypatch.setattr(sampled_cover, "subbox_stable", lambda *args: False)
     got = cover_h_max(loop, 0.96 * hu, hu, 1e12, 1e-3)
-    assert [ok for _, ok in got.rungs] == [True, False, True]
-    assert [h for h, _ in got.rungs] == pytest.approx([hu * (1 - 1e-2), hu * (1 - 2.5e-3), hu * (1 - 5e-3)])
-    assert got.h_max == pytest.approx(hu * (1 - 5e-3))
+    assert [ok for _, ok in got.rungs] == [True, False, True, False, True]
+    mid = (5e-3 * 2.5e-3) ** 0.5
+    assert [h for h, _ in got.rungs] == pytest.approx([hu * (1 - f) for f in (1e-2, 2.5e-3, 5e-3, mid,
+                                                                             (5e-3 * mid) ** 0.5)])
+    assert got.h_max == pytest.approx(hu * (1 - (5e-3 * mid) ** 0.5))
+    assert (5e-3 * mid) ** 0.5 / mid < sampled_cover.BISECT
 
 
 def test_split_cover_by_real_map_proofs_is_exactly_the_box(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -17,7 +17,7 @@ import pytest
 from ftc_verify.analysis.moments import sampled_cover
 from ftc_verify.analysis.moments.sampled import SampledLoop, SampledResult
 from ftc_verify.analysis.moments.sampled_bracket import box_work
-from ftc_verify.analysis.moments.sampled_cover import (COVER_DEPTH, MAP_DEPTH, cover_box, cover_h_max, cover_rungs,
+from ftc_verify.analysis.moments.sampled_cover import (MAP_DEPTH, cover_box, cover_h_max, cover_rungs,
                                                        cubic_work, rung_pieces)
 from ftc_verify.analysis.moments.sampled_cubic import cubic_stable, prove_cubic
 from ftc_verify.analysis.moments.sampled_proof import box_verdict
@@ -117,6 +117,12 @@ def _assert_exact_cover(loop: SampledLoop, leaves: list[Any]) -> None:
     assert sum((volume(lo, hi) for lo, hi, _ in leaves), Fraction(0)) == volume(lo0, hi0)
 
 
+def _halvings(loop: SampledLoop, lo: np.ndarray, hi: np.ndarray) -> int:
+    """How many halvings of the box give the sub-box ``[lo, hi]``."""
+    full = loop.chain.rate_max - loop.chain.rate_min
+    return round(float(sum(np.log2(full[r] / (hi[r] - lo[r])) for r in loop.chain.rate_indices)))
+
+
 def test_cover_splits_until_proved_and_covers_the_box(monkeypatch: pytest.MonkeyPatch) -> None:
     loop = _paper()
     fake = _Cubic(0.5)
@@ -124,18 +130,25 @@ def test_cover_splits_until_proved_and_covers_the_box(monkeypatch: pytest.Monkey
     start = [(loop.chain.rate_min.copy(), loop.chain.rate_max.copy(), 0)]
     leaves, spent, attempts, maps = cover_box(loop, 0.08, 4, start, 1e12)
     assert leaves is not None
-    # two rates, each halved once: 4 leaves after 1 + 2 + 4 attempts, exactly the box
-    assert len(leaves) == 4 and attempts == maps == 7
-    assert spent == pytest.approx(7 * (cubic_work(loop, 4) + box_work(loop)))
+    # two rates, each halved once: 4 leaves, exactly the box. The box fails: its probe (10
+    # halvings down), the top of the path to it (1: not proved), the bisection (5, 3, 2:
+    # proved), the other half at 2; the other half at 1 fails: its probe, the top of its
+    # path (2: proved), the other half at 2. Map proofs on the sub-boxes popped only
+    assert len(leaves) == 4 and maps == 4 and attempts == 11
+    assert spent == pytest.approx(11 * cubic_work(loop, 4) + 4 * box_work(loop))
+    assert [_halvings(loop, lo, hi) for _, _, (lo, hi) in fake.asked] == [0, 10, 1, 5, 3, 2, 2, 1, 10, 2, 2]
     _assert_exact_cover(loop, leaves)
     # the budget is charged before each solve: none is started that it cannot pay
     fake.asked.clear()
     leaves, spent, attempts, _ = cover_box(loop, 0.08, 4, start, 2.5 * cubic_work(loop, 4))
     assert leaves is None and attempts == 2 and len(fake.asked) == 2 and spent <= 2.5 * cubic_work(loop, 4)
-    # a sub-box never proved: stopped at the depth limit
+    # a sub-box never proved: stopped at its probe (the box, then its hardest sub-box at
+    # COVER_DEPTH, not a program at every depth); by map proofs alone at the depth limit
     monkeypatch.setattr(sampled_cover, "cubic_stable", _Cubic(0.0))
     leaves, _, attempts, maps = cover_box(loop, 0.08, 4, start, 1e12)
-    assert leaves is None and attempts == COVER_DEPTH + 1 and maps == MAP_DEPTH + 1
+    assert leaves is None and attempts == 2 and maps == 1
+    leaves, _, attempts, maps = cover_box(loop, 0.08, None, start, 1e12)
+    assert leaves is None and attempts == 0 and maps == MAP_DEPTH + 1
 
 
 def test_ladder_reuses_the_previous_cover(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -148,15 +161,16 @@ def test_ladder_reuses_the_previous_cover(monkeypatch: pytest.MonkeyPatch) -> No
     got = cover_h_max(loop, hu * (1 - 0.02), hu, 1e12, 1e-3)
     assert got.h_max == pytest.approx(hu * (1 - 0.0009)) and got.boxes == 4
     assert [ok for _, ok in got.rungs] == [True, True, True]
-    # each rung: the worst vertex alone (1 attempt), then the first split the box (7
-    # attempts); the next two start from its 4 leaves, with 4 pieces (below FINE_FROM)
-    assert got.attempts == (1 + 7) + (1 + 4) + (1 + 4) and got.pieces == 4
-    assert [p for _, p, _ in fake.asked] == [2] * 8 + [4] * 10
+    # each rung: its probe (1 attempt), then the first splits the box (10 attempts: the
+    # cover above, its probe already proved); the next two start from its 4 leaves, with
+    # 4 pieces (below FINE_FROM), their probe below the leaf holding the worst vertex, then
+    # the 4 leaves
+    assert got.attempts == (1 + 10) + (1 + 4) + (1 + 4) and got.pieces == 4
+    assert [p for _, p, _ in fake.asked] == [2] * 11 + [4] * 10
 
 
 class _Pieces(_Cubic):
-    """Proves a single rate array only with at least ``least`` pieces, any sub-box of
-    width ``share`` with any pieces."""
+    """Proves a sub-box of width ``share`` only with at least ``least`` pieces."""
 
     def __init__(self, share: float, least: int) -> None:
         super().__init__(share)
@@ -164,22 +178,26 @@ class _Pieces(_Cubic):
 
     def __call__(self, loop: SampledLoop, h: float, pieces: int, lo: np.ndarray, hi: np.ndarray) -> object:
         cert = super().__call__(loop, h, pieces, lo, hi)
-        if np.array_equal(lo, hi) and pieces < self.least:
+        if pieces < self.least:
             return type("Cert", (), {"proved": False})()
         return cert
 
 
-def test_rung_pieces_from_the_worst_vertex(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_rung_pieces_from_the_probe(monkeypatch: pytest.MonkeyPatch) -> None:
     loop = _paper()
-    worst = loop.chain.rate_max.copy()
+    lo, hi = loop.chain.rate_min.copy(), loop.chain.rate_max.copy()
     monkeypatch.setattr(sampled_cover, "cubic_stable", _Pieces(1.0, 4))
-    assert rung_pieces(loop, 0.08, worst, 2, 1e12) == (4, pytest.approx(cubic_work(loop, 2) + cubic_work(loop, 4)), 2)
-    assert rung_pieces(loop, 0.08, worst, 4, 1e12)[0] == 4  # never fewer than the last rung's
-    assert rung_pieces(loop, 0.08, worst, 2, 1.5 * cubic_work(loop, 2))[0] is None  # the budget first
+    assert rung_pieces(loop, 0.08, lo, hi, 2, 1e12) == (4, pytest.approx(cubic_work(loop, 2) + cubic_work(loop, 4)), 2)
+    assert rung_pieces(loop, 0.08, lo, hi, 4, 1e12)[0] == 4  # never fewer than the last rung's
+    assert rung_pieces(loop, 0.08, lo, hi, 2, 1.5 * cubic_work(loop, 2))[0] is None  # the budget first
     monkeypatch.setattr(sampled_cover, "cubic_stable", _Pieces(1.0, 16))
     got = cover_h_max(loop, 0.0843 * 0.98, 0.0843, 1e12, 1e-3)
-    # 5e-3 fails, then once the geometric mean of 2e-2 and 5e-3
-    assert got.h_max is None and got.rungs == ((pytest.approx(0.0843 * 0.995), False), (pytest.approx(0.0843 * 0.99), False))
+    # 5e-3 fails, then the geometric means of 2e-2 and the closest failed distance while
+    # more than BISECT apart: 1e-2, 1.41e-2, 1.68e-2
+    assert got.h_max is None
+    assert [h for h, _ in got.rungs] == pytest.approx([0.0843 * (1 - f) for f in (5e-3, 1e-2, 2 ** 0.5 * 1e-2,
+                                                                                 2 ** 0.75 * 1e-2)])
+    assert not any(ok for _, ok in got.rungs)
 
 
 def test_refine_result_only_when_wider_than_rtol(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -195,7 +213,7 @@ def test_refine_result_only_when_wider_than_rtol(monkeypatch: pytest.MonkeyPatch
     assert got.h_max == pytest.approx(PAPER_UNSTABLE * 0.9991) and "refinement (--h-max-work" in got.h_max_note
     assert "by 1 sub-box(es), each by its one-period map or 4 cubic pieces" in got.h_max_note
     none = dataclasses.replace(base, h_max=None, h_max_note="not proved")
-    got = refine_result(system, controller, none, cubic_work(_paper(), 2) * 2.5)  # the vertex, then the box
+    got = refine_result(system, controller, none, cubic_work(_paper(), 2) * 2.5)  # the probe, then the box
     assert got.h_max == pytest.approx(PAPER_UNSTABLE * (1 - 0.125))  # from a 50 % bracket: g / 4
     monkeypatch.setattr(sampled_cover, "cubic_stable", _Cubic(0.0))
     assert refine_result(system, controller, wide, 1e5).h_max == wide.h_max  # nothing proved: unchanged

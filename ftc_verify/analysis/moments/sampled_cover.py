@@ -27,22 +27,41 @@ sub-boxes near the worst vertex where no cubic certificate of a sub-box is found
 (held-out seed 13 at 1e-2: 75 map sub-boxes of a vertex box of 1/16 of the widths,
 ``benchmarks/results/h31t.md``), and the cubic proves the large ones far from it. With
 :data:`MAP_DEPTH` 12 that deep a vertex box is not reached: on the held-out loops
-measured, no rung was decided by map proofs; the gain there came from the retry rung. A cover is built depth first: a sub-box not proved is split in
-half along its widest rate (relative to the box; on ties the one that moves the float64
-radius most near the box's worst vertex) up to :data:`COVER_DEPTH` halvings along a
-path (cubic certificates tried), then along the rate of
-:func:`~ftc_verify.analysis.moments.sampled_proof.split_rate` (map proofs only) up to
+measured, no rung was decided by map proofs. A cover is built depth first: a sub-box
+not proved is split in half along its widest rate (relative to the box; on ties the one
+that moves the float64 radius most near the box's worst vertex) up to
+:data:`COVER_DEPTH` halvings along a path (cubic certificates tried), then along the rate
+of :func:`~ftc_verify.analysis.moments.sampled_proof.split_rate` (map proofs only) up to
 :data:`MAP_DEPTH`; it stops where a sub-box's midpoint has a float64 radius >= 1.
+
+**Hardest first.** Of the two halves of a split the one holding the corner nearest to
+the worst vertex is tried first, and a sub-box whose cubic certificate fails first has
+its *probe* tried (:func:`probe_box`: the sub-box the cover would reach first at
+:data:`COVER_DEPTH` below it, at that corner): a certificate of a sub-box also holds on
+each sub-box inside it (the sub-box's program is a relaxation), so when none is found
+for the probe none is expected on the path to it, and the rung ends there instead of
+after a cubic program at every depth of that path (only where the search gives up
+depends on this; every sub-box of a cover is proved) (held-out seed 13, 1.1e-2 below the crossing: 11 programs and 68,000 units for
+a rung that failed; seed 31, 6.3e-3: 27 programs and 161,000 units, the failing sub-box
+on the last path tried; ``benchmarks/results/h31v.md``). When the probe is proved, the
+shallowest proved sub-box on its path is looked for (``_shallowest``: the top of the
+path, then bisection of the depth, about 3 programs where the top-down cover paid one
+per halving), and the cover goes on with it and the other halves along the path, the
+deepest first. A sub-box proved this way is a leaf when the cover reaches it (not
+proved again).
 
 **The ladder.** Rungs ``f = g/4, g/16, ...`` (``g`` the default bracket's relative width)
 down to the target ``0.9 rtol``, easy first; each rung starts from the previous rung's
 cover (its sub-boxes, not the whole box again), with the fewest pieces of :data:`PIECES`
-(at least the last rung's, and 4 below :data:`FINE_FROM`) that prove the worst vertex alone (:func:`rung_pieces`:
-splitting the rates cannot make up for too few pieces in the clock; on the seed-1 loop
-two pieces reach 2.5e-3, four 5e-4 there; once none proves it, the later rungs are
-covered by map proofs alone). After the first rung not covered within the budget or the
-depth, one more at the geometric mean of its distance and the last covered one, then it
-stops; the result is the last rung covered. Every attempt is charged *before* it is
+(at least the last covered rung's, and 4 below :data:`FINE_FROM`) that prove its probe
+below the previous cover's sub-box holding the worst vertex (:func:`rung_pieces`;
+splitting the rates cannot make up for too few pieces in the clock: on the seed-1 loop
+two pieces reach 2.5e-3 at the worst vertex, four 5e-4; when none proves it, the rung and
+the closer ones are covered by map proofs alone). Once a rung is not covered within the
+budget or the depth, the next is at the geometric mean of the last covered and the
+closest failed distance, while these are more than :data:`BISECT` apart (the rung before
+stopped after one such retry with half the budget unspent: seed 13 160,563 units of
+300,000); the result is the last rung covered. Every attempt is charged *before* it is
 solved, from the problem's size only (:func:`cubic_work` per cubic certificate,
 :func:`~ftc_verify.analysis.moments.sampled_bracket.box_work` per map proof), and none
 is started that the budget cannot pay: the same loop and budget give the same
@@ -63,8 +82,8 @@ from .sampled_bracket import box_work, worst_vertex
 from .sampled_cubic import cubic_size, cubic_stable
 from .sampled_proof import MapParts, split_rate, subbox_stable
 
-__all__ = ["COVER_DEPTH", "MAP_DEPTH", "PIECES", "FINE_FROM", "CoverResult", "cubic_work", "cubic_memory", "cover_rungs", "rung_pieces",
-           "cover_box", "cover_h_max"]
+__all__ = ["COVER_DEPTH", "MAP_DEPTH", "PIECES", "FINE_FROM", "BISECT", "CoverResult", "cubic_work", "cubic_memory",
+           "cover_rungs", "rung_pieces", "probe_box", "cover_box", "cover_h_max"]
 
 #: The most halvings of the box along one path of the cover where cubic certificates are
 #: tried (halving the widest rate); below it only the one-period map's proofs.
@@ -80,6 +99,10 @@ PIECES = (2, 4, 8)
 #: Below this distance a rung uses at least 4 pieces: the seed-1 loop's sub-boxes needed 4
 #: at 1.25e-3 and 9e-4 where 2 sufficed for the worst vertex alone.
 FINE_FROM = 3e-3
+#: After a rung fails, rungs at the geometric mean of the last covered and the closest
+#: failed distance while these are more than this factor apart (4x apart: at most three
+#: more rungs, 2x, 1.4x and 1.19x from the covered one).
+BISECT = 1.25
 
 
 def cubic_work(loop: SampledLoop, pieces: int) -> float:
@@ -115,11 +138,13 @@ def cover_rungs(gap: float, rtol: float) -> tuple[float, ...]:
     return tuple(out)
 
 
-def rung_pieces(loop: SampledLoop, h: float, worst: Matrix, fewest: int, budget: float) -> tuple[int | None, float, int]:
+def rung_pieces(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, fewest: int,
+                budget: float) -> tuple[int | None, float, int]:
     """The fewest cubic pieces of :data:`PIECES`, at least ``fewest``, whose certificate
-    is found and proved at the worst vertex ``worst`` alone at period ``h``: what the
-    clock needs there (a cover cannot do with fewer); ``(pieces or None, units charged,
-    attempts)``, ``None`` when none is (or the budget ran out): the rung is out of reach."""
+    is found and proved for the rates in ``[lo, hi]`` at period ``h`` (the rung's probe,
+    :func:`probe_box`: what the clock needs there; a cover cannot do with fewer, its
+    sub-boxes near the worst vertex are no larger); ``(pieces or None, units charged,
+    attempts)``, ``None`` when none is (or the budget ran out)."""
     spent, attempts = 0.0, 0
     for n in [n for n in PIECES if n >= fewest]:
         cost = cubic_work(loop, n)
@@ -127,7 +152,7 @@ def rung_pieces(loop: SampledLoop, h: float, worst: Matrix, fewest: int, budget:
             break
         spent += cost
         attempts += 1
-        cert = cubic_stable(loop, h, n, worst, worst)
+        cert = cubic_stable(loop, h, n, lo, hi)
         if cert is not None and cert.proved:
             return n, spent, attempts
     return None, spent, attempts
@@ -154,20 +179,25 @@ class CoverResult:
 Box = tuple[Matrix, Matrix, int]
 
 
+def _key(lo: Matrix, hi: Matrix) -> tuple[bytes, bytes]:
+    return np.asarray(lo, dtype=float).tobytes(), np.asarray(hi, dtype=float).tobytes()
+
+
 def _split(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, depth: int, worst: Matrix,
            rate: tuple[int, ...] | None = None) -> tuple[Box, Box]:
     """The two halves of ``[lo, hi]`` along ``rate`` or, not given, its widest rate
     relative to the box, among those the one that moves the float64 radius most: at
     ``v``, the sub-box's corner nearest to ``worst`` (the worst vertex of the box), the
-    rate flipped to the sub-box's other end. Only the order of the splits depends on it
-    (splitting the same two radius-moving rates again and again left a held-out loop's
-    sub-box unproved: the rates that vary in time matter too); every sub-box is proved
-    in ball arithmetic."""
+    rate flipped to the sub-box's other end. The half holding ``v`` first (the harder
+    one: the cover tries it first, so that a rung it cannot cover fails early). Only the
+    order of the splits depends on it (splitting the same two radius-moving rates again
+    and again left a held-out loop's sub-box unproved: the rates that vary in time matter
+    too); every sub-box is proved in ball arithmetic."""
     chain = loop.chain
+    v = np.where(np.abs(worst - lo) <= np.abs(worst - hi), lo, hi)
     r = rate
     if r is None:
         free = [r for r in chain.rate_indices if hi[r] > lo[r]]
-        v = np.where(np.abs(worst - lo) <= np.abs(worst - hi), lo, hi)
         base = spectral_radius(loop, h, v)
         full = chain.rate_max - chain.rate_min
 
@@ -182,28 +212,59 @@ def _split(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, depth: int, wors
     lo2, hi1 = lo.copy(), hi.copy()
     hi1[r] = mid
     lo2[r] = mid
-    return (lo, hi1, depth + 1), (lo2, hi, depth + 1)
+    low, high = (lo, hi1, depth + 1), (lo2, hi, depth + 1)
+    return (low, high) if v[r] == lo[r] else (high, low)
 
 
-def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
-              budget: float, worst: Matrix | None = None) -> tuple[list[Box] | None, float, int, int]:
-    """A cover of the union of ``boxes`` at period ``h`` (module docstring), depth first:
-    ``(sub-boxes, units charged, cubic attempts, map proofs)``, the sub-boxes ``None``
-    when the budget or :data:`MAP_DEPTH` ran out first, or the float64 radius at a
-    sub-box's midpoint is not below 1. Each sub-box: the one-period map's proof
-    (:func:`~ftc_verify.analysis.moments.sampled_proof.subbox_stable`, charged
+def _path(loop: SampledLoop, h: float, box: Box, worst: Matrix) -> list[tuple[Box, Box]]:
+    """The splits of ``box`` the cover meets first, down to :data:`COVER_DEPTH`: per
+    halving, ``(the harder half, the other)`` (``_split``), each harder half split
+    next."""
+    out: list[tuple[Box, Box]] = []
+    lo, hi, depth = box
+    while depth < COVER_DEPTH and any(hi[r] > lo[r] for r in loop.chain.rate_indices):
+        out.append(_split(loop, h, lo, hi, depth, worst))
+        lo, hi, depth = out[-1][0]
+    return out
+
+
+def probe_box(loop: SampledLoop, h: float, box: Box, worst: Matrix) -> Box:
+    """The sub-box of ``box`` that the cover reaches first at depth :data:`COVER_DEPTH`
+    (the harder half of every split, ``_split``: the corner nearest to ``worst``),
+    ``box`` itself when it is that deep: the hardest sub-box a cubic certificate of the
+    cover must prove below ``box`` (a certificate of a larger sub-box also holds on it),
+    so it is tried first (module docstring, "Hardest first")."""
+    path = _path(loop, h, box, worst)
+    return path[-1][0] if path else box
+
+
+def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box], budget: float,
+              worst: Matrix | None = None,
+              proved: frozenset[tuple[bytes, bytes]] = frozenset()) -> tuple[list[Box] | None, float, int, int]:
+    """A cover of the union of ``boxes`` at period ``h`` (module docstring), depth first,
+    the harder half of each split first: ``(sub-boxes, units charged, cubic attempts, map
+    proofs)``, the sub-boxes ``None`` when the budget or :data:`MAP_DEPTH` ran out first,
+    the float64 radius at a sub-box's midpoint is not below 1, or a sub-box's
+    :func:`probe_box` is not proved by a cubic certificate. Each sub-box: the one-period
+    map's proof (:func:`~ftc_verify.analysis.moments.sampled_proof.subbox_stable`, charged
     :func:`~ftc_verify.analysis.moments.sampled_bracket.box_work`), then, up to
     :data:`COVER_DEPTH` and when ``pieces`` is given and the budget pays it, a cubic
-    certificate of ``pieces`` pieces. ``worst``: the box's worst vertex (float64, found
-    here when not given), which orders the splits (module docstring)."""
+    certificate of ``pieces`` pieces; where that fails, its probe's before its halves.
+    ``worst``: the box's worst vertex (float64, found here when not given), which orders
+    the splits; ``proved``: sub-boxes already proved at ``h`` (by ``_key``, exact
+    floats), leaves without a new proof."""
     cost, per_map = (0.0 if pieces is None else cubic_work(loop, pieces)), box_work(loop)
     stack = list(reversed(boxes))
     leaves: list[Box] = []
+    done = set(proved)
     spent, attempts, maps = 0.0, 0, 0
     with precision(64):
         parts = MapParts.build(loop, h)
     while stack:
         lo, hi, depth = stack.pop()
+        if _key(lo, hi) in done:
+            leaves.append((lo, hi, depth))
+            continue
         if spent + per_map > budget:
             return None, spent, attempts, maps
         spent += per_map
@@ -213,6 +274,8 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
             continue
         if spectral_radius(loop, h, 0.5 * (lo + hi)) >= 1.0:  # no proof can hold there: before any cubic is paid
             return None, spent, attempts, maps
+        if worst is None:
+            worst = worst_vertex(loop, h, rate_points(loop.chain))[1]
         if pieces is not None and depth <= COVER_DEPTH and spent + cost <= budget:
             spent += cost
             attempts += 1
@@ -220,10 +283,18 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
             if cert is not None and cert.proved:
                 leaves.append((lo, hi, depth))
                 continue
+            path = _path(loop, h, (lo, hi, depth), worst)
+            if path:  # the hardest sub-box below it first, then the shallowest one proved on its path
+                found = _shallowest(loop, h, pieces, path, done, budget - spent)
+                spent += cost * found[1]
+                attempts += found[1]
+                if found[0] is None:
+                    return None, spent, attempts, maps
+                stack.extend(other for _, other in path[:found[0] + 1])
+                stack.append(path[found[0]][0])
+                continue
         if depth >= MAP_DEPTH:
             return None, spent, attempts, maps
-        if worst is None:
-            worst = worst_vertex(loop, h, rate_points(loop.chain))[1]
         idx = None if depth < COVER_DEPTH else split_rate(loop, h, lo, hi)
         if idx is None and not any(hi[r] > lo[r] for r in loop.chain.rate_indices):
             return None, spent, attempts, maps
@@ -233,39 +304,90 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
     return leaves, spent, attempts, maps
 
 
+def _shallowest(loop: SampledLoop, h: float, pieces: int, path: list[tuple[Box, Box]], done: set[tuple[bytes, bytes]],
+                budget: float) -> tuple[int | None, int]:
+    """``(i, attempts)``: the harder half ``path[i][0]`` proved by a cubic certificate of
+    ``pieces`` pieces (added to ``done``), ``i`` the smallest found: the box above the path
+    is not proved; the probe ``path[-1][0]`` is tried first, then ``path[0][0]`` (where
+    the sub-boxes are easy, one program as the top-down cover), then by bisection; ``None``
+    when the probe is not proved or the budget cannot pay an attempt. A certificate of a
+    sub-box holds on every sub-box inside it, so along the path the proved ones are the
+    deepest: about ``log2`` of the path's length attempts instead of one per halving (the
+    budget spent on the failing halvings near the worst vertex,
+    ``benchmarks/results/h31v.md``)."""
+    cost = cubic_work(loop, pieces)
+    attempts, fail, good = 0, -1, len(path) - 1
+    order = [good, 0]  # the probe, then the top (where sub-boxes are easy), then bisection
+    while True:
+        i = order.pop(0) if order else (fail + good) // 2
+        lo, hi, _ = path[i][0]
+        proved = _key(lo, hi) in done
+        if not proved:
+            if (attempts + 1) * cost > budget:
+                return None, attempts
+            attempts += 1
+            cert = cubic_stable(loop, h, pieces, lo, hi)
+            proved = cert is not None and cert.proved
+        if proved:
+            done.add(_key(lo, hi))
+            good = i
+        elif i == len(path) - 1:  # the probe
+            return None, attempts
+        else:
+            fail = i
+        if good - fail <= 1:
+            return good, attempts
+
+
+def _next_rung(last: float, failed: float | None, todo: list[float]) -> list[float]:
+    """The distances left to try: the ladder's until a rung fails, then the geometric
+    mean of the last covered distance ``last`` and the closest failed one while they are
+    more than :data:`BISECT` apart."""
+    if failed is None:
+        return todo
+    return [math.sqrt(last * failed)] if last > BISECT * failed else []
+
+
 def cover_h_max(loop: SampledLoop, h_max: float, h_max_unstable: float, work: float, rtol: float) -> CoverResult:
     """A period closer to ``h_max_unstable`` than ``h_max``, proved mean-square stable
     for every rate of the box by a cover of sub-boxes, each proved by its one-period
     map or a cubic clock certificate (module docstring), within ``work`` units;
-    deterministic. When a rung fails, one more at the geometric mean of its distance
-    and the last covered one (the rungs are 4x apart), then it stops."""
+    deterministic. Each rung first proves its probe (:func:`probe_box` of the previous
+    cover's sub-box holding the worst vertex) with the fewest pieces it needs
+    (:func:`rung_pieces`); once a rung fails, the distances are halved geometrically
+    between the last covered and the closest failed one (``_next_rung``)."""
     gap = (h_max_unstable - h_max) / h_max_unstable
     boxes: list[Box] = [(np.array(loop.chain.rate_min, dtype=float), np.array(loop.chain.rate_max, dtype=float), 0)]
     spent, attempts, maps = 0.0, 0, 0
     best: tuple[float, int, int | None] | None = None
     rungs: list[tuple[float, bool]] = []
     worst = worst_vertex(loop, h_max_unstable, rate_points(loop.chain))[1]
-    pieces: int | None = PIECES[0]
-    todo, last, retried = list(cover_rungs(gap, rtol)), gap, False
+    pieces, hopeless = PIECES[0], 0.0  # no pieces proved the probe at distance `hopeless`: none will closer
+    todo, last, failed = list(cover_rungs(gap, rtol)), gap, None
     while todo:
         f = todo.pop(0)
         h = h_max_unstable * (1.0 - f)
-        found = pieces
-        if found is not None:  # once no pieces prove the worst vertex, none will closer to h_u
-            found, used, n = rung_pieces(loop, h, worst, max(found, 4 if f < FINE_FROM else 2), work - spent)
+        found: int | None = None
+        proved: frozenset[tuple[bytes, bytes]] = frozenset()
+        if f > hopeless:
+            home = next(b for b in boxes if np.all((b[0] <= worst) & (worst <= b[1])))
+            plo, phi, _ = probe_box(loop, h, home, worst)
+            found, used, n = rung_pieces(loop, h, plo, phi, max(pieces, 4 if f < FINE_FROM else 2), work - spent)
             spent += used
             attempts += n
-        leaves, used, n, k = cover_box(loop, h, found, boxes, work - spent, worst)
+            proved = frozenset() if found is None else frozenset({_key(plo, phi)})
+            hopeless = f if found is None else hopeless
+        leaves, used, n, k = cover_box(loop, h, found, boxes, work - spent, worst, proved)
         spent += used
         attempts += n
         maps += k
         rungs.append((h, leaves is not None))
         if leaves is None:
-            if retried or last < 2.0 * f:
-                break
-            todo, retried = [math.sqrt(last * f)], True
-            continue
-        best, boxes, pieces, last = (h, len(leaves), found), leaves, found, f
+            failed = f if failed is None else max(failed, f)
+        else:
+            best, boxes, last = (h, len(leaves), found), leaves, f
+            pieces = found if found is not None else pieces
+        todo = _next_rung(last, failed, todo)
     if best is None:
         return CoverResult(None, 0, None, spent, attempts, maps, tuple(rungs))
     return CoverResult(best[0], best[1], best[2], spent, attempts, maps, tuple(rungs))
