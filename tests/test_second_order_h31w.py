@@ -81,21 +81,21 @@ def _form(loop: SampledLoop, h: float, lo: np.ndarray, hi: np.ndarray) -> tuple[
 def test_second_order_proves_where_the_affine_fails(setting: tuple[SampledLoop, float, np.ndarray],
                                                     monkeypatch: pytest.MonkeyPatch) -> None:
     """0.3 % below the crossing (radius 0.993 at the vertex), the sub-box of an eighth of
-    every width at the worst vertex: the affine forms fail (``QUADRATIC_SIZE`` 0, the
-    rule before: affine forms at six rates and 189 rows); the second-order form proves
+    every width at the worst vertex: the affine forms fail (``QUADRATIC_SIZE_SMALL`` 0,
+    the rule before: affine forms at six rates and 189 rows); the second-order form proves
     it with the shifted certificate (not with the identity right-hand side), and
     ``subbox_stable`` as configured (second-order forms there) proves it."""
     loop, a, v = setting
     h = a * (1 - 3e-3)
     lo, hi = _corner(loop, v, 0.125)
-    assert 6 ** 2 * 189 <= sampled_taylor.QUADRATIC_SIZE
+    assert sampled_taylor.quadratic_forms(6, 189)
     with precision(64):
         parts = MapParts.build(loop, h)
     form = _form(loop, h, lo, hi)
     assert not certify_second_order(loop, form, None)
     assert certify_second_order(loop, form, shifted=True)
     assert subbox_stable(loop, h, parts, lo, hi)
-    monkeypatch.setattr(sampled_taylor, "QUADRATIC_SIZE", 0)
+    monkeypatch.setattr(sampled_taylor, "QUADRATIC_SIZE_SMALL", 0)
     with precision(64):
         assert affine_stable(loop, parts, lo, hi) is False
 
@@ -158,3 +158,13 @@ def test_sparse_products_give_the_dense_forms(monkeypatch: pytest.MonkeyPatch) -
         for s, d in zip(s_form[:-1], d_form[:-1]):
             assert np.allclose(s, d, rtol=0, atol=1e-14 * max(1.0, float(np.abs(d).max())))
         assert np.allclose(s_form[-1], d_form[-1], rtol=1e-12, atol=0)
+
+
+def test_second_order_forms_stay_within_what_was_measured() -> None:
+    """The second-order forms at ``K^2 N <= 8000`` only up to 256 rows (measured at six
+    rates and 189 rows); above, the rule before round 11 (``K^2 N <= 1000``): a
+    generator of 2000 rows with two free rates keeps the affine forms (its
+    ``K (K + 1) / 2`` dense second-order terms would need gigabytes)."""
+    assert sampled_taylor.quadratic_forms(6, 189) and sampled_taylor.quadratic_forms(5, 256)
+    assert not sampled_taylor.quadratic_forms(2, 2000) and not sampled_taylor.quadratic_forms(6, 257)
+    assert sampled_taylor.quadratic_forms(1, 1000) and not sampled_taylor.quadratic_forms(1, 1001)

@@ -86,8 +86,8 @@ def box_work(loop: SampledLoop) -> float:
     """The work units one sub-box proof is charged, from the problem's sizes only (so the
     bracket is the same on every machine and under any load): ``5 + 3e-6 N^3 t`` with
     ``N`` the moment generator's rows and ``t = 1 + K`` (``+ K (K + 1) / 4`` where the
-    second-order forms are used, ``K^2 N <=``
-    :data:`~ftc_verify.analysis.moments.sampled_taylor.QUADRATIC_SIZE`) the matrix
+    second-order forms are used,
+    :func:`~ftc_verify.analysis.moments.sampled_taylor.quadratic_forms`) the matrix
     products of a step of the sub-box's exponential, ``K`` the free rates -- about a
     millisecond each on the calibration machine (a sub-box's cost is mostly the products
     of its exponential, plus a few float exponentials and eigenvalue problems). The
@@ -97,12 +97,12 @@ def box_work(loop: SampledLoop) -> float:
     on average; calibrated on ``n = 4, m = 3`` (``N = 189``, ``K = 6``): 0.18 CPU s per
     affine sub-box, 0.48 per second-order one (147 and 359 units;
     ``benchmarks/results/h31w.md``)."""
-    from .sampled_taylor import QUADRATIC_SIZE
+    from .sampled_taylor import quadratic_forms
 
     chain = loop.chain
     K = sum(1 for idx in chain.rate_indices if chain.rate_max[idx] > chain.rate_min[idx])
     N = loop.states * loop.d * (loop.d + 1) // 2
-    t = 1 + K + (K * (K + 1) / 4 if K * K * N <= QUADRATIC_SIZE else 0)
+    t = 1 + K + (K * (K + 1) / 4 if quadratic_forms(K, N) else 0)
     return 5.0 + 3e-6 * N ** 3 * t
 
 

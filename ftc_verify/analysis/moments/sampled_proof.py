@@ -56,8 +56,8 @@ halved along the rate the float64 radius depends on most there (:func:`split_rat
 breadth first, until every sub-box is proved -- or a sub-box's midpoint is proved
 unstable, or the budget of sub-boxes (or seconds) runs out: then the verdict is
 ``undecided`` and names the sub-box. On each sub-box (:func:`subbox_stable`) the upper envelope is tried first, then the enclosure of
-:math:`T` as a polynomial in the sub-box's rates (second order while :math:`K^2 N`
-is at most :data:`~ftc_verify.analysis.moments.sampled_taylor.QUADRATIC_SIZE`, six
+:math:`T` as a polynomial in the sub-box's rates (second order where
+:func:`~ftc_verify.analysis.moments.sampled_taylor.quadratic_forms` allows, six
 rates at 189 rows included, :mod:`~ftc_verify.analysis.moments.quad_balls`; affine
 above, :func:`~ftc_verify.analysis.moments.fast_balls.aff_expm`) with a certificate that moves
 with the rates (:func:`~ftc_verify.analysis.moments.sampled_taylor.affine_stable`; the

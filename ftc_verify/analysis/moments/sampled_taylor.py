@@ -62,7 +62,7 @@ term on the random loops of ``benchmarks/sampled.py``. :func:`affine_stable` ins
 carries the sub-box's rates as symbols :math:`\delta_a \in [-1, 1]` through the
 exponential (:func:`~ftc_verify.analysis.moments.fast_balls.aff_map`, and with their
 products, :func:`~ftc_verify.analysis.moments.quad_balls.quad_map`, when
-:math:`K^2` times the generator's rows is at most :data:`QUADRATIC_SIZE`):
+:func:`quadratic_forms`):
 :math:`T(r) \in T_c + \sum_a \delta_a T_a + \sum_{a \le b} \delta_a \delta_b T_{ab}
 + E`, with :math:`T_a` in the role of :math:`J_a(r_0)` above (scaled by the half-width)
 and only the terms of higher degree and the rounding in :math:`E`.
@@ -88,7 +88,7 @@ from .sampled import SampledLoop
 from .sampled_balls import ball_generator, generator_coefficients
 from .stability import vech_order
 
-__all__ = ["FIRST_ORDER_LIMIT", "AFFINE_RATES", "QUADRATIC_SIZE", "unvech_ball", "stack_pd", "identity_stack", "perron_first_order_stable", "affine_stable",
+__all__ = ["FIRST_ORDER_LIMIT", "AFFINE_RATES", "QUADRATIC_SIZE", "QUADRATIC_SIZE_SMALL", "QUADRATIC_ROWS", "quadratic_forms", "unvech_ball", "stack_pd", "identity_stack", "perron_first_order_stable", "affine_stable",
            "float_pd", "resolvent_stack", "float_choices", "left_perron", "right_perron", "RHS_MIXES"]
 
 #: Largest Van Loan block (rows, twice the moment generator's) the first-order form
@@ -99,11 +99,25 @@ FIRST_ORDER_LIMIT = 256
 AFFINE_RATES = 10
 
 #: Largest ``K^2`` times the moment generator's rows for which the second-order forms of
-#: :mod:`~ftc_verify.analysis.moments.quad_balls` are used (above it the affine forms):
-#: ``K = 6`` free rates at 189 rows (random ``n = 4, m = 3`` loops), where a sub-box
-#: proof costs about 3 times the affine one and proves sub-boxes 2-8 times wider per
-#: rate near the crossing (``benchmarks/results/h31w.md``).
-QUADRATIC_SIZE = 8000
+#: :mod:`~ftc_verify.analysis.moments.quad_balls` are used on any loop (above it the
+#: affine forms; :func:`quadratic_forms`).
+QUADRATIC_SIZE = 1000
+#: The same bound on loops of at most :data:`QUADRATIC_ROWS` rows: ``K = 6`` free rates
+#: at 189 rows (random ``n = 4, m = 3`` loops), where a sub-box proof costs about 3 times
+#: the affine one and proves sub-boxes 2-8 times wider per rate near the crossing
+#: (``benchmarks/results/h31w.md``); not measured on larger generators, whose
+#: :math:`K (K + 1) / 2` dense second-order terms grow as :math:`N^2` in memory.
+QUADRATIC_SIZE_SMALL = 8000
+#: Rows up to which :data:`QUADRATIC_SIZE_SMALL` applies.
+QUADRATIC_ROWS = 256
+
+
+def quadratic_forms(K: int, N: int) -> bool:
+    """Whether a sub-box with ``K`` free rates of a moment generator of ``N`` rows gets the
+    second-order forms (:data:`QUADRATIC_SIZE`, :data:`QUADRATIC_SIZE_SMALL`); shared by
+    the proof (:func:`affine_stable`) and its charge
+    (:func:`~ftc_verify.analysis.moments.sampled_bracket.box_work`)."""
+    return K * K * N <= (QUADRATIC_SIZE_SMALL if N <= QUADRATIC_ROWS else QUADRATIC_SIZE)
 
 
 def _flint() -> Any:
@@ -353,7 +367,7 @@ def affine_stable(loop: SampledLoop, parts: Any, lo: Matrix, hi: Matrix) -> bool
         return None
     res, modes, lift, h = parts.floats
     K = len(found[1])
-    second = K * K * modes[0].shape[0] <= QUADRATIC_SIZE
+    second = quadratic_forms(K, modes[0].shape[0])
     form = quad_map(res, modes, found[0], found[1], h, lift) if second else None
     if form is None:
         aff = aff_map(res, modes, found[0], found[1], h, lift)
