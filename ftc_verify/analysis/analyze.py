@@ -29,6 +29,7 @@ never detects that fault (:mod:`ftc_verify.analysis.lmi`).
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from dataclasses import dataclass
@@ -311,7 +312,8 @@ def _lower_bounds(loop: ClosedLoop, mss: MSSResult, nominal: LMIResult, robust: 
     if not loop.uncertain or low is None:
         return low, low
     candidates = [b for b in (low, high) if b is not None]
-    best = max(candidates, key=lambda b: (b.value is not None, b.value or b.estimate), default=None)
+    best = max(candidates, key=lambda b: (b.value is not None, b.value if b.value is not None else
+                                          (b.estimate if math.isfinite(b.estimate) else -math.inf)), default=None)
     return low, best
 
 
