@@ -84,7 +84,7 @@ state. :math:`Y_0` (and with it the remainders, about :math:`|T_r| |Y|` and
 :math:`S(T_a) S(y_p)`) grows like :math:`1 / (\sigma - \rho_c)`, so :math:`\sigma`
 is taken near the largest value allowed, :math:`\sigma = 1 - \varphi_{hi} - k (1 -
 \varphi_{hi} - \rho_c)` with :math:`k =` :data:`SHIFT_BACK`, :math:`\varphi_{hi}` from
-the float :math:`c_a, c_p` of a first Perron-aligned choice (nearly independent of
+the float :math:`c_a, c_p` of a first choice from the identity right-hand side (nearly independent of
 :math:`Y_0`: :math:`c_a \approx \partial_a \rho`). All of these are float choices:
 the check above proves whatever they give, with :math:`\varphi_{hi}` recomputed from
 the final :math:`Y_0`. On held-out seed 13, 1 % below the crossing, it proves the
