@@ -68,3 +68,18 @@ def test_synthesize_warning_names_the_period_and_a_radius_above_one(case: tuple,
     assert "warning: the sampled loop of this controller is not mean-square stable at period 0.1 " in err
     rho = float(err.split("float64 spectral radius ")[1].split(")")[0])
     assert rho > 1.0  # printed to 9 digits: 1 + 1.1e-7 is not shown as 1
+
+
+def test_no_ascent_above_the_row_limit(case: tuple, monkeypatch: pytest.MonkeyPatch) -> None:
+    """On maps above ``SCREEN_ASCENT_ROWS`` rows the screen is the rate points' alone (the
+    ascent costs more than a design there): with the limit set below this loop's map,
+    the inner vertex is not seen and ``period_worst`` is never called."""
+    from ftc_verify.analysis.moments import sampled_scan
+
+    def no_ascent(*args: object) -> None:
+        raise AssertionError("the vertex ascent ran above the row limit")
+
+    monkeypatch.setattr(sampled_scan, "SCREEN_ASCENT_ROWS", 0)
+    monkeypatch.setattr(sampled_scan, "period_worst", no_ascent)
+    loop = SampledLoop.build(*case)
+    assert all(ok for _, ok in octave_verdicts(loop, 0.1, 7))

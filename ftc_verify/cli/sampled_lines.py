@@ -116,7 +116,7 @@ def warn_short_h_max(system: Any, controller: Any) -> None:
     loop is not stable at some period up to 10 times ``DEFAULT_STEP`` (0.01,
     ``cli.export_commands``): a float64 screen of the rate vertices and midpoint (of the
     corners, the midpoint and the vertex ascent's worst vertex on a box with more than 16
-    vertices) at the periods ``0.1 / 2^k``, ``k = 7 .. 0``
+    vertices and a map of at most ``SCREEN_ASCENT_ROWS`` rows) at the periods ``0.1 / 2^k``, ``k = 7 .. 0``
     (:func:`~ftc_verify.analysis.moments.sampled_scan.octave_verdicts`); its ``h_max`` is
     then below that. The radius printed is the worst of those
     (:func:`~ftc_verify.analysis.moments.sampled_bracket.period_worst`). A warning, not a
