@@ -64,7 +64,8 @@ import math
 import time
 from collections import deque
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -197,7 +198,6 @@ class _Checker:
     literals: Any
     row_rates: tuple[tuple[tuple[int, ...], ...], ...]
     column_rates: tuple[tuple[tuple[int, ...], ...], ...]
-    provers: dict[str, StabilityProver] = field(default_factory=dict)  # the point prover, made when first needed
 
     @classmethod
     def build(cls, loop: ClosedLoop, sim: Similarity, uncertain: Sequence[tuple[int, ...]]) -> _Checker:
@@ -216,14 +216,17 @@ class _Checker:
         return cls(nominal, sim.apply(nominal), sim, A, S, literals_of(nominal),
                    tuple(tuple(sorted(r)) for r in rows), tuple(tuple(sorted(c)) for c in columns))
 
+    @cached_property
+    def prover(self) -> StabilityProver:
+        """The point prover of :meth:`prove_point`, built when first needed."""
+        return StabilityProver.build(self.loop, self.sim)
+
     def prove_point(self, point: Matrix, deadline: float) -> tuple[Any, float, tuple[float, float] | None]:
         """The verified verdict at the rate vector ``point`` (the float64 abscissa as its
         estimate) and, when "not stable", a proved enclosure of the abscissa (or ``None``)."""
         from .moments.stability import spectral_abscissa
 
-        if "point" not in self.provers:
-            self.provers["point"] = StabilityProver.build(self.loop, self.sim)
-        prover = self.provers["point"]
+        prover = self.prover
         estimate = spectral_abscissa(self.conditioned, point)
         found = prover.certify(point, estimate=estimate, budget_seconds=max(0.0, deadline - time.perf_counter()))
         if found.verdict != "not stable":

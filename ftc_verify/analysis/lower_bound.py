@@ -92,7 +92,7 @@ from .rate_candidates import ASCENT_MARGIN, candidate_rates, stationary_at, vert
 from .exact import ball_generator, ball_matrices, exact_loop, literals_of, written_box
 from ..interrupts import deferred_signals
 from .rigorous import Ball, ball, midpoint, precision, proven_positive_definite, tight_solve
-from .moments.stability import lyapunov_stack_solution
+from .moments.stability import generator_size, lyapunov_stack_solution
 from .verdict import SOLVE_LIMIT, StabilityProver, ball_lyapunov_solution
 
 __all__ = ["GainLowerBound", "gain_lower_bound", "float_gain", "worst_case_feedback", "exceeds", "FALL_TOL",
@@ -344,8 +344,7 @@ def _proved_ratio(loop: ClosedLoop, deltas: dict[str, Matrix], sim: Similarity, 
 
 def _too_large(loop: ClosedLoop) -> str:
     """Why no bound is computed above :data:`~ftc_verify.analysis.verdict.SOLVE_LIMIT` rows."""
-    size = len(loop.A) * loop.n * (loop.n + 1) // 2
-    return f"not computed: the moment equations ({size} rows) exceed the ball-arithmetic limit ({SOLVE_LIMIT})"
+    return f"not computed: the moment equations ({generator_size(loop)} rows) exceed the ball-arithmetic limit ({SOLVE_LIMIT})"
 
 
 def _conditioned(sim: Similarity, At: Sequence[Ball], Bw: Sequence[Ball], Cz: Sequence[Ball],
@@ -480,7 +479,7 @@ REFINE_RTOL, REFINE_ROWS, REFINE_BELOW = 1e-8, 120, 1.002
 def within_solve_limit(loop: ClosedLoop) -> bool:
     """The second moments (``S n (n + 1) / 2`` rows) and the first (``2 S n``) within
     :data:`~ftc_verify.analysis.verdict.SOLVE_LIMIT`: :func:`gain_lower_bound` computes a bound."""
-    return len(loop.A) * loop.n * (loop.n + 1) // 2 <= SOLVE_LIMIT and 2 * len(loop.A) * loop.n <= SOLVE_LIMIT
+    return generator_size(loop) <= SOLVE_LIMIT and 2 * len(loop.A) * loop.n <= SOLVE_LIMIT
 
 
 def _unbounded(loop: ClosedLoop, label: str, why: str, start: float) -> GainLowerBound:
@@ -544,8 +543,7 @@ def gain_lower_bound(loop: ClosedLoop, *, deltas: Sequence[tuple[str, dict[str, 
     ratio, label, delta, rates, F, g, pi, omega, e = best
     A = work.perturbed(delta) if delta else nominal.A
     Q = loop.chain.generator(rates)
-    rows = len(loop.A) * loop.n * (loop.n + 1) // 2
-    if gamma_f is not None and (rows <= REFINE_ROWS or math.sqrt(max(ratio, 0.0)) * REFINE_BELOW < gamma_f):
+    if gamma_f is not None and (generator_size(loop) <= REFINE_ROWS or math.sqrt(max(ratio, 0.0)) * REFINE_BELOW < gamma_f):
         found = float_gain(A, work.Bw, work.Cz, Q, upper=gamma_f, rtol=REFINE_RTOL)
         if found is not None:
             g, F = found

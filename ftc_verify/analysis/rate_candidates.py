@@ -11,6 +11,7 @@ from ..model.system import Matrix
 from .closedloop import ClosedLoop
 from .conditioning import stationary_distribution
 from .exact import written_box
+from .moments.stability import generator_size
 
 __all__ = ["ASCENT_MARGIN", "ASCENT_PASSES", "ASCENT_RATES", "ASCENT_ROWS", "candidate_rates", "stationary_at",
            "vertex_ascent"]
@@ -76,7 +77,7 @@ def vertex_ascent(loop: ClosedLoop, A: Sequence[Matrix], start: Matrix | None,
 
     lo, hi = written_box(loop.chain.rate_min, loop.chain.rate_max)
     free = np.flatnonzero(lo < hi)
-    if len(loop.A) * loop.n * (loop.n + 1) // 2 > ASCENT_ROWS or not 0 < free.size <= ASCENT_RATES:
+    if generator_size(loop) > ASCENT_ROWS or not 0 < free.size <= ASCENT_RATES:
         return None
     inner_lo, inner_hi = np.nextafter(lo, np.inf), np.nextafter(hi, -np.inf)
     mid = 0.5 * (lo + hi)
