@@ -293,7 +293,7 @@ def _stages(loop: ClosedLoop, solver: str | None, name: str, lmi: bool, lower_bo
 
 #: The nominal lower bound and the robust one at a constant ``Delta``, computed
 #: beside Lemma 4.1's program (:func:`_nominal_side`); ``None`` when not computed there.
-Early = tuple[GainLowerBound | None, GainLowerBound | None] | None
+Early = tuple[GainLowerBound, GainLowerBound | None] | None
 
 
 def _lower_bounds(loop: ClosedLoop, mss: MSSResult, nominal: LMIResult, robust: LMIResult,
@@ -307,13 +307,12 @@ def _lower_bounds(loop: ClosedLoop, mss: MSSResult, nominal: LMIResult, robust: 
     else:
         upper = nominal.gamma if nominal.certified else None
         low = gain_lower_bound(loop, worst_rates=mss.worst_beta, upper=upper)
-        high = (robust_lower_bound(loop, low.rates, worst_rates=mss.worst_beta, upper=top)[1]
-                if loop.uncertain and low is not None else None)
-    if not loop.uncertain or low is None:
+        high = robust_lower_bound(loop, low.rates, worst_rates=mss.worst_beta, upper=top)[1] if loop.uncertain else None
+    if not loop.uncertain:
         return low, low
     candidates = [b for b in (low, high) if b is not None]
     best = max(candidates, key=lambda b: (b.value is not None, b.value if b.value is not None else
-                                          (b.estimate if math.isfinite(b.estimate) else -math.inf)), default=None)
+                                          (b.estimate if math.isfinite(b.estimate) else -math.inf)))
     return low, best
 
 
@@ -378,8 +377,7 @@ def _nominal_side(loop: ClosedLoop, solver: str | None, mss: MSSResult | None,
     t = time.perf_counter()
     try:
         low = gain_lower_bound(loop, worst_rates=mss.worst_beta, upper=nominal.gamma)
-        high = None if low is None else robust_lower_bound(loop, low.rates, worst_rates=mss.worst_beta,
-                                                            upper=nominal.gamma)[1]
+        high = robust_lower_bound(loop, low.rates, worst_rates=mss.worst_beta, upper=nominal.gamma)[1]
     except Exception:  # a float search: _lower_bounds runs it again and decides
         return nominal, None, 0.0
     return nominal, (low, high), time.perf_counter() - t
