@@ -13,16 +13,15 @@ import numpy as np
 import pytest
 import scipy.linalg
 
+from sampled_forms import second_order_form
 from ftc_verify.analysis.moments.fast_balls import aff_expm, ball_expm
 from ftc_verify.analysis.moments.quad_balls import pairs, quad_expm
 from ftc_verify.analysis.moments.sampled import (SampledLoop, crossing, scan_periods,
                                                  scan_range, spectral_radius, stability_intervals)
 from ftc_verify.analysis.moments.sampled_bracket import box_work, h_max_bracket
-from ftc_verify.analysis.moments.sampled_proof import MapParts, prove_point_unstable
+from ftc_verify.analysis.moments.sampled_proof import prove_point_unstable
 from ftc_verify.analysis.moments.sampled_second import certify_second_order
-from ftc_verify.analysis.moments.sampled_taylor import _certify, _rates_affine
-from ftc_verify.analysis.moments.quad_balls import quad_map
-from ftc_verify.analysis.rigorous import precision
+from ftc_verify.analysis.moments.sampled_taylor import _certify
 from ftc_verify.testing.sampled_cases import lqr_case
 
 
@@ -99,21 +98,12 @@ def test_perron_aligned_second_order_certificate_proves_what_the_identity_cannot
     hi = lo.copy()
     lo[0, 1], hi[0, 1], hi[1, 0] = 3.5, 4.0, 2.5
 
-    def form(h: float) -> tuple[np.ndarray, ...]:
-        with precision(64):
-            res, modes, lift, hb = MapParts.build(loop, h).floats
-            found = _rates_affine(loop, lo, hi)
-            assert found is not None
-            out = quad_map(res, modes, found[0], found[1], hb, lift)
-        assert out is not None
-        return out
-
-    below = form(a * (1 - 3e-3))
+    below = second_order_form(loop, a * (1 - 3e-3), lo, hi)
     assert not _certify(loop, below, pairs(2), None)
     assert certify_second_order(loop, below, 0.05)
     h_up = a * (1 + 2e-3)
     assert spectral_radius(loop, h_up, hi * 0 + np.where(lo == 3.5, 4.0, lo)) > 1.0
-    above = form(h_up)
+    above = second_order_form(loop, h_up, lo, hi)
     for mix in (None, 0.05, 0.3):
         assert not certify_second_order(loop, above, mix)
         assert not _certify(loop, above, pairs(2), mix)

@@ -13,15 +13,16 @@ import numpy as np
 import pytest
 import scipy.optimize
 
+from sampled_forms import second_order_form
 from ftc_verify.analysis.moments import sampled_taylor
 from ftc_verify.analysis.moments.fast_balls import aff_mul, sparse_enough
-from ftc_verify.analysis.moments.quad_balls import pairs, quad_map, quad_mul
+from ftc_verify.analysis.moments.quad_balls import pairs, quad_mul
 from ftc_verify.analysis.moments.sampled import SampledLoop, rate_points, spectral_radius
 from ftc_verify.analysis.moments.sampled_bracket import worst_vertex
 from ftc_verify.analysis.moments.sampled_conditioned import conditioned
 from ftc_verify.analysis.moments.sampled_proof import MapParts, subbox_stable
 from ftc_verify.analysis.moments.sampled_second import certify_second_order
-from ftc_verify.analysis.moments.sampled_taylor import _rates_affine, affine_stable
+from ftc_verify.analysis.moments.sampled_taylor import affine_stable
 from ftc_verify.analysis.rigorous import precision
 from ftc_verify.controllers.controller import Controller
 from ftc_verify.model.system import FTCSystem
@@ -68,16 +69,6 @@ def _corner(loop: SampledLoop, v: np.ndarray, width: float) -> tuple[np.ndarray,
     return lo, hi
 
 
-def _form(loop: SampledLoop, h: float, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, ...]:
-    with precision(64):
-        res, modes, lift, hb = MapParts.build(loop, h).floats
-        found = _rates_affine(loop, lo, hi)
-        assert found is not None
-        out = quad_map(res, modes, found[0], found[1], hb, lift)
-    assert out is not None
-    return out
-
-
 def test_second_order_proves_where_the_affine_fails(setting: tuple[SampledLoop, float, np.ndarray],
                                                     monkeypatch: pytest.MonkeyPatch) -> None:
     """0.3 % below the crossing (radius 0.993 at the vertex), the sub-box of an eighth of
@@ -91,7 +82,7 @@ def test_second_order_proves_where_the_affine_fails(setting: tuple[SampledLoop, 
     assert sampled_taylor.quadratic_forms(6, 189)
     with precision(64):
         parts = MapParts.build(loop, h)
-    form = _form(loop, h, lo, hi)
+    form = second_order_form(loop, h, lo, hi)
     assert not certify_second_order(loop, form, None)
     assert certify_second_order(loop, form, shifted=True)
     assert subbox_stable(loop, h, parts, lo, hi)
@@ -111,7 +102,7 @@ def test_refuses_a_sub_box_with_radius_above_one(setting: tuple[SampledLoop, flo
         parts = MapParts.build(loop, h)
     for width in (0.125, 0.03125):
         lo, hi = _corner(loop, v, width)
-        form = _form(loop, h, lo, hi)
+        form = second_order_form(loop, h, lo, hi)
         assert not certify_second_order(loop, form, shifted=True)
         assert not any(certify_second_order(loop, form, mix) for mix in (None, 0.05))
         assert not subbox_stable(loop, h, parts, lo, hi)
