@@ -49,7 +49,8 @@ failed, and the LMI costs a fraction of the ball solves).
 rates of the rows that failed, the widest relative to the whole box (all rates when the
 failing rows contain none); at the geometric mean when the rate spans more than a factor
 4 and is positive, at the arithmetic mean otherwise. The boxes are taken widest first.
-A time budget, a number of sub-boxes and a smallest width end the search with
+A budget of CPU seconds (:data:`BOX_BUDGET_SECONDS`), a number of sub-boxes and a
+smallest width end the search with
 "undecided" and the sub-box where it gave up. The root box is the one the user wrote,
 rounded outward (:func:`~ftc_verify.analysis.exact.written_box`).
 
@@ -72,6 +73,7 @@ import numpy as np
 
 from ..errors import FTCError
 from ..jsonable import fields_dict
+from ..limits import cpu_clock
 from ..model.system import Matrix
 from .closedloop import ClosedLoop
 from .conditioning import Similarity
@@ -82,7 +84,9 @@ from .verdict import SOLVE_LIMIT, StabilityProver, ball_lyapunov_solution, float
 __all__ = ["BOX_BUDGET_SECONDS", "MAX_BOXES", "MIN_RELATIVE_WIDTH", "ROOT_LMI_DEFERRED", "RegionVerdict",
            "BoxVerdict", "box_stability"]
 
-#: Time budget (seconds) of the branch and bound, the point proofs included.
+#: Budget of the branch and bound, the point proofs included, in CPU seconds
+#: (:func:`~ftc_verify.limits.cpu_clock`: the same loop gets the same verdict on a loaded
+#: machine as on a quiet one).
 BOX_BUDGET_SECONDS = 60.0
 #: The reason of an "undecided" verdict returned by ``box_stability(root_lmi=False)`` when
 #: the whole box's centre candidate fails and its LMI is left to the caller.
@@ -228,10 +232,10 @@ class _Checker:
 
         prover = self.prover
         estimate = spectral_abscissa(self.conditioned, point)
-        found = prover.certify(point, estimate=estimate, budget_seconds=max(0.0, deadline - time.perf_counter()))
+        found = prover.certify(point, estimate=estimate, budget_seconds=max(0.0, deadline - cpu_clock()))
         if found.verdict != "not stable":
             return found, estimate, None
-        left = max(0.0, deadline - time.perf_counter())
+        left = max(0.0, deadline - cpu_clock())
         return found, estimate, prover.abscissa_enclosure(point, estimate, budget_seconds=left)
 
     def check(self, lo: Matrix, hi: Matrix) -> tuple[str, set[tuple[int, ...]]]:
@@ -364,7 +368,7 @@ def box_stability(loop: ClosedLoop, sim: Similarity, *, budget_seconds: float = 
 
     ``suspect``: a rate vector whose instability proof is tried first (module docstring)."""
     start = time.perf_counter()
-    deadline = start + budget_seconds
+    deadline = cpu_clock() + budget_seconds
     chain = loop.chain
     root_lo, root_hi = written_box(chain.rate_min, chain.rate_max)
     uncertain = tuple(r for r in chain.rate_indices if root_lo[r] != root_hi[r])
@@ -391,7 +395,7 @@ def box_stability(loop: ClosedLoop, sim: Similarity, *, budget_seconds: float = 
         return BoxVerdict("not stable", (witness,), boxes, False, time.perf_counter() - start,
                           f"instability proved at {chain.rate_text(point)}"), found
 
-    first = None if suspect is None or start >= deadline else point_verdict(np.asarray(suspect, dtype=float), start)
+    first = None if suspect is None or budget_seconds <= 0.0 else point_verdict(np.asarray(suspect, dtype=float), start)
     if first is not None and first[0] is not None:
         return first[0]
     while queue:
@@ -399,8 +403,8 @@ def box_stability(loop: ClosedLoop, sim: Similarity, *, budget_seconds: float = 
         t0 = time.perf_counter()
         if boxes >= max_boxes:
             return give_up(lo, hi, f"{max_boxes} sub-boxes examined (the limit) before this one was decided", t0)
-        if t0 > deadline:
-            return give_up(lo, hi, f"time budget of {budget_seconds:g} s spent before this sub-box was decided", t0)
+        if cpu_clock() > deadline:
+            return give_up(lo, hi, f"budget of {budget_seconds:g} CPU s spent before this sub-box was decided", t0)
         boxes += 1
         status, rates = checker.check(lo, hi)
         if status == "stable":

@@ -36,7 +36,7 @@ The candidate :math:`X` comes from the loop in the coordinates of
 :math:`\tilde{\mathcal L}(\tilde X) = -I`), mapped back exactly as :math:`X = T\tilde X T^T` in ball arithmetic. When that does not
 decide, :math:`\mathcal L(X) = -I` is solved in ball arithmetic (FLINT's certified
 ``arb_mat.solve``, an enclosure of the exact solution) at 128, then 256 and 512 bits,
-within :data:`SOLVE_LIMIT` rows and a time budget; what is still open is "undecided".
+within :data:`SOLVE_LIMIT` rows and a budget of CPU seconds; what is still open is "undecided".
 """
 
 from __future__ import annotations
@@ -49,6 +49,7 @@ from typing import Any
 import numpy as np
 
 from ..jsonable import fields_dict, renamed
+from ..limits import cpu_clock
 from ..model.system import Matrix
 from .closedloop import ClosedLoop
 from .conditioning import Similarity
@@ -64,8 +65,10 @@ VERDICTS = ("stable", "not stable", "undecided")
 #: signal cannot interrupt, about 1.2 s at 128 bits and 4 s at 512 bits for 400 rows here
 #: (cubic in the rows), so Ctrl-C and SIGTERM are honoured within seconds.
 SOLVE_LIMIT = 400
-#: Time budget (seconds) of the ball-arithmetic fallback (of one vertex, or of the whole
-#: box in :func:`~ftc_verify.analysis.moments.stability.mean_square_stability`).
+#: Budget of the ball-arithmetic fallback (of one vertex, or of the whole box in
+#: :func:`~ftc_verify.analysis.moments.stability.mean_square_stability`), in CPU seconds
+#: (:func:`~ftc_verify.limits.cpu_clock`, so that the load of the machine does not change
+#: a verdict).
 BUDGET_SECONDS = 60.0
 #: Precisions (bits) of the ball-arithmetic fallback, in order.
 FALLBACK_BITS = (128, 256, 512)
@@ -254,7 +257,7 @@ class StabilityProver:
         replaced by :math:`A_s - (\sigma/2) I` (exactly, in the balls): "stable" then
         proves :math:`\mu < \sigma`, "not stable" :math:`\mu \ge \sigma`
         (the enclosure of an abscissa, :func:`abscissa_enclosure`)."""
-        start = time.perf_counter()
+        start, clock = time.perf_counter(), cpu_clock()
         half = 0.5 * float(shift)
 
         def done(verdict: str, method: str, bits: int) -> VertexVerdict:
@@ -283,8 +286,8 @@ class StabilityProver:
             return done("undecided", f"float64 candidates not proved and the generator ({size} rows) is above "
                                      f"the ball-arithmetic limit ({SOLVE_LIMIT})", 0)
         for bits in FALLBACK_BITS:
-            if time.perf_counter() - start > budget_seconds:
-                return done("undecided", f"time budget of {budget_seconds:g} s spent before {bits} bits", bits)
+            if cpu_clock() - clock > budget_seconds:
+                return done("undecided", f"budget of {budget_seconds:g} CPU s spent before {bits} bits", bits)
             with precision(bits):
                 A = shifted(self._enclosures())  # the enclosures at this precision
                 q = ball_generator(self.nominal.chain, beta, literals_of(self.nominal))
@@ -304,11 +307,11 @@ class StabilityProver:
         float ``estimate``: :meth:`certify` with ``shift = lo`` says "not stable" and
         with ``shift = hi`` "stable"; widths ``1e-9 .. 1e-3`` of ``1 + |estimate|`` are
         tried. ``None`` when none is proved."""
-        deadline = time.perf_counter() + budget_seconds
+        deadline = cpu_clock() + budget_seconds
         for width in (1e-9, 1e-6, 1e-3):
             d = width * (1.0 + abs(estimate))
             lo, hi = estimate - d, estimate + d
-            left = max(0.0, deadline - time.perf_counter())
+            left = max(0.0, deadline - cpu_clock())
             if (self.certify(beta, shift=lo, budget_seconds=left).verdict == "not stable"
                     and self.certify(beta, shift=hi, budget_seconds=left).verdict == "stable"):
                 return lo, hi
