@@ -57,16 +57,24 @@ POLE_RTOL = 1e-8
 
 
 def _sigma_max(A: Matrix, B: Matrix, C: Matrix, omega: float) -> float:
+    """:math:`\\sigma_{max}(G(j\\omega))`; ``inf`` where :math:`j\\omega I - A` is singular
+    in float64 (an ill-conditioned ``A`` can be, at ``omega = 0``, while no eigenvalue
+    computed is within the threshold of :func:`linf_norm`: the float transfer function has
+    a pole there)."""
     n = A.shape[0]
-    G = C @ np.linalg.solve(1j * omega * np.eye(n) - A, B)
-    return float(np.linalg.norm(G, 2))
+    try:
+        G = C @ np.linalg.solve(1j * omega * np.eye(n) - A, B)
+    except np.linalg.LinAlgError:
+        return math.inf
+    value = float(np.linalg.norm(G, 2))
+    return value if not math.isnan(value) else math.inf
 
 
 def linf_norm(A: Matrix, B: Matrix, C: Matrix, *, rtol: float = NORM_RTOL) -> float:
     """:math:`L_\\infty` norm of ``C (sI - A)^{-1} B`` (module docstring).
 
     Returns ``inf`` when ``A`` has an eigenvalue within ``1e-12 |lambda|`` of the
-    imaginary axis.
+    imaginary axis, or :math:`j\\omega I - A` is singular in float64 at a frequency tried.
     """
     poles = np.linalg.eigvals(A)
     if np.any(np.abs(poles.real) <= 1e-12 * np.maximum(1.0, np.abs(poles))):
