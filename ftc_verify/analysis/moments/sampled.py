@@ -85,7 +85,7 @@ from .stability import duplication_matrix, second_moment_matrix, vech_order
 
 __all__ = ["SampledLoop", "SampledResult", "one_period_map", "assemble_map", "spectral_radius", "rate_points",
            "worst_radius", "crossing", "scan_periods", "stability_intervals", "h_max_bracket", "sampled_analysis",
-           "H_MAX_RTOL", "SCAN_PER_OCTAVE"]
+           "H_MAX_RTOL", "SCAN_PER_OCTAVE", "SCAN_WIDEN"]
 
 #: Relative width of the proved ``h_max`` bracket (proved stable, proved unstable).
 H_MAX_RTOL = 1e-3
@@ -361,6 +361,8 @@ def worst_radius(loop: SampledLoop, h: float, points: Sequence[Matrix]) -> tuple
 
 #: Periods per octave of the scan (:func:`scan_periods`).
 SCAN_PER_OCTAVE = 8
+#: The range of ``period * speed`` where :func:`scan_range` widens the scan to the period.
+SCAN_WIDEN = (1e-9, 1e9)
 
 
 def assemble_map(loop: SampledLoop, F: Matrix, h: float) -> Matrix:
@@ -506,12 +508,12 @@ class SampledResult:
 def scan_range(loop: SampledLoop, period: float | None = None) -> tuple[float, float]:
     """Periods scanned for ``h_max``: from ``1e-3 / c`` to ``20 / c`` with ``c`` the
     largest closed-loop rate (:attr:`SampledLoop.speed`: the 2-norms of the continuous
-    loop's matrices and the largest generator entry), widened to contain ``period``."""
+    loop's matrices and the largest generator entry), widened to contain ``period`` when
+    ``period c`` is within :data:`SCAN_WIDEN` (``1e308`` overflowed; the result names the range)."""
     c = loop.speed
-    lo, hi = 1e-3 / c, 20.0 / c
-    if period is not None:
-        lo, hi = min(lo, period / 2), max(hi, period * 2)
-    return lo, hi
+    if period is not None and SCAN_WIDEN[0] <= period * c <= SCAN_WIDEN[1]:
+        return min(1e-3 / c, period / 2), max(20.0 / c, period * 2)
+    return 1e-3 / c, 20.0 / c
 
 
 def sampled_analysis(system: FTCSystem, controller: Controller, period: float, *, max_boxes: int = 64,
