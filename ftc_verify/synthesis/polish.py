@@ -34,14 +34,15 @@ worse than the start, and every accepted iterate is certified.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
-from ..analysis.closedloop import gain_loop, state_feedback_loop
+from ..analysis.closedloop import ClosedLoop, gain_loop, state_feedback_loop
 from ..analysis.conic import Rows, affine_bmat, matrix_variable, scalar_variable, sym_variable, unit_rows
 from ..analysis.lmi import block_specs, lyapunov_block
-from ..analysis.lmi_analysis import hinf_gamma
+from ..analysis.lmi_analysis import LMIResult, hinf_gamma
 from ..model.system import FTCSystem, Matrix
 from .results import SolverCalls
 from .xy_design import gain_bound_block
@@ -55,45 +56,59 @@ POLISH_STEPS = 12
 POLISH_RADIUS = 0.1
 
 
-def linearised_step(system: FTCSystem, gains: list[Matrix], P: list[Matrix], lam: list[list[float]], g0: float,
-                    rho: float, k_max: float | None, calls: SolverCalls) -> list[Matrix] | None:
+def linearised_step(system: FTCSystem, gains: list[Matrix], res: LMIResult, rho: float, k_max: float | None,
+                    calls: SolverCalls) -> list[Matrix] | None:
     r"""One trust-region step of the module docstring from gains ``K^0`` with the analysis'
-    answer ``P``, ``lam`` (one list of multipliers per joint state) and ``g0`` (gamma
-    squared): the new gains, or ``None`` when the solver returned no point.
+    certified answer ``res`` (:class:`~ftc_verify.analysis.lmi_analysis.LMIResult`): the
+    new gains, or ``None`` when the solver returned no point.
 
-    Variables: :math:`\operatorname{vec}\Delta K_j` (row by row, FDI mode by FDI mode),
-    :math:`\operatorname{svec}\Delta P_s` per joint state, then :math:`g \ge 0`."""
+    Scaled as the analysis scales its own program: in the analysis' coordinates
+    :math:`x = T \tilde x` (``res.similarity``, where ``res.P_conditioned`` lives), with
+    :math:`B_w / \gamma^0` (so :math:`g^0 = 1`), :math:`\Delta P_s = L_s V_s L_s^T`
+    (:math:`\tilde P^0_s = L_s L_s^T`, so the trust region is :math:`-\rho I \preceq V_s
+    \preceq \rho I`, which also keeps :math:`P^0_s + \Delta P_s \succeq (1 - \rho) P^0_s`)
+    and :math:`\Delta K_j T = \sigma_j W_j`, :math:`\sigma_j = \max(1, \|K^0_j T\|_2)`,
+    :math:`\|W_j\|_2 \le \rho`. Variables: :math:`\operatorname{vec} W_j`, :math:`\operatorname{svec} V_s`
+    per joint state, then :math:`h = g / g^0 \ge 0`."""
     m, (n, nu, _, _) = system.m, system.dims
     S = system.chain.n_states
+    T, T_inv = (np.eye(n), np.eye(n)) if res.similarity is None else (res.similarity.T, res.similarity.T_inv)
+    P0 = list(res.P if res.P_conditioned is None else res.P_conditioned)
+    gamma0 = float(res.gamma)  # type: ignore[arg-type]
+    lam = [list(r) for r in (res.multipliers or [()] * S)]
     size_k, size_p = nu * n, n * (n + 1) // 2
     K = m * size_k + S * size_p + 1
     every = np.arange(K)
-    dK = [matrix_variable(nu, n, j * size_k, K) for j in range(m)]
-    dP = [sym_variable(n, m * size_k + s * size_p, K) for s in range(S)]
-    g = scalar_variable(K - 1, K)
-    moved = gain_loop(system, [G + d for G, d in zip(gains, dK)], "polish step")
-    here = state_feedback_loop(system, gains)
-    shifted = [Ps + d for Ps, d in zip(P, dP)]
+    sigma = [max(1.0, float(np.linalg.norm(G @ T, 2))) for G in gains]
+    W = [matrix_variable(nu, n, j * size_k, K) for j in range(m)]
+    dK = [sigma[j] * W[j] @ T_inv for j in range(m)]
+    L = [np.linalg.cholesky(0.5 * (Ps + Ps.T)) for Ps in P0]
+    V = [sym_variable(n, m * size_k + s * size_p, K) for s in range(S)]
+    h = scalar_variable(K - 1, K)
+
+    def scaled(loop: ClosedLoop) -> ClosedLoop:
+        return replace(loop.transformed(T, T_inv), Bw=tuple(T_inv @ B / gamma0 for B in loop.Bw))
+
+    moved = scaled(gain_loop(system, [G + d for G, d in zip(gains, dK)], "polish step"))
+    here = scaled(state_feedback_loop(system, gains))
+    shifted = [Ps + Ls @ Vs @ Ls.T for Ps, Ls, Vs in zip(P0, L, V)]
     rows = Rows(K)
     for spec in block_specs(here):
-        lam_s = lam[spec.s]
-        fixed = lyapunov_block(here, spec, P, lam_s, g0, np.block, schur_F=True)
-        rows.lmi(lyapunov_block(moved, spec, P, lam_s, g, affine_bmat, schur_F=True)
-                 + lyapunov_block(here, spec, shifted, lam_s, g0, affine_bmat, schur_F=True) - fixed, every)
+        fixed = lyapunov_block(here, spec, P0, lam[spec.s], 1.0, np.block, schur_F=True)
+        rows.lmi(lyapunov_block(moved, spec, P0, lam[spec.s], h, affine_bmat, schur_F=True)
+                 + lyapunov_block(here, spec, shifted, lam[spec.s], 1.0, affine_bmat, schur_F=True) - fixed, every)
     for s in range(S):
-        rows.lmi(-shifted[s], every)
-        rows.lmi(dP[s] - rho * P[s], every)
-        rows.lmi(-(dP[s] + rho * P[s]), every)
+        rows.lmi(V[s] - rho * np.eye(n), every)
+        rows.lmi(-(V[s] + rho * np.eye(n)), every)
     for j in range(m):
-        radius = rho * max(1.0, float(np.linalg.norm(gains[j], 2)))
-        rows.lmi(-gain_bound_block(dK[j], radius, 1.0, affine_bmat), every)
+        rows.lmi(-gain_bound_block(W[j], rho, 1.0, affine_bmat), every)
         if k_max is not None:
             rows.lmi(-gain_bound_block(gains[j] + dK[j], k_max, 1.0, affine_bmat), every)
     rows.nonneg(unit_rows(K, [K - 1]), [0.0])
     out, x = calls.run_conic(rows.problem(np.eye(K)[K - 1]))
     if not out.solved or x is None:
         return None
-    return [G + x[j * size_k:(j + 1) * size_k].reshape(nu, n) for j, G in enumerate(gains)]
+    return [G + sigma[j] * x[j * size_k:(j + 1) * size_k].reshape(nu, n) @ T_inv for j, G in enumerate(gains)]
 
 
 def polish(system: FTCSystem, start: list[Matrix], start_lmi: Any, calls: SolverCalls, solver: str,
@@ -112,8 +127,7 @@ def polish(system: FTCSystem, start: list[Matrix], start_lmi: Any, calls: Solver
     best, history, rho = list(start), [float(res.gamma)], POLISH_RADIUS
     reason = f"{steps} candidates tried"
     for _ in range(steps):
-        lam = [list(r) for r in (res.multipliers or [()] * len(res.P))]
-        new = linearised_step(system, best, list(res.P), lam, history[-1] ** 2, rho, k_max, calls)
+        new = linearised_step(system, best, res, rho, k_max, calls)
         cand = None if new is None else hinf_gamma(state_feedback_loop(system, new), robust=True, solver=solver)
         if cand is not None:
             calls.outcomes.extend(cand.attempts)
@@ -124,7 +138,7 @@ def polish(system: FTCSystem, start: list[Matrix], start_lmi: Any, calls: Solver
                 break
             continue
         gain = 1.0 - cand.gamma / history[-1]
-        best, res, rho = new, cand, min(1.0, 2.0 * rho)
+        best, res, rho = new, cand, min(0.5, 2.0 * rho)
         history.append(float(cand.gamma))
         if gain < tol:
             reason = f"relative improvement below {tol:g}"
