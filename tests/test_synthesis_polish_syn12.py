@@ -16,6 +16,7 @@ program, so the comparisons need no tolerance beyond 1e-9 relative.
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
 
 import numpy as np
@@ -75,7 +76,7 @@ def test_the_polish_is_never_worse_than_its_start(system: FTCSystem) -> None:
                                      K_MAX, steps=4)
     note(f"{history} {message}")
     assert history[0] == row["gamma_certified"]
-    assert all(b < a for a, b in zip(history, history[1:]))
+    assert all(b < a for a, b in itertools.pairwise(history))
     again = certify_start(system, "polished", gains, "clarabel")
     assert again["gamma_certified"] is not None
     assert again["gamma_certified"] <= row["gamma_certified"] * (1 + 1e-9)

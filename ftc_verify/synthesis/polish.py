@@ -21,9 +21,10 @@ its first-order expansion in :math:`(\Delta P, \Delta K)` is
 the analysis' own blocks evaluated three times (the dropped term is
 :math:`\operatorname{He}(\Delta P\, B\, \Delta K)` and its channel analogues), with
 :math:`\lambda = \lambda^0` fixed. The step minimises :math:`g` subject to these
-blocks, :math:`P^0_s + \Delta P_s \succeq 0`, the trust region
-:math:`\|\Delta K_j\|_2 \le \rho \max(1, \|K^0_j\|_2)`,
-:math:`-\rho P^0_s \preceq \Delta P_s \preceq \rho P^0_s`, and the gain bound
+blocks, the trust region :math:`-\rho P^0_s \preceq \Delta P_s \preceq \rho P^0_s`
+(so :math:`P^0_s + \Delta P_s \succeq (1 - \rho) P^0_s \succ 0`),
+:math:`\|\Delta K_j\|_2 \le \rho \max(1, \|K^0_j\|_2)` (both in the analysis'
+coordinates, :func:`linearised_step`), and the gain bound
 :math:`\|K^0_j + \Delta K_j\|_2 \le k_{max}` (:func:`~ftc_verify.synthesis.xy_design.gain_bound_block`).
 At :math:`\Delta = 0` the program has the analysis' point, so its optimum predicts no
 increase. The new gains count only when the core's robust gamma
@@ -47,13 +48,15 @@ from ..model.system import FTCSystem, Matrix
 from .results import SolverCalls
 from .xy_design import gain_bound_block
 
-__all__ = ["POLISH_STEPS", "POLISH_RADIUS", "polish", "linearised_step"]
+__all__ = ["POLISH_STEPS", "POLISH_RADIUS", "MIN_RADIUS", "polish", "linearised_step"]
 
 #: Candidate gains (programs and certifications) a polish tries at most.
 POLISH_STEPS = 12
-#: First relative trust radius :math:`\rho`; it doubles (up to 1) after an accepted step
-#: and is divided by 4 after a rejected one; the polish stops below ``1e-4``.
+#: First relative trust radius :math:`\rho`; it doubles (up to 0.5) after an accepted step
+#: and is divided by 4 after a rejected one.
 POLISH_RADIUS = 0.1
+#: The polish stops when the trust radius falls below this.
+MIN_RADIUS = 1e-3
 
 
 def linearised_step(system: FTCSystem, gains: list[Matrix], res: LMIResult, rho: float, k_max: float | None,
@@ -73,16 +76,16 @@ def linearised_step(system: FTCSystem, gains: list[Matrix], res: LMIResult, rho:
     m, (n, nu, _, _) = system.m, system.dims
     S = system.chain.n_states
     T, T_inv = (np.eye(n), np.eye(n)) if res.similarity is None else (res.similarity.T, res.similarity.T_inv)
-    P0 = list(res.P if res.P_conditioned is None else res.P_conditioned)
+    P0 = list(res.P_conditioned or res.P or ())
     gamma0 = float(res.gamma)  # type: ignore[arg-type]
     lam = [list(r) for r in (res.multipliers or [()] * S)]
     size_k, size_p = nu * n, n * (n + 1) // 2
     K = m * size_k + S * size_p + 1
-    every = np.arange(K)
+    every: Any = np.arange(K)
     sigma = [max(1.0, float(np.linalg.norm(G @ T, 2))) for G in gains]
     W = [matrix_variable(nu, n, j * size_k, K) for j in range(m)]
     dK = [sigma[j] * W[j] @ T_inv for j in range(m)]
-    L = [np.linalg.cholesky(0.5 * (Ps + Ps.T)) for Ps in P0]
+    L: list[Any] = [np.linalg.cholesky(0.5 * (Ps + Ps.T)) for Ps in P0]
     V = [sym_variable(n, m * size_k + s * size_p, K) for s in range(S)]
     h = scalar_variable(K - 1, K)
 
@@ -116,7 +119,7 @@ def polish(system: FTCSystem, start: list[Matrix], start_lmi: Any, calls: Solver
     """The trust-region descent of the module docstring from certified gains ``start``
     (``start_lmi``: their certified robust-gamma result, computed when ``None``): the best
     certified gains, the certified gammas of the accepted iterates (the start's first) and
-    why it stopped. Stops after ``steps`` candidates, when the radius falls below 1e-4,
+    why it stopped. Stops after ``steps`` candidates, when the radius falls below :data:`MIN_RADIUS`,
     or when an accepted step gains less than ``tol`` relative."""
     res = start_lmi if start_lmi is not None else hinf_gamma(state_feedback_loop(system, start), robust=True,
                                                               solver=solver)
@@ -131,10 +134,10 @@ def polish(system: FTCSystem, start: list[Matrix], start_lmi: Any, calls: Solver
         cand = None if new is None else hinf_gamma(state_feedback_loop(system, new), robust=True, solver=solver)
         if cand is not None:
             calls.outcomes.extend(cand.attempts)
-        if cand is None or not cand.certified or cand.gamma is None or cand.P is None or cand.gamma >= history[-1]:
+        if new is None or cand is None or not cand.certified or cand.gamma is None or cand.P is None or cand.gamma >= history[-1]:
             rho /= 4.0
-            if rho < 1e-4:
-                reason = "trust radius below 1e-4"
+            if rho < MIN_RADIUS:
+                reason = f"trust radius below {MIN_RADIUS:g}"
                 break
             continue
         gain = 1.0 - cand.gamma / history[-1]
