@@ -45,7 +45,10 @@ Methods (all return a :class:`~ftc_verify.synthesis.results.SynthesisResult` ver
 ``best`` (the default)
     Every route that can win: the starts of ``iterative`` and the ``common-fdi`` and
     ``dilated`` designs, each certified, then the descent of ``iterative`` from the best
-    of ``iterative``'s own starts and from the best start overall. The smallest certified
+    of ``iterative``'s own starts and from the best start overall, each followed by the
+    polish of its result (:func:`~ftc_verify.synthesis.polish.polish`: a trust-region
+    step in the Lyapunov matrices and the gains together, which the alternation cannot
+    make; never worse than its start). The smallest certified
     robust gamma wins; every route is a row of ``starts`` (with its seconds). So ``best``
     is never worse than ``iterative``, ``two-step``, ``common``, ``common-fdi`` or
     ``dilated`` run alone (the same computations, the same certification). Beside the
@@ -367,10 +370,10 @@ def _best(system: FTCSystem, gamma: float | None, k_max: float | None, solver: s
           max_iter: int, tol: float) -> tuple[list[Matrix] | None, list[float], str, str | None, list[dict[str, Any]]]:
     """The ``best`` method: every start (``iterative``'s and :data:`EXTRA_STARTS`), then the
     descent from the best start of ``iterative`` (so the result is never worse than
-    ``iterative``) and from the best start overall when that is another one (the two
-    descents are independent: the second runs in a forked child,
-    :class:`~ftc_verify.analysis.solvers.ForkedCall`); the smallest certified gamma of all
-    these routes wins. Every route is a row."""
+    ``iterative``) and from the best start overall when that is another one, each
+    followed by the polish of its result (the two are independent: the second runs in a
+    forked child, :class:`~ftc_verify.analysis.solvers.ForkedCall`); the smallest
+    certified gamma of all these routes wins. Every route is a row."""
     rows = _starts(system, gamma, k_max, solver, calls, None, extra=True)
     certified = [r for r in rows if r["gamma_certified"] is not None]
     if not certified:
