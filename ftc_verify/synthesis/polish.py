@@ -63,7 +63,8 @@ def linearised_step(system: FTCSystem, gains: list[Matrix], res: LMIResult, rho:
                     calls: SolverCalls) -> list[Matrix] | None:
     r"""One trust-region step of the module docstring from gains ``K^0`` with the analysis'
     certified answer ``res`` (:class:`~ftc_verify.analysis.lmi_analysis.LMIResult`): the
-    new gains, or ``None`` when the solver returned no point.
+    new gains, or ``None`` when the solver returned no point (or a ``P^0_s`` has no float64
+    Cholesky factor).
 
     Scaled as the analysis scales its own program: in the analysis' coordinates
     :math:`x = T \tilde x` (``res.similarity``, where ``res.P_conditioned`` lives), with
@@ -85,7 +86,10 @@ def linearised_step(system: FTCSystem, gains: list[Matrix], res: LMIResult, rho:
     sigma = [max(1.0, float(np.linalg.norm(G @ T, 2))) for G in gains]
     W = [matrix_variable(nu, n, j * size_k, K) for j in range(m)]
     dK = [sigma[j] * W[j] @ T_inv for j in range(m)]
-    L: list[Any] = [np.linalg.cholesky(0.5 * (Ps + Ps.T)) for Ps in P0]
+    try:
+        L: list[Any] = [np.linalg.cholesky(0.5 * (Ps + Ps.T)) for Ps in P0]
+    except np.linalg.LinAlgError:  # P proved definite in balls, yet not in float64: no step
+        return None
     V = [sym_variable(n, m * size_k + s * size_p, K) for s in range(S)]
     h = scalar_variable(K - 1, K)
 
