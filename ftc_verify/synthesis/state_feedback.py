@@ -403,7 +403,7 @@ def _best(system: FTCSystem, gamma: float | None, k_max: float | None, solver: s
                         "gains": gains, "history": history + more[1:], "seconds": time.perf_counter() - t0})
         return out, own.outcomes
 
-    # the second descent (independent of the first) in a forked child, on the second core
+    # the second descent and its polish (independent of the first) in a forked child, on the second core
     forked = ForkedCall(lambda: run(todo[1]), "a descent") if len(todo) > 1 and hasattr(os, "fork") else None
     try:
         done = [run(todo[0])] + ([forked.result()] if forked is not None else [run(t) for t in todo[1:]])
