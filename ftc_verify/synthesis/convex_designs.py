@@ -35,6 +35,7 @@ Nothing here certifies an FDI-only result: the caller hands the gains to the cor
 from __future__ import annotations
 
 import math
+import time
 from typing import Any
 
 import numpy as np
@@ -43,9 +44,12 @@ from ..analysis.closedloop import gain_loop
 from ..analysis.conic import Columns, ConicProblem, Rows, affine_bmat, evaluate, local_variables, unit_rows
 from ..analysis.lmi import block_specs, dilated_block, xy_block
 from ..model.system import FTCSystem, Matrix
+from .results import SolverCalls
+from .starts import certify_start
 from .xy_design import gain_bound_block
 
-__all__ = ["TAU_GRID", "GOLDEN_STEPS", "dilated_problem", "dilated_solve", "dilated_design", "true_mode_reference"]
+__all__ = ["TAU_GRID", "GOLDEN_STEPS", "dilated_problem", "dilated_solve", "dilated_design", "true_mode_reference", "reference_row",
+           "reference_alone"]
 
 #: Line-search grid of the dilation scalar, in units of ``1/rho`` (module docstring).
 TAU_GRID = (1e-3, 1e-2, 1e-1, 1.0, 10.0)
@@ -215,3 +219,27 @@ def true_mode_reference(system: FTCSystem, calls: Any) -> dict[str, Any] | None:
         Xv = evaluate(Xi, x[cols.at("X", i):cols.at("X", i) + n * (n + 1) // 2])
         gains.append(_matrix(x, cols.at("Y", i), (nu, n)) @ np.linalg.inv(Xv))
     return {"gamma": math.sqrt(max(float(x[cols.at("g")]), 0.0)), "gains": gains}
+
+
+def reference_row(system: FTCSystem, solver: str, calls: SolverCalls) -> dict[str, Any]:
+    """The reference line of ``best``: :func:`true_mode_reference`
+    and the certified robust gamma of its gains (``K_(i,j) = K_i``) on the joint chain."""
+    t0 = time.perf_counter()
+    ref = true_mode_reference(system, calls)
+    out: dict[str, Any] = {"name": "true-mode MJLS design (reference, not a bound)", "lmi_gamma": None,
+                           "gamma_certified": None, "reason": "LMI gave no point"}
+    if ref is not None:
+        table = [ref["gains"][i] for i in range(system.m) for _ in range(system.m)]
+        row = certify_start(system, "reference", table, solver)
+        calls.outcomes.extend(row.get("attempts", ()))
+        out |= {"lmi_gamma": ref["gamma"], "gamma_certified": row["gamma_certified"], "reason": row["reason"],
+                "max_gain_norm": max(float(np.linalg.norm(K, 2)) for K in ref["gains"])}
+    return out | {"seconds": time.perf_counter() - t0}
+
+
+def reference_alone(system: FTCSystem, solver: str) -> tuple[dict[str, Any], list[Any]]:
+    """:func:`reference_row` with calls of its own: ``(row, solver outcomes)``. ``best`` runs it
+    in a forked child beside its routes (:class:`~ftc_verify.analysis.solvers.ForkedCall`:
+    the same computation on the second core; its outcomes are added to the run's)."""
+    calls = SolverCalls(solver)
+    return reference_row(system, solver, calls), calls.outcomes

@@ -45,7 +45,10 @@ Methods (all return a :class:`~ftc_verify.synthesis.results.SynthesisResult` ver
 ``best`` (the default)
     Every route that can win: the starts of ``iterative`` and the ``common-fdi`` and
     ``dilated`` designs, each certified, then the descent of ``iterative`` from the best
-    of ``iterative``'s own starts and from the best start overall. The smallest certified
+    of ``iterative``'s own starts and from the best start overall, each followed by the
+    polish of its result (:func:`~ftc_verify.synthesis.polish.polish`: a trust-region
+    step in the Lyapunov matrices and the gains together, which the alternation cannot
+    make; never worse than its start). The smallest certified
     robust gamma wins; every route is a row of ``starts`` (with its seconds). So ``best``
     is never worse than ``iterative``, ``two-step``, ``common``, ``common-fdi`` or
     ``dilated`` run alone (the same computations, the same certification). Beside the
@@ -99,7 +102,8 @@ from ..model.system import FTCSystem, Matrix
 from ..analysis.solvers import ForkedCall, choose_solver
 from .starts import candidates, certify_start, diagnose
 from .results import SolverCalls, SynthesisResult, verify_controller
-from .convex_designs import dilated_design, true_mode_reference
+from .polish import polish
+from .convex_designs import dilated_design, reference_alone
 from .xy_design import gain_bound_block, xy_solve, xy_solver
 
 __all__ = ["METHODS", "SynthesisResult", "synthesize", "two_step", "gain_step", "descend"]
@@ -362,38 +366,14 @@ def _other_starts(system: FTCSystem, k_max: float | None, solver: str, calls: So
     return rows
 
 
-def _reference(system: FTCSystem, solver: str, calls: SolverCalls) -> dict[str, Any]:
-    """The reference line of ``best``: :func:`~ftc_verify.synthesis.convex_designs.true_mode_reference`
-    and the certified robust gamma of its gains (``K_(i,j) = K_i``) on the joint chain."""
-    t0 = time.perf_counter()
-    ref = true_mode_reference(system, calls)
-    out: dict[str, Any] = {"name": "true-mode MJLS design (reference, not a bound)", "lmi_gamma": None,
-                           "gamma_certified": None, "reason": "LMI gave no point"}
-    if ref is not None:
-        table = [ref["gains"][i] for i in range(system.m) for _ in range(system.m)]
-        row = certify_start(system, "reference", table, solver)
-        calls.outcomes.extend(row.get("attempts", ()))
-        out |= {"lmi_gamma": ref["gamma"], "gamma_certified": row["gamma_certified"], "reason": row["reason"],
-                "max_gain_norm": max(float(np.linalg.norm(K, 2)) for K in ref["gains"])}
-    return out | {"seconds": time.perf_counter() - t0}
-
-
-def _reference_alone(system: FTCSystem, solver: str) -> tuple[dict[str, Any], list[Any]]:
-    """:func:`_reference` with calls of its own: ``(row, solver outcomes)``. ``best`` runs it
-    in a forked child beside its routes (:class:`~ftc_verify.analysis.solvers.ForkedCall`:
-    the same computation on the second core; its outcomes are added to the run's)."""
-    calls = SolverCalls(solver)
-    return _reference(system, solver, calls), calls.outcomes
-
-
 def _best(system: FTCSystem, gamma: float | None, k_max: float | None, solver: str, calls: SolverCalls,
           max_iter: int, tol: float) -> tuple[list[Matrix] | None, list[float], str, str | None, list[dict[str, Any]]]:
     """The ``best`` method: every start (``iterative``'s and :data:`EXTRA_STARTS`), then the
     descent from the best start of ``iterative`` (so the result is never worse than
-    ``iterative``) and from the best start overall when that is another one (the two
-    descents are independent: the second runs in a forked child,
-    :class:`~ftc_verify.analysis.solvers.ForkedCall`); the smallest certified gamma of all
-    these routes wins. Every route is a row."""
+    ``iterative``) and from the best start overall when that is another one, each
+    followed by the polish of its result (the two are independent: the second runs in a
+    forked child, :class:`~ftc_verify.analysis.solvers.ForkedCall`); the smallest
+    certified gamma of all these routes wins. Every route is a row."""
     rows = _starts(system, gamma, k_max, solver, calls, None, extra=True)
     certified = [r for r in rows if r["gamma_certified"] is not None]
     if not certified:
@@ -405,25 +385,33 @@ def _best(system: FTCSystem, gamma: float | None, k_max: float | None, solver: s
         if seed is not None and all(seed["name"] != t["name"] for t in todo):
             todo.append(seed)
 
-    def run(seed: dict[str, Any]) -> tuple[dict[str, Any], list[Any]]:
-        """One descent with calls of its own: its row and its solver outcomes."""
+    def run(seed: dict[str, Any]) -> tuple[list[dict[str, Any]], list[Any]]:
+        """One descent, then the polish of its result, with calls of their own: their rows
+        (the polish's history continues the descent's) and their solver outcomes."""
         own, t0 = SolverCalls(solver), time.perf_counter()
         gains, history, msg = descend(lambda G: state_feedback_loop(system, G),
                                       lambda P, lam, j: gain_step(system, P, lam, j, own, k_max), system.m,
                                       list(seed["gains"]), own, solver, max_iter, tol, seed.get("lmi"))
-        return {"name": f"descent from {seed['name']}", "gamma_certified": history[-1] if history else None,
+        out = [{"name": f"descent from {seed['name']}", "gamma_certified": history[-1] if history else None,
                 "spectral_abscissa": None, "note": "", "reason": "" if history else msg, "gains": gains,
-                "history": history, "seconds": time.perf_counter() - t0}, own.outcomes
+                "history": history, "seconds": time.perf_counter() - t0}]
+        if history:
+            t0 = time.perf_counter()
+            gains, more, msg = polish(system, gains, None, own, solver, k_max)
+            out.append({"name": f"polish after descent from {seed['name']}", "gamma_certified": more[-1] if more
+                        else None, "spectral_abscissa": None, "note": msg, "reason": "" if more else msg,
+                        "gains": gains, "history": history + more[1:], "seconds": time.perf_counter() - t0})
+        return out, own.outcomes
 
-    # the second descent (independent of the first) in a forked child, on the second core
+    # the second descent and its polish (independent of the first) in a forked child, on the second core
     forked = ForkedCall(lambda: run(todo[1]), "a descent") if len(todo) > 1 and hasattr(os, "fork") else None
     try:
         done = [run(todo[0])] + ([forked.result()] if forked is not None else [run(t) for t in todo[1:]])
     finally:
         if forked is not None:
             forked.cancel()
-    for row, outcomes in done:
-        rows.append(row)
+    for made, outcomes in done:
+        rows.extend(made)
         calls.outcomes.extend(outcomes)
     win = min((r for r in rows if r["gamma_certified"] is not None), key=lambda r: r["gamma_certified"])
     history = list(win.get("history") or [win["gamma_certified"]])
@@ -534,11 +522,11 @@ def synthesize(
                                                                    max_iter, tol)
         gsyn = history[-1] if history else None
     elif method == "best":
-        forked = ForkedCall(lambda: _reference_alone(system, name), "the reference design") if hasattr(os, "fork") \
+        forked = ForkedCall(lambda: reference_alone(system, name), "the reference design") if hasattr(os, "fork") \
             else None
         try:
             gains, history, msg, start_name, rows = _best(system, gamma, k_max, name, calls, max_iter, tol)
-            reference, outcomes = forked.result() if forked is not None else _reference_alone(system, name)
+            reference, outcomes = forked.result() if forked is not None else reference_alone(system, name)
         finally:
             if forked is not None:
                 forked.cancel()
