@@ -63,7 +63,8 @@ def linearised_step(system: FTCSystem, gains: list[Matrix], res: LMIResult, rho:
                     calls: SolverCalls) -> list[Matrix] | None:
     r"""One trust-region step of the module docstring from gains ``K^0`` with the analysis'
     certified answer ``res`` (:class:`~ftc_verify.analysis.lmi_analysis.LMIResult`): the
-    new gains, or ``None`` when the solver returned no point (or a ``P^0_s`` has no float64
+    new gains (scaled back to ``k_max`` when the solver's tolerance put one outside the
+    bound), or ``None`` when the solver returned no point (or a ``P^0_s`` has no float64
     Cholesky factor).
 
     Scaled as the analysis scales its own program: in the analysis' coordinates
@@ -115,7 +116,11 @@ def linearised_step(system: FTCSystem, gains: list[Matrix], res: LMIResult, rho:
     out, x = calls.run_conic(rows.problem(np.eye(K)[K - 1]))
     if not out.solved or x is None:
         return None
-    return [G + sigma[j] * x[j * size_k:(j + 1) * size_k].reshape(nu, n) @ T_inv for j, G in enumerate(gains)]
+    new = [G + sigma[j] * x[j * size_k:(j + 1) * size_k].reshape(nu, n) @ T_inv for j, G in enumerate(gains)]
+    if k_max is None:
+        return new
+    norms = [float(np.linalg.norm(G, 2)) for G in new]  # the solver's tolerance: back inside the bound
+    return [G * (k_max / g) if g > k_max else G for G, g in zip(new, norms)]
 
 
 def polish(system: FTCSystem, start: list[Matrix], start_lmi: Any, calls: SolverCalls, solver: str,
