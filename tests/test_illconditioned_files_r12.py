@@ -21,13 +21,14 @@ from ftc_verify.analysis.crossval import linf_norm
 DATA = Path(__file__).resolve().parent / "data"
 
 
-def _written_abscissa(system: Path, gains: Path) -> float:
+def _written_abscissa(system: Path, gains: Path, parse_float: type = Fraction) -> float:
     """The largest real part of the eigenvalues of ``A + B K`` from the files' decimals:
-    the product and sum in fractions, the eigenvalues by python-flint at 600 bits."""
+    the product and sum in fractions, the eigenvalues by python-flint at 600 bits
+    (``parse_float=float``: from the floats nearest to the decimals instead, exactly)."""
     import flint
 
     def parse(path: Path) -> dict:
-        return tomllib.loads(path.read_text(), parse_float=Fraction)
+        return tomllib.loads(path.read_text(), parse_float=lambda text: Fraction(parse_float(text)))
 
     mode, gain = parse(system)["mode"][0], parse(gains)["gain"][0]["K"]
     A, B = mode["A"], mode["B"]
@@ -52,6 +53,19 @@ def test_ill_conditioned_files_get_the_written_loops_verdict(case: str) -> None:
     expected = "stable" if truth < 0 else "not stable"
     assert proc.returncode == (0 if expected == "stable" else 1), proc.stderr
     assert json.loads(proc.stdout)["mss"]["verdict"] == expected
+
+
+@pytest.mark.parametrize("case", ["hg115", "hgr359"])
+def test_the_verdict_is_the_decimals_not_their_nearest_floats(case: str) -> None:
+    """High-gain loops (gains 1e7-1e8, no similarity; an independent check's hunt) whose
+    abscissa, about 1e-9, has one sign for the decimals as written and the other for the
+    nearest floats: the verdict is the decimals'."""
+    system, gains = DATA / f"written_{case}.toml", DATA / f"written_{case}_K.toml"
+    truth, rounded = _written_abscissa(system, gains), _written_abscissa(system, gains, float)
+    assert (truth < 0) != (rounded < 0)  # the case discriminates
+    proc = cli_inprocess.run_cli(["analyze", str(system), "--gains", str(gains), "--no-lmi", "--json"])
+    assert json.loads(proc.stdout)["mss"]["verdict"] == ("stable" if truth < 0 else "not stable")
+    assert proc.returncode == (0 if truth < 0 else 1)
 
 
 def test_a_contradicted_float_estimate_is_labelled() -> None:
