@@ -10,6 +10,7 @@ simulation records: ``ftc_verify.cli``).
 from __future__ import annotations
 
 import os
+import time
 
 from .errors import MemoryLimitError, ValidationError
 
@@ -27,13 +28,15 @@ _SUFFIX = {"K": 1024, "M": 1024 ** 2, "G": 1024 ** 3, "T": 1024 ** 4}
 
 def cpu_clock() -> float:
     """CPU seconds (user + system) of this process and of its children that ended and were
-    waited for (the forked analysis stages): the clock of the synthesis budgets, so that a
-    design depends much less on what else the machine runs (a wall-clock budget gave the
+    waited for (the forked analysis stages): the clock of the synthesis budgets and of the
+    box verdict's (:mod:`ftc_verify.analysis.box`), so that a design or a verdict depends
+    much less on what else the machine runs (a wall-clock budget gave the
     descent's ``hinf`` route a third of its iterations at load 14). It counts every thread
     of the process: with a multi-threaded BLAS a budget is spent sooner (the CLI sets one
-    thread)."""
+    thread). The process's own seconds come from :func:`time.process_time` (nanoseconds;
+    ``os.times`` ticks every 10 ms here, so a budget of 0 was not spent at once)."""
     t = os.times()
-    return t.user + t.system + t.children_user + t.children_system
+    return time.process_time() + t.children_user + t.children_system
 
 
 def format_bytes(value: float) -> str:

@@ -85,8 +85,8 @@ __all__ = ["BOX_BUDGET_SECONDS", "MAX_BOXES", "MIN_RELATIVE_WIDTH", "ROOT_LMI_DE
            "BoxVerdict", "box_stability"]
 
 #: Budget of the branch and bound, the point proofs included, in CPU seconds
-#: (:func:`~ftc_verify.limits.cpu_clock`: the same loop gets the same verdict on a loaded
-#: machine as on a quiet one).
+#: (:func:`~ftc_verify.limits.cpu_clock`: the verdict depends much less on the machine's
+#: load than with a wall-clock budget).
 BOX_BUDGET_SECONDS = 60.0
 #: The reason of an "undecided" verdict returned by ``box_stability(root_lmi=False)`` when
 #: the whole box's centre candidate fails and its LMI is left to the caller.
@@ -403,7 +403,7 @@ def box_stability(loop: ClosedLoop, sim: Similarity, *, budget_seconds: float = 
         t0 = time.perf_counter()
         if boxes >= max_boxes:
             return give_up(lo, hi, f"{max_boxes} sub-boxes examined (the limit) before this one was decided", t0)
-        if cpu_clock() > deadline:
+        if cpu_clock() >= deadline:
             return give_up(lo, hi, f"budget of {budget_seconds:g} CPU s spent before this sub-box was decided", t0)
         boxes += 1
         status, rates = checker.check(lo, hi)

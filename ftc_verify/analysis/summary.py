@@ -68,7 +68,8 @@ def analysis_summary(rep: AnalysisReport, *, fdi_model: str | None = None) -> st
     lines.append("  per joint mode (true, fdi): frozen poles, H-inf norm, python-control")
     for m in rep.per_mode:
         poles = ", ".join(f"{p.real:.4g}{p.imag:+.4g}j" if abs(p.imag) > 1e-12 else f"{p.real:.4g}" for p in m.poles)
-        norm = "inf (unstable)" if m.hinf_norm == float("inf") else f"{m.hinf_norm:.6g}"
+        norm = (f"{m.hinf_norm:.6g}" if m.hinf_norm != float("inf") else "inf (unstable)" if not m.stable
+                else "inf (float64: j omega I - A singular)")
         lines.append(f"    ({m.true_mode}, {m.fdi_mode})  poles [{poles}]  norm {norm}  {m.detail}")
     if rep.certified_stable:
         verdict = "certified stable"

@@ -67,8 +67,8 @@ VERDICTS = ("stable", "not stable", "undecided")
 SOLVE_LIMIT = 400
 #: Budget of the ball-arithmetic fallback (of one vertex, or of the whole box in
 #: :func:`~ftc_verify.analysis.moments.stability.mean_square_stability`), in CPU seconds
-#: (:func:`~ftc_verify.limits.cpu_clock`, so that the load of the machine does not change
-#: a verdict).
+#: (:func:`~ftc_verify.limits.cpu_clock`, so that a verdict depends much less on the
+#: machine's load).
 BUDGET_SECONDS = 60.0
 #: Precisions (bits) of the ball-arithmetic fallback, in order.
 FALLBACK_BITS = (128, 256, 512)
@@ -286,7 +286,7 @@ class StabilityProver:
             return done("undecided", f"float64 candidates not proved and the generator ({size} rows) is above "
                                      f"the ball-arithmetic limit ({SOLVE_LIMIT})", 0)
         for bits in FALLBACK_BITS:
-            if cpu_clock() - clock > budget_seconds:
+            if cpu_clock() - clock >= budget_seconds:
                 return done("undecided", f"budget of {budget_seconds:g} CPU s spent before {bits} bits", bits)
             with precision(bits):
                 A = shifted(self._enclosures())  # the enclosures at this precision

@@ -46,6 +46,7 @@ from ..analysis.lmi import block_specs, lyapunov_block
 from ..analysis.lmi_analysis import LMIResult, hinf_gamma
 from ..model.system import FTCSystem, Matrix
 from .results import SolverCalls
+from .of_blocks import bounded_blocks
 from .xy_design import gain_bound_block
 
 __all__ = ["POLISH_STEPS", "POLISH_RADIUS", "MIN_RADIUS", "polish", "linearised_step"]
@@ -57,6 +58,14 @@ POLISH_STEPS = 12
 POLISH_RADIUS = 0.1
 #: The polish stops when the trust radius falls below this.
 MIN_RADIUS = 1e-3
+
+
+def _factors(P: list[Matrix]) -> list[Any] | None:
+    """The float64 Cholesky factors of the (symmetrised) ``P_s``, ``None`` when one fails."""
+    try:
+        return [np.linalg.cholesky(0.5 * (Ps + Ps.T)) for Ps in P]
+    except np.linalg.LinAlgError:
+        return None
 
 
 def linearised_step(system: FTCSystem, gains: list[Matrix], res: LMIResult, rho: float, k_max: float | None,
@@ -87,9 +96,8 @@ def linearised_step(system: FTCSystem, gains: list[Matrix], res: LMIResult, rho:
     sigma = [max(1.0, float(np.linalg.norm(G @ T, 2))) for G in gains]
     W = [matrix_variable(nu, n, j * size_k, K) for j in range(m)]
     dK = [sigma[j] * W[j] @ T_inv for j in range(m)]
-    try:
-        L: list[Any] = [np.linalg.cholesky(0.5 * (Ps + Ps.T)) for Ps in P0]
-    except np.linalg.LinAlgError:  # P proved definite in balls, yet not in float64: no step
+    L = _factors(P0)
+    if L is None:  # P proved definite in balls, yet not in float64: no step
         return None
     V = [sym_variable(n, m * size_k + s * size_p, K) for s in range(S)]
     h = scalar_variable(K - 1, K)
@@ -117,10 +125,7 @@ def linearised_step(system: FTCSystem, gains: list[Matrix], res: LMIResult, rho:
     if not out.solved or x is None:
         return None
     new = [G + sigma[j] * x[j * size_k:(j + 1) * size_k].reshape(nu, n) @ T_inv for j, G in enumerate(gains)]
-    if k_max is None:
-        return new
-    norms = [float(np.linalg.norm(G, 2)) for G in new]  # the solver's tolerance: back inside the bound
-    return [G * (k_max / g) if g > k_max else G for G, g in zip(new, norms)]
+    return bounded_blocks(new, k_max)[0]  # the solver's tolerance: back inside the bound
 
 
 def polish(system: FTCSystem, start: list[Matrix], start_lmi: Any, calls: SolverCalls, solver: str,
@@ -139,6 +144,9 @@ def polish(system: FTCSystem, start: list[Matrix], start_lmi: Any, calls: Solver
     best, history, rho = list(start), [float(res.gamma)], POLISH_RADIUS
     reason = f"{steps} candidates tried"
     for _ in range(steps):
+        if _factors(list(res.P_conditioned or res.P or ())) is None:
+            reason = "a certified P has no float64 Cholesky factor"
+            break
         new = linearised_step(system, best, res, rho, k_max, calls)
         cand = None if new is None else hinf_gamma(state_feedback_loop(system, new), robust=True, solver=solver)
         if cand is not None:
