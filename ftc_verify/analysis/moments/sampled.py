@@ -361,7 +361,7 @@ def worst_radius(loop: SampledLoop, h: float, points: Sequence[Matrix]) -> tuple
 
 #: Periods per octave of the scan (:func:`scan_periods`).
 SCAN_PER_OCTAVE = 8
-#: The range of ``period * speed`` where :func:`scan_range` widens the scan to the period.
+#: The range of ``period * speed`` where ``scan_range`` widens the scan to the period.
 SCAN_WIDEN = (1e-9, 1e9)
 
 
