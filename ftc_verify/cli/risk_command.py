@@ -82,13 +82,14 @@ def _envelope(args: argparse.Namespace, system: Any) -> Any:
 
 def _check(args: argparse.Namespace, system: Any, controller: Any) -> None:
     """Every option against the loop, before any work."""
-    source = "--step"
     if args.step is None:
         from_file = controller.period is not None
-        source = f"the period of {args.controller}" if from_file else "the default --step"
         args.step = controller.period if from_file else 0.01
+        source = f"the period of {args.controller}" if from_file else "the default --step"
+        step = f"{args.step:g} ({source})"
+    else:
+        step = f"--step {args.step:g}"
     if args.horizon < MIN_STEPS * args.step:
-        step = f"--step {args.step:g}" if source == "--step" else f"{args.step:g} ({source})"
         raise bad(f"--horizon {args.horizon:g}: must cover at least {MIN_STEPS} steps of {step} "
                   f"(at least {MIN_STEPS * args.step:g})")
     n = system.dims[0]
