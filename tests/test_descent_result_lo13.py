@@ -9,7 +9,6 @@ compared bit for bit.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any
 
@@ -101,10 +100,23 @@ def test_the_polish_from_the_descents_result_is_the_same_with_one_solve_fewer(sf
     assert [o.status for o in solved.outcomes[first:]] == [o.status for o in given.outcomes]
 
 
+class _InProcess:
+    """:class:`~ftc_verify.analysis.solvers.ForkedCall` run here, when its result is asked for."""
+
+    def __init__(self, fn: Any, what: str) -> None:
+        self.fn = fn
+
+    def result(self) -> Any:
+        return self.fn()
+
+    def cancel(self) -> None:
+        pass
+
+
 def test_best_polishes_every_descent_from_its_result(sf301: Any, monkeypatch: pytest.MonkeyPatch) -> None:
-    """The ``best`` route (in one process: no fork, so every call is seen): each polish
-    gets the result of the descent before it, the very object, and starts from that
-    descent's gains."""
+    """The ``best`` route (its forked calls run in this process, so every call is seen):
+    each polish gets the result of the descent before it, the very object, and starts
+    from that descent's gains."""
     system, _ = sf301
     made: list[sf.Descent] = []
     given: list[tuple[list[Any], Any]] = []
@@ -118,7 +130,7 @@ def test_best_polishes_every_descent_from_its_result(sf301: Any, monkeypatch: py
         given.append((start, start_lmi))
         return polish_(system, start, start_lmi, *args)
 
-    monkeypatch.delattr(os, "fork")
+    monkeypatch.setattr(sf, "ForkedCall", _InProcess)
     monkeypatch.setattr(sf, "descend", recorded_descend)
     monkeypatch.setattr(sf, "polish", recorded_polish)
     rows = sf._best(system, None, K_MAX, "clarabel", SolverCalls("clarabel"), 10, 1e-3)[4]
