@@ -256,7 +256,7 @@ class Descent:
 
 
 def descend(loop_of: Any, step: Any, m: int, start: list[Matrix], calls: SolverCalls, solver: str,
-            max_iter: int, tol: float, start_lmi: Any = None) -> Descent:
+            max_iter: int, tol: float, start_lmi: LMIResult | None = None) -> Descent:
     """P-step / K-step descent from certified ``start`` gains: the best certified gains, the
     certified robust gammas (one per accepted iterate) and Lemma 4.1's result for those gains.
     ``loop_of(gains)`` is the closed loop, ``step(P, lam, j)`` the K-step of FDI mode ``j``
