@@ -267,7 +267,7 @@ def descend(loop_of: Any, step: Any, m: int, start: list[Matrix], calls: SolverC
     if res is None:
         res = hinf_gamma(loop_of(best), robust=True, solver=solver)
         calls.outcomes.extend(res.attempts)
-    if not res.certified or res.P is None:
+    if not res.certified or res.P is None or res.gamma is None:
         return Descent(best, [], "start gains not certified; no descent", res)
     history = [float(res.gamma)]
     reason = f"iteration limit {max_iter}"
