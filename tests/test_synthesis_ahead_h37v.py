@@ -34,11 +34,11 @@ def _run(monkeypatch: pytest.MonkeyPatch, two_step: float | None) -> dict[str, A
         return [_row("two-step", two_step)] + rows
 
     def descend(loop_of: Any, step: Any, m: int, start: list[Any], calls: SolverCalls, solver: str,
-                max_iter: int, tol: float, start_lmi: Any = None) -> tuple[list[Any], list[float], str]:
+                max_iter: int, tol: float, start_lmi: Any = None) -> sf.Descent:
         gamma = float(start[0][0, 0])
         descended.append(str(gamma))
         calls.outcomes.append(f"descent from {gamma}")  # type: ignore[arg-type]
-        return start, [gamma * 0.9], "stopped"
+        return sf.Descent(start, [gamma * 0.9], "stopped", start_lmi)
 
     def verify(system: Any, gains: list[Any], solver: str) -> str:
         analysed.append(str(float(gains[0][0, 0])))

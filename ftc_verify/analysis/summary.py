@@ -46,9 +46,7 @@ def analysis_summary(rep: AnalysisReport, *, fdi_model: str | None = None) -> st
             + ("" if mss["exhaustive"] else ", greedy search") + (" and the witness" if mss["witness"] else ""))
     lines = [f"ftc-verify analyze: {rep.name} ({rep.controller})"] + ([f"  {fdi_model}"] if fdi_model else [])
     word = {"stable": "stable", "not stable": "NOT stable", "undecided": "UNDECIDED"}[mss["verdict"]]
-    estimate = mss["spectral_abscissa"]
-    if estimate is not None and ((mss["verdict"] == "stable" and estimate >= 0.0)
-                                 or (mss["verdict"] == "not stable" and estimate < 0.0)):
+    if mss["spectral_abscissa_contradicted"]:
         vert += "; contradicted by the proof: float64 cannot resolve this realisation"
     lines += [f"  mean-square stability    spectral abscissa {_num(mss['spectral_abscissa'])} ({vert}): {word}",
               f"      proved: {mss['verified_by']}"]

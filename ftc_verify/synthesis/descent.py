@@ -503,13 +503,14 @@ def _alternate(system: FTCSystem, par: Parametrisation, chosen: tuple[Controller
 
     target = system if chosen[1].robust.certified else _nominal_system(system)
     aug, cbars = augmented_system(target, par.n_c)
-    blocks, history, why = descend(
+    found = descend(
         lambda B: closed_loop(target, par.controller(par.theta(B), "p-k")),
         lambda P, lam, j: gain_step(aug, P, lam, j, calls, k_max, measurement=cbars), system.m,
         controller_blocks(chosen[0]), calls, solver, 5, 1e-3)
-    if len(history) < 2:
+    why = found.message
+    if len(found.history) < 2:
         return None, f"no improvement ({why})"
-    ctrl = par.controller(par.theta(blocks), chosen[0].name)
+    ctrl = par.controller(par.theta(found.gains), chosen[0].name)
     report = verify_controller(system, ctrl, solver)
     gamma = accepted_gamma(report, True)
     if gamma is None or gamma >= chosen[2] or (chosen[1].robust.certified and not report.robust.certified):

@@ -336,10 +336,11 @@ def _run_route(route: str, system: FTCSystem, rows: list[dict[str, Any]], gamma:
             msg = "no certified observer design to start the V-K iteration from"
         else:
             aug, cbars = augmented_system(system)
-            blocks, history, msg = descend(
+            found = descend(
                 lambda B: closed_loop(system, controller_from_blocks(system, B, "vk")),
                 lambda P, lam, j: gain_step(aug, P, lam, j, calls, k_max, measurement=cbars), system.m,
                 list(best["gains"]), calls, name, max_iter, tol, best.get("lmi"))
+            blocks, history, msg = found.gains, found.history, found.message
             gsyn = history[-1] if history else None
             msg = f"V-K iteration from {best['name']} (certified gamma {upper_text(best['gamma_certified'])}); {msg}"
     else:

@@ -128,7 +128,7 @@ def linearised_step(system: FTCSystem, gains: list[Matrix], res: LMIResult, rho:
     return bounded_blocks(new, k_max)[0]  # the solver's tolerance: back inside the bound
 
 
-def polish(system: FTCSystem, start: list[Matrix], start_lmi: Any, calls: SolverCalls, solver: str,
+def polish(system: FTCSystem, start: list[Matrix], start_lmi: LMIResult | None, calls: SolverCalls, solver: str,
            k_max: float | None, steps: int = POLISH_STEPS, tol: float = 1e-4) -> tuple[list[Matrix], list[float], str]:
     """The trust-region descent of the module docstring from certified gains ``start``
     (``start_lmi``: their certified robust-gamma result, computed when ``None``): the best

@@ -86,6 +86,7 @@ import math
 import os
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -97,7 +98,7 @@ from ..analysis.conic import Rows, affine_bmat, matrix_variable, scalar_variable
 from ..claimtext import upper_text
 from ..errors import ValidationError
 from ..analysis.lmi import block_specs, lyapunov_block
-from ..analysis.lmi_analysis import hinf_gamma
+from ..analysis.lmi_analysis import LMIResult, hinf_gamma
 from ..model.system import FTCSystem, Matrix
 from ..analysis.solvers import ForkedCall, choose_solver
 from .starts import candidates, certify_start, diagnose
@@ -106,7 +107,7 @@ from .polish import polish
 from .convex_designs import dilated_design, reference_alone
 from .xy_design import gain_bound_block, xy_solve, xy_solver
 
-__all__ = ["METHODS", "SynthesisResult", "synthesize", "two_step", "gain_step", "descend"]
+__all__ = ["METHODS", "SynthesisResult", "synthesize", "two_step", "gain_step", "Descent", "descend"]
 
 METHODS = ("best", "two-step", "iterative", "full-info", "common", "common-fdi", "dilated")
 #: The starts of ``iterative`` (``best`` adds :data:`EXTRA_STARTS`).
@@ -243,10 +244,21 @@ def _verify(system: FTCSystem, gains: list[Matrix], solver: str) -> AnalysisRepo
     return verify_controller(system, Controller.state_feedback(gains), solver)
 
 
+@dataclass(frozen=True)
+class Descent:
+    """What :func:`descend` found: the best certified ``gains``, their certified robust gammas (``history``,
+    empty when the start is not certified), why it stopped, and Lemma 4.1's result for ``gains`` (``lmi``)."""
+
+    gains: list[Matrix]
+    history: list[float]
+    message: str
+    lmi: LMIResult
+
+
 def descend(loop_of: Any, step: Any, m: int, start: list[Matrix], calls: SolverCalls, solver: str,
-            max_iter: int, tol: float, start_lmi: Any = None) -> tuple[list[Matrix], list[float], str]:
-    """P-step / K-step descent from certified ``start`` gains; returns the best certified
-    gains and the history of certified robust gammas (one per accepted iterate).
+            max_iter: int, tol: float, start_lmi: LMIResult | None = None) -> Descent:
+    """P-step / K-step descent from certified ``start`` gains: the best certified gains, the
+    certified robust gammas (one per accepted iterate) and Lemma 4.1's result for those gains.
     ``loop_of(gains)`` is the closed loop, ``step(P, lam, j)`` the K-step of FDI mode ``j``
     returning ``(K, gamma, status)`` (:func:`gain_step`; output feedback passes its own);
     ``start_lmi``: the start's certified robust-gamma result, when already computed."""
@@ -255,8 +267,8 @@ def descend(loop_of: Any, step: Any, m: int, start: list[Matrix], calls: SolverC
     if res is None:
         res = hinf_gamma(loop_of(best), robust=True, solver=solver)
         calls.outcomes.extend(res.attempts)
-    if not res.certified or res.P is None:
-        return best, [], "start gains not certified; no descent"
+    if not res.certified or res.P is None or res.gamma is None:
+        return Descent(best, [], "start gains not certified; no descent", res)
     history = [float(res.gamma)]
     reason = f"iteration limit {max_iter}"
     for _ in range(max_iter):
@@ -265,7 +277,7 @@ def descend(loop_of: Any, step: Any, m: int, start: list[Matrix], calls: SolverC
         for j in range(m):
             K, _, status = step(list(res.P), lam, j)
             if K is None:
-                return best, history, f"K-step failed for FDI mode {j + 1} ({status})"
+                return Descent(best, history, f"K-step failed for FDI mode {j + 1} ({status})", res)
             new.append(K)
         cand = hinf_gamma(loop_of(new), robust=True, solver=solver)
         calls.outcomes.extend(cand.attempts)
@@ -277,7 +289,7 @@ def descend(loop_of: Any, step: Any, m: int, start: list[Matrix], calls: SolverC
             break
         best, res = new, cand
         history.append(float(cand.gamma))
-    return best, history, f"stopped: {reason}"
+    return Descent(best, history, f"stopped: {reason}", res)
 
 
 _PUBLIC_START_KEYS = ("name", "gamma_certified", "spectral_abscissa", "note", "reason", "seconds")
@@ -389,15 +401,16 @@ def _best(system: FTCSystem, gamma: float | None, k_max: float | None, solver: s
         """One descent, then the polish of its result, with calls of their own: their rows
         (the polish's history continues the descent's) and their solver outcomes."""
         own, t0 = SolverCalls(solver), time.perf_counter()
-        gains, history, msg = descend(lambda G: state_feedback_loop(system, G),
-                                      lambda P, lam, j: gain_step(system, P, lam, j, own, k_max), system.m,
-                                      list(seed["gains"]), own, solver, max_iter, tol, seed.get("lmi"))
+        found = descend(lambda G: state_feedback_loop(system, G),
+                        lambda P, lam, j: gain_step(system, P, lam, j, own, k_max), system.m,
+                        list(seed["gains"]), own, solver, max_iter, tol, seed.get("lmi"))
+        history = found.history
         out = [{"name": f"descent from {seed['name']}", "gamma_certified": history[-1] if history else None,
-                "spectral_abscissa": None, "note": "", "reason": "" if history else msg, "gains": gains,
-                "history": history, "seconds": time.perf_counter() - t0}]
+                "spectral_abscissa": None, "note": "", "reason": "" if history else found.message,
+                "gains": found.gains, "history": history, "seconds": time.perf_counter() - t0}]
         if history:
             t0 = time.perf_counter()
-            gains, more, msg = polish(system, gains, None, own, solver, k_max)
+            gains, more, msg = polish(system, found.gains, found.lmi, own, solver, k_max)
             out.append({"name": f"polish after descent from {seed['name']}", "gamma_certified": more[-1] if more
                         else None, "spectral_abscissa": None, "note": msg, "reason": "" if more else msg,
                         "gains": gains, "history": history + more[1:], "seconds": time.perf_counter() - t0})
@@ -433,7 +446,7 @@ def _iterative(system: FTCSystem, gamma: float | None, k_max: float | None, solv
     added in that order."""
     early: dict[str, Any] = {}
 
-    def descent(best: dict[str, Any], own: SolverCalls) -> tuple[list[Matrix], list[float], str]:
+    def descent(best: dict[str, Any], own: SolverCalls) -> Descent:
         return descend(lambda G: state_feedback_loop(system, G),
                        lambda P, lam, j: gain_step(system, P, lam, j, own, k_max), system.m,
                        list(best["gains"]), own, solver, max_iter, tol, best.get("lmi"))
@@ -443,7 +456,7 @@ def _iterative(system: FTCSystem, gamma: float | None, k_max: float | None, solv
         if certified:
             best, own = min(certified, key=lambda r: r["gamma_certified"]), SolverCalls(solver)
             found = descent(best, own)
-            early.update(row=best, found=found, calls=own, report=_verify(system, found[0], solver))
+            early.update(row=best, found=found, calls=own, report=_verify(system, found.gains, solver))
 
     rows = _starts(system, gamma, k_max, solver, calls, start, meanwhile=ahead)
     certified = [r for r in rows if r["gamma_certified"] is not None]
@@ -452,12 +465,12 @@ def _iterative(system: FTCSystem, gamma: float | None, k_max: float | None, solv
     best = min(certified, key=lambda r: r["gamma_certified"])
     report = None
     if early.get("row") is best:
-        (gains, history, msg), report = early["found"], early["report"]
+        found, report = early["found"], early["report"]
         calls.outcomes.extend(early["calls"].outcomes)
     else:
-        gains, history, msg = descent(best, calls)
-    return gains, history, f"start {best['name']} (certified gamma {upper_text(best['gamma_certified'])}); {msg}", \
-        best["name"], rows, report
+        found = descent(best, calls)
+    msg = f"start {best['name']} (certified gamma {upper_text(best['gamma_certified'])}); {found.message}"
+    return found.gains, found.history, msg, best["name"], rows, report
 
 
 def _design(system: FTCSystem, method: str, gamma: float | None, k_max: float | None, calls: SolverCalls,

@@ -395,6 +395,12 @@ class MSSResult:
         return self.verdict == "undecided"
 
     @property
+    def spectral_abscissa_contradicted(self) -> bool:
+        """The float estimate ``spectral_abscissa`` has the sign the proved verdict rules out
+        (float64 cannot resolve the realisation; the verdict is the proof)."""
+        return (self.stable and self.spectral_abscissa >= 0.0) or (self.unstable and self.spectral_abscissa < 0.0)
+
+    @property
     def witness(self) -> RegionVerdict | None:
         """The rate vector where instability was proved (``None`` unless "not stable")."""
         return self.vertex_verdicts[-1] if self.unstable and self.vertex_verdicts else None
@@ -412,6 +418,7 @@ class MSSResult:
         witness = self.witness
         return {
             "spectral_abscissa": self.spectral_abscissa,
+            "spectral_abscissa_contradicted": self.spectral_abscissa_contradicted,
             "stable": self.stable,
             "verdict": self.verdict,
             "verified_by": describe_regions(self.verdict, self.vertex_verdicts, self.time_varying, self.boxes),
