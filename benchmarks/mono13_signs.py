@@ -18,6 +18,9 @@ rate the test's value divided by the midpoint's :math:`\\langle w, J_a v\\rangle
 
     python benchmarks/mono13_signs.py signs 13 1e-3 200
     python benchmarks/mono13_signs.py widths 13 1e-3 3 5 3,3,3,x,x,3
+    python benchmarks/mono13_signs.py hilbert 13 1e-3 8,16 5 x,5,x,x,x,x      (add ``,sampled`` to the powers)
+    python benchmarks/mono13_signs.py kappa 13 1e-3
+    python benchmarks/mono13_signs.py birkhoff 13 1e-3 1,2,4,8,16
 
 (a width spec per sub-box: one ``k`` for every rate, or one per free rate, ``x`` = a
 point in that rate).
@@ -144,53 +147,89 @@ def halved(y: np.ndarray, S: int, r: int) -> np.ndarray:
     return W - 0.5 * (W - np.einsum("sij,ij->sij", W, np.eye(r)))
 
 
-def widths(s: Setup, specs: list[list[float]], rand: int = 16) -> None:
+def box_test(s: Setup, lo: np.ndarray, hi: np.ndarray, rng: np.random.Generator,
+             rand: int = 16) -> tuple[float, dict[tuple[int, ...], tuple[float, float, float]]]:
+    """The best-case test on the sub-box ``[lo, hi]``: ``(spread, {rate: (d, exact, env)})``
+    with ``d`` the midpoint's ``|d rho / d beta|`` and ``exact`` / ``env`` the test's bound
+    divided by it (``> 0``: the midpoint's sign is decided on the whole sub-box)."""
     S, r = s.loop.states, s.loop.r
+    mid = 0.5 * (lo + hi)
+    _, x0, y0 = perron(s.map(mid))
+    pts = [np.array(c) for c in itertools.product((0.0, 1.0), repeat=len(s.free))]
+    pts += [rng.uniform(size=len(s.free)) for _ in range(rand)]
+    wide = np.array([hi[idx] > lo[idx] for idx, _ in s.free], dtype=float)
+    pts = list({tuple(wide * p): p for p in pts}.values())  # a thin rate: its vertices coincide
+    xs, ys = [], []
+    for p in pts:
+        rates = lo.copy()
+        for j, (idx, _) in enumerate(s.free):
+            rates[idx] = lo[idx] + p[j] * (hi[idx] - lo[idx])
+        _, x, y = perron(s.map(rates))
+        xs.append(unvech_stack(x / (y0 @ x), S, r))
+        ys.append(halved(y / (y @ x0), S, r))
+    X0, W0 = unvech_stack(x0, S, r), halved(y0, S, r)
+    ax, bx = order_scales(X0, xs)
+    aw, bw = order_scales(W0, ys)
+    Lm, Lup, Ldn = s.generator(mid), s.envelope(lo, hi, True), s.envelope(lo, hi, False)
+    out = {}
+    for idx, coef in s.free:
+        Gp, Gm = s.parts(coef)
+        d = y0 @ s.J(Lm, Gp - Gm) @ x0
+        sgn = 1.0 if d > 0 else -1.0
+        vals = []
+        for Jp_hi, Jp_lo, Jm_hi, Jm_lo in ((s.J(Lm, Gp),) * 2 + (s.J(Lm, Gm),) * 2,
+                                           (s.J(Lup, Gp), s.J(Ldn, Gp), s.J(Lup, Gm), s.J(Ldn, Gm))):
+            plus_hi = bw @ pair_matrix(y0, x0, Jp_hi, S) @ bx
+            plus_lo = aw @ pair_matrix(y0, x0, Jp_lo, S) @ ax
+            minus_hi = bw @ pair_matrix(y0, x0, Jm_hi, S) @ bx
+            minus_lo = aw @ pair_matrix(y0, x0, Jm_lo, S) @ ax
+            # d > 0: the lower bound plus_lo - minus_hi must be > 0; d < 0: the upper bound plus_hi - minus_lo < 0
+            vals.append(((plus_lo - minus_hi) if sgn > 0 else -(plus_hi - minus_lo)) / abs(d))
+        out[idx] = (abs(d), vals[0], vals[1])
+    return max(float(np.max(bx / ax)), float(np.max(bw / aw))), out
+
+
+def vertex_box(s: Setup, spec: list[float], offset: list[float] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The sub-box of relative widths ``2^-spec`` (``inf``: thin) whose corner is the worst
+    vertex moved inward by ``offset`` (relative) per free rate."""
     full = s.hi - s.lo
+    lo, hi = s.v.copy(), s.v.copy()
+    for j, ((idx, _), k) in enumerate(zip(s.free, spec)):
+        start = s.v[idx] + s.inward[idx] * (0.0 if offset is None else offset[j]) * full[idx]
+        other = start + s.inward[idx] * 2.0 ** -k * full[idx]
+        lo[idx], hi[idx] = min(start, other), max(start, other)
+    return lo, hi
+
+
+def widths(s: Setup, specs: list[list[float]]) -> None:
     rng = np.random.default_rng(0)
     print(f"worst vertex rho {s.rho:.6f} margin {1 - s.rho:.2e}")
     for spec in specs:
-        lo, hi = s.v.copy(), s.v.copy()
-        for (idx, _), k in zip(s.free, spec):
-            other = s.v[idx] + s.inward[idx] * 2.0 ** -k * full[idx]
-            lo[idx], hi[idx] = min(s.v[idx], other), max(s.v[idx], other)
-        mid = 0.5 * (lo + hi)
-        _, x0, y0 = perron(s.map(mid))
-        pts = [np.array(c) for c in itertools.product((0.0, 1.0), repeat=len(s.free))]
-        pts += [rng.uniform(size=len(s.free)) for _ in range(rand)]
-        wide = np.array([hi[idx] > lo[idx] for idx, _ in s.free], dtype=float)
-        pts = list({tuple(wide * p): p for p in pts}.values())  # a thin rate: its vertices coincide
-        xs, ys = [], []
-        for p in pts:
-            rates = lo.copy()
-            for j, (idx, _) in enumerate(s.free):
-                rates[idx] = lo[idx] + p[j] * (hi[idx] - lo[idx])
-            _, x, y = perron(s.map(rates))
-            xs.append(unvech_stack(x / (y0 @ x), S, r))
-            ys.append(halved(y / (y @ x0), S, r))
-        X0, W0 = unvech_stack(x0, S, r), halved(y0, S, r)
-        ax, bx = order_scales(X0, xs)
-        aw, bw = order_scales(W0, ys)
-        Lm, Lup, Ldn = s.generator(mid), s.envelope(lo, hi, True), s.envelope(lo, hi, False)
-        out = []
-        for idx, coef in s.free:
-            Gp, Gm = s.parts(coef)
-            sgn = -s.inward[idx]  # the sign d rho / d beta must have for the max to be at the vertex's face
-            base = sgn * (y0 @ s.J(Lm, Gp - Gm) @ x0)
-            vals = {}
-            for name, (Jp_hi, Jp_lo, Jm_hi, Jm_lo) in {
-                    "exact": (s.J(Lm, Gp),) * 2 + (s.J(Lm, Gm),) * 2,
-                    "env": (s.J(Lup, Gp), s.J(Ldn, Gp), s.J(Lup, Gm), s.J(Ldn, Gm))}.items():
-                plus_hi = bw @ pair_matrix(y0, x0, Jp_hi, S) @ bx
-                plus_lo = aw @ pair_matrix(y0, x0, Jp_lo, S) @ ax
-                minus_hi = bw @ pair_matrix(y0, x0, Jm_hi, S) @ bx
-                minus_lo = aw @ pair_matrix(y0, x0, Jm_lo, S) @ ax
-                # sgn > 0: need <w, J v> > 0: lower bound plus_lo - minus_hi; sgn < 0: upper bound plus_hi - minus_lo
-                vals[name] = (plus_lo - minus_hi) if sgn > 0 else -(plus_hi - minus_lo)
-            out.append(f"{idx}: d {base:.1e} exact {vals['exact'] / base:+.2f} env {vals['env'] / base:+.2f}")
-        spread = max(np.max(bx / ax), np.max(bw / aw))
+        spread, res = box_test(s, *vertex_box(s, spec), rng)
+        out = [f"{idx}: d {d:.1e} exact {ex:+.2f} env {env:+.2f}" for idx, (d, ex, env) in res.items()]
         label = ",".join("x" if k == np.inf else str(int(k)) for k in spec)
         print(f"widths 2^-[{label}]: spread b/a <= {spread:.3f} | " + " | ".join(out), flush=True)
+
+
+def cells(s: Setup, spec: list[float], n: int) -> None:
+    """``n`` random aligned cells of relative widths ``2^-spec`` (thin rates stay at the
+    worst vertex): the margin at the cell's corner nearest the vertex and the rates whose
+    sign the best-case test decides (``env``)."""
+    rng = np.random.default_rng(5)
+    decided = dict.fromkeys((idx for idx, _ in s.free), 0)
+    for _ in range(n):
+        offset = [0.0 if k == np.inf else rng.integers(0, 2 ** int(k)) * 2.0 ** -k for k in spec]
+        lo, hi = vertex_box(s, spec, offset)
+        corner = s.v.copy()
+        for j, (idx, _) in enumerate(s.free):
+            corner[idx] = s.v[idx] + s.inward[idx] * offset[j] * (s.hi[idx] - s.lo[idx])
+        rho = perron(s.map(corner))[0]
+        spread, res = box_test(s, lo, hi, rng, rand=8)
+        ok = [idx for idx, (_, _, env) in res.items() if env > 0 and hi[idx] > lo[idx]]
+        for idx in ok:
+            decided[idx] += 1
+        print(f"cell at {np.round(offset, 3).tolist()}: margin {1 - rho:.2e} spread {spread:.2f} decided {ok}", flush=True)
+    print("decided per rate:", {str(k): f"{v}/{n}" for k, v in decided.items()})
 
 
 def pair_matrix(y0: np.ndarray, x0: np.ndarray, J: np.ndarray, S: int) -> np.ndarray:
@@ -257,10 +296,12 @@ def contraction(Tk: np.ndarray, X0: np.ndarray, to_vec, from_vec, rays: int = 30
     return float(np.tanh(2 * worst / 4))
 
 
-def hilbert_test(s: Setup, specs: list[list[float]], powers: list[int]) -> None:
+def hilbert_test(s: Setup, specs: list[list[float]], powers: list[int], sampled: bool = False) -> None:
     """The Hilbert-ball enclosure of the design: ``R = delta_k / (1 - tau_k)`` for the
     right and the left Perron vectors over a vertex sub-box, and each rate's test with
-    the uniform order intervals ``[X0, e^R X0]``."""
+    the uniform order intervals ``[X0, e^R X0]``; ``delta_k`` from the envelope maps, or
+    (``sampled``) the largest ``d(T(beta)^k X0, X0)`` at the sub-box's vertices and 8
+    random rates (the best case of an enclosure tighter than the envelopes')."""
     loop, S, r = s.loop, s.loop.states, s.loop.r
     full = s.hi - s.lo
     xv = lambda X: np.concatenate([vech_of(B) for B in X])  # noqa: E731
@@ -279,6 +320,16 @@ def hilbert_test(s: Setup, specs: list[list[float]], powers: list[int]) -> None:
         Tup = assemble_map(loop, scipy.linalg.expm(Lup * s.h), s.h)
         Tdn = assemble_map(loop, scipy.linalg.expm(Ldn * s.h), s.h)
         label = ",".join("x" if k == np.inf else str(int(k)) for k in spec)
+        maps = []
+        if sampled:
+            rng = np.random.default_rng(4)
+            wide = [idx for idx, _ in s.free if hi[idx] > lo[idx]]
+            pts = [np.array(c) for c in itertools.product((0.0, 1.0), repeat=len(wide))]
+            for p in pts + [rng.uniform(size=len(wide)) for _ in range(8)]:
+                rates = lo.copy()
+                for j, idx in enumerate(wide):
+                    rates[idx] = lo[idx] + p[j] * (hi[idx] - lo[idx])
+                maps.append(s.map(rates))
         for k in powers:
             Rs = []
             for fwd in (True, False):
@@ -286,6 +337,8 @@ def hilbert_test(s: Setup, specs: list[list[float]], powers: list[int]) -> None:
                 to_vec, from_vec, Z, z = (xv, xs, X0, x0) if fwd else (yv, ws, W0, y0)
                 Ak, Bk = np.linalg.matrix_power(A, k), np.linalg.matrix_power(B, k)
                 delta = np.log(ratio_bounds(from_vec(Ak @ z), Z)[1] / ratio_bounds(from_vec(Bk @ z), Z)[0])
+                if sampled:  # the best case of a tighter enclosure of T(beta)^k X0 than the envelopes'
+                    delta = max(hilbert(from_vec(np.linalg.matrix_power(P if fwd else P.T, k) @ z), Z) for P in maps)
                 tau = contraction(np.linalg.matrix_power(s.map(mid) if fwd else s.map(mid).T, k), Z, to_vec, from_vec)
                 Rs.append((delta, tau, delta / (1 - tau) if tau < 1 else np.inf))
             R = Rs[0][2] + Rs[1][2]
@@ -315,12 +368,16 @@ def vech_of(B: np.ndarray) -> np.ndarray:
 if __name__ == "__main__":
     mode, seed, f = sys.argv[1], int(sys.argv[2]), float(sys.argv[3])
     setup = Setup(seed, f)
-    if mode == "kappa":
+    if mode == "cells":
+        cells(setup, [np.inf if x == "x" else float(x) for x in sys.argv[4].split(",")], int(sys.argv[5]))
+    elif mode == "kappa":
         kappa(setup)
     elif mode == "hilbert":
         n_free = len(setup.free)
         specs = [[np.inf if x == "x" else float(x) for x in a.split(",")] for a in sys.argv[5:]]
-        hilbert_test(setup, [sp * n_free if len(sp) == 1 else sp for sp in specs], [int(x) for x in sys.argv[4].split(",")])
+        ks = sys.argv[4].split(",")
+        hilbert_test(setup, [sp * n_free if len(sp) == 1 else sp for sp in specs], [int(x) for x in ks if x != "sampled"],
+                     sampled="sampled" in ks)
     elif mode == "birkhoff":
         birkhoff(setup, [int(x) for x in sys.argv[4].split(",")])
     elif mode == "signs":
