@@ -1,29 +1,35 @@
 """mono13 (issue 31 item 2): float64 measurements for a monotonicity test of the radius.
 
 Held-out ``n = 4, m = 3`` loops (``h_max_diagnosis.the_loop``, drawn as
-``h_max_heldout.draw``), ``h = a (1 - f)`` with ``a`` the bracket's crossing. Two parts:
+``h_max_heldout.draw``), ``h = a (1 - f)`` with ``a`` the bracket's crossing; the design
+and the results are on ``benchmarks/results/mono13.md``. Modes:
 
 ``signs``: the derivative of the radius *into* the box per free rate, at random rates
 (half concentrated near the worst vertex), by the Perron formula
-:math:`d\\rho/d\\beta_a = \\langle w, J_a v\\rangle / \\langle w, v\\rangle`; where it is
+:math:`d\rho/d\beta_a = \langle w, J_a v\rangle / \langle w, v\rangle`; where it is
 positive (the radius grows into the box) the smallest margin ``1 - rho`` there.
+``kappa``: at the worst vertex, each rate's derivative and the cancellation
+``(<w, J+ v> + <w, J- v>) / |<w, J v>|``.
 
-``widths``: at the worst vertex, sub-boxes of relative width ``2^-k`` in every rate; the
-best-case order-interval test of ``sampled_monotone`` (module docstring there): the
-Perron vectors at the sub-box's vertices and random points, scaled per joint state into
-``a_s X0_s <= c x_s <= b_s X0_s``, and :math:`J_a^\\pm` either at the midpoint
-(``exact``) or from the envelope generators (``env``; the rigorous design). Prints per
-rate the test's value divided by the midpoint's :math:`\\langle w, J_a v\\rangle`
-(``> 0``: decided).
+``widths``: sub-boxes at the worst vertex; the best-case order-interval test
+(``box_test``): the Perron vectors at the sub-box's vertices and random points, scaled
+per joint state into ``a_s X0_s <= c x_s <= b_s X0_s``, and :math:`J_a^\pm` either at
+the midpoint (``exact``) or from the envelope generators (``env``; the rigorous design).
+Prints per rate the test's bound divided by the midpoint's :math:`|\langle w, J_a
+v\rangle|` (``> 0``: decided). ``cells``: the same on random aligned cells.
 
-    python benchmarks/mono13_signs.py signs 13 1e-3 200
-    python benchmarks/mono13_signs.py widths 13 1e-3 3 5 3,3,3,x,x,3
-    python benchmarks/mono13_signs.py hilbert 13 1e-3 8,16 5 x,5,x,x,x,x      (add ``,sampled`` to the powers)
+``hilbert``: the Hilbert-ball enclosure ``R = delta_k / (1 - tau_k)`` and the test with
+it; ``birkhoff``: sampled projective diameters of ``T^k`` at the vertex.
+
+    python benchmarks/mono13_signs.py signs 13 1e-3 300
     python benchmarks/mono13_signs.py kappa 13 1e-3
+    python benchmarks/mono13_signs.py widths 13 1e-3 3 5 3,3,3,x,x,3
+    python benchmarks/mono13_signs.py cells 13 1e-3 3,3,3,x,x,3 16
+    python benchmarks/mono13_signs.py hilbert 13 1e-3 8,16 5 x,5,x,x,x,x      (add ``,sampled`` to the powers)
     python benchmarks/mono13_signs.py birkhoff 13 1e-3 1,2,4,8,16
 
-(a width spec per sub-box: one ``k`` for every rate, or one per free rate, ``x`` = a
-point in that rate).
+(a width spec per sub-box: one ``k`` for every rate, or one per free rate in the order
+of ``generator_coefficients``, ``x`` = a point in that rate).
 """
 
 from __future__ import annotations
