@@ -1,4 +1,4 @@
-"""mono13 (issue 31 item 2): float64 measurements for a monotonicity test of the radius.
+r"""mono13 (issue 31 item 2): float64 measurements for a monotonicity test of the radius.
 
 Held-out ``n = 4, m = 3`` loops (``h_max_diagnosis.the_loop``, drawn as
 ``h_max_heldout.draw``), ``h = a (1 - f)`` with ``a`` the bracket's crossing; the design
