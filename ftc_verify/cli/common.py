@@ -60,9 +60,9 @@ def check_output_file(path: str, option: str, suffixes: tuple[str, ...] | None =
     """A file the command will write, checked before any work: not a folder, not one of
     the command's ``inputs``, right suffix, not an existing node that is not a regular file
     (a FIFO, a device: refused; a symbolic link: its target is checked, and written,
-    :func:`~ftc_verify.output_paths.output_target`), in a folder that accepts a new file
-    (an actual write, :func:`~ftc_verify.output_paths.probe_folder`)."""
-    from ..output_paths import output_target, probe_folder
+    :func:`~ftc_verify.model.output_paths.output_target`), in a folder that accepts a new file
+    (an actual write, :func:`~ftc_verify.model.output_paths.probe_folder`)."""
+    from ..model.output_paths import output_target, probe_folder
 
     if not str(path).strip():
         raise bad(f"{option} {path!r}: empty file name; give a file name")

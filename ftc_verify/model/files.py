@@ -39,6 +39,7 @@ import numpy as np
 import tomli_w
 
 from ..errors import OutputError, ProblemFileError, ValidationError
+from .output_paths import output_target
 from .system import FTCSystem, JointChain, Matrix, Mode
 
 __all__ = [
@@ -242,7 +243,7 @@ def write_atomic(path: str | os.PathLike[str], text: str) -> None:
     """Write ``text`` to ``path`` via a temporary file in the same folder and a rename,
     so that a failure never leaves a half-written file. A symbolic link is written through
     (the file it points to is replaced) and an existing target that is not a regular file
-    (a FIFO, a device) is refused, never replaced (:mod:`ftc_verify.output_paths`).
+    (a FIFO, a device) is refused, never replaced (:mod:`ftc_verify.model.output_paths`).
 
     Raises
     ------
@@ -254,8 +255,6 @@ def write_atomic(path: str | os.PathLike[str], text: str) -> None:
         Writing or renaming failed (a full disk, a quota, a permission lost): names
         the path and the OS error; the temporary file is removed.
     """
-    from ..output_paths import output_target
-
     p = Path(path)
     target = output_target(p, str(p))
     try:

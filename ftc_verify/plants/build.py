@@ -440,9 +440,9 @@ def write_zip(path: Path, members: list[tuple[str, bytes, int]]) -> None:
         When the file cannot be written.
     ValidationError
         ``path`` is an existing FIFO, device or socket (a link is written through,
-        :func:`~ftc_verify.output_paths.output_target`).
+        :func:`~ftc_verify.model.output_paths.output_target`).
     """
-    from ..output_paths import output_target
+    from ..model.output_paths import output_target
 
     path = output_target(path, str(path))
     try:

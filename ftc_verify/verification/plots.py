@@ -17,7 +17,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from ..errors import ValidationError
-from ..output_paths import output_target
+from ..model.output_paths import output_target
 from ..simulation.records import PathRecord
 
 __all__ = ["plot_path", "save_figure"]
@@ -29,7 +29,7 @@ def save_figure(fig: Figure, out: Path, fmt: str, failure: str) -> None:
     complete, removed on any failure; a folder that cannot be written raises
     :class:`~ftc_verify.errors.ValidationError` with ``failure`` and the OS's reason. A
     symbolic link is written through; an existing ``out`` that is not a regular file (a
-    FIFO, a device) is refused, never replaced (:mod:`ftc_verify.output_paths`)."""
+    FIFO, a device) is refused, never replaced (:mod:`ftc_verify.model.output_paths`)."""
     target = output_target(out, str(out))
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=f".{fmt}", dir=target.parent)

@@ -24,7 +24,7 @@ import numpy as np
 from ..claimtext import lower_text, upper_text
 from ..errors import ProblemFileError
 from ..jsonable import dumps
-from ..output_paths import kind_of, probe_folder
+from ..model.output_paths import kind_of, probe_folder
 from .verify import VerifyReport
 
 __all__ = ["REPORT_FILES", "check_out_dir", "write_report", "render_markdown", "table_row", "draw_figures",
@@ -225,9 +225,9 @@ def _bracket_plot(rep: VerifyReport, path: Path) -> bool:
 def check_out_dir(out_dir: str | os.PathLike[str]) -> Path:
     """Check before any work that ``out_dir`` can receive a report (module docstring): not
     a file, no foreign files in it, and a new file can be created in the folder that will
-    hold it (:func:`~ftc_verify.output_paths.probe_folder`, an actual write). A symbolic
+    hold it (:func:`~ftc_verify.model.output_paths.probe_folder`, an actual write). A symbolic
     link to a folder is written through: the folder it points to is replaced (as files
-    are, :mod:`ftc_verify.output_paths`)."""
+    are, :mod:`ftc_verify.model.output_paths`)."""
     if not str(out_dir).strip():
         raise ProblemFileError(f"--out {str(out_dir)!r}: empty folder name; give a folder name")
     out = Path(out_dir)

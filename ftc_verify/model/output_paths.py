@@ -21,9 +21,6 @@ for an existing target is decided here, once, for every writer:
 The folder that receives the file must exist and accept a new file: :func:`probe_folder`
 creates and removes a temporary file there, an actual write (an access test alone is
 passed by root on ``/proc`` or ``/sys``, where the write itself then fails after the work).
-
-Nothing here imports numpy (the command line checks its outputs before the numerical
-libraries are loaded).
 """
 
 from __future__ import annotations
@@ -33,7 +30,7 @@ import stat
 import tempfile
 from pathlib import Path
 
-from .errors import ValidationError
+from ..errors import ValidationError
 
 __all__ = ["kind_of", "output_target", "probe_folder"]
 
