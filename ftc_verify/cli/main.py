@@ -239,7 +239,7 @@ def _signals_raise(arrived: list[int], *, to_the_end: bool = False) -> Iterator[
     finally:
         for signum, handler in previous.items():
             signal.signal(signum, record if to_the_end else handler)
-        if to_the_end:
+        if to_the_end and hasattr(signal, "pthread_sigmask"):  # POSIX
             signal.pthread_sigmask(signal.SIG_BLOCK, previous)
 
 
@@ -261,7 +261,7 @@ def _end_process(code: int, arrived: list[int]) -> NoReturn:
     except (OSError, ValueError):
         pass
     atexit._run_exitfuncs()
-    pending = signal.sigpending()
+    pending = signal.sigpending() if hasattr(signal, "sigpending") else set()
     held = arrived + [s for s in (signal.SIGTERM, signal.SIGINT) if s in pending]
     if held and code not in (EXIT_INTERRUPTED, EXIT_TERMINATED):
         code = _signalled(held)
