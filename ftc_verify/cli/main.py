@@ -302,7 +302,7 @@ def _numbers_attached(argv: Sequence[str]) -> list[str]:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (module docstring). Without ``argv`` (the
     process's own command line: ``ftc-verify``, ``python -m ftc_verify``) the process ends
-    here with that code (:func:`_end_process`), so that a signal arriving after the answer
+    here with that code (``_end_process``), so that a signal arriving after the answer
     was printed still ends it with 130 / 143 and its line.
 
     Unless set by the caller, BLAS runs single-threaded (``OPENBLAS_NUM_THREADS=1``; set
