@@ -140,6 +140,29 @@ def test_a_file_in_the_path_is_not_a_folder(tmp_path: Path) -> None:
         check_output_file(str(tmp_path / "afile" / "K.toml"), "-o")
 
 
+def test_out_through_a_link_replaces_the_folder_it_points_to(tmp_path: Path) -> None:
+    """``verify --out LINK`` (LINK -> a report folder): the report replaces the folder the
+    link points to, the link is kept (before: the link was replaced by the new folder)."""
+    from ftc_verify.cli.common import load
+    from ftc_verify.verification.report import write_report
+    from ftc_verify.verification.verify import Check, VerifyReport
+
+    system, _ = load(PAPER, str(ROOT / "examples" / "paper_gains.toml"))
+    rep = VerifyReport(system, None, None, None, None, (), (), None, (), (Check("synthesis", False, "none"),),
+                       seed=1, options={"fdi_model": "FDI: test"})
+    real = tmp_path / "reports" / "run"
+    real.mkdir(parents=True)
+    (real / "report.md").write_text("previous run\n")
+    link = tmp_path / "out"
+    link.symlink_to(real)
+    check_out_dir(link)
+    write_report(rep, link)
+    assert link.is_symlink() and link.resolve() == real.resolve()
+    assert (real / "report.json").is_file() and (real / "report.md").read_text() != "previous run\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "reports"]  # no staging folder left
+    assert sorted(p.name for p in real.parent.iterdir()) == ["run"]
+
+
 SIGNAL_AT_THE_END = """
 import atexit, os, signal, sys
 from ftc_verify.cli import main
