@@ -57,8 +57,13 @@ def bad(message: str) -> FTCError:
 
 def check_output_file(path: str, option: str, suffixes: tuple[str, ...] | None = None,
                       inputs: tuple[str, ...] = ()) -> None:
-    """A file the command will write: not a folder, not one of the command's ``inputs``,
-    in a writable folder, right suffix."""
+    """A file the command will write, checked before any work: not a folder, not one of
+    the command's ``inputs``, right suffix, not an existing node that is not a regular file
+    (a FIFO, a device: refused; a symbolic link: its target is checked, and written,
+    :func:`~ftc_verify.model.output_paths.output_target`), in a folder that accepts a new file
+    (an actual write, :func:`~ftc_verify.model.output_paths.probe_folder`)."""
+    from ..model.output_paths import output_target, probe_folder
+
     if not str(path).strip():
         raise bad(f"{option} {path!r}: empty file name; give a file name")
     p = Path(path)
@@ -70,11 +75,8 @@ def check_output_file(path: str, option: str, suffixes: tuple[str, ...] | None =
         raise bad(f"{option} {path}: is a folder; give a file name")
     if suffixes is not None and p.suffix.lower() not in suffixes:
         raise bad(f"{option} {path}: unsupported file type {p.suffix or '(none)'!r}; use one of {', '.join(suffixes)}")
-    parent = p.parent if str(p.parent) else Path(".")
-    if not parent.is_dir():
-        raise bad(f"{option} {path}: folder {parent} does not exist")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise bad(f"{option} {path}: folder {parent} is not writable")
+    target = output_target(path, f"{option} {path}")
+    probe_folder(target.parent if p.is_symlink() else p.parent, f"{option} {path}")
 
 
 def fmt(x: float | None, digits: int = 6) -> str:

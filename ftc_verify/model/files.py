@@ -39,6 +39,7 @@ import numpy as np
 import tomli_w
 
 from ..errors import OutputError, ProblemFileError, ValidationError
+from .output_paths import output_target
 from .system import FTCSystem, JointChain, Matrix, Mode
 
 __all__ = [
@@ -240,10 +241,14 @@ def dump_system(system: FTCSystem) -> str:
 
 def write_atomic(path: str | os.PathLike[str], text: str) -> None:
     """Write ``text`` to ``path`` via a temporary file in the same folder and a rename,
-    so that a failure never leaves a half-written file.
+    so that a failure never leaves a half-written file. A symbolic link is written through
+    (the file it points to is replaced) and an existing target that is not a regular file
+    (a FIFO, a device) is refused, never replaced (:mod:`ftc_verify.model.output_paths`).
 
     Raises
     ------
+    ValidationError
+        ``path`` is an existing FIFO, device, socket or folder (names it and what it is).
     ProblemFileError
         The folder refuses the temporary file (names the path and the OS error).
     OutputError
@@ -251,8 +256,9 @@ def write_atomic(path: str | os.PathLike[str], text: str) -> None:
         the path and the OS error; the temporary file is removed.
     """
     p = Path(path)
+    target = output_target(p, str(p))
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent or ".")
+        fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=target.parent)
     except OSError as exc:
         raise ProblemFileError(f"{p}: cannot write: {exc.strerror}") from None
     try:
@@ -261,7 +267,7 @@ def write_atomic(path: str | os.PathLike[str], text: str) -> None:
         os.fchmod(fd, 0o666 & ~umask)  # mkstemp creates 0600; give the usual permissions
         with os.fdopen(fd, "w", encoding="utf-8") as fh:
             fh.write(text)
-        os.replace(tmp, p)
+        os.replace(tmp, target)
     except OSError as exc:  # a full disk, a quota, a permission lost since the checks
         Path(tmp).unlink(missing_ok=True)
         raise OutputError(f"{p}: cannot write: {exc.strerror or exc} ({errno.errorcode.get(exc.errno or 0, 'OSError')})"

@@ -438,7 +438,13 @@ def write_zip(path: Path, members: list[tuple[str, bytes, int]]) -> None:
     ------
     FMUError
         When the file cannot be written.
+    ValidationError
+        ``path`` is an existing FIFO, device or socket (a link is written through,
+        :func:`~ftc_verify.model.output_paths.output_target`).
     """
+    from ..model.output_paths import output_target
+
+    path = output_target(path, str(path))
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)

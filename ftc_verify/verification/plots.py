@@ -17,6 +17,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from ..errors import ValidationError
+from ..model.output_paths import output_target
 from ..simulation.records import PathRecord
 
 __all__ = ["plot_path", "save_figure"]
@@ -26,10 +27,12 @@ def save_figure(fig: Figure, out: Path, fmt: str, failure: str) -> None:
     """Write ``fig`` to ``out`` atomically: a temporary file in the same folder (mode
     ``0o666`` less the umask, as ``open`` would give), renamed over ``out`` only once
     complete, removed on any failure; a folder that cannot be written raises
-    :class:`~ftc_verify.errors.ValidationError` with ``failure`` and the OS's reason."""
-    folder = out.parent if str(out.parent) else Path(".")
+    :class:`~ftc_verify.errors.ValidationError` with ``failure`` and the OS's reason. A
+    symbolic link is written through; an existing ``out`` that is not a regular file (a
+    FIFO, a device) is refused, never replaced (:mod:`ftc_verify.model.output_paths`)."""
+    target = output_target(out, str(out))
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=f".{fmt}", dir=folder)
+        fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=f".{fmt}", dir=target.parent)
     except OSError as exc:
         raise ValidationError(f"{failure}: {exc.strerror}") from None
     try:
@@ -38,7 +41,7 @@ def save_figure(fig: Figure, out: Path, fmt: str, failure: str) -> None:
         os.fchmod(fd, 0o666 & ~umask)
         with os.fdopen(fd, "wb") as fh:
             fig.savefig(fh, format=fmt)
-        os.replace(tmp, out)
+        os.replace(tmp, target)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
@@ -124,4 +127,4 @@ def plot_path(record: PathRecord, path: str | os.PathLike[str], *, title: str = 
         ax.grid(True, alpha=0.3)
     if title:
         fig.suptitle(title)
-    save_figure(fig, out, fmt, f"path: cannot write {out}")
+    save_figure(fig, out, fmt, f"{out}: cannot write the figure")

@@ -24,6 +24,7 @@ import numpy as np
 from ..claimtext import lower_text, upper_text
 from ..errors import ProblemFileError
 from ..jsonable import dumps
+from ..model.output_paths import kind_of, probe_folder
 from .verify import VerifyReport
 
 __all__ = ["REPORT_FILES", "check_out_dir", "write_report", "render_markdown", "table_row", "draw_figures",
@@ -222,12 +223,16 @@ def _bracket_plot(rep: VerifyReport, path: Path) -> bool:
 
 
 def check_out_dir(out_dir: str | os.PathLike[str]) -> Path:
-    """Check before any work that ``out_dir`` can receive a report (module docstring)."""
+    """Check before any work that ``out_dir`` can receive a report (module docstring): not
+    a file, no foreign files in it, and a new file can be created in the folder that will
+    hold it (:func:`~ftc_verify.model.output_paths.probe_folder`, an actual write). A symbolic
+    link to a folder is written through: the folder it points to is replaced (as files
+    are, :mod:`ftc_verify.model.output_paths`)."""
     if not str(out_dir).strip():
         raise ProblemFileError(f"--out {str(out_dir)!r}: empty folder name; give a folder name")
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
-        raise ProblemFileError(f"--out {out}: exists and is not a folder")
+        raise ProblemFileError(f"--out {out}: exists and is {kind_of(out.stat().st_mode)}, not a folder")
     if out.is_dir():
         foreign = sorted(p.name for p in out.iterdir() if p.name not in REPORT_FILES)
         if foreign:
@@ -235,13 +240,7 @@ def check_out_dir(out_dir: str | os.PathLike[str]) -> Path:
                 f"--out {out}: holds files that are not an ftc-verify report ({', '.join(foreign[:5])}); "
                 "choose a new or empty folder, or one that holds only a previous report"
             )
-    parent = out.resolve().parent
-    if parent.exists() and not parent.is_dir():
-        raise ProblemFileError(f"--out {out}: {parent} is a file, not a folder")
-    if not parent.is_dir():
-        raise ProblemFileError(f"--out {out}: folder {parent} does not exist")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise ProblemFileError(f"--out {out}: folder {parent} is not writable")
+    probe_folder(out.resolve().parent, f"--out {out}")  # an actual write where the staging folder goes
     return out
 
 
@@ -344,8 +343,9 @@ def write_report(rep: VerifyReport, out_dir: str | os.PathLike[str], watch: Any 
     t0 = time.perf_counter()
 
     out = check_out_dir(out_dir)
+    real = out.resolve()  # a link to a folder: the folder it points to is replaced, not the link
     try:
-        stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.staging-", dir=out.resolve().parent))
+        stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.staging-", dir=real.parent))
     except OSError as exc:
         raise ProblemFileError(f"{out}: cannot create a staging folder beside it: {exc.strerror}") from None
     try:
@@ -369,7 +369,7 @@ def write_report(rep: VerifyReport, out_dir: str | os.PathLike[str], watch: Any 
         (stage / "report.md").write_text(render_markdown(rep))
         names = sorted(item.name for item in stage.iterdir())
         stage.chmod(0o777 & ~_umask())
-        _swap_in(stage, out)
+        _swap_in(stage, real)
         return [out / name for name in names]
     finally:
         shutil.rmtree(stage, ignore_errors=True)
