@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -117,11 +117,17 @@ def xy_solve(system: FTCSystem, kind: str, gamma: float | None, calls: Any, k_ma
     return xy_solver(system, kind, calls, k_max)(gamma)
 
 
-def _xy_rows(system: FTCSystem, kind: str, lay: _XYLayout, k_max: float | None) -> Rows:
-    """The constraints of :func:`xy_solver` with ``g`` and the margin ``t`` variables:
+def _xy_rows(system: FTCSystem, kind: str, lay: _XYLayout, k_max: float | None, scale: float = 1.0) -> Rows:
+    r"""The constraints of :func:`xy_solver` with ``g`` and the margin ``t`` variables:
     every block ``+ t I <= 0`` (projected for ``projected``), ``X_k >= t I``, with
     ``k_max`` ``X_k >= mu I`` and :func:`gain_bound_block` of ``Y_k`` with ``mu``. Each
-    block is built on its own variables (:func:`~ftc_verify.analysis.conic.local_variables`)."""
+    block is built on its own variables (:func:`~ftc_verify.analysis.conic.local_variables`).
+
+    ``scale`` :math:`= \sigma`: the blocks of the modes with :math:`D / \sigma`, i.e. each
+    block congruent by :math:`\operatorname{diag}(I, \dots, \sigma^{-1} I, I)` on its
+    :math:`w` row, so that ``g`` stands for :math:`\gamma^2 / \sigma^2` (the same ``X, Y``
+    are feasible; :func:`xy_solver` poses a level :math:`\gamma` at :math:`\sigma = \gamma`,
+    ``g = 1``)."""
     n, nu = lay.n, lay.nu
     common = kind == "common"
     rows = Rows(lay.K)
@@ -131,7 +137,8 @@ def _xy_rows(system: FTCSystem, kind: str, lay: _XYLayout, k_max: float | None) 
         if common and spec.true in seen:
             continue
         seen.add(spec.true)
-        mode = system.modes[spec.true]
+        mode = system.modes[spec.true] if scale == 1.0 else replace(system.modes[spec.true],
+                                                                      D=system.modes[spec.true].D / scale)
         q_row = None if common else spec.q_row
         s = spec.s
         states = [s] + ([] if q_row is None else [t for t, q in enumerate(q_row) if t != s and q > 0])
@@ -214,31 +221,45 @@ def xy_solver(system: FTCSystem, kind: str, calls: Any,
     n, nu = system.dims[0], system.dims[1]
     lay = _XYLayout(n, nu, tuple(_variable_groups(system, kind)), kind != "projected",
                     k_max is not None and kind != "projected")
-    rows = _xy_rows(system, kind, lay, k_max)
     objective = _xy_objective(kind, lay)
-    used = np.zeros(lay.K, dtype=bool)
-    for block in rows.blocks:
-        used[block[2].indices] = True
-    unused = [col for col in range(lay.eps(0), lay.K) if not used[col] and objective[col] == 0.0]
-    scalars = [col for col in range(lay.g, lay.K) if col != lay.t and col not in unused]
-    rows.nonneg(unit_rows(lay.K, scalars), np.zeros(len(scalars)))  # g, mu, eps, delta >= 0
 
-    def drop(problem: ConicProblem) -> ConicProblem:
-        for col in sorted(unused, reverse=True):
-            problem = problem.fix(col, 0.0)
-        return problem
+    def build(scale: float) -> tuple[ConicProblem, ConicProblem, list[int]]:
+        """The minimising and the capped-margin problem at ``scale`` (:func:`_xy_rows`),
+        the unused columns dropped; and those columns."""
+        rows = _xy_rows(system, kind, lay, k_max, scale)
+        used = np.zeros(lay.K, dtype=bool)
+        for block in rows.blocks:
+            used[block[2].indices] = True
+        unused = [col for col in range(lay.eps(0), lay.K) if not used[col] and objective[col] == 0.0]
+        scalars = [col for col in range(lay.g, lay.K) if col != lay.t and col not in unused]
+        rows.nonneg(unit_rows(lay.K, scalars), np.zeros(len(scalars)))  # g, mu, eps, delta >= 0
 
-    e_g = np.zeros(lay.K)
-    e_g[lay.g] = 1.0
-    capped = drop(rows.extended(unit_rows(lay.K, [lay.t], 1.0), [1.0]).problem(objective))
+        def drop(problem: ConicProblem) -> ConicProblem:
+            for col in sorted(unused, reverse=True):
+                problem = problem.fix(col, 0.0)
+            return problem
+
+        e_g = np.zeros(lay.K)
+        e_g[lay.g] = 1.0
+        capped = drop(rows.extended(unit_rows(lay.K, [lay.t], 1.0), [1.0]).problem(objective))
+        return drop(rows.problem(e_g)).fix(lay.t, 0.0), capped, unused
+
+    minimise, _, unused = build(1.0)
 
     def num(x: Matrix, col: int) -> float:
         return math.nan if col in unused else float(x[col])
 
+    def at_level(level: float) -> tuple[Any, Matrix | None]:
+        """The capped-margin problem at ``level``, posed at ``scale = level``, ``g = 1``:
+        ``g = level**2`` swamps the blocks' other entries at a large level (at 1e6 Clarabel
+        called the feasible common LMI of ``examples/paper.toml`` infeasible). A build
+        costs ~3 ms (``examples/paper.toml``), far below a solve."""
+        return calls.run_conic(build(level)[1].fix(lay.g, 1.0))
+
     def solve_at(gamma: float | None) -> dict[str, Any] | None:
         """The numbers at ``gamma`` (or minimised and re-centred: ``gamma=None``), or ``None``."""
         if gamma is None:
-            out, x = calls.run_conic(drop(rows.problem(e_g)).fix(lay.t, 0.0))
+            out, x = calls.run_conic(minimise)
             if not out.solved or x is None:
                 return None
             value = math.sqrt(max(float(x[lay.g]), 0.0))
@@ -246,12 +267,12 @@ def xy_solver(system: FTCSystem, kind: str, calls: Any,
         else:
             ladder = [gamma]
         for level in ladder:
-            out, x = calls.run_conic(capped.fix(lay.g, level ** 2))
+            out, x = at_level(level)
             if out.solved and x is not None and float(x[lay.t - 1]) > MARGIN_TOL:
                 break
         else:
             return None
-        x = np.insert(x, lay.g, level ** 2)
+        x = np.insert(x, lay.g, 1.0)
         for col in sorted(unused):
             x = np.insert(x, col, math.nan)
         var, _ = local_variables([("sym", lay.x(k), (n,)) for k in range(lay.n_groups)]
