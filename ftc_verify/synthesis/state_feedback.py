@@ -48,8 +48,8 @@ Methods (all return a :class:`~ftc_verify.synthesis.results.SynthesisResult` ver
     of ``iterative``'s own starts and from the best start overall, each followed by the
     polish of its result (:func:`~ftc_verify.synthesis.polish.polish`: a trust-region
     step in the Lyapunov matrices and the gains together, which the alternation cannot
-    make; never worse than its start). The smallest certified
-    robust gamma wins; every route is a row of ``starts`` (with its seconds). So ``best``
+    make; never worse than its start). The smallest certified robust gamma wins; every
+    route is a row of ``starts`` (with its seconds). So ``best``
     is never worse than ``iterative``, ``two-step``, ``common``, ``common-fdi`` or
     ``dilated`` run alone (the same computations, the same certification). Beside the
     result it reports the reference line of
@@ -84,6 +84,7 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -97,6 +98,7 @@ from ..analysis.closedloop import gain_loop, state_feedback_loop
 from ..analysis.conic import Rows, affine_bmat, matrix_variable, scalar_variable, unit_rows
 from ..claimtext import upper_text
 from ..errors import ValidationError
+from ..limits import GAMMA_MAX
 from ..analysis.lmi import block_specs, lyapunov_block
 from ..analysis.lmi_analysis import LMIResult, hinf_gamma
 from ..model.system import FTCSystem, Matrix
@@ -506,16 +508,15 @@ def synthesize(
 ) -> SynthesisResult:
     """Synthesize gains by ``method`` (see module docstring) and verify them.
 
-    ``gamma=None`` minimises gamma (bisection for ``two-step``, gamma**2 as a variable
-    for ``full-info``/``common``); a given gamma asks for feasibility at that level.
-    ``iterative`` starts from ``start`` or else from the best certified of the starts in
-    the module docstring.
+    ``gamma=None`` minimises gamma (bisection for ``two-step``, gamma**2 as a variable for ``full-info``/``common``);
+    a given gamma (at most :data:`~ftc_verify.limits.GAMMA_MAX`) asks for feasibility at that level. ``iterative``
+    starts from ``start`` or else from the best certified of the starts in the module docstring.
     """
     if method not in METHODS:
         raise ValidationError(f"method: unknown method {method!r}; choose from {list(METHODS)}")
-    for name, val in (("gamma", gamma), ("k_max", k_max)):
-        if val is not None and not (math.isfinite(val) and val > 0):
-            raise ValidationError(f"{name}: must be a positive finite number, got {val!r}")
+    for name, val, top in (("gamma", gamma, GAMMA_MAX), ("k_max", k_max, sys.float_info.max)):
+        if val is not None and not (math.isfinite(val) and 0 < val <= top):
+            raise ValidationError(f"{name}: must be a positive number at most {top:g}, got {val!r}")
     t0 = time.perf_counter()
     n = system.dims[0]
     name = choose_solver(solver, system.chain.n_states * (n * (n + 1) // 2 + n * system.dims[1]) + 1)
