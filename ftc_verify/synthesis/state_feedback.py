@@ -49,12 +49,11 @@ Methods (all return a :class:`~ftc_verify.synthesis.results.SynthesisResult` ver
     polish of its result (:func:`~ftc_verify.synthesis.polish.polish`: a trust-region
     step in the Lyapunov matrices and the gains together, which the alternation cannot
     make; never worse than its start). The smallest certified robust gamma wins; every
-    route is a row of ``starts`` (with its seconds). So ``best``
-    is never worse than ``iterative``, ``two-step``, ``common``, ``common-fdi`` or
-    ``dilated`` run alone (the same computations, the same certification). Beside the
-    result it reports the reference line of
-    :func:`~ftc_verify.synthesis.convex_designs.true_mode_reference` (gains that see the
-    true mode; a reference, not a bound).
+    route is a row of ``starts`` (with its seconds). So ``best`` is never worse than
+    ``iterative``, ``two-step``, ``common``, ``common-fdi`` or ``dilated`` run alone (the
+    same computations, the same certification). Beside the result it reports the reference
+    line of :func:`~ftc_verify.synthesis.convex_designs.true_mode_reference` (gains that
+    see the true mode; a reference, not a bound).
 
 ``full-info`` is a relaxation of every FDI-only design: the Lemma 4.1 certificate
 :math:`(P, \lambda, \gamma)` of FDI-mode gains gives a feasible point of the
@@ -107,7 +106,7 @@ from .starts import candidates, certify_start, diagnose
 from .results import SolverCalls, SynthesisResult, verify_controller
 from .polish import polish
 from .convex_designs import dilated_design, reference_alone
-from .xy_design import gain_bound_block, xy_solve, xy_solver
+from .xy_design import gain_bound_block, scaled_disturbance, xy_solve, xy_solver
 
 __all__ = ["METHODS", "SynthesisResult", "synthesize", "two_step", "gain_step", "Descent", "descend"]
 
@@ -140,14 +139,14 @@ def gain_step(
     :mod:`ftc_verify.synthesis.output_feedback`, with ``M_i = Cbar_i``); the block stays
     linear in ``K_j`` since ``P`` and the multipliers are fixed.
 
-    Variables :math:`(\operatorname{vec} K_j, g[, k])`: the blocks
-    :func:`~ftc_verify.analysis.lmi.lyapunov_block` of FDI mode ``j`` (Schur form in
-    :math:`F`) :math:`\preceq 0` on :class:`~ftc_verify.analysis.conic.Affine` matrices,
-    solved in conic form (:meth:`~ftc_verify.synthesis.results.SolverCalls.run_conic`;
-    no cvxpy), :math:`g \ge 0`, :func:`~ftc_verify.synthesis.xy_design.gain_bound_block`
-    with ``k_max``; with ``gamma``: :math:`g \le \gamma^2`, :math:`\|K_j\|_2 \le k`, min :math:`k`.
+    Variables :math:`(\operatorname{vec} K_j, g[, k])`: the blocks :func:`~ftc_verify.analysis.lmi.lyapunov_block`
+    of FDI mode ``j`` (Schur form in :math:`F`) :math:`\preceq 0` on :class:`~ftc_verify.analysis.conic.Affine`
+    matrices, solved in conic form (:meth:`~ftc_verify.synthesis.results.SolverCalls.run_conic`; no cvxpy),
+    :math:`g \ge 0`, :func:`~ftc_verify.synthesis.xy_design.gain_bound_block` with ``k_max``; with ``gamma``:
+    the blocks at :math:`D/\gamma` (:func:`~ftc_verify.synthesis.xy_design.scaled_disturbance`), :math:`g \le 1`,
+    :math:`\|K_j\|_2 \le k`, min :math:`k`.
     """
-    m, (n, nu, _, _) = system.m, system.dims
+    m, (n, nu, _, _), system = system.m, system.dims, scaled_disturbance(system, gamma or 1.0)  # g <= 1 at D/gamma
     cols = n if measurement is None else measurement[0].shape[0]
     size = nu * cols + (1 if gamma is None else 2)
     every = np.arange(size).astype(int)
@@ -169,12 +168,12 @@ def gain_step(
     c = np.eye(size)[nu * cols if gamma is None else -1]  # min g, or min k
     rows.nonneg(unit_rows(size, range(nu * cols, size)), np.zeros(size - nu * cols))  # g >= 0 (and k >= 0)
     if gamma is not None:
-        rows.nonneg(unit_rows(size, [nu * cols], 1.0), [gamma ** 2])
+        rows.nonneg(unit_rows(size, [nu * cols], 1.0), [1.0])
         rows.lmi(-gain_bound_block(K, 1.0, scalar_variable(size - 1, size), affine_bmat), every)
     out, x = calls.run_conic(rows.problem(c))
     if not out.solved or x is None:
         return None, None, out.status
-    return x[:nu * cols].reshape(nu, cols), math.sqrt(max(float(x[nu * cols]), 0.0)), out.status
+    return x[:nu * cols].reshape(nu, cols), (gamma or 1.0) * math.sqrt(max(float(x[nu * cols]), 0.0)), out.status
 
 
 def _multipliers(system: FTCSystem, eps: list[float], delta: list[float]) -> list[list[float]]:

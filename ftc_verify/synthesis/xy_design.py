@@ -24,7 +24,7 @@ from ..analysis.lmi import block_specs, projection, xy_block
 from ..analysis.lmi_analysis import GAMMA_LADDER
 from ..model.system import FTCSystem, Matrix
 
-__all__ = ["MARGIN_TOL", "CENTRE_WEIGHT", "gain_bound_block", "xy_solve", "xy_solver"]
+__all__ = ["MARGIN_TOL", "CENTRE_WEIGHT", "gain_bound_block", "scaled_disturbance", "xy_solve", "xy_solver"]
 
 #: An (X, Y) problem counts as strictly feasible when its maximised margin exceeds this
 #: (a heuristic only: every result is certified by the core analysis afterwards).
@@ -43,6 +43,22 @@ def gain_bound_block(K: Any, k_max: float, mu: Any, bmat: Any) -> Any:
     bound, instead of a diagonal that swamps every other entry of the LMI."""
     nu, n = K.shape
     return bmat([[mu * np.eye(n), K.T / k_max], [K / k_max, mu * np.eye(nu)]])
+
+
+def scaled_disturbance(system: FTCSystem, scale: float) -> FTCSystem:
+    r"""``system`` with every mode's :math:`D` divided by ``scale`` :math:`= \sigma`.
+
+    A bounded-real block at level :math:`\gamma` (:func:`~ftc_verify.analysis.lmi.xy_block`,
+    :func:`~ftc_verify.analysis.lmi.lyapunov_block`: column :math:`D`, diagonal
+    :math:`-g I` with :math:`g = \gamma^2`) is congruent by :math:`\operatorname{diag}(I,
+    \dots, \sigma^{-1} I, \dots)` on its :math:`w` row to the same block of this system with
+    :math:`g = \gamma^2 / \sigma^2`: the same ``X``, ``Y`` (``P``, ``K``) are feasible. Posed
+    at :math:`\sigma = \gamma`, ``g = 1``, no entry grows with :math:`\gamma`; with
+    :math:`g = \gamma^2` one does (at :math:`\gamma = 10^6` Clarabel called the feasible
+    common LMI of ``examples/paper.toml`` infeasible; at :math:`10^{16}` it panicked)."""
+    if scale == 1.0:
+        return system
+    return replace(system, modes=tuple(replace(mode, D=mode.D / scale) for mode in system.modes))
 
 
 def _variable_groups(system: FTCSystem, kind: str) -> list[int]:
@@ -117,17 +133,11 @@ def xy_solve(system: FTCSystem, kind: str, gamma: float | None, calls: Any, k_ma
     return xy_solver(system, kind, calls, k_max)(gamma)
 
 
-def _xy_rows(system: FTCSystem, kind: str, lay: _XYLayout, k_max: float | None, scale: float = 1.0) -> Rows:
-    r"""The constraints of :func:`xy_solver` with ``g`` and the margin ``t`` variables:
+def _xy_rows(system: FTCSystem, kind: str, lay: _XYLayout, k_max: float | None) -> Rows:
+    """The constraints of :func:`xy_solver` with ``g`` and the margin ``t`` variables:
     every block ``+ t I <= 0`` (projected for ``projected``), ``X_k >= t I``, with
     ``k_max`` ``X_k >= mu I`` and :func:`gain_bound_block` of ``Y_k`` with ``mu``. Each
-    block is built on its own variables (:func:`~ftc_verify.analysis.conic.local_variables`).
-
-    ``scale`` :math:`= \sigma`: the blocks of the modes with :math:`D / \sigma`, i.e. each
-    block congruent by :math:`\operatorname{diag}(I, \dots, \sigma^{-1} I, I)` on its
-    :math:`w` row, so that ``g`` stands for :math:`\gamma^2 / \sigma^2` (the same ``X, Y``
-    are feasible; :func:`xy_solver` poses a level :math:`\gamma` at :math:`\sigma = \gamma`,
-    ``g = 1``)."""
+    block is built on its own variables (:func:`~ftc_verify.analysis.conic.local_variables`)."""
     n, nu = lay.n, lay.nu
     common = kind == "common"
     rows = Rows(lay.K)
@@ -137,8 +147,7 @@ def _xy_rows(system: FTCSystem, kind: str, lay: _XYLayout, k_max: float | None, 
         if common and spec.true in seen:
             continue
         seen.add(spec.true)
-        mode = system.modes[spec.true] if scale == 1.0 else replace(system.modes[spec.true],
-                                                                      D=system.modes[spec.true].D / scale)
+        mode = system.modes[spec.true]
         q_row = None if common else spec.q_row
         s = spec.s
         states = [s] + ([] if q_row is None else [t for t, q in enumerate(q_row) if t != s and q > 0])
@@ -224,9 +233,9 @@ def xy_solver(system: FTCSystem, kind: str, calls: Any,
     objective = _xy_objective(kind, lay)
 
     def build(scale: float) -> tuple[ConicProblem, ConicProblem, list[int]]:
-        """The minimising and the capped-margin problem at ``scale`` (:func:`_xy_rows`),
-        the unused columns dropped; and those columns."""
-        rows = _xy_rows(system, kind, lay, k_max, scale)
+        """The minimising and the capped-margin problem of :func:`scaled_disturbance` at
+        ``scale`` (:func:`_xy_rows`), the unused columns dropped; and those columns."""
+        rows = _xy_rows(scaled_disturbance(system, scale), kind, lay, k_max)
         used = np.zeros(lay.K, dtype=bool)
         for block in rows.blocks:
             used[block[2].indices] = True
@@ -250,10 +259,8 @@ def xy_solver(system: FTCSystem, kind: str, calls: Any,
         return math.nan if col in unused else float(x[col])
 
     def at_level(level: float) -> tuple[Any, Matrix | None]:
-        """The capped-margin problem at ``level``, posed at ``scale = level``, ``g = 1``:
-        ``g = level**2`` swamps the blocks' other entries at a large level (at 1e6 Clarabel
-        called the feasible common LMI of ``examples/paper.toml`` infeasible). A build
-        costs ~3 ms (``examples/paper.toml``), far below a solve."""
+        """The capped-margin problem at ``level``, posed at ``scale = level``, ``g = 1``
+        (:func:`scaled_disturbance`). A build costs 1-3 ms (``examples/paper.toml``)."""
         return calls.run_conic(build(level)[1].fix(lay.g, 1.0))
 
     def solve_at(gamma: float | None) -> dict[str, Any] | None:
