@@ -197,6 +197,17 @@ class SolverCalls:
         self.outcomes.append(out)
         return out, x
 
+    def unsolved(self) -> str:
+        """Why the last call gave no usable point, for a message: ``infeasible`` only when
+        the solver said so; a failure (an exception, a Rust panic, a numerical status)
+        names the solver and what it said; a point without margin says so."""
+        out = self.outcomes[-1]
+        if out.infeasible:
+            return "infeasible"
+        if out.solved:
+            return "without a strictly feasible point"
+        return f"not solved (solver failure: {out.solver} {out.message or 'status ' + out.status})"
+
     def absorb(self, other: SynthesisResult) -> None:
         """Count the calls of a nested synthesis."""
         self.nested_calls += other.solver_calls

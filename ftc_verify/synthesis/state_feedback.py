@@ -197,7 +197,7 @@ def two_step(system: FTCSystem, gamma: float, calls: SolverCalls, k_max: float |
     bisection's levels share it); built here when not given."""
     step1 = (step1_at or xy_solver(system, "projected", calls, None))(gamma)
     if step1 is None:
-        return None, None, f"step 1 (eq. 17) infeasible at gamma {gamma:.6g}"
+        return None, None, f"step 1 (eq. 17) {calls.unsolved()} at gamma {gamma:.6g}"
     P = [np.linalg.inv(0.5 * (X + X.T)) for X in step1["X"]]
     P = [0.5 * (p + p.T) for p in P]
     lam = _multipliers(system, step1["eps"], step1["delta"])
@@ -307,7 +307,7 @@ def _convex_gains(system: FTCSystem, method: str, calls: SolverCalls,
             f"{sol['tau']:.3g})"
     xy = xy_solve(system, "common-fdi", None, calls, k_max)
     if xy is None:
-        return None, None, "common-fdi LMI infeasible"
+        return None, None, f"common-fdi LMI {calls.unsolved()}"
     Ks = [Y @ np.linalg.inv(X) for X, Y in zip(xy["X"], xy["Y"])]
     return [Ks[system.chain.state_index(j, j)] for j in range(system.m)], float(xy["gamma"]), \
         f"common-fdi LMI solved at gamma {xy['gamma']:.6g}"
@@ -487,7 +487,7 @@ def _design(system: FTCSystem, method: str, gamma: float | None, k_max: float | 
         return _convex_gains(system, method, calls, k_max)
     sol = xy_solve(system, method, gamma, calls, k_max)
     if sol is None:
-        return None, None, f"{method} LMI infeasible" + (f" at gamma {gamma:.6g}" if gamma else "")
+        return None, None, f"{method} LMI {calls.unsolved()}" + (f" at gamma {gamma:.6g}" if gamma else "")
     Ks = [Y @ np.linalg.inv(X) for X, Y in zip(sol["X"], sol["Y"])]  # per joint state
     pairs = [Ks[system.chain.state_index(i, j)] for i in range(system.m) for j in range(system.m)]
     gains = Ks[:1] * system.m if method == "common" else pairs
