@@ -142,11 +142,11 @@ def gain_step(
     Variables :math:`(\operatorname{vec} K_j, g[, k])`: the blocks :func:`~ftc_verify.analysis.lmi.lyapunov_block`
     of FDI mode ``j`` (Schur form in :math:`F`) :math:`\preceq 0` on :class:`~ftc_verify.analysis.conic.Affine`
     matrices, solved in conic form (:meth:`~ftc_verify.synthesis.results.SolverCalls.run_conic`; no cvxpy),
-    :math:`g \ge 0`, :func:`~ftc_verify.synthesis.xy_design.gain_bound_block` with ``k_max``; with ``gamma``:
-    the blocks at :math:`D/\gamma` (:func:`~ftc_verify.synthesis.xy_design.scaled_disturbance`), :math:`g \le 1`,
-    :math:`\|K_j\|_2 \le k`, min :math:`k`.
+    :math:`g \ge 0`, :func:`~ftc_verify.synthesis.xy_design.gain_bound_block` with ``k_max``; with ``gamma``: the
+    blocks at :math:`D/\sigma`, :math:`\sigma = \max(\gamma, 1)` (:func:`.xy_design.scaled_disturbance`),
+    :math:`g \le (\gamma/\sigma)^2 \le 1`, :math:`\|K_j\|_2 \le k`, min :math:`k`.
     """
-    m, (n, nu, _, _), system = system.m, system.dims, scaled_disturbance(system, gamma or 1.0)  # g <= 1 at D/gamma
+    m, (n, nu, _, _), scale = system.m, system.dims, max(gamma or 1.0, 1.0)  # g <= (gamma / scale)**2 at D / scale
     cols = n if measurement is None else measurement[0].shape[0]
     size = nu * cols + (1 if gamma is None else 2)
     every = np.arange(size).astype(int)
@@ -158,7 +158,7 @@ def gain_step(
         gains[j] = K
     else:
         gains = [K @ measurement[i] if jj == j else np.zeros((nu, n)) for i in range(m) for jj in range(m)]
-    loop = gain_loop(system, gains, "gain step")
+    loop = gain_loop(scaled_disturbance(system, scale), gains, "gain step")
     rows = Rows(size)
     for spec in block_specs(loop):
         if spec.fdi == j:
@@ -168,12 +168,12 @@ def gain_step(
     c = np.eye(size)[nu * cols if gamma is None else -1]  # min g, or min k
     rows.nonneg(unit_rows(size, range(nu * cols, size)), np.zeros(size - nu * cols))  # g >= 0 (and k >= 0)
     if gamma is not None:
-        rows.nonneg(unit_rows(size, [nu * cols], 1.0), [1.0])
+        rows.nonneg(unit_rows(size, [nu * cols], 1.0), [(gamma / scale) ** 2])
         rows.lmi(-gain_bound_block(K, 1.0, scalar_variable(size - 1, size), affine_bmat), every)
     out, x = calls.run_conic(rows.problem(c))
     if not out.solved or x is None:
         return None, None, out.status
-    return x[:nu * cols].reshape(nu, cols), (gamma or 1.0) * math.sqrt(max(float(x[nu * cols]), 0.0)), out.status
+    return x[:nu * cols].reshape(nu, cols), scale * math.sqrt(max(float(x[nu * cols]), 0.0)), out.status
 
 
 def _multipliers(system: FTCSystem, eps: list[float], delta: list[float]) -> list[list[float]]:

@@ -259,9 +259,11 @@ def xy_solver(system: FTCSystem, kind: str, calls: Any,
         return math.nan if col in unused else float(x[col])
 
     def at_level(level: float) -> tuple[Any, Matrix | None]:
-        """The capped-margin problem at ``level``, posed at ``scale = level``, ``g = 1``
-        (:func:`scaled_disturbance`). A build costs 1-3 ms (``examples/paper.toml``)."""
-        return calls.run_conic(build(level)[1].fix(lay.g, 1.0))
+        """The capped-margin problem at ``level``, posed at ``scale = max(level, 1)``,
+        ``g = (level / scale)**2 <= 1`` (:func:`scaled_disturbance`; a scale below 1 would
+        enlarge :math:`D`). A build costs 1-3 ms (``examples/paper.toml``)."""
+        scale = max(level, 1.0)
+        return calls.run_conic(build(scale)[1].fix(lay.g, (level / scale) ** 2))
 
     def solve_at(gamma: float | None) -> dict[str, Any] | None:
         """The numbers at ``gamma`` (or minimised and re-centred: ``gamma=None``), or ``None``."""
@@ -279,7 +281,7 @@ def xy_solver(system: FTCSystem, kind: str, calls: Any,
                 break
         else:
             return None
-        x = np.insert(x, lay.g, 1.0)
+        x = np.insert(x, lay.g, math.nan)  # g was fixed (at_level); unused below
         for col in sorted(unused):
             x = np.insert(x, col, math.nan)
         var, _ = local_variables([("sym", lay.x(k), (n,)) for k in range(lay.n_groups)]
