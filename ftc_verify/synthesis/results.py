@@ -206,7 +206,8 @@ class SolverCalls:
             return "infeasible"
         if out.solved:
             return "without a strictly feasible point"
-        return f"not solved (solver failure: {out.solver} {out.message or 'status ' + out.status})"
+        said = out.message if out.solver in out.message else f"{out.solver} status {out.status} {out.message}".strip()
+        return f"not solved (solver failure: {said})"
 
     def absorb(self, other: SynthesisResult) -> None:
         """Count the calls of a nested synthesis."""
