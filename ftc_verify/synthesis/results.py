@@ -9,6 +9,7 @@ every designed controller (never the synthesis LMI alone).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -19,9 +20,11 @@ from ..analysis.closedloop import closed_loop
 from ..analysis.conic import ConicProblem
 from ..analysis.solvers import SolveOutcome, solve, solve_conic
 from ..controllers.controller import Controller
+from ..errors import ValidationError
+from ..limits import GAMMA_MAX
 from ..model.system import FTCSystem, Matrix
 
-__all__ = ["SynthesisResult", "SolverCalls", "verify_controller"]
+__all__ = ["SynthesisResult", "SolverCalls", "check_levels", "verify_controller"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -151,6 +154,18 @@ class SynthesisResult:
             "message": self.message,
             "analysis": None if rep is None else rep.to_dict(),
         })
+
+
+def check_levels(gamma: float | None, k_max: float | None) -> None:
+    """Refuse (:class:`~ftc_verify.errors.ValidationError`) a ``gamma`` or ``k_max`` that is
+    not a positive finite number, and a ``gamma`` above :data:`~ftc_verify.limits.GAMMA_MAX`
+    (the syntheses form its square)."""
+    for name, val, top in (("gamma", gamma, GAMMA_MAX), ("k_max", k_max, math.inf)):
+        if val is not None and not (math.isfinite(val) and val > 0):
+            raise ValidationError(f"{name}: must be a positive finite number, got {val!r}")
+        if val is not None and val > top:
+            raise ValidationError(f"{name}: must be at most {top:g} (its square must stay a finite float64 number), "
+                                  f"got {val!r}")
 
 
 class SolverCalls:

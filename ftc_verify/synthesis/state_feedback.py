@@ -83,7 +83,6 @@ from __future__ import annotations
 
 import math
 import os
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -97,13 +96,12 @@ from ..analysis.closedloop import gain_loop, state_feedback_loop
 from ..analysis.conic import Rows, affine_bmat, matrix_variable, scalar_variable, unit_rows
 from ..claimtext import upper_text
 from ..errors import ValidationError
-from ..limits import GAMMA_MAX
 from ..analysis.lmi import block_specs, lyapunov_block
 from ..analysis.lmi_analysis import LMIResult, hinf_gamma
 from ..model.system import FTCSystem, Matrix
 from ..analysis.solvers import ForkedCall, choose_solver
 from .starts import candidates, certify_start, diagnose
-from .results import SolverCalls, SynthesisResult, verify_controller
+from .results import SolverCalls, SynthesisResult, check_levels, verify_controller
 from .polish import polish
 from .convex_designs import dilated_design, reference_alone
 from .xy_design import gain_bound_block, scaled_disturbance, xy_solve, xy_solver
@@ -513,9 +511,7 @@ def synthesize(
     """
     if method not in METHODS:
         raise ValidationError(f"method: unknown method {method!r}; choose from {list(METHODS)}")
-    for name, val, top in (("gamma", gamma, GAMMA_MAX), ("k_max", k_max, sys.float_info.max)):
-        if val is not None and not (math.isfinite(val) and 0 < val <= top):
-            raise ValidationError(f"{name}: must be a positive number at most {top:g}, got {val!r}")
+    check_levels(gamma, k_max)
     t0 = time.perf_counter()
     n = system.dims[0]
     name = choose_solver(solver, system.chain.n_states * (n * (n + 1) // 2 + n * system.dims[1]) + 1)
