@@ -350,7 +350,7 @@ def add_run_commands(sub: Any) -> None:
 
     v = sub.add_parser("verify", help="the main job: synthesize, certify, cross-validate, co-simulate, report")
     v.add_argument("system", help="system TOML file")
-    v.add_argument("--gamma", type=gamma_level, default=None, help="attenuation level (default: minimise)")
+    v.add_argument("--gamma", type=gamma_level, default=None, help="attenuation level, 0 < G <= 1e150 (default: minimise)")
     v.add_argument("--method", default="iterative", choices=["two-step", "iterative", "full-info", "common"],
                    help="state-feedback synthesis method (synthesize --method; default %(default)s); "
                         "ignored with --controller")

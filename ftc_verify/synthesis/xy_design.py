@@ -203,18 +203,44 @@ def _xy_objective(kind: str, lay: _XYLayout) -> Matrix:
     return objective
 
 
+def _xy_problems(system: FTCSystem, kind: str, lay: _XYLayout, k_max: float | None, objective: Matrix,
+                 scale: float) -> tuple[ConicProblem, ConicProblem, list[int]]:
+    """The minimising (``min g``, ``t = 0``) and the capped-margin problem (``objective``,
+    ``t <= 1``) of :func:`xy_solver` on :func:`scaled_disturbance` at ``scale``
+    (:func:`_xy_rows`), the unused columns dropped; and those columns."""
+    rows = _xy_rows(scaled_disturbance(system, scale), kind, lay, k_max)
+    used = np.zeros(lay.K, dtype=bool)
+    for block in rows.blocks:
+        used[block[2].indices] = True
+    unused = [col for col in range(lay.eps(0), lay.K) if not used[col] and objective[col] == 0.0]
+    scalars = [col for col in range(lay.g, lay.K) if col != lay.t and col not in unused]
+    rows.nonneg(unit_rows(lay.K, scalars), np.zeros(len(scalars)))  # g, mu, eps, delta >= 0
+
+    def drop(problem: ConicProblem) -> ConicProblem:
+        for col in sorted(unused, reverse=True):
+            problem = problem.fix(col, 0.0)
+        return problem
+
+    e_g = np.zeros(lay.K)
+    e_g[lay.g] = 1.0
+    capped = drop(rows.extended(unit_rows(lay.K, [lay.t], 1.0), [1.0]).problem(objective))
+    return drop(rows.problem(e_g)).fix(lay.t, 0.0), capped, unused
+
+
 def xy_solver(system: FTCSystem, kind: str, calls: Any,
               k_max: float | None) -> Callable[[float | None], dict[str, Any] | None]:
     """The (X, Y) inequality of :func:`~ftc_verify.analysis.lmi.xy_block`, built once and
     solved at any level: a function ``gamma -> numbers`` (below).
 
-    The blocks are evaluated once on :class:`~ftc_verify.analysis.conic.Affine`
-    matrices with ``g = gamma**2`` and the margin ``t`` variables, written in conic form
+    The blocks are evaluated on :class:`~ftc_verify.analysis.conic.Affine` matrices with
+    ``g = gamma**2`` and the margin ``t`` variables, written in conic form
     (:mod:`ftc_verify.analysis.conic`) and solved by
-    :meth:`~ftc_verify.synthesis.results.SolverCalls.run_conic`; a level fixes ``g``
-    (:meth:`~ftc_verify.analysis.conic.ConicProblem.fix`), so the bisection of
-    ``two-step`` re-uses the whole construction (cvxpy's canonicalisation was most of a
-    call's time).
+    :meth:`~ftc_verify.synthesis.results.SolverCalls.run_conic`; a level up to 1 fixes
+    ``g`` (:meth:`~ftc_verify.analysis.conic.ConicProblem.fix`) in the construction built
+    once, a level above 1 is posed on :func:`scaled_disturbance` at that level with
+    ``g = 1`` (built per level, 1-3 ms): with ``g = gamma**2`` the blocks' entries grew with
+    gamma, and Clarabel called feasible levels infeasible (finding 02 of the independent
+    check: the common LMI of ``examples/paper.toml`` at 1e6) or panicked (1e16).
 
     ``kind``: ``"projected"`` (step 1 of Theorem 4.1, no ``Y``; one ``X`` per joint
     state), ``"full-info"`` (one ``X, Y`` per pair ``(true, fdi)``, shared by its phases:
@@ -222,7 +248,7 @@ def xy_solver(system: FTCSystem, kind: str, calls: Any,
     one per joint state and vertex of its row's rates (:func:`~ftc_verify.analysis.lmi.block_specs`); ``X``,
     ``Y`` and the multipliers are returned per joint state (``nan`` for a multiplier no
     block uses: ``common`` writes one block per true mode). With ``gamma``
-    given the margin ``t`` is maximised at ``g = gamma**2``; with ``gamma=None`` gamma is
+    given the margin ``t`` is maximised at that level; with ``gamma=None`` gamma is
     minimised first (``t = 0``) and the problem re-centred at ``gamma* (1 + 1e-3)``. Returns the
     numbers, or ``None`` when the solver returned no point or no positive margin.
     """
@@ -232,28 +258,7 @@ def xy_solver(system: FTCSystem, kind: str, calls: Any,
                     k_max is not None and kind != "projected")
     objective = _xy_objective(kind, lay)
 
-    def build(scale: float) -> tuple[ConicProblem, ConicProblem, list[int]]:
-        """The minimising and the capped-margin problem of :func:`scaled_disturbance` at
-        ``scale`` (:func:`_xy_rows`), the unused columns dropped; and those columns."""
-        rows = _xy_rows(scaled_disturbance(system, scale), kind, lay, k_max)
-        used = np.zeros(lay.K, dtype=bool)
-        for block in rows.blocks:
-            used[block[2].indices] = True
-        unused = [col for col in range(lay.eps(0), lay.K) if not used[col] and objective[col] == 0.0]
-        scalars = [col for col in range(lay.g, lay.K) if col != lay.t and col not in unused]
-        rows.nonneg(unit_rows(lay.K, scalars), np.zeros(len(scalars)))  # g, mu, eps, delta >= 0
-
-        def drop(problem: ConicProblem) -> ConicProblem:
-            for col in sorted(unused, reverse=True):
-                problem = problem.fix(col, 0.0)
-            return problem
-
-        e_g = np.zeros(lay.K)
-        e_g[lay.g] = 1.0
-        capped = drop(rows.extended(unit_rows(lay.K, [lay.t], 1.0), [1.0]).problem(objective))
-        return drop(rows.problem(e_g)).fix(lay.t, 0.0), capped, unused
-
-    minimise, _, unused = build(1.0)
+    minimise, capped_1, unused = _xy_problems(system, kind, lay, k_max, objective, 1.0)
 
     def num(x: Matrix, col: int) -> float:
         return math.nan if col in unused else float(x[col])
@@ -263,7 +268,8 @@ def xy_solver(system: FTCSystem, kind: str, calls: Any,
         ``g = (level / scale)**2 <= 1`` (:func:`scaled_disturbance`; a scale below 1 would
         enlarge :math:`D`). A build costs 1-3 ms (``examples/paper.toml``)."""
         scale = max(level, 1.0)
-        return calls.run_conic(build(scale)[1].fix(lay.g, (level / scale) ** 2))
+        capped = capped_1 if scale == 1.0 else _xy_problems(system, kind, lay, k_max, objective, scale)[1]
+        return calls.run_conic(capped.fix(lay.g, (level / scale) ** 2))
 
     def solve_at(gamma: float | None) -> dict[str, Any] | None:
         """The numbers at ``gamma`` (or minimised and re-centred: ``gamma=None``), or ``None``."""
