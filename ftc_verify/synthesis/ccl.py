@@ -241,7 +241,7 @@ def ccl(system: FTCSystem, gamma: float, calls: SolverCalls, k_max: float | None
         lin[cols.at("lam"):cols.at("lam") + total] = np.maximum(ev, 0.0)
         out, x = calls.run_conic(rows.problem(lin))
         if not out.solved or x is None:
-            return None, history, (f"CCL iteration {len(history)} failed (solver status {out.status}; residual "
+            return None, history, (f"CCL iteration {len(history)} {calls.unsolved()} (residual "
                                    f"{history[-1]:.3g} before it)"), None
         point = current(x)
     return None, history, f"CCL: iteration limit {max_iter} reached (residual {history[-1]:.3g})", None
