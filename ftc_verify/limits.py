@@ -23,9 +23,10 @@ __all__ = ["memory_limit", "check_memory", "format_bytes", "dense_generator_esti
 #: command line's help imports neither asyncio nor Dask).
 CONNECT_TIMEOUT = 10.0
 
-#: The largest attenuation level ``gamma`` accepted (``--gamma``, the API's ``gamma``):
-#: the syntheses form ``gamma**2`` (eq. (18)'s bound :math:`g \le \gamma^2`), which
-#: overflows float64 above ~1.3e154; 1e150 leaves room for the products with it.
+#: The largest attenuation level ``gamma`` accepted (``--gamma``, the synthesis APIs'
+#: ``gamma``): the code forms ``gamma**2`` (Monte Carlo's comparison with ``gamma**2``,
+#: the LMIs' ``g`` below a level of 1), which overflows float64 above ~1.3e154 (exit 4
+#: at 1e155 before this limit); 1e150 leaves room for the products with it.
 GAMMA_MAX = 1e150
 
 _SUFFIX = {"K": 1024, "M": 1024 ** 2, "G": 1024 ** 3, "T": 1024 ** 4}

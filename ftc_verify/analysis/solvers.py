@@ -257,7 +257,8 @@ def _clarabel_guarded(call: Any, problem: ConicProblem,
     ``SETTINGS["clarabel"]``);
     anything it raises, a Rust panic (a ``BaseException``) included, becomes status
     ``"error"`` and arrays ``None``; what a panic prints on stderr is dropped
-    (:func:`_stderr_held`), the rest of that output passed on. SIGINT and SIGTERM are held during the call and
+    (:func:`_stderr_held`), the rest of that output passed on. SIGINT and SIGTERM are held
+    during the call and
     delivered after it (:func:`~ftc_verify.interrupts.deferred_signals`): raised inside
     Clarabel's callbacks into Python they would come out as such a panic."""
     start = time.perf_counter()
