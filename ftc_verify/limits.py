@@ -15,13 +15,19 @@ import time
 from .errors import MemoryLimitError, ValidationError
 
 __all__ = ["memory_limit", "check_memory", "format_bytes", "dense_generator_estimate", "GENERATOR_COPIES",
-           "CONNECT_TIMEOUT", "cpu_clock"]
+           "CONNECT_TIMEOUT", "GAMMA_MAX", "cpu_clock"]
 
 #: Seconds for connecting to a Dask ``--scheduler``, handshake included (the default of
 #: :func:`~ftc_verify.simulation.cluster.open_client`'s ``connect_timeout`` and of the
 #: commands' ``--connect-timeout``; here, not in the cluster module, so that building the
 #: command line's help imports neither asyncio nor Dask).
 CONNECT_TIMEOUT = 10.0
+
+#: The largest attenuation level ``gamma`` accepted (``--gamma``, the synthesis APIs'
+#: ``gamma``): the code forms ``gamma**2`` (Monte Carlo's comparison with ``gamma**2``,
+#: the LMIs' ``g`` below a level of 1), which overflows float64 above ~1.3e154 (exit 4
+#: at 1e155 before this limit); 1e150 leaves room for the products with it.
+GAMMA_MAX = 1e150
 
 _SUFFIX = {"K": 1024, "M": 1024 ** 2, "G": 1024 ** 3, "T": 1024 ** 4}
 

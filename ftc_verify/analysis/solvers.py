@@ -32,6 +32,7 @@ import contextlib
 import os
 import pickle
 import sys
+import tempfile
 import time
 import warnings
 from collections.abc import Iterator
@@ -223,22 +224,53 @@ def _solve_isolated(problem: Any, solver: str) -> tuple[str, str]:
     return status, message
 
 
+@contextlib.contextmanager
+def _stderr_held() -> Iterator[list[bool]]:
+    """File descriptor 2 sent to a temporary file while the block runs, its text written
+    back afterwards unless the block set the yielded flag: a Rust panic in Clarabel prints
+    its message and, with ``RUST_BACKTRACE=1``, ~70 lines of backtrace there before pyo3
+    raises it (``synthesize --gamma 1e16`` printed them on the user's terminal); the
+    exception's message names the panic, and the outcome reports it."""
+    drop = [False]
+    sys.stderr.flush()
+    try:
+        saved = os.dup(2)
+    except OSError:  # no usable fd 2: nothing to hold
+        yield drop
+        return
+    with tempfile.TemporaryFile() as held:
+        os.dup2(held.fileno(), 2)
+        try:
+            yield drop
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            if not drop[0] and held.seek(0, os.SEEK_END):
+                held.seek(0)
+                with contextlib.suppress(OSError):
+                    os.write(2, held.read())
+
+
 def _clarabel_guarded(call: Any, problem: ConicProblem,
                       settings: dict[str, Any] | None = None) -> tuple[SolveOutcome, tuple[Any, ...]]:
     """Run ``call(problem, settings)`` (``(status, message, *arrays)``; ``None``:
     ``SETTINGS["clarabel"]``);
     anything it raises, a Rust panic (a ``BaseException``) included, becomes status
-    ``"error"`` and arrays ``None``. SIGINT and SIGTERM are held during the call and
+    ``"error"`` and arrays ``None``; what a panic prints on stderr is dropped
+    (:func:`_stderr_held`), the rest of that output passed on. SIGINT and SIGTERM are held
+    during the call and
     delivered after it (:func:`~ftc_verify.interrupts.deferred_signals`): raised inside
     Clarabel's callbacks into Python they would come out as such a panic."""
     start = time.perf_counter()
-    try:
-        with deferred_signals():
-            status, message, *arrays = call(problem, SETTINGS["clarabel"] if settings is None else settings)
-    except BaseException as exc:  # pyo3's PanicException is a BaseException
-        if not isinstance(exc, Exception) and type(exc).__name__ != "PanicException":
-            raise  # Ctrl-C, SIGTERM (the CLI's own BaseException), SystemExit: never a solver failure
-        status, message, arrays = "error", f"clarabel raised {type(exc).__name__}: {exc}", []
+    with _stderr_held() as panicked:
+        try:
+            with deferred_signals():
+                status, message, *arrays = call(problem, SETTINGS["clarabel"] if settings is None else settings)
+        except BaseException as exc:  # pyo3's PanicException is a BaseException
+            panicked[0] = type(exc).__name__ == "PanicException"
+            if not isinstance(exc, Exception) and not panicked[0]:
+                raise  # Ctrl-C, SIGTERM (the CLI's own BaseException), SystemExit: never a solver failure
+            status, message, arrays = "error", f"clarabel raised {type(exc).__name__}: {exc}", []
     if settings is not None:  # the attempt names the settings it changed (the report's JSON shows them)
         changed = ", ".join(f"{k}={v}" for k, v in settings.items() if SETTINGS["clarabel"].get(k) != v)
         message = "; ".join(part for part in (message, f"settings {changed}" if changed else "") if part)

@@ -111,6 +111,18 @@ def positive(text: str) -> float:
     return value
 
 
+def gamma_level(text: str) -> float:
+    """Argument type of ``--gamma``: a positive number at most
+    :data:`~ftc_verify.limits.GAMMA_MAX` (the syntheses form its square)."""
+    from ..limits import GAMMA_MAX
+
+    value = positive(text)
+    if value > GAMMA_MAX:
+        raise argparse.ArgumentTypeError(f"must be at most {GAMMA_MAX:g} (its square must stay a finite "
+                                         f"float64 number), got {text!r}")
+    return value
+
+
 def nonneg_int(text: str) -> int:
     """Argument type: an integer, 0 or more."""
     try:

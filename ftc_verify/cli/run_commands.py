@@ -20,7 +20,8 @@ from ..errors import FTCError, PlantRunError
 from ..jsonable import dumps
 from .export_commands import add_controller_fmu_option, load_loop
 from .common import (EXIT_NEGATIVE, EXIT_OK, EXIT_UNCERTIFIED, EXIT_UNDECIDED, PLOT_SUFFIXES, add_connect_timeout, bad,
-                     check_output_file, connect_timeout, nonneg_int, positive, positive_int, seed_int, strict)
+                     check_output_file, connect_timeout, gamma_level, nonneg_int, positive, positive_int, seed_int,
+                     strict)
 
 if TYPE_CHECKING:
     from ..simulation.paths import ChainPath
@@ -350,7 +351,8 @@ def add_run_commands(sub: Any) -> None:
 
     v = sub.add_parser("verify", help="the main job: synthesize, certify, cross-validate, co-simulate, report")
     v.add_argument("system", help="system TOML file")
-    v.add_argument("--gamma", type=positive, default=None, help="attenuation level (default: minimise)")
+    v.add_argument("--gamma", type=gamma_level, default=None,
+                   help="attenuation level, 0 < G <= 1e150 (default: minimise)")
     v.add_argument("--method", default="iterative", choices=["two-step", "iterative", "full-info", "common"],
                    help="state-feedback synthesis method (synthesize --method; default %(default)s); "
                         "ignored with --controller")

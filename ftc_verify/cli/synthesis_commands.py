@@ -12,7 +12,7 @@ from typing import Any
 
 from ..claimtext import upper_text
 from ..jsonable import dumps
-from .common import EXIT_NEGATIVE, EXIT_OK, bad, check_output_file, fmt, positive, seed_int
+from .common import EXIT_NEGATIVE, EXIT_OK, bad, check_output_file, fmt, gamma_level, positive, seed_int
 
 __all__ = ["add_synthesis_command"]
 
@@ -150,7 +150,7 @@ def add_synthesis_command(sub: Any) -> None:
     y = sub.add_parser("synthesize", help="synthesize a controller (state or output feedback) and certify it")
     y.add_argument("system", help="system TOML file")
     level = y.add_mutually_exclusive_group()
-    level.add_argument("--gamma", type=positive, help="attenuation level to achieve (feasibility)")
+    level.add_argument("--gamma", type=gamma_level, help="attenuation level to achieve (feasibility); 0 < G <= 1e150")
     level.add_argument("--minimize", action="store_true", help="make gamma as small as possible (default)")
     y.add_argument("--method", default=None, choices=["best", "two-step", "iterative", "full-info", "common",
                                                        "common-fdi", "dilated", "auto", "ccl", "observer", "vk",

@@ -25,6 +25,7 @@ from ..model.system import FTCSystem, Matrix
 from .of_blocks import augmented_system
 from .results import SolverCalls
 from .state_feedback import gain_step
+from .xy_design import scaled_disturbance
 
 __all__ = ["CCL_MAX_ITER", "CCL_TOL", "ccl_blocks", "ccl_spec_blocks", "ccl_state_blocks", "ccl"]
 
@@ -183,7 +184,8 @@ def ccl(system: FTCSystem, gamma: float, calls: SolverCalls, k_max: float | None
     cols.add("X", S, nb * (nb + 1) // 2)
     cols.add("lam", total, 1)
     cols.add("eps", total, 1)
-    rows = _ccl_rows(aug, cbars, cols, chans, gamma ** 2, 1e-7)
+    scale = max(gamma, 1.0)  # the blocks at D / scale, g = (gamma / scale)**2 <= 1: no entry grows with gamma
+    rows = _ccl_rows(scaled_disturbance(aug, scale), cbars, cols, chans, (gamma / scale) ** 2, 1e-7)
     (sym,), _ = local_variables([("sym", 0, (nb,))])
     r, c, w = svec_index(nb)
     width = nb * (nb + 1) // 2
@@ -208,7 +210,7 @@ def ccl(system: FTCSystem, gamma: float, calls: SolverCalls, k_max: float | None
         size[cols.at("lam"):] = 1.0
         out, x = calls.run_conic(rows.problem(size))
         if not out.solved or x is None:
-            msg = f"Theorem 5.1 conditions infeasible at gamma {gamma:.6g} (solver status {out.status})"
+            msg = f"Theorem 5.1 conditions {calls.unsolved()} at gamma {gamma:.6g}"
             return None, [], msg, None
         point = current(x)
     else:
@@ -239,7 +241,7 @@ def ccl(system: FTCSystem, gamma: float, calls: SolverCalls, k_max: float | None
         lin[cols.at("lam"):cols.at("lam") + total] = np.maximum(ev, 0.0)
         out, x = calls.run_conic(rows.problem(lin))
         if not out.solved or x is None:
-            return None, history, (f"CCL iteration {len(history)} failed (solver status {out.status}; residual "
+            return None, history, (f"CCL iteration {len(history)} {calls.unsolved()} (residual "
                                    f"{history[-1]:.3g} before it)"), None
         point = current(x)
     return None, history, f"CCL: iteration limit {max_iter} reached (residual {history[-1]:.3g})", None

@@ -71,7 +71,7 @@ from .descent import accepted_gamma, descent_route
 from .hinf_descent import hinf_route, within_bound
 from .of_blocks import augmented_system, bounded_blocks, controller_blocks, controller_from_blocks, observer_designs
 from .starts import certify_start
-from .results import SolverCalls, SynthesisResult, verify_controller
+from .results import SolverCalls, SynthesisResult, check_levels, verify_controller
 from .state_feedback import descend, gain_step, synthesize
 from .ccl import CCL_MAX_ITER, CCL_TOL, ccl, ccl_blocks
 
@@ -205,9 +205,7 @@ def synthesize_output_feedback(
     if method not in OF_METHODS + ("auto",):
         raise ValidationError(f"method: {method!r} is not an output-feedback method; choose from "
                               f"{list(OF_METHODS + ('auto',))}")
-    for key, val in (("gamma", gamma), ("k_max", k_max)):
-        if val is not None and not (math.isfinite(val) and val > 0):
-            raise ValidationError(f"{key}: must be a positive finite number, got {val!r}")
+    check_levels(gamma, k_max)
     n0 = system.dims[0]
     order = n0 if order is None else order
     if not isinstance(order, int) or order < 0:

@@ -9,6 +9,7 @@ every designed controller (never the synthesis LMI alone).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -19,9 +20,11 @@ from ..analysis.closedloop import closed_loop
 from ..analysis.conic import ConicProblem
 from ..analysis.solvers import SolveOutcome, solve, solve_conic
 from ..controllers.controller import Controller
+from ..errors import ValidationError
+from ..limits import GAMMA_MAX
 from ..model.system import FTCSystem, Matrix
 
-__all__ = ["SynthesisResult", "SolverCalls", "verify_controller"]
+__all__ = ["SynthesisResult", "SolverCalls", "check_levels", "verify_controller"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -153,6 +156,18 @@ class SynthesisResult:
         })
 
 
+def check_levels(gamma: float | None, k_max: float | None) -> None:
+    """Refuse (:class:`~ftc_verify.errors.ValidationError`) a ``gamma`` or ``k_max`` that is
+    not a positive finite number, and a ``gamma`` above :data:`~ftc_verify.limits.GAMMA_MAX`
+    (the syntheses form its square)."""
+    for name, val, top in (("gamma", gamma, GAMMA_MAX), ("k_max", k_max, math.inf)):
+        if val is not None and not (math.isfinite(val) and val > 0):
+            raise ValidationError(f"{name}: must be a positive finite number, got {val!r}")
+        if val is not None and val > top:
+            raise ValidationError(f"{name}: must be at most {top:g} (its square must stay a finite float64 number), "
+                                  f"got {val!r}")
+
+
 class SolverCalls:
     """The solver calls of one synthesis run: how many and how long.
 
@@ -196,6 +211,18 @@ class SolverCalls:
         out, x = solve_conic(problem, self.solver)
         self.outcomes.append(out)
         return out, x
+
+    def unsolved(self) -> str:
+        """Why the last call gave no usable point, for a message: ``infeasible`` only when
+        the solver said so; a failure (an exception, a Rust panic, a numerical status)
+        names the solver and what it said; a point without margin says so."""
+        out = self.outcomes[-1]
+        if out.infeasible:
+            return "infeasible"
+        if out.solved:
+            return "without a strictly feasible point"
+        said = out.message if out.solver in out.message else f"{out.solver} status {out.status} {out.message}".strip()
+        return f"not solved (solver failure: {said})"
 
     def absorb(self, other: SynthesisResult) -> None:
         """Count the calls of a nested synthesis."""

@@ -48,13 +48,12 @@ Methods (all return a :class:`~ftc_verify.synthesis.results.SynthesisResult` ver
     of ``iterative``'s own starts and from the best start overall, each followed by the
     polish of its result (:func:`~ftc_verify.synthesis.polish.polish`: a trust-region
     step in the Lyapunov matrices and the gains together, which the alternation cannot
-    make; never worse than its start). The smallest certified
-    robust gamma wins; every route is a row of ``starts`` (with its seconds). So ``best``
-    is never worse than ``iterative``, ``two-step``, ``common``, ``common-fdi`` or
-    ``dilated`` run alone (the same computations, the same certification). Beside the
-    result it reports the reference line of
-    :func:`~ftc_verify.synthesis.convex_designs.true_mode_reference` (gains that see the
-    true mode; a reference, not a bound).
+    make; never worse than its start). The smallest certified robust gamma wins; every
+    route is a row of ``starts`` (with its seconds). So ``best`` is never worse than
+    ``iterative``, ``two-step``, ``common``, ``common-fdi`` or ``dilated`` run alone (the
+    same computations, the same certification). Beside the result it reports the reference
+    line of :func:`~ftc_verify.synthesis.convex_designs.true_mode_reference` (gains that
+    see the true mode; a reference, not a bound).
 
 ``full-info`` is a relaxation of every FDI-only design: the Lemma 4.1 certificate
 :math:`(P, \lambda, \gamma)` of FDI-mode gains gives a feasible point of the
@@ -102,10 +101,10 @@ from ..analysis.lmi_analysis import LMIResult, hinf_gamma
 from ..model.system import FTCSystem, Matrix
 from ..analysis.solvers import ForkedCall, choose_solver
 from .starts import candidates, certify_start, diagnose
-from .results import SolverCalls, SynthesisResult, verify_controller
+from .results import SolverCalls, SynthesisResult, check_levels, verify_controller
 from .polish import polish
 from .convex_designs import dilated_design, reference_alone
-from .xy_design import gain_bound_block, xy_solve, xy_solver
+from .xy_design import gain_bound_block, scaled_disturbance, xy_solve, xy_solver
 
 __all__ = ["METHODS", "SynthesisResult", "synthesize", "two_step", "gain_step", "Descent", "descend"]
 
@@ -138,14 +137,14 @@ def gain_step(
     :mod:`ftc_verify.synthesis.output_feedback`, with ``M_i = Cbar_i``); the block stays
     linear in ``K_j`` since ``P`` and the multipliers are fixed.
 
-    Variables :math:`(\operatorname{vec} K_j, g[, k])`: the blocks
-    :func:`~ftc_verify.analysis.lmi.lyapunov_block` of FDI mode ``j`` (Schur form in
-    :math:`F`) :math:`\preceq 0` on :class:`~ftc_verify.analysis.conic.Affine` matrices,
-    solved in conic form (:meth:`~ftc_verify.synthesis.results.SolverCalls.run_conic`;
-    no cvxpy), :math:`g \ge 0`, :func:`~ftc_verify.synthesis.xy_design.gain_bound_block`
-    with ``k_max``; with ``gamma``: :math:`g \le \gamma^2`, :math:`\|K_j\|_2 \le k`, min :math:`k`.
+    Variables :math:`(\operatorname{vec} K_j, g[, k])`: the blocks :func:`~ftc_verify.analysis.lmi.lyapunov_block`
+    of FDI mode ``j`` (Schur form in :math:`F`) :math:`\preceq 0` on :class:`~ftc_verify.analysis.conic.Affine`
+    matrices, solved in conic form (:meth:`~ftc_verify.synthesis.results.SolverCalls.run_conic`; no cvxpy),
+    :math:`g \ge 0`, :func:`~ftc_verify.synthesis.xy_design.gain_bound_block` with ``k_max``; with ``gamma``: the
+    blocks at :math:`D/\sigma`, :math:`\sigma = \max(\gamma, 1)` (:func:`.xy_design.scaled_disturbance`),
+    :math:`g \le (\gamma/\sigma)^2 \le 1`, :math:`\|K_j\|_2 \le k`, min :math:`k`.
     """
-    m, (n, nu, _, _) = system.m, system.dims
+    m, (n, nu, _, _), scale = system.m, system.dims, max(gamma or 1.0, 1.0)  # g <= (gamma / scale)**2 at D / scale
     cols = n if measurement is None else measurement[0].shape[0]
     size = nu * cols + (1 if gamma is None else 2)
     every = np.arange(size).astype(int)
@@ -157,7 +156,7 @@ def gain_step(
         gains[j] = K
     else:
         gains = [K @ measurement[i] if jj == j else np.zeros((nu, n)) for i in range(m) for jj in range(m)]
-    loop = gain_loop(system, gains, "gain step")
+    loop = gain_loop(scaled_disturbance(system, scale), gains, "gain step")
     rows = Rows(size)
     for spec in block_specs(loop):
         if spec.fdi == j:
@@ -167,12 +166,12 @@ def gain_step(
     c = np.eye(size)[nu * cols if gamma is None else -1]  # min g, or min k
     rows.nonneg(unit_rows(size, range(nu * cols, size)), np.zeros(size - nu * cols))  # g >= 0 (and k >= 0)
     if gamma is not None:
-        rows.nonneg(unit_rows(size, [nu * cols], 1.0), [gamma ** 2])
+        rows.nonneg(unit_rows(size, [nu * cols], 1.0), [(gamma / scale) ** 2])
         rows.lmi(-gain_bound_block(K, 1.0, scalar_variable(size - 1, size), affine_bmat), every)
     out, x = calls.run_conic(rows.problem(c))
     if not out.solved or x is None:
         return None, None, out.status
-    return x[:nu * cols].reshape(nu, cols), math.sqrt(max(float(x[nu * cols]), 0.0)), out.status
+    return x[:nu * cols].reshape(nu, cols), scale * math.sqrt(max(float(x[nu * cols]), 0.0)), out.status
 
 
 def _multipliers(system: FTCSystem, eps: list[float], delta: list[float]) -> list[list[float]]:
@@ -196,7 +195,7 @@ def two_step(system: FTCSystem, gamma: float, calls: SolverCalls, k_max: float |
     bisection's levels share it); built here when not given."""
     step1 = (step1_at or xy_solver(system, "projected", calls, None))(gamma)
     if step1 is None:
-        return None, None, f"step 1 (eq. 17) infeasible at gamma {gamma:.6g}"
+        return None, None, f"step 1 (eq. 17) {calls.unsolved()} at gamma {gamma:.6g}"
     P = [np.linalg.inv(0.5 * (X + X.T)) for X in step1["X"]]
     P = [0.5 * (p + p.T) for p in P]
     lam = _multipliers(system, step1["eps"], step1["delta"])
@@ -306,7 +305,7 @@ def _convex_gains(system: FTCSystem, method: str, calls: SolverCalls,
             f"{sol['tau']:.3g})"
     xy = xy_solve(system, "common-fdi", None, calls, k_max)
     if xy is None:
-        return None, None, "common-fdi LMI infeasible"
+        return None, None, f"common-fdi LMI {calls.unsolved()}"
     Ks = [Y @ np.linalg.inv(X) for X, Y in zip(xy["X"], xy["Y"])]
     return [Ks[system.chain.state_index(j, j)] for j in range(system.m)], float(xy["gamma"]), \
         f"common-fdi LMI solved at gamma {xy['gamma']:.6g}"
@@ -486,7 +485,7 @@ def _design(system: FTCSystem, method: str, gamma: float | None, k_max: float | 
         return _convex_gains(system, method, calls, k_max)
     sol = xy_solve(system, method, gamma, calls, k_max)
     if sol is None:
-        return None, None, f"{method} LMI infeasible" + (f" at gamma {gamma:.6g}" if gamma else "")
+        return None, None, f"{method} LMI {calls.unsolved()}" + (f" at gamma {gamma:.6g}" if gamma else "")
     Ks = [Y @ np.linalg.inv(X) for X, Y in zip(sol["X"], sol["Y"])]  # per joint state
     pairs = [Ks[system.chain.state_index(i, j)] for i in range(system.m) for j in range(system.m)]
     gains = Ks[:1] * system.m if method == "common" else pairs
@@ -506,16 +505,13 @@ def synthesize(
 ) -> SynthesisResult:
     """Synthesize gains by ``method`` (see module docstring) and verify them.
 
-    ``gamma=None`` minimises gamma (bisection for ``two-step``, gamma**2 as a variable
-    for ``full-info``/``common``); a given gamma asks for feasibility at that level.
-    ``iterative`` starts from ``start`` or else from the best certified of the starts in
-    the module docstring.
+    ``gamma=None`` minimises gamma (bisection for ``two-step``, gamma**2 as a variable for ``full-info``/``common``);
+    a given gamma (at most :data:`~ftc_verify.limits.GAMMA_MAX`) asks for feasibility at that level. ``iterative``
+    starts from ``start`` or else from the best certified of the starts in the module docstring.
     """
     if method not in METHODS:
         raise ValidationError(f"method: unknown method {method!r}; choose from {list(METHODS)}")
-    for name, val in (("gamma", gamma), ("k_max", k_max)):
-        if val is not None and not (math.isfinite(val) and val > 0):
-            raise ValidationError(f"{name}: must be a positive finite number, got {val!r}")
+    check_levels(gamma, k_max)
     t0 = time.perf_counter()
     n = system.dims[0]
     name = choose_solver(solver, system.chain.n_states * (n * (n + 1) // 2 + n * system.dims[1]) + 1)

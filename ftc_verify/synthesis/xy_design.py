@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -24,7 +24,7 @@ from ..analysis.lmi import block_specs, projection, xy_block
 from ..analysis.lmi_analysis import GAMMA_LADDER
 from ..model.system import FTCSystem, Matrix
 
-__all__ = ["MARGIN_TOL", "CENTRE_WEIGHT", "gain_bound_block", "xy_solve", "xy_solver"]
+__all__ = ["MARGIN_TOL", "CENTRE_WEIGHT", "gain_bound_block", "scaled_disturbance", "xy_solve", "xy_solver"]
 
 #: An (X, Y) problem counts as strictly feasible when its maximised margin exceeds this
 #: (a heuristic only: every result is certified by the core analysis afterwards).
@@ -43,6 +43,22 @@ def gain_bound_block(K: Any, k_max: float, mu: Any, bmat: Any) -> Any:
     bound, instead of a diagonal that swamps every other entry of the LMI."""
     nu, n = K.shape
     return bmat([[mu * np.eye(n), K.T / k_max], [K / k_max, mu * np.eye(nu)]])
+
+
+def scaled_disturbance(system: FTCSystem, scale: float) -> FTCSystem:
+    r"""``system`` with every mode's :math:`D` divided by ``scale`` :math:`= \sigma`.
+
+    A bounded-real block at level :math:`\gamma` (:func:`~ftc_verify.analysis.lmi.xy_block`,
+    :func:`~ftc_verify.analysis.lmi.lyapunov_block`: column :math:`D`, diagonal
+    :math:`-g I` with :math:`g = \gamma^2`) is congruent by :math:`\operatorname{diag}(I,
+    \dots, \sigma^{-1} I, \dots)` on its :math:`w` row to the same block of this system with
+    :math:`g = \gamma^2 / \sigma^2`: the same ``X``, ``Y`` (``P``, ``K``) are feasible. Posed
+    at :math:`\sigma = \gamma`, ``g = 1``, no entry grows with :math:`\gamma`; with
+    :math:`g = \gamma^2` one does (at :math:`\gamma = 10^6` Clarabel called the feasible
+    common LMI of ``examples/paper.toml`` infeasible; at :math:`10^{16}` it panicked)."""
+    if scale == 1.0:
+        return system
+    return replace(system, modes=tuple(replace(mode, D=mode.D / scale) for mode in system.modes))
 
 
 def _variable_groups(system: FTCSystem, kind: str) -> list[int]:
@@ -187,35 +203,12 @@ def _xy_objective(kind: str, lay: _XYLayout) -> Matrix:
     return objective
 
 
-def xy_solver(system: FTCSystem, kind: str, calls: Any,
-              k_max: float | None) -> Callable[[float | None], dict[str, Any] | None]:
-    """The (X, Y) inequality of :func:`~ftc_verify.analysis.lmi.xy_block`, built once and
-    solved at any level: a function ``gamma -> numbers`` (below).
-
-    The blocks are evaluated once on :class:`~ftc_verify.analysis.conic.Affine`
-    matrices with ``g = gamma**2`` and the margin ``t`` variables, written in conic form
-    (:mod:`ftc_verify.analysis.conic`) and solved by
-    :meth:`~ftc_verify.synthesis.results.SolverCalls.run_conic`; a level fixes ``g``
-    (:meth:`~ftc_verify.analysis.conic.ConicProblem.fix`), so the bisection of
-    ``two-step`` re-uses the whole construction (cvxpy's canonicalisation was most of a
-    call's time).
-
-    ``kind``: ``"projected"`` (step 1 of Theorem 4.1, no ``Y``; one ``X`` per joint
-    state), ``"full-info"`` (one ``X, Y`` per pair ``(true, fdi)``, shared by its phases:
-    ``_variable_groups``), ``"common-fdi"`` (one ``X, Y`` per FDI mode) or ``"common"`` (one ``X, Y``). The blocks are
-    one per joint state and vertex of its row's rates (:func:`~ftc_verify.analysis.lmi.block_specs`); ``X``,
-    ``Y`` and the multipliers are returned per joint state (``nan`` for a multiplier no
-    block uses: ``common`` writes one block per true mode). With ``gamma``
-    given the margin ``t`` is maximised at ``g = gamma**2``; with ``gamma=None`` gamma is
-    minimised first (``t = 0``) and the problem re-centred at ``gamma* (1 + 1e-3)``. Returns the
-    numbers, or ``None`` when the solver returned no point or no positive margin.
-    """
-    S = system.chain.n_states
-    n, nu = system.dims[0], system.dims[1]
-    lay = _XYLayout(n, nu, tuple(_variable_groups(system, kind)), kind != "projected",
-                    k_max is not None and kind != "projected")
-    rows = _xy_rows(system, kind, lay, k_max)
-    objective = _xy_objective(kind, lay)
+def _xy_problems(system: FTCSystem, kind: str, lay: _XYLayout, k_max: float | None, objective: Matrix,
+                 scale: float) -> tuple[ConicProblem, ConicProblem, list[int]]:
+    """The minimising (``min g``, ``t = 0``) and the capped-margin problem (``objective``,
+    ``t <= 1``) of :func:`xy_solver` on :func:`scaled_disturbance` at ``scale``
+    (:func:`_xy_rows`), the unused columns dropped; and those columns."""
+    rows = _xy_rows(scaled_disturbance(system, scale), kind, lay, k_max)
     used = np.zeros(lay.K, dtype=bool)
     for block in rows.blocks:
         used[block[2].indices] = True
@@ -231,14 +224,57 @@ def xy_solver(system: FTCSystem, kind: str, calls: Any,
     e_g = np.zeros(lay.K)
     e_g[lay.g] = 1.0
     capped = drop(rows.extended(unit_rows(lay.K, [lay.t], 1.0), [1.0]).problem(objective))
+    return drop(rows.problem(e_g)).fix(lay.t, 0.0), capped, unused
+
+
+def xy_solver(system: FTCSystem, kind: str, calls: Any,
+              k_max: float | None) -> Callable[[float | None], dict[str, Any] | None]:
+    """The (X, Y) inequality of :func:`~ftc_verify.analysis.lmi.xy_block`, built once and
+    solved at any level: a function ``gamma -> numbers`` (below).
+
+    The blocks are evaluated on :class:`~ftc_verify.analysis.conic.Affine` matrices with
+    ``g = gamma**2`` and the margin ``t`` variables, written in conic form
+    (:mod:`ftc_verify.analysis.conic`) and solved by
+    :meth:`~ftc_verify.synthesis.results.SolverCalls.run_conic`; a level up to 1 fixes
+    ``g`` (:meth:`~ftc_verify.analysis.conic.ConicProblem.fix`) in the construction built
+    once, a level above 1 is posed on :func:`scaled_disturbance` at that level with
+    ``g = 1`` (built per level, 1-3 ms): with ``g = gamma**2`` the blocks' entries grew with
+    gamma, and Clarabel called feasible levels infeasible (finding 02 of the independent
+    check: the common LMI of ``examples/paper.toml`` at 1e6) or panicked (1e16).
+
+    ``kind``: ``"projected"`` (step 1 of Theorem 4.1, no ``Y``; one ``X`` per joint
+    state), ``"full-info"`` (one ``X, Y`` per pair ``(true, fdi)``, shared by its phases:
+    ``_variable_groups``), ``"common-fdi"`` (one ``X, Y`` per FDI mode) or ``"common"`` (one ``X, Y``). The blocks are
+    one per joint state and vertex of its row's rates (:func:`~ftc_verify.analysis.lmi.block_specs`); ``X``,
+    ``Y`` and the multipliers are returned per joint state (``nan`` for a multiplier no
+    block uses: ``common`` writes one block per true mode). With ``gamma``
+    given the margin ``t`` is maximised at that level; with ``gamma=None`` gamma is
+    minimised first (``t = 0``) and the problem re-centred at ``gamma* (1 + 1e-3)``. Returns the
+    numbers, or ``None`` when the solver returned no point or no positive margin.
+    """
+    S = system.chain.n_states
+    n, nu = system.dims[0], system.dims[1]
+    lay = _XYLayout(n, nu, tuple(_variable_groups(system, kind)), kind != "projected",
+                    k_max is not None and kind != "projected")
+    objective = _xy_objective(kind, lay)
+
+    minimise, capped_1, unused = _xy_problems(system, kind, lay, k_max, objective, 1.0)
 
     def num(x: Matrix, col: int) -> float:
         return math.nan if col in unused else float(x[col])
 
+    def at_level(level: float) -> tuple[Any, Matrix | None]:
+        """The capped-margin problem at ``level``, posed at ``scale = max(level, 1)``,
+        ``g = (level / scale)**2 <= 1`` (:func:`scaled_disturbance`; a scale below 1 would
+        enlarge :math:`D`). A build costs 1-3 ms (``examples/paper.toml``)."""
+        scale = max(level, 1.0)
+        capped = capped_1 if scale == 1.0 else _xy_problems(system, kind, lay, k_max, objective, scale)[1]
+        return calls.run_conic(capped.fix(lay.g, (level / scale) ** 2))
+
     def solve_at(gamma: float | None) -> dict[str, Any] | None:
         """The numbers at ``gamma`` (or minimised and re-centred: ``gamma=None``), or ``None``."""
         if gamma is None:
-            out, x = calls.run_conic(drop(rows.problem(e_g)).fix(lay.t, 0.0))
+            out, x = calls.run_conic(minimise)
             if not out.solved or x is None:
                 return None
             value = math.sqrt(max(float(x[lay.g]), 0.0))
@@ -246,12 +282,12 @@ def xy_solver(system: FTCSystem, kind: str, calls: Any,
         else:
             ladder = [gamma]
         for level in ladder:
-            out, x = calls.run_conic(capped.fix(lay.g, level ** 2))
+            out, x = at_level(level)
             if out.solved and x is not None and float(x[lay.t - 1]) > MARGIN_TOL:
                 break
         else:
             return None
-        x = np.insert(x, lay.g, level ** 2)
+        x = np.insert(x, lay.g, math.nan)  # g was fixed (at_level); unused below
         for col in sorted(unused):
             x = np.insert(x, col, math.nan)
         var, _ = local_variables([("sym", lay.x(k), (n,)) for k in range(lay.n_groups)]
