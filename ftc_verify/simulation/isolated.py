@@ -24,7 +24,8 @@ to :data:`MAX_PROCESSES`, each a contiguous run of the batches on one
   run at once and leaves nothing behind.
 
 Errors raised in the child (an invalid map, an FMU that does not initialise) are sent back
-and raised again here as themselves.
+and raised again here as themselves. :func:`call_isolated` runs one function in such a child
+the same way (the FMU calls of ``plant --check`` and ``linearize``).
 """
 
 from __future__ import annotations
@@ -43,7 +44,7 @@ import sys
 import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any, BinaryIO, TypeVar
 
 import numpy as np
 
@@ -55,7 +56,10 @@ from .paths import ChainPath
 from .records import SimulationResult
 from .spec import SimulationSpec
 
-__all__ = ["POLL_SECONDS", "MAX_PROCESSES", "PlantProcess", "default_processes", "plant_processes", "run_isolated"]
+__all__ = ["POLL_SECONDS", "MAX_PROCESSES", "PlantProcess", "call_isolated", "default_processes", "plant_processes",
+           "run_isolated"]
+
+T = TypeVar("T")
 
 #: How often the parent looks at the child while no message arrives (seconds).
 POLL_SECONDS = 0.1
@@ -99,6 +103,9 @@ def _child_main(workdir: str, fd: int) -> None:
     _import_ahead()
     job = pickle.load(sys.stdin.buffer)
     out = os.fdopen(fd, "wb")
+    if "call" in job:
+        _child_call(job, workdir, out)
+        return
     with open(Path(workdir) / _MONITOR, "r+b") as f:
         mm = mmap.mmap(f.fileno(), 3 * 8)
     monitor = np.frombuffer(mm, dtype=np.float64)
@@ -123,6 +130,20 @@ def _child_main(workdir: str, fd: int) -> None:
             _send(out, ("error", FMUError(f"{plant.fmu}: {type(exc).__name__}: {exc}")))
 
 
+def _child_call(job: dict[str, Any], workdir: str, out: BinaryIO) -> None:
+    """The child of :func:`call_isolated`: ``job["call"](*job["args"])`` sent back as the
+    one batch, with every temporary folder (the extracted FMU) inside ``workdir``."""
+    tempfile.tempdir = workdir
+    try:
+        _send(out, ("batch", job["call"](*job["args"])))
+        _send(out, ("end", None))
+    except Exception as exc:  # sent back and raised again in the parent
+        try:
+            _send(out, ("error", exc))
+        except Exception:  # an exception that does not pickle: its message
+            _send(out, ("error", FMUError(f"{job['fmu']}: {type(exc).__name__}: {exc}")))
+
+
 class PlantProcess:
     """One watched child (module docstring), started by the constructor and waiting for
     its job: a caller that knows it will co-simulate starts it early (``verify`` does, before
@@ -138,6 +159,7 @@ class PlantProcess:
         self.child: subprocess.Popen[bytes] | None = None
         self.buffer = bytearray()  # grown in place: a batch of several MB arrives in many reads
         self.first = 0  # index of this child's first path among all the paths of the run
+        self.task: str | None = None  # what a call_isolated child does (its crash names no path)
         try:
             self.child = subprocess.Popen([sys.executable, "-m", "ftc_verify.simulation.isolated", self.workdir,
                                            str(write_fd)], stdin=subprocess.PIPE, stdout=2, pass_fds=(write_fd,),
@@ -177,6 +199,9 @@ class PlantProcess:
         """The error of a child that ended without its ``end`` message."""
         assert self.child is not None
         returncode = self.child.wait()
+        if self.task is not None:
+            return PlantRunError(fmu, f"the process running it ended with {_signal_name(returncode)} "
+                                 f"(a crash in the FMU's own code) {self.task}")
         index, time, first = np.frombuffer(self.monitor_file.read_bytes(), dtype=np.float64)
         return PlantRunError(fmu, f"the process running it ended with {_signal_name(returncode)} "
                              "(a crash in the FMU's own code)", path=self.first + int(first + index), time=float(time))
@@ -270,6 +295,29 @@ def run_isolated(system: FTCSystem, plant: Any, controller: Controller, paths: S
     finally:
         for p in procs:
             p.close()
+
+
+def call_isolated(fmu: str, task: str, function: Callable[..., T], *args: Any) -> T:
+    """``function(*args)`` computed in a watched child (module docstring) that runs the
+    plant FMU ``fmu`` (``plant --check``, ``linearize``): a signal to this process ends it
+    at once (the child killed, its folder removed), a crash of the FMU's code is a
+    :class:`~ftc_verify.errors.PlantRunError`, not the end of this process. ``function``
+    and ``args`` must pickle (a module-level function); what it raises is raised here.
+
+    Raises
+    ------
+    PlantRunError
+        The child died: names the FMU, the signal that ended it and ``task`` (what it was
+        doing, e.g. "during plant --check").
+    """
+    proc = PlantProcess()
+    try:
+        proc.task = task
+        proc.send(pickle.dumps({"call": function, "args": args, "fmu": fmu}, protocol=pickle.HIGHEST_PROTOCOL))
+        result: T = _collect([proc], fmu, None, None)[0][0]
+        return result
+    finally:
+        proc.close()
 
 
 def _collect(procs: list[PlantProcess], fmu: str, log: Callable[[str, str, str], None] | None,
