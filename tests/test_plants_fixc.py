@@ -11,6 +11,10 @@ findings 04 and 05, found by an independent check): their FMU calls run in a wat
 The plants are the one-state test plant of ``tests/fmu_plants.py`` with a right-hand side
 that loops forever, or dereferences NULL, once ``t > 0.005`` (inside the first
 ``fmi2DoStep`` of both commands).
+
+Finding 03: ``verify --plant`` on a plant whose ``fmi2DoStep`` returns ``fmi2Error`` (the
+``fail`` plant, at t = 2) said every path "left [region]" and "diverged": it now counts
+the paths that failed in the plant FMU apart.
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cli_inprocess
 import pytest
 
 from plant_stages import wait_for_fmu_steps
@@ -122,3 +127,29 @@ def test_a_crashing_plant_fmu_is_a_failed_command(bad_plants: dict[str, Path], t
         text = out
     assert "plant.fmu" in text and "SIGSEGV" in text and f"during {command}" in text
     assert _left(tmp_path) == [] and not (tmp_path / "out.toml").exists()
+
+
+@pytest.mark.slow(4)
+def test_region_check_says_the_paths_failed_in_the_plant(shared_tmp: Path, tmp_path: Path) -> None:
+    """Every path fails in the FMU at t = 2, well inside a [region] of +-100 around the
+    operating point: the region check fails saying 10 paths failed in the plant FMU and 0
+    left the region, and the FMU-vs-linear comparison says why it measured nothing (was:
+    "10 of 10 paths left [region]", "every compared path diverged"). Verdict fail, exit 1."""
+    plant = Path(shutil.copytree(shared_plant(shared_tmp, "fail"), tmp_path / "p"))
+    text = (plant / "plant.toml").read_text()
+    (plant / "plant.toml").write_text(text.replace("[[fault]]", "[region]\nstates_min = [-100.0]\n"
+                                                   "states_max = [100.0]\n\n[[fault]]", 1))
+    (tmp_path / ".tmp").mkdir()
+    out = cli_inprocess.run_cli(["verify", "system.toml", "--gains", "K.toml", "--plant", "plant.toml", "--paths",
+                                 "10", "--horizon", "4", "--seed", "1", "--out", "rep"], plant,
+                                {"TMPDIR": str(tmp_path / ".tmp")})
+    assert out.returncode == 1 and out.stderr == "", out
+    report = json.loads((plant / "rep" / "report.json").read_text())
+    region = next(c for c in report["checks"] if c["name"] == "plant region")
+    assert not region["ok"] and report["verdict"] == "fail"
+    assert region["detail"].startswith("0 of 10 paths left [region]; 10 of 10 paths failed in the plant FMU")
+    assert "none measured (every path failed in the plant FMU)" in region["detail"]
+    assert "FMU vs linear reference: not measured (every path failed in the plant FMU)" in region["detail"]
+    assert "diverged" not in region["detail"]
+    assert report["plant"]["left_region"] == 0 and report["plant"]["failed_in_plant"] == 10
+    assert "failed in the plant FMU" in out.stdout and "left [region] (paths" not in out.stdout
