@@ -132,12 +132,12 @@ def plant_summary(plant: Any, records: list[PathRecord], reference: list[PathRec
                      float(np.mean([r.y_norm ** 2 for r in fault_only]))}
     failed_text = (f"; {len(failed)} of {len(records)} paths failed in the plant FMU{_shown(failed)} (the region "
                    "is checked up to the failure)" if failed else "")
-    excursion_text = (f"none measured ({_none_measured(records)})" if excursion is None else
+    excursion_text = (f"none measured (every path {_stopped(records)})" if excursion is None else
                       f"{summary['max_excursion']}; inputs within {summary['input_range']}")
     pairs = list(zip(measured, reference))
     detail = (f"{len(left)} of {len(records)} paths left [region]{_shown(left)}{failed_text}; largest excursion from "
               f"the operating point {excursion_text}; FMU vs linear reference: "
-              + (f"not measured ({_none_measured([a if a.diverged_at is not None else b for a, b in pairs])})"
+              + (f"every compared path {_stopped([a if a.diverged_at is not None else b for a, b in pairs])}"
                  if err is None else
                  f"largest relative state difference {err:.3g} on {min(len(records), len(reference))} paths "
                  "(the measured linearisation error)"))
@@ -149,15 +149,13 @@ def _shown(paths: list[int]) -> str:
     return f" (paths {paths[:10]}{' ...' if len(paths) > 10 else ''})" if paths else ""
 
 
-def _none_measured(stopped: list[PathRecord]) -> str:
-    """Why nothing was measured on ``stopped`` (records that each diverged or failed): every
-    path failed in the plant FMU, every path diverged, or some of each."""
-    failed = sum(r.failure is not None for r in stopped)
-    if not stopped:
-        return "no path to compare"
-    if failed == len(stopped):
-        return "every path failed in the plant FMU"
-    return "every path diverged" if not failed else "every path diverged or failed in the plant FMU"
+def _stopped(records: list[PathRecord]) -> str:
+    """How ``records`` (each diverged or failed) ended: "diverged", "failed in the plant
+    FMU", or "diverged or failed in the plant FMU" when some of each."""
+    failed = sum(r.failure is not None for r in records)
+    if failed and failed == len(records):
+        return "failed in the plant FMU"
+    return "diverged" if not failed else "diverged or failed in the plant FMU"
 
 
 def backend_agreement(system: FTCSystem, controller: Controller, chain_paths: list[ChainPath],
