@@ -314,17 +314,18 @@ def call_isolated(fmu: str, task: str, function: Callable[..., T], *args: Any) -
     try:
         proc.task = task
         proc.send(pickle.dumps({"call": function, "args": args, "fmu": fmu}, protocol=pickle.HIGHEST_PROTOCOL))
-        result: T = _collect([proc], fmu, None, None)[0][0]
+        result: T = _collect([proc], fmu, None, None)[0][0]  # the one "batch" message: the call's value
         return result
     finally:
         proc.close()
 
 
 def _collect(procs: list[PlantProcess], fmu: str, log: Callable[[str, str, str], None] | None,
-             done: Callable[[int], Any] | None) -> list[list[SimulationResult]]:
-    """Every child's batches, as they arrive from all of them; a child's error raised again
-    here, a child that ended without finishing as :meth:`PlantProcess.crashed`."""
-    parts: list[list[SimulationResult]] = [[] for _ in procs]
+             done: Callable[[int], Any] | None) -> list[list[Any]]:
+    """Every child's batches (:class:`SimulationResult`, or the one value of a
+    :func:`call_isolated` child), as they arrive from all of them; a child's error raised
+    again here, a child that ended without finishing as :meth:`PlantProcess.crashed`."""
+    parts: list[list[Any]] = [[] for _ in procs]
     pending = {p.read_fd: k for k, p in enumerate(procs)}
     while pending:
         ready, _, _ = select.select(list(pending), [], [], POLL_SECONDS)
