@@ -44,7 +44,7 @@ import sys
 import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, BinaryIO, TypeVar
+from typing import Any, BinaryIO
 
 import numpy as np
 
@@ -58,8 +58,6 @@ from .spec import SimulationSpec
 
 __all__ = ["POLL_SECONDS", "MAX_PROCESSES", "PlantProcess", "call_isolated", "default_processes", "plant_processes",
            "run_isolated"]
-
-T = TypeVar("T")
 
 #: How often the parent looks at the child while no message arrives (seconds).
 POLL_SECONDS = 0.1
@@ -297,7 +295,7 @@ def run_isolated(system: FTCSystem, plant: Any, controller: Controller, paths: S
             p.close()
 
 
-def call_isolated(fmu: str, task: str, function: Callable[..., T], *args: Any) -> T:
+def call_isolated(fmu: str, task: str, function: Callable[..., Any], *args: Any) -> Any:
     """``function(*args)`` computed in a watched child (module docstring) that runs the
     plant FMU ``fmu`` (``plant --check``, ``linearize``): a signal to this process ends it
     at once (the child killed, its folder removed), a crash of the FMU's code is a
@@ -314,8 +312,7 @@ def call_isolated(fmu: str, task: str, function: Callable[..., T], *args: Any) -
     try:
         proc.task = task
         proc.send(pickle.dumps({"call": function, "args": args, "fmu": fmu}, protocol=pickle.HIGHEST_PROTOCOL))
-        result: T = _collect([proc], fmu, None, None)[0][0]  # the one "batch" message: the call's value
-        return result
+        return _collect([proc], fmu, None, None)[0][0]  # the one "batch" message: the call's value
     finally:
         proc.close()
 
