@@ -7,8 +7,11 @@ Both follow the exit-code contract of :mod:`ftc_verify.cli.main`: 0 with a verdi
 stationary point, or the plant FMU fails in one of these commands' FMI calls (an ``fmi2DoStep``
 returning ``fmi2Error``...: a failed check, a linearisation that could not be computed; the
 verdict line names the FMU, the call, the fault mode and time and the FMU's own log message,
-and ``--json`` prints it in one JSON object), 2 for a bad map or FMU (one line naming the
-file, the key and the value), and never writes an output that is one of its inputs.
+and ``--json`` prints it in one JSON object) or crashes (a segfault: the FMU and the signal),
+2 for a bad map or FMU (one line naming the file, the key and the value), and never writes
+an output that is one of its inputs. ``plant`` and ``linearize`` make their FMU calls in a
+watched child (:func:`~ftc_verify.simulation.isolated.call_isolated`), so a crash never
+ends this process and SIGTERM / Ctrl-C stop an FMU that hangs at once (143 / 130).
 ``linearize -o`` writes a linearisation whose error estimate exceeds
 :data:`~ftc_verify.plants.linearize.ACCURACY_FRACTION` of its entries only with
 ``--accept-inaccurate`` (exit 1 otherwise, nothing written).
