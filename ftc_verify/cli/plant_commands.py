@@ -7,8 +7,11 @@ Both follow the exit-code contract of :mod:`ftc_verify.cli.main`: 0 with a verdi
 stationary point, or the plant FMU fails in one of these commands' FMI calls (an ``fmi2DoStep``
 returning ``fmi2Error``...: a failed check, a linearisation that could not be computed; the
 verdict line names the FMU, the call, the fault mode and time and the FMU's own log message,
-and ``--json`` prints it in one JSON object), 2 for a bad map or FMU (one line naming the
-file, the key and the value), and never writes an output that is one of its inputs.
+and ``--json`` prints it in one JSON object) or crashes (a segfault: the FMU and the signal),
+2 for a bad map or FMU (one line naming the file, the key and the value), and never writes
+an output that is one of its inputs. ``plant`` and ``linearize`` make their FMU calls in a
+watched child (:func:`~ftc_verify.simulation.isolated.call_isolated`), so a crash never
+ends this process and SIGTERM / Ctrl-C stop an FMU that hangs at once (143 / 130).
 ``linearize -o`` writes a linearisation whose error estimate exceeds
 :data:`~ftc_verify.plants.linearize.ACCURACY_FRACTION` of its entries only with
 ``--accept-inaccurate`` (exit 1 otherwise, nothing written).
@@ -136,15 +139,29 @@ def _check_faults(pm: Any, session: Any, step: float) -> list[dict[str, Any]]:
     return rows
 
 
-def _cmd_plant(args: argparse.Namespace) -> int:
+def _describe_and_check(pm: Any, check: bool, step: float) -> dict[str, Any]:
+    """:func:`describe_plant` and, with ``check``, :func:`_check_faults`: what ``plant``
+    computes in its watched child (:func:`~ftc_verify.simulation.isolated.call_isolated`)."""
     from ..plants.fmu_session import FMUSession
-    from ..plants.plant_map import load_plant_map
 
-    pm = load_plant_map(args.plant)
     with FMUSession(pm.fmu, pm.injection_map(), tolerance=pm.tolerance) as session:
         d = describe_plant(pm, session)
-        if args.check:
-            d["check"] = _check_faults(pm, session, args.step)
+        if check:
+            d["check"] = _check_faults(pm, session, step)
+    return d
+
+
+def _cmd_plant(args: argparse.Namespace) -> int:
+    from ..errors import PlantRunError
+    from ..plants.plant_map import load_plant_map
+    from ..simulation.isolated import call_isolated
+
+    pm = load_plant_map(args.plant)
+    try:
+        d = call_isolated(str(pm.fmu), "during plant --check" if args.check else "during plant",
+                          _describe_and_check, pm, args.check, args.step)
+    except PlantRunError as exc:
+        return _failed(args, pm, "plant", "the plant FMU crashed", str(exc))
     inert = [r["name"] for r in d.get("check", []) if r["changes_nothing"]]
     failed = [r for r in d.get("check", []) if r["error"]]
     verdict = "fail" if inert or failed else ("checked" if args.check else "done")
@@ -179,17 +196,28 @@ def _cmd_plant(args: argparse.Namespace) -> int:
     return EXIT_NEGATIVE if inert or failed else EXIT_OK
 
 
-def _linearize_failed(args: argparse.Namespace, pm: Any, reason: str, detail: str) -> int:
-    """The answer of a ``linearize`` that could not give a linearisation: the verdict line
+def _failed(args: argparse.Namespace, pm: Any, command: str, reason: str, detail: str) -> int:
+    """The answer of a ``plant`` or ``linearize`` that could not finish its FMU calls (the
+    FMU failed or crashed; ``linearize --trim`` found no stationary point): the verdict line
     (or one JSON object with ``verdict: fail``), exit 1, nothing written."""
     if args.json:
         print(dumps({"map": str(pm.source), "fmu": str(pm.fmu), "output": None, "verdict": "fail",
                      "reason": reason, "detail": detail}))
     else:
-        print(f"ftc-verify linearize: {pm.source} ({pm.fmu.name})")
+        print(f"ftc-verify {command}: {pm.source} ({pm.fmu.name})")
         print(f"  {detail}")
         print(f"  verdict: fail ({reason})")
     return EXIT_NEGATIVE
+
+
+def _trim_and_linearize(pm: Any, trim: bool, route: str | None) -> tuple[Any, Any]:
+    """The map (its states at the trimmed point with ``trim``) and its linearisation: what
+    ``linearize`` computes in its watched child (:func:`~ftc_verify.simulation.isolated.call_isolated`)."""
+    from ..plants.linearize import linearize_plant, trim_plant
+
+    if trim:
+        pm = pm.with_states_op(trim_plant(pm))
+    return pm, linearize_plant(pm, route=route)
 
 
 def _cmd_linearize(args: argparse.Namespace) -> int:
@@ -197,8 +225,9 @@ def _cmd_linearize(args: argparse.Namespace) -> int:
 
     from ..errors import FMUError, PlantRunError
     from ..model.files import save_system
-    from ..plants.linearize import ACCURACY_FRACTION, TrimFailed, linearize_plant, trim_plant
+    from ..plants.linearize import ACCURACY_FRACTION, TrimFailed
     from ..plants.plant_map import load_plant_map
+    from ..simulation.isolated import call_isolated
 
     if args.output:
         check_output_file(args.output, "-o", inputs=(args.plant,))
@@ -206,14 +235,12 @@ def _cmd_linearize(args: argparse.Namespace) -> int:
     if pm.chain is None and args.output:
         raise FMUError(f"{pm.source}: [chain] is missing; a system file needs the chain (add it to the map)")
     try:
-        if args.trim:
-            try:
-                pm = pm.with_states_op(trim_plant(pm))
-            except TrimFailed as exc:
-                return _linearize_failed(args, pm, "no stationary point", str(exc))
-        lin = linearize_plant(pm, route=args.route)
+        pm, lin = call_isolated(str(pm.fmu), "during linearize", _trim_and_linearize, pm, args.trim, args.route)
+    except TrimFailed as exc:
+        return _failed(args, pm, "linearize", "no stationary point", str(exc))
     except PlantRunError as exc:
-        return _linearize_failed(args, pm, "the linearisation could not be computed: the plant FMU failed", str(exc))
+        return _failed(args, pm, "linearize", "the linearisation could not be computed: the plant FMU failed",
+                       str(exc))
     refused = bool(lin.inaccurate) and bool(args.output) and not args.accept_inaccurate
     if args.output and not refused:
         assert pm.chain is not None

@@ -91,11 +91,13 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     _check_cluster(args)
     system, controller = _load_with_step(args)
     record = max(args.record, 1 if args.plot else 0)
-    kept = args.paths if args.backend == "fmu" else min(record, args.paths)  # the reference backend streams
+    # the reference backend streams: its records, and one path's worth of grid (a batch's time
+    # grid, a diverged path simulated again with its record), besides every path's summary
+    kept = args.paths if args.backend == "fmu" else max(1, min(record, args.paths))
     spec = SimulationSpec(step=args.step, horizon=args.horizon, n_paths=args.paths, seed=args.seed,
                           disturbance=args.disturbance, delta=args.delta, record=record, workers=args.workers,
                           scheduler=args.scheduler, connect_timeout=connect_timeout(args))
-    spec.check_memory(system, controller, kept)
+    spec.check_memory(system, controller, kept, summaries=args.paths)
     plant = _load_plant(args, system, controller)
     if args.backend == "fmu" and plant is None:
         _check_fmu_dims(system, args.system)

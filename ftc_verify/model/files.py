@@ -86,6 +86,9 @@ def read_toml(path: Path, literals: dict[float, tuple[str, ...]] | None = None) 
         raise ProblemFileError(f"{path}: is a directory, not a TOML file") from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ProblemFileError(f"{path}: not valid TOML: {exc}") from None
+    except RecursionError:  # Python's parser recursing into arrays nested hundreds deep
+        raise ProblemFileError(f"{path}: nested too deeply to be read (arrays or tables inside one another "
+                               "hundreds of levels deep; the files of this tool nest a few levels)") from None
     except OSError as exc:
         raise ProblemFileError(f"{path}: cannot be read: {exc.strerror}") from None
 

@@ -24,7 +24,8 @@ to :data:`MAX_PROCESSES`, each a contiguous run of the batches on one
   run at once and leaves nothing behind.
 
 Errors raised in the child (an invalid map, an FMU that does not initialise) are sent back
-and raised again here as themselves.
+and raised again here as themselves. :func:`call_isolated` runs one function in such a child
+the same way (the FMU calls of ``plant --check`` and ``linearize``).
 """
 
 from __future__ import annotations
@@ -55,7 +56,8 @@ from .paths import ChainPath
 from .records import SimulationResult
 from .spec import SimulationSpec
 
-__all__ = ["POLL_SECONDS", "MAX_PROCESSES", "PlantProcess", "default_processes", "plant_processes", "run_isolated"]
+__all__ = ["POLL_SECONDS", "MAX_PROCESSES", "PlantProcess", "call_isolated", "default_processes", "plant_processes",
+           "run_isolated"]
 
 #: How often the parent looks at the child while no message arrives (seconds).
 POLL_SECONDS = 0.1
@@ -99,6 +101,9 @@ def _child_main(workdir: str, fd: int) -> None:
     _import_ahead()
     job = pickle.load(sys.stdin.buffer)
     out = os.fdopen(fd, "wb")
+    if "call" in job:
+        _child_call(job, workdir, out)
+        return
     with open(Path(workdir) / _MONITOR, "r+b") as f:
         mm = mmap.mmap(f.fileno(), 3 * 8)
     monitor = np.frombuffer(mm, dtype=np.float64)
@@ -123,6 +128,20 @@ def _child_main(workdir: str, fd: int) -> None:
             _send(out, ("error", FMUError(f"{plant.fmu}: {type(exc).__name__}: {exc}")))
 
 
+def _child_call(job: dict[str, Any], workdir: str, out: BinaryIO) -> None:
+    """The child of :func:`call_isolated`: ``job["call"](*job["args"])`` sent back as the
+    one batch, with every temporary folder (the extracted FMU) inside ``workdir``."""
+    tempfile.tempdir = workdir
+    try:
+        _send(out, ("batch", job["call"](*job["args"])))
+        _send(out, ("end", None))
+    except Exception as exc:  # sent back and raised again in the parent
+        try:
+            _send(out, ("error", exc))
+        except Exception:  # an exception that does not pickle: its message
+            _send(out, ("error", FMUError(f"{job['fmu']}: {type(exc).__name__}: {exc}")))
+
+
 class PlantProcess:
     """One watched child (module docstring), started by the constructor and waiting for
     its job: a caller that knows it will co-simulate starts it early (``verify`` does, before
@@ -138,6 +157,7 @@ class PlantProcess:
         self.child: subprocess.Popen[bytes] | None = None
         self.buffer = bytearray()  # grown in place: a batch of several MB arrives in many reads
         self.first = 0  # index of this child's first path among all the paths of the run
+        self.task: str | None = None  # what a call_isolated child does (its crash names no path)
         try:
             self.child = subprocess.Popen([sys.executable, "-m", "ftc_verify.simulation.isolated", self.workdir,
                                            str(write_fd)], stdin=subprocess.PIPE, stdout=2, pass_fds=(write_fd,),
@@ -177,6 +197,9 @@ class PlantProcess:
         """The error of a child that ended without its ``end`` message."""
         assert self.child is not None
         returncode = self.child.wait()
+        if self.task is not None:
+            return PlantRunError(fmu, f"the process running it ended with {_signal_name(returncode)} "
+                                 f"(a crash in the FMU's own code) {self.task}")
         index, time, first = np.frombuffer(self.monitor_file.read_bytes(), dtype=np.float64)
         return PlantRunError(fmu, f"the process running it ended with {_signal_name(returncode)} "
                              "(a crash in the FMU's own code)", path=self.first + int(first + index), time=float(time))
@@ -272,11 +295,34 @@ def run_isolated(system: FTCSystem, plant: Any, controller: Controller, paths: S
             p.close()
 
 
+def call_isolated(fmu: str, task: str, function: Callable[..., Any], *args: Any) -> Any:
+    """``function(*args)`` computed in a watched child (module docstring) that runs the
+    plant FMU ``fmu`` (``plant --check``, ``linearize``): a signal to this process ends it
+    at once (the child killed, its folder removed), a crash of the FMU's code is a
+    :class:`~ftc_verify.errors.PlantRunError`, not the end of this process. ``function``
+    and ``args`` must pickle (a module-level function); what it raises is raised here.
+
+    Raises
+    ------
+    PlantRunError
+        The child died: names the FMU, the signal that ended it and ``task`` (what it was
+        doing, e.g. "during plant --check").
+    """
+    proc = PlantProcess()
+    try:
+        proc.task = task
+        proc.send(pickle.dumps({"call": function, "args": args, "fmu": fmu}, protocol=pickle.HIGHEST_PROTOCOL))
+        return _collect([proc], fmu, None, None)[0][0]  # the one "batch" message: the call's value
+    finally:
+        proc.close()
+
+
 def _collect(procs: list[PlantProcess], fmu: str, log: Callable[[str, str, str], None] | None,
-             done: Callable[[int], Any] | None) -> list[list[SimulationResult]]:
-    """Every child's batches, as they arrive from all of them; a child's error raised again
-    here, a child that ended without finishing as :meth:`PlantProcess.crashed`."""
-    parts: list[list[SimulationResult]] = [[] for _ in procs]
+             done: Callable[[int], Any] | None) -> list[list[Any]]:
+    """Every child's batches (:class:`SimulationResult`, or the one value of a
+    :func:`call_isolated` child), as they arrive from all of them; a child's error raised
+    again here, a child that ended without finishing as :meth:`PlantProcess.crashed`."""
+    parts: list[list[Any]] = [[] for _ in procs]
     pending = {p.read_fd: k for k, p in enumerate(procs)}
     while pending:
         ready, _, _ = select.select(list(pending), [], [], POLL_SECONDS)

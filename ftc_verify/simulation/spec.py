@@ -350,12 +350,15 @@ class SimulationSpec:
         return count * points * numbers * RECORD_BYTES_PER_NUMBER, points
 
     def check_memory(self, system: FTCSystem, controller: Controller, count: int,
-                     horizon: float | None = None, *, beside: tuple[float, str] | None = None) -> None:
+                     horizon: float | None = None, *, beside: tuple[float, str] | None = None,
+                     summaries: int = 0) -> None:
         """Refuse before simulating when ``count`` kept path records of ``horizon``
         (default ``horizon``; :meth:`records_memory`) would not fit in memory
         (:func:`~ftc_verify.limits.check_memory`), with ``beside = (bytes, what)`` another
         stage's memory held at the same time (``verify --h-max-work``: the refinement's
-        program in the sampled-loop child) added to the estimate and named.
+        program in the sampled-loop child) added to the estimate and named, and the
+        per-path summaries of ``summaries`` paths (a streamed run's norms, switch counts
+        and rates: ``4 + m^2`` numbers a path, :data:`RECORD_BYTES_PER_NUMBER` each).
 
         Raises
         ------
@@ -364,7 +367,9 @@ class SimulationSpec:
         """
         need, points = self.records_memory(system, controller, count, horizon)
         extra, what = beside if beside is not None else (0.0, "")
+        extra += float(summaries) * (4 + system.m ** 2) * RECORD_BYTES_PER_NUMBER
         check_memory(need + extra, f"{count} recorded paths of about {points:.3g} grid points each"
+                     + (f" and the summaries of {summaries} paths" if summaries else "")
                      + (f" and {what}" if what else ""),
                      hint="use fewer --paths, a shorter --horizon or a larger --step"
                      + (" (or drop --h-max-work)" if what else ""))

@@ -108,10 +108,11 @@ def plant_summary(plant: Any, records: list[PathRecord], reference: list[PathRec
     limits = [(lo, hi, op, key) for lo, hi, op, key in ((plant.states_min, plant.states_max, x_op, "x"),
                                                        (plant.inputs_min, plant.inputs_max, plant.inputs_op, "u"))
               if lo is not None]
+    failed = [k for k, r in enumerate(records, start=1) if r.failure is not None]  # stopped by the FMU, not the region
     for k, r in enumerate(records, start=1):
         outside = any(np.any(getattr(r, key) + op < lo) or np.any(getattr(r, key) + op > hi)
                       for lo, hi, op, key in limits)
-        if outside or r.diverged_at is not None:
+        if outside or (r.diverged_at is not None and r.failure is None):
             left.append(k)
     u_range = [np.min([np.min(r.u, axis=0) for r in ok], axis=0) + plant.inputs_op,
                np.max([np.max(r.u, axis=0) for r in ok], axis=0) + plant.inputs_op] if ok else None
@@ -124,19 +125,37 @@ def plant_summary(plant: Any, records: list[PathRecord], reference: list[PathRec
                      "max_excursion": None if excursion is None else excursion.tolist(),
                      "input_range": None if u_range is None else [u_range[0].tolist(), u_range[1].tolist()],
                      "linearisation_error": err, "left_region": len(left), "left_region_paths": left[:20],
+                     "failed_in_plant": len(failed), "failed_in_plant_paths": failed[:20],
                      "paths": len(records), "states": list(plant.states),
                      "states_op": None if plant.states_op is None else plant.states_op.tolist(), "measure": "total" if fault_only is None else "incremental",
                      "fault_response_energy": None if fault_only is None else
                      float(np.mean([r.y_norm ** 2 for r in fault_only]))}
-    shown = f" (paths {left[:10]}{' ...' if len(left) > 10 else ''})" if left else ""
-    excursion_text = ("none measured (every path diverged or failed)" if excursion is None else
+    failed_text = (f"; {len(failed)} of {len(records)} paths failed in the plant FMU{_shown(failed)} (the region "
+                   "is checked up to the failure)" if failed else "")
+    excursion_text = (f"none measured (every path {_stopped(records)})" if excursion is None else
                       f"{summary['max_excursion']}; inputs within {summary['input_range']}")
-    detail = (f"{len(left)} of {len(records)} paths left [region]{shown}; largest excursion from the operating point "
-              f"{excursion_text}; FMU vs linear reference: "
-              + ("every compared path diverged" if err is None else
+    pairs = list(zip(measured, reference))
+    detail = (f"{len(left)} of {len(records)} paths left [region]{_shown(left)}{failed_text}; largest excursion from "
+              f"the operating point {excursion_text}; FMU vs linear reference: "
+              + (f"every compared path {_stopped([a if a.diverged_at is not None else b for a, b in pairs])}"
+                 if err is None else
                  f"largest relative state difference {err:.3g} on {min(len(records), len(reference))} paths "
                  "(the measured linearisation error)"))
-    return summary, Check("plant region", not left, detail)
+    return summary, Check("plant region", not left and not failed, detail)
+
+
+def _shown(paths: list[int]) -> str:
+    """`` (paths [1, 2, ...])``: the first ten of the 1-based ``paths``; empty when none."""
+    return f" (paths {paths[:10]}{' ...' if len(paths) > 10 else ''})" if paths else ""
+
+
+def _stopped(records: list[PathRecord]) -> str:
+    """How ``records`` (each diverged or failed) ended: "diverged", "failed in the plant
+    FMU", or "diverged or failed in the plant FMU" when some of each."""
+    failed = sum(r.failure is not None for r in records)
+    if failed and failed == len(records):
+        return "failed in the plant FMU"
+    return "diverged" if not failed else "diverged or failed in the plant FMU"
 
 
 def backend_agreement(system: FTCSystem, controller: Controller, chain_paths: list[ChainPath],
