@@ -153,3 +153,6 @@ def test_region_check_says_the_paths_failed_in_the_plant(shared_tmp: Path, tmp_p
     assert "diverged" not in region["detail"]
     assert report["plant"]["left_region"] == 0 and report["plant"]["failed_in_plant"] == 10
     assert "failed in the plant FMU" in out.stdout and "left [region] (paths" not in out.stdout
+    md = (plant / "rep" / "report.md").read_text()
+    assert "| paths that left [region] (states or input limits) | 0 of 10 |" in md
+    assert "| paths that failed in the plant FMU (not counted above) | 10 of 10 |" in md

@@ -336,3 +336,4 @@ def test_verify_plant_with_diverging_paths_reports_and_fails(motor_dir: Path) ->
     d = json.loads((motor_dir / "rep_high" / "report.json").read_text())
     assert d["verdict"] == "fail" and d["plant"]["left_region"] == 5 and d["plant"]["mean_ratio"] is None
     assert "| paths that left [region] (states or input limits) | 5 of 5 |" in (motor_dir / "rep_high" / "report.md").read_text()
+    assert "| paths that failed in the plant FMU (not counted above) | 0 of 5 |" in (motor_dir / "rep_high" / "report.md").read_text()

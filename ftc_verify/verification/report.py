@@ -145,7 +145,9 @@ def render_markdown(rep: VerifyReport) -> str:
                             _num(plant["linearisation_error"], ".3g")),
                   table_row("inputs: smallest and largest value, per input (absolute)", _nums(plant["input_range"])),
                   table_row("paths that left [region] (states or input limits)",
-                            f"{plant['left_region']} of {plant['paths']}")]
+                            f"{plant['left_region']} of {plant['paths']}"),
+                  table_row("paths that failed in the plant FMU (not counted above)",
+                            f"{plant.get('failed_in_plant', 0)} of {plant['paths']}")]
         if plant["fault_response_energy"] is not None:
             lines.append(table_row("fault response: mean ||y(w = 0) - y_op||^2 (not bounded by gamma)",
                                    _num(plant["fault_response_energy"])))
