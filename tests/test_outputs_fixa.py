@@ -8,8 +8,14 @@
   ``/proc`` and ``/sys``; the write then failed after the work. Now the check creates and
   removes a file there. ``FILE/K.toml`` with ``FILE`` a regular file says it is not a folder.
 * 09: a SIGTERM after the answer was printed (during the interpreter's 0.25-0.5 s of
-  shutdown) killed the process without the documented line; now it ends with 143 and
-  ``ftc-verify: terminated``.
+  shutdown) killed the process without the documented line. Documented, not changed (a
+  first fix ending the process by ``os._exit`` with the signals blocked lost a caller's
+  code, threads and C stdio and could hang; reviewer, round 13): the process ends by
+  that signal, the answer and the outputs complete; a signal during the command still
+  gives 130 / 143 and its line.
+* Also: stdout closed (``>&-``) is refused before any work (exit 2, one line; it was an
+  internal error after the work); an output name that is a symbolic link loop or too
+  long is refused naming the option (exit 2; it was an internal error).
 
 Only nodes the test creates under its own temporary folder are used (never ``/dev``).
 """
@@ -17,6 +23,7 @@ Only nodes the test creates under its own temporary folder are used (never ``/de
 from __future__ import annotations
 
 import os
+import re
 import signal
 import socket
 import stat
@@ -35,6 +42,7 @@ from ftc_verify.verification.report import check_out_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = str(ROOT / "examples" / "paper.toml")
+GAINS = str(ROOT / "examples" / "paper_gains.toml")
 
 
 @pytest.fixture
@@ -166,29 +174,124 @@ def test_out_through_a_link_replaces_the_folder_it_points_to(tmp_path: Path) -> 
 SIGNAL_AT_THE_END = """
 import atexit, os, signal, sys
 from ftc_verify.cli import main
-atexit.register(lambda: os.kill(os.getpid(), signal.{sig}))  # after the answer, at the process's very end
+atexit.register(lambda: os.kill(os.getpid(), signal.SIGTERM))  # after the answer, at the process's very end
 sys.argv = ["ftc-verify", "synthesize", {system!r}, "--method", "common", "-o", {out!r}]
 sys.exit(main())
 """
 
 
-@pytest.mark.parametrize("sig, code, line", [("SIGTERM", 143, "ftc-verify: terminated"),
-                                             ("SIGINT", 130, "ftc-verify: interrupted")])
-def test_a_signal_after_the_answer_still_gives_its_code_and_line(tmp_path: Path, sig: str, code: int,
-                                                                  line: str) -> None:
-    """Before: SIGTERM's default action during the interpreter's shutdown (returncode -15,
-    no line); SIGINT's KeyboardInterrupt in an atexit function (a traceback, exit 0)."""
-    script = SIGNAL_AT_THE_END.format(sig=sig, system=PAPER, out=str(tmp_path / "K.toml"))
-    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300,
-                          env=os.environ | {"OPENBLAS_NUM_THREADS": "1"}, start_new_session=True)
-    assert proc.returncode == code, (proc.returncode, proc.stderr)
-    assert proc.stderr.strip().splitlines()[-1] == line and "Traceback" not in proc.stderr, proc.stderr
-    assert "verdict: certified" in proc.stdout and (tmp_path / "K.toml").is_file()
+def run_python(code: str, stdout: int | None = subprocess.PIPE) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-c", code], stdout=stdout, stderr=subprocess.PIPE, text=True,
+                          timeout=300, env=os.environ | {"OPENBLAS_NUM_THREADS": "1"}, start_new_session=True)
+
+
+def test_a_sigterm_after_the_answer_ends_the_process_by_the_signal(tmp_path: Path) -> None:
+    """As exit-codes.md says: the handlers are restored when the command ends, so a SIGTERM
+    during the interpreter's shutdown kills the process (the shell sees 143) without the
+    line; the answer was printed and the output written whole."""
+    proc = run_python(SIGNAL_AT_THE_END.format(system=PAPER, out=str(tmp_path / "K.toml")))
+    assert proc.returncode == -signal.SIGTERM, (proc.returncode, proc.stderr)
+    assert "ftc-verify: terminated" not in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
+    from ftc_verify.controllers.files import load_controller
+
+    assert "verdict: certified" in proc.stdout and load_controller(str(tmp_path / "K.toml")) is not None
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["K.toml"]  # no temporary file left
+
+
+@pytest.mark.parametrize("sig, code, line", [(signal.SIGTERM, 143, "ftc-verify: terminated"),
+                                             (signal.SIGINT, 130, "ftc-verify: interrupted")])
+def test_a_signal_during_the_command_gives_its_code_and_line(sig: int, code: int, line: str,
+                                                              capsys: pytest.CaptureFixture[str],
+                                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    from ftc_verify.model import files
+
+    def signalled(*args: object, **kwargs: object) -> None:
+        os.kill(os.getpid(), sig)
+        raise AssertionError("the signal did not stop the command")
+
+    monkeypatch.setattr(files, "load_system", signalled)
+    before = signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGINT)
+    assert main(["analyze", PAPER, "--controller", GAINS]) == code
+    assert capsys.readouterr().err.strip().splitlines() == [line]
+    assert (signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGINT)) == before
 
 
 def test_in_process_main_returns_and_keeps_the_handlers(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """``main(argv)`` (a caller's process) returns its code, signals unblocked, handlers restored."""
+    """``main(argv)`` (a caller's process) returns its code, the handlers restored."""
     before = signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGINT)
     assert main(["synthesize", PAPER, "--method", "common", "-o", str(tmp_path / "K.toml")]) == 0
     assert (signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGINT)) == before
+
+
+@pytest.mark.skipif(not hasattr(signal, "pthread_sigmask"), reason="no signal masks on this platform")
+def test_main_leaves_no_signal_blocked(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["analyze", "/nonexistent.toml", "--controller", "/nonexistent.toml"]) == 2
     assert not signal.pthread_sigmask(signal.SIG_BLOCK, []) & {signal.SIGTERM, signal.SIGINT}
+
+
+CALLER = """
+import sys, threading, time, pathlib
+threading.Thread(target=lambda: (time.sleep(0.3), pathlib.Path({done!r}).write_text("ok"))).start()
+sys.argv = ["ftc-verify", "analyze", "/nonexistent.toml", "--controller", "/nonexistent.toml"]
+from ftc_verify.cli import main
+code = main()
+print("caller after main():", code)
+"""
+
+
+def test_main_without_argv_returns_to_its_caller(tmp_path: Path) -> None:
+    """A script that calls ``main()`` runs on after it and its threads are joined at the
+    end (fixa's ``os._exit`` lost both)."""
+    proc = run_python(CALLER.format(done=str(tmp_path / "done")))
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "caller after main(): 2" and (tmp_path / "done").read_text() == "ok"
+
+
+def test_a_closed_stdout_is_refused_before_any_work(capsys: pytest.CaptureFixture[str],
+                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    """``>&-``: Python's ``sys.stdout`` is None; before, the work ran and the final flush
+    was an internal error (exit 4)."""
+    from ftc_verify.model import files
+
+    def no_work(*args: object, **kwargs: object) -> None:
+        raise AssertionError("the system was loaded with stdout closed")
+
+    monkeypatch.setattr(files, "load_system", no_work)
+    monkeypatch.setattr(sys, "stdout", None)
+    assert main(["analyze", PAPER, "--controller", GAINS]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [
+        "ftc-verify: error: stdout is closed, the answer could not be printed; nothing was done "
+        "(to discard the answer, redirect it to /dev/null)"]
+
+
+def test_a_closed_stdout_from_the_shell() -> None:
+    """The reviewer's command, ``ftc-verify analyze ... >&-``: exit 2, one line, no traceback."""
+    argv = [sys.executable, "-m", "ftc_verify", "analyze", PAPER, "--controller", GAINS]
+    proc = run_python(f"import os; os.close(1); os.execv({sys.executable!r}, {argv!r})", stdout=None)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.strip().splitlines() == ["ftc-verify: error: stdout is closed, the answer could not be "
+                                                "printed; nothing was done (to discard the answer, redirect it "
+                                                "to /dev/null)"]
+
+
+@pytest.mark.parametrize("name, reason", [("loop.toml", r"Too many levels of symbolic links \(ELOOP\)"),
+                                          ("a" * 300 + ".toml", r"File name too long \(ENAMETOOLONG\)"),
+                                          ("a" * 300 + "/K.toml", r"File name too long \(ENAMETOOLONG\)")])
+def test_an_unusable_name_is_refused_naming_the_option(tmp_path: Path, name: str, reason: str) -> None:
+    """A link loop or a name too long (before: RuntimeError / OSError, exit 4)."""
+    (tmp_path / "loop.toml").symlink_to("loop.toml")
+    path = str(tmp_path / name)
+    with pytest.raises(ValidationError, match=rf"^-o {re.escape(path)}: {reason}; give another name$"):
+        check_output_file(path, "-o", (".toml",), inputs=(PAPER,))
+    with pytest.raises(ValidationError, match=rf"^{re.escape(path)}: {reason}"):
+        write_atomic(path, "x = 1\n")
+    with pytest.raises(ValidationError, match=rf"^--out {re.escape(path)}: {reason}"):
+        check_out_dir(path)
+
+
+def test_a_link_loop_from_the_command_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    loop = tmp_path / "loop.toml"
+    loop.symlink_to("loop.toml")
+    assert main(["synthesize", PAPER, "--method", "common", "-o", str(loop)]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f"ftc-verify: error: -o/--output {loop}: Too many levels of symbolic links (ELOOP); give another name"]

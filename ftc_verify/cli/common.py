@@ -62,10 +62,11 @@ def check_output_file(path: str, option: str, suffixes: tuple[str, ...] | None =
     (a FIFO, a device: refused; a symbolic link: its target is checked, and written,
     :func:`~ftc_verify.model.output_paths.output_target`), in a folder that accepts a new file
     (an actual write, :func:`~ftc_verify.model.output_paths.probe_folder`)."""
-    from ..model.output_paths import output_target, probe_folder
+    from ..model.output_paths import check_name, output_target, probe_folder
 
     if not str(path).strip():
         raise bad(f"{option} {path!r}: empty file name; give a file name")
+    check_name(path, f"{option} {path}")  # a link loop, a name too long: before any other look at it
     p = Path(path)
     for given in inputs:
         if p.resolve() == Path(given).resolve():

@@ -28,7 +28,7 @@ import sys
 import threading
 import warnings
 from collections.abc import Iterator, Sequence
-from contextlib import contextmanager, nullcontext, suppress
+from contextlib import contextmanager, nullcontext
 from typing import Any, NoReturn
 
 from .. import __version__
@@ -205,17 +205,13 @@ def _no_abbreviations(parser: argparse.ArgumentParser) -> None:
 
 
 @contextmanager
-def _signals_raise(arrived: list[int], *, to_the_end: bool = False) -> Iterator[None]:
+def _signals_raise(arrived: list[int]) -> Iterator[None]:
     """While the command runs, SIGTERM raises :class:`_Terminated` in the main thread so
     that cleanup runs as for Ctrl-C, and SIGINT raises ``KeyboardInterrupt`` (unless it is
     ignored); each records its arrival in ``arrived`` first, so that an exception a library
     swallowed (CPython ignores those raised in a gc callback or a ``__del__``) cannot make
-    the command end as if it had not been signalled. Afterwards the previous handlers are
-    restored; with ``to_the_end`` (the process ends with the command, :func:`main`) the
-    signals are instead only recorded in ``arrived`` and blocked, kept for
-    :func:`_end_process`: restored to their default action they would kill the process
-    silently during the interpreter's shutdown (0.25-0.5 s of module teardown after a
-    ``verify``; audit13 finding 09)."""
+    the command end as if it had not been signalled. The previous handlers are restored
+    afterwards."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -228,9 +224,6 @@ def _signals_raise(arrived: list[int], *, to_the_end: bool = False) -> Iterator[
         arrived.append(signum)
         raise KeyboardInterrupt
 
-    def record(signum: int, frame: Any) -> None:
-        arrived.append(signum)
-
     previous = {signal.SIGTERM: signal.signal(signal.SIGTERM, terminated)}
     if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
         previous[signal.SIGINT] = signal.signal(signal.SIGINT, interrupted)
@@ -238,37 +231,7 @@ def _signals_raise(arrived: list[int], *, to_the_end: bool = False) -> Iterator[
         yield
     finally:
         for signum, handler in previous.items():
-            signal.signal(signum, record if to_the_end else handler)
-        if to_the_end and hasattr(signal, "pthread_sigmask"):  # POSIX
-            signal.pthread_sigmask(signal.SIG_BLOCK, previous)
-
-
-def _end_process(code: int, arrived: list[int]) -> NoReturn:
-    """End the process with ``code`` once its output is flushed and its ``atexit``
-    functions have run, at once (:func:`os._exit`), with SIGINT and SIGTERM blocked since
-    the command ended (:func:`_signals_raise` with ``to_the_end``): a signal that arrived
-    since then (recorded, or still pending) ends it with 130 / 143 and its line instead,
-    as one that arrived during the command would. The interpreter's module teardown,
-    skipped, writes nothing (the command removed its temporary files and ended its child
-    processes in its own ``finally`` blocks); it took 0.25-0.5 s after ``verify``, during
-    which a signal used to kill the process without the line."""
-    import atexit
-
-    try:
-        sys.stdout.flush()
-    except BrokenPipeError:
-        code = _closed_pipe()
-    except (OSError, ValueError):
-        pass
-    atexit._run_exitfuncs()
-    pending = signal.sigpending() if hasattr(signal, "sigpending") else set()
-    held = arrived + [s for s in (signal.SIGTERM, signal.SIGINT) if s in pending]
-    if held and code not in (EXIT_INTERRUPTED, EXIT_TERMINATED):
-        code = _signalled(held)
-    for stream in (sys.stdout, sys.stderr):
-        with suppress(OSError, ValueError):
-            stream.flush()
-    os._exit(code)
+            signal.signal(signum, handler)
 
 
 def _closed_pipe() -> int:
@@ -300,10 +263,7 @@ def _numbers_attached(argv: Sequence[str]) -> list[str]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point; returns the exit code (module docstring). Without ``argv`` (the
-    process's own command line: ``ftc-verify``, ``python -m ftc_verify``) the process ends
-    here with that code (``_end_process``), so that a signal arriving after the answer
-    was printed still ends it with 130 / 143 and its line.
+    """Entry point; returns the exit code (module docstring).
 
     Unless set by the caller, BLAS runs single-threaded (``OPENBLAS_NUM_THREADS=1``; set
     before numpy is first imported): these problems are small, and on a busy 2-core
@@ -316,21 +276,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         from ..prestart import defer_numpy_tools  # it changes the interpreter for good
 
         defer_numpy_tools()  # numpy.f2py, numpy.testing: imported by scipy, used by nobody here
+    if sys.stdout is None:  # started with stdout closed (`>&-`): the answer cannot be printed
+        print("ftc-verify: error: stdout is closed, the answer could not be printed; nothing was done "
+              "(to discard the answer, redirect it to /dev/null)", file=sys.stderr)
+        return EXIT_BAD_INPUT
     arrived: list[int] = []  # signals received (_signals_raise)
-    code = _run(args, arrived, to_the_end=argv is None)
-    if argv is None:
-        _end_process(code, arrived)
-    return code
-
-
-def _run(args: argparse.Namespace, arrived: list[int], *, to_the_end: bool) -> int:
-    """Run the command of ``args``; its exit code, every error answered by its line."""
     try:
         from .working import working
 
         own_bars = args.command in ("simulate", "verify")  # tqdm bars over their paths
-        with (_signals_raise(arrived, to_the_end=to_the_end), warnings.catch_warnings(),
-              nullcontext() if own_bars else working(args.command)):
+        with _signals_raise(arrived), warnings.catch_warnings(), nullcontext() if own_bars else working(args.command):
             warnings.simplefilter("ignore")  # solver chatter; statuses are reported in the results
             code = int(args.func(args))
             sys.stdout.flush()

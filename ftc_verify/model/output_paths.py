@@ -18,6 +18,10 @@ for an existing target is decided here, once, for every writer:
   ``/dev/null``), and writing into it instead would not be the atomic, complete file the
   command promises.
 
+A name the operating system cannot use -- a link that points back to itself (a loop,
+``ELOOP``), a name longer than the file system allows (``ENAMETOOLONG``) -- is refused the
+same way, with the option, the path and the OS's reason (:func:`check_name`).
+
 The folder that receives the file must exist and accept a new file: :func:`probe_folder`
 creates and removes a temporary file there, an actual write (an access test alone is
 passed by root on ``/proc`` or ``/sys``, where the write itself then fails after the work).
@@ -25,6 +29,7 @@ passed by root on ``/proc`` or ``/sys``, where the write itself then fails after
 
 from __future__ import annotations
 
+import errno
 import os
 import stat
 import tempfile
@@ -32,7 +37,7 @@ from pathlib import Path
 
 from ..errors import ValidationError
 
-__all__ = ["kind_of", "output_target", "probe_folder"]
+__all__ = ["check_name", "kind_of", "output_target", "probe_folder"]
 
 _KINDS = ((stat.S_ISFIFO, "a FIFO"), (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
           (stat.S_ISSOCK, "a socket"), (stat.S_ISDIR, "a folder"))
@@ -46,6 +51,26 @@ def kind_of(mode: int) -> str:
     return "a regular file" if stat.S_ISREG(mode) else "not a regular file"
 
 
+def check_name(path: str | os.PathLike[str], label: str) -> None:
+    """``path`` is a name the operating system can resolve, whether or not the file exists.
+
+    Raises
+    ------
+    ValidationError
+        Resolving ``path`` fails for another reason than a missing file or folder: a
+        symbolic link loop (``ELOOP``), a name too long (``ENAMETOOLONG``), a folder of the
+        path that cannot be searched; the message starts with ``label`` and gives the OS's
+        reason.
+    """
+    try:
+        os.stat(path)
+    except (FileNotFoundError, NotADirectoryError):  # a new file; a file as a folder: the folder check says so
+        return
+    except OSError as exc:
+        code = errno.errorcode.get(exc.errno or 0, "OSError")
+        raise ValidationError(f"{label}: {exc.strerror or exc} ({code}); give another name") from None
+
+
 def output_target(path: str | os.PathLike[str], label: str) -> Path:
     """The file an output named ``path`` replaces: ``path`` itself, or the file a symbolic
     link at ``path`` points to (module docstring).
@@ -55,8 +80,9 @@ def output_target(path: str | os.PathLike[str], label: str) -> Path:
     ValidationError
         The target exists and is not a regular file; the message starts with ``label``
         (the option and the path, or the path) and says what it is (for a link, also the
-        file it points to).
+        file it points to). Or ``path`` cannot be resolved (:func:`check_name`).
     """
+    check_name(path, label)
     target = Path(os.path.realpath(path))
     try:
         mode = os.stat(target).st_mode

@@ -24,7 +24,7 @@ import numpy as np
 from ..claimtext import lower_text, upper_text
 from ..errors import ProblemFileError
 from ..jsonable import dumps
-from ..model.output_paths import kind_of, probe_folder
+from ..model.output_paths import check_name, kind_of, probe_folder
 from .verify import VerifyReport
 
 __all__ = ["REPORT_FILES", "check_out_dir", "write_report", "render_markdown", "table_row", "draw_figures",
@@ -232,6 +232,7 @@ def check_out_dir(out_dir: str | os.PathLike[str]) -> Path:
     are, :mod:`ftc_verify.model.output_paths`)."""
     if not str(out_dir).strip():
         raise ProblemFileError(f"--out {str(out_dir)!r}: empty folder name; give a folder name")
+    check_name(out_dir, f"--out {out_dir}")  # a link loop, a name too long
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise ProblemFileError(f"--out {out}: exists and is {kind_of(out.stat().st_mode)}, not a folder")
