@@ -252,10 +252,11 @@ def _verify(system: FTCSystem, gains: list[Matrix], solver: str) -> AnalysisRepo
     return verify_controller(system, Controller.state_feedback(gains), solver)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Descent:
     """What :func:`descend` found: the best certified ``gains``, their certified robust gammas (``history``,
-    empty when the start is not certified), why it stopped, and Lemma 4.1's result for ``gains`` (``lmi``)."""
+    empty when the start is not certified), why it stopped, and Lemma 4.1's result for ``gains`` (``lmi``).
+    Compared by identity, as :class:`.SynthesisResult`: ``==`` on its lists of arrays would raise."""
 
     gains: list[Matrix]
     history: list[float]
