@@ -211,12 +211,13 @@ def two_step(system: FTCSystem, gamma: float, calls: SolverCalls, k_max: float |
         step1 = step1_at(level)
         if step1 is None:
             msg = f"step 1 (eq. 17) {calls.unsolved()} at gamma {level:.6g}"
-            return None, None, f"{first}; {msg}" if first else msg
+            between = f"step 2 also failed at the halved levels down to {2 * level:.6g}, " if 2 * level < gamma else ""
+            return None, None, f"{first}; {between}{msg}" if first else msg
         gains, worst, msg = _gains_of(system, step1, level, calls, k_max)
         if gains is not None:
             return gains, worst, f"{msg}, below the requested {gamma:.6g} where {first}" if first else msg
         first, level = first or msg, level / 2
-    return None, None, f"{first}; and at every level down to {2 * level:.6g}" if halvings else first
+    return None, None, f"{first}; step 2 also failed at the halved levels down to {2 * level:.6g}" if halvings else first
 
 
 def _two_step_min(system: FTCSystem, calls: SolverCalls, k_max: float | None,
