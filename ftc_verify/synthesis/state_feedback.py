@@ -12,7 +12,8 @@ Methods (all return a :class:`~ftc_verify.synthesis.results.SynthesisResult` ver
     :math:`\lambda = (\varepsilon^{-1}, \delta^{-1})` and solves eq. (18) -- Lemma 4.1's block
     with the :math:`B_2 K_j` channel in Schur form -- for each :math:`K_j`, over all true
     modes :math:`i` and rate ends; it decouples over ``j``. Step 1 is only necessary:
-    when step 2 fails, the FDI mode ``j`` that failed is reported and no gains are returned.
+    when step 2 fails (at a given gamma: at every halved level too, :func:`two_step`), the FDI
+    mode ``j`` that failed is reported and no gains are returned.
 ``full-info``
     The Markov-jump lower bound: gains :math:`K_{ij}` that may use the true mode, convex in
     :math:`X_{ij}, Y_{ij} = K_{ij} X_{ij}` (the unprojected block). Gains files hold
