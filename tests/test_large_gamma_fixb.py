@@ -16,6 +16,7 @@ import os
 from pathlib import Path
 
 import cli_inprocess
+import numpy as np
 import pytest
 
 from ftc_verify.analysis import solvers
@@ -25,8 +26,9 @@ from ftc_verify.errors import ValidationError
 from ftc_verify.limits import GAMMA_MAX
 from ftc_verify.model.files import load_system
 from ftc_verify.synthesis.results import SolverCalls
-from ftc_verify.synthesis.state_feedback import synthesize
-from ftc_verify.synthesis.xy_design import xy_solve
+from ftc_verify.synthesis.convex_designs import convex_gains
+from ftc_verify.synthesis.state_feedback import Descent, synthesize, two_step
+from ftc_verify.synthesis.xy_design import scaled_disturbance, xy_solve, xy_solver
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "examples" / "paper.toml"
@@ -56,6 +58,59 @@ def test_two_step_certified_at_1e3_is_certified_at_a_larger_gamma(paper_system, 
         assert res.feasible, (level, res.message)
         assert res.report is not None and res.report.certified_stable and res.report.robust.certified
         assert res.report.robust.gamma <= level
+
+
+def test_two_step_never_fails_at_a_larger_gamma_on_a_badly_scaled_system(paper_system):
+    """The paper's example with ``D`` times 1e6 (review of fixb): step 1's capped margin
+    is not invariant under the scaling of a level, and step 2 failed at 3e3 to 1e5 after
+    succeeding at 1e3; a failed level is now halved, so once a G succeeds every larger
+    one does, with gains achieving a level at most G that the message names."""
+    big = scaled_disturbance(paper_system, 1e-6)
+    succeeded = None
+    for G in (1e3, 3e3, 1e4, 3e4, 1e5, 1e6, 1e8):
+        res = synthesize(big, method="two-step", gamma=G)
+        if succeeded is not None:
+            assert res.feasible, (G, succeeded, res.message)
+        if res.feasible:
+            succeeded = succeeded or G
+            assert res.synthesis_gamma is not None and res.synthesis_gamma <= G * (1 + 1e-6), res.message
+            used = float(res.message.split("two-step succeeded at gamma ")[1].split()[0])
+            assert res.synthesis_gamma <= used * (1 + 1e-6) and used <= G
+            assert (used < G) == (f"below the requested {G:.6g} " in res.message), res.message
+    assert succeeded == 1e3
+
+
+def _failing_after(monkeypatch, good: int) -> None:
+    """Clarabel raises from its ``good + 1``-th call on (as a caught panic does)."""
+    real, seen = solvers.solve_clarabel, []
+
+    def solve(problem, settings):
+        seen.append(1)
+        if len(seen) > good:
+            raise RuntimeError("simulated solver failure")
+        return real(problem, settings)
+    monkeypatch.setattr(solvers, "solve_clarabel", solve)
+
+
+def test_a_solver_failure_is_never_reported_as_infeasible(paper_system, monkeypatch):
+    """Review of fixb: step 2 printed ``solver status error`` for a panic, and ``dilated``
+    said "infeasible for every tau" whatever the statuses."""
+    calls = SolverCalls("clarabel")
+    step1_at = xy_solver(paper_system, "projected", calls, None)
+    _failing_after(monkeypatch, 1)  # step 1 solves, every later call fails
+    gains, _, msg = two_step(paper_system, 1e3, calls, None, step1_at)
+    assert gains is None and "infeasible" not in msg, msg
+    assert msg.startswith("step 2 (eq. 18) failed for FDI mode 1 at gamma 1000 (not solved (solver failure: ")
+    assert "step 1 (eq. 17) not solved (solver failure" in msg  # the halved level: not a proof of infeasibility
+    _failing_after(monkeypatch, 0)
+    gains, _, msg = convex_gains(paper_system, "dilated", SolverCalls("clarabel"), None)
+    assert gains is None and "infeasible for every" not in msg and "solver failure" in msg, msg
+    assert "not solved for any tau" in msg and "(0 of " in msg
+
+
+def test_descent_results_compare_without_raising(paper_system):
+    one, two = (Descent([np.eye(2), np.eye(2)], [1.0], "", None) for _ in range(2))  # type: ignore[arg-type]
+    assert one == one and one != two
 
 
 def test_a_gamma_whose_square_overflows_is_refused_at_parse_time(tmp_path):

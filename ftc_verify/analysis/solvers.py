@@ -33,6 +33,7 @@ import os
 import pickle
 import sys
 import tempfile
+import threading
 import time
 import warnings
 from collections.abc import Iterator
@@ -224,31 +225,86 @@ def _solve_isolated(problem: Any, solver: str) -> tuple[str, str]:
     return status, message
 
 
+class _StderrHold:
+    """The state of :func:`_stderr_held` shared by every thread, changed under ``lock``:
+    the holds open (``depth``), fd 2 as it was before the first (``saved``), the temporary
+    file (``held``) and whether any hold asked to drop the text (``drop``)."""
+
+    lock = threading.Lock()
+    depth = 0
+    saved = -1
+    held: Any = None
+    drop = False
+
+    @classmethod
+    def enter(cls) -> bool:
+        """Open a hold; the first redirects fd 2. ``False``: nothing is held (no usable
+        fd 2, or no temporary file: ``TMPDIR`` removed, disk full), the call runs as is."""
+        with cls.lock:
+            if cls.depth == 0:
+                sys.stderr.flush()
+                try:
+                    held = tempfile.TemporaryFile()
+                except OSError:
+                    return False
+                try:
+                    cls.saved = os.dup(2)
+                    os.dup2(held.fileno(), 2)
+                except OSError:
+                    held.close()
+                    return False
+                cls.held, cls.drop = held, False
+            cls.depth += 1
+            return True
+
+    @classmethod
+    def leave(cls, drop: bool) -> None:
+        """Close a hold; the last restores fd 2 and writes the text back unless a hold
+        dropped it."""
+        with cls.lock:
+            cls.depth -= 1
+            cls.drop |= drop
+            if cls.depth:
+                return
+            os.dup2(cls.saved, 2)
+            os.close(cls.saved)
+            held, cls.held = cls.held, None
+            with held:
+                if not cls.drop and held.seek(0, os.SEEK_END):
+                    held.seek(0)
+                    with contextlib.suppress(OSError):
+                        os.write(2, held.read())
+
+    @classmethod
+    def after_fork(cls) -> None:
+        """A new lock in a forked child: a thread holding it at the fork does not exist there."""
+        cls.lock = threading.Lock()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_StderrHold.after_fork)
+
+
 @contextlib.contextmanager
 def _stderr_held() -> Iterator[list[bool]]:
     """File descriptor 2 sent to a temporary file while the block runs, its text written
     back afterwards unless the block set the yielded flag: a Rust panic in Clarabel prints
     its message and, with ``RUST_BACKTRACE=1``, ~70 lines of backtrace there before pyo3
     raises it (``synthesize --gamma 1e16`` printed them on the user's terminal); the
-    exception's message names the panic, and the outcome reports it."""
+    exception's message names the panic, and the outcome reports it.
+
+    fd 2 belongs to the process: holds overlapping in several threads share one
+    redirection (:class:`_StderrHold`: the first redirects, the last restores and writes
+    the text back, dropped when any of them set its flag). Without a temporary file
+    (``TMPDIR`` removed) or a usable fd 2 the block runs without a hold."""
     drop = [False]
-    sys.stderr.flush()
-    try:
-        saved = os.dup(2)
-    except OSError:  # no usable fd 2: nothing to hold
+    if not _StderrHold.enter():
         yield drop
         return
-    with tempfile.TemporaryFile() as held:
-        os.dup2(held.fileno(), 2)
-        try:
-            yield drop
-        finally:
-            os.dup2(saved, 2)
-            os.close(saved)
-            if not drop[0] and held.seek(0, os.SEEK_END):
-                held.seek(0)
-                with contextlib.suppress(OSError):
-                    os.write(2, held.read())
+    try:
+        yield drop
+    finally:
+        _StderrHold.leave(drop[0])
 
 
 def _clarabel_guarded(call: Any, problem: ConicProblem,

@@ -46,9 +46,9 @@ from ..analysis.lmi import block_specs, dilated_block, xy_block
 from ..model.system import FTCSystem, Matrix
 from .results import SolverCalls
 from .starts import certify_start
-from .xy_design import gain_bound_block
+from .xy_design import gain_bound_block, xy_solve
 
-__all__ = ["TAU_GRID", "GOLDEN_STEPS", "dilated_problem", "dilated_solve", "dilated_design", "true_mode_reference", "reference_row",
+__all__ = ["TAU_GRID", "GOLDEN_STEPS", "dilated_problem", "dilated_solve", "dilated_design", "convex_gains", "true_mode_reference", "reference_row",
            "reference_alone"]
 
 #: Line-search grid of the dilation scalar, in units of ``1/rho`` (module docstring).
@@ -181,6 +181,31 @@ def dilated_design(system: FTCSystem, calls: Any, k_max: float | None) -> dict[s
                 b = lo + ratio * (hi - lo)
     sols = [s for s in found.values() if s is not None]
     return min(sols, key=lambda s: s["gamma"]) if sols else None
+
+
+def convex_gains(system: FTCSystem, method: str, calls: SolverCalls,
+                 k_max: float | None) -> tuple[list[Matrix] | None, float | None, str]:
+    """The FDI-mode gains of the ``common-fdi`` or ``dilated`` design: ``(gains, gamma, message)``.
+    A failure says ``infeasible`` only when the solver said so (for ``dilated``: at every
+    ``tau`` of the line search); otherwise :meth:`.SolverCalls.unsolved` of the last call."""
+    if method == "dilated":
+        before = len(calls.outcomes)
+        sol = dilated_design(system, calls, k_max)
+        if sol is None:
+            tried = calls.outcomes[before:]
+            if tried and all(o.infeasible for o in tried):
+                return None, None, "dilated LMI infeasible for every tau of the line search"
+            said = sum(o.infeasible for o in tried)
+            return None, None, (f"dilated LMI not solved for any tau of the line search ({said} of {len(tried)} "
+                                f"calls infeasible; the last {calls.unsolved() if tried else 'not made'})")
+        return list(sol["gains"]), float(sol["gamma"]), f"dilated LMI solved at gamma {sol['gamma']:.6g} (tau " \
+            f"{sol['tau']:.3g})"
+    xy = xy_solve(system, "common-fdi", None, calls, k_max)
+    if xy is None:
+        return None, None, f"common-fdi LMI {calls.unsolved()}"
+    Ks = [Y @ np.linalg.inv(X) for X, Y in zip(xy["X"], xy["Y"])]
+    return [Ks[system.chain.state_index(j, j)] for j in range(system.m)], float(xy["gamma"]), \
+        f"common-fdi LMI solved at gamma {xy['gamma']:.6g}"
 
 
 def true_mode_reference(system: FTCSystem, calls: Any) -> dict[str, Any] | None:

@@ -12,7 +12,8 @@ Methods (all return a :class:`~ftc_verify.synthesis.results.SynthesisResult` ver
     :math:`\lambda = (\varepsilon^{-1}, \delta^{-1})` and solves eq. (18) -- Lemma 4.1's block
     with the :math:`B_2 K_j` channel in Schur form -- for each :math:`K_j`, over all true
     modes :math:`i` and rate ends; it decouples over ``j``. Step 1 is only necessary:
-    when step 2 fails, the FDI mode ``j`` that failed is reported and no gains are returned.
+    when step 2 fails (at a given gamma: at every halved level too, :func:`two_step`), the FDI
+    mode ``j`` that failed is reported and no gains are returned.
 ``full-info``
     The Markov-jump lower bound: gains :math:`K_{ij}` that may use the true mode, convex in
     :math:`X_{ij}, Y_{ij} = K_{ij} X_{ij}` (the unprojected block). Gains files hold
@@ -103,8 +104,8 @@ from ..analysis.solvers import ForkedCall, choose_solver
 from .starts import candidates, certify_start, diagnose
 from .results import SolverCalls, SynthesisResult, check_levels, verify_controller
 from .polish import polish
-from .convex_designs import dilated_design, reference_alone
-from .xy_design import gain_bound_block, scaled_disturbance, xy_solve, xy_solver
+from .convex_designs import convex_gains, reference_alone
+from .xy_design import channel_multipliers, gain_bound_block, scaled_disturbance, xy_solve, xy_solver
 
 __all__ = ["METHODS", "SynthesisResult", "synthesize", "two_step", "gain_step", "Descent", "descend"]
 
@@ -115,6 +116,8 @@ ITERATIVE_STARTS = ("two-step", "common", "lqr", "lqr-C", "averaged", "full-info
 EXTRA_STARTS = ("common-fdi", "dilated")
 #: Relative width at which the gamma bisection of ``two-step --minimize`` stops.
 BISECTION_RTOL = 2e-3
+#: How often :func:`two_step` halves a requested gamma at which step 2 failed.
+RETRY_HALVINGS = 40
 
 
 def gain_step(
@@ -174,40 +177,48 @@ def gain_step(
     return x[:nu * cols].reshape(nu, cols), scale * math.sqrt(max(float(x[nu * cols]), 0.0)), out.status
 
 
-def _multipliers(system: FTCSystem, eps: list[float], delta: list[float]) -> list[list[float]]:
-    """Channel multipliers per joint mode in the order of the closed loop's channels:
-    ``lambda = 1/eps`` for the A channel, ``1/delta`` for the B channel."""
-    lam = []
-    for s, (i, _) in enumerate(system.chain.joint_modes):
-        md, row = system.modes[i], []
-        if md.A1 is not None:
-            row.append(1.0 / max(eps[s], 1e-300))
-        if md.B1 is not None:
-            row.append(1.0 / max(delta[s], 1e-300))
-        lam.append(row)
-    return lam
-
-
-def two_step(system: FTCSystem, gamma: float, calls: SolverCalls, k_max: float | None,
-             step1_at: Any = None) -> tuple[list[Matrix] | None, float | None, str]:
-    """Theorem 4.1 at a given gamma: ``(gains, synthesis gamma, message)``. ``step1_at``:
-    step 1 as built once by :func:`~ftc_verify.synthesis.xy_design.xy_solver` (the
-    bisection's levels share it); built here when not given."""
-    step1 = (step1_at or xy_solver(system, "projected", calls, None))(gamma)
-    if step1 is None:
-        return None, None, f"step 1 (eq. 17) {calls.unsolved()} at gamma {gamma:.6g}"
+def _gains_of(system: FTCSystem, step1: dict[str, Any], gamma: float, calls: SolverCalls,
+              k_max: float | None) -> tuple[list[Matrix] | None, float | None, str]:
+    """Step 2 (eq. (18)) on step 1's numbers at ``gamma``: ``(gains, synthesis gamma, message)``."""
     P = [np.linalg.inv(0.5 * (X + X.T)) for X in step1["X"]]
     P = [0.5 * (p + p.T) for p in P]
-    lam = _multipliers(system, step1["eps"], step1["delta"])
+    lam = channel_multipliers(system, step1["eps"], step1["delta"])
     gains, worst = [], 0.0
     for j in range(system.m):
-        K, gj, status = gain_step(system, P, lam, j, calls, k_max, gamma)
+        K, gj, _ = gain_step(system, P, lam, j, calls, k_max, gamma)
         if K is None or gj is None or gj > gamma * (1 + 1e-6):
-            detail = f"solver status {status}" if K is None else f"best gamma {gj:.6g} > {gamma:.6g}"
+            detail = calls.unsolved() if K is None else f"best gamma {gj:.6g} > {gamma:.6g}"
             return None, None, f"step 2 (eq. 18) failed for FDI mode {j + 1} at gamma {gamma:.6g} ({detail})"
         gains.append(K)
         worst = max(worst, gj)
     return gains, worst, f"two-step succeeded at gamma {gamma:.6g} (step-1 margin {step1['margin']:.3g})"
+
+
+def two_step(system: FTCSystem, gamma: float, calls: SolverCalls, k_max: float | None,
+             step1_at: Any = None, halvings: int = RETRY_HALVINGS) -> tuple[list[Matrix] | None, float | None, str]:
+    """Theorem 4.1 at a given gamma: ``(gains, synthesis gamma, message)``. ``step1_at``:
+    step 1 as built once by :func:`~ftc_verify.synthesis.xy_design.xy_solver` (the
+    bisection's levels share it); built here when not given.
+
+    Step 2 can fail at ``gamma`` and succeed at a smaller level: step 1's capped margin is
+    not invariant under the scaling of a level (:func:`.xy_design.scaled_disturbance`), so
+    its ``X`` at a larger level may admit no common ``K_j`` (``examples/paper.toml`` with
+    ``D`` times 1e6: 1e3 succeeded, 3e3 to 1e5 failed). Then the level is halved, at most
+    ``halvings`` times, until step 2 succeeds (gains achieving that level, below ``gamma``;
+    the message names both) or step 1 fails (eq. (17) is an LMI: no smaller level is feasible)."""
+    step1_at = step1_at or xy_solver(system, "projected", calls, None)
+    level, first = gamma, ""
+    for _ in range(halvings + 1):
+        step1 = step1_at(level)
+        if step1 is None:
+            msg = f"step 1 (eq. 17) {calls.unsolved()} at gamma {level:.6g}"
+            between = f"step 2 also failed at the halved levels down to {2 * level:.6g}, " if 2 * level < gamma else ""
+            return None, None, f"{first}; {between}{msg}" if first else msg
+        gains, worst, msg = _gains_of(system, step1, level, calls, k_max)
+        if gains is not None:
+            return gains, worst, f"{msg}, below the requested {gamma:.6g} where {first}" if first else msg
+        first, level = first or msg, level / 2
+    return None, None, f"{first}; step 2 also failed at the halved levels down to {2 * level:.6g}" if halvings else first
 
 
 def _two_step_min(system: FTCSystem, calls: SolverCalls, k_max: float | None,
@@ -222,7 +233,7 @@ def _two_step_min(system: FTCSystem, calls: SolverCalls, k_max: float | None,
     hi, best = max(lo, 1e-3) * 1.5, None
     step1_at = xy_solver(system, "projected", calls, None)  # built once, solved at every level
     for _ in range(12):
-        gains, gsyn, msg = two_step(system, hi, calls, k_max, step1_at)
+        gains, gsyn, msg = two_step(system, hi, calls, k_max, step1_at, halvings=0)
         if gains is not None:
             best = (gains, gsyn, hi)
             break
@@ -231,7 +242,7 @@ def _two_step_min(system: FTCSystem, calls: SolverCalls, k_max: float | None,
         return None, None, f"two-step failed for every gamma up to {hi / 2:.6g}: {msg}"
     while hi - lo > BISECTION_RTOL * hi:
         mid = 0.5 * (lo + hi)
-        gains, gsyn, _ = two_step(system, mid, calls, k_max, step1_at)
+        gains, gsyn, _ = two_step(system, mid, calls, k_max, step1_at, halvings=0)
         if gains is not None:
             hi, best = mid, (gains, gsyn, mid)
         else:
@@ -243,10 +254,11 @@ def _verify(system: FTCSystem, gains: list[Matrix], solver: str) -> AnalysisRepo
     return verify_controller(system, Controller.state_feedback(gains), solver)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Descent:
     """What :func:`descend` found: the best certified ``gains``, their certified robust gammas (``history``,
-    empty when the start is not certified), why it stopped, and Lemma 4.1's result for ``gains`` (``lmi``)."""
+    empty when the start is not certified), why it stopped, and Lemma 4.1's result for ``gains`` (``lmi``).
+    Compared by identity, as :class:`.SynthesisResult`: ``==`` on its lists of arrays would raise."""
 
     gains: list[Matrix]
     history: list[float]
@@ -292,23 +304,6 @@ def descend(loop_of: Any, step: Any, m: int, start: list[Matrix], calls: SolverC
 
 
 _PUBLIC_START_KEYS = ("name", "gamma_certified", "spectral_abscissa", "note", "reason", "seconds")
-
-
-def _convex_gains(system: FTCSystem, method: str, calls: SolverCalls,
-                  k_max: float | None) -> tuple[list[Matrix] | None, float | None, str]:
-    """The FDI-mode gains of the ``common-fdi`` or ``dilated`` design: ``(gains, gamma, message)``."""
-    if method == "dilated":
-        sol = dilated_design(system, calls, k_max)
-        if sol is None:
-            return None, None, "dilated LMI infeasible for every tau of the line search"
-        return list(sol["gains"]), float(sol["gamma"]), f"dilated LMI solved at gamma {sol['gamma']:.6g} (tau " \
-            f"{sol['tau']:.3g})"
-    xy = xy_solve(system, "common-fdi", None, calls, k_max)
-    if xy is None:
-        return None, None, f"common-fdi LMI {calls.unsolved()}"
-    Ks = [Y @ np.linalg.inv(X) for X, Y in zip(xy["X"], xy["Y"])]
-    return [Ks[system.chain.state_index(j, j)] for j in range(system.m)], float(xy["gamma"]), \
-        f"common-fdi LMI solved at gamma {xy['gamma']:.6g}"
 
 
 def _starts(system: FTCSystem, gamma: float | None, k_max: float | None, solver: str, calls: SolverCalls,
@@ -369,7 +364,7 @@ def _other_starts(system: FTCSystem, k_max: float | None, solver: str, calls: So
             rows.append(certify_start(system, c.name, c.gains, solver, c.note))
         rows[-1]["seconds"], t0 = time.perf_counter() - t0, time.perf_counter()
     for name in EXTRA_STARTS if extra else ():
-        gains, _, msg = _convex_gains(system, name, calls, k_max)
+        gains, _, msg = convex_gains(system, name, calls, k_max)
         made: dict[str, Any] = ({"name": name, "gamma_certified": None, "spectral_abscissa": None, "note": "",
                                  "reason": msg} if gains is None else certify_start(system, name, gains, solver))
         rows.append(made | {"seconds": time.perf_counter() - t0})
@@ -482,7 +477,7 @@ def _design(system: FTCSystem, method: str, gamma: float | None, k_max: float | 
         return (two_step(system, gamma, calls, k_max) if gamma is not None
                 else _two_step_min(system, calls, k_max, full_info))
     if method in EXTRA_STARTS:
-        return _convex_gains(system, method, calls, k_max)
+        return convex_gains(system, method, calls, k_max)
     sol = xy_solve(system, method, gamma, calls, k_max)
     if sol is None:
         return None, None, f"{method} LMI {calls.unsolved()}" + (f" at gamma {gamma:.6g}" if gamma else "")

@@ -24,7 +24,8 @@ from ..analysis.lmi import block_specs, projection, xy_block
 from ..analysis.lmi_analysis import GAMMA_LADDER
 from ..model.system import FTCSystem, Matrix
 
-__all__ = ["MARGIN_TOL", "CENTRE_WEIGHT", "gain_bound_block", "scaled_disturbance", "xy_solve", "xy_solver"]
+__all__ = ["MARGIN_TOL", "CENTRE_WEIGHT", "gain_bound_block", "scaled_disturbance", "channel_multipliers", "xy_solve",
+           "xy_solver"]
 
 #: An (X, Y) problem counts as strictly feasible when its maximised margin exceeds this
 #: (a heuristic only: every result is certified by the core analysis afterwards).
@@ -225,6 +226,21 @@ def _xy_problems(system: FTCSystem, kind: str, lay: _XYLayout, k_max: float | No
     e_g[lay.g] = 1.0
     capped = drop(rows.extended(unit_rows(lay.K, [lay.t], 1.0), [1.0]).problem(objective))
     return drop(rows.problem(e_g)).fix(lay.t, 0.0), capped, unused
+
+
+def channel_multipliers(system: FTCSystem, eps: list[float], delta: list[float]) -> list[list[float]]:
+    """Step 2's channel multipliers from step 1's numbers (:func:`xy_solver`), per joint mode
+    in the order of the closed loop's channels:
+    ``lambda = 1/eps`` for the A channel, ``1/delta`` for the B channel."""
+    lam = []
+    for s, (i, _) in enumerate(system.chain.joint_modes):
+        md, row = system.modes[i], []
+        if md.A1 is not None:
+            row.append(1.0 / max(eps[s], 1e-300))
+        if md.B1 is not None:
+            row.append(1.0 / max(delta[s], 1e-300))
+        lam.append(row)
+    return lam
 
 
 def xy_solver(system: FTCSystem, kind: str, calls: Any,
