@@ -63,8 +63,10 @@ def test_two_step_certified_at_1e3_is_certified_at_a_larger_gamma(paper_system, 
 def test_two_step_never_fails_at_a_larger_gamma_on_a_badly_scaled_system(paper_system):
     """The paper's example with ``D`` times 1e6 (review of fixb): step 1's capped margin
     is not invariant under the scaling of a level, and step 2 failed at 3e3 to 1e5 after
-    succeeding at 1e3; a failed level is now halved, so once a G succeeds every larger
-    one does, with gains achieving a level at most G that the message names."""
+    succeeding at 1e3; a failed level is now halved, so on this grid every G above the
+    first success succeeds, with gains achieving a level at most G that the message names.
+    (Not every G does: only the levels ``G / 2^k`` are tried, and with ``D`` times 1e3
+    two-step fails at 2.735 and succeeds at 2 and 3; the second review.)"""
     big = scaled_disturbance(paper_system, 1e-6)
     succeeded = None
     for G in (1e3, 3e3, 1e4, 3e4, 1e5, 1e6, 1e8):

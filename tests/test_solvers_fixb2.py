@@ -1,7 +1,9 @@
 """fd 2 held during a Clarabel call (:func:`ftc_verify.analysis.solvers._stderr_held`),
 review of fixb: holds overlapping in two threads left fd 2 on a deleted temporary file for
 the rest of the process, and with ``TMPDIR`` removed every Clarabel call raised
-``FileNotFoundError`` (``synthesize`` exit 4)."""
+``FileNotFoundError`` (``synthesize`` exit 4); second review: a child forked while fd 2 was
+held wrote its errors into the parent's temporary file, and a non-blocking pipe lost what
+did not fit at once. Only the main thread holds fd 2 now."""
 
 from __future__ import annotations
 
@@ -72,3 +74,45 @@ def test_synthesize_with_a_removed_tmpdir_exits_0(tmp_path):
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     assert (tmp_path / "K.toml").exists()
+
+
+# The main thread holds fd 2 while another thread forks: the child's error line must reach
+# the pipe (its fd 2 given back), and the parent's held text after the hold.
+FORK = """
+import os, threading
+from ftc_verify.analysis.solvers import _stderr_held
+def fork():
+    pid = os.fork()
+    if pid == 0:
+        os.write(2, b"child line\\n")
+        os._exit(0)
+    os.waitpid(pid, 0)
+with _stderr_held():
+    os.write(2, b"parent line\\n")
+    t = threading.Thread(target=fork); t.start(); t.join()
+"""
+
+# A parent that set O_NONBLOCK on the pipe and reads it only later: all the held text arrives.
+NONBLOCKING = """
+import os
+from ftc_verify.analysis.solvers import _stderr_held
+os.set_blocking(2, False)
+with _stderr_held():
+    os.write(2, b"x" * 100_000 + b"\\nLAST LINE\\n")
+"""
+
+
+def test_a_child_forked_while_fd_2_is_held_writes_to_the_real_fd_2():
+    proc = subprocess.run([sys.executable, "-c", FORK], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert sorted(proc.stderr.splitlines()) == ["child line", "parent line"]
+
+
+def test_held_text_reaches_a_non_blocking_pipe_read_late():
+    proc = subprocess.Popen([sys.executable, "-c", NONBLOCKING], stderr=subprocess.PIPE)
+    import time
+
+    time.sleep(2)
+    err = proc.stderr.read() if proc.stderr else b""
+    assert proc.wait(timeout=60) == 0
+    assert err.endswith(b"LAST LINE\n") and len(err) == 100_000 + len(b"\nLAST LINE\n")

@@ -226,11 +226,10 @@ def _solve_isolated(problem: Any, solver: str) -> tuple[str, str]:
 
 
 class _StderrHold:
-    """The state of :func:`_stderr_held` shared by every thread, changed under ``lock``:
-    the holds open (``depth``), fd 2 as it was before the first (``saved``), the temporary
-    file (``held``) and whether any hold asked to drop the text (``drop``)."""
+    """The state of :func:`_stderr_held`, kept by the main thread only: the holds open
+    (``depth``), fd 2 as it was before the first (``saved``), the temporary file
+    (``held``) and whether a hold asked to drop the text (``drop``)."""
 
-    lock = threading.Lock()
     depth = 0
     saved = -1
     held: Any = None
@@ -238,51 +237,79 @@ class _StderrHold:
 
     @classmethod
     def enter(cls) -> bool:
-        """Open a hold; the first redirects fd 2. ``False``: nothing is held (no usable
-        fd 2, or no temporary file: ``TMPDIR`` removed, disk full), the call runs as is."""
-        with cls.lock:
-            if cls.depth == 0:
+        """Open a hold; the first redirects fd 2. ``False``: nothing is held (not the main
+        thread, no usable fd 2, or no temporary file: ``TMPDIR`` removed, disk full), the
+        call runs as is."""
+        if threading.current_thread() is not threading.main_thread():
+            return False
+        if cls.depth == 0:
+            with contextlib.suppress(AttributeError, OSError, ValueError):  # sys.stderr None or closed
                 sys.stderr.flush()
-                try:
-                    held = tempfile.TemporaryFile()
-                except OSError:
-                    return False
-                try:
-                    cls.saved = os.dup(2)
-                    os.dup2(held.fileno(), 2)
-                except OSError:
-                    held.close()
-                    return False
-                cls.held, cls.drop = held, False
-            cls.depth += 1
-            return True
+            try:
+                held = tempfile.TemporaryFile()
+            except OSError:
+                return False
+            try:
+                cls.saved = os.dup(2)
+                os.dup2(held.fileno(), 2)
+            except OSError:
+                held.close()
+                return False
+            cls.held, cls.drop = held, False
+        cls.depth += 1
+        return True
 
     @classmethod
     def leave(cls, drop: bool) -> None:
         """Close a hold; the last restores fd 2 and writes the text back unless a hold
-        dropped it."""
-        with cls.lock:
-            cls.depth -= 1
-            cls.drop |= drop
-            if cls.depth:
-                return
-            os.dup2(cls.saved, 2)
-            os.close(cls.saved)
-            held, cls.held = cls.held, None
-            with held:
-                if not cls.drop and held.seek(0, os.SEEK_END):
-                    held.seek(0)
-                    with contextlib.suppress(OSError):
-                        os.write(2, held.read())
+        dropped it (every byte: a pipe may take it in parts)."""
+        cls.depth -= 1
+        cls.drop |= drop
+        if cls.depth:
+            return
+        held = cls._restore()
+        with held:
+            if not cls.drop and held.seek(0, os.SEEK_END):
+                held.seek(0)
+                _write_all(held.read())
+
+    @classmethod
+    def _restore(cls) -> Any:
+        """fd 2 back to what it was; the temporary file (the caller closes it)."""
+        os.dup2(cls.saved, 2)
+        os.close(cls.saved)
+        held, cls.held, cls.depth = cls.held, None, 0
+        return held
 
     @classmethod
     def after_fork(cls) -> None:
-        """A new lock in a forked child: a thread holding it at the fork does not exist there."""
-        cls.lock = threading.Lock()
+        """A child forked (by another thread) while the main thread held fd 2: its own fd 2
+        back to the terminal's, the held text left to the parent."""
+        if cls.depth:
+            cls._restore().close()
 
 
 if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_StderrHold.after_fork)
+
+
+def _write_all(text: bytes, patience: float = 10.0) -> None:
+    """Every byte of ``text`` to fd 2: a pipe may take it in parts, and a non-blocking one
+    (``O_NONBLOCK`` set by the parent) refuses while full -- then wait until it is writable,
+    at most ``patience`` seconds in all; an fd 2 that fails otherwise gets nothing more."""
+    import select
+
+    deadline = time.monotonic() + patience
+    while text:
+        try:
+            text = text[os.write(2, text):]
+        except BlockingIOError:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return
+            select.select([], [2], [], left)
+        except OSError:
+            return
 
 
 @contextlib.contextmanager
@@ -293,10 +320,11 @@ def _stderr_held() -> Iterator[list[bool]]:
     raises it (``synthesize --gamma 1e16`` printed them on the user's terminal); the
     exception's message names the panic, and the outcome reports it.
 
-    fd 2 belongs to the process: holds overlapping in several threads share one
-    redirection (:class:`_StderrHold`: the first redirects, the last restores and writes
-    the text back, dropped when any of them set its flag). Without a temporary file
-    (``TMPDIR`` removed) or a usable fd 2 the block runs without a hold."""
+    fd 2 belongs to the process, so only the main thread holds it (:class:`_StderrHold`;
+    a solve in another thread runs without a hold, and a child forked while it is held gets
+    its fd 2 back). Without a temporary file (``TMPDIR`` removed) or a usable fd 2 the block
+    runs without a hold. The caller holds SIGINT and SIGTERM around it
+    (:func:`_clarabel_guarded`), so a signal cannot leave fd 2 redirected."""
     drop = [False]
     if not _StderrHold.enter():
         yield drop
@@ -318,10 +346,9 @@ def _clarabel_guarded(call: Any, problem: ConicProblem,
     delivered after it (:func:`~ftc_verify.interrupts.deferred_signals`): raised inside
     Clarabel's callbacks into Python they would come out as such a panic."""
     start = time.perf_counter()
-    with _stderr_held() as panicked:
+    with deferred_signals(), _stderr_held() as panicked:
         try:
-            with deferred_signals():
-                status, message, *arrays = call(problem, SETTINGS["clarabel"] if settings is None else settings)
+            status, message, *arrays = call(problem, SETTINGS["clarabel"] if settings is None else settings)
         except BaseException as exc:  # pyo3's PanicException is a BaseException
             panicked[0] = type(exc).__name__ == "PanicException"
             if not isinstance(exc, Exception) and not panicked[0]:
