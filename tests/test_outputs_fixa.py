@@ -295,3 +295,13 @@ def test_a_link_loop_from_the_command_line(tmp_path: Path, capsys: pytest.Captur
     assert main(["synthesize", PAPER, "--method", "common", "-o", str(loop)]) == 2
     assert capsys.readouterr().err.strip().splitlines() == [
         f"ftc-verify: error: -o/--output {loop}: Too many levels of symbolic links (ELOOP); give another name"]
+
+
+def test_a_closed_stderr_from_the_shell() -> None:
+    """``ftc-verify analyze ... 2>&-``: the messages are discarded, the answer printed and
+    the exit code that of the answer (before: an ``isatty`` on ``None``, exit 4)."""
+    argv = [sys.executable, "-m", "ftc_verify", "analyze", PAPER, "--controller", GAINS]
+    proc = subprocess.run([sys.executable, "-c", f"import os; os.close(2); os.execv({sys.executable!r}, {argv!r})"],
+                          capture_output=False, stdout=subprocess.PIPE, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout
+    assert "internal error" not in proc.stdout and "verdict: certified" in proc.stdout

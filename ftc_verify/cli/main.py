@@ -276,6 +276,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         from ..prestart import defer_numpy_tools  # it changes the interpreter for good
 
         defer_numpy_tools()  # numpy.f2py, numpy.testing: imported by scipy, used by nobody here
+    if sys.stderr is None:  # started with stderr closed (`2>&-`): the user discards the messages
+        sys.stderr = open(os.devnull, "w")  # takes fd 2: no file opened later lands on it
     if sys.stdout is None:  # started with stdout closed (`>&-`): the answer cannot be printed
         print("ftc-verify: error: stdout is closed, the answer could not be printed; nothing was done "
               "(to discard the answer, redirect it to /dev/null)", file=sys.stderr)
