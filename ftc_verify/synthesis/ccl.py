@@ -25,7 +25,7 @@ from ..model.system import FTCSystem, Matrix
 from .of_blocks import augmented_system
 from .results import SolverCalls
 from .state_feedback import gain_step
-from .xy_design import scaled_disturbance
+from .xy_design import posed_level, scaled_disturbance
 
 __all__ = ["CCL_MAX_ITER", "CCL_TOL", "ccl_blocks", "ccl_spec_blocks", "ccl_state_blocks", "ccl"]
 
@@ -184,8 +184,8 @@ def ccl(system: FTCSystem, gamma: float, calls: SolverCalls, k_max: float | None
     cols.add("X", S, nb * (nb + 1) // 2)
     cols.add("lam", total, 1)
     cols.add("eps", total, 1)
-    scale = max(gamma, 1.0)  # the blocks at D / scale, g = (gamma / scale)**2 <= 1: no entry grows with gamma
-    rows = _ccl_rows(scaled_disturbance(aug, scale), cbars, cols, chans, (gamma / scale) ** 2, 1e-7)
+    scale, g = posed_level(gamma)  # the blocks at D / scale, g <= 1: no entry grows with gamma
+    rows = _ccl_rows(scaled_disturbance(aug, scale), cbars, cols, chans, g, 1e-7)
     (sym,), _ = local_variables([("sym", 0, (nb,))])
     r, c, w = svec_index(nb)
     width = nb * (nb + 1) // 2

@@ -105,7 +105,7 @@ from .starts import candidates, certify_start, diagnose
 from .results import SolverCalls, SynthesisResult, check_levels, verify_controller
 from .polish import polish
 from .convex_designs import convex_gains, reference_alone
-from .xy_design import channel_multipliers, gain_bound_block, scaled_disturbance, xy_solve, xy_solver
+from .xy_design import channel_multipliers, gain_bound_block, posed_level, scaled_disturbance, xy_solve, xy_solver
 
 __all__ = ["METHODS", "SynthesisResult", "synthesize", "two_step", "gain_step", "Descent", "descend"]
 
@@ -144,10 +144,11 @@ def gain_step(
     of FDI mode ``j`` (Schur form in :math:`F`) :math:`\preceq 0` on :class:`~ftc_verify.analysis.conic.Affine`
     matrices, solved in conic form (:meth:`~ftc_verify.synthesis.results.SolverCalls.run_conic`; no cvxpy),
     :math:`g \ge 0`, :func:`~ftc_verify.synthesis.xy_design.gain_bound_block` with ``k_max``; with ``gamma``: the
-    blocks at :math:`D/\sigma`, :math:`\sigma = \max(\gamma, 1)` (:func:`.xy_design.scaled_disturbance`),
+    blocks at :math:`D/\sigma`, :math:`\sigma = \max(\gamma, 1)` (:func:`.xy_design.posed_level`),
     :math:`g \le (\gamma/\sigma)^2 \le 1`, :math:`\|K_j\|_2 \le k`, min :math:`k`.
     """
-    m, (n, nu, _, _), scale = system.m, system.dims, max(gamma or 1.0, 1.0)  # g <= (gamma / scale)**2 at D / scale
+    m, (n, nu, _, _) = system.m, system.dims
+    scale, g_top = (1.0, math.inf) if gamma is None else posed_level(gamma)  # g <= g_top at D / scale
     cols = n if measurement is None else measurement[0].shape[0]
     size = nu * cols + (1 if gamma is None else 2)
     every = np.arange(size).astype(int)
@@ -169,7 +170,7 @@ def gain_step(
     c = np.eye(size)[nu * cols if gamma is None else -1]  # min g, or min k
     rows.nonneg(unit_rows(size, range(nu * cols, size)), np.zeros(size - nu * cols))  # g >= 0 (and k >= 0)
     if gamma is not None:
-        rows.nonneg(unit_rows(size, [nu * cols], 1.0), [(gamma / scale) ** 2])
+        rows.nonneg(unit_rows(size, [nu * cols], 1.0), [g_top])
         rows.lmi(-gain_bound_block(K, 1.0, scalar_variable(size - 1, size), affine_bmat), every)
     out, x = calls.run_conic(rows.problem(c))
     if not out.solved or x is None:

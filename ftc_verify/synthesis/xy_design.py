@@ -24,8 +24,8 @@ from ..analysis.lmi import block_specs, projection, xy_block
 from ..analysis.lmi_analysis import GAMMA_LADDER
 from ..model.system import FTCSystem, Matrix
 
-__all__ = ["MARGIN_TOL", "CENTRE_WEIGHT", "gain_bound_block", "scaled_disturbance", "channel_multipliers", "xy_solve",
-           "xy_solver"]
+__all__ = ["MARGIN_TOL", "CENTRE_WEIGHT", "gain_bound_block", "scaled_disturbance", "posed_level", "channel_multipliers",
+           "xy_solve", "xy_solver"]
 
 #: An (X, Y) problem counts as strictly feasible when its maximised margin exceeds this
 #: (a heuristic only: every result is certified by the core analysis afterwards).
@@ -60,6 +60,15 @@ def scaled_disturbance(system: FTCSystem, scale: float) -> FTCSystem:
     if scale == 1.0:
         return system
     return replace(system, modes=tuple(replace(mode, D=mode.D / scale) for mode in system.modes))
+
+
+def posed_level(gamma: float) -> tuple[float, float]:
+    """How every synthesis LMI poses the level ``gamma``: ``(scale, g)`` with
+    ``scale = max(gamma, 1)`` (the blocks on :func:`scaled_disturbance` at ``scale``) and
+    ``g = (gamma / scale)**2 <= 1`` in place of :math:`\\gamma^2`; a scale below 1 would
+    enlarge :math:`D` (past the model's entry limit at tiny levels)."""
+    scale = max(gamma, 1.0)
+    return scale, (gamma / scale) ** 2
 
 
 def _variable_groups(system: FTCSystem, kind: str) -> list[int]:
@@ -280,12 +289,11 @@ def xy_solver(system: FTCSystem, kind: str, calls: Any,
         return math.nan if col in unused else float(x[col])
 
     def at_level(level: float) -> tuple[Any, Matrix | None]:
-        """The capped-margin problem at ``level``, posed at ``scale = max(level, 1)``,
-        ``g = (level / scale)**2 <= 1`` (:func:`scaled_disturbance`; a scale below 1 would
-        enlarge :math:`D`). A build costs 1-3 ms (``examples/paper.toml``)."""
-        scale = max(level, 1.0)
+        """The capped-margin problem at ``level``, posed by :func:`posed_level`. A build
+        costs 1-3 ms (``examples/paper.toml``)."""
+        scale, g = posed_level(level)
         capped = capped_1 if scale == 1.0 else _xy_problems(system, kind, lay, k_max, objective, scale)[1]
-        return calls.run_conic(capped.fix(lay.g, (level / scale) ** 2))
+        return calls.run_conic(capped.fix(lay.g, g))
 
     def solve_at(gamma: float | None) -> dict[str, Any] | None:
         """The numbers at ``gamma`` (or minimised and re-centred: ``gamma=None``), or ``None``."""
