@@ -374,8 +374,11 @@ def affine_stable(loop: SampledLoop, parts: Any, lo: Matrix, hi: Matrix) -> bool
         if aff is None:
             return None
         form = (aff[0], aff[1], np.zeros((0,) + aff[0].shape), aff[2])
+    from .sampled_eigen import eigen_stable
     from .sampled_second import certify_second_order
 
+    if eigen_stable(loop, form):
+        return True
     for mix in RHS_MIXES:
         if certify_second_order(loop, form, mix):
             return True
