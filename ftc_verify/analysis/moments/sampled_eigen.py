@@ -7,8 +7,9 @@ Y(\delta) \succ 0`: every remainder of the enclosure of :math:`T` is held, entry
 entry, against a margin of about :math:`(1 - \rho)` times the smallest eigenvalue of a
 joint state's block of the certificate. Near the period where the loop loses stability
 the Perron stack's blocks are far from isotropic, and the sub-boxes must be tiny.
-Here the remainders meet the margin only through a weighted sum (the left Perron
-vector), and the eigenvector is needed inside the cone at the sub-box's centre only.
+Here the remainders meet the margin mainly through a weighted sum (the left Perron
+vector; the rest of the eigenvector's enclosure enters scaled by the inverse spectral
+gap), and the eigenvector is needed inside the cone at the sub-box's centre only.
 
 **The form.** :func:`~ftc_verify.analysis.moments.quad_balls.quad_map` encloses the
 map over the sub-box, :math:`\delta \in [-1, 1]^K` its scaled rates,
@@ -57,12 +58,20 @@ that a transfer of mass between joint states cancels in them). :math:`G(0) = (T 
 their rounding), the terms of degree 3 and 4 (:math:`\delta_a \mu_p ((T_a - \lambda_a)
 v_p + (T_p - \lambda_p) v_a)`, :math:`\mu_p \mu_q (T_p - \lambda_p) v_q`, each bounded
 after its product with :math:`R`) and :math:`E \tilde v`. Likewise :math:`|\Phi(z) -
-\Phi(z')| \le L |z - z'|` entrywise with :math:`L \zeta = |I - RM| \zeta + \Lambda
-\zeta_y + \zeta_\mu m + 2 \zeta_\mu |R_y| \zeta_y` (from :math:`\mu y - \mu' y' = \mu (y
-- y') + (\mu - \mu') y'`). If the first bound is below :math:`\zeta` and :math:`L\zeta <
-\zeta` in every entry, :math:`\Phi` maps the box :math:`|z| \le \zeta` into itself and
-is a contraction there (in the norm :math:`\max_i |z_i| / \zeta_i`): one fixed point.
-Since :math:`L \ge |I - R\, DG(z)|` on the box, :math:`R\, DG(z)` is nonsingular, so
+\Phi(z')| \le L |z - z'|` entrywise with the nonnegative matrix
+
+.. math::
+
+    L = |I - R M| + \begin{bmatrix} \Lambda + \zeta_\mu |R_y| & m + |R_y| \zeta_y
+    \end{bmatrix}, \qquad L \zeta = |I - RM| \zeta + \Lambda \zeta_y + \zeta_\mu m
+    + 2 \zeta_\mu |R_y| \zeta_y
+
+(columns of :math:`y` and of :math:`\mu`; from :math:`\mu y - \mu' y' = \mu (y - y') +
+(\mu - \mu') y'`); :math:`L \ge |I - R\, DG(z)|` on the box, :math:`DG` the Jacobian of
+:math:`G`. If the first bound is below :math:`\zeta` and :math:`L\zeta < \zeta` in every
+entry (:math:`\zeta > 0`), then :math:`\rho(L) < 1` (Collatz-Wielandt), :math:`\Phi` maps
+the box :math:`|z| \le \zeta` into itself and is a contraction there (in the norm
+:math:`\max_i |z_i| / \zeta_i`): one fixed point. :math:`R\, DG(z)` is nonsingular, so
 :math:`R` is, the fixed point solves :math:`G = 0`, and the bordered Jacobian
 :math:`DG = \begin{bmatrix} T - \lambda & -v \\ w_0^T & 0 \end{bmatrix}` is nonsingular
 there, which makes :math:`\lambda` an algebraically simple eigenvalue (a second
@@ -78,9 +87,10 @@ that depends continuously on :math:`\delta`). The set of :math:`\delta` where
 :math:`\delta_0` the simple eigenvalue :math:`\lambda(\delta_0)` is the only eigenvalue
 of :math:`T(\delta)` near :math:`\rho(\delta_0)`, so the eigenvalue :math:`\rho(\delta)`
 is :math:`\lambda(\delta)`. At :math:`\delta = 0` it holds: the same enclosure without the
-rates' terms gives :math:`\zeta^0 \le \zeta` (so the same eigenpair) and :math:`v_0 \pm
-\zeta^0_y` positive definite in every joint state (Arb's Cholesky,
-:func:`~ftc_verify.analysis.moments.sampled_taylor.stack_pd`): an eigenvector inside the
+rates' terms gives :math:`\zeta^0 \le \zeta` (so the same eigenpair) and every stack
+:math:`v_0 + y`, :math:`|y| \le \zeta^0_y`, positive definite in every joint state (the
+ball proof of :func:`~ftc_verify.analysis.moments.sampled_taylor.stack_pd`, for every
+symmetric matrix of the ball): an eigenvector inside the
 cone, whose eigenvalue is the spectral radius (every stack lies below a multiple of it).
 The box being connected, :math:`\rho(\delta) = \lambda(\delta) \le \lambda_0 +
 \max_\delta (\sum_a \delta_a \lambda_a + \sum_p \mu_p \lambda_p) + \zeta_\mu` for every
@@ -123,14 +133,17 @@ def _up(v: Any, k: int) -> Any:
 def _perron(Tc: Matrix) -> tuple[float, Matrix, Matrix] | None:
     """``(lambda_0, v_0, w_0)`` of the module docstring (float64), ``w_0 . v_0 = 1``;
     ``None`` when the dominant eigenvalue is not real and positive."""
-    ev, V = np.linalg.eig(Tc)
+    try:
+        ev, V = np.linalg.eig(Tc)
+        ew, W = np.linalg.eig(Tc.T)
+    except np.linalg.LinAlgError:
+        return None
     k = int(np.argmax(np.abs(ev)))
     if not (abs(ev[k].imag) <= 1e-9 * abs(ev[k]) and ev[k].real > 0):
         return None
     lam = float(ev[k].real)
     v = np.real(V[:, k])
     v = v / (v[np.argmax(np.abs(v))])
-    ew, W = np.linalg.eig(Tc.T)
     j = int(np.argmin(np.abs(ew - lam)))
     w = np.real(W[:, j])
     s = float(w @ v)
@@ -188,7 +201,7 @@ def expansion(Tc: Matrix, Tl: Matrix, Tq: Matrix) -> Expansion | None:
         else:
             g = g + Tl[a] @ Vl[b] + Tl[b] @ Vl[a] - lam_l[a] * Vl[b] - lam_l[b] * Vl[a]
         rhs.append(-g)
-    sol = R[:, :N] @ np.stack(rhs, axis=1)
+    sol = R[:, :N] @ np.stack(rhs, axis=1) if rhs else np.zeros((N + 1, 0))
     Vq, lam_q = sol[:N].T.copy(), sol[N].copy()
     out = Expansion(lam0, v0, w0, M, R, lam_l, Vl, lam_q, Vq)
     return out if all(np.all(np.isfinite(x)) for x in dataclasses.astuple(out)) else None
@@ -285,13 +298,21 @@ def eigen_radius_bound(form: tuple[Matrix, ...], states: int, r: int) -> float |
     r"""An upper bound of :math:`\rho(T(\delta))` over every :math:`\delta \in [-1,
     1]^K` of the form ``form`` (``(Tc, Tl, Tq, Tr)``,
     :func:`~ftc_verify.analysis.moments.quad_balls.quad_map`; an affine ``(Tc, Tl, Tr)``
-    too), proved by the eigenpair enclosure of the module docstring, or ``None``."""
+    too), proved by the eigenpair enclosure of the module docstring, or ``None``.
+
+    Precondition (the proof's, not checked): the form encloses, at each :math:`\delta`, a
+    map :math:`T(\delta)` that is continuous in :math:`\delta` and positive on the cone
+    of ``states`` stacked ``r x r`` positive semidefinite blocks (``vech``, ``N = states
+    r (r + 1) / 2`` rows, checked) -- as the one-period map of a sampled loop is; for
+    other maps the number returned bounds nothing."""
     if len(form) == 3:
         Tc, Tl, Tr = form
         Tq = np.zeros((0,) + Tc.shape)
     else:
         Tc, Tl, Tq, Tr = form
     N = Tc.shape[0]
+    if N != states * r * (r + 1) // 2:
+        raise ValueError(f"a form of {N} rows is not a stack of {states} blocks of {r} x {r}")
     e = expansion(Tc, Tl, Tq)
     if e is None:
         return None

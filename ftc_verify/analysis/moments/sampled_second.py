@@ -135,7 +135,8 @@ def quadratic_max(lin: Matrix, quad: Matrix, max_boxes: int = 400, rtol: float =
     bound is halved along its widest side until that bound is within ``rtol`` times
     :math:`\sum |l| + \sum |q|` of the best centre value or ``max_boxes`` boxes are
     split. Every bound is inflated by :math:`10^{-12}` times that sum (the float
-    evaluation's rounding, at most :math:`4 K^2 u` of it, :math:`K \le 100`)."""
+    evaluation's rounding, at most :math:`4 K^2 u` of it, :math:`K \le 40`; the proofs take at most
+    :data:`~ftc_verify.analysis.moments.sampled_taylor.AFFINE_RATES`)."""
     K = lin.shape[0]
     prs = pairs(K)
     scale = float(np.abs(lin).sum() + np.abs(quad).sum())
