@@ -94,8 +94,9 @@ def test_map_proof_first_then_the_cubic(monkeypatch: pytest.MonkeyPatch) -> None
 
     monkeypatch.setattr(sampled_cover, "subbox_stable", refuse_above)
     leaves, spent, attempts, maps = cover_box(loop, PAPER_UNSTABLE * 0.95, 2, _box(loop), 1e12)
-    # the box's cubic fails, then its probe (COVER_DEPTH halvings down): the rung ends there
-    assert leaves is None and attempts == 2 == never.calls and maps == len(calls) == 1
+    # the box's cubic fails, then its probe (COVER_DEPTH halvings down): no more programs,
+    # map proofs alone below the box, down to MAP_DEPTH
+    assert leaves is None and attempts == 2 == never.calls and maps == len(calls) == 1 + MAP_DEPTH
     assert spent == pytest.approx(attempts * cubic_work(loop, 2) + maps * box_work(loop))
     # only the box's probe proved: the top of its path (1 halving) and the bisection (5, 7,
     # 8, 9 halvings) fail, so the probe is the path's leaf; the other half at COVER_DEPTH

@@ -25,9 +25,12 @@ pieces, the worst vertex alone 5e-4, the sub-box of half the widths at that vert
 sub-box's widths (envelope) or higher (the polynomial forms), so it can prove small
 sub-boxes near the worst vertex where no cubic certificate of a sub-box is found
 (held-out seed 13 at 1e-2: 75 map sub-boxes of a vertex box of 1/16 of the widths,
-``benchmarks/results/h31t.md``), and the cubic proves the large ones far from it. With
-:data:`MAP_DEPTH` 12 that deep a vertex box is not reached: on the held-out loops
-measured, no rung was decided by map proofs. A cover is built depth first: a sub-box
+``benchmarks/results/h31t.md``), and the cubic proves the large ones far from it. Since
+the map's proof encloses the Perron eigenpair
+(:mod:`~ftc_verify.analysis.moments.sampled_eigen`) it proves vertex boxes 2-4 times as
+wide per rate, and covers of map proofs alone decide the last rungs: held-out seed 31,
+9e-4 below the proved-unstable end, 230 sub-boxes, every one by its map
+(``benchmarks/results/eig14.md``). A cover is built depth first: a sub-box
 not proved is split in half along its widest rate (relative to the box; on ties the one
 that moves the float64 radius most near the box's worst vertex) up to
 :data:`COVER_DEPTH` halvings along a path (cubic certificates tried), then along the rate
@@ -39,11 +42,14 @@ the worst vertex is tried first, and a sub-box whose cubic certificate fails fir
 its *probe* tried (:func:`probe_box`: the sub-box the cover would reach first at
 :data:`COVER_DEPTH` below it, at that corner): a certificate of a sub-box also holds on
 each sub-box inside it (the sub-box's program is a relaxation), so when none is found
-for the probe none is expected on the path to it, and the rung ends there instead of
-after a cubic program at every depth of that path (only where the search gives up
-depends on this; every sub-box of a cover is proved) (held-out seed 13, 1.1e-2 below the crossing: 11 programs and 68,000 units for
-a rung that failed; seed 31, 6.3e-3: 27 programs and 161,000 units, the failing sub-box
-on the last path tried; ``benchmarks/results/h31v.md``). When the probe is proved, the
+for the probe none is expected on the path to it, and below that sub-box the cover
+goes on with map proofs alone (halved along
+:func:`~ftc_verify.analysis.moments.sampled_proof.split_rate`) instead of a cubic program
+at every depth of that path (only where the search spends its budget depends on this;
+every sub-box of a cover is proved). Before the eigenpair enclosure the rung ended there
+(held-out seed 13, 1.1e-2 below the crossing: 11 programs and 68,000 units for a rung
+that failed; ``benchmarks/results/h31v.md``); the map proofs now cover what the cubic
+certificates cannot near the worst vertex (``benchmarks/results/eig14.md``). When the probe is proved, the
 shallowest proved sub-box on its path is looked for (``_shallowest``: the top of the
 path, then bisection of the depth, about 3 programs where the top-down cover paid one
 per halving), and the cover goes on with it and the other halves along the path, the
@@ -90,10 +96,11 @@ __all__ = ["COVER_DEPTH", "MAP_DEPTH", "PIECES", "FINE_FROM", "BISECT", "CoverRe
 COVER_DEPTH = 10
 #: The most halvings along one path in all (below :data:`COVER_DEPTH` by
 #: :func:`~ftc_verify.analysis.moments.sampled_proof.split_rate`, the rule of the map's
-#: proofs). Small: with 32 a failed rung spent the whole budget on map proofs (the
-#: ``hmax-case`` loop: 642 of them, 200 CPU s instead of 88 for the same bracket;
-#: ``benchmarks/results/h31t.md``).
-MAP_DEPTH = 12
+#: proofs). 12 before the eigenpair enclosure, when a failed rung spent its budget on map
+#: proofs that could not succeed (with 32: the ``hmax-case`` loop, 642 of them, 200 CPU s
+#: instead of 88 for the same bracket; ``benchmarks/results/h31t.md``); the map covers of
+#: the last rungs go 14-18 halvings deep (``benchmarks/results/eig14.md``).
+MAP_DEPTH = 24
 #: The cubic pieces a rung may use, fewest first (:func:`rung_pieces`).
 PIECES = (2, 4, 8)
 #: Below this distance a rung uses at least 4 pieces: the seed-1 loop's sub-boxes needed 4
@@ -243,13 +250,14 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
               proved: frozenset[tuple[bytes, bytes]] = frozenset()) -> tuple[list[Box] | None, float, int, int]:
     """A cover of the union of ``boxes`` at period ``h`` (module docstring), depth first,
     the harder half of each split first: ``(sub-boxes, units charged, cubic attempts, map
-    proofs)``, the sub-boxes ``None`` when the budget or :data:`MAP_DEPTH` ran out first,
-    the float64 radius at a sub-box's midpoint is not below 1, or a sub-box's
-    :func:`probe_box` is not proved by a cubic certificate. Each sub-box: the one-period
+    proofs)``, the sub-boxes ``None`` when the budget or :data:`MAP_DEPTH` ran out first
+    or the float64 radius at a sub-box's midpoint is not below 1. Each sub-box: the one-period
     map's proof (:func:`~ftc_verify.analysis.moments.sampled_proof.subbox_stable`, charged
     :func:`~ftc_verify.analysis.moments.sampled_bracket.box_work`), then, up to
     :data:`COVER_DEPTH` and when ``pieces`` is given and the budget pays it, a cubic
-    certificate of ``pieces`` pieces; where that fails, its probe's before its halves.
+    certificate of ``pieces`` pieces; where that fails, its probe's before its halves, and
+    where the probe's fails too, map proofs alone below it (halved along
+    :func:`~ftc_verify.analysis.moments.sampled_proof.split_rate`).
     ``worst``: the box's worst vertex (float64, found here when not given), which orders
     the splits; ``proved``: sub-boxes already proved at ``h`` (by ``_key``, exact
     floats), leaves without a new proof."""
@@ -257,6 +265,7 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
     stack = list(reversed(boxes))
     leaves: list[Box] = []
     done = set(proved)
+    maps_only: set[tuple[bytes, bytes]] = set()
     spent, attempts, maps = 0.0, 0, 0
     with precision(64):
         parts = MapParts.build(loop, h)
@@ -276,7 +285,8 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
             return None, spent, attempts, maps
         if worst is None:
             worst = worst_vertex(loop, h, rate_points(loop.chain))[1]
-        if pieces is not None and depth <= COVER_DEPTH and spent + cost <= budget:
+        key = _key(lo, hi)
+        if pieces is not None and depth <= COVER_DEPTH and spent + cost <= budget and key not in maps_only:
             spent += cost
             attempts += 1
             cert = cubic_stable(loop, h, pieces, lo, hi)
@@ -288,17 +298,19 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
                 found = _shallowest(loop, h, pieces, path, done, budget - spent)
                 spent += cost * found[1]
                 attempts += found[1]
-                if found[0] is None:
-                    return None, spent, attempts, maps
-                stack.extend(other for _, other in path[:found[0] + 1])
-                stack.append(path[found[0]][0])
-                continue
+                if found[0] is not None:
+                    stack.extend(other for _, other in path[:found[0] + 1])
+                    stack.append(path[found[0]][0])
+                    continue
+                maps_only.add(key)  # no certificate for its probe: map proofs alone below it
         if depth >= MAP_DEPTH:
             return None, spent, attempts, maps
-        idx = None if depth < COVER_DEPTH else split_rate(loop, h, lo, hi)
+        idx = None if depth < COVER_DEPTH and key not in maps_only else split_rate(loop, h, lo, hi)
         if idx is None and not any(hi[r] > lo[r] for r in loop.chain.rate_indices):
             return None, spent, attempts, maps
         first, second = _split(loop, h, lo, hi, depth, worst, idx)
+        if key in maps_only:
+            maps_only.update({_key(first[0], first[1]), _key(second[0], second[1])})
         stack.append(second)
         stack.append(first)
     return leaves, spent, attempts, maps
