@@ -1,17 +1,26 @@
 """The second-order form of a sub-box's one-period map, for the tests of the sampled
-sub-box proofs (``test_bracket_h31x.py``, ``test_second_order_h31w.py``):
+sub-box proofs (``test_bracket_h31x.py``, ``test_second_order_h31w.py``,
+``test_eigen_enclosure_r14.py``):
 :func:`~ftc_verify.analysis.moments.quad_balls.quad_map` on the float parts of
-:class:`~ftc_verify.analysis.moments.sampled_proof.MapParts` at 64 bits."""
+:class:`~ftc_verify.analysis.moments.sampled_proof.MapParts` at 64 bits; the seed-1
+``n = 4, m = 3`` loop those tests share, its worst vertex's crossing and the sub-boxes at
+that vertex."""
 
 from __future__ import annotations
 
 import numpy as np
+import scipy.optimize
 
 from ftc_verify.analysis.moments.quad_balls import quad_map
-from ftc_verify.analysis.moments.sampled import SampledLoop
+from ftc_verify.analysis.moments.sampled import SampledLoop, rate_points, spectral_radius
+from ftc_verify.analysis.moments.sampled_bracket import worst_vertex
+from ftc_verify.analysis.moments.sampled_conditioned import conditioned
 from ftc_verify.analysis.moments.sampled_proof import MapParts
 from ftc_verify.analysis.moments.sampled_taylor import _rates_affine
 from ftc_verify.analysis.rigorous import precision
+from ftc_verify.controllers.controller import Controller
+from ftc_verify.model.system import FTCSystem
+from ftc_verify.testing.sampled_cases import lqr_case
 
 
 def second_order_form(loop: SampledLoop, h: float, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -23,3 +32,31 @@ def second_order_form(loop: SampledLoop, h: float, lo: np.ndarray, hi: np.ndarra
         out = quad_map(res, modes, found[0], found[1], hb, lift)
     assert out is not None
     return out
+
+
+def seed1_case() -> tuple[FTCSystem, Controller]:
+    """The seed-1 ``n = 4, m = 3`` loop of ``benchmarks/sampled.py`` (not a held-out draw)."""
+    rng = np.random.default_rng(1)
+    lqr_case(2, 2, rng)
+    return lqr_case(4, 3, rng)
+
+
+def seed1_crossing() -> tuple[SampledLoop, float, np.ndarray]:
+    """The conditioned seed-1 loop, the float64 crossing ``a`` of its worst vertex ``v``."""
+    loop = conditioned(SampledLoop.build(*seed1_case()))
+    v = worst_vertex(loop, 0.546, rate_points(loop.chain))[1]
+    a = scipy.optimize.brentq(lambda h: spectral_radius(loop, h, v) - 1.0, 0.5, 0.6, xtol=1e-12)
+    return loop, float(a), v
+
+
+def vertex_corner(loop: SampledLoop, v: np.ndarray, width: float) -> tuple[np.ndarray, np.ndarray]:
+    """The sub-box at the vertex ``v`` with ``width`` of every rate's range."""
+    chain = loop.chain
+    lo, hi = np.array(chain.rate_min, dtype=float), np.array(chain.rate_max, dtype=float)
+    for r in chain.rate_indices:
+        w = width * (chain.rate_max[r] - chain.rate_min[r])
+        if v[r] == chain.rate_min[r]:
+            hi[r] = lo[r] + w
+        else:
+            lo[r] = hi[r] - w
+    return lo, hi

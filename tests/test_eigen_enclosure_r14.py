@@ -11,20 +11,16 @@ import itertools
 
 import numpy as np
 import pytest
-import scipy.optimize
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sampled_forms import second_order_form
+from sampled_forms import second_order_form, seed1_crossing, vertex_corner
 from ftc_verify.analysis.moments.quad_balls import pairs
-from ftc_verify.analysis.moments.sampled import SampledLoop, rate_points, spectral_radius
-from ftc_verify.analysis.moments.sampled_bracket import worst_vertex
-from ftc_verify.analysis.moments.sampled_conditioned import conditioned
+from ftc_verify.analysis.moments.sampled import SampledLoop, spectral_radius
 from ftc_verify.analysis.moments.sampled_eigen import eigen_radius_bound, eigen_stable
 from ftc_verify.analysis.moments.sampled_proof import MapParts, subbox_stable
 from ftc_verify.analysis.moments.sampled_second import certify_second_order
 from ftc_verify.analysis.rigorous import precision
-from ftc_verify.testing.sampled_cases import lqr_case
 
 
 def _family(rng: np.random.Generator, n: int, K: int, spread: float, cyclic: bool) -> tuple[np.ndarray, ...]:
@@ -104,33 +100,10 @@ def test_a_form_that_is_not_a_stack_of_blocks_is_refused() -> None:
         eigen_radius_bound(form, 1, 2)
 
 
-def _case() -> tuple:
-    """The seed-1 ``n = 4, m = 3`` loop of ``benchmarks/sampled.py`` (not a held-out draw)."""
-    rng = np.random.default_rng(1)
-    lqr_case(2, 2, rng)
-    return lqr_case(4, 3, rng)
-
-
 @pytest.fixture(scope="module")
 def setting() -> tuple[SampledLoop, float, np.ndarray]:
-    """The conditioned loop, the float64 crossing ``a`` of its worst vertex ``v``."""
-    loop = conditioned(SampledLoop.build(*_case()))
-    v = worst_vertex(loop, 0.546, rate_points(loop.chain))[1]
-    a = scipy.optimize.brentq(lambda h: spectral_radius(loop, h, v) - 1.0, 0.5, 0.6, xtol=1e-12)
-    return loop, float(a), v
-
-
-def _corner(loop: SampledLoop, v: np.ndarray, width: float) -> tuple[np.ndarray, np.ndarray]:
-    """The sub-box at the vertex ``v`` with ``width`` of every rate's range."""
-    chain = loop.chain
-    lo, hi = np.array(chain.rate_min, dtype=float), np.array(chain.rate_max, dtype=float)
-    for r in chain.rate_indices:
-        w = width * (chain.rate_max[r] - chain.rate_min[r])
-        if v[r] == chain.rate_min[r]:
-            hi[r] = lo[r] + w
-        else:
-            lo[r] = hi[r] - w
-    return lo, hi
+    """The conditioned seed-1 loop, the float64 crossing ``a`` of its worst vertex ``v``."""
+    return seed1_crossing()
 
 
 def _radii(loop: SampledLoop, h: float, lo: np.ndarray, hi: np.ndarray, rng: np.random.Generator) -> list[float]:
@@ -149,7 +122,7 @@ def test_proves_a_vertex_box_the_cone_certificates_do_not(setting: tuple[Sampled
     arrays of the sub-box (40 vertices, 40 uniform; seed 5), within 1e-3 of the largest."""
     loop, a, v = setting
     h = a * (1 - 1e-3)
-    lo, hi = _corner(loop, v, 1 / 8)
+    lo, hi = vertex_corner(loop, v, 1 / 8)
     form = second_order_form(loop, h, lo, hi)
     with precision(64):
         assert not any(certify_second_order(loop, form, mix) for mix in (None, 0.05))
@@ -170,7 +143,7 @@ def test_refuses_a_sub_box_with_radius_above_one(setting: tuple[SampledLoop, flo
     with precision(64):
         parts = MapParts.build(loop, h)
     for width in (1 / 16, 1 / 64, 1 / 1024):
-        lo, hi = _corner(loop, v, width)
+        lo, hi = vertex_corner(loop, v, width)
         form = second_order_form(loop, h, lo, hi)
         top = eigen_radius_bound(form, loop.states, loop.r)
         assert top is None or top > 1.0

@@ -11,14 +11,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import scipy.optimize
 
-from sampled_forms import second_order_form
+from sampled_forms import second_order_form, seed1_case, seed1_crossing, vertex_corner
 from ftc_verify.analysis.moments import sampled_taylor
 from ftc_verify.analysis.moments.fast_balls import aff_mul, sparse_enough
 from ftc_verify.analysis.moments.quad_balls import pairs, quad_mul
-from ftc_verify.analysis.moments.sampled import SampledLoop, rate_points, spectral_radius
-from ftc_verify.analysis.moments.sampled_bracket import worst_vertex
+from ftc_verify.analysis.moments.sampled import SampledLoop, spectral_radius
 from ftc_verify.analysis.moments.sampled_conditioned import conditioned
 from ftc_verify.analysis.moments.sampled_proof import MapParts, subbox_stable
 from ftc_verify.analysis.moments.sampled_second import certify_second_order
@@ -27,14 +25,6 @@ from ftc_verify.analysis.rigorous import precision
 from ftc_verify.controllers.controller import Controller
 from ftc_verify.model.system import FTCSystem
 from ftc_verify.testing.illconditioned import similarity
-from ftc_verify.testing.sampled_cases import lqr_case
-
-
-def _case() -> tuple[FTCSystem, Controller]:
-    """The seed-1 ``n = 4, m = 3`` loop of ``benchmarks/sampled.py`` (not a held-out draw)."""
-    rng = np.random.default_rng(1)
-    lqr_case(2, 2, rng)
-    return lqr_case(4, 3, rng)
 
 
 def _moved(system: FTCSystem, controller: Controller, T: np.ndarray) -> tuple[FTCSystem, Controller]:
@@ -49,24 +39,8 @@ def _moved(system: FTCSystem, controller: Controller, T: np.ndarray) -> tuple[FT
 
 @pytest.fixture(scope="module")
 def setting() -> tuple[SampledLoop, float, np.ndarray]:
-    """The conditioned loop, the float64 crossing ``a`` of its worst vertex ``v``."""
-    loop = conditioned(SampledLoop.build(*_case()))
-    v = worst_vertex(loop, 0.546, rate_points(loop.chain))[1]
-    a = scipy.optimize.brentq(lambda h: spectral_radius(loop, h, v) - 1.0, 0.5, 0.6, xtol=1e-12)
-    return loop, float(a), v
-
-
-def _corner(loop: SampledLoop, v: np.ndarray, width: float) -> tuple[np.ndarray, np.ndarray]:
-    """The sub-box at the vertex ``v`` with ``width`` of every rate's range."""
-    chain = loop.chain
-    lo, hi = np.array(chain.rate_min, dtype=float), np.array(chain.rate_max, dtype=float)
-    for r in chain.rate_indices:
-        w = width * (chain.rate_max[r] - chain.rate_min[r])
-        if v[r] == chain.rate_min[r]:
-            hi[r] = lo[r] + w
-        else:
-            lo[r] = hi[r] - w
-    return lo, hi
+    """The conditioned seed-1 loop, the float64 crossing ``a`` of its worst vertex ``v``."""
+    return seed1_crossing()
 
 
 def test_second_order_proves_where_the_affine_fails(setting: tuple[SampledLoop, float, np.ndarray],
@@ -78,7 +52,7 @@ def test_second_order_proves_where_the_affine_fails(setting: tuple[SampledLoop, 
     ``subbox_stable`` as configured (second-order forms there) proves it."""
     loop, a, v = setting
     h = a * (1 - 3e-3)
-    lo, hi = _corner(loop, v, 0.125)
+    lo, hi = vertex_corner(loop, v, 0.125)
     assert sampled_taylor.quadratic_forms(6, 189)
     with precision(64):
         parts = MapParts.build(loop, h)
@@ -101,7 +75,7 @@ def test_refuses_a_sub_box_with_radius_above_one(setting: tuple[SampledLoop, flo
     with precision(64):
         parts = MapParts.build(loop, h)
     for width in (0.125, 0.03125):
-        lo, hi = _corner(loop, v, width)
+        lo, hi = vertex_corner(loop, v, width)
         form = second_order_form(loop, h, lo, hi)
         assert not certify_second_order(loop, form, shifted=True)
         assert not any(certify_second_order(loop, form, mix) for mix in (None, 0.05))
@@ -117,10 +91,10 @@ def test_same_verdicts_in_moved_coordinates(setting: tuple[SampledLoop, float, n
     sub-box 0.3 % below needs a sixteenth of every width, the affine forms a
     thirty-second, against an eighth and a sixteenth as written)."""
     _, a, v = setting
-    system, controller = _case()
+    system, controller = seed1_case()
     T = np.diag([1e-3, 1e-1, 1e1, 1e3]) if move == "rescaled" else similarity(np.random.default_rng(31), 4, 1.0, 1e4)
     loop = conditioned(SampledLoop.build(*_moved(system, controller, T)))
-    lo, hi = _corner(loop, v, 0.125)
+    lo, hi = vertex_corner(loop, v, 0.125)
     for f, expected in ((1e-2, True), (-1e-3, False)):
         h = a * (1 - f)
         with precision(64):
