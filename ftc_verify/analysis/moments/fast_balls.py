@@ -68,7 +68,7 @@ import scipy.sparse
 
 from ...model.system import Matrix
 
-__all__ = ["MidRad", "Affine", "ball_expm", "arb_expm", "map_ball", "from_arb", "to_arb", "TAYLOR_TERMS", "aff_mul",
+__all__ = ["up_bound", "MidRad", "Affine", "ball_expm", "arb_expm", "map_ball", "from_arb", "to_arb", "TAYLOR_TERMS", "aff_mul",
            "aff_expm", "aff_map", "FormArithmetic", "taylor_expm", "BALLS", "AFFINE", "SPARSE_SHARE", "SPARSE_ROWS", "sparse_enough", "sparse_left",
            "wide", "unwide"]
 
@@ -88,10 +88,13 @@ def _flint() -> Any:
     return flint
 
 
-def _up(v: Matrix | float, k: int) -> Any:
+def up_bound(v: Matrix | float, k: int) -> Any:
     """An upper bound of the exact value of a nonnegative expression computed as ``v``
     with at most ``k`` roundings to nearest on every path (module docstring)."""
     return v * (1.0 + 2.0 * (k + 1) * _U) + (k + 1) * _ETA
+
+
+_up = up_bound
 
 
 def _mul(a: MidRad, b: MidRad) -> MidRad:

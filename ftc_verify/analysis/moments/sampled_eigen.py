@@ -111,6 +111,7 @@ from typing import Any
 import numpy as np
 
 from ...model.system import Matrix
+from .fast_balls import up_bound as _up
 from .quad_balls import pairs
 from .sampled import SampledLoop
 from .sampled_second import quadratic_max
@@ -123,11 +124,6 @@ _ETA = 2.0 ** -1022
 
 #: Most rounds of the iteration that looks for the enclosure's radius :math:`\zeta`.
 EIGEN_ITERATIONS = 40
-
-
-def _up(v: Any, k: int) -> Any:
-    """An upper bound of a nonnegative expression computed with at most ``k`` roundings."""
-    return v * (1.0 + 2.0 * (k + 1) * _U) + (k + 1) * _ETA
 
 
 def _perron(Tc: Matrix) -> tuple[float, Matrix, Matrix] | None:
@@ -324,7 +320,7 @@ def eigen_radius_bound(form: tuple[Matrix, ...], states: int, r: int) -> float |
     z0 = _enclosure(Tc, empty, empty, Tr, e.centre())
     if z0 is None or not np.all(z0 <= z):
         return None
-    flint = _import_flint()
+    flint = _flint()
     arb = flint.arb
     yrad = _up(z0[:N], 1)
     if not (float_pd(e.v0, states, r)
@@ -342,7 +338,7 @@ def eigen_stable(loop: SampledLoop, form: tuple[Matrix, ...]) -> bool:
     return top is not None and top < 1.0
 
 
-def _import_flint() -> Any:
+def _flint() -> Any:
     import flint
 
     return flint
