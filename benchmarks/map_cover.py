@@ -11,10 +11,14 @@ eigenpair enclosure and the cone certificates) or halved along
 midpoint has a float64 radius >= 1. ``--eigen-only``: the cone certificates of
 ``sampled_second`` and ``sampled_taylor`` left out (what the enclosure alone covers,
 and faster); ``--no-eigen``: the enclosure left out (the proofs before round 14).
-One CSV row per run: the verdict, proofs tried, leaves, the deepest split and CPU s.
+``--hu HU``: as the ``h_max`` refinement runs it instead, on the conditioned loop
+(``sampled_conditioned.conditioned``) at ``h = HU (1 - F)``, ``HU`` the default
+bracket's proved-unstable end. One CSV row per run: the verdict, proofs tried, leaves,
+the share of the box's volume they cover, the deepest split and CPU s.
 
-    python benchmarks/map_cover.py SEED F CAP [--eigen-only | --no-eigen] [--out FILE.csv]
+    python benchmarks/map_cover.py SEED F CAP [--eigen-only | --no-eigen] [--hu HU] [--out FILE.csv]
     python benchmarks/map_cover.py 31 1e-3 4000 --eigen-only
+    python benchmarks/map_cover.py 13 1.06e-2 4000 --hu 0.6022096970393988
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ from h_max_diagnosis import bracket_crossing, the_loop
 
 from ftc_verify.analysis.moments import sampled_eigen, sampled_proof, sampled_second, sampled_taylor
 from ftc_verify.analysis.moments.sampled import spectral_radius
+from ftc_verify.analysis.moments.sampled_conditioned import conditioned
 from ftc_verify.analysis.rigorous import precision
 
 
@@ -40,6 +45,7 @@ def main() -> None:
     group = parser.add_mutually_exclusive_group()
     group.add_argument("--eigen-only", action="store_true")
     group.add_argument("--no-eigen", action="store_true")
+    parser.add_argument("--hu", type=float, default=None)
     parser.add_argument("--out", default=None)
     args = parser.parse_args()
     if args.eigen_only:
@@ -48,13 +54,16 @@ def main() -> None:
     if args.no_eigen:
         sampled_eigen.eigen_stable = lambda *a, **k: False  # type: ignore[assignment]
     loop = the_loop(4, 3, args.seed)
+    if args.hu is not None:
+        loop = conditioned(loop)
     chain = loop.chain
-    h = bracket_crossing(loop) * (1 - args.f)
+    h = (bracket_crossing(loop) if args.hu is None else args.hu) * (1 - args.f)
     with precision(64):
         parts = sampled_proof.MapParts.build(loop, h)
     t0 = time.process_time()
     stack = [(np.array(chain.rate_min, dtype=float), np.array(chain.rate_max, dtype=float), 0)]
     tried = leaves = deepest = 0
+    volume = 0.0
     verdict = "covered"
     while stack:
         if tried >= args.cap:
@@ -63,10 +72,11 @@ def main() -> None:
         lo, hi, depth = stack.pop()
         tried += 1
         if tried % 100 == 0:
-            print(f"{tried} tried, {leaves} proved, {len(stack)} open, depth {deepest}, "
+            print(f"{tried} tried, {leaves} proved ({volume:.3f} of the box), {len(stack)} open, depth {deepest}, "
                   f"{time.process_time() - t0:.0f} CPU s", flush=True)
         if sampled_proof.subbox_stable(loop, h, parts, lo, hi):
             leaves += 1
+            volume += 2.0 ** -depth
             continue
         if spectral_radius(loop, h, 0.5 * (lo + hi)) >= 1.0:
             verdict = "midpoint radius >= 1"
@@ -80,8 +90,8 @@ def main() -> None:
         stack.append((lower, hi, depth + 1))
         deepest = max(deepest, depth + 1)
     proofs = "eigen only" if args.eigen_only else "no eigen" if args.no_eigen else "all"
-    row = {"seed": args.seed, "f": args.f, "proofs": proofs, "verdict": verdict, "tried": tried,
-           "leaves": leaves, "deepest": deepest, "cpu_s": round(time.process_time() - t0, 1)}
+    row = {"seed": args.seed, "f": args.f, "hu": args.hu, "proofs": proofs, "verdict": verdict, "tried": tried,
+           "leaves": leaves, "volume": round(volume, 4), "deepest": deepest, "cpu_s": round(time.process_time() - t0, 1)}
     print(" ".join(f"{k} {v}" for k, v in row.items()), flush=True)
     if args.out:
         write_rows(args.out, [row])

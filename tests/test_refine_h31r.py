@@ -17,7 +17,7 @@ import pytest
 from ftc_verify.analysis.moments import sampled_cover
 from ftc_verify.analysis.moments.sampled import SampledLoop, SampledResult
 from ftc_verify.analysis.moments.sampled_bracket import box_work
-from ftc_verify.analysis.moments.sampled_cover import (MAP_DEPTH, cover_box, cover_h_max, cover_rungs,
+from ftc_verify.analysis.moments.sampled_cover import (COVER_DEPTH, MAP_DEPTH, cover_box, cover_h_max, cover_rungs,
                                                        cubic_work, rung_pieces)
 from ftc_verify.analysis.moments.sampled_cubic import cubic_stable, prove_cubic
 from ftc_verify.analysis.moments.sampled_proof import box_verdict
@@ -143,10 +143,11 @@ def test_cover_splits_until_proved_and_covers_the_box(monkeypatch: pytest.Monkey
     leaves, spent, attempts, _ = cover_box(loop, 0.08, 4, start, 2.5 * cubic_work(loop, 4))
     assert leaves is None and attempts == 2 and len(fake.asked) == 2 and spent <= 2.5 * cubic_work(loop, 4)
     # a sub-box never proved: two programs (the box, then its hardest sub-box at
-    # COVER_DEPTH, not one at every depth), then map proofs alone, to the depth limit
+    # COVER_DEPTH, not one at every depth), then that probe first, by map proofs alone,
+    # to the depth limit
     monkeypatch.setattr(sampled_cover, "cubic_stable", _Cubic(0.0))
     leaves, _, attempts, maps = cover_box(loop, 0.08, 4, start, 1e12)
-    assert leaves is None and attempts == 2 and maps == MAP_DEPTH + 1
+    assert leaves is None and attempts == 2 and maps == 2 + MAP_DEPTH - COVER_DEPTH
     leaves, _, attempts, maps = cover_box(loop, 0.08, None, start, 1e12)
     assert leaves is None and attempts == 0 and maps == MAP_DEPTH + 1
 
@@ -213,7 +214,8 @@ def test_refine_result_only_when_wider_than_rtol(monkeypatch: pytest.MonkeyPatch
     assert got.h_max == pytest.approx(PAPER_UNSTABLE * 0.9991) and "refinement (--h-max-work" in got.h_max_note
     assert "by 1 sub-box(es), each by its one-period map or 4 cubic pieces" in got.h_max_note
     none = dataclasses.replace(base, h_max=None, h_max_note="not proved")
-    got = refine_result(system, controller, none, cubic_work(_paper(), 2) * 2.5)  # the probe, then the box
+    # the probe, then the box, with half the budget left (RUNG_SHARE)
+    got = refine_result(system, controller, none, cubic_work(_paper(), 2) * 3.5)
     assert got.h_max == pytest.approx(PAPER_UNSTABLE * (1 - 0.125))  # from a 50 % bracket: g / 4
     monkeypatch.setattr(sampled_cover, "cubic_stable", _Cubic(0.0))
     assert refine_result(system, controller, wide, 1e5).h_max == wide.h_max  # nothing proved: unchanged

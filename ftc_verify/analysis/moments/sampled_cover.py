@@ -35,7 +35,13 @@ not proved is split in half along its widest rate (relative to the box; on ties 
 that moves the float64 radius most near the box's worst vertex) up to
 :data:`COVER_DEPTH` halvings along a path (cubic certificates tried), then along the rate
 of :func:`~ftc_verify.analysis.moments.sampled_proof.split_rate` (map proofs only) up to
-:data:`MAP_DEPTH`; it stops where a sub-box's midpoint has a float64 radius >= 1.
+:data:`MAP_DEPTH`; where no cubic certificate is tried (a rung without one, or below a
+failed probe) every split is :func:`~ftc_verify.analysis.moments.sampled_proof.split_rate`'s
+from the top (held-out seed 13, 1.06e-2 below the proved-unstable end, map proofs only:
+with the ten widest-rate halvings first, one path went 24 halvings deep unproved and the
+rung failed after 25 proofs; by ``split_rate`` from the top no path went deeper than 18
+in 1,700 proofs, ``benchmarks/results/split15.md``). It stops where a sub-box's midpoint
+has a float64 radius >= 1.
 
 **Hardest first.** Of the two halves of a split the one holding the corner nearest to
 the worst vertex is tried first, and a sub-box whose cubic certificate fails first has
@@ -88,8 +94,8 @@ from .sampled_bracket import box_work, worst_vertex
 from .sampled_cubic import cubic_size, cubic_stable
 from .sampled_proof import MapParts, split_rate, subbox_stable
 
-__all__ = ["COVER_DEPTH", "MAP_DEPTH", "PIECES", "FINE_FROM", "BISECT", "CoverResult", "cubic_work", "cubic_memory",
-           "cover_rungs", "rung_pieces", "probe_box", "cover_box", "cover_h_max"]
+__all__ = ["COVER_DEPTH", "MAP_DEPTH", "ASPECT", "RUNG_SHARE", "PIECES", "FINE_FROM", "BISECT", "CoverResult", "map_split",
+           "cubic_work", "cubic_memory", "cover_rungs", "rung_pieces", "probe_box", "cover_box", "cover_h_max"]
 
 #: The most halvings of the box along one path of the cover where cubic certificates are
 #: tried (halving the widest rate); below it only the one-period map's proofs.
@@ -101,6 +107,15 @@ COVER_DEPTH = 10
 #: instead of 88 for the same bracket; ``benchmarks/results/h31t.md``); the map covers of
 #: the last rungs go 14-18 halvings deep (``benchmarks/results/eig14.md``).
 MAP_DEPTH = 24
+#: :func:`map_split`: a rate more than this many times as wide (relative to the box) as
+#: :func:`~ftc_verify.analysis.moments.sampled_proof.split_rate`'s choice is halved first.
+ASPECT = 4.0
+#: The share of the budget left that a rung's cover may spend, but the target's rung
+#: (``0.9 rtol``), which may spend all of it: a rung that fails leaves budget for the
+#: rungs between it and the last covered one (held-out seed 9 with 1,000,000 units: the
+#: rung 1.25e-3 below the proved-unstable end failed after 901,449 units, and the three
+#: rungs of the bisection got none; ``benchmarks/results/split15.md``).
+RUNG_SHARE = 0.5
 #: The cubic pieces a rung may use, fewest first (:func:`rung_pieces`).
 PIECES = (2, 4, 8)
 #: Below this distance a rung uses at least 4 pieces: the seed-1 loop's sub-boxes needed 4
@@ -110,6 +125,25 @@ FINE_FROM = 3e-3
 #: failed distance while these are more than this factor apart (4x apart: at most three
 #: more rungs, 2x, 1.4x and 1.19x from the covered one).
 BISECT = 1.25
+
+
+def map_split(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix) -> tuple[int, ...] | None:
+    """The rate along which the cover halves a sub-box that only map proofs are tried
+    on: :func:`~ftc_verify.analysis.moments.sampled_proof.split_rate`'s (where the float64
+    radius moves most), unless the widest rate relative to the box is more than
+    :data:`ASPECT` times as wide, then that one. The map's proofs lose margin to the
+    products of all the widths (the form's terms of degree three), also of rates along
+    which the radius hardly moves (held-out seed 13, 1.08e-2 below the proved-unstable
+    end: the probe's sub-box was proved after 15 halvings by ``split_rate``, with one rate
+    left at half the box's width until the last, and after 7 with this rule;
+    ``benchmarks/results/split15.md``). Only where the proofs look next depends on it."""
+    r = split_rate(loop, h, lo, hi)
+    if r is None:
+        return None
+    full = loop.chain.rate_max - loop.chain.rate_min
+    rel = {q: float((hi[q] - lo[q]) / full[q]) for q in loop.chain.rate_indices if full[q] > 0 and hi[q] > lo[q]}
+    wide = max(rel, key=lambda q: rel[q])
+    return wide if rel[wide] > ASPECT * rel[r] else r
 
 
 def cubic_work(loop: SampledLoop, pieces: int) -> float:
@@ -246,8 +280,8 @@ def probe_box(loop: SampledLoop, h: float, box: Box, worst: Matrix) -> Box:
 
 
 def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box], budget: float,
-              worst: Matrix | None = None,
-              proved: frozenset[tuple[bytes, bytes]] = frozenset()) -> tuple[list[Box] | None, float, int, int]:
+              worst: Matrix | None = None, proved: frozenset[tuple[bytes, bytes]] = frozenset(),
+              refused: frozenset[tuple[bytes, bytes]] = frozenset()) -> tuple[list[Box] | None, float, int, int]:
     """A cover of the union of ``boxes`` at period ``h`` (module docstring), depth first,
     the harder half of each split first: ``(sub-boxes, units charged, cubic attempts, map
     proofs)``, the sub-boxes ``None`` when the budget or :data:`MAP_DEPTH` ran out first
@@ -256,8 +290,9 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
     :func:`~ftc_verify.analysis.moments.sampled_bracket.box_work`), then, up to
     :data:`COVER_DEPTH` and when ``pieces`` is given and the budget pays it, a cubic
     certificate of ``pieces`` pieces; where that fails, its probe's before its halves, and
-    where the probe's fails too, map proofs alone below it (halved along
-    :func:`~ftc_verify.analysis.moments.sampled_proof.split_rate`).
+    where the probe's fails too, map proofs alone below it; where no cubic certificate is
+    tried (``pieces`` None, or below such a probe) halved along
+    :func:`~ftc_verify.analysis.moments.sampled_proof.split_rate`.
     ``worst``: the box's worst vertex (float64, found here when not given), which orders
     the splits; ``proved``: sub-boxes already proved at ``h`` (by ``_key``, exact
     floats), leaves without a new proof."""
@@ -286,26 +321,30 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
         if worst is None:
             worst = worst_vertex(loop, h, rate_points(loop.chain))[1]
         key = _key(lo, hi)
-        if pieces is not None and depth <= COVER_DEPTH and spent + cost <= budget and key not in maps_only:
-            spent += cost
-            attempts += 1
-            cert = cubic_stable(loop, h, pieces, lo, hi)
-            if cert is not None and cert.proved:
-                leaves.append((lo, hi, depth))
-                continue
+        if pieces is not None and depth <= COVER_DEPTH and key not in maps_only:
             path = _path(loop, h, (lo, hi, depth), worst)
+            known = bool(path) and _key(path[-1][0][0], path[-1][0][1]) in refused  # no certificate holds it
+            if not known and spent + cost <= budget:
+                spent += cost
+                attempts += 1
+                cert = cubic_stable(loop, h, pieces, lo, hi)
+                if cert is not None and cert.proved:
+                    leaves.append((lo, hi, depth))
+                    continue
             if path:  # the hardest sub-box below it first, then the shallowest one proved on its path
-                found = _shallowest(loop, h, pieces, path, done, budget - spent)
+                found = (None, 0) if known else _shallowest(loop, h, pieces, path, done, budget - spent)
                 spent += cost * found[1]
                 attempts += found[1]
-                if found[0] is not None:
-                    stack.extend(other for _, other in path[:found[0] + 1])
-                    stack.append(path[found[0]][0])
-                    continue
-                maps_only.add(key)  # no certificate for its probe: map proofs alone below it
+                top = len(path) - 1 if found[0] is None else found[0]
+                stack.extend(other for _, other in path[:top + 1])
+                stack.append(path[top][0])
+                if found[0] is None:  # no certificate for the probe: map proofs alone below it
+                    maps_only.add(_key(path[top][0][0], path[top][0][1]))
+                continue
         if depth >= MAP_DEPTH:
             return None, spent, attempts, maps
-        idx = None if depth < COVER_DEPTH and key not in maps_only else split_rate(loop, h, lo, hi)
+        cubic_below = pieces is not None and depth < COVER_DEPTH and key not in maps_only
+        idx = None if cubic_below else map_split(loop, h, lo, hi)
         if idx is None and not any(hi[r] > lo[r] for r in loop.chain.rate_indices):
             return None, spent, attempts, maps
         first, second = _split(loop, h, lo, hi, depth, worst, idx)
@@ -379,17 +418,22 @@ def cover_h_max(loop: SampledLoop, h_max: float, h_max_unstable: float, work: fl
     while todo:
         f = todo.pop(0)
         h = h_max_unstable * (1.0 - f)
+        least = max(pieces, 4 if f < FINE_FROM else 2)
         found: int | None = None
         proved: frozenset[tuple[bytes, bytes]] = frozenset()
+        refused: frozenset[tuple[bytes, bytes]] = frozenset()
         if f > hopeless:
             home = next(b for b in boxes if np.all((b[0] <= worst) & (worst <= b[1])))
             plo, phi, _ = probe_box(loop, h, home, worst)
-            found, used, n = rung_pieces(loop, h, plo, phi, max(pieces, 4 if f < FINE_FROM else 2), work - spent)
+            found, used, n = rung_pieces(loop, h, plo, phi, least, work - spent)
             spent += used
             attempts += n
-            proved = frozenset() if found is None else frozenset({_key(plo, phi)})
+            probe = frozenset({_key(plo, phi)})  # proved by `found` pieces, or by none tried
+            proved, refused = (frozenset(), probe) if found is None else (probe, frozenset())
             hopeless = f if found is None else hopeless
-        leaves, used, n, k = cover_box(loop, h, found, boxes, work - spent, worst, proved)
+        use = least if found is None else found
+        share = 1.0 if f <= 0.9 * rtol else RUNG_SHARE  # the target's rung may spend all that is left
+        leaves, used, n, k = cover_box(loop, h, use, boxes, share * (work - spent), worst, proved, refused)
         spent += used
         attempts += n
         maps += k
@@ -397,8 +441,7 @@ def cover_h_max(loop: SampledLoop, h_max: float, h_max_unstable: float, work: fl
         if leaves is None:
             failed = f if failed is None else max(failed, f)
         else:
-            best, boxes, last = (h, len(leaves), found), leaves, f
-            pieces = found if found is not None else pieces
+            best, boxes, last, pieces = (h, len(leaves), use), leaves, f, use
         todo = _next_rung(last, failed, todo)
     if best is None:
         return CoverResult(None, 0, None, spent, attempts, maps, tuple(rungs))
