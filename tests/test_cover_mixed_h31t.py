@@ -272,3 +272,24 @@ def test_a_rung_spends_at_most_half_the_budget_left_but_the_target(monkeypatch: 
         assert budget == pytest.approx((1.0 if target else sampled_cover.RUNG_SHARE) * left)
     assert all(budget > 0.1 * work for _, budget, _ in given)  # a failure did not use up the rest
     assert got.work == pytest.approx(spent[0])
+
+
+def test_map_split_bounds_the_aspect_of_the_sub_boxes(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``map_split`` is ``split_rate``'s choice (here a stand-in choosing the narrow rate)
+    unless another rate is more than ``ASPECT`` times as wide relative to the box, then
+    the widest; with the real ``split_rate`` it is that rule's choice at any aspect up to
+    ``ASPECT``."""
+    loop = _paper()
+    h = 0.9 * PAPER_UNSTABLE
+    lo, hi = loop.chain.rate_min.copy(), loop.chain.rate_max.copy()
+    a, b = loop.chain.rate_indices
+    for narrow, wide in ((a, b), (b, a)):
+        for share, expect in ((1.0 / (2 * sampled_cover.ASPECT), wide), (1.0 / sampled_cover.ASPECT, narrow)):
+            top = hi.copy()
+            top[narrow] = lo[narrow] + share * (hi[narrow] - lo[narrow])
+            real = split_rate(loop, h, lo, top)
+            if share == 1.0 / sampled_cover.ASPECT:
+                assert sampled_cover.map_split(loop, h, lo, top) == real
+            with monkeypatch.context() as m:
+                m.setattr(sampled_cover, "split_rate", lambda *args, r=narrow: r)
+                assert sampled_cover.map_split(loop, h, lo, top) == expect

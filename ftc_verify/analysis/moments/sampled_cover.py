@@ -34,28 +34,28 @@ wide per rate, and covers of map proofs alone decide the last rungs: held-out se
 not proved is split in half along its widest rate (relative to the box; on ties the one
 that moves the float64 radius most near the box's worst vertex) up to
 :data:`COVER_DEPTH` halvings along a path (cubic certificates tried), then along the rate
-of :func:`~ftc_verify.analysis.moments.sampled_proof.split_rate` (map proofs only) up to
-:data:`MAP_DEPTH`; where no cubic certificate is tried (a rung without one, or below a
-failed probe) every split is :func:`~ftc_verify.analysis.moments.sampled_proof.split_rate`'s
-from the top (held-out seed 13, 1.06e-2 below the proved-unstable end, map proofs only:
-with the ten widest-rate halvings first, one path went 24 halvings deep unproved and the
-rung failed after 25 proofs; by ``split_rate`` from the top no path went deeper than 18
-in 1,700 proofs, ``benchmarks/results/split15.md``). It stops where a sub-box's midpoint
-has a float64 radius >= 1.
+of :func:`map_split` (map proofs only) up to :data:`MAP_DEPTH`; where no cubic certificate
+is tried (``pieces`` None, or the probe of a failed certificate) every split is
+:func:`map_split`'s (held-out seed 13, 1.06e-2 below the proved-unstable end, map proofs
+alone from the whole box: after ten widest-rate halvings one path went 24 halvings deep
+unproved and the rung failed after 25 proofs; by ``split_rate`` from the top no path
+went deeper than 18 in 1,700 proofs, ``benchmarks/results/split15.md``). It stops where a
+sub-box's midpoint has a float64 radius >= 1.
 
 **Hardest first.** Of the two halves of a split the one holding the corner nearest to
 the worst vertex is tried first, and a sub-box whose cubic certificate fails first has
 its *probe* tried (:func:`probe_box`: the sub-box the cover would reach first at
 :data:`COVER_DEPTH` below it, at that corner): a certificate of a sub-box also holds on
 each sub-box inside it (the sub-box's program is a relaxation), so when none is found
-for the probe none is expected on the path to it, and below that sub-box the cover
-goes on with map proofs alone (halved along
-:func:`~ftc_verify.analysis.moments.sampled_proof.split_rate`) instead of a cubic program
-at every depth of that path (only where the search spends its budget depends on this;
-every sub-box of a cover is proved). Before the eigenpair enclosure the rung ended there
+for the probe none is expected for the sub-boxes holding it on the path to it: the
+probe is covered by map proofs alone (halved by :func:`map_split`), and the other halves
+along the path, farther from the worst vertex, are tried as any sub-box, their own
+certificates first (only where the search spends its budget depends on this; every
+sub-box of a cover is proved). Before the eigenpair enclosure the rung ended there
 (held-out seed 13, 1.1e-2 below the crossing: 11 programs and 68,000 units for a rung
-that failed; ``benchmarks/results/h31v.md``); the map proofs now cover what the cubic
-certificates cannot near the worst vertex (``benchmarks/results/eig14.md``). When the probe is proved, the
+that failed; ``benchmarks/results/h31v.md``); in round 14 the whole sub-box above the
+probe went to map proofs, where one program proves half of seed 13's box at 1.06e-2
+(``benchmarks/results/split15.md``). When the probe is proved, the
 shallowest proved sub-box on its path is looked for (``_shallowest``: the top of the
 path, then bisection of the depth, about 3 programs where the top-down cover paid one
 per halving), and the cover goes on with it and the other halves along the path, the
@@ -69,7 +69,9 @@ cover (its sub-boxes, not the whole box again), with the fewest pieces of :data:
 below the previous cover's sub-box holding the worst vertex (:func:`rung_pieces`;
 splitting the rates cannot make up for too few pieces in the clock: on the seed-1 loop
 two pieces reach 2.5e-3 at the worst vertex, four 5e-4; when none proves it, the rung and
-the closer ones are covered by map proofs alone). Once a rung is not covered within the
+the closer ones are covered with the fewest pieces, the probe known to have none). A
+rung's cover may spend :data:`RUNG_SHARE` of the budget left, the target's rung all of
+it. Once a rung is not covered within the
 budget or the depth, the next is at the geometric mean of the last covered and the
 closest failed distance, while these are more than :data:`BISECT` apart (the rung before
 stopped after one such retry with half the budget unspent: seed 13 160,563 units of
@@ -202,9 +204,8 @@ def rung_pieces(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, fewest: int
 @dataclass(frozen=True)
 class CoverResult:
     """What :func:`cover_h_max` did: ``h_max`` the closest period covered (``None``: no
-    rung), ``boxes`` the sub-boxes of its cover, ``pieces`` their cubic certificates'
-    pieces (``None``: the rung's worst vertex was not proved by any, its cover is by the
-    one-period map alone), ``work`` the units charged, ``attempts`` the cubic
+    rung), ``boxes`` the sub-boxes of its cover, ``pieces`` the cubic certificates' pieces
+    its cover could use (``None`` with no rung), ``work`` the units charged, ``attempts`` the cubic
     certificates tried, ``maps`` the sub-boxes tried by their one-period map, ``rungs``
     one ``(period, covered)`` per rung tried."""
 
@@ -290,12 +291,13 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
     :func:`~ftc_verify.analysis.moments.sampled_bracket.box_work`), then, up to
     :data:`COVER_DEPTH` and when ``pieces`` is given and the budget pays it, a cubic
     certificate of ``pieces`` pieces; where that fails, its probe's before its halves, and
-    where the probe's fails too, map proofs alone below it; where no cubic certificate is
-    tried (``pieces`` None, or below such a probe) halved along
-    :func:`~ftc_verify.analysis.moments.sampled_proof.split_rate`.
+    where the probe's fails too, map proofs alone on the probe and the path's other
+    halves as any sub-box; where no cubic certificate is tried (``pieces`` None, or below
+    such a probe) halved along :func:`map_split`.
     ``worst``: the box's worst vertex (float64, found here when not given), which orders
     the splits; ``proved``: sub-boxes already proved at ``h`` (by ``_key``, exact
-    floats), leaves without a new proof."""
+    floats), leaves without a new proof; ``refused``: probes known to have no certificate
+    of ``pieces`` pieces (not tried again, nor the sub-box above them)."""
     cost, per_map = (0.0 if pieces is None else cubic_work(loop, pieces)), box_work(loop)
     stack = list(reversed(boxes))
     leaves: list[Box] = []
