@@ -94,9 +94,9 @@ def test_map_proof_first_then_the_cubic(monkeypatch: pytest.MonkeyPatch) -> None
 
     monkeypatch.setattr(sampled_cover, "subbox_stable", refuse_above)
     leaves, spent, attempts, maps = cover_box(loop, PAPER_UNSTABLE * 0.95, 2, _box(loop), 1e12)
-    # the box's cubic fails, then its probe (COVER_DEPTH halvings down): no more programs
-    # there, map proofs alone below the probe (tried first), down to MAP_DEPTH
-    assert leaves is None and attempts == 2 == never.calls and maps == len(calls) == 2 + MAP_DEPTH - COVER_DEPTH
+    # the box's cubic fails, then its probe (COVER_DEPTH halvings down): no more programs,
+    # map proofs alone below the box, down to MAP_DEPTH
+    assert leaves is None and attempts == 2 == never.calls and maps == len(calls) == 1 + MAP_DEPTH
     assert spent == pytest.approx(attempts * cubic_work(loop, 2) + maps * box_work(loop))
     # only the box's probe proved: the top of its path (1 halving) and the bisection (5, 7,
     # 8, 9 halvings) fail, so the probe is the path's leaf; the other half at COVER_DEPTH
@@ -125,19 +125,17 @@ def test_cover_stops_where_the_float_radius_is_not_below_one(monkeypatch: pytest
 
 
 def test_map_only_cover_is_the_box_and_confirmed(monkeypatch: pytest.MonkeyPatch) -> None:
-    """No cubic certificate ever proves (nor the worst vertex's probe, so after the first
-    rung no pieces are looked for; the covers may still use the fewest, 4 this close):
-    the cover by the real map proofs alone still proves a period closer than the
-    bracket's stable end; its leaves are exactly the box, and the whole-box verdict of
-    ``box_verdict`` confirms the period independently of the cover."""
+    """No cubic certificate ever proves (nor the worst vertex, so after the first rung
+    none is tried): the cover by the real map proofs alone still proves a period closer
+    than the bracket's stable end; its leaves are exactly the box, and the whole-box
+    verdict of ``box_verdict`` confirms the period independently of the cover."""
     loop = _paper()
     never = _Never()
     monkeypatch.setattr(sampled_cover, "cubic_stable", never)
     hu = PAPER_UNSTABLE
     got = cover_h_max(loop, 0.9 * hu, hu, 1e12, 1e-3)
-    assert got.h_max is not None and 0.9 * hu < got.h_max < hu and got.pieces == 4
-    # the worst vertex's probe once with every number of pieces; the map proves each rung's box
-    assert never.calls == len(sampled_cover.PIECES) and got.attempts == never.calls
+    assert got.h_max is not None and 0.9 * hu < got.h_max < hu and got.pieces is None
+    assert never.calls == len(sampled_cover.PIECES)  # the worst vertex once, every number of pieces
     assert box_verdict(loop, got.h_max, max_boxes=64, max_seconds=float("inf")).verdict == "stable"
     leaves, _, _, _ = cover_box(loop, got.h_max, None, _box(loop), 1e12)
     assert leaves is not None and len(leaves) == got.boxes
@@ -214,33 +212,6 @@ def test_rung_without_cubic_splits_by_the_maps_rule(monkeypatch: pytest.MonkeyPa
     leaves, _, attempts, maps = cover_box(loop, 0.9 * PAPER_UNSTABLE, None, _box(loop), 1e12)
     assert leaves is not None and attempts == 0 and len(leaves) == 4 ** len(idx)
     assert len(chosen) == maps - len(leaves) > 0 and None not in chosen
-    _assert_exact_cover(loop, leaves)
-
-
-def test_failed_probe_leaves_the_other_halves_to_cubic_certificates(monkeypatch: pytest.MonkeyPatch) -> None:
-    """No certificate holds a sub-box with the worst vertex (nor its probe), every
-    certificate one without it; map proofs only 12 halvings deep. After the box and its
-    probe fail, the other halves along the path to the probe are each proved by one
-    certificate, and map proofs alone cover the probe (2 more halvings): 14 leaves and 12
-    programs where map proofs alone below the box would need 2 ** 12 leaves."""
-    loop = _paper()
-    idx = loop.chain.rate_indices
-    worst = loop.chain.rate_max.copy()
-    full = loop.chain.rate_max - loop.chain.rate_min
-
-    def depth(lo: Any, hi: Any) -> int:
-        return round(float(sum(np.log2(full[r] / (hi[r] - lo[r])) for r in idx)))
-
-    def away_from_worst(loop_: SampledLoop, h: float, pieces: int, lo: Any, hi: Any) -> object:
-        return type("Cert", (), {"proved": any(hi[r] < worst[r] for r in idx)})()
-
-    monkeypatch.setattr(sampled_cover, "cubic_stable", away_from_worst)
-    monkeypatch.setattr(sampled_cover, "subbox_stable", lambda loop_, h, parts, lo, hi: depth(lo, hi) >= 12)
-    leaves, _, attempts, maps = cover_box(loop, 0.9 * PAPER_UNSTABLE, 2, _box(loop), 1e12, worst)
-    assert leaves is not None and attempts == 2 + COVER_DEPTH and len(leaves) == COVER_DEPTH + 4
-    assert sorted(d for _, _, d in leaves) == list(range(1, COVER_DEPTH + 1)) + [12] * 4
-    assert all(any(hi[r] < worst[r] for r in idx) for lo, hi, d in leaves if d <= COVER_DEPTH)
-    assert maps == 1 + COVER_DEPTH + 1 + 2 + 4  # the box, the other halves, the probe, its 6 descendants
     _assert_exact_cover(loop, leaves)
 
 

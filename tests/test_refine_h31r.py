@@ -17,7 +17,7 @@ import pytest
 from ftc_verify.analysis.moments import sampled_cover
 from ftc_verify.analysis.moments.sampled import SampledLoop, SampledResult
 from ftc_verify.analysis.moments.sampled_bracket import box_work
-from ftc_verify.analysis.moments.sampled_cover import (COVER_DEPTH, MAP_DEPTH, cover_box, cover_h_max, cover_rungs,
+from ftc_verify.analysis.moments.sampled_cover import (MAP_DEPTH, cover_box, cover_h_max, cover_rungs,
                                                        cubic_work, rung_pieces)
 from ftc_verify.analysis.moments.sampled_cubic import cubic_stable, prove_cubic
 from ftc_verify.analysis.moments.sampled_proof import box_verdict
@@ -143,11 +143,10 @@ def test_cover_splits_until_proved_and_covers_the_box(monkeypatch: pytest.Monkey
     leaves, spent, attempts, _ = cover_box(loop, 0.08, 4, start, 2.5 * cubic_work(loop, 4))
     assert leaves is None and attempts == 2 and len(fake.asked) == 2 and spent <= 2.5 * cubic_work(loop, 4)
     # a sub-box never proved: two programs (the box, then its hardest sub-box at
-    # COVER_DEPTH, not one at every depth), then that probe first, by map proofs alone,
-    # to the depth limit
+    # COVER_DEPTH, not one at every depth), then map proofs alone, to the depth limit
     monkeypatch.setattr(sampled_cover, "cubic_stable", _Cubic(0.0))
     leaves, _, attempts, maps = cover_box(loop, 0.08, 4, start, 1e12)
-    assert leaves is None and attempts == 2 and maps == 2 + MAP_DEPTH - COVER_DEPTH
+    assert leaves is None and attempts == 2 and maps == MAP_DEPTH + 1
     leaves, _, attempts, maps = cover_box(loop, 0.08, None, start, 1e12)
     assert leaves is None and attempts == 0 and maps == MAP_DEPTH + 1
 

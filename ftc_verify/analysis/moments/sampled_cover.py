@@ -35,7 +35,7 @@ not proved is split in half along its widest rate (relative to the box; on ties 
 that moves the float64 radius most near the box's worst vertex) up to
 :data:`COVER_DEPTH` halvings along a path (cubic certificates tried), then along the rate
 of :func:`map_split` (map proofs only) up to :data:`MAP_DEPTH`; where no cubic certificate
-is tried (``pieces`` None, or the probe of a failed certificate) every split is
+is tried (``pieces`` None, or below a sub-box whose probe has none) every split is
 :func:`map_split`'s (held-out seed 13, 1.06e-2 below the proved-unstable end, map proofs
 alone from the whole box: after ten widest-rate halvings one path went 24 halvings deep
 unproved and the rung failed after 25 proofs; by ``split_rate`` from the top no path
@@ -47,16 +47,14 @@ the worst vertex is tried first, and a sub-box whose cubic certificate fails fir
 its *probe* tried (:func:`probe_box`: the sub-box the cover would reach first at
 :data:`COVER_DEPTH` below it, at that corner): a certificate of a sub-box also holds on
 each sub-box inside it (the sub-box's program is a relaxation), so when none is found
-for the probe none is expected for the sub-boxes holding it on the path to it: the
-probe is covered by map proofs alone (halved by :func:`map_split`), and the other halves
-along the path, farther from the worst vertex, are tried as any sub-box, their own
-certificates first (only where the search spends its budget depends on this; every
-sub-box of a cover is proved). Before the eigenpair enclosure the rung ended there
+for the probe none is expected on the path to it, and below that sub-box the cover
+goes on with map proofs alone (halved by :func:`map_split`) instead of a cubic program
+at every depth of that path (only where the search spends its budget depends on this;
+every sub-box of a cover is proved). Before the eigenpair enclosure the rung ended there
 (held-out seed 13, 1.1e-2 below the crossing: 11 programs and 68,000 units for a rung
-that failed; ``benchmarks/results/h31v.md``); in round 14 the whole sub-box above the
-probe went to map proofs, where one program proves half of seed 13's box at 1.06e-2
-(``benchmarks/results/split15.md``). When the probe is proved, the
-shallowest proved sub-box on its path is looked for (``_shallowest``: the top of the
+that failed; ``benchmarks/results/h31v.md``); the map proofs now cover what the cubic
+certificates cannot near the worst vertex (``benchmarks/results/eig14.md``). When the
+probe is proved, the shallowest proved sub-box on its path is looked for (``_shallowest``: the top of the
 path, then bisection of the depth, about 3 programs where the top-down cover paid one
 per halving), and the cover goes on with it and the other halves along the path, the
 deepest first. A sub-box proved this way is a leaf when the cover reaches it (not
@@ -69,10 +67,9 @@ cover (its sub-boxes, not the whole box again), with the fewest pieces of :data:
 below the previous cover's sub-box holding the worst vertex (:func:`rung_pieces`;
 splitting the rates cannot make up for too few pieces in the clock: on the seed-1 loop
 two pieces reach 2.5e-3 at the worst vertex, four 5e-4; when none proves it, the rung and
-the closer ones are covered with the fewest pieces, the probe known to have none). A
-rung's cover may spend :data:`RUNG_SHARE` of the budget left, the target's rung all of
-it. Once a rung is not covered within the
-budget or the depth, the next is at the geometric mean of the last covered and the
+the closer ones are covered by map proofs alone). A rung's cover may spend
+:data:`RUNG_SHARE` of the budget left, the target's rung all of it. Once a rung is not
+covered within the budget or the depth, the next is at the geometric mean of the last covered and the
 closest failed distance, while these are more than :data:`BISECT` apart (the rung before
 stopped after one such retry with half the budget unspent: seed 13 160,563 units of
 300,000); the result is the last rung covered. Every attempt is charged *before* it is
@@ -204,8 +201,9 @@ def rung_pieces(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, fewest: int
 @dataclass(frozen=True)
 class CoverResult:
     """What :func:`cover_h_max` did: ``h_max`` the closest period covered (``None``: no
-    rung), ``boxes`` the sub-boxes of its cover, ``pieces`` the cubic certificates' pieces
-    its cover could use (``None`` with no rung), ``work`` the units charged, ``attempts`` the cubic
+    rung), ``boxes`` the sub-boxes of its cover, ``pieces`` their cubic certificates'
+    pieces (``None``: the rung's worst vertex was not proved by any, its cover is by the
+    one-period map alone), ``work`` the units charged, ``attempts`` the cubic
     certificates tried, ``maps`` the sub-boxes tried by their one-period map, ``rungs``
     one ``(period, covered)`` per rung tried."""
 
@@ -281,8 +279,8 @@ def probe_box(loop: SampledLoop, h: float, box: Box, worst: Matrix) -> Box:
 
 
 def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box], budget: float,
-              worst: Matrix | None = None, proved: frozenset[tuple[bytes, bytes]] = frozenset(),
-              refused: frozenset[tuple[bytes, bytes]] = frozenset()) -> tuple[list[Box] | None, float, int, int]:
+              worst: Matrix | None = None,
+              proved: frozenset[tuple[bytes, bytes]] = frozenset()) -> tuple[list[Box] | None, float, int, int]:
     """A cover of the union of ``boxes`` at period ``h`` (module docstring), depth first,
     the harder half of each split first: ``(sub-boxes, units charged, cubic attempts, map
     proofs)``, the sub-boxes ``None`` when the budget or :data:`MAP_DEPTH` ran out first
@@ -291,13 +289,11 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
     :func:`~ftc_verify.analysis.moments.sampled_bracket.box_work`), then, up to
     :data:`COVER_DEPTH` and when ``pieces`` is given and the budget pays it, a cubic
     certificate of ``pieces`` pieces; where that fails, its probe's before its halves, and
-    where the probe's fails too, map proofs alone on the probe and the path's other
-    halves as any sub-box; where no cubic certificate is tried (``pieces`` None, or below
-    such a probe) halved along :func:`map_split`.
+    where the probe's fails too, map proofs alone below it; where no cubic certificate is
+    tried (``pieces`` None, or below such a probe) halved along :func:`map_split`.
     ``worst``: the box's worst vertex (float64, found here when not given), which orders
     the splits; ``proved``: sub-boxes already proved at ``h`` (by ``_key``, exact
-    floats), leaves without a new proof; ``refused``: probes known to have no certificate
-    of ``pieces`` pieces (not tried again, nor the sub-box above them)."""
+    floats), leaves without a new proof."""
     cost, per_map = (0.0 if pieces is None else cubic_work(loop, pieces)), box_work(loop)
     stack = list(reversed(boxes))
     leaves: list[Box] = []
@@ -323,26 +319,23 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
         if worst is None:
             worst = worst_vertex(loop, h, rate_points(loop.chain))[1]
         key = _key(lo, hi)
-        if pieces is not None and depth <= COVER_DEPTH and key not in maps_only:
+        if pieces is not None and depth <= COVER_DEPTH and spent + cost <= budget and key not in maps_only:
+            spent += cost
+            attempts += 1
+            cert = cubic_stable(loop, h, pieces, lo, hi)
+            if cert is not None and cert.proved:
+                leaves.append((lo, hi, depth))
+                continue
             path = _path(loop, h, (lo, hi, depth), worst)
-            known = bool(path) and _key(path[-1][0][0], path[-1][0][1]) in refused  # no certificate holds it
-            if not known and spent + cost <= budget:
-                spent += cost
-                attempts += 1
-                cert = cubic_stable(loop, h, pieces, lo, hi)
-                if cert is not None and cert.proved:
-                    leaves.append((lo, hi, depth))
-                    continue
             if path:  # the hardest sub-box below it first, then the shallowest one proved on its path
-                found = (None, 0) if known else _shallowest(loop, h, pieces, path, done, budget - spent)
+                found = _shallowest(loop, h, pieces, path, done, budget - spent)
                 spent += cost * found[1]
                 attempts += found[1]
-                top = len(path) - 1 if found[0] is None else found[0]
-                stack.extend(other for _, other in path[:top + 1])
-                stack.append(path[top][0])
-                if found[0] is None:  # no certificate for the probe: map proofs alone below it
-                    maps_only.add(_key(path[top][0][0], path[top][0][1]))
-                continue
+                if found[0] is not None:
+                    stack.extend(other for _, other in path[:found[0] + 1])
+                    stack.append(path[found[0]][0])
+                    continue
+                maps_only.add(key)  # no certificate for its probe: map proofs alone below it
         if depth >= MAP_DEPTH:
             return None, spent, attempts, maps
         cubic_below = pieces is not None and depth < COVER_DEPTH and key not in maps_only
@@ -420,22 +413,18 @@ def cover_h_max(loop: SampledLoop, h_max: float, h_max_unstable: float, work: fl
     while todo:
         f = todo.pop(0)
         h = h_max_unstable * (1.0 - f)
-        least = max(pieces, 4 if f < FINE_FROM else 2)
         found: int | None = None
         proved: frozenset[tuple[bytes, bytes]] = frozenset()
-        refused: frozenset[tuple[bytes, bytes]] = frozenset()
         if f > hopeless:
             home = next(b for b in boxes if np.all((b[0] <= worst) & (worst <= b[1])))
             plo, phi, _ = probe_box(loop, h, home, worst)
-            found, used, n = rung_pieces(loop, h, plo, phi, least, work - spent)
+            found, used, n = rung_pieces(loop, h, plo, phi, max(pieces, 4 if f < FINE_FROM else 2), work - spent)
             spent += used
             attempts += n
-            probe = frozenset({_key(plo, phi)})  # proved by `found` pieces, or by none tried
-            proved, refused = (frozenset(), probe) if found is None else (probe, frozenset())
+            proved = frozenset() if found is None else frozenset({_key(plo, phi)})
             hopeless = f if found is None else hopeless
-        use = least if found is None else found
         share = 1.0 if f <= 0.9 * rtol else RUNG_SHARE  # the target's rung may spend all that is left
-        leaves, used, n, k = cover_box(loop, h, use, boxes, share * (work - spent), worst, proved, refused)
+        leaves, used, n, k = cover_box(loop, h, found, boxes, share * (work - spent), worst, proved)
         spent += used
         attempts += n
         maps += k
@@ -443,7 +432,8 @@ def cover_h_max(loop: SampledLoop, h_max: float, h_max_unstable: float, work: fl
         if leaves is None:
             failed = f if failed is None else max(failed, f)
         else:
-            best, boxes, last, pieces = (h, len(leaves), use), leaves, f, use
+            best, boxes, last = (h, len(leaves), found), leaves, f
+            pieces = found if found is not None else pieces
         todo = _next_rung(last, failed, todo)
     if best is None:
         return CoverResult(None, 0, None, spent, attempts, maps, tuple(rungs))
