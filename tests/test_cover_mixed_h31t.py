@@ -192,7 +192,7 @@ def test_split_cover_by_real_map_proofs_is_exactly_the_box(monkeypatch: pytest.M
 
 def test_rung_without_cubic_splits_by_the_maps_rule(monkeypatch: pytest.MonkeyPatch) -> None:
     """A rung with no cubic certificate (``pieces`` None): every split of its cover is
-    the map proofs' rule (``split_rate``) from the top, not the widest rate of the cubic
+    the map proofs' rule (``map_split``, from ``split_rate``) from the top, not the widest rate of the cubic
     certificates' probes; the leaves are still exactly the box."""
     loop = _paper()
     idx = loop.chain.rate_indices
