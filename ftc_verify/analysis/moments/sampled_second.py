@@ -102,6 +102,7 @@ from typing import Any
 import numpy as np
 
 from ...model.system import Matrix
+from .fast_balls import up_bound as _up
 from .quad_balls import pairs
 from .sampled import SampledLoop
 from .sampled_taylor import float_choices, float_pd, left_perron, stack_pd
@@ -116,12 +117,6 @@ def _flint() -> Any:
     import flint
 
     return flint
-
-
-def _up(v: Any, k: int) -> Any:
-    """An upper bound of a nonnegative expression computed with at most ``k`` roundings
-    (:mod:`~ftc_verify.analysis.moments.fast_balls`)."""
-    return v * (1.0 + 2.0 * (k + 1) * _U) + (k + 1) * _ETA
 
 
 def quadratic_max(lin: Matrix, quad: Matrix, max_boxes: int = 400, rtol: float = 1e-3) -> float:
