@@ -69,7 +69,7 @@ import scipy.sparse
 from ...model.system import Matrix
 
 __all__ = ["up_bound", "MidRad", "Affine", "ball_expm", "arb_expm", "map_ball", "from_arb", "to_arb", "TAYLOR_TERMS", "aff_mul",
-           "aff_expm", "aff_map", "FormArithmetic", "taylor_expm", "BALLS", "AFFINE", "SPARSE_SHARE", "SPARSE_ROWS", "sparse_enough", "sparse_left",
+           "aff_expm", "aff_map", "FormArithmetic", "taylor_scaled", "taylor_expm", "BALLS", "AFFINE", "SPARSE_SHARE", "SPARSE_ROWS", "sparse_enough", "sparse_left",
            "wide", "unwide"]
 
 _U = 2.0 ** -53
@@ -158,17 +158,16 @@ class FormArithmetic(Generic[F]):
     widen: Callable[[F, float], F]
 
 
-def taylor_expm(x: F, arith: FormArithmetic[F], terms: int = TAYLOR_TERMS) -> F | None:
-    r"""An enclosure of :math:`e^{X}` for every :math:`X` of the enclosure ``x`` (at the
-    same symbols), in the arithmetic ``arith``; ``None`` when a number overflows.
+def taylor_scaled(x: F, arith: FormArithmetic[F], terms: int = TAYLOR_TERMS) -> tuple[F, int] | None:
+    r"""``(p, s)``: an enclosure ``p`` of :math:`e^{X / 2^s}` for every :math:`X` of the
+    enclosure ``x`` (at the same symbols), in the arithmetic ``arith``, and the number
+    ``s`` of squarings that make it :math:`e^X`; ``None`` when a number overflows.
 
-    The one scaling-and-squaring routine of the ball, affine and second-order
-    exponentials (module docstring, *Taylor series with remainder* and *Squaring*):
-    :math:`\nu \ge \| \mathrm{magnitude}(x) \|_\infty` rounded up, :math:`s` with
-    :math:`\mu = \nu 2^{-s} \le 1/2`, Horner's rule on :math:`X / 2^s` (the scaling
-    by a power of two exact up to underflow), the tail
-    :math:`\mu^{K+1} / (K+1)! / (1 - \mu / (K + 2))` added to every radius, ``s``
-    squarings."""
+    The scaled Taylor polynomial of :func:`taylor_expm` (module docstring, *Taylor series
+    with remainder*): :math:`\nu \ge \| \mathrm{magnitude}(x) \|_\infty` rounded up,
+    :math:`s` with :math:`\mu = \nu 2^{-s} \le 1/2`, Horner's rule on :math:`X / 2^s`
+    (the scaling by a power of two exact up to underflow), the tail
+    :math:`\mu^{K+1} / (K+1)! / (1 - \mu / (K + 2))` added to every radius."""
     with np.errstate(over="ignore", invalid="ignore"):
         mag = arith.magnitude(x)
         nu = float(np.max(_up(np.sum(mag, axis=1), mag.shape[1] + 2))) if mag.size else 0.0
@@ -184,7 +183,21 @@ def taylor_expm(x: F, arith: FormArithmetic[F], terms: int = TAYLOR_TERMS) -> F 
             inv = 1.0 / j
             p = arith.add_identity(arith.scale(arith.mul(b, p), inv, _U * inv))
         tail = mu ** (terms + 1) / math.factorial(terms + 1) / (1.0 - mu / (terms + 2))
-        p = arith.widen(p, float(_up(tail, terms + 8)))
+        return arith.widen(p, float(_up(tail, terms + 8))), s
+
+
+def taylor_expm(x: F, arith: FormArithmetic[F], terms: int = TAYLOR_TERMS) -> F | None:
+    r"""An enclosure of :math:`e^{X}` for every :math:`X` of the enclosure ``x`` (at the
+    same symbols), in the arithmetic ``arith``; ``None`` when a number overflows.
+
+    The one scaling-and-squaring routine of the ball, affine and second-order
+    exponentials (module docstring, *Taylor series with remainder* and *Squaring*):
+    :func:`taylor_scaled`, then its ``s`` squarings."""
+    scaled = taylor_scaled(x, arith, terms)
+    if scaled is None:
+        return None
+    p, s = scaled
+    with np.errstate(over="ignore", invalid="ignore"):
         for _ in range(s):
             p = arith.mul(p, p)
         if not all(np.all(np.isfinite(v)) for v in p):

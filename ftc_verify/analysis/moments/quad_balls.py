@@ -38,7 +38,7 @@ import numpy as np
 from ...model.system import Matrix
 from .fast_balls import TAYLOR_TERMS, FormArithmetic, MidRad, sparse_enough, sparse_left, taylor_expm, unwide, wide
 
-__all__ = ["Quad", "QUADRATIC", "pairs", "quad_mul", "quad_expm", "quad_map"]
+__all__ = ["Quad", "QUADRATIC", "pairs", "quad_mul", "quad_expm", "generator_form", "quad_map"]
 
 _U = 2.0 ** -53
 _ETA = 2.0 ** -1022
@@ -125,10 +125,9 @@ def quad_expm(x: Quad, terms: int = TAYLOR_TERMS) -> Quad | None:
     return taylor_expm(x, QUADRATIC, terms)
 
 
-def quad_map(res: MidRad, modes: MidRad, q: MidRad, dirs: Matrix, h: MidRad, lift: MidRad) -> Quad | None:
-    """:math:`\\mathcal P e^{(M + Q(\\delta)^T \\otimes I) h} \\mathcal R` as a
-    second-order form over :math:`\\delta \\in [-1, 1]^K`, the arguments as in
-    :func:`~ftc_verify.analysis.moments.fast_balls.aff_map`."""
+def generator_form(modes: MidRad, q: MidRad, dirs: Matrix, h: MidRad) -> Quad:
+    """:math:`(M + Q(\\delta)^T \\otimes I) h` as a second-order form (no second-order
+    part), the arguments as in :func:`quad_map`."""
     qc, qr = q
     K = dirs.shape[0]
     M = len(pairs(K))
@@ -137,8 +136,17 @@ def quad_map(res: MidRad, modes: MidRad, q: MidRad, dirs: Matrix, h: MidRad, lif
         gc = modes[0] + np.kron(qc.T, eye)
         gl = np.stack([np.kron(d.T, eye) for d in dirs])
         gr = _up(modes[1] + np.kron(qr.T, eye) + _U * np.abs(gc), 3)
-        g = _scale((gc, gl, np.zeros((M,) + gc.shape), gr), float(h[0][0, 0]), float(h[1][0, 0]))
-        e = quad_expm(g)
+        return _scale((gc, gl, np.zeros((M,) + gc.shape), gr), float(h[0][0, 0]), float(h[1][0, 0]))
+
+
+def quad_map(res: MidRad, modes: MidRad, q: MidRad, dirs: Matrix, h: MidRad, lift: MidRad) -> Quad | None:
+    """:math:`\\mathcal P e^{(M + Q(\\delta)^T \\otimes I) h} \\mathcal R` as a
+    second-order form over :math:`\\delta \\in [-1, 1]^K`, the arguments as in
+    :func:`~ftc_verify.analysis.moments.fast_balls.aff_map`."""
+    K = dirs.shape[0]
+    M = len(pairs(K))
+    with np.errstate(over="ignore", invalid="ignore"):
+        e = quad_expm(generator_form(modes, q, dirs, h))
         if e is None:
             return None
 

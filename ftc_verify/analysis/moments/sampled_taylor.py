@@ -112,6 +112,14 @@ QUADRATIC_SIZE_SMALL = 8000
 QUADRATIC_ROWS = 256
 
 
+#: :func:`affine_stable` computes the map's third-order form
+#: (:func:`~ftc_verify.analysis.moments.cubic_balls.cubic_map`) only where the eigenpair
+#: enclosure would prove the sub-box with the second-order form's remainder divided by
+#: this (a float estimate; the third-order form's remainder came out 2.7 to 3.5 times
+#: smaller near the worst vertex, ``benchmarks/results/split16.md``).
+CUBIC_GAIN = 2.0
+
+
 def quadratic_forms(K: int, N: int) -> bool:
     """Whether a sub-box with ``K`` free rates of a moment generator of ``N`` rows gets the
     second-order forms (:data:`QUADRATIC_SIZE`, :data:`QUADRATIC_SIZE_SMALL`); shared by
@@ -357,6 +365,7 @@ def affine_stable(loop: SampledLoop, parts: Any, lo: Matrix, hi: Matrix) -> bool
     joint state's block is proved positive definite there, with :math:`Y(\\delta)`'s
     (convex combinations, as above). ``None`` (not applicable) when no rate is free, more
     than :data:`AFFINE_RATES` are, Arb's precision is above 64 bits or a number overflows."""
+    from .cubic_balls import cubic_forms, cubic_map
     from .fast_balls import aff_map
     from .quad_balls import pairs, quad_map
 
@@ -374,7 +383,7 @@ def affine_stable(loop: SampledLoop, parts: Any, lo: Matrix, hi: Matrix) -> bool
         if aff is None:
             return None
         form = (aff[0], aff[1], np.zeros((0,) + aff[0].shape), aff[2])
-    from .sampled_eigen import eigen_stable
+    from .sampled_eigen import eigen_radius_bound, eigen_stable
     from .sampled_second import certify_second_order
 
     if eigen_stable(loop, form):
@@ -384,7 +393,16 @@ def affine_stable(loop: SampledLoop, parts: Any, lo: Matrix, hi: Matrix) -> bool
             return True
         if _certify(loop, form, pairs(K) if form[2].shape[0] else (), mix):
             return True
-    return certify_second_order(loop, form, shifted=True)
+    if certify_second_order(loop, form, shifted=True):
+        return True
+    # the remainder-limited case: the third-order terms with their signs (cubic_balls)
+    if not (second and form[2].shape[0] and cubic_forms(K, modes[0].shape[0])):
+        return False
+    est = eigen_radius_bound(form[:3] + (form[3] / CUBIC_GAIN,), loop.states, loop.r)
+    if est is None or est >= 1.0:
+        return False
+    tight = cubic_map(res, modes, found[0], found[1], h, lift)
+    return tight is not None and eigen_stable(loop, tight)
 
 
 def _certify(loop: SampledLoop, form: tuple[Matrix, Matrix, Matrix, Matrix], prs: Sequence[tuple[int, int]],
