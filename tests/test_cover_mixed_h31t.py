@@ -15,7 +15,7 @@ import pytest
 
 from ftc_verify.analysis.moments import sampled_cover
 from ftc_verify.analysis.moments.sampled import SampledLoop
-from ftc_verify.analysis.moments.sampled_bracket import box_work
+from ftc_verify.analysis.moments.sampled_bracket import envelope_work
 from ftc_verify.analysis.moments.sampled_cover import COVER_DEPTH, MAP_DEPTH, cover_box, cover_h_max, cubic_work
 from ftc_verify.analysis.moments.sampled_proof import MapParts, box_verdict, split_rate, subbox_stable
 from ftc_verify.analysis.rigorous import precision
@@ -85,10 +85,10 @@ def test_map_proof_first_then_the_cubic(monkeypatch: pytest.MonkeyPatch) -> None
     monkeypatch.setattr(sampled_cover, "cubic_stable", never)
     leaves, spent, attempts, maps = cover_box(loop, PAPER_UNSTABLE * 0.95, 2, _box(loop), 1e12)
     assert leaves is not None and len(leaves) == 1 and (attempts, maps, never.calls) == (0, 1, 0)
-    assert spent == pytest.approx(box_work(loop))
+    assert spent == pytest.approx(envelope_work(loop))  # the envelope proves it: no form paid
     calls: list[int] = []
 
-    def refuse_above(loop: SampledLoop, h: float, parts: Any, lo: np.ndarray, hi: np.ndarray) -> bool:
+    def refuse_above(loop: SampledLoop, h: float, parts: Any, lo: np.ndarray, hi: np.ndarray, spend: Any = None) -> bool:
         calls.append(1)
         return False
 
@@ -97,7 +97,7 @@ def test_map_proof_first_then_the_cubic(monkeypatch: pytest.MonkeyPatch) -> None
     # the box's cubic fails, then its probe (COVER_DEPTH halvings down): no more programs,
     # map proofs alone below the box, down to MAP_DEPTH
     assert leaves is None and attempts == 2 == never.calls and maps == len(calls) == 1 + MAP_DEPTH
-    assert spent == pytest.approx(attempts * cubic_work(loop, 2) + maps * box_work(loop))
+    assert spent == pytest.approx(attempts * cubic_work(loop, 2) + maps * envelope_work(loop))  # no form asked for
     # only the box's probe proved: the top of its path (1 halving) and the bisection (5, 7,
     # 8, 9 halvings) fail, so the probe is the path's leaf; the other half at COVER_DEPTH
     # is tried (its own probe is itself), then only map proofs below it, to MAP_DEPTH
@@ -154,7 +154,7 @@ def test_failed_rung_bisected_geometrically(monkeypatch: pytest.MonkeyPatch) -> 
         return type("Cert", (), {"proved": h <= hu * (1 - 4e-3)})()
 
     monkeypatch.setattr(sampled_cover, "cubic_stable", cubic)
-    monkeypatch.setattr(sampled_cover, "subbox_stable", lambda *args: False)
+    monkeypatch.setattr(sampled_cover, "subbox_stable", lambda *args, spend=None: False)
     got = cover_h_max(loop, 0.96 * hu, hu, 1e12, 1e-3)
     assert [ok for _, ok in got.rungs] == [True, False, True, False, True]
     mid = (5e-3 * 2.5e-3) ** 0.5
@@ -174,10 +174,10 @@ def test_split_cover_by_real_map_proofs_is_exactly_the_box(monkeypatch: pytest.M
     full = {r: float(loop.chain.rate_max[r] - loop.chain.rate_min[r]) for r in idx}
     proved: list[tuple[bytes, bytes]] = []
 
-    def narrow_only(loop_: SampledLoop, h: float, parts: Any, lo: Any, hi: Any, *rest: Any) -> bool:
+    def narrow_only(loop_: SampledLoop, h: float, parts: Any, lo: Any, hi: Any, *rest: Any, spend: Any = None) -> bool:
         if any(float(hi[r] - lo[r]) > 0.5 * full[r] for r in idx):
             return False
-        ok = subbox_stable(loop_, h, parts, lo, hi, *rest)
+        ok = subbox_stable(loop_, h, parts, lo, hi, *rest, spend=spend)
         if ok:
             proved.append((np.asarray(lo).tobytes(), np.asarray(hi).tobytes()))
         return bool(ok)
@@ -203,7 +203,7 @@ def test_rung_without_cubic_splits_by_the_maps_rule(monkeypatch: pytest.MonkeyPa
         chosen.append(split_rate(loop_, h, lo, hi))
         return chosen[-1]
 
-    def narrow_only(loop_: SampledLoop, h: float, parts: Any, lo: Any, hi: Any, *rest: Any) -> bool:
+    def narrow_only(loop_: SampledLoop, h: float, parts: Any, lo: Any, hi: Any, *rest: Any, spend: Any = None) -> bool:
         return all(float(hi[r] - lo[r]) <= 0.25 * full[r] for r in idx)
 
     monkeypatch.setattr(sampled_cover, "cubic_stable", _Never())

@@ -65,7 +65,7 @@ def test_harder_half_and_probe_first(monkeypatch: pytest.MonkeyPatch) -> None:
     assert probe_box(loop, h, (plo, phi, depth), worst)[2] == depth  # that deep: itself
     fake = _Narrow(2)
     monkeypatch.setattr(sampled_cover, "cubic_stable", fake)
-    monkeypatch.setattr(sampled_cover, "subbox_stable", lambda *args: False)
+    monkeypatch.setattr(sampled_cover, "subbox_stable", lambda *args, spend=None: False)
     leaves, _, attempts, _ = cover_box(loop, h, 2, [box], 1e12, worst)
     assert leaves is not None and attempts == len(fake.asked)
     assert np.array_equal(fake.asked[1][0], plo) and np.array_equal(fake.asked[1][1], phi)
@@ -104,7 +104,7 @@ def test_rung_probe_proved_once_then_a_leaf(monkeypatch: pytest.MonkeyPatch) -> 
     loop = _paper()
     fake = _Narrow(2)
     monkeypatch.setattr(sampled_cover, "cubic_stable", fake)
-    monkeypatch.setattr(sampled_cover, "subbox_stable", lambda *args: False)
+    monkeypatch.setattr(sampled_cover, "subbox_stable", lambda *args, spend=None: False)
     got = cover_h_max(loop, 0.99 * PAPER_UNSTABLE, PAPER_UNSTABLE, 1e12, 1e-3)
     assert got.h_max is not None and all(ok for _, ok in got.rungs)
     rungs = len(got.rungs)

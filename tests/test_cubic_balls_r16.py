@@ -132,21 +132,29 @@ def test_third_order_map_contains_the_map_with_a_smaller_remainder() -> None:
                                         for p in (lo, hi, mid))
 
 
-def test_the_sub_box_proof_uses_the_third_order_form_where_the_remainder_limits_it(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_the_sub_box_proof_uses_the_third_order_form_where_the_remainder_limits_it() -> None:
     """``sampled_taylor.affine_stable`` on the seed-1 loop's vertex sub-box of a quarter
-    of every width, 1.3e-3 below its float64 crossing: proved, and not proved when the
-    third-order form is never computed (the estimate's divisor so small that no
-    estimate passes); just above the crossing (the vertex unstable) not proved."""
-    import ftc_verify.analysis.moments.sampled_taylor as taylor
+    of every width, 1.3e-3 below its float64 crossing: proved when the third-order form
+    may be paid for (asked once), not proved when the caller declines or gives no
+    ``third_order`` (the second-order form's proofs fail there); just above the
+    crossing (the vertex unstable) not proved."""
+    from ftc_verify.analysis.moments.sampled_taylor import FormSpend, affine_stable
 
     loop, a, v = seed1_crossing()
     lo, hi = vertex_corner(loop, v, 0.25)
+    asked: list[bool] = []
 
-    def proved(h: float) -> bool | None:
+    def proved(h: float, answer: bool | None) -> bool | None:
+        def pay() -> bool:
+            assert answer is not None
+            asked.append(answer)
+            return answer
+
         with precision(64):
-            return taylor.affine_stable(loop, MapParts.build(loop, h), lo, hi)
+            spend = None if answer is None else FormSpend(lambda: True, pay, lambda r: None)
+            return affine_stable(loop, MapParts.build(loop, h), lo, hi, spend)
 
-    assert proved(a * (1 - 1.3e-3)) is True
-    assert proved(a * (1 + 1e-3)) is False
-    monkeypatch.setattr(taylor, "CUBIC_GAIN", 1e-300)
-    assert proved(a * (1 - 1.3e-3)) is False
+    assert proved(a * (1 - 1.3e-3), True) is True and asked == [True]
+    assert proved(a * (1 - 1.3e-3), False) is False and asked == [True, False]
+    assert proved(a * (1 - 1.3e-3), None) is False
+    assert proved(a * (1 + 1e-3), True) is False

@@ -16,7 +16,7 @@ import pytest
 
 from ftc_verify.analysis.moments import sampled_cover
 from ftc_verify.analysis.moments.sampled import SampledLoop, SampledResult
-from ftc_verify.analysis.moments.sampled_bracket import box_work
+from ftc_verify.analysis.moments.sampled_bracket import envelope_work
 from ftc_verify.analysis.moments.sampled_cover import (MAP_DEPTH, cover_box, cover_h_max, cover_rungs,
                                                        cubic_work, rung_pieces)
 from ftc_verify.analysis.moments.sampled_cubic import cubic_stable, prove_cubic
@@ -34,7 +34,7 @@ PAPER_UNSTABLE = 0.0843  # above the paper loop's float64 crossing 0.08426 (h31c
 def _no_map_proofs(monkeypatch: pytest.MonkeyPatch) -> None:
     """The cover's one-period-map proofs refused, so that these tests count the cubic
     certificates alone (the mixed cover: ``tests/test_cover_mixed_h31t.py``)."""
-    monkeypatch.setattr(sampled_cover, "subbox_stable", lambda *args: False)
+    monkeypatch.setattr(sampled_cover, "subbox_stable", lambda *args, spend=None: False)
 
 
 def _paper() -> SampledLoop:
@@ -135,7 +135,7 @@ def test_cover_splits_until_proved_and_covers_the_box(monkeypatch: pytest.Monkey
     # proved), the other half at 2; the other half at 1 fails: its probe, the top of its
     # path (2: proved), the other half at 2. Map proofs on the sub-boxes popped only
     assert len(leaves) == 4 and maps == 4 and attempts == 11
-    assert spent == pytest.approx(11 * cubic_work(loop, 4) + 4 * box_work(loop))
+    assert spent == pytest.approx(11 * cubic_work(loop, 4) + 4 * envelope_work(loop))  # the envelope proves each
     assert [_halvings(loop, lo, hi) for _, _, (lo, hi) in fake.asked] == [0, 10, 1, 5, 3, 2, 2, 1, 10, 2, 2]
     _assert_exact_cover(loop, leaves)
     # the budget is charged before each solve: none is started that it cannot pay

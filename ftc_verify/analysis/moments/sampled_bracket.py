@@ -34,7 +34,7 @@ from .sampled_clock import clock_size, clock_stable
 from .sampled_proof import box_verdict, prove_point_unstable
 
 __all__ = ["LADDER", "COARSE", "TIGHT", "BRACKET_WORK", "CLOCK_LADDER", "CLOCK_FALLBACK", "CLOCK_SPLIT", "CLOCK_PIECES", "CLOCK_SIZE", "CLOCK_WORK",
-           "box_work", "prove_below", "clock_below", "worst_vertex", "period_worst", "worst_crossing", "h_max_bracket"]
+           "box_work", "envelope_work", "third_order_work", "prove_below", "clock_below", "worst_vertex", "period_worst", "worst_crossing", "h_max_bracket"]
 
 #: Relative distances below the crossing tried after the tight one fails, easy first.
 LADDER = (0.1, 0.03, 0.01, 3e-3)
@@ -104,6 +104,30 @@ def box_work(loop: SampledLoop) -> float:
     N = loop.states * loop.d * (loop.d + 1) // 2
     t = 1 + K + (K * (K + 1) / 4 if quadratic_forms(K, N) else 0)
     return 5.0 + 3e-6 * N ** 3 * t
+
+
+def envelope_work(loop: SampledLoop) -> float:
+    """The part of :func:`box_work` for a sub-box whose polynomial form is not computed
+    (the ``h_max`` cover's sub-boxes where the form is not expected to prove,
+    :func:`~ftc_verify.analysis.moments.sampled_cover.cover_box`): ``5 + 3e-6 N^3``, one
+    product's worth for the upper envelope's map and the midpoint's (measured 0.005-0.05
+    CPU s at ``N = 189``, ``benchmarks/results/split16.md``)."""
+    N = loop.states * loop.d * (loop.d + 1) // 2
+    return 5.0 + 3e-6 * N ** 3
+
+
+def third_order_work(loop: SampledLoop) -> float:
+    """The work units one third-order form of a sub-box's map is charged
+    (:func:`~ftc_verify.analysis.moments.cubic_balls.cubic_map`, computed by the cover
+    where the second-order form's proofs failed): ``3e-6 N^3 K (K + 1) (K + 2) / 12``,
+    the map's :math:`K (K + 1) (K + 2) / 6` third-order terms about half a dense product
+    each over the squarings it takes; calibrated on ``n = 4, m = 3`` (``N = 189``,
+    ``K = 6``): 0.72 CPU s for the form and the enclosure against 0.35 for the
+    second-order form, 567 units (``benchmarks/results/split16.md``)."""
+    chain = loop.chain
+    K = sum(1 for idx in chain.rate_indices if chain.rate_max[idx] > chain.rate_min[idx])
+    N = loop.states * loop.d * (loop.d + 1) // 2
+    return 3e-6 * N ** 3 * K * (K + 1) * (K + 2) / 12
 
 
 def prove_below(loop: SampledLoop, a: float, rtol: float, max_boxes: int, work: float = BRACKET_WORK,

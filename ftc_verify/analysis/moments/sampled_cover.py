@@ -82,6 +82,7 @@ bracket on every machine.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -89,11 +90,12 @@ import numpy as np
 from ...model.system import Matrix
 from ..rigorous import precision
 from .sampled import SampledLoop, rate_points, spectral_radius
-from .sampled_bracket import box_work, worst_vertex
+from .sampled_bracket import box_work, envelope_work, third_order_work, worst_vertex
 from .sampled_cubic import cubic_size, cubic_stable
 from .sampled_proof import MapParts, split_rate, subbox_stable
+from .sampled_taylor import FormSpend
 
-__all__ = ["COVER_DEPTH", "MAP_DEPTH", "ASPECT", "RUNG_SHARE", "PIECES", "FINE_FROM", "BISECT", "CoverResult", "map_split",
+__all__ = ["COVER_DEPTH", "MAP_DEPTH", "ASPECT", "RUNG_SHARE", "REACH_MAX", "REACH_SHRINK", "PIECES", "FINE_FROM", "BISECT", "CoverResult", "map_split",
            "cubic_work", "cubic_memory", "cover_rungs", "rung_pieces", "probe_box", "cover_box", "cover_h_max"]
 
 #: The most halvings of the box along one path of the cover where cubic certificates are
@@ -124,6 +126,29 @@ FINE_FROM = 3e-3
 #: failed distance while these are more than this factor apart (4x apart: at most three
 #: more rungs, 2x, 1.4x and 1.19x from the covered one).
 BISECT = 1.25
+
+
+#: A sub-box gets a polynomial form only where the eigenpair enclosure's expected reach
+#: (:func:`~ftc_verify.analysis.moments.sampled_eigen.enclosure_reach`: the radius of its
+#: Lipschitz matrix, which it needs below 1) is at most this; elsewhere only the envelope
+#: is tried. Held-out seed 13, 9e-4 below the proved-unstable end: on the first 1,072
+#: sub-boxes of its cover (the radius up to 0.92) no form proved any, and they took 218
+#: of the 235 CPU s (``benchmarks/results/split16.md``).
+REACH_MAX = 1.0
+#: A half's expected reach: its parent's times this, the parent's own estimate where its
+#: form was computed and proved nothing (on seed 31's sub-boxes the estimate fell by
+#: 0.6-0.9 per halving).
+REACH_SHRINK = 0.85
+
+
+def _spend(expected: float, seen: list[float], pay: Callable[[float], bool], per_form: float,
+           per_third: float) -> FormSpend:
+    """A sub-box's :class:`~ftc_verify.analysis.moments.sampled_taylor.FormSpend` in
+    :func:`cover_box`: its form only when its expected reach is at most
+    :data:`REACH_MAX`, each form paid by ``pay``; the reach of a form that proves nothing
+    appended to ``seen`` (where it is not estimated, its halves expect what it
+    expected)."""
+    return FormSpend(lambda: expected <= REACH_MAX and pay(per_form), lambda: pay(per_third), seen.append)
 
 
 def map_split(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix) -> tuple[int, ...] | None:
@@ -286,7 +311,9 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
     proofs)``, the sub-boxes ``None`` when the budget or :data:`MAP_DEPTH` ran out first
     or the float64 radius at a sub-box's midpoint is not below 1. Each sub-box: the one-period
     map's proof (:func:`~ftc_verify.analysis.moments.sampled_proof.subbox_stable`, charged
-    :func:`~ftc_verify.analysis.moments.sampled_bracket.box_work`), then, up to
+    :func:`~ftc_verify.analysis.moments.sampled_bracket.box_work`, and
+    :func:`~ftc_verify.analysis.moments.sampled_bracket.third_order_work` more where it
+    computes the map's third-order form), then, up to
     :data:`COVER_DEPTH` and when ``pieces`` is given and the budget pays it, a cubic
     certificate of ``pieces`` pieces; where that fails, its probe's before its halves, and
     where the probe's fails too, map proofs alone below it; where no cubic certificate is
@@ -294,31 +321,43 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
     ``worst``: the box's worst vertex (float64, found here when not given), which orders
     the splits; ``proved``: sub-boxes already proved at ``h`` (by ``_key``, exact
     floats), leaves without a new proof."""
-    cost, per_map = (0.0 if pieces is None else cubic_work(loop, pieces)), box_work(loop)
+    cost = 0.0 if pieces is None else cubic_work(loop, pieces)
+    per_map, per_form, per_third = envelope_work(loop), box_work(loop) - envelope_work(loop), third_order_work(loop)
     stack = list(reversed(boxes))
     leaves: list[Box] = []
     done = set(proved)
     maps_only: set[tuple[bytes, bytes]] = set()
+    reach: dict[tuple[bytes, bytes], float] = {}  # a sub-box's expected reach (REACH_MAX), from its parent
     spent, attempts, maps = 0.0, 0, 0
     with precision(64):
         parts = MapParts.build(loop, h)
+
+    def pay(units: float) -> bool:  # charged before the work, never beyond the budget
+        nonlocal spent
+        if spent + units > budget:
+            return False
+        spent += units
+        return True
+
     while stack:
         lo, hi, depth = stack.pop()
-        if _key(lo, hi) in done:
+        key = _key(lo, hi)
+        if key in done:
             leaves.append((lo, hi, depth))
             continue
         if spent + per_map > budget:
             return None, spent, attempts, maps
         spent += per_map
         maps += 1
-        if subbox_stable(loop, h, parts, lo, hi):
+        expected = reach.pop(key, 0.0)
+        seen: list[float] = []  # the reach of its form, when computed and not proved
+        if subbox_stable(loop, h, parts, lo, hi, spend=_spend(expected, seen, pay, per_form, per_third)):
             leaves.append((lo, hi, depth))
             continue
         if spectral_radius(loop, h, 0.5 * (lo + hi)) >= 1.0:  # no proof can hold there: before any cubic is paid
             return None, spent, attempts, maps
         if worst is None:
             worst = worst_vertex(loop, h, rate_points(loop.chain))[1]
-        key = _key(lo, hi)
         if pieces is not None and depth <= COVER_DEPTH and spent + cost <= budget and key not in maps_only:
             spent += cost
             attempts += 1
@@ -345,6 +384,8 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
         first, second = _split(loop, h, lo, hi, depth, worst, idx)
         if key in maps_only:
             maps_only.update({_key(first[0], first[1]), _key(second[0], second[1])})
+        for child in (first, second):
+            reach[_key(child[0], child[1])] = REACH_SHRINK * (seen[0] if seen else expected)
         stack.append(second)
         stack.append(first)
     return leaves, spent, attempts, maps

@@ -117,7 +117,7 @@ from .sampled import SampledLoop
 from .sampled_second import quadratic_max
 from .sampled_taylor import float_pd, stack_pd
 
-__all__ = ["Expansion", "expansion", "eigen_stable", "eigen_radius_bound", "EIGEN_ITERATIONS"]
+__all__ = ["Expansion", "expansion", "eigen_stable", "eigen_radius_bound", "enclosure_reach", "EIGEN_ITERATIONS"]
 
 _U = 2.0 ** -53
 _ETA = 2.0 ** -1022
@@ -329,6 +329,29 @@ def eigen_radius_bound(form: tuple[Matrix, ...], states: int, r: int) -> float |
     phi = quadratic_max(e.lam_l, e.lam_q)
     top = e.lam0 + phi + float(z[N])
     return top * (1 + 4 * _U) if math.isfinite(top) else None
+
+
+def enclosure_reach(form: tuple[Matrix, ...]) -> float | None:
+    r"""A float estimate (not a bound) of how far the enclosure of
+    :func:`eigen_radius_bound` is from succeeding on ``form`` (``(Tc, Tl, Tq, Tr)``):
+    the spectral radius of the linear part of its Lipschitz matrix :math:`L` (the
+    enclosure needs :math:`\rho(L) < 1`, whatever the margin); ``None`` when the
+    expansion fails. It shrinks as the sub-box does, by 0.6-0.9 per halving on the
+    sub-boxes of held-out seed 31 (``benchmarks/results/split16.md``), where no sub-box
+    with a parent above 0.56 was proved by the second-order form; on seed 13's box, away
+    from the worst vertex, it stays above 1 for 13 halvings and no form proves a sub-box
+    there. The ``h_max`` cover uses it to decide where to compute a form at all
+    (:func:`~ftc_verify.analysis.moments.sampled_cover.cover_box`)."""
+    Tc, Tl, Tq, Tr = form
+    e = expansion(Tc, Tl, Tq)
+    if e is None:
+        return None
+    N = Tc.shape[0]
+    _, lin, mu = _parts(Tc, Tl, Tq, Tr, e)
+    L = np.abs(np.eye(N + 1) - e.R @ e.M)
+    L[:, :N] += lin
+    L[:, N] += mu
+    return float(np.max(np.abs(np.linalg.eigvals(L)))) if np.all(np.isfinite(L)) else None
 
 
 def eigen_stable(loop: SampledLoop, form: tuple[Matrix, ...]) -> bool:

@@ -104,8 +104,8 @@ from .fast_balls import MidRad, arb_expm, from_arb, map_ball
 from .sampled_conditioned import ConditionedLoop, conditioned, written_data
 from .sampled_balls import ball_block_diag, ball_generator, ball_kron, envelope_generator
 from .sampled import SampledLoop, assemble_map, one_period_map, rate_points, spectral_radius, worst_radius
-from .sampled_taylor import (FIRST_ORDER_LIMIT, affine_stable, float_pd, identity_stack, perron_first_order_stable,
-                             resolvent_stack, stack_pd)
+from .sampled_taylor import (FIRST_ORDER_LIMIT, FormSpend, affine_stable, float_pd, identity_stack,
+                             perron_first_order_stable, resolvent_stack, stack_pd)
 from .stability import duplication_matrix
 
 __all__ = ["FIRST_ORDER_LIMIT", "MapParts", "BoxVerdict", "ball_resets", "ball_one_period_map", "prove_stable", "prove_unstable",
@@ -467,15 +467,18 @@ def split_rate(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix) -> tuple[int
 
 
 def subbox_stable(loop: SampledLoop, h: float, parts: MapParts, lo: Matrix, hi: Matrix,
-                  deadline: float = math.inf) -> bool:
+                  deadline: float = math.inf, spend: FormSpend | None = None) -> bool:
     r"""``True`` when :math:`\rho(T(r)) < 1` is proved in ball arithmetic for every rate
     array ``r`` in ``[lo, hi]`` at period ``h`` (``parts``: :meth:`MapParts.build` at
     ``h``): one sub-box of :func:`box_verdict` (module docstring, "Over the box"; the
-    first-order expansion not after ``deadline``, ``time.perf_counter()``)."""
+    first-order expansion not after ``deadline``, ``time.perf_counter()``); ``spend``:
+    what the map's polynomial forms may cost
+    (:class:`~ftc_verify.analysis.moments.sampled_taylor.FormSpend`; where it declines the
+    second-order form, only the envelope is tried)."""
     T_mid = one_period_map(loop, h, 0.5 * (lo + hi), scaled=True)
     with precision(64):
         proved = envelope_stable(loop, parts, lo, hi)
-        affine = None if proved else affine_stable(loop, parts, lo, hi)  # None: not applicable
+        affine = None if proved else affine_stable(loop, parts, lo, hi, spend)  # None: not applicable
         proved = proved or bool(affine)
         if not proved and affine is None and _float_vertices_hold(loop, h, lo, hi, T_mid):
             T = Ball(parts.map(ball_generator(loop.chain, lo, hi, loop.literals).value))

@@ -76,7 +76,8 @@ from __future__ import annotations
 import itertools
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -89,7 +90,7 @@ from .sampled_balls import ball_generator, generator_coefficients
 from .stability import vech_order
 
 __all__ = ["FIRST_ORDER_LIMIT", "AFFINE_RATES", "QUADRATIC_SIZE", "QUADRATIC_SIZE_SMALL", "QUADRATIC_ROWS", "quadratic_forms", "unvech_ball", "stack_pd", "identity_stack", "perron_first_order_stable", "affine_stable",
-           "float_pd", "resolvent_stack", "float_choices", "left_perron", "right_perron", "RHS_MIXES"]
+           "FormSpend", "CUBIC_GAIN", "float_pd", "resolvent_stack", "float_choices", "left_perron", "right_perron", "RHS_MIXES"]
 
 #: Largest Van Loan block (rows, twice the moment generator's) the first-order form
 #: exponentiates in ball arithmetic; above it only the direct ball is tried (cost).
@@ -350,7 +351,23 @@ def _rates_affine(loop: SampledLoop, lo: Matrix, hi: Matrix) -> tuple[Any, Matri
     return (qc, (qr + 2.0 ** -52 * np.abs(D).sum(axis=0)) * (1 + 2 ** -40)), D
 
 
-def affine_stable(loop: SampledLoop, parts: Any, lo: Matrix, hi: Matrix) -> bool | None:
+@dataclass(frozen=True)
+class FormSpend:
+    """What a caller of :func:`affine_stable` pays for and learns (the ``h_max`` cover,
+    :func:`~ftc_verify.analysis.moments.sampled_cover.cover_box`): ``second`` is asked
+    before the map's polynomial form is computed, ``third`` before its third-order form
+    (each computed only on ``True``, the caller's budget charged there), and ``reach`` is
+    told :func:`~ftc_verify.analysis.moments.sampled_eigen.enclosure_reach` of the
+    second-order form when every proof of it failed (when estimated). Without one the form is always
+    computed and the third-order form never."""
+
+    second: Callable[[], bool]
+    third: Callable[[], bool]
+    reach: Callable[[float], None]
+
+
+def affine_stable(loop: SampledLoop, parts: Any, lo: Matrix, hi: Matrix,
+                  spend: FormSpend | None = None) -> bool | None:
     """``True`` only if :math:`\\rho(T(r)) < 1` is proved for every rate array of
     ``[lo, hi]`` from the affine enclosure :math:`T(r) \\in T_c + \\sum_a \\delta_a T_a + E`
     (:func:`~ftc_verify.analysis.moments.fast_balls.aff_map`) and the moving certificate
@@ -364,11 +381,23 @@ def affine_stable(loop: SampledLoop, parts: Any, lo: Matrix, hi: Matrix) -> bool
     its rounding bounded as in :mod:`~ftc_verify.analysis.moments.fast_balls`, and every
     joint state's block is proved positive definite there, with :math:`Y(\\delta)`'s
     (convex combinations, as above). ``None`` (not applicable) when no rate is free, more
-    than :data:`AFFINE_RATES` are, Arb's precision is above 64 bits or a number overflows."""
+    than :data:`AFFINE_RATES` are, Arb's precision is above 64 bits or a number overflows.
+
+    Last, where every proof of the second-order form failed and the eigenpair enclosure
+    would prove the sub-box with that form's remainder divided by :data:`CUBIC_GAIN` (a
+    float estimate), the third-order form
+    (:func:`~ftc_verify.analysis.moments.cubic_balls.cubic_map`: the same coefficients, a
+    smaller remainder) is computed and the enclosure tried on it -- only with ``spend``
+    (:class:`FormSpend`), which also decides whether anything is tried here at all
+    (``False`` when it declines: neither the form nor, in
+    :func:`~ftc_verify.analysis.moments.sampled_proof.subbox_stable`, the proofs tried
+    where no form applies)."""
     from .cubic_balls import cubic_forms, cubic_map
     from .fast_balls import aff_map
     from .quad_balls import pairs, quad_map
 
+    if spend is not None and not spend.second():  # declined: no form, nor the proofs after it
+        return False
     if parts.floats == () or _flint().ctx.prec > 64:
         return None
     found = _rates_affine(loop, lo, hi)
@@ -383,7 +412,7 @@ def affine_stable(loop: SampledLoop, parts: Any, lo: Matrix, hi: Matrix) -> bool
         if aff is None:
             return None
         form = (aff[0], aff[1], np.zeros((0,) + aff[0].shape), aff[2])
-    from .sampled_eigen import eigen_radius_bound, eigen_stable
+    from .sampled_eigen import eigen_radius_bound, eigen_stable, enclosure_reach
     from .sampled_second import certify_second_order
 
     if eigen_stable(loop, form):
@@ -395,11 +424,16 @@ def affine_stable(loop: SampledLoop, parts: Any, lo: Matrix, hi: Matrix) -> bool
             return True
     if certify_second_order(loop, form, shifted=True):
         return True
+    if spend is None or not (second and form[2].shape[0]):
+        return False
+    estimate = enclosure_reach(form)
+    if estimate is not None:
+        spend.reach(estimate)
     # the remainder-limited case: the third-order terms with their signs (cubic_balls)
-    if not (second and form[2].shape[0] and cubic_forms(K, modes[0].shape[0])):
+    if not cubic_forms(K, modes[0].shape[0]):
         return False
     est = eigen_radius_bound(form[:3] + (form[3] / CUBIC_GAIN,), loop.states, loop.r)
-    if est is None or est >= 1.0:
+    if est is None or est >= 1.0 or not spend.third():
         return False
     tight = cubic_map(res, modes, found[0], found[1], h, lift)
     return tight is not None and eigen_stable(loop, tight)

@@ -1,0 +1,83 @@
+"""Where the ``h_max`` cover computes a sub-box's polynomial form
+(:mod:`ftc_verify.analysis.moments.sampled_cover`): only where the eigenpair
+enclosure's reach, estimated from the parent's form, is at most 1; the forms and the
+third-order forms charged when they are computed, the envelope alone otherwise; the
+cover is the box whatever the estimates say."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+
+from ftc_verify.analysis.moments import cubic_balls, quad_balls, sampled_eigen
+from ftc_verify.analysis.moments.sampled import SampledLoop
+from ftc_verify.analysis.moments.sampled_bracket import box_work, envelope_work, third_order_work
+from ftc_verify.analysis.moments.sampled_conditioned import conditioned
+from ftc_verify.analysis.moments.sampled_cover import MAP_DEPTH, REACH_MAX, REACH_SHRINK, _spend, cover_box
+from ftc_verify.testing.sampled_cases import lqr_case
+
+from test_cover_mixed_h31t import _assert_exact_cover, _box
+
+
+
+def test_spend_asks_for_forms_only_where_expected() -> None:
+    """A sub-box expected above ``REACH_MAX`` is not asked to pay for a form; one at or
+    below it pays the form's units, the third-order form its own, and a failed form's
+    reach is kept for its halves."""
+    paid: list[float] = []
+
+    def pay(units: float) -> bool:
+        paid.append(units)
+        return True
+
+    seen: list[float] = []
+    assert not _spend(1.01 * REACH_MAX, seen, pay, 7.0, 11.0).second() and paid == []
+    spend = _spend(REACH_MAX, seen, pay, 7.0, 11.0)
+    assert spend.second() and spend.third() and paid == [7.0, 11.0]
+    spend.reach(2.5)
+    assert seen == [2.5]
+    assert 0 < REACH_SHRINK < 1
+
+
+class _Count:
+    def __init__(self, inner: Any) -> None:
+        self.inner, self.calls = inner, 0
+
+    def __call__(self, *args: Any) -> Any:
+        self.calls += 1
+        return self.inner(*args)
+
+
+def _small_loop() -> SampledLoop:
+    """A random ``n = 2, m = 2`` loop (two free rates, conditioned as the refinement runs
+    it) whose envelope proof needs hundreds of sub-boxes 1 % below its float64 crossing
+    (2.49038), where the second-order forms prove a dozen."""
+    return conditioned(SampledLoop.build(*lqr_case(2, 2, np.random.default_rng(11))))
+
+
+@pytest.mark.parametrize("reach", [0.0, 50.0])
+def test_forms_only_where_the_reach_is_expected(monkeypatch: pytest.MonkeyPatch, reach: float) -> None:
+    """With every failed form's reach estimated 0, every sub-box the envelope does not
+    prove gets a form, and a dozen sub-boxes cover the box; estimated 50, the halves of
+    the whole box's failed form expect 42.5 and none of their sub-boxes gets a form
+    (``REACH_SHRINK`` per halving, never below ``REACH_MAX`` within ``MAP_DEPTH``): the
+    envelope alone covers the box with many more. Either way the leaves are exactly the
+    box, and the units spent are the envelope's per sub-box plus each form's and
+    third-order form's as computed."""
+    loop = _small_loop()
+    quad, cubic = _Count(quad_balls.quad_map), _Count(cubic_balls.cubic_map)
+    monkeypatch.setattr(quad_balls, "quad_map", quad)
+    monkeypatch.setattr(cubic_balls, "cubic_map", cubic)
+    monkeypatch.setattr(sampled_eigen, "enclosure_reach", lambda form: reach)
+    leaves, spent, attempts, maps = cover_box(loop, 2.4903765732885614 * (1 - 1e-2), None, _box(loop), 1e12)
+    assert leaves is not None and attempts == 0
+    _assert_exact_cover(loop, leaves)
+    forms = box_work(loop) - envelope_work(loop)
+    assert spent == pytest.approx(maps * envelope_work(loop) + quad.calls * forms + cubic.calls * third_order_work(loop))
+    if reach == 0.0:
+        assert quad.calls >= maps - len(leaves) and len(leaves) < 30
+    else:
+        assert 50.0 * REACH_SHRINK ** MAP_DEPTH > REACH_MAX
+        assert quad.calls == 1 and len(leaves) > 100
