@@ -81,3 +81,25 @@ def test_forms_only_where_the_reach_is_expected(monkeypatch: pytest.MonkeyPatch,
     else:
         assert 50.0 * REACH_SHRINK ** MAP_DEPTH > REACH_MAX
         assert quad.calls == 1 and len(leaves) > 100
+
+
+def test_reach_is_below_one_where_the_enclosure_proves() -> None:
+    """The seed-1 loop 1 % below its crossing, sub-boxes at its worst vertex: where the
+    enclosure proves a sub-box its reach is below 1 (the proof needs a contraction whose
+    linear part the reach estimates), the whole box's is above 1 and the estimate falls
+    as the sub-box shrinks."""
+    from ftc_verify.analysis.moments.sampled_eigen import eigen_radius_bound, enclosure_reach
+
+    from sampled_forms import second_order_form, seed1_crossing, vertex_corner
+
+    loop, a, v = seed1_crossing()
+    reaches = []
+    for width in (1.0, 0.5, 0.25, 0.125):
+        lo, hi = vertex_corner(loop, v, width)
+        form = second_order_form(loop, a * (1 - 1e-2), lo, hi)
+        reach = enclosure_reach(form)
+        assert reach is not None
+        bound = eigen_radius_bound(form, loop.states, loop.r)
+        assert bound is None or reach < 1.0
+        reaches.append(reach)
+    assert reaches[0] > 1.0 > reaches[-1] and reaches == sorted(reaches, reverse=True)

@@ -74,9 +74,23 @@ closest failed distance, while these are more than :data:`BISECT` apart (the run
 stopped after one such retry with half the budget unspent: seed 13 160,563 units of
 300,000); the result is the last rung covered. Every attempt is charged *before* it is
 solved, from the problem's size only (:func:`cubic_work` per cubic certificate,
-:func:`~ftc_verify.analysis.moments.sampled_bracket.box_work` per map proof), and none
-is started that the budget cannot pay: the same loop and budget give the same
-bracket on every machine.
+:func:`~ftc_verify.analysis.moments.sampled_bracket.box_work` per map proof with its
+form, :func:`~ftc_verify.analysis.moments.sampled_bracket.envelope_work` without,
+:func:`~ftc_verify.analysis.moments.sampled_bracket.third_order_work` per third-order
+form), and none is started that the budget cannot pay: the same loop and budget give the
+same bracket on every machine (up to the float64 estimates that decide where a form is
+computed).
+
+**Where forms are computed.** Away from the worst vertex the eigenpair enclosure of a
+sub-box's form fails for want of contraction, whatever the margin, until the sub-box is
+small, while the envelope alone proves it a few halvings down (held-out seed 13, 9e-4
+below the proved-unstable end: no form proved any of the first 1,072 sub-boxes, and the
+failed forms took 218 of their 235 CPU s; ``benchmarks/results/split16.md``). So a
+sub-box gets a form only where its expected reach (its parent's
+:func:`~ftc_verify.analysis.moments.sampled_eigen.enclosure_reach` where the parent's
+form proved nothing, its parent's expectation otherwise, times :data:`REACH_SHRINK`) is
+at most :data:`REACH_MAX`; the search order and the charges depend on it, the proofs do
+not.
 """
 
 from __future__ import annotations
@@ -310,10 +324,13 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
     the harder half of each split first: ``(sub-boxes, units charged, cubic attempts, map
     proofs)``, the sub-boxes ``None`` when the budget or :data:`MAP_DEPTH` ran out first
     or the float64 radius at a sub-box's midpoint is not below 1. Each sub-box: the one-period
-    map's proof (:func:`~ftc_verify.analysis.moments.sampled_proof.subbox_stable`, charged
-    :func:`~ftc_verify.analysis.moments.sampled_bracket.box_work`, and
-    :func:`~ftc_verify.analysis.moments.sampled_bracket.third_order_work` more where it
-    computes the map's third-order form), then, up to
+    map's proof (:func:`~ftc_verify.analysis.moments.sampled_proof.subbox_stable`: the
+    envelope, charged :func:`~ftc_verify.analysis.moments.sampled_bracket.envelope_work`;
+    the map's polynomial form only where the sub-box's expected reach is at most
+    :data:`REACH_MAX`, charged the rest of
+    :func:`~ftc_verify.analysis.moments.sampled_bracket.box_work`; its third-order form
+    where that is remainder-limited,
+    :func:`~ftc_verify.analysis.moments.sampled_bracket.third_order_work`), then, up to
     :data:`COVER_DEPTH` and when ``pieces`` is given and the budget pays it, a cubic
     certificate of ``pieces`` pieces; where that fails, its probe's before its halves, and
     where the probe's fails too, map proofs alone below it; where no cubic certificate is
