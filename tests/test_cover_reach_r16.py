@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from ftc_verify.analysis.moments import cubic_balls, quad_balls, sampled_eigen
+from ftc_verify.analysis.moments import cubic_balls, quad_balls, sampled_cover, sampled_eigen
 from ftc_verify.analysis.moments.sampled import SampledLoop
 from ftc_verify.analysis.moments.sampled_bracket import box_work, envelope_work, third_order_work
 from ftc_verify.analysis.moments.sampled_conditioned import conditioned
@@ -103,3 +103,22 @@ def test_reach_is_below_one_where_the_enclosure_proves() -> None:
         assert bound is None or reach < 1.0
         reaches.append(reach)
     assert reaches[0] > 1.0 > reaches[-1] and reaches == sorted(reaches, reverse=True)
+
+
+@pytest.mark.parametrize("n, m, taken", [(2, 2, True), (4, 3, False)])
+def test_third_order_form_paid_only_where_no_dearer_than_a_form(monkeypatch: pytest.MonkeyPatch, n: int, m: int,
+                                                                 taken: bool) -> None:
+    """Two free rates: a third-order form costs less than a second-order one and the cover
+    pays for it; six (``n = 4, m = 3``, 567 units against 334): never."""
+    loop = conditioned(SampledLoop.build(*lqr_case(n, m, np.random.default_rng(1))))
+    asked: list[bool] = []
+
+    def record(loop_: SampledLoop, h: float, parts: Any, lo: Any, hi: Any, spend: Any = None) -> bool:
+        asked.append(spend.third())
+        return True
+
+    monkeypatch.setattr(sampled_cover, "subbox_stable", record)
+    leaves, spent, _, maps = cover_box(loop, 0.01, None, _box(loop), 1e12)
+    assert leaves is not None and maps == 1 and asked == [taken]
+    assert (third_order_work(loop) <= box_work(loop) - envelope_work(loop)) is taken
+    assert spent == pytest.approx(envelope_work(loop) + (third_order_work(loop) if taken else 0.0))

@@ -85,12 +85,18 @@ computed).
 sub-box's form fails for want of contraction, whatever the margin, until the sub-box is
 small, while the envelope alone proves it a few halvings down (held-out seed 13, 9e-4
 below the proved-unstable end: no form proved any of the first 1,072 sub-boxes, and the
-failed forms took 218 of their 235 CPU s; ``benchmarks/results/split16.md``). So a
+failed forms took 237 of their 254 CPU s; ``benchmarks/results/split16.md``). So a
 sub-box gets a form only where its expected reach (its parent's
 :func:`~ftc_verify.analysis.moments.sampled_eigen.enclosure_reach` where the parent's
 form proved nothing, its parent's expectation otherwise, times :data:`REACH_SHRINK`) is
 at most :data:`REACH_MAX`; the search order and the charges depend on it, the proofs do
-not.
+not. A sub-box's third-order form
+(:func:`~ftc_verify.analysis.moments.cubic_balls.cubic_map`, where the second-order
+form's remainder is what fails) is paid only when it costs no more than a second-order
+form: it saves about one halving near the crossing, two forms at most, and on held-out
+seed 31 (six rates, 567 units against 334) the same bracket took 15 % more CPU with it
+(``benchmarks/results/split16.md``); on loops with two or three rates it is cheaper
+than the second-order form and taken.
 """
 
 from __future__ import annotations
@@ -146,8 +152,8 @@ BISECT = 1.25
 #: (:func:`~ftc_verify.analysis.moments.sampled_eigen.enclosure_reach`: the radius of its
 #: Lipschitz matrix, which it needs below 1) is at most this; elsewhere only the envelope
 #: is tried. Held-out seed 13, 9e-4 below the proved-unstable end: on the first 1,072
-#: sub-boxes of its cover (the radius up to 0.92) no form proved any, and they took 218
-#: of the 235 CPU s (``benchmarks/results/split16.md``).
+#: sub-boxes of its cover (the radius up to 0.92) no form proved any, and they took 237
+#: of the 254 CPU s (``benchmarks/results/split16.md``).
 REACH_MAX = 1.0
 #: A half's expected reach: its parent's times this, the parent's own estimate where its
 #: form was computed and proved nothing (on seed 31's sub-boxes the estimate fell by
@@ -340,6 +346,8 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
     floats), leaves without a new proof."""
     cost = 0.0 if pieces is None else cubic_work(loop, pieces)
     per_map, per_form, per_third = envelope_work(loop), box_work(loop) - envelope_work(loop), third_order_work(loop)
+    if per_third > per_form:  # a third-order form no cheaper than a second-order one: never worth it (module docstring)
+        per_third = math.inf
     stack = list(reversed(boxes))
     leaves: list[Box] = []
     done = set(proved)
