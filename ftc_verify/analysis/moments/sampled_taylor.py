@@ -358,8 +358,8 @@ class FormSpend:
     before the map's polynomial form is computed, ``third`` before its third-order form
     (each computed only on ``True``, the caller's budget charged there), and ``reach`` is
     told :func:`~ftc_verify.analysis.moments.sampled_eigen.enclosure_reach` of the
-    second-order form when every proof of it failed (when estimated). Without one the form is always
-    computed and the third-order form never."""
+    second-order form when every proof of it failed (when estimated). Without one the
+    form is always computed and the third-order form never."""
 
     second: Callable[[], bool]
     third: Callable[[], bool]
