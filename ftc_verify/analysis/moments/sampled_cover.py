@@ -161,6 +161,15 @@ REACH_MAX = 1.0
 REACH_SHRINK = 0.85
 
 
+def _costs(loop: SampledLoop) -> tuple[float, float, float]:
+    """The units of a sub-box's envelope, of its second-order form and of its third-order
+    form, the last ``inf`` where it is dearer than the second-order one (never worth it:
+    module docstring, "Where forms are computed")."""
+    per_map, third = envelope_work(loop), third_order_work(loop)
+    per_form = box_work(loop) - per_map
+    return per_map, per_form, third if third <= per_form else math.inf
+
+
 def _spend(expected: float, seen: list[float], pay: Callable[[float], bool], per_form: float,
            per_third: float) -> FormSpend:
     """A sub-box's :class:`~ftc_verify.analysis.moments.sampled_taylor.FormSpend` in
@@ -345,9 +354,7 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
     the splits; ``proved``: sub-boxes already proved at ``h`` (by ``_key``, exact
     floats), leaves without a new proof."""
     cost = 0.0 if pieces is None else cubic_work(loop, pieces)
-    per_map, per_form, per_third = envelope_work(loop), box_work(loop) - envelope_work(loop), third_order_work(loop)
-    if per_third > per_form:  # a third-order form no cheaper than a second-order one: never worth it (module docstring)
-        per_third = math.inf
+    per_map, per_form, per_third = _costs(loop)
     stack = list(reversed(boxes))
     leaves: list[Box] = []
     done = set(proved)
