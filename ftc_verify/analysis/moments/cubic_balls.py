@@ -61,7 +61,7 @@ import scipy.sparse
 from ...model.system import Matrix
 from .fast_balls import TAYLOR_TERMS, MidRad, taylor_scaled
 from .fast_balls import up_bound as _up
-from .quad_balls import QUADRATIC, Quad, generator_form, pairs, quad_mul
+from .quad_balls import QUADRATIC, Quad, generator_form, pairs, quad_mul, sum_abs
 
 __all__ = ["Cubic", "triples", "cubic_mul", "cubic_map", "CUBIC_SIZE", "CUBIC_SQUARINGS", "cubic_forms"]
 
@@ -110,10 +110,6 @@ def _monomials(K: int) -> tuple[Any, Any]:
     return tuple(scipy.sparse.csr_matrix((np.ones(KM), (rows, np.arange(KM))), shape=(T, KM)) for rows in (lq, ql))
 
 
-def _sum_abs(x: Matrix) -> Matrix:
-    return np.asarray(_up(np.abs(x).sum(axis=0), x.shape[0] + 1)) if x.shape[0] else np.zeros(x.shape[1:])
-
-
 def _cross(a: Matrix, b: Matrix) -> Matrix:
     """Every product ``a[i] @ b[j]`` as a ``(I J, n, m)`` stack (row major); exact
     zeros without products when either stack is zero (a restriction or a lift)."""
@@ -137,8 +133,8 @@ def cubic_mul(x: Cubic, y: Cubic) -> Cubic:
     lq, ql = _monomials(K)
     shape = ct.shape
     ct = ct + np.asarray(lq @ _cross(al, bq).reshape(lq.shape[1], -1) + ql @ _cross(aq, bl).reshape(ql.shape[1], -1)).reshape(shape)
-    sl, sq, st = _sum_abs(al), _sum_abs(aq), _sum_abs(at)
-    tl, tq, tt = _sum_abs(bl), _sum_abs(bq), _sum_abs(bt)
+    sl, sq, st = sum_abs(al), sum_abs(aq), sum_abs(at)
+    tl, tq, tt = sum_abs(bl), sum_abs(bq), sum_abs(bt)
     abs_ac, abs_bc = np.abs(ac), np.abs(bc)
     g = 1.01 * (k + 8) * _U
     mag_b = abs_bc + tl + tq + tt + br
@@ -176,6 +172,6 @@ def cubic_map(res: MidRad, modes: MidRad, q: MidRad, dirs: Matrix, h: MidRad, li
         for _ in range(min(squarings, CUBIC_SQUARINGS)):
             p = cubic_mul(p, p)
         tc, tl, tq, tt, tr = cubic_mul(cubic_mul(_thin(res, K, M, T), p), _thin(lift, K, M, T))
-        rad = _up(tr + _sum_abs(tt), 2)
+        rad = _up(tr + sum_abs(tt), 2)
     out = (tc, tl, tq, rad)
     return out if all(np.all(np.isfinite(v)) for v in out) else None

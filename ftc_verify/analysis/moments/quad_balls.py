@@ -38,7 +38,7 @@ import numpy as np
 from ...model.system import Matrix
 from .fast_balls import TAYLOR_TERMS, FormArithmetic, MidRad, sparse_enough, sparse_left, taylor_expm, unwide, wide
 
-__all__ = ["Quad", "QUADRATIC", "pairs", "quad_mul", "quad_expm", "generator_form", "quad_map"]
+__all__ = ["Quad", "QUADRATIC", "pairs", "sum_abs", "quad_mul", "quad_expm", "generator_form", "quad_map"]
 
 _U = 2.0 ** -53
 _ETA = 2.0 ** -1022
@@ -59,7 +59,9 @@ def pairs(K: int) -> tuple[tuple[int, int], ...]:
     return tuple((a, b) for a in range(K) for b in range(a, K))
 
 
-def _sum_abs(x: Matrix) -> Matrix:
+def sum_abs(x: Matrix) -> Matrix:
+    """An upper bound of :math:`\\sum_a |x_a|` over a form's stacked coefficients (the
+    zero matrix of their shape when there are none)."""
     return _up(np.abs(x).sum(axis=0), x.shape[0] + 1) if x.shape[0] else np.zeros(x.shape[1:])
 
 
@@ -88,13 +90,13 @@ def quad_mul(x: Quad, y: Quad) -> Quad:
     terms = [cross[a, b] + cross[b, a] if a != b else cross[a, a] for a, b in pairs(K)]
     if terms:
         cq = cq + np.stack(terms)
-    sl, sq, tl, tq = _sum_abs(al), _sum_abs(aq), _sum_abs(bl), _sum_abs(bq)
+    sl, sq, tl, tq = sum_abs(al), sum_abs(aq), sum_abs(bl), sum_abs(bq)
     abs_ac, abs_bc = np.abs(ac), np.abs(bc)
     g = 1.01 * k * _U + 2.0 * _U  # the products' rounding and that of the sums of two or four
     mag_b = abs_bc + tl + tq + br
     r = (abs_ac @ (g * (abs_bc + tl + tq) + br) + sl @ (g * (abs_bc + tl) + tq + br)
          + sq @ (g * abs_bc + tl + tq + br) + ar @ mag_b
-         + 2.0 * _U * (_sum_abs(cl) + _sum_abs(cq)))
+         + 2.0 * _U * (sum_abs(cl) + sum_abs(cq)))
     return cc, cl, cq, _up(r, k + 2 * K * K + 16) + (4 * K * K + 4) * k * _ETA
 
 
@@ -102,8 +104,8 @@ def _scale(x: Quad, cm: float, cr: float) -> Quad:
     """``x`` times the scalar ball ``<cm, cr>``."""
     ac, al, aq, ar = x
     cc, cl, cq = ac * cm, al * cm, aq * cm
-    mag = np.abs(ac) + _sum_abs(al) + _sum_abs(aq)
-    r = mag * cr + ar * (abs(cm) + cr) + _U * (np.abs(cc) + _sum_abs(cl) + _sum_abs(cq))
+    mag = np.abs(ac) + sum_abs(al) + sum_abs(aq)
+    r = mag * cr + ar * (abs(cm) + cr) + _U * (np.abs(cc) + sum_abs(cl) + sum_abs(cq))
     return cc, cl, cq, _up(r, al.shape[0] + aq.shape[0] + 8) + _ETA
 
 
@@ -114,7 +116,7 @@ def _add_identity(x: Quad) -> Quad:
 
 
 #: :func:`~ftc_verify.analysis.moments.fast_balls.taylor_expm` in this module's arithmetic.
-QUADRATIC: FormArithmetic[Quad] = FormArithmetic(lambda x: np.abs(x[0]) + _sum_abs(x[1]) + _sum_abs(x[2]) + x[3],
+QUADRATIC: FormArithmetic[Quad] = FormArithmetic(lambda x: np.abs(x[0]) + sum_abs(x[1]) + sum_abs(x[2]) + x[3],
                                                  quad_mul, _scale, _add_identity,
                                                  lambda x, t: (x[0], x[1], x[2], _up(x[3] + t, 1)))
 
