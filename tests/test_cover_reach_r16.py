@@ -35,7 +35,8 @@ def test_spend_asks_for_forms_only_where_expected() -> None:
     seen: list[float] = []
     assert not _spend(1.01 * REACH_MAX, seen, pay, 7.0, 11.0).second() and paid == []
     spend = _spend(REACH_MAX, seen, pay, 7.0, 11.0)
-    assert spend.second() and spend.third() and paid == [7.0, 11.0]
+    assert spend.second() and spend.third is not None and spend.third() and paid == [7.0, 11.0]
+    assert _spend(REACH_MAX, seen, pay, 7.0, None).third is None  # a third-order form never paid
     spend.reach(2.5)
     assert seen == [2.5]
     assert 0 < REACH_SHRINK < 1
@@ -114,7 +115,7 @@ def test_third_order_form_paid_only_where_no_dearer_than_a_form(monkeypatch: pyt
     asked: list[bool] = []
 
     def record(loop_: SampledLoop, h: float, parts: Any, lo: Any, hi: Any, spend: Any = None) -> bool:
-        asked.append(spend.third())
+        asked.append(spend.third is not None and spend.third())
         return True
 
     monkeypatch.setattr(sampled_cover, "subbox_stable", record)

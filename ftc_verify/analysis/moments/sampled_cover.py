@@ -161,23 +161,24 @@ REACH_MAX = 1.0
 REACH_SHRINK = 0.85
 
 
-def _costs(loop: SampledLoop) -> tuple[float, float, float]:
+def _costs(loop: SampledLoop) -> tuple[float, float, float | None]:
     """The units of a sub-box's envelope, of its second-order form and of its third-order
-    form, the last ``inf`` where it is dearer than the second-order one (never worth it:
+    form, the last ``None`` where it is dearer than the second-order one (never worth it:
     module docstring, "Where forms are computed")."""
     per_map, third = envelope_work(loop), third_order_work(loop)
     per_form = box_work(loop) - per_map
-    return per_map, per_form, third if third <= per_form else math.inf
+    return per_map, per_form, third if third <= per_form else None
 
 
 def _spend(expected: float, seen: list[float], pay: Callable[[float], bool], per_form: float,
-           per_third: float) -> FormSpend:
+           per_third: float | None) -> FormSpend:
     """A sub-box's :class:`~ftc_verify.analysis.moments.sampled_taylor.FormSpend` in
     :func:`cover_box`: its form only when its expected reach is at most
-    :data:`REACH_MAX`, each form paid by ``pay``; the reach of a form that proves nothing
-    appended to ``seen`` (where it is not estimated, its halves expect what it
-    expected)."""
-    return FormSpend(lambda: expected <= REACH_MAX and pay(per_form), lambda: pay(per_third), seen.append)
+    :data:`REACH_MAX`, each form paid by ``pay`` (no third-order form when
+    ``per_third`` is None); the reach of a form that proves nothing appended to ``seen``
+    (where it is not estimated, its halves expect what it expected)."""
+    third = None if per_third is None else (lambda: pay(per_third))
+    return FormSpend(lambda: expected <= REACH_MAX and pay(per_form), third, seen.append)
 
 
 def map_split(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix) -> tuple[int, ...] | None:

@@ -356,13 +356,14 @@ class FormSpend:
     """What a caller of :func:`affine_stable` pays for and learns (the ``h_max`` cover,
     :func:`~ftc_verify.analysis.moments.sampled_cover.cover_box`): ``second`` is asked
     before the map's polynomial form is computed, ``third`` before its third-order form
-    (each computed only on ``True``, the caller's budget charged there), and ``reach`` is
+    (each computed only on ``True``, the caller's budget charged there; ``third`` None:
+    never, and nothing is estimated for it), and ``reach`` is
     told :func:`~ftc_verify.analysis.moments.sampled_eigen.enclosure_reach` of the
     second-order form when every proof of it failed (when estimated). Without one the
     form is always computed and the third-order form never."""
 
     second: Callable[[], bool]
-    third: Callable[[], bool]
+    third: Callable[[], bool] | None
     reach: Callable[[float], None]
 
 
@@ -430,7 +431,7 @@ def affine_stable(loop: SampledLoop, parts: Any, lo: Matrix, hi: Matrix,
     if estimate is not None:
         spend.reach(estimate)
     # the remainder-limited case: the third-order terms with their signs (cubic_balls)
-    if not cubic_forms(K, modes[0].shape[0]):
+    if spend.third is None or not cubic_forms(K, modes[0].shape[0]):
         return False
     est = eigen_radius_bound(form[:3] + (form[3] / CUBIC_GAIN,), loop.states, loop.r)
     if est is None or est >= 1.0 or not spend.third():
