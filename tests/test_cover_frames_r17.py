@@ -23,6 +23,8 @@ from ftc_verify.analysis.moments import cubic_balls
 from ftc_verify.analysis.moments.sampled import SampledLoop, crossing
 from ftc_verify.analysis.moments.sampled_conditioned import conditioned
 from ftc_verify.analysis.moments.sampled_cover import cover_box
+from ftc_verify.controllers.controller import Controller
+from ftc_verify.model.system import FTCSystem
 from ftc_verify.testing.illconditioned import similarity
 from ftc_verify.testing.sampled_cases import lqr_case
 
@@ -47,7 +49,7 @@ class _Count:
         return self.inner(*args)
 
 
-def _case() -> Any:
+def _case() -> tuple[FTCSystem, Controller]:
     return lqr_case(2, 2, np.random.default_rng(11))
 
 
