@@ -17,34 +17,26 @@ have computed.
 
 from __future__ import annotations
 
-import argparse
 import time
 
 import numpy as np
 
 from csvout import write_rows
-from h_max_diagnosis import the_loop
+from h_max_diagnosis import held_out_rung, rung_parser
 
-from ftc_verify.analysis.moments.sampled_conditioned import conditioned
 from ftc_verify.analysis.moments.sampled_cover import REACH_MAX, REACH_SHRINK
-from ftc_verify.analysis.moments.sampled_proof import MapParts, envelope_stable, split_rate
+from ftc_verify.analysis.moments.sampled_proof import envelope_stable, split_rate
 from ftc_verify.analysis.moments.sampled_taylor import FormSpend, affine_stable
 from ftc_verify.analysis.rigorous import precision
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("seed", type=int)
-    parser.add_argument("hu", type=float)
-    parser.add_argument("f", type=float)
+    parser = rung_parser(__doc__)
     parser.add_argument("cap", type=int)
-    parser.add_argument("--out", default=None)
     args = parser.parse_args()
-    loop = conditioned(the_loop(4, 3, args.seed))
+    rung = held_out_rung(args.seed, args.hu, args.f)
+    loop, h, parts = rung.loop, rung.h, rung.parts
     chain = loop.chain
-    h = args.hu * (1 - args.f)
-    with precision(64):
-        parts = MapParts.build(loop, h)
     # (lo, hi, the parent's reach or None, the expected reach by the cover's rule)
     stack = [(np.array(chain.rate_min, dtype=float), np.array(chain.rate_max, dtype=float), None, 0.0)]
     count = {"envelope": 0, "form": 0, "failed": 0, "skipped_failed": 0}

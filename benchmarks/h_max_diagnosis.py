@@ -91,6 +91,56 @@ def the_loop(n: int, m: int, seed: int) -> SampledLoop:
     return dataclasses.replace(SampledLoop.build(system, controller), written=(0.01,))
 
 
+@dataclasses.dataclass(frozen=True)
+class Rung:
+    """A held-out ``n = 4, m = 3`` loop (:func:`the_loop`, conditioned as the refinement
+    runs it) at a rung's period ``h = hu (1 - f)``: its map parts at ``h`` and the worst
+    vertex at ``hu`` (as the cover takes them)."""
+
+    loop: SampledLoop
+    h: float
+    parts: sp.MapParts
+    worst: np.ndarray
+
+    @property
+    def box(self) -> tuple[np.ndarray, np.ndarray, int]:
+        chain = self.loop.chain
+        return np.array(chain.rate_min, dtype=float), np.array(chain.rate_max, dtype=float), 0
+
+
+def rung_parser(doc: str) -> argparse.ArgumentParser:
+    """The arguments every rung script takes: ``SEED HU F`` (positional) and ``--out``."""
+    parser = argparse.ArgumentParser(description=doc.splitlines()[0])
+    parser.add_argument("seed", type=int)
+    parser.add_argument("hu", type=float)
+    parser.add_argument("f", type=float)
+    parser.add_argument("--out", default=None)
+    return parser
+
+
+def held_out_rung(seed: int, hu: float, f: float) -> Rung:
+    """The :class:`Rung` of held-out seed ``seed`` at ``hu (1 - f)``."""
+    from ftc_verify.analysis.moments.sampled_conditioned import conditioned
+    from ftc_verify.analysis.rigorous import precision
+
+    loop = conditioned(the_loop(4, 3, seed))
+    h = hu * (1 - f)
+    with precision(64):
+        parts = sp.MapParts.build(loop, h)
+    return Rung(loop, h, parts, worst_vertex(loop, hu, rate_points(loop.chain))[1])
+
+
+def harder_half(lo: np.ndarray, hi: np.ndarray, r: tuple[int, ...], worst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The half of ``[lo, hi]`` along rate ``r`` nearer to ``worst`` (the cover's first)."""
+    mid = 0.5 * (lo[r] + hi[r])
+    lo, hi = lo.copy(), hi.copy()
+    if abs(worst[r] - lo[r]) <= abs(worst[r] - hi[r]):
+        hi[r] = mid
+    else:
+        lo[r] = mid
+    return lo, hi
+
+
 def bracket_crossing(loop: SampledLoop) -> float:
     """The crossing ``a`` the bracket proves below (``sampled_bracket.h_max_bracket``)."""
     lo, hi = scan_range(loop, 0.01)

@@ -14,41 +14,27 @@ sub-box: its depth, widths relative to the box, proved or not; one CSV row per r
 
 from __future__ import annotations
 
-import argparse
 import time
 
-import numpy as np
 
 from csvout import write_rows
-from h_max_diagnosis import the_loop
+from h_max_diagnosis import harder_half, held_out_rung, rung_parser
 
-from ftc_verify.analysis.moments.sampled import rate_points
-from ftc_verify.analysis.moments.sampled_bracket import worst_vertex
-from ftc_verify.analysis.moments.sampled_conditioned import conditioned
 from ftc_verify.analysis.moments.sampled_cover import map_split, probe_box
-from ftc_verify.analysis.moments.sampled_proof import MapParts, split_rate, subbox_stable
-from ftc_verify.analysis.rigorous import precision
+from ftc_verify.analysis.moments.sampled_proof import split_rate, subbox_stable
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("seed", type=int)
-    parser.add_argument("hu", type=float)
-    parser.add_argument("f", type=float)
+    parser = rung_parser(__doc__)
     parser.add_argument("rule", choices=("rate", "map"))
     parser.add_argument("--max", type=int, default=30)
-    parser.add_argument("--out", default=None)
     args = parser.parse_args()
-    loop = conditioned(the_loop(4, 3, args.seed))
+    rung = held_out_rung(args.seed, args.hu, args.f)
+    loop, h, parts, worst = rung.loop, rung.h, rung.parts, rung.worst
     chain = loop.chain
-    h = args.hu * (1 - args.f)
-    with precision(64):
-        parts = MapParts.build(loop, h)
-    worst = worst_vertex(loop, args.hu, rate_points(chain))[1]
     full = chain.rate_max - chain.rate_min
     free = [r for r in chain.rate_indices if full[r] > 0]
-    box = (np.array(chain.rate_min, dtype=float), np.array(chain.rate_max, dtype=float), 0)
-    lo, hi, top = probe_box(loop, h, box, worst)
+    lo, hi, top = probe_box(loop, h, rung.box, worst)
     rule = split_rate if args.rule == "rate" else map_split
     t0 = time.process_time()
     proved = False
@@ -59,13 +45,7 @@ def main() -> None:
         print(f"depth {depth}: widths {widths}: {'proved' if proved else 'not proved'}", flush=True)
         if proved:
             break
-        r = rule(loop, h, lo, hi)
-        mid = 0.5 * (lo[r] + hi[r])
-        lo, hi = lo.copy(), hi.copy()
-        if abs(worst[r] - lo[r]) <= abs(worst[r] - hi[r]):
-            hi[r] = mid
-        else:
-            lo[r] = mid
+        lo, hi = harder_half(lo, hi, rule(loop, h, lo, hi), worst)
     row = {"seed": args.seed, "hu": args.hu, "f": args.f, "rule": args.rule, "proved": proved, "depth": depth,
            "cpu_s": round(time.process_time() - t0, 1)}
     print(" ".join(f"{k} {v}" for k, v in row.items()), flush=True)

@@ -15,7 +15,6 @@ bound with each remainder, and CPU s per form. One CSV row.
 
 from __future__ import annotations
 
-import argparse
 import itertools
 import time
 
@@ -23,45 +22,27 @@ import numpy as np
 import scipy.linalg
 
 from csvout import write_rows
-from h_max_diagnosis import the_loop
+from h_max_diagnosis import harder_half, held_out_rung, rung_parser
 
 from ftc_verify.analysis.moments.cubic_balls import cubic_map
 from ftc_verify.analysis.moments.quad_balls import pairs, quad_map
-from ftc_verify.analysis.moments.sampled import rate_points
-from ftc_verify.analysis.moments.sampled_bracket import worst_vertex
-from ftc_verify.analysis.moments.sampled_conditioned import conditioned
 from ftc_verify.analysis.moments.sampled_cover import map_split, probe_box
 from ftc_verify.analysis.moments.sampled_eigen import eigen_radius_bound
-from ftc_verify.analysis.moments.sampled_proof import MapParts
 from ftc_verify.analysis.moments.sampled_taylor import _rates_affine
 from ftc_verify.analysis.rigorous import precision
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("seed", type=int)
-    parser.add_argument("hu", type=float)
-    parser.add_argument("f", type=float)
+    parser = rung_parser(__doc__)
     parser.add_argument("extra", type=int)
     parser.add_argument("--points", type=int, default=700)
-    parser.add_argument("--out", default=None)
     args = parser.parse_args()
-    loop = conditioned(the_loop(4, 3, args.seed))
+    rung = held_out_rung(args.seed, args.hu, args.f)
+    loop, h, parts, worst = rung.loop, rung.h, rung.parts, rung.worst
     chain = loop.chain
-    h = args.hu * (1 - args.f)
-    with precision(64):
-        parts = MapParts.build(loop, h)
-    worst = worst_vertex(loop, args.hu, rate_points(chain))[1]
-    box = (np.array(chain.rate_min, dtype=float), np.array(chain.rate_max, dtype=float), 0)
-    lo, hi, _ = probe_box(loop, h, box, worst)
+    lo, hi, _ = probe_box(loop, h, rung.box, worst)
     for _ in range(args.extra):
-        r = map_split(loop, h, lo, hi)
-        mid = 0.5 * (lo[r] + hi[r])
-        lo, hi = lo.copy(), hi.copy()
-        if abs(worst[r] - lo[r]) <= abs(worst[r] - hi[r]):
-            hi[r] = mid
-        else:
-            lo[r] = mid
+        lo, hi = harder_half(lo, hi, map_split(loop, h, lo, hi), worst)
     full = chain.rate_max - chain.rate_min
     widths = [float((hi[r] - lo[r]) / full[r]) for r in chain.rate_indices if full[r] > 0]
     res, modes, lift, hb = parts.floats
