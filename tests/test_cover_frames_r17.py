@@ -12,8 +12,6 @@ sub-boxes as in good units; 1 % above it no cover is claimed."""
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 import pytest
 
@@ -29,6 +27,7 @@ from ftc_verify.testing.illconditioned import similarity
 from ftc_verify.testing.sampled_cases import lqr_case
 
 from test_cover_mixed_h31t import _assert_exact_cover, _box
+from test_cover_reach_r16 import _Count
 
 SPLIT = np.diag([1e-6, 1e6])
 
@@ -38,15 +37,6 @@ FRAMES = [
     Units("states 1e-6 and 1e6, time 1e-3, inputs 1e6", S=SPLIT, s=1e-3, a=1e6),
     Units("similarity of condition 1e4 in units of condition 1e8", S=similarity(np.random.default_rng(31), 2, 1e8, 1e4)),
 ]
-
-
-class _Count:
-    def __init__(self, inner: Any) -> None:
-        self.inner, self.calls = inner, 0
-
-    def __call__(self, *args: Any) -> Any:
-        self.calls += 1
-        return self.inner(*args)
 
 
 def _case() -> tuple[FTCSystem, Controller]:
