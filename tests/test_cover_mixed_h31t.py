@@ -16,7 +16,7 @@ import pytest
 from ftc_verify.analysis.moments import sampled_cover
 from ftc_verify.analysis.moments.sampled import SampledLoop
 from ftc_verify.analysis.moments.sampled_bracket import envelope_work
-from ftc_verify.analysis.moments.sampled_cover import COVER_DEPTH, MAP_DEPTH, cover_box, cover_h_max, cubic_work
+from ftc_verify.analysis.moments.sampled_cover import COVER_DEPTH, MAP_DEPTH, PROBE_DEPTH, cover_box, cover_h_max, cubic_work
 from ftc_verify.analysis.moments.sampled_proof import MapParts, box_verdict, split_rate, subbox_stable
 from ftc_verify.analysis.rigorous import precision
 from ftc_verify.controllers.files import load_controller
@@ -94,13 +94,14 @@ def test_map_proof_first_then_the_cubic(monkeypatch: pytest.MonkeyPatch) -> None
 
     monkeypatch.setattr(sampled_cover, "subbox_stable", refuse_above)
     leaves, spent, attempts, maps = cover_box(loop, PAPER_UNSTABLE * 0.95, 2, _box(loop), 1e12)
-    # the box's cubic fails, then its probe (COVER_DEPTH halvings down): no more programs,
-    # map proofs alone below the box, down to MAP_DEPTH
-    assert leaves is None and attempts == 2 == never.calls and maps == len(calls) == 1 + MAP_DEPTH
+    # the box's cubic fails, then its probe (COVER_DEPTH halvings down) and the deeper one
+    # (PROBE_DEPTH): no more programs, map proofs alone below the box, down to MAP_DEPTH
+    assert leaves is None and attempts == 3 == never.calls and maps == len(calls) == 1 + MAP_DEPTH
     assert spent == pytest.approx(attempts * cubic_work(loop, 2) + maps * envelope_work(loop))  # no form asked for
     # only the box's probe proved: the top of its path (1 halving) and the bisection (5, 7,
     # 8, 9 halvings) fail, so the probe is the path's leaf; the other half at COVER_DEPTH
-    # is tried (its own probe is itself), then only map proofs below it, to MAP_DEPTH
+    # is tried, then its deeper probe (PROBE_DEPTH), then only map proofs below it, to
+    # MAP_DEPTH
     full = loop.chain.rate_max - loop.chain.rate_min
     depths: list[int] = []
 
@@ -111,8 +112,8 @@ def test_map_proof_first_then_the_cubic(monkeypatch: pytest.MonkeyPatch) -> None
     monkeypatch.setattr(sampled_cover, "cubic_stable", probe_only)
     calls.clear()
     leaves, spent, attempts, maps = cover_box(loop, PAPER_UNSTABLE * 0.95, 2, _box(loop), 1e12)
-    assert leaves is None and attempts == len(depths) == 8 and maps == len(calls) == 2 + MAP_DEPTH - COVER_DEPTH
-    assert depths == [0, COVER_DEPTH, 1, 5, 7, 8, 9, COVER_DEPTH]
+    assert leaves is None and attempts == len(depths) == 9 and maps == len(calls) == 2 + MAP_DEPTH - COVER_DEPTH
+    assert depths == [0, COVER_DEPTH, 1, 5, 7, 8, 9, COVER_DEPTH, PROBE_DEPTH]
 
 
 def test_cover_stops_where_the_float_radius_is_not_below_one(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -135,7 +136,7 @@ def test_map_only_cover_is_the_box_and_confirmed(monkeypatch: pytest.MonkeyPatch
     hu = PAPER_UNSTABLE
     got = cover_h_max(loop, 0.9 * hu, hu, 1e12, 1e-3)
     assert got.h_max is not None and 0.9 * hu < got.h_max < hu and got.pieces is None
-    assert never.calls == len(sampled_cover.PIECES)  # the worst vertex once, every number of pieces
+    assert never.calls == 2 * len(sampled_cover.PIECES)  # both probes once, every number of pieces
     assert box_verdict(loop, got.h_max, max_boxes=64, max_seconds=float("inf")).verdict == "stable"
     leaves, _, _, _ = cover_box(loop, got.h_max, None, _box(loop), 1e12)
     assert leaves is not None and len(leaves) == got.boxes

@@ -142,11 +142,12 @@ def test_cover_splits_until_proved_and_covers_the_box(monkeypatch: pytest.Monkey
     fake.asked.clear()
     leaves, spent, attempts, _ = cover_box(loop, 0.08, 4, start, 2.5 * cubic_work(loop, 4))
     assert leaves is None and attempts == 2 and len(fake.asked) == 2 and spent <= 2.5 * cubic_work(loop, 4)
-    # a sub-box never proved: two programs (the box, then its hardest sub-box at
-    # COVER_DEPTH, not one at every depth), then map proofs alone, to the depth limit
+    # a sub-box never proved: three programs (the box, then its hardest sub-boxes at
+    # COVER_DEPTH and PROBE_DEPTH, not one at every depth), then map proofs alone, to the
+    # depth limit
     monkeypatch.setattr(sampled_cover, "cubic_stable", _Cubic(0.0))
     leaves, _, attempts, maps = cover_box(loop, 0.08, 4, start, 1e12)
-    assert leaves is None and attempts == 2 and maps == MAP_DEPTH + 1
+    assert leaves is None and attempts == 3 and maps == MAP_DEPTH + 1
     leaves, _, attempts, maps = cover_box(loop, 0.08, None, start, 1e12)
     assert leaves is None and attempts == 0 and maps == MAP_DEPTH + 1
 

@@ -45,9 +45,15 @@ sub-box's midpoint has a float64 radius >= 1.
 **Hardest first.** Of the two halves of a split the one holding the corner nearest to
 the worst vertex is tried first, and a sub-box whose cubic certificate fails first has
 its *probe* tried (:func:`probe_box`: the sub-box the cover would reach first at
-:data:`COVER_DEPTH` below it, at that corner): a certificate of a sub-box also holds on
-each sub-box inside it (the sub-box's program is a relaxation), so when none is found
-for the probe none is expected on the path to it, and below that sub-box the cover
+:data:`COVER_DEPTH` below it, at that corner), and where that fails, the *deeper probe*:
+:data:`PROBE_DEPTH` halvings down, the path to it split by :func:`map_split`'s rule below
+:data:`COVER_DEPTH`, so thin in the rates that move the radius and wide in the others, as
+a certificate proves it (held-out seed 13, 1.08e-2 below the proved-unstable end: two
+cubic pieces prove it, where no certificate of 2, 4 or 8 pieces proves the first probe;
+seed 9, 1.25e-3 below: four pieces, the same; ``benchmarks/results/split17.md``). A
+certificate of a sub-box also holds on each sub-box inside it (the sub-box's program is a
+relaxation), so when none is found for the probes none is expected on the path to them,
+and below that sub-box the cover
 goes on with map proofs alone (halved by :func:`map_split`) instead of a cubic program
 at every depth of that path (only where the search spends its budget depends on this;
 every sub-box of a cover is proved). Before the eigenpair enclosure the rung ended there
@@ -57,14 +63,15 @@ certificates cannot near the worst vertex (``benchmarks/results/eig14.md``). Whe
 probe is proved, the shallowest proved sub-box on its path is looked for (``_shallowest``: the top of the
 path, then bisection of the depth, about 3 programs where the top-down cover paid one
 per halving), and the cover goes on with it and the other halves along the path, the
-deepest first. A sub-box proved this way is a leaf when the cover reaches it (not
-proved again).
+deepest first; when only the deeper probe is proved, it is that leaf (the other halves
+below :data:`COVER_DEPTH` on its path get map proofs alone). A sub-box proved this way is
+a leaf when the cover reaches it (not proved again).
 
 **The ladder.** Rungs ``f = g/4, g/16, ...`` (``g`` the default bracket's relative width)
 down to the target ``0.9 rtol``, easy first; each rung starts from the previous rung's
 cover (its sub-boxes, not the whole box again), with the fewest pieces of :data:`PIECES`
 (at least the last covered rung's, and 4 below :data:`FINE_FROM`) that prove its probe
-below the previous cover's sub-box holding the worst vertex (:func:`rung_pieces`;
+below the previous cover's sub-box holding the worst vertex, or else its deeper probe (:func:`rung_pieces`;
 splitting the rates cannot make up for too few pieces in the clock: on the seed-1 loop
 two pieces reach 2.5e-3 at the worst vertex, four 5e-4; when none proves it, the rung and
 the closer ones are covered by map proofs alone). A rung's cover may spend
@@ -115,12 +122,17 @@ from .sampled_cubic import cubic_size, cubic_stable
 from .sampled_proof import MapParts, split_rate, subbox_stable
 from .sampled_taylor import FormSpend
 
-__all__ = ["COVER_DEPTH", "MAP_DEPTH", "ASPECT", "RUNG_SHARE", "REACH_MAX", "REACH_SHRINK", "PIECES", "FINE_FROM", "BISECT", "CoverResult", "map_split",
+__all__ = ["COVER_DEPTH", "PROBE_DEPTH", "MAP_DEPTH", "ASPECT", "RUNG_SHARE", "REACH_MAX", "REACH_SHRINK", "PIECES", "FINE_FROM", "BISECT", "CoverResult", "map_split",
            "cubic_work", "cubic_memory", "cover_rungs", "rung_pieces", "probe_box", "cover_box", "cover_h_max"]
 
 #: The most halvings of the box along one path of the cover where cubic certificates are
 #: tried (halving the widest rate); below it only the one-period map's proofs.
 COVER_DEPTH = 10
+#: The depth of a sub-box's deeper probe (:func:`probe_box`, tried where the one at
+#: :data:`COVER_DEPTH` fails): the path to it halves :func:`map_split`'s rate below
+#: :data:`COVER_DEPTH` (held-out seed 9, 1.25e-3 below the proved-unstable end: four cubic
+#: pieces prove the sub-box 16 halvings down at the worst vertex, not the one 14 down).
+PROBE_DEPTH = 16
 #: The most halvings along one path in all (below :data:`COVER_DEPTH` by
 #: :func:`~ftc_verify.analysis.moments.sampled_proof.split_rate`, the rule of the map's
 #: proofs). 12 before the eigenpair enclosure, when a failed rung spent its budget on map
@@ -137,8 +149,12 @@ ASPECT = 4.0
 #: rung 1.25e-3 below the proved-unstable end failed after 901,449 units, and the three
 #: rungs of the bisection got none; ``benchmarks/results/split15.md``).
 RUNG_SHARE = 0.5
-#: The cubic pieces a rung may use, fewest first (:func:`rung_pieces`).
-PIECES = (2, 4, 8)
+#: The cubic pieces a rung may use, fewest first (:func:`rung_pieces`). Not 8: where a
+#: rung's probe needs 8 (held-out seed 31, 1.56e-3 below the proved-unstable end, 16
+#: halvings down), the certificates of its other sub-boxes cost 2.3 times those of 4 and
+#: fail near the worst vertex, and the rung failed in its budget where map proofs alone
+#: cover it (``benchmarks/results/split17.md``).
+PIECES = (2, 4)
 #: Below this distance a rung uses at least 4 pieces: the seed-1 loop's sub-boxes needed 4
 #: at 1.25e-3 and 9e-4 where 2 sufficed for the worst vertex alone.
 FINE_FROM = 3e-3
@@ -182,8 +198,10 @@ def _spend(expected: float, seen: list[float], pay: Callable[[float], bool], per
 
 
 def map_split(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix) -> tuple[int, ...] | None:
-    """The rate along which the cover halves a sub-box that only map proofs are tried
-    on: :func:`~ftc_verify.analysis.moments.sampled_proof.split_rate`'s (where the float64
+    """The rate along which the cover halves a sub-box below :data:`COVER_DEPTH`
+    halvings (on the way to a probe too) and every sub-box that only map proofs are
+    tried on:
+    :func:`~ftc_verify.analysis.moments.sampled_proof.split_rate`'s (where the float64
     radius moves most), unless the widest rate relative to the box is more than
     :data:`ASPECT` times as wide, then that one. The map's proofs lose margin to the
     products of all the widths (the form's terms of degree three), also of rates along
@@ -278,31 +296,39 @@ def _key(lo: Matrix, hi: Matrix) -> tuple[bytes, bytes]:
     return np.asarray(lo, dtype=float).tobytes(), np.asarray(hi, dtype=float).tobytes()
 
 
-def _split(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, depth: int, worst: Matrix,
-           rate: tuple[int, ...] | None = None) -> tuple[Box, Box]:
-    """The two halves of ``[lo, hi]`` along ``rate`` or, not given, its widest rate
-    relative to the box, among those the one that moves the float64 radius most: at
-    ``v``, the sub-box's corner nearest to ``worst`` (the worst vertex of the box), the
-    rate flipped to the sub-box's other end. The half holding ``v`` first (the harder
-    one: the cover tries it first, so that a rung it cannot cover fails early). Only the
-    order of the splits depends on it (splitting the same two radius-moving rates again
-    and again left a held-out loop's sub-box unproved: the rates that vary in time matter
-    too); every sub-box is proved in ball arithmetic."""
+def _widest(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, worst: Matrix) -> tuple[int, ...] | None:
+    """The widest free rate of ``[lo, hi]`` relative to the box, among those the one that
+    moves the float64 radius most at ``v``, the sub-box's corner nearest to ``worst``,
+    when flipped to the sub-box's other end (``None``: no rate is free)."""
     chain = loop.chain
+    free = [r for r in chain.rate_indices if hi[r] > lo[r]]
+    if not free:
+        return None
     v = np.where(np.abs(worst - lo) <= np.abs(worst - hi), lo, hi)
-    r = rate
+    base = spectral_radius(loop, h, v)
+    full = chain.rate_max - chain.rate_min
+
+    def score(r: tuple[int, ...]) -> tuple[float, float]:
+        p = v.copy()
+        p[r] = hi[r] if v[r] == lo[r] else lo[r]
+        change = abs(spectral_radius(loop, h, p) - base)
+        return (round(float((hi[r] - lo[r]) / full[r]), 12), change if np.isfinite(change) else 0.0)
+
+    return max(free, key=score)
+
+
+def _split(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, depth: int, worst: Matrix,
+           cubic: bool = True) -> tuple[Box, Box] | None:
+    """The two halves of ``[lo, hi]`` (``None``: no rate is free), along its widest rate
+    (``_widest``) above :data:`COVER_DEPTH` halvings where cubic certificates are tried
+    below it (``cubic``), else along :func:`map_split`'s (module docstring), the half holding ``v``, the sub-box's corner nearest to ``worst`` (the
+    worst vertex of the box), first (the harder one: the cover tries it first, so that a
+    rung it cannot cover fails early). Only the order of the splits depends on it; every
+    sub-box is proved in ball arithmetic."""
+    r = _widest(loop, h, lo, hi, worst) if cubic and depth < COVER_DEPTH else map_split(loop, h, lo, hi)
     if r is None:
-        free = [r for r in chain.rate_indices if hi[r] > lo[r]]
-        base = spectral_radius(loop, h, v)
-        full = chain.rate_max - chain.rate_min
-
-        def score(r: tuple[int, ...]) -> tuple[float, float]:
-            p = v.copy()
-            p[r] = hi[r] if v[r] == lo[r] else lo[r]
-            change = abs(spectral_radius(loop, h, p) - base)
-            return (round(float((hi[r] - lo[r]) / full[r]), 12), change if np.isfinite(change) else 0.0)
-
-        r = max(free, key=score)
+        return None
+    v = np.where(np.abs(worst - lo) <= np.abs(worst - hi), lo, hi)
     mid = 0.5 * (lo[r] + hi[r])
     lo2, hi1 = lo.copy(), hi.copy()
     hi1[r] = mid
@@ -312,25 +338,29 @@ def _split(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, depth: int, wors
 
 
 def _path(loop: SampledLoop, h: float, box: Box, worst: Matrix) -> list[tuple[Box, Box]]:
-    """The splits of ``box`` the cover meets first, down to :data:`COVER_DEPTH`: per
+    """The splits of ``box`` the cover meets first, down to :data:`PROBE_DEPTH`: per
     halving, ``(the harder half, the other)`` (``_split``), each harder half split
     next."""
     out: list[tuple[Box, Box]] = []
     lo, hi, depth = box
-    while depth < COVER_DEPTH and any(hi[r] > lo[r] for r in loop.chain.rate_indices):
-        out.append(_split(loop, h, lo, hi, depth, worst))
-        lo, hi, depth = out[-1][0]
+    while depth < PROBE_DEPTH:
+        halves = _split(loop, h, lo, hi, depth, worst)
+        if halves is None:
+            break
+        out.append(halves)
+        lo, hi, depth = halves[0]
     return out
 
 
-def probe_box(loop: SampledLoop, h: float, box: Box, worst: Matrix) -> Box:
-    """The sub-box of ``box`` that the cover reaches first at depth :data:`COVER_DEPTH`
-    (the harder half of every split, ``_split``: the corner nearest to ``worst``),
-    ``box`` itself when it is that deep: the hardest sub-box a cubic certificate of the
-    cover must prove below ``box`` (a certificate of a larger sub-box also holds on it),
-    so it is tried first (module docstring, "Hardest first")."""
-    path = _path(loop, h, box, worst)
-    return path[-1][0] if path else box
+def probe_box(loop: SampledLoop, h: float, box: Box, worst: Matrix, depth: int = COVER_DEPTH) -> Box:
+    """The sub-box of ``box`` at ``depth`` halvings (:data:`COVER_DEPTH`, or
+    :data:`PROBE_DEPTH` for the deeper probe) along the harder half of every split
+    (``_split``: the corner nearest to ``worst``), ``box`` itself when it is that deep:
+    the hardest sub-box a cubic certificate of the cover must prove below ``box`` (a
+    certificate of a larger sub-box also holds on it), so it is tried first (module
+    docstring, "Hardest first")."""
+    found = [b for b, _ in _path(loop, h, box, worst) if b[2] <= depth]
+    return found[-1] if found else box
 
 
 def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box], budget: float,
@@ -349,9 +379,8 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
     :func:`~ftc_verify.analysis.moments.sampled_bracket.third_order_work`), then, up to
     :data:`COVER_DEPTH` and when ``pieces`` is given and the budget pays it, a cubic
     certificate of ``pieces`` pieces; where that fails, its probe's before its halves, and
-    where the probe's fails too, map proofs alone below it; where no cubic certificate is
-    tried (``pieces`` None, or below such a probe) halved along :func:`map_split`.
-    ``worst``: the box's worst vertex (float64, found here when not given), which orders
+    where the probe's fails too, map proofs alone below it; halved along
+    :func:`map_split`. ``worst``: the box's worst vertex (float64, found here when not given), which orders
     the splits; ``proved``: sub-boxes already proved at ``h`` (by ``_key``, exact
     floats), leaves without a new proof."""
     cost = 0.0 if pieces is None else cubic_work(loop, pieces)
@@ -410,11 +439,10 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
                 maps_only.add(key)  # no certificate for its probe: map proofs alone below it
         if depth >= MAP_DEPTH:
             return None, spent, attempts, maps
-        cubic_below = pieces is not None and depth < COVER_DEPTH and key not in maps_only
-        idx = None if cubic_below else map_split(loop, h, lo, hi)
-        if idx is None and not any(hi[r] > lo[r] for r in loop.chain.rate_indices):
+        halves = _split(loop, h, lo, hi, depth, worst, pieces is not None and key not in maps_only)
+        if halves is None:
             return None, spent, attempts, maps
-        first, second = _split(loop, h, lo, hi, depth, worst, idx)
+        first, second = halves
         if key in maps_only:
             maps_only.update({_key(first[0], first[1]), _key(second[0], second[1])})
         for child in (first, second):
@@ -428,31 +456,43 @@ def _shallowest(loop: SampledLoop, h: float, pieces: int, path: list[tuple[Box, 
                 budget: float) -> tuple[int | None, int]:
     """``(i, attempts)``: the harder half ``path[i][0]`` proved by a cubic certificate of
     ``pieces`` pieces (added to ``done``), ``i`` the smallest found: the box above the path
-    is not proved; the probe ``path[-1][0]`` is tried first, then ``path[0][0]`` (where
-    the sub-boxes are easy, one program as the top-down cover), then by bisection; ``None``
-    when the probe is not proved or the budget cannot pay an attempt. A certificate of a
+    is not proved; the probe (the path's sub-box at :data:`COVER_DEPTH`) is tried first,
+    then ``path[0][0]`` (where the sub-boxes are easy, one program as the top-down cover),
+    then by bisection; where the probe is not proved, the deeper probe ``path[-1][0]``
+    (:data:`PROBE_DEPTH`), the result when proved; ``None`` when neither is proved or the
+    budget cannot pay an attempt. A certificate of a
     sub-box holds on every sub-box inside it, so along the path the proved ones are the
     deepest: about ``log2`` of the path's length attempts instead of one per halving (the
     budget spent on the failing halvings near the worst vertex,
     ``benchmarks/results/h31v.md``)."""
     cost = cubic_work(loop, pieces)
-    attempts, fail, good = 0, -1, len(path) - 1
-    order = [good, 0]  # the probe, then the top (where sub-boxes are easy), then bisection
-    while True:
-        i = order.pop(0) if order else (fail + good) // 2
+    deep = len(path) - 1
+    last = max((i for i, (b, _) in enumerate(path) if b[2] <= COVER_DEPTH), default=deep)
+    attempts, fail, good = 0, -1, last
+
+    def proves(i: int) -> bool | None:  # None: the budget cannot pay it
+        nonlocal attempts
         lo, hi, _ = path[i][0]
-        proved = _key(lo, hi) in done
-        if not proved:
+        if _key(lo, hi) not in done:
             if (attempts + 1) * cost > budget:
-                return None, attempts
+                return None
             attempts += 1
             cert = cubic_stable(loop, h, pieces, lo, hi)
-            proved = cert is not None and cert.proved
-        if proved:
-            done.add(_key(lo, hi))
-            good = i
-        elif i == len(path) - 1:  # the probe
+            if cert is None or not cert.proved:
+                return False
+        done.add(_key(lo, hi))
+        return True
+
+    order = [last, 0]  # the probe, then the top (where sub-boxes are easy), then bisection
+    while True:
+        i = order.pop(0) if order else (fail + good) // 2
+        proved = proves(i)
+        if proved is None:
             return None, attempts
+        if proved:
+            good = i
+        elif i == last:  # the probe: the deeper one at the path's end instead, a leaf if proved
+            return (deep if deep != last and proves(deep) else None), attempts
         else:
             fail = i
         if good - fail <= 1:
@@ -489,14 +529,16 @@ def cover_h_max(loop: SampledLoop, h_max: float, h_max_unstable: float, work: fl
         h = h_max_unstable * (1.0 - f)
         found: int | None = None
         proved: frozenset[tuple[bytes, bytes]] = frozenset()
-        if f > hopeless:
-            home = next(b for b in boxes if np.all((b[0] <= worst) & (worst <= b[1])))
-            plo, phi, _ = probe_box(loop, h, home, worst)
+        home = next(b for b in boxes if np.all((b[0] <= worst) & (worst <= b[1])))
+        for depth in (COVER_DEPTH, PROBE_DEPTH) if f > hopeless else ():  # the deeper probe where the first fails
+            plo, phi, _ = probe_box(loop, h, home, worst, depth)
             found, used, n = rung_pieces(loop, h, plo, phi, max(pieces, 4 if f < FINE_FROM else 2), work - spent)
             spent += used
             attempts += n
             proved = frozenset() if found is None else frozenset({_key(plo, phi)})
             hopeless = f if found is None else hopeless
+            if found is not None:
+                break
         share = 1.0 if f <= 0.9 * rtol else RUNG_SHARE  # the target's rung may spend all that is left
         leaves, used, n, k = cover_box(loop, h, found, boxes, share * (work - spent), worst, proved)
         spent += used

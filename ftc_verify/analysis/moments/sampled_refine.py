@@ -19,11 +19,11 @@ rates, so a few sub-boxes cover the box, and cubic pieces in the clock reach in 
 four pieces what quadratic pieces reached in 16 to 32 (``benchmarks/results/h31r.md``;
 the quadratic ladder it replaces: ``h31q.md``, ``h31e.md``).
 
-**Memory.** The cover solves one program at a time, of 2, 4 or 8 cubic pieces
+**Memory.** The cover solves one program at a time, of 2 or 4 cubic pieces
 (:data:`~ftc_verify.analysis.moments.sampled_cover.PIECES`; every sub-box's program of a
 given number of pieces has the size of the whole box's). The check estimates the largest,
-8 pieces (:func:`~ftc_verify.analysis.moments.sampled_cover.cubic_memory`: 1.1 GB on
-``n = 4, m = 3``, where four pieces are estimated 0.4 GB), before anything starts, and
+4 pieces (:func:`~ftc_verify.analysis.moments.sampled_cover.cubic_memory`: 0.4 GB on
+``n = 4, m = 3``), before anything starts, and
 refuses above :data:`REFINE_MEMORY` (the CLI: exit 2 naming ``--h-max-work``), whatever
 the budget.
 """
