@@ -1,13 +1,13 @@
-"""The ``h_max`` cover's probe (:func:`~ftc_verify.analysis.moments.sampled_cover.probe_box`)
+"""The ``h_max`` cover's probes (:func:`~ftc_verify.analysis.moments.sampled_cover.probe_box`)
 on a held-out ``n = 4, m = 3`` loop with six detection rates (seed 13 of
 ``benchmarks/h_max_heldout.py``'s draw, conditioned as the refinement runs it), 1.083e-2
 below the default bracket's proved-unstable end 0.6022096970393988.
 
-Its first :data:`COVER_DEPTH` halvings halve the widest rate, the rest
-:func:`map_split`'s, down to :data:`PROBE_DEPTH`. The result is thin in the rates that
-move the radius and wide in the others, and a certificate of four cubic pieces proves
-it. The probe of ten widest-rate halvings alone (what the cover used before) is wider in
-those rates, and no such certificate is found for it
+The path to the probes halves the widest rate for :data:`COVER_DEPTH` halvings (the
+probe), then :func:`map_split`'s down to :data:`PROBE_DEPTH` (the deeper probe). The
+deeper probe is thin in the rates that move the radius and wide in the others, and a
+certificate of four cubic pieces proves it. No such certificate is found for the first
+probe, which is wider in those rates, so the rung would be covered by map proofs alone
 (``benchmarks/results/split17.md``)."""
 
 from __future__ import annotations
