@@ -71,7 +71,8 @@ a leaf when the cover reaches it (not proved again).
 down to the target ``0.9 rtol``, easy first; each rung starts from the previous rung's
 cover (its sub-boxes, not the whole box again), with the fewest pieces of :data:`PIECES`
 (at least the last covered rung's, and 4 below :data:`FINE_FROM`) that prove its probe
-below the previous cover's sub-box holding the worst vertex, or else its deeper probe (:func:`rung_pieces`;
+below the previous cover's sub-box holding the worst vertex, or else its deeper probe
+(:func:`rung_pieces`;
 splitting the rates cannot make up for too few pieces in the clock: on the seed-1 loop
 two pieces reach 2.5e-3 at the worst vertex, four 5e-4; when none proves it, the rung and
 the closer ones are covered by map proofs alone). A rung's cover may spend
@@ -199,9 +200,8 @@ def _spend(expected: float, seen: list[float], pay: Callable[[float], bool], per
 
 def map_split(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix) -> tuple[int, ...] | None:
     """The rate along which the cover halves a sub-box below :data:`COVER_DEPTH`
-    halvings (on the way to a probe too) and every sub-box that only map proofs are
-    tried on:
-    :func:`~ftc_verify.analysis.moments.sampled_proof.split_rate`'s (where the float64
+    halvings (on the way to a deeper probe too) and every sub-box that only map proofs
+    are tried on: :func:`~ftc_verify.analysis.moments.sampled_proof.split_rate`'s (where the float64
     radius moves most), unless the widest rate relative to the box is more than
     :data:`ASPECT` times as wide, then that one. The map's proofs lose margin to the
     products of all the widths (the form's terms of degree three), also of rates along
@@ -319,9 +319,10 @@ def _widest(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, worst: Matrix) 
 
 def _split(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, depth: int, worst: Matrix,
            cubic: bool = True) -> tuple[Box, Box] | None:
-    """The two halves of ``[lo, hi]`` (``None``: no rate is free), along its widest rate
-    (``_widest``) above :data:`COVER_DEPTH` halvings where cubic certificates are tried
-    below it (``cubic``), else along :func:`map_split`'s (module docstring), the half holding ``v``, the sub-box's corner nearest to ``worst`` (the
+    """The two halves of ``[lo, hi]`` (``None``: no rate is free): along its widest rate
+    (``_widest``) when cubic certificates may be tried below it (``cubic``) and it is less
+    than :data:`COVER_DEPTH` halvings deep, else along :func:`map_split`'s (module
+    docstring). The half holding ``v``, the sub-box's corner nearest to ``worst`` (the
     worst vertex of the box), first (the harder one: the cover tries it first, so that a
     rung it cannot cover fails early). Only the order of the splits depends on it; every
     sub-box is proved in ball arithmetic."""
@@ -379,8 +380,8 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
     :func:`~ftc_verify.analysis.moments.sampled_bracket.third_order_work`), then, up to
     :data:`COVER_DEPTH` and when ``pieces`` is given and the budget pays it, a cubic
     certificate of ``pieces`` pieces; where that fails, its probe's before its halves, and
-    where the probe's fails too, map proofs alone below it; halved along
-    :func:`map_split`. ``worst``: the box's worst vertex (float64, found here when not given), which orders
+    where the probe's fails too, map proofs alone below it; halved as ``_split`` says.
+    ``worst``: the box's worst vertex (float64, found here when not given), which orders
     the splits; ``proved``: sub-boxes already proved at ``h`` (by ``_key``, exact
     floats), leaves without a new proof."""
     cost = 0.0 if pieces is None else cubic_work(loop, pieces)
@@ -460,8 +461,8 @@ def _shallowest(loop: SampledLoop, h: float, pieces: int, path: list[tuple[Box, 
     then ``path[0][0]`` (where the sub-boxes are easy, one program as the top-down cover),
     then by bisection; where the probe is not proved, the deeper probe ``path[-1][0]``
     (:data:`PROBE_DEPTH`), the result when proved; ``None`` when neither is proved or the
-    budget cannot pay an attempt. A certificate of a
-    sub-box holds on every sub-box inside it, so along the path the proved ones are the
+    budget cannot pay an attempt. A certificate of a sub-box holds on every sub-box inside
+    it, so along the path the proved ones are the
     deepest: about ``log2`` of the path's length attempts instead of one per halving (the
     budget spent on the failing halvings near the worst vertex,
     ``benchmarks/results/h31v.md``)."""
