@@ -237,27 +237,6 @@ def test_cli_refuses_before_any_work(capsys: pytest.CaptureFixture[str], command
     assert code == 2 and needle in err.err and err.out == "" and "Traceback" not in err.err
 
 
-def test_analyze_refines_in_a_killable_child(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
-    """``analyze --h-max-work`` runs the refinement, whatever its proofs compute (third-order
-    forms included), in its own killable child after the sampled-data analysis's
-    (:func:`~ftc_verify.analysis.solvers.interruptible`): a SIGTERM ends it as it ends any
-    analysis child (``tests/test_issue32_contract.py``), not after the proof in progress."""
-    from ftc_verify.analysis import solvers
-
-    seen: list[str] = []
-    real = solvers.interruptible
-
-    def spy(fn: Any, what: str) -> Any:
-        seen.append(what)
-        return real(fn, what)
-
-    monkeypatch.setattr(solvers, "interruptible", spy)
-    code = main(["analyze", str(ROOT / "examples" / "paper.toml"), "--gains", str(ROOT / "examples" / "paper_gains.toml"),
-                 "--period", "0.05", "--no-lmi", "--h-max-work", "5000"])
-    assert code == 0, capsys.readouterr().err
-    assert seen.index("the h_max refinement") == seen.index("the sampled-data analysis") + 1
-
-
 @pytest.mark.parametrize("command", ["analyze", "verify"])
 def test_memory_limit_refused_before_any_work(capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch,
                                               tmp_path: Path, command: str) -> None:

@@ -61,6 +61,27 @@ def test_sampled_analyses_run_in_a_killable_child(module: str, call: Any, monkey
     analysis through ``interruptible`` (before issue 32's audit they called it directly:
     a SIGTERM waited for the whole scan)."""
     mod = importlib.import_module(module)
+    seen = _spy_interruptible(monkeypatch, mod)
+    call(mod, load_system(PAPER), load_controller(GAINS))
+    assert "the sampled-data analysis" in seen
+
+
+def test_analyze_refines_in_a_killable_child(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """``analyze --h-max-work`` runs the refinement, whatever its proofs compute (third-order
+    forms included), in its own killable child after the sampled-data analysis's: a
+    SIGTERM ends it as it ends any analysis child (``tests/test_issue32_contract.py``), not
+    after the proof in progress."""
+    from ftc_verify.analysis import solvers
+    from ftc_verify.cli.main import main
+
+    seen = _spy_interruptible(monkeypatch, solvers)
+    code = main(["analyze", str(PAPER), "--gains", str(GAINS), "--period", "0.05", "--no-lmi", "--h-max-work", "5000"])
+    assert code == 0, capsys.readouterr().err
+    assert seen.index("the h_max refinement") == seen.index("the sampled-data analysis") + 1
+
+
+def _spy_interruptible(monkeypatch: pytest.MonkeyPatch, mod: Any) -> list[str]:
+    """The labels ``mod.interruptible`` is called with, in order (the calls go through)."""
     seen: list[str] = []
     real = mod.interruptible
 
@@ -69,8 +90,7 @@ def test_sampled_analyses_run_in_a_killable_child(module: str, call: Any, monkey
         return real(fn, what)
 
     monkeypatch.setattr(mod, "interruptible", spy)
-    call(mod, load_system(PAPER), load_controller(GAINS))
-    assert "the sampled-data analysis" in seen
+    return seen
 
 
 class _Certified:

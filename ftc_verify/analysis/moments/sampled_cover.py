@@ -201,8 +201,8 @@ def _spend(expected: float, seen: list[float], pay: Callable[[float], bool], per
 def map_split(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix) -> tuple[int, ...] | None:
     """The rate along which the cover halves a sub-box below :data:`COVER_DEPTH`
     halvings (on the way to a deeper probe too) and every sub-box that only map proofs
-    are tried on: :func:`~ftc_verify.analysis.moments.sampled_proof.split_rate`'s (where the float64
-    radius moves most), unless the widest rate relative to the box is more than
+    are tried on: :func:`~ftc_verify.analysis.moments.sampled_proof.split_rate`'s (where
+    the float64 radius moves most), unless the widest rate relative to the box is more than
     :data:`ASPECT` times as wide, then that one. The map's proofs lose margin to the
     products of all the widths (the form's terms of degree three), also of rates along
     which the radius hardly moves (held-out seed 13, 1.08e-2 below the proved-unstable
@@ -296,15 +296,14 @@ def _key(lo: Matrix, hi: Matrix) -> tuple[bytes, bytes]:
     return np.asarray(lo, dtype=float).tobytes(), np.asarray(hi, dtype=float).tobytes()
 
 
-def _widest(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, worst: Matrix) -> tuple[int, ...] | None:
+def _widest(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, v: Matrix) -> tuple[int, ...] | None:
     """The widest free rate of ``[lo, hi]`` relative to the box, among those the one that
-    moves the float64 radius most at ``v``, the sub-box's corner nearest to ``worst``,
-    when flipped to the sub-box's other end (``None``: no rate is free)."""
+    moves the float64 radius most at the sub-box's corner ``v`` when flipped to the
+    sub-box's other end (``None``: no rate is free)."""
     chain = loop.chain
     free = [r for r in chain.rate_indices if hi[r] > lo[r]]
     if not free:
         return None
-    v = np.where(np.abs(worst - lo) <= np.abs(worst - hi), lo, hi)
     base = spectral_radius(loop, h, v)
     full = chain.rate_max - chain.rate_min
 
@@ -326,10 +325,10 @@ def _split(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, depth: int, wors
     worst vertex of the box), first (the harder one: the cover tries it first, so that a
     rung it cannot cover fails early). Only the order of the splits depends on it; every
     sub-box is proved in ball arithmetic."""
-    r = _widest(loop, h, lo, hi, worst) if cubic and depth < COVER_DEPTH else map_split(loop, h, lo, hi)
+    v = np.where(np.abs(worst - lo) <= np.abs(worst - hi), lo, hi)
+    r = _widest(loop, h, lo, hi, v) if cubic and depth < COVER_DEPTH else map_split(loop, h, lo, hi)
     if r is None:
         return None
-    v = np.where(np.abs(worst - lo) <= np.abs(worst - hi), lo, hi)
     mid = 0.5 * (lo[r] + hi[r])
     lo2, hi1 = lo.copy(), hi.copy()
     hi1[r] = mid
@@ -338,13 +337,13 @@ def _split(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, depth: int, wors
     return (low, high) if v[r] == lo[r] else (high, low)
 
 
-def _path(loop: SampledLoop, h: float, box: Box, worst: Matrix) -> list[tuple[Box, Box]]:
-    """The splits of ``box`` the cover meets first, down to :data:`PROBE_DEPTH`: per
+def _path(loop: SampledLoop, h: float, box: Box, worst: Matrix, until: int = PROBE_DEPTH) -> list[tuple[Box, Box]]:
+    """The splits of ``box`` the cover meets first, down to ``until`` halvings: per
     halving, ``(the harder half, the other)`` (``_split``), each harder half split
     next."""
     out: list[tuple[Box, Box]] = []
     lo, hi, depth = box
-    while depth < PROBE_DEPTH:
+    while depth < until:
         halves = _split(loop, h, lo, hi, depth, worst)
         if halves is None:
             break
@@ -360,8 +359,8 @@ def probe_box(loop: SampledLoop, h: float, box: Box, worst: Matrix, depth: int =
     the hardest sub-box a cubic certificate of the cover must prove below ``box`` (a
     certificate of a larger sub-box also holds on it), so it is tried first (module
     docstring, "Hardest first")."""
-    found = [b for b, _ in _path(loop, h, box, worst) if b[2] <= depth]
-    return found[-1] if found else box
+    path = _path(loop, h, box, worst, depth)
+    return path[-1][0] if path else box
 
 
 def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box], budget: float,
@@ -530,16 +529,17 @@ def cover_h_max(loop: SampledLoop, h_max: float, h_max_unstable: float, work: fl
         h = h_max_unstable * (1.0 - f)
         found: int | None = None
         proved: frozenset[tuple[bytes, bytes]] = frozenset()
-        home = next(b for b in boxes if np.all((b[0] <= worst) & (worst <= b[1])))
-        for depth in (COVER_DEPTH, PROBE_DEPTH) if f > hopeless else ():  # the deeper probe where the first fails
-            plo, phi, _ = probe_box(loop, h, home, worst, depth)
-            found, used, n = rung_pieces(loop, h, plo, phi, max(pieces, 4 if f < FINE_FROM else 2), work - spent)
-            spent += used
-            attempts += n
-            proved = frozenset() if found is None else frozenset({_key(plo, phi)})
+        if f > hopeless:
+            home = next(b for b in boxes if np.all((b[0] <= worst) & (worst <= b[1])))
+            for depth in (COVER_DEPTH, PROBE_DEPTH):  # the deeper probe where the first fails
+                plo, phi, _ = probe_box(loop, h, home, worst, depth)
+                found, used, n = rung_pieces(loop, h, plo, phi, max(pieces, 4 if f < FINE_FROM else 2), work - spent)
+                spent += used
+                attempts += n
+                if found is not None:
+                    proved = frozenset({_key(plo, phi)})
+                    break
             hopeless = f if found is None else hopeless
-            if found is not None:
-                break
         share = 1.0 if f <= 0.9 * rtol else RUNG_SHARE  # the target's rung may spend all that is left
         leaves, used, n, k = cover_box(loop, h, found, boxes, share * (work - spent), worst, proved)
         spent += used
