@@ -1,110 +1,85 @@
-r"""The ``h_max`` refinement by cubic clock certificates on sub-boxes of the rates: the
-stage behind ``analyze --h-max-work`` and ``verify --h-max-work``
+r"""The ``h_max`` refinement by covers of the rate box: the stage behind
+``analyze --h-max-work`` and ``verify --h-max-work``
 (:func:`~ftc_verify.analysis.moments.sampled_refine.refine_result`).
 
 **A rung** is a period :math:`h = h_u (1 - f)`, :math:`h_u` the proved-unstable end of
 the bracket, proved mean-square stable for every rate array of the box by a *cover*: a
 list of sub-boxes whose union is the box, each proved in ball arithmetic by any sound
 argument: its own one-period map
-(:func:`~ftc_verify.analysis.moments.sampled_proof.subbox_stable`, the sub-box proof of
-the default bracket: the upper envelope, then the map's polynomial form in the rates
-with a moving certificate), tried first (a few hundred work units), or else its own cubic
-clock certificate (:func:`~ftc_verify.analysis.moments.sampled_cubic.cubic_stable`,
-thousands). Every constant rate array lies in some sub-box, whose proof puts the
-spectral radius of its one-period map below 1 (module docstrings of
-:mod:`~ftc_verify.analysis.moments.sampled_proof`,
-:mod:`~ftc_verify.analysis.moments.sampled_cubic`); where two sub-boxes meet, both cover
-the shared face (each proof holds on its closed sub-box, the shared split value
-enclosed by the same ball in both).
+(:func:`~ftc_verify.analysis.moments.sampled_proof.subbox_stable`: the upper envelope,
+then the map's polynomial form in the rates with the enclosure of its Perron eigenpair,
+:mod:`~ftc_verify.analysis.moments.sampled_eigen`), tried first (a few hundred work
+units), or else its own cubic clock certificate
+(:func:`~ftc_verify.analysis.moments.sampled_cubic.cubic_stable`, thousands). Every
+constant rate array lies in some sub-box, whose proof puts the spectral radius of its
+one-period map below 1; where two sub-boxes meet, both cover the shared face (each proof
+holds on its closed sub-box, the shared split value enclosed by the same ball in both).
 
 **Why sub-boxes.** A certificate common to the whole box also holds for rates that
 change in time inside it, and near ``h_max`` those can be worse than any constant rate
 (seed-1 ``n = 4, m = 3`` loop: whole box 1.5e-3 below the crossing with four cubic
-pieces, the worst vertex alone 5e-4, the sub-box of half the widths at that vertex 9e-4;
-``benchmarks/results/h31r.md``). The map's proof loses margin to first order in the
-sub-box's widths (envelope) or higher (the polynomial forms), so it can prove small
-sub-boxes near the worst vertex where no cubic certificate of a sub-box is found
-(held-out seed 13 at 1e-2: 75 map sub-boxes of a vertex box of 1/16 of the widths,
-``benchmarks/results/h31t.md``), and the cubic proves the large ones far from it. Since
-the map's proof encloses the Perron eigenpair
-(:mod:`~ftc_verify.analysis.moments.sampled_eigen`) it proves vertex boxes 2-4 times as
-wide per rate, and covers of map proofs alone decide the last rungs: held-out seed 31,
-9e-4 below the proved-unstable end, 230 sub-boxes, every one by its map
-(``benchmarks/results/eig14.md``). A cover is built depth first: a sub-box
-not proved is split in half along its widest rate (relative to the box; on ties the one
-that moves the float64 radius most near the box's worst vertex) up to
-:data:`COVER_DEPTH` halvings along a path (cubic certificates tried), then along the rate
-of :func:`map_split` (map proofs only) up to :data:`MAP_DEPTH`; where no cubic certificate
-is tried (``pieces`` None, or below a sub-box whose probe has none) every split is
-:func:`map_split`'s (held-out seed 13, 1.06e-2 below the proved-unstable end, map proofs
-alone from the whole box: after ten widest-rate halvings one path went 24 halvings deep
-unproved and the rung failed after 25 proofs; by ``split_rate`` from the top no path
-went deeper than 18 in 1,700 proofs, ``benchmarks/results/split15.md``). It stops where a
-sub-box's midpoint has a float64 radius >= 1.
+pieces, the worst vertex alone 5e-4; ``benchmarks/results/h31r.md``). The map's proof
+loses margin to second or third order in the sub-box's widths, so it proves the small
+sub-boxes near the worst vertex, where no certificate is found; certificates prove the
+wide ones away from it, where the map's proof would need hundreds of sub-boxes.
 
-**Hardest first.** Of the two halves of a split the one holding the corner nearest to
-the worst vertex is tried first, and a sub-box whose cubic certificate fails first has
-its *probe* tried (:func:`probe_box`: the sub-box the cover would reach first at
-:data:`COVER_DEPTH` below it, at that corner), and where that fails, the *deeper probe*:
-:data:`PROBE_DEPTH` halvings down, the path to it split by :func:`map_split`'s rule below
-:data:`COVER_DEPTH`, so thin in the rates that move the radius and wide in the others, as
-a certificate proves it (held-out seed 13, 1.08e-2 below the proved-unstable end: two
-cubic pieces prove it, where no certificate of 2, 4 or 8 pieces proves the first probe;
-seed 9, 1.25e-3 below: four pieces, the same; ``benchmarks/results/split17.md``). A
-certificate of a sub-box also holds on each sub-box inside it (the sub-box's program is a
-relaxation), so when none is found for the probes none is expected on the path to them,
-and below that sub-box the cover
-goes on with map proofs alone (halved by :func:`map_split`) instead of a cubic program
-at every depth of that path (only where the search spends its budget depends on this;
-every sub-box of a cover is proved). Before the eigenpair enclosure the rung ended there
-(held-out seed 13, 1.1e-2 below the crossing: 11 programs and 68,000 units for a rung
-that failed; ``benchmarks/results/h31v.md``); the map proofs now cover what the cubic
-certificates cannot near the worst vertex (``benchmarks/results/eig14.md``). When the
-probe is proved, the shallowest proved sub-box on its path is looked for (``_shallowest``: the top of the
-path, then bisection of the depth, about 3 programs where the top-down cover paid one
-per halving), and the cover goes on with it and the other halves along the path, the
-deepest first; when only the deeper probe is proved, it is that leaf (the other halves
-below :data:`COVER_DEPTH` on its path get map proofs alone). A sub-box proved this way is
-a leaf when the cover reaches it (not proved again).
+**The search.** Depth first; a sub-box not proved is split in half along its widest rate
+(relative to the box; on ties the one that moves the float64 radius most near the box's
+worst vertex) up to :data:`COVER_DEPTH` halvings along a path (cubic certificates of
+the rung's pieces tried), then along the rate of :func:`map_split` (map proofs only) up
+to :data:`MAP_DEPTH`; it stops where a sub-box's midpoint has a float64 radius >= 1. Of
+the two halves of a split the one holding the corner nearest to the worst vertex is
+tried first, and a sub-box whose cubic certificate fails first has its *probe* tried
+(:func:`probe_box`: the sub-box the cover would reach first :data:`COVER_DEPTH` below
+it), and where that fails the *deeper probe* (:data:`PROBE_DEPTH` halvings down, split
+by :func:`map_split`'s rule below :data:`COVER_DEPTH`: thin in the rates that move the
+radius and wide in the others; held-out seed 13, 1.08e-2 below the proved-unstable end:
+two pieces prove it where none of 2, 4 or 8 prove the first probe;
+``benchmarks/results/split17.md``). A certificate of a sub-box also holds on each
+sub-box inside it, so when the probes fail none is expected on the path to them: below
+that sub-box the certificates of the rung's pieces are not tried again, and when a probe
+is proved, the shallowest proved sub-box on its path is found by bisection of the depth
+(``_shallowest``, about 3 programs instead of one per halving), the cover going on with
+it and the other halves along the path. A sub-box proved this way is a leaf when the
+cover reaches it.
+
+**Bulk certificates.** Where only map proofs are tried (below a failed probe, or on a
+rung whose probes no pieces prove), a sub-box whose map proof fails gets a certificate
+of :data:`BULK_PIECES` pieces (on boxes of :data:`BULK_RATES` free rates or more) when
+its float64 margin :math:`1 - \rho` at the corner nearest to the worst vertex is
+:data:`BULK_MARGIN` times the worst vertex's, and, below one that failed,
+:data:`BULK_RETRY` times the margin where it failed (``_bulk``): the
+probes fail near the worst vertex, but away from it the margin is wide and one program
+proves what the map's proofs cover with hundreds of sub-boxes (held-out seed 31: the
+same 9.0e-4 with 233,532 units instead of 317,436; ``benchmarks/results/bulk18.md``).
 
 **The ladder.** Rungs ``f = g/4, g/16, ...`` (``g`` the default bracket's relative width)
 down to the target ``0.9 rtol``, easy first; each rung starts from the previous rung's
 cover (its sub-boxes, not the whole box again), with the fewest pieces of :data:`PIECES`
 (at least the last covered rung's, and 4 below :data:`FINE_FROM`) that prove its probe
 below the previous cover's sub-box holding the worst vertex, or else its deeper probe
-(:func:`rung_pieces`;
-splitting the rates cannot make up for too few pieces in the clock: on the seed-1 loop
-two pieces reach 2.5e-3 at the worst vertex, four 5e-4; when none proves it, the rung and
-the closer ones are covered by map proofs alone). A rung's cover may spend
-:data:`RUNG_SHARE` of the budget left, the target's rung all of it. Once a rung is not
-covered within the budget or the depth, the next is at the geometric mean of the last covered and the
-closest failed distance, while these are more than :data:`BISECT` apart (the rung before
-stopped after one such retry with half the budget unspent: seed 13 160,563 units of
-300,000); the result is the last rung covered. Every attempt is charged *before* it is
-solved, from the problem's size only (:func:`cubic_work` per cubic certificate,
-:func:`~ftc_verify.analysis.moments.sampled_bracket.box_work` per map proof with its
-form, :func:`~ftc_verify.analysis.moments.sampled_bracket.envelope_work` without,
-:func:`~ftc_verify.analysis.moments.sampled_bracket.third_order_work` per third-order
-form), and none is started that the budget cannot pay: the same loop and budget give the
-same bracket on every machine (up to the float64 estimates that decide where a form is
-computed).
+(:func:`rung_pieces`). A rung's cover may spend :data:`RUNG_SHARE` of the budget left, the target's rung all of
+it. Once a rung is not covered within the budget or the depth, the next is at the
+geometric mean of the last covered and the closest failed distance, while these are more
+than :data:`BISECT` apart; the result is the last rung covered. Every attempt is charged
+*before* it is solved, from the problem's size only (:func:`cubic_work` per cubic
+certificate, :func:`~ftc_verify.analysis.moments.sampled_bracket.box_work` per map proof
+with its form, :func:`~ftc_verify.analysis.moments.sampled_bracket.envelope_work`
+without, :func:`~ftc_verify.analysis.moments.sampled_bracket.third_order_work` per
+third-order form), and none is started that the budget cannot pay: the same loop and
+budget give the same bracket on every machine.
 
 **Where forms are computed.** Away from the worst vertex the eigenpair enclosure of a
 sub-box's form fails for want of contraction, whatever the margin, until the sub-box is
-small, while the envelope alone proves it a few halvings down (held-out seed 13, 9e-4
-below the proved-unstable end: no form proved any of the first 1,072 sub-boxes, and the
-failed forms took 237 of their 254 CPU s; ``benchmarks/results/split16.md``). So a
-sub-box gets a form only where its expected reach (its parent's
+small (``benchmarks/results/split16.md``). So a sub-box gets a form only where its
+expected reach (its parent's
 :func:`~ftc_verify.analysis.moments.sampled_eigen.enclosure_reach` where the parent's
 form proved nothing, its parent's expectation otherwise, times :data:`REACH_SHRINK`) is
-at most :data:`REACH_MAX`; the search order and the charges depend on it, the proofs do
-not. A sub-box's third-order form
+at most :data:`REACH_MAX`. A sub-box's third-order form
 (:func:`~ftc_verify.analysis.moments.cubic_balls.cubic_map`, where the second-order
 form's remainder is what fails) is paid only when it costs no more than a second-order
-form: it saves about one halving near the crossing, two forms at most, and on held-out
-seed 31 (six rates, 567 units against 334) the same bracket took 15 % more CPU with it
-(``benchmarks/results/split16.md``); on loops with two or three rates it is cheaper
-than the second-order form and taken.
+form: on loops with two or three rates (at six, held-out seed 31 took 15 % more CPU for
+the same bracket with it; ``benchmarks/results/split16.md``).
 """
 
 from __future__ import annotations
@@ -123,7 +98,7 @@ from .sampled_cubic import cubic_size, cubic_stable
 from .sampled_proof import MapParts, split_rate, subbox_stable
 from .sampled_taylor import FormSpend
 
-__all__ = ["COVER_DEPTH", "PROBE_DEPTH", "MAP_DEPTH", "ASPECT", "RUNG_SHARE", "REACH_MAX", "REACH_SHRINK", "PIECES", "FINE_FROM", "BISECT", "CoverResult", "map_split",
+__all__ = ["COVER_DEPTH", "PROBE_DEPTH", "MAP_DEPTH", "ASPECT", "RUNG_SHARE", "REACH_MAX", "REACH_SHRINK", "BULK_PIECES", "BULK_MARGIN", "BULK_RETRY", "BULK_RATES", "PIECES", "FINE_FROM", "BISECT", "CoverResult", "map_split",
            "cubic_work", "cubic_memory", "cover_rungs", "rung_pieces", "probe_box", "cover_box", "cover_h_max"]
 
 #: The most halvings of the box along one path of the cover where cubic certificates are
@@ -135,26 +110,19 @@ COVER_DEPTH = 10
 #: pieces prove the sub-box 16 halvings down at the worst vertex, not the one 14 down).
 PROBE_DEPTH = 16
 #: The most halvings along one path in all (below :data:`COVER_DEPTH` by
-#: :func:`~ftc_verify.analysis.moments.sampled_proof.split_rate`, the rule of the map's
-#: proofs). 12 before the eigenpair enclosure, when a failed rung spent its budget on map
-#: proofs that could not succeed (with 32: the ``hmax-case`` loop, 642 of them, 200 CPU s
-#: instead of 88 for the same bracket; ``benchmarks/results/h31t.md``); the map covers of
-#: the last rungs go 14-18 halvings deep (``benchmarks/results/eig14.md``).
+#: :func:`map_split`): the map covers of the last rungs go 14-18 halvings deep
+#: (``benchmarks/results/eig14.md``).
 MAP_DEPTH = 24
 #: :func:`map_split`: a rate more than this many times as wide (relative to the box) as
 #: :func:`~ftc_verify.analysis.moments.sampled_proof.split_rate`'s choice is halved first.
 ASPECT = 4.0
 #: The share of the budget left that a rung's cover may spend, but the target's rung
 #: (``0.9 rtol``), which may spend all of it: a rung that fails leaves budget for the
-#: rungs between it and the last covered one (held-out seed 9 with 1,000,000 units: the
-#: rung 1.25e-3 below the proved-unstable end failed after 901,449 units, and the three
-#: rungs of the bisection got none; ``benchmarks/results/split15.md``).
+#: rungs between it and the last covered one (``benchmarks/results/split15.md``).
 RUNG_SHARE = 0.5
-#: The cubic pieces a rung may use, fewest first (:func:`rung_pieces`). Not 8: where a
-#: rung's probe needs 8 (held-out seed 31, 1.56e-3 below the proved-unstable end, 16
-#: halvings down), the certificates of its other sub-boxes cost 2.3 times those of 4 and
-#: fail near the worst vertex, and the rung failed in its budget where map proofs alone
-#: cover it (``benchmarks/results/split17.md``).
+#: The cubic pieces a rung may use, fewest first (:func:`rung_pieces`). Not 8: their
+#: certificates cost 2.3 times those of 4 and fail near the worst vertex where map proofs
+#: cover it (held-out seed 31; ``benchmarks/results/split17.md``).
 PIECES = (2, 4)
 #: Below this distance a rung uses at least 4 pieces: the seed-1 loop's sub-boxes needed 4
 #: at 1.25e-3 and 9e-4 where 2 sufficed for the worst vertex alone.
@@ -168,14 +136,26 @@ BISECT = 1.25
 #: A sub-box gets a polynomial form only where the eigenpair enclosure's expected reach
 #: (:func:`~ftc_verify.analysis.moments.sampled_eigen.enclosure_reach`: the radius of its
 #: Lipschitz matrix, which it needs below 1) is at most this; elsewhere only the envelope
-#: is tried. Held-out seed 13, 9e-4 below the proved-unstable end: on the first 1,072
-#: sub-boxes of its cover (the radius up to 0.92) no form proved any, and they took 237
-#: of the 254 CPU s (``benchmarks/results/split16.md``).
+#: is tried (module docstring, "Where forms are computed").
 REACH_MAX = 1.0
 #: A half's expected reach: its parent's times this, the parent's own estimate where its
 #: form was computed and proved nothing (on seed 31's sub-boxes the estimate fell by
 #: 0.6-0.9 per halving).
 REACH_SHRINK = 0.85
+#: The pieces of a *bulk* certificate (module docstring): two prove wide sub-boxes away
+#: from the worst vertex (held-out seed 13, 9e-4 below the proved-unstable end: 16 random
+#: sub-boxes of a quarter of every rate, all; ``benchmarks/results/bulk18.md``).
+BULK_PIECES = 2
+#: A bulk certificate is tried only where the float64 margin ``1 - rho`` at the sub-box's
+#: corner nearest to the worst vertex is at least this many times the worst vertex's.
+BULK_MARGIN = 2.0
+#: Below a sub-box whose bulk certificate failed, one is tried again only where that
+#: corner's margin is more than this many times the margin where it failed.
+BULK_RETRY = 1.5
+#: Bulk certificates only on boxes of at least this many free rates: with fewer, map proofs
+#: cover the box in a few halvings (a random ``n = 2, m = 2`` loop 1e-3 below its crossing:
+#: 12 sub-boxes, 137 units; with 4 failed bulk certificates 2,936).
+BULK_RATES = 4
 
 
 def _costs(loop: SampledLoop) -> tuple[float, float, float | None]:
@@ -296,6 +276,25 @@ def _key(lo: Matrix, hi: Matrix) -> tuple[bytes, bytes]:
     return np.asarray(lo, dtype=float).tobytes(), np.asarray(hi, dtype=float).tobytes()
 
 
+def _corner(lo: Matrix, hi: Matrix, worst: Matrix) -> Matrix:
+    """The corner of ``[lo, hi]`` nearest to ``worst`` (the box's worst vertex)."""
+    return np.where(np.abs(worst - lo) <= np.abs(worst - hi), lo, hi)
+
+
+def _bulk(loop: SampledLoop, h: float, box: Box, worst: Matrix, failed: float,
+          pay: Callable[[float], bool]) -> tuple[bool | None, float]:
+    """A bulk certificate of ``box`` where :data:`BULK_MARGIN`, :data:`BULK_RETRY`
+    (``failed``: the margin where one above it failed, else 0) and ``pay`` allow:
+    ``(proved or None when not tried, the failed margin its halves inherit)``."""
+    lo, hi, _ = box
+    floor = 1.0 - spectral_radius(loop, h, worst)
+    margin = 1.0 - spectral_radius(loop, h, _corner(lo, hi, worst))
+    if margin < BULK_MARGIN * floor or margin <= BULK_RETRY * failed or not pay(cubic_work(loop, BULK_PIECES)):
+        return None, failed
+    cert = cubic_stable(loop, h, BULK_PIECES, lo, hi)
+    return (True, failed) if cert is not None and cert.proved else (False, margin)
+
+
 def _widest(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, v: Matrix) -> tuple[int, ...] | None:
     """The widest free rate of ``[lo, hi]`` relative to the box, among those the one that
     moves the float64 radius most at the sub-box's corner ``v`` when flipped to the
@@ -325,7 +324,7 @@ def _split(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix, depth: int, wors
     worst vertex of the box), first (the harder one: the cover tries it first, so that a
     rung it cannot cover fails early). Only the order of the splits depends on it; every
     sub-box is proved in ball arithmetic."""
-    v = np.where(np.abs(worst - lo) <= np.abs(worst - hi), lo, hi)
+    v = _corner(lo, hi, worst)
     r = _widest(loop, h, lo, hi, v) if cubic and depth < COVER_DEPTH else map_split(loop, h, lo, hi)
     if r is None:
         return None
@@ -365,31 +364,27 @@ def probe_box(loop: SampledLoop, h: float, box: Box, worst: Matrix, depth: int =
 
 def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box], budget: float,
               worst: Matrix | None = None,
-              proved: frozenset[tuple[bytes, bytes]] = frozenset()) -> tuple[list[Box] | None, float, int, int]:
+              proved: frozenset[tuple[bytes, bytes]] = frozenset(), bulk: bool = True) -> tuple[list[Box] | None, float, int, int]:
     """A cover of the union of ``boxes`` at period ``h`` (module docstring), depth first,
     the harder half of each split first: ``(sub-boxes, units charged, cubic attempts, map
     proofs)``, the sub-boxes ``None`` when the budget or :data:`MAP_DEPTH` ran out first
-    or the float64 radius at a sub-box's midpoint is not below 1. Each sub-box: the one-period
-    map's proof (:func:`~ftc_verify.analysis.moments.sampled_proof.subbox_stable`: the
-    envelope, charged :func:`~ftc_verify.analysis.moments.sampled_bracket.envelope_work`;
-    the map's polynomial form only where the sub-box's expected reach is at most
-    :data:`REACH_MAX`, charged the rest of
-    :func:`~ftc_verify.analysis.moments.sampled_bracket.box_work`; its third-order form
-    where that is remainder-limited,
-    :func:`~ftc_verify.analysis.moments.sampled_bracket.third_order_work`), then, up to
-    :data:`COVER_DEPTH` and when ``pieces`` is given and the budget pays it, a cubic
-    certificate of ``pieces`` pieces; where that fails, its probe's before its halves, and
-    where the probe's fails too, map proofs alone below it; halved as ``_split`` says.
-    ``worst``: the box's worst vertex (float64, found here when not given), which orders
-    the splits; ``proved``: sub-boxes already proved at ``h`` (by ``_key``, exact
-    floats), leaves without a new proof."""
+    or the float64 radius at a sub-box's midpoint is not below 1. Each sub-box: the
+    one-period map's proof (:func:`~ftc_verify.analysis.moments.sampled_proof.subbox_stable`,
+    each part charged before it is computed: module docstring), then, up to
+    :data:`COVER_DEPTH`, a cubic certificate of ``pieces`` pieces (where given) with its
+    probes, or below a failed probe (or without ``pieces``) a bulk certificate
+    (``_bulk``; none when ``bulk`` is false or below :data:`BULK_RATES`); halved as
+    ``_split`` says. ``worst``: the box's worst vertex (float64, found here when not
+    given); ``proved``: sub-boxes already proved at ``h`` (by ``_key``), leaves as they are."""
     cost = 0.0 if pieces is None else cubic_work(loop, pieces)
+    bulk = bulk and sum(1 for r in loop.chain.rate_indices if loop.chain.rate_max[r] > loop.chain.rate_min[r]) >= BULK_RATES
     per_map, per_form, per_third = _costs(loop)
     stack = list(reversed(boxes))
     leaves: list[Box] = []
     done = set(proved)
     maps_only: set[tuple[bytes, bytes]] = set()
     reach: dict[tuple[bytes, bytes], float] = {}  # a sub-box's expected reach (REACH_MAX), from its parent
+    bulk_failed: dict[tuple[bytes, bytes], float] = {}  # the margin where a bulk certificate above it failed
     spent, attempts, maps = 0.0, 0, 0
     with precision(64):
         parts = MapParts.build(loop, h)
@@ -411,7 +406,7 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
             return None, spent, attempts, maps
         spent += per_map
         maps += 1
-        expected = reach.pop(key, 0.0)
+        expected, failed = reach.pop(key, 0.0), bulk_failed.pop(key, 0.0)
         seen: list[float] = []  # the reach of its form, when computed and not proved
         if subbox_stable(loop, h, parts, lo, hi, spend=_spend(expected, seen, pay, per_form, per_third)):
             leaves.append((lo, hi, depth))
@@ -437,6 +432,12 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
                     stack.append(path[found[0]][0])
                     continue
                 maps_only.add(key)  # no certificate for its probe: map proofs alone below it
+        elif bulk and depth <= COVER_DEPTH:  # map proofs alone here, but a bulk certificate where the margin is wide
+            tried, failed = _bulk(loop, h, (lo, hi, depth), worst, failed, pay)
+            attempts += tried is not None
+            if tried:
+                leaves.append((lo, hi, depth))
+                continue
         if depth >= MAP_DEPTH:
             return None, spent, attempts, maps
         halves = _split(loop, h, lo, hi, depth, worst, pieces is not None and key not in maps_only)
@@ -447,6 +448,7 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
             maps_only.update({_key(first[0], first[1]), _key(second[0], second[1])})
         for child in (first, second):
             reach[_key(child[0], child[1])] = REACH_SHRINK * (seen[0] if seen else expected)
+            bulk_failed[_key(child[0], child[1])] = failed
         stack.append(second)
         stack.append(first)
     return leaves, spent, attempts, maps
