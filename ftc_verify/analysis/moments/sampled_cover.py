@@ -154,7 +154,7 @@ BULK_MARGIN = 2.0
 BULK_RETRY = 1.5
 #: Bulk certificates only on boxes of at least this many free rates: with fewer, map proofs
 #: cover the box in a few halvings (a random ``n = 2, m = 2`` loop 1e-3 below its crossing:
-#: 12 sub-boxes, 137 units; with 4 failed bulk certificates 2,936).
+#: 12 sub-boxes, 137 units; with 4 failed bulk certificates, 2,936 units).
 BULK_RATES = 4
 
 
@@ -431,7 +431,7 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
                     stack.extend(other for _, other in path[:found[0] + 1])
                     stack.append(path[found[0]][0])
                     continue
-                maps_only.add(key)  # no certificate for its probe: map proofs alone below it
+                maps_only.add(key)  # no certificate for its probe: map proofs (and bulk certificates) below it
         elif bulk and depth <= COVER_DEPTH:  # map proofs alone here, but a bulk certificate where the margin is wide
             tried, failed = _bulk(loop, h, (lo, hi, depth), worst, failed, pay)
             attempts += tried is not None
