@@ -10,29 +10,23 @@ it, none is tried (``benchmarks/results/bulk18.md``)."""
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 
-from ftc_verify.analysis.moments.sampled import SampledLoop, rate_points, spectral_radius
-from ftc_verify.analysis.moments.sampled_bracket import box_work, worst_vertex
+from ftc_verify.analysis.moments.sampled import SampledLoop, spectral_radius
+from ftc_verify.analysis.moments.sampled_bracket import box_work
 from ftc_verify.analysis.moments.sampled_conditioned import conditioned
 from ftc_verify.analysis.moments.sampled_cover import (BULK_MARGIN, BULK_PIECES, BULK_RETRY, _bulk, _corner, cover_box,
                                                        cubic_work)
 from ftc_verify.testing.sampled_cases import lqr_case
 
 from test_cover_mixed_h31t import _box
-
-HU = 0.6022096970393988
+from test_cover_probe_r17 import held_out_rung
 
 
 @pytest.fixture(scope="module")
 def rung() -> tuple[SampledLoop, float, np.ndarray]:
-    rng = np.random.default_rng(13)
-    lqr_case(2, 2, rng)  # the draw's first case, as benchmarks/sampled.py draws it
-    loop = conditioned(dataclasses.replace(SampledLoop.build(*lqr_case(4, 3, rng)), written=(0.01,)))
-    return loop, HU * (1 - 9e-4), worst_vertex(loop, HU, rate_points(loop.chain))[1]
+    return held_out_rung(9e-4)
 
 
 def _cell(loop: SampledLoop, worst: np.ndarray, a: int, b: int) -> tuple[np.ndarray, np.ndarray]:

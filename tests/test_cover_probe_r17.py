@@ -27,12 +27,18 @@ from ftc_verify.testing.sampled_cases import lqr_case
 HU = 0.6022096970393988
 
 
-@pytest.fixture(scope="module")
-def rung() -> tuple[SampledLoop, float, np.ndarray]:
+def held_out_rung(f: float) -> tuple[SampledLoop, float, np.ndarray]:
+    """Held-out seed 13's loop (conditioned, at the analysed period 0.01), the period
+    ``HU (1 - f)`` and the worst vertex at ``HU``."""
     rng = np.random.default_rng(13)
     lqr_case(2, 2, rng)  # the draw's first case, as benchmarks/sampled.py draws it
     loop = conditioned(dataclasses.replace(SampledLoop.build(*lqr_case(4, 3, rng)), written=(0.01,)))
-    return loop, HU * (1 - 1.083e-2), worst_vertex(loop, HU, rate_points(loop.chain))[1]
+    return loop, HU * (1 - f), worst_vertex(loop, HU, rate_points(loop.chain))[1]
+
+
+@pytest.fixture(scope="module")
+def rung() -> tuple[SampledLoop, float, np.ndarray]:
+    return held_out_rung(1.083e-2)
 
 
 def test_probe_widest_then_radius_rule(rung: tuple[SampledLoop, float, np.ndarray]) -> None:
