@@ -240,6 +240,12 @@ class JointChain:
         return tuple((0, j, i) for j, i in self.beta_pairs) + tuple(
             (1, i, j) for i in range(self.m) for j in range(self.m) if i != j)
 
+    @property
+    def free_rate_indices(self) -> tuple[tuple[int, ...], ...]:
+        """The :attr:`rate_indices` whose interval has width (upper end above the lower)."""
+        lo, hi = self.rate_min, self.rate_max
+        return tuple(idx for idx in self.rate_indices if hi[idx] > lo[idx])
+
     def split(self, rates: ArrayLike) -> tuple[Matrix, Matrix | None]:
         """``(beta, false_alarm)`` of a rate array (``false_alarm`` None without them)."""
         r = np.asarray(rates, dtype=float)

@@ -99,8 +99,7 @@ def box_work(loop: SampledLoop) -> float:
     ``benchmarks/results/h31w.md``)."""
     from .sampled_taylor import quadratic_forms
 
-    chain = loop.chain
-    K = sum(1 for idx in chain.rate_indices if chain.rate_max[idx] > chain.rate_min[idx])
+    K = len(loop.chain.free_rate_indices)
     N = loop.states * loop.d * (loop.d + 1) // 2
     t = 1 + K + (K * (K + 1) / 4 if quadratic_forms(K, N) else 0)
     return 5.0 + 3e-6 * N ** 3 * t
@@ -124,8 +123,7 @@ def third_order_work(loop: SampledLoop) -> float:
     each over the squarings it takes; calibrated on ``n = 4, m = 3`` (``N = 189``,
     ``K = 6``): 0.72 CPU s for the form and the enclosure against 0.35 for the
     second-order form, 567 units (``benchmarks/results/split16.md``)."""
-    chain = loop.chain
-    K = sum(1 for idx in chain.rate_indices if chain.rate_max[idx] > chain.rate_min[idx])
+    K = len(loop.chain.free_rate_indices)
     N = loop.states * loop.d * (loop.d + 1) // 2
     return 3e-6 * N ** 3 * K * (K + 1) * (K + 2) / 12
 
@@ -222,7 +220,7 @@ def worst_vertex(loop: SampledLoop, h: float, points: Sequence[Matrix]) -> tuple
     :func:`~ftc_verify.analysis.moments.sampled.rate_points`), then single flips of one
     rate to its other end while one raises :math:`\\rho` (module docstring)."""
     chain = loop.chain
-    free = [idx for idx in chain.rate_indices if chain.rate_max[idx] > chain.rate_min[idx]]
+    free = chain.free_rate_indices
     lo, hi = chain.rate_min, chain.rate_max
 
     def is_vertex(p: Matrix) -> bool:

@@ -377,7 +377,7 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
     ``_split`` says. ``worst``: the box's worst vertex (float64, found here when not
     given); ``proved``: sub-boxes already proved at ``h`` (by ``_key``), leaves as they are."""
     cost = 0.0 if pieces is None else cubic_work(loop, pieces)
-    bulk = bulk and sum(1 for r in loop.chain.rate_indices if loop.chain.rate_max[r] > loop.chain.rate_min[r]) >= BULK_RATES
+    bulk = bulk and len(loop.chain.free_rate_indices) >= BULK_RATES
     per_map, per_form, per_third = _costs(loop)
     stack = list(reversed(boxes))
     leaves: list[Box] = []
