@@ -1,7 +1,8 @@
-"""The second-order form of a sub-box's one-period map, for the tests of the sampled
-sub-box proofs (``test_bracket_h31x.py``, ``test_second_order_h31w.py``,
-``test_eigen_enclosure_r14.py``):
-:func:`~ftc_verify.analysis.moments.quad_balls.quad_map` on the float parts of
+"""The second- and third-order forms of a sub-box's one-period map, for the tests of
+the sampled sub-box proofs (``test_bracket_h31x.py``, ``test_second_order_h31w.py``,
+``test_eigen_enclosure_r14.py``, ``test_eigen3_r19.py``):
+:func:`~ftc_verify.analysis.moments.quad_balls.quad_map` and
+:func:`~ftc_verify.analysis.moments.cubic_balls.cubic_terms` on the float parts of
 :class:`~ftc_verify.analysis.moments.sampled_proof.MapParts` at 64 bits; the seed-1
 ``n = 4, m = 3`` loop those tests share, its worst vertex's crossing and the sub-boxes at
 that vertex."""
@@ -11,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.optimize
 
+from ftc_verify.analysis.moments.cubic_balls import cubic_terms
 from ftc_verify.analysis.moments.quad_balls import quad_map
 from ftc_verify.analysis.moments.sampled import SampledLoop, rate_points, spectral_radius
 from ftc_verify.analysis.moments.sampled_bracket import worst_vertex
@@ -30,6 +32,18 @@ def second_order_form(loop: SampledLoop, h: float, lo: np.ndarray, hi: np.ndarra
         found = _rates_affine(loop, lo, hi)
         assert found is not None
         out = quad_map(res, modes, found[0], found[1], hb, lift)
+    assert out is not None
+    return out
+
+
+def third_order_form(loop: SampledLoop, h: float, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, ...]:
+    """``T(delta)`` on ``[lo, hi]`` at period ``h`` as ``(T_c, T_a, T_ab, T_abe, radius)``
+    (:func:`~ftc_verify.analysis.moments.cubic_balls.cubic_terms`)."""
+    with precision(64):
+        res, modes, lift, hb = MapParts.build(loop, h).floats
+        found = _rates_affine(loop, lo, hi)
+        assert found is not None
+        out = cubic_terms(res, modes, found[0], found[1], hb, lift)
     assert out is not None
     return out
 

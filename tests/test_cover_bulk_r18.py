@@ -6,13 +6,17 @@ end 0.6022096970393988: where only map proofs are tried and a sub-box's map proo
 a certificate of two cubic pieces is tried on it when the float64 margin at its corner
 nearest to the worst vertex is wide; near the worst vertex, below a certificate that
 failed at a similar margin, on boxes with few free rates, or when the budget cannot pay
-it, none is tried (``benchmarks/results/bulk18.md``)."""
+it, none is tried (``benchmarks/results/bulk18.md``). These are the rules of the
+second-order route (:data:`~ftc_verify.analysis.moments.sampled_cover.CUBIC_RATES`
+raised above six here); the moving enclosure's rule is tested in
+``tests/test_cover_cubic_r19.py``."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from ftc_verify.analysis.moments import sampled_cover
 from ftc_verify.analysis.moments.sampled import SampledLoop, spectral_radius
 from ftc_verify.analysis.moments.sampled_bracket import box_work
 from ftc_verify.analysis.moments.sampled_conditioned import conditioned
@@ -22,6 +26,11 @@ from ftc_verify.testing.sampled_cases import lqr_case
 
 from test_cover_mixed_h31t import _box
 from test_cover_probe_r17 import held_out_rung
+
+
+@pytest.fixture(autouse=True)
+def second_order_route(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(sampled_cover, "CUBIC_RATES", 7)
 
 
 @pytest.fixture(scope="module")

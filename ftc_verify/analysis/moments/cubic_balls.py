@@ -63,7 +63,7 @@ from .fast_balls import TAYLOR_TERMS, MidRad, taylor_scaled
 from .fast_balls import up_bound as _up
 from .quad_balls import QUADRATIC, Quad, generator_form, pairs, quad_mul, sum_abs
 
-__all__ = ["Cubic", "triples", "cubic_mul", "cubic_map", "CUBIC_SIZE", "CUBIC_SQUARINGS", "cubic_forms"]
+__all__ = ["Cubic", "triples", "cubic_mul", "cubic_terms", "cubic_map", "CUBIC_SIZE", "CUBIC_SQUARINGS", "cubic_forms"]
 
 _U = 2.0 ** -53
 _ETA = 2.0 ** -1022
@@ -152,13 +152,14 @@ def _thin(b: MidRad, K: int, M: int, T: int) -> Cubic:
     return b[0], np.stack([z] * K), np.stack([z] * M), np.stack([z] * T), b[1]
 
 
-def cubic_map(res: MidRad, modes: MidRad, q: MidRad, dirs: Matrix, h: MidRad, lift: MidRad,
-              terms: int = TAYLOR_TERMS) -> Quad | None:
+def cubic_terms(res: MidRad, modes: MidRad, q: MidRad, dirs: Matrix, h: MidRad, lift: MidRad,
+                terms: int = TAYLOR_TERMS) -> Cubic | None:
     """:math:`\\mathcal P e^{(M + Q(\\delta)^T \\otimes I) h} \\mathcal R` as a
-    second-order form over :math:`\\delta \\in [-1, 1]^K` (the arguments as in
-    :func:`~ftc_verify.analysis.moments.quad_balls.quad_map`), squared and multiplied
-    with third-order terms, which go to the radius at the end (module docstring);
-    ``None`` when a number overflows."""
+    third-order form ``(c, l, q, t, r)`` over :math:`\\delta \\in [-1, 1]^K` (the
+    arguments as in :func:`~ftc_verify.analysis.moments.quad_balls.quad_map`): the
+    Taylor polynomial and the first squarings in the second-order arithmetic, the last
+    :data:`CUBIC_SQUARINGS` and the products with the restriction and the lift in this
+    one (module docstring); ``None`` when a number overflows."""
     K = dirs.shape[0]
     M, T = len(pairs(K)), len(triples(K))
     with np.errstate(over="ignore", invalid="ignore"):
@@ -171,7 +172,20 @@ def cubic_map(res: MidRad, modes: MidRad, q: MidRad, dirs: Matrix, h: MidRad, li
         p: Cubic = (e[0], e[1], e[2], np.zeros((T,) + e[0].shape), e[3])
         for _ in range(min(squarings, CUBIC_SQUARINGS)):
             p = cubic_mul(p, p)
-        tc, tl, tq, tt, tr = cubic_mul(cubic_mul(_thin(res, K, M, T), p), _thin(lift, K, M, T))
+        out = cubic_mul(cubic_mul(_thin(res, K, M, T), p), _thin(lift, K, M, T))
+    return out if all(np.all(np.isfinite(v)) for v in out) else None
+
+
+def cubic_map(res: MidRad, modes: MidRad, q: MidRad, dirs: Matrix, h: MidRad, lift: MidRad,
+              terms: int = TAYLOR_TERMS) -> Quad | None:
+    """:func:`cubic_terms`' form as a second-order one: the third-order coefficients go
+    to the radius, :math:`r + \\sum_t |t|` (module docstring); ``None`` when a number
+    overflows."""
+    form = cubic_terms(res, modes, q, dirs, h, lift, terms)
+    if form is None:
+        return None
+    tc, tl, tq, tt, tr = form
+    with np.errstate(over="ignore", invalid="ignore"):
         rad = _up(tr + sum_abs(tt), 2)
     out = (tc, tl, tq, rad)
-    return out if all(np.all(np.isfinite(v)) for v in out) else None
+    return out if np.all(np.isfinite(rad)) else None

@@ -16,42 +16,43 @@ one-period map below 1; where two sub-boxes meet, both cover the shared face (ea
 holds on its closed sub-box, the shared split value enclosed by the same ball in both).
 
 **Why sub-boxes.** A certificate common to the whole box also holds for rates that
-change in time inside it, and near ``h_max`` those can be worse than any constant rate
-(seed-1 ``n = 4, m = 3`` loop: whole box 1.5e-3 below the crossing with four cubic
-pieces, the worst vertex alone 5e-4; ``benchmarks/results/h31r.md``). The map's proof
-loses margin to second or third order in the sub-box's widths, so it proves the small
-sub-boxes near the worst vertex, where no certificate is found; certificates prove the
-wide ones away from it, where the map's proof would need hundreds of sub-boxes.
+change in time inside it, near ``h_max`` worse than any constant rate (seed-1 ``n = 4,
+m = 3`` loop: 1.5e-3 below the crossing, its worst vertex 5e-4; ``h31r.md``).
 
-**The search.** Depth first; a sub-box not proved is split in half along its widest rate
-(relative to the box; on ties the one that moves the float64 radius most near the box's
+**The moving enclosure's route.** On boxes of :data:`CUBIC_RATES` free rates or more
+(where :func:`~ftc_verify.analysis.moments.cubic_balls.cubic_forms` allows), a
+sub-box's form is the third-order one proved by
+:func:`~ftc_verify.analysis.moments.sampled_eigen3.cubic_radius_bound`: at six rates it
+proves sub-boxes 4 to 16 times wider per rate near the worst vertex than the
+second-order enclosure (``benchmarks/results/eig19.md``). There the rungs have no
+pieces: each sub-box is tried by its map's proof, then, where its enclosure did not
+contract (reach above :data:`REACH_MAX`), by a bulk certificate (below), and else halved
+by :func:`map_split`. Elsewhere the search below.
+
+**The search.** Depth first; a sub-box not proved is halved along its widest rate
+(relative to the box; on ties the one that moves the float64 radius most near the
 worst vertex) up to :data:`COVER_DEPTH` halvings along a path (cubic certificates of
-the rung's pieces tried), then along the rate of :func:`map_split` (map proofs only) up
-to :data:`MAP_DEPTH`; it stops where a sub-box's midpoint has a float64 radius >= 1. Of
-the two halves of a split the one holding the corner nearest to the worst vertex is
-tried first, and a sub-box whose cubic certificate fails first has its *probe* tried
-(:func:`probe_box`: the sub-box the cover would reach first :data:`COVER_DEPTH` below
-it), and where that fails the *deeper probe* (:data:`PROBE_DEPTH` halvings down, split
-by :func:`map_split`'s rule below :data:`COVER_DEPTH`: thin in the rates that move the
-radius and wide in the others; held-out seed 13, 1.08e-2 below the proved-unstable end:
-two pieces prove it where none of 2, 4 or 8 prove the first probe;
-``benchmarks/results/split17.md``). A certificate of a sub-box also holds on each
-sub-box inside it, so when the probes fail none is expected on the path to them: below
-that sub-box the certificates of the rung's pieces are not tried again, and when a probe
-is proved, the shallowest proved sub-box on its path is found by bisection of the depth
-(``_shallowest``, about 3 programs instead of one per halving), the cover going on with
-it and the other halves along the path. A sub-box proved this way is a leaf when the
-cover reaches it.
+the rung's pieces tried), then along :func:`map_split`'s rate (map proofs only) up to
+:data:`MAP_DEPTH`; it stops where a sub-box's midpoint has a float64 radius >= 1. The
+half holding the corner nearest to the worst vertex is tried first, and a sub-box whose
+cubic certificate fails first has its *probe* tried (:func:`probe_box`: the sub-box the
+cover would reach first :data:`COVER_DEPTH` below it), and where that fails the *deeper
+probe* (:data:`PROBE_DEPTH` halvings down, below :data:`COVER_DEPTH` by
+:func:`map_split`: thin in the rates that move the radius, wide in the others;
+``benchmarks/results/split17.md``). A certificate of a sub-box holds on each sub-box
+inside it, so when the probes fail no certificate of the rung's pieces is tried below
+that sub-box again, and when a probe is proved the shallowest proved sub-box on its path
+is found by bisection of the depth (``_shallowest``), the cover going on with it and the
+other halves along the path.
 
-**Bulk certificates.** Where only map proofs are tried (below a failed probe, or on a
-rung whose probes no pieces prove), a sub-box whose map proof fails gets a certificate
-of :data:`BULK_PIECES` pieces (on boxes of :data:`BULK_RATES` free rates or more) when
-its float64 margin :math:`1 - \rho` at the corner nearest to the worst vertex is
-:data:`BULK_MARGIN` times the worst vertex's, and, below one that failed,
-:data:`BULK_RETRY` times the margin where it failed (``_bulk``): the
-probes fail near the worst vertex, but away from it the margin is wide and one program
-proves what the map's proofs cover with hundreds of sub-boxes (held-out seed 31: the
-same 9.0e-4 with 233,532 units instead of 317,436; ``benchmarks/results/bulk18.md``).
+**Bulk certificates.** Where only map proofs are tried (below a failed probe, on a rung
+whose probes no pieces prove, on the moving enclosure's route), a sub-box whose map
+proof fails gets a certificate of :data:`BULK_PIECES` pieces (on boxes of
+:data:`BULK_RATES` free rates or more) when its float64 margin :math:`1 - \rho` at the
+corner nearest to the worst vertex is :data:`BULK_MARGIN` times the worst vertex's (on
+the moving enclosure's route: where its enclosure did not contract) and, below one that
+failed, :data:`BULK_RETRY` times the margin where it failed (``_bulk``;
+``benchmarks/results/bulk18.md``).
 
 **The ladder.** Rungs ``f = g/4, g/16, ...`` (``g`` the default bracket's relative width)
 down to the target ``0.9 rtol``, easy first; each rung starts from the previous rung's
@@ -69,17 +70,15 @@ without, :func:`~ftc_verify.analysis.moments.sampled_bracket.third_order_work` p
 third-order form), and none is started that the budget cannot pay: the same loop and
 budget give the same bracket on every machine.
 
-**Where forms are computed.** Away from the worst vertex the eigenpair enclosure of a
-sub-box's form fails for want of contraction, whatever the margin, until the sub-box is
-small (``benchmarks/results/split16.md``). So a sub-box gets a form only where its
-expected reach (its parent's
-:func:`~ftc_verify.analysis.moments.sampled_eigen.enclosure_reach` where the parent's
-form proved nothing, its parent's expectation otherwise, times :data:`REACH_SHRINK`) is
-at most :data:`REACH_MAX`. A sub-box's third-order form
-(:func:`~ftc_verify.analysis.moments.cubic_balls.cubic_map`, where the second-order
-form's remainder is what fails) is paid only when it costs no more than a second-order
-form: on loops with two or three rates (at six, held-out seed 31 took 15 % more CPU for
-the same bracket with it; ``benchmarks/results/split16.md``).
+**Where forms are computed.** Away from the worst vertex the second-order enclosure fails
+for want of contraction until the sub-box is small (``benchmarks/results/split16.md``),
+so on its route a sub-box gets a form only where its expected reach (its parent's
+:func:`~ftc_verify.analysis.moments.sampled_eigen.enclosure_reach`, or expectation,
+times :data:`REACH_SHRINK`) is at most :data:`REACH_MAX`; a third-order form
+(:func:`~ftc_verify.analysis.moments.cubic_balls.cubic_map`) after it only where it
+costs no more than a second-order form (two or three rates). On the moving enclosure's
+route every sub-box whose envelope fails gets its form (that enclosure's reach falls
+by factors up to 5 in one halving).
 """
 
 from __future__ import annotations
@@ -94,57 +93,50 @@ from ...model.system import Matrix
 from ..rigorous import precision
 from .sampled import SampledLoop, rate_points, spectral_radius
 from .sampled_bracket import box_work, envelope_work, third_order_work, worst_vertex
+from .cubic_balls import cubic_forms
 from .sampled_cubic import cubic_size, cubic_stable
 from .sampled_proof import MapParts, split_rate, subbox_stable
 from .sampled_taylor import FormSpend
 
-__all__ = ["COVER_DEPTH", "PROBE_DEPTH", "MAP_DEPTH", "ASPECT", "RUNG_SHARE", "REACH_MAX", "REACH_SHRINK", "BULK_PIECES", "BULK_MARGIN", "BULK_RETRY", "BULK_RATES", "PIECES", "FINE_FROM", "BISECT", "CoverResult", "map_split",
+__all__ = ["COVER_DEPTH", "PROBE_DEPTH", "MAP_DEPTH", "ASPECT", "RUNG_SHARE", "REACH_MAX", "REACH_SHRINK", "BULK_PIECES", "BULK_MARGIN", "BULK_RETRY", "BULK_RATES", "CUBIC_RATES", "PIECES", "FINE_FROM", "BISECT", "CoverResult", "map_split",
            "cubic_work", "cubic_memory", "cover_rungs", "rung_pieces", "probe_box", "cover_box", "cover_h_max"]
 
-#: The most halvings of the box along one path of the cover where cubic certificates are
-#: tried (halving the widest rate); below it only the one-period map's proofs.
+#: The most halvings along a path where cubic certificates are tried (the widest rate).
 COVER_DEPTH = 10
-#: The depth of a sub-box's deeper probe (:func:`probe_box`, tried where the one at
-#: :data:`COVER_DEPTH` fails): the path to it halves :func:`map_split`'s rate below
-#: :data:`COVER_DEPTH` (held-out seed 9, 1.25e-3 below the proved-unstable end: four cubic
-#: pieces prove the sub-box 16 halvings down at the worst vertex, not the one 14 down).
+#: The depth of the deeper probe (:func:`probe_box`; held-out seed 9, 1.25e-3 below the
+#: proved-unstable end: four cubic pieces prove the one 16 halvings down, not 14).
 PROBE_DEPTH = 16
-#: The most halvings along one path in all (below :data:`COVER_DEPTH` by
-#: :func:`map_split`): the map covers of the last rungs go 14-18 halvings deep
-#: (``benchmarks/results/eig14.md``).
+#: The most halvings along one path in all: the map covers of the last rungs go 14-18
+#: halvings deep (``benchmarks/results/eig14.md``).
 MAP_DEPTH = 24
 #: :func:`map_split`: a rate more than this many times as wide (relative to the box) as
 #: :func:`~ftc_verify.analysis.moments.sampled_proof.split_rate`'s choice is halved first.
 ASPECT = 4.0
-#: The share of the budget left that a rung's cover may spend, but the target's rung
-#: (``0.9 rtol``), which may spend all of it: a rung that fails leaves budget for the
-#: rungs between it and the last covered one (``benchmarks/results/split15.md``).
+#: The share of the budget left a rung's cover may spend (the target's rung: all of it),
+#: so that one that fails leaves some for closer rungs (``benchmarks/results/split15.md``).
 RUNG_SHARE = 0.5
-#: The cubic pieces a rung may use, fewest first (:func:`rung_pieces`). Not 8: their
-#: certificates cost 2.3 times those of 4 and fail near the worst vertex where map proofs
-#: cover it (held-out seed 31; ``benchmarks/results/split17.md``).
+#: The cubic pieces a rung may use, fewest first (:func:`rung_pieces`); not 8, which cost
+#: 2.3 times 4 and failed where map proofs covered (``benchmarks/results/split17.md``).
 PIECES = (2, 4)
 #: Below this distance a rung uses at least 4 pieces: the seed-1 loop's sub-boxes needed 4
 #: at 1.25e-3 and 9e-4 where 2 sufficed for the worst vertex alone.
 FINE_FROM = 3e-3
 #: After a rung fails, rungs at the geometric mean of the last covered and the closest
-#: failed distance while these are more than this factor apart (4x apart: at most three
-#: more rungs, 2x, 1.4x and 1.19x from the covered one).
+#: failed distance while these are more than this factor apart (from 4x: three more).
 BISECT = 1.25
 
 
-#: A sub-box gets a polynomial form only where the eigenpair enclosure's expected reach
-#: (:func:`~ftc_verify.analysis.moments.sampled_eigen.enclosure_reach`: the radius of its
-#: Lipschitz matrix, which it needs below 1) is at most this; elsewhere only the envelope
-#: is tried (module docstring, "Where forms are computed").
+#: The largest expected reach (the radius of the enclosure's Lipschitz matrix, below 1 where
+#: it contracts) for a form (module docstring, "Where forms are computed").
 REACH_MAX = 1.0
-#: A half's expected reach: its parent's times this, the parent's own estimate where its
-#: form was computed and proved nothing (on seed 31's sub-boxes the estimate fell by
-#: 0.6-0.9 per halving).
+#: A half's expected reach: its parent's (estimate, or expectation) times this (on seed
+#: 31's sub-boxes the estimate fell by 0.6-0.9 per halving).
 REACH_SHRINK = 0.85
-#: The pieces of a *bulk* certificate (module docstring): two prove wide sub-boxes away
-#: from the worst vertex (held-out seed 13, 9e-4 below the proved-unstable end: 16 random
-#: sub-boxes of a quarter of every rate, all; ``benchmarks/results/bulk18.md``).
+#: On boxes of at least this many free rates, the moving enclosure's route (module
+#: docstring).
+CUBIC_RATES = 4
+#: The pieces of a *bulk* certificate: two prove wide sub-boxes away from the worst vertex
+#: (held-out seed 13, 9e-4 below the crossing: 16 of 16 random quarter-width ones).
 BULK_PIECES = 2
 #: A bulk certificate is tried only where the float64 margin ``1 - rho`` at the sub-box's
 #: corner nearest to the worst vertex is at least this many times the worst vertex's.
@@ -152,30 +144,34 @@ BULK_MARGIN = 2.0
 #: Below a sub-box whose bulk certificate failed, one is tried again only where that
 #: corner's margin is more than this many times the margin where it failed.
 BULK_RETRY = 1.5
-#: Bulk certificates only on boxes of at least this many free rates: with fewer, map proofs
-#: cover the box in a few halvings (a random ``n = 2, m = 2`` loop 1e-3 below its crossing:
-#: 12 sub-boxes, 137 units; with 4 failed bulk certificates, 2,936 units).
+#: Bulk certificates only on boxes of this many free rates or more (a two-rate loop 1e-3
+#: below its crossing: 12 sub-boxes, 137 units; with 4 failed bulk certificates 2,936).
 BULK_RATES = 4
 
 
-def _costs(loop: SampledLoop) -> tuple[float, float, float | None]:
-    """The units of a sub-box's envelope, of its second-order form and of its third-order
-    form, the last ``None`` where it is dearer than the second-order one (never worth it:
-    module docstring, "Where forms are computed")."""
+def _costs(loop: SampledLoop) -> tuple[float, float, float | None, bool]:
+    """``(envelope, form, third-order form, cubic)``: the units of a sub-box's envelope,
+    of its form and of a third-order form after it (``None``: never, where it is dearer
+    than the second-order one), and whether the form is the third-order one with the
+    moving enclosure (:data:`CUBIC_RATES`; then charged as a third-order form, with none
+    after it; module docstring, "Where forms are computed")."""
     per_map, third = envelope_work(loop), third_order_work(loop)
+    K = len(loop.chain.free_rate_indices)
+    if K >= CUBIC_RATES and cubic_forms(K, loop.states * loop.d * (loop.d + 1) // 2):
+        return per_map, third, None, True
     per_form = box_work(loop) - per_map
-    return per_map, per_form, third if third <= per_form else None
+    return per_map, per_form, third if third <= per_form else None, False
 
 
-def _spend(expected: float, seen: list[float], pay: Callable[[float], bool], per_form: float,
-           per_third: float | None) -> FormSpend:
+def _spend(expected: float, seen: list[float], pay: Callable[[float], bool], costs: tuple[float, float, float | None, bool]) -> FormSpend:
     """A sub-box's :class:`~ftc_verify.analysis.moments.sampled_taylor.FormSpend` in
     :func:`cover_box`: its form only when its expected reach is at most
-    :data:`REACH_MAX`, each form paid by ``pay`` (no third-order form when
-    ``per_third`` is None); the reach of a form that proves nothing appended to ``seen``
-    (where it is not estimated, its halves expect what it expected)."""
+    :data:`REACH_MAX`, each form paid by ``pay`` at its ``costs`` (``_costs``); the reach
+    of a form that proves nothing appended to ``seen`` (where it is not estimated, its
+    halves expect what it expected)."""
+    _, per_form, per_third, cubic = costs
     third = None if per_third is None else (lambda: pay(per_third))
-    return FormSpend(lambda: expected <= REACH_MAX and pay(per_form), third, seen.append)
+    return FormSpend(lambda: expected <= REACH_MAX and pay(per_form), third, seen.append, cubic)
 
 
 def map_split(loop: SampledLoop, h: float, lo: Matrix, hi: Matrix) -> tuple[int, ...] | None:
@@ -282,14 +278,16 @@ def _corner(lo: Matrix, hi: Matrix, worst: Matrix) -> Matrix:
 
 
 def _bulk(loop: SampledLoop, h: float, box: Box, worst: Matrix, failed: float,
-          pay: Callable[[float], bool]) -> tuple[bool | None, float]:
-    """A bulk certificate of ``box`` where :data:`BULK_MARGIN`, :data:`BULK_RETRY`
+          pay: Callable[[float], bool], wide: bool | None = None) -> tuple[bool | None, float]:
+    """A bulk certificate of ``box`` where :data:`BULK_MARGIN` (or, given ``wide``, the
+    moving enclosure's reach: too wide for the map's proofs), :data:`BULK_RETRY`
     (``failed``: the margin where one above it failed, else 0) and ``pay`` allow:
     ``(proved or None when not tried, the failed margin its halves inherit)``."""
     lo, hi, _ = box
-    floor = 1.0 - spectral_radius(loop, h, worst)
     margin = 1.0 - spectral_radius(loop, h, _corner(lo, hi, worst))
-    if margin < BULK_MARGIN * floor or margin <= BULK_RETRY * failed or not pay(cubic_work(loop, BULK_PIECES)):
+    if wide is None:
+        wide = margin >= BULK_MARGIN * (1.0 - spectral_radius(loop, h, worst))
+    if not wide or margin <= BULK_RETRY * failed or not pay(cubic_work(loop, BULK_PIECES)):
         return None, failed
     cert = cubic_stable(loop, h, BULK_PIECES, lo, hi)
     return (True, failed) if cert is not None and cert.proved else (False, margin)
@@ -378,7 +376,7 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
     given); ``proved``: sub-boxes already proved at ``h`` (by ``_key``), leaves as they are."""
     cost = 0.0 if pieces is None else cubic_work(loop, pieces)
     bulk = bulk and len(loop.chain.free_rate_indices) >= BULK_RATES
-    per_map, per_form, per_third = _costs(loop)
+    costs = _costs(loop)
     stack = list(reversed(boxes))
     leaves: list[Box] = []
     done = set(proved)
@@ -402,13 +400,13 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
         if key in done:
             leaves.append((lo, hi, depth))
             continue
-        if spent + per_map > budget:
+        if spent + costs[0] > budget:
             return None, spent, attempts, maps
-        spent += per_map
+        spent += costs[0]
         maps += 1
         expected, failed = reach.pop(key, 0.0), bulk_failed.pop(key, 0.0)
         seen: list[float] = []  # the reach of its form, when computed and not proved
-        if subbox_stable(loop, h, parts, lo, hi, spend=_spend(expected, seen, pay, per_form, per_third)):
+        if subbox_stable(loop, h, parts, lo, hi, spend=_spend(expected, seen, pay, costs)):
             leaves.append((lo, hi, depth))
             continue
         if spectral_radius(loop, h, 0.5 * (lo + hi)) >= 1.0:  # no proof can hold there: before any cubic is paid
@@ -433,7 +431,8 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
                     continue
                 maps_only.add(key)  # no certificate for its probe: map proofs (and bulk certificates) below it
         elif bulk and depth <= COVER_DEPTH:  # map proofs alone here, but a bulk certificate where the margin is wide
-            tried, failed = _bulk(loop, h, (lo, hi, depth), worst, failed, pay)
+            wide = (bool(seen) and seen[0] > REACH_MAX) if costs[3] else None  # the moving enclosure's rule
+            tried, failed = _bulk(loop, h, (lo, hi, depth), worst, failed, pay, wide)
             attempts += tried is not None
             if tried:
                 leaves.append((lo, hi, depth))
@@ -447,10 +446,9 @@ def cover_box(loop: SampledLoop, h: float, pieces: int | None, boxes: list[Box],
         if key in maps_only:
             maps_only.update({_key(first[0], first[1]), _key(second[0], second[1])})
         for child in (first, second):
-            reach[_key(child[0], child[1])] = REACH_SHRINK * (seen[0] if seen else expected)
+            reach[_key(child[0], child[1])] = 0.0 if costs[3] else REACH_SHRINK * (seen[0] if seen else expected)
             bulk_failed[_key(child[0], child[1])] = failed
-        stack.append(second)
-        stack.append(first)
+        stack.extend((second, first))
     return leaves, spent, attempts, maps
 
 
@@ -524,7 +522,8 @@ def cover_h_max(loop: SampledLoop, h_max: float, h_max_unstable: float, work: fl
     best: tuple[float, int, int | None] | None = None
     rungs: list[tuple[float, bool]] = []
     worst = worst_vertex(loop, h_max_unstable, rate_points(loop.chain))[1]
-    pieces, hopeless = PIECES[0], 0.0  # no pieces proved the probe at distance `hopeless`: none will closer
+    cubic = _costs(loop)[3]  # the moving enclosure's route: no rung pieces, bulk certificates where it is too wide
+    pieces, hopeless = PIECES[0], math.inf if cubic else 0.0  # no pieces proved the probe at `hopeless`: none will closer
     todo, last, failed = list(cover_rungs(gap, rtol)), gap, None
     while todo:
         f = todo.pop(0)

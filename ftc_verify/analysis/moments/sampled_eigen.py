@@ -117,7 +117,7 @@ from .sampled import SampledLoop
 from .sampled_second import quadratic_max
 from .sampled_taylor import float_pd, stack_pd
 
-__all__ = ["Expansion", "expansion", "eigen_stable", "eigen_radius_bound", "enclosure_reach", "EIGEN_ITERATIONS"]
+__all__ = ["Expansion", "expansion", "eigen_stable", "eigen_radius_bound", "enclosure_reach", "centre_in_cone", "EIGEN_ITERATIONS"]
 
 _U = 2.0 ** -53
 _ETA = 2.0 ** -1022
@@ -313,22 +313,28 @@ def eigen_radius_bound(form: tuple[Matrix, ...], states: int, r: int) -> float |
     if e is None:
         return None
     z = _enclosure(Tc, Tl, Tq, Tr, e)
-    if z is None:
-        return None
-    # the centre alone: the same choices without the rates
-    empty = np.zeros((0, N, N))
-    z0 = _enclosure(Tc, empty, empty, Tr, e.centre())
-    if z0 is None or not np.all(z0 <= z):
-        return None
-    flint = _flint()
-    arb = flint.arb
-    yrad = _up(z0[:N], 1)
-    if not (float_pd(e.v0, states, r)
-            and stack_pd(flint.arb_mat(N, 1, [arb(float(x), float(q)) for x, q in zip(e.v0, yrad)]), states, r)):
+    if z is None or not centre_in_cone(Tc, Tr, e, z, states, r):
         return None
     phi = quadratic_max(e.lam_l, e.lam_q)
     top = e.lam0 + phi + float(z[N])
     return top * (1 + 4 * _U) if math.isfinite(top) else None
+
+
+def centre_in_cone(Tc: Matrix, Tr: Matrix, e: Expansion, z: Matrix, states: int, r: int) -> bool:
+    r"""The enclosure's step at the sub-box's centre (module docstring, "Stable"): the
+    same choices without the rates give :math:`\zeta^0 \le \zeta` (``z``) for the maps
+    :math:`T_c + E`, :math:`|E| \le T_r`, and every stack :math:`v_0 + y`, :math:`|y| \le
+    \zeta^0_y`, is positive definite in every joint state (proved in ball arithmetic)."""
+    N = Tc.shape[0]
+    empty = np.zeros((0, N, N))
+    z0 = _enclosure(Tc, empty, empty, Tr, e.centre())
+    if z0 is None or not np.all(z0 <= z):
+        return False
+    flint = _flint()
+    arb = flint.arb
+    yrad = _up(z0[:N], 1)
+    return bool(float_pd(e.v0, states, r)
+                and stack_pd(flint.arb_mat(N, 1, [arb(float(x), float(q)) for x, q in zip(e.v0, yrad)]), states, r))
 
 
 def enclosure_reach(form: tuple[Matrix, ...]) -> float | None:

@@ -359,12 +359,18 @@ class FormSpend:
     (each computed only on ``True``, the caller's budget charged there; ``third`` None:
     never, and nothing is estimated for it), and ``reach`` is
     told :func:`~ftc_verify.analysis.moments.sampled_eigen.enclosure_reach` of the
-    second-order form when every proof of it failed (when estimated). Without one the
-    form is always computed and the third-order form never."""
+    second-order form when every proof of it failed (when estimated). With ``cubic``, the
+    form ``second`` is asked for is the third-order one with its signed terms
+    (:func:`~ftc_verify.analysis.moments.cubic_balls.cubic_terms`, where
+    :func:`~ftc_verify.analysis.moments.cubic_balls.cubic_forms` allows it), proved by
+    :func:`~ftc_verify.analysis.moments.sampled_eigen3.cubic_radius_bound` alone, and
+    ``reach`` is told that enclosure's reach when it proves nothing.
+    Without one the form is always computed and the third-order form never."""
 
     second: Callable[[], bool]
     third: Callable[[], bool] | None
     reach: Callable[[float], None]
+    cubic: bool = False
 
 
 def affine_stable(loop: SampledLoop, parts: Any, lo: Matrix, hi: Matrix,
@@ -392,8 +398,11 @@ def affine_stable(loop: SampledLoop, parts: Any, lo: Matrix, hi: Matrix,
     (:class:`FormSpend`), which also decides whether anything is tried here at all
     (``False`` when it declines: neither the form nor, in
     :func:`~ftc_verify.analysis.moments.sampled_proof.subbox_stable`, the proofs tried
-    where no form applies)."""
-    from .cubic_balls import cubic_forms, cubic_map
+    where no form applies). Where ``spend.cubic`` says so (and
+    :func:`~ftc_verify.analysis.moments.cubic_balls.cubic_forms` allows), the form is
+    instead the third-order one with its signed terms, proved by
+    :func:`~ftc_verify.analysis.moments.sampled_eigen3.cubic_radius_bound` alone."""
+    from .cubic_balls import cubic_forms, cubic_map, cubic_terms
     from .fast_balls import aff_map
     from .quad_balls import pairs, quad_map
 
@@ -406,6 +415,16 @@ def affine_stable(loop: SampledLoop, parts: Any, lo: Matrix, hi: Matrix,
         return None
     res, modes, lift, h = parts.floats
     K = len(found[1])
+    if spend is not None and spend.cubic and cubic_forms(K, modes[0].shape[0]):
+        from .sampled_eigen3 import cubic_radius_bound
+
+        terms = cubic_terms(res, modes, found[0], found[1], h, lift)
+        bound = None if terms is None else cubic_radius_bound(terms, loop.states, loop.r)
+        if bound is not None and bound.top is not None and bound.top < 1.0:
+            return True
+        if bound is not None and bound.reach is not None:
+            spend.reach(bound.reach)
+        return False
     second = quadratic_forms(K, modes[0].shape[0])
     form = quad_map(res, modes, found[0], found[1], h, lift) if second else None
     if form is None:
