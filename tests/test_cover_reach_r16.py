@@ -33,10 +33,12 @@ def test_spend_asks_for_forms_only_where_expected() -> None:
         return True
 
     seen: list[float] = []
-    assert not _spend(1.01 * REACH_MAX, seen, pay, 7.0, 11.0).second() and paid == []
-    spend = _spend(REACH_MAX, seen, pay, 7.0, 11.0)
+    assert not _spend(1.01 * REACH_MAX, seen, pay, (3.0, 7.0, 11.0, False)).second() and paid == []
+    spend = _spend(REACH_MAX, seen, pay, (3.0, 7.0, 11.0, False))
     assert spend.second() and spend.third is not None and spend.third() and paid == [7.0, 11.0]
-    assert _spend(REACH_MAX, seen, pay, 7.0, None).third is None  # a third-order form never paid
+    assert not spend.cubic
+    assert _spend(REACH_MAX, seen, pay, (3.0, 7.0, None, False)).third is None  # a third-order form never paid
+    assert _spend(REACH_MAX, seen, pay, (3.0, 7.0, None, True)).cubic  # the moving enclosure's route
     spend.reach(2.5)
     assert seen == [2.5]
     assert 0 < REACH_SHRINK < 1
