@@ -23,8 +23,8 @@ m = 3`` loop: 1.5e-3 below the crossing, its worst vertex 5e-4; ``h31r.md``).
 (where :func:`~ftc_verify.analysis.moments.cubic_balls.cubic_forms` allows), a
 sub-box's form is the third-order one proved by
 :func:`~ftc_verify.analysis.moments.sampled_eigen3.cubic_radius_bound`: at six rates it
-proves sub-boxes 4 to 16 times wider per rate near the worst vertex than the
-second-order enclosure (``benchmarks/results/eig19.md``). There the rungs have no
+proves sub-boxes at the worst vertex 4 times wider in four rates than the second-order
+enclosure (``benchmarks/results/eig19.md``). There the rungs have no
 pieces: each sub-box is tried by its map's proof, then, where its enclosure did not
 contract (reach above :data:`REACH_MAX`), by a bulk certificate (below), and else halved
 by :func:`map_split`. Elsewhere the search below.
@@ -91,9 +91,9 @@ import numpy as np
 
 from ...model.system import Matrix
 from ..rigorous import precision
+from .cubic_balls import cubic_forms
 from .sampled import SampledLoop, rate_points, spectral_radius
 from .sampled_bracket import box_work, envelope_work, third_order_work, worst_vertex
-from .cubic_balls import cubic_forms
 from .sampled_cubic import cubic_size, cubic_stable
 from .sampled_proof import MapParts, split_rate, subbox_stable
 from .sampled_taylor import FormSpend
