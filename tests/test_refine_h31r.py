@@ -212,7 +212,7 @@ def test_refine_result_only_when_wider_than_rtol(monkeypatch: pytest.MonkeyPatch
     wide = dataclasses.replace(base, h_max=PAPER_UNSTABLE * 0.96, h_max_note="wide")
     got = refine_result(system, controller, wide, 1e9)
     assert got.h_max == pytest.approx(PAPER_UNSTABLE * 0.9991) and "refinement (--h-max-work" in got.h_max_note
-    assert "by 1 sub-box(es), each by its one-period map or 4 cubic pieces" in got.h_max_note
+    assert "by 1 sub-box(es), each by its one-period map or a cubic clock certificate" in got.h_max_note
     none = dataclasses.replace(base, h_max=None, h_max_note="not proved")
     # the probe, then the box, with half the budget left (RUNG_SHARE)
     got = refine_result(system, controller, none, cubic_work(_paper(), 2) * 3.5)

@@ -91,7 +91,7 @@ def refine_result(system: FTCSystem, controller: Controller, result: SampledResu
         hm = 0.5 * hu
     base = SampledLoop.of(system, controller, loop)
     ref = cover_h_max(conditioned(dataclasses.replace(base, written=(float(result.period),))), hm, hu, work, rtol)
-    how = "one-period map" if ref.pieces is None else f"one-period map or {ref.pieces} cubic pieces"
+    how = "one-period map" if ref.attempts == 0 else "one-period map or a cubic clock certificate"
     note = (f"{_NOTE_HEAD}--h-max-work {work:g}): {ref.attempts} cubic clock certificate(s), {ref.maps} sub-box map "
             f"proof(s), {ref.work:.0f} units, " + ("no closer period proved" if ref.h_max is None else
                                                    f"proved stable over the rate box at {period_text(ref.h_max, down=True)} "
