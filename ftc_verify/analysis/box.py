@@ -31,7 +31,8 @@ the user wrote it (:func:`~ftc_verify.analysis.exact.exact_loop`, the rates by
 float solution is not positive definite: then :math:`\mu(c) \ge 0` in float64) by
 :meth:`~ftc_verify.analysis.verdict.StabilityProver.certify`, with a proved enclosure of
 the abscissa there when one is found. A caller that knows a rate vector with
-:math:`\mu \ge 0` in float64 (the vertex search's worst, ``suspect``) has it tried
+:math:`\mu \ge 0` in float64, or too close to 0 for float64 to tell
+(:data:`SUSPECT_MARGIN`; the vertex search's worst, ``suspect``), has it tried
 first: a loop unstable at a vertex of a wide box, with stable centres, had the whole
 budget spent proving sub-boxes stable and was answered "undecided". Only the proof
 counts; when it fails the branch and bound runs as without it (within the same budget:
@@ -81,13 +82,18 @@ from .exact import ball_generator, ball_matrices, exact_loop, literals_of, writt
 from .rigorous import Ball, ball, precision, proven_positive_definite, proven_positive_definite_cholesky
 from .verdict import SOLVE_LIMIT, StabilityProver, ball_lyapunov_solution, float_stack_solution
 
-__all__ = ["BOX_BUDGET_SECONDS", "MAX_BOXES", "MIN_RELATIVE_WIDTH", "ROOT_LMI_DEFERRED", "RegionVerdict",
+__all__ = ["BOX_BUDGET_SECONDS", "SUSPECT_MARGIN", "MAX_BOXES", "MIN_RELATIVE_WIDTH", "ROOT_LMI_DEFERRED", "RegionVerdict",
            "BoxVerdict", "box_stability"]
 
 #: Budget of the branch and bound, the point proofs included, in CPU seconds
 #: (:func:`~ftc_verify.limits.cpu_clock`: the verdict depends much less on the machine's
 #: load than with a wall-clock budget).
 BOX_BUDGET_SECONDS = 60.0
+#: A negative float64 abscissa within this fraction of the largest conditioned mode's norm
+#: does not rule the worst vertex out: its instability proof is tried first
+#: (``illcond_marg1323``, written abscissa +5e-12: -1.0e-5 on one machine's OpenBLAS,
+#: +1.6e-11 on another; the proof counts, not the estimate).
+SUSPECT_MARGIN = 1e-4
 #: The reason of an "undecided" verdict returned by ``box_stability(root_lmi=False)`` when
 #: the whole box's centre candidate fails and its LMI is left to the caller.
 ROOT_LMI_DEFERRED = ("the centre's P misses a vertex of the box; the whole box's Theorem 3.1 LMI is left to the "

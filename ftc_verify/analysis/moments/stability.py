@@ -34,7 +34,7 @@ import scipy.linalg
 
 from ..closedloop import ClosedLoop
 from ..conditioning import Similarity, conditioning_transform
-from ..box import BOX_BUDGET_SECONDS, RegionVerdict, box_stability
+from ..box import BOX_BUDGET_SECONDS, SUSPECT_MARGIN, RegionVerdict, box_stability
 from ...model.system import Matrix
 from .vech import dense_solve, duplication_matrix, lyapunov_vech, second_moment_matrix, unvech_stack, vech_order
 
@@ -482,8 +482,8 @@ def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256,
     :func:`abscissa_below` shows below the worst value so far needs no eigenvalues, the
     others get :func:`abscissa_near` (:func:`spectral_abscissa` at the first vertex, when that
     fails, and where the chain has several :func:`communicating_classes`: it stalls there).
-    The box proof starts at the worst vertex found when its abscissa is not negative (an
-    instability proof there); one it finds elsewhere raises the estimate to it."""
+    The box proof starts at the worst vertex found when its abscissa is not negative
+    beyond :data:`~ftc_verify.analysis.box.SUSPECT_MARGIN` (an instability proof there); one it finds elsewhere raises the estimate to it."""
     sim = conditioning_transform(loop.nominal())
     nominal = sim.apply(loop.nominal())
     chain, norms = loop.chain, [float(np.linalg.norm(a, 2)) for a in nominal.A]  # norms: the shift test's margin
@@ -522,7 +522,7 @@ def mean_square_stability(loop: ClosedLoop, *, max_vertices: int = 256,
         """The float estimate over the vertices evaluated and the verdict over the box."""
         estimate, where = exact[worst], vertex(worst)
         box = box_stability(loop, sim, budget_seconds=budget_seconds, root_lmi=root_lmi,
-                            suspect=where if estimate >= 0.0 else None)
+                            suspect=where if estimate >= -SUSPECT_MARGIN * max(norms, default=1.0) else None)
         witness = box.witness
         if witness is not None and witness.estimate is not None and witness.estimate > estimate:
             estimate, where = witness.estimate, witness.rate_min
