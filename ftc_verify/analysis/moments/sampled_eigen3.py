@@ -109,14 +109,14 @@ def cubic_max(lin: Matrix, quad: Matrix, cub: Matrix, max_boxes: int = 400, rtol
     \sum_{a \ne b} |H_{ab}| h_a h_b + \sum_a \max(H_{aa}, 0) h_a^2 + \sum_t |c_t| h_a h_b
     h_e`; the box of the largest bound is halved along its widest side until that bound
     is within ``rtol`` times :math:`\sum |l| + \sum |q| + \sum |c|` of the best centre
-    value or ``max_boxes`` are split. Every bound is inflated by :math:`10^{-12}` times
-    that sum (the float evaluation's rounding, at most :math:`8 K^3 u` of it for the
-    :math:`K \le 8` rates of a third-order form)."""
+    value or ``max_boxes`` are split. Every bound is inflated by :math:`\max(10^{-12}, 16
+    K^3 u)` times that sum (the float evaluation's rounding is at most :math:`8 K^3 u` of
+    it)."""
     K = lin.shape[0]
     scale = float(np.abs(lin).sum() + np.abs(quad).sum() + np.abs(cub).sum())
     if scale == 0.0:
         return 0.0
-    slack = 1e-12 * scale
+    slack = max(1e-12, 16 * K ** 3 * _U) * scale
     Q = np.zeros((K, K))
     for k, (a, b) in enumerate(pairs(K)):
         Q[a, b] += 0.5 * quad[k]
