@@ -74,3 +74,17 @@ def vertex_corner(loop: SampledLoop, v: np.ndarray, width: float) -> tuple[np.nd
         else:
             lo[r] = hi[r] - w
     return lo, hi
+
+
+def vertex_exponents(loop: SampledLoop, v: np.ndarray, exponents: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """The sub-box at the vertex ``v`` with ``2^-k`` of each free rate's range, ``k`` from
+    ``exponents`` in the order of the free rates."""
+    chain = loop.chain
+    lo, hi = np.array(chain.rate_min, dtype=float), np.array(chain.rate_max, dtype=float)
+    for r, k in zip(chain.free_rate_indices, exponents):
+        w = (chain.rate_max[r] - chain.rate_min[r]) * 2.0 ** -k
+        if v[r] == chain.rate_min[r]:
+            hi[r] = lo[r] + w
+        else:
+            lo[r] = hi[r] - w
+    return lo, hi

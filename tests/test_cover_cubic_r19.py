@@ -14,10 +14,10 @@ third-order form."""
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 from moved_loops import Units, moved
+from sampled_forms import vertex_exponents
 
 from ftc_verify.analysis.moments import cubic_balls, sampled_cover
 from ftc_verify.analysis.moments.sampled import SampledLoop, crossing
@@ -62,14 +62,7 @@ def test_cover_by_the_moving_enclosure_in_every_frame(monkeypatch: pytest.Monkey
 
 def test_a_vertex_box_of_held_out_seed_13_is_one_leaf(monkeypatch: pytest.MonkeyPatch) -> None:
     loop, h, worst = held_out_rung(9e-4)
-    chain = loop.chain
-    lo, hi = np.array(chain.rate_min, dtype=float), np.array(chain.rate_max, dtype=float)
-    for r, k in zip(chain.free_rate_indices, (2, 2, 2, 4, 4, 2)):
-        w = (chain.rate_max[r] - chain.rate_min[r]) * 2.0 ** -k
-        if worst[r] == chain.rate_min[r]:
-            hi[r] = lo[r] + w
-        else:
-            lo[r] = hi[r] - w
+    lo, hi = vertex_exponents(loop, worst, (2, 2, 2, 4, 4, 2))
     box = [(lo, hi, 8)]
     leaves, units, attempts, maps = cover_box(loop, h, None, box, 1e12, worst, bulk=False)
     assert leaves is not None and len(leaves) == 1 and maps == 1 and attempts == 0
@@ -97,14 +90,7 @@ def test_no_bulk_certificate_where_the_enclosure_contracts() -> None:
     missing is margin, which halving gives): the budget could pay a program, none is
     tried."""
     loop, h, worst = held_out_rung(9e-4)
-    chain = loop.chain
-    lo, hi = np.array(chain.rate_min, dtype=float), np.array(chain.rate_max, dtype=float)
-    for r, k in zip(chain.free_rate_indices, (1, 1, 1, 4, 4, 1)):
-        w = (chain.rate_max[r] - chain.rate_min[r]) * 2.0 ** -k
-        if worst[r] == chain.rate_min[r]:
-            hi[r] = lo[r] + w
-        else:
-            lo[r] = hi[r] - w
+    lo, hi = vertex_exponents(loop, worst, (1, 1, 1, 4, 4, 1))
     one = envelope_work(loop) + third_order_work(loop)
     budget = one + sampled_cover.cubic_work(loop, sampled_cover.BULK_PIECES)
     _, _, attempts, maps = cover_box(loop, h, None, [(lo, hi, 10)], budget, worst)

@@ -19,7 +19,7 @@ import scipy.optimize
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sampled_forms import second_order_form, seed1_crossing, third_order_form, vertex_corner
+from sampled_forms import second_order_form, seed1_crossing, third_order_form, vertex_corner, vertex_exponents
 from ftc_verify.analysis.moments.cubic_balls import triples
 from ftc_verify.analysis.moments.quad_balls import pairs
 from ftc_verify.analysis.moments.sampled import SampledLoop, spectral_radius
@@ -172,14 +172,7 @@ def test_held_out_seed_13_vertex_box() -> None:
     radius moves): the second-order enclosure proves nothing, this one proves it, above
     the float64 radius at 80 of its rate arrays (seed 7)."""
     loop, h, worst = held_out_rung(9e-4)
-    chain = loop.chain
-    lo, hi = np.array(chain.rate_min, dtype=float), np.array(chain.rate_max, dtype=float)
-    for r, k in zip(chain.free_rate_indices, (2, 2, 2, 4, 4, 2)):
-        w = (chain.rate_max[r] - chain.rate_min[r]) * 2.0 ** -k
-        if worst[r] == chain.rate_min[r]:
-            hi[r] = lo[r] + w
-        else:
-            lo[r] = hi[r] - w
+    lo, hi = vertex_exponents(loop, worst, (2, 2, 2, 4, 4, 2))
     second = eigen_radius_bound(second_order_form(loop, h, lo, hi), loop.states, loop.r)
     assert second is None or second >= 1.0
     top = cubic_radius_bound(third_order_form(loop, h, lo, hi), loop.states, loop.r).top

@@ -106,6 +106,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -117,7 +118,7 @@ from .sampled import SampledLoop
 from .sampled_second import quadratic_max
 from .sampled_taylor import float_pd, stack_pd
 
-__all__ = ["Expansion", "expansion", "eigen_stable", "eigen_radius_bound", "enclosure_reach", "centre_in_cone", "EIGEN_ITERATIONS"]
+__all__ = ["Expansion", "expansion", "eigen_stable", "eigen_radius_bound", "enclosure_reach", "centre_in_cone", "fixed_box", "EIGEN_ITERATIONS"]
 
 _U = 2.0 ** -53
 _ETA = 2.0 ** -1022
@@ -277,11 +278,21 @@ def _enclosure(Tc: Matrix, Tl: Matrix, Tq: Matrix, Tr: Matrix, e: Expansion) -> 
         zy, zm = z[:N], float(z[N])
         return _up(C @ z + lin @ zy + zm * mu + quad * zm * (aRy @ zy), 2 * N + 8)
 
+    return fixed_box(base, step)
+
+
+def fixed_box(base: Matrix, step: Callable[[Matrix, float], Matrix]) -> Matrix | None:
+    r"""The enclosure's radius :math:`\zeta` by iteration from ``base`` (an upper bound of
+    :math:`|\Phi(0)|`): on the box :math:`|z| \le` ``z``, ``step(z, 1)`` bounds
+    :math:`|\Phi(z) - \Phi(0)|` and ``step(z, 2)`` bounds :math:`L z`, :math:`L` a
+    Lipschitz matrix of :math:`\Phi`; returned once ``base + step(z, 1)
+    < z`` (into itself) and ``step(z, 2) < z`` (Lipschitz with a matrix of radius below
+    one) in every entry, each round inflating ``z`` by 5 %; ``None`` after
+    :data:`EIGEN_ITERATIONS` rounds or an overflow."""
     z = base + 1e-300
     with np.errstate(over="ignore", invalid="ignore"):
         for _ in range(EIGEN_ITERATIONS):
             nz = _up(base + step(z, 1.0), 1)
-            # into itself, and Lipschitz with a matrix L, L z < z (its radius below one)
             if np.all(nz < z) and np.all(step(z, 2.0) < z):
                 return z
             z = np.maximum(nz, z) * 1.05 + 1e-300

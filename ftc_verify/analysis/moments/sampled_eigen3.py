@@ -67,7 +67,6 @@ values. Every float operation's rounding is bounded as in
 
 from __future__ import annotations
 
-import heapq
 import itertools
 import math
 from dataclasses import dataclass
@@ -78,7 +77,8 @@ from ...model.system import Matrix
 from .cubic_balls import triples
 from .fast_balls import up_bound as _up
 from .quad_balls import pairs
-from .sampled_eigen import EIGEN_ITERATIONS, Expansion, centre_in_cone, expansion
+from .sampled_eigen import Expansion, centre_in_cone, expansion, fixed_box
+from .sampled_second import box_maximum
 
 __all__ = ["CubicBound", "cubic_max", "cubic_radius_bound"]
 
@@ -137,25 +137,7 @@ def cubic_max(lin: Matrix, quad: Matrix, cub: Matrix, max_boxes: int = 400, rtol
         cubic = float(np.einsum("abc,a,b,c->", absC, h, h, h))
         return value + float(np.abs(g) @ h + h @ off @ h + np.maximum(np.diag(H), 0.0) @ (h * h)) + cubic + slack, value
 
-    m0, h0 = np.zeros(K), np.ones(K)
-    ub, best = bound(m0, h0)
-    heap = [(-ub, 0, m0, h0)]
-    count = 1
-    for _ in range(max_boxes):
-        neg, _, m, h = heap[0]
-        if -neg - best <= rtol * scale:
-            break
-        heapq.heappop(heap)
-        a = int(np.argmax(h))
-        for sign in (-0.5, 0.5):
-            mc, hc = m.copy(), h.copy()
-            hc[a] = 0.5 * h[a]
-            mc[a] = m[a] + sign * h[a]
-            u, v = bound(mc, hc)
-            best = max(best, v)
-            heapq.heappush(heap, (-u, count, mc, hc))
-            count += 1
-    return -heap[0][0]
+    return box_maximum(bound, K, max_boxes, rtol * scale)
 
 
 def _low(Tc: Matrix, Tl: Matrix, Tq: Matrix, e: Expansion, g: float) -> Matrix:
@@ -275,28 +257,6 @@ def _parts(form: tuple[Matrix, ...], e: Expansion) -> tuple[Matrix, Matrix, Matr
     return lam_t, base, L, aS
 
 
-def _enclose(base: Matrix, L: Matrix, aS: Matrix) -> Matrix | None:
-    r""":math:`\zeta` (``N + 1`` entries, the last :math:`\zeta_\mu`) with :math:`\Phi`
-    mapping :math:`|z| \le \zeta` into itself and contracting there, for every
-    :math:`\delta` and map of the form's set; ``None`` when none is found in
-    :data:`~ftc_verify.analysis.moments.sampled_eigen.EIGEN_ITERATIONS` rounds."""
-    N = base.shape[0] - 1
-
-    def step(z: Matrix, quad: float) -> Matrix:
-        return _up(L @ z + quad * float(z[N]) * (aS @ z[:N]), 2 * N + 8)
-
-    z = base + 1e-300
-    with np.errstate(over="ignore", invalid="ignore"):
-        for _ in range(EIGEN_ITERATIONS):
-            nz = _up(base + step(z, 1.0), 1)
-            if np.all(nz < z) and np.all(step(z, 2.0) < z):
-                return z
-            z = np.maximum(nz, z) * 1.05 + 1e-300
-            if not np.all(np.isfinite(z)):
-                return None
-    return None
-
-
 def cubic_radius_bound(form: tuple[Matrix, ...], states: int, r: int) -> CubicBound:
     r"""An upper bound of :math:`\rho(T(\delta))` over every :math:`\delta \in [-1,
     1]^K` of the third-order form ``form`` (``(Tc, Tl, Tq, Tt, Tr)``,
@@ -318,7 +278,10 @@ def cubic_radius_bound(form: tuple[Matrix, ...], states: int, r: int) -> CubicBo
         lam_t, base, L, aS = _parts(form, e)
     finite = bool(np.all(np.isfinite(L)) and np.all(np.isfinite(base)))
     reach = float(np.max(np.abs(np.linalg.eigvals(L)))) if finite else math.inf
-    z = _enclose(base, L, aS) if finite else None
+    def step(z: Matrix, quad: float) -> Matrix:
+        return _up(L @ z + quad * float(z[N]) * (aS @ z[:N]), 2 * N + 8)
+
+    z = fixed_box(base, step) if finite else None
     if z is None or not centre_in_cone(Tc, Tr, e, z, states, r):
         return CubicBound(None, reach)
     top = e.lam0 + cubic_max(e.lam_l, e.lam_q, lam_t) + float(z[N])

@@ -97,6 +97,7 @@ from __future__ import annotations
 import heapq
 import itertools
 import math
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -107,7 +108,7 @@ from .quad_balls import pairs
 from .sampled import SampledLoop
 from .sampled_taylor import float_choices, float_pd, left_perron, stack_pd
 
-__all__ = ["quadratic_max", "second_order_choices", "certify_second_order", "SHIFT_BACK"]
+__all__ = ["quadratic_max", "box_maximum", "second_order_choices", "certify_second_order", "SHIFT_BACK"]
 
 _U = 2.0 ** -53
 _ETA = 2.0 ** -1022
@@ -153,13 +154,22 @@ def quadratic_max(lin: Matrix, quad: Matrix, max_boxes: int = 400, rtol: float =
         g = lin + 2.0 * Q @ m
         return value + float(np.abs(g) @ h + h @ absQ @ h + diag_pos @ (h * h)) + slack, value
 
+    return box_maximum(bound, K, max_boxes, rtol * scale)
+
+
+def box_maximum(bound: Callable[[Matrix, Matrix], tuple[float, float]], K: int, max_boxes: int, tol: float) -> float:
+    """Branch and bound over :math:`[-1, 1]^K`: ``bound(m, h)`` gives an upper bound of a
+    function on the box of centre ``m`` and half-widths ``h`` and its value at ``m``; the
+    box of the largest bound is halved along its widest side until that bound is within
+    ``tol`` of the best centre value or ``max_boxes`` boxes are split. Returns the largest
+    bound left (an upper bound of the maximum whenever ``bound`` is one)."""
     m0, h0 = np.zeros(K), np.ones(K)
     ub, best = bound(m0, h0)
     heap = [(-ub, 0, m0, h0)]
     count = 1
     for _ in range(max_boxes):
         neg, _, m, h = heap[0]
-        if -neg - best <= rtol * scale:
+        if -neg - best <= tol:
             break
         heapq.heappop(heap)
         a = int(np.argmax(h))
