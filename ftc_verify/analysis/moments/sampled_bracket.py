@@ -34,7 +34,7 @@ from .sampled_clock import clock_size, clock_stable
 from .sampled_proof import box_verdict, prove_point_unstable
 
 __all__ = ["LADDER", "COARSE", "TIGHT", "BRACKET_WORK", "CLOCK_LADDER", "CLOCK_FALLBACK", "CLOCK_SPLIT", "CLOCK_PIECES", "CLOCK_SIZE", "CLOCK_WORK",
-           "box_work", "envelope_work", "third_order_work", "prove_below", "clock_below", "worst_vertex", "period_worst", "worst_crossing", "h_max_bracket"]
+           "generator_rows", "box_work", "envelope_work", "third_order_work", "prove_below", "clock_below", "worst_vertex", "period_worst", "worst_crossing", "h_max_bracket"]
 
 #: Relative distances below the crossing tried after the tight one fails, easy first.
 LADDER = (0.1, 0.03, 0.01, 3e-3)
@@ -82,6 +82,13 @@ CLOCK_WORK = 1000.0
 BRACKET_WORK = 3000.0
 
 
+def generator_rows(loop: SampledLoop) -> int:
+    """``N``: the rows of the moment generator inside a period, joint states times
+    ``d (d + 1) / 2`` (``d`` the augmented state's dimension), the size the work units
+    are calibrated on."""
+    return loop.states * loop.d * (loop.d + 1) // 2
+
+
 def box_work(loop: SampledLoop) -> float:
     """The work units one sub-box proof is charged, from the problem's sizes only (so the
     bracket is the same on every machine and under any load): ``5 + 3e-6 N^3 t`` with
@@ -100,7 +107,7 @@ def box_work(loop: SampledLoop) -> float:
     from .sampled_taylor import quadratic_forms
 
     K = len(loop.chain.free_rate_indices)
-    N = loop.states * loop.d * (loop.d + 1) // 2
+    N = generator_rows(loop)
     t = 1 + K + (K * (K + 1) / 4 if quadratic_forms(K, N) else 0)
     return 5.0 + 3e-6 * N ** 3 * t
 
@@ -111,7 +118,7 @@ def envelope_work(loop: SampledLoop) -> float:
     :func:`~ftc_verify.analysis.moments.sampled_cover.cover_box`): ``5 + 3e-6 N^3``, one
     product's worth for the upper envelope's map and the midpoint's (measured 0.005-0.05
     CPU s at ``N = 189``, ``benchmarks/results/split16.md``)."""
-    N = loop.states * loop.d * (loop.d + 1) // 2
+    N = generator_rows(loop)
     return 5.0 + 3e-6 * N ** 3
 
 
@@ -124,7 +131,7 @@ def third_order_work(loop: SampledLoop) -> float:
     ``K = 6``): 0.72 CPU s for the form and the enclosure against 0.35 for the
     second-order form, 567 units (``benchmarks/results/split16.md``)."""
     K = len(loop.chain.free_rate_indices)
-    N = loop.states * loop.d * (loop.d + 1) // 2
+    N = generator_rows(loop)
     return 3e-6 * N ** 3 * K * (K + 1) * (K + 2) / 12
 
 

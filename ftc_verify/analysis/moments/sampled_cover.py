@@ -93,7 +93,7 @@ from ...model.system import Matrix
 from ..rigorous import precision
 from .cubic_balls import cubic_forms
 from .sampled import SampledLoop, rate_points, spectral_radius
-from .sampled_bracket import box_work, envelope_work, third_order_work, worst_vertex
+from .sampled_bracket import box_work, envelope_work, generator_rows, third_order_work, worst_vertex
 from .sampled_cubic import cubic_size, cubic_stable
 from .sampled_proof import MapParts, split_rate, subbox_stable
 from .sampled_taylor import FormSpend
@@ -157,7 +157,7 @@ def _costs(loop: SampledLoop) -> tuple[float, float, float | None, bool]:
     after it; module docstring, "Where forms are computed")."""
     per_map, third = envelope_work(loop), third_order_work(loop)
     K = len(loop.chain.free_rate_indices)
-    if K >= CUBIC_RATES and cubic_forms(K, loop.states * loop.d * (loop.d + 1) // 2):
+    if K >= CUBIC_RATES and cubic_forms(K, generator_rows(loop)):
         return per_map, third, None, True
     per_form = box_work(loop) - per_map
     return per_map, per_form, third if third <= per_form else None, False

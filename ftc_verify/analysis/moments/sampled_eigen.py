@@ -118,7 +118,7 @@ from .sampled import SampledLoop
 from .sampled_second import quadratic_max
 from .sampled_taylor import float_pd, stack_pd
 
-__all__ = ["Expansion", "expansion", "eigen_stable", "eigen_radius_bound", "enclosure_reach", "centre_in_cone", "fixed_box", "EIGEN_ITERATIONS"]
+__all__ = ["Expansion", "expansion", "eigen_stable", "eigen_radius_bound", "enclosure_reach", "centre_in_cone", "fixed_box", "low_residual", "EIGEN_ITERATIONS"]
 
 _U = 2.0 ** -53
 _ETA = 2.0 ** -1022
@@ -204,6 +204,35 @@ def expansion(Tc: Matrix, Tl: Matrix, Tq: Matrix) -> Expansion | None:
     return out if all(np.all(np.isfinite(x)) for x in dataclasses.astuple(out)) else None
 
 
+def low_residual(Tc: Matrix, Tl: Matrix, Tq: Matrix, e: Expansion, g: float) -> Matrix:
+    r"""An upper bound (before rounding up) of :math:`|R_y r|` summed over the
+    coefficients :math:`r` of :math:`G(0)` of degrees 0, 1 and 2 (module docstring): the
+    float residuals' products with :math:`R_y`, plus ``g`` (a rounding factor covering
+    inner products of length ``N``) times their magnitudes; ``Tq`` may be empty."""
+    N, K = Tc.shape[0], Tl.shape[0]
+    lam0, v0, lam_l, Vl, lam_q, Vq = e.lam0, e.v0, e.lam_l, e.Vl, e.lam_q, e.Vq
+    aTc, av0, aVl, aVq = np.abs(Tc), np.abs(v0), np.abs(Vl), np.abs(Vq)
+    res = [Tc @ v0 - lam0 * v0]
+    mag = aTc @ av0 + abs(lam0) * av0
+    for a in range(K):
+        res.append(Tc @ Vl[a] + Tl[a] @ v0 - lam0 * Vl[a] - lam_l[a] * v0)
+        mag = mag + aTc @ aVl[a] + np.abs(Tl[a]) @ av0 + abs(lam0) * aVl[a] + abs(lam_l[a]) * av0
+    for k, (a, b) in enumerate(pairs(K)):
+        q = Tc @ Vq[k] - lam0 * Vq[k] - lam_q[k] * v0
+        m = aTc @ aVq[k] + abs(lam0) * aVq[k] + abs(lam_q[k]) * av0
+        if Tq.shape[0]:
+            q = q + Tq[k] @ v0
+            m = m + np.abs(Tq[k]) @ av0
+        for x, y in (((a, b), (b, a)) if a != b else ((a, a),)):
+            q = q + Tl[x] @ Vl[y] - lam_l[x] * Vl[y]
+            m = m + np.abs(Tl[x]) @ aVl[y] + abs(lam_l[x]) * aVl[y]
+        res.append(q)
+        mag = mag + m
+    Ry = e.R[:, :N]
+    stack = np.stack(res, axis=1)
+    return np.abs(Ry @ stack).sum(axis=1) + g * (np.abs(Ry) @ (np.abs(stack).sum(axis=1) + mag))
+
+
 def _parts(Tc: Matrix, Tl: Matrix, Tq: Matrix, Tr: Matrix, e: Expansion) -> tuple[Matrix, Matrix, Matrix]:
     r"""``(base, lin, mu)``: upper bounds of :math:`|R\, (G(0), 0)|`, of the matrix
     :math:`\sum_a |R_y (T_a - \lambda_a I)| + \sum_p |R_y (T_p - \lambda_p I)| + |R_y| T_r`
@@ -216,32 +245,14 @@ def _parts(Tc: Matrix, Tl: Matrix, Tq: Matrix, Tr: Matrix, e: Expansion) -> tupl
     u, N, K = _U, Tc.shape[0], Tl.shape[0]
     prs = pairs(K)
     P = len(prs)
-    lam0, v0, lam_l, Vl, lam_q, Vq = e.lam0, e.v0, e.lam_l, e.Vl, e.lam_q, e.Vq
+    v0, lam_l, Vl, lam_q, Vq = e.v0, e.lam_l, e.Vl, e.lam_q, e.Vq
     Ry = e.R[:, :N]
     aRy = np.abs(Ry)
-    aTc, av0, aVl, aVq = np.abs(Tc), np.abs(v0), np.abs(Vl), np.abs(Vq)
+    av0, aVl, aVq = np.abs(v0), np.abs(Vl), np.abs(Vq)
     g = 1.01 * N * u + 12 * u
-    # the degrees 0, 1, 2 of G(0): float residuals, their rounding as magnitudes
-    res = [Tc @ v0 - lam0 * v0]
-    mag = aTc @ av0 + abs(lam0) * av0
-    for a in range(K):
-        res.append(Tc @ Vl[a] + Tl[a] @ v0 - lam0 * Vl[a] - lam_l[a] * v0)
-        mag = mag + aTc @ aVl[a] + np.abs(Tl[a]) @ av0 + abs(lam0) * aVl[a] + abs(lam_l[a]) * av0
-    for k, (a, b) in enumerate(prs):
-        q = Tc @ Vq[k] - lam0 * Vq[k] - lam_q[k] * v0
-        m = aTc @ aVq[k] + abs(lam0) * aVq[k] + abs(lam_q[k]) * av0
-        if Tq.shape[0]:
-            q = q + Tq[k] @ v0
-            m = m + np.abs(Tq[k]) @ av0
-        for x, y in (((a, b), (b, a)) if a != b else ((a, a),)):
-            q = q + Tl[x] @ Vl[y] - lam_l[x] * Vl[y]
-            m = m + np.abs(Tl[x]) @ aVl[y] + abs(lam_l[x]) * aVl[y]
-        res.append(q)
-        mag = mag + m
     RT = [Ry @ Tl[a] - lam_l[a] * Ry for a in range(K)]
     RT += [(Ry @ Tq[k] if Tq.shape[0] else 0.0) - lam_q[k] * Ry for k in range(P)]
-    Rres = Ry @ np.stack(res, axis=1)
-    base = np.abs(Rres).sum(axis=1) + g * (aRy @ (np.abs(np.stack(res, axis=1)).sum(axis=1) + mag))
+    base = low_residual(Tc, Tl, Tq, e, g)
     # the degrees 3 and 4: delta_a mu_p (T_a - lam_a) v_p + (T_p - lam_p) v_a, mu_p mu_q (T_p - lam_p) v_q
     hi = np.zeros(N + 1)
     for a in range(K):

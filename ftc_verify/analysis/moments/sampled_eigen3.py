@@ -77,7 +77,7 @@ from ...model.system import Matrix
 from .cubic_balls import triples
 from .fast_balls import up_bound as _up
 from .quad_balls import pairs
-from .sampled_eigen import Expansion, centre_in_cone, expansion, fixed_box
+from .sampled_eigen import Expansion, centre_in_cone, expansion, fixed_box, low_residual
 from .sampled_second import box_maximum
 
 __all__ = ["CubicBound", "cubic_max", "cubic_radius_bound"]
@@ -140,32 +140,6 @@ def cubic_max(lin: Matrix, quad: Matrix, cub: Matrix, max_boxes: int = 400, rtol
     return box_maximum(bound, K, max_boxes, rtol * scale)
 
 
-def _low(Tc: Matrix, Tl: Matrix, Tq: Matrix, e: Expansion, g: float) -> Matrix:
-    """An upper bound of :math:`|R_y r|` summed over the residual's coefficients
-    :math:`r` of degrees 0 to 2 (module docstring of
-    :mod:`~ftc_verify.analysis.moments.sampled_eigen`), with their rounding."""
-    N, K = Tc.shape[0], Tl.shape[0]
-    lam0, v0, lam_l, Vl, lam_q, Vq = e.lam0, e.v0, e.lam_l, e.Vl, e.lam_q, e.Vq
-    aTc, av0, aVl, aVq = np.abs(Tc), np.abs(v0), np.abs(Vl), np.abs(Vq)
-    res = [Tc @ v0 - lam0 * v0]
-    mag = aTc @ av0 + abs(lam0) * av0
-    for a in range(K):
-        res.append(Tc @ Vl[a] + Tl[a] @ v0 - lam0 * Vl[a] - lam_l[a] * v0)
-        mag = mag + aTc @ aVl[a] + np.abs(Tl[a]) @ av0 + abs(lam0) * aVl[a] + abs(lam_l[a]) * av0
-    for k, (a, b) in enumerate(pairs(K)):
-        q = Tc @ Vq[k] + Tq[k] @ v0 - lam0 * Vq[k] - lam_q[k] * v0
-        m = aTc @ aVq[k] + np.abs(Tq[k]) @ av0 + abs(lam0) * aVq[k] + abs(lam_q[k]) * av0
-        for x, y in (((a, b), (b, a)) if a != b else ((a, a),)):
-            q = q + Tl[x] @ Vl[y] - lam_l[x] * Vl[y]
-            m = m + np.abs(Tl[x]) @ aVl[y] + abs(lam_l[x]) * aVl[y]
-        res.append(q)
-        mag = mag + m
-    Ry = e.R[:, :N]
-    stack = np.stack(res, axis=1)
-    out = np.abs(Ry @ stack).sum(axis=1) + g * (np.abs(Ry) @ (np.abs(stack).sum(axis=1) + mag))
-    return _up(out, 2 * N + 30)
-
-
 def _cubic_residual(Tl: Matrix, Tq: Matrix, Tt: Matrix, e: Expansion, g: float) -> tuple[Matrix, Matrix, Matrix]:
     """``(lam_t, H, err)``: the eigenvalue's coefficients :math:`\\lambda_t`, the float
     products :math:`R g_t` (columns, ``N + 1`` rows) and a bound of their errors
@@ -211,7 +185,7 @@ def _parts(form: tuple[Matrix, ...], e: Expansion) -> tuple[Matrix, Matrix, Matr
     lam_l, Vl, lam_q, Vq = e.lam_l, e.Vl, e.lam_q, e.Vq
     aVl, aVq = np.abs(Vl), np.abs(Vq)
     sVl, sVq = aVl.sum(axis=0), aVq.sum(axis=0)
-    low = _low(Tc, Tl, Tq, e, g)
+    low = _up(low_residual(Tc, Tl, Tq, e, g), 2 * N + 30)
     lam_t, H, err3 = _cubic_residual(Tl, Tq, Tt, e, g)
     slt, sll, slq = float(np.abs(lam_t).sum()), float(np.abs(lam_l).sum()), float(np.abs(lam_q).sum())
     sTl, sTq, sTt = np.abs(Tl).sum(axis=0), np.abs(Tq).sum(axis=0), np.abs(Tt).sum(axis=0)
