@@ -9,6 +9,9 @@ that vertex."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import numpy as np
 import scipy.optimize
 
@@ -25,26 +28,47 @@ from ftc_verify.model.system import FTCSystem
 from ftc_verify.testing.sampled_cases import lqr_case
 
 
-def second_order_form(loop: SampledLoop, h: float, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, ...]:
-    """``T(delta)`` on ``[lo, hi]`` at period ``h`` as ``(T_c, T_a, T_ab, radius)``."""
+def _map_form(loop: SampledLoop, h: float, lo: np.ndarray, hi: np.ndarray, build: Callable[..., Any]) -> tuple[np.ndarray, ...]:
     with precision(64):
         res, modes, lift, hb = MapParts.build(loop, h).floats
         found = _rates_affine(loop, lo, hi)
         assert found is not None
-        out = quad_map(res, modes, found[0], found[1], hb, lift)
+        out = build(res, modes, found[0], found[1], hb, lift)
     assert out is not None
-    return out
+    return tuple(out)
+
+
+def second_order_form(loop: SampledLoop, h: float, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, ...]:
+    """``T(delta)`` on ``[lo, hi]`` at period ``h`` as ``(T_c, T_a, T_ab, radius)``."""
+    return _map_form(loop, h, lo, hi, quad_map)
 
 
 def third_order_form(loop: SampledLoop, h: float, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, ...]:
     """``T(delta)`` on ``[lo, hi]`` at period ``h`` as ``(T_c, T_a, T_ab, T_abe, radius)``
     (:func:`~ftc_verify.analysis.moments.cubic_balls.cubic_terms`)."""
-    with precision(64):
-        res, modes, lift, hb = MapParts.build(loop, h).floats
-        found = _rates_affine(loop, lo, hi)
-        assert found is not None
-        out = cubic_terms(res, modes, found[0], found[1], hb, lift)
-    assert out is not None
+    return _map_form(loop, h, lo, hi, cubic_terms)
+
+
+def crossing_family(spread: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(T_c, T_a)`` of one rate: two weakly coupled positive blocks ``[[(0.99 + spread
+    delta) a, 0.05], [0, a]]`` (found by the review of round 14): for a spread of 0.1 the
+    first block's root passes the second's inside the box."""
+    a = np.array([[0.5, 0.2], [0.2, 0.5]])
+    Tc = np.zeros((4, 4))
+    Tc[:2, :2] = 0.99 * a
+    Tc[2:, 2:] = a
+    Tc[:2, 2:] = 0.05
+    Tl = np.zeros((1, 4, 4))
+    Tl[0, :2, :2] = spread * a
+    return Tc, Tl
+
+
+def sampled_radii(loop: SampledLoop, h: float, lo: np.ndarray, hi: np.ndarray, rng: np.random.Generator) -> list[float]:
+    """The float64 radius at 40 random vertices of ``[lo, hi]`` and 40 uniform rate arrays."""
+    out = []
+    for k in range(80):
+        t = rng.integers(0, 2, lo.shape) if k < 40 else rng.uniform(0.0, 1.0, lo.shape)
+        out.append(spectral_radius(loop, h, lo + (hi - lo) * t))
     return out
 
 

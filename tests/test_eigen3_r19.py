@@ -19,7 +19,8 @@ import scipy.optimize
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sampled_forms import second_order_form, seed1_crossing, third_order_form, vertex_corner, vertex_exponents
+from sampled_forms import (crossing_family, sampled_radii, second_order_form, seed1_crossing, third_order_form, vertex_corner,
+                          vertex_exponents)
 from ftc_verify.analysis.moments.cubic_balls import triples
 from ftc_verify.analysis.moments.quad_balls import pairs
 from ftc_verify.analysis.moments.sampled import SampledLoop, spectral_radius
@@ -101,16 +102,9 @@ def test_no_claim_where_two_perron_roots_cross() -> None:
     """The family of ``test_eigen_enclosure_r14.py`` (a block whose root passes the
     other's inside the box), with a term of degree three: nothing is claimed; with a
     tenth of a percent of the spread it is proved, above every sampled radius."""
-    a = np.array([[0.5, 0.2], [0.2, 0.5]])
-    Tc = np.zeros((4, 4))
-    Tc[:2, :2] = 0.99 * a
-    Tc[2:, 2:] = a
-    Tc[:2, 2:] = 0.05
     for spread, proved in ((0.1, False), (0.001, True)):
-        Tl = np.zeros((1, 4, 4))
-        Tl[0, :2, :2] = spread * a
-        Tt = np.zeros((1, 4, 4))
-        Tt[0, :2, :2] = 0.5 * spread * a
+        Tc, Tl = crossing_family(spread)
+        Tt = 0.5 * Tl
         form = (Tc, Tl, np.zeros((1, 4, 4)), Tt, np.full((4, 4), 1e-14))
         top = cubic_radius_bound(form, 4, 1).top
         assert (top is not None) is proved
@@ -123,15 +117,6 @@ def test_a_form_that_is_not_a_stack_of_blocks_is_refused() -> None:
     form = (np.eye(6), np.zeros((1, 6, 6)), np.zeros((1, 6, 6)), np.zeros((1, 6, 6)), np.zeros((6, 6)))
     with pytest.raises(ValueError, match="6 rows"):
         cubic_radius_bound(form, 1, 2)
-
-
-def _radii(loop: SampledLoop, h: float, lo: np.ndarray, hi: np.ndarray, rng: np.random.Generator) -> list[float]:
-    """The float64 radius at 40 random vertices of ``[lo, hi]`` and 40 uniform rate arrays."""
-    out = []
-    for k in range(80):
-        t = rng.integers(0, 2, lo.shape) if k < 40 else rng.uniform(0.0, 1.0, lo.shape)
-        out.append(spectral_radius(loop, h, lo + (hi - lo) * t))
-    return out
 
 
 @pytest.fixture(scope="module")
@@ -150,7 +135,7 @@ def test_proves_a_vertex_box_the_second_order_enclosure_does_not(setting: tuple[
     second = eigen_radius_bound(second_order_form(loop, h, lo, hi), loop.states, loop.r)
     assert second is None or second >= 1.0
     found = cubic_radius_bound(third_order_form(loop, h, lo, hi), loop.states, loop.r)
-    radii = _radii(loop, h, lo, hi, np.random.default_rng(5))
+    radii = sampled_radii(loop, h, lo, hi, np.random.default_rng(5))
     assert found.top is not None and max(radii) <= found.top < 1.0 and found.top <= max(radii) + 1e-3
 
 
@@ -176,4 +161,4 @@ def test_held_out_seed_13_vertex_box() -> None:
     second = eigen_radius_bound(second_order_form(loop, h, lo, hi), loop.states, loop.r)
     assert second is None or second >= 1.0
     top = cubic_radius_bound(third_order_form(loop, h, lo, hi), loop.states, loop.r).top
-    assert top is not None and max(_radii(loop, h, lo, hi, np.random.default_rng(7))) <= top < 1.0
+    assert top is not None and max(sampled_radii(loop, h, lo, hi, np.random.default_rng(7))) <= top < 1.0

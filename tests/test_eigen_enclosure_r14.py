@@ -14,7 +14,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sampled_forms import second_order_form, seed1_crossing, vertex_corner
+from sampled_forms import crossing_family, sampled_radii, second_order_form, seed1_crossing, vertex_corner
 from ftc_verify.analysis.moments.quad_balls import pairs
 from ftc_verify.analysis.moments.sampled import SampledLoop, spectral_radius
 from ftc_verify.analysis.moments.sampled_eigen import eigen_radius_bound, eigen_stable
@@ -76,14 +76,8 @@ def test_no_claim_where_two_perron_roots_cross() -> None:
     centre, passes it inside the box: the enclosure finds no simple eigenvalue near the
     centre's over the box, and nothing is claimed; the same family without the crossing
     (a tenth of the spread) is proved, above every sampled radius."""
-    a = np.array([[0.5, 0.2], [0.2, 0.5]])
-    Tc = np.zeros((4, 4))
-    Tc[:2, :2] = 0.99 * a
-    Tc[2:, 2:] = a
-    Tc[:2, 2:] = 0.05
     for spread, proved in ((0.1, False), (0.001, True)):
-        Tl = np.zeros((1, 4, 4))
-        Tl[0, :2, :2] = spread * a
+        Tc, Tl = crossing_family(spread)
         form = (Tc, Tl, np.zeros((1, 4, 4)), np.full((4, 4), 1e-14))
         top = eigen_radius_bound(form, 4, 1)
         assert (top is not None) is proved
@@ -106,15 +100,6 @@ def setting() -> tuple[SampledLoop, float, np.ndarray]:
     return seed1_crossing()
 
 
-def _radii(loop: SampledLoop, h: float, lo: np.ndarray, hi: np.ndarray, rng: np.random.Generator) -> list[float]:
-    """The float64 radius at 40 random vertices of ``[lo, hi]`` and 40 uniform rate arrays."""
-    out = []
-    for k in range(80):
-        t = rng.integers(0, 2, lo.shape) if k < 40 else rng.uniform(0.0, 1.0, lo.shape)
-        out.append(spectral_radius(loop, h, lo + (hi - lo) * t))
-    return out
-
-
 def test_proves_a_vertex_box_the_cone_certificates_do_not(setting: tuple[SampledLoop, float, np.ndarray]) -> None:
     """0.1 % below the crossing, the sub-box of an eighth of every width at the worst
     vertex: none of the cone certificates of ``sampled_second`` proves it, the
@@ -129,7 +114,7 @@ def test_proves_a_vertex_box_the_cone_certificates_do_not(setting: tuple[Sampled
         assert not certify_second_order(loop, form, shifted=True)
         assert eigen_stable(loop, form)
     top = eigen_radius_bound(form, loop.states, loop.r)
-    radii = _radii(loop, h, lo, hi, np.random.default_rng(5))
+    radii = sampled_radii(loop, h, lo, hi, np.random.default_rng(5))
     assert top is not None and max(radii) <= top <= max(radii) + 1e-3
 
 
