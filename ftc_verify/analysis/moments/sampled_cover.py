@@ -523,14 +523,14 @@ def cover_h_max(loop: SampledLoop, h_max: float, h_max_unstable: float, work: fl
     rungs: list[tuple[float, bool]] = []
     worst = worst_vertex(loop, h_max_unstable, rate_points(loop.chain))[1]
     cubic = _costs(loop)[3]  # the moving enclosure's route: no rung pieces, bulk certificates where it is too wide
-    pieces, hopeless = PIECES[0], math.inf if cubic else 0.0  # no pieces proved the probe at `hopeless`: none will closer
+    pieces, hopeless = PIECES[0], 0.0  # no pieces proved the probe at distance `hopeless`: none will closer
     todo, last, failed = list(cover_rungs(gap, rtol)), gap, None
     while todo:
         f = todo.pop(0)
         h = h_max_unstable * (1.0 - f)
         found: int | None = None
         proved: frozenset[tuple[bytes, bytes]] = frozenset()
-        if f > hopeless:
+        if f > hopeless and not cubic:
             home = next(b for b in boxes if np.all((b[0] <= worst) & (worst <= b[1])))
             for depth in (COVER_DEPTH, PROBE_DEPTH):  # the deeper probe where the first fails
                 plo, phi, _ = probe_box(loop, h, home, worst, depth)
